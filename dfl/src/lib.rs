@@ -1,0 +1,284 @@
+//! The inner loop: dynamic feedback linearization (DFL) of the unicycle.
+//!
+//! The dynamic extension `zeta_dot = U1, u1 = zeta, u2 = U2` turns the unicycle into
+//! `x_bar = [x, y, theta, zeta]`, and the linearizing law (paper eq. 1101) makes
+//! `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` two double integrators
+//! `z1'' = v1`, `z3'' = v2`. The [`Dfl`] applies the element of the newest plan that covers
+//! the current time, falls back to braking when none does, and integrates zeta.
+
+use protocol::{Actuation, CommandMode, Estimate, Header, Plan, Scenario, WheelGeometry};
+
+/// `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` (paper eq. mobile37).
+pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {
+    let [x, y, theta, zeta] = x_bar;
+    [x, zeta * theta.cos(), y, zeta * theta.sin()]
+}
+
+/// Inverse of [`phi`] on the branch `zeta >= 0`; at rest (`zeta = 0`) theta is not
+/// determined by `z` and `theta_at_rest_rad` is returned.
+pub fn phi_inverse(z: [f64; 4], theta_at_rest_rad: f64) -> [f64; 4] {
+    let zeta = z[1].hypot(z[3]);
+    let theta = if zeta > 0.0 {
+        z[3].atan2(z[1])
+    } else {
+        theta_at_rest_rad
+    };
+    [z[0], z[2], theta, zeta]
+}
+
+/// The linearizing input `U = [U1, U2]` for the virtual input `v` (paper eq. 1101):
+/// `U1 = v1 cos theta + v2 sin theta`, `U2 = (-v1 sin theta + v2 cos theta) / zeta`.
+///
+/// The zeta guard sets `U2 = 0` when `|zeta| <= zeta_th` (the paper writes
+/// `zeta <= zeta_th`; the absolute value lets the robot steer while reversing too).
+/// Returns `U` and whether the guard zeroed `U2`.
+pub fn linearizing_input(
+    theta_rad: f64,
+    zeta: f64,
+    v: [f64; 2],
+    zeta_threshold: f64,
+) -> ([f64; 2], bool) {
+    let (s, c) = theta_rad.sin_cos();
+    let u1 = v[0] * c + v[1] * s;
+    if zeta.abs() <= zeta_threshold {
+        ([u1, 0.0], true)
+    } else {
+        ([u1, (-v[0] * s + v[1] * c) / zeta], false)
+    }
+}
+
+/// Extended unicycle under the DFL law with a constant `v` (used to check eq. 1101).
+pub fn extended_dynamics(x_bar: &[f64; 4], v: [f64; 2], zeta_threshold: f64) -> [f64; 4] {
+    let [_, _, theta, zeta] = *x_bar;
+    let ([u1, u2], _) = linearizing_input(theta, zeta, v, zeta_threshold);
+    [zeta * theta.cos(), zeta * theta.sin(), u2, u1]
+}
+
+/// Which element of `plan` covers sample `current_sample`, if any (DESIGN.md section 3:
+/// element `i` is valid on `[t_k + i Ts, t_k + (i + 1) Ts)`). A plan from the future
+/// covers nothing yet; a plan older than its horizon is exhausted.
+pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
+    let age = current_sample.checked_sub(plan.sample)?;
+    (age < u64::from(plan.horizon)).then_some(age as usize)
+}
+
+/// The DFL role: owns zeta and the newest usable plan.
+pub struct Dfl {
+    zeta: f64,
+    zeta_threshold: f64,
+    brake_decel: f64,
+    inner_steps: u64,
+    dt_s: f64,
+    geometry: WheelGeometry,
+    active: Option<Plan>,
+}
+
+impl Dfl {
+    pub fn new(scenario: &Scenario) -> Dfl {
+        Dfl {
+            zeta: scenario.robot.zeta0,
+            zeta_threshold: scenario.dfl.zeta_threshold,
+            brake_decel: scenario.dfl.brake_decel,
+            inner_steps: scenario.timing.inner_steps as u64,
+            dt_s: scenario.timing.ts_s / scenario.timing.inner_steps as f64,
+            geometry: WheelGeometry {
+                wheel_radius_m: scenario.plant.wheel_radius_m,
+                wheel_base_m: scenario.plant.wheel_base_m,
+            },
+            active: None,
+        }
+    }
+
+    /// The DFL's integrator state zeta, m/s.
+    pub fn zeta(&self) -> f64 {
+        self.zeta
+    }
+
+    /// Offers a received plan. It becomes active if it is solved and newer than the active
+    /// one; a failed plan is ignored, like a missed one, and an older one (out of order)
+    /// never replaces a newer one. Returns whether it was taken.
+    pub fn offer(&mut self, plan: &Plan) -> bool {
+        let newer = self.active.as_ref().is_none_or(|a| plan.sample > a.sample);
+        let take = plan.is_solved() && newer;
+        if take {
+            self.active = Some(*plan);
+        }
+        take
+    }
+
+    /// One inner tick: the command for `[t_j, t_j + Ts/M)` from `estimate` and the active
+    /// plan; integrates zeta over the tick. The header's publish time and epoch are the
+    /// caller's to fill.
+    pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
+        let sample = tick / self.inner_steps;
+        let theta = estimate.state[2];
+        let chosen = self
+            .active
+            .as_ref()
+            .and_then(|p| covering_element(p, sample).map(|i| (p.v[i], p.sample)));
+        let (u, v, mode, plan_sample) = match chosen {
+            Some((v, plan_sample)) => {
+                let (u, guarded) = linearizing_input(theta, self.zeta, v, self.zeta_threshold);
+                let mode = if plan_sample != sample {
+                    CommandMode::Shifted
+                } else if guarded {
+                    CommandMode::ZetaGuard
+                } else {
+                    CommandMode::Nominal
+                };
+                (u, v, mode, plan_sample)
+            }
+            None => (self.braking_input(), [0.0; 2], CommandMode::Brake, 0),
+        };
+        // zeta is linear over the tick; its mean is the forward speed held by the plant.
+        let zeta_start = self.zeta;
+        self.zeta += u[0] * self.dt_s;
+        let u1 = 0.5 * (zeta_start + self.zeta);
+        let u2 = u[1];
+        Actuation {
+            header: Header {
+                tick,
+                time_s: tick as f64 * self.dt_s,
+                ..Header::default()
+            },
+            u1,
+            u2,
+            wheels: self.geometry.wheel_speeds([u1, u2]),
+            linearizing_input: u,
+            zeta: self.zeta,
+            v,
+            mode: mode as u32,
+            reserved: 0,
+            plan_sample,
+        }
+    }
+
+    /// Braking without a plan: `U2 = 0` (the zeta-threshold branch) and `U1` takes zeta to
+    /// zero at the braking limit without overshooting it.
+    fn braking_input(&self) -> [f64; 2] {
+        let u1 = (-self.zeta / self.dt_s).clamp(-self.brake_decel, self.brake_decel);
+        [u1, 0.0]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::PlanStatus;
+
+    #[test]
+    fn phi_and_its_inverse_round_trip() {
+        for x_bar in [
+            [1.0, -2.0, 0.3, 0.8],
+            [0.0, 4.0, -2.9, 1.5],
+            [-3.0, 0.5, 3.1, 0.01],
+        ] {
+            let back = phi_inverse(phi(x_bar), 0.0);
+            for i in 0..4 {
+                assert!((back[i] - x_bar[i]).abs() < 1e-12, "{x_bar:?} -> {back:?}");
+            }
+        }
+        let at_rest = phi_inverse(phi([2.0, 3.0, 1.2, 0.0]), 1.2);
+        assert_eq!(at_rest, [2.0, 3.0, 1.2, 0.0]);
+    }
+
+    #[test]
+    fn zeta_guard_zeroes_steering_below_threshold_in_both_directions() {
+        for zeta in [0.0, 0.005, -0.01, 0.01] {
+            let (u, guarded) = linearizing_input(0.7, zeta, [1.0, -2.0], 0.01);
+            assert!(guarded && u[1] == 0.0, "zeta {zeta}: {u:?}");
+        }
+        let (u, guarded) = linearizing_input(0.7, -0.5, [1.0, -2.0], 0.01);
+        assert!(!guarded && u[1] != 0.0);
+    }
+
+    #[test]
+    fn z_follows_the_double_integrator_under_the_linearizing_law() {
+        // Continuous DFL with constant v: z1'' = v1 and z3'' = v2 exactly, so after T
+        // seconds z matches the double integrator up to RK4's error.
+        let v = [0.4, -0.7];
+        let x0 = [1.0, 2.0, 0.5, 1.2];
+        let (t, steps) = (1.0, 1000);
+        let mut x = x0;
+        for _ in 0..steps {
+            x = plant::rk4_step(&x, t / steps as f64, |s| extended_dynamics(s, v, 0.01));
+        }
+        let z0 = phi(x0);
+        let expected = [
+            z0[0] + z0[1] * t + 0.5 * v[0] * t * t,
+            z0[1] + v[0] * t,
+            z0[2] + z0[3] * t + 0.5 * v[1] * t * t,
+            z0[3] + v[1] * t,
+        ];
+        let z = phi(x);
+        for i in 0..4 {
+            assert!(
+                (z[i] - expected[i]).abs() < 1e-9,
+                "z{i}: {} vs {}",
+                z[i],
+                expected[i]
+            );
+        }
+    }
+
+    fn plan(sample: u64, horizon: u32, status: PlanStatus) -> Plan {
+        let mut p = Plan {
+            sample,
+            horizon,
+            status: status as u32,
+            ..Plan::default()
+        };
+        for i in 0..horizon as usize {
+            p.v[i] = [i as f64, 0.0];
+        }
+        p
+    }
+
+    #[test]
+    fn covering_element_is_the_age_of_the_plan_within_its_horizon() {
+        let p = plan(10, 8, PlanStatus::Solved);
+        assert_eq!(
+            covering_element(&p, 9),
+            None,
+            "a plan covers nothing before its sample"
+        );
+        assert_eq!(covering_element(&p, 10), Some(0));
+        assert_eq!(covering_element(&p, 17), Some(7));
+        assert_eq!(covering_element(&p, 18), None, "exhausted after N samples");
+    }
+
+    #[test]
+    fn older_or_failed_plans_never_replace_the_active_one() {
+        let mut dfl = Dfl::new(&Scenario::default());
+        assert!(dfl.offer(&plan(5, 8, PlanStatus::Solved)));
+        assert!(!dfl.offer(&plan(4, 8, PlanStatus::Solved)));
+        assert!(!dfl.offer(&plan(6, 8, PlanStatus::Infeasible)));
+        let est = Estimate {
+            state: [7.0, 7.0, 0.0, 0.0],
+            ..Estimate::default()
+        };
+        let a = dfl.step(&est, 6 * 10);
+        assert_eq!(a.mode(), Some(CommandMode::Shifted));
+        assert_eq!((a.plan_sample, a.v), (5, [1.0, 0.0]));
+    }
+
+    #[test]
+    fn without_a_covering_plan_the_dfl_brakes_zeta_to_zero_without_steering() {
+        let mut s = Scenario::default();
+        s.robot.zeta0 = 1.0;
+        let mut dfl = Dfl::new(&s);
+        let est = Estimate {
+            state: [7.0, 7.0, 0.0, 1.0],
+            ..Estimate::default()
+        };
+        let mut last = dfl.zeta();
+        for tick in 0..200 {
+            let a = dfl.step(&est, tick);
+            assert_eq!(a.mode(), Some(CommandMode::Brake));
+            assert_eq!(a.u2, 0.0);
+            assert!(a.zeta >= 0.0 && a.zeta <= last, "zeta grew while braking");
+            last = a.zeta;
+        }
+        assert_eq!(dfl.zeta(), 0.0);
+    }
+}

@@ -1,0 +1,235 @@
+//! The state estimator: an extended Kalman filter on the unicycle, driven by the commanded
+//! inputs it hears, or a passthrough of the raw measurement (the paper's noisy feedback).
+//!
+//! Both publish `x_bar = [x, y, theta, zeta]`, where zeta is the DFL's own integrator state
+//! as reported on the actuation service, and the covariance of `[x, y, theta]`.
+
+use nalgebra::{Matrix3, Vector3};
+use protocol::{Estimate, EstimatorKind, Header, Scenario, wrap_angle};
+
+/// Smallest measurement variance the EKF uses, so a noise-free run is exact state
+/// feedback (to ~1e-8 relative) without a singular innovation covariance.
+pub const MIN_MEASUREMENT_VARIANCE: f64 = 1e-12;
+
+/// Unicycle motion over `dt_s` with `(u1, u2)` held: exact circular arc, written as a
+/// chord of length `u1 dt sinc(u2 dt / 2)` along the mid-tick heading.
+/// Returns the new pose and the Jacobian of the new pose with respect to the old one.
+pub fn predict_pose(
+    pose: &Vector3<f64>,
+    u1: f64,
+    u2: f64,
+    dt_s: f64,
+) -> (Vector3<f64>, Matrix3<f64>) {
+    let half_turn = 0.5 * u2 * dt_s;
+    let sinc = if half_turn.abs() < 1e-9 {
+        1.0
+    } else {
+        half_turn.sin() / half_turn
+    };
+    let chord = u1 * dt_s * sinc;
+    let (s, c) = (pose[2] + half_turn).sin_cos();
+    let next = Vector3::new(
+        pose[0] + chord * c,
+        pose[1] + chord * s,
+        pose[2] + u2 * dt_s,
+    );
+    let mut jacobian = Matrix3::identity();
+    jacobian[(0, 2)] = -chord * s;
+    jacobian[(1, 2)] = chord * c;
+    (next, jacobian)
+}
+
+/// Extended Kalman filter on `[x, y, theta]` with a full-state measurement.
+#[derive(Debug, Clone)]
+pub struct Ekf {
+    mean: Vector3<f64>,
+    covariance: Matrix3<f64>,
+    process_noise_rate: Matrix3<f64>,
+    measurement_noise: Matrix3<f64>,
+}
+
+impl Ekf {
+    pub fn new(first_measurement: [f64; 3], scenario: &Scenario) -> Ekf {
+        let e = &scenario.estimator;
+        let r = scenario
+            .plant
+            .noise_variance
+            .per_axis()
+            .map(|v| v.max(MIN_MEASUREMENT_VARIANCE));
+        Ekf {
+            mean: Vector3::from(first_measurement),
+            covariance: Matrix3::from_diagonal(&Vector3::from(e.initial_variance)),
+            process_noise_rate: Matrix3::from_diagonal(&Vector3::from(e.process_noise)),
+            measurement_noise: Matrix3::from_diagonal(&Vector3::from(r)),
+        }
+    }
+
+    /// Time update with the inputs held over the last `dt_s`.
+    pub fn predict(&mut self, u1: f64, u2: f64, dt_s: f64) {
+        let (mean, f) = predict_pose(&self.mean, u1, u2, dt_s);
+        self.mean = mean;
+        self.covariance = f * self.covariance * f.transpose() + self.process_noise_rate * dt_s;
+    }
+
+    /// Measurement update with `y = [x, y, theta]`; the heading innovation is wrapped.
+    pub fn update(&mut self, y: [f64; 3]) {
+        let mut innovation = Vector3::from(y) - self.mean;
+        innovation[2] = wrap_angle(innovation[2]);
+        let s = self.covariance + self.measurement_noise;
+        let Some(s_inv) = s.try_inverse() else { return };
+        let gain = self.covariance * s_inv;
+        self.mean += gain * innovation;
+        self.mean[2] = wrap_angle(self.mean[2]);
+        // Joseph form keeps the covariance symmetric and positive definite.
+        let i_k = Matrix3::identity() - gain;
+        self.covariance = i_k * self.covariance * i_k.transpose()
+            + gain * self.measurement_noise * gain.transpose();
+    }
+
+    pub fn pose(&self) -> [f64; 3] {
+        self.mean.into()
+    }
+
+    pub fn covariance(&self) -> [f64; 9] {
+        // nalgebra stores column-major; the covariance is symmetric so the order agrees.
+        self.covariance.as_slice().try_into().unwrap_or([0.0; 9])
+    }
+}
+
+/// The estimator role: EKF or passthrough, as the scenario says.
+pub struct Estimator {
+    kind: EstimatorKind,
+    ekf: Option<Ekf>,
+    scenario: Scenario,
+}
+
+impl Estimator {
+    pub fn new(scenario: &Scenario) -> Estimator {
+        Estimator {
+            kind: scenario.estimator.kind,
+            ekf: None,
+            scenario: scenario.clone(),
+        }
+    }
+
+    /// One inner tick: `applied` are the inputs `(u1, u2)` heard on the actuation service
+    /// for the previous tick (held for `dt_s`), `y` the measurement of this tick, `zeta`
+    /// the DFL's zeta at this tick. The first call initializes the filter at `y`.
+    pub fn step(
+        &mut self,
+        applied: Option<[f64; 2]>,
+        dt_s: f64,
+        y: [f64; 3],
+        zeta: f64,
+        header: Header,
+    ) -> Estimate {
+        let (pose, covariance) = match self.kind {
+            EstimatorKind::Passthrough => {
+                let var = self.scenario.plant.noise_variance.per_axis();
+                let mut cov = [0.0; 9];
+                (cov[0], cov[4], cov[8]) = (var[0], var[1], var[2]);
+                (y, cov)
+            }
+            EstimatorKind::Ekf => {
+                let ekf = match self.ekf.as_mut() {
+                    Some(ekf) => {
+                        if let Some([u1, u2]) = applied {
+                            ekf.predict(u1, u2, dt_s);
+                        }
+                        ekf.update(y);
+                        ekf
+                    }
+                    None => self.ekf.insert(Ekf::new(y, &self.scenario)),
+                };
+                (ekf.pose(), ekf.covariance())
+            }
+        };
+        Estimate {
+            header,
+            state: [pose[0], pose[1], pose[2], zeta],
+            covariance,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::NoiseVariance;
+    use rand::SeedableRng;
+
+    #[test]
+    fn prediction_matches_the_exact_arc() {
+        let pose = Vector3::new(1.0, 2.0, 0.3);
+        let (u1, u2, dt) = (1.5, 0.8, 0.4);
+        let (next, _) = predict_pose(&pose, u1, u2, dt);
+        let th = pose[2] + u2 * dt;
+        let exact_x = pose[0] + u1 / u2 * (th.sin() - pose[2].sin());
+        let exact_y = pose[1] - u1 / u2 * (th.cos() - pose[2].cos());
+        assert!((next[0] - exact_x).abs() < 1e-12 && (next[1] - exact_y).abs() < 1e-12);
+    }
+
+    #[test]
+    fn prediction_jacobian_matches_finite_differences() {
+        let pose = Vector3::new(0.0, 0.0, 1.1);
+        let (_, f) = predict_pose(&pose, 2.0, -0.5, 0.1);
+        let h = 1e-6;
+        let (plus, _) = predict_pose(&(pose + Vector3::new(0.0, 0.0, h)), 2.0, -0.5, 0.1);
+        let (minus, _) = predict_pose(&(pose - Vector3::new(0.0, 0.0, h)), 2.0, -0.5, 0.1);
+        let numeric = (plus - minus) / (2.0 * h);
+        for i in 0..3 {
+            assert!((numeric[i] - f[(i, 2)]).abs() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn noise_free_ekf_is_exact_state_feedback() {
+        let s = Scenario::default();
+        let mut est = Estimator::new(&s);
+        est.step(None, 0.005, [1.0, 2.0, 0.5], 0.0, Header::default());
+        let e = est.step(
+            Some([1.0, 0.3]),
+            0.005,
+            [1.01, 2.02, 0.6],
+            0.0,
+            Header::default(),
+        );
+        assert!(
+            (e.state[0] - 1.01).abs() < 1e-8 && (e.state[2] - 0.6).abs() < 1e-8,
+            "{:?}",
+            e.state
+        );
+    }
+
+    #[test]
+    fn ekf_filters_noise_better_than_passthrough_and_wraps_the_heading() {
+        use rand_distr::{Distribution, Normal};
+        let mut s = Scenario::default();
+        s.plant.noise_variance = NoiseVariance::Uniform(0.05);
+        let mut ekf = Estimator::new(&s);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = Normal::new(0.0, 0.05f64.sqrt()).unwrap();
+        // Driving in a circle through theta = pi, where the heading wraps.
+        let (u1, u2, dt) = (1.0, 0.5, 0.005);
+        let mut truth = Vector3::new(0.0, 0.0, 3.0);
+        let (mut err_ekf, mut err_raw) = (0.0, 0.0);
+        for k in 0..2000 {
+            let y = [
+                truth[0] + n.sample(&mut rng),
+                truth[1] + n.sample(&mut rng),
+                wrap_angle(truth[2] + n.sample(&mut rng)),
+            ];
+            let e = ekf.step((k > 0).then_some([u1, u2]), dt, y, u1, Header::default());
+            if k >= 1000 {
+                err_ekf +=
+                    (e.state[0] - truth[0]).powi(2) + wrap_angle(e.state[2] - truth[2]).powi(2);
+                err_raw += (y[0] - truth[0]).powi(2) + wrap_angle(y[2] - truth[2]).powi(2);
+            }
+            truth = predict_pose(&truth, u1, u2, dt).0;
+        }
+        assert!(
+            err_ekf < 0.1 * err_raw,
+            "EKF error {err_ekf} vs raw {err_raw}"
+        );
+    }
+}

@@ -1,0 +1,179 @@
+//! The plant: a unicycle (differential-drive robot) integrated with RK4, with seeded
+//! Gaussian output noise, optional wheel-speed saturation and process disturbance.
+
+use protocol::{Scenario, WheelGeometry, wrap_angle};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// Unicycle pose `[x_m, y_m, theta_rad]`.
+pub type Pose = [f64; 3];
+
+/// Unicycle vector field `[u1 cos theta, u1 sin theta, u2]` (paper eqs. 001-003).
+pub fn unicycle(pose: &Pose, u1: f64, u2: f64) -> Pose {
+    [u1 * pose[2].cos(), u1 * pose[2].sin(), u2]
+}
+
+/// One classical fourth-order Runge-Kutta step of `xdot = f(x)` over `dt_s`.
+pub fn rk4_step<const D: usize>(
+    x: &[f64; D],
+    dt_s: f64,
+    f: impl Fn(&[f64; D]) -> [f64; D],
+) -> [f64; D] {
+    let add = |a: &[f64; D], b: &[f64; D], h: f64| std::array::from_fn(|i| a[i] + h * b[i]);
+    let k1 = f(x);
+    let k2 = f(&add(x, &k1, dt_s / 2.0));
+    let k3 = f(&add(x, &k2, dt_s / 2.0));
+    let k4 = f(&add(x, &k3, dt_s));
+    std::array::from_fn(|i| x[i] + dt_s / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+}
+
+/// The simulated robot.
+pub struct Plant {
+    pose: Pose,
+    geometry: WheelGeometry,
+    /// Wheel-speed limit, rad/s; `None` when unlimited.
+    max_wheel_speed_rad_s: Option<f64>,
+    substeps: usize,
+    noise: [Option<Normal<f64>>; 3],
+    disturbance: Option<Normal<f64>>,
+    rng: ChaCha8Rng,
+}
+
+impl Plant {
+    /// The plant at the scenario's start pose, its noise seeded by the scenario's seed.
+    pub fn new(scenario: &Scenario) -> Plant {
+        let p = &scenario.plant;
+        let gaussian = |std: f64| {
+            (std > 0.0)
+                .then(|| Normal::new(0.0, std))
+                .and_then(Result::ok)
+        };
+        let var = p.noise_variance.per_axis();
+        Plant {
+            pose: scenario.robot.start,
+            geometry: WheelGeometry {
+                wheel_radius_m: p.wheel_radius_m,
+                wheel_base_m: p.wheel_base_m,
+            },
+            max_wheel_speed_rad_s: (p.max_wheel_speed_rad_s > 0.0)
+                .then_some(p.max_wheel_speed_rad_s),
+            substeps: p.rk4_substeps.max(1),
+            noise: var.map(|v| gaussian(v.sqrt())),
+            disturbance: gaussian(p.disturbance_std),
+            rng: ChaCha8Rng::seed_from_u64(scenario.seed),
+        }
+    }
+
+    /// The true pose, theta wrapped to (-pi, pi].
+    pub fn pose(&self) -> Pose {
+        [self.pose[0], self.pose[1], wrap_angle(self.pose[2])]
+    }
+
+    /// The output `y = pose + noise` (one draw per call).
+    pub fn measure(&mut self) -> Pose {
+        let truth = self.pose();
+        let mut y = truth;
+        for (axis, n) in self.noise.iter().enumerate() {
+            if let Some(n) = n {
+                y[axis] += n.sample(&mut self.rng);
+            }
+        }
+        y[2] = wrap_angle(y[2]);
+        y
+    }
+
+    /// Wheel saturation: `(u1, u2)` as the wheels can realize them.
+    pub fn saturate(&self, u1: f64, u2: f64) -> [f64; 2] {
+        match self.max_wheel_speed_rad_s {
+            None => [u1, u2],
+            Some(limit) => {
+                let w = self.geometry.wheel_speeds([u1, u2]);
+                self.geometry.body_inputs(w.map(|x| x.clamp(-limit, limit)))
+            }
+        }
+    }
+
+    /// Holds `(u1, u2)` (after saturation) for `dt_s` and integrates; returns what was applied.
+    pub fn step(&mut self, u1: f64, u2: f64, dt_s: f64) -> [f64; 2] {
+        let [u1, u2] = self.saturate(u1, u2);
+        let d = match self.disturbance {
+            Some(n) => [
+                n.sample(&mut self.rng),
+                n.sample(&mut self.rng),
+                n.sample(&mut self.rng),
+            ],
+            None => [0.0; 3],
+        };
+        let h = dt_s / self.substeps as f64;
+        for _ in 0..self.substeps {
+            self.pose = rk4_step(&self.pose, h, |x| {
+                let f = unicycle(x, u1, u2);
+                [f[0] + d[0], f[1] + d[1], f[2] + d[2]]
+            });
+        }
+        [u1, u2]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Exact unicycle motion on a circular arc under constant inputs.
+    fn arc(pose: Pose, u1: f64, u2: f64, t: f64) -> Pose {
+        let th = pose[2] + u2 * t;
+        [
+            pose[0] + u1 / u2 * (th.sin() - pose[2].sin()),
+            pose[1] - u1 / u2 * (th.cos() - pose[2].cos()),
+            th,
+        ]
+    }
+
+    fn error_after(steps: usize) -> f64 {
+        let (u1, u2, t) = (1.3, 0.9, 2.0);
+        let start = [0.5, -0.2, 0.4];
+        let mut x = start;
+        for _ in 0..steps {
+            x = rk4_step(&x, t / steps as f64, |p| unicycle(p, u1, u2));
+        }
+        let exact = arc(start, u1, u2, t);
+        (0..3).map(|i| (x[i] - exact[i]).abs()).fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn rk4_converges_at_fourth_order_on_the_unicycle() {
+        let (e1, e2) = (error_after(10), error_after(20));
+        let order = (e1 / e2).log2();
+        assert!(
+            (3.8..4.3).contains(&order),
+            "observed order {order} (errors {e1:e}, {e2:e})"
+        );
+    }
+
+    #[test]
+    fn noise_is_reproducible_for_a_seed_and_absent_when_off() {
+        let mut s = Scenario::default();
+        s.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
+        let (mut a, mut b) = (Plant::new(&s), Plant::new(&s));
+        let (ya, yb) = (a.measure(), b.measure());
+        assert_eq!(ya, yb);
+        assert_ne!(ya, a.pose());
+        let mut clean = Plant::new(&Scenario::default());
+        assert_eq!(clean.measure(), clean.pose());
+    }
+
+    #[test]
+    fn wheel_saturation_limits_both_wheels() {
+        let mut s = Scenario::default();
+        s.plant.max_wheel_speed_rad_s = 5.0;
+        let p = Plant::new(&s);
+        let [u1, u2] = p.saturate(10.0, 3.0);
+        let g = WheelGeometry {
+            wheel_radius_m: 0.1,
+            wheel_base_m: 0.5,
+        };
+        let w = g.wheel_speeds([u1, u2]);
+        assert!(w.iter().all(|x| x.abs() <= 5.0 + 1e-12), "{w:?}");
+    }
+}

@@ -1,0 +1,212 @@
+//! Every message that crosses a process boundary: `#[repr(C)]`, fixed size, no heap, so
+//! iceoryx2 can hand it over in shared memory without copying or serializing.
+//!
+//! Each carries a [`Header`] (DESIGN.md section 4). The in-process mode passes the very
+//! same values between the roles, so both modes share one set of semantics.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Compile-time maximum prediction horizon `N` a plan can carry.
+pub const MAX_HORIZON: usize = 64;
+
+/// Common to every message.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Header")]
+pub struct Header {
+    /// Inner tick `j` the message belongs to (time `j * Ts / M`).
+    pub tick: u64,
+    /// Simulated time of that tick, s.
+    pub time_s: f64,
+    /// Monotonic clock when published, ns (for per-hop latency).
+    pub publish_ns: u64,
+    /// Epoch of the producer: only samples of the active epoch of a role are used.
+    pub epoch: u32,
+    pub reserved: u32,
+}
+
+/// Noisy output `y = [x, y, theta] + noise` of the plant.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Measurement")]
+pub struct Measurement {
+    pub header: Header,
+    /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
+    pub y: [f64; 3],
+}
+
+/// The plant's true state; read only by the recorder.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::GroundTruth")]
+pub struct GroundTruth {
+    pub header: Header,
+    /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
+    pub pose: [f64; 3],
+}
+
+/// The estimator's output: the extended state and the covariance of the pose.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Estimate")]
+pub struct Estimate {
+    pub header: Header,
+    /// `x_bar = [x_m, y_m, theta_rad, zeta_m_s]`; zeta is the DFL's integrator state.
+    pub state: [f64; 4],
+    /// Covariance of `[x, y, theta]`, row-major 3x3.
+    pub covariance: [f64; 9],
+}
+
+impl Estimate {
+    /// Largest standard deviation of the position, m (`sigma` of the uncertainty margin).
+    pub fn position_sigma(&self) -> f64 {
+        self.covariance[0].max(self.covariance[4]).max(0.0).sqrt()
+    }
+}
+
+/// Outcome of one MPC solve.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PlanStatus {
+    #[default]
+    Solved = 0,
+    Infeasible = 1,
+    MaxIterations = 2,
+    NumericalError = 3,
+}
+
+impl PlanStatus {
+    pub fn from_code(code: u32) -> Option<PlanStatus> {
+        Some(match code {
+            0 => PlanStatus::Solved,
+            1 => PlanStatus::Infeasible,
+            2 => PlanStatus::MaxIterations,
+            3 => PlanStatus::NumericalError,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PlanStatus::Solved => "solved",
+            PlanStatus::Infeasible => "infeasible",
+            PlanStatus::MaxIterations => "max_iterations",
+            PlanStatus::NumericalError => "numerical_error",
+        }
+    }
+}
+
+/// plan(k): a time-indexed input sequence. Element `i` is valid on
+/// `[t_k + i Ts, t_k + (i + 1) Ts)` (DESIGN.md section 3).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Plan")]
+pub struct Plan {
+    pub header: Header,
+    /// Sample index `k` the plan was computed for.
+    pub sample: u64,
+    /// [`PlanStatus`] code.
+    pub status: u32,
+    /// Number of valid elements (the horizon `N`).
+    pub horizon: u32,
+    /// Wall time of the whole step (problem update, every solve), ns.
+    pub solve_ns: u64,
+    /// Interior-point iterations summed over the solves of this step.
+    pub iterations: u32,
+    /// Convex solves of this step (1 + refinements).
+    pub solves: u32,
+    /// `v_i = [xddot, yddot]`, m/s^2, for `i < horizon`.
+    pub v: [[f64; 2]; MAX_HORIZON],
+    /// Predicted `z_i = [x, xdot, y, ydot]` for `i <= horizon`.
+    pub z: [[f64; 4]; MAX_HORIZON + 1],
+}
+
+impl Default for Plan {
+    fn default() -> Self {
+        Plan {
+            header: Header::default(),
+            sample: 0,
+            status: PlanStatus::Infeasible as u32,
+            horizon: 0,
+            solve_ns: 0,
+            iterations: 0,
+            solves: 0,
+            v: [[0.0; 2]; MAX_HORIZON],
+            z: [[0.0; 4]; MAX_HORIZON + 1],
+        }
+    }
+}
+
+impl Plan {
+    pub fn status(&self) -> Option<PlanStatus> {
+        PlanStatus::from_code(self.status)
+    }
+    pub fn is_solved(&self) -> bool {
+        self.status() == Some(PlanStatus::Solved)
+    }
+}
+
+/// Where an applied command came from.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CommandMode {
+    /// The element of the current sample's plan.
+    #[default]
+    Nominal = 0,
+    /// An element of an older plan (the current one is late or failed).
+    Shifted = 1,
+    /// No plan covers the current time: `U2 = 0`, `U1` brakes zeta to zero.
+    Brake = 2,
+    /// A nominal command whose steering was zeroed by the zeta guard.
+    ZetaGuard = 3,
+}
+
+impl CommandMode {
+    pub fn from_code(code: u32) -> Option<CommandMode> {
+        Some(match code {
+            0 => CommandMode::Nominal,
+            1 => CommandMode::Shifted,
+            2 => CommandMode::Brake,
+            3 => CommandMode::ZetaGuard,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CommandMode::Nominal => "nominal",
+            CommandMode::Shifted => "shifted",
+            CommandMode::Brake => "brake",
+            CommandMode::ZetaGuard => "zeta_guard",
+        }
+    }
+}
+
+/// The DFL's command for one inner tick, held by the plant until the next one.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Actuation")]
+pub struct Actuation {
+    pub header: Header,
+    /// Forward speed applied over the tick, m/s (the mean of zeta over the tick).
+    pub u1: f64,
+    /// Turn rate applied over the tick, rad/s.
+    pub u2: f64,
+    /// `[omega_r, omega_l]` for `(u1, u2)` through `T^-1`, rad/s.
+    pub wheels: [f64; 2],
+    /// `U = [U1, U2]` of the linearizing law (eq. 1101), after the guard.
+    pub linearizing_input: [f64; 2],
+    /// The DFL's zeta at the end of the tick, m/s.
+    pub zeta: f64,
+    /// `v` in use, m/s^2 (zero while braking).
+    pub v: [f64; 2],
+    /// [`CommandMode`] code.
+    pub mode: u32,
+    pub reserved: u32,
+    /// Sample of the plan the command came from (meaningless while braking).
+    pub plan_sample: u64,
+}
+
+impl Actuation {
+    pub fn mode(&self) -> Option<CommandMode> {
+        CommandMode::from_code(self.mode)
+    }
+}

@@ -1,0 +1,620 @@
+//! The scenario schema: everything a run is configured with, one validator, and the
+//! dotted-key overrides of `--set`.
+//!
+//! Every key has a default, and the defaults are the paper's canonical scenario
+//! (DESIGN.md section 7): a file only has to name what it changes. Unknown keys are
+//! refused everywhere (`deny_unknown_fields`), so a typo never silently falls back to a
+//! default.
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+use crate::messages::MAX_HORIZON;
+
+/// Largest constraint-checking horizon `Nc` accepted (terminal rows grow linearly in it).
+pub const MAX_CONSTRAINT_HORIZON: usize = 200;
+/// Largest number of inner (DFL and plant) ticks per MPC sample.
+pub const MAX_INNER_STEPS: usize = 1000;
+/// Largest number of RK4 substeps per inner tick.
+pub const MAX_RK4_SUBSTEPS: usize = 1000;
+
+/// A whole run's configuration. Defaults reproduce the paper's scenario.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Scenario {
+    /// Free-form name, copied into the summary.
+    pub name: String,
+    /// Seed of every random generator of the run (output noise, disturbance).
+    pub seed: u64,
+    /// Simulated length of the run, seconds.
+    pub duration_s: f64,
+    pub timing: Timing,
+    pub robot: Robot,
+    pub plant: PlantConfig,
+    pub estimator: EstimatorConfig,
+    pub mpc: MpcConfig,
+    pub dfl: DflConfig,
+    /// Circular obstacles; collisions are judged against these true radii.
+    pub obstacles: Vec<Obstacle>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Timing {
+    /// MPC sample period `Ts`, seconds.
+    pub ts_s: f64,
+    /// Inner ticks per sample `M`: the DFL and the plant run every `Ts / M`.
+    pub inner_steps: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Robot {
+    /// Initial pose `[x_m, y_m, theta_rad]`.
+    pub start: [f64; 3],
+    /// Initial value of the dynamic extension `zeta` (the forward speed), m/s.
+    pub zeta0: f64,
+    /// Goal position `[x_m, y_m]`; the MPC regulates `z` to this point at rest.
+    pub goal: [f64; 2],
+    /// The robot has reached the goal while its centre stays within this distance, m.
+    pub goal_tolerance_m: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlantConfig {
+    /// Wheel radius `r` of the transform `T` (paper eq. 5), m.
+    pub wheel_radius_m: f64,
+    /// Distance between the wheels `d` of the transform `T`, m.
+    pub wheel_base_m: f64,
+    /// Wheel-speed saturation, rad/s; `0` disables it.
+    pub max_wheel_speed_rad_s: f64,
+    /// Variance of the Gaussian output noise: one number for x, y and theta, or
+    /// `[var_x_m2, var_y_m2, var_theta_rad2]`.
+    pub noise_variance: NoiseVariance,
+    /// Standard deviation of a white process disturbance added to `[xdot, ydot, thetadot]`
+    /// (m/s, m/s, rad/s), drawn once per inner tick; `0` disables it.
+    pub disturbance_std: f64,
+    /// RK4 substeps per inner tick.
+    pub rk4_substeps: usize,
+}
+
+/// Output-noise variance, either shared by the three axes or per axis.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum NoiseVariance {
+    Uniform(f64),
+    PerAxis([f64; 3]),
+}
+
+impl NoiseVariance {
+    /// Per-axis variances `[x_m2, y_m2, theta_rad2]`.
+    pub fn per_axis(self) -> [f64; 3] {
+        match self {
+            NoiseVariance::Uniform(v) => [v; 3],
+            NoiseVariance::PerAxis(v) => v,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EstimatorKind {
+    /// Extended Kalman filter on the unicycle (the default).
+    Ekf,
+    /// The raw noisy measurement, as in the paper's noisy-feedback experiment.
+    Passthrough,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EstimatorConfig {
+    pub kind: EstimatorKind,
+    /// EKF process-noise intensity on `[x, y, theta]`, variance per second.
+    pub process_noise: [f64; 3],
+    /// EKF initial variance of `[x, y, theta]`.
+    pub initial_variance: [f64; 3],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConstraintKind {
+    /// Discrete control barrier function `H(z_{i+1}) >= (1 - gamma) H(z_i)` (eq. 54).
+    Cbf,
+    /// The paper's benchmark: `H(z_i) >= 0` at every stage.
+    Euclidean,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MpcConfig {
+    /// Prediction horizon `N`.
+    pub horizon: usize,
+    /// Constraint-checking horizon `Nc` of the terminal constraints (eqs. 45, 47).
+    pub constraint_horizon: usize,
+    /// CBF decay rate `gamma` in (0, 1].
+    pub gamma: f64,
+    pub constraint: ConstraintKind,
+    /// Diagonal of the state weight `Q` on `z = [x, xdot, y, ydot]`.
+    pub q_diag: [f64; 4],
+    /// Diagonal of the input weight `R` on `v = [xddot, yddot]`.
+    pub r_diag: [f64; 2],
+    /// Input box `|v_i| <= v_max`, m/s^2.
+    pub v_max: f64,
+    /// Lower corner of the position box on `(z1, z3)`, m.
+    pub position_min: [f64; 2],
+    /// Upper corner of the position box on `(z1, z3)`, m.
+    pub position_max: [f64; 2],
+    /// Fixed margin `m` added to every obstacle radius in the constraints, m.
+    pub safety_margin_m: f64,
+    /// `kappa`: standard deviations of the position estimate added to every radius.
+    pub uncertainty_sigmas: f64,
+    /// Most convex solves per sample (1 = no refinement of the linearization).
+    pub max_solves: usize,
+    /// Refinement stops once no predicted position moves more than this, m.
+    pub refinement_tol_m: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DflConfig {
+    /// `zeta_th`: below this `|zeta|` the steering input `U2` is zero, m/s.
+    pub zeta_threshold: f64,
+    /// Braking limit: `|U1|` when braking without a plan, m/s^2.
+    pub brake_decel: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Obstacle {
+    pub x: f64,
+    pub y: f64,
+    pub radius: f64,
+}
+
+impl Default for Scenario {
+    /// The paper's canonical scenario (DESIGN.md section 7).
+    fn default() -> Self {
+        Scenario {
+            name: "paper".into(),
+            seed: 1,
+            duration_s: 30.0,
+            timing: Timing::default(),
+            robot: Robot::default(),
+            plant: PlantConfig::default(),
+            estimator: EstimatorConfig::default(),
+            mpc: MpcConfig::default(),
+            dfl: DflConfig::default(),
+            obstacles: vec![Obstacle {
+                x: 3.0,
+                y: 3.5,
+                radius: 1.5,
+            }],
+        }
+    }
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing {
+            ts_s: 0.05,
+            inner_steps: 10,
+        }
+    }
+}
+
+impl Default for Robot {
+    fn default() -> Self {
+        Robot {
+            start: [7.0, 7.0, -3.0 * std::f64::consts::FRAC_PI_4],
+            zeta0: 0.0,
+            goal: [0.0, 0.0],
+            goal_tolerance_m: 0.1,
+        }
+    }
+}
+
+impl Default for PlantConfig {
+    fn default() -> Self {
+        PlantConfig {
+            wheel_radius_m: 0.1,
+            wheel_base_m: 0.5,
+            max_wheel_speed_rad_s: 0.0,
+            noise_variance: NoiseVariance::Uniform(0.0),
+            disturbance_std: 0.0,
+            rk4_substeps: 1,
+        }
+    }
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        EstimatorConfig {
+            kind: EstimatorKind::Ekf,
+            process_noise: [1e-4, 1e-4, 1e-4],
+            initial_variance: [1e-2, 1e-2, 1e-2],
+        }
+    }
+}
+
+impl Default for MpcConfig {
+    fn default() -> Self {
+        MpcConfig {
+            horizon: 8,
+            constraint_horizon: 10,
+            gamma: 0.1,
+            constraint: ConstraintKind::Cbf,
+            q_diag: [1.0; 4],
+            r_diag: [100.0; 2],
+            v_max: 3.0,
+            position_min: [-10.0, -10.0],
+            position_max: [10.0, 10.0],
+            safety_margin_m: 0.0,
+            uncertainty_sigmas: 3.0,
+            max_solves: 5,
+            refinement_tol_m: 1e-3,
+        }
+    }
+}
+
+impl Default for DflConfig {
+    fn default() -> Self {
+        DflConfig {
+            zeta_threshold: 0.01,
+            brake_decel: 3.0,
+        }
+    }
+}
+
+/// One thing wrong with a scenario: where it came from, the dotted key, and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScenarioError {
+    /// The file, `--set`, or `built-in`.
+    pub origin: String,
+    /// Dotted key, e.g. `mpc.gamma`; empty when the document as a whole is unreadable.
+    pub key: String,
+    pub message: String,
+}
+
+impl fmt::Display for ScenarioError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.key.is_empty() {
+            write!(f, "{}: {}", self.origin, self.message)
+        } else {
+            write!(f, "{}: `{}`: {}", self.origin, self.key, self.message)
+        }
+    }
+}
+
+/// All the problems found in one scenario, reported together.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub struct ScenarioErrors(pub Vec<ScenarioError>);
+
+impl fmt::Display for ScenarioErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "invalid scenario:")?;
+        for e in &self.0 {
+            writeln!(f, "  {e}")?;
+        }
+        Ok(())
+    }
+}
+
+impl Scenario {
+    /// Parses a TOML document; `origin` names it in errors (a path, or `built-in`).
+    pub fn from_toml(text: &str, origin: &str) -> Result<Scenario, ScenarioErrors> {
+        toml::from_str::<Scenario>(text).map_err(|e| {
+            let key = e
+                .span()
+                .and_then(|span| text.get(span))
+                .map(|s| s.trim().to_string())
+                .unwrap_or_default();
+            ScenarioErrors(vec![ScenarioError {
+                origin: origin.to_string(),
+                key,
+                message: e.message().trim().to_string(),
+            }])
+        })
+    }
+
+    /// The scenario as a TOML document, every key spelled out.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_else(|e| format!("# cannot render scenario: {e}\n"))
+    }
+
+    /// Applies `KEY=VALUE` overrides in order. `KEY` is a dotted path that must already
+    /// exist (array elements by index: `obstacles.0.radius`); `VALUE` is a TOML value, or
+    /// a bare word taken as a string (`mpc.constraint=euclidean`). Nothing is applied
+    /// unless every override is valid.
+    pub fn with_overrides(&self, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
+        let mut doc = toml::Value::try_from(self).map_err(|e| {
+            ScenarioErrors(vec![ScenarioError {
+                origin: "--set".into(),
+                key: String::new(),
+                message: e.to_string(),
+            }])
+        })?;
+        let mut scenario = self.clone();
+        for item in overrides {
+            let err = |key: &str, message: String| {
+                ScenarioErrors(vec![ScenarioError {
+                    origin: "--set".into(),
+                    key: key.to_string(),
+                    message,
+                }])
+            };
+            let Some((key, raw)) = item.split_once('=') else {
+                return Err(err(item, "expected KEY=VALUE".into()));
+            };
+            let key = key.trim();
+            let slot = lookup_mut(&mut doc, key).ok_or_else(|| err(key, "unknown key".into()))?;
+            *slot = parse_value(raw.trim());
+            scenario = doc.clone().try_into::<Scenario>().map_err(|e| {
+                err(
+                    key,
+                    format!("bad value `{}`: {}", raw.trim(), e.message().trim()),
+                )
+            })?;
+        }
+        Ok(scenario)
+    }
+
+    /// Checks every value against its meaning; reports every problem with its dotted key.
+    pub fn validate(&self, origin: &str) -> Result<(), ScenarioErrors> {
+        let mut v = Validator {
+            origin,
+            errors: Vec::new(),
+        };
+        v.positive("duration_s", self.duration_s);
+        v.positive("timing.ts_s", self.timing.ts_s);
+        v.in_range(
+            "timing.inner_steps",
+            self.timing.inner_steps,
+            1,
+            MAX_INNER_STEPS,
+        );
+
+        v.finite_all("robot.start", &self.robot.start);
+        v.finite("robot.zeta0", self.robot.zeta0);
+        v.finite_all("robot.goal", &self.robot.goal);
+        v.positive("robot.goal_tolerance_m", self.robot.goal_tolerance_m);
+
+        v.positive("plant.wheel_radius_m", self.plant.wheel_radius_m);
+        v.positive("plant.wheel_base_m", self.plant.wheel_base_m);
+        v.non_negative(
+            "plant.max_wheel_speed_rad_s",
+            self.plant.max_wheel_speed_rad_s,
+        );
+        v.non_negative_all(
+            "plant.noise_variance",
+            &self.plant.noise_variance.per_axis(),
+        );
+        v.non_negative("plant.disturbance_std", self.plant.disturbance_std);
+        v.in_range(
+            "plant.rk4_substeps",
+            self.plant.rk4_substeps,
+            1,
+            MAX_RK4_SUBSTEPS,
+        );
+
+        v.non_negative_all("estimator.process_noise", &self.estimator.process_noise);
+        v.non_negative_all(
+            "estimator.initial_variance",
+            &self.estimator.initial_variance,
+        );
+
+        let m = &self.mpc;
+        v.in_range("mpc.horizon", m.horizon, 1, MAX_HORIZON);
+        v.in_range(
+            "mpc.constraint_horizon",
+            m.constraint_horizon,
+            0,
+            MAX_CONSTRAINT_HORIZON,
+        );
+        if !(m.gamma.is_finite() && m.gamma > 0.0 && m.gamma <= 1.0) {
+            v.fail("mpc.gamma", format!("must be in (0, 1], got {}", m.gamma));
+        }
+        v.non_negative_all("mpc.q_diag", &m.q_diag);
+        for (i, r) in m.r_diag.iter().enumerate() {
+            v.positive(&format!("mpc.r_diag.{i}"), *r);
+        }
+        v.positive("mpc.v_max", m.v_max);
+        v.finite_all("mpc.position_min", &m.position_min);
+        v.finite_all("mpc.position_max", &m.position_max);
+        for axis in 0..2 {
+            if m.position_min[axis] >= m.position_max[axis] {
+                v.fail(
+                    "mpc.position_min",
+                    format!("must be below mpc.position_max on axis {axis}"),
+                );
+            }
+        }
+        v.non_negative("mpc.safety_margin_m", m.safety_margin_m);
+        v.non_negative("mpc.uncertainty_sigmas", m.uncertainty_sigmas);
+        v.in_range("mpc.max_solves", m.max_solves, 1, 100);
+        v.positive("mpc.refinement_tol_m", m.refinement_tol_m);
+
+        v.non_negative("dfl.zeta_threshold", self.dfl.zeta_threshold);
+        v.positive("dfl.brake_decel", self.dfl.brake_decel);
+
+        for (i, o) in self.obstacles.iter().enumerate() {
+            v.finite(&format!("obstacles.{i}.x"), o.x);
+            v.finite(&format!("obstacles.{i}.y"), o.y);
+            v.non_negative(&format!("obstacles.{i}.radius"), o.radius);
+        }
+        self.check_geometry(&mut v);
+
+        if v.errors.is_empty() {
+            Ok(())
+        } else {
+            Err(ScenarioErrors(v.errors))
+        }
+    }
+
+    /// The start must be clear of every obstacle and inside the position box.
+    fn check_geometry(&self, v: &mut Validator) {
+        let [sx, sy, _] = self.robot.start;
+        if !(sx.is_finite() && sy.is_finite()) {
+            return;
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            let clearance = (sx - o.x).hypot(sy - o.y) - o.radius;
+            if clearance <= 0.0 {
+                v.fail(
+                    "robot.start",
+                    format!("({sx}, {sy}) is inside obstacle {i} (clearance {clearance:.3} m)"),
+                );
+            }
+        }
+        let m = &self.mpc;
+        for (axis, s) in [sx, sy].into_iter().enumerate() {
+            if s < m.position_min[axis] || s > m.position_max[axis] {
+                v.fail(
+                    "robot.start",
+                    format!("({sx}, {sy}) is outside the position box"),
+                );
+                break;
+            }
+        }
+    }
+}
+
+/// Collects errors for [`Scenario::validate`].
+struct Validator<'a> {
+    origin: &'a str,
+    errors: Vec<ScenarioError>,
+}
+
+impl Validator<'_> {
+    fn fail(&mut self, key: &str, message: String) {
+        self.errors.push(ScenarioError {
+            origin: self.origin.to_string(),
+            key: key.to_string(),
+            message,
+        });
+    }
+    fn finite(&mut self, key: &str, x: f64) -> bool {
+        if !x.is_finite() {
+            self.fail(key, format!("must be a finite number, got {x}"));
+        }
+        x.is_finite()
+    }
+    fn finite_all(&mut self, key: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            self.finite(&format!("{key}.{i}"), *x);
+        }
+    }
+    fn positive(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x <= 0.0 {
+            self.fail(key, format!("must be positive, got {x}"));
+        }
+    }
+    fn non_negative(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x < 0.0 {
+            self.fail(key, format!("must not be negative, got {x}"));
+        }
+    }
+    fn non_negative_all(&mut self, key: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            self.non_negative(&format!("{key}.{i}"), *x);
+        }
+    }
+    fn in_range(&mut self, key: &str, n: usize, lo: usize, hi: usize) {
+        if n < lo || n > hi {
+            self.fail(key, format!("must be in {lo}..={hi}, got {n}"));
+        }
+    }
+}
+
+/// The value at a dotted path (`a.b.0.c`), if it exists.
+fn lookup_mut<'v>(doc: &'v mut toml::Value, key: &str) -> Option<&'v mut toml::Value> {
+    key.split('.').try_fold(doc, |node, part| match node {
+        toml::Value::Table(t) => t.get_mut(part),
+        toml::Value::Array(a) => part.parse::<usize>().ok().and_then(|i| a.get_mut(i)),
+        _ => None,
+    })
+}
+
+/// A `--set` value: a TOML value if it parses as one, else the bare text as a string.
+fn parse_value(raw: &str) -> toml::Value {
+    format!("v = {raw}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_is_valid_and_round_trips_through_toml() {
+        let s = Scenario::default();
+        s.validate("built-in").unwrap();
+        let back = Scenario::from_toml(&s.to_toml(), "built-in").unwrap();
+        assert_eq!(back, s);
+    }
+
+    #[test]
+    fn set_overrides_by_dotted_path_including_array_elements() {
+        let s = Scenario::default()
+            .with_overrides(&[
+                "mpc.gamma=0.3".into(),
+                "mpc.constraint=euclidean".into(),
+                "obstacles.0.radius=1".into(),
+                "plant.noise_variance=[0.05, 0.05, 0.01]".into(),
+            ])
+            .unwrap();
+        assert_eq!(s.mpc.gamma, 0.3);
+        assert_eq!(s.mpc.constraint, ConstraintKind::Euclidean);
+        assert_eq!(s.obstacles[0].radius, 1.0);
+        assert_eq!(s.plant.noise_variance.per_axis(), [0.05, 0.05, 0.01]);
+    }
+
+    #[test]
+    fn set_refuses_unknown_keys_and_bad_types_naming_the_key() {
+        let e = Scenario::default()
+            .with_overrides(&["mpc.gama=0.3".into()])
+            .unwrap_err();
+        assert_eq!(e.0[0].key, "mpc.gama");
+        let e = Scenario::default()
+            .with_overrides(&["mpc.horizon=abc".into()])
+            .unwrap_err();
+        assert_eq!(e.0[0].key, "mpc.horizon");
+    }
+
+    #[test]
+    fn validation_names_every_bad_key() {
+        let mut s = Scenario::default();
+        s.timing.ts_s = 0.0;
+        s.mpc.horizon = 0;
+        s.mpc.gamma = 1.5;
+        s.obstacles[0].radius = -1.0;
+        s.plant.noise_variance = NoiseVariance::Uniform(f64::NAN);
+        let keys: Vec<String> = s
+            .validate("t")
+            .unwrap_err()
+            .0
+            .into_iter()
+            .map(|e| e.key)
+            .collect();
+        for k in [
+            "timing.ts_s",
+            "mpc.horizon",
+            "mpc.gamma",
+            "obstacles.0.radius",
+            "plant.noise_variance.0",
+        ] {
+            assert!(keys.iter().any(|x| x == k), "{k} not reported in {keys:?}");
+        }
+    }
+
+    #[test]
+    fn start_inside_an_obstacle_is_refused() {
+        let mut s = Scenario::default();
+        s.robot.start = [3.0, 3.5, 0.0];
+        let e = s.validate("t").unwrap_err();
+        assert!(e.0.iter().any(|e| e.key == "robot.start"));
+    }
+}
