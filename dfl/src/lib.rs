@@ -8,11 +8,7 @@
 
 use protocol::{Actuation, CommandMode, Estimate, Header, Plan, Scenario, WheelGeometry};
 
-/// `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` (paper eq. mobile37).
-pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {
-    let [x, y, theta, zeta] = x_bar;
-    [x, zeta * theta.cos(), y, zeta * theta.sin()]
-}
+pub use protocol::phi;
 
 /// Inverse of [`phi`] on the branch `zeta >= 0`; at rest (`zeta = 0`) theta is not
 /// determined by `z` and `theta_at_rest_rad` is returned.

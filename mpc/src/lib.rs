@@ -1,1 +1,584 @@
+//! The safety-critical linear MPC (paper eqs. 51-47) on the DFL-linearized model, solved
+//! as a sequence of convex conic programs with clarabel.
+//!
+//! Each step: build `z_0 = Phi(x_hat)`, pick a linearization reference for the CBF rows
+//! (the previous plan shifted by one sample, or a braking rollout when cold), solve, and
+//! re-linearize at the new plan until it moves less than `refinement_tol_m` (sequential
+//! convex programming; every iterate is feasible for the paper's nonconvex constraint and
+//! the cost never rises). The conic problem is built once, on the first step, and only
+//! its values are updated afterwards.
 
+pub mod model;
+pub mod problem;
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
+use nalgebra::{Matrix2, Matrix4, Vector4};
+use problem::{Assembly, Disc, Layout, StaticData, StepData, csc_with_positions};
+use protocol::{ConstraintKind, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
+use std::time::Instant;
+
+/// Why an MPC cannot be set up for a configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MpcError {
+    #[error("terminal weight: {0}")]
+    Dare(#[from] model::DareError),
+    #[error("horizon {0} is outside 1..={MAX_HORIZON}")]
+    Horizon(usize),
+}
+
+/// The MPC role.
+pub struct Mpc {
+    layout: Layout,
+    statics: StaticData,
+    /// `Q_bar`, the DARE solution (eq. 56).
+    terminal_weight: Matrix4<f64>,
+    q_diag: [f64; 4],
+    r_diag: [f64; 2],
+    goal: [f64; 2],
+    /// Obstacles as given (absolute coordinates, true radii).
+    obstacles: Vec<protocol::Obstacle>,
+    safety_margin_m: f64,
+    uncertainty_sigmas: f64,
+    max_solves: usize,
+    refinement_tol_m: f64,
+    ts_s: f64,
+    // Reused every step.
+    solver: Option<DefaultSolver<f64>>,
+    assembly: Assembly,
+    nz_position: Vec<usize>,
+    nzval: Vec<f64>,
+    discs: Vec<Disc>,
+    reference: Vec<[f64; 2]>,
+    /// Best solution of the current step's refinement (`have_best` says if it is set).
+    best_x: Vec<f64>,
+    have_best: bool,
+    /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
+    last_sample: Option<u64>,
+    last_z: Vec<[f64; 4]>,
+}
+
+impl Mpc {
+    pub fn new(scenario: &Scenario) -> Result<Mpc, MpcError> {
+        let c = &scenario.mpc;
+        if c.horizon == 0 || c.horizon > MAX_HORIZON {
+            return Err(MpcError::Horizon(c.horizon));
+        }
+        let (a, b) = model::discretize(scenario.timing.ts_s);
+        let q = Matrix4::from_diagonal(&Vector4::from(c.q_diag));
+        let r = Matrix2::from_diagonal(&nalgebra::Vector2::from(c.r_diag));
+        let terminal_weight = model::dare(&a, &b, &q, &r)?;
+        let k = model::lqr_gain(&a, &b, &r, &terminal_weight)?;
+        let acl = a + b * k;
+        let closed_loop_powers =
+            std::iter::successors(Some(Matrix4::identity()), |m| Some(acl * m))
+                .take(c.constraint_horizon + 1)
+                .collect();
+        let goal = scenario.robot.goal;
+        let layout = Layout {
+            horizon: c.horizon,
+            constraint_horizon: c.constraint_horizon,
+            obstacles: scenario.obstacles.len(),
+            linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
+        };
+        let statics = StaticData {
+            a,
+            b,
+            k,
+            closed_loop_powers,
+            gamma: if c.constraint == ConstraintKind::Euclidean {
+                1.0
+            } else {
+                c.gamma
+            },
+            v_max: c.v_max,
+            position_box: [
+                [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
+                [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
+            ],
+        };
+        Ok(Mpc {
+            layout,
+            statics,
+            terminal_weight,
+            q_diag: c.q_diag,
+            r_diag: c.r_diag,
+            goal,
+            obstacles: scenario.obstacles.clone(),
+            safety_margin_m: c.safety_margin_m,
+            uncertainty_sigmas: c.uncertainty_sigmas,
+            max_solves: c.max_solves.max(1),
+            refinement_tol_m: c.refinement_tol_m,
+            ts_s: scenario.timing.ts_s,
+            solver: None,
+            assembly: Assembly::default(),
+            nz_position: Vec::new(),
+            nzval: Vec::new(),
+            discs: Vec::with_capacity(scenario.obstacles.len()),
+            reference: vec![[0.0; 2]; c.horizon + 1],
+            best_x: Vec::new(),
+            have_best: false,
+            last_sample: None,
+            last_z: vec![[0.0; 4]; c.horizon + 1],
+        })
+    }
+
+    /// The terminal weight `Q_bar` (DARE solution, eq. 56).
+    pub fn terminal_weight(&self) -> &Matrix4<f64> {
+        &self.terminal_weight
+    }
+
+    /// The obstacles as the constraints see them: goal-relative, radius inflated by the
+    /// margin `m + kappa sigma` (DESIGN.md section 1).
+    pub fn constraint_discs(&self) -> &[Disc] {
+        &self.discs
+    }
+
+    /// Forgets the previous plan: the next step linearizes at a braking rollout.
+    pub fn reset(&mut self) {
+        self.last_sample = None;
+    }
+
+    /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
+    /// `position_sigma_m` of its position. The header is left for the caller to fill.
+    pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
+        let started = Instant::now();
+        let z = protocol::phi(x_bar);
+        let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
+        let margin = self.safety_margin_m + self.uncertainty_sigmas * position_sigma_m;
+        self.discs.clear();
+        self.discs.extend(self.obstacles.iter().map(|o| Disc {
+            center: [o.x - self.goal[0], o.y - self.goal[1]],
+            radius: o.radius + margin,
+        }));
+
+        let warm = self.shifted_reference(sample);
+        if !warm {
+            self.braking_reference(z0);
+        }
+        let mut outcome = self.refine(z0);
+        if outcome.status != PlanStatus::Solved && warm {
+            // The shifted plan is no longer a usable linearization point: start cold.
+            self.braking_reference(z0);
+            let retry = self.refine(z0);
+            outcome = Outcome {
+                iterations: outcome.iterations + retry.iterations,
+                solves: outcome.solves + retry.solves,
+                ..retry
+            };
+        }
+
+        let mut plan = Plan {
+            header: Header::default(),
+            sample,
+            status: outcome.status as u32,
+            horizon: self.layout.horizon as u32,
+            iterations: outcome.iterations,
+            solves: outcome.solves,
+            ..Plan::default()
+        };
+        if outcome.status == PlanStatus::Solved {
+            self.write_solution(&mut plan);
+            self.last_sample = Some(sample);
+        } else {
+            self.last_sample = None;
+        }
+        plan.solve_ns = started.elapsed().as_nanos() as u64;
+        plan
+    }
+
+    /// Solves, re-linearizes at the solution, and repeats until the plan settles.
+    /// On a failed refinement the last solved iterate (feasible for the paper's
+    /// constraint) is kept in the solver's solution buffer.
+    fn refine(&mut self, z0: [f64; 4]) -> Outcome {
+        let mut outcome = Outcome {
+            status: PlanStatus::NumericalError,
+            iterations: 0,
+            solves: 0,
+        };
+        self.have_best = false;
+        for _ in 0..self.max_solves {
+            let (status, iterations) = self.solve_once(z0);
+            outcome.iterations += iterations;
+            outcome.solves += 1;
+            if status != PlanStatus::Solved {
+                if !self.have_best {
+                    outcome.status = status;
+                }
+                break;
+            }
+            outcome.status = PlanStatus::Solved;
+            let moved = self.relinearize();
+            if let Some(solver) = &self.solver {
+                self.best_x.clear();
+                self.best_x.extend_from_slice(&solver.solution.x);
+                self.have_best = true;
+            }
+            if moved < self.refinement_tol_m {
+                break;
+            }
+        }
+        if let (true, Some(solver)) = (self.have_best, self.solver.as_mut()) {
+            solver.solution.x.copy_from_slice(&self.best_x);
+        }
+        outcome
+    }
+
+    /// One convex solve at the current reference. Builds the solver on first use.
+    fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32) {
+        let data = StepData {
+            z0,
+            discs: &self.discs,
+            reference: &self.reference,
+        };
+        self.assembly.fill(&self.layout, &self.statics, &data);
+        let rows = self.assembly.b.len();
+        let solver = match self.solver.as_mut() {
+            Some(solver) => {
+                for (t, &(_, _, v)) in self.assembly.entries.iter().enumerate() {
+                    self.nzval[self.nz_position[t]] = v;
+                }
+                let updated = solver
+                    .update_A(&self.nzval)
+                    .and_then(|()| solver.update_b(&self.assembly.b));
+                if updated.is_err() {
+                    return (PlanStatus::NumericalError, 0);
+                }
+                solver
+            }
+            None => {
+                let (a, positions) =
+                    csc_with_positions(rows, self.layout.variables(), &self.assembly.entries);
+                self.nzval = a.nzval.clone();
+                self.nz_position = positions;
+                let p = self.objective();
+                let q = vec![0.0; self.layout.variables()];
+                let settings = DefaultSettings::<f64> {
+                    verbose: false,
+                    ..DefaultSettings::default()
+                };
+                match DefaultSolver::new(
+                    &p,
+                    &q,
+                    &a,
+                    &self.assembly.b,
+                    &self.layout.cones(),
+                    settings,
+                ) {
+                    Ok(solver) => self.solver.insert(solver),
+                    Err(_) => return (PlanStatus::NumericalError, 0),
+                }
+            }
+        };
+        solver.solve();
+        (
+            plan_status(solver.solution.status),
+            solver.solution.iterations,
+        )
+    }
+
+    /// `1/2 x'Px` = eq. (51): `sum z'Qz + v'Rv + z_N' Q_bar z_N` (upper triangle of P).
+    fn objective(&self) -> CscMatrix<f64> {
+        let l = &self.layout;
+        let n = l.horizon;
+        let mut entries = Vec::new();
+        for i in 0..n {
+            for c in 0..4 {
+                entries.push((l.z(i, c), l.z(i, c), 2.0 * self.q_diag[c]));
+            }
+        }
+        for c in 0..4 {
+            for r in 0..=c {
+                entries.push((l.z(n, r), l.z(n, c), 2.0 * self.terminal_weight[(r, c)]));
+            }
+        }
+        for i in 0..n {
+            for c in 0..2 {
+                entries.push((l.v(i, c), l.v(i, c), 2.0 * self.r_diag[c]));
+            }
+        }
+        csc_with_positions(l.variables(), l.variables(), &entries).0
+    }
+
+    /// The previous plan shifted by one sample, extended by one step of the LQR closed
+    /// loop (the candidate of the paper's feasibility argument). False when there is no
+    /// plan of the previous sample.
+    fn shifted_reference(&mut self, sample: u64) -> bool {
+        if self.last_sample.is_none_or(|last| sample != last + 1) {
+            return false;
+        }
+        let z = &self.last_z;
+        let n = self.layout.horizon;
+        for i in 1..n {
+            self.reference[i] = [z[i + 1][0], z[i + 1][2]];
+        }
+        let z_n = Vector4::from(z[n]);
+        let next = (self.statics.a + self.statics.b * self.statics.k) * z_n;
+        self.reference[n] = [next[0], next[2]];
+        true
+    }
+
+    /// Positions of the state braking at the input limit from `z0` (held at rest).
+    fn braking_reference(&mut self, z0: [f64; 4]) {
+        let (ts, v_max) = (self.ts_s, self.statics.v_max);
+        let mut z = z0;
+        for i in 1..=self.layout.horizon {
+            for (p, vel) in [(0, 1), (2, 3)] {
+                let acc = (-z[vel] / ts).clamp(-v_max, v_max);
+                z[p] += z[vel] * ts + 0.5 * acc * ts * ts;
+                z[vel] += acc * ts;
+            }
+            self.reference[i] = [z[0], z[2]];
+        }
+    }
+
+    /// Moves the reference to the current solution; returns the largest move, m.
+    fn relinearize(&mut self) -> f64 {
+        let Some(solver) = &self.solver else {
+            return 0.0;
+        };
+        let x = &solver.solution.x;
+        let mut moved: f64 = 0.0;
+        for i in 1..=self.layout.horizon {
+            let p = [x[self.layout.z(i, 0)], x[self.layout.z(i, 2)]];
+            moved = moved.max((p[0] - self.reference[i][0]).hypot(p[1] - self.reference[i][1]));
+            self.reference[i] = p;
+        }
+        moved
+    }
+
+    /// Writes the solution into `plan` (absolute coordinates) and keeps its goal-relative
+    /// states for the next step's shifted reference.
+    fn write_solution(&mut self, plan: &mut Plan) {
+        let Some(solver) = &self.solver else { return };
+        let x = &solver.solution.x;
+        let l = &self.layout;
+        for i in 0..l.horizon {
+            plan.v[i] = [x[l.v(i, 0)], x[l.v(i, 1)]];
+        }
+        for i in 0..=l.horizon {
+            let z: [f64; 4] = std::array::from_fn(|c| x[l.z(i, c)]);
+            self.last_z[i] = z;
+            plan.z[i] = [z[0] + self.goal[0], z[1], z[2] + self.goal[1], z[3]];
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Outcome {
+    status: PlanStatus,
+    iterations: u32,
+    solves: u32,
+}
+
+fn plan_status(status: SolverStatus) -> PlanStatus {
+    match status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved => PlanStatus::Solved,
+        SolverStatus::PrimalInfeasible
+        | SolverStatus::AlmostPrimalInfeasible
+        | SolverStatus::DualInfeasible
+        | SolverStatus::AlmostDualInfeasible => PlanStatus::Infeasible,
+        SolverStatus::MaxIterations | SolverStatus::MaxTime => PlanStatus::MaxIterations,
+        _ => PlanStatus::NumericalError,
+    }
+}
+
+/// The smallest slack of the paper's (nonconvex) CBF inequality over a plan:
+/// `min_i H(p_{i+1}) - (1 - gamma) H(p_i)` over stages and discs (eq. 54), m^2.
+pub fn barrier_slack(plan: &Plan, discs_absolute: &[Disc], gamma: f64) -> f64 {
+    let mut slack = f64::INFINITY;
+    for disc in discs_absolute {
+        for i in 0..plan.horizon as usize {
+            let h = |z: [f64; 4]| disc.barrier([z[0], z[2]]);
+            slack = slack.min(h(plan.z[i + 1]) - (1.0 - gamma) * h(plan.z[i]));
+        }
+    }
+    slack
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::Obstacle;
+
+    /// Closed loop of the MPC on its own linear model (exact DFL): returns every plan.
+    fn closed_loop(scenario: &Scenario, samples: u64) -> Vec<Plan> {
+        let mut mpc = Mpc::new(scenario).unwrap();
+        let (a, b) = model::discretize(scenario.timing.ts_s);
+        let [x, y, theta] = scenario.robot.start;
+        let mut z = Vector4::from(protocol::phi([x, y, theta, scenario.robot.zeta0]));
+        let mut plans = Vec::new();
+        for k in 0..samples {
+            // x_bar with the same z (theta is irrelevant to z when zeta = 0).
+            let zeta = z[1].hypot(z[3]);
+            let heading = if zeta > 0.0 { z[3].atan2(z[1]) } else { theta };
+            let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
+            assert!(plan.is_solved(), "sample {k}: {:?}", plan.status());
+            z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
+            plans.push(plan);
+        }
+        plans
+    }
+
+    fn absolute_discs(s: &Scenario) -> Vec<Disc> {
+        s.obstacles
+            .iter()
+            .map(|o| Disc {
+                center: [o.x, o.y],
+                radius: o.radius,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_solved_plan_satisfies_the_papers_nonconvex_cbf_at_every_stage() {
+        for gamma in [0.1, 0.5, 0.9] {
+            let mut s = Scenario::default();
+            s.mpc.gamma = gamma;
+            let plans = closed_loop(&s, 400);
+            for p in &plans {
+                let slack = barrier_slack(p, &absolute_discs(&s), gamma);
+                assert!(
+                    slack >= -1e-6,
+                    "gamma {gamma}, sample {}: CBF slack {slack:e}",
+                    p.sample
+                );
+            }
+            let end = plans.last().unwrap().z[0];
+            assert!(
+                end[0].hypot(end[2]) < 0.5,
+                "gamma {gamma}: did not approach the goal: {end:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
+        let mut cbf = Scenario::default();
+        cbf.mpc.gamma = 1.0;
+        let mut euclidean = Scenario::default();
+        euclidean.mpc.constraint = ConstraintKind::Euclidean;
+        euclidean.mpc.gamma = 0.3; // ignored by the Euclidean constraint
+        let (a, b) = (Mpc::new(&cbf).unwrap(), Mpc::new(&euclidean).unwrap());
+        assert_eq!(a.layout.cones().len(), b.layout.cones().len());
+        let discs = [Disc {
+            center: [3.0, 3.5],
+            radius: 1.5,
+        }];
+        let reference: Vec<[f64; 2]> = (0..=8)
+            .map(|i| [6.0 - 0.1 * i as f64, 6.0 - 0.12 * i as f64])
+            .collect();
+        let data = StepData {
+            z0: [7.0, -0.5, 7.0, -0.5],
+            discs: &discs,
+            reference: &reference,
+        };
+        let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
+        fa.fill(&a.layout, &a.statics, &data);
+        fb.fill(&b.layout, &b.statics, &data);
+        assert_eq!(fa.entries, fb.entries);
+        assert_eq!(fa.b, fb.b);
+        // And the closed loops agree number for number.
+        let (pa, pb) = (closed_loop(&cbf, 60), closed_loop(&euclidean, 60));
+        assert_eq!(
+            pa.iter().map(|p| p.v).collect::<Vec<_>>(),
+            pb.iter().map(|p| p.v).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn smaller_gamma_keeps_more_clearance() {
+        let clearance = |gamma: f64| {
+            let mut s = Scenario::default();
+            s.mpc.gamma = gamma;
+            let o = &s.obstacles[0];
+            closed_loop(&s, 300)
+                .iter()
+                .map(|p| (p.z[0][0] - o.x).hypot(p.z[0][2] - o.y) - o.radius)
+                .fold(f64::INFINITY, f64::min)
+        };
+        let (tight, loose) = (clearance(0.1), clearance(0.9));
+        assert!(
+            tight > loose,
+            "gamma 0.1 clearance {tight} <= gamma 0.9 clearance {loose}"
+        );
+    }
+
+    #[test]
+    fn several_obstacles_are_all_respected() {
+        let mut s = Scenario::default();
+        s.obstacles.push(Obstacle {
+            x: 5.5,
+            y: 3.0,
+            radius: 0.8,
+        });
+        s.obstacles.push(Obstacle {
+            x: 1.0,
+            y: 4.5,
+            radius: 0.5,
+        });
+        for p in closed_loop(&s, 400) {
+            assert!(barrier_slack(&p, &absolute_discs(&s), s.mpc.gamma) >= -1e-6);
+        }
+    }
+
+    #[test]
+    fn an_unavoidable_collision_is_reported_infeasible() {
+        // Moving at 20 m/s straight at the obstacle 0.2 m away with |v| <= 3: no input
+        // sequence keeps the barrier decaying slowly enough.
+        let mut s = Scenario::default();
+        s.robot.start = [1.3, 3.5, 0.0];
+        let mut mpc = Mpc::new(&s).unwrap();
+        let plan = mpc.step(0, [1.3, 3.5, 0.0, 20.0], 0.0);
+        assert_eq!(plan.status(), Some(PlanStatus::Infeasible));
+        assert!(plan.solves >= 1 && plan.solve_ns > 0);
+    }
+
+    #[test]
+    fn refinement_stops_at_the_cap_and_never_raises_the_cost() {
+        // Near the obstacle and moving, where the linearization matters.
+        let x_bar = [5.0, 4.2, -1.23, 1.0];
+        let cost = |max_solves: usize| {
+            let mut s = Scenario::default();
+            s.mpc.max_solves = max_solves;
+            let mut mpc = Mpc::new(&s).unwrap();
+            let p = mpc.step(0, x_bar, 0.0);
+            assert!(
+                p.is_solved() && p.solves as usize <= max_solves,
+                "{:?} {}",
+                p.status(),
+                p.solves
+            );
+            let n = p.horizon as usize;
+            let q = |z: [f64; 4]| {
+                z.iter()
+                    .zip(s.mpc.q_diag)
+                    .map(|(z, q)| q * z * z)
+                    .sum::<f64>()
+            };
+            let stage: f64 = (0..n)
+                .map(|i| {
+                    q(p.z[i])
+                        + p.v[i]
+                            .iter()
+                            .zip(s.mpc.r_diag)
+                            .map(|(v, r)| r * v * v)
+                            .sum::<f64>()
+                })
+                .sum();
+            let z_n = Vector4::from(p.z[n]);
+            (
+                stage + (z_n.transpose() * mpc.terminal_weight() * z_n)[0],
+                p.solves,
+            )
+        };
+        let (single, one) = cost(1);
+        let (refined, solves) = cost(10);
+        assert_eq!(one, 1);
+        assert!(solves > 1, "the reference should have needed refining");
+        assert!(
+            refined <= single + 1e-6 * single.abs(),
+            "refined cost {refined} > single-solve cost {single}"
+        );
+    }
+}

@@ -14,6 +14,14 @@ pub fn wrap_angle(theta_rad: f64) -> f64 {
     if w <= -PI { w + TAU } else { w }
 }
 
+/// `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` (paper eq. mobile37): the
+/// map from the extended state to the linear equivalent model, shared by the MPC (which
+/// plans in `z`) and the DFL (which realizes it).
+pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {
+    let [x, y, theta, zeta] = x_bar;
+    [x, zeta * theta.cos(), y, zeta * theta.sin()]
+}
+
 /// Differential-drive geometry: the transform `T` of paper eq. (5) between wheel speeds
 /// `[omega_r, omega_l]` (rad/s) and body inputs `[u1, u2]` (m/s, rad/s).
 #[derive(Debug, Clone, Copy, PartialEq)]

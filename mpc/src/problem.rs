@@ -1,0 +1,304 @@
+//! The conic program of one MPC step, in clarabel's form
+//! `min 1/2 x'Px + q'x  s.t.  Ax + s = b, s in K`.
+//!
+//! Variables (sparse formulation): `x = [z_0, ..., z_N, v_0, ..., v_{N-1}]`, all in
+//! goal-relative coordinates (the goal is the origin of the MPC). Rows, in cone order:
+//!
+//! | rows | cone | meaning |
+//! |---|---|---|
+//! | 4 | zero | `z_0` = measured state |
+//! | 4N | zero | dynamics `z_{i+1} = A z_i + B v_i` (eq. 52) |
+//! | 4N | nonneg | input box `|v_i| <= v_max` (eq. 531) |
+//! | 4(N-1) | nonneg | position box on `z_1 .. z_{N-1}` (eq. 53) |
+//! | 8(Nc+1) | nonneg | terminal input and position boxes on `(A+BK)^j z_N` (eqs. 45, 47) |
+//! | 1 or N per obstacle | nonneg | CBF rows that are linear (see below) |
+//! | 4 per obstacle and stage | SOC(4) | CBF rows that are cones |
+//!
+//! The CBF `H(p_{i+1}) >= (1 - gamma) H(p_i)` (eq. 54) is convexified by replacing
+//! `H(p_{i+1})` with its linearization `L` at a reference `p_bar` (`L <= H` everywhere, so
+//! this is an inner approximation). Stage 0 has `p_0` as data and is linear; for stage
+//! `i >= 1`, `||p_i - o||^2 <= t` with `t = (L(p_{i+1}) + (1 - gamma) r^2) / (1 - gamma)` is
+//! the cone `(t + 1, t - 1, 2 (p_i - o)) in SOC(4)`. With `gamma = 1`, or the Euclidean
+//! benchmark `H(p_i) >= 0`, every row is the linear `L(p_i) >= 0` on stages `1..=N`.
+//!
+//! The sparsity pattern depends only on the configuration: [`Assembly`] writes the same
+//! entries in the same order every step, and only their values change.
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::SupportedConeT;
+use nalgebra::{Matrix2x4, Matrix4};
+
+/// Dimensions and the fixed parts of the problem.
+#[derive(Debug, Clone)]
+pub struct Layout {
+    /// Prediction horizon `N`.
+    pub horizon: usize,
+    /// Constraint-checking horizon `Nc`.
+    pub constraint_horizon: usize,
+    pub obstacles: usize,
+    /// All CBF rows linear (`gamma = 1` or the Euclidean benchmark).
+    pub linear_barrier: bool,
+}
+
+impl Layout {
+    /// Index of component `c` of `z_i`.
+    pub fn z(&self, i: usize, c: usize) -> usize {
+        4 * i + c
+    }
+    /// Index of component `c` of `v_i`.
+    pub fn v(&self, i: usize, c: usize) -> usize {
+        4 * (self.horizon + 1) + 2 * i + c
+    }
+    pub fn variables(&self) -> usize {
+        4 * (self.horizon + 1) + 2 * self.horizon
+    }
+    fn linear_barrier_rows(&self) -> usize {
+        self.obstacles * if self.linear_barrier { self.horizon } else { 1 }
+    }
+    fn cone_barriers(&self) -> usize {
+        if self.linear_barrier {
+            0
+        } else {
+            self.obstacles * (self.horizon - 1)
+        }
+    }
+
+    /// The cones, in row order.
+    pub fn cones(&self) -> Vec<SupportedConeT<f64>> {
+        let n = self.horizon;
+        let equalities = 4 + 4 * n;
+        let inequalities =
+            4 * n + 4 * (n - 1) + 8 * (self.constraint_horizon + 1) + self.linear_barrier_rows();
+        let mut cones = vec![
+            SupportedConeT::ZeroConeT(equalities),
+            SupportedConeT::NonnegativeConeT(inequalities),
+        ];
+        cones.extend((0..self.cone_barriers()).map(|_| SupportedConeT::SecondOrderConeT(4)));
+        cones
+    }
+}
+
+/// A circular obstacle in goal-relative coordinates, with the radius the constraints use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Disc {
+    pub center: [f64; 2],
+    pub radius: f64,
+}
+
+impl Disc {
+    /// The barrier `H(p) = ||p - o||^2 - r^2` (eq. 100), m^2.
+    pub fn barrier(&self, p: [f64; 2]) -> f64 {
+        (p[0] - self.center[0]).powi(2) + (p[1] - self.center[1]).powi(2) - self.radius.powi(2)
+    }
+
+    /// Linearization of the barrier at `p_bar`: `L(p) = g'p + c`, returned as `(g, c)`.
+    pub fn linearized_barrier(&self, p_bar: [f64; 2]) -> ([f64; 2], f64) {
+        let g = [
+            2.0 * (p_bar[0] - self.center[0]),
+            2.0 * (p_bar[1] - self.center[1]),
+        ];
+        (g, self.barrier(p_bar) - g[0] * p_bar[0] - g[1] * p_bar[1])
+    }
+}
+
+/// Everything fixed by the configuration.
+#[derive(Debug, Clone)]
+pub struct StaticData {
+    pub a: Matrix4<f64>,
+    pub b: nalgebra::Matrix4x2<f64>,
+    pub k: Matrix2x4<f64>,
+    /// `(A + BK)^j` for `j = 0..=Nc`.
+    pub closed_loop_powers: Vec<Matrix4<f64>>,
+    pub gamma: f64,
+    pub v_max: f64,
+    /// Goal-relative position box `[min, max]` per axis.
+    pub position_box: [[f64; 2]; 2],
+}
+
+/// What changes each step.
+#[derive(Debug, Clone, Copy)]
+pub struct StepData<'a> {
+    /// Goal-relative `z_0`.
+    pub z0: [f64; 4],
+    pub discs: &'a [Disc],
+    /// Linearization points `p_bar_1 ..= p_bar_N` (index 0 is unused).
+    pub reference: &'a [[f64; 2]],
+}
+
+/// The rows of `A` and `b`, written in a fixed order; buffers are reused between steps.
+#[derive(Debug, Default)]
+pub struct Assembly {
+    /// `(row, column, value)` of every structural entry of `A`, in a fixed order.
+    pub entries: Vec<(usize, usize, f64)>,
+    pub b: Vec<f64>,
+}
+
+impl Assembly {
+    fn row(&mut self, terms: impl IntoIterator<Item = (usize, f64)>, b: f64) {
+        let r = self.b.len();
+        self.entries
+            .extend(terms.into_iter().map(|(c, v)| (r, c, v)));
+        self.b.push(b);
+    }
+
+    /// Writes every row of the step's problem (see the module docs for the order).
+    pub fn fill(&mut self, l: &Layout, s: &StaticData, d: &StepData) {
+        self.entries.clear();
+        self.b.clear();
+        let n = l.horizon;
+        for c in 0..4 {
+            self.row([(l.z(0, c), 1.0)], d.z0[c]);
+        }
+        for i in 0..n {
+            for r in 0..4 {
+                let mut terms = [(0, 0.0); 7];
+                terms[0] = (l.z(i + 1, r), 1.0);
+                for c in 0..4 {
+                    terms[1 + c] = (l.z(i, c), -s.a[(r, c)]);
+                }
+                for c in 0..2 {
+                    terms[5 + c] = (l.v(i, c), -s.b[(r, c)]);
+                }
+                // Structural zeros of A and B are the same every step: leave them out.
+                self.row(terms.into_iter().filter(|t| t.1 != 0.0), 0.0);
+            }
+        }
+        for i in 0..n {
+            for c in 0..2 {
+                self.row([(l.v(i, c), 1.0)], s.v_max);
+                self.row([(l.v(i, c), -1.0)], s.v_max);
+            }
+        }
+        for i in 1..n {
+            for (axis, c) in [(0, 0), (1, 2)] {
+                self.row([(l.z(i, c), 1.0)], s.position_box[axis][1]);
+                self.row([(l.z(i, c), -1.0)], -s.position_box[axis][0]);
+            }
+        }
+        self.terminal_rows(l, s);
+        self.barrier_rows(l, s, d);
+    }
+
+    /// Eqs. (45) and (47): `v_min <= K M_j z_N <= v_max` and the position box on
+    /// `M_j z_N`, `M_j = (A + BK)^j`, `j = 0..=Nc`.
+    fn terminal_rows(&mut self, l: &Layout, s: &StaticData) {
+        let n = l.horizon;
+        let on_z_n = |this: &mut Self, coeffs: [f64; 4], sign: f64, bound: f64| {
+            let terms = (0..4)
+                .filter(|&c| coeffs[c] != 0.0)
+                .map(|c| (l.z(n, c), sign * coeffs[c]));
+            this.row(terms, bound);
+        };
+        for m in &s.closed_loop_powers {
+            let km = s.k * m;
+            for c in 0..2 {
+                let coeffs = [km[(c, 0)], km[(c, 1)], km[(c, 2)], km[(c, 3)]];
+                on_z_n(self, coeffs, 1.0, s.v_max);
+                on_z_n(self, coeffs, -1.0, s.v_max);
+            }
+            for (axis, r) in [(0, 0), (1, 2)] {
+                let coeffs = [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]];
+                on_z_n(self, coeffs, 1.0, s.position_box[axis][1]);
+                on_z_n(self, coeffs, -1.0, -s.position_box[axis][0]);
+            }
+        }
+    }
+
+    fn barrier_rows(&mut self, l: &Layout, s: &StaticData, d: &StepData) {
+        let n = l.horizon;
+        let pos = |i: usize| [(l.z(i, 0)), (l.z(i, 2))];
+        let p0 = [d.z0[0], d.z0[2]];
+        // Linear rows first (they belong to the nonnegative cone).
+        for disc in d.discs {
+            if l.linear_barrier {
+                // L_i(p_i) >= 0, i = 1..=N.
+                for i in 1..=n {
+                    let (g, c) = disc.linearized_barrier(d.reference[i]);
+                    let [px, py] = pos(i);
+                    self.row([(px, -g[0]), (py, -g[1])], c);
+                }
+            } else {
+                // (1 - gamma) H(p_0) <= L_1(p_1), p_0 being data.
+                let (g, c) = disc.linearized_barrier(d.reference[1]);
+                let [px, py] = pos(1);
+                self.row(
+                    [(px, -g[0]), (py, -g[1])],
+                    c - (1.0 - s.gamma) * disc.barrier(p0),
+                );
+            }
+        }
+        if l.linear_barrier {
+            return;
+        }
+        let scale = 1.0 / (1.0 - s.gamma);
+        for disc in d.discs {
+            for i in 1..n {
+                let (g, c) = disc.linearized_barrier(d.reference[i + 1]);
+                let t0 = scale * (c + (1.0 - s.gamma) * disc.radius.powi(2));
+                let [nx, ny] = pos(i + 1);
+                let [px, py] = pos(i);
+                let slope = [(nx, -scale * g[0]), (ny, -scale * g[1])];
+                self.row(slope, t0 + 1.0);
+                self.row(slope, t0 - 1.0);
+                self.row([(px, -2.0)], -2.0 * disc.center[0]);
+                self.row([(py, -2.0)], -2.0 * disc.center[1]);
+            }
+        }
+    }
+}
+
+/// Compressed-column matrix of `entries`, and for each entry its position in `nzval`
+/// (so later values can be scattered into the same pattern).
+pub fn csc_with_positions(
+    rows: usize,
+    cols: usize,
+    entries: &[(usize, usize, f64)],
+) -> (CscMatrix<f64>, Vec<usize>) {
+    let mut order: Vec<usize> = (0..entries.len()).collect();
+    order.sort_by_key(|&t| (entries[t].1, entries[t].0));
+    let mut colptr = vec![0usize; cols + 1];
+    let mut rowval = Vec::with_capacity(entries.len());
+    let mut nzval = Vec::with_capacity(entries.len());
+    let mut position = vec![0usize; entries.len()];
+    for (nz, &t) in order.iter().enumerate() {
+        let (r, c, v) = entries[t];
+        colptr[c + 1] += 1;
+        rowval.push(r);
+        nzval.push(v);
+        position[t] = nz;
+    }
+    for c in 0..cols {
+        colptr[c + 1] += colptr[c];
+    }
+    (CscMatrix::new(rows, cols, colptr, rowval, nzval), position)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn linearized_barrier_is_tight_at_the_reference_and_below_elsewhere() {
+        let disc = Disc {
+            center: [3.0, 3.5],
+            radius: 1.5,
+        };
+        let p_bar = [5.0, 1.0];
+        let (g, c) = disc.linearized_barrier(p_bar);
+        let l = |p: [f64; 2]| g[0] * p[0] + g[1] * p[1] + c;
+        assert!((l(p_bar) - disc.barrier(p_bar)).abs() < 1e-12);
+        for p in [[0.0, 0.0], [3.0, 3.5], [10.0, -4.0], [5.1, 1.2]] {
+            assert!(l(p) <= disc.barrier(p) + 1e-12);
+        }
+    }
+
+    #[test]
+    fn csc_positions_point_at_each_entry() {
+        let entries = [(2, 1, 5.0), (0, 0, 1.0), (1, 1, 3.0), (0, 2, 7.0)];
+        let (m, pos) = csc_with_positions(3, 3, &entries);
+        for (t, &(_, _, v)) in entries.iter().enumerate() {
+            assert_eq!(m.nzval[pos[t]], v);
+        }
+        assert_eq!(m.colptr, vec![0, 1, 3, 4]);
+    }
+}
