@@ -1,1 +1,7 @@
+//! The `scmpc` command: scenario validation, the in-process run, recording and the summary.
 
+pub mod cli;
+pub mod inprocess;
+pub mod monitor;
+pub mod record;
+pub mod scenarios;

@@ -304,15 +304,18 @@ impl Scenario {
     /// Parses a TOML document; `origin` names it in errors (a path, or `built-in`).
     pub fn from_toml(text: &str, origin: &str) -> Result<Scenario, ScenarioErrors> {
         toml::from_str::<Scenario>(text).map_err(|e| {
-            let key = e
-                .span()
-                .and_then(|span| text.get(span))
-                .map(|s| s.trim().to_string())
-                .unwrap_or_default();
+            let at = e.span().map(|span| span.start);
+            let (key, line) = at.map_or((String::new(), 0), |offset| key_at(text, offset));
+            let message = e.message().trim().to_string();
+            let message = if line > 0 {
+                format!("{message} (line {line})")
+            } else {
+                message
+            };
             ScenarioErrors(vec![ScenarioError {
                 origin: origin.to_string(),
                 key,
-                message: e.message().trim().to_string(),
+                message,
             }])
         })
     }
@@ -526,6 +529,41 @@ impl Validator<'_> {
     }
 }
 
+/// The dotted key of the `key = value` line holding byte `offset` of a TOML document,
+/// with the 1-based line number (array-of-tables elements get their index).
+fn key_at(text: &str, offset: usize) -> (String, usize) {
+    let line_no = text[..offset.min(text.len())].matches('\n').count();
+    let mut table = String::new();
+    let mut array_counts: Vec<(String, usize)> = Vec::new();
+    for line in text.lines().take(line_no) {
+        let l = line.trim();
+        if let Some(name) = l.strip_prefix("[[").and_then(|r| r.split("]]").next()) {
+            let name = name.trim().to_string();
+            let index = match array_counts.iter_mut().find(|(n, _)| *n == name) {
+                Some((_, count)) => {
+                    *count += 1;
+                    *count - 1
+                }
+                None => {
+                    array_counts.push((name.clone(), 1));
+                    0
+                }
+            };
+            table = format!("{name}.{index}");
+        } else if let Some(name) = l.strip_prefix('[').and_then(|r| r.split(']').next()) {
+            table = name.trim().to_string();
+        }
+    }
+    let line = text.lines().nth(line_no).unwrap_or("");
+    let key = line.split('=').next().unwrap_or("").trim();
+    let dotted = match (table.is_empty(), key.is_empty() || key.starts_with('[')) {
+        (_, true) => table,
+        (true, false) => key.to_string(),
+        (false, false) => format!("{table}.{key}"),
+    };
+    (dotted, line_no + 1)
+}
+
 /// The value at a dotted path (`a.b.0.c`), if it exists.
 fn lookup_mut<'v>(doc: &'v mut toml::Value, key: &str) -> Option<&'v mut toml::Value> {
     key.split('.').try_fold(doc, |node, part| match node {
@@ -608,6 +646,19 @@ mod tests {
         ] {
             assert!(keys.iter().any(|x| x == k), "{k} not reported in {keys:?}");
         }
+    }
+
+    #[test]
+    fn parse_errors_name_the_dotted_key_and_line() {
+        let text = "name = \"x\"\n[mpc]\nhorizon = \"eight\"\n";
+        let e = Scenario::from_toml(text, "f.toml").unwrap_err();
+        assert_eq!(e.0[0].key, "mpc.horizon");
+        assert!(e.0[0].message.contains("line 3"), "{}", e.0[0].message);
+        let text = "[[obstacles]]\nx = 1\ny = 1\nradius = 1\n[[obstacles]]\nx = 1\ny = 2\nradius = \"r\"\n";
+        assert_eq!(
+            Scenario::from_toml(text, "f.toml").unwrap_err().0[0].key,
+            "obstacles.1.radius"
+        );
     }
 
     #[test]

@@ -1,0 +1,168 @@
+//! The `scmpc` command line.
+
+use crate::{inprocess, scenarios};
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Exit code of a run that did not reach the goal (collided, stalled, timed out,
+/// interrupted) or failed at run time.
+pub const EXIT_NOT_REACHED: u8 = 1;
+/// Exit code of bad input: a scenario or an override that is refused before anything runs.
+pub const EXIT_BAD_INPUT: u8 = 2;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "scmpc",
+    version,
+    about = "Safety-critical linear MPC with CBFs and DFL for a differential-drive robot"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Run a scenario and write its records to a run directory.
+    Run(RunArgs),
+    /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
+    Scenario {
+        /// Name of the built-in scenario.
+        #[arg(default_value = "paper")]
+        name: String,
+    },
+}
+
+#[derive(Debug, clap::Args)]
+struct RunArgs {
+    /// Scenario file, or the name of a built-in scenario [default: paper].
+    scenario: Option<String>,
+    /// Step all four roles in this process (deterministic; the reference for the other modes).
+    #[arg(long)]
+    in_process: bool,
+    /// Override a scenario value by its dotted key, e.g. `mpc.gamma=0.3` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Run directory [default: a fresh directory under runs/].
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
+/// Parses the command line and runs it.
+pub fn main() -> ExitCode {
+    init_logging();
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Scenario { name } => match scenarios::built_in(&name) {
+            Some(text) => {
+                print!("{text}");
+                ExitCode::SUCCESS
+            }
+            None => {
+                let names: Vec<&str> = scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
+                eprintln!(
+                    "error: no built-in scenario `{name}` (there are: {})",
+                    names.join(", ")
+                );
+                ExitCode::from(EXIT_BAD_INPUT)
+            }
+        },
+        Command::Run(args) => run(args),
+    }
+}
+
+fn run(args: RunArgs) -> ExitCode {
+    let scenario = match scenarios::load(args.scenario.as_deref(), &args.overrides) {
+        Ok(s) => s,
+        Err(e) => {
+            eprint!("error: {e}");
+            return ExitCode::from(EXIT_BAD_INPUT);
+        }
+    };
+    let out = args.out.unwrap_or_else(|| default_run_dir(&scenario.name));
+    // Until the multi-process mode lands, every run steps the roles in this process.
+    let _ = args.in_process;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
+        tracing::warn!("cannot install the Ctrl-C handler: {e}");
+    }
+    let result = inprocess::run(&scenario, &out, &stop)
+        .with_context(|| format!("run of `{}`", scenario.name));
+    match result {
+        Ok(summary) => {
+            println!("run directory: {}", out.display());
+            print!("{}", summary.table());
+            if summary.outcome == crate::monitor::Outcome::Reached {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(EXIT_NOT_REACHED)
+            }
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
+    }
+}
+
+/// `runs/<name>-<UTC yyyymmdd-hhmmss>`, made unique with a counter if it exists.
+fn default_run_dir(name: &str) -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let base = format!("{name}-{}", utc_stamp(secs));
+    let mut dir = PathBuf::from("runs").join(&base);
+    let mut n = 1;
+    while dir.exists() {
+        n += 1;
+        dir = PathBuf::from("runs").join(format!("{base}-{n}"));
+    }
+    dir
+}
+
+/// `yyyymmdd-hhmmss` of a Unix time, UTC (civil-from-days, proleptic Gregorian).
+fn utc_stamp(unix_s: u64) -> String {
+    let days = (unix_s / 86_400) as i64;
+    let rem = unix_s % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}{month:02}{day:02}-{:02}{:02}{:02}",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
+}
+
+fn init_logging() {
+    let filter =
+        tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG").unwrap_or_else(|_| "warn".into());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_stamp_formats_known_instants() {
+        assert_eq!(utc_stamp(0), "19700101-000000");
+        assert_eq!(utc_stamp(951_782_400), "20000229-000000");
+        assert_eq!(utc_stamp(1_795_299_065), "20261121-221105");
+    }
+}

@@ -1,0 +1,149 @@
+//! Judges a run from the true pose: clearance, collision, goal, stall.
+
+use protocol::{Obstacle, Scenario};
+use serde::Serialize;
+use std::collections::VecDeque;
+
+/// How a run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Within the goal tolerance from `time_to_goal_s` to the end of the run.
+    Reached,
+    /// The robot's centre entered an obstacle (true radius).
+    Collided,
+    /// Moved less than [`STALL_DISTANCE_M`] over [`STALL_WINDOW_S`] away from the goal.
+    Stalled,
+    /// The run's duration elapsed outside the goal tolerance.
+    Timeout,
+    /// Stopped by the user (Ctrl-C).
+    Interrupted,
+}
+
+impl Outcome {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Outcome::Reached => "reached",
+            Outcome::Collided => "collided",
+            Outcome::Stalled => "stalled",
+            Outcome::Timeout => "timeout",
+            Outcome::Interrupted => "interrupted",
+        }
+    }
+}
+
+/// Length of the stall window, s.
+pub const STALL_WINDOW_S: f64 = 2.0;
+/// A robot that moved less than this over the stall window has stalled, m.
+pub const STALL_DISTANCE_M: f64 = 0.01;
+
+/// Watches the true pose tick by tick.
+pub struct Monitor {
+    obstacles: Vec<Obstacle>,
+    goal: [f64; 2],
+    goal_tolerance_m: f64,
+    /// `(t, x, y)` over the last stall window.
+    window: VecDeque<(f64, f64, f64)>,
+    pub min_clearance_m: f64,
+    /// Start of the current stay within the goal tolerance.
+    pub inside_goal_since_s: Option<f64>,
+    pub last_distance_to_goal_m: f64,
+}
+
+impl Monitor {
+    pub fn new(scenario: &Scenario) -> Monitor {
+        Monitor {
+            obstacles: scenario.obstacles.clone(),
+            goal: scenario.robot.goal,
+            goal_tolerance_m: scenario.robot.goal_tolerance_m,
+            window: VecDeque::new(),
+            min_clearance_m: f64::INFINITY,
+            inside_goal_since_s: None,
+            last_distance_to_goal_m: f64::INFINITY,
+        }
+    }
+
+    /// Distance from the robot's centre to the nearest obstacle surface, m.
+    pub fn clearance(&self, x: f64, y: f64) -> f64 {
+        self.obstacles
+            .iter()
+            .map(|o| (x - o.x).hypot(y - o.y) - o.radius)
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Observes the true position at time `t_s`; returns an outcome that ends the run now
+    /// (a collision or a stall).
+    pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
+        let clearance = self.clearance(x, y);
+        self.min_clearance_m = self.min_clearance_m.min(clearance);
+        let distance = (x - self.goal[0]).hypot(y - self.goal[1]);
+        self.last_distance_to_goal_m = distance;
+        if distance <= self.goal_tolerance_m {
+            self.inside_goal_since_s.get_or_insert(t_s);
+        } else {
+            self.inside_goal_since_s = None;
+        }
+        if clearance < 0.0 {
+            return Some(Outcome::Collided);
+        }
+        self.window.push_back((t_s, x, y));
+        while self
+            .window
+            .front()
+            .is_some_and(|&(t0, _, _)| t_s - t0 > STALL_WINDOW_S + 1e-9)
+        {
+            self.window.pop_front();
+        }
+        let full = self
+            .window
+            .front()
+            .is_some_and(|&(t0, _, _)| t_s - t0 >= STALL_WINDOW_S - 1e-9);
+        let still = self
+            .window
+            .iter()
+            .all(|&(_, wx, wy)| (wx - x).hypot(wy - y) < STALL_DISTANCE_M);
+        (full && still && distance > self.goal_tolerance_m).then_some(Outcome::Stalled)
+    }
+
+    /// The outcome of a run that went its full length.
+    pub fn final_outcome(&self) -> Outcome {
+        if self.inside_goal_since_s.is_some() {
+            Outcome::Reached
+        } else {
+            Outcome::Timeout
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_robot_standing_still_away_from_the_goal_stalls_after_the_window() {
+        let mut m = Monitor::new(&Scenario::default());
+        let mut ended = None;
+        for i in 0..1000 {
+            let t = i as f64 * 0.005;
+            if let Some(o) = m.observe(t, 7.0, 7.0) {
+                ended = Some((o, t));
+                break;
+            }
+        }
+        let (outcome, t) = ended.unwrap();
+        assert_eq!(outcome, Outcome::Stalled);
+        assert!((t - STALL_WINDOW_S).abs() < 0.01, "stalled at {t}");
+    }
+
+    #[test]
+    fn entering_an_obstacle_is_a_collision_and_the_goal_needs_a_stay() {
+        let mut m = Monitor::new(&Scenario::default());
+        assert_eq!(m.observe(0.0, 3.0, 2.1), Some(Outcome::Collided));
+        let mut m = Monitor::new(&Scenario::default());
+        m.observe(0.0, 0.05, 0.0);
+        m.observe(0.1, 0.5, 0.0);
+        m.observe(0.2, 0.05, 0.0);
+        assert_eq!(m.inside_goal_since_s, Some(0.2));
+        assert_eq!(m.final_outcome(), Outcome::Reached);
+    }
+}

@@ -1,0 +1,311 @@
+//! The run directory: `trajectory.csv` (one row per inner tick), `plans.csv` (one row per
+//! MPC sample) and `summary.json`, plus the summary table printed at the end of a run.
+
+use crate::monitor::{Monitor, Outcome};
+use protocol::{Actuation, CommandMode, Estimate, GroundTruth, Plan, Scenario};
+use serde::Serialize;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// p50 / p99 / max of a sample set (nearest-rank); zeros when empty.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Percentiles {
+    pub p50: f64,
+    pub p99: f64,
+    pub max: f64,
+}
+
+impl Percentiles {
+    pub fn of(values: &[f64]) -> Percentiles {
+        if values.is_empty() {
+            return Percentiles::default();
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let rank = |p: f64| v[((p * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1];
+        Percentiles {
+            p50: rank(0.50),
+            p99: rank(0.99),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// How many inner ticks were commanded in each mode.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct ModeCounts {
+    pub nominal: u64,
+    pub shifted: u64,
+    pub brake: u64,
+    pub zeta_guard: u64,
+}
+
+/// `summary.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub scenario: String,
+    pub seed: u64,
+    /// `in-process`, `lockstep` or `realtime`.
+    pub mode: String,
+    pub outcome: Outcome,
+    /// Smallest distance from the robot's centre to an obstacle surface, m.
+    pub min_clearance_m: f64,
+    /// First time after which the robot stayed within the goal tolerance, s.
+    pub time_to_goal_s: Option<f64>,
+    pub final_distance_to_goal_m: f64,
+    /// Samples whose plan was not in the DFL's hands by `t_k + Ts`, or failed.
+    pub deadline_misses: u64,
+    /// Plans whose solver status was not `solved`.
+    pub solver_failures: u64,
+    /// MPC samples run.
+    pub steps: u64,
+    /// Inner ticks run.
+    pub ticks: u64,
+    pub simulated_s: f64,
+    pub wall_s: f64,
+    /// Wall time of each MPC step (update, every solve), µs.
+    pub solve_us: Percentiles,
+    /// Interior-point iterations per MPC step.
+    pub iterations: Percentiles,
+    pub commands: ModeCounts,
+}
+
+impl Summary {
+    /// The short table printed at the end of a run.
+    pub fn table(&self) -> String {
+        let opt = |v: Option<f64>| v.map_or("never".to_string(), |t| format!("{t:.2} s"));
+        let rows = [
+            (
+                "scenario",
+                format!("{} (seed {}, {})", self.scenario, self.seed, self.mode),
+            ),
+            ("outcome", self.outcome.as_str().to_string()),
+            ("min clearance", format!("{:.3} m", self.min_clearance_m)),
+            ("time to goal", opt(self.time_to_goal_s)),
+            (
+                "final distance",
+                format!("{:.3} m", self.final_distance_to_goal_m),
+            ),
+            (
+                "samples / ticks",
+                format!("{} / {}", self.steps, self.ticks),
+            ),
+            (
+                "deadline misses",
+                format!(
+                    "{} ({} solver failures)",
+                    self.deadline_misses, self.solver_failures
+                ),
+            ),
+            (
+                "commands",
+                format!(
+                    "nominal {}, shifted {}, brake {}, zeta_guard {}",
+                    self.commands.nominal,
+                    self.commands.shifted,
+                    self.commands.brake,
+                    self.commands.zeta_guard
+                ),
+            ),
+            (
+                "solve time",
+                format!(
+                    "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
+                    self.solve_us.p50, self.solve_us.p99, self.solve_us.max
+                ),
+            ),
+            (
+                "wall time",
+                format!(
+                    "{:.2} s for {:.1} s simulated",
+                    self.wall_s, self.simulated_s
+                ),
+            ),
+        ];
+        rows.iter()
+            .map(|(k, v)| format!("  {k:<16} {v}\n"))
+            .collect()
+    }
+}
+
+/// Streams the run's records to its directory and accumulates the summary's statistics.
+pub struct Recorder {
+    dir: PathBuf,
+    trajectory: BufWriter<File>,
+    plans: BufWriter<File>,
+    pub monitor: Monitor,
+    solve_us: Vec<f64>,
+    iterations: Vec<f64>,
+    deadline_misses: u64,
+    solver_failures: u64,
+    commands: ModeCounts,
+    ticks: u64,
+    last_time_s: f64,
+}
+
+impl Recorder {
+    /// Creates `dir` (and parents) and the record files.
+    pub fn create(dir: &Path, scenario: &Scenario) -> std::io::Result<Recorder> {
+        std::fs::create_dir_all(dir)?;
+        std::fs::write(dir.join("scenario.toml"), scenario.to_toml())?;
+        let mut trajectory = BufWriter::new(File::create(dir.join("trajectory.csv"))?);
+        writeln!(
+            trajectory,
+            "t,x,y,theta,zeta,x_hat,y_hat,theta_hat,zeta_hat,v1,v2,u1,u2,omega_r,omega_l,mode,plan_sample,clearance"
+        )?;
+        let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
+        writeln!(
+            plans,
+            "sample,t,status,solve_us,iterations,solves,late_samples,deadline_met,v1,v2"
+        )?;
+        Ok(Recorder {
+            dir: dir.to_path_buf(),
+            trajectory,
+            plans,
+            monitor: Monitor::new(scenario),
+            solve_us: Vec::new(),
+            iterations: Vec::new(),
+            deadline_misses: 0,
+            solver_failures: 0,
+            commands: ModeCounts::default(),
+            ticks: 0,
+            last_time_s: 0.0,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// One inner tick: the truth at `t_j`, the estimate used, and the command applied over
+    /// `[t_j, t_j+1)`. Returns an outcome that ends the run now.
+    pub fn tick(
+        &mut self,
+        truth: &GroundTruth,
+        zeta: f64,
+        estimate: &Estimate,
+        act: &Actuation,
+    ) -> std::io::Result<Option<Outcome>> {
+        let [x, y, theta] = truth.pose;
+        let t = truth.header.time_s;
+        let mode = act.mode().unwrap_or(CommandMode::Brake);
+        match mode {
+            CommandMode::Nominal => self.commands.nominal += 1,
+            CommandMode::Shifted => self.commands.shifted += 1,
+            CommandMode::Brake => self.commands.brake += 1,
+            CommandMode::ZetaGuard => self.commands.zeta_guard += 1,
+        }
+        self.ticks += 1;
+        self.last_time_s = t;
+        let clearance = self.monitor.clearance(x, y);
+        let e = &estimate.state;
+        writeln!(
+            self.trajectory,
+            "{t:.4},{x},{y},{theta},{zeta},{},{},{},{},{},{},{},{},{},{},{},{},{clearance}",
+            e[0],
+            e[1],
+            e[2],
+            e[3],
+            act.v[0],
+            act.v[1],
+            act.u1,
+            act.u2,
+            act.wheels[0],
+            act.wheels[1],
+            mode.as_str(),
+            act.plan_sample,
+        )?;
+        Ok(self.monitor.observe(t, x, y))
+    }
+
+    /// The truth after the last tick, so the run is judged at its very end too.
+    pub fn final_pose(&mut self, truth: &GroundTruth) -> Option<Outcome> {
+        self.last_time_s = truth.header.time_s;
+        self.monitor
+            .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+    }
+
+    /// One MPC sample: its plan and how many samples late it reached the DFL.
+    pub fn plan(&mut self, plan: &Plan, late_samples: u64) -> std::io::Result<()> {
+        let solved = plan.is_solved();
+        let met = solved && late_samples == 0;
+        if !solved {
+            self.solver_failures += 1;
+        }
+        if !met {
+            self.deadline_misses += 1;
+        }
+        let solve_us = plan.solve_ns as f64 / 1e3;
+        self.solve_us.push(solve_us);
+        self.iterations.push(f64::from(plan.iterations));
+        let status = plan.status().map_or("unknown", |s| s.as_str());
+        writeln!(
+            self.plans,
+            "{},{:.4},{status},{solve_us:.1},{},{},{late_samples},{met},{},{}",
+            plan.sample,
+            plan.header.time_s,
+            plan.iterations,
+            plan.solves,
+            plan.v[0][0],
+            plan.v[0][1]
+        )
+    }
+
+    /// Flushes the records and writes `summary.json`.
+    pub fn finish(
+        mut self,
+        scenario: &Scenario,
+        mode: &str,
+        outcome: Outcome,
+        wall_s: f64,
+    ) -> std::io::Result<Summary> {
+        self.trajectory.flush()?;
+        self.plans.flush()?;
+        let m = &self.monitor;
+        let summary = Summary {
+            scenario: scenario.name.clone(),
+            seed: scenario.seed,
+            mode: mode.to_string(),
+            outcome,
+            min_clearance_m: m.min_clearance_m,
+            time_to_goal_s: if outcome == Outcome::Reached {
+                m.inside_goal_since_s
+            } else {
+                None
+            },
+            final_distance_to_goal_m: m.last_distance_to_goal_m,
+            deadline_misses: self.deadline_misses,
+            solver_failures: self.solver_failures,
+            steps: self.solve_us.len() as u64,
+            ticks: self.ticks,
+            simulated_s: self.last_time_s,
+            wall_s,
+            solve_us: Percentiles::of(&self.solve_us),
+            iterations: Percentiles::of(&self.iterations),
+            commands: self.commands,
+        };
+        let json = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;
+        std::fs::write(self.dir.join("summary.json"), json + "\n")?;
+        Ok(summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_use_nearest_rank() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(
+            Percentiles::of(&v),
+            Percentiles {
+                p50: 50.0,
+                p99: 99.0,
+                max: 100.0
+            }
+        );
+        assert_eq!(Percentiles::of(&[]), Percentiles::default());
+    }
+}

@@ -1,0 +1,77 @@
+//! Built-in scenarios and loading a scenario from a file plus `--set` overrides.
+
+use protocol::{Scenario, ScenarioError, ScenarioErrors};
+use std::path::Path;
+
+/// Built-in scenarios by name: the files of `scenarios/`, compiled in.
+pub const BUILT_IN: &[(&str, &str)] = &[
+    ("paper", include_str!("../../scenarios/paper.toml")),
+    (
+        "paper-noisy",
+        include_str!("../../scenarios/paper-noisy.toml"),
+    ),
+];
+
+/// The text of a built-in scenario.
+pub fn built_in(name: &str) -> Option<&'static str> {
+    BUILT_IN
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, text)| *text)
+}
+
+/// Loads `source` (a path, or the name of a built-in scenario; "paper" when `None`),
+/// applies the overrides and validates the result. Nothing is returned unless all of it
+/// is valid; every error names its origin and key.
+pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
+    let source = source.unwrap_or("paper");
+    let (origin, text) = if Path::new(source).exists() {
+        let text = std::fs::read_to_string(source).map_err(|e| {
+            ScenarioErrors(vec![ScenarioError {
+                origin: source.to_string(),
+                key: String::new(),
+                message: format!("cannot read: {e}"),
+            }])
+        })?;
+        (source.to_string(), text)
+    } else if let Some(text) = built_in(source) {
+        (format!("built-in scenario `{source}`"), text.to_string())
+    } else {
+        let names: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
+        return Err(ScenarioErrors(vec![ScenarioError {
+            origin: source.to_string(),
+            key: String::new(),
+            message: format!(
+                "no such file, and not a built-in scenario ({})",
+                names.join(", ")
+            ),
+        }]));
+    };
+    let scenario = Scenario::from_toml(&text, &origin)?.with_overrides(overrides)?;
+    let origin = if overrides.is_empty() {
+        origin
+    } else {
+        format!("{origin} with --set")
+    };
+    scenario.validate(&origin)?;
+    Ok(scenario)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_paper_is_the_default_scenario() {
+        assert_eq!(load(None, &[]).unwrap(), Scenario::default());
+    }
+
+    #[test]
+    fn paper_noisy_differs_only_in_name_and_noise() {
+        let noisy = load(Some("paper-noisy"), &[]).unwrap();
+        let mut expected = Scenario::default();
+        expected.name = "paper-noisy".into();
+        expected.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
+        assert_eq!(noisy, expected);
+    }
+}

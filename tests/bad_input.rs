@@ -1,0 +1,145 @@
+//! Bad scenarios and overrides are refused before anything runs: exit code 2, and a
+//! message naming the file and the key.
+
+mod common;
+
+use common::{run, stderr};
+
+/// Writes `toml` to a scenario file, runs it, and checks the refusal.
+fn refused_file(toml: &str, key: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, toml).unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        file.to_str().unwrap(),
+        "--in-process",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let msg = stderr(&out);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{toml:?} was not refused: {msg}"
+    );
+    assert!(
+        msg.contains("bad.toml"),
+        "message does not name the file: {msg}"
+    );
+    assert!(msg.contains(key), "message does not name `{key}`: {msg}");
+    assert!(
+        !out_dir.exists(),
+        "a refused scenario still created its run directory"
+    );
+}
+
+fn refused_set(set: &str, key: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        "--in-process",
+        "--set",
+        set,
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let msg = stderr(&out);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "--set {set} was not refused: {msg}"
+    );
+    assert!(msg.contains(key), "message does not name `{key}`: {msg}");
+    assert!(!out_dir.exists());
+}
+
+#[test]
+fn unparseable_file_is_refused() {
+    refused_file("[mpc\nhorizon = 8", "bad.toml");
+}
+
+#[test]
+fn unknown_key_is_refused() {
+    refused_file("[mpc]\ngama = 0.3\n", "gama");
+}
+
+#[test]
+fn badly_typed_value_is_refused() {
+    refused_file("[mpc]\nhorizon = \"eight\"\n", "horizon");
+}
+
+#[test]
+fn non_positive_sample_period_is_refused() {
+    refused_file("[timing]\nts_s = 0.0\n", "timing.ts_s");
+    refused_file("[timing]\nts_s = -0.05\n", "timing.ts_s");
+}
+
+#[test]
+fn zero_horizon_is_refused() {
+    refused_file("[mpc]\nhorizon = 0\n", "mpc.horizon");
+}
+
+#[test]
+fn gamma_outside_zero_one_is_refused() {
+    refused_file("[mpc]\ngamma = 0.0\n", "mpc.gamma");
+    refused_file("[mpc]\ngamma = 1.5\n", "mpc.gamma");
+}
+
+#[test]
+fn negative_radius_is_refused() {
+    refused_file(
+        "[[obstacles]]\nx = 1.0\ny = 1.0\nradius = -0.5\n",
+        "obstacles.0.radius",
+    );
+}
+
+#[test]
+fn negative_variance_is_refused() {
+    refused_file("[plant]\nnoise_variance = -0.05\n", "plant.noise_variance");
+}
+
+#[test]
+fn non_finite_number_is_refused() {
+    refused_file("[mpc]\nv_max = nan\n", "mpc.v_max");
+    refused_file("[robot]\nstart = [inf, 7.0, 0.0]\n", "robot.start.0");
+}
+
+#[test]
+fn start_inside_an_obstacle_is_refused() {
+    refused_file("[robot]\nstart = [3.0, 3.0, 0.0]\n", "robot.start");
+}
+
+#[test]
+fn constraint_horizon_and_inner_steps_out_of_range_are_refused() {
+    refused_file(
+        "[mpc]\nconstraint_horizon = 100000\n",
+        "mpc.constraint_horizon",
+    );
+    refused_file("[timing]\ninner_steps = 0\n", "timing.inner_steps");
+}
+
+#[test]
+fn set_with_unknown_key_is_refused() {
+    refused_set("mpc.gama=0.3", "mpc.gama");
+}
+
+#[test]
+fn set_with_badly_typed_value_is_refused() {
+    refused_set("mpc.horizon=abc", "mpc.horizon");
+    refused_set("mpc.constraint=circle", "mpc.constraint");
+}
+
+#[test]
+fn set_with_impossible_value_is_refused() {
+    refused_set("mpc.gamma=2", "mpc.gamma");
+}
+
+#[test]
+fn missing_scenario_file_is_refused() {
+    let out = run(&["run", "/nonexistent/scenario.toml", "--in-process"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("/nonexistent/scenario.toml"));
+}

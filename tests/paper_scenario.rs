@@ -1,0 +1,106 @@
+//! The paper's closed loop, end to end through the `scmpc` executable.
+
+mod common;
+
+use common::{run, summary};
+
+#[test]
+fn paper_scenario_reaches_the_goal_without_collision() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = run(&["run", "--in-process", "--out", dir.path().to_str().unwrap()]);
+    assert!(out.status.success(), "{}", common::stderr(&out));
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "reached");
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+    let t = s["time_to_goal_s"].as_f64().unwrap();
+    assert!((15.0..30.0).contains(&t), "time to goal {t}");
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["steps"], 600);
+    for key in ["p50", "p99", "max"] {
+        assert!(s["solve_us"][key].as_f64().unwrap() > 0.0);
+    }
+    // One trajectory row per inner tick, with the columns the README promises.
+    let trajectory = std::fs::read_to_string(dir.path().join("trajectory.csv")).unwrap();
+    let header = trajectory.lines().next().unwrap();
+    for column in [
+        "t", "x", "y", "theta", "zeta", "x_hat", "v1", "v2", "u1", "u2", "mode",
+    ] {
+        assert!(
+            header.split(',').any(|c| c == column),
+            "no column {column} in {header}"
+        );
+    }
+    assert_eq!(trajectory.lines().count(), 1 + 6000);
+    let plans = std::fs::read_to_string(dir.path().join("plans.csv")).unwrap();
+    assert_eq!(plans.lines().count(), 1 + 600);
+}
+
+#[test]
+fn noisy_paper_scenario_with_the_ekf_is_collision_free() {
+    for seed in ["1", "2", "3"] {
+        let dir = tempfile::tempdir().unwrap();
+        let set_seed = format!("seed={seed}");
+        let out = run(&[
+            "run",
+            "paper-noisy",
+            "--in-process",
+            "--set",
+            &set_seed,
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
+        let s = summary(dir.path());
+        assert_ne!(
+            s["outcome"],
+            "collided",
+            "seed {seed}: {}",
+            common::stderr(&out)
+        );
+        let clearance = s["min_clearance_m"].as_f64().unwrap();
+        assert!(clearance > 0.0, "seed {seed}: min clearance {clearance}");
+    }
+}
+
+#[test]
+fn same_seed_gives_the_same_trajectory() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    for dir in [&a, &b] {
+        run(&[
+            "run",
+            "paper-noisy",
+            "--in-process",
+            "--set",
+            "duration_s=5",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
+    }
+    let read =
+        |d: &tempfile::TempDir| std::fs::read_to_string(d.path().join("trajectory.csv")).unwrap();
+    assert_eq!(read(&a), read(&b));
+}
+
+#[test]
+fn scenario_command_prints_a_scenario_that_runs_as_is() {
+    let out = run(&["scenario", "paper"]);
+    assert!(out.status.success());
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("mine.toml");
+    std::fs::write(&file, &out.stdout).unwrap();
+    let run_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        file.to_str().unwrap(),
+        "--in-process",
+        "--set",
+        "duration_s=1",
+        "--out",
+        run_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        run_dir.join("summary.json").exists(),
+        "{}",
+        common::stderr(&out)
+    );
+    assert_eq!(summary(&run_dir)["scenario"], "paper");
+}
