@@ -58,6 +58,67 @@ pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
     (age < u64::from(plan.horizon)).then_some(age as usize)
 }
 
+/// Samples a plan arrives late in lockstep: 0 if its solve took at most `Ts`, else
+/// `ceil(solve / Ts)` (DESIGN.md section 3: timing violations behave as in real time).
+pub fn late_samples(solve_ns: u64, ts_s: f64) -> u64 {
+    let solve_s = solve_ns as f64 * 1e-9;
+    if solve_s <= ts_s {
+        0
+    } else {
+        (solve_s / ts_s).ceil() as u64
+    }
+}
+
+/// When plans reach the DFL. In lockstep a plan is held until its arrival sample
+/// ([`late_samples`]); in real time it is usable as soon as it is received.
+pub struct PlanInbox {
+    lockstep: bool,
+    ts_s: f64,
+    /// `(arrival sample, plan)` not yet offered to the DFL.
+    pending: Vec<(u64, Plan)>,
+    /// Newest sample a plan has been received for.
+    newest_received: Option<u64>,
+}
+
+impl PlanInbox {
+    pub fn new(lockstep: bool, ts_s: f64) -> PlanInbox {
+        PlanInbox {
+            lockstep,
+            ts_s,
+            pending: Vec::with_capacity(8),
+            newest_received: None,
+        }
+    }
+
+    /// Takes a received plan; returns the sample it becomes usable at.
+    pub fn receive(&mut self, plan: &Plan) -> u64 {
+        let arrival = if self.lockstep {
+            plan.sample + late_samples(plan.solve_ns, self.ts_s)
+        } else {
+            0
+        };
+        self.newest_received = self.newest_received.max(Some(plan.sample));
+        self.pending.push((arrival, *plan));
+        arrival.max(plan.sample)
+    }
+
+    /// Whether plan(`sample`) (or a newer one) has been received.
+    pub fn has_received(&self, sample: u64) -> bool {
+        self.newest_received.is_some_and(|s| s >= sample)
+    }
+
+    /// Offers the DFL every plan that has arrived by `current_sample`.
+    pub fn release(&mut self, current_sample: u64, dfl: &mut Dfl) {
+        self.pending.retain(|(arrival, plan)| {
+            let arrived = *arrival <= current_sample;
+            if arrived {
+                dfl.offer(plan);
+            }
+            !arrived
+        });
+    }
+}
+
 /// The DFL role: owns zeta and the newest usable plan.
 pub struct Dfl {
     zeta: f64,
@@ -241,6 +302,34 @@ mod tests {
         assert_eq!(covering_element(&p, 10), Some(0));
         assert_eq!(covering_element(&p, 17), Some(7));
         assert_eq!(covering_element(&p, 18), None, "exhausted after N samples");
+    }
+
+    #[test]
+    fn plans_within_the_period_are_on_time_and_slower_ones_late_by_whole_samples() {
+        assert_eq!(late_samples(10_000_000, 0.05), 0);
+        assert_eq!(late_samples(50_000_000, 0.05), 0);
+        assert_eq!(late_samples(50_000_001, 0.05), 2);
+        assert_eq!(late_samples(125_000_000, 0.05), 3);
+    }
+
+    #[test]
+    fn lockstep_inbox_holds_a_late_plan_until_its_arrival_sample() {
+        let mut dfl = Dfl::new(&Scenario::default());
+        let mut inbox = PlanInbox::new(true, 0.05);
+        let mut p = plan(100, 8, PlanStatus::Solved);
+        p.solve_ns = 125_000_000; // 2.5 Ts: arrives at sample 103
+        assert_eq!(inbox.receive(&p), 103);
+        assert!(inbox.has_received(100));
+        let est = Estimate::default();
+        inbox.release(102, &mut dfl);
+        assert_eq!(dfl.step(&est, 1020).mode(), Some(CommandMode::Brake));
+        inbox.release(103, &mut dfl);
+        let a = dfl.step(&est, 1030);
+        assert_eq!(
+            (a.mode(), a.v),
+            (Some(CommandMode::Shifted), [3.0, 0.0]),
+            "element 3 of plan 100"
+        );
     }
 
     #[test]

@@ -11,11 +11,11 @@
 use crate::monitor::Outcome;
 use crate::record::{Recorder, Summary};
 use anyhow::Context;
-use dfl::Dfl;
+use dfl::{Dfl, PlanInbox};
 use estimator::Estimator;
 use mpc::Mpc;
 use plant::Plant;
-use protocol::{GroundTruth, Header, Plan, Scenario};
+use protocol::{GroundTruth, Header, Scenario};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -47,7 +47,7 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
     let mut estimator = Estimator::new(scenario);
     let mut mpc = Mpc::new(scenario).context("setting up the MPC")?;
     let mut dfl = Dfl::new(scenario);
-    let mut in_flight: Vec<(u64, Plan)> = Vec::new();
+    let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
     let mut applied: Option<[f64; 2]> = None;
     let mut outcome = None;
     let ticks = tick_count(scenario);
@@ -71,24 +71,18 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
         if tick % m == 0 {
             let mut plan = mpc.step(sample, estimate.state, estimate.position_sigma());
             plan.header = header;
-            let late = late_samples(plan.solve_ns, scenario.timing.ts_s);
-            recorder.plan(&plan, late)?;
-            in_flight.push((sample + late, plan));
+            let arrival = inbox.receive(&plan);
+            recorder.plan(&plan, arrival - sample)?;
         }
-        in_flight.retain(|(arrival, plan)| {
-            let arrived = *arrival <= sample;
-            if arrived {
-                dfl.offer(plan);
-            }
-            !arrived
-        });
-        let zeta = dfl.zeta();
+        inbox.release(sample, &mut dfl);
         let act = dfl.step(&estimate, tick);
-        if let Some(o) = recorder.tick(&truth, zeta, &estimate, &act)? {
+        if let Some(o) = recorder.tick(&truth, &estimate, &act)? {
             outcome = Some(o);
             break;
         }
-        applied = Some(plant.step(act.u1, act.u2, dt));
+        plant.step(act.u1, act.u2, dt);
+        // The estimator is driven by the command it hears, as over IPC.
+        applied = Some([act.u1, act.u2]);
     }
     let outcome = match outcome {
         Some(o) => o,
@@ -112,17 +106,4 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
         started.elapsed().as_secs_f64(),
     )?;
     Ok(summary)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn plans_within_the_period_are_on_time_and_slower_ones_late_by_whole_samples() {
-        assert_eq!(late_samples(10_000_000, 0.05), 0);
-        assert_eq!(late_samples(50_000_000, 0.05), 0);
-        assert_eq!(late_samples(50_000_001, 0.05), 2);
-        assert_eq!(late_samples(125_000_000, 0.05), 3);
-    }
 }

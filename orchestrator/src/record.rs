@@ -142,6 +142,8 @@ pub struct Recorder {
     commands: ModeCounts,
     ticks: u64,
     last_time_s: f64,
+    /// The DFL's zeta at the start of the next tick.
+    zeta: f64,
 }
 
 impl Recorder {
@@ -171,6 +173,7 @@ impl Recorder {
             commands: ModeCounts::default(),
             ticks: 0,
             last_time_s: 0.0,
+            zeta: scenario.robot.zeta0,
         })
     }
 
@@ -183,11 +186,12 @@ impl Recorder {
     pub fn tick(
         &mut self,
         truth: &GroundTruth,
-        zeta: f64,
         estimate: &Estimate,
         act: &Actuation,
     ) -> std::io::Result<Option<Outcome>> {
         let [x, y, theta] = truth.pose;
+        // The DFL's zeta at t_j: where the previous command left it.
+        let zeta = std::mem::replace(&mut self.zeta, act.zeta);
         let t = truth.header.time_s;
         let mode = act.mode().unwrap_or(CommandMode::Brake);
         match mode {

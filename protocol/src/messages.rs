@@ -22,7 +22,9 @@ pub struct Header {
     pub publish_ns: u64,
     /// Epoch of the producer: only samples of the active epoch of a role are used.
     pub epoch: u32,
-    pub reserved: u32,
+    /// Publish-to-receipt latency of the input that triggered this message, ns
+    /// (saturating; 0 when there was none).
+    pub input_latency_ns: u32,
 }
 
 /// Noisy output `y = [x, y, theta] + noise` of the plant.
@@ -210,3 +212,116 @@ impl Actuation {
         CommandMode::from_code(self.mode)
     }
 }
+
+/// What the orchestrator tells every process.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ControlCommand {
+    /// Lockstep: the plant may publish tick `header.tick`.
+    Grant = 0,
+    /// Real time: tick 0 is at monotonic time `start_ns`.
+    Start = 1,
+    /// The run is over: exit cleanly.
+    Stop = 2,
+}
+
+/// The orchestrator's clock and commands.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Control")]
+pub struct Control {
+    pub header: Header,
+    /// [`ControlCommand`] code.
+    pub command: u32,
+    pub reserved: u32,
+    /// Monotonic time of tick 0 (real time), ns.
+    pub start_ns: u64,
+}
+
+impl Control {
+    pub fn command(&self) -> Option<ControlCommand> {
+        Some(match self.command {
+            0 => ControlCommand::Grant,
+            1 => ControlCommand::Start,
+            2 => ControlCommand::Stop,
+            _ => return None,
+        })
+    }
+}
+
+/// The four roles of a run.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Role {
+    Plant = 0,
+    Estimator = 1,
+    Mpc = 2,
+    Dfl = 3,
+}
+
+impl Role {
+    pub const ALL: [Role; 4] = [Role::Plant, Role::Estimator, Role::Mpc, Role::Dfl];
+    pub fn from_code(code: u32) -> Option<Role> {
+        Role::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Plant => "plant",
+            Role::Estimator => "estimator",
+            Role::Mpc => "mpc",
+            Role::Dfl => "dfl",
+        }
+    }
+}
+
+/// What a process reports to the orchestrator.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StatusEvent {
+    /// Every port is open: the process can take part in the run.
+    Ready = 0,
+    /// No input arrived within the input timeout; the process exits.
+    InputLost = 1,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Status")]
+pub struct Status {
+    pub header: Header,
+    /// [`Role`] code.
+    pub role: u32,
+    /// [`StatusEvent`] code.
+    pub event: u32,
+    pub pid: u32,
+    pub reserved: u32,
+}
+
+/// Every message type: access to its [`Header`].
+pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
+    fn header(&self) -> &Header;
+    fn header_mut(&mut self) -> &mut Header;
+}
+
+macro_rules! impl_message {
+    ($($t:ty),*) => {$(
+        impl Message for $t {
+            fn header(&self) -> &Header {
+                &self.header
+            }
+            fn header_mut(&mut self) -> &mut Header {
+                &mut self.header
+            }
+        }
+    )*};
+}
+
+impl_message!(
+    Measurement,
+    GroundTruth,
+    Estimate,
+    Plan,
+    Actuation,
+    Control,
+    Status
+);

@@ -1,0 +1,293 @@
+//! The iceoryx2 side of the protocol: per-run configuration, service names, and the one
+//! function that opens every topic with identical settings in every process.
+//!
+//! A topic is a publish-subscribe service paired with an event service of the same name:
+//! a [`Sender`] publishes a sample and then notifies, so a [`Receiver`]'s process can
+//! block in a WaitSet on the listener instead of spinning.
+
+use crate::clock::monotonic_ns;
+use crate::messages::Message;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+use iceoryx2::waitset::WaitSetRunResult;
+use std::fmt::Display;
+use std::marker::PhantomData;
+
+/// Noisy output of the plant.
+pub const MEASUREMENT: &str = "measurement";
+/// True state of the plant (read by the recorder only).
+pub const TRUTH: &str = "truth";
+pub const ESTIMATE: &str = "estimate";
+pub const PLAN: &str = "plan";
+pub const ACTUATION: &str = "actuation";
+/// Orchestrator to processes: clock grants, start, stop.
+pub const CONTROL: &str = "control";
+/// Processes to orchestrator: ready, input lost.
+pub const STATUS: &str = "status";
+
+/// Publishers a topic admits: the active producer, a swap-in replacement, and spares.
+pub const MAX_PUBLISHERS: usize = 4;
+pub const MAX_SUBSCRIBERS: usize = 8;
+/// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
+pub const SUBSCRIBER_BUFFER: usize = 64;
+/// Every run's resource prefix starts with this.
+pub const PREFIX_STEM: &str = "scmpc";
+
+/// An iceoryx2 operation that failed, with what was being done.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("iceoryx2: {0}")]
+pub struct IpcError(pub String);
+
+fn ctx<E: Display>(what: impl Display) -> impl FnOnce(E) -> IpcError {
+    move |e| IpcError(format!("{what}: {e}"))
+}
+
+/// A fresh resource prefix for one run: `scmpc<pid>x<nanos>_`.
+pub fn new_prefix() -> String {
+    format!(
+        "{PREFIX_STEM}{}x{}_",
+        std::process::id(),
+        monotonic_ns() % 1_000_000_000_000
+    )
+}
+
+/// The iceoryx2 configuration of a run: the global defaults with the run's prefix, so
+/// runs never share a resource.
+pub fn run_config(prefix: &str) -> Result<Config, IpcError> {
+    let mut config = Config::global_config().clone();
+    config.global.prefix =
+        FileName::new(prefix.as_bytes()).map_err(ctx(format!("prefix `{prefix}`")))?;
+    Ok(config)
+}
+
+/// A node of the run. Processes handle SIGINT/SIGTERM through iceoryx2 (their waits
+/// return); the orchestrator installs its own handler and passes `handle_signals = false`.
+pub fn create_node(
+    prefix: &str,
+    name: &str,
+    handle_signals: bool,
+) -> Result<Node<ipc::Service>, IpcError> {
+    let config = run_config(prefix)?;
+    let mode = if handle_signals {
+        SignalHandlingMode::HandleTerminationRequests
+    } else {
+        SignalHandlingMode::Disabled
+    };
+    let node_name = NodeName::new(name).map_err(ctx(format!("node name `{name}`")))?;
+    NodeBuilder::new()
+        .config(&config)
+        .name(&node_name)
+        .signal_handling_mode(mode)
+        .create::<ipc::Service>()
+        .map_err(ctx(format!("creating node `{name}`")))
+}
+
+/// A publish-subscribe service and its event service, opened with the settings every
+/// process uses.
+pub struct Topic<T: Message> {
+    name: &'static str,
+    pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
+    event: event::PortFactory<ipc::Service>,
+}
+
+/// Opens (or creates) topic `name` carrying `T`.
+pub fn open_topic<T: Message>(
+    node: &Node<ipc::Service>,
+    name: &'static str,
+) -> Result<Topic<T>, IpcError> {
+    let service_name: ServiceName = name
+        .try_into()
+        .map_err(ctx(format!("service name `{name}`")))?;
+    let pubsub = node
+        .service_builder(&service_name)
+        .publish_subscribe::<T>()
+        .max_publishers(MAX_PUBLISHERS)
+        .max_subscribers(MAX_SUBSCRIBERS)
+        .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(ctx(format!("opening service `{name}`")))?;
+    let event = node
+        .service_builder(&service_name)
+        .event()
+        .open_or_create()
+        .map_err(ctx(format!("opening event service `{name}`")))?;
+    Ok(Topic {
+        name,
+        pubsub,
+        event,
+    })
+}
+
+impl<T: Message> Topic<T> {
+    /// A publisher stamping every sample with `epoch` and its publish time.
+    pub fn sender(&self, epoch: u32) -> Result<Sender<T>, IpcError> {
+        Ok(Sender {
+            publisher: self
+                .pubsub
+                .publisher_builder()
+                .create()
+                .map_err(ctx(format!("publisher on `{}`", self.name)))?,
+            notifier: self
+                .event
+                .notifier_builder()
+                .create()
+                .map_err(ctx(format!("notifier on `{}`", self.name)))?,
+            epoch,
+        })
+    }
+
+    pub fn receiver(&self) -> Result<Receiver<T>, IpcError> {
+        Ok(Receiver {
+            subscriber: self
+                .pubsub
+                .subscriber_builder()
+                .buffer_size(SUBSCRIBER_BUFFER)
+                .create()
+                .map_err(ctx(format!("subscriber on `{}`", self.name)))?,
+            listener: self
+                .event
+                .listener_builder()
+                .create()
+                .map_err(ctx(format!("listener on `{}`", self.name)))?,
+            _payload: PhantomData,
+        })
+    }
+}
+
+/// Publishes `T` and wakes the topic's listeners.
+pub struct Sender<T: Message> {
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+    epoch: u32,
+}
+
+impl<T: Message> Sender<T> {
+    /// Stamps the publish time and the epoch, publishes a copy and notifies.
+    pub fn send(&self, mut message: T) -> Result<(), IpcError> {
+        let header = message.header_mut();
+        header.epoch = self.epoch;
+        header.publish_ns = monotonic_ns();
+        self.publisher
+            .send_copy(message)
+            .map_err(ctx("publishing"))?;
+        self.notifier.notify().map_err(ctx("notifying"))?;
+        Ok(())
+    }
+}
+
+/// Receives `T`; its listener is what a WaitSet blocks on.
+pub struct Receiver<T: Message> {
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+    _payload: PhantomData<T>,
+}
+
+impl<T: Message> Receiver<T> {
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    /// The next sample, if any, with its publish-to-receipt latency in ns.
+    pub fn receive(&self) -> Result<Option<(T, u64)>, IpcError> {
+        let sample = self.subscriber.receive().map_err(ctx("receiving"))?;
+        Ok(sample.map(|s| {
+            let message = *s.payload();
+            let latency = monotonic_ns().saturating_sub(message.header().publish_ns);
+            (message, latency)
+        }))
+    }
+
+    /// Consumes the pending wake-ups, so a WaitSet does not fire again for them.
+    pub fn clear_wakeups(&self) {
+        let _ = self.listener.try_wait(|_| {});
+    }
+}
+
+/// How a wait ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wake {
+    /// At least one attached listener fired.
+    Input,
+    Timeout,
+    /// SIGINT or SIGTERM: the process should exit.
+    Terminate,
+}
+
+/// Blocks on the WaitSet until an input arrives or `timeout` passes.
+pub fn wait(
+    waitset: &WaitSet<ipc::Service>,
+    timeout: std::time::Duration,
+) -> Result<Wake, IpcError> {
+    let mut fired = false;
+    let result = waitset
+        .wait_and_process_once_with_timeout(
+            |_| {
+                fired = true;
+                CallbackProgression::Continue
+            },
+            timeout,
+        )
+        .map_err(ctx("waiting"))?;
+    Ok(match result {
+        WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt => Wake::Terminate,
+        _ if fired => Wake::Input,
+        _ => Wake::Timeout,
+    })
+}
+
+/// A WaitSet honouring SIGINT/SIGTERM.
+pub fn waitset() -> Result<WaitSet<ipc::Service>, IpcError> {
+    WaitSetBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(ctx("creating a WaitSet"))
+}
+
+/// Removes what dead nodes of the run left behind (their shared memory, their ports in
+/// every service). Returns how many nodes were cleaned.
+pub fn cleanup_dead_nodes(prefix: &str) -> Result<usize, IpcError> {
+    let config = run_config(prefix)?;
+    let mut dead = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    let count = dead.len();
+    for view in dead {
+        let _ = view.try_remove_stale_resources();
+    }
+    Ok(count)
+}
+
+/// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
+/// a run leaves behind (empty after a clean run).
+pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
+    let mut found = Vec::new();
+    let mut stack = vec![
+        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from("/tmp/iceoryx2"),
+    ];
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let path = entry.path();
+            if entry.file_name().to_string_lossy().contains(prefix) {
+                found.push(path.clone());
+            }
+            if entry.file_type().is_ok_and(|t| t.is_dir()) && !dir.starts_with("/dev/shm") {
+                stack.push(path);
+            }
+        }
+    }
+    found
+}
