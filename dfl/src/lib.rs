@@ -8,6 +8,8 @@
 
 use protocol::{Actuation, CommandMode, Estimate, Header, Plan, Scenario, WheelGeometry};
 
+pub mod process;
+
 pub use protocol::phi;
 
 /// Inverse of [`phi`] on the branch `zeta >= 0`; at rest (`zeta = 0`) theta is not

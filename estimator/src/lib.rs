@@ -7,6 +7,8 @@
 use nalgebra::{Matrix3, Vector3};
 use protocol::{Estimate, EstimatorKind, Header, Scenario, wrap_angle};
 
+pub mod process;
+
 /// Smallest measurement variance the EKF uses, so a noise-free run is exact state
 /// feedback (to ~1e-8 relative) without a singular innovation covariance.
 pub const MIN_MEASUREMENT_VARIANCE: f64 = 1e-12;

@@ -10,6 +10,7 @@
 
 pub mod model;
 pub mod problem;
+pub mod process;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};

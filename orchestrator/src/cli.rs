@@ -1,8 +1,9 @@
 //! The `scmpc` command line.
 
-use crate::{inprocess, scenarios};
+use crate::{inprocess, multiproc, scenarios};
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use protocol::ipc::{ProcessArgs, ProcessError, RunMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -35,6 +36,47 @@ enum Command {
         #[arg(default_value = "paper")]
         name: String,
     },
+    /// Role process: the plant (started by `scmpc run`).
+    Plant(RoleArgs),
+    /// Role process: the state estimator (started by `scmpc run`).
+    Estimator(RoleArgs),
+    /// Role process: the MPC (started by `scmpc run`).
+    Mpc(RoleArgs),
+    /// Role process: the DFL inner loop (started by `scmpc run`).
+    Dfl(RoleArgs),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Mode {
+    /// Simulated time, deterministic, as fast as the machine allows.
+    Lockstep,
+    /// Paced by the monotonic wall clock.
+    Realtime,
+}
+
+impl From<Mode> for RunMode {
+    fn from(m: Mode) -> RunMode {
+        match m {
+            Mode::Lockstep => RunMode::Lockstep,
+            Mode::Realtime => RunMode::Realtime,
+        }
+    }
+}
+
+/// What the orchestrator passes to a role process.
+#[derive(Debug, clap::Args)]
+struct RoleArgs {
+    /// The run's scenario file (the orchestrator writes it into the run directory).
+    #[arg(long)]
+    scenario: String,
+    /// The run's iceoryx2 resource prefix.
+    #[arg(long)]
+    prefix: String,
+    #[arg(long, value_enum, default_value = "lockstep")]
+    mode: Mode,
+    /// The producer epoch stamped on every sample.
+    #[arg(long, default_value_t = 0)]
+    epoch: u32,
 }
 
 #[derive(Debug, clap::Args)]
@@ -50,11 +92,15 @@ struct RunArgs {
     /// Run directory [default: a fresh directory under runs/].
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// Clock of a multi-process run (`--in-process` is always lockstep).
+    #[arg(long, value_enum, default_value = "lockstep")]
+    mode: Mode,
 }
 
 /// Parses the command line and runs it.
 pub fn main() -> ExitCode {
     init_logging();
+    iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let cli = Cli::parse();
     match cli.command {
         Command::Scenario { name } => match scenarios::built_in(&name) {
@@ -72,6 +118,34 @@ pub fn main() -> ExitCode {
             }
         },
         Command::Run(args) => run(args),
+        Command::Plant(args) => role(args, plant::process::run),
+        Command::Estimator(args) => role(args, estimator::process::run),
+        Command::Mpc(args) => role(args, mpc::process::run),
+        Command::Dfl(args) => role(args, dfl::process::run),
+    }
+}
+
+/// Runs one role process until the orchestrator stops it.
+fn role(args: RoleArgs, body: fn(&ProcessArgs) -> Result<(), ProcessError>) -> ExitCode {
+    let scenario = match scenarios::load(Some(&args.scenario), &[]) {
+        Ok(s) => s,
+        Err(e) => {
+            eprint!("error: {e}");
+            return ExitCode::from(EXIT_BAD_INPUT);
+        }
+    };
+    let process_args = ProcessArgs {
+        scenario,
+        prefix: args.prefix,
+        mode: args.mode.into(),
+        epoch: args.epoch,
+    };
+    match body(&process_args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
     }
 }
 
@@ -84,15 +158,23 @@ fn run(args: RunArgs) -> ExitCode {
         }
     };
     let out = args.out.unwrap_or_else(|| default_run_dir(&scenario.name));
-    // Until the multi-process mode lands, every run steps the roles in this process.
-    let _ = args.in_process;
+    if args.in_process && args.mode == Mode::Realtime {
+        eprintln!(
+            "error: --in-process runs in lockstep only; drop --mode realtime or --in-process"
+        );
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
         tracing::warn!("cannot install the Ctrl-C handler: {e}");
     }
-    let result = inprocess::run(&scenario, &out, &stop)
-        .with_context(|| format!("run of `{}`", scenario.name));
+    let result = if args.in_process {
+        inprocess::run(&scenario, &out, &stop)
+    } else {
+        multiproc::run(&scenario, &out, args.mode.into(), &stop)
+    };
+    let result = result.with_context(|| format!("run of `{}`", scenario.name));
     match result {
         Ok(summary) => {
             println!("run directory: {}", out.display());

@@ -104,6 +104,7 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
         "in-process",
         outcome,
         started.elapsed().as_secs_f64(),
+        None,
     )?;
     Ok(summary)
 }

@@ -3,5 +3,6 @@
 pub mod cli;
 pub mod inprocess;
 pub mod monitor;
+pub mod multiproc;
 pub mod record;
 pub mod scenarios;

@@ -4,6 +4,7 @@
 use crate::monitor::{Monitor, Outcome};
 use protocol::{Actuation, CommandMode, Estimate, GroundTruth, Plan, Scenario};
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -69,6 +70,62 @@ pub struct Summary {
     /// Interior-point iterations per MPC step.
     pub iterations: Percentiles,
     pub commands: ModeCounts,
+    /// Only for runs over iceoryx2 (not `--in-process`).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub processes: Option<ProcessReport>,
+}
+
+/// What a multi-process run adds to the summary.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ProcessReport {
+    /// PID of every process of the run, by role (and `orchestrator`).
+    pub pids: BTreeMap<String, u32>,
+    /// The run's iceoryx2 resource prefix.
+    pub iceoryx2_prefix: String,
+    /// Publish-to-receipt latency of every hop, pooled, µs.
+    pub hop_latency_us: Percentiles,
+    /// The same per hop (`producer_to_consumer`), µs.
+    pub hop_latency_by_hop_us: BTreeMap<String, Percentiles>,
+    /// Measurement published to actuation published for the same tick, on ticks that are
+    /// not sample boundaries (so without the MPC solve), µs.
+    pub loop_latency_us: Percentiles,
+    /// Ticks the recorder never received whole (real time only; lockstep waits).
+    pub record_gaps: u64,
+    /// iceoryx2 files of the run still present after it ended (should be empty).
+    pub leftover_files: Vec<String>,
+}
+
+/// Latency samples of a multi-process run, collected by the recorder.
+#[derive(Debug, Default)]
+pub struct Latencies {
+    hops: BTreeMap<&'static str, Vec<f64>>,
+    loop_us: Vec<f64>,
+}
+
+impl Latencies {
+    /// One hop's publish-to-receipt latency, ns (0 means not measured).
+    pub fn hop(&mut self, hop: &'static str, latency_ns: u64) {
+        if latency_ns > 0 {
+            self.hops
+                .entry(hop)
+                .or_default()
+                .push(latency_ns as f64 / 1e3);
+        }
+    }
+    pub fn sensor_to_actuator(&mut self, latency_ns: u64) {
+        self.loop_us.push(latency_ns as f64 / 1e3);
+    }
+    /// Fills the latency fields of `report`.
+    pub fn report(&self, report: &mut ProcessReport) {
+        let pooled: Vec<f64> = self.hops.values().flatten().copied().collect();
+        report.hop_latency_us = Percentiles::of(&pooled);
+        report.hop_latency_by_hop_us = self
+            .hops
+            .iter()
+            .map(|(k, v)| (k.to_string(), Percentiles::of(v)))
+            .collect();
+        report.loop_latency_us = Percentiles::of(&self.loop_us);
+    }
 }
 
 impl Summary {
@@ -123,9 +180,36 @@ impl Summary {
                 ),
             ),
         ];
-        rows.iter()
+        let mut table: String = rows
+            .iter()
             .map(|(k, v)| format!("  {k:<16} {v}\n"))
-            .collect()
+            .collect();
+        if let Some(p) = &self.processes {
+            let line = |name: &str, q: &Percentiles| {
+                format!(
+                    "  {name:<16} p50 {:.1} µs, p99 {:.1} µs, max {:.1} µs\n",
+                    q.p50, q.p99, q.max
+                )
+            };
+            table += &line("hop latency", &p.hop_latency_us);
+            table += &line("sensor→actuator", &p.loop_latency_us);
+            let pids: Vec<String> = p.pids.iter().map(|(r, pid)| format!("{r} {pid}")).collect();
+            table += &format!("  {:<16} {}\n", "processes", pids.join(", "));
+            if p.record_gaps > 0 {
+                table += &format!(
+                    "  {:<16} {} ticks not recorded whole\n",
+                    "record gaps", p.record_gaps
+                );
+            }
+            if !p.leftover_files.is_empty() {
+                table += &format!(
+                    "  {:<16} {} iceoryx2 files left behind\n",
+                    "leftovers",
+                    p.leftover_files.len()
+                );
+            }
+        }
+        table
     }
 }
 
@@ -263,6 +347,7 @@ impl Recorder {
         mode: &str,
         outcome: Outcome,
         wall_s: f64,
+        processes: Option<ProcessReport>,
     ) -> std::io::Result<Summary> {
         self.trajectory.flush()?;
         self.plans.flush()?;
@@ -288,6 +373,7 @@ impl Recorder {
             solve_us: Percentiles::of(&self.solve_us),
             iterations: Percentiles::of(&self.iterations),
             commands: self.commands,
+            processes,
         };
         let json = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;

@@ -2,6 +2,8 @@
 //! Gaussian output noise, optional wheel-speed saturation and process disturbance.
 
 use protocol::{Scenario, WheelGeometry, wrap_angle};
+pub mod process;
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};

@@ -55,10 +55,11 @@ pub fn new_prefix() -> String {
     )
 }
 
-/// The iceoryx2 configuration of a run: the global defaults with the run's prefix, so
-/// runs never share a resource.
+/// The iceoryx2 configuration of a run: iceoryx2's built-in defaults (no config file is
+/// read, so every process of every machine agrees) with the run's prefix, so runs never
+/// share a resource.
 pub fn run_config(prefix: &str) -> Result<Config, IpcError> {
-    let mut config = Config::global_config().clone();
+    let mut config = Config::default();
     config.global.prefix =
         FileName::new(prefix.as_bytes()).map_err(ctx(format!("prefix `{prefix}`")))?;
     Ok(config)
@@ -203,6 +204,11 @@ impl<T: Message> Receiver<T> {
         }))
     }
 
+    /// Whether a sample is waiting (without taking it).
+    pub fn has_samples(&self) -> bool {
+        self.subscriber.has_samples().unwrap_or(false)
+    }
+
     /// Consumes the pending wake-ups, so a WaitSet does not fire again for them.
     pub fn clear_wakeups(&self) {
         let _ = self.listener.try_wait(|_| {});
@@ -267,6 +273,31 @@ pub fn cleanup_dead_nodes(prefix: &str) -> Result<usize, IpcError> {
     Ok(count)
 }
 
+/// Removes every resource of a finished run: dead nodes' leftovers and, once no node of
+/// the run is alive, the run's global node-counter segment (iceoryx2 keeps it by design;
+/// the prefix is unique to the run, so nobody else can use it).
+pub fn remove_run_resources(prefix: &str) -> Result<(), IpcError> {
+    cleanup_dead_nodes(prefix)?;
+    let config = run_config(prefix)?;
+    let mut alive = 0;
+    Node::<ipc::Service>::list(&config, |_| {
+        alive += 1;
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    if alive > 0 {
+        return Err(IpcError(format!(
+            "{alive} node(s) of the run are still alive"
+        )));
+    }
+    for path in leftover_files(prefix) {
+        if path.starts_with("/dev/shm") && path.to_string_lossy().ends_with(".global_mgmt") {
+            std::fs::remove_file(&path).map_err(ctx(format!("removing {}", path.display())))?;
+        }
+    }
+    Ok(())
+}
+
 /// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
 /// a run leaves behind (empty after a clean run).
 pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
@@ -290,4 +321,162 @@ pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
         }
     }
     found
+}
+
+/// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
+/// and exits (the orchestrator is gone, or a producer died and was not replaced).
+pub const INPUT_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// How a run is clocked (DESIGN.md section 3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RunMode {
+    /// Simulated time: every process waits for its inputs of the tick; deterministic.
+    Lockstep,
+    /// Every process paced by the monotonic wall clock with absolute deadlines.
+    Realtime,
+}
+
+/// What a role process is started with.
+#[derive(Debug, Clone)]
+pub struct ProcessArgs {
+    pub scenario: crate::Scenario,
+    pub prefix: String,
+    pub mode: RunMode,
+    pub epoch: u32,
+}
+
+/// Why a role process stopped other than by a stop command or a signal.
+#[derive(Debug, thiserror::Error)]
+pub enum ProcessError {
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    #[error("no input for {0:?}: giving up")]
+    InputLost(std::time::Duration),
+    #[error("setting up: {0}")]
+    Setup(String),
+}
+
+/// A role process's connection to the orchestrator: its node, the control topic it
+/// obeys and the status topic it reports on.
+pub struct Link {
+    pub node: Node<ipc::Service>,
+    pub args: ProcessArgs,
+    role: crate::Role,
+    control: Receiver<crate::Control>,
+    status: Sender<crate::Status>,
+}
+
+/// What the orchestrator has said so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ControlState {
+    /// Newest lockstep grant, and its publish-to-receipt latency, ns.
+    pub granted: Option<(u64, u64)>,
+    /// Real-time tick 0, monotonic ns.
+    pub start_ns: Option<u64>,
+    pub stopped: bool,
+}
+
+impl Link {
+    pub fn open(args: &ProcessArgs, role: crate::Role) -> Result<Link, IpcError> {
+        let node = create_node(
+            &args.prefix,
+            &format!("{}-{}", role.as_str(), args.epoch),
+            true,
+        )?;
+        let control = open_topic::<crate::Control>(&node, CONTROL)?.receiver()?;
+        let status = open_topic::<crate::Status>(&node, STATUS)?.sender(args.epoch)?;
+        Ok(Link {
+            node,
+            args: args.clone(),
+            role,
+            control,
+            status,
+        })
+    }
+
+    pub fn control(&self) -> &Receiver<crate::Control> {
+        &self.control
+    }
+
+    /// Tells the orchestrator about this process.
+    pub fn report(&self, event: crate::StatusEvent) -> Result<(), IpcError> {
+        self.status.send(crate::Status {
+            role: self.role as u32,
+            event: event as u32,
+            pid: std::process::id(),
+            ..crate::Status::default()
+        })
+    }
+
+    /// Takes every pending control message into `state`.
+    pub fn poll_control(&self, state: &mut ControlState) -> Result<(), IpcError> {
+        self.control.drain(|c, latency| match c.command() {
+            Some(crate::ControlCommand::Grant) => state.granted = Some((c.header.tick, latency)),
+            Some(crate::ControlCommand::Start) => state.start_ns = Some(c.start_ns),
+            Some(crate::ControlCommand::Stop) => state.stopped = true,
+            None => {}
+        })
+    }
+
+    /// Waits for input; `Ok(false)` means stop (a signal). Reports and fails after
+    /// [`INPUT_TIMEOUT`] without input.
+    pub fn wait(
+        &self,
+        waitset: &WaitSet<ipc::Service>,
+        timeout: Option<std::time::Duration>,
+    ) -> Result<bool, ProcessError> {
+        let timeout = timeout.unwrap_or(INPUT_TIMEOUT).min(INPUT_TIMEOUT);
+        match wait(waitset, timeout)? {
+            Wake::Input => Ok(true),
+            Wake::Terminate => Ok(false),
+            Wake::Timeout if timeout < INPUT_TIMEOUT => Ok(true),
+            Wake::Timeout => {
+                let _ = self.report(crate::StatusEvent::InputLost);
+                Err(ProcessError::InputLost(INPUT_TIMEOUT))
+            }
+        }
+    }
+}
+
+impl<T: Message> Receiver<T> {
+    /// Attaches this receiver's listener to `waitset`; keep the guard while waiting.
+    pub fn attach<'w>(
+        &'w self,
+        waitset: &'w WaitSet<ipc::Service>,
+    ) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
+        waitset
+            .attach_notification(&self.listener)
+            .map_err(ctx("attaching a listener"))
+    }
+
+    /// Every pending sample, after clearing the wake-ups (so none is missed).
+    pub fn drain(&self, mut each: impl FnMut(T, u64)) -> Result<(), IpcError> {
+        self.clear_wakeups();
+        while let Some((message, latency)) = self.receive()? {
+            each(message, latency);
+        }
+        Ok(())
+    }
+}
+
+/// Real time: how long before an expected sample a consumer starts polling for it, ns.
+pub const SPIN_LEAD_NS: u64 = 50_000;
+/// Real time: how long after the expected time a consumer keeps polling before it falls
+/// back to blocking in its WaitSet, ns.
+pub const SPIN_BUDGET_NS: u64 = 300_000;
+
+/// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
+/// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
+/// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
+/// periodic input's known arrival time does not (measured: README, real-time latency).
+pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
+    crate::clock::sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
+    let give_up = expected_ns + SPIN_BUDGET_NS;
+    while monotonic_ns() < give_up {
+        if ready() {
+            return true;
+        }
+        std::hint::spin_loop();
+    }
+    ready()
 }

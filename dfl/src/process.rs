@@ -1,0 +1,79 @@
+//! `scmpc dfl`: on each estimate, apply the newest plan covering the current sample and
+//! publish the actuation. At a sample boundary the DFL first waits for plan(k): in
+//! lockstep until it comes; in real time until [`PLAN_WAIT_FRACTION`] of the inner tick
+//! has passed, then it falls back to the shifted previous plan (the plant only takes the
+//! command at the end of the tick, so waiting within it costs nothing).
+
+use crate::{Dfl, PlanInbox};
+use protocol::clock::monotonic_ns;
+use protocol::ipc::{
+    self, ACTUATION, ControlState, ESTIMATE, Link, PLAN, ProcessArgs, ProcessError, RunMode,
+    open_topic,
+};
+use protocol::{Actuation, Estimate, Plan, Role, StatusEvent};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// Share of an inner tick the real-time DFL waits for the plan of a new sample.
+pub const PLAN_WAIT_FRACTION: f64 = 0.8;
+
+pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
+    let link = Link::open(args, Role::Dfl)?;
+    let mut ctl = ControlState::default();
+    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
+    let plans = open_topic::<Plan>(&link.node, PLAN)?.receiver()?;
+    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.sender(args.epoch)?;
+    let waitset = ipc::waitset()?;
+    let _guards = [
+        link.control().attach(&waitset)?,
+        estimates.attach(&waitset)?,
+        plans.attach(&waitset)?,
+    ];
+    link.report(StatusEvent::Ready)?;
+
+    let timing = &args.scenario.timing;
+    let inner_steps = timing.inner_steps as u64;
+    let dt_ns = timing.ts_s / inner_steps as f64 * 1e9;
+    let lockstep = args.mode == RunMode::Lockstep;
+    let mut dfl = Dfl::new(&args.scenario);
+    let mut inbox = PlanInbox::new(lockstep, timing.ts_s);
+    let mut queue: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
+    loop {
+        // The periodic input first: its receipt time is the hop latency.
+        estimates.drain(|e, latency| queue.push_back((e, latency)))?;
+        link.poll_control(&mut ctl)?;
+        if ctl.stopped {
+            return Ok(());
+        }
+        plans.drain(|p, _| {
+            inbox.receive(&p);
+        })?;
+        let mut wait_for = None;
+        while let Some(&(e, latency)) = queue.front() {
+            let tick = e.header.tick;
+            let sample = tick / inner_steps;
+            if tick % inner_steps == 0 && !inbox.has_received(sample) {
+                if lockstep {
+                    break;
+                }
+                let give_up_ns =
+                    ctl.start_ns.unwrap_or(0) + ((tick as f64 + PLAN_WAIT_FRACTION) * dt_ns) as u64;
+                let now = monotonic_ns();
+                if now < give_up_ns {
+                    wait_for = Some(Duration::from_nanos(give_up_ns - now));
+                    break;
+                }
+            }
+            queue.pop_front();
+            inbox.release(sample, &mut dfl);
+            let mut act = dfl.step(&e, tick);
+            act.header.input_latency_ns = latency.min(u64::from(u32::MAX)) as u32;
+            actuation.send(act)?;
+        }
+        // No scheduled spin here (unlike the estimator): on two cores a third spinning
+        // process starves the plant and the estimator (measured: README).
+        if !link.wait(&waitset, wait_for)? {
+            return Ok(());
+        }
+    }
+}

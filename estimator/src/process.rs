@@ -1,0 +1,79 @@
+//! `scmpc estimator`: on each measurement, predict with the actuation heard for the
+//! previous tick, update, and publish the estimate. In lockstep a measurement waits until
+//! that actuation has been heard; in real time the newest actuation heard is used.
+
+use crate::Estimator;
+use protocol::ipc::{
+    self, ACTUATION, ControlState, ESTIMATE, Link, MEASUREMENT, ProcessArgs, ProcessError, RunMode,
+    open_topic,
+};
+use protocol::{Actuation, Estimate, Header, Measurement, Role, StatusEvent};
+use std::collections::VecDeque;
+
+pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
+    let link = Link::open(args, Role::Estimator)?;
+    let mut ctl = ControlState::default();
+    let measurements = open_topic::<Measurement>(&link.node, MEASUREMENT)?.receiver()?;
+    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver()?;
+    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.sender(args.epoch)?;
+    let waitset = ipc::waitset()?;
+    let _guards = [
+        link.control().attach(&waitset)?,
+        measurements.attach(&waitset)?,
+        actuation.attach(&waitset)?,
+    ];
+    link.report(StatusEvent::Ready)?;
+
+    let timing = &args.scenario.timing;
+    let dt = timing.ts_s / timing.inner_steps as f64;
+    let mut estimator = Estimator::new(&args.scenario);
+    let mut heard: Option<Actuation> = None;
+    let mut queue: VecDeque<(Measurement, u64)> = VecDeque::with_capacity(16);
+    let mut last_tick: Option<u64> = None;
+    loop {
+        // The periodic input first: its receipt time is the hop latency.
+        measurements.drain(|m, latency| queue.push_back((m, latency)))?;
+        link.poll_control(&mut ctl)?;
+        if ctl.stopped {
+            return Ok(());
+        }
+        actuation.drain(|a, _| {
+            if heard.is_none_or(|h| a.header.tick >= h.header.tick) {
+                heard = Some(a);
+            }
+        })?;
+        while let Some(&(m, latency)) = queue.front() {
+            let tick = m.header.tick;
+            let previous = heard.filter(|a| a.header.tick < tick);
+            if args.mode == RunMode::Lockstep
+                && tick > 0
+                && previous.is_none_or(|a| a.header.tick + 1 != tick)
+            {
+                break; // the actuation of tick - 1 is still on its way
+            }
+            queue.pop_front();
+            last_tick = Some(tick);
+            let applied = previous.filter(|_| tick > 0).map(|a| [a.u1, a.u2]);
+            let zeta = previous.map_or(args.scenario.robot.zeta0, |a| a.zeta);
+            let header = Header {
+                tick,
+                time_s: m.header.time_s,
+                input_latency_ns: latency.min(u64::from(u32::MAX)) as u32,
+                ..Header::default()
+            };
+            estimates.send(estimator.step(applied, dt, m.y, zeta, header))?;
+        }
+        // Real time: the next measurement is due at the next tick; poll for it there.
+        if let (RunMode::Realtime, Some(start_ns), Some(last)) =
+            (args.mode, ctl.start_ns, last_tick)
+        {
+            let expected = start_ns + ((last + 1) as f64 * dt * 1e9) as u64;
+            if ipc::spin_wait(expected, || measurements.has_samples()) {
+                continue;
+            }
+        }
+        if !link.wait(&waitset, None)? {
+            return Ok(());
+        }
+    }
+}

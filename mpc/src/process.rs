@@ -1,0 +1,56 @@
+//! `scmpc mpc`: on each estimate at a sample boundary, solve plan(k) and publish it. In
+//! lockstep every boundary estimate is solved in order; in real time only the newest one
+//! (a solve that overran `Ts` skips the samples it missed).
+
+use crate::Mpc;
+use protocol::ipc::{
+    self, ControlState, ESTIMATE, Link, PLAN, ProcessArgs, ProcessError, RunMode, open_topic,
+};
+use protocol::{Estimate, Header, Plan, Role, StatusEvent};
+use std::collections::VecDeque;
+
+pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
+    let mut mpc = Mpc::new(&args.scenario).map_err(|e| ProcessError::Setup(e.to_string()))?;
+    let link = Link::open(args, Role::Mpc)?;
+    let mut ctl = ControlState::default();
+    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
+    let plans = open_topic::<Plan>(&link.node, PLAN)?.sender(args.epoch)?;
+    let waitset = ipc::waitset()?;
+    let _guards = [
+        link.control().attach(&waitset)?,
+        estimates.attach(&waitset)?,
+    ];
+    link.report(StatusEvent::Ready)?;
+
+    let inner_steps = args.scenario.timing.inner_steps as u64;
+    let mut boundary: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
+    loop {
+        link.poll_control(&mut ctl)?;
+        if ctl.stopped {
+            return Ok(());
+        }
+        estimates.drain(|e, latency| {
+            if e.header.tick % inner_steps == 0 {
+                boundary.push_back((e, latency));
+            }
+        })?;
+        if args.mode == RunMode::Realtime {
+            while boundary.len() > 1 {
+                boundary.pop_front();
+            }
+        }
+        while let Some((e, latency)) = boundary.pop_front() {
+            let mut plan = mpc.step(e.header.tick / inner_steps, e.state, e.position_sigma());
+            plan.header = Header {
+                tick: e.header.tick,
+                time_s: e.header.time_s,
+                input_latency_ns: latency.min(u64::from(u32::MAX)) as u32,
+                ..Header::default()
+            };
+            plans.send(plan)?;
+        }
+        if !link.wait(&waitset, None)? {
+            return Ok(());
+        }
+    }
+}

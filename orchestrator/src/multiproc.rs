@@ -1,0 +1,499 @@
+//! `scmpc run` over iceoryx2: the four roles as separate processes, launched, clocked and
+//! recorded by the orchestrator.
+//!
+//! Lockstep: the orchestrator grants tick `j` to the plant, and the data flow carries it
+//! through estimator, MPC and DFL; the orchestrator records tick `j` (it subscribes to
+//! every topic) before it grants `j + 1`, so the recorder is part of the handshake and
+//! loses nothing. Real time: the orchestrator publishes the monotonic time of tick 0 and
+//! records ticks as they complete, counting every tick it never receives whole.
+
+use crate::inprocess::tick_count;
+use crate::monitor::Outcome;
+use crate::record::{Latencies, ProcessReport, Recorder, Summary};
+use anyhow::{Context, anyhow, bail};
+use protocol::clock::monotonic_ns;
+use protocol::ipc::{self, Receiver, RunMode, Sender, open_topic};
+use protocol::{
+    Actuation, Control, ControlCommand, Estimate, GroundTruth, Header, Measurement, Plan, Role,
+    Scenario, Status, StatusEvent,
+};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// How long the processes have to report ready.
+const READY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long the processes have to exit after the stop command before they are killed.
+const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// Lockstep: a tick that makes no progress for this long means a process hung.
+const TICK_TIMEOUT: Duration = Duration::from_secs(10);
+/// Real time: lead time between the start command and tick 0.
+const START_LEAD: Duration = Duration::from_millis(100);
+/// How often the orchestrator looks at its children and the stop flag while waiting.
+const POLL: Duration = Duration::from_millis(20);
+
+/// The run's processes; killed and reaped on drop whatever happened.
+struct Children(Vec<(Role, Child)>);
+
+impl Children {
+    fn spawn(scenario_file: &Path, prefix: &str, mode: RunMode) -> anyhow::Result<Children> {
+        let exe = std::env::current_exe().context("locating the scmpc executable")?;
+        let mode = match mode {
+            RunMode::Lockstep => "lockstep",
+            RunMode::Realtime => "realtime",
+        };
+        let mut children = Children(Vec::new());
+        for role in Role::ALL {
+            let child = Command::new(&exe)
+                .arg(role.as_str())
+                .arg("--scenario")
+                .arg(scenario_file)
+                .args(["--prefix", prefix, "--mode", mode, "--epoch", "0"])
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .spawn()
+                .with_context(|| format!("starting the {} process", role.as_str()))?;
+            children.0.push((role, child));
+        }
+        Ok(children)
+    }
+
+    /// The first child that has exited, with its status.
+    fn exited(&mut self) -> Option<(Role, std::process::ExitStatus)> {
+        self.0
+            .iter_mut()
+            .find_map(|(role, child)| child.try_wait().ok().flatten().map(|s| (*role, s)))
+    }
+
+    /// Waits up to `timeout` for every child to exit, then kills the rest; reaps all.
+    fn shut_down(&mut self, timeout: Duration) {
+        let deadline = Instant::now() + timeout;
+        for (_, child) in &mut self.0 {
+            while child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            if child.try_wait().ok().flatten().is_none() {
+                let _ = child.kill();
+            }
+            let _ = child.wait();
+        }
+    }
+}
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        self.shut_down(Duration::ZERO);
+    }
+}
+
+/// Everything received for one tick.
+#[derive(Default)]
+struct TickSlot {
+    truth: Option<GroundTruth>,
+    measurement: Option<Measurement>,
+    estimate: Option<Estimate>,
+    /// With the orchestrator's own receipt latency, ns.
+    actuation: Option<(Actuation, u64)>,
+}
+
+impl TickSlot {
+    fn complete(&self) -> bool {
+        self.truth.is_some()
+            && self.measurement.is_some()
+            && self.estimate.is_some()
+            && self.actuation.is_some()
+    }
+}
+
+/// The orchestrator's ports.
+struct Session {
+    node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+    control: Sender<Control>,
+    status: Receiver<Status>,
+    truth: Receiver<GroundTruth>,
+    measurement: Receiver<Measurement>,
+    estimate: Receiver<Estimate>,
+    plan: Receiver<Plan>,
+    actuation: Receiver<Actuation>,
+}
+
+impl Session {
+    fn open(prefix: &str) -> Result<Session, ipc::IpcError> {
+        let node = ipc::create_node(prefix, "orchestrator", false)?;
+        Ok(Session {
+            control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
+            status: open_topic(&node, ipc::STATUS)?.receiver()?,
+            truth: open_topic(&node, ipc::TRUTH)?.receiver()?,
+            measurement: open_topic(&node, ipc::MEASUREMENT)?.receiver()?,
+            estimate: open_topic(&node, ipc::ESTIMATE)?.receiver()?,
+            plan: open_topic(&node, ipc::PLAN)?.receiver()?,
+            actuation: open_topic(&node, ipc::ACTUATION)?.receiver()?,
+            node,
+        })
+    }
+
+    fn command(
+        &self,
+        command: ControlCommand,
+        tick: u64,
+        start_ns: u64,
+    ) -> Result<(), ipc::IpcError> {
+        self.control.send(Control {
+            header: Header {
+                tick,
+                ..Header::default()
+            },
+            command: command as u32,
+            start_ns,
+            ..Control::default()
+        })
+    }
+}
+
+/// The state of a run while it is driven.
+struct Driver<'a> {
+    scenario: &'a Scenario,
+    mode: RunMode,
+    session: &'a Session,
+    children: &'a mut Children,
+    recorder: Recorder,
+    latencies: Latencies,
+    slots: BTreeMap<u64, TickSlot>,
+    plans: BTreeMap<u64, Plan>,
+    newest_truth: Option<u64>,
+    stop: &'a AtomicBool,
+    start_ns: u64,
+    record_gaps: u64,
+}
+
+impl Driver<'_> {
+    /// Waits for input (at most [`POLL`]) and files everything received by tick.
+    fn pump(
+        &mut self,
+        waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    ) -> anyhow::Result<()> {
+        ipc::wait(waitset, POLL)?;
+        let slots = &mut self.slots;
+        let newest = &mut self.newest_truth;
+        self.session.truth.drain(|m, _| {
+            *newest = (*newest).max(Some(m.header.tick));
+            slots.entry(m.header.tick).or_default().truth = Some(m);
+        })?;
+        self.session
+            .measurement
+            .drain(|m, _| slots.entry(m.header.tick).or_default().measurement = Some(m))?;
+        self.session
+            .estimate
+            .drain(|m, _| slots.entry(m.header.tick).or_default().estimate = Some(m))?;
+        self.session
+            .actuation
+            .drain(|m, l| slots.entry(m.header.tick).or_default().actuation = Some((m, l)))?;
+        let plans = &mut self.plans;
+        self.session.plan.drain(|p, _| {
+            plans.insert(p.sample, p);
+        })?;
+        Ok(())
+    }
+
+    /// Fails if a child died; reports a stop request.
+    fn check(&mut self) -> anyhow::Result<bool> {
+        if let Some((role, status)) = self.children.exited() {
+            bail!(
+                "the {} process exited unexpectedly ({status})",
+                role.as_str()
+            );
+        }
+        Ok(self.stop.load(Ordering::Relaxed))
+    }
+
+    /// Records a whole tick; returns an outcome that ends the run.
+    fn record(&mut self, tick: u64, slot: TickSlot) -> anyhow::Result<Option<Outcome>> {
+        let (Some(truth), Some(measurement), Some(estimate), Some((act, own_latency))) =
+            (slot.truth, slot.measurement, slot.estimate, slot.actuation)
+        else {
+            return Ok(None);
+        };
+        let inner_steps = self.scenario.timing.inner_steps as u64;
+        let l = &mut self.latencies;
+        l.hop(
+            "control_to_plant",
+            u64::from(measurement.header.input_latency_ns),
+        );
+        l.hop(
+            "measurement_to_estimator",
+            u64::from(estimate.header.input_latency_ns),
+        );
+        l.hop("estimate_to_dfl", u64::from(act.header.input_latency_ns));
+        if self.mode == RunMode::Lockstep {
+            // In real time the orchestrator drains its buffers periodically: not a hop.
+            l.hop("actuation_to_orchestrator", own_latency);
+        }
+        if tick % inner_steps != 0 {
+            l.sensor_to_actuator(
+                act.header
+                    .publish_ns
+                    .saturating_sub(measurement.header.publish_ns),
+            );
+        }
+        Ok(self.recorder.tick(&truth, &estimate, &act)?)
+    }
+
+    /// Records plan(`sample`): how late it reached the DFL follows the mode's rule.
+    fn record_plan(&mut self, plan: &Plan) -> anyhow::Result<()> {
+        self.latencies
+            .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
+        let ts_s = self.scenario.timing.ts_s;
+        let late = match self.mode {
+            RunMode::Lockstep => dfl::late_samples(plan.solve_ns, ts_s),
+            RunMode::Realtime => {
+                // The sample during which it was published; 0 samples late if before t_k + Ts.
+                let since_start_s =
+                    plan.header.publish_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
+                ((since_start_s / ts_s).floor() as u64).saturating_sub(plan.sample)
+            }
+        };
+        Ok(self.recorder.plan(plan, late)?)
+    }
+
+    fn lockstep(
+        &mut self,
+        waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    ) -> anyhow::Result<Outcome> {
+        let ticks = tick_count(self.scenario);
+        let inner_steps = self.scenario.timing.inner_steps as u64;
+        for tick in 0..=ticks {
+            self.session.command(ControlCommand::Grant, tick, 0)?;
+            let boundary = tick % inner_steps == 0 && tick < ticks;
+            let mut last_progress = Instant::now();
+            loop {
+                let done = if tick == ticks {
+                    self.slots.get(&tick).is_some_and(|s| s.truth.is_some())
+                } else {
+                    self.slots.get(&tick).is_some_and(TickSlot::complete)
+                        && (!boundary || self.plans.contains_key(&(tick / inner_steps)))
+                };
+                if done {
+                    break;
+                }
+                if self.check()? {
+                    return Ok(Outcome::Interrupted);
+                }
+                if last_progress.elapsed() > TICK_TIMEOUT {
+                    bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+                }
+                let before = self.slots.len() + self.plans.len();
+                self.pump(waitset)?;
+                if self.slots.len() + self.plans.len() != before {
+                    last_progress = Instant::now();
+                }
+            }
+            let slot = self.slots.remove(&tick).unwrap_or_default();
+            if tick == ticks {
+                let end = slot.truth.and_then(|t| self.recorder.final_pose(&t));
+                return Ok(end.unwrap_or_else(|| self.recorder.monitor.final_outcome()));
+            }
+            if boundary && let Some(plan) = self.plans.remove(&(tick / inner_steps)) {
+                self.record_plan(&plan)?;
+            }
+            if let Some(outcome) = self.record(tick, slot)? {
+                return Ok(outcome);
+            }
+        }
+        Ok(self.recorder.monitor.final_outcome())
+    }
+
+    fn realtime(
+        &mut self,
+        waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    ) -> anyhow::Result<Outcome> {
+        let ticks = tick_count(self.scenario);
+        let inner_steps = self.scenario.timing.inner_steps as u64;
+        self.start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
+        self.session
+            .command(ControlCommand::Start, 0, self.start_ns)?;
+        let end_ns = self.start_ns + (self.scenario.duration_s * 1e9) as u64;
+        let give_up_ns = end_ns + 5_000_000_000;
+        let mut next = 0u64;
+        loop {
+            if self.check()? {
+                return Ok(Outcome::Interrupted);
+            }
+            if monotonic_ns() > give_up_ns {
+                bail!("the run did not finish within 5 s after its end: a process hung");
+            }
+            self.pump(waitset)?;
+            let ready: Vec<u64> = self
+                .plans
+                .keys()
+                .copied()
+                .filter(|&k| k * inner_steps <= next)
+                .collect();
+            for k in ready {
+                if let Some(plan) = self.plans.remove(&k) {
+                    self.record_plan(&plan)?;
+                }
+            }
+            while next <= ticks {
+                let complete = self.slots.get(&next).is_some_and(|s| {
+                    if next == ticks {
+                        s.truth.is_some()
+                    } else {
+                        s.complete()
+                    }
+                });
+                let overdue = self
+                    .newest_truth
+                    .is_some_and(|t| t >= next + 2 * inner_steps);
+                if !complete && !overdue {
+                    break;
+                }
+                let slot = self.slots.remove(&next).unwrap_or_default();
+                if next == ticks {
+                    let end = slot.truth.and_then(|t| self.recorder.final_pose(&t));
+                    return Ok(end.unwrap_or_else(|| self.recorder.monitor.final_outcome()));
+                }
+                if !complete {
+                    self.record_gaps += 1;
+                } else if let Some(outcome) = self.record(next, slot)? {
+                    return Ok(outcome);
+                }
+                next += 1;
+            }
+        }
+    }
+}
+
+/// Runs the scenario as four processes and writes `out`. The scenario must be valid.
+pub fn run(
+    scenario: &Scenario,
+    out: &Path,
+    mode: RunMode,
+    stop: &AtomicBool,
+) -> anyhow::Result<Summary> {
+    let started = Instant::now();
+    let prefix = ipc::new_prefix();
+    let recorder =
+        Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    let session = Session::open(&prefix)?;
+    let mut children = Children::spawn(&out.join("scenario.toml"), &prefix, mode)?;
+    let mut report = ProcessReport {
+        iceoryx2_prefix: prefix.clone(),
+        ..ProcessReport::default()
+    };
+    report
+        .pids
+        .insert("orchestrator".into(), std::process::id());
+    for (role, child) in &children.0 {
+        report.pids.insert(role.as_str().into(), child.id());
+    }
+
+    // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
+    // time: it only records, so it drains its buffers every POLL instead of competing for
+    // the CPU with the control loop at every tick.
+    let waitset = ipc::waitset()?;
+    let mut guards = vec![session.status.attach(&waitset)?];
+    if mode == RunMode::Lockstep {
+        guards.push(session.truth.attach(&waitset)?);
+        guards.push(session.measurement.attach(&waitset)?);
+        guards.push(session.estimate.attach(&waitset)?);
+        guards.push(session.plan.attach(&waitset)?);
+        guards.push(session.actuation.attach(&waitset)?);
+    }
+    wait_until_ready(&session, &waitset, &mut children, stop)?;
+    let mut driver = Driver {
+        scenario,
+        mode,
+        session: &session,
+        children: &mut children,
+        recorder,
+        latencies: Latencies::default(),
+        slots: BTreeMap::new(),
+        plans: BTreeMap::new(),
+        newest_truth: None,
+        stop,
+        start_ns: 0,
+        record_gaps: 0,
+    };
+    let outcome = match mode {
+        RunMode::Lockstep => driver.lockstep(&waitset),
+        RunMode::Realtime => driver.realtime(&waitset),
+    };
+    let Driver {
+        recorder,
+        latencies,
+        record_gaps,
+        ..
+    } = driver;
+    // Stop every process whatever happened, then release the orchestrator's own ports.
+    let _ = session.command(ControlCommand::Stop, 0, 0);
+    children.shut_down(STOP_TIMEOUT);
+    drop(guards);
+    drop(waitset);
+    drop(session);
+    if let Err(e) = ipc::remove_run_resources(&prefix) {
+        tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
+    }
+    let outcome = outcome?;
+    latencies.report(&mut report);
+    report.record_gaps = record_gaps;
+    report.leftover_files = ipc::leftover_files(&prefix)
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    let mode_name = match mode {
+        RunMode::Lockstep => "lockstep",
+        RunMode::Realtime => "realtime",
+    };
+    Ok(recorder.finish(
+        scenario,
+        mode_name,
+        outcome,
+        started.elapsed().as_secs_f64(),
+        Some(report),
+    )?)
+}
+
+/// Waits until every role has reported ready.
+fn wait_until_ready(
+    session: &Session,
+    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    children: &mut Children,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let deadline = Instant::now() + READY_TIMEOUT;
+    let mut ready = [false; 4];
+    while !ready.iter().all(|r| *r) {
+        if let Some((role, status)) = children.exited() {
+            bail!(
+                "the {} process exited before it was ready ({status})",
+                role.as_str()
+            );
+        }
+        if stop.load(Ordering::Relaxed) {
+            bail!("interrupted while starting");
+        }
+        if Instant::now() > deadline {
+            let missing: Vec<&str> = Role::ALL
+                .iter()
+                .filter(|r| !ready[**r as usize])
+                .map(|r| r.as_str())
+                .collect();
+            return Err(anyhow!(
+                "no ready report within {READY_TIMEOUT:?} from: {}",
+                missing.join(", ")
+            ));
+        }
+        ipc::wait(waitset, POLL)?;
+        session.status.drain(|s, _| {
+            if s.event == StatusEvent::Ready as u32
+                && let Some(role) = Role::from_code(s.role)
+            {
+                ready[role as usize] = true;
+            }
+        })?;
+    }
+    let _ = &session.node;
+    Ok(())
+}
