@@ -23,7 +23,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
     let plans = open_topic::<Plan>(&link.node, PLAN)?.receiver()?;
     let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.sender(args.epoch)?;
-    let waitset = ipc::waitset()?;
+    let waitset = ipc::waitset(true)?;
     let _guards = [
         link.control().attach(&waitset)?,
         estimates.attach(&waitset)?,
@@ -52,7 +52,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         while let Some(&(e, latency)) = queue.front() {
             let tick = e.header.tick;
             let sample = tick / inner_steps;
-            if tick % inner_steps == 0 && !inbox.has_received(sample) {
+            if tick.is_multiple_of(inner_steps) && !inbox.has_received(sample) {
                 if lockstep {
                     break;
                 }

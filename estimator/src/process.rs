@@ -16,7 +16,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let measurements = open_topic::<Measurement>(&link.node, MEASUREMENT)?.receiver()?;
     let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver()?;
     let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.sender(args.epoch)?;
-    let waitset = ipc::waitset()?;
+    let waitset = ipc::waitset(true)?;
     let _guards = [
         link.control().attach(&waitset)?,
         measurements.attach(&waitset)?,

@@ -15,7 +15,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut ctl = ControlState::default();
     let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
     let plans = open_topic::<Plan>(&link.node, PLAN)?.sender(args.epoch)?;
-    let waitset = ipc::waitset()?;
+    let waitset = ipc::waitset(true)?;
     let _guards = [
         link.control().attach(&waitset)?,
         estimates.attach(&waitset)?,
@@ -30,7 +30,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             return Ok(());
         }
         estimates.drain(|e, latency| {
-            if e.header.tick % inner_steps == 0 {
+            if e.header.tick.is_multiple_of(inner_steps) {
                 boundary.push_back((e, latency));
             }
         })?;

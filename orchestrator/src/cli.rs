@@ -92,6 +92,9 @@ struct RunArgs {
     /// Run directory [default: a fresh directory under runs/].
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
+    /// iceoryx2 resource prefix of the run, to attach tools to it [default: a fresh one].
+    #[arg(long, value_name = "PREFIX")]
+    prefix: Option<String>,
     /// Clock of a multi-process run (`--in-process` is always lockstep).
     #[arg(long, value_enum, default_value = "lockstep")]
     mode: Mode,
@@ -164,6 +167,11 @@ fn run(args: RunArgs) -> ExitCode {
         );
         return ExitCode::from(EXIT_BAD_INPUT);
     }
+    let prefix = args.prefix.unwrap_or_else(protocol::ipc::new_prefix);
+    if let Err(e) = protocol::ipc::run_config(&prefix) {
+        eprintln!("error: --prefix: {e}");
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
@@ -172,7 +180,7 @@ fn run(args: RunArgs) -> ExitCode {
     let result = if args.in_process {
         inprocess::run(&scenario, &out, &stop)
     } else {
-        multiproc::run(&scenario, &out, args.mode.into(), &stop)
+        multiproc::run(&scenario, &out, args.mode.into(), &prefix, &stop)
     };
     let result = result.with_context(|| format!("run of `{}`", scenario.name));
     match result {

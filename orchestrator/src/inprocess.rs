@@ -68,7 +68,7 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
         let y = plant.measure();
         let estimate = estimator.step(applied, dt, y, dfl.zeta(), header);
         let sample = tick / m;
-        if tick % m == 0 {
+        if tick.is_multiple_of(m) {
             let mut plan = mpc.step(sample, estimate.state, estimate.position_sigma());
             plan.header = header;
             let arrival = inbox.receive(&plan);

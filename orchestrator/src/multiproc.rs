@@ -197,15 +197,24 @@ impl Driver<'_> {
         Ok(())
     }
 
-    /// Fails if a child died; reports a stop request.
+    /// Reports a stop request (Ctrl-C); fails if a child died otherwise.
     fn check(&mut self) -> anyhow::Result<bool> {
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(true);
+        }
         if let Some((role, status)) = self.children.exited() {
+            // A terminal's Ctrl-C reaches the whole process group: the children may see it
+            // a moment before the orchestrator's handler runs.
+            std::thread::sleep(Duration::from_millis(100));
+            if self.stop.load(Ordering::Relaxed) {
+                return Ok(true);
+            }
             bail!(
                 "the {} process exited unexpectedly ({status})",
                 role.as_str()
             );
         }
-        Ok(self.stop.load(Ordering::Relaxed))
+        Ok(false)
     }
 
     /// Records a whole tick; returns an outcome that ends the run.
@@ -230,7 +239,7 @@ impl Driver<'_> {
             // In real time the orchestrator drains its buffers periodically: not a hop.
             l.hop("actuation_to_orchestrator", own_latency);
         }
-        if tick % inner_steps != 0 {
+        if !tick.is_multiple_of(inner_steps) {
             l.sensor_to_actuator(
                 act.header
                     .publish_ns
@@ -265,7 +274,7 @@ impl Driver<'_> {
         let inner_steps = self.scenario.timing.inner_steps as u64;
         for tick in 0..=ticks {
             self.session.command(ControlCommand::Grant, tick, 0)?;
-            let boundary = tick % inner_steps == 0 && tick < ticks;
+            let boundary = tick.is_multiple_of(inner_steps) && tick < ticks;
             let mut last_progress = Instant::now();
             loop {
                 let done = if tick == ticks {
@@ -365,21 +374,22 @@ impl Driver<'_> {
     }
 }
 
-/// Runs the scenario as four processes and writes `out`. The scenario must be valid.
+/// Runs the scenario as four processes on iceoryx2 resources named with `prefix` and
+/// writes `out`. The scenario must be valid.
 pub fn run(
     scenario: &Scenario,
     out: &Path,
     mode: RunMode,
+    prefix: &str,
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    let prefix = ipc::new_prefix();
     let recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
-    let session = Session::open(&prefix)?;
-    let mut children = Children::spawn(&out.join("scenario.toml"), &prefix, mode)?;
+    let session = Session::open(prefix)?;
+    let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
     let mut report = ProcessReport {
-        iceoryx2_prefix: prefix.clone(),
+        iceoryx2_prefix: prefix.to_string(),
         ..ProcessReport::default()
     };
     report
@@ -392,7 +402,7 @@ pub fn run(
     // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
     // time: it only records, so it drains its buffers every POLL instead of competing for
     // the CPU with the control loop at every tick.
-    let waitset = ipc::waitset()?;
+    let waitset = ipc::waitset(false)?;
     let mut guards = vec![session.status.attach(&waitset)?];
     if mode == RunMode::Lockstep {
         guards.push(session.truth.attach(&waitset)?);
@@ -432,13 +442,13 @@ pub fn run(
     drop(guards);
     drop(waitset);
     drop(session);
-    if let Err(e) = ipc::remove_run_resources(&prefix) {
+    if let Err(e) = ipc::remove_run_resources(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
     let outcome = outcome?;
     latencies.report(&mut report);
     report.record_gaps = record_gaps;
-    report.leftover_files = ipc::leftover_files(&prefix)
+    report.leftover_files = ipc::leftover_files(prefix)
         .iter()
         .map(|p| p.display().to_string())
         .collect();

@@ -16,7 +16,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let measurement = open_topic::<Measurement>(&link.node, MEASUREMENT)?.sender(args.epoch)?;
     let truth = open_topic::<GroundTruth>(&link.node, TRUTH)?.sender(args.epoch)?;
     let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver()?;
-    let waitset = ipc::waitset()?;
+    let waitset = ipc::waitset(true)?;
     let _control = link.control().attach(&waitset)?;
     let _actuation = actuation.attach(&waitset)?;
     link.report(StatusEvent::Ready)?;

@@ -59,6 +59,8 @@ pub fn new_prefix() -> String {
 /// read, so every process of every machine agrees) with the run's prefix, so runs never
 /// share a resource.
 pub fn run_config(prefix: &str) -> Result<Config, IpcError> {
+    // Only iceoryx2's errors are worth showing next to ours.
+    set_log_level(LogLevel::Error);
     let mut config = Config::default();
     config.global.prefix =
         FileName::new(prefix.as_bytes()).map_err(ctx(format!("prefix `{prefix}`")))?;
@@ -73,11 +75,7 @@ pub fn create_node(
     handle_signals: bool,
 ) -> Result<Node<ipc::Service>, IpcError> {
     let config = run_config(prefix)?;
-    let mode = if handle_signals {
-        SignalHandlingMode::HandleTerminationRequests
-    } else {
-        SignalHandlingMode::Disabled
-    };
+    let mode = signal_mode(handle_signals);
     let node_name = NodeName::new(name).map_err(ctx(format!("node name `{name}`")))?;
     NodeBuilder::new()
         .config(&config)
@@ -247,11 +245,21 @@ pub fn wait(
     })
 }
 
-/// A WaitSet honouring SIGINT/SIGTERM.
-pub fn waitset() -> Result<WaitSet<ipc::Service>, IpcError> {
+/// A WaitSet; with `handle_signals` its waits return [`Wake::Terminate`] on SIGINT and
+/// SIGTERM (role processes), without it the caller's own handler stays in charge.
+pub fn waitset(handle_signals: bool) -> Result<WaitSet<ipc::Service>, IpcError> {
     WaitSetBuilder::new()
+        .signal_handling_mode(signal_mode(handle_signals))
         .create::<ipc::Service>()
         .map_err(ctx("creating a WaitSet"))
+}
+
+fn signal_mode(handle_signals: bool) -> SignalHandlingMode {
+    if handle_signals {
+        SignalHandlingMode::HandleTerminationRequests
+    } else {
+        SignalHandlingMode::Disabled
+    }
 }
 
 /// Removes what dead nodes of the run left behind (their shared memory, their ports in

@@ -23,3 +23,31 @@ pub fn summary(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json missing");
     serde_json::from_str(&text).expect("summary.json is not JSON")
 }
+
+/// Files of the iceoryx2 run `prefix` still in `/dev/shm` or iceoryx2's directory.
+pub fn leftovers(prefix: &str) -> Vec<std::path::PathBuf> {
+    protocol::ipc::leftover_files(prefix)
+}
+
+/// A prefix no other test uses.
+pub fn unique_prefix(tag: &str) -> String {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static COUNTER: AtomicU32 = AtomicU32::new(0);
+    format!(
+        "scmpct{}{tag}{}_",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+/// Polls `condition` every 10 ms until it holds or `timeout` passes; returns whether it held.
+pub fn wait_for(timeout: std::time::Duration, mut condition: impl FnMut() -> bool) -> bool {
+    let deadline = std::time::Instant::now() + timeout;
+    while std::time::Instant::now() < deadline {
+        if condition() {
+            return true;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    condition()
+}

@@ -1,0 +1,246 @@
+//! Runs over iceoryx2: four real processes, real shared memory.
+
+mod common;
+
+use common::{leftovers, run, scmpc, stderr, summary, unique_prefix, wait_for};
+use protocol::Measurement;
+use protocol::ipc::{MEASUREMENT, create_node, open_topic};
+use std::path::Path;
+use std::time::Duration;
+
+fn trajectory(dir: &Path) -> String {
+    std::fs::read_to_string(dir.join("trajectory.csv")).expect("trajectory.csv missing")
+}
+
+/// Runs `scenario` in process and over iceoryx2 in lockstep; returns both directories.
+fn both_modes(scenario: &str, sets: &[&str]) -> (tempfile::TempDir, tempfile::TempDir) {
+    let (reference, ipc) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    for (dir, extra) in [(&reference, Some("--in-process")), (&ipc, None)] {
+        let mut args = vec!["run", scenario, "--out", dir.path().to_str().unwrap()];
+        args.extend(extra);
+        for s in sets {
+            args.extend(["--set", s]);
+        }
+        let out = run(&args);
+        assert!(
+            dir.path().join("summary.json").exists(),
+            "{args:?} failed: {}",
+            stderr(&out)
+        );
+    }
+    (reference, ipc)
+}
+
+#[test]
+fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
+    for scenario in ["paper", "paper-noisy"] {
+        let (reference, ipc) = both_modes(scenario, &[]);
+        assert_eq!(summary(ipc.path())["mode"], "lockstep");
+        assert!(
+            trajectory(ipc.path()) == trajectory(reference.path()),
+            "{scenario}: trajectories differ"
+        );
+        let prefix = summary(ipc.path())["iceoryx2_prefix"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        assert!(
+            leftovers(&prefix).is_empty(),
+            "left behind: {:?}",
+            leftovers(&prefix)
+        );
+    }
+}
+
+#[test]
+fn the_four_roles_are_separate_processes() {
+    let dir = tempfile::tempdir().unwrap();
+    run(&[
+        "run",
+        "--set",
+        "duration_s=1",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    let pids = &summary(dir.path())["pids"];
+    let mut all: Vec<u64> = ["orchestrator", "plant", "estimator", "mpc", "dfl"]
+        .iter()
+        .map(|r| pids[r].as_u64().unwrap_or_else(|| panic!("no pid for {r}")))
+        .collect();
+    all.sort_unstable();
+    all.dedup();
+    assert_eq!(all.len(), 5, "pids not distinct: {pids}");
+}
+
+#[test]
+fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
+    let prefix = unique_prefix("tap");
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=4",
+            "--prefix",
+            &prefix,
+        ])
+        .args(["--out", dir.path().to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let node = create_node(&prefix, "test-tap", false).unwrap();
+    let mut receiver = None;
+    assert!(
+        wait_for(Duration::from_secs(3), || {
+            receiver = open_topic::<Measurement>(&node, MEASUREMENT)
+                .ok()
+                .and_then(|t| t.receiver().ok());
+            receiver.is_some()
+        }),
+        "the measurement service never appeared"
+    );
+    let receiver = receiver.unwrap();
+    let mut ticks = Vec::new();
+    wait_for(Duration::from_secs(3), || {
+        while let Ok(Some((m, _))) = receiver.receive() {
+            ticks.push(m.header.tick);
+        }
+        ticks.len() >= 20
+    });
+    drop(receiver);
+    drop(node);
+    assert!(
+        ticks.len() >= 20,
+        "received only {} measurements",
+        ticks.len()
+    );
+    assert!(
+        ticks.windows(2).all(|w| w[1] > w[0]),
+        "ticks out of order: {ticks:?}"
+    );
+    child.wait().unwrap();
+    assert_eq!(
+        summary(dir.path())["ticks"],
+        800,
+        "the tapped run did not run its 4 s"
+    );
+}
+
+#[test]
+fn two_runs_at_the_same_time_do_not_see_each_other() {
+    let dirs: Vec<tempfile::TempDir> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
+    let children: Vec<_> = dirs
+        .iter()
+        .zip(["seed=1", "seed=2"])
+        .map(|(dir, seed)| {
+            scmpc()
+                .args([
+                    "run",
+                    "paper-noisy",
+                    "--set",
+                    seed,
+                    "--set",
+                    "duration_s=10",
+                ])
+                .args(["--out", dir.path().to_str().unwrap()])
+                .stdout(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for mut c in children {
+        c.wait().unwrap();
+    }
+    for (dir, seed) in dirs.iter().zip(["seed=1", "seed=2"]) {
+        let reference = tempfile::tempdir().unwrap();
+        run(&[
+            "run",
+            "paper-noisy",
+            "--in-process",
+            "--set",
+            seed,
+            "--set",
+            "duration_s=10",
+            "--out",
+            reference.path().to_str().unwrap(),
+        ]);
+        assert!(
+            trajectory(dir.path()) == trajectory(reference.path()),
+            "{seed}: the concurrent run was disturbed"
+        );
+    }
+}
+
+#[test]
+fn sigint_ends_every_process_within_two_seconds_and_leaves_no_shared_memory() {
+    let prefix = unique_prefix("int");
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--prefix",
+            &prefix,
+            "--out",
+            dir.path().to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Mid-run: the plant is publishing.
+    let running = wait_for(Duration::from_secs(5), || {
+        std::fs::metadata(dir.path().join("trajectory.csv")).is_ok_and(|m| m.len() > 10_000)
+    });
+    assert!(running, "the run never started recording");
+    // SAFETY: sending a signal to our own child process.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let sent = std::time::Instant::now();
+    let status = child.wait().unwrap();
+    assert!(
+        sent.elapsed() < Duration::from_secs(2),
+        "took {:?} to stop",
+        sent.elapsed()
+    );
+    assert_eq!(
+        status.code(),
+        Some(1),
+        "an interrupted run did not reach the goal"
+    );
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "interrupted");
+    for role in ["plant", "estimator", "mpc", "dfl"] {
+        let pid = s["pids"][role].as_u64().unwrap();
+        assert!(
+            !Path::new(&format!("/proc/{pid}")).exists(),
+            "{role} (pid {pid}) still running"
+        );
+    }
+    assert!(
+        leftovers(&prefix).is_empty(),
+        "left behind: {:?}",
+        leftovers(&prefix)
+    );
+}
+
+#[test]
+fn a_scenario_error_is_refused_before_any_process_starts() {
+    let prefix = unique_prefix("bad");
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        "--set",
+        "mpc.horizon=0",
+        "--prefix",
+        &prefix,
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("mpc.horizon"));
+    assert!(!out_dir.exists());
+    assert!(leftovers(&prefix).is_empty());
+}
