@@ -38,14 +38,12 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut dfl = Dfl::new(&args.scenario);
     let mut inbox = PlanInbox::new(lockstep, timing.ts_s);
     let mut queue: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
+    let mut cleared = false;
     loop {
-        // The periodic input first: its receipt time is the hop latency.
-        estimates.drain(|e, latency| queue.push_back((e, latency)))?;
-        link.poll_control(&mut ctl)?;
-        if ctl.stopped {
-            return Ok(());
-        }
-        plans.drain(|p, _| {
+        // Hot path: samples straight from shared memory, the periodic input first (its
+        // receipt time is the hop latency); system calls come after publishing.
+        estimates.take(|e, latency| queue.push_back((e, latency)))?;
+        plans.take(|p, _| {
             inbox.receive(&p);
         })?;
         let mut wait_for = None;
@@ -70,6 +68,18 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             act.header.input_latency_ns = latency.min(u64::from(u32::MAX)) as u32;
             actuation.send(act)?;
         }
+        if !cleared {
+            // Consume the wake-ups, then take once more what came before that.
+            estimates.clear_wakeups();
+            plans.clear_wakeups();
+            link.poll_control(&mut ctl)?;
+            if ctl.stopped {
+                return Ok(());
+            }
+            cleared = true;
+            continue;
+        }
+        cleared = false;
         // No scheduled spin here (unlike the estimator): on two cores a third spinning
         // process starves the plant and the estimator (measured: README).
         if !link.wait(&waitset, wait_for)? {

@@ -30,14 +30,12 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut heard: Option<Actuation> = None;
     let mut queue: VecDeque<(Measurement, u64)> = VecDeque::with_capacity(16);
     let mut last_tick: Option<u64> = None;
+    let mut cleared = false;
     loop {
-        // The periodic input first: its receipt time is the hop latency.
-        measurements.drain(|m, latency| queue.push_back((m, latency)))?;
-        link.poll_control(&mut ctl)?;
-        if ctl.stopped {
-            return Ok(());
-        }
-        actuation.drain(|a, _| {
+        // Hot path: samples straight from shared memory, the periodic input first (its
+        // receipt time is the hop latency); system calls come after publishing.
+        measurements.take(|m, latency| queue.push_back((m, latency)))?;
+        actuation.take(|a, _| {
             if heard.is_none_or(|h| a.header.tick >= h.header.tick) {
                 heard = Some(a);
             }
@@ -63,6 +61,18 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             };
             estimates.send(estimator.step(applied, dt, m.y, zeta, header))?;
         }
+        if !cleared {
+            // Consume the wake-ups, then take once more what came before that.
+            measurements.clear_wakeups();
+            actuation.clear_wakeups();
+            link.poll_control(&mut ctl)?;
+            if ctl.stopped {
+                return Ok(());
+            }
+            cleared = true;
+            continue;
+        }
+        cleared = false;
         // Real time: the next measurement is due at the next tick; poll for it there.
         if let (RunMode::Realtime, Some(start_ns), Some(last)) =
             (args.mode, ctl.start_ns, last_tick)

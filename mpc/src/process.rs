@@ -23,13 +23,12 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     link.report(StatusEvent::Ready)?;
 
     let inner_steps = args.scenario.timing.inner_steps as u64;
+    let sample_ns = args.scenario.timing.ts_s * 1e9;
     let mut boundary: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
+    let mut next_sample = 0u64;
+    let mut cleared = false;
     loop {
-        link.poll_control(&mut ctl)?;
-        if ctl.stopped {
-            return Ok(());
-        }
-        estimates.drain(|e, latency| {
+        estimates.take(|e, latency| {
             if e.header.tick.is_multiple_of(inner_steps) {
                 boundary.push_back((e, latency));
             }
@@ -40,6 +39,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             }
         }
         while let Some((e, latency)) = boundary.pop_front() {
+            next_sample = e.header.tick / inner_steps + 1;
             let mut plan = mpc.step(e.header.tick / inner_steps, e.state, e.position_sigma());
             plan.header = Header {
                 tick: e.header.tick,
@@ -48,6 +48,24 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 ..Header::default()
             };
             plans.send(plan)?;
+        }
+        if !cleared {
+            estimates.clear_wakeups();
+            link.poll_control(&mut ctl)?;
+            if ctl.stopped {
+                return Ok(());
+            }
+            cleared = true;
+            continue;
+        }
+        cleared = false;
+        // Real time: only every M-th estimate matters; rather than waking for each one
+        // (and taking a core from the DFL), poll at the next sample boundary.
+        if let (RunMode::Realtime, Some(start_ns)) = (args.mode, ctl.start_ns) {
+            let expected = start_ns + (next_sample as f64 * sample_ns) as u64;
+            if ipc::spin_wait(expected, || estimates.has_samples()) {
+                continue;
+            }
         }
         if !link.wait(&waitset, None)? {
             return Ok(());

@@ -458,8 +458,14 @@ impl<T: Message> Receiver<T> {
     }
 
     /// Every pending sample, after clearing the wake-ups (so none is missed).
-    pub fn drain(&self, mut each: impl FnMut(T, u64)) -> Result<(), IpcError> {
+    pub fn drain(&self, each: impl FnMut(T, u64)) -> Result<(), IpcError> {
         self.clear_wakeups();
+        self.take(each)
+    }
+
+    /// Every pending sample, straight from shared memory (no system call). The caller
+    /// must [`clear_wakeups`](Self::clear_wakeups) and take once more before it blocks.
+    pub fn take(&self, mut each: impl FnMut(T, u64)) -> Result<(), IpcError> {
         while let Some((message, latency)) = self.receive()? {
             each(message, latency);
         }
