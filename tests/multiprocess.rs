@@ -70,6 +70,20 @@ fn the_four_roles_are_separate_processes() {
     all.sort_unstable();
     all.dedup();
     assert_eq!(all.len(), 5, "pids not distinct: {pids}");
+    // events.jsonl tells the same story: four spawns, four clean exits, one end.
+    let events = std::fs::read_to_string(dir.path().join("events.jsonl")).unwrap();
+    let events: Vec<serde_json::Value> = events
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let count = |kind: &str| events.iter().filter(|e| e["event"] == kind).count();
+    assert_eq!((count("spawned"), count("exited"), count("end")), (4, 4, 1));
+    assert!(
+        events
+            .iter()
+            .filter(|e| e["event"] == "exited")
+            .all(|e| e["killed"] == false)
+    );
 }
 
 #[test]

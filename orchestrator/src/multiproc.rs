@@ -68,23 +68,30 @@ impl Children {
     }
 
     /// Waits up to `timeout` for every child to exit, then kills the rest; reaps all.
-    fn shut_down(&mut self, timeout: Duration) {
+    /// Returns each role's exit status and whether it had to be killed.
+    fn shut_down(&mut self, timeout: Duration) -> Vec<(Role, String, bool)> {
         let deadline = Instant::now() + timeout;
-        for (_, child) in &mut self.0 {
+        let mut ended = Vec::new();
+        for (role, child) in &mut self.0 {
             while child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
                 std::thread::sleep(Duration::from_millis(5));
             }
-            if child.try_wait().ok().flatten().is_none() {
+            let killed = child.try_wait().ok().flatten().is_none();
+            if killed {
                 let _ = child.kill();
             }
-            let _ = child.wait();
+            let status = child
+                .wait()
+                .map_or_else(|e| e.to_string(), |s| s.to_string());
+            ended.push((*role, status, killed));
         }
+        ended
     }
 }
 
 impl Drop for Children {
     fn drop(&mut self) {
-        self.shut_down(Duration::ZERO);
+        let _ = self.shut_down(Duration::ZERO);
     }
 }
 
@@ -158,7 +165,7 @@ struct Driver<'a> {
     mode: RunMode,
     session: &'a Session,
     children: &'a mut Children,
-    recorder: Recorder,
+    recorder: &'a mut Recorder,
     latencies: Latencies,
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
@@ -365,6 +372,8 @@ impl Driver<'_> {
                 }
                 if !complete {
                     self.record_gaps += 1;
+                    self.recorder
+                        .event("record_gap", serde_json::json!({ "tick": next }))?;
                 } else if let Some(outcome) = self.record(next, slot)? {
                     return Ok(outcome);
                 }
@@ -375,7 +384,8 @@ impl Driver<'_> {
 }
 
 /// Runs the scenario as four processes on iceoryx2 resources named with `prefix` and
-/// writes `out`. The scenario must be valid.
+/// writes `out`. The scenario must be valid. Whatever happens, every process is stopped
+/// and the run's iceoryx2 resources are removed before this returns.
 pub fn run(
     scenario: &Scenario,
     out: &Path,
@@ -384,70 +394,13 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    let recorder =
+    let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
-    let session = Session::open(prefix)?;
-    let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
-    let mut report = ProcessReport {
-        iceoryx2_prefix: prefix.to_string(),
-        ..ProcessReport::default()
-    };
-    report
-        .pids
-        .insert("orchestrator".into(), std::process::id());
-    for (role, child) in &children.0 {
-        report.pids.insert(role.as_str().into(), child.id());
-    }
-
-    // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
-    // time: it only records, so it drains its buffers every POLL instead of competing for
-    // the CPU with the control loop at every tick.
-    let waitset = ipc::waitset(false)?;
-    let mut guards = vec![session.status.attach(&waitset)?];
-    if mode == RunMode::Lockstep {
-        guards.push(session.truth.attach(&waitset)?);
-        guards.push(session.measurement.attach(&waitset)?);
-        guards.push(session.estimate.attach(&waitset)?);
-        guards.push(session.plan.attach(&waitset)?);
-        guards.push(session.actuation.attach(&waitset)?);
-    }
-    wait_until_ready(&session, &waitset, &mut children, stop)?;
-    let mut driver = Driver {
-        scenario,
-        mode,
-        session: &session,
-        children: &mut children,
-        recorder,
-        latencies: Latencies::default(),
-        slots: BTreeMap::new(),
-        plans: BTreeMap::new(),
-        newest_truth: None,
-        stop,
-        start_ns: 0,
-        record_gaps: 0,
-    };
-    let outcome = match mode {
-        RunMode::Lockstep => driver.lockstep(&waitset),
-        RunMode::Realtime => driver.realtime(&waitset),
-    };
-    let Driver {
-        recorder,
-        latencies,
-        record_gaps,
-        ..
-    } = driver;
-    // Stop every process whatever happened, then release the orchestrator's own ports.
-    let _ = session.command(ControlCommand::Stop, 0, 0);
-    children.shut_down(STOP_TIMEOUT);
-    drop(guards);
-    drop(waitset);
-    drop(session);
+    let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
     if let Err(e) = ipc::remove_run_resources(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
-    let outcome = outcome?;
-    latencies.report(&mut report);
-    report.record_gaps = record_gaps;
+    let (outcome, mut report) = result?;
     report.leftover_files = ipc::leftover_files(prefix)
         .iter()
         .map(|p| p.display().to_string())
@@ -463,6 +416,81 @@ pub fn run(
         started.elapsed().as_secs_f64(),
         Some(report),
     )?)
+}
+
+/// Launches the processes, clocks and records the run, and stops the processes. Every
+/// iceoryx2 port of the orchestrator is gone when this returns.
+fn drive(
+    scenario: &Scenario,
+    out: &Path,
+    mode: RunMode,
+    prefix: &str,
+    stop: &AtomicBool,
+    recorder: &mut Recorder,
+) -> anyhow::Result<(Outcome, ProcessReport)> {
+    let session = Session::open(prefix)?;
+    let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
+    let mut report = ProcessReport {
+        iceoryx2_prefix: prefix.to_string(),
+        ..ProcessReport::default()
+    };
+    report
+        .pids
+        .insert("orchestrator".into(), std::process::id());
+    for (role, child) in &children.0 {
+        report.pids.insert(role.as_str().into(), child.id());
+        recorder.event(
+            "spawned",
+            serde_json::json!({ "role": role.as_str(), "pid": child.id() }),
+        )?;
+    }
+
+    // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
+    // time: it only records, so it drains its buffers every POLL instead of competing for
+    // the CPU with the control loop at every tick.
+    let waitset = ipc::waitset(false)?;
+    let mut guards = vec![session.status.attach(&waitset)?];
+    if mode == RunMode::Lockstep {
+        guards.push(session.truth.attach(&waitset)?);
+        guards.push(session.measurement.attach(&waitset)?);
+        guards.push(session.estimate.attach(&waitset)?);
+        guards.push(session.plan.attach(&waitset)?);
+        guards.push(session.actuation.attach(&waitset)?);
+    }
+    let outcome = wait_until_ready(&session, &waitset, &mut children, stop).and_then(|()| {
+        recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
+        let mut driver = Driver {
+            scenario,
+            mode,
+            session: &session,
+            children: &mut children,
+            recorder: &mut *recorder,
+            latencies: Latencies::default(),
+            slots: BTreeMap::new(),
+            plans: BTreeMap::new(),
+            newest_truth: None,
+            stop,
+            start_ns: 0,
+            record_gaps: 0,
+        };
+        let outcome = match mode {
+            RunMode::Lockstep => driver.lockstep(&waitset),
+            RunMode::Realtime => driver.realtime(&waitset),
+        };
+        driver.latencies.report(&mut report);
+        report.record_gaps = driver.record_gaps;
+        outcome
+    });
+    // Stop every process whatever happened, then release the orchestrator's own ports.
+    let _ = session.command(ControlCommand::Stop, 0, 0);
+    for (role, status, killed) in children.shut_down(STOP_TIMEOUT) {
+        recorder.event(
+            "exited",
+            serde_json::json!({ "role": role.as_str(), "status": status, "killed": killed }),
+        )?;
+    }
+    drop(guards);
+    Ok((outcome?, report))
 }
 
 /// Waits until every role has reported ready.

@@ -218,6 +218,8 @@ pub struct Recorder {
     dir: PathBuf,
     trajectory: BufWriter<File>,
     plans: BufWriter<File>,
+    events: BufWriter<File>,
+    created: std::time::Instant,
     pub monitor: Monitor,
     solve_us: Vec<f64>,
     iterations: Vec<f64>,
@@ -245,10 +247,13 @@ impl Recorder {
             plans,
             "sample,t,status,solve_us,iterations,solves,late_samples,deadline_met,v1,v2"
         )?;
+        let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
             dir: dir.to_path_buf(),
             trajectory,
             plans,
+            events,
+            created: std::time::Instant::now(),
             monitor: Monitor::new(scenario),
             solve_us: Vec::new(),
             iterations: Vec::new(),
@@ -259,6 +264,20 @@ impl Recorder {
             last_time_s: 0.0,
             zeta: scenario.robot.zeta0,
         })
+    }
+
+    /// One line of `events.jsonl`: `{"wall_s", "t", "event", ...fields}`, where `t` is the
+    /// simulated time of the last recorded tick.
+    pub fn event(&mut self, event: &str, fields: serde_json::Value) -> std::io::Result<()> {
+        let mut line = serde_json::json!({
+            "wall_s": self.created.elapsed().as_secs_f64(),
+            "t": self.last_time_s,
+            "event": event,
+        });
+        if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
+            line.extend(fields);
+        }
+        writeln!(self.events, "{line}")
     }
 
     pub fn dir(&self) -> &Path {
@@ -351,6 +370,8 @@ impl Recorder {
     ) -> std::io::Result<Summary> {
         self.trajectory.flush()?;
         self.plans.flush()?;
+        self.event("end", serde_json::json!({ "outcome": outcome.as_str() }))?;
+        self.events.flush()?;
         let m = &self.monitor;
         let summary = Summary {
             scenario: scenario.name.clone(),
