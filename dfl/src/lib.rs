@@ -6,7 +6,10 @@
 //! `z1'' = v1`, `z3'' = v2`. The [`Dfl`] applies the element of the newest plan that covers
 //! the current time, falls back to braking when none does, and integrates zeta.
 
-use protocol::{Actuation, CommandMode, Estimate, Header, Plan, Scenario, WheelGeometry};
+use protocol::{
+    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan, PlanStatus,
+    Scenario, WheelGeometry,
+};
 
 pub mod process;
 
@@ -95,13 +98,19 @@ impl PlanInbox {
     /// Takes a received plan; returns the sample it becomes usable at.
     pub fn receive(&mut self, plan: &Plan) -> u64 {
         let arrival = if self.lockstep {
-            plan.sample + late_samples(plan.solve_ns, self.ts_s)
+            plan.sample + self.late(plan)
         } else {
             0
         };
         self.newest_received = self.newest_received.max(Some(plan.sample));
         self.pending.push((arrival, *plan));
         arrival.max(plan.sample)
+    }
+
+    /// Lockstep: samples plan(k) arrives late (its production time: solve plus any
+    /// injected delay).
+    pub fn late(&self, plan: &Plan) -> u64 {
+        late_samples(plan.solve_ns + plan.injected_delay_ns, self.ts_s)
     }
 
     /// Whether plan(`sample`) (or a newer one) has been received.
@@ -118,6 +127,72 @@ impl PlanInbox {
             }
             !arrived
         });
+    }
+}
+
+/// Judges every sample's deadline: plan(k) must reach the DFL, solved, by `t_k + Ts`.
+/// Sample k is judged at the first tick of sample k + 1, when its deadline has passed.
+#[derive(Debug, Clone)]
+pub struct DeadlineMonitor {
+    period_ns: u64,
+    /// `(sample, arrival after t_k in ns, status code, production ns)` of received plans
+    /// not yet judged.
+    arrivals: Vec<(u64, u64, u32, u64)>,
+    /// Mode of the first command of the sample being run.
+    current: Option<(u64, CommandMode)>,
+    misses: u32,
+}
+
+impl DeadlineMonitor {
+    pub fn new(ts_s: f64) -> DeadlineMonitor {
+        DeadlineMonitor {
+            period_ns: (ts_s * 1e9).round() as u64,
+            arrivals: Vec::with_capacity(8),
+            current: None,
+            misses: 0,
+        }
+    }
+
+    /// Misses so far (the live counter).
+    pub fn misses(&self) -> u32 {
+        self.misses
+    }
+
+    /// A plan reached the DFL `arrival_ns` after the start of its sample.
+    pub fn on_plan(&mut self, plan: &Plan, arrival_ns: u64) {
+        if self.arrivals.iter().all(|a| a.0 != plan.sample) {
+            self.arrivals.push((
+                plan.sample,
+                arrival_ns,
+                plan.status,
+                plan.solve_ns + plan.injected_delay_ns,
+            ));
+        }
+    }
+
+    /// The first command of `sample` was given in `mode`. Returns the verdict on the
+    /// previous sample, whose deadline has now passed.
+    pub fn sample_started(&mut self, sample: u64, mode: CommandMode) -> Option<DeadlineVerdict> {
+        let previous = self.current.replace((sample, mode));
+        let (judged, fallback) = previous.filter(|(s, _)| *s < sample)?;
+        let found = self.arrivals.iter().find(|a| a.0 == judged).copied();
+        self.arrivals.retain(|a| a.0 > judged);
+        let (arrival_ns, status, production_ns) =
+            found.map_or((u64::MAX, PLAN_MISSING, 0), |a| (a.1, a.2, a.3));
+        let met = status == PlanStatus::Solved as u32 && arrival_ns <= self.period_ns;
+        if !met {
+            self.misses += 1;
+        }
+        Some(DeadlineVerdict {
+            header: Header::default(),
+            sample: judged,
+            met: u32::from(met),
+            status,
+            production_ns,
+            arrival_ns,
+            fallback: fallback as u32,
+            misses_total: self.misses,
+        })
     }
 }
 
@@ -207,7 +282,7 @@ impl Dfl {
             zeta: self.zeta,
             v,
             mode: mode as u32,
-            reserved: 0,
+            deadline_misses: 0,
             plan_sample,
         }
     }
@@ -331,6 +406,52 @@ mod tests {
             (a.mode(), a.v),
             (Some(CommandMode::Shifted), [3.0, 0.0]),
             "element 3 of plan 100"
+        );
+    }
+
+    #[test]
+    fn a_plan_arriving_exactly_at_the_deadline_meets_it_and_one_later_misses() {
+        let mut m = DeadlineMonitor::new(0.05);
+        m.sample_started(10, CommandMode::Nominal);
+        m.on_plan(&plan(10, 8, PlanStatus::Solved), 50_000_000);
+        let v = m.sample_started(11, CommandMode::Shifted).unwrap();
+        assert_eq!((v.sample, v.met, v.misses_total), (10, 1, 0));
+        m.on_plan(&plan(11, 8, PlanStatus::Solved), 50_000_001);
+        let v = m.sample_started(12, CommandMode::Nominal).unwrap();
+        assert_eq!(
+            (v.sample, v.met, v.misses_total, v.fallback),
+            (11, 0, 1, CommandMode::Shifted as u32)
+        );
+    }
+
+    #[test]
+    fn a_missing_or_failed_plan_is_a_miss_with_its_status() {
+        let mut m = DeadlineMonitor::new(0.05);
+        m.sample_started(0, CommandMode::Brake);
+        let v = m.sample_started(1, CommandMode::Brake).unwrap();
+        assert_eq!((v.met, v.status), (0, PLAN_MISSING));
+        m.on_plan(&plan(1, 8, PlanStatus::NumericalError), 1_000_000);
+        let v = m.sample_started(2, CommandMode::Brake).unwrap();
+        assert_eq!(
+            (v.met, v.status, v.misses_total),
+            (0, PlanStatus::NumericalError as u32, 2)
+        );
+    }
+
+    #[test]
+    fn a_plan_older_than_its_horizon_is_exhausted_and_the_dfl_brakes() {
+        let mut dfl = Dfl::new(&Scenario::default());
+        assert!(dfl.offer(&plan(10, 8, PlanStatus::Solved)));
+        let est = Estimate::default();
+        assert_eq!(
+            dfl.step(&est, 170).mode(),
+            Some(CommandMode::Shifted),
+            "element 7 still covers sample 17"
+        );
+        assert_eq!(
+            dfl.step(&est, 180).mode(),
+            Some(CommandMode::Brake),
+            "nothing covers sample 18"
         );
     }
 

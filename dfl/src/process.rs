@@ -4,13 +4,13 @@
 //! has passed, then it falls back to the shifted previous plan (the plant only takes the
 //! command at the end of the tick, so waiting within it costs nothing).
 
-use crate::{Dfl, PlanInbox};
+use crate::{DeadlineMonitor, Dfl, PlanInbox};
 use protocol::clock::monotonic_ns;
 use protocol::ipc::{
-    self, ACTUATION, ControlState, ESTIMATE, Link, PLAN, ProcessArgs, ProcessError, RunMode,
-    open_topic,
+    self, ACTUATION, ControlState, DEADLINE, ESTIMATE, Link, PLAN, ProcessArgs, ProcessError,
+    RunMode, open_topic,
 };
-use protocol::{Actuation, Estimate, Plan, Role, StatusEvent};
+use protocol::{Actuation, DeadlineVerdict, Estimate, Plan, Role, StatusEvent};
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -23,6 +23,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
     let plans = open_topic::<Plan>(&link.node, PLAN)?.receiver()?;
     let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.sender(args.epoch)?;
+    let deadlines = open_topic::<DeadlineVerdict>(&link.node, DEADLINE)?.sender(args.epoch)?;
     let waitset = ipc::waitset(true)?;
     let _guards = [
         link.control().attach(&waitset)?,
@@ -37,6 +38,8 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let lockstep = args.mode == RunMode::Lockstep;
     let mut dfl = Dfl::new(&args.scenario);
     let mut inbox = PlanInbox::new(lockstep, timing.ts_s);
+    let mut monitor = DeadlineMonitor::new(timing.ts_s);
+    let sample_ns = timing.ts_s * 1e9;
     let mut queue: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
     let mut cleared = false;
     loop {
@@ -45,6 +48,13 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         estimates.take(|e, latency| queue.push_back((e, latency)))?;
         plans.take(|p, _| {
             inbox.receive(&p);
+            let arrival_ns = if lockstep {
+                (inbox.late(&p) as f64 * sample_ns) as u64
+            } else {
+                let sample_start = ctl.start_ns.unwrap_or(0) + (p.sample as f64 * sample_ns) as u64;
+                monotonic_ns().saturating_sub(sample_start)
+            };
+            monitor.on_plan(&p, arrival_ns);
         })?;
         let mut wait_for = None;
         while let Some(&(e, latency)) = queue.front() {
@@ -66,6 +76,14 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             inbox.release(sample, &mut dfl);
             let mut act = dfl.step(&e, tick);
             act.header.input_latency_ns = latency.min(u64::from(u32::MAX)) as u32;
+            if tick.is_multiple_of(inner_steps)
+                && let Some(mode) = act.mode()
+                && let Some(mut verdict) = monitor.sample_started(sample, mode)
+            {
+                verdict.header = act.header;
+                deadlines.send(verdict)?;
+            }
+            act.deadline_misses = monitor.misses();
             actuation.send(act)?;
         }
         if !cleared {

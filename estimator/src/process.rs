@@ -59,7 +59,13 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 input_latency_ns: latency.min(u64::from(u32::MAX)) as u32,
                 ..Header::default()
             };
-            estimates.send(estimator.step(applied, dt, m.y, zeta, header))?;
+            let estimate = estimator.step(applied, dt, m.y, zeta, header);
+            if args.scenario.fault.estimator_delay_ms > 0.0 {
+                std::thread::sleep(std::time::Duration::from_secs_f64(
+                    args.scenario.fault.estimator_delay_ms * 1e-3,
+                ));
+            }
+            estimates.send(estimate)?;
         }
         if !cleared {
             // Consume the wake-ups, then take once more what came before that.

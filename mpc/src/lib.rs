@@ -188,6 +188,17 @@ impl Mpc {
         plan
     }
 
+    /// Applies the scenario's injected faults to plan(k): a forced failure (reported as
+    /// `numerical_error`, and the MPC starts cold next time, as after a real failure) and
+    /// the delay to add before publishing.
+    pub fn inject_faults(&mut self, plan: &mut Plan, faults: &protocol::FaultConfig) {
+        if faults.mpc_fails(plan.sample) {
+            plan.status = PlanStatus::NumericalError as u32;
+            self.reset();
+        }
+        plan.injected_delay_ns = faults.mpc_delay_ns(plan.sample);
+    }
+
     /// Solves, re-linearizes at the solution, and repeats until the plan settles.
     /// On a failed refinement the last solved iterate (feasible for the paper's
     /// constraint) is kept in the solver's solution buffer.

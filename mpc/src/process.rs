@@ -41,6 +41,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         while let Some((e, latency)) = boundary.pop_front() {
             next_sample = e.header.tick / inner_steps + 1;
             let mut plan = mpc.step(e.header.tick / inner_steps, e.state, e.position_sigma());
+            mpc.inject_faults(&mut plan, &args.scenario.fault);
+            if args.mode == RunMode::Realtime && plan.injected_delay_ns > 0 {
+                std::thread::sleep(std::time::Duration::from_nanos(plan.injected_delay_ns));
+            }
             plan.header = Header {
                 tick: e.header.tick,
                 time_s: e.header.time_s,

@@ -11,7 +11,7 @@
 use crate::monitor::Outcome;
 use crate::record::{Recorder, Summary};
 use anyhow::Context;
-use dfl::{Dfl, PlanInbox};
+use dfl::{DeadlineMonitor, Dfl, PlanInbox};
 use estimator::Estimator;
 use mpc::Mpc;
 use plant::Plant;
@@ -48,6 +48,7 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
     let mut mpc = Mpc::new(scenario).context("setting up the MPC")?;
     let mut dfl = Dfl::new(scenario);
     let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
+    let mut deadlines = DeadlineMonitor::new(scenario.timing.ts_s);
     let mut applied: Option<[f64; 2]> = None;
     let mut outcome = None;
     let ticks = tick_count(scenario);
@@ -70,12 +71,24 @@ pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result
         let sample = tick / m;
         if tick.is_multiple_of(m) {
             let mut plan = mpc.step(sample, estimate.state, estimate.position_sigma());
+            mpc.inject_faults(&mut plan, &scenario.fault);
             plan.header = header;
-            let arrival = inbox.receive(&plan);
-            recorder.plan(&plan, arrival - sample)?;
+            inbox.receive(&plan);
+            deadlines.on_plan(
+                &plan,
+                (inbox.late(&plan) as f64 * scenario.timing.ts_s * 1e9) as u64,
+            );
+            recorder.plan(&plan);
         }
         inbox.release(sample, &mut dfl);
-        let act = dfl.step(&estimate, tick);
+        let mut act = dfl.step(&estimate, tick);
+        if tick.is_multiple_of(m)
+            && let Some(mode) = act.mode()
+            && let Some(verdict) = deadlines.sample_started(sample, mode)
+        {
+            recorder.verdict(&verdict)?;
+        }
+        act.deadline_misses = deadlines.misses();
         if let Some(o) = recorder.tick(&truth, &estimate, &act)? {
             outcome = Some(o);
             break;

@@ -14,8 +14,8 @@ use anyhow::{Context, anyhow, bail};
 use protocol::clock::monotonic_ns;
 use protocol::ipc::{self, Receiver, RunMode, Sender, open_topic};
 use protocol::{
-    Actuation, Control, ControlCommand, Estimate, GroundTruth, Header, Measurement, Plan, Role,
-    Scenario, Status, StatusEvent,
+    Actuation, Control, ControlCommand, DeadlineVerdict, Estimate, GroundTruth, Header,
+    Measurement, Plan, Role, Scenario, Status, StatusEvent,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -124,6 +124,7 @@ struct Session {
     estimate: Receiver<Estimate>,
     plan: Receiver<Plan>,
     actuation: Receiver<Actuation>,
+    deadline: Receiver<DeadlineVerdict>,
 }
 
 impl Session {
@@ -137,6 +138,7 @@ impl Session {
             estimate: open_topic(&node, ipc::ESTIMATE)?.receiver()?,
             plan: open_topic(&node, ipc::PLAN)?.receiver()?,
             actuation: open_topic(&node, ipc::ACTUATION)?.receiver()?,
+            deadline: open_topic(&node, ipc::DEADLINE)?.receiver()?,
             node,
         })
     }
@@ -169,6 +171,7 @@ struct Driver<'a> {
     latencies: Latencies,
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
+    verdicts: BTreeMap<u64, DeadlineVerdict>,
     newest_truth: Option<u64>,
     stop: &'a AtomicBool,
     start_ns: u64,
@@ -200,6 +203,10 @@ impl Driver<'_> {
         let plans = &mut self.plans;
         self.session.plan.drain(|p, _| {
             plans.insert(p.sample, p);
+        })?;
+        let verdicts = &mut self.verdicts;
+        self.session.deadline.drain(|v, _| {
+            verdicts.insert(v.sample, v);
         })?;
         Ok(())
     }
@@ -256,21 +263,18 @@ impl Driver<'_> {
         Ok(self.recorder.tick(&truth, &estimate, &act)?)
     }
 
-    /// Records plan(`sample`): how late it reached the DFL follows the mode's rule.
-    fn record_plan(&mut self, plan: &Plan) -> anyhow::Result<()> {
-        self.latencies
-            .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
-        let ts_s = self.scenario.timing.ts_s;
-        let late = match self.mode {
-            RunMode::Lockstep => dfl::late_samples(plan.solve_ns, ts_s),
-            RunMode::Realtime => {
-                // The sample during which it was published; 0 samples late if before t_k + Ts.
-                let since_start_s =
-                    plan.header.publish_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
-                ((since_start_s / ts_s).floor() as u64).saturating_sub(plan.sample)
-            }
-        };
-        Ok(self.recorder.plan(plan, late)?)
+    /// Records every plan received, then every deadline verdict (the DFL judges sample k
+    /// at the start of sample k + 1, after plan(k) was published).
+    fn record_plans(&mut self) -> anyhow::Result<()> {
+        while let Some((_, plan)) = self.plans.pop_first() {
+            self.latencies
+                .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
+            self.recorder.plan(&plan);
+        }
+        while let Some((_, v)) = self.verdicts.pop_first() {
+            self.recorder.verdict(&v)?;
+        }
+        Ok(())
     }
 
     fn lockstep(
@@ -310,9 +314,7 @@ impl Driver<'_> {
                 let end = slot.truth.and_then(|t| self.recorder.final_pose(&t));
                 return Ok(end.unwrap_or_else(|| self.recorder.monitor.final_outcome()));
             }
-            if boundary && let Some(plan) = self.plans.remove(&(tick / inner_steps)) {
-                self.record_plan(&plan)?;
-            }
+            self.record_plans()?;
             if let Some(outcome) = self.record(tick, slot)? {
                 return Ok(outcome);
             }
@@ -340,17 +342,7 @@ impl Driver<'_> {
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.pump(waitset)?;
-            let ready: Vec<u64> = self
-                .plans
-                .keys()
-                .copied()
-                .filter(|&k| k * inner_steps <= next)
-                .collect();
-            for k in ready {
-                if let Some(plan) = self.plans.remove(&k) {
-                    self.record_plan(&plan)?;
-                }
-            }
+            self.record_plans()?;
             while next <= ticks {
                 let complete = self.slots.get(&next).is_some_and(|s| {
                     if next == ticks {
@@ -456,6 +448,7 @@ fn drive(
         guards.push(session.estimate.attach(&waitset)?);
         guards.push(session.plan.attach(&waitset)?);
         guards.push(session.actuation.attach(&waitset)?);
+        guards.push(session.deadline.attach(&waitset)?);
     }
     let outcome = wait_until_ready(&session, &waitset, &mut children, stop).and_then(|()| {
         recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
@@ -468,6 +461,7 @@ fn drive(
             latencies: Latencies::default(),
             slots: BTreeMap::new(),
             plans: BTreeMap::new(),
+            verdicts: BTreeMap::new(),
             newest_truth: None,
             stop,
             start_ns: 0,
@@ -477,6 +471,7 @@ fn drive(
             RunMode::Lockstep => driver.lockstep(&waitset),
             RunMode::Realtime => driver.realtime(&waitset),
         };
+        let outcome = outcome.and_then(|o| driver.record_plans().map(|()| o));
         driver.latencies.report(&mut report);
         report.record_gaps = driver.record_gaps;
         outcome

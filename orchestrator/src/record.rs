@@ -2,7 +2,10 @@
 //! MPC sample) and `summary.json`, plus the summary table printed at the end of a run.
 
 use crate::monitor::{Monitor, Outcome};
-use protocol::{Actuation, CommandMode, Estimate, GroundTruth, Plan, Scenario};
+use protocol::{
+    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
+    Scenario,
+};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -57,6 +60,10 @@ pub struct Summary {
     pub final_distance_to_goal_m: f64,
     /// Samples whose plan was not in the DFL's hands by `t_k + Ts`, or failed.
     pub deadline_misses: u64,
+    /// Longest run of consecutive deadline misses.
+    pub longest_miss_streak: u64,
+    /// Faults injected into the run (empty for a clean run).
+    pub faults: Vec<String>,
     /// Plans whose solver status was not `solved`.
     pub solver_failures: u64,
     /// MPC samples run.
@@ -151,8 +158,8 @@ impl Summary {
             (
                 "deadline misses",
                 format!(
-                    "{} ({} solver failures)",
-                    self.deadline_misses, self.solver_failures
+                    "{} (longest run {}; {} solver failures)",
+                    self.deadline_misses, self.longest_miss_streak, self.solver_failures
                 ),
             ),
             (
@@ -184,6 +191,9 @@ impl Summary {
             .iter()
             .map(|(k, v)| format!("  {k:<16} {v}\n"))
             .collect();
+        for fault in &self.faults {
+            table += &format!("  {:<16} {fault}\n", "injected fault");
+        }
         if let Some(p) = &self.processes {
             let line = |name: &str, q: &Percentiles| {
                 format!(
@@ -224,7 +234,11 @@ pub struct Recorder {
     solve_us: Vec<f64>,
     iterations: Vec<f64>,
     deadline_misses: u64,
+    miss_streak: u64,
+    longest_miss_streak: u64,
     solver_failures: u64,
+    /// Plans published but not judged yet, by sample.
+    pending_plans: BTreeMap<u64, Plan>,
     commands: ModeCounts,
     ticks: u64,
     last_time_s: f64,
@@ -245,7 +259,7 @@ impl Recorder {
         let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
         writeln!(
             plans,
-            "sample,t,status,solve_us,iterations,solves,late_samples,deadline_met,v1,v2"
+            "sample,t,status,solve_us,injected_delay_us,iterations,solves,arrival_ms,deadline_met,fallback,v1,v2"
         )?;
         let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
@@ -258,7 +272,10 @@ impl Recorder {
             solve_us: Vec::new(),
             iterations: Vec::new(),
             deadline_misses: 0,
+            miss_streak: 0,
+            longest_miss_streak: 0,
             solver_failures: 0,
+            pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
             ticks: 0,
             last_time_s: 0.0,
@@ -333,29 +350,77 @@ impl Recorder {
             .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
     }
 
-    /// One MPC sample: its plan and how many samples late it reached the DFL.
-    pub fn plan(&mut self, plan: &Plan, late_samples: u64) -> std::io::Result<()> {
-        let solved = plan.is_solved();
-        let met = solved && late_samples == 0;
-        if !solved {
+    /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
+    pub fn plan(&mut self, plan: &Plan) {
+        if !plan.is_solved() {
             self.solver_failures += 1;
         }
-        if !met {
-            self.deadline_misses += 1;
-        }
-        let solve_us = plan.solve_ns as f64 / 1e3;
-        self.solve_us.push(solve_us);
+        self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
-        let status = plan.status().map_or("unknown", |s| s.as_str());
+        self.pending_plans.insert(plan.sample, *plan);
+    }
+
+    /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row, and on a
+    /// miss counts it and writes a `deadline_miss` event.
+    pub fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {
+        let met = v.met != 0;
+        let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
+        let status = match v.status {
+            PLAN_MISSING => "missing",
+            code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
+        };
+        let arrival_ms = (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6);
+        if met {
+            self.miss_streak = 0;
+        } else {
+            self.deadline_misses += 1;
+            self.miss_streak += 1;
+            self.longest_miss_streak = self.longest_miss_streak.max(self.miss_streak);
+            self.event(
+                "deadline_miss",
+                serde_json::json!({
+                    "sample": v.sample,
+                    "status": status,
+                    "production_us": (v.status != PLAN_MISSING).then(|| v.production_ns as f64 / 1e3),
+                    "arrival_ms": arrival_ms,
+                    "fallback": fallback,
+                }),
+            )?;
+        }
+        let plan = self.pending_plans.remove(&v.sample);
+        self.plan_row(
+            v.sample,
+            plan.as_ref(),
+            status,
+            arrival_ms,
+            Some(met),
+            fallback,
+        )
+    }
+
+    fn plan_row(
+        &mut self,
+        sample: u64,
+        plan: Option<&Plan>,
+        status: &str,
+        arrival_ms: Option<f64>,
+        met: Option<bool>,
+        fallback: &str,
+    ) -> std::io::Result<()> {
+        let opt = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x:.3}"));
+        let p = plan.copied().unwrap_or_default();
         writeln!(
             self.plans,
-            "{},{:.4},{status},{solve_us:.1},{},{},{late_samples},{met},{},{}",
-            plan.sample,
-            plan.header.time_s,
-            plan.iterations,
-            plan.solves,
-            plan.v[0][0],
-            plan.v[0][1]
+            "{sample},{:.4},{status},{:.1},{:.1},{},{},{},{},{fallback},{},{}",
+            p.header.time_s,
+            p.solve_ns as f64 / 1e3,
+            p.injected_delay_ns as f64 / 1e3,
+            p.iterations,
+            p.solves,
+            opt(arrival_ms),
+            met.map_or(String::new(), |m| m.to_string()),
+            p.v[0][0],
+            p.v[0][1]
         )
     }
 
@@ -368,6 +433,11 @@ impl Recorder {
         wall_s: f64,
         processes: Option<ProcessReport>,
     ) -> std::io::Result<Summary> {
+        // Plans the run ended before the DFL could judge.
+        for (sample, plan) in std::mem::take(&mut self.pending_plans) {
+            let status = plan.status().map_or("unknown", |s| s.as_str());
+            self.plan_row(sample, Some(&plan), status, None, None, "")?;
+        }
         self.trajectory.flush()?;
         self.plans.flush()?;
         self.event("end", serde_json::json!({ "outcome": outcome.as_str() }))?;
@@ -386,7 +456,9 @@ impl Recorder {
             },
             final_distance_to_goal_m: m.last_distance_to_goal_m,
             deadline_misses: self.deadline_misses,
+            longest_miss_streak: self.longest_miss_streak,
             solver_failures: self.solver_failures,
+            faults: scenario.fault.describe(),
             steps: self.solve_us.len() as u64,
             ticks: self.ticks,
             simulated_s: self.last_time_s,

@@ -24,6 +24,8 @@ pub const TRUTH: &str = "truth";
 pub const ESTIMATE: &str = "estimate";
 pub const PLAN: &str = "plan";
 pub const ACTUATION: &str = "actuation";
+/// The DFL's deadline verdict for every sample.
+pub const DEADLINE: &str = "deadline";
 /// Orchestrator to processes: clock grants, start, stop.
 pub const CONTROL: &str = "control";
 /// Processes to orchestrator: ready, input lost.

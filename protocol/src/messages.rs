@@ -116,6 +116,9 @@ pub struct Plan {
     pub iterations: u32,
     /// Convex solves of this step (1 + refinements).
     pub solves: u32,
+    /// Delay injected before publishing (fault injection), ns; in lockstep it counts as
+    /// production time like `solve_ns`.
+    pub injected_delay_ns: u64,
     /// `v_i = [xddot, yddot]`, m/s^2, for `i < horizon`.
     pub v: [[f64; 2]; MAX_HORIZON],
     /// Predicted `z_i = [x, xdot, y, ydot]` for `i <= horizon`.
@@ -132,6 +135,7 @@ impl Default for Plan {
             solve_ns: 0,
             iterations: 0,
             solves: 0,
+            injected_delay_ns: 0,
             v: [[0.0; 2]; MAX_HORIZON],
             z: [[0.0; 4]; MAX_HORIZON + 1],
         }
@@ -202,7 +206,8 @@ pub struct Actuation {
     pub v: [f64; 2],
     /// [`CommandMode`] code.
     pub mode: u32,
-    pub reserved: u32,
+    /// The DFL's live count of deadline misses so far.
+    pub deadline_misses: u32,
     /// Sample of the plan the command came from (meaningless while braking).
     pub plan_sample: u64,
 }
@@ -211,6 +216,32 @@ impl Actuation {
     pub fn mode(&self) -> Option<CommandMode> {
         CommandMode::from_code(self.mode)
     }
+}
+
+/// [`DeadlineVerdict::status`] of a plan that never reached the DFL.
+pub const PLAN_MISSING: u32 = u32::MAX;
+
+/// The DFL's judgement of one sample's deadline: plan(k) must be in its hands, solved, by
+/// `t_k + Ts` (DESIGN.md section 3). Published for every sample, met or missed.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::DeadlineVerdict")]
+pub struct DeadlineVerdict {
+    pub header: Header,
+    /// The sample `k` judged.
+    pub sample: u64,
+    /// 1 if the deadline was met.
+    pub met: u32,
+    /// [`PlanStatus`] code of plan(k), or [`PLAN_MISSING`].
+    pub status: u32,
+    /// The plan's solve time plus injected delay, ns (0 if missing).
+    pub production_ns: u64,
+    /// When plan(k) reached the DFL after `t_k`, ns (`u64::MAX` if missing).
+    pub arrival_ns: u64,
+    /// [`CommandMode`] of the first command of sample k: the fallback used on a miss.
+    pub fallback: u32,
+    /// Misses so far, this one included.
+    pub misses_total: u32,
 }
 
 /// What the orchestrator tells every process.
@@ -322,6 +353,7 @@ impl_message!(
     Estimate,
     Plan,
     Actuation,
+    DeadlineVerdict,
     Control,
     Status
 );

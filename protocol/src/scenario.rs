@@ -36,6 +36,134 @@ pub struct Scenario {
     pub dfl: DflConfig,
     /// Circular obstacles; collisions are judged against these true radii.
     pub obstacles: Vec<Obstacle>,
+    /// Injected faults, for tests and demonstrations (none by default).
+    pub fault: FaultConfig,
+}
+
+/// Samples chosen by a list (`[100, 101]`) or an inclusive range (`"100..=104"`, also
+/// `"100..105"`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum SampleSet {
+    List(Vec<u64>),
+    Range(String),
+}
+
+impl Default for SampleSet {
+    fn default() -> Self {
+        SampleSet::List(Vec::new())
+    }
+}
+
+impl SampleSet {
+    /// The inclusive bounds of a range, or `None` for a list or a malformed range.
+    fn range(&self) -> Option<(u64, u64)> {
+        let SampleSet::Range(text) = self else {
+            return None;
+        };
+        let (a, b, inclusive) = match text.split_once("..=") {
+            Some((a, b)) => (a, b, true),
+            None => {
+                let (a, b) = text.split_once("..")?;
+                (a, b, false)
+            }
+        };
+        let (a, b): (u64, u64) = (a.trim().parse().ok()?, b.trim().parse().ok()?);
+        if inclusive {
+            Some((a, b))
+        } else {
+            b.checked_sub(1).map(|b| (a, b))
+        }
+    }
+
+    pub fn contains(&self, sample: u64) -> bool {
+        match self {
+            SampleSet::List(list) => list.contains(&sample),
+            SampleSet::Range(_) => self.range().is_some_and(|(a, b)| (a..=b).contains(&sample)),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        match self {
+            SampleSet::List(list) => list.is_empty(),
+            SampleSet::Range(_) => self.range().is_none_or(|(a, b)| a > b),
+        }
+    }
+
+    fn is_well_formed(&self) -> bool {
+        matches!(self, SampleSet::List(_)) || self.range().is_some()
+    }
+}
+
+/// Faults injected into a run (DESIGN.md section 3 is what they exercise).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FaultConfig {
+    /// Delay added before the MPC publishes a plan, ms. In real time the MPC sleeps it; in
+    /// lockstep it is added to the plan's production time, so the plan arrives late by the
+    /// same rule as a slow solve.
+    pub mpc_delay_ms: f64,
+    /// Samples whose plan is delayed.
+    pub mpc_delay_samples: SampleSet,
+    /// Also delay every n-th sample (`k % n == 0`); 0 = off.
+    pub mpc_delay_every: u64,
+    /// Samples whose solve is forced to fail (reported as `numerical_error`).
+    pub mpc_fail_samples: SampleSet,
+    /// The estimator sleeps this long before publishing each estimate, ms (real time: a
+    /// slow estimator; lockstep: only slower in wall time).
+    pub estimator_delay_ms: f64,
+}
+
+impl FaultConfig {
+    /// The injected delay of plan(`sample`), ns.
+    pub fn mpc_delay_ns(&self, sample: u64) -> u64 {
+        let chosen = self.mpc_delay_samples.contains(sample)
+            || (self.mpc_delay_every > 0 && sample.is_multiple_of(self.mpc_delay_every));
+        if chosen && self.mpc_delay_ms > 0.0 {
+            (self.mpc_delay_ms * 1e6) as u64
+        } else {
+            0
+        }
+    }
+
+    pub fn mpc_fails(&self, sample: u64) -> bool {
+        self.mpc_fail_samples.contains(sample)
+    }
+
+    /// One line per injected fault, for the summary; empty for a clean run.
+    pub fn describe(&self) -> Vec<String> {
+        let mut faults = Vec::new();
+        let set = |s: &SampleSet| match s {
+            SampleSet::List(l) => format!("{l:?}"),
+            SampleSet::Range(r) => r.clone(),
+        };
+        if self.mpc_delay_ms > 0.0 && !self.mpc_delay_samples.is_empty() {
+            faults.push(format!(
+                "mpc delay {} ms at samples {}",
+                self.mpc_delay_ms,
+                set(&self.mpc_delay_samples)
+            ));
+        }
+        if self.mpc_delay_ms > 0.0 && self.mpc_delay_every > 0 {
+            faults.push(format!(
+                "mpc delay {} ms every {} samples",
+                self.mpc_delay_ms, self.mpc_delay_every
+            ));
+        }
+        if !self.mpc_fail_samples.is_empty() {
+            faults.push(format!(
+                "forced solver failure at samples {}",
+                set(&self.mpc_fail_samples)
+            ));
+        }
+        if self.estimator_delay_ms > 0.0 {
+            faults.push(format!(
+                "estimator delay {} ms per estimate",
+                self.estimator_delay_ms
+            ));
+        }
+        faults
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -190,6 +318,7 @@ impl Default for Scenario {
                 y: 3.5,
                 radius: 1.5,
             }],
+            fault: FaultConfig::default(),
         }
     }
 }
@@ -446,6 +575,20 @@ impl Scenario {
             v.non_negative(&format!("obstacles.{i}.radius"), o.radius);
         }
         self.check_geometry(&mut v);
+        let f = &self.fault;
+        v.non_negative("fault.mpc_delay_ms", f.mpc_delay_ms);
+        v.non_negative("fault.estimator_delay_ms", f.estimator_delay_ms);
+        for (key, set) in [
+            ("fault.mpc_delay_samples", &f.mpc_delay_samples),
+            ("fault.mpc_fail_samples", &f.mpc_fail_samples),
+        ] {
+            if !set.is_well_formed() {
+                v.fail(
+                    key,
+                    "must be a list of samples or a range like \"100..=104\"".into(),
+                );
+            }
+        }
 
         if v.errors.is_empty() {
             Ok(())
@@ -658,6 +801,32 @@ mod tests {
         assert_eq!(
             Scenario::from_toml(text, "f.toml").unwrap_err().0[0].key,
             "obstacles.1.radius"
+        );
+    }
+
+    #[test]
+    fn fault_sample_sets_take_lists_and_ranges() {
+        let s = Scenario::default()
+            .with_overrides(&[
+                "fault.mpc_delay_ms=125".into(),
+                "fault.mpc_delay_samples=\"100..=104\"".into(),
+                "fault.mpc_fail_samples=[7, 9]".into(),
+            ])
+            .unwrap();
+        let f = &s.fault;
+        assert_eq!((99..=105).filter(|k| f.mpc_delay_ns(*k) > 0).count(), 5);
+        assert_eq!(f.mpc_delay_ns(100), 125_000_000);
+        assert!(f.mpc_fails(9) && !f.mpc_fails(8));
+        assert!(
+            SampleSet::Range("3..5".into()).contains(4)
+                && !SampleSet::Range("3..5".into()).contains(5)
+        );
+        assert_eq!(f.describe().len(), 2);
+        let mut bad = Scenario::default();
+        bad.fault.mpc_fail_samples = SampleSet::Range("ten".into());
+        assert_eq!(
+            bad.validate("t").unwrap_err().0[0].key,
+            "fault.mpc_fail_samples"
         );
     }
 
