@@ -27,3 +27,42 @@ fn realtime_paper_run_reaches_the_goal_without_collision_or_deadline_miss() {
         assert!(s["hop_latency_us"][key].as_f64().unwrap() > 0.0);
     }
 }
+
+#[test]
+fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
+    // 1.5 Ts on every 20th sample over 20 s: samples 0, 20, ..., 380.
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "run",
+        "--mode",
+        "realtime",
+        "--set",
+        "duration_s=20",
+        "--set",
+        "fault.mpc_delay_ms=75",
+    ];
+    let out = run(&[
+        &args[..],
+        &[
+            "--set",
+            "fault.mpc_delay_every=20",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ],
+    ]
+    .concat());
+    assert!(dir.path().join("summary.json").exists(), "{}", stderr(&out));
+    let events = std::fs::read_to_string(dir.path().join("events.jsonl")).unwrap();
+    let flagged: Vec<u64> = events
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|e| e["event"] == "deadline_miss")
+        .map(|e| e["sample"].as_u64().unwrap())
+        .collect();
+    let delayed: Vec<u64> = (0..400).filter(|k| k % 20 == 0).collect();
+    assert_eq!(
+        flagged, delayed,
+        "flagged samples differ from the delayed ones"
+    );
+    assert_eq!(summary(dir.path())["deadline_misses"], 20);
+}
