@@ -117,7 +117,9 @@ fn more_than_n_misses_exhaust_the_plan_and_the_dfl_brakes_until_plans_return() {
     let after: Vec<_> = rows.iter().filter(|c| (5.8..5.85).contains(&c.0)).collect();
     // Back on the current plan (from rest, zeta starts below the guard's threshold).
     assert!(
-        after.iter().all(|c| c.3 == "nominal" || c.3 == "zeta_guard"),
+        after
+            .iter()
+            .all(|c| c.3 == "nominal" || c.3 == "zeta_guard"),
         "plans came back but the DFL did not use them"
     );
 }

@@ -88,10 +88,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         }
         if !cleared {
             // Consume the wake-ups, then take once more what came before that.
-            estimates.clear_wakeups();
-            plans.clear_wakeups();
-            link.poll_control(&mut ctl)?;
-            if ctl.stopped {
+            if !link.housekeeping(&mut ctl, &[&estimates, &plans])? {
                 return Ok(());
             }
             cleared = true;

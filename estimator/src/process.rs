@@ -69,10 +69,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         }
         if !cleared {
             // Consume the wake-ups, then take once more what came before that.
-            measurements.clear_wakeups();
-            actuation.clear_wakeups();
-            link.poll_control(&mut ctl)?;
-            if ctl.stopped {
+            if !link.housekeeping(&mut ctl, &[&measurements, &actuation])? {
                 return Ok(());
             }
             cleared = true;

@@ -54,9 +54,8 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             plans.send(plan)?;
         }
         if !cleared {
-            estimates.clear_wakeups();
-            link.poll_control(&mut ctl)?;
-            if ctl.stopped {
+            // Consume the wake-ups, then take once more what came before that.
+            if !link.housekeeping(&mut ctl, &[&estimates])? {
                 return Ok(());
             }
             cleared = true;

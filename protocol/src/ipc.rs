@@ -215,6 +215,17 @@ impl<T: Message> Receiver<T> {
     }
 }
 
+/// Something whose pending wake-ups can be consumed (every [`Receiver`]).
+pub trait Wakeups {
+    fn clear_wakeups(&self);
+}
+
+impl<T: Message> Wakeups for Receiver<T> {
+    fn clear_wakeups(&self) {
+        Receiver::clear_wakeups(self);
+    }
+}
+
 /// How a wait ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Wake {
@@ -426,6 +437,21 @@ impl Link {
             Some(crate::ControlCommand::Stop) => state.stopped = true,
             None => {}
         })
+    }
+
+    /// After publishing: consumes the wake-ups of `inputs` and takes pending control
+    /// messages. The caller must take its inputs once more before it blocks (a sample
+    /// may have come just before the wake-ups were consumed). `Ok(false)`: stop.
+    pub fn housekeeping(
+        &self,
+        ctl: &mut ControlState,
+        inputs: &[&dyn Wakeups],
+    ) -> Result<bool, IpcError> {
+        for input in inputs {
+            input.clear_wakeups();
+        }
+        self.poll_control(ctl)?;
+        Ok(!ctl.stopped)
     }
 
     /// Waits for input; `Ok(false)` means stop (a signal). Reports and fails after
