@@ -18,6 +18,8 @@ pub enum Outcome {
     Timeout,
     /// Stopped by the user (Ctrl-C).
     Interrupted,
+    /// A process died and could not be replaced (a dead plant, or restarts exhausted).
+    Aborted,
 }
 
 impl Outcome {
@@ -28,6 +30,7 @@ impl Outcome {
             Outcome::Stalled => "stalled",
             Outcome::Timeout => "timeout",
             Outcome::Interrupted => "interrupted",
+            Outcome::Aborted => "aborted",
         }
     }
 }

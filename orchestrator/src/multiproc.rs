@@ -15,7 +15,7 @@ use protocol::clock::monotonic_ns;
 use protocol::ipc::{self, Receiver, RunMode, Sender, open_topic};
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, Estimate, GroundTruth, Header,
-    Measurement, Plan, Role, Scenario, Status, StatusEvent,
+    Measurement, Plan, RestartPolicy, Role, Scenario, Status, StatusEvent,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -35,36 +35,63 @@ const START_LEAD: Duration = Duration::from_millis(100);
 const POLL: Duration = Duration::from_millis(20);
 
 /// The run's processes; killed and reaped on drop whatever happened.
-struct Children(Vec<(Role, Child)>);
+struct Children {
+    exe: std::path::PathBuf,
+    scenario_file: std::path::PathBuf,
+    prefix: String,
+    mode: &'static str,
+    list: Vec<(Role, Child)>,
+}
 
 impl Children {
     fn spawn(scenario_file: &Path, prefix: &str, mode: RunMode) -> anyhow::Result<Children> {
-        let exe = std::env::current_exe().context("locating the scmpc executable")?;
-        let mode = match mode {
-            RunMode::Lockstep => "lockstep",
-            RunMode::Realtime => "realtime",
+        let mut children = Children {
+            exe: std::env::current_exe().context("locating the scmpc executable")?,
+            scenario_file: scenario_file.to_path_buf(),
+            prefix: prefix.to_string(),
+            mode: match mode {
+                RunMode::Lockstep => "lockstep",
+                RunMode::Realtime => "realtime",
+            },
+            list: Vec::new(),
         };
-        let mut children = Children(Vec::new());
         for role in Role::ALL {
-            let child = Command::new(&exe)
-                .arg(role.as_str())
-                .arg("--scenario")
-                .arg(scenario_file)
-                .args(["--prefix", prefix, "--mode", mode, "--epoch", "0"])
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .spawn()
-                .with_context(|| format!("starting the {} process", role.as_str()))?;
-            children.0.push((role, child));
+            children.spawn_role(role, 0)?;
         }
         Ok(children)
     }
 
-    /// The first child that has exited, with its status.
-    fn exited(&mut self) -> Option<(Role, std::process::ExitStatus)> {
-        self.0
+    /// Starts the process of `role` with producer epoch `epoch`; returns its pid.
+    fn spawn_role(&mut self, role: Role, epoch: u32) -> anyhow::Result<u32> {
+        let child = Command::new(&self.exe)
+            .arg(role.as_str())
+            .arg("--scenario")
+            .arg(&self.scenario_file)
+            .args([
+                "--prefix",
+                &self.prefix,
+                "--mode",
+                self.mode,
+                "--epoch",
+                &epoch.to_string(),
+            ])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .with_context(|| format!("starting the {} process", role.as_str()))?;
+        let pid = child.id();
+        self.list.push((role, child));
+        Ok(pid)
+    }
+
+    /// A child that has exited (reaped and forgotten), with its status.
+    fn take_exited(&mut self) -> Option<(Role, std::process::ExitStatus)> {
+        let index = self
+            .list
             .iter_mut()
-            .find_map(|(role, child)| child.try_wait().ok().flatten().map(|s| (*role, s)))
+            .position(|(_, child)| child.try_wait().ok().flatten().is_some())?;
+        let (role, mut child) = self.list.remove(index);
+        child.try_wait().ok().flatten().map(|status| (role, status))
     }
 
     /// Waits up to `timeout` for every child to exit, then kills the rest; reaps all.
@@ -72,7 +99,7 @@ impl Children {
     fn shut_down(&mut self, timeout: Duration) -> Vec<(Role, String, bool)> {
         let deadline = Instant::now() + timeout;
         let mut ended = Vec::new();
-        for (role, child) in &mut self.0 {
+        for (role, child) in &mut self.list {
             while child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
                 std::thread::sleep(Duration::from_millis(5));
             }
@@ -176,6 +203,7 @@ struct Driver<'a> {
     stop: &'a AtomicBool,
     start_ns: u64,
     record_gaps: u64,
+    restarts: u32,
 }
 
 impl Driver<'_> {
@@ -204,6 +232,21 @@ impl Driver<'_> {
         self.session.plan.drain(|p, _| {
             plans.insert(p.sample, p);
         })?;
+        let mut restarted_ready = Vec::new();
+        self.session.status.drain(|s, _| {
+            if s.event == StatusEvent::Ready as u32 {
+                restarted_ready.extend(Role::from_code(s.role));
+            }
+        })?;
+        for role in restarted_ready {
+            // A restarted process missed the start: tell everyone again (same tick 0).
+            self.recorder
+                .event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            if self.mode == RunMode::Realtime {
+                self.session
+                    .command(ControlCommand::Start, 0, self.start_ns)?;
+            }
+        }
         let verdicts = &mut self.verdicts;
         self.session.deadline.drain(|v, _| {
             verdicts.insert(v.sample, v);
@@ -211,24 +254,42 @@ impl Driver<'_> {
         Ok(())
     }
 
-    /// Reports a stop request (Ctrl-C); fails if a child died otherwise.
-    fn check(&mut self) -> anyhow::Result<bool> {
+    /// Ends the run on Ctrl-C; on a dead process, cleans what it left and restarts it per
+    /// the scenario's supervision policy, or ends the run as aborted.
+    fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
         if self.stop.load(Ordering::Relaxed) {
-            return Ok(true);
+            return Ok(Some(Outcome::Interrupted));
         }
-        if let Some((role, status)) = self.children.exited() {
-            // A terminal's Ctrl-C reaches the whole process group: the children may see it
-            // a moment before the orchestrator's handler runs.
-            std::thread::sleep(Duration::from_millis(100));
-            if self.stop.load(Ordering::Relaxed) {
-                return Ok(true);
-            }
-            bail!(
-                "the {} process exited unexpectedly ({status})",
-                role.as_str()
-            );
+        let Some((role, status)) = self.children.take_exited() else {
+            return Ok(None);
+        };
+        // A terminal's Ctrl-C reaches the whole process group: the children may see it a
+        // moment before the orchestrator's handler runs.
+        std::thread::sleep(Duration::from_millis(20));
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(Some(Outcome::Interrupted));
         }
-        Ok(false)
+        let cleaned = ipc::cleanup_dead_nodes(&self.children.prefix).unwrap_or(0);
+        let role_name = role.as_str();
+        self.recorder.event(
+            "crashed",
+            serde_json::json!({ "role": role_name, "status": status.to_string(), "nodes_cleaned": cleaned }),
+        )?;
+        let policy = &self.scenario.supervision;
+        let restartable = role != Role::Plant
+            && self.mode == RunMode::Realtime
+            && policy.restart == RestartPolicy::Always
+            && self.restarts < policy.max_restarts;
+        if !restartable {
+            return Ok(Some(Outcome::Aborted));
+        }
+        self.restarts += 1;
+        let pid = self.children.spawn_role(role, self.restarts)?;
+        self.recorder.event(
+            "restarted",
+            serde_json::json!({ "role": role_name, "pid": pid, "epoch": self.restarts }),
+        )?;
+        Ok(None)
     }
 
     /// Records a whole tick; returns an outcome that ends the run.
@@ -297,8 +358,8 @@ impl Driver<'_> {
                 if done {
                     break;
                 }
-                if self.check()? {
-                    return Ok(Outcome::Interrupted);
+                if let Some(outcome) = self.check()? {
+                    return Ok(outcome);
                 }
                 if last_progress.elapsed() > TICK_TIMEOUT {
                     bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
@@ -335,8 +396,8 @@ impl Driver<'_> {
         let give_up_ns = end_ns + 5_000_000_000;
         let mut next = 0u64;
         loop {
-            if self.check()? {
-                return Ok(Outcome::Interrupted);
+            if let Some(outcome) = self.check()? {
+                return Ok(outcome);
             }
             if monotonic_ns() > give_up_ns {
                 bail!("the run did not finish within 5 s after its end: a process hung");
@@ -386,6 +447,12 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
+    for stale in ipc::stale_run_prefixes() {
+        match ipc::remove_run_resources(&stale) {
+            Ok(()) => tracing::info!("removed the iceoryx2 resources of dead run `{stale}`"),
+            Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
+        }
+    }
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
     let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
@@ -429,7 +496,7 @@ fn drive(
     report
         .pids
         .insert("orchestrator".into(), std::process::id());
-    for (role, child) in &children.0 {
+    for (role, child) in &children.list {
         report.pids.insert(role.as_str().into(), child.id());
         recorder.event(
             "spawned",
@@ -466,6 +533,7 @@ fn drive(
             stop,
             start_ns: 0,
             record_gaps: 0,
+            restarts: 0,
         };
         let outcome = match mode {
             RunMode::Lockstep => driver.lockstep(&waitset),
@@ -498,7 +566,7 @@ fn wait_until_ready(
     let deadline = Instant::now() + READY_TIMEOUT;
     let mut ready = [false; 4];
     while !ready.iter().all(|r| *r) {
-        if let Some((role, status)) = children.exited() {
+        if let Some((role, status)) = children.take_exited() {
             bail!(
                 "the {} process exited before it was ready ({status})",
                 role.as_str()

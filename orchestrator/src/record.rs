@@ -294,7 +294,9 @@ impl Recorder {
         if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
             line.extend(fields);
         }
-        writeln!(self.events, "{line}")
+        // Events are rare: flush each, so a live run can be followed in the file.
+        writeln!(self.events, "{line}")?;
+        self.events.flush()
     }
 
     pub fn dir(&self) -> &Path {

@@ -319,6 +319,42 @@ pub fn remove_run_resources(prefix: &str) -> Result<(), IpcError> {
     Ok(())
 }
 
+/// Prefixes of earlier runs whose orchestrator is gone (killed, say, with SIGKILL) but
+/// whose iceoryx2 files are still in `/dev/shm` or iceoryx2's directory. A run's prefix
+/// names its orchestrator's pid (`scmpc<pid>x…_`), so a dead pid means a dead run.
+pub fn stale_run_prefixes() -> Vec<String> {
+    let mut prefixes: Vec<String> = leftover_files(PREFIX_STEM)
+        .iter()
+        .filter_map(|path| {
+            let name = path.file_name()?.to_string_lossy().into_owned();
+            let start = name.find(PREFIX_STEM)?;
+            let rest = &name[start..];
+            let end = rest.find('_')?;
+            let prefix = &rest[..=end];
+            let pid: u32 = prefix[PREFIX_STEM.len()..]
+                .split('x')
+                .next()?
+                .parse()
+                .ok()?;
+            (!process_alive(pid)).then(|| prefix.to_string())
+        })
+        .collect();
+    prefixes.sort();
+    prefixes.dedup();
+    prefixes
+}
+
+/// Whether process `pid` exists and is not a zombie (a killed process nobody reaped yet).
+pub fn process_alive(pid: u32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat"))
+        .ok()
+        .and_then(|stat| {
+            stat.rsplit_once(") ")
+                .map(|(_, rest)| !rest.starts_with('Z'))
+        })
+        .unwrap_or(false)
+}
+
 /// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
 /// a run leaves behind (empty after a clean run).
 pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {

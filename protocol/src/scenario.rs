@@ -38,6 +38,33 @@ pub struct Scenario {
     pub obstacles: Vec<Obstacle>,
     /// Injected faults, for tests and demonstrations (none by default).
     pub fault: FaultConfig,
+    pub supervision: Supervision,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RestartPolicy {
+    Always,
+    Never,
+}
+
+/// What the orchestrator does when a role process dies (a dead plant always ends the run).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Supervision {
+    /// Restart a dead estimator, MPC or DFL (real-time runs; in lockstep a death aborts).
+    pub restart: RestartPolicy,
+    /// Restarts allowed over the whole run.
+    pub max_restarts: u32,
+}
+
+impl Default for Supervision {
+    fn default() -> Self {
+        Supervision {
+            restart: RestartPolicy::Always,
+            max_restarts: 3,
+        }
+    }
 }
 
 /// Samples chosen by a list (`[100, 101]`) or an inclusive range (`"100..=104"`, also
@@ -319,6 +346,7 @@ impl Default for Scenario {
                 radius: 1.5,
             }],
             fault: FaultConfig::default(),
+            supervision: Supervision::default(),
         }
     }
 }

@@ -51,3 +51,32 @@ pub fn wait_for(timeout: std::time::Duration, mut condition: impl FnMut() -> boo
     }
     condition()
 }
+
+/// The run's `events.jsonl` as far as it has been written.
+pub fn events(dir: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(dir.join("events.jsonl"))
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+/// The pid of `role` from the run's `spawned` events, once the run is ready.
+pub fn wait_for_pid(dir: &Path, role: &str) -> u32 {
+    let mut pid = None;
+    let ready = wait_for(std::time::Duration::from_secs(10), || {
+        let ev = events(dir);
+        pid = ev
+            .iter()
+            .find(|e| e["event"] == "spawned" && e["role"] == role)
+            .and_then(|e| e["pid"].as_u64());
+        pid.is_some() && ev.iter().any(|e| e["event"] == "ready")
+    });
+    assert!(ready, "the run never became ready");
+    pid.unwrap() as u32
+}
+
+pub fn sigkill(pid: u32) {
+    // SAFETY: sending a signal to a process this test started.
+    unsafe { libc::kill(pid as i32, libc::SIGKILL) };
+}

@@ -1,0 +1,153 @@
+//! Crashes: a dead process is detected, cleaned up, restarted or the run is aborted.
+
+mod common;
+
+use common::{events, leftovers, scmpc, sigkill, summary, wait_for, wait_for_pid};
+use std::os::unix::process::CommandExt;
+use std::process::Stdio;
+use std::time::Duration;
+
+#[test]
+fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mpc = wait_for_pid(dir.path(), "mpc");
+    std::thread::sleep(Duration::from_secs(5));
+    sigkill(mpc);
+    child.wait().unwrap();
+    let s = summary(dir.path());
+    let ev = events(dir.path());
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "crashed" && e["role"] == "mpc"),
+        "crash not recorded"
+    );
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "restarted" && e["role"] == "mpc"),
+        "mpc not restarted"
+    );
+    assert_eq!(s["outcome"], "reached");
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+    // Plans resume within 0.5 s: at most 10 samples in a row without a plan (a restart
+    // that beats the next deadline costs none).
+    let streak = s["longest_miss_streak"].as_u64().unwrap();
+    assert!(streak <= 10, "longest run of misses {streak}");
+    let crash_t = ev.iter().find(|e| e["event"] == "crashed").unwrap()["t"]
+        .as_f64()
+        .unwrap();
+    let plans = std::fs::read_to_string(dir.path().join("plans.csv")).unwrap();
+    let resumed = plans.lines().skip(1).any(|l| {
+        let f: Vec<&str> = l.split(',').collect();
+        f[1].parse::<f64>()
+            .is_ok_and(|t| t > crash_t && t <= crash_t + 0.5)
+            && f[8] == "true"
+    });
+    assert!(
+        resumed,
+        "no on-time plan within 0.5 s of the crash at t = {crash_t}"
+    );
+    assert!(
+        s["leftover_files"].as_array().unwrap().is_empty(),
+        "{}",
+        s["leftover_files"]
+    );
+}
+
+#[test]
+fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=10",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let plant = wait_for_pid(dir.path(), "plant");
+    std::thread::sleep(Duration::from_millis(500));
+    sigkill(plant);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(1));
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "aborted");
+    for role in ["estimator", "mpc", "dfl"] {
+        let pid = s["pids"][role].as_u64().unwrap();
+        assert!(
+            !protocol::ipc::process_alive(pid as u32),
+            "{role} still running"
+        );
+    }
+    let prefix = s["iceoryx2_prefix"].as_str().unwrap();
+    assert!(
+        leftovers(prefix).is_empty(),
+        "left behind: {:?}",
+        leftovers(prefix)
+    );
+}
+
+#[test]
+fn after_sigkill_of_the_whole_process_group_a_new_run_starts_and_cleans_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .process_group(0)
+        .spawn()
+        .unwrap();
+    wait_for_pid(dir.path(), "plant");
+    let prefix = events(dir.path())
+        .iter()
+        .find_map(|e| e["iceoryx2_prefix"].as_str().map(str::to_string))
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    // SAFETY: killing the process group this test created.
+    unsafe { libc::kill(-(child.id() as i32), libc::SIGKILL) };
+    child.wait().unwrap();
+    assert!(
+        !leftovers(&prefix).is_empty(),
+        "SIGKILL should have left files to clean"
+    );
+    let next = tempfile::tempdir().unwrap();
+    let out = common::run(&[
+        "run",
+        "--set",
+        "duration_s=2",
+        "--out",
+        next.path().to_str().unwrap(),
+    ]);
+    assert!(
+        next.path().join("summary.json").exists(),
+        "{}",
+        common::stderr(&out)
+    );
+    assert_eq!(summary(next.path())["ticks"], 400);
+    assert!(
+        wait_for(Duration::from_secs(1), || leftovers(&prefix).is_empty()),
+        "the dead run's files were not removed: {:?}",
+        leftovers(&prefix)
+    );
+}
