@@ -20,8 +20,8 @@ pub const PLAN_WAIT_FRACTION: f64 = 0.8;
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let link = Link::open(args, Role::Dfl)?;
     let mut ctl = ControlState::default();
-    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
-    let plans = open_topic::<Plan>(&link.node, PLAN)?.receiver()?;
+    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver_from(Role::Estimator)?;
+    let plans = open_topic::<Plan>(&link.node, PLAN)?.receiver_from(Role::Mpc)?;
     let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.sender(args.epoch)?;
     let deadlines = open_topic::<DeadlineVerdict>(&link.node, DEADLINE)?.sender(args.epoch)?;
     let waitset = ipc::waitset(true)?;

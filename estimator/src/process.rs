@@ -13,8 +13,9 @@ use std::collections::VecDeque;
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let link = Link::open(args, Role::Estimator)?;
     let mut ctl = ControlState::default();
-    let measurements = open_topic::<Measurement>(&link.node, MEASUREMENT)?.receiver()?;
-    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver()?;
+    let measurements =
+        open_topic::<Measurement>(&link.node, MEASUREMENT)?.receiver_from(Role::Plant)?;
+    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver_from(Role::Dfl)?;
     let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.sender(args.epoch)?;
     let waitset = ipc::waitset(true)?;
     let _guards = [

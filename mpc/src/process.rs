@@ -13,7 +13,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut mpc = Mpc::new(&args.scenario).map_err(|e| ProcessError::Setup(e.to_string()))?;
     let link = Link::open(args, Role::Mpc)?;
     let mut ctl = ControlState::default();
-    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver()?;
+    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver_from(Role::Estimator)?;
     let plans = open_topic::<Plan>(&link.node, PLAN)?.sender(args.epoch)?;
     let waitset = ipc::waitset(true)?;
     let _guards = [

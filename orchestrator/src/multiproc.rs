@@ -12,10 +12,10 @@ use crate::monitor::Outcome;
 use crate::record::{Latencies, ProcessReport, Recorder, Summary};
 use anyhow::{Context, anyhow, bail};
 use protocol::clock::monotonic_ns;
-use protocol::ipc::{self, Receiver, RunMode, Sender, open_topic};
+use protocol::ipc::{self, Input, Receiver, RunMode, Sender, open_topic};
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, Estimate, GroundTruth, Header,
-    Measurement, Plan, RestartPolicy, Role, Scenario, Status, StatusEvent,
+    Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -152,6 +152,8 @@ struct Session {
     plan: Receiver<Plan>,
     actuation: Receiver<Actuation>,
     deadline: Receiver<DeadlineVerdict>,
+    /// Active producer epoch of each role, announced with every control message.
+    epochs: std::cell::Cell<[u32; 4]>,
 }
 
 impl Session {
@@ -160,12 +162,13 @@ impl Session {
         Ok(Session {
             control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
             status: open_topic(&node, ipc::STATUS)?.receiver()?,
-            truth: open_topic(&node, ipc::TRUTH)?.receiver()?,
-            measurement: open_topic(&node, ipc::MEASUREMENT)?.receiver()?,
-            estimate: open_topic(&node, ipc::ESTIMATE)?.receiver()?,
-            plan: open_topic(&node, ipc::PLAN)?.receiver()?,
-            actuation: open_topic(&node, ipc::ACTUATION)?.receiver()?,
-            deadline: open_topic(&node, ipc::DEADLINE)?.receiver()?,
+            truth: open_topic(&node, ipc::TRUTH)?.receiver_from(Role::Plant)?,
+            measurement: open_topic(&node, ipc::MEASUREMENT)?.receiver_from(Role::Plant)?,
+            estimate: open_topic(&node, ipc::ESTIMATE)?.receiver_from(Role::Estimator)?,
+            plan: open_topic(&node, ipc::PLAN)?.receiver_from(Role::Mpc)?,
+            actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
+            deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
+            epochs: std::cell::Cell::new([0; 4]),
             node,
         })
     }
@@ -183,8 +186,45 @@ impl Session {
             },
             command: command as u32,
             start_ns,
+            epochs: self.epochs.get(),
             ..Control::default()
         })
+    }
+
+    /// The orchestrator's inputs, for housekeeping.
+    fn inputs(&self) -> [&dyn Input; 6] {
+        [
+            &self.truth,
+            &self.measurement,
+            &self.estimate,
+            &self.plan,
+            &self.actuation,
+            &self.deadline,
+        ]
+    }
+
+    /// Makes `epoch` the active one of `role`, for the orchestrator and every process.
+    fn activate(&self, role: Role, epoch: u32) -> Result<(), ipc::IpcError> {
+        let mut epochs = self.epochs.get();
+        epochs[role as usize] = epoch;
+        self.epochs.set(epochs);
+        for input in self.inputs() {
+            if input.producer() == Some(role) {
+                input.expect_epoch(epoch);
+            }
+        }
+        self.command(ControlCommand::Epochs, 0, 0)
+    }
+
+    /// Samples the orchestrator itself refused, by rejection code, since the last call.
+    fn take_rejections(&self) -> [u64; 4] {
+        let mut total = [0; 4];
+        for input in self.inputs() {
+            for (t, n) in total.iter_mut().zip(input.take_rejections()) {
+                *t += n;
+            }
+        }
+        total
     }
 }
 
@@ -204,6 +244,8 @@ struct Driver<'a> {
     start_ns: u64,
     record_gaps: u64,
     restarts: u32,
+    /// Samples refused by any consumer, by reason.
+    rejected: BTreeMap<String, u64>,
 }
 
 impl Driver<'_> {
@@ -233,11 +275,33 @@ impl Driver<'_> {
             plans.insert(p.sample, p);
         })?;
         let mut restarted_ready = Vec::new();
+        let mut rejected = Vec::new();
         self.session.status.drain(|s, _| {
             if s.event == StatusEvent::Ready as u32 {
                 restarted_ready.extend(Role::from_code(s.role));
+            } else if s.event == StatusEvent::Rejected as u32 {
+                rejected.push((
+                    Role::from_code(s.role).map_or("unknown", Role::as_str),
+                    s.detail,
+                    s.count,
+                ));
             }
         })?;
+        for (code, count) in self.session.take_rejections().into_iter().enumerate() {
+            if count > 0 {
+                rejected.push(("orchestrator", code as u32, count));
+            }
+        }
+        for (consumer, code, count) in rejected {
+            let reason = Rejection::ALL
+                .get(code as usize)
+                .map_or("unknown", |r| r.as_str());
+            *self.rejected.entry(reason.to_string()).or_default() += count;
+            self.recorder.event(
+                "rejected",
+                serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
+            )?;
+        }
         for role in restarted_ready {
             // A restarted process missed the start: tell everyone again (same tick 0).
             self.recorder
@@ -284,6 +348,7 @@ impl Driver<'_> {
             return Ok(Some(Outcome::Aborted));
         }
         self.restarts += 1;
+        self.session.activate(role, self.restarts)?;
         let pid = self.children.spawn_role(role, self.restarts)?;
         self.recorder.event(
             "restarted",
@@ -534,6 +599,7 @@ fn drive(
             start_ns: 0,
             record_gaps: 0,
             restarts: 0,
+            rejected: BTreeMap::new(),
         };
         let outcome = match mode {
             RunMode::Lockstep => driver.lockstep(&waitset),
@@ -542,6 +608,7 @@ fn drive(
         let outcome = outcome.and_then(|o| driver.record_plans().map(|()| o));
         driver.latencies.report(&mut report);
         report.record_gaps = driver.record_gaps;
+        report.rejected_samples = std::mem::take(&mut driver.rejected);
         outcome
     });
     // Stop every process whatever happened, then release the orchestrator's own ports.

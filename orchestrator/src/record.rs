@@ -98,6 +98,9 @@ pub struct ProcessReport {
     pub loop_latency_us: Percentiles,
     /// Ticks the recorder never received whole (real time only; lockstep waits).
     pub record_gaps: u64,
+    /// Samples refused by the consumers (non-finite, tick backwards, wrong run, wrong
+    /// epoch), by reason; never applied.
+    pub rejected_samples: BTreeMap<String, u64>,
     /// iceoryx2 files of the run still present after it ended (should be empty).
     pub leftover_files: Vec<String>,
 }

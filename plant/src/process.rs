@@ -15,7 +15,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut ctl = ControlState::default();
     let measurement = open_topic::<Measurement>(&link.node, MEASUREMENT)?.sender(args.epoch)?;
     let truth = open_topic::<GroundTruth>(&link.node, TRUTH)?.sender(args.epoch)?;
-    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver()?;
+    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver_from(Role::Dfl)?;
     let waitset = ipc::waitset(true)?;
     let _control = link.control().attach(&waitset)?;
     let _actuation = actuation.attach(&waitset)?;
@@ -45,15 +45,14 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         };
     let mut tick = 0u64;
     loop {
-        link.poll_control(&mut ctl)?;
-        actuation.drain(|a, _| {
+        if !link.housekeeping(&mut ctl, &[&actuation])? {
+            return Ok(());
+        }
+        actuation.take(|a, _| {
             if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
                 latest = Some(a);
             }
         })?;
-        if ctl.stopped {
-            return Ok(());
-        }
         match args.mode {
             RunMode::Lockstep => {
                 // Tick j needs the grant for j and the actuation of tick j - 1.

@@ -7,6 +7,7 @@
 
 use crate::clock::monotonic_ns;
 use crate::messages::Message;
+use crate::messages::Rejection;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -14,6 +15,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use iceoryx2::waitset::WaitSetRunResult;
+use std::cell::Cell;
 use std::fmt::Display;
 use std::marker::PhantomData;
 
@@ -57,6 +59,13 @@ pub fn new_prefix() -> String {
     )
 }
 
+/// The run's identity stamped on every sample: FNV-1a of its prefix.
+pub fn run_id(prefix: &[u8]) -> u32 {
+    prefix.iter().fold(0x811c_9dc5u32, |h, b| {
+        (h ^ u32::from(*b)).wrapping_mul(0x0100_0193)
+    })
+}
+
 /// The iceoryx2 configuration of a run: iceoryx2's built-in defaults (no config file is
 /// read, so every process of every machine agrees) with the run's prefix, so runs never
 /// share a resource.
@@ -91,6 +100,7 @@ pub fn create_node(
 /// process uses.
 pub struct Topic<T: Message> {
     name: &'static str,
+    run_id: u32,
     pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
     event: event::PortFactory<ipc::Service>,
 }
@@ -118,8 +128,10 @@ pub fn open_topic<T: Message>(
         .event()
         .open_or_create()
         .map_err(ctx(format!("opening event service `{name}`")))?;
+    let run_id = run_id(node.config().global.prefix.as_bytes());
     Ok(Topic {
         name,
+        run_id,
         pubsub,
         event,
     })
@@ -140,10 +152,23 @@ impl<T: Message> Topic<T> {
                 .create()
                 .map_err(ctx(format!("notifier on `{}`", self.name)))?,
             epoch,
+            run_id: self.run_id,
         })
     }
 
+    /// A receiver of samples from any producer epoch (for topics without a single
+    /// producer role, such as status).
     pub fn receiver(&self) -> Result<Receiver<T>, IpcError> {
+        self.receiver_inner(None)
+    }
+
+    /// A receiver that takes only samples of this run, from the active epoch of
+    /// `producer`, finite, and in tick order; it counts every sample it refuses.
+    pub fn receiver_from(&self, producer: crate::Role) -> Result<Receiver<T>, IpcError> {
+        self.receiver_inner(Some(producer))
+    }
+
+    fn receiver_inner(&self, producer: Option<crate::Role>) -> Result<Receiver<T>, IpcError> {
         Ok(Receiver {
             subscriber: self
                 .pubsub
@@ -156,6 +181,11 @@ impl<T: Message> Topic<T> {
                 .listener_builder()
                 .create()
                 .map_err(ctx(format!("listener on `{}`", self.name)))?,
+            run_id: self.run_id,
+            producer,
+            expected_epoch: Cell::new(0),
+            last_tick: Cell::new(None),
+            rejected: Cell::new([0; 4]),
             _payload: PhantomData,
         })
     }
@@ -166,6 +196,7 @@ pub struct Sender<T: Message> {
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
     epoch: u32,
+    run_id: u32,
 }
 
 impl<T: Message> Sender<T> {
@@ -173,6 +204,7 @@ impl<T: Message> Sender<T> {
     pub fn send(&self, mut message: T) -> Result<(), IpcError> {
         let header = message.header_mut();
         header.epoch = self.epoch;
+        header.run_id = self.run_id;
         header.publish_ns = monotonic_ns();
         self.publisher
             .send_copy(message)
@@ -186,6 +218,13 @@ impl<T: Message> Sender<T> {
 pub struct Receiver<T: Message> {
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
+    run_id: u32,
+    /// Role whose active epoch is checked (`None`: any epoch, no tick order).
+    producer: Option<crate::Role>,
+    expected_epoch: Cell<u32>,
+    last_tick: Cell<Option<u64>>,
+    /// Refused samples by [`Rejection`] code, since last taken.
+    rejected: Cell<[u64; 4]>,
     _payload: PhantomData<T>,
 }
 
@@ -194,14 +233,53 @@ impl<T: Message> Receiver<T> {
         &self.listener
     }
 
-    /// The next sample, if any, with its publish-to-receipt latency in ns.
+    /// The next acceptable sample, if any, with its publish-to-receipt latency in ns.
+    /// Refused samples are counted and skipped.
     pub fn receive(&self) -> Result<Option<(T, u64)>, IpcError> {
-        let sample = self.subscriber.receive().map_err(ctx("receiving"))?;
-        Ok(sample.map(|s| {
-            let message = *s.payload();
+        loop {
+            let Some(sample) = self.subscriber.receive().map_err(ctx("receiving"))? else {
+                return Ok(None);
+            };
+            let message = *sample.payload();
             let latency = monotonic_ns().saturating_sub(message.header().publish_ns);
-            (message, latency)
-        }))
+            match self.check(&message) {
+                Ok(()) => return Ok(Some((message, latency))),
+                Err(reason) => {
+                    let mut counts = self.rejected.get();
+                    counts[reason as usize] += 1;
+                    self.rejected.set(counts);
+                }
+            }
+        }
+    }
+
+    /// The border check of DESIGN.md section 4, in one place.
+    fn check(&self, message: &T) -> Result<(), Rejection> {
+        let h = message.header();
+        if h.run_id != self.run_id {
+            return Err(Rejection::WrongRun);
+        }
+        if self.producer.is_some() && h.epoch != self.expected_epoch.get() {
+            return Err(Rejection::WrongEpoch);
+        }
+        if !message.all_finite() {
+            return Err(Rejection::NonFinite);
+        }
+        if self.producer.is_some() {
+            if self.last_tick.get().is_some_and(|last| h.tick < last) {
+                return Err(Rejection::TickBackwards);
+            }
+            self.last_tick.set(Some(h.tick));
+        }
+        Ok(())
+    }
+
+    /// Takes samples only from `epoch` of the producer role from now on. A new epoch is a
+    /// new producer, whose ticks are checked afresh.
+    pub fn expect_epoch(&self, epoch: u32) {
+        if self.expected_epoch.replace(epoch) != epoch {
+            self.last_tick.set(None);
+        }
     }
 
     /// Whether a sample is waiting (without taking it).
@@ -215,14 +293,28 @@ impl<T: Message> Receiver<T> {
     }
 }
 
-/// Something whose pending wake-ups can be consumed (every [`Receiver`]).
-pub trait Wakeups {
+/// What housekeeping needs of an input (every [`Receiver`]).
+pub trait Input {
     fn clear_wakeups(&self);
+    /// The producer role whose active epoch the input takes.
+    fn producer(&self) -> Option<crate::Role>;
+    fn expect_epoch(&self, epoch: u32);
+    /// Refused samples by [`Rejection`] code since the last call.
+    fn take_rejections(&self) -> [u64; 4];
 }
 
-impl<T: Message> Wakeups for Receiver<T> {
+impl<T: Message> Input for Receiver<T> {
     fn clear_wakeups(&self) {
         Receiver::clear_wakeups(self);
+    }
+    fn producer(&self) -> Option<crate::Role> {
+        self.producer
+    }
+    fn expect_epoch(&self, epoch: u32) {
+        Receiver::expect_epoch(self, epoch);
+    }
+    fn take_rejections(&self) -> [u64; 4] {
+        self.rejected.replace([0; 4])
     }
 }
 
@@ -431,6 +523,8 @@ pub struct ControlState {
     /// Real-time tick 0, monotonic ns.
     pub start_ns: Option<u64>,
     pub stopped: bool,
+    /// Active producer epoch of each role (by role code).
+    pub epochs: [u32; 4],
 }
 
 impl Link {
@@ -467,26 +561,49 @@ impl Link {
 
     /// Takes every pending control message into `state`.
     pub fn poll_control(&self, state: &mut ControlState) -> Result<(), IpcError> {
-        self.control.drain(|c, latency| match c.command() {
-            Some(crate::ControlCommand::Grant) => state.granted = Some((c.header.tick, latency)),
-            Some(crate::ControlCommand::Start) => state.start_ns = Some(c.start_ns),
-            Some(crate::ControlCommand::Stop) => state.stopped = true,
-            None => {}
+        self.control.drain(|c, latency| {
+            state.epochs = c.epochs;
+            match c.command() {
+                Some(crate::ControlCommand::Grant) => {
+                    state.granted = Some((c.header.tick, latency))
+                }
+                Some(crate::ControlCommand::Start) => state.start_ns = Some(c.start_ns),
+                Some(crate::ControlCommand::Stop) => state.stopped = true,
+                Some(crate::ControlCommand::Epochs) | None => {}
+            }
         })
     }
 
     /// After publishing: consumes the wake-ups of `inputs` and takes pending control
     /// messages. The caller must take its inputs once more before it blocks (a sample
     /// may have come just before the wake-ups were consumed). `Ok(false)`: stop.
+    /// Also applies the active epochs and reports refused samples to the orchestrator.
     pub fn housekeeping(
         &self,
         ctl: &mut ControlState,
-        inputs: &[&dyn Wakeups],
+        inputs: &[&dyn Input],
     ) -> Result<bool, IpcError> {
         for input in inputs {
             input.clear_wakeups();
         }
         self.poll_control(ctl)?;
+        for input in inputs {
+            if let Some(role) = input.producer() {
+                input.expect_epoch(ctl.epochs[role as usize]);
+            }
+            for (code, count) in input.take_rejections().into_iter().enumerate() {
+                if count > 0 {
+                    self.status.send(crate::Status {
+                        role: self.role as u32,
+                        event: crate::StatusEvent::Rejected as u32,
+                        pid: std::process::id(),
+                        detail: code as u32,
+                        count,
+                        ..crate::Status::default()
+                    })?;
+                }
+            }
+        }
         Ok(!ctl.stopped)
     }
 

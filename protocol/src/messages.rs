@@ -25,6 +25,10 @@ pub struct Header {
     /// Publish-to-receipt latency of the input that triggered this message, ns
     /// (saturating; 0 when there was none).
     pub input_latency_ns: u32,
+    /// Identifies the run (a hash of its iceoryx2 prefix): a process left over from
+    /// another run on the same prefix is rejected.
+    pub run_id: u32,
+    pub reserved: u32,
 }
 
 /// Noisy output `y = [x, y, theta] + noise` of the plant.
@@ -254,6 +258,8 @@ pub enum ControlCommand {
     Start = 1,
     /// The run is over: exit cleanly.
     Stop = 2,
+    /// Only the active epochs changed (a replacement process was started).
+    Epochs = 3,
 }
 
 /// The orchestrator's clock and commands.
@@ -267,6 +273,8 @@ pub struct Control {
     pub reserved: u32,
     /// Monotonic time of tick 0 (real time), ns.
     pub start_ns: u64,
+    /// Active producer epoch of each [`Role`] (by its code): consumers take only these.
+    pub epochs: [u32; 4],
 }
 
 impl Control {
@@ -275,6 +283,7 @@ impl Control {
             0 => ControlCommand::Grant,
             1 => ControlCommand::Start,
             2 => ControlCommand::Stop,
+            3 => ControlCommand::Epochs,
             _ => return None,
         })
     }
@@ -313,6 +322,35 @@ pub enum StatusEvent {
     Ready = 0,
     /// No input arrived within the input timeout; the process exits.
     InputLost = 1,
+    /// Samples were rejected: `detail` is the [`Rejection`] code, `count` how many.
+    Rejected = 2,
+}
+
+/// Why a consumer refused a sample (DESIGN.md section 4).
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rejection {
+    NonFinite = 0,
+    TickBackwards = 1,
+    WrongRun = 2,
+    WrongEpoch = 3,
+}
+
+impl Rejection {
+    pub const ALL: [Rejection; 4] = [
+        Rejection::NonFinite,
+        Rejection::TickBackwards,
+        Rejection::WrongRun,
+        Rejection::WrongEpoch,
+    ];
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Rejection::NonFinite => "non_finite",
+            Rejection::TickBackwards => "tick_backwards",
+            Rejection::WrongRun => "wrong_run",
+            Rejection::WrongEpoch => "wrong_epoch",
+        }
+    }
 }
 
 #[repr(C)]
@@ -325,17 +363,25 @@ pub struct Status {
     /// [`StatusEvent`] code.
     pub event: u32,
     pub pid: u32,
-    pub reserved: u32,
+    /// [`Rejection`] code for [`StatusEvent::Rejected`].
+    pub detail: u32,
+    pub count: u64,
 }
 
 /// Every message type: access to its [`Header`].
 pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
     fn header(&self) -> &Header;
     fn header_mut(&mut self) -> &mut Header;
+    /// Whether every floating-point value of the message is finite.
+    fn all_finite(&self) -> bool;
+}
+
+fn finite(values: &[f64]) -> bool {
+    values.iter().all(|v| v.is_finite())
 }
 
 macro_rules! impl_message {
-    ($($t:ty),*) => {$(
+    ($($t:ty => |$m:ident| $finite:expr),* $(,)?) => {$(
         impl Message for $t {
             fn header(&self) -> &Header {
                 &self.header
@@ -343,17 +389,24 @@ macro_rules! impl_message {
             fn header_mut(&mut self) -> &mut Header {
                 &mut self.header
             }
+            fn all_finite(&self) -> bool {
+                let $m = self;
+                $m.header.time_s.is_finite() && $finite
+            }
         }
     )*};
 }
 
 impl_message!(
-    Measurement,
-    GroundTruth,
-    Estimate,
-    Plan,
-    Actuation,
-    DeadlineVerdict,
-    Control,
-    Status
+    Measurement => |m| finite(&m.y),
+    GroundTruth => |m| finite(&m.pose),
+    Estimate => |m| finite(&m.state) && finite(&m.covariance),
+    Plan => |m| {
+        let n = (m.horizon as usize).min(MAX_HORIZON);
+        m.v[..n].iter().all(|v| finite(v)) && m.z[..=n].iter().all(|z| finite(z))
+    },
+    Actuation => |m| finite(&[m.u1, m.u2, m.zeta]) && finite(&m.wheels) && finite(&m.linearizing_input) && finite(&m.v),
+    DeadlineVerdict => |_m| true,
+    Control => |_m| true,
+    Status => |_m| true,
 );
