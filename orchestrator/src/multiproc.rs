@@ -143,7 +143,6 @@ impl TickSlot {
 
 /// The orchestrator's ports.
 struct Session {
-    node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
     control: Sender<Control>,
     status: Receiver<Status>,
     truth: Receiver<GroundTruth>,
@@ -154,6 +153,8 @@ struct Session {
     deadline: Receiver<DeadlineVerdict>,
     /// Active producer epoch of each role, announced with every control message.
     epochs: std::cell::Cell<[u32; 4]>,
+    /// The node of the ports above; declared last, so it is dropped after them.
+    _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
 }
 
 impl Session {
@@ -169,7 +170,7 @@ impl Session {
             actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
             deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
             epochs: std::cell::Cell::new([0; 4]),
-            node,
+            _node: node,
         })
     }
 
@@ -662,6 +663,5 @@ fn wait_until_ready(
             }
         })?;
     }
-    let _ = &session.node;
     Ok(())
 }

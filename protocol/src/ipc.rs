@@ -508,11 +508,12 @@ pub enum ProcessError {
 /// A role process's connection to the orchestrator: its node, the control topic it
 /// obeys and the status topic it reports on.
 pub struct Link {
-    pub node: Node<ipc::Service>,
     pub args: ProcessArgs,
     role: crate::Role,
     control: Receiver<crate::Control>,
     status: Sender<crate::Status>,
+    /// Declared last: dropped after the ports above.
+    pub node: Node<ipc::Service>,
 }
 
 /// What the orchestrator has said so far.
