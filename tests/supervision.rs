@@ -151,3 +151,68 @@ fn after_sigkill_of_the_whole_process_group_a_new_run_starts_and_cleans_up() {
         leftovers(&prefix)
     );
 }
+
+#[test]
+fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args([
+            "run",
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=6",
+            "--out",
+            dir.path().to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let estimator = wait_for_pid(dir.path(), "estimator");
+    std::thread::sleep(Duration::from_secs(3));
+    sigkill(estimator);
+    child.wait().unwrap();
+    let ev = events(dir.path());
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "restarted" && e["role"] == "estimator")
+    );
+    let crash_t = ev.iter().find(|e| e["event"] == "crashed").unwrap()["t"]
+        .as_f64()
+        .unwrap();
+    let text = std::fs::read_to_string(dir.path().join("trajectory.csv")).unwrap();
+    // Columns: t, .., zeta (4), .., u2 (12), .., mode (15).
+    let braking: Vec<(f64, f64, f64)> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[15] == "brake")
+        .map(|f| {
+            (
+                f[0].parse().unwrap(),
+                f[4].parse().unwrap(),
+                f[12].parse().unwrap(),
+            )
+        })
+        .collect();
+    assert!(
+        !braking.is_empty(),
+        "no braking while the estimator was down"
+    );
+    assert!(
+        braking
+            .iter()
+            .all(|b| b.0 >= crash_t - 0.1 && b.0 <= crash_t + 0.5),
+        "{braking:?}"
+    );
+    assert!(braking.iter().all(|b| b.2 == 0.0), "steering while braking");
+    assert!(
+        braking.windows(2).all(|w| w[1].1.abs() <= w[0].1.abs()),
+        "zeta grew while braking"
+    );
+    assert_eq!(
+        summary(dir.path())["outcome"],
+        "timeout",
+        "the run did not go on to its end"
+    );
+}

@@ -264,6 +264,24 @@ impl Dfl {
             }
             None => (self.braking_input(), [0.0; 2], CommandMode::Brake, 0),
         };
+        self.command(tick, u, v, mode, plan_sample)
+    }
+
+    /// A braking command for `tick` without an estimate (the estimator is silent): braking
+    /// needs only zeta, which the DFL owns.
+    pub fn brake(&mut self, tick: u64) -> Actuation {
+        self.command(tick, self.braking_input(), [0.0; 2], CommandMode::Brake, 0)
+    }
+
+    /// The actuation for `[t_tick, t_tick+1)` from `U`; integrates zeta over the tick.
+    fn command(
+        &mut self,
+        tick: u64,
+        u: [f64; 2],
+        v: [f64; 2],
+        mode: CommandMode,
+        plan_sample: u64,
+    ) -> Actuation {
         // zeta is linear over the tick; its mean is the forward speed held by the plant.
         let zeta_start = self.zeta;
         self.zeta += u[0] * self.dt_s;

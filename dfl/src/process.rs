@@ -16,6 +16,8 @@ use std::time::Duration;
 
 /// Share of an inner tick the real-time DFL waits for the plan of a new sample.
 pub const PLAN_WAIT_FRACTION: f64 = 0.8;
+/// Real time: after this many inner ticks without an estimate the DFL brakes on its own.
+pub const SILENT_TICKS: u64 = 3;
 
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let link = Link::open(args, Role::Dfl)?;
@@ -41,6 +43,8 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut monitor = DeadlineMonitor::new(timing.ts_s);
     let sample_ns = timing.ts_s * 1e9;
     let mut queue: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
+    let mut last_tick: Option<u64> = None;
+    let mut last_estimate_ns = monotonic_ns();
     let mut cleared = false;
     loop {
         // Hot path: samples straight from shared memory, the periodic input first (its
@@ -60,6 +64,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         while let Some(&(e, latency)) = queue.front() {
             let tick = e.header.tick;
             let sample = tick / inner_steps;
+            if last_tick.is_some_and(|last| tick <= last) {
+                queue.pop_front(); // older than a command already given (braking)
+                continue;
+            }
             if tick.is_multiple_of(inner_steps) && !inbox.has_received(sample) {
                 if lockstep {
                     break;
@@ -85,6 +93,28 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             }
             act.deadline_misses = monitor.misses();
             actuation.send(act)?;
+            last_tick = Some(tick);
+            last_estimate_ns = monotonic_ns();
+        }
+        // Real time: a silent estimator (dead, or stalled) must not leave the plant holding
+        // the last command: brake on the DFL's own clock, which needs only zeta.
+        if let (false, Some(start_ns), Some(last)) = (lockstep, ctl.start_ns, last_tick) {
+            let now = monotonic_ns();
+            let due = (now.saturating_sub(start_ns) as f64 / dt_ns) as u64;
+            if due >= last + SILENT_TICKS {
+                if now.saturating_sub(last_estimate_ns) > ipc::INPUT_TIMEOUT.as_nanos() as u64 {
+                    let _ = link.report(StatusEvent::InputLost);
+                    return Err(ProcessError::InputLost(ipc::INPUT_TIMEOUT));
+                }
+                let mut act = dfl.brake(due);
+                act.deadline_misses = monitor.misses();
+                actuation.send(act)?;
+                last_tick = Some(due);
+            }
+            let next_check =
+                start_ns + ((last_tick.unwrap_or(last) + SILENT_TICKS) as f64 * dt_ns) as u64;
+            let until = Duration::from_nanos(next_check.saturating_sub(now).max(100_000));
+            wait_for = Some(wait_for.map_or(until, |w: Duration| w.min(until)));
         }
         if !cleared {
             // Consume the wake-ups, then take once more what came before that.

@@ -360,8 +360,8 @@ impl Driver<'_> {
 
     /// Records a whole tick; returns an outcome that ends the run.
     fn record(&mut self, tick: u64, slot: TickSlot) -> anyhow::Result<Option<Outcome>> {
-        let (Some(truth), Some(measurement), Some(estimate), Some((act, own_latency))) =
-            (slot.truth, slot.measurement, slot.estimate, slot.actuation)
+        let (Some(truth), Some(measurement), Some((act, own_latency))) =
+            (slot.truth, slot.measurement, slot.actuation)
         else {
             return Ok(None);
         };
@@ -371,16 +371,24 @@ impl Driver<'_> {
             "control_to_plant",
             u64::from(measurement.header.input_latency_ns),
         );
-        l.hop(
-            "measurement_to_estimator",
-            u64::from(estimate.header.input_latency_ns),
-        );
-        l.hop("estimate_to_dfl", u64::from(act.header.input_latency_ns));
+        // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
+        // recorded with an estimate of NaN.
+        let estimate = slot.estimate.unwrap_or(Estimate {
+            state: [f64::NAN; 4],
+            ..Estimate::default()
+        });
+        if slot.estimate.is_some() {
+            l.hop(
+                "measurement_to_estimator",
+                u64::from(estimate.header.input_latency_ns),
+            );
+            l.hop("estimate_to_dfl", u64::from(act.header.input_latency_ns));
+        }
         if self.mode == RunMode::Lockstep {
             // In real time the orchestrator drains its buffers periodically: not a hop.
             l.hop("actuation_to_orchestrator", own_latency);
         }
-        if !tick.is_multiple_of(inner_steps) {
+        if !tick.is_multiple_of(inner_steps) && slot.estimate.is_some() {
             l.sensor_to_actuator(
                 act.header
                     .publish_ns
@@ -489,7 +497,9 @@ impl Driver<'_> {
                     let end = slot.truth.and_then(|t| self.recorder.final_pose(&t));
                     return Ok(end.unwrap_or_else(|| self.recorder.monitor.final_outcome()));
                 }
-                if !complete {
+                let commanded =
+                    slot.truth.is_some() && slot.measurement.is_some() && slot.actuation.is_some();
+                if !complete && !commanded {
                     self.record_gaps += 1;
                     self.recorder
                         .event("record_gap", serde_json::json!({ "tick": next }))?;
