@@ -2,7 +2,10 @@
 
 mod common;
 
-use common::{events, leftovers, scmpc, sigkill, summary, wait_for, wait_for_pid};
+use common::{
+    events, kill_role_during_run, leftovers, scmpc, sigkill, spawn_run, summary, wait_for,
+    wait_for_pid,
+};
 use std::os::unix::process::CommandExt;
 use std::process::Stdio;
 use std::time::Duration;
@@ -10,21 +13,12 @@ use std::time::Duration;
 #[test]
 fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal() {
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
-            "--mode",
-            "realtime",
-            "--out",
-            dir.path().to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mpc = wait_for_pid(dir.path(), "mpc");
-    std::thread::sleep(Duration::from_secs(5));
-    sigkill(mpc);
-    child.wait().unwrap();
+    kill_role_during_run(
+        dir.path(),
+        &["--mode", "realtime"],
+        "mpc",
+        Duration::from_secs(5),
+    );
     let s = summary(dir.path());
     let ev = events(dir.path());
     assert!(
@@ -67,19 +61,10 @@ fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal(
 #[test]
 fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
-            "--mode",
-            "realtime",
-            "--set",
-            "duration_s=10",
-            "--out",
-            dir.path().to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_run(
+        dir.path(),
+        &["--mode", "realtime", "--set", "duration_s=10"],
+    );
     let plant = wait_for_pid(dir.path(), "plant");
     std::thread::sleep(Duration::from_millis(500));
     sigkill(plant);
@@ -155,23 +140,12 @@ fn after_sigkill_of_the_whole_process_group_a_new_run_starts_and_cleans_up() {
 #[test]
 fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
-            "--mode",
-            "realtime",
-            "--set",
-            "duration_s=6",
-            "--out",
-            dir.path().to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let estimator = wait_for_pid(dir.path(), "estimator");
-    std::thread::sleep(Duration::from_secs(3));
-    sigkill(estimator);
-    child.wait().unwrap();
+    kill_role_during_run(
+        dir.path(),
+        &["--mode", "realtime", "--set", "duration_s=6"],
+        "estimator",
+        Duration::from_secs(3),
+    );
     let ev = events(dir.path());
     assert!(
         ev.iter()

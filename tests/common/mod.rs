@@ -80,3 +80,24 @@ pub fn sigkill(pid: u32) {
     // SAFETY: sending a signal to a process this test started.
     unsafe { libc::kill(pid as i32, libc::SIGKILL) };
 }
+
+/// Starts `scmpc run ARGS --out DIR` in the background, its stdout discarded.
+pub fn spawn_run(dir: &Path, args: &[&str]) -> std::process::Child {
+    scmpc()
+        .arg("run")
+        .args(args)
+        .args(["--out", dir.to_str().expect("non-UTF-8 temp dir")])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("cannot start scmpc")
+}
+
+/// Runs `scmpc run ARGS` into `dir`, SIGKILLs the `role` process `after` the run is
+/// ready, and waits for the run to end.
+pub fn kill_role_during_run(dir: &Path, args: &[&str], role: &str, after: std::time::Duration) {
+    let mut child = spawn_run(dir, args);
+    let pid = wait_for_pid(dir, role);
+    std::thread::sleep(after);
+    sigkill(pid);
+    child.wait().expect("the run did not end");
+}
