@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{leftovers, run, scmpc, stderr, summary, unique_prefix, wait_for};
+use common::{leftovers, run, scmpc, spawn_run, stderr, summary, unique_prefix, wait_for};
 use protocol::Measurement;
 use protocol::ipc::{MEASUREMENT, create_node, open_topic};
 use std::path::Path;
@@ -90,20 +90,17 @@ fn the_four_roles_are_separate_processes() {
 fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
     let prefix = unique_prefix("tap");
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
+    let mut child = spawn_run(
+        dir.path(),
+        &[
             "--mode",
             "realtime",
             "--set",
             "duration_s=4",
             "--prefix",
             &prefix,
-        ])
-        .args(["--out", dir.path().to_str().unwrap()])
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+        ],
+    );
     let node = create_node(&prefix, "test-tap", false).unwrap();
     let mut receiver = None;
     assert!(
@@ -191,19 +188,7 @@ fn two_runs_at_the_same_time_do_not_see_each_other() {
 fn sigint_ends_every_process_within_two_seconds_and_leaves_no_shared_memory() {
     let prefix = unique_prefix("int");
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
-            "--mode",
-            "realtime",
-            "--prefix",
-            &prefix,
-            "--out",
-            dir.path().to_str().unwrap(),
-        ])
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = spawn_run(dir.path(), &["--mode", "realtime", "--prefix", &prefix]);
     // Mid-run: the plant is publishing.
     let running = wait_for(Duration::from_secs(5), || {
         std::fs::metadata(dir.path().join("trajectory.csv")).is_ok_and(|m| m.len() > 10_000)

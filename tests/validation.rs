@@ -2,10 +2,9 @@
 
 mod common;
 
-use common::{run, scmpc, summary, unique_prefix, wait_for};
+use common::{run, spawn_run, summary, unique_prefix, wait_for};
 use protocol::ipc::{ACTUATION, MEASUREMENT, create_node, open_topic};
 use protocol::{Actuation, Header, Measurement, Message};
-use std::process::Stdio;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -89,26 +88,26 @@ fn a_foreign_actuation_under_a_wrong_epoch_has_no_effect_and_is_counted() {
         rejected > 0,
         "no wrong-epoch rejection counted ({sent} sent)"
     );
+    // The intruder outlived the run's own clean-up: remove what the run left.
+    protocol::ipc::remove_run_resources(&prefix).unwrap();
+    assert!(common::leftovers(&prefix).is_empty());
 }
 
 #[test]
 fn a_sample_with_a_nan_is_rejected_and_counted_and_the_loop_continues() {
     let prefix = unique_prefix("nan");
     let dir = tempfile::tempdir().unwrap();
-    let mut child = scmpc()
-        .args([
-            "run",
+    let mut child = spawn_run(
+        dir.path(),
+        &[
             "--mode",
             "realtime",
             "--set",
             "duration_s=3",
             "--prefix",
             &prefix,
-        ])
-        .args(["--out", dir.path().to_str().unwrap()])
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+        ],
+    );
     let done = AtomicBool::new(false);
     let poisoned = Measurement {
         y: [f64::NAN, 1.0, 0.0],
