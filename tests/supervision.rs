@@ -190,3 +190,102 @@ fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
         "the run did not go on to its end"
     );
 }
+
+#[test]
+fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stopped() {
+    let dir = tempfile::tempdir().unwrap();
+    // A slow estimator stretches the lockstep run to a few seconds of wall time.
+    let mut child = spawn_run(dir.path(), &["--set", "fault.estimator_delay_ms=0.5"]);
+    let pids: Vec<(&str, u32)> = ["mpc", "dfl", "estimator"]
+        .into_iter()
+        .map(|role| (role, wait_for_pid(dir.path(), role)))
+        .collect();
+    for (role, pid) in pids {
+        std::thread::sleep(Duration::from_millis(600));
+        sigkill(pid);
+        assert!(
+            wait_for(Duration::from_secs(5), || events(dir.path())
+                .iter()
+                .any(|e| e["event"] == "ready" && e["role"] == role)),
+            "the {role} was not restarted"
+        );
+    }
+    assert_eq!(child.wait().unwrap().code(), Some(0));
+    let s = summary(dir.path());
+    assert_eq!(s["restarts"], 3);
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["ticks"], 6000);
+    // Restarted processes pick up the loop's state: the goal is reached as without crashes.
+    let t = s["time_to_goal_s"].as_f64().unwrap();
+    assert!((t - 24.09).abs() < 0.2, "time to goal {t}");
+}
+
+/// The pid of a child process of `parent`, from /proc.
+fn child_of(parent: u32) -> Option<u32> {
+    std::fs::read_dir("/proc")
+        .ok()?
+        .flatten()
+        .find_map(|entry| {
+            let pid: u32 = entry.file_name().to_str()?.parse().ok()?;
+            let stat = std::fs::read_to_string(entry.path().join("stat")).ok()?;
+            let ppid: u32 = stat.rsplit_once(") ")?.1.split(' ').nth(1)?.parse().ok()?;
+            (ppid == parent).then_some(pid)
+        })
+}
+
+#[test]
+fn a_role_process_dying_inside_a_wrapper_is_caught_by_dead_node_detection() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_scmpc");
+    // The wrapper outlives the estimator it starts: its exit status says nothing.
+    let file = dir.path().join("wrapped.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "duration_s = 30.0\n[[swap]]\ntime_s = 0.5\nrole = \"estimator\"\n\
+             command = [\"sh\", \"-c\", \"\\\"$0\\\" estimator; exec sleep 60\", \"{exe}\"]\n"
+        ),
+    )
+    .unwrap();
+    let run_dir = dir.path().join("run");
+    let mut child = spawn_run(&run_dir, &[file.to_str().unwrap(), "--mode", "realtime"]);
+    let mut wrapper = None;
+    assert!(
+        wait_for(Duration::from_secs(10), || {
+            wrapper = events(&run_dir)
+                .iter()
+                .find(|e| e["event"] == "swapped")
+                .and_then(|e| e["new_pid"].as_u64());
+            wrapper.is_some()
+        }),
+        "the wrapped estimator never took over"
+    );
+    let wrapper = wrapper.unwrap() as u32;
+    let estimator = child_of(wrapper).expect("the wrapper has no child");
+    sigkill(estimator);
+    assert!(
+        wait_for(Duration::from_secs(5), || events(&run_dir)
+            .iter()
+            .any(|e| e["event"] == "restarted" && e["role"] == "estimator")),
+        "the estimator was not restarted: {:#?}",
+        events(&run_dir)
+    );
+    // SAFETY: interrupting the run this test started.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    child.wait().unwrap();
+    let ev = events(&run_dir);
+    let dead = ev
+        .iter()
+        .find(|e| e["event"] == "dead_node")
+        .unwrap_or_else(|| panic!("no dead node seen: {ev:#?}"));
+    assert_eq!(dead["role"], "estimator");
+    assert_eq!(dead["child_killed"], wrapper);
+    let s = summary(&run_dir);
+    assert_eq!(s["outcome"], "interrupted");
+    assert_eq!(s["restarts"], 1);
+    assert!(
+        !protocol::ipc::process_alive(wrapper),
+        "the wrapper still runs"
+    );
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+}

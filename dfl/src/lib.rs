@@ -118,6 +118,16 @@ impl PlanInbox {
         self.newest_received.is_some_and(|s| s >= sample)
     }
 
+    /// Lockstep: whether the DFL must wait for plan(`sample`) before commanding its first
+    /// tick. A DFL that has followed the run waits for every plan; one that joined later
+    /// (a restart or a replacement) cannot wait for a plan published before it listened,
+    /// so it waits only once it has received the plan of the previous sample.
+    pub fn must_wait_for(&self, sample: u64) -> bool {
+        self.lockstep
+            && !self.has_received(sample)
+            && (sample == 0 || self.has_received(sample - 1))
+    }
+
     /// Offers the DFL every plan that has arrived by `current_sample`.
     pub fn release(&mut self, current_sample: u64, dfl: &mut Dfl) {
         self.pending.retain(|(arrival, plan)| {
@@ -226,6 +236,15 @@ impl Dfl {
     /// The DFL's integrator state zeta, m/s.
     pub fn zeta(&self) -> f64 {
         self.zeta
+    }
+
+    /// Takes zeta from outside (m/s): a DFL that joins a running loop (a restart, or a
+    /// replacement warming up) continues from the zeta the plant is actually driven with,
+    /// which every estimate carries.
+    pub fn adopt_zeta(&mut self, zeta: f64) {
+        if zeta.is_finite() {
+            self.zeta = zeta;
+        }
     }
 
     /// Offers a received plan. It becomes active if it is solved and newer than the active
@@ -425,6 +444,35 @@ mod tests {
             (Some(CommandMode::Shifted), [3.0, 0.0]),
             "element 3 of plan 100"
         );
+    }
+
+    #[test]
+    fn a_lockstep_dfl_waits_for_every_plan_unless_it_joined_after_the_previous_one() {
+        let mut inbox = PlanInbox::new(true, 0.05);
+        assert!(
+            inbox.must_wait_for(0),
+            "from the start, plan 0 is waited for"
+        );
+        assert!(
+            !inbox.must_wait_for(40),
+            "joined at sample 40: plan 39 never came"
+        );
+        inbox.receive(&plan(40, 8, PlanStatus::Solved));
+        assert!(!inbox.must_wait_for(40), "plan 40 is here");
+        assert!(inbox.must_wait_for(41));
+        assert!(
+            !PlanInbox::new(false, 0.05).must_wait_for(0),
+            "real time never blocks"
+        );
+    }
+
+    #[test]
+    fn a_joining_dfl_adopts_the_zeta_the_plant_is_driven_with() {
+        let mut dfl = Dfl::new(&Scenario::default());
+        dfl.adopt_zeta(0.8);
+        assert_eq!(dfl.zeta(), 0.8);
+        dfl.adopt_zeta(f64::NAN);
+        assert_eq!(dfl.zeta(), 0.8);
     }
 
     #[test]

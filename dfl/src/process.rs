@@ -45,10 +45,16 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut queue: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
     let mut last_tick: Option<u64> = None;
     let mut last_estimate_ns = monotonic_ns();
+    // Whether the plant takes this process's commands (not before the orchestrator has
+    // said so, nor while it warms up as a replacement).
+    let mut commanding = false;
+    // Real time: commanding on the DFL's own clock, the estimator being silent.
+    let mut braking_alone = false;
     let mut cleared = false;
     loop {
         // Hot path: samples straight from shared memory, the periodic input first (its
         // receipt time is the hop latency); system calls come after publishing.
+        link.sync(&mut ctl, &[&estimates, &plans])?;
         estimates.take(|e, latency| queue.push_back((e, latency)))?;
         plans.take(|p, _| {
             inbox.receive(&p);
@@ -69,19 +75,24 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 continue;
             }
             if tick.is_multiple_of(inner_steps) && !inbox.has_received(sample) {
-                if lockstep {
+                if inbox.must_wait_for(sample) {
                     break;
                 }
                 let give_up_ns =
                     ctl.start_ns.unwrap_or(0) + ((tick as f64 + PLAN_WAIT_FRACTION) * dt_ns) as u64;
                 let now = monotonic_ns();
-                if now < give_up_ns {
+                if !lockstep && now < give_up_ns {
                     wait_for = Some(Duration::from_nanos(give_up_ns - now));
                     break;
                 }
             }
             queue.pop_front();
             inbox.release(sample, &mut dfl);
+            if !commanding {
+                // Not (yet) driving the plant: follow the zeta it is driven with.
+                dfl.adopt_zeta(e.state[3]);
+            }
+            commanding = ctl.producing(Role::Dfl, args.epoch, tick);
             let mut act = dfl.step(&e, tick);
             act.header.input_latency_ns = latency.min(u64::from(u32::MAX)) as u32;
             if tick.is_multiple_of(inner_steps)
@@ -95,13 +106,16 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             actuation.send(act)?;
             last_tick = Some(tick);
             last_estimate_ns = monotonic_ns();
+            braking_alone = false;
         }
         // Real time: a silent estimator (dead, or stalled) must not leave the plant holding
-        // the last command: brake on the DFL's own clock, which needs only zeta.
+        // the last command: brake on the DFL's own clock, which needs only zeta. Once
+        // braking so, command every tick.
         if let (false, Some(start_ns), Some(last)) = (lockstep, ctl.start_ns, last_tick) {
+            let silent_ticks = |braking_alone| if braking_alone { 1 } else { SILENT_TICKS };
             let now = monotonic_ns();
             let due = (now.saturating_sub(start_ns) as f64 / dt_ns) as u64;
-            if due >= last + SILENT_TICKS {
+            if due >= last + silent_ticks(braking_alone) {
                 if now.saturating_sub(last_estimate_ns) > ipc::INPUT_TIMEOUT.as_nanos() as u64 {
                     let _ = link.report(StatusEvent::InputLost);
                     return Err(ProcessError::InputLost(ipc::INPUT_TIMEOUT));
@@ -110,9 +124,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 act.deadline_misses = monitor.misses();
                 actuation.send(act)?;
                 last_tick = Some(due);
+                braking_alone = true;
             }
-            let next_check =
-                start_ns + ((last_tick.unwrap_or(last) + SILENT_TICKS) as f64 * dt_ns) as u64;
+            let next_tick = last_tick.unwrap_or(last) + silent_ticks(braking_alone);
+            let next_check = start_ns + (next_tick as f64 * dt_ns) as u64;
             let until = Duration::from_nanos(next_check.saturating_sub(now).max(100_000));
             wait_for = Some(wait_for.map_or(until, |w: Duration| w.min(until)));
         }
@@ -120,6 +135,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             // Consume the wake-ups, then take once more what came before that.
             if !link.housekeeping(&mut ctl, &[&estimates, &plans])? {
                 return Ok(());
+            }
+            if ctl.take_replay() {
+                actuation.replay()?;
+                deadlines.replay()?;
             }
             cleared = true;
             continue;

@@ -35,6 +35,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     loop {
         // Hot path: samples straight from shared memory, the periodic input first (its
         // receipt time is the hop latency); system calls come after publishing.
+        link.sync(&mut ctl, &[&measurements, &actuation])?;
         measurements.take(|m, latency| queue.push_back((m, latency)))?;
         actuation.take(|a, _| {
             if heard.is_none_or(|h| a.header.tick >= h.header.tick) {
@@ -43,12 +44,20 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         })?;
         while let Some(&(m, latency)) = queue.front() {
             let tick = m.header.tick;
+            if last_tick.is_some_and(|last| tick <= last) {
+                queue.pop_front(); // a replay of a tick already estimated
+                continue;
+            }
             let previous = heard.filter(|a| a.header.tick < tick);
+            // Lockstep: the actuation of tick - 1 is still on its way. Not so for the first
+            // measurement of an estimator that joined a running loop (its filter starts
+            // at the measurement), nor once a newer actuation was heard.
             if args.mode == RunMode::Lockstep
-                && tick > 0
+                && last_tick.is_some()
                 && previous.is_none_or(|a| a.header.tick + 1 != tick)
+                && heard.is_none_or(|a| a.header.tick < tick)
             {
-                break; // the actuation of tick - 1 is still on its way
+                break;
             }
             queue.pop_front();
             last_tick = Some(tick);
@@ -72,6 +81,9 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             // Consume the wake-ups, then take once more what came before that.
             if !link.housekeeping(&mut ctl, &[&measurements, &actuation])? {
                 return Ok(());
+            }
+            if ctl.take_replay() {
+                estimates.replay()?;
             }
             cleared = true;
             continue;

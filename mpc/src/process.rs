@@ -28,8 +28,11 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut next_sample = 0u64;
     let mut cleared = false;
     loop {
+        link.sync(&mut ctl, &[&estimates])?;
         estimates.take(|e, latency| {
-            if e.header.tick.is_multiple_of(inner_steps) {
+            // Boundary estimates of samples not solved yet (a replay repeats one that was).
+            let tick = e.header.tick;
+            if tick.is_multiple_of(inner_steps) && tick / inner_steps >= next_sample {
                 boundary.push_back((e, latency));
             }
         })?;
@@ -57,6 +60,9 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             // Consume the wake-ups, then take once more what came before that.
             if !link.housekeeping(&mut ctl, &[&estimates])? {
                 return Ok(());
+            }
+            if ctl.take_replay() {
+                plans.replay()?;
             }
             cleared = true;
             continue;

@@ -30,6 +30,15 @@ struct Cli {
 enum Command {
     /// Run a scenario and write its records to a run directory.
     Run(RunArgs),
+    /// Replace a role process of a running multi-process run, make-before-break.
+    ///
+    /// The replacement starts with the next epoch, warms up on live inputs, and takes over
+    /// at a sample boundary; then the old process is stopped. Without COMMAND a fresh
+    /// built-in process of the role is started. The command gets the run's scenario,
+    /// prefix, mode and its epoch in SCMPC_* environment variables; a program named `scmpc`
+    /// is the running scmpc executable. Exit 0: swapped; 1: the swap failed (the old
+    /// process still runs); 2: bad input or no run going.
+    Swap(SwapArgs),
     /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
@@ -63,20 +72,39 @@ impl From<Mode> for RunMode {
     }
 }
 
-/// What the orchestrator passes to a role process.
+/// What the orchestrator passes to a role process: on the command line, or in the
+/// environment of any command it starts for a role (DESIGN.md section 5), so a
+/// replacement such as `scmpc mpc --set mpc.horizon=10` needs only its own options.
 #[derive(Debug, clap::Args)]
 struct RoleArgs {
     /// The run's scenario file (the orchestrator writes it into the run directory).
-    #[arg(long)]
+    #[arg(long, env = crate::multiproc::ENV_SCENARIO)]
     scenario: String,
     /// The run's iceoryx2 resource prefix.
-    #[arg(long)]
+    #[arg(long, env = crate::multiproc::ENV_PREFIX)]
     prefix: String,
-    #[arg(long, value_enum, default_value = "lockstep")]
+    #[arg(long, value_enum, default_value = "lockstep", env = crate::multiproc::ENV_MODE)]
     mode: Mode,
     /// The producer epoch stamped on every sample.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, env = crate::multiproc::ENV_EPOCH)]
     epoch: u32,
+    /// Override a value of the run's scenario for this process only, e.g.
+    /// `mpc.horizon=10` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+}
+
+#[derive(Debug, clap::Args)]
+struct SwapArgs {
+    /// Directory of the running run (its `run.json`).
+    #[arg(long = "run", value_name = "DIR")]
+    run_dir: PathBuf,
+    /// Role to replace: estimator, mpc or dfl.
+    role: String,
+    /// Program and arguments of the replacement, after `--`, e.g.
+    /// `-- scmpc mpc --set mpc.horizon=10`.
+    #[arg(last = true, value_name = "COMMAND")]
+    command: Vec<String>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -121,6 +149,7 @@ pub fn main() -> ExitCode {
             }
         },
         Command::Run(args) => run(args),
+        Command::Swap(args) => swap(args),
         Command::Plant(args) => role(args, plant::process::run),
         Command::Estimator(args) => role(args, estimator::process::run),
         Command::Mpc(args) => role(args, mpc::process::run),
@@ -128,15 +157,62 @@ pub fn main() -> ExitCode {
     }
 }
 
+fn swap(args: SwapArgs) -> ExitCode {
+    let request = match crate::swap::swappable_role(&args.role)
+        .and_then(|role| crate::swap::build_request(role, &args.command))
+    {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return ExitCode::from(EXIT_BAD_INPUT);
+        }
+    };
+    match crate::swap::send(&args.run_dir, &request) {
+        Ok(reply) if reply.done == 1 => {
+            println!(
+                "swapped {}: epoch {} from tick {} ({})",
+                args.role,
+                reply.epoch,
+                reply.switch_tick,
+                reply.message()
+            );
+            ExitCode::SUCCESS
+        }
+        Ok(reply) => {
+            eprintln!(
+                "error: swap of the {} failed: {}",
+                args.role,
+                reply.message()
+            );
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
+        Err(e) if e.downcast_ref::<crate::swap::RequestError>().is_some() => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_BAD_INPUT)
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
+    }
+}
+
 /// Runs one role process until the orchestrator stops it.
 fn role(args: RoleArgs, body: fn(&ProcessArgs) -> Result<(), ProcessError>) -> ExitCode {
-    let scenario = match scenarios::load(Some(&args.scenario), &[]) {
+    let scenario = match scenarios::load(Some(&args.scenario), &args.overrides) {
         Ok(s) => s,
         Err(e) => {
             eprint!("error: {e}");
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
+    // A process of its own may change what it computes, never the loop's clock.
+    if !args.overrides.is_empty()
+        && scenarios::load(Some(&args.scenario), &[]).is_ok_and(|run| run.timing != scenario.timing)
+    {
+        eprintln!("error: --set: `timing.*` must match the run's scenario");
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
     let process_args = ProcessArgs {
         scenario,
         prefix: args.prefix,
@@ -160,6 +236,10 @@ fn run(args: RunArgs) -> ExitCode {
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
+    if let Err(e) = scenarios::check_swap_programs(&scenario) {
+        eprint!("error: {e}");
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
     let out = args.out.unwrap_or_else(|| default_run_dir(&scenario.name));
     if args.in_process && args.mode == Mode::Realtime {
         eprintln!(

@@ -6,3 +6,4 @@ pub mod monitor;
 pub mod multiproc;
 pub mod record;
 pub mod scenarios;
+pub mod swap;

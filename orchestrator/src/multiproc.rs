@@ -14,8 +14,9 @@ use anyhow::{Context, anyhow, bail};
 use protocol::clock::monotonic_ns;
 use protocol::ipc::{self, Input, Receiver, RunMode, Sender, open_topic};
 use protocol::{
-    Actuation, Control, ControlCommand, DeadlineVerdict, Estimate, GroundTruth, Header,
-    Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
+    Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
+    Header, Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
+    SwapReply, SwapRequest,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -33,6 +34,36 @@ const TICK_TIMEOUT: Duration = Duration::from_secs(10);
 const START_LEAD: Duration = Duration::from_millis(100);
 /// How often the orchestrator looks at its children and the stop flag while waiting.
 const POLL: Duration = Duration::from_millis(20);
+/// How often the orchestrator asks iceoryx2 for dead nodes of the run.
+const NODE_SCAN: Duration = Duration::from_millis(50);
+/// A replacement is warm once it has published outputs spanning this many samples.
+const SWAP_WARMUP_SAMPLES: u64 = 2;
+/// A warm replacement takes over at the first sample boundary at least this many samples
+/// ahead, so every process has heard of the switch before its tick.
+const SWITCH_LEAD_SAMPLES: u64 = 2;
+/// A replacement not warm this long after it was started is stopped; the swap fails.
+const SWAP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Environment of every role process the orchestrator starts (DESIGN.md section 5): a
+/// replacement command needs nothing else to join the run.
+pub const ENV_SCENARIO: &str = "SCMPC_SCENARIO";
+pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
+/// `lockstep` or `realtime`.
+pub const ENV_MODE: &str = "SCMPC_MODE";
+/// The producer epoch the process must stamp on every sample.
+pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
+/// `plant`, `estimator`, `mpc` or `dfl`.
+pub const ENV_ROLE: &str = "SCMPC_ROLE";
+
+/// One process the orchestrator started.
+struct Proc {
+    role: Role,
+    epoch: u32,
+    child: Child,
+    /// Set when the process is being stopped on purpose (replaced): its exit is not a
+    /// crash, and it is killed if still alive at this instant.
+    retire_by: Option<Instant>,
+}
 
 /// The run's processes; killed and reaped on drop whatever happened.
 struct Children {
@@ -40,7 +71,7 @@ struct Children {
     scenario_file: std::path::PathBuf,
     prefix: String,
     mode: &'static str,
-    list: Vec<(Role, Child)>,
+    list: Vec<Proc>,
 }
 
 impl Children {
@@ -49,57 +80,126 @@ impl Children {
             exe: std::env::current_exe().context("locating the scmpc executable")?,
             scenario_file: scenario_file.to_path_buf(),
             prefix: prefix.to_string(),
-            mode: match mode {
-                RunMode::Lockstep => "lockstep",
-                RunMode::Realtime => "realtime",
-            },
+            mode: mode_name(mode),
             list: Vec::new(),
         };
         for role in Role::ALL {
-            children.spawn_role(role, 0)?;
+            children.spawn_role(role, 0, &[])?;
         }
         Ok(children)
     }
 
-    /// Starts the process of `role` with producer epoch `epoch`; returns its pid.
-    fn spawn_role(&mut self, role: Role, epoch: u32) -> anyhow::Result<u32> {
-        let child = Command::new(&self.exe)
-            .arg(role.as_str())
-            .arg("--scenario")
-            .arg(&self.scenario_file)
-            .args([
-                "--prefix",
-                &self.prefix,
-                "--mode",
-                self.mode,
-                "--epoch",
-                &epoch.to_string(),
-            ])
+    /// Starts a process for `role` with producer epoch `epoch`: `command` (program and
+    /// arguments; a program named `scmpc` is this executable), or the built-in role
+    /// process when it is empty. Returns its pid.
+    fn spawn_role(&mut self, role: Role, epoch: u32, command: &[String]) -> anyhow::Result<u32> {
+        let builtin = [role.as_str().to_string()];
+        let (program, args) = match command.split_first() {
+            None => (self.exe.as_os_str(), &builtin[..]),
+            Some((p, args)) if p == "scmpc" => (self.exe.as_os_str(), args),
+            Some((p, args)) => (std::ffi::OsStr::new(p), args),
+        };
+        let child = Command::new(program)
+            .args(args)
+            .env(ENV_SCENARIO, &self.scenario_file)
+            .env(ENV_PREFIX, &self.prefix)
+            .env(ENV_MODE, self.mode)
+            .env(ENV_EPOCH, epoch.to_string())
+            .env(ENV_ROLE, role.as_str())
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .spawn()
-            .with_context(|| format!("starting the {} process", role.as_str()))?;
+            .with_context(|| {
+                format!(
+                    "starting the {} process `{}`",
+                    role.as_str(),
+                    program.to_string_lossy()
+                )
+            })?;
         let pid = child.id();
-        self.list.push((role, child));
+        self.list.push(Proc {
+            role,
+            epoch,
+            child,
+            retire_by: None,
+        });
         Ok(pid)
     }
 
+    fn pid(&self, role: Role, epoch: u32) -> Option<u32> {
+        self.list
+            .iter()
+            .find(|p| p.role == role && p.epoch == epoch)
+            .map(|p| p.child.id())
+    }
+
+    /// Asks the process of `role` and `epoch` to exit (SIGTERM; a role process leaves its
+    /// loop and closes its ports), and kills it after `grace`.
+    fn retire(&mut self, role: Role, epoch: u32, grace: Duration) {
+        if let Some(p) = self
+            .list
+            .iter_mut()
+            .find(|p| p.role == role && p.epoch == epoch)
+        {
+            p.retire_by = Some(Instant::now() + grace);
+            if let Ok(pid) = libc::pid_t::try_from(p.child.id()) {
+                // SAFETY: kill(2) on the pid of a child not reaped yet (so not reused).
+                unsafe { libc::kill(pid, libc::SIGTERM) };
+            }
+        }
+    }
+
+    /// Kills the process of `role` and `epoch`: `Some(pid)` if it was running, `None` if
+    /// there is none or it has exited already (its exit is handled as such).
+    fn kill(&mut self, role: Role, epoch: u32) -> Option<Option<u32>> {
+        let Some(p) = self
+            .list
+            .iter_mut()
+            .find(|p| p.role == role && p.epoch == epoch)
+        else {
+            return Some(None);
+        };
+        if p.child.try_wait().ok().flatten().is_some() {
+            return None;
+        }
+        Some(p.child.kill().ok().map(|()| p.child.id()))
+    }
+
+    /// Whether a process of `role` is being stopped.
+    fn retiring(&self, role: Role) -> bool {
+        self.list
+            .iter()
+            .any(|p| p.role == role && p.retire_by.is_some())
+    }
+
+    /// Kills retiring processes that outlived their grace period.
+    fn kill_overdue(&mut self) {
+        let now = Instant::now();
+        for p in &mut self.list {
+            if p.retire_by.is_some_and(|by| now > by) {
+                let _ = p.child.kill();
+            }
+        }
+    }
+
     /// A child that has exited (reaped and forgotten), with its status.
-    fn take_exited(&mut self) -> Option<(Role, std::process::ExitStatus)> {
+    fn take_exited(&mut self) -> Option<(Proc, std::process::ExitStatus)> {
         let index = self
             .list
             .iter_mut()
-            .position(|(_, child)| child.try_wait().ok().flatten().is_some())?;
-        let (role, mut child) = self.list.remove(index);
-        child.try_wait().ok().flatten().map(|status| (role, status))
+            .position(|p| p.child.try_wait().ok().flatten().is_some())?;
+        let mut proc = self.list.remove(index);
+        let status = proc.child.try_wait().ok().flatten()?;
+        Some((proc, status))
     }
 
     /// Waits up to `timeout` for every child to exit, then kills the rest; reaps all.
     /// Returns each role's exit status and whether it had to be killed.
-    fn shut_down(&mut self, timeout: Duration) -> Vec<(Role, String, bool)> {
+    fn shut_down(&mut self, timeout: Duration) -> Vec<(Role, u32, String, bool)> {
         let deadline = Instant::now() + timeout;
         let mut ended = Vec::new();
-        for (role, child) in &mut self.list {
+        for p in &mut self.list {
+            let child = &mut p.child;
             while child.try_wait().ok().flatten().is_none() && Instant::now() < deadline {
                 std::thread::sleep(Duration::from_millis(5));
             }
@@ -110,8 +210,9 @@ impl Children {
             let status = child
                 .wait()
                 .map_or_else(|e| e.to_string(), |s| s.to_string());
-            ended.push((*role, status, killed));
+            ended.push((p.role, p.epoch, status, killed));
         }
+        self.list.clear();
         ended
     }
 }
@@ -119,6 +220,13 @@ impl Children {
 impl Drop for Children {
     fn drop(&mut self) {
         let _ = self.shut_down(Duration::ZERO);
+    }
+}
+
+fn mode_name(mode: RunMode) -> &'static str {
+    match mode {
+        RunMode::Lockstep => "lockstep",
+        RunMode::Realtime => "realtime",
     }
 }
 
@@ -141,6 +249,11 @@ impl TickSlot {
     }
 }
 
+/// The slot of `tick`, unless the tick is already recorded (`tick < cursor`).
+fn slot(slots: &mut BTreeMap<u64, TickSlot>, cursor: u64, tick: u64) -> Option<&mut TickSlot> {
+    (tick >= cursor).then(|| slots.entry(tick).or_default())
+}
+
 /// The orchestrator's ports.
 struct Session {
     control: Sender<Control>,
@@ -151,8 +264,11 @@ struct Session {
     plan: Receiver<Plan>,
     actuation: Receiver<Actuation>,
     deadline: Receiver<DeadlineVerdict>,
-    /// Active producer epoch of each role, announced with every control message.
-    epochs: std::cell::Cell<[u32; 4]>,
+    /// Live requests of `scmpc swap`, and the answers.
+    swap_requests: Receiver<SwapRequest>,
+    swap_replies: Sender<SwapReply>,
+    /// Which producer of each role is taken, announced with every control message.
+    schedule: std::cell::Cell<EpochSchedule>,
     /// The node of the ports above; declared last, so it is dropped after them.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
 }
@@ -160,7 +276,7 @@ struct Session {
 impl Session {
     fn open(prefix: &str) -> Result<Session, ipc::IpcError> {
         let node = ipc::create_node(prefix, "orchestrator", false)?;
-        Ok(Session {
+        let session = Session {
             control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
             status: open_topic(&node, ipc::STATUS)?.receiver()?,
             truth: open_topic(&node, ipc::TRUTH)?.receiver_from(Role::Plant)?,
@@ -169,9 +285,15 @@ impl Session {
             plan: open_topic(&node, ipc::PLAN)?.receiver_from(Role::Mpc)?,
             actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
             deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
-            epochs: std::cell::Cell::new([0; 4]),
+            swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
+            swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
+            schedule: std::cell::Cell::new(EpochSchedule::default()),
             _node: node,
-        })
+        };
+        for input in session.inputs() {
+            input.follow(EpochSchedule::default());
+        }
+        Ok(session)
     }
 
     fn command(
@@ -187,7 +309,7 @@ impl Session {
             },
             command: command as u32,
             start_ns,
-            epochs: self.epochs.get(),
+            epochs: self.schedule.get(),
             ..Control::default()
         })
     }
@@ -204,17 +326,26 @@ impl Session {
         ]
     }
 
-    /// Makes `epoch` the active one of `role`, for the orchestrator and every process.
-    fn activate(&self, role: Role, epoch: u32) -> Result<(), ipc::IpcError> {
-        let mut epochs = self.epochs.get();
-        epochs[role as usize] = epoch;
-        self.epochs.set(epochs);
+    /// Changes the epoch schedule, for the orchestrator and every process.
+    fn reschedule(&self, change: impl FnOnce(&mut EpochSchedule)) -> Result<(), ipc::IpcError> {
+        let mut schedule = self.schedule.get();
+        change(&mut schedule);
+        self.schedule.set(schedule);
         for input in self.inputs() {
-            if input.producer() == Some(role) {
-                input.expect_epoch(epoch);
-            }
+            input.follow(schedule);
         }
         self.command(ControlCommand::Epochs, 0, 0)
+    }
+
+    /// The orchestrator's input carrying the output of `role`: how it sees a replacement
+    /// warm up.
+    fn output_of(&self, role: Role) -> &dyn Input {
+        match role {
+            Role::Plant => &self.truth,
+            Role::Estimator => &self.estimate,
+            Role::Mpc => &self.plan,
+            Role::Dfl => &self.actuation,
+        }
     }
 
     /// Samples the orchestrator itself refused, by rejection code, since the last call.
@@ -227,6 +358,33 @@ impl Session {
         }
         total
     }
+}
+
+/// A replacement being swapped in (DESIGN.md section 5).
+struct Swap {
+    role: Role,
+    /// Epoch of the replacement, and of the process it replaces.
+    epoch: u32,
+    replaces: u32,
+    pid: u32,
+    /// The command as shown in events.
+    command: String,
+    started: Instant,
+    /// The `scmpc swap` request to answer, if it came from one.
+    request: Option<u64>,
+    /// First and newest tick the replacement has published while warming up.
+    heard: Option<(u64, u64)>,
+    /// First tick taken from the replacement, once scheduled.
+    switch_tick: Option<u64>,
+}
+
+/// A swap waiting for its time, or for its role to be free of another swap.
+struct PendingSwap {
+    time_s: f64,
+    role: Role,
+    command: Vec<String>,
+    /// The `scmpc swap` request to answer.
+    request: Option<u64>,
 }
 
 /// The state of a run while it is driven.
@@ -247,6 +405,16 @@ struct Driver<'a> {
     restarts: u32,
     /// Samples refused by any consumer, by reason.
     rejected: BTreeMap<String, u64>,
+    /// The epoch the next started process gets.
+    next_epoch: u32,
+    /// Next tick to record (every earlier one is recorded).
+    cursor: u64,
+    /// Swaps not started yet, earliest first: the scenario's, and live requests (time 0).
+    scheduled: Vec<PendingSwap>,
+    swaps: Vec<Swap>,
+    swaps_done: u32,
+    ticks_without_estimate: u64,
+    last_node_scan: Instant,
 }
 
 impl Driver<'_> {
@@ -256,21 +424,31 @@ impl Driver<'_> {
         waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
     ) -> anyhow::Result<()> {
         ipc::wait(waitset, POLL)?;
+        // Ticks already recorded come again only as replays: skipped.
+        let cursor = self.cursor;
         let slots = &mut self.slots;
         let newest = &mut self.newest_truth;
         self.session.truth.drain(|m, _| {
             *newest = (*newest).max(Some(m.header.tick));
-            slots.entry(m.header.tick).or_default().truth = Some(m);
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.truth = Some(m);
+            }
         })?;
-        self.session
-            .measurement
-            .drain(|m, _| slots.entry(m.header.tick).or_default().measurement = Some(m))?;
-        self.session
-            .estimate
-            .drain(|m, _| slots.entry(m.header.tick).or_default().estimate = Some(m))?;
-        self.session
-            .actuation
-            .drain(|m, l| slots.entry(m.header.tick).or_default().actuation = Some((m, l)))?;
+        self.session.measurement.drain(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.measurement = Some(m);
+            }
+        })?;
+        self.session.estimate.drain(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.estimate = Some(m);
+            }
+        })?;
+        self.session.actuation.drain(|m, l| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.actuation = Some((m, l));
+            }
+        })?;
         let plans = &mut self.plans;
         self.session.plan.drain(|p, _| {
             plans.insert(p.sample, p);
@@ -304,13 +482,18 @@ impl Driver<'_> {
             )?;
         }
         for role in restarted_ready {
-            // A restarted process missed the start: tell everyone again (same tick 0).
+            // A process joined the running loop: tell it the clock and the schedule, and
+            // have every producer repeat its newest sample for it.
             self.recorder
                 .event("ready", serde_json::json!({ "role": role.as_str() }))?;
-            if self.mode == RunMode::Realtime {
-                self.session
-                    .command(ControlCommand::Start, 0, self.start_ns)?;
+            match self.mode {
+                RunMode::Realtime => {
+                    self.session
+                        .command(ControlCommand::Start, 0, self.start_ns)?
+                }
+                RunMode::Lockstep => self.session.command(ControlCommand::Epochs, 0, 0)?,
             }
+            self.session.command(ControlCommand::Replay, 0, 0)?;
         }
         let verdicts = &mut self.verdicts;
         self.session.deadline.drain(|v, _| {
@@ -319,43 +502,300 @@ impl Driver<'_> {
         Ok(())
     }
 
-    /// Ends the run on Ctrl-C; on a dead process, cleans what it left and restarts it per
-    /// the scenario's supervision policy, or ends the run as aborted.
+    /// Ends the run on Ctrl-C; handles a process that exited: a retired one is
+    /// forgotten, a failed replacement cancels its swap, and a dead active process is
+    /// cleaned up after and then replaced by its warming replacement if there is one, else
+    /// restarted per the scenario's supervision policy, else the run ends as aborted.
     fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        let Some((role, status)) = self.children.take_exited() else {
+        self.children.kill_overdue();
+        if self.last_node_scan.elapsed() >= NODE_SCAN {
+            self.last_node_scan = Instant::now();
+            self.clean_dead_nodes()?;
+        }
+        let Some((proc, status)) = self.children.take_exited() else {
             return Ok(None);
         };
+        let role = proc.role;
+        let cleaned = self.clean_dead_nodes()?;
+        if proc.retire_by.is_some() {
+            self.recorder.event(
+                "retired",
+                serde_json::json!({ "role": role.as_str(), "epoch": proc.epoch, "status": status.to_string() }),
+            )?;
+            return Ok(None);
+        }
+        if let Some(i) = self
+            .swaps
+            .iter()
+            .position(|s| s.role == role && s.epoch == proc.epoch)
+        {
+            let swap = self.swaps.remove(i);
+            self.fail_swap(swap, &format!("the replacement exited ({status})"))?;
+            return Ok(None);
+        }
         // A terminal's Ctrl-C reaches the whole process group: the children may see it a
         // moment before the orchestrator's handler runs.
         std::thread::sleep(Duration::from_millis(20));
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        let cleaned = ipc::cleanup_dead_nodes(&self.children.prefix).unwrap_or(0);
-        let role_name = role.as_str();
         self.recorder.event(
             "crashed",
-            serde_json::json!({ "role": role_name, "status": status.to_string(), "nodes_cleaned": cleaned }),
+            serde_json::json!({ "role": role.as_str(), "epoch": proc.epoch, "status": status.to_string(), "nodes_cleaned": cleaned }),
         )?;
+        if let Some(i) = self.swaps.iter().position(|s| s.role == role) {
+            // Its replacement is already running: it takes over at once.
+            let swap = self.swaps.remove(i);
+            self.complete_swap(swap, "promoted after the crash")?;
+            return Ok(None);
+        }
         let policy = &self.scenario.supervision;
         let restartable = role != Role::Plant
-            && self.mode == RunMode::Realtime
             && policy.restart == RestartPolicy::Always
             && self.restarts < policy.max_restarts;
         if !restartable {
             return Ok(Some(Outcome::Aborted));
         }
         self.restarts += 1;
-        self.session.activate(role, self.restarts)?;
-        let pid = self.children.spawn_role(role, self.restarts)?;
+        let epoch = self.take_epoch();
+        self.session.reschedule(|s| s.activate(role, epoch))?;
+        let pid = self.children.spawn_role(role, epoch, &[])?;
         self.recorder.event(
             "restarted",
-            serde_json::json!({ "role": role_name, "pid": pid, "epoch": self.restarts }),
+            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
         )?;
         Ok(None)
+    }
+
+    /// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
+    /// process that died while the process the orchestrator started for it lives on (a
+    /// wrapper script, say) is recorded, and that process is killed, so its exit is
+    /// handled as a crash. Returns how many nodes were cleaned.
+    fn clean_dead_nodes(&mut self) -> anyhow::Result<usize> {
+        let names = ipc::cleanup_dead_nodes(&self.children.prefix).unwrap_or_default();
+        for name in &names {
+            let Some((role, epoch)) = ipc::role_of_node(name) else {
+                continue;
+            };
+            // Not when the process it ran in is the child that exited: that is a crash
+            // noticed through its exit status.
+            if let Some(killed) = self.children.kill(role, epoch) {
+                self.recorder.event(
+                    "dead_node",
+                    serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
+                )?;
+            }
+        }
+        Ok(names.len())
+    }
+
+    fn take_epoch(&mut self) -> u32 {
+        self.next_epoch += 1;
+        self.next_epoch
+    }
+
+    /// Current tick: the next to record in lockstep, the wall clock's in real time.
+    fn now_tick(&self) -> u64 {
+        match self.mode {
+            RunMode::Lockstep => self.cursor,
+            RunMode::Realtime => {
+                let dt_ns =
+                    self.scenario.timing.ts_s / self.scenario.timing.inner_steps as f64 * 1e9;
+                (monotonic_ns().saturating_sub(self.start_ns) as f64 / dt_ns) as u64
+            }
+        }
+    }
+
+    /// Starts swaps that are due, takes live requests, and moves every swap on: a warm
+    /// replacement is scheduled to take over at a sample boundary [`SWITCH_LEAD_SAMPLES`]
+    /// ahead; once that tick is recorded the old process is retired.
+    fn supervise(&mut self) -> anyhow::Result<()> {
+        let time_s = self.cursor as f64 * self.scenario.timing.ts_s
+            / self.scenario.timing.inner_steps as f64;
+        let mut requests = Vec::new();
+        self.session.swap_requests.drain(|r, _| requests.push(r))?;
+        for r in requests {
+            match Role::from_code(r.role).filter(|role| *role != Role::Plant) {
+                Some(role) => self.scheduled.push(PendingSwap {
+                    time_s: 0.0,
+                    role,
+                    command: r.command(),
+                    request: Some(r.request_id),
+                }),
+                None => self.reply(r.request_id, None, "the plant cannot be swapped")?,
+            }
+        }
+        // One swap per role at a time: the next starts once the process replaced has exited.
+        while let Some(i) = self.scheduled.iter().position(|p| {
+            p.time_s <= time_s
+                && self.swaps.iter().all(|s| s.role != p.role)
+                && !self.children.retiring(p.role)
+        }) {
+            let p = self.scheduled.remove(i);
+            self.begin_swap(p.role, p.command, p.request)?;
+        }
+        let inner_steps = self.scenario.timing.inner_steps as u64;
+        let now_tick = self.now_tick();
+        let mut i = 0;
+        while i < self.swaps.len() {
+            let swap = &mut self.swaps[i];
+            let role = swap.role;
+            match swap.switch_tick {
+                None => {
+                    if let Some(t) = self.session.output_of(role).take_standby_newest() {
+                        let (first, _) = swap.heard.unwrap_or((t, t));
+                        swap.heard = Some((first, t));
+                    }
+                    let warm = swap.heard.is_some_and(|(first, newest)| {
+                        newest >= first + SWAP_WARMUP_SAMPLES * inner_steps
+                    });
+                    if warm {
+                        let newest = swap.heard.map_or(0, |h| h.1);
+                        let lead = now_tick.max(newest) + SWITCH_LEAD_SAMPLES * inner_steps;
+                        let tick = lead.div_ceil(inner_steps) * inner_steps;
+                        swap.switch_tick = Some(tick);
+                        let epoch = swap.epoch;
+                        self.session.reschedule(|s| s.schedule_switch(role, tick))?;
+                        self.recorder.event(
+                            "swap_scheduled",
+                            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "switch_tick": tick }),
+                        )?;
+                    } else if swap.started.elapsed() > SWAP_TIMEOUT {
+                        let swap = self.swaps.remove(i);
+                        self.fail_swap(
+                            swap,
+                            &format!(
+                                "the replacement published nothing usable within {SWAP_TIMEOUT:?}"
+                            ),
+                        )?;
+                        continue;
+                    }
+                }
+                Some(tick) if self.cursor > tick => {
+                    let swap = self.swaps.remove(i);
+                    self.complete_swap(swap, "switched")?;
+                    continue;
+                }
+                Some(_) => {}
+            }
+            i += 1;
+        }
+        Ok(())
+    }
+
+    /// Starts `command` (empty: the built-in process) as the replacement of `role`.
+    fn begin_swap(
+        &mut self,
+        role: Role,
+        command: Vec<String>,
+        request: Option<u64>,
+    ) -> anyhow::Result<()> {
+        let epoch = self.take_epoch();
+        let replaces = self.session.schedule.get().current(role);
+        self.session.reschedule(|s| s.announce(role, epoch))?;
+        let _ = self.session.output_of(role).take_standby_newest();
+        let shown = if command.is_empty() {
+            format!("scmpc {}", role.as_str())
+        } else {
+            command.join(" ")
+        };
+        match self.children.spawn_role(role, epoch, &command) {
+            Ok(pid) => {
+                self.recorder.event(
+                    "swap_started",
+                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "replaces": replaces, "pid": pid, "command": shown }),
+                )?;
+                self.swaps.push(Swap {
+                    role,
+                    epoch,
+                    replaces,
+                    pid,
+                    command: shown,
+                    started: Instant::now(),
+                    request,
+                    heard: None,
+                    switch_tick: None,
+                });
+                Ok(())
+            }
+            Err(e) => {
+                self.session.reschedule(|s| s.unschedule(role))?;
+                self.recorder.event(
+                    "swap_failed",
+                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "command": shown, "reason": format!("{e:#}") }),
+                )?;
+                match request {
+                    Some(id) => self.reply(id, None, &format!("{e:#}")),
+                    None => Ok(()),
+                }
+            }
+        }
+    }
+
+    /// The replacement has taken over (at its switch tick, or at once when the process it
+    /// replaces died): the old process is retired.
+    fn complete_swap(&mut self, swap: Swap, how: &str) -> anyhow::Result<()> {
+        let role = swap.role;
+        let old_pid = self.children.pid(role, swap.replaces);
+        if old_pid.is_some() {
+            self.children.retire(role, swap.replaces, STOP_TIMEOUT);
+        } else {
+            self.session.reschedule(|s| s.activate(role, swap.epoch))?;
+            if self.mode == RunMode::Lockstep {
+                // The loop may be waiting for a sample only the new producer can now give.
+                self.session.command(ControlCommand::Replay, 0, 0)?;
+            }
+        }
+        self.swaps_done += 1;
+        let tick = swap.switch_tick;
+        self.recorder.event(
+            "swapped",
+            serde_json::json!({
+                "role": role.as_str(), "from_epoch": swap.replaces, "to_epoch": swap.epoch,
+                "old_pid": old_pid, "new_pid": swap.pid, "switch_tick": tick, "how": how,
+                "warmup_s": swap.started.elapsed().as_secs_f64(),
+            }),
+        )?;
+        match swap.request {
+            Some(id) => self.reply(id, Some(&swap), how),
+            None => Ok(()),
+        }
+    }
+
+    /// Drops a replacement: the old process stays the producer; the replacement is
+    /// retired if it still runs.
+    fn fail_swap(&mut self, swap: Swap, reason: &str) -> anyhow::Result<()> {
+        let role = swap.role;
+        self.session.reschedule(|s| s.unschedule(role))?;
+        self.children.retire(role, swap.epoch, STOP_TIMEOUT);
+        if self.mode == RunMode::Lockstep && swap.switch_tick.is_some() {
+            // Samples of the old producer past the switch were skipped: have them again.
+            self.session.command(ControlCommand::Replay, 0, 0)?;
+        }
+        self.recorder.event(
+            "swap_failed",
+            serde_json::json!({ "role": role.as_str(), "epoch": swap.epoch, "command": swap.command, "reason": reason }),
+        )?;
+        match swap.request {
+            Some(id) => self.reply(id, None, reason),
+            None => Ok(()),
+        }
+    }
+
+    /// Answers a `scmpc swap` request: done with `swap`, or failed.
+    fn reply(&self, request_id: u64, swap: Option<&Swap>, message: &str) -> anyhow::Result<()> {
+        let reply = SwapReply {
+            request_id,
+            done: u32::from(swap.is_some()),
+            epoch: swap.map_or(0, |s| s.epoch),
+            switch_tick: swap.and_then(|s| s.switch_tick).unwrap_or(0),
+            ..SwapReply::default()
+        }
+        .with_message(message);
+        Ok(self.session.swap_replies.send(reply)?)
     }
 
     /// Records a whole tick; returns an outcome that ends the run.
@@ -373,6 +813,7 @@ impl Driver<'_> {
         );
         // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
         // recorded with an estimate of NaN.
+        self.ticks_without_estimate += u64::from(slot.estimate.is_none());
         let estimate = slot.estimate.unwrap_or(Estimate {
             state: [f64::NAN; 4],
             ..Estimate::default()
@@ -453,6 +894,8 @@ impl Driver<'_> {
             if let Some(outcome) = self.record(tick, slot)? {
                 return Ok(outcome);
             }
+            self.cursor = tick + 1;
+            self.supervise()?;
         }
         Ok(self.recorder.monitor.final_outcome())
     }
@@ -478,6 +921,7 @@ impl Driver<'_> {
             }
             self.pump(waitset)?;
             self.record_plans()?;
+            self.supervise()?;
             while next <= ticks {
                 let complete = self.slots.get(&next).is_some_and(|s| {
                     if next == ticks {
@@ -507,8 +951,39 @@ impl Driver<'_> {
                     return Ok(outcome);
                 }
                 next += 1;
+                self.cursor = next;
             }
         }
+    }
+}
+
+/// `run.json` of a run directory: how tools such as `scmpc swap` reach the running run.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+pub struct RunInfo {
+    pub iceoryx2_prefix: String,
+    pub orchestrator_pid: u32,
+    pub mode: String,
+}
+
+impl RunInfo {
+    pub const FILE: &'static str = "run.json";
+
+    fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        let path = dir.join(Self::FILE);
+        std::fs::write(&path, serde_json::to_string_pretty(self)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))
+    }
+
+    pub fn read(dir: &Path) -> anyhow::Result<RunInfo> {
+        let path = dir.join(Self::FILE);
+        let text = std::fs::read_to_string(&path).with_context(|| {
+            format!(
+                "reading {} (is it the directory of a multi-process run?)",
+                path.display()
+            )
+        })?;
+        serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a run description", path.display()))
     }
 }
 
@@ -531,6 +1006,12 @@ pub fn run(
     }
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    RunInfo {
+        iceoryx2_prefix: prefix.to_string(),
+        orchestrator_pid: std::process::id(),
+        mode: mode_name(mode).to_string(),
+    }
+    .write(out)?;
     let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
     if let Err(e) = ipc::remove_run_resources(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
@@ -540,13 +1021,9 @@ pub fn run(
         .iter()
         .map(|p| p.display().to_string())
         .collect();
-    let mode_name = match mode {
-        RunMode::Lockstep => "lockstep",
-        RunMode::Realtime => "realtime",
-    };
     Ok(recorder.finish(
         scenario,
-        mode_name,
+        mode_name(mode),
         outcome,
         started.elapsed().as_secs_f64(),
         Some(report),
@@ -572,11 +1049,11 @@ fn drive(
     report
         .pids
         .insert("orchestrator".into(), std::process::id());
-    for (role, child) in &children.list {
-        report.pids.insert(role.as_str().into(), child.id());
+    for p in &children.list {
+        report.pids.insert(p.role.as_str().into(), p.child.id());
         recorder.event(
             "spawned",
-            serde_json::json!({ "role": role.as_str(), "pid": child.id() }),
+            serde_json::json!({ "role": p.role.as_str(), "pid": p.child.id() }),
         )?;
     }
 
@@ -611,27 +1088,63 @@ fn drive(
             record_gaps: 0,
             restarts: 0,
             rejected: BTreeMap::new(),
+            next_epoch: 0,
+            cursor: 0,
+            scheduled: scheduled_swaps(scenario),
+            swaps: Vec::new(),
+            swaps_done: 0,
+            ticks_without_estimate: 0,
+            last_node_scan: Instant::now(),
         };
         let outcome = match mode {
             RunMode::Lockstep => driver.lockstep(&waitset),
             RunMode::Realtime => driver.realtime(&waitset),
         };
         let outcome = outcome.and_then(|o| driver.record_plans().map(|()| o));
+        for swap in std::mem::take(&mut driver.swaps) {
+            driver.fail_swap(swap, "the run ended before the switch")?;
+        }
+        for pending in std::mem::take(&mut driver.scheduled) {
+            if let Some(id) = pending.request {
+                driver.reply(id, None, "the run ended before the swap could start")?;
+            }
+        }
         driver.latencies.report(&mut report);
         report.record_gaps = driver.record_gaps;
+        report.ticks_without_estimate = driver.ticks_without_estimate;
+        report.restarts = driver.restarts;
+        report.swaps = driver.swaps_done;
         report.rejected_samples = std::mem::take(&mut driver.rejected);
         outcome
     });
     // Stop every process whatever happened, then release the orchestrator's own ports.
     let _ = session.command(ControlCommand::Stop, 0, 0);
-    for (role, status, killed) in children.shut_down(STOP_TIMEOUT) {
+    for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
         recorder.event(
             "exited",
-            serde_json::json!({ "role": role.as_str(), "status": status, "killed": killed }),
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
         )?;
     }
     drop(guards);
     Ok((outcome?, report))
+}
+
+/// The scenario's `[[swap]]` entries, earliest first (validated: the roles are swappable).
+fn scheduled_swaps(scenario: &Scenario) -> Vec<PendingSwap> {
+    let mut swaps: Vec<_> = scenario
+        .swap
+        .iter()
+        .filter_map(|s| {
+            Some(PendingSwap {
+                time_s: s.time_s,
+                role: s.swappable_role()?,
+                command: s.command.clone(),
+                request: None,
+            })
+        })
+        .collect();
+    swaps.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+    swaps
 }
 
 /// Waits until every role has reported ready.
@@ -644,10 +1157,10 @@ fn wait_until_ready(
     let deadline = Instant::now() + READY_TIMEOUT;
     let mut ready = [false; 4];
     while !ready.iter().all(|r| *r) {
-        if let Some((role, status)) = children.take_exited() {
+        if let Some((p, status)) = children.take_exited() {
             bail!(
                 "the {} process exited before it was ready ({status})",
-                role.as_str()
+                p.role.as_str()
             );
         }
         if stop.load(Ordering::Relaxed) {

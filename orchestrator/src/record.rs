@@ -98,6 +98,12 @@ pub struct ProcessReport {
     pub loop_latency_us: Percentiles,
     /// Ticks the recorder never received whole (real time only; lockstep waits).
     pub record_gaps: u64,
+    /// Ticks commanded without an estimate (the DFL braking on its own clock).
+    pub ticks_without_estimate: u64,
+    /// Processes restarted after a crash.
+    pub restarts: u32,
+    /// Swap-in replacements that took over (details in events.jsonl).
+    pub swaps: u32,
     /// Samples refused by the consumers (non-finite, tick backwards, wrong run, wrong
     /// epoch), by reason; never applied.
     pub rejected_samples: BTreeMap<String, u64>,
@@ -239,6 +245,8 @@ pub struct Recorder {
     deadline_misses: u64,
     miss_streak: u64,
     longest_miss_streak: u64,
+    /// Newest sample judged (a replayed verdict is not counted twice).
+    last_judged: Option<u64>,
     solver_failures: u64,
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
@@ -262,7 +270,7 @@ impl Recorder {
         let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
         writeln!(
             plans,
-            "sample,t,status,solve_us,injected_delay_us,iterations,solves,arrival_ms,deadline_met,fallback,v1,v2"
+            "sample,t,status,solve_us,injected_delay_us,iterations,solves,arrival_ms,deadline_met,fallback,v1,v2,horizon,mpc_epoch"
         )?;
         let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
@@ -277,6 +285,7 @@ impl Recorder {
             deadline_misses: 0,
             miss_streak: 0,
             longest_miss_streak: 0,
+            last_judged: None,
             solver_failures: 0,
             pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
@@ -368,6 +377,10 @@ impl Recorder {
     /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row, and on a
     /// miss counts it and writes a `deadline_miss` event.
     pub fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {
+        if self.last_judged.is_some_and(|last| v.sample <= last) {
+            return Ok(());
+        }
+        self.last_judged = Some(v.sample);
         let met = v.met != 0;
         let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
         let status = match v.status {
@@ -414,9 +427,13 @@ impl Recorder {
     ) -> std::io::Result<()> {
         let opt = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x:.3}"));
         let p = plan.copied().unwrap_or_default();
+        // Which MPC made the plan (it changes with a swap or a restart).
+        let producer = plan.map_or(String::from(","), |p| {
+            format!("{},{}", p.horizon, p.header.epoch)
+        });
         writeln!(
             self.plans,
-            "{sample},{:.4},{status},{:.1},{:.1},{},{},{},{},{fallback},{},{}",
+            "{sample},{:.4},{status},{:.1},{:.1},{},{},{},{},{fallback},{},{},{producer}",
             p.header.time_s,
             p.solve_ns as f64 / 1e3,
             p.injected_delay_ns as f64 / 1e3,

@@ -75,3 +75,37 @@ mod tests {
         assert_eq!(noisy, expected);
     }
 }
+
+/// Checks that the program of every `[[swap]]` command can be started: `scmpc` (this
+/// executable), a path that exists, or a name found in `PATH`.
+pub fn check_swap_programs(scenario: &Scenario) -> Result<(), ScenarioErrors> {
+    let errors: Vec<ScenarioError> = scenario
+        .swap
+        .iter()
+        .enumerate()
+        .filter_map(|(i, swap)| {
+            let program = swap.command.first()?;
+            (!program_exists(program)).then(|| ScenarioError {
+                origin: "scenario".into(),
+                key: format!("swap.{i}.command"),
+                message: format!("program `{program}` not found"),
+            })
+        })
+        .collect();
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(ScenarioErrors(errors))
+    }
+}
+
+fn program_exists(program: &str) -> bool {
+    if program == "scmpc" {
+        return true;
+    }
+    if program.contains('/') {
+        return Path::new(program).is_file();
+    }
+    std::env::var_os("PATH")
+        .is_some_and(|path| std::env::split_paths(&path).any(|dir| dir.join(program).is_file()))
+}

@@ -48,6 +48,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         if !link.housekeeping(&mut ctl, &[&actuation])? {
             return Ok(());
         }
+        if ctl.take_replay() {
+            truth.replay()?;
+            measurement.replay()?;
+        }
         actuation.take(|a, _| {
             if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
                 latest = Some(a);
@@ -71,7 +75,12 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 if let Some(start_ns) = ctl.start_ns {
                     let deadline = start_ns + (tick as f64 * dt * 1e9) as u64;
                     sleep_until_ns(deadline);
-                    actuation.drain(|a, _| latest = Some(a))?;
+                    link.sync(&mut ctl, &[&actuation])?;
+                    actuation.drain(|a, _| {
+                        if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
+                            latest = Some(a);
+                        }
+                    })?;
                     if tick > 0 {
                         // Hold the newest actuation; with none yet, stand still.
                         let [u1, u2] = latest.map_or([0.0; 2], |a| [a.u1, a.u2]);

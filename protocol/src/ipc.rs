@@ -6,8 +6,8 @@
 //! block in a WaitSet on the listener instead of spinning.
 
 use crate::clock::monotonic_ns;
-use crate::messages::Message;
-use crate::messages::Rejection;
+use crate::messages::{EpochSchedule, EpochVerdict, Message, Rejection};
+use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -32,9 +32,14 @@ pub const DEADLINE: &str = "deadline";
 pub const CONTROL: &str = "control";
 /// Processes to orchestrator: ready, input lost.
 pub const STATUS: &str = "status";
+/// `scmpc swap` to orchestrator: live swap requests.
+pub const SWAP: &str = "swap";
+/// Orchestrator to `scmpc swap`: how a requested swap ended.
+pub const SWAP_REPLY: &str = "swap_reply";
 
-/// Publishers a topic admits: the active producer, a swap-in replacement, and spares.
-pub const MAX_PUBLISHERS: usize = 4;
+/// Publishers a topic admits. The status topic has the most: a process of each role, a
+/// replacement per swappable role, and a process that is still retiring.
+pub const MAX_PUBLISHERS: usize = 8;
 pub const MAX_SUBSCRIBERS: usize = 8;
 /// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
 pub const SUBSCRIBER_BUFFER: usize = 64;
@@ -68,13 +73,19 @@ pub fn run_id(prefix: &[u8]) -> u32 {
 
 /// The iceoryx2 configuration of a run: iceoryx2's built-in defaults (no config file is
 /// read, so every process of every machine agrees) with the run's prefix, so runs never
-/// share a resource.
+/// share a resource. One change: nodes do not clean up after dead nodes when they are
+/// created or dropped or open a service; the orchestrator alone does
+/// ([`cleanup_dead_nodes`]), so it sees every death (another process cleaning first would
+/// hide it).
 pub fn run_config(prefix: &str) -> Result<Config, IpcError> {
     // Only iceoryx2's errors are worth showing next to ours.
     set_log_level(LogLevel::Error);
     let mut config = Config::default();
     config.global.prefix =
         FileName::new(prefix.as_bytes()).map_err(ctx(format!("prefix `{prefix}`")))?;
+    config.global.node.cleanup_dead_nodes_on_creation = false;
+    config.global.node.cleanup_dead_nodes_on_destruction = false;
+    config.global.service.cleanup_dead_nodes_on_open = false;
     Ok(config)
 }
 
@@ -153,6 +164,7 @@ impl<T: Message> Topic<T> {
                 .map_err(ctx(format!("notifier on `{}`", self.name)))?,
             epoch,
             run_id: self.run_id,
+            last: Cell::new(None),
         })
     }
 
@@ -183,9 +195,10 @@ impl<T: Message> Topic<T> {
                 .map_err(ctx(format!("listener on `{}`", self.name)))?,
             run_id: self.run_id,
             producer,
-            expected_epoch: Cell::new(0),
+            schedule: Cell::new(None),
             last_tick: Cell::new(None),
             rejected: Cell::new([0; 4]),
+            standby_newest: Cell::new(None),
             _payload: PhantomData,
         })
     }
@@ -197,6 +210,8 @@ pub struct Sender<T: Message> {
     notifier: Notifier<ipc::Service>,
     epoch: u32,
     run_id: u32,
+    /// The newest sample sent, for [`Sender::replay`].
+    last: Cell<Option<T>>,
 }
 
 impl<T: Message> Sender<T> {
@@ -206,11 +221,21 @@ impl<T: Message> Sender<T> {
         header.epoch = self.epoch;
         header.run_id = self.run_id;
         header.publish_ns = monotonic_ns();
+        self.last.set(Some(message));
         self.publisher
             .send_copy(message)
             .map_err(ctx("publishing"))?;
         self.notifier.notify().map_err(ctx("notifying"))?;
         Ok(())
+    }
+
+    /// Publishes the newest sample again (same tick, fresh publish time), if there is one:
+    /// the answer to [`ControlCommand::Replay`](crate::ControlCommand::Replay).
+    pub fn replay(&self) -> Result<(), IpcError> {
+        match self.last.get() {
+            Some(message) => self.send(message),
+            None => Ok(()),
+        }
     }
 }
 
@@ -219,12 +244,16 @@ pub struct Receiver<T: Message> {
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
     run_id: u32,
-    /// Role whose active epoch is checked (`None`: any epoch, no tick order).
+    /// Role whose producer epoch is checked (`None`: any epoch, no tick order).
     producer: Option<crate::Role>,
-    expected_epoch: Cell<u32>,
+    /// Which epoch of `producer` to take; `None` until the orchestrator has said (a
+    /// process that joins a running run takes nothing before that).
+    schedule: Cell<Option<EpochSchedule>>,
     last_tick: Cell<Option<u64>>,
     /// Refused samples by [`Rejection`] code, since last taken.
     rejected: Cell<[u64; 4]>,
+    /// Newest tick heard from a producer being swapped in or out (not taken).
+    standby_newest: Cell<Option<u64>>,
     _payload: PhantomData<T>,
 }
 
@@ -236,6 +265,9 @@ impl<T: Message> Receiver<T> {
     /// The next acceptable sample, if any, with its publish-to-receipt latency in ns.
     /// Refused samples are counted and skipped.
     pub fn receive(&self) -> Result<Option<(T, u64)>, IpcError> {
+        if self.producer.is_some() && self.schedule.get().is_none() {
+            return Ok(None);
+        }
         loop {
             let Some(sample) = self.subscriber.receive().map_err(ctx("receiving"))? else {
                 return Ok(None);
@@ -243,7 +275,12 @@ impl<T: Message> Receiver<T> {
             let message = *sample.payload();
             let latency = monotonic_ns().saturating_sub(message.header().publish_ns);
             match self.check(&message) {
-                Ok(()) => return Ok(Some((message, latency))),
+                Ok(EpochVerdict::Take) => return Ok(Some((message, latency))),
+                Ok(_) => {
+                    let tick = message.header().tick;
+                    self.standby_newest
+                        .set(self.standby_newest.get().max(Some(tick)));
+                }
                 Err(reason) => {
                     let mut counts = self.rejected.get();
                     counts[reason as usize] += 1;
@@ -253,31 +290,51 @@ impl<T: Message> Receiver<T> {
         }
     }
 
-    /// The border check of DESIGN.md section 4, in one place.
-    fn check(&self, message: &T) -> Result<(), Rejection> {
+    /// The border check of DESIGN.md section 4, in one place. A sample of a producer
+    /// being swapped in or out is [`EpochVerdict::Standby`]: skipped, not an error.
+    fn check(&self, message: &T) -> Result<EpochVerdict, Rejection> {
         let h = message.header();
         if h.run_id != self.run_id {
             return Err(Rejection::WrongRun);
         }
-        if self.producer.is_some() && h.epoch != self.expected_epoch.get() {
-            return Err(Rejection::WrongEpoch);
+        let (Some(role), Some(schedule)) = (self.producer, self.schedule.get()) else {
+            return if message.all_finite() {
+                Ok(EpochVerdict::Take)
+            } else {
+                Err(Rejection::NonFinite)
+            };
+        };
+        match schedule.judge(role, h.epoch, h.tick) {
+            EpochVerdict::Take => {}
+            EpochVerdict::Standby => return Ok(EpochVerdict::Standby),
+            EpochVerdict::Reject => return Err(Rejection::WrongEpoch),
         }
         if !message.all_finite() {
             return Err(Rejection::NonFinite);
         }
-        if self.producer.is_some() {
-            if self.last_tick.get().is_some_and(|last| h.tick < last) {
-                return Err(Rejection::TickBackwards);
-            }
-            self.last_tick.set(Some(h.tick));
+        if self.last_tick.get().is_some_and(|last| h.tick < last) {
+            return Err(Rejection::TickBackwards);
         }
-        Ok(())
+        self.last_tick.set(Some(h.tick));
+        Ok(EpochVerdict::Take)
     }
 
-    /// Takes samples only from `epoch` of the producer role from now on. A new epoch is a
-    /// new producer, whose ticks are checked afresh.
-    pub fn expect_epoch(&self, epoch: u32) {
-        if self.expected_epoch.replace(epoch) != epoch {
+    /// Takes samples by `schedule` from now on. When the producers of the role change,
+    /// ticks are checked afresh.
+    pub fn follow(&self, schedule: EpochSchedule) {
+        let Some(role) = self.producer else {
+            return;
+        };
+        let r = role as usize;
+        let changed = self.schedule.replace(Some(schedule)).is_none_or(|old| {
+            (old.active[r], old.next[r], old.switch_tick[r])
+                != (
+                    schedule.active[r],
+                    schedule.next[r],
+                    schedule.switch_tick[r],
+                )
+        });
+        if changed {
             self.last_tick.set(None);
         }
     }
@@ -298,9 +355,12 @@ pub trait Input {
     fn clear_wakeups(&self);
     /// The producer role whose active epoch the input takes.
     fn producer(&self) -> Option<crate::Role>;
-    fn expect_epoch(&self, epoch: u32);
+    fn follow(&self, schedule: EpochSchedule);
     /// Refused samples by [`Rejection`] code since the last call.
     fn take_rejections(&self) -> [u64; 4];
+    /// Newest tick published by the replacement (or the retiring producer) of the role and
+    /// not taken, since the last call: how the orchestrator sees a replacement warm up.
+    fn take_standby_newest(&self) -> Option<u64>;
 }
 
 impl<T: Message> Input for Receiver<T> {
@@ -310,11 +370,14 @@ impl<T: Message> Input for Receiver<T> {
     fn producer(&self) -> Option<crate::Role> {
         self.producer
     }
-    fn expect_epoch(&self, epoch: u32) {
-        Receiver::expect_epoch(self, epoch);
+    fn follow(&self, schedule: EpochSchedule) {
+        Receiver::follow(self, schedule);
     }
     fn take_rejections(&self) -> [u64; 4] {
         self.rejected.replace([0; 4])
+    }
+    fn take_standby_newest(&self) -> Option<u64> {
+        self.standby_newest.take()
     }
 }
 
@@ -368,22 +431,38 @@ fn signal_mode(handle_signals: bool) -> SignalHandlingMode {
 }
 
 /// Removes what dead nodes of the run left behind (their shared memory, their ports in
-/// every service). Returns how many nodes were cleaned.
-pub fn cleanup_dead_nodes(prefix: &str) -> Result<usize, IpcError> {
+/// every service): iceoryx2's dead-node detection, which sees a process die whoever
+/// started it. Returns the names of the nodes cleaned.
+pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
     let config = run_config(prefix)?;
     let mut dead = Vec::new();
     Node::<ipc::Service>::list(&config, |state| {
-        if let NodeState::Dead(view) = state {
-            dead.push(view);
+        match state {
+            NodeState::Dead(view) => dead.push(view),
+            NodeState::Alive(_) => {}
+            // Inaccessible or inconsistent: nothing this process can clean.
+            _ => {}
         }
         CallbackProgression::Continue
     })
     .map_err(ctx("listing nodes"))?;
-    let count = dead.len();
+    let mut names = Vec::with_capacity(dead.len());
     for view in dead {
-        let _ = view.try_remove_stale_resources();
+        let name = view
+            .details()
+            .as_ref()
+            .map_or_else(String::new, |d| d.name().as_str().to_string());
+        if view.try_remove_stale_resources().is_ok() {
+            names.push(name);
+        }
     }
-    Ok(count)
+    Ok(names)
+}
+
+/// The role and epoch of a role process's node, from its name (`<role>-<epoch>`).
+pub fn role_of_node(name: &str) -> Option<(crate::Role, u32)> {
+    let (role, epoch) = name.rsplit_once('-')?;
+    Some((crate::Role::from_name(role)?, epoch.parse().ok()?))
 }
 
 /// Removes every resource of a finished run: dead nodes' leftovers and, once no node of
@@ -524,8 +603,37 @@ pub struct ControlState {
     /// Real-time tick 0, monotonic ns.
     pub start_ns: Option<u64>,
     pub stopped: bool,
-    /// Active producer epoch of each role (by role code).
-    pub epochs: [u32; 4],
+    /// A replay was asked for and not yet done (see [`ControlState::take_replay`]).
+    pub replay: bool,
+    /// The newest epoch schedule (`None` before the first control message).
+    pub schedule: Option<EpochSchedule>,
+}
+
+impl ControlState {
+    /// Whether a process of `role` with `epoch` is the one whose samples of `tick` are
+    /// taken (false before the orchestrator has said, and while warming up as a
+    /// replacement).
+    pub fn producing(&self, role: crate::Role, epoch: u32, tick: u64) -> bool {
+        self.schedule
+            .is_some_and(|s| s.producer_at(role, tick) == epoch)
+    }
+
+    /// Takes one control message.
+    fn apply(&mut self, c: &crate::Control, latency_ns: u64) {
+        self.schedule = Some(c.epochs);
+        match c.command() {
+            Some(crate::ControlCommand::Grant) => self.granted = Some((c.header.tick, latency_ns)),
+            Some(crate::ControlCommand::Start) => self.start_ns = Some(c.start_ns),
+            Some(crate::ControlCommand::Stop) => self.stopped = true,
+            Some(crate::ControlCommand::Replay) => self.replay = true,
+            Some(crate::ControlCommand::Epochs) | None => {}
+        }
+    }
+
+    /// Whether to replay every output now (once per request).
+    pub fn take_replay(&mut self) -> bool {
+        std::mem::take(&mut self.replay)
+    }
 }
 
 impl Link {
@@ -562,23 +670,27 @@ impl Link {
 
     /// Takes every pending control message into `state`.
     pub fn poll_control(&self, state: &mut ControlState) -> Result<(), IpcError> {
-        self.control.drain(|c, latency| {
-            state.epochs = c.epochs;
-            match c.command() {
-                Some(crate::ControlCommand::Grant) => {
-                    state.granted = Some((c.header.tick, latency))
-                }
-                Some(crate::ControlCommand::Start) => state.start_ns = Some(c.start_ns),
-                Some(crate::ControlCommand::Stop) => state.stopped = true,
-                Some(crate::ControlCommand::Epochs) | None => {}
+        self.control.drain(|c, latency| state.apply(&c, latency))
+    }
+
+    /// Hot path, before taking inputs: takes pending control messages straight from
+    /// shared memory (no system call) and applies a changed epoch schedule to `inputs`, so
+    /// no sample is judged by a schedule older than the newest one sent before it.
+    pub fn sync(&self, ctl: &mut ControlState, inputs: &[&dyn Input]) -> Result<(), IpcError> {
+        let before = ctl.schedule;
+        self.control.take(|c, latency| ctl.apply(&c, latency))?;
+        if let Some(schedule) = ctl.schedule.filter(|s| Some(*s) != before) {
+            for input in inputs {
+                input.follow(schedule);
             }
-        })
+        }
+        Ok(())
     }
 
     /// After publishing: consumes the wake-ups of `inputs` and takes pending control
     /// messages. The caller must take its inputs once more before it blocks (a sample
     /// may have come just before the wake-ups were consumed). `Ok(false)`: stop.
-    /// Also applies the active epochs and reports refused samples to the orchestrator.
+    /// Also applies the epoch schedule and reports refused samples to the orchestrator.
     pub fn housekeeping(
         &self,
         ctl: &mut ControlState,
@@ -589,8 +701,8 @@ impl Link {
         }
         self.poll_control(ctl)?;
         for input in inputs {
-            if let Some(role) = input.producer() {
-                input.expect_epoch(ctl.epochs[role as usize]);
+            if let Some(schedule) = ctl.schedule {
+                input.follow(schedule);
             }
             for (code, count) in input.take_rejections().into_iter().enumerate() {
                 if count > 0 {

@@ -258,8 +258,12 @@ pub enum ControlCommand {
     Start = 1,
     /// The run is over: exit cleanly.
     Stop = 2,
-    /// Only the active epochs changed (a replacement process was started).
+    /// Only the epoch schedule changed (a process was restarted or is being swapped).
     Epochs = 3,
+    /// Every producer publishes its newest sample of each output again, so a process that
+    /// joined a running loop (a restart, a replacement) gets what it missed; consumers
+    /// skip ticks they have already handled.
+    Replay = 4,
 }
 
 /// The orchestrator's clock and commands.
@@ -273,8 +277,112 @@ pub struct Control {
     pub reserved: u32,
     /// Monotonic time of tick 0 (real time), ns.
     pub start_ns: u64,
-    /// Active producer epoch of each [`Role`] (by its code): consumers take only these.
-    pub epochs: [u32; 4],
+    /// Which producer of each role consumers take, tick by tick.
+    pub epochs: EpochSchedule,
+}
+
+/// Which producer epoch of each [`Role`] (indexed by its code) consumers take, tick by
+/// tick (DESIGN.md section 5). A swap-in replacement is announced as `next` while it warms
+/// up: its samples are neither used nor counted as rejected. Once `switch_tick` is set,
+/// samples of ticks before it are taken from `active` and from it on from `next`, so the
+/// hand-over happens at one sample boundary in every process alike. The schedule stays so
+/// after the swap: the old producer's late samples are skipped, not rejected.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[type_name("scmpc::EpochSchedule")]
+pub struct EpochSchedule {
+    pub active: [u32; 4],
+    /// The replacement being started, or the same as `active` when there is none.
+    pub next: [u32; 4],
+    /// First tick taken from `next`; [`SWITCH_UNSCHEDULED`] while it warms up.
+    pub switch_tick: [u64; 4],
+}
+
+/// `switch_tick` of a replacement that is still warming up.
+pub const SWITCH_UNSCHEDULED: u64 = u64::MAX;
+
+/// What a consumer does with a sample of a given producer epoch and tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EpochVerdict {
+    Take,
+    /// From a producer being swapped in (before its switch) or out (after it): not used,
+    /// not an error.
+    Standby,
+    Reject,
+}
+
+impl Default for EpochSchedule {
+    /// Epoch 0 of every role, no replacement.
+    fn default() -> Self {
+        EpochSchedule {
+            active: [0; 4],
+            next: [0; 4],
+            switch_tick: [SWITCH_UNSCHEDULED; 4],
+        }
+    }
+}
+
+impl EpochSchedule {
+    /// The producer epoch whose samples of `tick` are taken.
+    pub fn producer_at(&self, role: Role, tick: u64) -> u32 {
+        let r = role as usize;
+        if tick >= self.switch_tick[r] {
+            self.next[r]
+        } else {
+            self.active[r]
+        }
+    }
+
+    /// How a consumer treats a sample of `role` from `epoch` for `tick`.
+    pub fn judge(&self, role: Role, epoch: u32, tick: u64) -> EpochVerdict {
+        let r = role as usize;
+        if epoch == self.producer_at(role, tick) {
+            EpochVerdict::Take
+        } else if epoch == self.active[r] || epoch == self.next[r] {
+            EpochVerdict::Standby
+        } else {
+            EpochVerdict::Reject
+        }
+    }
+
+    /// Makes `epoch` the only producer of `role`, for every tick (start, restart, or the
+    /// end of a swap).
+    pub fn activate(&mut self, role: Role, epoch: u32) {
+        let r = role as usize;
+        self.active[r] = epoch;
+        self.next[r] = epoch;
+        self.switch_tick[r] = SWITCH_UNSCHEDULED;
+    }
+
+    /// The epoch producing the newest ticks of `role`.
+    pub fn current(&self, role: Role) -> u32 {
+        let r = role as usize;
+        if self.switch_tick[r] == SWITCH_UNSCHEDULED {
+            self.active[r]
+        } else {
+            self.next[r]
+        }
+    }
+
+    /// Announces `epoch` as the replacement of the current producer of `role`, warming up.
+    /// (The producer an earlier swap replaced is forgotten: its samples are rejected.)
+    pub fn announce(&mut self, role: Role, epoch: u32) {
+        let r = role as usize;
+        self.active[r] = self.current(role);
+        self.next[r] = epoch;
+        self.switch_tick[r] = SWITCH_UNSCHEDULED;
+    }
+
+    /// Takes the replacement of `role` from `tick` on.
+    pub fn schedule_switch(&mut self, role: Role, tick: u64) {
+        self.switch_tick[role as usize] = tick;
+    }
+
+    /// Calls off the switch of `role`: the active producer stays; the replacement's
+    /// samples are still skipped, not rejected, as it may have some in flight.
+    pub fn unschedule(&mut self, role: Role) {
+        self.switch_tick[role as usize] = SWITCH_UNSCHEDULED;
+    }
 }
 
 impl Control {
@@ -284,6 +392,7 @@ impl Control {
             1 => ControlCommand::Start,
             2 => ControlCommand::Stop,
             3 => ControlCommand::Epochs,
+            4 => ControlCommand::Replay,
             _ => return None,
         })
     }
@@ -303,6 +412,9 @@ impl Role {
     pub const ALL: [Role; 4] = [Role::Plant, Role::Estimator, Role::Mpc, Role::Dfl];
     pub fn from_code(code: u32) -> Option<Role> {
         Role::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+    pub fn from_name(name: &str) -> Option<Role> {
+        Role::ALL.into_iter().find(|r| r.as_str() == name)
     }
     pub fn as_str(self) -> &'static str {
         match self {
@@ -368,6 +480,126 @@ pub struct Status {
     pub count: u64,
 }
 
+/// Longest command line a live swap request carries, bytes (arguments NUL-terminated).
+pub const MAX_COMMAND_BYTES: usize = 1024;
+/// Longest message of a swap reply, bytes.
+pub const MAX_REPLY_BYTES: usize = 256;
+
+/// `scmpc swap` to the orchestrator: replace `role` by a process started with `command`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::SwapRequest")]
+pub struct SwapRequest {
+    pub header: Header,
+    /// Chosen by the requester; the reply carries it back.
+    pub request_id: u64,
+    /// [`Role`] code.
+    pub role: u32,
+    /// Bytes of `command` used.
+    pub command_len: u32,
+    /// Program and arguments, each NUL-terminated; empty: the built-in process of the role.
+    pub command: [u8; MAX_COMMAND_BYTES],
+}
+
+impl Default for SwapRequest {
+    fn default() -> Self {
+        SwapRequest {
+            header: Header::default(),
+            request_id: 0,
+            role: 0,
+            command_len: 0,
+            command: [0; MAX_COMMAND_BYTES],
+        }
+    }
+}
+
+impl SwapRequest {
+    /// A request; `None` if the command line does not fit in [`MAX_COMMAND_BYTES`] or an
+    /// argument holds a NUL byte.
+    pub fn new(request_id: u64, role: Role, command: &[String]) -> Option<SwapRequest> {
+        let mut request = SwapRequest {
+            request_id,
+            role: role as u32,
+            ..SwapRequest::default()
+        };
+        let mut at = 0;
+        for arg in command {
+            let bytes = arg.as_bytes();
+            if bytes.contains(&0) || at + bytes.len() + 1 > MAX_COMMAND_BYTES {
+                return None;
+            }
+            request.command[at..at + bytes.len()].copy_from_slice(bytes);
+            at += bytes.len() + 1;
+        }
+        request.command_len = at as u32;
+        Some(request)
+    }
+
+    /// The command's program and arguments.
+    pub fn command(&self) -> Vec<String> {
+        let len = (self.command_len as usize).min(MAX_COMMAND_BYTES);
+        self.command[..len]
+            .strip_suffix(&[0])
+            .map_or_else(Vec::new, |args| {
+                args.split(|b| *b == 0)
+                    .map(|arg| String::from_utf8_lossy(arg).into_owned())
+                    .collect()
+            })
+    }
+}
+
+/// The orchestrator's answer to a [`SwapRequest`], once the swap is done or has failed.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::SwapReply")]
+pub struct SwapReply {
+    pub header: Header,
+    pub request_id: u64,
+    /// 1: the replacement is active; 0: the swap failed, the old process still runs.
+    pub done: u32,
+    /// Epoch of the replacement.
+    pub epoch: u32,
+    /// First tick taken from the replacement.
+    pub switch_tick: u64,
+    pub message_len: u32,
+    pub reserved: u32,
+    /// What happened, UTF-8.
+    pub message: [u8; MAX_REPLY_BYTES],
+}
+
+impl Default for SwapReply {
+    fn default() -> Self {
+        SwapReply {
+            header: Header::default(),
+            request_id: 0,
+            done: 0,
+            epoch: 0,
+            switch_tick: 0,
+            message_len: 0,
+            reserved: 0,
+            message: [0; MAX_REPLY_BYTES],
+        }
+    }
+}
+
+impl SwapReply {
+    /// Sets the message, cut to [`MAX_REPLY_BYTES`] at a character boundary.
+    pub fn with_message(mut self, text: &str) -> SwapReply {
+        let mut end = text.len().min(MAX_REPLY_BYTES);
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        self.message[..end].copy_from_slice(&text.as_bytes()[..end]);
+        self.message_len = end as u32;
+        self
+    }
+
+    pub fn message(&self) -> String {
+        let len = (self.message_len as usize).min(MAX_REPLY_BYTES);
+        String::from_utf8_lossy(&self.message[..len]).into_owned()
+    }
+}
+
 /// Every message type: access to its [`Header`].
 pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
     fn header(&self) -> &Header;
@@ -409,4 +641,65 @@ impl_message!(
     DeadlineVerdict => |_m| true,
     Control => |_m| true,
     Status => |_m| true,
+    SwapRequest => |_m| true,
+    SwapReply => |_m| true,
 );
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_replacement_is_standby_while_warming_and_takes_over_at_its_switch_tick() {
+        let mut s = EpochSchedule::default();
+        assert_eq!(s.judge(Role::Mpc, 0, 100), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 7, 100), EpochVerdict::Reject);
+        s.announce(Role::Mpc, 1);
+        assert_eq!(s.judge(Role::Mpc, 0, 100), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 1, 100), EpochVerdict::Standby);
+        s.schedule_switch(Role::Mpc, 200);
+        assert_eq!(s.judge(Role::Mpc, 0, 199), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 1, 199), EpochVerdict::Standby);
+        assert_eq!(s.judge(Role::Mpc, 1, 200), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 0, 200), EpochVerdict::Standby);
+        // Other roles are untouched.
+        assert_eq!(s.judge(Role::Estimator, 1, 200), EpochVerdict::Reject);
+        // The next swap replaces the producer of the newest ticks.
+        assert_eq!(s.current(Role::Mpc), 1);
+        s.announce(Role::Mpc, 2);
+        assert_eq!(s.judge(Role::Mpc, 1, 500), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 0, 500), EpochVerdict::Reject);
+        s.schedule_switch(Role::Mpc, 600);
+        s.unschedule(Role::Mpc);
+        assert_eq!(s.judge(Role::Mpc, 1, 700), EpochVerdict::Take);
+        assert_eq!(s.judge(Role::Mpc, 2, 700), EpochVerdict::Standby);
+        s.activate(Role::Mpc, 3);
+        assert_eq!(s.judge(Role::Mpc, 1, 700), EpochVerdict::Reject);
+        assert_eq!(s.judge(Role::Mpc, 3, 0), EpochVerdict::Take);
+    }
+
+    #[test]
+    fn a_swap_request_carries_its_command_line_exactly() {
+        let command: Vec<String> = ["scmpc", "mpc", "--set", "mpc.horizon=10", ""]
+            .map(String::from)
+            .to_vec();
+        let request = SwapRequest::new(7, Role::Mpc, &command).unwrap();
+        assert_eq!(request.command(), command);
+        assert!(
+            SwapRequest::new(7, Role::Mpc, &[])
+                .unwrap()
+                .command()
+                .is_empty()
+        );
+        assert!(SwapRequest::new(7, Role::Mpc, &["a\0b".into()]).is_none());
+        let long = vec!["x".repeat(MAX_COMMAND_BYTES)];
+        assert!(SwapRequest::new(7, Role::Mpc, &long).is_none());
+    }
+
+    #[test]
+    fn a_swap_reply_message_is_cut_at_a_character_boundary() {
+        let text = "é".repeat(MAX_REPLY_BYTES);
+        let reply = SwapReply::default().with_message(&text);
+        assert_eq!(reply.message(), "é".repeat(MAX_REPLY_BYTES / 2));
+    }
+}

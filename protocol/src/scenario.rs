@@ -39,6 +39,30 @@ pub struct Scenario {
     /// Injected faults, for tests and demonstrations (none by default).
     pub fault: FaultConfig,
     pub supervision: Supervision,
+    /// Scheduled swap-in replacements (`[[swap]]`), in any order.
+    pub swap: Vec<SwapConfig>,
+}
+
+/// One scheduled replacement of a role process, make-before-break (DESIGN.md section 5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SwapConfig {
+    /// Simulated time the replacement is started at, s; it takes over at a later sample
+    /// boundary, once it has warmed up.
+    pub time_s: f64,
+    /// `estimator`, `mpc` or `dfl` (the plant is the simulated robot: not swappable).
+    pub role: String,
+    /// Program and arguments of the replacement; empty: a fresh built-in process of the
+    /// role. A program named `scmpc` is the running `scmpc` executable itself.
+    #[serde(default)]
+    pub command: Vec<String>,
+}
+
+impl SwapConfig {
+    /// The role swapped, if the name is one that can be.
+    pub fn swappable_role(&self) -> Option<crate::Role> {
+        crate::Role::from_name(&self.role).filter(|r| *r != crate::Role::Plant)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -52,7 +76,7 @@ pub enum RestartPolicy {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Supervision {
-    /// Restart a dead estimator, MPC or DFL (real-time runs; in lockstep a death aborts).
+    /// Restart a dead estimator, MPC or DFL (a dead plant always ends the run).
     pub restart: RestartPolicy,
     /// Restarts allowed over the whole run.
     pub max_restarts: u32,
@@ -347,6 +371,7 @@ impl Default for Scenario {
             }],
             fault: FaultConfig::default(),
             supervision: Supervision::default(),
+            swap: Vec::new(),
         }
     }
 }
@@ -615,6 +640,30 @@ impl Scenario {
                     key,
                     "must be a list of samples or a range like \"100..=104\"".into(),
                 );
+            }
+        }
+
+        for (i, swap) in self.swap.iter().enumerate() {
+            if !(swap.time_s.is_finite() && swap.time_s >= 0.0 && swap.time_s < self.duration_s) {
+                v.fail(
+                    &format!("swap.{i}.time_s"),
+                    format!(
+                        "must be in [0, duration_s = {}), got {}",
+                        self.duration_s, swap.time_s
+                    ),
+                );
+            }
+            if swap.swappable_role().is_none() {
+                v.fail(
+                    &format!("swap.{i}.role"),
+                    format!(
+                        "must be estimator, mpc or dfl (the plant cannot be swapped), got `{}`",
+                        swap.role
+                    ),
+                );
+            }
+            if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
+                v.fail(&format!("swap.{i}.command"), "the program is empty".into());
             }
         }
 

@@ -1,0 +1,100 @@
+//! `scmpc swap`: asks a running `scmpc run` to replace one role process by another
+//! command, make-before-break, and waits for the outcome.
+
+use crate::multiproc::RunInfo;
+use anyhow::{Context, bail};
+use protocol::ipc::{self, Wake, open_topic};
+use protocol::{Role, SwapReply, SwapRequest};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// How long `scmpc swap` waits for the orchestrator's answer.
+pub const REPLY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// Why a swap request could not even be sent: bad input (exit code 2).
+#[derive(Debug, thiserror::Error)]
+pub enum RequestError {
+    #[error("no role `{0}` to swap: expected estimator, mpc or dfl")]
+    Role(String),
+    #[error("the plant is the simulated robot: it cannot be swapped")]
+    Plant,
+    #[error("{0}: no run is going there ({1})")]
+    NotRunning(String, String),
+    #[error(
+        "the command line is longer than {} bytes or holds a NUL byte",
+        protocol::MAX_COMMAND_BYTES
+    )]
+    Command,
+}
+
+/// The role named `name`, if it can be swapped.
+pub fn swappable_role(name: &str) -> Result<Role, RequestError> {
+    match Role::from_name(name) {
+        Some(Role::Plant) => Err(RequestError::Plant),
+        Some(role) => Ok(role),
+        None => Err(RequestError::Role(name.to_string())),
+    }
+}
+
+/// The request for `role`; a relative program path is made absolute, since the
+/// orchestrator starts it from its own working directory.
+pub fn build_request(role: Role, command: &[String]) -> Result<SwapRequest, RequestError> {
+    let mut command = command.to_vec();
+    if let Some(program) = command.first_mut()
+        && program.contains('/')
+        && let Ok(absolute) = std::fs::canonicalize(&*program)
+    {
+        *program = absolute.to_string_lossy().into_owned();
+    }
+    let id =
+        (u64::from(std::process::id()) << 32) | (protocol::clock::monotonic_ns() & 0xffff_ffff);
+    SwapRequest::new(id, role, &command).ok_or(RequestError::Command)
+}
+
+/// Sends `request` to the run in `run_dir` and waits for its answer.
+pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> {
+    let shown = run_dir.display().to_string();
+    let info = RunInfo::read(run_dir)
+        .map_err(|e| RequestError::NotRunning(shown.clone(), format!("{e:#}")))?;
+    if run_dir.join("summary.json").exists() {
+        return Err(RequestError::NotRunning(shown, "it has ended".into()).into());
+    }
+    if !ipc::process_alive(info.orchestrator_pid) {
+        let why = format!("its orchestrator, pid {}, is gone", info.orchestrator_pid);
+        return Err(RequestError::NotRunning(shown, why).into());
+    }
+    let node = ipc::create_node(
+        &info.iceoryx2_prefix,
+        &format!("swap-{}", std::process::id()),
+        false,
+    )?;
+    // Subscribe to the answers before asking.
+    let replies = open_topic::<SwapReply>(&node, ipc::SWAP_REPLY)?.receiver()?;
+    let requests = open_topic::<SwapRequest>(&node, ipc::SWAP)?.sender(0)?;
+    let waitset = ipc::waitset(true)?;
+    let _guard = replies.attach(&waitset)?;
+    requests.send(*request)?;
+    let deadline = Instant::now() + REPLY_TIMEOUT;
+    loop {
+        let mut answer = None;
+        replies.drain(|r, _| {
+            if r.request_id == request.request_id {
+                answer = Some(r);
+            }
+        })?;
+        if let Some(reply) = answer {
+            return Ok(reply);
+        }
+        if !ipc::process_alive(info.orchestrator_pid) {
+            bail!("the run ended before it answered");
+        }
+        if Instant::now() > deadline {
+            bail!("no answer within {REPLY_TIMEOUT:?}");
+        }
+        if ipc::wait(&waitset, Duration::from_millis(100)).context("waiting for the answer")?
+            == Wake::Terminate
+        {
+            bail!("interrupted");
+        }
+    }
+}

@@ -1,0 +1,233 @@
+//! Swap-in replacement, make-before-break: scheduled in the scenario (`[[swap]]`) or live
+//! with `scmpc swap`, in real time and in lockstep.
+
+mod common;
+
+use common::{events, run, scmpc, spawn_run, summary, wait_for};
+use std::path::Path;
+use std::time::Duration;
+
+/// Writes a scenario of the paper with `extra` appended; returns its path.
+fn scenario_file(dir: &Path, extra: &str) -> String {
+    let file = dir.join("scenario.toml");
+    std::fs::write(&file, format!("name = \"swaps\"\n{extra}")).unwrap();
+    file.to_str().unwrap().to_string()
+}
+
+/// The `swapped` event of `role`.
+fn swapped(ev: &[serde_json::Value], role: &str) -> serde_json::Value {
+    ev.iter()
+        .find(|e| e["event"] == "swapped" && e["role"] == role)
+        .unwrap_or_else(|| panic!("no swap of the {role} in {ev:#?}"))
+        .clone()
+}
+
+/// Every tick of the run is in `trajectory.csv` with a finite command and estimate.
+fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
+    let text = std::fs::read_to_string(dir.join("trajectory.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), ticks, "ticks recorded");
+    for row in &rows {
+        for column in 5..13 {
+            let value: f64 = row[column].parse().unwrap();
+            assert!(
+                value.is_finite(),
+                "t = {}: column {column} is {value}",
+                row[0]
+            );
+        }
+    }
+}
+
+#[test]
+fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = scenario_file(
+        dir.path(),
+        r#"duration_s = 14.0
+
+[[swap]]
+time_s = 8.0
+role = "estimator"
+command = ["scmpc", "estimator", "--set", "estimator.kind=passthrough"]
+
+[[swap]]
+time_s = 12.0
+role = "mpc"
+command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
+"#,
+    );
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        &file,
+        "--mode",
+        "realtime",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.code().is_some(), "{}", common::stderr(&out));
+    let s = summary(&out_dir);
+    let ev = events(&out_dir);
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["ticks_without_estimate"], 0);
+    assert_eq!(s["swaps"], 2);
+    assert!(
+        s["rejected_samples"].as_object().unwrap().is_empty(),
+        "{}",
+        s["rejected_samples"]
+    );
+    assert_every_tick_commanded(&out_dir, 2800);
+    for (role, at_s) in [("estimator", 8.0), ("mpc", 12.0)] {
+        let e = swapped(&ev, role);
+        let tick = e["switch_tick"].as_u64().unwrap();
+        assert_eq!(
+            tick % 10,
+            0,
+            "{role}: switch at tick {tick}, not a sample boundary"
+        );
+        let t = tick as f64 * 0.005;
+        assert!(t > at_s && t < at_s + 1.0, "{role}: switch at t = {t}");
+        assert_ne!(e["old_pid"], e["new_pid"]);
+        let old = e["from_epoch"].as_u64().unwrap();
+        assert!(
+            ev.iter()
+                .any(|r| r["event"] == "retired" && r["role"] == role && r["epoch"] == old),
+            "the old {role} was not stopped"
+        );
+    }
+    // The replacement MPC runs its own options: plans of horizon 10 from its switch on.
+    let mpc_switch = swapped(&ev, "mpc")["switch_tick"].as_u64().unwrap() / 10;
+    let plans = std::fs::read_to_string(out_dir.join("plans.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = plans
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert_eq!(rows.len(), 281, "one row per sample 0..=280");
+    for row in rows {
+        let sample: u64 = row[0].parse().unwrap();
+        let horizon = if sample < mpc_switch { "8" } else { "10" };
+        assert_eq!(row[12], horizon, "plan {sample}");
+    }
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let run_dir = dir.path().join("run");
+    let mut child = spawn_run(&run_dir, &["--mode", "realtime", "--set", "duration_s=5"]);
+    assert!(
+        wait_for(Duration::from_secs(10), || events(&run_dir)
+            .iter()
+            .any(|e| e["event"] == "ready")),
+        "the run never became ready"
+    );
+    let dir_arg = run_dir.to_str().unwrap();
+    let plant = run(&["swap", "--run", dir_arg, "plant"]);
+    assert_eq!(plant.status.code(), Some(2), "{}", common::stderr(&plant));
+    assert!(common::stderr(&plant).contains("plant"));
+
+    let out = run(&["swap", "--run", dir_arg, "dfl"]);
+    assert_eq!(out.status.code(), Some(0), "{}", common::stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("swapped dfl"));
+    let missing = run(&[
+        "swap",
+        "--run",
+        dir_arg,
+        "mpc",
+        "--",
+        "/nonexistent/program",
+    ]);
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(common::stderr(&missing).contains("/nonexistent/program"));
+
+    child.wait().unwrap();
+    let s = summary(&run_dir);
+    let ev = events(&run_dir);
+    swapped(&ev, "dfl");
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "swap_failed" && e["role"] == "mpc")
+    );
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["swaps"], 1);
+    let ended = run(&["swap", "--run", dir_arg, "dfl"]);
+    assert_eq!(ended.status.code(), Some(2));
+    assert!(
+        common::stderr(&ended).contains("ended"),
+        "{}",
+        common::stderr(&ended)
+    );
+}
+
+#[test]
+fn a_lockstep_swap_of_every_swappable_role_keeps_the_run_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = scenario_file(
+        dir.path(),
+        r#"
+[[swap]]
+time_s = 3.0
+role = "dfl"
+
+[[swap]]
+time_s = 5.0
+role = "estimator"
+
+[[swap]]
+time_s = 7.0
+role = "mpc"
+"#,
+    );
+    let out_dir = dir.path().join("run");
+    let out = run(&["run", &file, "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", common::stderr(&out));
+    let s = summary(&out_dir);
+    let ev = events(&out_dir);
+    for role in ["dfl", "estimator", "mpc"] {
+        swapped(&ev, role);
+    }
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["swaps"], 3);
+    assert_eq!(s["deadline_misses"], 0);
+    assert!(s["rejected_samples"].as_object().unwrap().is_empty());
+    assert_every_tick_commanded(&out_dir, 6000);
+    // Fresh processes of the same code continue the same trajectory closely.
+    let t = s["time_to_goal_s"].as_f64().unwrap();
+    assert!((t - 24.09).abs() < 0.2, "time to goal {t}");
+}
+
+#[test]
+fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
+    let dir = tempfile::tempdir().unwrap();
+    for (extra, key) in [
+        ("[[swap]]\ntime_s = 1.0\nrole = \"plant\"\n", "swap.0.role"),
+        ("[[swap]]\ntime_s = 99.0\nrole = \"mpc\"\n", "swap.0.time_s"),
+        (
+            "[[swap]]\ntime_s = 1.0\nrole = \"mpc\"\ncommand = [\"no-such-program-x\"]\n",
+            "swap.0.command",
+        ),
+    ] {
+        let file = scenario_file(dir.path(), extra);
+        let out_dir = dir.path().join("run");
+        let out = scmpc()
+            .args(["run", &file, "--out", out_dir.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let msg = common::stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{extra}: {msg}");
+        assert!(
+            msg.contains(key),
+            "{extra}: message does not name `{key}`: {msg}"
+        );
+        assert!(!out_dir.exists());
+    }
+}
