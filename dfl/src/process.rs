@@ -54,7 +54,6 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     loop {
         // Hot path: samples straight from shared memory, the periodic input first (its
         // receipt time is the hop latency); system calls come after publishing.
-        link.sync(&mut ctl, &[&estimates, &plans])?;
         estimates.take(|e, latency| queue.push_back((e, latency)))?;
         plans.take(|p, _| {
             inbox.receive(&p);

@@ -35,7 +35,6 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     loop {
         // Hot path: samples straight from shared memory, the periodic input first (its
         // receipt time is the hop latency); system calls come after publishing.
-        link.sync(&mut ctl, &[&measurements, &actuation])?;
         measurements.take(|m, latency| queue.push_back((m, latency)))?;
         actuation.take(|a, _| {
             if heard.is_none_or(|h| a.header.tick >= h.header.tick) {

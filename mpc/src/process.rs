@@ -28,6 +28,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut next_sample = 0u64;
     let mut cleared = false;
     loop {
+        // The MPC wakes once per sample, possibly after a long solve: a schedule sent in
+        // the meantime is applied before the estimates are judged. (The estimator and the
+        // DFL apply it in housekeeping after every input; a sample of a replacement that
+        // reaches them first is at worst refused, never applied.)
         link.sync(&mut ctl, &[&estimates])?;
         estimates.take(|e, latency| {
             // Boundary estimates of samples not solved yet (a replay repeats one that was).

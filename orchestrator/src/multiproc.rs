@@ -34,8 +34,10 @@ const TICK_TIMEOUT: Duration = Duration::from_secs(10);
 const START_LEAD: Duration = Duration::from_millis(100);
 /// How often the orchestrator looks at its children and the stop flag while waiting.
 const POLL: Duration = Duration::from_millis(20);
-/// How often the orchestrator asks iceoryx2 for dead nodes of the run.
+/// How often the orchestrator checks that the processes of the run's nodes are alive.
 const NODE_SCAN: Duration = Duration::from_millis(50);
+/// How often it lists the run's nodes anew (and when one of their processes died).
+const NODE_LISTING: Duration = Duration::from_secs(1);
 /// A replacement is warm once it has published outputs spanning this many samples.
 const SWAP_WARMUP_SAMPLES: u64 = 2;
 /// A warm replacement takes over at the first sample boundary at least this many samples
@@ -415,6 +417,10 @@ struct Driver<'a> {
     swaps_done: u32,
     ticks_without_estimate: u64,
     last_node_scan: Instant,
+    /// `None`: list at the next scan (a process has just joined).
+    last_node_listing: Option<Instant>,
+    /// Processes of the run's living nodes, as last listed.
+    node_pids: Vec<u32>,
 }
 
 impl Driver<'_> {
@@ -483,9 +489,10 @@ impl Driver<'_> {
         }
         for role in restarted_ready {
             // A process joined the running loop: tell it the clock and the schedule, and
-            // have every producer repeat its newest sample for it.
+            // have every producer repeat its newest sample for it; watch its node.
             self.recorder
                 .event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            self.last_node_listing = None;
             match self.mode {
                 RunMode::Realtime => {
                     self.session
@@ -513,7 +520,7 @@ impl Driver<'_> {
         self.children.kill_overdue();
         if self.last_node_scan.elapsed() >= NODE_SCAN {
             self.last_node_scan = Instant::now();
-            self.clean_dead_nodes()?;
+            self.watch_nodes()?;
         }
         let Some((proc, status)) = self.children.take_exited() else {
             return Ok(None);
@@ -570,6 +577,23 @@ impl Driver<'_> {
         Ok(None)
     }
 
+    /// Looks for dead nodes: a full iceoryx2 node listing (about 1 ms of CPU) every
+    /// [`NODE_LISTING`], and in between only whether the processes of the nodes listed
+    /// are still alive (microseconds), so the scan does not disturb the control loop.
+    fn watch_nodes(&mut self) -> anyhow::Result<()> {
+        let someone_died = self.node_pids.iter().any(|pid| !ipc::process_alive(*pid));
+        if someone_died
+            || self
+                .last_node_listing
+                .is_none_or(|t| t.elapsed() >= NODE_LISTING)
+        {
+            self.clean_dead_nodes()?;
+            self.node_pids = ipc::node_pids(&self.children.prefix).unwrap_or_default();
+            self.last_node_listing = Some(Instant::now());
+        }
+        Ok(())
+    }
+
     /// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
     /// process that died while the process the orchestrator started for it lives on (a
     /// wrapper script, say) is recorded, and that process is killed, so its exit is
@@ -616,7 +640,8 @@ impl Driver<'_> {
         let time_s = self.cursor as f64 * self.scenario.timing.ts_s
             / self.scenario.timing.inner_steps as f64;
         let mut requests = Vec::new();
-        self.session.swap_requests.drain(|r, _| requests.push(r))?;
+        // Straight from shared memory: nothing waits on this listener.
+        self.session.swap_requests.take(|r, _| requests.push(r))?;
         for r in requests {
             match Role::from_code(r.role).filter(|role| *role != Role::Plant) {
                 Some(role) => self.scheduled.push(PendingSwap {
@@ -1095,6 +1120,8 @@ fn drive(
             swaps_done: 0,
             ticks_without_estimate: 0,
             last_node_scan: Instant::now(),
+            last_node_listing: None,
+            node_pids: Vec::new(),
         };
         let outcome = match mode {
             RunMode::Lockstep => driver.lockstep(&waitset),

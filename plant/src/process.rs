@@ -75,7 +75,6 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 if let Some(start_ns) = ctl.start_ns {
                     let deadline = start_ns + (tick as f64 * dt * 1e9) as u64;
                     sleep_until_ns(deadline);
-                    link.sync(&mut ctl, &[&actuation])?;
                     actuation.drain(|a, _| {
                         if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
                             latest = Some(a);

@@ -37,9 +37,13 @@ pub const SWAP: &str = "swap";
 /// Orchestrator to `scmpc swap`: how a requested swap ended.
 pub const SWAP_REPLY: &str = "swap_reply";
 
-/// Publishers a topic admits. The status topic has the most: a process of each role, a
-/// replacement per swappable role, and a process that is still retiring.
-pub const MAX_PUBLISHERS: usize = 8;
+/// Publishers a data topic admits: the producer, its replacement, the process it replaces
+/// while retiring, and one spare. Every receive looks at each publisher slot, so this is
+/// kept small (8 made the real-time loop measurably slower).
+pub const MAX_PUBLISHERS: usize = 4;
+/// Publishers of the status topic: a process of each role, a replacement per swappable
+/// role, and a retiring one.
+pub const MAX_STATUS_PUBLISHERS: usize = 8;
 pub const MAX_SUBSCRIBERS: usize = 8;
 /// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
 pub const SUBSCRIBER_BUFFER: usize = 64;
@@ -127,7 +131,11 @@ pub fn open_topic<T: Message>(
     let pubsub = node
         .service_builder(&service_name)
         .publish_subscribe::<T>()
-        .max_publishers(MAX_PUBLISHERS)
+        .max_publishers(if name == STATUS {
+            MAX_STATUS_PUBLISHERS
+        } else {
+            MAX_PUBLISHERS
+        })
         .max_subscribers(MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
         .history_size(0)
@@ -457,6 +465,23 @@ pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
         }
     }
     Ok(names)
+}
+
+/// The process ids of the run's living nodes (iceoryx2's node listing, about 1 ms).
+pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
+    let config = run_config(prefix)?;
+    let mut pids = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Alive(view) = state
+            && let Some(details) = view.details()
+            && let Ok(pid) = u32::try_from(details.process_id().value())
+        {
+            pids.push(pid);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    Ok(pids)
 }
 
 /// The role and epoch of a role process's node, from its name (`<role>-<epoch>`).
