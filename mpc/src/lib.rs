@@ -9,6 +9,7 @@
 //! its values are updated afterwards.
 
 pub mod model;
+pub mod nonlinear;
 pub mod problem;
 pub mod process;
 
@@ -16,7 +17,7 @@ use clarabel::algebra::CscMatrix;
 use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
 use nalgebra::{Matrix2, Matrix4, Vector4};
 use problem::{Assembly, Disc, Layout, StaticData, StepData, csc_with_positions};
-use protocol::{ConstraintKind, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
+use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
 /// Why an MPC cannot be set up for a configuration.
@@ -28,8 +29,8 @@ pub enum MpcError {
     Horizon(usize),
 }
 
-/// The MPC role.
-pub struct Mpc {
+/// The linear scheme (eqs. 51-47) on the DFL-linearized model.
+pub struct LinearMpc {
     layout: Layout,
     statics: StaticData,
     /// `Q_bar`, the DARE solution (eq. 56).
@@ -59,8 +60,8 @@ pub struct Mpc {
     last_z: Vec<[f64; 4]>,
 }
 
-impl Mpc {
-    pub fn new(scenario: &Scenario) -> Result<Mpc, MpcError> {
+impl LinearMpc {
+    pub fn new(scenario: &Scenario) -> Result<LinearMpc, MpcError> {
         let c = &scenario.mpc;
         if c.horizon == 0 || c.horizon > MAX_HORIZON {
             return Err(MpcError::Horizon(c.horizon));
@@ -98,7 +99,7 @@ impl Mpc {
                 [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
             ],
         };
-        Ok(Mpc {
+        Ok(LinearMpc {
             layout,
             statics,
             terminal_weight,
@@ -147,11 +148,15 @@ impl Mpc {
         let z = protocol::phi(x_bar);
         let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
         let margin = self.safety_margin_m + self.uncertainty_sigmas * position_sigma_m;
-        self.discs.clear();
-        self.discs.extend(self.obstacles.iter().map(|o| Disc {
-            center: [o.x - self.goal[0], o.y - self.goal[1]],
-            radius: o.radius + margin,
-        }));
+        problem::constraint_discs(
+            &self.obstacles,
+            self.goal,
+            margin,
+            x_bar[3],
+            self.ts_s,
+            std::f64::consts::SQRT_2 * self.statics.v_max,
+            &mut self.discs,
+        );
 
         let warm = self.shifted_reference(sample);
         if !warm {
@@ -186,17 +191,6 @@ impl Mpc {
         }
         plan.solve_ns = started.elapsed().as_nanos() as u64;
         plan
-    }
-
-    /// Applies the scenario's injected faults to plan(k): a forced failure (reported as
-    /// `numerical_error`, and the MPC starts cold next time, as after a real failure) and
-    /// the delay to add before publishing.
-    pub fn inject_faults(&mut self, plan: &mut Plan, faults: &protocol::FaultConfig) {
-        if faults.mpc_fails(plan.sample) {
-            plan.status = PlanStatus::NumericalError as u32;
-            self.reset();
-        }
-        plan.injected_delay_ns = faults.mpc_delay_ns(plan.sample);
     }
 
     /// Solves, re-linearizes at the solution, and repeats until the plan settles.
@@ -376,6 +370,54 @@ impl Mpc {
     }
 }
 
+/// The MPC role: the paper's linear scheme, or the nonlinear baseline
+/// (`mpc.formulation`).
+pub enum Mpc {
+    Linear(Box<LinearMpc>),
+    Nonlinear(Box<nonlinear::NonlinearMpc>),
+}
+
+impl Mpc {
+    pub fn new(scenario: &Scenario) -> Result<Mpc, MpcError> {
+        let linear = LinearMpc::new(scenario)?;
+        Ok(match scenario.mpc.formulation {
+            Formulation::Linear => Mpc::Linear(Box::new(linear)),
+            Formulation::Nonlinear => Mpc::Nonlinear(Box::new(nonlinear::NonlinearMpc::new(
+                scenario,
+                linear.terminal_weight(),
+            ))),
+        })
+    }
+
+    /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
+    /// `position_sigma_m` of its position. The header is left for the caller to fill.
+    pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
+        match self {
+            Mpc::Linear(m) => m.step(sample, x_bar, position_sigma_m),
+            Mpc::Nonlinear(m) => m.step(sample, x_bar, position_sigma_m),
+        }
+    }
+
+    /// Forgets the previous plan: the next step starts cold.
+    pub fn reset(&mut self) {
+        match self {
+            Mpc::Linear(m) => m.reset(),
+            Mpc::Nonlinear(m) => m.reset(),
+        }
+    }
+
+    /// Applies the scenario's injected faults to plan(k): a forced failure (reported as
+    /// `numerical_error`, and the MPC starts cold next time, as after a real failure) and
+    /// the delay to add before publishing.
+    pub fn inject_faults(&mut self, plan: &mut Plan, faults: &protocol::FaultConfig) {
+        if faults.mpc_fails(plan.sample) {
+            plan.status = PlanStatus::NumericalError as u32;
+            self.reset();
+        }
+        plan.injected_delay_ns = faults.mpc_delay_ns(plan.sample);
+    }
+}
+
 #[derive(Debug, Clone, Copy)]
 struct Outcome {
     status: PlanStatus,
@@ -383,7 +425,7 @@ struct Outcome {
     solves: u32,
 }
 
-fn plan_status(status: SolverStatus) -> PlanStatus {
+pub(crate) fn plan_status(status: SolverStatus) -> PlanStatus {
     match status {
         SolverStatus::Solved | SolverStatus::AlmostSolved => PlanStatus::Solved,
         SolverStatus::PrimalInfeasible
@@ -415,7 +457,7 @@ mod tests {
 
     /// Closed loop of the MPC on its own linear model (exact DFL): returns every plan.
     fn closed_loop(scenario: &Scenario, samples: u64) -> Vec<Plan> {
-        let mut mpc = Mpc::new(scenario).unwrap();
+        let mut mpc = LinearMpc::new(scenario).unwrap();
         let (a, b) = model::discretize(scenario.timing.ts_s);
         let [x, y, theta] = scenario.robot.start;
         let mut z = Vector4::from(protocol::phi([x, y, theta, scenario.robot.zeta0]));
@@ -471,7 +513,10 @@ mod tests {
         let mut euclidean = Scenario::default();
         euclidean.mpc.constraint = ConstraintKind::Euclidean;
         euclidean.mpc.gamma = 0.3; // ignored by the Euclidean constraint
-        let (a, b) = (Mpc::new(&cbf).unwrap(), Mpc::new(&euclidean).unwrap());
+        let (a, b) = (
+            LinearMpc::new(&cbf).unwrap(),
+            LinearMpc::new(&euclidean).unwrap(),
+        );
         assert_eq!(a.layout.cones().len(), b.layout.cones().len());
         let discs = [Disc {
             center: [3.0, 3.5],
@@ -540,7 +585,7 @@ mod tests {
         // sequence keeps the barrier decaying slowly enough.
         let mut s = Scenario::default();
         s.robot.start = [1.3, 3.5, 0.0];
-        let mut mpc = Mpc::new(&s).unwrap();
+        let mut mpc = LinearMpc::new(&s).unwrap();
         let plan = mpc.step(0, [1.3, 3.5, 0.0, 20.0], 0.0);
         assert_eq!(plan.status(), Some(PlanStatus::Infeasible));
         assert!(plan.solves >= 1 && plan.solve_ns > 0);
@@ -553,7 +598,7 @@ mod tests {
         let cost = |max_solves: usize| {
             let mut s = Scenario::default();
             s.mpc.max_solves = max_solves;
-            let mut mpc = Mpc::new(&s).unwrap();
+            let mut mpc = LinearMpc::new(&s).unwrap();
             let p = mpc.step(0, x_bar, 0.0);
             assert!(
                 p.is_solved() && p.solves as usize <= max_solves,

@@ -53,14 +53,10 @@ impl Layout {
         4 * (self.horizon + 1) + 2 * self.horizon
     }
     fn linear_barrier_rows(&self) -> usize {
-        self.obstacles * if self.linear_barrier { self.horizon } else { 1 }
+        barrier_row_counts(self.horizon, self.obstacles, self.linear_barrier).0
     }
     fn cone_barriers(&self) -> usize {
-        if self.linear_barrier {
-            0
-        } else {
-            self.obstacles * (self.horizon - 1)
-        }
+        barrier_row_counts(self.horizon, self.obstacles, self.linear_barrier).1
     }
 
     /// The cones, in row order.
@@ -101,6 +97,33 @@ impl Disc {
     }
 }
 
+/// Fills `discs` with the constraint discs of one step: `obstacles` in coordinates
+/// relative to `goal`, each radius inflated by `margin_m` (the safety margin and the
+/// uncertainty term) and by the inter-sample dip. The CBF holds at the sample instants;
+/// between two of them the robot moves along a chord of at most
+/// `d = |speed| Ts + accel_max Ts^2 / 2`, which dips up to `d^2 / (8 r)` inside a circle
+/// of radius `r` both end points lie on. That much more radius keeps the path between
+/// samples out of the obstacle too (about 0.2 mm at 1 m/s in the paper's scenario).
+pub fn constraint_discs(
+    obstacles: &[protocol::Obstacle],
+    goal: [f64; 2],
+    margin_m: f64,
+    speed_m_s: f64,
+    ts_s: f64,
+    accel_max: f64,
+    discs: &mut Vec<Disc>,
+) {
+    let chord = speed_m_s.abs() * ts_s + 0.5 * accel_max * ts_s * ts_s;
+    discs.clear();
+    discs.extend(obstacles.iter().map(|o| {
+        let radius = o.radius + margin_m;
+        Disc {
+            center: [o.x - goal[0], o.y - goal[1]],
+            radius: radius + chord * chord / (8.0 * radius.max(chord)),
+        }
+    }));
+}
+
 /// Everything fixed by the configuration.
 #[derive(Debug, Clone)]
 pub struct StaticData {
@@ -134,7 +157,8 @@ pub struct Assembly {
 }
 
 impl Assembly {
-    fn row(&mut self, terms: impl IntoIterator<Item = (usize, f64)>, b: f64) {
+    /// Appends the row `sum(value * x[column]) + s = b`.
+    pub fn row(&mut self, terms: impl IntoIterator<Item = (usize, f64)>, b: f64) {
         let r = self.b.len();
         self.entries
             .extend(terms.into_iter().map(|(c, v)| (r, c, v)));
@@ -205,38 +229,50 @@ impl Assembly {
     }
 
     fn barrier_rows(&mut self, l: &Layout, s: &StaticData, d: &StepData) {
-        let n = l.horizon;
-        let pos = |i: usize| [(l.z(i, 0)), (l.z(i, 2))];
-        let p0 = [d.z0[0], d.z0[2]];
-        // Linear rows first (they belong to the nonnegative cone).
-        for disc in d.discs {
-            if l.linear_barrier {
+        let barrier = Barrier {
+            horizon: l.horizon,
+            linear: l.linear_barrier,
+            gamma: s.gamma,
+            discs: d.discs,
+            reference: d.reference,
+            p0: [d.z0[0], d.z0[2]],
+        };
+        self.barrier(&barrier, |i| [l.z(i, 0), l.z(i, 2)]);
+    }
+
+    /// The CBF rows of eq. (54) (see the module docs): linear rows first (they belong to
+    /// the nonnegative cone), then the SOC(4) rows. `position(i)` gives the columns of
+    /// the position of stage `i`.
+    pub fn barrier(&mut self, b: &Barrier, position: impl Fn(usize) -> [usize; 2]) {
+        let n = b.horizon;
+        for disc in b.discs {
+            if b.linear {
                 // L_i(p_i) >= 0, i = 1..=N.
                 for i in 1..=n {
-                    let (g, c) = disc.linearized_barrier(d.reference[i]);
-                    let [px, py] = pos(i);
+                    let (g, c) = disc.linearized_barrier(b.reference[i]);
+                    let [px, py] = position(i);
                     self.row([(px, -g[0]), (py, -g[1])], c);
                 }
             } else {
                 // (1 - gamma) H(p_0) <= L_1(p_1), p_0 being data.
-                let (g, c) = disc.linearized_barrier(d.reference[1]);
-                let [px, py] = pos(1);
+                let (g, c) = disc.linearized_barrier(b.reference[1]);
+                let [px, py] = position(1);
                 self.row(
                     [(px, -g[0]), (py, -g[1])],
-                    c - (1.0 - s.gamma) * disc.barrier(p0),
+                    c - (1.0 - b.gamma) * disc.barrier(b.p0),
                 );
             }
         }
-        if l.linear_barrier {
+        if b.linear {
             return;
         }
-        let scale = 1.0 / (1.0 - s.gamma);
-        for disc in d.discs {
+        let scale = 1.0 / (1.0 - b.gamma);
+        for disc in b.discs {
             for i in 1..n {
-                let (g, c) = disc.linearized_barrier(d.reference[i + 1]);
-                let t0 = scale * (c + (1.0 - s.gamma) * disc.radius.powi(2));
-                let [nx, ny] = pos(i + 1);
-                let [px, py] = pos(i);
+                let (g, c) = disc.linearized_barrier(b.reference[i + 1]);
+                let t0 = scale * (c + (1.0 - b.gamma) * disc.radius.powi(2));
+                let [nx, ny] = position(i + 1);
+                let [px, py] = position(i);
                 let slope = [(nx, -scale * g[0]), (ny, -scale * g[1])];
                 self.row(slope, t0 + 1.0);
                 self.row(slope, t0 - 1.0);
@@ -244,6 +280,29 @@ impl Assembly {
                 self.row([(py, -2.0)], -2.0 * disc.center[1]);
             }
         }
+    }
+}
+
+/// What the CBF rows of one problem are built from.
+#[derive(Debug, Clone, Copy)]
+pub struct Barrier<'a> {
+    pub horizon: usize,
+    /// Every row linear (`gamma = 1` or the Euclidean benchmark).
+    pub linear: bool,
+    pub gamma: f64,
+    pub discs: &'a [Disc],
+    /// Linearization points of the positions of stages `1..=N` (index 0 unused).
+    pub reference: &'a [[f64; 2]],
+    /// Position of stage 0 (data).
+    pub p0: [f64; 2],
+}
+
+/// Rows of the CBF part of the problem: `(linear rows, second-order cones)`.
+pub fn barrier_row_counts(horizon: usize, obstacles: usize, linear: bool) -> (usize, usize) {
+    if linear {
+        (obstacles * horizon, 0)
+    } else {
+        (obstacles, obstacles * (horizon - 1))
     }
 }
 

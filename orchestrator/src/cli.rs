@@ -39,6 +39,19 @@ enum Command {
     /// is the running scmpc executable. Exit 0: swapped; 1: the swap failed (the old
     /// process still runs); 2: bad input or no run going.
     Swap(SwapArgs),
+    /// Run every combination of a parameter grid in process, on all cores.
+    ///
+    /// Writes `sweep.csv` (one row per run: the grid values and the summary's numbers) and
+    /// keeps each run's directory under `runs/`; with `--seeds N`, every combination runs
+    /// with noise seeds 1..=N and `monte_carlo.csv` gives the collision rate and the
+    /// distribution of the minimum clearance per combination.
+    Sweep(SweepArgs),
+    /// Draw the paper's figure set from scratch (SVG and PNG) into a directory.
+    Figures {
+        /// Directory of the figures [default: docs/figures].
+        #[arg(long, value_name = "DIR", default_value = "docs/figures")]
+        out: PathBuf,
+    },
     /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
@@ -92,6 +105,28 @@ struct RoleArgs {
     /// `mpc.horizon=10` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     overrides: Vec<String>,
+}
+
+#[derive(Debug, clap::Args)]
+struct SweepArgs {
+    /// Scenario file, or the name of a built-in scenario [default: paper].
+    scenario: Option<String>,
+    /// An axis of the grid: a dotted key and its values, e.g. `mpc.gamma=0.1,0.3,0.5`
+    /// (repeatable; every combination runs).
+    #[arg(long = "grid", value_name = "KEY=V1,V2,...")]
+    grid: Vec<String>,
+    /// Override a scenario value for every run (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Noise seeds per combination (seeds 1..=N); 0 keeps the scenario's seed.
+    #[arg(long, default_value_t = 0)]
+    seeds: u64,
+    /// Sweep directory [default: a fresh directory under runs/].
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Runs at a time [default: the number of cores].
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -150,10 +185,147 @@ pub fn main() -> ExitCode {
         },
         Command::Run(args) => run(args),
         Command::Swap(args) => swap(args),
+        Command::Sweep(args) => sweep(args),
+        Command::Figures { out } => figures(&out),
         Command::Plant(args) => role(args, plant::process::run),
         Command::Estimator(args) => role(args, estimator::process::run),
         Command::Mpc(args) => role(args, mpc::process::run),
         Command::Dfl(args) => role(args, dfl::process::run),
+    }
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// A stop flag set by Ctrl-C.
+fn stop_flag() -> Arc<AtomicBool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
+        tracing::warn!("cannot install the Ctrl-C handler: {e}");
+    }
+    stop
+}
+
+fn sweep(args: SweepArgs) -> ExitCode {
+    use crate::study;
+    let planned = scenarios::load(args.scenario.as_deref(), &args.overrides).and_then(|base| {
+        let axes = args
+            .grid
+            .iter()
+            .map(|g| study::Axis::parse(g))
+            .collect::<Result<Vec<_>, _>>()?;
+        let out = args
+            .out
+            .clone()
+            .unwrap_or_else(|| default_run_dir(&format!("{}-sweep", base.name)));
+        let runs = study::plan_runs(&base, &axes, args.seeds, &out)?;
+        Ok((axes, out, runs))
+    });
+    let (axes, out, runs) = match planned {
+        Ok(p) => p,
+        Err(e) => {
+            eprint!("error: {e}");
+            return ExitCode::from(EXIT_BAD_INPUT);
+        }
+    };
+    let stop = stop_flag();
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} runs on {threads} threads into {}",
+        runs.len(),
+        out.display()
+    );
+    let results = study::run_all(&runs, threads, true, &stop);
+    let written = std::fs::create_dir_all(&out)
+        .map_err(anyhow::Error::from)
+        .and_then(|()| study::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results));
+    if let Err(e) = written {
+        eprintln!("error: {e:#}");
+        return ExitCode::from(EXIT_NOT_REACHED);
+    }
+    let keys: Vec<&str> = axes.iter().map(|a| a.key.as_str()).collect();
+    if args.seeds > 1 {
+        let stats = study::seed_stats(&runs, &results);
+        if let Err(e) = study::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats) {
+            eprintln!("error: {e:#}");
+            return ExitCode::from(EXIT_NOT_REACHED);
+        }
+        println!(
+            "{:<40} runs  collisions  reached  clearance min / p5 / p50 (m)",
+            keys.join(" ")
+        );
+        for s in &stats {
+            println!(
+                "{:<40} {:>4}  {:>4} ({:>5.1} %)  {:>4}  {:.4} / {:.4} / {:.4}",
+                s.values.join(" "),
+                s.runs,
+                s.collisions,
+                100.0 * s.collision_rate(),
+                s.reached,
+                s.clearance_min_m,
+                s.clearance_p5_m,
+                s.clearance_p50_m
+            );
+        }
+    } else {
+        println!(
+            "{:<40} {:<9} {:>10} {:>10} {:>10} {:>10}",
+            keys.join(" "),
+            "outcome",
+            "clear (m)",
+            "swerve (s)",
+            "goal (s)",
+            "solve p50"
+        );
+        for (spec, result) in runs.iter().zip(&results) {
+            match result {
+                Ok(s) => println!(
+                    "{:<40} {:<9} {:>10.4} {:>10} {:>10} {:>7.0} µs",
+                    spec.values.join(" "),
+                    s.outcome.as_str(),
+                    s.min_clearance_m,
+                    s.deviation_time_s.map_or("-".into(), |t| format!("{t:.3}")),
+                    s.time_to_goal_s.map_or("-".into(), |t| format!("{t:.2}")),
+                    s.solve_us.p50
+                ),
+                Err(e) => println!("{:<40} error: {e:#}", spec.values.join(" ")),
+            }
+        }
+    }
+    println!("sweep directory: {}", out.display());
+    if results.iter().all(Result::is_ok) {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(EXIT_NOT_REACHED)
+    }
+}
+
+fn figures(out: &std::path::Path) -> ExitCode {
+    let stop = stop_flag();
+    match crate::figures::paper_set(out, cores(), &stop) {
+        Ok(set) => {
+            println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
+            for s in &set.solve_times {
+                println!(
+                    "{:>7}  {:>8.0} / {:<8.0}     {:>8.0} / {:<8.0}",
+                    s.horizon,
+                    s.linear_us.p50,
+                    s.linear_us.p99,
+                    s.nonlinear_us.p50,
+                    s.nonlinear_us.p99
+                );
+            }
+            for f in &set.files {
+                println!("{}", f.display());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
     }
 }
 
@@ -252,11 +424,7 @@ fn run(args: RunArgs) -> ExitCode {
         eprintln!("error: --prefix: {e}");
         return ExitCode::from(EXIT_BAD_INPUT);
     }
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = Arc::clone(&stop);
-    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
-        tracing::warn!("cannot install the Ctrl-C handler: {e}");
-    }
+    let stop = stop_flag();
     let result = if args.in_process {
         inprocess::run(&scenario, &out, &stop)
     } else {
@@ -265,6 +433,9 @@ fn run(args: RunArgs) -> ExitCode {
     let result = result.with_context(|| format!("run of `{}`", scenario.name));
     match result {
         Ok(summary) => {
+            if let Err(e) = crate::figures::run_plots(&out, &scenario) {
+                eprintln!("warning: no plots for the run: {e:#}");
+            }
             println!("run directory: {}", out.display());
             print!("{}", summary.table());
             if summary.outcome == crate::monitor::Outcome::Reached {

@@ -1,9 +1,11 @@
 //! The `scmpc` command: scenario validation, the in-process run, recording and the summary.
 
 pub mod cli;
+pub mod figures;
 pub mod inprocess;
 pub mod monitor;
 pub mod multiproc;
 pub mod record;
 pub mod scenarios;
+pub mod study;
 pub mod swap;

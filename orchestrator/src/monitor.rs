@@ -40,9 +40,13 @@ pub const STALL_WINDOW_S: f64 = 2.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.01;
 
+/// A robot farther than this from the straight start-goal line has left it, m.
+pub const DEVIATION_M: f64 = 0.05;
+
 /// Watches the true pose tick by tick.
 pub struct Monitor {
     obstacles: Vec<Obstacle>,
+    start: [f64; 2],
     goal: [f64; 2],
     goal_tolerance_m: f64,
     /// `(t, x, y)` over the last stall window.
@@ -51,19 +55,34 @@ pub struct Monitor {
     /// Start of the current stay within the goal tolerance.
     pub inside_goal_since_s: Option<f64>,
     pub last_distance_to_goal_m: f64,
+    /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
+    /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
+    pub deviation_time_s: Option<f64>,
 }
 
 impl Monitor {
     pub fn new(scenario: &Scenario) -> Monitor {
         Monitor {
             obstacles: scenario.obstacles.clone(),
+            start: [scenario.robot.start[0], scenario.robot.start[1]],
             goal: scenario.robot.goal,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
             window: VecDeque::new(),
             min_clearance_m: f64::INFINITY,
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
+            deviation_time_s: None,
         }
+    }
+
+    /// Distance from `(x, y)` to the straight line through the start and the goal, m.
+    pub fn off_line(&self, x: f64, y: f64) -> f64 {
+        let (dx, dy) = (self.goal[0] - self.start[0], self.goal[1] - self.start[1]);
+        let length = dx.hypot(dy);
+        if length == 0.0 {
+            return (x - self.start[0]).hypot(y - self.start[1]);
+        }
+        ((x - self.start[0]) * dy - (y - self.start[1]) * dx).abs() / length
     }
 
     /// Distance from the robot's centre to the nearest obstacle surface, m.
@@ -79,6 +98,9 @@ impl Monitor {
     pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
         let clearance = self.clearance(x, y);
         self.min_clearance_m = self.min_clearance_m.min(clearance);
+        if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
+            self.deviation_time_s = Some(t_s);
+        }
         let distance = (x - self.goal[0]).hypot(y - self.goal[1]);
         self.last_distance_to_goal_m = distance;
         if distance <= self.goal_tolerance_m {

@@ -57,6 +57,8 @@ pub struct Summary {
     pub min_clearance_m: f64,
     /// First time after which the robot stayed within the goal tolerance, s.
     pub time_to_goal_s: Option<f64>,
+    /// First time the robot was more than 5 cm off the straight start-goal line, s.
+    pub deviation_time_s: Option<f64>,
     pub final_distance_to_goal_m: f64,
     /// Samples whose plan was not in the DFL's hands by `t_k + Ts`, or failed.
     pub deadline_misses: u64,
@@ -471,6 +473,7 @@ impl Recorder {
             mode: mode.to_string(),
             outcome,
             min_clearance_m: m.min_clearance_m,
+            deviation_time_s: m.deviation_time_s,
             time_to_goal_s: if outcome == Outcome::Reached {
                 m.inside_goal_since_s
             } else {

@@ -304,9 +304,22 @@ pub enum ConstraintKind {
     Euclidean,
 }
 
+/// Which MPC drives the DFL.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Formulation {
+    /// The paper's scheme: linear MPC on the DFL-linearized model (eqs. 51-47).
+    Linear,
+    /// The baseline SCNMPC on the unicycle itself (eqs. pr3-pr7), by sequential conic
+    /// programming.
+    Nonlinear,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MpcConfig {
+    /// `linear` (the paper's scheme) or `nonlinear` (the SCNMPC baseline).
+    pub formulation: Formulation,
     /// Prediction horizon `N`.
     pub horizon: usize,
     /// Constraint-checking horizon `Nc` of the terminal constraints (eqs. 45, 47).
@@ -422,6 +435,7 @@ impl Default for EstimatorConfig {
 impl Default for MpcConfig {
     fn default() -> Self {
         MpcConfig {
+            formulation: Formulation::Linear,
             horizon: 8,
             constraint_horizon: 10,
             gamma: 0.1,

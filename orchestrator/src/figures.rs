@@ -1,0 +1,637 @@
+//! Figures as SVG and PNG, drawn with plotters: the paper's figure set (`scmpc figures`)
+//! and the plots of one run (`path` and `clearance`, written by `scmpc run`).
+//!
+//! Text needs a TrueType font: the first of [`FONT_CANDIDATES`] that exists (or the file
+//! named by `SCMPC_FONT`) is used; Debian's `fonts-dejavu-core` provides one.
+
+use anyhow::{Context, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// Where a sans-serif TrueType font is looked for.
+pub const FONT_CANDIDATES: [&str; 4] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+];
+
+/// Width and height of every figure, px.
+const SIZE: (u32, u32) = (900, 700);
+/// Margins of the plotting area inside a figure, px: left (with the y labels), right,
+/// top (with the title), bottom (with the x labels).
+const PLOT_MARGINS: (u32, u32, u32, u32) = (85, 15, 55, 60);
+/// Series colours, distinguishable in print.
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(23, 190, 207),
+    RGBColor(227, 119, 194),
+];
+
+/// One curve.
+#[derive(Debug, Clone)]
+pub struct Series {
+    pub label: String,
+    pub points: Vec<(f64, f64)>,
+    /// Drawn thinner and lighter (a noisy or secondary variant).
+    pub faint: bool,
+    /// Palette index.
+    pub color: usize,
+}
+
+/// A figure: curves, obstacles to scale, horizontal reference lines.
+#[derive(Debug, Clone, Default)]
+pub struct Figure {
+    /// File name without extension.
+    pub stem: String,
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    /// Circles `(x, y, radius)` in data units, drawn filled.
+    pub discs: Vec<(f64, f64, f64)>,
+    /// Horizontal lines `(y, label)`.
+    pub levels: Vec<(f64, String)>,
+    /// Same scale on both axes (paths in the plane).
+    pub equal_axes: bool,
+    /// Logarithmic y axis.
+    pub log_y: bool,
+}
+
+impl Figure {
+    /// Writes `<stem>.svg` and `<stem>.png` into `dir`; returns both paths.
+    pub fn write(&self, dir: &Path) -> anyhow::Result<[PathBuf; 2]> {
+        ensure_font()?;
+        let svg = dir.join(format!("{}.svg", self.stem));
+        let png = dir.join(format!("{}.png", self.stem));
+        {
+            let root = SVGBackend::new(&svg, SIZE).into_drawing_area();
+            self.draw(&root)
+                .map_err(|e| anyhow!("drawing {}: {e}", svg.display()))?;
+            root.present()
+                .map_err(|e| anyhow!("writing {}: {e}", svg.display()))?;
+        }
+        let mut pixels = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut pixels, SIZE).into_drawing_area();
+            self.draw(&root)
+                .map_err(|e| anyhow!("drawing {}: {e}", png.display()))?;
+            root.present()
+                .map_err(|e| anyhow!("drawing {}: {e}", png.display()))?;
+        }
+        write_png(&png, &pixels).with_context(|| format!("writing {}", png.display()))?;
+        Ok([svg, png])
+    }
+
+    /// The ranges of the axes: the data's, padded; equal scales for paths.
+    fn ranges(&self) -> ((f64, f64), (f64, f64)) {
+        let mut xs: Vec<f64> = Vec::new();
+        let mut ys: Vec<f64> = Vec::new();
+        for s in &self.series {
+            for &(x, y) in &s.points {
+                if x.is_finite() && y.is_finite() {
+                    xs.push(x);
+                    ys.push(self.y(y));
+                }
+            }
+        }
+        for &(x, y, r) in &self.discs {
+            xs.extend([x - r, x + r]);
+            ys.extend([y - r, y + r]);
+        }
+        ys.extend(self.levels.iter().map(|l| self.y(l.0)));
+        let span = |v: &[f64]| {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if lo.is_finite() && hi.is_finite() {
+                let pad = ((hi - lo) * 0.05).max(1e-3);
+                (lo - pad, hi + pad)
+            } else {
+                (0.0, 1.0)
+            }
+        };
+        let (mut x, mut y) = (span(&xs), span(&ys));
+        if self.equal_axes {
+            // One metre is as long on both axes: the spans follow the plot area's shape.
+            let (l, r, t, b) = PLOT_MARGINS;
+            let aspect = f64::from(SIZE.0 - l - r) / f64::from(SIZE.1 - t - b);
+            let half_y = ((x.1 - x.0) / aspect).max(y.1 - y.0) / 2.0;
+            let (cx, cy) = ((x.0 + x.1) / 2.0, (y.0 + y.1) / 2.0);
+            x = (cx - half_y * aspect, cx + half_y * aspect);
+            y = (cy - half_y, cy + half_y);
+        }
+        if self.log_y {
+            // Room above the data for the legend.
+            y.1 += 0.6;
+        }
+        (x, y)
+    }
+
+    /// A y value as plotted (log10 on a log axis).
+    fn y(&self, y: f64) -> f64 {
+        if self.log_y { y.max(1e-9).log10() } else { y }
+    }
+
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        root.fill(&WHITE)?;
+        let ((x0, x1), (y0, y1)) = self.ranges();
+        let (left, right, top, bottom) = PLOT_MARGINS;
+        let mut chart = ChartBuilder::on(root)
+            .caption(&self.title, ("sans-serif", 22))
+            .margin_left(left - 70)
+            .margin_right(right)
+            .margin_top(top - 30)
+            .margin_bottom(bottom - 45)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        let log_y = self.log_y;
+        let y_format = move |v: &f64| {
+            if log_y {
+                let value = 10f64.powf(*v);
+                let decimals = (1.0 - value.log10().floor()).clamp(0.0, 3.0) as usize;
+                format!("{value:.decimals$}")
+            } else {
+                format!("{v:.2}")
+            }
+        };
+        chart
+            .configure_mesh()
+            .x_desc(self.x_label.as_str())
+            .y_desc(self.y_label.as_str())
+            .y_label_formatter(&y_format)
+            .axis_desc_style(("sans-serif", 17))
+            .label_style(("sans-serif", 14))
+            .light_line_style(WHITE.mix(0.0))
+            .draw()?;
+        for &(cx, cy, r) in &self.discs {
+            let outline: Vec<(f64, f64)> = (0..=120)
+                .map(|i| {
+                    let a = i as f64 / 120.0 * std::f64::consts::TAU;
+                    (cx + r * a.cos(), cy + r * a.sin())
+                })
+                .collect();
+            chart.draw_series(std::iter::once(Polygon::new(
+                outline.clone(),
+                RGBColor(120, 120, 120).mix(0.35).filled(),
+            )))?;
+            chart.draw_series(std::iter::once(PathElement::new(outline, BLACK)))?;
+        }
+        for (y, label) in &self.levels {
+            let y = self.y(*y);
+            let style = RED.stroke_width(2);
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(x0, y), (x1, y)],
+                    style,
+                )))?
+                .label(label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+        }
+        for s in &self.series {
+            let color = PALETTE[s.color % PALETTE.len()];
+            let style = if s.faint {
+                color.mix(0.7).stroke_width(1)
+            } else {
+                color.stroke_width(2)
+            };
+            let points = s
+                .points
+                .iter()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .map(|&(x, y)| (x, self.y(y)));
+            chart
+                .draw_series(LineSeries::new(points, style))?
+                .label(s.label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    }
+}
+
+/// Registers a TrueType font for plotters' text, once per process.
+pub fn ensure_font() -> anyhow::Result<()> {
+    static FONT: OnceLock<Result<(), String>> = OnceLock::new();
+    FONT.get_or_init(|| {
+        let from_env = std::env::var("SCMPC_FONT").ok();
+        let candidates = from_env.iter().map(String::as_str).chain(FONT_CANDIDATES);
+        for path in candidates {
+            if let Ok(bytes) = std::fs::read(path) {
+                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                return plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+                    .map_err(|_| format!("{path} is not a usable TrueType font"));
+            }
+        }
+        Err(format!(
+            "no TrueType font for the figures: install Debian's fonts-dejavu-core, or name a \
+             .ttf file in SCMPC_FONT (looked for {})",
+            FONT_CANDIDATES.join(", ")
+        ))
+    })
+    .clone()
+    .map_err(|e| anyhow!(e))
+}
+
+fn write_png(path: &Path, rgb: &[u8]) -> anyhow::Result<()> {
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, SIZE.0, SIZE.1);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(rgb)?;
+    Ok(writer.finish()?)
+}
+
+/// One run's `trajectory.csv`, the columns the figures use.
+#[derive(Debug, Clone, Default)]
+pub struct Trajectory {
+    pub t: Vec<f64>,
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub theta: Vec<f64>,
+    pub zeta: Vec<f64>,
+    pub clearance: Vec<f64>,
+}
+
+impl Trajectory {
+    pub fn read(dir: &Path) -> anyhow::Result<Trajectory> {
+        let path = dir.join("trajectory.csv");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let mut t = Trajectory::default();
+        for (n, line) in text.lines().enumerate().skip(1) {
+            let f: Vec<&str> = line.split(',').collect();
+            let num = |i: usize| -> anyhow::Result<f64> {
+                f.get(i)
+                    .and_then(|v| v.parse().ok())
+                    .ok_or_else(|| anyhow!("{}: line {}: column {i}", path.display(), n + 1))
+            };
+            t.t.push(num(0)?);
+            t.x.push(num(1)?);
+            t.y.push(num(2)?);
+            t.theta.push(num(3)?);
+            t.zeta.push(num(4)?);
+            t.clearance.push(num(17)?);
+        }
+        Ok(t)
+    }
+
+    pub fn path(&self) -> Vec<(f64, f64)> {
+        self.x.iter().copied().zip(self.y.iter().copied()).collect()
+    }
+    fn over_time(&self, v: &[f64]) -> Vec<(f64, f64)> {
+        self.t.iter().copied().zip(v.iter().copied()).collect()
+    }
+    /// Forward speed zeta over time, m/s.
+    pub fn speed(&self) -> Vec<(f64, f64)> {
+        self.over_time(&self.zeta)
+    }
+    pub fn clearance(&self) -> Vec<(f64, f64)> {
+        self.over_time(&self.clearance)
+    }
+    /// Component `c` of `z = Phi(x_bar)` (goal-relative positions) over time.
+    pub fn flat(&self, c: usize, goal: [f64; 2]) -> Vec<(f64, f64)> {
+        (0..self.t.len())
+            .map(|i| {
+                let z = protocol::phi([self.x[i], self.y[i], self.theta[i], self.zeta[i]]);
+                let v = match c {
+                    0 => z[0] - goal[0],
+                    2 => z[2] - goal[1],
+                    _ => z[c],
+                };
+                (self.t[i], v)
+            })
+            .collect()
+    }
+}
+
+/// The obstacles of a scenario as discs `(x, y, radius)`.
+pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
+    scenario
+        .obstacles
+        .iter()
+        .map(|o| (o.x, o.y, o.radius))
+        .collect()
+}
+
+/// `path` and `clearance` of the run in `dir` (written by `scmpc run`).
+pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()> {
+    let t = Trajectory::read(dir)?;
+    let series = |label: &str, points| Series {
+        label: label.to_string(),
+        points,
+        faint: false,
+        color: 0,
+    };
+    Figure {
+        stem: "path".into(),
+        title: format!("{}: path", scenario.name),
+        x_label: "x (m)".into(),
+        y_label: "y (m)".into(),
+        series: vec![series("robot", t.path())],
+        discs: obstacle_discs(scenario),
+        equal_axes: true,
+        ..Figure::default()
+    }
+    .write(dir)?;
+    Figure {
+        stem: "clearance".into(),
+        title: format!("{}: distance to the obstacle", scenario.name),
+        x_label: "t (s)".into(),
+        y_label: "clearance (m)".into(),
+        series: vec![series("robot centre to obstacle surface", t.clearance())],
+        ..Figure::default()
+    }
+    .write(dir)?;
+    Ok(())
+}
+
+/// The γ values of the paper's Fig. 4 (a).
+pub const GAMMAS: [f64; 6] = [0.1, 0.3, 0.5, 0.7, 0.9, 1.0];
+/// The (γ, N) pairs of Fig. 4 (b).
+pub const GAMMA_HORIZON_PAIRS: [(f64, usize); 4] = [(0.1, 9), (0.3, 10), (0.5, 12), (0.9, 14)];
+/// Horizons of the solve-time comparison.
+pub const HORIZONS: [usize; 5] = [8, 9, 10, 12, 14];
+
+/// What [`paper_set`] produced.
+#[derive(Debug)]
+pub struct FigureSet {
+    pub files: Vec<PathBuf>,
+    pub solve_times: Vec<crate::study::SolveTimes>,
+}
+
+/// The paper's figure set, from scratch: runs every scenario it needs in process (on
+/// `threads` threads, into `out/runs`), measures the solve times of both formulations,
+/// and draws every figure into `out`.
+pub fn paper_set(
+    out: &Path,
+    threads: usize,
+    stop: &std::sync::atomic::AtomicBool,
+) -> anyhow::Result<FigureSet> {
+    use crate::study::{RunSpec, compare_solve_times, run_all};
+    ensure_font()?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let base = protocol::Scenario::default();
+    let noisy = crate::scenarios::load(Some("paper-noisy"), &[])
+        .map_err(|e| anyhow!("the built-in paper-noisy scenario: {e}"))?;
+    let spec = |name: String, scenario: &protocol::Scenario, sets: &[String]| {
+        let scenario = scenario
+            .with_overrides(sets)
+            .map_err(|e| anyhow!("{name}: {e}"))?;
+        Ok::<_, anyhow::Error>(RunSpec {
+            values: vec![name.clone()],
+            combination: 0,
+            scenario,
+            dir: out.join("runs").join(name),
+        })
+    };
+    let mut specs = Vec::new();
+    for g in GAMMAS {
+        specs.push(spec(
+            format!("gamma-{g}"),
+            &base,
+            &[format!("mpc.gamma={g}")],
+        )?);
+    }
+    for (g, n) in GAMMA_HORIZON_PAIRS {
+        let sets = [format!("mpc.gamma={g}"), format!("mpc.horizon={n}")];
+        specs.push(spec(format!("gamma-{g}-n-{n}"), &base, &sets)?);
+    }
+    specs.push(spec(
+        "euclidean".into(),
+        &base,
+        &["mpc.constraint=euclidean".into()],
+    )?);
+    specs.push(spec("noisy-ekf".into(), &noisy, &[])?);
+    let passthrough = [
+        "estimator.kind=passthrough".to_string(),
+        "mpc.uncertainty_sigmas=0".to_string(),
+    ];
+    specs.push(spec("noisy-passthrough".into(), &noisy, &passthrough)?);
+    let results = run_all(&specs, threads, true, stop);
+    let mut runs = std::collections::BTreeMap::new();
+    for (s, r) in specs.iter().zip(results) {
+        r.with_context(|| format!("run {}", s.values[0]))?;
+        runs.insert(s.values[0].clone(), Trajectory::read(&s.dir)?);
+    }
+    let run = |name: &str| runs.get(name).ok_or_else(|| anyhow!("run {name} missing"));
+    let series = |label: String, points, color, faint| Series {
+        label,
+        points,
+        faint,
+        color,
+    };
+    let discs = obstacle_discs(&base);
+    let paths = |stem: &str, title: &str, series: Vec<Series>| Figure {
+        stem: stem.into(),
+        title: title.into(),
+        x_label: "x (m)".into(),
+        y_label: "y (m)".into(),
+        series,
+        discs: discs.clone(),
+        equal_axes: true,
+        ..Figure::default()
+    };
+    let gamma_paths = GAMMAS
+        .iter()
+        .enumerate()
+        .map(|(i, g)| {
+            Ok(series(
+                format!("γ = {g}, N = 8"),
+                run(&format!("gamma-{g}"))?.path(),
+                i,
+                false,
+            ))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let pair_paths = GAMMA_HORIZON_PAIRS
+        .iter()
+        .enumerate()
+        .map(|(i, (g, n))| {
+            Ok(series(
+                format!("γ = {g}, N = {n}"),
+                run(&format!("gamma-{g}-n-{n}"))?.path(),
+                i,
+                false,
+            ))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let nominal = run("gamma-0.1")?;
+    let mut figures = vec![
+        paths("paths_gamma", "(a) paths for several γ, N = 8", gamma_paths),
+        paths(
+            "paths_gamma_horizon",
+            "(b) paths for several (γ, N)",
+            pair_paths,
+        ),
+        paths(
+            "paths_cbf_euclidean",
+            "(c) CBF against the Euclidean constraint, N = 8",
+            vec![
+                series("CBF, γ = 0.1".into(), nominal.path(), 0, false),
+                series(
+                    "Euclidean distance".into(),
+                    run("euclidean")?.path(),
+                    1,
+                    false,
+                ),
+            ],
+        ),
+        paths(
+            "paths_noise",
+            "(d) nominal against noisy feedback (variance 0.05)",
+            vec![
+                series("nominal".into(), nominal.path(), 0, false),
+                series("noisy, EKF".into(), run("noisy-ekf")?.path(), 1, false),
+                series(
+                    "noisy, passthrough (κ = 0)".into(),
+                    run("noisy-passthrough")?.path(),
+                    3,
+                    false,
+                ),
+            ],
+        ),
+    ];
+    let over_time = |stem: &str, title: &str, y_label: &str, series: Vec<Series>| Figure {
+        stem: stem.into(),
+        title: title.into(),
+        x_label: "t (s)".into(),
+        y_label: y_label.into(),
+        series,
+        ..Figure::default()
+    };
+    let per_gamma = |f: &dyn Fn(&Trajectory) -> Vec<(f64, f64)>| {
+        GAMMAS
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                Ok(series(
+                    format!("γ = {g}, N = 8"),
+                    f(run(&format!("gamma-{g}"))?),
+                    i,
+                    false,
+                ))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    };
+    figures.push(over_time(
+        "velocity",
+        "linear velocity ζ",
+        "ζ (m/s)",
+        per_gamma(&Trajectory::speed)?,
+    ));
+    let mut distance = per_gamma(&Trajectory::clearance)?;
+    distance.push(series(
+        "Euclidean, N = 8".into(),
+        run("euclidean")?.clearance(),
+        7,
+        false,
+    ));
+    figures.push(over_time(
+        "distance",
+        "distance to the obstacle",
+        "clearance (m)",
+        distance,
+    ));
+    let goal = base.robot.goal;
+    let names = ["x", "ẋ", "y", "ẏ"];
+    let mut convergence = Vec::new();
+    for (c, name) in names.iter().enumerate() {
+        convergence.push(series(
+            format!("{name}, nominal"),
+            nominal.flat(c, goal),
+            c,
+            false,
+        ));
+    }
+    let noisy_run = run("noisy-ekf")?;
+    for (c, name) in names.iter().enumerate() {
+        convergence.push(series(
+            format!("{name}, noisy (EKF)"),
+            noisy_run.flat(c, goal),
+            c,
+            true,
+        ));
+    }
+    figures.push(over_time(
+        "convergence",
+        "the extended state z converging to the origin",
+        "z (m, m/s)",
+        convergence,
+    ));
+
+    let mut solve_times = Vec::new();
+    for n in HORIZONS {
+        let dir = out.join("runs").join(format!("solve-time-n-{n}"));
+        solve_times.push(compare_solve_times(&base, n, &dir)?);
+    }
+    let curve = |label: &str, color, faint, f: &dyn Fn(&crate::study::SolveTimes) -> f64| Series {
+        label: label.into(),
+        points: solve_times
+            .iter()
+            .map(|s| (s.horizon as f64, f(s) / 1e3))
+            .collect(),
+        faint,
+        color,
+    };
+    figures.push(Figure {
+        stem: "solve_time".into(),
+        title: "solve time per sample against N".into(),
+        x_label: "prediction horizon N".into(),
+        y_label: "solve time (ms, log scale)".into(),
+        series: vec![
+            curve("linear (DFL), median", 0, false, &|s| s.linear_us.p50),
+            curve("linear (DFL), p99", 0, true, &|s| s.linear_us.p99),
+            curve("nonlinear (SCNMPC), median", 1, false, &|s| {
+                s.nonlinear_us.p50
+            }),
+            curve("nonlinear (SCNMPC), p99", 1, true, &|s| s.nonlinear_us.p99),
+        ],
+        levels: vec![(base.timing.ts_s * 1e3, "Ts = 50 ms".into())],
+        log_y: true,
+        ..Figure::default()
+    });
+    let mut files = Vec::new();
+    for f in &figures {
+        files.extend(f.write(out)?);
+    }
+    write_solve_times(&out.join("solve_times.csv"), &solve_times)?;
+    Ok(FigureSet { files, solve_times })
+}
+
+fn write_solve_times(path: &Path, times: &[crate::study::SolveTimes]) -> anyhow::Result<()> {
+    let mut text = String::from(
+        "horizon,linear_p50_us,linear_p99_us,linear_max_us,nonlinear_p50_us,nonlinear_p99_us,nonlinear_max_us,nonlinear_failures\n",
+    );
+    for s in times {
+        text.push_str(&format!(
+            "{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{}\n",
+            s.horizon,
+            s.linear_us.p50,
+            s.linear_us.p99,
+            s.linear_us.max,
+            s.nonlinear_us.p50,
+            s.nonlinear_us.p99,
+            s.nonlinear_us.max,
+            s.nonlinear_failures
+        ));
+    }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
