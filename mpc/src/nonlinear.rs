@@ -357,21 +357,19 @@ impl NonlinearMpc {
             for r in 0..4 {
                 // s_{i+1} - A s_i - B u_i = f - A s_bar - B u_bar
                 let mut rhs = f[r];
-                let mut terms = Vec::with_capacity(7);
-                terms.push((self.s(i + 1, r), 1.0));
-                for c in 0..6 {
-                    if !JACOBIAN_PATTERN[r][c] {
-                        continue;
-                    }
+                let mut terms = [(self.s(i + 1, r), 1.0); 7];
+                let mut used = 1;
+                for c in (0..6).filter(|&c| JACOBIAN_PATTERN[r][c]) {
                     let (column, at) = if c < 4 {
                         (self.s(i, c), s_bar[c])
                     } else {
                         (self.u(i, c - 4), u_bar[c - 4])
                     };
-                    terms.push((column, -jac[r][c]));
+                    terms[used] = (column, -jac[r][c]);
+                    used += 1;
                     rhs -= jac[r][c] * at;
                 }
-                asm.row(terms, rhs);
+                asm.row(terms.into_iter().take(used), rhs);
             }
         }
         // w - J s_N = Phi(s_bar_N) - J s_bar_N, J the Jacobian of Phi at s_bar_N.
