@@ -14,7 +14,7 @@ pub mod problem;
 pub mod process;
 
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
+use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus};
 use nalgebra::{Matrix2, Matrix4, Vector4};
 use problem::{Assembly, Disc, Layout, StaticData, StepData, csc_with_positions};
 use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
@@ -259,17 +259,13 @@ impl LinearMpc {
                 self.nz_position = positions;
                 let p = self.objective();
                 let q = vec![0.0; self.layout.variables()];
-                let settings = DefaultSettings::<f64> {
-                    verbose: false,
-                    ..DefaultSettings::default()
-                };
                 match DefaultSolver::new(
                     &p,
                     &q,
                     &a,
                     &self.assembly.b,
                     &self.layout.cones(),
-                    settings,
+                    problem::solver_settings(),
                 ) {
                     Ok(solver) => self.solver.insert(solver),
                     Err(_) => return (PlanStatus::NumericalError, 0),

@@ -20,7 +20,7 @@
 
 use crate::problem::{Assembly, Barrier, Disc, barrier_row_counts, csc_with_positions};
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SupportedConeT};
+use clarabel::solver::{DefaultSolver, IPSolver, SupportedConeT};
 use protocol::{ConstraintKind, Header, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
@@ -304,17 +304,13 @@ impl NonlinearMpc {
                     csc_with_positions(rows, self.variables(), &self.assembly.entries);
                 self.nzval = a.nzval.clone();
                 self.nz_position = positions;
-                let settings = DefaultSettings::<f64> {
-                    verbose: false,
-                    ..DefaultSettings::default()
-                };
                 match DefaultSolver::new(
                     &self.objective(),
                     &vec![0.0; self.variables()],
                     &a,
                     &self.assembly.b,
                     &self.cones(),
-                    settings,
+                    crate::problem::solver_settings(),
                 ) {
                     Ok(solver) => self.solver.insert(solver),
                     Err(_) => return (PlanStatus::NumericalError, 0),
