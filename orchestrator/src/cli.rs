@@ -52,6 +52,22 @@ enum Command {
         #[arg(long, value_name = "DIR", default_value = "docs/figures")]
         out: PathBuf,
     },
+    /// Benchmark the pipeline end to end against a raw iceoryx2 ping-pong; prints a table
+    /// and writes bench.json.
+    Bench {
+        /// Directory of the runs and bench.json [default: a fresh directory under runs/].
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Length of the real-time run, s.
+        #[arg(long, default_value_t = 10.0)]
+        realtime_s: f64,
+    },
+    /// The other end of `scmpc bench`'s ping-pong (started by it).
+    #[command(hide = true)]
+    BenchPong {
+        #[arg(long)]
+        prefix: String,
+    },
     /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
@@ -187,6 +203,14 @@ pub fn main() -> ExitCode {
         Command::Swap(args) => swap(args),
         Command::Sweep(args) => sweep(args),
         Command::Figures { out } => figures(&out),
+        Command::Bench { out, realtime_s } => bench(out, realtime_s),
+        Command::BenchPong { prefix } => match crate::bench::pong(&prefix) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Command::Plant(args) => role(args, plant::process::run),
         Command::Estimator(args) => role(args, estimator::process::run),
         Command::Mpc(args) => role(args, mpc::process::run),
@@ -320,6 +344,26 @@ fn figures(out: &std::path::Path) -> ExitCode {
             for f in &set.files {
                 println!("{}", f.display());
             }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
+    }
+}
+
+fn bench(out: Option<PathBuf>, realtime_s: f64) -> ExitCode {
+    if !(realtime_s.is_finite() && realtime_s > 0.0) {
+        eprintln!("error: --realtime-s must be positive, got {realtime_s}");
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
+    let out = out.unwrap_or_else(|| default_run_dir("bench"));
+    let stop = stop_flag();
+    match crate::bench::run(&out, realtime_s, &stop) {
+        Ok(report) => {
+            print!("{}", report.table());
+            println!("bench directory: {}", out.display());
             ExitCode::SUCCESS
         }
         Err(e) => {

@@ -1,5 +1,6 @@
 //! The `scmpc` command: scenario validation, the in-process run, recording and the summary.
 
+pub mod bench;
 pub mod cli;
 pub mod figures;
 pub mod inprocess;

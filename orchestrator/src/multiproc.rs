@@ -1144,7 +1144,20 @@ fn drive(
         report.rejected_samples = std::mem::take(&mut driver.rejected);
         outcome
     });
-    // Stop every process whatever happened, then release the orchestrator's own ports.
+    // Peak resident memory of every process still running, then stop them all whatever
+    // happened, then release the orchestrator's own ports.
+    for p in &children.list {
+        if let Some(kib) = peak_rss_kib(p.child.id()) {
+            let peak = report
+                .peak_rss_kib
+                .entry(p.role.as_str().into())
+                .or_default();
+            *peak = (*peak).max(kib);
+        }
+    }
+    if let Some(kib) = peak_rss_kib(std::process::id()) {
+        report.peak_rss_kib.insert("orchestrator".into(), kib);
+    }
     let _ = session.command(ControlCommand::Stop, 0, 0);
     for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
         recorder.event(
@@ -1154,6 +1167,13 @@ fn drive(
     }
     drop(guards);
     Ok((outcome?, report))
+}
+
+/// Peak resident set size of process `pid` (`VmHWM`), KiB.
+fn peak_rss_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
 }
 
 /// The scenario's `[[swap]]` entries, earliest first (validated: the roles are swappable).

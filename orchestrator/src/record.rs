@@ -102,6 +102,8 @@ pub struct ProcessReport {
     pub record_gaps: u64,
     /// Ticks commanded without an estimate (the DFL braking on its own clock).
     pub ticks_without_estimate: u64,
+    /// Peak resident memory of each process at the end of the run (`VmHWM`), KiB.
+    pub peak_rss_kib: BTreeMap<String, u64>,
     /// Processes restarted after a crash.
     pub restarts: u32,
     /// Swap-in replacements that took over (details in events.jsonl).

@@ -1,0 +1,148 @@
+//! The step functions of the four roles, each on the states of the paper's closed loop:
+//! `cargo bench --bench steps`.
+
+use dfl::{Dfl, PlanInbox};
+use estimator::Estimator;
+use mpc::Mpc;
+use plant::Plant;
+use protocol::{Estimate, Header, Obstacle, Plan, Scenario};
+
+fn main() {
+    divan::main();
+}
+
+/// The estimates and plans of the in-process closed loop of `scenario`, per sample.
+fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
+    let m = scenario.timing.inner_steps as u64;
+    let dt = scenario.timing.ts_s / m as f64;
+    let mut plant = Plant::new(scenario);
+    let mut estimator = Estimator::new(scenario);
+    let mut mpc = Mpc::new(scenario).expect("paper scenario");
+    let mut dfl = Dfl::new(scenario);
+    let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
+    let (mut estimates, mut plans) = (Vec::new(), Vec::new());
+    let mut applied = None;
+    for tick in 0..(scenario.duration_s / dt) as u64 {
+        let header = Header {
+            tick,
+            time_s: tick as f64 * dt,
+            ..Header::default()
+        };
+        let e = estimator.step(applied, dt, plant.measure(), dfl.zeta(), header);
+        if tick.is_multiple_of(m) {
+            let plan = mpc.step(tick / m, e.state, e.position_sigma());
+            inbox.receive(&plan);
+            estimates.push(e);
+            plans.push(plan);
+        }
+        inbox.release(tick / m, &mut dfl);
+        let act = dfl.step(&e, tick);
+        plant.step(act.u1, act.u2, dt);
+        applied = Some([act.u1, act.u2]);
+    }
+    (estimates, plans)
+}
+
+/// One MPC step per iteration, walking the closed loop's states in order (warm starts as
+/// in a run), from the start again at the end. Divan's samples of one iteration each
+/// are the steps' own times.
+fn bench_mpc(bencher: divan::Bencher, scenario: &Scenario) {
+    let (estimates, _) = closed_loop(scenario);
+    let mut mpc = Mpc::new(scenario).expect("valid scenario");
+    let mut k = 0;
+    bencher.bench_local(|| {
+        if k == estimates.len() {
+            k = 0;
+            mpc.reset();
+        }
+        let e = &estimates[k];
+        let plan = mpc.step(k as u64, e.state, e.position_sigma());
+        k += 1;
+        plan
+    });
+}
+
+/// Samples of a 30 s run: every benchmark of the MPC covers the whole closed loop.
+const RUN_SAMPLES: u32 = 600;
+
+#[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
+fn mpc_step(bencher: divan::Bencher, horizon: usize) {
+    let mut s = Scenario::default();
+    s.mpc.horizon = horizon;
+    bench_mpc(bencher, &s);
+}
+
+#[divan::bench(sample_count = RUN_SAMPLES)]
+fn mpc_step_five_obstacles(bencher: divan::Bencher) {
+    let mut s = Scenario::default();
+    s.obstacles.extend([
+        Obstacle {
+            x: -3.0,
+            y: 2.0,
+            radius: 0.5,
+        },
+        Obstacle {
+            x: 6.0,
+            y: -3.0,
+            radius: 0.8,
+        },
+        Obstacle {
+            x: -5.0,
+            y: -5.0,
+            radius: 1.0,
+        },
+        Obstacle {
+            x: 1.0,
+            y: 7.5,
+            radius: 0.6,
+        },
+    ]);
+    bench_mpc(bencher, &s);
+}
+
+#[divan::bench(sample_count = RUN_SAMPLES)]
+fn nonlinear_mpc_step(bencher: divan::Bencher) {
+    let mut s = Scenario::default();
+    s.mpc.formulation = protocol::Formulation::Nonlinear;
+    bench_mpc(bencher, &s);
+}
+
+#[divan::bench]
+fn dfl_step(bencher: divan::Bencher) {
+    let s = Scenario::default();
+    let (estimates, plans) = closed_loop(&s);
+    let mut dfl = Dfl::new(&s);
+    let mut k = 0;
+    bencher.bench_local(|| {
+        k = (k + 1) % estimates.len();
+        dfl.offer(&plans[k]);
+        dfl.step(&estimates[k], k as u64 * 10)
+    });
+}
+
+#[divan::bench]
+fn ekf_step(bencher: divan::Bencher) {
+    let s = Scenario::default()
+        .with_overrides(&["plant.noise_variance=0.05".into()])
+        .expect("valid override");
+    let mut plant = Plant::new(&s);
+    let mut estimator = Estimator::new(&s);
+    let dt = s.timing.ts_s / s.timing.inner_steps as f64;
+    let mut tick = 0;
+    bencher.bench_local(|| {
+        tick += 1;
+        let header = Header {
+            tick,
+            ..Header::default()
+        };
+        estimator.step(Some([0.5, 0.1]), dt, plant.measure(), 0.5, header)
+    });
+}
+
+#[divan::bench]
+fn plant_step(bencher: divan::Bencher) {
+    let s = Scenario::default();
+    let mut plant = Plant::new(&s);
+    let dt = s.timing.ts_s / s.timing.inner_steps as f64;
+    bencher.bench_local(|| plant.step(0.5, 0.1, dt));
+}

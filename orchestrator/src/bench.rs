@@ -1,0 +1,281 @@
+//! `scmpc bench`: the pipeline end to end against iceoryx2's own speed.
+//!
+//! - Baseline: a raw iceoryx2 ping-pong between this process and a `scmpc bench-pong`
+//!   child (publish-subscribe plus an event, a WaitSet on each side, the same as every
+//!   hop of the pipeline, without this project's code), one ping per inner tick (5 ms,
+//!   like the pipeline's samples, so both wake from idle alike). One-way latency is half
+//!   the round trip.
+//! - Real time: the paper run in real time: per-hop and sensor-to-actuator latency,
+//!   deadline misses, each process's peak resident memory.
+//! - Lockstep: the paper run in lockstep: how much faster than real time.
+
+use crate::multiproc;
+use crate::record::{Percentiles, Summary};
+use anyhow::{Context, anyhow};
+use iceoryx2::prelude::*;
+use iceoryx2::service::ipc::Service as IpcService;
+use protocol::clock::{monotonic_ns, sleep_until_ns};
+use protocol::ipc::{self, RunMode};
+use serde::Serialize;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+/// Ping-pong payload.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("scmpc::BenchPing")]
+pub struct Ping {
+    pub seq: u64,
+}
+
+const PING: &str = "bench_ping";
+const PONG: &str = "bench_pong";
+/// Round trips of the baseline, and the warm-up ones not counted.
+const ROUNDS: u64 = 1000;
+const WARM_UP: u64 = 50;
+/// Time between two pings, ns (the paper's inner tick).
+const PING_PERIOD_NS: u64 = 5_000_000;
+
+/// `bench.json`.
+#[derive(Debug, Serialize)]
+pub struct BenchReport {
+    pub machine: String,
+    /// One-way latency of the raw iceoryx2 ping-pong, µs.
+    pub raw_iceoryx2_one_way_us: Percentiles,
+    /// Publish-to-receipt of every hop of the real-time pipeline, pooled, µs.
+    pub pipeline_hop_us: Percentiles,
+    /// `pipeline_hop_us.p50 / raw_iceoryx2_one_way_us.p50`.
+    pub hop_ratio_p50: f64,
+    /// Measurement published to actuation published, ticks without a solve, µs.
+    pub sensor_to_actuator_us: Percentiles,
+    /// MPC step of the real-time run (update, every solve), µs.
+    pub solve_us: Percentiles,
+    pub realtime_deadline_misses: u64,
+    pub peak_rss_kib: std::collections::BTreeMap<String, u64>,
+    /// Wall time of the lockstep paper run (30 s simulated), s.
+    pub lockstep_wall_s: f64,
+    /// Simulated seconds per wall second in lockstep.
+    pub lockstep_speedup: f64,
+}
+
+struct Ports<T: iceoryx2::prelude::ZeroCopySend + std::fmt::Debug + 'static> {
+    publisher: iceoryx2::port::publisher::Publisher<IpcService, T, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<IpcService>,
+}
+
+/// The publisher and notifier of service `name`, and its subscriber and listener.
+#[allow(clippy::type_complexity)]
+fn open(
+    node: &Node<IpcService>,
+    publish_to: &str,
+    listen_to: &str,
+) -> anyhow::Result<(
+    Ports<Ping>,
+    iceoryx2::port::subscriber::Subscriber<IpcService, Ping, ()>,
+    iceoryx2::port::listener::Listener<IpcService>,
+)> {
+    let service = |name: &str| -> anyhow::Result<_> {
+        let name: ServiceName = name.try_into().map_err(|e| anyhow!("{e:?}"))?;
+        let pubsub = node
+            .service_builder(&name)
+            .publish_subscribe::<Ping>()
+            .open_or_create()
+            .map_err(|e| anyhow!("{e:?}"))?;
+        let event = node
+            .service_builder(&name)
+            .event()
+            .open_or_create()
+            .map_err(|e| anyhow!("{e:?}"))?;
+        Ok((pubsub, event))
+    };
+    let (out_pubsub, out_event) = service(publish_to)?;
+    let (in_pubsub, in_event) = service(listen_to)?;
+    Ok((
+        Ports {
+            publisher: out_pubsub
+                .publisher_builder()
+                .create()
+                .map_err(|e| anyhow!("{e:?}"))?,
+            notifier: out_event
+                .notifier_builder()
+                .create()
+                .map_err(|e| anyhow!("{e:?}"))?,
+        },
+        in_pubsub
+            .subscriber_builder()
+            .create()
+            .map_err(|e| anyhow!("{e:?}"))?,
+        in_event
+            .listener_builder()
+            .create()
+            .map_err(|e| anyhow!("{e:?}"))?,
+    ))
+}
+
+fn send(ports: &Ports<Ping>, seq: u64) -> anyhow::Result<()> {
+    ports
+        .publisher
+        .send_copy(Ping { seq })
+        .map_err(|e| anyhow!("{e:?}"))?;
+    ports.notifier.notify().map_err(|e| anyhow!("{e:?}"))?;
+    Ok(())
+}
+
+/// `scmpc bench-pong`: answers every ping until `u64::MAX` or 10 s without one.
+pub fn pong(prefix: &str) -> anyhow::Result<()> {
+    let node = ipc::create_node(prefix, "bench-pong", true)?;
+    let (ports, subscriber, listener) = open(&node, PONG, PING)?;
+    let waitset = ipc::waitset(true)?;
+    let _guard = waitset
+        .attach_notification(&listener)
+        .map_err(|e| anyhow!("{e:?}"))?;
+    loop {
+        while let Some(sample) = subscriber.receive().map_err(|e| anyhow!("{e:?}"))? {
+            let seq = sample.payload().seq;
+            if seq == u64::MAX {
+                return Ok(());
+            }
+            send(&ports, seq)?;
+        }
+        let _ = listener.try_wait(|_| {});
+        if ipc::wait(&waitset, Duration::from_secs(10))? != ipc::Wake::Input {
+            return Ok(());
+        }
+    }
+}
+
+/// One-way latencies of the raw ping-pong, µs.
+fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
+    let node = ipc::create_node(prefix, "bench-ping", false)?;
+    let (ports, subscriber, listener) = open(&node, PING, PONG)?;
+    let mut child = std::process::Command::new(std::env::current_exe()?)
+        .args(["bench-pong", "--prefix", prefix])
+        .spawn()
+        .context("starting scmpc bench-pong")?;
+    let waitset = ipc::waitset(false)?;
+    let _guard = waitset
+        .attach_notification(&listener)
+        .map_err(|e| anyhow!("{e:?}"))?;
+    // Wait until the other side has subscribed.
+    let deadline = monotonic_ns() + 10_000_000_000;
+    while subscriber.has_samples().ok() == Some(false) && monotonic_ns() < deadline {
+        send(&ports, 0)?;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    while subscriber.receive().ok().flatten().is_some() {}
+    let mut one_way = Vec::with_capacity(ROUNDS as usize);
+    let mut next = monotonic_ns();
+    for seq in 1..=ROUNDS + WARM_UP {
+        next += PING_PERIOD_NS;
+        sleep_until_ns(next);
+        let sent = monotonic_ns();
+        send(&ports, seq)?;
+        let mut answered = false;
+        while !answered {
+            while let Some(sample) = subscriber.receive().map_err(|e| anyhow!("{e:?}"))? {
+                answered |= sample.payload().seq == seq;
+            }
+            if !answered {
+                let _ = listener.try_wait(|_| {});
+                if ipc::wait(&waitset, Duration::from_secs(1))? == ipc::Wake::Timeout {
+                    let _ = child.kill();
+                    return Err(anyhow!("no pong for ping {seq} within 1 s"));
+                }
+            }
+        }
+        if seq > WARM_UP {
+            one_way.push((monotonic_ns() - sent) as f64 / 2e3);
+        }
+    }
+    send(&ports, u64::MAX)?;
+    let _ = child.wait();
+    Ok(one_way)
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    format!("{cores} × {cpu}, {}", std::env::consts::OS)
+}
+
+/// Runs the whole benchmark into `out` (run directories and `bench.json`).
+pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<BenchReport> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let prefix = ipc::new_prefix();
+    let raw = ping_pong(&prefix);
+    if let Err(e) = ipc::remove_run_resources(&prefix) {
+        tracing::warn!("cleaning up the ping-pong: {e}");
+    }
+    let raw = Percentiles::of(&raw?);
+
+    let mut scenario = protocol::Scenario::default();
+    scenario.duration_s = realtime_s;
+    let realtime: Summary = multiproc::run(
+        &scenario,
+        &out.join("realtime"),
+        RunMode::Realtime,
+        &ipc::new_prefix(),
+        stop,
+    )?;
+    let lockstep: Summary = multiproc::run(
+        &protocol::Scenario::default(),
+        &out.join("lockstep"),
+        RunMode::Lockstep,
+        &ipc::new_prefix(),
+        stop,
+    )?;
+    let processes = realtime
+        .processes
+        .as_ref()
+        .ok_or_else(|| anyhow!("the real-time run reported no processes"))?;
+    let report = BenchReport {
+        machine: machine(),
+        raw_iceoryx2_one_way_us: raw,
+        pipeline_hop_us: processes.hop_latency_us,
+        hop_ratio_p50: processes.hop_latency_us.p50 / raw.p50.max(1e-9),
+        sensor_to_actuator_us: processes.loop_latency_us,
+        solve_us: realtime.solve_us,
+        realtime_deadline_misses: realtime.deadline_misses,
+        peak_rss_kib: processes.peak_rss_kib.clone(),
+        lockstep_wall_s: lockstep.wall_s,
+        lockstep_speedup: lockstep.simulated_s / lockstep.wall_s.max(1e-9),
+    };
+    let path = out.join("bench.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(report)
+}
+
+impl BenchReport {
+    pub fn table(&self) -> String {
+        let p =
+            |x: &Percentiles| format!("p50 {:.1}, p99 {:.1}, max {:.1} µs", x.p50, x.p99, x.max);
+        let rss: Vec<String> = self
+            .peak_rss_kib
+            .iter()
+            .map(|(k, v)| format!("{k} {:.1}", *v as f64 / 1024.0))
+            .collect();
+        format!(
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for 30 s ({:.0}× real time)\n",
+            self.machine,
+            p(&self.raw_iceoryx2_one_way_us),
+            p(&self.pipeline_hop_us),
+            self.hop_ratio_p50,
+            p(&self.sensor_to_actuator_us),
+            p(&self.solve_us),
+            self.realtime_deadline_misses,
+            rss.join(", "),
+            self.lockstep_wall_s,
+            self.lockstep_speedup
+        )
+    }
+}
