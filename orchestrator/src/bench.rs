@@ -217,8 +217,10 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     }
     let raw = Percentiles::of(&raw?);
 
-    let mut scenario = protocol::Scenario::default();
-    scenario.duration_s = realtime_s;
+    let scenario = protocol::Scenario {
+        duration_s: realtime_s,
+        ..protocol::Scenario::default()
+    };
     let realtime: Summary = multiproc::run(
         &scenario,
         &out.join("realtime"),
