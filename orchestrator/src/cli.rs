@@ -269,54 +269,17 @@ fn sweep(args: SweepArgs) -> ExitCode {
         eprintln!("error: {e:#}");
         return ExitCode::from(EXIT_NOT_REACHED);
     }
-    let keys: Vec<&str> = axes.iter().map(|a| a.key.as_str()).collect();
+    let stats = study::seed_stats(&runs, &results);
+    if args.seeds > 0
+        && let Err(e) = study::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)
+    {
+        eprintln!("error: {e:#}");
+        return ExitCode::from(EXIT_NOT_REACHED);
+    }
     if args.seeds > 1 {
-        let stats = study::seed_stats(&runs, &results);
-        if let Err(e) = study::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats) {
-            eprintln!("error: {e:#}");
-            return ExitCode::from(EXIT_NOT_REACHED);
-        }
-        println!(
-            "{:<40} runs  collisions  reached  clearance min / p5 / p50 (m)",
-            keys.join(" ")
-        );
-        for s in &stats {
-            println!(
-                "{:<40} {:>4}  {:>4} ({:>5.1} %)  {:>4}  {:.4} / {:.4} / {:.4}",
-                s.values.join(" "),
-                s.runs,
-                s.collisions,
-                100.0 * s.collision_rate(),
-                s.reached,
-                s.clearance_min_m,
-                s.clearance_p5_m,
-                s.clearance_p50_m
-            );
-        }
+        print!("{}", study::seed_table(&axes, &stats));
     } else {
-        println!(
-            "{:<40} {:<9} {:>10} {:>10} {:>10} {:>10}",
-            keys.join(" "),
-            "outcome",
-            "clear (m)",
-            "swerve (s)",
-            "goal (s)",
-            "solve p50"
-        );
-        for (spec, result) in runs.iter().zip(&results) {
-            match result {
-                Ok(s) => println!(
-                    "{:<40} {:<9} {:>10.4} {:>10} {:>10} {:>7.0} µs",
-                    spec.values.join(" "),
-                    s.outcome.as_str(),
-                    s.min_clearance_m,
-                    s.deviation_time_s.map_or("-".into(), |t| format!("{t:.3}")),
-                    s.time_to_goal_s.map_or("-".into(), |t| format!("{t:.2}")),
-                    s.solve_us.p50
-                ),
-                Err(e) => println!("{:<40} error: {e:#}", spec.values.join(" ")),
-            }
-        }
+        print!("{}", study::run_table(&axes, &runs, &results));
     }
     println!("sweep directory: {}", out.display());
     if results.iter().all(Result::is_ok) {

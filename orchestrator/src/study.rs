@@ -293,6 +293,63 @@ pub fn write_seed_stats(path: &Path, axes: &[Axis], stats: &[SeedStats]) -> anyh
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }
 
+fn header(axes: &[Axis]) -> String {
+    axes.iter()
+        .map(|a| a.key.as_str())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The end-of-sweep table: one line per run.
+pub fn run_table(axes: &[Axis], runs: &[RunSpec], results: &[anyhow::Result<Summary>]) -> String {
+    let mut text = format!(
+        "{:<40} {:<9} {:>10} {:>10} {:>10} {:>10}\n",
+        header(axes),
+        "outcome",
+        "clear (m)",
+        "swerve (s)",
+        "goal (s)",
+        "solve p50"
+    );
+    for (spec, result) in runs.iter().zip(results) {
+        let values = spec.values.join(" ");
+        text.push_str(&match result {
+            Ok(s) => format!(
+                "{values:<40} {:<9} {:>10.4} {:>10} {:>10} {:>7.0} µs\n",
+                s.outcome.as_str(),
+                s.min_clearance_m,
+                s.deviation_time_s.map_or("-".into(), |t| format!("{t:.3}")),
+                s.time_to_goal_s.map_or("-".into(), |t| format!("{t:.2}")),
+                s.solve_us.p50
+            ),
+            Err(e) => format!("{values:<40} error: {e:#}\n"),
+        });
+    }
+    text
+}
+
+/// The end-of-sweep table with seeds: one line per combination.
+pub fn seed_table(axes: &[Axis], stats: &[SeedStats]) -> String {
+    let mut text = format!(
+        "{:<40} runs  collisions  reached  clearance min / p5 / p50 (m)\n",
+        header(axes)
+    );
+    for s in stats {
+        text.push_str(&format!(
+            "{:<40} {:>4}  {:>4} ({:>5.1} %)  {:>4}  {:.4} / {:.4} / {:.4}\n",
+            s.values.join(" "),
+            s.runs,
+            s.collisions,
+            100.0 * s.collision_rate(),
+            s.reached,
+            s.clearance_min_m,
+            s.clearance_p5_m,
+            s.clearance_p50_m
+        ));
+    }
+    text
+}
+
 /// Solve times of both formulations over the same states: the states the linear scheme's
 /// closed loop visits (at every sample), solved in sequence by one controller of each
 /// formulation (both warm-started from their previous plan), the two solves of a state
