@@ -67,9 +67,8 @@ impl LinearMpc {
             return Err(MpcError::Horizon(c.horizon));
         }
         let (a, b) = model::discretize(scenario.timing.ts_s);
-        let q = Matrix4::from_diagonal(&Vector4::from(c.q_diag));
-        let r = Matrix2::from_diagonal(&nalgebra::Vector2::from(c.r_diag));
-        let terminal_weight = model::dare(&a, &b, &q, &r)?;
+        let r = r_matrix(scenario);
+        let terminal_weight = terminal_weight(scenario)?;
         let k = model::lqr_gain(&a, &b, &r, &terminal_weight)?;
         let acl = a + b * k;
         let closed_loop_powers =
@@ -366,6 +365,25 @@ impl LinearMpc {
     }
 }
 
+/// `Q` and `R` of the scenario (eq. 51).
+fn q_matrix(scenario: &Scenario) -> Matrix4<f64> {
+    Matrix4::from_diagonal(&Vector4::from(scenario.mpc.q_diag))
+}
+fn r_matrix(scenario: &Scenario) -> Matrix2<f64> {
+    Matrix2::from_diagonal(&nalgebra::Vector2::from(scenario.mpc.r_diag))
+}
+
+/// `Q_bar`, the DARE solution of the scenario's linearized model (eq. 56).
+pub fn terminal_weight(scenario: &Scenario) -> Result<Matrix4<f64>, MpcError> {
+    let (a, b) = model::discretize(scenario.timing.ts_s);
+    Ok(model::dare(
+        &a,
+        &b,
+        &q_matrix(scenario),
+        &r_matrix(scenario),
+    )?)
+}
+
 /// The MPC role: the paper's linear scheme, or the nonlinear baseline
 /// (`mpc.formulation`).
 pub enum Mpc {
@@ -375,12 +393,15 @@ pub enum Mpc {
 
 impl Mpc {
     pub fn new(scenario: &Scenario) -> Result<Mpc, MpcError> {
-        let linear = LinearMpc::new(scenario)?;
+        let horizon = scenario.mpc.horizon;
+        if horizon == 0 || horizon > MAX_HORIZON {
+            return Err(MpcError::Horizon(horizon));
+        }
         Ok(match scenario.mpc.formulation {
-            Formulation::Linear => Mpc::Linear(Box::new(linear)),
+            Formulation::Linear => Mpc::Linear(Box::new(LinearMpc::new(scenario)?)),
             Formulation::Nonlinear => Mpc::Nonlinear(Box::new(nonlinear::NonlinearMpc::new(
                 scenario,
-                linear.terminal_weight(),
+                &terminal_weight(scenario)?,
             ))),
         })
     }

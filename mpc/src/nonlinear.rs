@@ -246,6 +246,10 @@ impl NonlinearMpc {
         let warm = self.last_sample.is_some_and(|last| sample == last + 1);
         if warm {
             self.inputs.rotate_left(1);
+            let n = self.horizon;
+            if n > 1 {
+                self.inputs[n - 1] = self.inputs[n - 2];
+            }
         }
         let mut s = s0;
         self.states[0] = s0;
@@ -475,11 +479,7 @@ mod tests {
     #[test]
     fn the_nonlinear_mpc_plans_around_the_obstacle_within_its_cbf() {
         let scenario = Scenario::default();
-        let linear = crate::Mpc::new(&scenario).unwrap();
-        let crate::Mpc::Linear(linear) = linear else {
-            unreachable!()
-        };
-        let mut mpc = NonlinearMpc::new(&scenario, linear.terminal_weight());
+        let mut mpc = NonlinearMpc::new(&scenario, &crate::terminal_weight(&scenario).unwrap());
         let start = scenario.robot.start;
         let plan = mpc.step(0, [start[0], start[1], start[2], 0.0], 0.0);
         assert_eq!(plan.status(), Some(PlanStatus::Solved));

@@ -30,8 +30,8 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     loop {
         // The MPC wakes once per sample, possibly after a long solve: a schedule sent in
         // the meantime is applied before the estimates are judged. (The estimator and the
-        // DFL apply it in housekeeping after every input; a sample of a replacement that
-        // reaches them first is at worst refused, never applied.)
+        // DFL apply it in housekeeping after every input; until then they keep taking the
+        // old producer, which runs until the switch.)
         link.sync(&mut ctl, &[&estimates])?;
         estimates.take(|e, latency| {
             // Boundary estimates of samples not solved yet (a replay repeats one that was).

@@ -3,6 +3,7 @@
 use crate::{inprocess, multiproc, scenarios};
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use protocol::Role;
 use protocol::ipc::{ProcessArgs, ProcessError, RunMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -211,10 +212,10 @@ pub fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         },
-        Command::Plant(args) => role(args, plant::process::run),
-        Command::Estimator(args) => role(args, estimator::process::run),
-        Command::Mpc(args) => role(args, mpc::process::run),
-        Command::Dfl(args) => role(args, dfl::process::run),
+        Command::Plant(args) => role(args, Role::Plant, plant::process::run),
+        Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
+        Command::Mpc(args) => role(args, Role::Mpc, mpc::process::run),
+        Command::Dfl(args) => role(args, Role::Dfl, dfl::process::run),
     }
 }
 
@@ -377,7 +378,23 @@ fn swap(args: SwapArgs) -> ExitCode {
 }
 
 /// Runs one role process until the orchestrator stops it.
-fn role(args: RoleArgs, body: fn(&ProcessArgs) -> Result<(), ProcessError>) -> ExitCode {
+fn role(
+    args: RoleArgs,
+    this: Role,
+    body: fn(&ProcessArgs) -> Result<(), ProcessError>,
+) -> ExitCode {
+    // A replacement command that starts the wrong role would only be refused, sample by
+    // sample, as the wrong epoch: say so at once.
+    if let Ok(wanted) = std::env::var(crate::multiproc::ENV_ROLE)
+        && wanted != this.as_str()
+    {
+        eprintln!(
+            "error: this is the {} process, but the run started it as its {wanted} ({})",
+            this.as_str(),
+            crate::multiproc::ENV_ROLE
+        );
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
     let scenario = match scenarios::load(Some(&args.scenario), &args.overrides) {
         Ok(s) => s,
         Err(e) => {

@@ -449,18 +449,6 @@ pub fn paper_set(
         equal_axes: true,
         ..Figure::default()
     };
-    let gamma_paths = GAMMAS
-        .iter()
-        .enumerate()
-        .map(|(i, g)| {
-            Ok(series(
-                format!("γ = {g}, N = 8"),
-                run(&format!("gamma-{g}"))?.path(),
-                i,
-                false,
-            ))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
     let pair_paths = GAMMA_HORIZON_PAIRS
         .iter()
         .enumerate()
@@ -473,9 +461,27 @@ pub fn paper_set(
             ))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    let per_gamma = |f: &dyn Fn(&Trajectory) -> Vec<(f64, f64)>| {
+        GAMMAS
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                Ok(series(
+                    format!("γ = {g}, N = 8"),
+                    f(run(&format!("gamma-{g}"))?),
+                    i,
+                    false,
+                ))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    };
     let nominal = run("gamma-0.1")?;
     let mut figures = vec![
-        paths("paths_gamma", "(a) paths for several γ, N = 8", gamma_paths),
+        paths(
+            "paths_gamma",
+            "(a) paths for several γ, N = 8",
+            per_gamma(&Trajectory::path)?,
+        ),
         paths(
             "paths_gamma_horizon",
             "(b) paths for several (γ, N)",
@@ -516,20 +522,6 @@ pub fn paper_set(
         y_label: y_label.into(),
         series,
         ..Figure::default()
-    };
-    let per_gamma = |f: &dyn Fn(&Trajectory) -> Vec<(f64, f64)>| {
-        GAMMAS
-            .iter()
-            .enumerate()
-            .map(|(i, g)| {
-                Ok(series(
-                    format!("γ = {g}, N = 8"),
-                    f(run(&format!("gamma-{g}"))?),
-                    i,
-                    false,
-                ))
-            })
-            .collect::<anyhow::Result<Vec<_>>>()
     };
     figures.push(over_time(
         "velocity",

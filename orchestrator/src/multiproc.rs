@@ -151,20 +151,17 @@ impl Children {
         }
     }
 
-    /// Kills the process of `role` and `epoch`: `Some(pid)` if it was running, `None` if
-    /// there is none or it has exited already (its exit is handled as such).
-    fn kill(&mut self, role: Role, epoch: u32) -> Option<Option<u32>> {
-        let Some(p) = self
+    /// Kills the process of `role` and `epoch` if it is still running; returns its pid
+    /// then.
+    fn kill_running(&mut self, role: Role, epoch: u32) -> Option<u32> {
+        let p = self
             .list
             .iter_mut()
-            .find(|p| p.role == role && p.epoch == epoch)
-        else {
-            return Some(None);
-        };
+            .find(|p| p.role == role && p.epoch == epoch)?;
         if p.child.try_wait().ok().flatten().is_some() {
             return None;
         }
-        Some(p.child.kill().ok().map(|()| p.child.id()))
+        p.child.kill().ok().map(|()| p.child.id())
     }
 
     /// Whether a process of `role` is being stopped.
@@ -416,6 +413,8 @@ struct Driver<'a> {
     swaps: Vec<Swap>,
     swaps_done: u32,
     ticks_without_estimate: u64,
+    /// Newest sample whose plan is recorded.
+    last_plan: Option<u64>,
     last_node_scan: Instant,
     /// `None`: list at the next scan (a process has just joined).
     last_node_listing: Option<Instant>,
@@ -526,7 +525,7 @@ impl Driver<'_> {
             return Ok(None);
         };
         let role = proc.role;
-        let cleaned = self.clean_dead_nodes()?;
+        let cleaned = self.clean_dead_nodes(Some((role, proc.epoch)))?;
         if proc.retire_by.is_some() {
             self.recorder.event(
                 "retired",
@@ -587,7 +586,7 @@ impl Driver<'_> {
                 .last_node_listing
                 .is_none_or(|t| t.elapsed() >= NODE_LISTING)
         {
-            self.clean_dead_nodes()?;
+            self.clean_dead_nodes(None)?;
             self.node_pids = ipc::node_pids(&self.children.prefix).unwrap_or_default();
             self.last_node_listing = Some(Instant::now());
         }
@@ -596,17 +595,22 @@ impl Driver<'_> {
 
     /// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
     /// process that died while the process the orchestrator started for it lives on (a
-    /// wrapper script, say) is recorded, and that process is killed, so its exit is
-    /// handled as a crash. Returns how many nodes were cleaned.
-    fn clean_dead_nodes(&mut self) -> anyhow::Result<usize> {
+    /// wrapper script, say) is recorded as `dead_node`, and that process is killed, so its
+    /// exit is handled as a crash. Nothing is recorded for the node of `exited` (the child
+    /// whose exit is being handled) nor for one whose child has exited already (its exit
+    /// comes next). Returns how many nodes were cleaned.
+    fn clean_dead_nodes(&mut self, exited: Option<(Role, u32)>) -> anyhow::Result<usize> {
         let names = ipc::cleanup_dead_nodes(&self.children.prefix).unwrap_or_default();
         for name in &names {
             let Some((role, epoch)) = ipc::role_of_node(name) else {
                 continue;
             };
-            // Not when the process it ran in is the child that exited: that is a crash
-            // noticed through its exit status.
-            if let Some(killed) = self.children.kill(role, epoch) {
+            if exited == Some((role, epoch)) {
+                continue;
+            }
+            let ours = self.children.pid(role, epoch).is_some();
+            let killed = self.children.kill_running(role, epoch);
+            if killed.is_some() || !ours {
                 self.recorder.event(
                     "dead_node",
                     serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
@@ -643,14 +647,17 @@ impl Driver<'_> {
         // Straight from shared memory: nothing waits on this listener.
         self.session.swap_requests.take(|r, _| requests.push(r))?;
         for r in requests {
-            match Role::from_code(r.role).filter(|role| *role != Role::Plant) {
+            match Role::from_code(r.role) {
+                Some(Role::Plant) => {
+                    self.reply(r.request_id, None, "the plant cannot be swapped")?
+                }
                 Some(role) => self.scheduled.push(PendingSwap {
                     time_s: 0.0,
                     role,
                     command: r.command(),
                     request: Some(r.request_id),
                 }),
-                None => self.reply(r.request_id, None, "the plant cannot be swapped")?,
+                None => self.reply(r.request_id, None, &format!("no role with code {}", r.role))?,
             }
         }
         // One swap per role at a time: the next starts once the process replaced has exited.
@@ -867,7 +874,12 @@ impl Driver<'_> {
     /// Records every plan received, then every deadline verdict (the DFL judges sample k
     /// at the start of sample k + 1, after plan(k) was published).
     fn record_plans(&mut self) -> anyhow::Result<()> {
-        while let Some((_, plan)) = self.plans.pop_first() {
+        while let Some((sample, plan)) = self.plans.pop_first() {
+            // A replay repeats a plan already recorded.
+            if self.last_plan.is_some_and(|last| sample <= last) {
+                continue;
+            }
+            self.last_plan = Some(sample);
             self.latencies
                 .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
             self.recorder.plan(&plan);
@@ -1119,6 +1131,7 @@ fn drive(
             swaps: Vec::new(),
             swaps_done: 0,
             ticks_without_estimate: 0,
+            last_plan: None,
             last_node_scan: Instant::now(),
             last_node_listing: None,
             node_pids: Vec::new(),

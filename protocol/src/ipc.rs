@@ -361,8 +361,6 @@ impl<T: Message> Receiver<T> {
 /// What housekeeping needs of an input (every [`Receiver`]).
 pub trait Input {
     fn clear_wakeups(&self);
-    /// The producer role whose active epoch the input takes.
-    fn producer(&self) -> Option<crate::Role>;
     fn follow(&self, schedule: EpochSchedule);
     /// Refused samples by [`Rejection`] code since the last call.
     fn take_rejections(&self) -> [u64; 4];
@@ -374,9 +372,6 @@ pub trait Input {
 impl<T: Message> Input for Receiver<T> {
     fn clear_wakeups(&self) {
         Receiver::clear_wakeups(self);
-    }
-    fn producer(&self) -> Option<crate::Role> {
-        self.producer
     }
     fn follow(&self, schedule: EpochSchedule) {
         Receiver::follow(self, schedule);
@@ -445,11 +440,9 @@ pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
     let config = run_config(prefix)?;
     let mut dead = Vec::new();
     Node::<ipc::Service>::list(&config, |state| {
-        match state {
-            NodeState::Dead(view) => dead.push(view),
-            NodeState::Alive(_) => {}
-            // Inaccessible or inconsistent: nothing this process can clean.
-            _ => {}
+        // Alive, or inaccessible or inconsistent: nothing this process can clean.
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
         }
         CallbackProgression::Continue
     })

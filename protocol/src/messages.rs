@@ -345,8 +345,8 @@ impl EpochSchedule {
         }
     }
 
-    /// Makes `epoch` the only producer of `role`, for every tick (start, restart, or the
-    /// end of a swap).
+    /// Makes `epoch` the only producer of `role`, for every tick (a restart, or a
+    /// replacement that takes over at once because the process it replaces died).
     pub fn activate(&mut self, role: Role, epoch: u32) {
         let r = role as usize;
         self.active[r] = epoch;
