@@ -70,15 +70,21 @@ impl LinearMpc {
         let r = r_matrix(scenario);
         let terminal_weight = terminal_weight(scenario)?;
         let k = model::lqr_gain(&a, &b, &r, &terminal_weight)?;
-        let acl = a + b * k;
-        let closed_loop_powers =
-            std::iter::successors(Some(Matrix4::identity()), |m| Some(acl * m))
-                .take(c.constraint_horizon + 1)
-                .collect();
         let goal = scenario.robot.goal;
+        let position_box = [
+            [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
+            [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
+        ];
+        let terminal_set = problem::prune_redundant(problem::terminal_set(
+            &k,
+            &(a + b * k),
+            c.constraint_horizon,
+            c.v_max,
+            position_box,
+        ));
         let layout = Layout {
             horizon: c.horizon,
-            constraint_horizon: c.constraint_horizon,
+            terminal_rows: terminal_set.len(),
             obstacles: scenario.obstacles.len(),
             linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
         };
@@ -86,17 +92,14 @@ impl LinearMpc {
             a,
             b,
             k,
-            closed_loop_powers,
+            terminal_set,
             gamma: if c.constraint == ConstraintKind::Euclidean {
                 1.0
             } else {
                 c.gamma
             },
             v_max: c.v_max,
-            position_box: [
-                [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
-                [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
-            ],
+            position_box,
         };
         Ok(LinearMpc {
             layout,
@@ -557,6 +560,51 @@ mod tests {
         assert_eq!(
             pa.iter().map(|p| p.v).collect::<Vec<_>>(),
             pb.iter().map(|p| p.v).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn the_pruned_terminal_set_is_the_papers_set() {
+        let s = Scenario::default();
+        let c = &s.mpc;
+        let (a, b) = model::discretize(s.timing.ts_s);
+        let k = model::lqr_gain(&a, &b, &r_matrix(&s), &terminal_weight(&s).unwrap()).unwrap();
+        let full = problem::terminal_set(
+            &k,
+            &(a + b * k),
+            c.constraint_horizon,
+            c.v_max,
+            [[-10.0, 10.0]; 2],
+        );
+        let pruned = problem::prune_redundant(full.clone());
+        assert_eq!((full.len(), pruned.len()), (88, 48));
+        let inside = |rows: &[([f64; 4], f64)], z: [f64; 4]| {
+            rows.iter()
+                .all(|(a, b)| a.iter().zip(z).map(|(a, z)| a * z).sum::<f64>() <= *b + 1e-9)
+        };
+        // A deterministic cloud of points, in and out of the set.
+        let mut x = 0.5f64;
+        let mut next = || {
+            x = (x * 3.9 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
+            x
+        };
+        let (mut seen_in, mut seen_out) = (0, 0);
+        for _ in 0..20_000 {
+            // Speeds of every scale, so that points fall on both sides of every face.
+            let speed = 8.0 * next().powi(3);
+            let z = [
+                24.0 * next() - 12.0,
+                speed * (2.0 * next() - 1.0),
+                24.0 * next() - 12.0,
+                speed * (2.0 * next() - 1.0),
+            ];
+            let full_in = inside(&full, z);
+            assert_eq!(full_in, inside(&pruned, z), "{z:?}");
+            if full_in { seen_in += 1 } else { seen_out += 1 }
+        }
+        assert!(
+            seen_in > 100 && seen_out > 100,
+            "{seen_in} in, {seen_out} out"
         );
     }
 

@@ -10,7 +10,7 @@
 //! | 4N | zero | dynamics `z_{i+1} = A z_i + B v_i` (eq. 52) |
 //! | 4N | nonneg | input box `|v_i| <= v_max` (eq. 531) |
 //! | 4(N-1) | nonneg | position box on `z_1 .. z_{N-1}` (eq. 53) |
-//! | 8(Nc+1) | nonneg | terminal input and position boxes on `(A+BK)^j z_N` (eqs. 45, 47) |
+//! | at most 8(Nc+1) | nonneg | terminal input and position boxes on `(A+BK)^j z_N` (eqs. 45, 47), those the others do not imply |
 //! | 1 or N per obstacle | nonneg | CBF rows that are linear (see below) |
 //! | 4 per obstacle and stage | SOC(4) | CBF rows that are cones |
 //!
@@ -33,8 +33,8 @@ use nalgebra::{Matrix2x4, Matrix4};
 pub struct Layout {
     /// Prediction horizon `N`.
     pub horizon: usize,
-    /// Constraint-checking horizon `Nc`.
-    pub constraint_horizon: usize,
+    /// Rows of the terminal set kept after [`prune_redundant`].
+    pub terminal_rows: usize,
     pub obstacles: usize,
     /// All CBF rows linear (`gamma = 1` or the Euclidean benchmark).
     pub linear_barrier: bool,
@@ -63,8 +63,7 @@ impl Layout {
     pub fn cones(&self) -> Vec<SupportedConeT<f64>> {
         let n = self.horizon;
         let equalities = 4 + 4 * n;
-        let inequalities =
-            4 * n + 4 * (n - 1) + 8 * (self.constraint_horizon + 1) + self.linear_barrier_rows();
+        let inequalities = 4 * n + 4 * (n - 1) + self.terminal_rows + self.linear_barrier_rows();
         let mut cones = vec![
             SupportedConeT::ZeroConeT(equalities),
             SupportedConeT::NonnegativeConeT(inequalities),
@@ -148,8 +147,9 @@ pub struct StaticData {
     pub a: Matrix4<f64>,
     pub b: nalgebra::Matrix4x2<f64>,
     pub k: Matrix2x4<f64>,
-    /// `(A + BK)^j` for `j = 0..=Nc`.
-    pub closed_loop_powers: Vec<Matrix4<f64>>,
+    /// The terminal set (eqs. 45, 47) as rows `coeffs' z_N <= bound`, redundant ones
+    /// removed ([`terminal_set`]).
+    pub terminal_set: Vec<([f64; 4], f64)>,
     pub gamma: f64,
     pub v_max: f64,
     /// Goal-relative position box `[min, max]` per axis.
@@ -221,28 +221,14 @@ impl Assembly {
         self.barrier_rows(l, s, d);
     }
 
-    /// Eqs. (45) and (47): `v_min <= K M_j z_N <= v_max` and the position box on
-    /// `M_j z_N`, `M_j = (A + BK)^j`, `j = 0..=Nc`.
+    /// The terminal set (eqs. 45, 47) on `z_N`.
     fn terminal_rows(&mut self, l: &Layout, s: &StaticData) {
         let n = l.horizon;
-        let on_z_n = |this: &mut Self, coeffs: [f64; 4], sign: f64, bound: f64| {
+        for &(coeffs, bound) in &s.terminal_set {
             let terms = (0..4)
                 .filter(|&c| coeffs[c] != 0.0)
-                .map(|c| (l.z(n, c), sign * coeffs[c]));
-            this.row(terms, bound);
-        };
-        for m in &s.closed_loop_powers {
-            let km = s.k * m;
-            for c in 0..2 {
-                let coeffs = [km[(c, 0)], km[(c, 1)], km[(c, 2)], km[(c, 3)]];
-                on_z_n(self, coeffs, 1.0, s.v_max);
-                on_z_n(self, coeffs, -1.0, s.v_max);
-            }
-            for (axis, r) in [(0, 0), (1, 2)] {
-                let coeffs = [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]];
-                on_z_n(self, coeffs, 1.0, s.position_box[axis][1]);
-                on_z_n(self, coeffs, -1.0, -s.position_box[axis][0]);
-            }
+                .map(|c| (l.z(n, c), coeffs[c]));
+            self.row(terms, bound);
         }
     }
 
@@ -322,6 +308,90 @@ pub fn barrier_row_counts(horizon: usize, obstacles: usize, linear: bool) -> (us
     } else {
         (obstacles, obstacles * (horizon - 1))
     }
+}
+
+/// Eqs. (45) and (47) as rows `coeffs' z_N <= bound`: `-v_max <= K M_j z_N <= v_max` and
+/// the position box on `M_j z_N`, `M_j = (A + BK)^j`, `j = 0..=Nc`.
+pub fn terminal_set(
+    k: &Matrix2x4<f64>,
+    closed_loop: &Matrix4<f64>,
+    constraint_horizon: usize,
+    v_max: f64,
+    position_box: [[f64; 2]; 2],
+) -> Vec<([f64; 4], f64)> {
+    let mut rows = Vec::with_capacity(8 * (constraint_horizon + 1));
+    let mut m = Matrix4::identity();
+    for _ in 0..=constraint_horizon {
+        let km = k * m;
+        for c in 0..2 {
+            let coeffs: [f64; 4] = std::array::from_fn(|i| km[(c, i)]);
+            rows.push((coeffs, v_max));
+            rows.push((coeffs.map(|x| -x), v_max));
+        }
+        for (axis, r) in [(0, 0), (1, 2)] {
+            let coeffs: [f64; 4] = std::array::from_fn(|i| m[(r, i)]);
+            rows.push((coeffs, position_box[axis][1]));
+            rows.push((coeffs.map(|x| -x), -position_box[axis][0]));
+        }
+        m = closed_loop * m;
+    }
+    rows
+}
+
+/// The rows of `rows` (`a' z <= b`, `z` in R^4) that the others do not imply. A row is
+/// dropped when the largest `a' z` over the remaining rows, found with a linear program,
+/// does not exceed `b`; an unbounded or failed program keeps the row. The set described
+/// is unchanged; the MPC only solves a smaller problem (for the paper: 88 rows to 48).
+pub fn prune_redundant(mut rows: Vec<([f64; 4], f64)>) -> Vec<([f64; 4], f64)> {
+    let mut i = 0;
+    while i < rows.len() {
+        let (a, b) = rows[i];
+        let others: Vec<([f64; 4], f64)> = rows
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, r)| *r)
+            .collect();
+        let implied = largest(a, &others).is_some_and(|m| m <= b + 1e-9 * (1.0 + b.abs()));
+        if implied {
+            rows.remove(i);
+        } else {
+            i += 1;
+        }
+    }
+    rows
+}
+
+/// `max a' z` subject to `rows`, if bounded and solved.
+fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
+    use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
+    if rows.is_empty() {
+        return None;
+    }
+    let entries: Vec<(usize, usize, f64)> = rows
+        .iter()
+        .enumerate()
+        .flat_map(|(r, (coeffs, _))| (0..4).map(move |c| (r, c, coeffs[c])))
+        .filter(|e| e.2 != 0.0)
+        .collect();
+    let (matrix, _) = csc_with_positions(rows.len(), 4, &entries);
+    let bounds: Vec<f64> = rows.iter().map(|r| r.1).collect();
+    let q = a.map(|x| -x);
+    let settings = DefaultSettings::<f64> {
+        verbose: false,
+        ..DefaultSettings::default()
+    };
+    let mut solver = DefaultSolver::new(
+        &CscMatrix::zeros((4, 4)),
+        &q,
+        &matrix,
+        &bounds,
+        &[SupportedConeT::NonnegativeConeT(rows.len())],
+        settings,
+    )
+    .ok()?;
+    solver.solve();
+    (solver.solution.status == SolverStatus::Solved).then(|| -solver.solution.obj_val)
 }
 
 /// Compressed-column matrix of `entries`, and for each entry its position in `nzval`
