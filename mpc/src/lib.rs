@@ -14,9 +14,9 @@ pub mod problem;
 pub mod process;
 
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSolver, IPSolver, SolverStatus};
+use clarabel::solver::SolverStatus;
 use nalgebra::{Matrix2, Matrix4, Vector4};
-use problem::{Assembly, Disc, Layout, StaticData, StepData, csc_with_positions};
+use problem::{Assembly, ConicSolver, Disc, Layout, StaticData, StepData, csc_with_positions};
 use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
@@ -46,10 +46,8 @@ pub struct LinearMpc {
     refinement_tol_m: f64,
     ts_s: f64,
     // Reused every step.
-    solver: Option<DefaultSolver<f64>>,
+    solver: ConicSolver,
     assembly: Assembly,
-    nz_position: Vec<usize>,
-    nzval: Vec<f64>,
     discs: Vec<Disc>,
     reference: Vec<[f64; 2]>,
     /// Best solution of the current step's refinement (`have_best` says if it is set).
@@ -114,10 +112,8 @@ impl LinearMpc {
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
-            solver: None,
+            solver: ConicSolver::default(),
             assembly: Assembly::default(),
-            nz_position: Vec::new(),
-            nzval: Vec::new(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; c.horizon + 1],
             best_x: Vec::new(),
@@ -217,17 +213,17 @@ impl LinearMpc {
             }
             outcome.status = PlanStatus::Solved;
             let moved = self.relinearize();
-            if let Some(solver) = &self.solver {
+            if let Some(x) = self.solver.x() {
                 self.best_x.clear();
-                self.best_x.extend_from_slice(&solver.solution.x);
+                self.best_x.extend_from_slice(x);
                 self.have_best = true;
             }
             if moved < self.refinement_tol_m {
                 break;
             }
         }
-        if let (true, Some(solver)) = (self.have_best, self.solver.as_mut()) {
-            solver.solution.x.copy_from_slice(&self.best_x);
+        if let (true, Some(x)) = (self.have_best, self.solver.x_mut()) {
+            x.copy_from_slice(&self.best_x);
         }
         outcome
     }
@@ -240,45 +236,16 @@ impl LinearMpc {
             reference: &self.reference,
         };
         self.assembly.fill(&self.layout, &self.statics, &data);
-        let rows = self.assembly.b.len();
-        let solver = match self.solver.as_mut() {
-            Some(solver) => {
-                for (t, &(_, _, v)) in self.assembly.entries.iter().enumerate() {
-                    self.nzval[self.nz_position[t]] = v;
-                }
-                let updated = solver
-                    .update_A(&self.nzval)
-                    .and_then(|()| solver.update_b(&self.assembly.b));
-                if updated.is_err() {
-                    return (PlanStatus::NumericalError, 0);
-                }
-                solver
-            }
-            None => {
-                let (a, positions) =
-                    csc_with_positions(rows, self.layout.variables(), &self.assembly.entries);
-                self.nzval = a.nzval.clone();
-                self.nz_position = positions;
-                let p = self.objective();
-                let q = vec![0.0; self.layout.variables()];
-                match DefaultSolver::new(
-                    &p,
-                    &q,
-                    &a,
-                    &self.assembly.b,
-                    &self.layout.cones(),
-                    problem::solver_settings(),
-                ) {
-                    Ok(solver) => self.solver.insert(solver),
-                    Err(_) => return (PlanStatus::NumericalError, 0),
-                }
-            }
-        };
-        solver.solve();
-        (
-            plan_status(solver.solution.status),
-            solver.solution.iterations,
-        )
+        // Moved out for the call (no allocation), as the objective borrows `self`.
+        let mut solver = std::mem::take(&mut self.solver);
+        let result = solver.solve(
+            &self.assembly,
+            self.layout.variables(),
+            || self.objective(),
+            || self.layout.cones(),
+        );
+        self.solver = solver;
+        result
     }
 
     /// `1/2 x'Px` = eq. (51): `sum z'Qz + v'Rv + z_N' Q_bar z_N` (upper triangle of P).
@@ -338,10 +305,9 @@ impl LinearMpc {
 
     /// Moves the reference to the current solution; returns the largest move, m.
     fn relinearize(&mut self) -> f64 {
-        let Some(solver) = &self.solver else {
+        let Some(x) = self.solver.x() else {
             return 0.0;
         };
-        let x = &solver.solution.x;
         let mut moved: f64 = 0.0;
         for i in 1..=self.layout.horizon {
             let p = [x[self.layout.z(i, 0)], x[self.layout.z(i, 2)]];
@@ -354,8 +320,7 @@ impl LinearMpc {
     /// Writes the solution into `plan` (absolute coordinates) and keeps its goal-relative
     /// states for the next step's shifted reference.
     fn write_solution(&mut self, plan: &mut Plan) {
-        let Some(solver) = &self.solver else { return };
-        let x = &solver.solution.x;
+        let Some(x) = self.solver.x() else { return };
         let l = &self.layout;
         for i in 0..l.horizon {
             plan.v[i] = [x[l.v(i, 0)], x[l.v(i, 1)]];

@@ -18,9 +18,11 @@
 //! `w = Phi(s_N)` tied to `s_N` by the linearization of `Phi` (Gauss-Newton). Here
 //! `R` weighs `[a, omega]`. The terminal set (eq. pr8) is left out.
 
-use crate::problem::{Assembly, Barrier, Disc, barrier_row_counts, csc_with_positions};
+use crate::problem::{
+    Assembly, Barrier, ConicSolver, Disc, barrier_row_counts, csc_with_positions,
+};
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSolver, IPSolver, SupportedConeT};
+use clarabel::solver::SupportedConeT;
 use protocol::{ConstraintKind, Header, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
@@ -107,10 +109,8 @@ pub struct NonlinearMpc {
     safety_margin_m: f64,
     uncertainty_sigmas: f64,
     // Reused every step.
-    solver: Option<DefaultSolver<f64>>,
+    solver: ConicSolver,
     assembly: Assembly,
-    nz_position: Vec<usize>,
-    nzval: Vec<f64>,
     discs: Vec<Disc>,
     reference: Vec<[f64; 2]>,
     /// The current iterate: goal-relative states `0..=N` and inputs `0..N`.
@@ -146,10 +146,8 @@ impl NonlinearMpc {
             obstacles: scenario.obstacles.clone(),
             safety_margin_m: c.safety_margin_m,
             uncertainty_sigmas: c.uncertainty_sigmas,
-            solver: None,
+            solver: ConicSolver::default(),
             assembly: Assembly::default(),
-            nz_position: Vec::new(),
-            nzval: Vec::new(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; n + 1],
             states: vec![[0.0; 4]; n + 1],
@@ -265,10 +263,9 @@ impl NonlinearMpc {
 
     /// Moves the iterate to the subproblem's solution; returns the largest input change.
     fn take_step(&mut self) -> f64 {
-        let Some(solver) = &self.solver else {
+        let Some(x) = self.solver.x() else {
             return 0.0;
         };
-        let x = &solver.solution.x;
         let mut moved: f64 = 0.0;
         for i in 0..self.horizon {
             for c in 0..2 {
@@ -289,43 +286,16 @@ impl NonlinearMpc {
             self.reference[i] = [self.states[i][0], self.states[i][1]];
         }
         self.fill(s0);
-        let solver = match self.solver.as_mut() {
-            Some(solver) => {
-                for (t, &(_, _, v)) in self.assembly.entries.iter().enumerate() {
-                    self.nzval[self.nz_position[t]] = v;
-                }
-                let updated = solver
-                    .update_A(&self.nzval)
-                    .and_then(|()| solver.update_b(&self.assembly.b));
-                if updated.is_err() {
-                    return (PlanStatus::NumericalError, 0);
-                }
-                solver
-            }
-            None => {
-                let rows = self.assembly.b.len();
-                let (a, positions) =
-                    csc_with_positions(rows, self.variables(), &self.assembly.entries);
-                self.nzval = a.nzval.clone();
-                self.nz_position = positions;
-                match DefaultSolver::new(
-                    &self.objective(),
-                    &vec![0.0; self.variables()],
-                    &a,
-                    &self.assembly.b,
-                    &self.cones(),
-                    crate::problem::solver_settings(),
-                ) {
-                    Ok(solver) => self.solver.insert(solver),
-                    Err(_) => return (PlanStatus::NumericalError, 0),
-                }
-            }
-        };
-        solver.solve();
-        (
-            crate::plan_status(solver.solution.status),
-            solver.solution.iterations,
-        )
+        // Moved out for the call (no allocation), as the objective borrows `self`.
+        let mut solver = std::mem::take(&mut self.solver);
+        let result = solver.solve(
+            &self.assembly,
+            self.variables(),
+            || self.objective(),
+            || self.cones(),
+        );
+        self.solver = solver;
+        result
     }
 
     fn cones(&self) -> Vec<SupportedConeT<f64>> {

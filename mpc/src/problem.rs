@@ -394,6 +394,75 @@ fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
     (solver.solution.status == SolverStatus::Solved).then(|| -solver.solution.obj_val)
 }
 
+/// A clarabel solver for a problem whose sparsity never changes: built from the first
+/// assembly, afterwards only its values are updated (`update_A`, `update_b`).
+#[derive(Default)]
+pub struct ConicSolver {
+    solver: Option<clarabel::solver::DefaultSolver<f64>>,
+    /// Where each [`Assembly`] entry sits in the CSC values.
+    nz_position: Vec<usize>,
+    nzval: Vec<f64>,
+}
+
+impl ConicSolver {
+    /// Solves the problem of `assembly` (`objective` and `cones` are only asked for when
+    /// the solver is built). Returns the plan status and the interior-point iterations.
+    pub fn solve(
+        &mut self,
+        assembly: &Assembly,
+        variables: usize,
+        objective: impl FnOnce() -> CscMatrix<f64>,
+        cones: impl FnOnce() -> Vec<SupportedConeT<f64>>,
+    ) -> (protocol::PlanStatus, u32) {
+        use clarabel::solver::{DefaultSolver, IPSolver};
+        let solver = match self.solver.as_mut() {
+            Some(solver) => {
+                for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
+                    self.nzval[self.nz_position[t]] = v;
+                }
+                let updated = solver
+                    .update_A(&self.nzval)
+                    .and_then(|()| solver.update_b(&assembly.b));
+                if updated.is_err() {
+                    return (protocol::PlanStatus::NumericalError, 0);
+                }
+                solver
+            }
+            None => {
+                let (a, positions) =
+                    csc_with_positions(assembly.b.len(), variables, &assembly.entries);
+                self.nzval = a.nzval.clone();
+                self.nz_position = positions;
+                match DefaultSolver::new(
+                    &objective(),
+                    &vec![0.0; variables],
+                    &a,
+                    &assembly.b,
+                    &cones(),
+                    solver_settings(),
+                ) {
+                    Ok(solver) => self.solver.insert(solver),
+                    Err(_) => return (protocol::PlanStatus::NumericalError, 0),
+                }
+            }
+        };
+        solver.solve();
+        (
+            crate::plan_status(solver.solution.status),
+            solver.solution.iterations,
+        )
+    }
+
+    /// The last solution's variables (none before the first solve).
+    pub fn x(&self) -> Option<&[f64]> {
+        self.solver.as_ref().map(|s| s.solution.x.as_slice())
+    }
+
+    pub fn x_mut(&mut self) -> Option<&mut [f64]> {
+        self.solver.as_mut().map(|s| s.solution.x.as_mut_slice())
+    }
+}
+
 /// Compressed-column matrix of `entries`, and for each entry its position in `nzval`
 /// (so later values can be scattered into the same pattern).
 pub fn csc_with_positions(
