@@ -48,7 +48,7 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
 }
 
 #[test]
-fn every_role_step_runs_without_heap_allocation_in_steady_state() {
+fn every_role_step_runs_without_heap_allocation_of_its_own_in_steady_state() {
     for formulation in ["linear", "nonlinear"] {
         let scenario = Scenario::default()
             .with_overrides(&[
