@@ -3,8 +3,11 @@
 //! - Baseline: a raw iceoryx2 ping-pong between this process and a `scmpc bench-pong`
 //!   child (publish-subscribe plus an event, a WaitSet on each side, the same as every
 //!   hop of the pipeline, without this project's code), one ping per inner tick (5 ms,
-//!   like the pipeline's samples, so both wake from idle alike). One-way latency is half
-//!   the round trip.
+//!   like the pipeline's samples, so both wake from idle alike). Each direction is
+//!   measured as the pipeline's hops are: the receiver's clock at receipt minus the
+//!   publish time stamped in the message (one monotonic clock for every process), and
+//!   both directions are pooled. (Half the round trip would average two hops and hide
+//!   half of each tail.)
 //! - Real time: the paper run in real time: per-hop and sensor-to-actuator latency,
 //!   deadline misses, each process's peak resident memory.
 //! - Lockstep: the paper run in lockstep: how much faster than real time.
@@ -27,6 +30,10 @@ use std::time::Duration;
 #[type_name("scmpc::BenchPing")]
 pub struct Ping {
     pub seq: u64,
+    /// When this message was published (monotonic clock), ns.
+    pub publish_ns: u64,
+    /// In a pong: the publish-to-receipt latency of the ping it answers, ns.
+    pub ping_latency_ns: u64,
 }
 
 const PING: &str = "bench_ping";
@@ -41,7 +48,7 @@ const PING_PERIOD_NS: u64 = 5_000_000;
 #[derive(Debug, Serialize)]
 pub struct BenchReport {
     pub machine: String,
-    /// One-way latency of the raw iceoryx2 ping-pong, µs.
+    /// Publish-to-receipt latency of the raw iceoryx2 ping-pong, both directions, µs.
     pub raw_iceoryx2_one_way_us: Percentiles,
     /// Publish-to-receipt of every hop of the real-time pipeline, pooled, µs.
     pub pipeline_hop_us: Percentiles,
@@ -114,10 +121,14 @@ fn open(
     ))
 }
 
-fn send(ports: &Ports<Ping>, seq: u64) -> anyhow::Result<()> {
+fn send(ports: &Ports<Ping>, seq: u64, ping_latency_ns: u64) -> anyhow::Result<()> {
     ports
         .publisher
-        .send_copy(Ping { seq })
+        .send_copy(Ping {
+            seq,
+            publish_ns: monotonic_ns(),
+            ping_latency_ns,
+        })
         .map_err(|e| anyhow!("{e:?}"))?;
     ports.notifier.notify().map_err(|e| anyhow!("{e:?}"))?;
     Ok(())
@@ -133,11 +144,12 @@ pub fn pong(prefix: &str) -> anyhow::Result<()> {
         .map_err(|e| anyhow!("{e:?}"))?;
     loop {
         while let Some(sample) = subscriber.receive().map_err(|e| anyhow!("{e:?}"))? {
+            let latency = monotonic_ns().saturating_sub(sample.payload().publish_ns);
             let seq = sample.payload().seq;
             if seq == u64::MAX {
                 return Ok(());
             }
-            send(&ports, seq)?;
+            send(&ports, seq, latency)?;
         }
         let _ = listener.try_wait(|_| {});
         if ipc::wait(&waitset, Duration::from_secs(10))? != ipc::Wake::Input {
@@ -146,7 +158,7 @@ pub fn pong(prefix: &str) -> anyhow::Result<()> {
     }
 }
 
-/// One-way latencies of the raw ping-pong, µs.
+/// Publish-to-receipt latencies of the raw ping-pong, both directions, µs.
 fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
     let node = ipc::create_node(prefix, "bench-ping", false)?;
     let (ports, subscriber, listener) = open(&node, PING, PONG)?;
@@ -163,34 +175,39 @@ fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
     // Wait until the other side has subscribed.
     let deadline = monotonic_ns() + 10_000_000_000;
     while subscriber.has_samples().ok() == Some(false) && monotonic_ns() < deadline {
-        send(&ports, 0)?;
+        send(&ports, 0, 0)?;
         std::thread::sleep(Duration::from_millis(20));
     }
     while subscriber.receive().ok().flatten().is_some() {}
-    let mut one_way = Vec::with_capacity(ROUNDS as usize);
+    let mut one_way = Vec::with_capacity(2 * ROUNDS as usize);
     let mut next = monotonic_ns();
     for seq in 1..=ROUNDS + WARM_UP {
         next += PING_PERIOD_NS;
         sleep_until_ns(next);
-        let sent = monotonic_ns();
-        send(&ports, seq)?;
-        let mut answered = false;
-        while !answered {
+        send(&ports, seq, 0)?;
+        let mut answered = None;
+        while answered.is_none() {
             while let Some(sample) = subscriber.receive().map_err(|e| anyhow!("{e:?}"))? {
-                answered |= sample.payload().seq == seq;
+                let pong = sample.payload();
+                if pong.seq == seq {
+                    let latency = monotonic_ns().saturating_sub(pong.publish_ns);
+                    answered = Some([pong.ping_latency_ns, latency]);
+                }
             }
-            if !answered {
+            if answered.is_none() {
                 let _ = listener.try_wait(|_| {});
                 if ipc::wait(&waitset, Duration::from_secs(1))? == ipc::Wake::Timeout {
                     return Err(anyhow!("no pong for ping {seq} within 1 s"));
                 }
             }
         }
-        if seq > WARM_UP {
-            one_way.push((monotonic_ns() - sent) as f64 / 2e3);
+        if seq > WARM_UP
+            && let Some(latencies) = answered
+        {
+            one_way.extend(latencies.map(|ns| ns as f64 / 1e3));
         }
     }
-    send(&ports, u64::MAX)?;
+    send(&ports, u64::MAX, 0)?;
     let _ = child.0.wait();
     Ok(one_way)
 }
