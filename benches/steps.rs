@@ -72,6 +72,15 @@ fn mpc_step(bencher: divan::Bencher, horizon: usize) {
     bench_mpc(bencher, &s);
 }
 
+/// The same program with the states eliminated (`mpc.qp_form = "condensed"`).
+#[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
+fn mpc_step_condensed(bencher: divan::Bencher, horizon: usize) {
+    let mut s = Scenario::default();
+    s.mpc.horizon = horizon;
+    s.mpc.qp_form = protocol::QpForm::Condensed;
+    bench_mpc(bencher, &s);
+}
+
 #[divan::bench(sample_count = RUN_SAMPLES)]
 fn mpc_step_five_obstacles(bencher: divan::Bencher) {
     let mut s = Scenario::default();

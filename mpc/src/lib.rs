@@ -16,8 +16,13 @@ pub mod process;
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SolverStatus;
 use nalgebra::{Matrix2, Matrix4, Vector4};
-use problem::{Assembly, ConicSolver, Disc, Layout, StaticData, StepData, csc_with_positions};
-use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
+use problem::{
+    Assembly, Condensing, ConicSolver, Disc, ImpliedRow, Layout, Rows, StaticData, StepData,
+    csc_with_positions,
+};
+use protocol::{
+    ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, QpForm, Scenario,
+};
 use std::time::Instant;
 
 /// Why an MPC cannot be set up for a configuration.
@@ -35,8 +40,6 @@ pub struct LinearMpc {
     statics: StaticData,
     /// `Q_bar`, the DARE solution (eq. 56).
     terminal_weight: Matrix4<f64>,
-    q_diag: [f64; 4],
-    r_diag: [f64; 2],
     goal: [f64; 2],
     /// Obstacles as given (absolute coordinates, true radii).
     obstacles: Vec<protocol::Obstacle>,
@@ -45,14 +48,20 @@ pub struct LinearMpc {
     max_solves: usize,
     refinement_tol_m: f64,
     ts_s: f64,
+    /// Upper triangle of the sparse formulation's `P` (eq. 51).
+    hessian: CscMatrix<f64>,
     // Reused every step.
-    solver: ConicSolver,
+    /// One solver per [`Rows`] (index `Rows as usize`), both built on the first step.
+    solvers: [ConicSolver; 2],
+    /// The rows of the current step's program.
+    rows: Rows,
     assembly: Assembly,
     discs: Vec<Disc>,
     reference: Vec<[f64; 2]>,
-    /// Best solution of the current step's refinement (`have_best` says if it is set).
-    best_x: Vec<f64>,
-    have_best: bool,
+    /// The last solved iterate, stage-wise (`[z_0, ..., z_N, v_0, ..., v_{N-1}]`,
+    /// [`Layout::z`], [`Layout::v`]): every convex solve's solution is feasible for the
+    /// paper's constraint, so a failed refinement keeps this one.
+    solution: Vec<f64>,
     /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
     last_sample: Option<u64>,
     last_z: Vec<[f64; 4]>,
@@ -85,8 +94,10 @@ impl LinearMpc {
             terminal_rows: terminal_set.len(),
             obstacles: scenario.obstacles.len(),
             linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
+            condensed: c.qp_form == QpForm::Condensed,
         };
-        let statics = StaticData {
+        let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
+        let mut statics = StaticData {
             a,
             b,
             k,
@@ -98,13 +109,27 @@ impl LinearMpc {
             },
             v_max: c.v_max,
             position_box,
+            implied_rows: Vec::new(),
+        };
+        let (forced, free) = problem::rollout(&layout, &a, &b);
+        let implied_rows = ImpliedRow::of_rows(
+            statics.box_and_terminal_rows(&layout),
+            (&forced, &free),
+            c.v_max,
+        );
+        statics.implied_rows = implied_rows;
+        let assembly = Assembly {
+            condensing: layout
+                .condensed
+                .then(|| Condensing::new(&layout, (forced, free), &hessian)),
+            ..Assembly::default()
         };
         Ok(LinearMpc {
+            solution: vec![0.0; layout.stagewise()],
+            hessian,
             layout,
             statics,
             terminal_weight,
-            q_diag: c.q_diag,
-            r_diag: c.r_diag,
             goal,
             obstacles: scenario.obstacles.clone(),
             safety_margin_m: c.safety_margin_m,
@@ -112,12 +137,11 @@ impl LinearMpc {
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
-            solver: ConicSolver::default(),
-            assembly: Assembly::default(),
+            solvers: Default::default(),
+            rows: Rows::All,
+            assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; c.horizon + 1],
-            best_x: Vec::new(),
-            have_best: false,
             last_sample: None,
             last_z: vec![[0.0; 4]; c.horizon + 1],
         })
@@ -160,6 +184,8 @@ impl LinearMpc {
         if !warm {
             self.braking_reference(z0);
         }
+        self.build_solvers(z0);
+        self.rows = self.statics.rows_for(z0);
         let mut outcome = self.refine(z0);
         if outcome.status != PlanStatus::Solved && warm {
             // The shifted plan is no longer a usable linearization point: start cold.
@@ -193,82 +219,79 @@ impl LinearMpc {
 
     /// Solves, re-linearizes at the solution, and repeats until the plan settles.
     /// On a failed refinement the last solved iterate (feasible for the paper's
-    /// constraint) is kept in the solver's solution buffer.
+    /// constraint) is kept in `solution`.
     fn refine(&mut self, z0: [f64; 4]) -> Outcome {
         let mut outcome = Outcome {
             status: PlanStatus::NumericalError,
             iterations: 0,
             solves: 0,
         };
-        self.have_best = false;
         for _ in 0..self.max_solves {
             let (status, iterations) = self.solve_once(z0);
             outcome.iterations += iterations;
             outcome.solves += 1;
             if status != PlanStatus::Solved {
-                if !self.have_best {
+                if outcome.status != PlanStatus::Solved {
                     outcome.status = status;
                 }
                 break;
             }
             outcome.status = PlanStatus::Solved;
-            let moved = self.relinearize();
-            if let Some(x) = self.solver.x() {
-                self.best_x.clear();
-                self.best_x.extend_from_slice(x);
-                self.have_best = true;
-            }
-            if moved < self.refinement_tol_m {
+            self.load_solution();
+            if self.relinearize() < self.refinement_tol_m {
                 break;
             }
-        }
-        if let (true, Some(x)) = (self.have_best, self.solver.x_mut()) {
-            x.copy_from_slice(&self.best_x);
         }
         outcome
     }
 
-    /// One convex solve at the current reference. Builds the solver on first use.
+    /// Copies the solver's solution into `solution` (stage-wise).
+    fn load_solution(&mut self) {
+        let Some(x) = self.solvers[self.rows as usize].x() else {
+            return;
+        };
+        match &self.assembly.condensing {
+            Some(condensing) => condensing.expand(x, &mut self.solution),
+            None => self.solution.copy_from_slice(x),
+        }
+    }
+
+    /// One convex solve at the current reference, with the step's rows.
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32) {
+        self.fill(z0, self.rows);
+        let hessian = solver_hessian(&self.assembly, &self.hessian);
+        self.solvers[self.rows as usize].solve(
+            &self.assembly,
+            self.layout.variables(),
+            || hessian.clone(),
+            || self.layout.cones(self.rows),
+        )
+    }
+
+    /// Builds the solver of each [`Rows`] (on the first step, so that no later step
+    /// allocates for it).
+    fn build_solvers(&mut self, z0: [f64; 4]) {
+        for rows in [Rows::All, Rows::WithoutImplied] {
+            if !self.solvers[rows as usize].is_built() {
+                self.fill(z0, rows);
+                let hessian = solver_hessian(&self.assembly, &self.hessian);
+                self.solvers[rows as usize].build(
+                    &self.assembly,
+                    self.layout.variables(),
+                    hessian,
+                    &self.layout.cones(rows),
+                );
+            }
+        }
+    }
+
+    fn fill(&mut self, z0: [f64; 4], rows: Rows) {
         let data = StepData {
             z0,
             discs: &self.discs,
             reference: &self.reference,
         };
-        self.assembly.fill(&self.layout, &self.statics, &data);
-        // Moved out for the call (no allocation), as the objective borrows `self`.
-        let mut solver = std::mem::take(&mut self.solver);
-        let result = solver.solve(
-            &self.assembly,
-            self.layout.variables(),
-            || self.objective(),
-            || self.layout.cones(),
-        );
-        self.solver = solver;
-        result
-    }
-
-    /// `1/2 x'Px` = eq. (51): `sum z'Qz + v'Rv + z_N' Q_bar z_N` (upper triangle of P).
-    fn objective(&self) -> CscMatrix<f64> {
-        let l = &self.layout;
-        let n = l.horizon;
-        let mut entries = Vec::new();
-        for i in 0..n {
-            for c in 0..4 {
-                entries.push((l.z(i, c), l.z(i, c), 2.0 * self.q_diag[c]));
-            }
-        }
-        for c in 0..4 {
-            for r in 0..=c {
-                entries.push((l.z(n, r), l.z(n, c), 2.0 * self.terminal_weight[(r, c)]));
-            }
-        }
-        for i in 0..n {
-            for c in 0..2 {
-                entries.push((l.v(i, c), l.v(i, c), 2.0 * self.r_diag[c]));
-            }
-        }
-        csc_with_positions(l.variables(), l.variables(), &entries).0
+        self.assembly.fill(&self.layout, &self.statics, &data, rows);
     }
 
     /// The previous plan shifted by one sample, extended by one step of the LQR closed
@@ -305,9 +328,7 @@ impl LinearMpc {
 
     /// Moves the reference to the current solution; returns the largest move, m.
     fn relinearize(&mut self) -> f64 {
-        let Some(x) = self.solver.x() else {
-            return 0.0;
-        };
+        let x = &self.solution;
         let mut moved: f64 = 0.0;
         for i in 1..=self.layout.horizon {
             let p = [x[self.layout.z(i, 0)], x[self.layout.z(i, 2)]];
@@ -320,8 +341,7 @@ impl LinearMpc {
     /// Writes the solution into `plan` (absolute coordinates) and keeps its goal-relative
     /// states for the next step's shifted reference.
     fn write_solution(&mut self, plan: &mut Plan) {
-        let Some(x) = self.solver.x() else { return };
-        let l = &self.layout;
+        let (x, l) = (&self.solution, &self.layout);
         for i in 0..l.horizon {
             plan.v[i] = [x[l.v(i, 0)], x[l.v(i, 1)]];
         }
@@ -331,6 +351,42 @@ impl LinearMpc {
             plan.z[i] = [z[0] + self.goal[0], z[1], z[2] + self.goal[1], z[3]];
         }
     }
+}
+
+/// Upper triangle of the solver's `P`: the sparse formulation's, or its condensed form.
+fn solver_hessian<'a>(assembly: &'a Assembly, stagewise: &'a CscMatrix<f64>) -> &'a CscMatrix<f64> {
+    match &assembly.condensing {
+        Some(condensing) => condensing.hessian(),
+        None => stagewise,
+    }
+}
+
+/// Upper triangle of `P` with `1/2 x'Px` = eq. (51),
+/// `sum z_i'Q z_i + v_i'R v_i + z_N' Q_bar z_N`, on the stage-wise variables.
+fn stagewise_hessian(
+    l: &Layout,
+    q_diag: [f64; 4],
+    r_diag: [f64; 2],
+    terminal_weight: &Matrix4<f64>,
+) -> CscMatrix<f64> {
+    let n = l.horizon;
+    let mut entries = Vec::new();
+    for i in 0..n {
+        for (c, q) in q_diag.iter().enumerate() {
+            entries.push((l.z(i, c), l.z(i, c), 2.0 * q));
+        }
+    }
+    for c in 0..4 {
+        for r in 0..=c {
+            entries.push((l.z(n, r), l.z(n, c), 2.0 * terminal_weight[(r, c)]));
+        }
+    }
+    for i in 0..n {
+        for (c, r) in r_diag.iter().enumerate() {
+            entries.push((l.v(i, c), l.v(i, c), 2.0 * r));
+        }
+    }
+    csc_with_positions(l.stagewise(), l.stagewise(), &entries).0
 }
 
 /// `Q` and `R` of the scenario (eq. 51).
@@ -502,7 +558,10 @@ mod tests {
             LinearMpc::new(&cbf).unwrap(),
             LinearMpc::new(&euclidean).unwrap(),
         );
-        assert_eq!(a.layout.cones().len(), b.layout.cones().len());
+        assert_eq!(
+            a.layout.cones(Rows::All).len(),
+            b.layout.cones(Rows::All).len()
+        );
         let discs = [Disc {
             center: [3.0, 3.5],
             radius: 1.5,
@@ -516,8 +575,8 @@ mod tests {
             reference: &reference,
         };
         let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
-        fa.fill(&a.layout, &a.statics, &data);
-        fb.fill(&b.layout, &b.statics, &data);
+        fa.fill(&a.layout, &a.statics, &data, Rows::All);
+        fb.fill(&b.layout, &b.statics, &data, Rows::All);
         assert_eq!(fa.entries, fb.entries);
         assert_eq!(fa.b, fb.b);
         // And the closed loops agree number for number.
@@ -548,11 +607,7 @@ mod tests {
                 .all(|(a, b)| a.iter().zip(z).map(|(a, z)| a * z).sum::<f64>() <= *b + 1e-9)
         };
         // A deterministic cloud of points, in and out of the set.
-        let mut x = 0.5f64;
-        let mut next = || {
-            x = (x * 3.9 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
-            x
-        };
+        let mut next = logistic(0.5);
         let (mut seen_in, mut seen_out) = (0, 0);
         for _ in 0..20_000 {
             // Speeds of every scale, so that points fall on both sides of every face.
@@ -571,6 +626,136 @@ mod tests {
             seen_in > 100 && seen_out > 100,
             "{seen_in} in, {seen_out} out"
         );
+    }
+
+    #[test]
+    fn the_condensed_program_gives_the_sparse_programs_plans() {
+        for gamma in [0.1, 1.0] {
+            let mut sparse = Scenario::default();
+            sparse.mpc.gamma = gamma;
+            let mut condensed = sparse.clone();
+            condensed.mpc.qp_form = QpForm::Condensed;
+            let (a, b) = (closed_loop(&sparse, 200), closed_loop(&condensed, 200));
+            for (a, b) in a.iter().zip(&b) {
+                for i in 0..=a.horizon as usize {
+                    let gap = (0..4)
+                        .map(|c| (a.z[i][c] - b.z[i][c]).abs())
+                        .fold(0.0, f64::max);
+                    // Both solved to clarabel's duality-gap tolerance (1e-4, relative).
+                    assert!(
+                        gap < 1e-3,
+                        "gamma {gamma}, sample {} stage {i}: {gap:e}",
+                        a.sample
+                    );
+                }
+            }
+        }
+    }
+
+    /// A deterministic sequence in (0, 1).
+    fn logistic(mut x: f64) -> impl FnMut() -> f64 {
+        move || {
+            x = (x * 3.9 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
+            x
+        }
+    }
+
+    #[test]
+    fn rows_left_out_hold_for_every_input_sequence_in_the_box() {
+        let s = Scenario::default();
+        let mpc = LinearMpc::new(&s).unwrap();
+        let (st, l) = (&mpc.statics, &mpc.layout);
+        let rows: Vec<_> = st.box_and_terminal_rows(l).collect();
+        let mut next = logistic(0.3);
+        let (mut left_out, mut kept) = (0, 0);
+        for _ in 0..2_000 {
+            let z0 = [
+                30.0 * next() - 15.0,
+                8.0 * next() - 4.0,
+                30.0 * next() - 15.0,
+                8.0 * next() - 4.0,
+            ];
+            if st.rows_for(z0) == Rows::All {
+                kept += 1;
+                continue;
+            }
+            left_out += 1;
+            for corner_bias in [0.0, 0.5, 1.0] {
+                // Inputs at the box's corners, and inside it.
+                let mut z = Vector4::from(z0);
+                let mut stagewise = vec![0.0; l.stagewise()];
+                for i in 0..=l.horizon {
+                    stagewise[l.z(i, 0)..l.z(i, 0) + 4].copy_from_slice(z.as_slice());
+                    let u = |x: f64| {
+                        let x = if x < corner_bias { -1.0 } else { 1.0 } * (0.5 + x / 2.0);
+                        (x.clamp(-1.0, 1.0)) * st.v_max
+                    };
+                    z = st.a * z + st.b * nalgebra::Vector2::new(u(next()), u(next()));
+                }
+                for (terms, bound) in &rows {
+                    let value: f64 = terms.iter().flatten().map(|&(c, v)| v * stagewise[c]).sum();
+                    assert!(value <= *bound, "z0 {z0:?}: {value} > {bound}");
+                }
+            }
+        }
+        assert!(
+            left_out > 100 && kept > 100,
+            "{left_out} left out, {kept} kept"
+        );
+    }
+
+    /// `1/2 x'Px` of a stage-wise vector (eq. 51).
+    fn cost(mpc: &LinearMpc, x: &[f64]) -> f64 {
+        let p = &mpc.hessian;
+        let mut quadratic = 0.0;
+        for c in 0..x.len() {
+            for k in p.colptr[c]..p.colptr[c + 1] {
+                let r = p.rowval[k];
+                let both = if r == c { 1.0 } else { 2.0 };
+                quadratic += both * p.nzval[k] * x[r] * x[c];
+            }
+        }
+        0.5 * quadratic
+    }
+
+    #[test]
+    fn leaving_out_implied_rows_changes_no_plan() {
+        let s = Scenario::default();
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        let mut compared = 0;
+        for plan in closed_loop(&s, 300).iter().step_by(7) {
+            let z = plan.z[0];
+            let zeta = z[1].hypot(z[3]);
+            mpc.step(plan.sample, [z[0], z[2], z[3].atan2(z[1]), zeta], 0.0);
+            let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
+            if mpc.statics.rows_for(z0) == Rows::All {
+                continue;
+            }
+            let mut solve = |rows| {
+                mpc.rows = rows;
+                assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
+                mpc.load_solution();
+                mpc.solution.clone()
+            };
+            let (all, reduced) = (solve(Rows::All), solve(Rows::WithoutImplied));
+            // The same optimum, to the solver's accuracy (a duality gap of 1e-3 and
+            // feasibility to 1e-6, relative, with large multipliers on the CBF rows).
+            let (c_all, c_reduced) = (cost(&mpc, &all), cost(&mpc, &reduced));
+            assert!(
+                (c_all - c_reduced).abs() < 1e-5 * c_all,
+                "sample {}: cost {c_all} with every row, {c_reduced} without the implied ones",
+                plan.sample
+            );
+            let l = &mpc.layout;
+            for i in 1..=l.horizon {
+                for c in [0, 2] {
+                    let gap = (all[l.z(i, c)] - reduced[l.z(i, c)]).abs();
+                    assert!(gap < 1e-4, "sample {}, z_{i}[{c}]: {gap:e} m", plan.sample);
+                }
+            }
+            compared += 1;
+        }
+        assert!(compared > 20, "{compared} states compared");
     }
 
     #[test]

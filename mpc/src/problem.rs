@@ -23,10 +23,17 @@
 //!
 //! The sparsity pattern depends only on the configuration: [`Assembly`] writes the same
 //! entries in the same order every step, and only their values change.
+//!
+//! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
+//! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`Condensing`]), the
+//! variables are `x = [v_0, ..., v_{N-1}]`, the zero-cone rows disappear, and every other
+//! row above is rewritten in the inputs (its `z_0` part moves into `b`). The objective
+//! becomes a dense `2N x 2N` matrix and a linear term `G z_0`. Same program, fewer
+//! variables, denser rows.
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SupportedConeT;
-use nalgebra::{Matrix2x4, Matrix4};
+use nalgebra::{DMatrix, DVector, Matrix2x4, Matrix4};
 
 /// Dimensions and the fixed parts of the problem.
 #[derive(Debug, Clone)]
@@ -38,19 +45,30 @@ pub struct Layout {
     pub obstacles: usize,
     /// All CBF rows linear (`gamma = 1` or the Euclidean benchmark).
     pub linear_barrier: bool,
+    /// States eliminated: the solver's variables are the inputs only ([`Condensing`]).
+    pub condensed: bool,
 }
 
 impl Layout {
-    /// Index of component `c` of `z_i`.
+    /// Stage-wise index (the sparse formulation's variable) of component `c` of `z_i`.
     pub fn z(&self, i: usize, c: usize) -> usize {
         4 * i + c
     }
-    /// Index of component `c` of `v_i`.
+    /// Stage-wise index (the sparse formulation's variable) of component `c` of `v_i`.
     pub fn v(&self, i: usize, c: usize) -> usize {
         4 * (self.horizon + 1) + 2 * i + c
     }
-    pub fn variables(&self) -> usize {
+    /// Length of the stage-wise vector `[z_0, ..., z_N, v_0, ..., v_{N-1}]`.
+    pub fn stagewise(&self) -> usize {
         4 * (self.horizon + 1) + 2 * self.horizon
+    }
+    /// Number of the solver's variables.
+    pub fn variables(&self) -> usize {
+        if self.condensed {
+            2 * self.horizon
+        } else {
+            self.stagewise()
+        }
     }
     fn linear_barrier_rows(&self) -> usize {
         barrier_row_counts(self.horizon, self.obstacles, self.linear_barrier).0
@@ -60,17 +78,32 @@ impl Layout {
     }
 
     /// The cones, in row order.
-    pub fn cones(&self) -> Vec<SupportedConeT<f64>> {
+    pub fn cones(&self, rows: Rows) -> Vec<SupportedConeT<f64>> {
         let n = self.horizon;
-        let equalities = 4 + 4 * n;
-        let inequalities = 4 * n + 4 * (n - 1) + self.terminal_rows + self.linear_barrier_rows();
-        let mut cones = vec![
-            SupportedConeT::ZeroConeT(equalities),
-            SupportedConeT::NonnegativeConeT(inequalities),
-        ];
+        let implied = match rows {
+            Rows::All => 4 * (n - 1) + self.terminal_rows,
+            Rows::WithoutImplied => 0,
+        };
+        let inequalities = 4 * n + implied + self.linear_barrier_rows();
+        let mut cones = Vec::with_capacity(2 + self.cone_barriers());
+        if !self.condensed {
+            cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
+        }
+        cones.push(SupportedConeT::NonnegativeConeT(inequalities));
         cones.extend((0..self.cone_barriers()).map(|_| SupportedConeT::SecondOrderConeT(4)));
         cones
     }
+}
+
+/// Which rows a step's program has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rows {
+    /// Every row of the module docs.
+    All,
+    /// Without the position box and the terminal set, for a step whose `z_0` makes each
+    /// of their rows hold for every input sequence in the input box ([`ImpliedRow`]):
+    /// the same feasible set, a smaller program.
+    WithoutImplied,
 }
 
 /// A circular obstacle in goal-relative coordinates, with the radius the constraints use.
@@ -98,17 +131,22 @@ impl Disc {
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
 /// (measured with callgrind on the paper run, instructions per MPC step, README): no
-/// iterative refinement of the KKT solves (their residual products were half the work;
-/// 4.8 M -> 2.5 M), no equilibration (the problem is well scaled: -0.4 M), and duality
-/// gap and feasibility tolerances of 1e-6 instead of 1e-8 (a micrometre on positions in
-/// metres: -0.4 M). Together 4.8 M -> 1.7 M instructions, the same trajectory.
+/// iterative refinement of the KKT solves (their residual products were half the work),
+/// no equilibration (the problem is well scaled), a feasibility tolerance of 1e-6
+/// instead of 1e-8 (a micrometre on positions in metres: safety is decided by
+/// feasibility), and an absolute duality gap of 1e-3 (optimality only: with `R = 100 I`
+/// the inputs are then within `sqrt(2e-3 / 200)`, about 3 mm/s^2, of the optimal ones).
+/// The relative gap is 1e-7 so that the absolute one decides: the cost includes the
+/// large `z_i'Q z_i` of a robot metres from its goal, and a relative 1e-6 of it would
+/// allow inputs ten times further from the optimum. The trajectory of the paper run is
+/// the same to the millisecond.
 pub fn solver_settings() -> clarabel::solver::DefaultSettings<f64> {
     clarabel::solver::DefaultSettings {
         verbose: false,
         iterative_refinement_enable: false,
         equilibrate_enable: false,
-        tol_gap_abs: 1e-6,
-        tol_gap_rel: 1e-6,
+        tol_gap_abs: 1e-3,
+        tol_gap_rel: 1e-7,
         tol_feas: 1e-6,
         ..clarabel::solver::DefaultSettings::default()
     }
@@ -154,6 +192,122 @@ pub struct StaticData {
     pub v_max: f64,
     /// Goal-relative position box `[min, max]` per axis.
     pub position_box: [[f64; 2]; 2],
+    /// [`StaticData::box_and_terminal_rows`] as the input box bounds them.
+    pub implied_rows: Vec<ImpliedRow>,
+}
+
+/// Up to four `(column, value)` terms of a row on one stage's state.
+type StateRow = [Option<(usize, f64)>; 4];
+
+impl StaticData {
+    /// The position box on `z_1 .. z_{N-1}` (eq. 53), then the terminal set on `z_N`
+    /// (eqs. 45, 47), as rows `sum(value * x[column]) <= bound`.
+    pub fn box_and_terminal_rows(&self, l: &Layout) -> impl Iterator<Item = (StateRow, f64)> {
+        let position_box = self.position_box;
+        let boxes = (1..l.horizon).flat_map(move |i| {
+            [(0, 0), (1, 2)].into_iter().flat_map(move |(axis, c)| {
+                let [min, max] = position_box[axis];
+                let one = |value| [Some((l.z(i, c), value)), None, None, None];
+                [(one(1.0), max), (one(-1.0), -min)]
+            })
+        });
+        let n = l.horizon;
+        let terminal = self.terminal_set.iter().map(move |&(coeffs, bound)| {
+            let terms = std::array::from_fn(|c| (coeffs[c] != 0.0).then(|| (l.z(n, c), coeffs[c])));
+            (terms, bound)
+        });
+        boxes.chain(terminal)
+    }
+
+    /// The rows a step from `z_0` needs: without the position box and the terminal set
+    /// when the input box implies every one of their rows.
+    pub fn rows_for(&self, z0: [f64; 4]) -> Rows {
+        if self
+            .implied_rows
+            .iter()
+            .all(|r| r.holds_for_every_input(z0))
+        {
+            Rows::WithoutImplied
+        } else {
+            Rows::All
+        }
+    }
+}
+
+/// A row `a' z_i <= bound` bounded over every input sequence in the input box: with
+/// `z_i = F_i z_0 + T_i v` ([`rollout`]) and `|v| <= v_max` elementwise,
+/// `max a' z_i = (F_i' a)' z_0 + v_max ||T_i' a||_1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImpliedRow {
+    /// `F_i' a`.
+    free: [f64; 4],
+    /// `v_max ||T_i' a||_1`.
+    reach: f64,
+    bound: f64,
+}
+
+impl ImpliedRow {
+    /// `rows` on the stage-wise columns of `l`, bounded through `(T, F)` of [`rollout`].
+    pub fn of_rows(
+        rows: impl Iterator<Item = (StateRow, f64)>,
+        (forced, free): (&DMatrix<f64>, &DMatrix<f64>),
+        v_max: f64,
+    ) -> Vec<ImpliedRow> {
+        rows.map(|(terms, bound)| {
+            let terms = terms.into_iter().flatten();
+            let mut on_inputs = vec![0.0; forced.ncols()];
+            let mut on_z0 = [0.0; 4];
+            for (column, value) in terms {
+                for (j, x) in on_inputs.iter_mut().enumerate() {
+                    *x += value * forced[(column, j)];
+                }
+                for (c, x) in on_z0.iter_mut().enumerate() {
+                    *x += value * free[(column, c)];
+                }
+            }
+            ImpliedRow {
+                free: on_z0,
+                reach: v_max * on_inputs.iter().map(|x| x.abs()).sum::<f64>(),
+                bound,
+            }
+        })
+        .collect()
+    }
+
+    /// Whether the row holds, with a margin, for every input sequence from `z0`.
+    pub fn holds_for_every_input(&self, z0: [f64; 4]) -> bool {
+        let largest: f64 = self.free.iter().zip(z0).map(|(f, z)| f * z).sum::<f64>() + self.reach;
+        largest <= self.bound - 1e-9 * (1.0 + self.bound.abs())
+    }
+}
+
+/// The stage-wise vector as an affine map of the inputs and `z_0` (eq. 52 rolled out):
+/// `[z_0, ..., z_N, v] = T v + F z_0`, `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j`.
+/// Returns `(T, F)`.
+pub fn rollout(
+    l: &Layout,
+    a: &Matrix4<f64>,
+    b: &nalgebra::Matrix4x2<f64>,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let (n, rows, nv) = (l.horizon, l.stagewise(), 2 * l.horizon);
+    let mut forced = DMatrix::zeros(rows, nv);
+    let mut free = DMatrix::zeros(rows, 4);
+    free.view_mut((0, 0), (4, 4))
+        .copy_from(&Matrix4::identity());
+    // z_i = A z_{i-1} + B v_{i-1}, row block by row block.
+    for i in 1..=n {
+        let previous = forced.view((l.z(i - 1, 0), 0), (4, nv)).into_owned();
+        let previous_free = free.view((l.z(i - 1, 0), 0), (4, 4)).into_owned();
+        free.view_mut((l.z(i, 0), 0), (4, 4))
+            .copy_from(&(a * previous_free));
+        let mut block = forced.view_mut((l.z(i, 0), 0), (4, nv));
+        block.copy_from(&(a * previous));
+        block.view_mut((0, 2 * (i - 1)), (4, 2)).copy_from(b);
+    }
+    for j in 0..nv {
+        forced[(l.v(0, 0) + j, j)] = 1.0;
+    }
+    (forced, free)
 }
 
 /// What changes each step.
@@ -167,31 +321,64 @@ pub struct StepData<'a> {
 }
 
 /// The rows of `A` and `b`, written in a fixed order; buffers are reused between steps.
+/// Rows are given in stage-wise columns ([`Layout::z`], [`Layout::v`]); with a
+/// [`Condensing`] they are rewritten in the inputs as they are appended.
 #[derive(Debug, Default)]
 pub struct Assembly {
     /// `(row, column, value)` of every structural entry of `A`, in a fixed order.
     pub entries: Vec<(usize, usize, f64)>,
     pub b: Vec<f64>,
+    /// The objective's linear term `q` (empty: zero).
+    pub q: Vec<f64>,
+    /// Set for the condensed formulation.
+    pub condensing: Option<Condensing>,
 }
 
 impl Assembly {
     /// Appends the row `sum(value * x[column]) + s = b`.
     pub fn row(&mut self, terms: impl IntoIterator<Item = (usize, f64)>, b: f64) {
         let r = self.b.len();
-        self.entries
-            .extend(terms.into_iter().map(|(c, v)| (r, c, v)));
+        let b = match &mut self.condensing {
+            Some(condensing) => condensing.rewrite(r, terms, b, &mut self.entries),
+            None => {
+                self.entries
+                    .extend(terms.into_iter().map(|(c, v)| (r, c, v)));
+                b
+            }
+        };
         self.b.push(b);
     }
 
     /// Writes every row of the step's problem (see the module docs for the order).
-    pub fn fill(&mut self, l: &Layout, s: &StaticData, d: &StepData) {
+    pub fn fill(&mut self, l: &Layout, s: &StaticData, d: &StepData, rows: Rows) {
         self.entries.clear();
         self.b.clear();
         let n = l.horizon;
-        for c in 0..4 {
-            self.row([(l.z(0, c), 1.0)], d.z0[c]);
+        if let Some(condensing) = &mut self.condensing {
+            condensing.set_initial_state(d.z0, &mut self.q);
+        } else {
+            self.equality_rows(l, s, d.z0);
         }
         for i in 0..n {
+            for c in 0..2 {
+                self.row([(l.v(i, c), 1.0)], s.v_max);
+                self.row([(l.v(i, c), -1.0)], s.v_max);
+            }
+        }
+        if rows == Rows::All {
+            for (terms, bound) in s.box_and_terminal_rows(l) {
+                self.row(terms.into_iter().flatten(), bound);
+            }
+        }
+        self.barrier_rows(l, s, d);
+    }
+
+    /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.
+    fn equality_rows(&mut self, l: &Layout, s: &StaticData, z0: [f64; 4]) {
+        for (c, z) in z0.into_iter().enumerate() {
+            self.row([(l.z(0, c), 1.0)], z);
+        }
+        for i in 0..l.horizon {
             for r in 0..4 {
                 let mut terms = [(0, 0.0); 7];
                 terms[0] = (l.z(i + 1, r), 1.0);
@@ -204,31 +391,6 @@ impl Assembly {
                 // Structural zeros of A and B are the same every step: leave them out.
                 self.row(terms.into_iter().filter(|t| t.1 != 0.0), 0.0);
             }
-        }
-        for i in 0..n {
-            for c in 0..2 {
-                self.row([(l.v(i, c), 1.0)], s.v_max);
-                self.row([(l.v(i, c), -1.0)], s.v_max);
-            }
-        }
-        for i in 1..n {
-            for (axis, c) in [(0, 0), (1, 2)] {
-                self.row([(l.z(i, c), 1.0)], s.position_box[axis][1]);
-                self.row([(l.z(i, c), -1.0)], -s.position_box[axis][0]);
-            }
-        }
-        self.terminal_rows(l, s);
-        self.barrier_rows(l, s, d);
-    }
-
-    /// The terminal set (eqs. 45, 47) on `z_N`.
-    fn terminal_rows(&mut self, l: &Layout, s: &StaticData) {
-        let n = l.horizon;
-        for &(coeffs, bound) in &s.terminal_set {
-            let terms = (0..4)
-                .filter(|&c| coeffs[c] != 0.0)
-                .map(|c| (l.z(n, c), coeffs[c]));
-            self.row(terms, bound);
         }
     }
 
@@ -299,6 +461,115 @@ pub struct Barrier<'a> {
     pub reference: &'a [[f64; 2]],
     /// Position of stage 0 (data).
     pub p0: [f64; 2],
+}
+
+/// The states as affine functions of the inputs (eq. 52 rolled out): the stage-wise
+/// vector is `T v + F z_0`, `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j`. Rewrites rows
+/// and the objective of the sparse formulation in the inputs `v` alone.
+#[derive(Debug, Clone)]
+pub struct Condensing {
+    /// `T'` (inputs x stage-wise), so that each stage-wise column is contiguous.
+    forced_transposed: DMatrix<f64>,
+    /// `F` (stage-wise x 4).
+    free: DMatrix<f64>,
+    /// Upper triangle of `T' P T`, the objective's quadratic term in the inputs.
+    hessian: CscMatrix<f64>,
+    /// `G = T' P F`: the objective's linear term is `G z_0`.
+    gradient_map: DMatrix<f64>,
+    /// `F z_0` of the current step.
+    free_response: DVector<f64>,
+    /// Scratch for one row: its coefficients on the inputs and which are structural.
+    coefficients: Vec<f64>,
+    structural: Vec<bool>,
+}
+
+impl Condensing {
+    /// `stagewise_hessian`: the upper triangle of the sparse formulation's `P`.
+    pub fn new(
+        l: &Layout,
+        (forced, free): (DMatrix<f64>, DMatrix<f64>),
+        stagewise_hessian: &CscMatrix<f64>,
+    ) -> Condensing {
+        let (rows, nv) = (l.stagewise(), 2 * l.horizon);
+        let mut p = DMatrix::zeros(rows, rows);
+        for col in 0..rows {
+            for k in stagewise_hessian.colptr[col]..stagewise_hessian.colptr[col + 1] {
+                let row = stagewise_hessian.rowval[k];
+                p[(row, col)] = stagewise_hessian.nzval[k];
+                p[(col, row)] = stagewise_hessian.nzval[k];
+            }
+        }
+        let p_forced = &p * &forced;
+        let hessian = forced.transpose() * &p_forced;
+        let entries: Vec<(usize, usize, f64)> = (0..nv)
+            .flat_map(|c| (0..=c).map(move |r| (r, c)))
+            .map(|(r, c)| (r, c, hessian[(r, c)]))
+            .filter(|e| e.2 != 0.0)
+            .collect();
+        Condensing {
+            gradient_map: p_forced.transpose() * &free,
+            forced_transposed: forced.transpose(),
+            free,
+            hessian: csc_with_positions(nv, nv, &entries).0,
+            free_response: DVector::zeros(rows),
+            coefficients: vec![0.0; nv],
+            structural: vec![false; nv],
+        }
+    }
+
+    /// Upper triangle of the objective's quadratic term in the inputs.
+    pub fn hessian(&self) -> &CscMatrix<f64> {
+        &self.hessian
+    }
+
+    /// Sets the step's `z_0`, and writes the objective's linear term `G z_0` into `q`.
+    fn set_initial_state(&mut self, z0: [f64; 4], q: &mut Vec<f64>) {
+        let z0 = nalgebra::Vector4::from(z0);
+        self.free_response.gemv(1.0, &self.free, &z0, 0.0);
+        q.resize(self.gradient_map.nrows(), 0.0);
+        for (r, q) in q.iter_mut().enumerate() {
+            *q = (0..4).map(|c| self.gradient_map[(r, c)] * z0[c]).sum();
+        }
+    }
+
+    /// Appends to `entries` the row `sum(value * x_stagewise[column]) + s = b`, in the
+    /// inputs, and returns its right-hand side `b - sum(value * (F z_0)[column])`.
+    /// The structure comes from `T` alone, so it is the same every step.
+    fn rewrite(
+        &mut self,
+        row: usize,
+        terms: impl IntoIterator<Item = (usize, f64)>,
+        b: f64,
+        entries: &mut Vec<(usize, usize, f64)>,
+    ) -> f64 {
+        let mut b = b;
+        for (column, value) in terms {
+            b -= value * self.free_response[column];
+            for (j, &t) in self.forced_transposed.column(column).iter().enumerate() {
+                if t != 0.0 {
+                    self.coefficients[j] += value * t;
+                    self.structural[j] = true;
+                }
+            }
+        }
+        for j in 0..self.coefficients.len() {
+            if std::mem::take(&mut self.structural[j]) {
+                entries.push((row, j, std::mem::take(&mut self.coefficients[j])));
+            }
+        }
+        b
+    }
+
+    /// The stage-wise vector `T v + F z_0` of the inputs `v` (the step's `z_0`).
+    pub fn expand(&self, v: &[f64], stagewise: &mut [f64]) {
+        for (r, out) in stagewise.iter_mut().enumerate() {
+            *out = self.free_response[r]
+                + v.iter()
+                    .enumerate()
+                    .map(|(j, v)| self.forced_transposed[(j, r)] * v)
+                    .sum::<f64>();
+        }
+    }
 }
 
 /// Rows of the CBF part of the problem: `(linear rows, second-order cones)`.
@@ -414,52 +685,81 @@ impl ConicSolver {
         objective: impl FnOnce() -> CscMatrix<f64>,
         cones: impl FnOnce() -> Vec<SupportedConeT<f64>>,
     ) -> (protocol::PlanStatus, u32) {
-        use clarabel::solver::{DefaultSolver, IPSolver};
-        let solver = match self.solver.as_mut() {
-            Some(solver) => {
-                for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
-                    self.nzval[self.nz_position[t]] = v;
-                }
-                let updated = solver
-                    .update_A(&self.nzval)
-                    .and_then(|()| solver.update_b(&assembly.b));
-                if updated.is_err() {
-                    return (protocol::PlanStatus::NumericalError, 0);
-                }
-                solver
-            }
-            None => {
-                let (a, positions) =
-                    csc_with_positions(assembly.b.len(), variables, &assembly.entries);
-                self.nzval = a.nzval.clone();
-                self.nz_position = positions;
-                match DefaultSolver::new(
-                    &objective(),
-                    &vec![0.0; variables],
-                    &a,
-                    &assembly.b,
-                    &cones(),
-                    solver_settings(),
-                ) {
-                    Ok(solver) => self.solver.insert(solver),
-                    Err(_) => return (protocol::PlanStatus::NumericalError, 0),
-                }
-            }
+        use clarabel::solver::IPSolver;
+        let ready = if self.solver.is_some() {
+            self.update(assembly)
+        } else {
+            self.build(assembly, variables, &objective(), &cones())
         };
-        solver.solve();
-        (
-            crate::plan_status(solver.solution.status),
-            solver.solution.iterations,
-        )
+        match (ready, self.solver.as_mut()) {
+            (true, Some(solver)) => {
+                solver.solve();
+                (
+                    crate::plan_status(solver.solution.status),
+                    solver.solution.iterations,
+                )
+            }
+            _ => (protocol::PlanStatus::NumericalError, 0),
+        }
+    }
+
+    /// Builds the solver for the pattern of `assembly` (kept from then on). False if
+    /// clarabel refuses the data.
+    pub fn build(
+        &mut self,
+        assembly: &Assembly,
+        variables: usize,
+        objective: &CscMatrix<f64>,
+        cones: &[SupportedConeT<f64>],
+    ) -> bool {
+        let (a, positions) = csc_with_positions(assembly.b.len(), variables, &assembly.entries);
+        self.nzval = a.nzval.clone();
+        self.nz_position = positions;
+        let q = if assembly.q.is_empty() {
+            vec![0.0; variables]
+        } else {
+            assembly.q.clone()
+        };
+        let solver = clarabel::solver::DefaultSolver::new(
+            objective,
+            &q,
+            &a,
+            &assembly.b,
+            cones,
+            solver_settings(),
+        );
+        self.solver = solver.ok();
+        self.solver.is_some()
+    }
+
+    pub fn is_built(&self) -> bool {
+        self.solver.is_some()
+    }
+
+    /// Writes the values of `assembly` (the pattern the solver was built with).
+    fn update(&mut self, assembly: &Assembly) -> bool {
+        let Some(solver) = self.solver.as_mut() else {
+            return false;
+        };
+        for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
+            self.nzval[self.nz_position[t]] = v;
+        }
+        solver
+            .update_A(&self.nzval)
+            .and_then(|()| solver.update_b(&assembly.b))
+            .and_then(|()| {
+                if assembly.q.is_empty() {
+                    Ok(())
+                } else {
+                    solver.update_q(&assembly.q)
+                }
+            })
+            .is_ok()
     }
 
     /// The last solution's variables (none before the first solve).
     pub fn x(&self) -> Option<&[f64]> {
         self.solver.as_ref().map(|s| s.solution.x.as_slice())
-    }
-
-    pub fn x_mut(&mut self) -> Option<&mut [f64]> {
-        self.solver.as_mut().map(|s| s.solution.x.as_mut_slice())
     }
 }
 

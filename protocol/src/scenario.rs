@@ -315,11 +315,23 @@ pub enum Formulation {
     Nonlinear,
 }
 
+/// How the linear scheme's conic program is written (the same program either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QpForm {
+    /// States and inputs are variables, the dynamics are equality rows.
+    Sparse,
+    /// The states are eliminated: the inputs are the only variables.
+    Condensed,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MpcConfig {
     /// `linear` (the paper's scheme) or `nonlinear` (the SCNMPC baseline).
     pub formulation: Formulation,
+    /// `sparse` or `condensed` conic program for the linear scheme.
+    pub qp_form: QpForm,
     /// Prediction horizon `N`.
     pub horizon: usize,
     /// Constraint-checking horizon `Nc` of the terminal constraints (eqs. 45, 47).
@@ -436,6 +448,7 @@ impl Default for MpcConfig {
     fn default() -> Self {
         MpcConfig {
             formulation: Formulation::Linear,
+            qp_form: QpForm::Sparse,
             horizon: 8,
             constraint_horizon: 10,
             gamma: 0.1,
