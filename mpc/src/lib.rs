@@ -5,8 +5,9 @@
 //! (the previous plan shifted by one sample, or a braking rollout when cold), solve, and
 //! re-linearize at the new plan until it moves less than `refinement_tol_m` (sequential
 //! convex programming; every iterate is feasible for the paper's nonconvex constraint and
-//! the cost never rises). The conic problem is built once, on the first step, and only
-//! its values are updated afterwards.
+//! the cost never rises). The conic problems are built once, on the first step (one per
+//! set of rows the input box may imply, [`problem::Rows`]), and only their values are
+//! updated afterwards.
 
 pub mod model;
 pub mod nonlinear;
@@ -17,8 +18,8 @@ use clarabel::algebra::CscMatrix;
 use clarabel::solver::SolverStatus;
 use nalgebra::{Matrix2, Matrix4, Vector4};
 use problem::{
-    Assembly, Condensing, ConicSolver, Disc, ImpliedRow, Layout, Rows, StaticData, StepData,
-    csc_with_positions,
+    Assembly, Condensing, ConicSolver, Disc, Layout, PositionReach, Rows, Span, StaticData,
+    StepData, csc_with_positions,
 };
 use protocol::{
     ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, QpForm, Scenario,
@@ -51,10 +52,14 @@ pub struct LinearMpc {
     /// Upper triangle of the sparse formulation's `P` (eq. 51).
     hessian: CscMatrix<f64>,
     // Reused every step.
-    /// One solver per [`Rows`] (index `Rows as usize`), both built on the first step.
-    solvers: [ConicSolver; 2],
-    /// The rows of the current step's program.
+    /// One solver per [`Rows`] ([`Rows::index`]), all built on the first step.
+    solvers: [ConicSolver; 4],
+    /// The rows of the last solve's program.
     rows: Rows,
+    /// Whether this step needs the position box and the terminal set.
+    box_and_terminal_needed: bool,
+    /// Where the positions can be this step.
+    reach: PositionReach,
     assembly: Assembly,
     discs: Vec<Disc>,
     reference: Vec<[f64; 2]>,
@@ -109,15 +114,22 @@ impl LinearMpc {
             },
             v_max: c.v_max,
             position_box,
-            implied_rows: Vec::new(),
+            box_and_terminal_spans: Vec::new(),
         };
         let (forced, free) = problem::rollout(&layout, &a, &b);
-        let implied_rows = ImpliedRow::of_rows(
-            statics.box_and_terminal_rows(&layout),
-            (&forced, &free),
-            c.v_max,
-        );
-        statics.implied_rows = implied_rows;
+        let span =
+            |terms: &[(usize, f64)]| Span::of(terms.iter().copied(), (&forced, &free), c.v_max);
+        let spans = statics
+            .box_and_terminal_rows(&layout)
+            .map(|(terms, bound)| {
+                (
+                    span(&terms.into_iter().flatten().collect::<Vec<_>>()),
+                    bound,
+                )
+            })
+            .collect();
+        statics.box_and_terminal_spans = spans;
+        let reach = PositionReach::new(&layout, (&forced, &free), c.v_max);
         let assembly = Assembly {
             condensing: layout
                 .condensed
@@ -138,7 +150,9 @@ impl LinearMpc {
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
             solvers: Default::default(),
-            rows: Rows::All,
+            rows: Rows::ALL,
+            box_and_terminal_needed: true,
+            reach,
             assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; c.horizon + 1],
@@ -185,7 +199,8 @@ impl LinearMpc {
             self.braking_reference(z0);
         }
         self.build_solvers(z0);
-        self.rows = self.statics.rows_for(z0);
+        self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0);
+        self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
         if outcome.status != PlanStatus::Solved && warm {
             // The shifted plan is no longer a usable linearization point: start cold.
@@ -247,7 +262,7 @@ impl LinearMpc {
 
     /// Copies the solver's solution into `solution` (stage-wise).
     fn load_solution(&mut self) {
-        let Some(x) = self.solvers[self.rows as usize].x() else {
+        let Some(x) = self.solvers[self.rows.index()].x() else {
             return;
         };
         match &self.assembly.condensing {
@@ -256,26 +271,44 @@ impl LinearMpc {
         }
     }
 
-    /// One convex solve at the current reference, with the step's rows.
+    /// One convex solve at the current reference, without the rows the input box
+    /// implies.
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32) {
-        self.fill(z0, self.rows);
+        let data = StepData {
+            z0,
+            discs: &self.discs,
+            reference: &self.reference,
+        };
+        let barrier_implied = data
+            .barrier(&self.layout, &self.statics)
+            .implied(&self.reach);
+        let rows = Rows {
+            box_and_terminal: self.box_and_terminal_needed,
+            barrier: !barrier_implied,
+        };
+        self.solve_with(z0, rows)
+    }
+
+    fn solve_with(&mut self, z0: [f64; 4], rows: Rows) -> (PlanStatus, u32) {
+        self.rows = rows;
+        self.fill(z0, rows);
         let hessian = solver_hessian(&self.assembly, &self.hessian);
-        self.solvers[self.rows as usize].solve(
+        self.solvers[rows.index()].solve(
             &self.assembly,
             self.layout.variables(),
             || hessian.clone(),
-            || self.layout.cones(self.rows),
+            || self.layout.cones(rows),
         )
     }
 
     /// Builds the solver of each [`Rows`] (on the first step, so that no later step
     /// allocates for it).
     fn build_solvers(&mut self, z0: [f64; 4]) {
-        for rows in [Rows::All, Rows::WithoutImplied] {
-            if !self.solvers[rows as usize].is_built() {
+        for rows in Rows::EVERY {
+            if !self.solvers[rows.index()].is_built() {
                 self.fill(z0, rows);
                 let hessian = solver_hessian(&self.assembly, &self.hessian);
-                self.solvers[rows as usize].build(
+                self.solvers[rows.index()].build(
                     &self.assembly,
                     self.layout.variables(),
                     hessian,
@@ -559,8 +592,8 @@ mod tests {
             LinearMpc::new(&euclidean).unwrap(),
         );
         assert_eq!(
-            a.layout.cones(Rows::All).len(),
-            b.layout.cones(Rows::All).len()
+            a.layout.cones(Rows::ALL).len(),
+            b.layout.cones(Rows::ALL).len()
         );
         let discs = [Disc {
             center: [3.0, 3.5],
@@ -575,8 +608,8 @@ mod tests {
             reference: &reference,
         };
         let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
-        fa.fill(&a.layout, &a.statics, &data, Rows::All);
-        fb.fill(&b.layout, &b.statics, &data, Rows::All);
+        fa.fill(&a.layout, &a.statics, &data, Rows::ALL);
+        fb.fill(&b.layout, &b.statics, &data, Rows::ALL);
         assert_eq!(fa.entries, fb.entries);
         assert_eq!(fa.b, fb.b);
         // And the closed loops agree number for number.
@@ -661,11 +694,14 @@ mod tests {
     }
 
     #[test]
-    fn rows_left_out_hold_for_every_input_sequence_in_the_box() {
+    fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
         let s = Scenario::default();
         let mpc = LinearMpc::new(&s).unwrap();
-        let (st, l) = (&mpc.statics, &mpc.layout);
-        let rows: Vec<_> = st.box_and_terminal_rows(l).collect();
+        let without_barrier = Rows {
+            box_and_terminal: true,
+            barrier: false,
+        };
+        let cones = mpc.layout.cones(without_barrier);
         let mut next = logistic(0.3);
         let (mut left_out, mut kept) = (0, 0);
         for _ in 0..2_000 {
@@ -675,26 +711,22 @@ mod tests {
                 30.0 * next() - 15.0,
                 8.0 * next() - 4.0,
             ];
-            if st.rows_for(z0) == Rows::All {
+            if !mpc.statics.box_and_terminal_implied(z0) {
                 kept += 1;
                 continue;
             }
             left_out += 1;
+            let data = StepData {
+                z0,
+                discs: &[],
+                reference: &mpc.reference,
+            };
+            let mut rows = Assembly::default();
+            rows.fill(&mpc.layout, &mpc.statics, &data, without_barrier);
             for corner_bias in [0.0, 0.5, 1.0] {
-                // Inputs at the box's corners, and inside it.
-                let mut z = Vector4::from(z0);
-                let mut stagewise = vec![0.0; l.stagewise()];
-                for i in 0..=l.horizon {
-                    stagewise[l.z(i, 0)..l.z(i, 0) + 4].copy_from_slice(z.as_slice());
-                    let u = |x: f64| {
-                        let x = if x < corner_bias { -1.0 } else { 1.0 } * (0.5 + x / 2.0);
-                        (x.clamp(-1.0, 1.0)) * st.v_max
-                    };
-                    z = st.a * z + st.b * nalgebra::Vector2::new(u(next()), u(next()));
-                }
-                for (terms, bound) in &rows {
-                    let value: f64 = terms.iter().flatten().map(|&(c, v)| v * stagewise[c]).sum();
-                    assert!(value <= *bound, "z0 {z0:?}: {value} > {bound}");
+                let x = rollout(&mpc, z0, corner_bias, &mut next);
+                if let Some(violated) = violated_row(&rows, &cones, &x) {
+                    panic!("z0 {z0:?}: row {violated} violated");
                 }
             }
         }
@@ -702,6 +734,127 @@ mod tests {
             left_out > 100 && kept > 100,
             "{left_out} left out, {kept} kept"
         );
+    }
+
+    #[test]
+    fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
+        for gamma in [0.1, 1.0] {
+            let mut s = Scenario::default();
+            s.mpc.gamma = gamma;
+            let mut mpc = LinearMpc::new(&s).unwrap();
+            mpc.discs = vec![Disc {
+                center: [3.0, 3.5],
+                radius: 1.5,
+            }];
+            let cones = mpc.layout.cones(Rows {
+                box_and_terminal: false,
+                barrier: true,
+            });
+            let mut next = logistic(0.7);
+            let (mut left_out, mut kept) = (0, 0);
+            for _ in 0..1_000 {
+                // Around the obstacle, within about two radii of its edge.
+                let z0 = [
+                    8.0 * next() - 1.0,
+                    4.0 * next() - 2.0,
+                    8.0 * next() - 0.5,
+                    4.0 * next() - 2.0,
+                ];
+                mpc.braking_reference(z0);
+                mpc.reach.set_initial_state(z0);
+                let data = StepData {
+                    z0,
+                    discs: &mpc.discs,
+                    reference: &mpc.reference,
+                };
+                if !data.barrier(&mpc.layout, &mpc.statics).implied(&mpc.reach) {
+                    kept += 1;
+                    continue;
+                }
+                left_out += 1;
+                let mut rows = Assembly::default();
+                let only_barrier = Rows {
+                    box_and_terminal: false,
+                    barrier: true,
+                };
+                rows.fill(&mpc.layout, &mpc.statics, &data, only_barrier);
+                for corner_bias in [0.0, 0.5, 1.0] {
+                    let x = rollout(&mpc, z0, corner_bias, &mut next);
+                    if let Some(violated) = violated_row(&rows, &cones, &x) {
+                        panic!("gamma {gamma}, z0 {z0:?}: row {violated} violated");
+                    }
+                }
+            }
+            assert!(
+                left_out > 50 && kept > 50,
+                "{left_out} left out, {kept} kept"
+            );
+        }
+    }
+
+    /// The stage-wise vector of a random input sequence in the input box from `z0`
+    /// (the larger `corner_bias`, the more inputs at the box's corners).
+    fn rollout(
+        mpc: &LinearMpc,
+        z0: [f64; 4],
+        corner_bias: f64,
+        next: &mut impl FnMut() -> f64,
+    ) -> Vec<f64> {
+        let (l, st) = (&mpc.layout, &mpc.statics);
+        let mut x = vec![0.0; l.stagewise()];
+        let mut z = Vector4::from(z0);
+        for i in 0..=l.horizon {
+            x[l.z(i, 0)..l.z(i, 0) + 4].copy_from_slice(z.as_slice());
+            if i == l.horizon {
+                break;
+            }
+            let mut u = |c: usize| {
+                let (sign, size) = (next(), next());
+                let size = if size < corner_bias { 1.0 } else { size };
+                let v = if sign < 0.5 { -size } else { size } * st.v_max;
+                x[l.v(i, c)] = v;
+                v
+            };
+            let v = nalgebra::Vector2::new(u(0), u(1));
+            z = st.a * z + st.b * v;
+        }
+        x
+    }
+
+    /// The first row of `rows` (in the cones' order) that `x` violates by more than 1e-9.
+    fn violated_row(
+        rows: &Assembly,
+        cones: &[clarabel::solver::SupportedConeT<f64>],
+        x: &[f64],
+    ) -> Option<usize> {
+        use clarabel::solver::SupportedConeT;
+        let mut slack = rows.b.clone();
+        for &(r, c, v) in &rows.entries {
+            slack[r] -= v * x[c];
+        }
+        let mut r = 0;
+        for cone in cones {
+            let (dim, ok) = match *cone {
+                SupportedConeT::ZeroConeT(d) => (d, slack[r..r + d].iter().all(|s| s.abs() < 1e-9)),
+                SupportedConeT::NonnegativeConeT(d) => {
+                    (d, slack[r..r + d].iter().all(|&s| s > -1e-9))
+                }
+                SupportedConeT::SecondOrderConeT(d) => {
+                    let norm = slack[r + 1..r + d]
+                        .iter()
+                        .map(|s| s * s)
+                        .sum::<f64>()
+                        .sqrt();
+                    (d, slack[r] >= norm - 1e-9)
+                }
+                _ => unreachable!("the MPC uses no other cone"),
+            };
+            if !ok {
+                return Some(r);
+            }
+            r += dim;
+        }
+        None
     }
 
     /// `1/2 x'Px` of a stage-wise vector (eq. 51).
@@ -722,28 +875,27 @@ mod tests {
     fn leaving_out_implied_rows_changes_no_plan() {
         let s = Scenario::default();
         let mut mpc = LinearMpc::new(&s).unwrap();
-        let mut compared = 0;
-        for plan in closed_loop(&s, 300).iter().step_by(7) {
+        let mut compared = [0; 4];
+        for plan in closed_loop(&s, 400).iter().step_by(5) {
             let z = plan.z[0];
             let zeta = z[1].hypot(z[3]);
             mpc.step(plan.sample, [z[0], z[2], z[3].atan2(z[1]), zeta], 0.0);
             let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
-            if mpc.statics.rows_for(z0) == Rows::All {
-                continue;
-            }
-            let mut solve = |rows| {
-                mpc.rows = rows;
-                assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
+            let used = mpc.rows;
+            let mut solve = |rows: Rows| {
+                assert_eq!(mpc.solve_with(z0, rows).0, PlanStatus::Solved);
                 mpc.load_solution();
                 mpc.solution.clone()
             };
-            let (all, reduced) = (solve(Rows::All), solve(Rows::WithoutImplied));
+            let all = solve(Rows::ALL);
+            let reduced = solve(used);
+            compared[used.index()] += 1;
             // The same optimum, to the solver's accuracy (a duality gap of 1e-3 and
             // feasibility to 1e-6, relative, with large multipliers on the CBF rows).
             let (c_all, c_reduced) = (cost(&mpc, &all), cost(&mpc, &reduced));
             assert!(
                 (c_all - c_reduced).abs() < 1e-5 * c_all,
-                "sample {}: cost {c_all} with every row, {c_reduced} without the implied ones",
+                "sample {} {used:?}: cost {c_all} with every row, {c_reduced} without",
                 plan.sample
             );
             let l = &mpc.layout;
@@ -753,9 +905,10 @@ mod tests {
                     assert!(gap < 1e-4, "sample {}, z_{i}[{c}]: {gap:e} m", plan.sample);
                 }
             }
-            compared += 1;
         }
-        assert!(compared > 20, "{compared} states compared");
+        // The paper's run leaves out the box and terminal rows, and the CBF rows away from
+        // the obstacle.
+        assert!(compared[0] > 10 && compared[1] > 10, "{compared:?}");
     }
 
     #[test]

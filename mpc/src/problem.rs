@@ -24,6 +24,15 @@
 //! The sparsity pattern depends only on the configuration: [`Assembly`] writes the same
 //! entries in the same order every step, and only their values change.
 //!
+//! Rows the input box implies are left out ([`Rows`]): over every input sequence with
+//! `|v| <= v_max`, the states are an affine image of a box, so each row's extreme value
+//! has a closed form ([`Span`], [`PositionReach`]). When every row of the position box
+//! and the terminal set holds at its extreme, that group is left out for the step; when
+//! every CBF row does, the CBF group is left out for the solve. The feasible set is the
+//! same, the program smaller: one solver per combination, all four built on the first
+//! step. In the paper's run the first group is always implied (the box is 10 m away) and
+//! the CBF rows are whenever the obstacle is out of reach of the horizon.
+//!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
 //! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`Condensing`]), the
 //! variables are `x = [v_0, ..., v_{N-1}]`, the zero-cone rows disappear, and every other
@@ -80,30 +89,62 @@ impl Layout {
     /// The cones, in row order.
     pub fn cones(&self, rows: Rows) -> Vec<SupportedConeT<f64>> {
         let n = self.horizon;
-        let implied = match rows {
-            Rows::All => 4 * (n - 1) + self.terminal_rows,
-            Rows::WithoutImplied => 0,
+        let (linear_barrier_rows, cone_barriers) = match rows.barrier {
+            true => (self.linear_barrier_rows(), self.cone_barriers()),
+            false => (0, 0),
         };
-        let inequalities = 4 * n + implied + self.linear_barrier_rows();
-        let mut cones = Vec::with_capacity(2 + self.cone_barriers());
+        let box_and_terminal = match rows.box_and_terminal {
+            true => 4 * (n - 1) + self.terminal_rows,
+            false => 0,
+        };
+        let inequalities = 4 * n + box_and_terminal + linear_barrier_rows;
+        let mut cones = Vec::with_capacity(2 + cone_barriers);
         if !self.condensed {
             cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
         }
         cones.push(SupportedConeT::NonnegativeConeT(inequalities));
-        cones.extend((0..self.cone_barriers()).map(|_| SupportedConeT::SecondOrderConeT(4)));
+        cones.extend((0..cone_barriers).map(|_| SupportedConeT::SecondOrderConeT(4)));
         cones
     }
 }
 
-/// Which rows a step's program has.
+/// Which rows a solve's program has. A group is left out when the input box implies
+/// each of its rows for this solve (every input sequence within the input box satisfies
+/// them): the same feasible set, a smaller program. One solver per combination.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Rows {
-    /// Every row of the module docs.
-    All,
-    /// Without the position box and the terminal set, for a step whose `z_0` makes each
-    /// of their rows hold for every input sequence in the input box ([`ImpliedRow`]):
-    /// the same feasible set, a smaller program.
-    WithoutImplied,
+pub struct Rows {
+    /// The position box on `z_1 .. z_{N-1}` and the terminal set
+    /// ([`StaticData::box_and_terminal_implied`]).
+    pub box_and_terminal: bool,
+    /// The CBF rows ([`Barrier::implied`]).
+    pub barrier: bool,
+}
+
+impl Rows {
+    pub const ALL: Rows = Rows {
+        box_and_terminal: true,
+        barrier: true,
+    };
+    /// Every combination, in [`Rows::index`] order.
+    pub const EVERY: [Rows; 4] = [
+        Rows {
+            box_and_terminal: false,
+            barrier: false,
+        },
+        Rows {
+            box_and_terminal: false,
+            barrier: true,
+        },
+        Rows {
+            box_and_terminal: true,
+            barrier: false,
+        },
+        Rows::ALL,
+    ];
+
+    pub fn index(self) -> usize {
+        2 * usize::from(self.box_and_terminal) + usize::from(self.barrier)
+    }
 }
 
 /// A circular obstacle in goal-relative coordinates, with the radius the constraints use.
@@ -192,8 +233,8 @@ pub struct StaticData {
     pub v_max: f64,
     /// Goal-relative position box `[min, max]` per axis.
     pub position_box: [[f64; 2]; 2],
-    /// [`StaticData::box_and_terminal_rows`] as the input box bounds them.
-    pub implied_rows: Vec<ImpliedRow>,
+    /// The span of each of [`StaticData::box_and_terminal_rows`], with its bound.
+    pub box_and_terminal_spans: Vec<(Span, f64)>,
 }
 
 /// Up to four `(column, value)` terms of a row on one stage's state.
@@ -219,65 +260,144 @@ impl StaticData {
         boxes.chain(terminal)
     }
 
-    /// The rows a step from `z_0` needs: without the position box and the terminal set
-    /// when the input box implies every one of their rows.
-    pub fn rows_for(&self, z0: [f64; 4]) -> Rows {
-        if self
-            .implied_rows
+    /// Whether every row of the position box and the terminal set holds, with a margin,
+    /// for every input sequence from `z0`.
+    pub fn box_and_terminal_implied(&self, z0: [f64; 4]) -> bool {
+        self.box_and_terminal_spans
             .iter()
-            .all(|r| r.holds_for_every_input(z0))
-        {
-            Rows::WithoutImplied
-        } else {
-            Rows::All
-        }
+            .all(|(span, bound)| below(span.max(z0), *bound))
     }
 }
 
-/// A row `a' z_i <= bound` bounded over every input sequence in the input box: with
-/// `z_i = F_i z_0 + T_i v` ([`rollout`]) and `|v| <= v_max` elementwise,
-/// `max a' z_i = (F_i' a)' z_0 + v_max ||T_i' a||_1`.
+/// `value <= bound` with a margin (relative 1e-9) against rounding.
+fn below(value: f64, bound: f64) -> bool {
+    value <= bound - 1e-9 * (1.0 + bound.abs())
+}
+
+/// The positions over every input sequence in the input box: `p_i = c_i + D_i v` with
+/// `|v| <= v_max` elementwise (eq. 52 rolled out, [`rollout`]), `c_i` the positions with
+/// zero inputs from the step's `z_0`.
+#[derive(Debug, Clone)]
+pub struct PositionReach {
+    /// `D`: row `2i + k` is axis `k` of stage `i`'s position, one column per input.
+    forced: DMatrix<f64>,
+    /// The rows of `F` for the same positions.
+    free: DMatrix<f64>,
+    v_max: f64,
+    /// `c_i` of the step.
+    centers: Vec<[f64; 2]>,
+}
+
+impl PositionReach {
+    pub fn new(
+        l: &Layout,
+        (forced, free): (&DMatrix<f64>, &DMatrix<f64>),
+        v_max: f64,
+    ) -> PositionReach {
+        let rows: Vec<usize> = (0..=l.horizon)
+            .flat_map(|i| [l.z(i, 0), l.z(i, 2)])
+            .collect();
+        PositionReach {
+            forced: forced.select_rows(&rows),
+            free: free.select_rows(&rows),
+            v_max,
+            centers: vec![[0.0; 2]; l.horizon + 1],
+        }
+    }
+
+    /// Sets `c_i` from the step's `z_0`.
+    pub fn set_initial_state(&mut self, z0: [f64; 4]) {
+        for (i, center) in self.centers.iter_mut().enumerate() {
+            *center =
+                std::array::from_fn(|k| (0..4).map(|c| self.free[(2 * i + k, c)] * z0[c]).sum());
+        }
+    }
+
+    /// `v_max ||sum_k a_k D_i[k] + b_k D_j[k]||_1`: the largest `a'(p_i - c_i) + b'(p_j - c_j)`.
+    fn reach(&self, (i, a): (usize, [f64; 2]), (j, b): (usize, [f64; 2])) -> f64 {
+        let d = &self.forced;
+        let norm: f64 = (0..d.ncols())
+            .map(|col| {
+                let on_input: f64 = (0..2)
+                    .map(|k| a[k] * d[(2 * i + k, col)] + b[k] * d[(2 * j + k, col)])
+                    .sum();
+                on_input.abs()
+            })
+            .sum();
+        self.v_max * norm
+    }
+
+    /// `min g'p_i`.
+    fn min_linear(&self, i: usize, g: [f64; 2]) -> f64 {
+        let c = self.centers[i];
+        g[0] * c[0] + g[1] * c[1] - self.reach((i, g), (i, [0.0; 2]))
+    }
+
+    /// An upper bound of `||p_i - o||^2 - h'p_j`: with `p_i - o = (c_i - o) + e`, the
+    /// part linear in the inputs at its largest, and `||e||^2` at most the sum of each
+    /// axis' largest `e_k^2`.
+    fn max_squared_distance_minus_linear(
+        &self,
+        i: usize,
+        o: [f64; 2],
+        (j, h): (usize, [f64; 2]),
+    ) -> f64 {
+        let (ci, cj) = (self.centers[i], self.centers[j]);
+        let offset = [ci[0] - o[0], ci[1] - o[1]];
+        let at_center = offset[0].powi(2) + offset[1].powi(2) - h[0] * cj[0] - h[1] * cj[1];
+        let linear = self.reach((i, offset.map(|x| 2.0 * x)), (j, h.map(|x| -x)));
+        let quadratic: f64 = (0..2)
+            .map(|k| {
+                let axis = if k == 0 { [1.0, 0.0] } else { [0.0, 1.0] };
+                self.reach((i, axis), (i, [0.0; 2])).powi(2)
+            })
+            .sum();
+        at_center + linear + quadratic
+    }
+}
+
+/// The values a linear function `a' z_i` of one stage's state takes over every input
+/// sequence in the input box: with `z_i = F_i z_0 + T_i v` ([`rollout`]) and
+/// `|v| <= v_max` elementwise, exactly the interval `(F_i' a)' z_0 +- v_max ||T_i' a||_1`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImpliedRow {
+pub struct Span {
     /// `F_i' a`.
     free: [f64; 4],
     /// `v_max ||T_i' a||_1`.
     reach: f64,
-    bound: f64,
 }
 
-impl ImpliedRow {
-    /// `rows` on the stage-wise columns of `l`, bounded through `(T, F)` of [`rollout`].
-    pub fn of_rows(
-        rows: impl Iterator<Item = (StateRow, f64)>,
+impl Span {
+    /// The span of `sum(value * x_stagewise[column])` through `(T, F)` of [`rollout`].
+    pub fn of(
+        terms: impl IntoIterator<Item = (usize, f64)>,
         (forced, free): (&DMatrix<f64>, &DMatrix<f64>),
         v_max: f64,
-    ) -> Vec<ImpliedRow> {
-        rows.map(|(terms, bound)| {
-            let terms = terms.into_iter().flatten();
-            let mut on_inputs = vec![0.0; forced.ncols()];
-            let mut on_z0 = [0.0; 4];
-            for (column, value) in terms {
-                for (j, x) in on_inputs.iter_mut().enumerate() {
-                    *x += value * forced[(column, j)];
-                }
-                for (c, x) in on_z0.iter_mut().enumerate() {
-                    *x += value * free[(column, c)];
-                }
+    ) -> Span {
+        let mut on_inputs = vec![0.0; forced.ncols()];
+        let mut on_z0 = [0.0; 4];
+        for (column, value) in terms {
+            for (j, x) in on_inputs.iter_mut().enumerate() {
+                *x += value * forced[(column, j)];
             }
-            ImpliedRow {
-                free: on_z0,
-                reach: v_max * on_inputs.iter().map(|x| x.abs()).sum::<f64>(),
-                bound,
+            for (c, x) in on_z0.iter_mut().enumerate() {
+                *x += value * free[(column, c)];
             }
-        })
-        .collect()
+        }
+        Span {
+            free: on_z0,
+            reach: v_max * on_inputs.iter().map(|x| x.abs()).sum::<f64>(),
+        }
     }
 
-    /// Whether the row holds, with a margin, for every input sequence from `z0`.
-    pub fn holds_for_every_input(&self, z0: [f64; 4]) -> bool {
-        let largest: f64 = self.free.iter().zip(z0).map(|(f, z)| f * z).sum::<f64>() + self.reach;
-        largest <= self.bound - 1e-9 * (1.0 + self.bound.abs())
+    /// The value with zero inputs.
+    pub fn center(&self, z0: [f64; 4]) -> f64 {
+        self.free.iter().zip(z0).map(|(f, z)| f * z).sum()
+    }
+
+    /// The largest value.
+    pub fn max(&self, z0: [f64; 4]) -> f64 {
+        self.center(z0) + self.reach
     }
 }
 
@@ -318,6 +438,20 @@ pub struct StepData<'a> {
     pub discs: &'a [Disc],
     /// Linearization points `p_bar_1 ..= p_bar_N` (index 0 is unused).
     pub reference: &'a [[f64; 2]],
+}
+
+impl<'a> StepData<'a> {
+    /// What the step's CBF rows are built from.
+    pub fn barrier(&self, l: &Layout, s: &StaticData) -> Barrier<'a> {
+        Barrier {
+            horizon: l.horizon,
+            linear: l.linear_barrier,
+            gamma: s.gamma,
+            discs: self.discs,
+            reference: self.reference,
+            p0: [self.z0[0], self.z0[2]],
+        }
+    }
 }
 
 /// The rows of `A` and `b`, written in a fixed order; buffers are reused between steps.
@@ -365,12 +499,14 @@ impl Assembly {
                 self.row([(l.v(i, c), -1.0)], s.v_max);
             }
         }
-        if rows == Rows::All {
+        if rows.box_and_terminal {
             for (terms, bound) in s.box_and_terminal_rows(l) {
                 self.row(terms.into_iter().flatten(), bound);
             }
         }
-        self.barrier_rows(l, s, d);
+        if rows.barrier {
+            self.barrier(&d.barrier(l, s), |i| [l.z(i, 0), l.z(i, 2)]);
+        }
     }
 
     /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.
@@ -392,18 +528,6 @@ impl Assembly {
                 self.row(terms.into_iter().filter(|t| t.1 != 0.0), 0.0);
             }
         }
-    }
-
-    fn barrier_rows(&mut self, l: &Layout, s: &StaticData, d: &StepData) {
-        let barrier = Barrier {
-            horizon: l.horizon,
-            linear: l.linear_barrier,
-            gamma: s.gamma,
-            discs: d.discs,
-            reference: d.reference,
-            p0: [d.z0[0], d.z0[2]],
-        };
-        self.barrier(&barrier, |i| [l.z(i, 0), l.z(i, 2)]);
     }
 
     /// The CBF rows of eq. (54) (see the module docs): linear rows first (they belong to
@@ -569,6 +693,36 @@ impl Condensing {
                     .map(|(j, v)| self.forced_transposed[(j, r)] * v)
                     .sum::<f64>();
         }
+    }
+}
+
+impl Barrier<'_> {
+    /// Whether every CBF row holds, with a margin, for every input sequence in the input
+    /// box ([`PositionReach`]): a linear row `g'p_i + c >= 0` when its minimum over the
+    /// inputs is positive; a cone row `||p_i - o||^2 <= t0 + s g'p_{i+1}` when an upper
+    /// bound of `||p_i - o||^2 - s g'p_{i+1}` is below `t0`.
+    pub fn implied(&self, reach: &PositionReach) -> bool {
+        let n = self.horizon;
+        self.discs.iter().all(|disc| {
+            let lowest = |i: usize| {
+                let (g, c) = disc.linearized_barrier(self.reference[i]);
+                reach.min_linear(i, g) + c
+            };
+            if self.linear {
+                return (1..=n).all(|i| below(0.0, lowest(i)));
+            }
+            let decay = 1.0 - self.gamma;
+            let scale = 1.0 / decay;
+            below(decay * disc.barrier(self.p0), lowest(1))
+                && (1..n).all(|i| {
+                    let (g, c) = disc.linearized_barrier(self.reference[i + 1]);
+                    let t0 = scale * (c + decay * disc.radius.powi(2));
+                    let slope = g.map(|x| scale * x);
+                    let largest =
+                        reach.max_squared_distance_minus_linear(i, disc.center, (i + 1, slope));
+                    below(largest, t0)
+                })
+        })
     }
 }
 
