@@ -697,11 +697,6 @@ mod tests {
     fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
         let s = Scenario::default();
         let mpc = LinearMpc::new(&s).unwrap();
-        let without_barrier = Rows {
-            box_and_terminal: true,
-            barrier: false,
-        };
-        let cones = mpc.layout.cones(without_barrier);
         let mut next = logistic(0.3);
         let (mut left_out, mut kept) = (0, 0);
         for _ in 0..2_000 {
@@ -721,14 +716,11 @@ mod tests {
                 discs: &[],
                 reference: &mpc.reference,
             };
-            let mut rows = Assembly::default();
-            rows.fill(&mpc.layout, &mpc.statics, &data, without_barrier);
-            for corner_bias in [0.0, 0.5, 1.0] {
-                let x = rollout(&mpc, z0, corner_bias, &mut next);
-                if let Some(violated) = violated_row(&rows, &cones, &x) {
-                    panic!("z0 {z0:?}: row {violated} violated");
-                }
-            }
+            let without_barrier = Rows {
+                box_and_terminal: true,
+                barrier: false,
+            };
+            assert_rollouts_satisfy(&mpc, &data, without_barrier, &mut next);
         }
         assert!(
             left_out > 100 && kept > 100,
@@ -746,10 +738,6 @@ mod tests {
                 center: [3.0, 3.5],
                 radius: 1.5,
             }];
-            let cones = mpc.layout.cones(Rows {
-                box_and_terminal: false,
-                barrier: true,
-            });
             let mut next = logistic(0.7);
             let (mut left_out, mut kept) = (0, 0);
             for _ in 0..1_000 {
@@ -772,23 +760,35 @@ mod tests {
                     continue;
                 }
                 left_out += 1;
-                let mut rows = Assembly::default();
                 let only_barrier = Rows {
                     box_and_terminal: false,
                     barrier: true,
                 };
-                rows.fill(&mpc.layout, &mpc.statics, &data, only_barrier);
-                for corner_bias in [0.0, 0.5, 1.0] {
-                    let x = rollout(&mpc, z0, corner_bias, &mut next);
-                    if let Some(violated) = violated_row(&rows, &cones, &x) {
-                        panic!("gamma {gamma}, z0 {z0:?}: row {violated} violated");
-                    }
-                }
+                assert_rollouts_satisfy(&mpc, &data, only_barrier, &mut next);
             }
             assert!(
                 left_out > 50 && kept > 50,
                 "{left_out} left out, {kept} kept"
             );
+        }
+    }
+
+    /// Panics unless random input sequences in the input box from `data.z0` (some at the
+    /// box's corners) satisfy every row of the program with `rows`.
+    fn assert_rollouts_satisfy(
+        mpc: &LinearMpc,
+        data: &StepData,
+        rows: Rows,
+        next: &mut impl FnMut() -> f64,
+    ) {
+        let mut assembly = Assembly::default();
+        assembly.fill(&mpc.layout, &mpc.statics, data, rows);
+        let cones = mpc.layout.cones(rows);
+        for corner_bias in [0.0, 0.5, 1.0] {
+            let x = rollout(mpc, data.z0, corner_bias, next);
+            if let Some(violated) = violated_row(&assembly, &cones, &x) {
+                panic!("z0 {:?}: row {violated} of {rows:?} violated", data.z0);
+            }
         }
     }
 
