@@ -72,6 +72,15 @@ fn mpc_step(bencher: divan::Bencher, horizon: usize) {
     bench_mpc(bencher, &s);
 }
 
+/// The program with states and inputs as variables (`mpc.qp_form = "sparse"`).
+#[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
+fn mpc_step_sparse(bencher: divan::Bencher, horizon: usize) {
+    let mut s = Scenario::default();
+    s.mpc.horizon = horizon;
+    s.mpc.qp_form = protocol::QpForm::Sparse;
+    bench_mpc(bencher, &s);
+}
+
 /// The same program with the states eliminated (`mpc.qp_form = "condensed"`).
 #[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
 fn mpc_step_condensed(bencher: divan::Bencher, horizon: usize) {

@@ -21,9 +21,7 @@ use problem::{
     Assembly, Condensing, ConicSolver, Disc, Layout, PositionReach, Rows, Span, StaticData,
     StepData, csc_with_positions,
 };
-use protocol::{
-    ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, QpForm, Scenario,
-};
+use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
 /// Why an MPC cannot be set up for a configuration.
@@ -99,7 +97,7 @@ impl LinearMpc {
             terminal_rows: terminal_set.len(),
             obstacles: scenario.obstacles.len(),
             linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
-            condensed: c.qp_form == QpForm::Condensed,
+            condensed: c.qp_form.condensed(c.horizon),
         };
         let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
         let mut statics = StaticData {
@@ -527,7 +525,7 @@ pub fn barrier_slack(plan: &Plan, discs_absolute: &[Disc], gamma: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::Obstacle;
+    use protocol::{Obstacle, QpForm};
 
     /// Closed loop of the MPC on its own linear model (exact DFL): returns every plan.
     fn closed_loop(scenario: &Scenario, samples: u64) -> Vec<Plan> {
@@ -666,6 +664,7 @@ mod tests {
         for gamma in [0.1, 1.0] {
             let mut sparse = Scenario::default();
             sparse.mpc.gamma = gamma;
+            sparse.mpc.qp_form = QpForm::Sparse;
             let mut condensed = sparse.clone();
             condensed.mpc.qp_form = QpForm::Condensed;
             let (a, b) = (closed_loop(&sparse, 200), closed_loop(&condensed, 200));
@@ -695,7 +694,8 @@ mod tests {
 
     #[test]
     fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
-        let s = Scenario::default();
+        let mut s = Scenario::default();
+        s.mpc.qp_form = QpForm::Sparse; // rows checked in stage-wise columns
         let mpc = LinearMpc::new(&s).unwrap();
         let mut next = logistic(0.3);
         let (mut left_out, mut kept) = (0, 0);
@@ -733,6 +733,7 @@ mod tests {
         for gamma in [0.1, 1.0] {
             let mut s = Scenario::default();
             s.mpc.gamma = gamma;
+            s.mpc.qp_form = QpForm::Sparse; // rows checked in stage-wise columns
             let mut mpc = LinearMpc::new(&s).unwrap();
             mpc.discs = vec![Disc {
                 center: [3.0, 3.5],
@@ -873,10 +874,17 @@ mod tests {
 
     #[test]
     fn leaving_out_implied_rows_changes_no_plan() {
-        let s = Scenario::default();
-        let mut mpc = LinearMpc::new(&s).unwrap();
+        for qp_form in [QpForm::Sparse, QpForm::Condensed] {
+            let mut s = Scenario::default();
+            s.mpc.qp_form = qp_form;
+            leaving_out_implied_rows_changes_no_plan_of(&s);
+        }
+    }
+
+    fn leaving_out_implied_rows_changes_no_plan_of(s: &Scenario) {
+        let mut mpc = LinearMpc::new(s).unwrap();
         let mut compared = [0; 4];
-        for plan in closed_loop(&s, 400).iter().step_by(5) {
+        for plan in closed_loop(s, 400).iter().step_by(5) {
             let z = plan.z[0];
             let zeta = z[1].hypot(z[3]);
             mpc.step(plan.sample, [z[0], z[2], z[3].atan2(z[1]), zeta], 0.0);
