@@ -115,15 +115,11 @@ impl LinearMpc {
             box_and_terminal_spans: Vec::new(),
         };
         let (forced, free) = problem::rollout(&layout, &a, &b);
-        let span =
-            |terms: &[(usize, f64)]| Span::of(terms.iter().copied(), (&forced, &free), c.v_max);
         let spans = statics
             .box_and_terminal_rows(&layout)
             .map(|(terms, bound)| {
-                (
-                    span(&terms.into_iter().flatten().collect::<Vec<_>>()),
-                    bound,
-                )
+                let terms = terms.into_iter().flatten();
+                (Span::of(terms, (&forced, &free), c.v_max), bound)
             })
             .collect();
         statics.box_and_terminal_spans = spans;
@@ -287,6 +283,7 @@ impl LinearMpc {
         self.solve_with(z0, rows)
     }
 
+    /// One convex solve of the program with `rows`.
     fn solve_with(&mut self, z0: [f64; 4], rows: Rows) -> (PlanStatus, u32) {
         self.rows = rows;
         self.fill(z0, rows);

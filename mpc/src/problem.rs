@@ -89,13 +89,15 @@ impl Layout {
     /// The cones, in row order.
     pub fn cones(&self, rows: Rows) -> Vec<SupportedConeT<f64>> {
         let n = self.horizon;
-        let (linear_barrier_rows, cone_barriers) = match rows.barrier {
-            true => (self.linear_barrier_rows(), self.cone_barriers()),
-            false => (0, 0),
+        let (linear_barrier_rows, cone_barriers) = if rows.barrier {
+            (self.linear_barrier_rows(), self.cone_barriers())
+        } else {
+            (0, 0)
         };
-        let box_and_terminal = match rows.box_and_terminal {
-            true => 4 * (n - 1) + self.terminal_rows,
-            false => 0,
+        let box_and_terminal = if rows.box_and_terminal {
+            4 * (n - 1) + self.terminal_rows
+        } else {
+            0
         };
         let inequalities = 4 * n + box_and_terminal + linear_barrier_rows;
         let mut cones = Vec::with_capacity(2 + cone_barriers);
@@ -391,7 +393,7 @@ impl Span {
     }
 
     /// The value with zero inputs.
-    pub fn center(&self, z0: [f64; 4]) -> f64 {
+    fn center(&self, z0: [f64; 4]) -> f64 {
         self.free.iter().zip(z0).map(|(f, z)| f * z).sum()
     }
 
