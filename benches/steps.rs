@@ -72,21 +72,17 @@ fn mpc_step(bencher: divan::Bencher, horizon: usize) {
     bench_mpc(bencher, &s);
 }
 
-/// The program with states and inputs as variables (`mpc.qp_form = "sparse"`).
+/// The form `auto` does not pick for the horizon (`mpc.qp_form`): sparse at N = 8,
+/// condensed at N = 30.
 #[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
-fn mpc_step_sparse(bencher: divan::Bencher, horizon: usize) {
+fn mpc_step_other_qp_form(bencher: divan::Bencher, horizon: usize) {
     let mut s = Scenario::default();
     s.mpc.horizon = horizon;
-    s.mpc.qp_form = protocol::QpForm::Sparse;
-    bench_mpc(bencher, &s);
-}
-
-/// The same program with the states eliminated (`mpc.qp_form = "condensed"`).
-#[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
-fn mpc_step_condensed(bencher: divan::Bencher, horizon: usize) {
-    let mut s = Scenario::default();
-    s.mpc.horizon = horizon;
-    s.mpc.qp_form = protocol::QpForm::Condensed;
+    s.mpc.qp_form = if protocol::QpForm::Auto.condensed(horizon) {
+        protocol::QpForm::Sparse
+    } else {
+        protocol::QpForm::Condensed
+    };
     bench_mpc(bencher, &s);
 }
 

@@ -49,10 +49,15 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
 
 #[test]
 fn every_role_step_runs_without_heap_allocation_of_its_own_in_steady_state() {
-    for formulation in ["linear", "nonlinear"] {
+    for (formulation, qp_form) in [
+        ("linear", "sparse"),
+        ("linear", "condensed"),
+        ("nonlinear", "auto"),
+    ] {
         let scenario = Scenario::default()
             .with_overrides(&[
                 format!("mpc.formulation={formulation}"),
+                format!("mpc.qp_form={qp_form}"),
                 "plant.noise_variance=0.05".into(),
             ])
             .unwrap();
@@ -65,7 +70,7 @@ fn every_role_step_runs_without_heap_allocation_of_its_own_in_steady_state() {
         let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
         let mut monitor = DeadlineMonitor::new(scenario.timing.ts_s);
         let mut applied = None;
-        // Warm-up: the first samples build the solver and size every buffer.
+        // Warm-up: the first samples size every buffer.
         let warm_up = 20 * m;
         let mut counts = [0u64; 4];
         for tick in 0..60 * m {
@@ -83,7 +88,7 @@ fn every_role_step_runs_without_heap_allocation_of_its_own_in_steady_state() {
                     allocations(|| mpc.step(tick / m, estimate.state, estimate.position_sigma()));
                 assert!(
                     plan.is_solved(),
-                    "{formulation}: sample {} not solved",
+                    "{formulation} {qp_form}: sample {} not solved",
                     tick / m
                 );
                 // Everything but clarabel's timer bookkeeping.
@@ -112,7 +117,7 @@ fn every_role_step_runs_without_heap_allocation_of_its_own_in_steady_state() {
         }
         assert_eq!(
             counts, [0; 4],
-            "{formulation}: allocations after warm-up by plant, estimator, MPC, DFL"
+            "{formulation} {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL"
         );
     }
 }

@@ -5,9 +5,9 @@
 //! (the previous plan shifted by one sample, or a braking rollout when cold), solve, and
 //! re-linearize at the new plan until it moves less than `refinement_tol_m` (sequential
 //! convex programming; every iterate is feasible for the paper's nonconvex constraint and
-//! the cost never rises). The conic problems are built once, on the first step (one per
-//! set of rows the input box may imply, [`problem::Rows`]), and only their values are
-//! updated afterwards.
+//! the cost never rises, up to the solver's duality gap). The conic programs are built
+//! once, at setup (one per set of rows the input box may imply, [`problem::Rows`]), and
+//! only their values are updated afterwards.
 
 pub mod model;
 pub mod nonlinear;
@@ -31,6 +31,8 @@ pub enum MpcError {
     Dare(#[from] model::DareError),
     #[error("horizon {0} is outside 1..={MAX_HORIZON}")]
     Horizon(usize),
+    #[error("clarabel refused the conic program ({0:?})")]
+    Solver(Rows),
 }
 
 /// The linear scheme (eqs. 51-47) on the DFL-linearized model.
@@ -50,7 +52,7 @@ pub struct LinearMpc {
     /// Upper triangle of the sparse formulation's `P` (eq. 51).
     hessian: CscMatrix<f64>,
     // Reused every step.
-    /// One solver per [`Rows`] ([`Rows::index`]), all built on the first step.
+    /// One solver per [`Rows`] ([`Rows::index`]), all built at setup.
     solvers: [ConicSolver; 4],
     /// The rows of the last solve's program.
     rows: Rows,
@@ -130,7 +132,7 @@ impl LinearMpc {
                 .then(|| Condensing::new(&layout, (forced, free), &hessian)),
             ..Assembly::default()
         };
-        Ok(LinearMpc {
+        let mut mpc = LinearMpc {
             solution: vec![0.0; layout.stagewise()],
             hessian,
             layout,
@@ -143,7 +145,7 @@ impl LinearMpc {
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
-            solvers: Default::default(),
+            solvers: std::array::from_fn(|_| ConicSolver::new(problem::solver_settings)),
             rows: Rows::ALL,
             box_and_terminal_needed: true,
             reach,
@@ -152,7 +154,37 @@ impl LinearMpc {
             reference: vec![[0.0; 2]; c.horizon + 1],
             last_sample: None,
             last_z: vec![[0.0; 4]; c.horizon + 1],
-        })
+        };
+        mpc.build_solvers()?;
+        Ok(mpc)
+    }
+
+    /// Builds the solver of each [`Rows`] (their patterns do not depend on the data, so
+    /// any values do), so that no step allocates for one.
+    fn build_solvers(&mut self) -> Result<(), MpcError> {
+        problem::constraint_discs(
+            &self.obstacles,
+            self.goal,
+            self.safety_margin_m,
+            0.0,
+            self.ts_s,
+            0.0,
+            &mut self.discs,
+        );
+        for rows in Rows::EVERY {
+            self.fill([0.0; 4], rows);
+            let hessian = solver_hessian(&self.assembly, &self.hessian);
+            let built = self.solvers[rows.index()].build(
+                &self.assembly,
+                self.layout.variables(),
+                hessian,
+                &self.layout.cones(rows),
+            );
+            if !built {
+                return Err(MpcError::Solver(rows));
+            }
+        }
+        Ok(())
     }
 
     /// The terminal weight `Q_bar` (DARE solution, eq. 56).
@@ -192,7 +224,6 @@ impl LinearMpc {
         if !warm {
             self.braking_reference(z0);
         }
-        self.build_solvers(z0);
         self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0);
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
@@ -287,30 +318,7 @@ impl LinearMpc {
     fn solve_with(&mut self, z0: [f64; 4], rows: Rows) -> (PlanStatus, u32) {
         self.rows = rows;
         self.fill(z0, rows);
-        let hessian = solver_hessian(&self.assembly, &self.hessian);
-        self.solvers[rows.index()].solve(
-            &self.assembly,
-            self.layout.variables(),
-            || hessian.clone(),
-            || self.layout.cones(rows),
-        )
-    }
-
-    /// Builds the solver of each [`Rows`] (on the first step, so that no later step
-    /// allocates for it).
-    fn build_solvers(&mut self, z0: [f64; 4]) {
-        for rows in Rows::EVERY {
-            if !self.solvers[rows.index()].is_built() {
-                self.fill(z0, rows);
-                let hessian = solver_hessian(&self.assembly, &self.hessian);
-                self.solvers[rows.index()].build(
-                    &self.assembly,
-                    self.layout.variables(),
-                    hessian,
-                    &self.layout.cones(rows),
-                );
-            }
-        }
+        self.solvers[rows.index()].solve(&self.assembly)
     }
 
     fn fill(&mut self, z0: [f64; 4], rows: Rows) {
@@ -579,7 +587,8 @@ mod tests {
     fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         let mut cbf = Scenario::default();
         cbf.mpc.gamma = 1.0;
-        let mut euclidean = Scenario::default();
+        cbf.mpc.qp_form = QpForm::Sparse; // rows compared in stage-wise columns
+        let mut euclidean = cbf.clone();
         euclidean.mpc.constraint = ConstraintKind::Euclidean;
         euclidean.mpc.gamma = 0.3; // ignored by the Euclidean constraint
         let (a, b) = (
@@ -670,7 +679,7 @@ mod tests {
                     let gap = (0..4)
                         .map(|c| (a.z[i][c] - b.z[i][c]).abs())
                         .fold(0.0, f64::max);
-                    // Both solved to clarabel's duality-gap tolerance (1e-4, relative).
+                    // Both solved to clarabel's accuracy (duality gap 1e-3).
                     assert!(
                         gap < 1e-3,
                         "gamma {gamma}, sample {} stage {i}: {gap:e}",
@@ -717,7 +726,7 @@ mod tests {
                 box_and_terminal: true,
                 barrier: false,
             };
-            assert_rollouts_satisfy(&mpc, &data, without_barrier, &mut next);
+            assert_holds_at_worst_inputs(&mpc, &data, without_barrier);
         }
         assert!(
             left_out > 100 && kept > 100,
@@ -762,7 +771,7 @@ mod tests {
                     box_and_terminal: false,
                     barrier: true,
                 };
-                assert_rollouts_satisfy(&mpc, &data, only_barrier, &mut next);
+                assert_holds_at_worst_inputs(&mpc, &data, only_barrier);
             }
             assert!(
                 left_out > 50 && kept > 50,
@@ -771,88 +780,82 @@ mod tests {
         }
     }
 
-    /// Panics unless random input sequences in the input box from `data.z0` (some at the
-    /// box's corners) satisfy every row of the program with `rows`.
-    fn assert_rollouts_satisfy(
-        mpc: &LinearMpc,
-        data: &StepData,
-        rows: Rows,
-        next: &mut impl FnMut() -> f64,
-    ) {
-        let mut assembly = Assembly::default();
-        assembly.fill(&mpc.layout, &mpc.statics, data, rows);
-        let cones = mpc.layout.cones(rows);
-        for corner_bias in [0.0, 0.5, 1.0] {
-            let x = rollout(mpc, data.z0, corner_bias, next);
-            if let Some(violated) = violated_row(&assembly, &cones, &x) {
-                panic!("z0 {:?}: row {violated} of {rows:?} violated", data.z0);
-            }
-        }
-    }
-
-    /// The stage-wise vector of a random input sequence in the input box from `z0`
-    /// (the larger `corner_bias`, the more inputs at the box's corners).
-    fn rollout(
-        mpc: &LinearMpc,
-        z0: [f64; 4],
-        corner_bias: f64,
-        next: &mut impl FnMut() -> f64,
-    ) -> Vec<f64> {
-        let (l, st) = (&mpc.layout, &mpc.statics);
-        let mut x = vec![0.0; l.stagewise()];
-        let mut z = Vector4::from(z0);
-        for i in 0..=l.horizon {
-            x[l.z(i, 0)..l.z(i, 0) + 4].copy_from_slice(z.as_slice());
-            if i == l.horizon {
-                break;
-            }
-            let mut u = |c: usize| {
-                let (sign, size) = (next(), next());
-                let size = if size < corner_bias { 1.0 } else { size };
-                let v = if sign < 0.5 { -size } else { size } * st.v_max;
-                x[l.v(i, c)] = v;
-                v
-            };
-            let v = nalgebra::Vector2::new(u(0), u(1));
-            z = st.a * z + st.b * v;
-        }
-        x
-    }
-
-    /// The first row of `rows` (in the cones' order) that `x` violates by more than 1e-9.
-    fn violated_row(
-        rows: &Assembly,
-        cones: &[clarabel::solver::SupportedConeT<f64>],
-        x: &[f64],
-    ) -> Option<usize> {
+    /// Panics unless every row of the program with `rows` (stage-wise columns) holds at
+    /// the worst input sequence in the input box from `data.z0`: exactly for a linear row
+    /// (its slack is smallest at the vertex `v_max sign(coefficients)`), and for a cone at
+    /// local maxima over the box's vertices of its violation `||s_2..|| - s_1` (convex
+    /// in the inputs, so largest at a vertex), climbed by single sign flips from the
+    /// vertices that make each of its rows extreme.
+    fn assert_holds_at_worst_inputs(mpc: &LinearMpc, data: &StepData, rows: Rows) {
         use clarabel::solver::SupportedConeT;
-        let mut slack = rows.b.clone();
-        for &(r, c, v) in &rows.entries {
-            slack[r] -= v * x[c];
+        let (l, st) = (&mpc.layout, &mpc.statics);
+        assert!(!l.condensed, "rows are checked in stage-wise columns");
+        let (forced, free) = problem::rollout(l, &st.a, &st.b);
+        let mut assembly = Assembly::default();
+        assembly.fill(l, st, data, rows);
+        // Each row's slack as `s0 - coefficients' v`.
+        let x_free = &free * Vector4::from(data.z0);
+        let mut s0 = assembly.b.clone();
+        let mut coefficients = vec![vec![0.0; forced.ncols()]; s0.len()];
+        for &(r, column, value) in &assembly.entries {
+            s0[r] -= value * x_free[column];
+            for (j, c) in coefficients[r].iter_mut().enumerate() {
+                *c += value * forced[(column, j)];
+            }
         }
+        let slack = |r: usize, v: &[f64]| {
+            s0[r]
+                - coefficients[r]
+                    .iter()
+                    .zip(v)
+                    .map(|(c, v)| c * v)
+                    .sum::<f64>()
+        };
+        let extreme = |r: usize, sign: f64| -> Vec<f64> {
+            coefficients[r]
+                .iter()
+                .map(|c| sign * st.v_max * if *c >= 0.0 { 1.0 } else { -1.0 })
+                .collect()
+        };
         let mut r = 0;
-        for cone in cones {
-            let (dim, ok) = match *cone {
-                SupportedConeT::ZeroConeT(d) => (d, slack[r..r + d].iter().all(|s| s.abs() < 1e-9)),
+        for cone in l.cones(rows) {
+            match cone {
+                SupportedConeT::ZeroConeT(d) => r += d, // the rollout satisfies them
                 SupportedConeT::NonnegativeConeT(d) => {
-                    (d, slack[r..r + d].iter().all(|&s| s > -1e-9))
+                    for row in r..r + d {
+                        let worst = slack(row, &extreme(row, 1.0));
+                        assert!(worst > -1e-9, "z0 {:?}: row {row}: {worst:e}", data.z0);
+                    }
+                    r += d;
                 }
                 SupportedConeT::SecondOrderConeT(d) => {
-                    let norm = slack[r + 1..r + d]
-                        .iter()
-                        .map(|s| s * s)
-                        .sum::<f64>()
-                        .sqrt();
-                    (d, slack[r] >= norm - 1e-9)
+                    let violation = |v: &[f64]| {
+                        let tail: f64 = (r + 1..r + d).map(|k| slack(k, v).powi(2)).sum();
+                        tail.sqrt() - slack(r, v)
+                    };
+                    for start in (r..r + d).flat_map(|k| [extreme(k, 1.0), extreme(k, -1.0)]) {
+                        let mut v = start;
+                        let mut worst = violation(&v);
+                        let mut climbed = true;
+                        while climbed {
+                            climbed = false;
+                            for j in 0..v.len() {
+                                v[j] = -v[j];
+                                let flipped = violation(&v);
+                                if flipped > worst {
+                                    (worst, climbed) = (flipped, true);
+                                } else {
+                                    v[j] = -v[j];
+                                }
+                            }
+                        }
+                        assert!(worst < 1e-9, "z0 {:?}: cone at row {r}: {worst:e}", data.z0);
+                    }
+                    r += d;
                 }
                 _ => unreachable!("the MPC uses no other cone"),
-            };
-            if !ok {
-                return Some(r);
             }
-            r += dim;
         }
-        None
     }
 
     /// `1/2 x'Px` of a stage-wise vector (eq. 51).
@@ -886,20 +889,21 @@ mod tests {
             let zeta = z[1].hypot(z[3]);
             mpc.step(plan.sample, [z[0], z[2], z[3].atan2(z[1]), zeta], 0.0);
             let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
+            // The rows left out at the current reference, then every row at the same one.
+            assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
             let used = mpc.rows;
-            let mut solve = |rows: Rows| {
-                assert_eq!(mpc.solve_with(z0, rows).0, PlanStatus::Solved);
-                mpc.load_solution();
-                mpc.solution.clone()
-            };
-            let all = solve(Rows::ALL);
-            let reduced = solve(used);
+            mpc.load_solution();
+            let reduced = mpc.solution.clone();
+            assert_eq!(mpc.solve_with(z0, Rows::ALL).0, PlanStatus::Solved);
+            mpc.load_solution();
+            let all = mpc.solution.clone();
             compared[used.index()] += 1;
-            // The same optimum, to the solver's accuracy (a duality gap of 1e-3 and
-            // feasibility to 1e-6, relative, with large multipliers on the CBF rows).
+            // The same optimum, to the solver's accuracy: a duality gap of 1e-3 and
+            // feasibility to 1e-6 (relative), which large multipliers of the CBF rows
+            // turn into a cost difference of 1e-5 relative.
             let (c_all, c_reduced) = (cost(&mpc, &all), cost(&mpc, &reduced));
             assert!(
-                (c_all - c_reduced).abs() < 1e-5 * c_all,
+                (c_all - c_reduced).abs() < 2e-3 + 1e-5 * c_all,
                 "sample {} {used:?}: cost {c_all} with every row, {c_reduced} without",
                 plan.sample
             );
@@ -1007,7 +1011,7 @@ mod tests {
         assert_eq!(one, 1);
         assert!(solves > 1, "the reference should have needed refining");
         assert!(
-            refined <= single + 1e-6 * single.abs(),
+            refined <= single + 2e-3, // twice clarabel's duality gap
             "refined cost {refined} > single-solve cost {single}"
         );
     }

@@ -146,7 +146,7 @@ impl NonlinearMpc {
             obstacles: scenario.obstacles.clone(),
             safety_margin_m: c.safety_margin_m,
             uncertainty_sigmas: c.uncertainty_sigmas,
-            solver: ConicSolver::default(),
+            solver: ConicSolver::new(crate::problem::feasible_to_a_micrometre),
             assembly: Assembly::default(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; n + 1],
@@ -286,16 +286,13 @@ impl NonlinearMpc {
             self.reference[i] = [self.states[i][0], self.states[i][1]];
         }
         self.fill(s0);
-        // Moved out for the call (no allocation), as the objective borrows `self`.
-        let mut solver = std::mem::take(&mut self.solver);
-        let result = solver.solve(
-            &self.assembly,
-            self.variables(),
-            || self.objective(),
-            || self.cones(),
-        );
-        self.solver = solver;
-        result
+        if !self.solver.is_built() {
+            let (objective, cones) = (self.objective(), self.cones());
+            let variables = self.variables();
+            self.solver
+                .build(&self.assembly, variables, &objective, &cones);
+        }
+        self.solver.solve(&self.assembly)
     }
 
     fn cones(&self) -> Vec<SupportedConeT<f64>> {

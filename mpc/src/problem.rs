@@ -29,8 +29,7 @@
 //! has a closed form ([`Span`], [`PositionReach`]). When every row of the position box
 //! and the terminal set holds at its extreme, that group is left out for the step; when
 //! every CBF row does, the CBF group is left out for the solve. The feasible set is the
-//! same, the program smaller: one solver per combination, all four built on the first
-//! step. In the paper's run the first group is always implied (the box is 10 m away) and
+//! same, the program smaller: one solver per combination, all four built at setup. In the paper's run the first group is always implied (the box is 10 m away) and
 //! the CBF rows are whenever the obstacle is out of reach of the horizon.
 //!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
@@ -54,7 +53,8 @@ pub struct Layout {
     pub obstacles: usize,
     /// All CBF rows linear (`gamma = 1` or the Euclidean benchmark).
     pub linear_barrier: bool,
-    /// States eliminated: the solver's variables are the inputs only ([`Condensing`]).
+    /// States eliminated: the solver's variables are the inputs only (the [`Assembly`]
+    /// then carries the [`Condensing`]).
     pub condensed: bool,
 }
 
@@ -182,15 +182,30 @@ impl Disc {
 /// The relative gap is 1e-7 so that the absolute one decides: the cost includes the
 /// large `z_i'Q z_i` of a robot metres from its goal, and a relative 1e-6 of it would
 /// allow inputs ten times further from the optimum. The trajectory of the paper run is
-/// the same to the millisecond.
+/// the same to the millisecond. A solve that stops short of these (`AlmostSolved`,
+/// counted as solved) must still be feasible to 1e-6, with a gap of at most 1e-2.
 pub fn solver_settings() -> clarabel::solver::DefaultSettings<f64> {
+    clarabel::solver::DefaultSettings {
+        tol_gap_abs: 1e-3,
+        tol_gap_rel: 1e-7,
+        reduced_tol_gap_abs: 1e-2,
+        reduced_tol_gap_rel: 1e-6,
+        ..feasible_to_a_micrometre()
+    }
+}
+
+/// The settings [`solver_settings`] and the nonlinear baseline's share: no iterative
+/// refinement, no equilibration, feasibility to 1e-6 (also when `AlmostSolved`), duality
+/// gap 1e-6.
+pub fn feasible_to_a_micrometre() -> clarabel::solver::DefaultSettings<f64> {
     clarabel::solver::DefaultSettings {
         verbose: false,
         iterative_refinement_enable: false,
         equilibrate_enable: false,
-        tol_gap_abs: 1e-3,
-        tol_gap_rel: 1e-7,
+        tol_gap_abs: 1e-6,
+        tol_gap_rel: 1e-6,
         tol_feas: 1e-6,
+        reduced_tol_feas: 1e-6,
         ..clarabel::solver::DefaultSettings::default()
     }
 }
@@ -271,7 +286,9 @@ impl StaticData {
     }
 }
 
-/// `value <= bound` with a margin (relative 1e-9) against rounding.
+/// `value <= bound` with a margin (relative 1e-9) against rounding. (A row left out then
+/// holds as well as the solver meets the input box, to its feasibility tolerance, as a
+/// kept row would.)
 fn below(value: f64, bound: f64) -> bool {
     value <= bound - 1e-9 * (1.0 + bound.abs())
 }
@@ -546,26 +563,20 @@ impl Assembly {
                     self.row([(px, -g[0]), (py, -g[1])], c);
                 }
             } else {
-                // (1 - gamma) H(p_0) <= L_1(p_1), p_0 being data.
-                let (g, c) = disc.linearized_barrier(b.reference[1]);
+                let (g, c) = b.first_row(disc);
                 let [px, py] = position(1);
-                self.row(
-                    [(px, -g[0]), (py, -g[1])],
-                    c - (1.0 - b.gamma) * disc.barrier(b.p0),
-                );
+                self.row([(px, -g[0]), (py, -g[1])], c);
             }
         }
         if b.linear {
             return;
         }
-        let scale = 1.0 / (1.0 - b.gamma);
         for disc in b.discs {
             for i in 1..n {
-                let (g, c) = disc.linearized_barrier(b.reference[i + 1]);
-                let t0 = scale * (c + (1.0 - b.gamma) * disc.radius.powi(2));
+                let (h, t0) = b.cone_row(disc, i);
                 let [nx, ny] = position(i + 1);
                 let [px, py] = position(i);
-                let slope = [(nx, -scale * g[0]), (ny, -scale * g[1])];
+                let slope = [(nx, -h[0]), (ny, -h[1])];
                 self.row(slope, t0 + 1.0);
                 self.row(slope, t0 - 1.0);
                 self.row([(px, -2.0)], -2.0 * disc.center[0]);
@@ -699,6 +710,24 @@ impl Condensing {
 }
 
 impl Barrier<'_> {
+    /// Stage 0's row `(1 - gamma) H(p_0) <= L_1(p_1)` (`p_0` being data) as
+    /// `g'p_1 + c >= 0`: returns `(g, c)`.
+    fn first_row(&self, disc: &Disc) -> ([f64; 2], f64) {
+        let (g, c) = disc.linearized_barrier(self.reference[1]);
+        (g, c - (1.0 - self.gamma) * disc.barrier(self.p0))
+    }
+
+    /// Stage `i`'s cone (`1 <= i < N`), `||p_i - o||^2 <= t0 + h'p_{i+1}` with
+    /// `t0 + h'p = (L_{i+1}(p) + (1 - gamma) r^2) / (1 - gamma)`: returns `(h, t0)`.
+    fn cone_row(&self, disc: &Disc, i: usize) -> ([f64; 2], f64) {
+        let decay = 1.0 - self.gamma;
+        let (g, c) = disc.linearized_barrier(self.reference[i + 1]);
+        (
+            g.map(|x| x / decay),
+            (c + decay * disc.radius.powi(2)) / decay,
+        )
+    }
+
     /// Whether every CBF row holds, with a margin, for every input sequence in the input
     /// box ([`PositionReach`]): a linear row `g'p_i + c >= 0` when its minimum over the
     /// inputs is positive; a cone row `||p_i - o||^2 <= t0 + s g'p_{i+1}` when an upper
@@ -713,15 +742,12 @@ impl Barrier<'_> {
             if self.linear {
                 return (1..=n).all(|i| below(0.0, lowest(i)));
             }
-            let decay = 1.0 - self.gamma;
-            let scale = 1.0 / decay;
-            below(decay * disc.barrier(self.p0), lowest(1))
+            let (g, c) = self.first_row(disc);
+            below(0.0, reach.min_linear(1, g) + c)
                 && (1..n).all(|i| {
-                    let (g, c) = disc.linearized_barrier(self.reference[i + 1]);
-                    let t0 = scale * (c + decay * disc.radius.powi(2));
-                    let slope = g.map(|x| scale * x);
+                    let (h, t0) = self.cone_row(disc, i);
                     let largest =
-                        reach.max_squared_distance_minus_linear(i, disc.center, (i + 1, slope));
+                        reach.max_squared_distance_minus_linear(i, disc.center, (i + 1, h));
                     below(largest, t0)
                 })
         })
@@ -821,10 +847,10 @@ fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
     (solver.solution.status == SolverStatus::Solved).then(|| -solver.solution.obj_val)
 }
 
-/// A clarabel solver for a problem whose sparsity never changes: built from the first
-/// assembly, afterwards only its values are updated (`update_A`, `update_b`).
-#[derive(Default)]
+/// A clarabel solver for a problem whose sparsity never changes: built from one
+/// assembly, afterwards only its values are updated (`update_A`, `update_b`, `update_q`).
 pub struct ConicSolver {
+    settings: fn() -> clarabel::solver::DefaultSettings<f64>,
     solver: Option<clarabel::solver::DefaultSolver<f64>>,
     /// Where each [`Assembly`] entry sits in the CSC values.
     nz_position: Vec<usize>,
@@ -832,31 +858,30 @@ pub struct ConicSolver {
 }
 
 impl ConicSolver {
-    /// Solves the problem of `assembly` (`objective` and `cones` are only asked for when
-    /// the solver is built). Returns the plan status and the interior-point iterations.
-    pub fn solve(
-        &mut self,
-        assembly: &Assembly,
-        variables: usize,
-        objective: impl FnOnce() -> CscMatrix<f64>,
-        cones: impl FnOnce() -> Vec<SupportedConeT<f64>>,
-    ) -> (protocol::PlanStatus, u32) {
-        use clarabel::solver::IPSolver;
-        let ready = if self.solver.is_some() {
-            self.update(assembly)
-        } else {
-            self.build(assembly, variables, &objective(), &cones())
-        };
-        match (ready, self.solver.as_mut()) {
-            (true, Some(solver)) => {
-                solver.solve();
-                (
-                    crate::plan_status(solver.solution.status),
-                    solver.solution.iterations,
-                )
-            }
-            _ => (protocol::PlanStatus::NumericalError, 0),
+    pub fn new(settings: fn() -> clarabel::solver::DefaultSettings<f64>) -> ConicSolver {
+        ConicSolver {
+            settings,
+            solver: None,
+            nz_position: Vec::new(),
+            nzval: Vec::new(),
         }
+    }
+
+    /// Solves the problem of `assembly` (the pattern it was built with). Returns the plan
+    /// status and the interior-point iterations.
+    pub fn solve(&mut self, assembly: &Assembly) -> (protocol::PlanStatus, u32) {
+        use clarabel::solver::IPSolver;
+        if !self.update(assembly) {
+            return (protocol::PlanStatus::NumericalError, 0);
+        }
+        let Some(solver) = self.solver.as_mut() else {
+            return (protocol::PlanStatus::NumericalError, 0);
+        };
+        solver.solve();
+        (
+            crate::plan_status(solver.solution.status),
+            solver.solution.iterations,
+        )
     }
 
     /// Builds the solver for the pattern of `assembly` (kept from then on). False if
@@ -882,7 +907,7 @@ impl ConicSolver {
             &a,
             &assembly.b,
             cones,
-            solver_settings(),
+            (self.settings)(),
         );
         self.solver = solver.ok();
         self.solver.is_some()
