@@ -146,7 +146,7 @@ impl NonlinearMpc {
             obstacles: scenario.obstacles.clone(),
             safety_margin_m: c.safety_margin_m,
             uncertainty_sigmas: c.uncertainty_sigmas,
-            solver: ConicSolver::new(crate::problem::feasible_to_a_micrometre),
+            solver: ConicSolver::new(crate::problem::base_settings),
             assembly: Assembly::default(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; n + 1],
