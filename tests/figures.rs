@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{csv, num, run, stderr};
+use common::{csv, num, run, run_into_tempdir, stderr};
 use std::path::Path;
 
 /// Pixels of a PNG figure: `(width, height, distinct colours, share of non-white pixels)`.
@@ -106,15 +106,7 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
 
 #[test]
 fn a_run_writes_its_path_and_distance_plots() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = run(&[
-        "run",
-        "--in-process",
-        "--set",
-        "duration_s=6",
-        "--out",
-        dir.path().to_str().unwrap(),
-    ]);
+    let (dir, out) = run_into_tempdir(&["run", "--in-process", "--set", "duration_s=6"]);
     assert!(out.status.code().is_some(), "{}", stderr(&out));
     let path = std::fs::read_to_string(dir.path().join("path.svg")).unwrap();
     assert!(path.contains("<polygon") && path.contains("<polyline"));

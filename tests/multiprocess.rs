@@ -2,7 +2,9 @@
 
 mod common;
 
-use common::{leftovers, run, scmpc, spawn_run, stderr, summary, unique_prefix, wait_for};
+use common::{
+    leftovers, run, run_into_tempdir, scmpc, spawn_run, stderr, summary, unique_prefix, wait_for,
+};
 use protocol::Measurement;
 use protocol::ipc::{MEASUREMENT, create_node, open_topic};
 use std::path::Path;
@@ -54,14 +56,7 @@ fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
 
 #[test]
 fn the_four_roles_are_separate_processes() {
-    let dir = tempfile::tempdir().unwrap();
-    run(&[
-        "run",
-        "--set",
-        "duration_s=1",
-        "--out",
-        dir.path().to_str().unwrap(),
-    ]);
+    let (dir, _) = run_into_tempdir(&["run", "--set", "duration_s=1"]);
     let pids = &summary(dir.path())["pids"];
     let mut all: Vec<u64> = ["orchestrator", "plant", "estimator", "mpc", "dfl"]
         .iter()

@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{run, summary};
+use common::{run, run_into_tempdir, summary};
 
 #[test]
 fn paper_scenario_reaches_the_goal_without_collision() {
@@ -38,17 +38,9 @@ fn paper_scenario_reaches_the_goal_without_collision() {
 #[test]
 fn noisy_paper_scenario_with_the_ekf_is_collision_free() {
     for seed in ["1", "2", "3"] {
-        let dir = tempfile::tempdir().unwrap();
         let set_seed = format!("seed={seed}");
-        let out = run(&[
-            "run",
-            "paper-noisy",
-            "--in-process",
-            "--set",
-            &set_seed,
-            "--out",
-            dir.path().to_str().unwrap(),
-        ]);
+        let (dir, out) =
+            run_into_tempdir(&["run", "paper-noisy", "--in-process", "--set", &set_seed]);
         let s = summary(dir.path());
         assert_ne!(
             s["outcome"],

@@ -2,18 +2,11 @@
 
 mod common;
 
-use common::{run, stderr, summary};
+use common::{run, run_into_tempdir, stderr, summary};
 
 #[test]
 fn realtime_paper_run_reaches_the_goal_without_collision_or_deadline_miss() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = run(&[
-        "run",
-        "--mode",
-        "realtime",
-        "--out",
-        dir.path().to_str().unwrap(),
-    ]);
+    let (dir, out) = run_into_tempdir(&["run", "--mode", "realtime"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let s = summary(dir.path());
     assert_eq!(s["mode"], "realtime");

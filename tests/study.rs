@@ -2,13 +2,12 @@
 
 mod common;
 
-use common::{csv, num, run, stderr};
+use common::{csv, num, run, run_into_tempdir, stderr};
 use std::path::Path;
 
 #[test]
 fn the_sweep_reproduces_the_papers_qualitative_findings() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = run(&[
+    let (dir, out) = run_into_tempdir(&[
         "sweep",
         "--grid",
         "mpc.gamma=0.1,0.3,0.5,0.7,0.9,1",
@@ -16,8 +15,6 @@ fn the_sweep_reproduces_the_papers_qualitative_findings() {
         "mpc.horizon=8,14",
         "--grid",
         "mpc.constraint=cbf,euclidean",
-        "--out",
-        dir.path().to_str().unwrap(),
     ]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let rows = csv(&dir.path().join("sweep.csv"));
@@ -62,16 +59,13 @@ fn the_sweep_reproduces_the_papers_qualitative_findings() {
 
 #[test]
 fn with_the_ekf_a_hundred_noise_seeds_never_collide() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = run(&[
+    let (dir, out) = run_into_tempdir(&[
         "sweep",
         "paper-noisy",
         "--grid",
         "estimator.kind=ekf,passthrough",
         "--seeds",
         "100",
-        "--out",
-        dir.path().to_str().unwrap(),
     ]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let stats = csv(&dir.path().join("monte_carlo.csv"));

@@ -14,6 +14,15 @@ pub fn run(args: &[&str]) -> Output {
     scmpc().args(args).output().expect("cannot start scmpc")
 }
 
+/// Runs `scmpc ARGS --out DIR` with `DIR` a fresh temporary directory, returned with
+/// the output (the directory lives as long as the returned handle).
+pub fn run_into_tempdir(args: &[&str]) -> (tempfile::TempDir, Output) {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().to_str().unwrap().to_owned();
+    let out = run(&[args, &["--out", &out_dir]].concat());
+    (dir, out)
+}
+
 pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
