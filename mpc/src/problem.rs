@@ -909,7 +909,13 @@ impl ConicSolver {
             cones,
             (self.settings)(),
         );
-        self.solver = solver.ok();
+        self.solver = solver.ok().map(|mut solver| {
+            use clarabel::solver::IPSolver;
+            solver.timers = Some(timers_kept_between_solves());
+            // Grows the timer tree once, here, instead of in the control loop.
+            solver.solve();
+            solver
+        });
         self.solver.is_some()
     }
 
@@ -942,6 +948,21 @@ impl ConicSolver {
     pub fn x(&self) -> Option<&[f64]> {
         self.solver.as_ref().map(|s| s.solution.x.as_slice())
     }
+}
+
+/// clarabel's timers, arranged so that `solve()` allocates nothing once it has run once.
+///
+/// clarabel 0.11 starts every `solve()` by resetting its root-level "solve" timer, which
+/// drops the timer tree below it (one hash map per nested timer) and rebuilds it during
+/// the solve: two heap allocations per solve, with no setting to turn timing off. Here a
+/// frame timer is left open around the solver's own timers, so "solve" and everything
+/// under it nest inside the frame and survive; the reset then hits an empty root-level
+/// "solve". The cost is that `info.solve_time` accumulates across solves and means
+/// nothing (this crate times its steps itself and sets no `time_limit`, which reads it).
+fn timers_kept_between_solves() -> clarabel::timers::Timers {
+    let mut timers = clarabel::timers::Timers::default();
+    timers.start_as_current("scmpc frame");
+    timers
 }
 
 /// Compressed-column matrix of `entries`, and for each entry its position in `nzval`
