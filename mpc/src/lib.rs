@@ -534,11 +534,21 @@ mod tests {
 
     /// Closed loop of the MPC on its own linear model (exact DFL): returns every plan.
     fn closed_loop(scenario: &Scenario, samples: u64) -> Vec<Plan> {
+        let mut plans = Vec::new();
+        closed_loop_with(scenario, samples, |_, plan| plans.push(plan.clone()));
+        plans
+    }
+
+    /// [`closed_loop`], calling `after_step` with the MPC and each plan.
+    fn closed_loop_with(
+        scenario: &Scenario,
+        samples: u64,
+        mut after_step: impl FnMut(&mut LinearMpc, &Plan),
+    ) {
         let mut mpc = LinearMpc::new(scenario).unwrap();
         let (a, b) = model::discretize(scenario.timing.ts_s);
         let [x, y, theta] = scenario.robot.start;
         let mut z = Vector4::from(protocol::phi([x, y, theta, scenario.robot.zeta0]));
-        let mut plans = Vec::new();
         for k in 0..samples {
             // x_bar with the same z (theta is irrelevant to z when zeta = 0).
             let zeta = z[1].hypot(z[3]);
@@ -546,9 +556,8 @@ mod tests {
             let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
             assert!(plan.is_solved(), "sample {k}: {:?}", plan.status());
             z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
-            plans.push(plan);
+            after_step(&mut mpc, &plan);
         }
-        plans
     }
 
     fn absolute_discs(s: &Scenario) -> Vec<Disc> {
@@ -966,6 +975,43 @@ mod tests {
         let plan = mpc.step(0, [1.3, 3.5, 0.0, 20.0], 0.0);
         assert_eq!(plan.status(), Some(PlanStatus::Infeasible));
         assert!(plan.solves >= 1 && plan.solve_ns > 0);
+    }
+
+    #[test]
+    fn the_default_refinement_tolerance_stops_within_half_a_millimetre_of_convergence() {
+        for gamma in [0.1, 0.5] {
+            let mut s = Scenario::default();
+            s.mpc.gamma = gamma;
+            let mut stopped_early = 0;
+            closed_loop_with(&s, 400, |mpc, plan| {
+                // Carry the sequential convexification on from where the step stopped,
+                // at the same state, to convergence.
+                let stopped = mpc.solution.clone();
+                let z = plan.z[0];
+                let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
+                (mpc.max_solves, mpc.refinement_tol_m) = (10, 1e-7);
+                assert_eq!(mpc.refine(z0).status, PlanStatus::Solved);
+                (mpc.max_solves, mpc.refinement_tol_m) = (s.mpc.max_solves, s.mpc.refinement_tol_m);
+                let l = &mpc.layout;
+                let gap = (1..=l.horizon)
+                    .map(|i| {
+                        let d = |c| stopped[l.z(i, c)] - mpc.solution[l.z(i, c)];
+                        d(0).hypot(d(2))
+                    })
+                    .fold(0.0, f64::max);
+                assert!(
+                    gap < 5e-4,
+                    "gamma {gamma}, sample {}: {gap:e} m from the converged plan",
+                    plan.sample
+                );
+                if plan.solves == 1 && gap > 1e-5 {
+                    stopped_early += 1;
+                }
+            });
+            // Along the obstacle the first solve moves the plan by millimetres to
+            // centimetres: those are the refinements the tolerance skips.
+            assert!(stopped_early > 10, "gamma {gamma}: {stopped_early}");
+        }
     }
 
     #[test]
