@@ -78,14 +78,14 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
                 allocations(|| estimator.step(applied, dt, y, dfl.zeta(), header));
             let (mut mpc_a, mut inbox_a) = (0, 0);
             if tick.is_multiple_of(m) {
-                let (plan, a) =
+                let plan;
+                (plan, mpc_a) =
                     allocations(|| mpc.step(tick / m, estimate.state, estimate.position_sigma()));
                 assert!(
                     plan.is_solved(),
                     "{formulation} {qp_form}: sample {} not solved",
                     tick / m
                 );
-                mpc_a = a;
                 ((), inbox_a) = allocations(|| {
                     inbox.receive(&plan);
                     monitor.on_plan(&plan, 0);

@@ -884,8 +884,9 @@ impl ConicSolver {
         )
     }
 
-    /// Builds the solver for the pattern of `assembly` (kept from then on). False if
-    /// clarabel refuses the data.
+    /// Builds the solver for the pattern of `assembly` (kept from then on) and solves it
+    /// once, so that clarabel's bookkeeping is in place before the control loop
+    /// ([`timers_kept_between_solves`]). False if clarabel refuses the data.
     pub fn build(
         &mut self,
         assembly: &Assembly,
@@ -912,7 +913,6 @@ impl ConicSolver {
         self.solver = solver.ok().map(|mut solver| {
             use clarabel::solver::IPSolver;
             solver.timers = Some(timers_kept_between_solves());
-            // Grows the timer tree once, here, instead of in the control loop.
             solver.solve();
             solver
         });
