@@ -78,9 +78,9 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
                 allocations(|| estimator.step(applied, dt, y, dfl.zeta(), header));
             let (mut mpc_a, mut inbox_a) = (0, 0);
             if tick.is_multiple_of(m) {
-                let plan;
-                (plan, mpc_a) =
+                let (plan, a) =
                     allocations(|| mpc.step(tick / m, estimate.state, estimate.position_sigma()));
+                mpc_a = a;
                 assert!(
                     plan.is_solved(),
                     "{formulation} {qp_form}: sample {} not solved",

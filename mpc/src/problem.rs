@@ -214,9 +214,11 @@ pub fn base_settings() -> clarabel::solver::DefaultSettings<f64> {
 /// relative to `goal`, each radius inflated by `margin_m` (the safety margin and the
 /// uncertainty term) and by the inter-sample dip. The CBF holds at the sample instants;
 /// between two of them the robot moves along a chord of at most
-/// `d = |speed| Ts + accel_max Ts^2 / 2`, which dips up to `d^2 / (8 r)` inside a circle
-/// of radius `r` both end points lie on. That much more radius keeps the path between
-/// samples out of the obstacle too (about 0.2 mm at 1 m/s in the paper's scenario).
+/// `d = |speed| Ts + accel_max Ts^2 / 2`. A segment of length `d` whose end points lie
+/// outside radius `R` comes no closer to the centre than `sqrt(R^2 - d^2 / 4)`, so the
+/// radius `R = sqrt(r^2 + d^2 / 4)` keeps the path between samples out of radius `r`
+/// too: about `r + d^2 / (8 r)` for a large obstacle (0.2 mm at 1 m/s in the paper's
+/// scenario), `d / 2` for a point.
 pub fn constraint_discs(
     obstacles: &[protocol::Obstacle],
     goal: [f64; 2],
@@ -232,7 +234,7 @@ pub fn constraint_discs(
         let radius = o.radius + margin_m;
         Disc {
             center: [o.x - goal[0], o.y - goal[1]],
-            radius: radius + chord * chord / (8.0 * radius.max(chord)),
+            radius: radius.hypot(chord / 2.0),
         }
     }));
 }
@@ -885,7 +887,7 @@ impl ConicSolver {
     }
 
     /// Builds the solver for the pattern of `assembly` (kept from then on) and solves it
-    /// once, so that clarabel's bookkeeping is in place before the control loop
+    /// once, so that clarabel's bookkeeping is in place before the next solve
     /// ([`timers_kept_between_solves`]). False if clarabel refuses the data.
     pub fn build(
         &mut self,
@@ -902,14 +904,13 @@ impl ConicSolver {
         } else {
             assembly.q.clone()
         };
-        let solver = clarabel::solver::DefaultSolver::new(
-            objective,
-            &q,
-            &a,
-            &assembly.b,
-            cones,
-            (self.settings)(),
+        let settings = (self.settings)();
+        debug_assert!(
+            settings.time_limit.is_infinite(),
+            "clarabel's clock runs from the build (timers_kept_between_solves)"
         );
+        let solver =
+            clarabel::solver::DefaultSolver::new(objective, &q, &a, &assembly.b, cones, settings);
         self.solver = solver.ok().map(|mut solver| {
             use clarabel::solver::IPSolver;
             solver.timers = Some(timers_kept_between_solves());
@@ -953,12 +954,13 @@ impl ConicSolver {
 /// clarabel's timers, arranged so that `solve()` allocates nothing once it has run once.
 ///
 /// clarabel 0.11 starts every `solve()` by resetting its root-level "solve" timer, which
-/// drops the timer tree below it (one hash map per nested timer) and rebuilds it during
-/// the solve: two heap allocations per solve, with no setting to turn timing off. Here a
-/// frame timer is left open around the solver's own timers, so "solve" and everything
-/// under it nest inside the frame and survive; the reset then hits an empty root-level
-/// "solve". The cost is that `info.solve_time` accumulates across solves and means
-/// nothing (this crate times its steps itself and sets no `time_limit`, which reads it).
+/// drops the timers nested in it with their hash maps and rebuilds them during the solve:
+/// heap allocations in every solve, with no setting to turn timing off. Here a frame
+/// timer is left open around the solver's own timers, so "solve" and everything under it
+/// nest inside the frame and survive; the reset then hits an empty root-level "solve".
+/// The cost: clarabel's `info.solve_time` becomes the wall time since the build, which
+/// would trip any finite `time_limit` (none is set: `build` checks it in debug builds);
+/// this crate times its steps itself.
 fn timers_kept_between_solves() -> clarabel::timers::Timers {
     let mut timers = clarabel::timers::Timers::default();
     timers.start_as_current("scmpc frame");
@@ -994,6 +996,46 @@ pub fn csc_with_positions(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn no_chord_between_two_samples_outside_the_constraint_disc_enters_the_obstacle() {
+        for radius in [0.0, 0.05, 1.5] {
+            for speed in [0.0, 0.5, 3.0] {
+                let (ts, accel_max) = (0.05, 4.0);
+                let chord = speed * ts + 0.5 * accel_max * ts * ts;
+                let obstacle = protocol::Obstacle {
+                    x: 1.0,
+                    y: 2.0,
+                    radius,
+                };
+                let mut discs = Vec::new();
+                constraint_discs(&[obstacle], [0.0; 2], 0.0, speed, ts, accel_max, &mut discs);
+                let disc = discs[0];
+                // Segments of the longest length with both ends on the constraint circle
+                // (the deepest any chord of at most that length reaches), all directions.
+                for k in 0..360 {
+                    let phi = f64::from(k).to_radians();
+                    let half_angle = (chord / (2.0 * disc.radius)).min(1.0).asin();
+                    let end = |a: f64| {
+                        let r = disc.radius;
+                        [disc.center[0] + r * a.cos(), disc.center[1] + r * a.sin()]
+                    };
+                    let (a, b) = (end(phi - half_angle), end(phi + half_angle));
+                    let closest = (0..=100)
+                        .map(|t| {
+                            let t = f64::from(t) / 100.0;
+                            let p = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+                            (p[0] - disc.center[0]).hypot(p[1] - disc.center[1])
+                        })
+                        .fold(f64::INFINITY, f64::min);
+                    assert!(
+                        closest >= radius - 1e-12,
+                        "r {radius}, speed {speed}: a chord reaches {closest} m from the centre"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn linearized_barrier_is_tight_at_the_reference_and_below_elsewhere() {

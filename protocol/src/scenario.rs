@@ -377,10 +377,9 @@ pub struct MpcConfig {
     /// Refinement stops once no predicted position moves more than this, m. A move of
     /// `d` leaves the convexified CBF exactly `d^2` (m^2) tighter than one linearized at
     /// the new plan (`H(p) - L(p) = |p - p_bar|^2`), so the re-solve it would start
-    /// changes the plan by far less: after first moves of up to 2 cm the next solve
-    /// moved no position more than 0.31 mm at N = 8 and 1.3 mm at N = 14 (paper run and
-    /// its γ, N variants; README, Performance). The default 2 cm therefore refines
-    /// only from a poor reference (a cold start, a plan bent by a new obstacle).
+    /// changes the plan far less than `d` (measured in the README, Performance). The
+    /// default 2 cm refines only from a poor reference (a cold start, a plan bent by a
+    /// new obstacle).
     pub refinement_tol_m: f64,
 }
 
