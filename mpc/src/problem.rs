@@ -29,8 +29,9 @@
 //! has a closed form ([`Span`], [`PositionReach`]). When every row of the position box
 //! and the terminal set holds at its extreme, that group is left out for the step; when
 //! every CBF row does, the CBF group is left out for the solve. The feasible set is the
-//! same, the program smaller: one solver per combination, all four built at setup. In the paper's run the first group is always implied (the box is 10 m away) and
-//! the CBF rows are whenever the obstacle is out of reach of the horizon.
+//! same, the program smaller: one solver per combination, all four built at setup. In
+//! the paper's run the first group is always implied (the box is 10 m away) and the CBF
+//! rows are whenever the obstacle is out of reach of the horizon.
 //!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
 //! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`Condensing`]), the
