@@ -112,10 +112,12 @@ impl Monitor {
             return Some(Outcome::Collided);
         }
         self.window.push_back((t_s, x, y));
+        // Keep the newest sample at least a window old at the front (the tick need not
+        // divide the window).
         while self
             .window
-            .front()
-            .is_some_and(|&(t0, _, _)| t_s - t0 > STALL_WINDOW_S + 1e-9)
+            .get(1)
+            .is_some_and(|&(t1, _, _)| t_s - t1 >= STALL_WINDOW_S - 1e-9)
         {
             self.window.pop_front();
         }
@@ -158,6 +160,33 @@ mod tests {
         let (outcome, t) = ended.unwrap();
         assert_eq!(outcome, Outcome::Stalled);
         assert!((t - STALL_WINDOW_S).abs() < 0.01, "stalled at {t}");
+    }
+
+    #[test]
+    fn a_robot_standing_still_stalls_whatever_the_tick() {
+        // 2 s is no whole number of these ticks.
+        for tick_s in [0.0059318, 0.0033, 0.01] {
+            let mut m = Monitor::new(&Scenario::default());
+            let ended = (0..2000)
+                .map(|i| i as f64 * tick_s)
+                .find_map(|t| m.observe(t, 7.0, 7.0).map(|o| (o, t)));
+            let (outcome, t) = ended.expect("never stalled");
+            assert_eq!(outcome, Outcome::Stalled);
+            assert!(
+                (STALL_WINDOW_S..STALL_WINDOW_S + tick_s + 1e-9).contains(&t),
+                "tick {tick_s}: stalled at {t}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_robot_that_moved_a_centimetre_within_the_window_has_not_stalled() {
+        let mut m = Monitor::new(&Scenario::default());
+        for i in 0..1000 {
+            let t = i as f64 * 0.0059318;
+            // 1.5 cm over each 2 s.
+            assert_eq!(m.observe(t, 7.0 + 0.0075 * t, 7.0), None, "at {t}");
+        }
     }
 
     #[test]
