@@ -4,14 +4,18 @@
 //! `x_bar = [x, y, theta, zeta]`, and the linearizing law (paper eq. 1101) makes
 //! `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` two double integrators
 //! `z1'' = v1`, `z3'' = v2`. The [`Dfl`] applies the element of the newest plan that covers
-//! the current time, falls back to braking when none does, and integrates zeta.
+//! the current time, falls back to braking when none does, and integrates zeta. With
+//! `dfl.gatekeeper` it flies only plans its safety check has passed ([`gatekeeper`]).
 
 use protocol::{
-    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan, PlanStatus,
-    Scenario, WheelGeometry,
+    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, Intervention, PLAN_MISSING, Plan,
+    PlanStatus, Scenario, WheelGeometry,
 };
 
+pub mod gatekeeper;
 pub mod process;
+
+pub use gatekeeper::Gatekeeper;
 
 pub use protocol::phi;
 
@@ -206,7 +210,8 @@ impl DeadlineMonitor {
     }
 }
 
-/// The DFL role: owns zeta and the newest usable plan.
+/// The DFL role: owns zeta and the newest usable plan (with the safety check on, the
+/// committed one).
 pub struct Dfl {
     zeta: f64,
     zeta_threshold: f64,
@@ -214,7 +219,25 @@ pub struct Dfl {
     inner_steps: u64,
     dt_s: f64,
     geometry: WheelGeometry,
+    /// The plan flown: with the safety check on, the committed one.
     active: Option<Plan>,
+    /// The safety check (`dfl.gatekeeper`).
+    gatekeeper: Option<Gatekeeper>,
+    /// A plan offered and not yet checked (the check needs the estimate of the tick).
+    offered: Option<Plan>,
+    /// Braking because the committed trajectory was found unsafe, until a plan passes.
+    safety_braking: bool,
+    interventions: u32,
+}
+
+/// What the safety check did at one tick.
+#[derive(Debug, Clone, Copy, Default)]
+struct CheckOutcome {
+    intervention: Intervention,
+    plan_sample: u64,
+    clearance_m: f64,
+    /// Interventions at this tick (a refused plan and an unsafe committed one: two).
+    count: u32,
 }
 
 impl Dfl {
@@ -222,15 +245,24 @@ impl Dfl {
         Dfl {
             zeta: scenario.robot.zeta0,
             zeta_threshold: scenario.dfl.zeta_threshold,
-            brake_decel: scenario.dfl.brake_decel,
+            brake_decel: scenario.brake_decel(),
             inner_steps: scenario.timing.inner_steps as u64,
-            dt_s: scenario.timing.ts_s / scenario.timing.inner_steps as f64,
+            dt_s: scenario.inner_tick_s(),
             geometry: WheelGeometry {
                 wheel_radius_m: scenario.plant.wheel_radius_m,
                 wheel_base_m: scenario.plant.wheel_base_m,
             },
             active: None,
+            gatekeeper: scenario.dfl.gatekeeper.then(|| Gatekeeper::new(scenario)),
+            offered: None,
+            safety_braking: false,
+            interventions: 0,
         }
+    }
+
+    /// Safety interventions so far: plans refused and committed trajectories given up.
+    pub fn interventions(&self) -> u32 {
+        self.interventions
     }
 
     /// The DFL's integrator state zeta, m/s.
@@ -249,26 +281,85 @@ impl Dfl {
 
     /// Offers a received plan. It becomes active if it is solved and newer than the active
     /// one; a failed plan is ignored, like a missed one, and an older one (out of order)
-    /// never replaces a newer one. Returns whether it was taken.
+    /// never replaces a newer one. With the safety check on, it is only a candidate until
+    /// the next [`Dfl::step`] has checked it. Returns whether it was taken.
     pub fn offer(&mut self, plan: &Plan) -> bool {
-        let newer = self.active.as_ref().is_none_or(|a| plan.sample > a.sample);
-        let take = plan.is_solved() && newer;
+        let newer = |held: &Option<Plan>| held.as_ref().is_none_or(|a| plan.sample > a.sample);
+        let take = plan.is_solved() && newer(&self.active) && newer(&self.offered);
         if take {
-            self.active = Some(*plan);
+            if self.gatekeeper.is_some() {
+                self.offered = Some(*plan);
+            } else {
+                self.active = Some(*plan);
+            }
         }
         take
+    }
+
+    /// The safety check of a tick: commits an offered plan whose trajectory (the plan, then
+    /// the brake) is safe from `estimate`, and gives up the committed one when it is not.
+    fn check(&mut self, estimate: &Estimate, tick: u64) -> CheckOutcome {
+        let mut outcome = CheckOutcome::default();
+        let Some(gatekeeper) = &self.gatekeeper else {
+            return outcome;
+        };
+        let sample = tick / self.inner_steps;
+        let into_sample_s = (tick % self.inner_steps) as f64 * self.dt_s;
+        let [x, y, theta, _] = estimate.state;
+        let z = protocol::phi([x, y, theta, self.zeta]);
+        let commit_growth = gatekeeper.commit_growth(estimate.position_sigma());
+        let mut note = |intervention, plan_sample, clearance_m| {
+            outcome = CheckOutcome {
+                intervention,
+                plan_sample,
+                clearance_m,
+                count: outcome.count + 1,
+            };
+        };
+        let mut committed = false;
+        if let Some(plan) = self.offered.take() {
+            match gatekeeper.check(&plan, sample, into_sample_s, z, commit_growth) {
+                None => {
+                    self.active = Some(plan);
+                    self.safety_braking = false;
+                    committed = true;
+                }
+                Some(clearance) => note(Intervention::PlanRefused, plan.sample, clearance),
+            }
+        }
+        // The committed trajectory, flown from this estimate (not needed when it was just
+        // checked, nor once its plan is exhausted and the DFL brakes anyway).
+        let unsafe_committed = match &self.active {
+            Some(plan) if !committed && covering_element(plan, sample).is_some() => gatekeeper
+                .check(plan, sample, into_sample_s, z, 0.0)
+                .map(|clearance| (plan.sample, clearance)),
+            _ => None,
+        };
+        if let Some((plan_sample, clearance)) = unsafe_committed {
+            note(Intervention::CommittedUnsafe, plan_sample, clearance);
+            self.active = None;
+            self.safety_braking = true;
+        }
+        self.interventions += outcome.count;
+        outcome
     }
 
     /// One inner tick: the command for `[t_j, t_j + Ts/M)` from `estimate` and the active
     /// plan; integrates zeta over the tick. The header's publish time and epoch are the
     /// caller's to fill.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
+        let checked = self.check(estimate, tick);
         let sample = tick / self.inner_steps;
         let theta = estimate.state[2];
         let chosen = self
             .active
             .as_ref()
             .and_then(|p| covering_element(p, sample).map(|i| (p.v[i], p.sample)));
+        let braking = if self.safety_braking {
+            CommandMode::SafetyBrake
+        } else {
+            CommandMode::Brake
+        };
         let (u, v, mode, plan_sample) = match chosen {
             Some((v, plan_sample)) => {
                 let (u, guarded) = linearizing_input(theta, self.zeta, v, self.zeta_threshold);
@@ -281,9 +372,13 @@ impl Dfl {
                 };
                 (u, v, mode, plan_sample)
             }
-            None => (self.braking_input(), [0.0; 2], CommandMode::Brake, 0),
+            None => (self.braking_input(), [0.0; 2], braking, 0),
         };
-        self.command(tick, u, v, mode, plan_sample)
+        let mut act = self.command(tick, u, v, mode, plan_sample);
+        act.intervention = checked.intervention as u32;
+        act.intervention_plan = checked.plan_sample;
+        act.intervention_clearance_m = checked.clearance_m;
+        act
     }
 
     /// A braking command for `tick` without an estimate (the estimator is silent): braking
@@ -321,6 +416,8 @@ impl Dfl {
             mode: mode as u32,
             deadline_misses: 0,
             plan_sample,
+            safety_interventions: self.interventions,
+            ..Actuation::default()
         }
     }
 

@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 pub enum Outcome {
     /// Within the goal tolerance from `time_to_goal_s` to the end of the run.
     Reached,
-    /// The robot's centre entered an obstacle (true radius).
+    /// The robot entered an obstacle (true radius, grown by the robot's radius).
     Collided,
     /// Moved less than [`STALL_DISTANCE_M`] over [`STALL_WINDOW_S`] away from the goal.
     Stalled,
@@ -46,6 +46,8 @@ pub const DEVIATION_M: f64 = 0.05;
 /// Watches the true pose tick by tick.
 pub struct Monitor {
     obstacles: Vec<Obstacle>,
+    /// The robot's radius, m: clearances are from its edge.
+    robot_radius_m: f64,
     start: [f64; 2],
     goal: [f64; 2],
     goal_tolerance_m: f64,
@@ -64,6 +66,7 @@ impl Monitor {
     pub fn new(scenario: &Scenario) -> Monitor {
         Monitor {
             obstacles: scenario.obstacles.clone(),
+            robot_radius_m: scenario.robot.radius_m,
             start: [scenario.robot.start[0], scenario.robot.start[1]],
             goal: scenario.robot.goal,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
@@ -85,11 +88,12 @@ impl Monitor {
         ((x - self.start[0]) * dy - (y - self.start[1]) * dx).abs() / length
     }
 
-    /// Distance from the robot's centre to the nearest obstacle surface, m.
+    /// Distance from the robot's edge (its centre, for the paper's point robot) to the
+    /// nearest obstacle surface, m.
     pub fn clearance(&self, x: f64, y: f64) -> f64 {
         self.obstacles
             .iter()
-            .map(|o| (x - o.x).hypot(y - o.y) - o.radius)
+            .map(|o| (x - o.x).hypot(y - o.y) - o.radius - self.robot_radius_m)
             .fold(f64::INFINITY, f64::min)
     }
 

@@ -3,8 +3,8 @@
 
 use crate::monitor::{Monitor, Outcome};
 use protocol::{
-    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
-    Scenario,
+    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, PLAN_MISSING,
+    Plan, PlanStatus, Scenario,
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -43,6 +43,7 @@ pub struct ModeCounts {
     pub shifted: u64,
     pub brake: u64,
     pub zeta_guard: u64,
+    pub safety_brake: u64,
 }
 
 /// `summary.json`.
@@ -68,6 +69,9 @@ pub struct Summary {
     pub faults: Vec<String>,
     /// Plans whose solver status was not `solved`.
     pub solver_failures: u64,
+    /// Times the DFL's safety check acted: a plan refused, or the committed trajectory
+    /// given up for the brake (events `safety_intervention`).
+    pub safety_interventions: u64,
     /// MPC samples run.
     pub steps: u64,
     /// Inner ticks run.
@@ -178,12 +182,17 @@ impl Summary {
             (
                 "commands",
                 format!(
-                    "nominal {}, shifted {}, brake {}, zeta_guard {}",
+                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}",
                     self.commands.nominal,
                     self.commands.shifted,
                     self.commands.brake,
-                    self.commands.zeta_guard
+                    self.commands.zeta_guard,
+                    self.commands.safety_brake
                 ),
+            ),
+            (
+                "safety checks",
+                format!("{} interventions", self.safety_interventions),
             ),
             (
                 "solve time",
@@ -252,6 +261,7 @@ pub struct Recorder {
     /// Newest sample judged (a replayed verdict is not counted twice).
     last_judged: Option<u64>,
     solver_failures: u64,
+    safety_interventions: u64,
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
     commands: ModeCounts,
@@ -291,6 +301,7 @@ impl Recorder {
             longest_miss_streak: 0,
             last_judged: None,
             solver_failures: 0,
+            safety_interventions: 0,
             pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
             ticks: 0,
@@ -337,6 +348,19 @@ impl Recorder {
             CommandMode::Shifted => self.commands.shifted += 1,
             CommandMode::Brake => self.commands.brake += 1,
             CommandMode::ZetaGuard => self.commands.zeta_guard += 1,
+            CommandMode::SafetyBrake => self.commands.safety_brake += 1,
+        }
+        if let Some(reason) = act.intervention().filter(|i| *i != Intervention::None) {
+            self.safety_interventions += 1;
+            self.event(
+                "safety_intervention",
+                serde_json::json!({
+                    "tick": truth.header.tick,
+                    "reason": reason.as_str(),
+                    "plan_sample": act.intervention_plan,
+                    "clearance_m": act.intervention_clearance_m,
+                }),
+            )?;
         }
         self.ticks += 1;
         self.last_time_s = t;
@@ -485,6 +509,7 @@ impl Recorder {
             deadline_misses: self.deadline_misses,
             longest_miss_streak: self.longest_miss_streak,
             solver_failures: self.solver_failures,
+            safety_interventions: self.safety_interventions,
             faults: scenario.fault.describe(),
             steps: self.solve_us.len() as u64,
             ticks: self.ticks,

@@ -24,6 +24,44 @@ pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {
     [x, zeta * theta.cos(), y, zeta * theta.sin()]
 }
 
+/// Distance the fallback brake covers from `speed_m_s` (either sign), m: `U2 = 0`, so
+/// the robot moves straight along its heading, and `U1` takes zeta to zero at `decel`
+/// (m/s^2), the command being held over steps of `hold_s` (the DFL's inner tick). The
+/// continuous distance is `s^2 / (2 a)`; the last step, whose command only has the rest of
+/// the speed `rho < a hold` to take away, adds `rho (hold / 2 - rho / (2 a))`, which is at
+/// most `min(s hold / 2, a hold^2 / 8)`.
+pub fn stopping_distance(speed_m_s: f64, decel: f64, hold_s: f64) -> f64 {
+    let s = speed_m_s.abs();
+    s * s / (2.0 * decel) + (0.5 * s * hold_s).min(0.125 * decel * hold_s * hold_s)
+}
+
+/// The DFL's safety check commits a trajectory only if it clears every obstacle, grown by
+/// the robot's radius, `mpc.safety_margin_m` and `kappa sigma`, by this much more (m); it
+/// gives a committed trajectory up only when, flown from the current estimate, it would
+/// enter the obstacle grown by the robot's radius and `mpc.safety_margin_m` alone. The gap
+/// between the two takes the estimate's jitter and the difference between the robot and
+/// its linearized model (the zeta guard, the held inner-tick commands) without giving up
+/// safe trajectories (DESIGN.md section 8).
+pub const COMMIT_MARGIN_M: f64 = 1e-3;
+
+/// The point of the segment from `a` to `b` closest to `point`.
+pub fn closest_point_on_segment(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> [f64; 2] {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let length_sq = dx * dx + dy * dy;
+    let t = if length_sq > 0.0 {
+        (((point[0] - a[0]) * dx + (point[1] - a[1]) * dy) / length_sq).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    [a[0] + t * dx, a[1] + t * dy]
+}
+
+/// Distance from `point` to the segment from `a` to `b`, m.
+pub fn segment_distance(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> f64 {
+    let c = closest_point_on_segment(a, b, point);
+    (c[0] - point[0]).hypot(c[1] - point[1])
+}
+
 /// Differential-drive geometry: the transform `T` of paper eq. (5) between wheel speeds
 /// `[omega_r, omega_l]` (rad/s) and body inputs `[u1, u2]` (m/s, rad/s).
 #[derive(Debug, Clone, Copy, PartialEq)]

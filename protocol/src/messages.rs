@@ -168,6 +168,9 @@ pub enum CommandMode {
     Brake = 2,
     /// A nominal command whose steering was zeroed by the zeta guard.
     ZetaGuard = 3,
+    /// Braking because the safety check found the trajectory being flown no longer safe
+    /// from the current estimate (DESIGN.md section 8), until a new plan passes it.
+    SafetyBrake = 4,
 }
 
 impl CommandMode {
@@ -177,6 +180,7 @@ impl CommandMode {
             1 => CommandMode::Shifted,
             2 => CommandMode::Brake,
             3 => CommandMode::ZetaGuard,
+            4 => CommandMode::SafetyBrake,
             _ => return None,
         })
     }
@@ -186,6 +190,7 @@ impl CommandMode {
             CommandMode::Shifted => "shifted",
             CommandMode::Brake => "brake",
             CommandMode::ZetaGuard => "zeta_guard",
+            CommandMode::SafetyBrake => "safety_brake",
         }
     }
 }
@@ -214,11 +219,56 @@ pub struct Actuation {
     pub deadline_misses: u32,
     /// Sample of the plan the command came from (meaningless while braking).
     pub plan_sample: u64,
+    /// [`Intervention`] code of what the safety check did at this tick.
+    pub intervention: u32,
+    /// The DFL's live count of safety interventions so far.
+    pub safety_interventions: u32,
+    /// With an intervention: the plan it concerns (refused, or the one given up).
+    pub intervention_plan: u64,
+    /// With an intervention: how far the trajectory checked entered an inflated obstacle,
+    /// m (negative clearance).
+    pub intervention_clearance_m: f64,
 }
 
 impl Actuation {
     pub fn mode(&self) -> Option<CommandMode> {
         CommandMode::from_code(self.mode)
+    }
+    pub fn intervention(&self) -> Option<Intervention> {
+        Intervention::from_code(self.intervention)
+    }
+}
+
+/// What the DFL's safety check did at a tick (DESIGN.md section 8).
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Intervention {
+    #[default]
+    None = 0,
+    /// A solved plan was not committed: flown from the current estimate and followed by
+    /// the brake, it would enter an inflated obstacle. The trajectory already committed
+    /// goes on.
+    PlanRefused = 1,
+    /// The committed trajectory, flown from the current estimate, would enter an inflated
+    /// obstacle: the DFL brakes at once.
+    CommittedUnsafe = 2,
+}
+
+impl Intervention {
+    pub fn from_code(code: u32) -> Option<Intervention> {
+        Some(match code {
+            0 => Intervention::None,
+            1 => Intervention::PlanRefused,
+            2 => Intervention::CommittedUnsafe,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Intervention::None => "none",
+            Intervention::PlanRefused => "plan_refused",
+            Intervention::CommittedUnsafe => "committed_unsafe",
+        }
     }
 }
 

@@ -163,6 +163,9 @@ pub struct FaultConfig {
     /// The estimator sleeps this long before publishing each estimate, ms (real time: a
     /// slow estimator; lockstep: only slower in wall time).
     pub estimator_delay_ms: f64,
+    /// The MPC plans as if there were no obstacles: a stand-in for a faulty MPC, to show
+    /// that the DFL's safety check (`dfl.gatekeeper`) keeps the robot out of them anyway.
+    pub mpc_ignore_obstacles: bool,
 }
 
 impl FaultConfig {
@@ -213,6 +216,9 @@ impl FaultConfig {
                 self.estimator_delay_ms
             ));
         }
+        if self.mpc_ignore_obstacles {
+            faults.push("the MPC ignores the obstacles".into());
+        }
         faults
     }
 }
@@ -237,6 +243,10 @@ pub struct Robot {
     pub goal: [f64; 2],
     /// The robot has reached the goal while its centre stays within this distance, m.
     pub goal_tolerance_m: f64,
+    /// Radius of the robot's footprint, m (0: the paper's point robot). Every obstacle is
+    /// inflated by it in the MPC, the DFL's safety check and the judge, so clearances are
+    /// measured from the robot's edge.
+    pub radius_m: f64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -381,6 +391,27 @@ pub struct MpcConfig {
     /// default 2 cm refines only from a poor reference (a cold start, a plan bent by a
     /// new obstacle).
     pub refinement_tol_m: f64,
+    /// `brake` (the default): every plan ends in a state the DFL's brake stops from
+    /// without its stopping path entering an obstacle, and the CBF's decay may be relaxed
+    /// where braking needs it (recursive feasibility); `brake_ball`: the same with the
+    /// whole ball of the stopping distance kept clear (a standoff whatever the direction);
+    /// `none`: the paper's formulation exactly. The linear scheme only: the nonlinear
+    /// baseline is the paper's SCNMPC.
+    pub terminal_safety: TerminalSafety,
+}
+
+/// The MPC's terminal safety rows (`mpc.terminal_safety`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TerminalSafety {
+    /// The plan's last state must stop under the DFL's brake with its straight stopping
+    /// path outside every obstacle; the CBF decay gets a slack bounded by the linearized
+    /// barrier.
+    Brake,
+    /// As `Brake`, with the ball of the stopping distance around the last state clear.
+    BrakeBall,
+    /// The paper's formulation (eqs. 51-47) as it stands.
+    None,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -388,8 +419,30 @@ pub struct MpcConfig {
 pub struct DflConfig {
     /// `zeta_th`: below this `|zeta|` the steering input `U2` is zero, m/s.
     pub zeta_threshold: f64,
-    /// Braking limit: `|U1|` when braking without a plan, m/s^2.
-    pub brake_decel: f64,
+    /// Deceleration of the fallback brake (`U2 = 0`, `|U1|` this), m/s^2: `auto` is
+    /// `mpc.v_max`, the largest the input box delivers along every heading. The MPC's
+    /// terminal rows, the brake and the safety check all use it
+    /// ([`Scenario::brake_decel`]); a value above `mpc.v_max` is refused.
+    pub brake_decel: BrakeDecel,
+    /// The safety check (DESIGN.md section 8): the DFL flies only a plan whose trajectory,
+    /// followed by the brake, it has checked against every obstacle, and brakes at once
+    /// when the estimate shows the trajectory it flies is no longer safe.
+    pub gatekeeper: bool,
+}
+
+/// `dfl.brake_decel`: `"auto"` or a deceleration in m/s^2.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum BrakeDecel {
+    Auto(Auto),
+    Value(f64),
+}
+
+/// The word `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Auto {
+    Auto,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -441,6 +494,7 @@ impl Default for Robot {
             zeta0: 0.0,
             goal: [0.0, 0.0],
             goal_tolerance_m: 0.1,
+            radius_m: 0.0,
         }
     }
 }
@@ -486,6 +540,7 @@ impl Default for MpcConfig {
             uncertainty_sigmas: 3.0,
             max_solves: 5,
             refinement_tol_m: 0.02,
+            terminal_safety: TerminalSafety::Brake,
         }
     }
 }
@@ -494,7 +549,8 @@ impl Default for DflConfig {
     fn default() -> Self {
         DflConfig {
             zeta_threshold: 0.01,
-            brake_decel: 3.0,
+            brake_decel: BrakeDecel::Auto(Auto::Auto),
+            gatekeeper: true,
         }
     }
 }
@@ -551,6 +607,27 @@ impl Scenario {
                 message,
             }])
         })
+    }
+
+    /// Deceleration of the fallback brake, m/s^2: `dfl.brake_decel`, whose `auto` is
+    /// `mpc.v_max`. One braking model for the MPC's terminal rows, the DFL's brake and its
+    /// safety check (DESIGN.md section 8).
+    pub fn brake_decel(&self) -> f64 {
+        match self.dfl.brake_decel {
+            BrakeDecel::Auto(_) => self.mpc.v_max,
+            BrakeDecel::Value(decel) => decel,
+        }
+    }
+
+    /// What every obstacle's true radius grows by before the uncertainty term `kappa
+    /// sigma`: the robot's radius and `mpc.safety_margin_m`, m.
+    pub fn obstacle_margin_m(&self) -> f64 {
+        self.robot.radius_m + self.mpc.safety_margin_m
+    }
+
+    /// Inner (DFL, plant) tick `Ts / M`, s.
+    pub fn inner_tick_s(&self) -> f64 {
+        self.timing.ts_s / self.timing.inner_steps as f64
     }
 
     /// The scenario as a TOML document, every key spelled out.
@@ -614,6 +691,7 @@ impl Scenario {
         v.finite("robot.zeta0", self.robot.zeta0);
         v.finite_all("robot.goal", &self.robot.goal);
         v.positive("robot.goal_tolerance_m", self.robot.goal_tolerance_m);
+        v.non_negative("robot.radius_m", self.robot.radius_m);
 
         v.positive("plant.wheel_radius_m", self.plant.wheel_radius_m);
         v.positive("plant.wheel_base_m", self.plant.wheel_base_m);
@@ -671,7 +749,19 @@ impl Scenario {
         v.positive("mpc.refinement_tol_m", m.refinement_tol_m);
 
         v.non_negative("dfl.zeta_threshold", self.dfl.zeta_threshold);
-        v.positive("dfl.brake_decel", self.dfl.brake_decel);
+        if let BrakeDecel::Value(decel) = self.dfl.brake_decel {
+            v.positive("dfl.brake_decel", decel);
+            if decel > m.v_max {
+                v.fail(
+                    "dfl.brake_decel",
+                    format!(
+                        "{decel} m/s^2 is more than the input box delivers along every \
+                         heading (mpc.v_max = {}); use at most that, or \"auto\"",
+                        m.v_max
+                    ),
+                );
+            }
+        }
 
         for (i, o) in self.obstacles.iter().enumerate() {
             v.finite(&format!("obstacles.{i}.x"), o.x);
@@ -725,18 +815,54 @@ impl Scenario {
         }
     }
 
-    /// The start must be clear of every obstacle and inside the position box.
+    /// The start must be clear of every obstacle by the robot's radius, and so must the
+    /// robot's path when it brakes from its initial speed; the start must be inside the
+    /// position box, and the goal outside every obstacle.
     fn check_geometry(&self, v: &mut Validator) {
-        let [sx, sy, _] = self.robot.start;
-        if !(sx.is_finite() && sy.is_finite()) {
+        let [sx, sy, heading] = self.robot.start;
+        let radius = self.robot.radius_m;
+        if !(sx.is_finite() && sy.is_finite() && heading.is_finite() && radius.is_finite()) {
             return;
         }
+        // Braking from zeta0 moves the robot straight along its heading (backwards when
+        // zeta0 < 0), U2 being zero.
+        let decel = self.brake_decel();
+        let stop = if decel > 0.0 && self.robot.zeta0.is_finite() {
+            crate::stopping_distance(self.robot.zeta0, decel, self.inner_tick_s())
+        } else {
+            0.0
+        };
+        let direction = self.robot.zeta0.signum();
+        let stop_point = [
+            sx + direction * stop * heading.cos(),
+            sy + direction * stop * heading.sin(),
+        ];
+        let [gx, gy] = self.robot.goal;
         for (i, o) in self.obstacles.iter().enumerate() {
-            let clearance = (sx - o.x).hypot(sy - o.y) - o.radius;
+            let clearance = (sx - o.x).hypot(sy - o.y) - o.radius - radius;
             if clearance <= 0.0 {
                 v.fail(
                     "robot.start",
-                    format!("({sx}, {sy}) is inside obstacle {i} (clearance {clearance:.3} m)"),
+                    format!(
+                        "({sx}, {sy}) is inside obstacle {i}, inflated by robot.radius_m = \
+                         {radius} (clearance {clearance:.3} m)"
+                    ),
+                );
+            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y])
+                <= o.radius + radius
+            {
+                v.fail(
+                    "robot.zeta0",
+                    format!(
+                        "braking from {} m/s at {decel} m/s^2 runs into obstacle {i}",
+                        self.robot.zeta0
+                    ),
+                );
+            }
+            if (gx - o.x).hypot(gy - o.y) <= o.radius + radius {
+                v.fail(
+                    "robot.goal",
+                    format!("({gx}, {gy}) is inside obstacle {i}, inflated by robot.radius_m"),
                 );
             }
         }

@@ -1,0 +1,376 @@
+//! The DFL's safety check (DESIGN.md section 8): a gatekeeper in the sense of Agrawal and
+//! Panagou (2024), with the Simplex idea of a verified fallback.
+//!
+//! The DFL flies only a *committed trajectory*: a plan followed, from its last state, by the
+//! fallback brake (`U2 = 0`, zeta to zero at the braking deceleration). A plan is committed
+//! only if that trajectory, rolled out from the current estimate, stays outside every
+//! obstacle disc grown by the robot's radius, `mpc.safety_margin_m`, `kappa sigma` and
+//! [`protocol::COMMIT_MARGIN_M`]. Otherwise the trajectory already committed goes on, and
+//! its brake follows: today's shifted-plan fallback, but checked. On every tick the
+//! committed trajectory is checked again from the new estimate; if it would enter an
+//! obstacle (grown by the robot's radius and `mpc.safety_margin_m`: the best estimate says
+//! it would hit), the DFL brakes at once. The margin between the two checks keeps the
+//! estimate's jitter and the robot's small departures from its linearized model (the zeta
+//! guard, commands held over an inner tick) from giving up trajectories that are safe. None of this depends on where a plan came from, so a swapped-in MPC
+//! that ignores the obstacles cannot drive the robot into one while the model holds.
+//!
+//! The check is exact and closed form. Under the linearizing law the robot is two double
+//! integrators (paper eq. mobile46), so between samples, with the plan's `v` held, its
+//! position is a parabolic arc `p + w t + v t^2 / 2`; the closest point of an arc to a
+//! disc's centre is at an end or where `(q(t) - o) . q'(t) = 0`, a cubic in `t`. The brake
+//! moves the robot straight along its velocity for [`protocol::stopping_distance`]. A
+//! cheap lower bound (the chord's distance less the arc's largest departure from it,
+//! `|v| T^2 / 8`) settles almost every arc; only arcs close to a disc solve the cubic.
+
+use protocol::{Obstacle, Plan, Scenario};
+
+/// The checks of one DFL: the obstacles, the braking model, the clock.
+#[derive(Debug, Clone)]
+pub struct Gatekeeper {
+    /// Obstacle centres (absolute, m) and radii grown by the robot's radius and the
+    /// safety margin (m), before the uncertainty term.
+    discs: Vec<([f64; 2], f64)>,
+    /// `kappa`: standard deviations of the position estimate added to every radius.
+    uncertainty_sigmas: f64,
+    /// The fallback brake's deceleration, m/s^2.
+    brake_decel: f64,
+    ts_s: f64,
+    inner_tick_s: f64,
+}
+
+impl Gatekeeper {
+    pub fn new(scenario: &Scenario) -> Gatekeeper {
+        Gatekeeper::with_obstacles(scenario, &scenario.obstacles)
+    }
+
+    fn with_obstacles(scenario: &Scenario, obstacles: &[Obstacle]) -> Gatekeeper {
+        let margin = scenario.obstacle_margin_m();
+        Gatekeeper {
+            discs: obstacles
+                .iter()
+                .map(|o| ([o.x, o.y], o.radius + margin))
+                .collect(),
+            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
+            brake_decel: scenario.brake_decel(),
+            ts_s: scenario.timing.ts_s,
+            inner_tick_s: scenario.inner_tick_s(),
+        }
+    }
+
+    /// How much the commit check grows every disc beyond the robot's radius and the safety
+    /// margin, for an estimate with position standard deviation `sigma_m`: `kappa sigma`
+    /// and [`protocol::COMMIT_MARGIN_M`], m. (The re-check of a committed trajectory grows
+    /// them by nothing.)
+    pub fn commit_growth(&self, sigma_m: f64) -> f64 {
+        self.uncertainty_sigmas * sigma_m + protocol::COMMIT_MARGIN_M
+    }
+
+    /// Checks the trajectory that flies `plan` from the state `z = [x, xdot, y, ydot]`
+    /// (absolute coordinates) at `into_sample_s` into sample `sample`, and then brakes,
+    /// against every disc grown by `grow` (m). Returns `None` when the trajectory stays
+    /// outside them, else its deepest entry found (negative clearance, m).
+    pub fn check(
+        &self,
+        plan: &Plan,
+        sample: u64,
+        into_sample_s: f64,
+        z: [f64; 4],
+        grow: f64,
+    ) -> Option<f64> {
+        let mut p = [z[0], z[2]];
+        let mut w = [z[1], z[3]];
+        let mut deepest: Option<f64> = None;
+        let mut note = |clearance: f64| {
+            if clearance < 0.0 {
+                deepest = Some(deepest.map_or(clearance, |d: f64| d.min(clearance)));
+            }
+        };
+        if let Some(first) = crate::covering_element(plan, sample) {
+            for i in first..plan.horizon as usize {
+                let duration = if i == first {
+                    (self.ts_s - into_sample_s).max(0.0)
+                } else {
+                    self.ts_s
+                };
+                let acc = plan.v[i];
+                for &(center, radius) in &self.discs {
+                    note(arc_clearance(p, w, acc, duration, center, radius + grow));
+                }
+                for k in 0..2 {
+                    p[k] += w[k] * duration + 0.5 * acc[k] * duration * duration;
+                    w[k] += acc[k] * duration;
+                }
+            }
+        }
+        if let Some(clearance) = self.brake_clearance(p, w, grow) {
+            note(clearance);
+        }
+        deepest
+    }
+
+    /// The clearance of braking from position `p` with velocity `w`, if the brake path
+    /// enters a disc grown by `grow` (m).
+    fn brake_clearance(&self, p: [f64; 2], w: [f64; 2], grow: f64) -> Option<f64> {
+        let speed = w[0].hypot(w[1]);
+        let stop = protocol::stopping_distance(speed, self.brake_decel, self.inner_tick_s);
+        let end = if speed > 0.0 {
+            [p[0] + w[0] / speed * stop, p[1] + w[1] / speed * stop]
+        } else {
+            p
+        };
+        self.discs
+            .iter()
+            .map(|&(center, radius)| {
+                protocol::segment_distance(p, end, center) - (radius + grow)
+            })
+            .filter(|c| *c < 0.0)
+            .reduce(f64::min)
+    }
+}
+
+/// The smallest distance from `center` to the arc `q(t) = p + w t + acc t^2 / 2`,
+/// `t in [0, duration]`, less `radius` (m): negative when the arc enters the disc. Exact;
+/// a lower bound is returned instead when that bound already shows the arc outside.
+pub fn arc_clearance(
+    p: [f64; 2],
+    w: [f64; 2],
+    acc: [f64; 2],
+    duration: f64,
+    center: [f64; 2],
+    radius: f64,
+) -> f64 {
+    let t = duration;
+    let end = [
+        p[0] + w[0] * t + 0.5 * acc[0] * t * t,
+        p[1] + w[1] * t + 0.5 * acc[1] * t * t,
+    ];
+    // The arc departs from its chord by `acc t (t - T) / 2`, at most `|acc| T^2 / 8`.
+    let bulge = acc[0].hypot(acc[1]) * t * t / 8.0;
+    let lower_bound = protocol::segment_distance(p, end, center) - bulge - radius;
+    if lower_bound >= 0.0 {
+        return lower_bound;
+    }
+    arc_min_distance(p, w, acc, duration, center) - radius
+}
+
+/// The smallest distance from `center` to the arc `q(t) = p + w t + acc t^2 / 2`,
+/// `t in [0, duration]`, m. The squared distance is a quartic in `t`; its stationary
+/// points are the roots of the cubic `g(t) = (q(t) - o) . (w + acc t)`, found by bisection
+/// on the intervals where `g` is monotone (split at the roots of `g'`).
+pub fn arc_min_distance(
+    p: [f64; 2],
+    w: [f64; 2],
+    acc: [f64; 2],
+    duration: f64,
+    center: [f64; 2],
+) -> f64 {
+    let d = [p[0] - center[0], p[1] - center[1]];
+    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
+    // g(t) = c3 t^3 + c2 t^2 + c1 t + c0.
+    let (c3, c2, c1, c0) = (
+        0.5 * dot(acc, acc),
+        1.5 * dot(acc, w),
+        dot(w, w) + dot(d, acc),
+        dot(d, w),
+    );
+    let g = |t: f64| ((c3 * t + c2) * t + c1) * t + c0;
+    let distance = |t: f64| {
+        let q = [
+            d[0] + w[0] * t + 0.5 * acc[0] * t * t,
+            d[1] + w[1] * t + 0.5 * acc[1] * t * t,
+        ];
+        q[0].hypot(q[1])
+    };
+    let mut best = distance(0.0).min(distance(duration));
+    // Split [0, T] where g' = 3 c3 t^2 + 2 c2 t + c1 vanishes.
+    let mut bounds = [0.0, duration, duration, duration];
+    let mut count = 1;
+    for root in quadratic_roots(3.0 * c3, 2.0 * c2, c1) {
+        if root > 0.0 && root < duration {
+            bounds[count] = root;
+            count += 1;
+        }
+    }
+    bounds[count] = duration;
+    bounds[..=count].sort_by(f64::total_cmp);
+    for pair in bounds[..=count].windows(2) {
+        let (mut lo, mut hi) = (pair[0], pair[1]);
+        let (g_lo, g_hi) = (g(lo), g(hi));
+        if g_lo == 0.0 || g_hi == 0.0 || (g_lo < 0.0) == (g_hi < 0.0) {
+            continue; // the ends are already counted
+        }
+        let rising = g_hi > 0.0;
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if (g(mid) > 0.0) == rising {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        best = best.min(distance(0.5 * (lo + hi)));
+    }
+    best
+}
+
+/// The real roots of `a t^2 + b t + c` (none, or up to two; a linear equation when `a`
+/// vanishes).
+fn quadratic_roots(a: f64, b: f64, c: f64) -> impl Iterator<Item = f64> {
+    let roots: [Option<f64>; 2] = if a == 0.0 {
+        [(b != 0.0).then(|| -c / b), None]
+    } else {
+        let discriminant = b * b - 4.0 * a * c;
+        if discriminant < 0.0 {
+            [None, None]
+        } else {
+            // The stable form: no cancellation between -b and the root.
+            let q = -0.5 * (b + b.signum() * discriminant.sqrt());
+            if q == 0.0 {
+                [Some(0.0), None]
+            } else {
+                [Some(q / a), Some(c / q)]
+            }
+        }
+    };
+    roots.into_iter().flatten()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::PlanStatus;
+
+    /// The smallest distance over a fine grid of the arc, for comparison.
+    fn sampled_min_distance(
+        p: [f64; 2],
+        w: [f64; 2],
+        acc: [f64; 2],
+        duration: f64,
+        center: [f64; 2],
+    ) -> f64 {
+        (0..=100_000)
+            .map(|k| {
+                let t = duration * f64::from(k) / 100_000.0;
+                let q = [
+                    p[0] + w[0] * t + 0.5 * acc[0] * t * t - center[0],
+                    p[1] + w[1] * t + 0.5 * acc[1] * t * t - center[1],
+                ];
+                q[0].hypot(q[1])
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// A deterministic sequence in [-1, 1].
+    fn sequence(seed: f64) -> impl FnMut() -> f64 {
+        let mut x = seed;
+        move || {
+            x = (x * 3.99 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
+            2.0 * x - 1.0
+        }
+    }
+
+    #[test]
+    fn the_closest_point_of_an_arc_is_found_exactly() {
+        let mut next = sequence(0.31);
+        for _ in 0..2_000 {
+            let p = [2.0 * next(), 2.0 * next()];
+            let w = [3.0 * next(), 3.0 * next()];
+            let acc = [5.0 * next(), 5.0 * next()];
+            let duration = 0.05 + 0.5 * next().abs();
+            let center = [next(), next()];
+            let exact = arc_min_distance(p, w, acc, duration, center);
+            let sampled = sampled_min_distance(p, w, acc, duration, center);
+            // The grid's points are at most |q'| T / 2e5 from the true closest point.
+            assert!(
+                exact <= sampled + 1e-12 && sampled - exact < 1e-4,
+                "p {p:?} w {w:?} acc {acc:?} T {duration}: {exact} vs sampled {sampled}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_quick_bound_never_calls_an_arc_safe_that_enters_the_disc() {
+        let mut next = sequence(0.77);
+        let (mut quick, mut exact) = (0, 0);
+        for _ in 0..5_000 {
+            let p = [next(), next()];
+            let w = [2.0 * next(), 2.0 * next()];
+            let acc = [4.0 * next(), 4.0 * next()];
+            let (duration, center, radius) = (0.1, [0.3 * next(), 0.3 * next()], 0.5);
+            let clearance = arc_clearance(p, w, acc, duration, center, radius);
+            let truth = arc_min_distance(p, w, acc, duration, center) - radius;
+            assert!(clearance <= truth + 1e-12, "bound above the truth");
+            assert_eq!(clearance < 0.0, truth < 0.0, "p {p:?} w {w:?} acc {acc:?}");
+            if clearance == truth { exact += 1 } else { quick += 1 }
+        }
+        assert!(quick > 100 && exact > 100, "{quick} quick, {exact} exact");
+    }
+
+    fn scenario_with_obstacle(x: f64, y: f64, radius: f64) -> Scenario {
+        let mut s = Scenario::default();
+        s.obstacles = vec![Obstacle { x, y, radius }];
+        s
+    }
+
+    fn plan(sample: u64, horizon: u32, v: [f64; 2]) -> Plan {
+        let mut p = Plan {
+            sample,
+            horizon,
+            status: PlanStatus::Solved as u32,
+            ..Plan::default()
+        };
+        for i in 0..horizon as usize {
+            p.v[i] = v;
+        }
+        p
+    }
+
+    #[test]
+    fn braking_short_of_an_obstacle_passes_and_braking_into_it_fails() {
+        // At 1 m/s towards an obstacle whose edge is 0.3 m ahead, braking at 3 m/s^2
+        // stops in 1/6 m; at 2 m/s it needs 2/3 m.
+        let s = scenario_with_obstacle(1.3, 0.0, 1.0);
+        let g = Gatekeeper::new(&s);
+        let coasting = plan(0, 0, [0.0; 2]);
+        assert_eq!(g.check(&coasting, 0, 0.0, [0.0, 1.0, 0.0, 0.0], 0.0), None);
+        let depth = g
+            .check(&coasting, 0, 0.0, [0.0, 2.0, 0.0, 0.0], 0.0)
+            .unwrap();
+        let expected = 0.3 - protocol::stopping_distance(2.0, 3.0, s.inner_tick_s());
+        assert!((depth - expected).abs() < 1e-12, "{depth} vs {expected}");
+    }
+
+    #[test]
+    fn a_plan_that_turns_away_in_time_passes_and_one_that_keeps_going_fails() {
+        // Moving at 1 m/s along x towards an obstacle whose edge is 1.0 m ahead.
+        let s = scenario_with_obstacle(0.5, 0.0, 0.5);
+        let g = Gatekeeper::new(&s);
+        let z = [-1.0, 1.0, 0.0, 0.0];
+        // Decelerating at 2 m/s^2 over 8 samples (0.4 s): 0.24 m, speed 0.2 m/s left,
+        // stopping in 7 mm: clear.
+        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), 0, 0.0, z, 0.0), None);
+        // Accelerating at 2 m/s^2: 0.56 m in 0.4 s at 1.8 m/s, 0.54 m more to stop.
+        assert!(g.check(&plan(0, 8, [2.0, 0.0]), 0, 0.0, z, 0.0).is_some());
+        // Checked later in their lives, 0.19 m from the edge: only the last 0.025 s of
+        // each is flown, then the brake: 0.210 m accelerating, 0.175 m decelerating.
+        let z = [-0.19, 1.0, 0.0, 0.0];
+        assert!(g.check(&plan(0, 8, [2.0, 0.0]), 7, 0.025, z, 0.0).is_some());
+        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), 7, 0.025, z, 0.0), None);
+    }
+
+    #[test]
+    fn the_commit_check_grows_every_disc_by_the_uncertainty_and_the_margin() {
+        let mut s = scenario_with_obstacle(1.5, 0.0, 0.5);
+        let z = [0.0, 0.0, 0.0, 0.0]; // at rest, 1.0 m from the edge
+        let still = plan(0, 8, [0.0; 2]);
+        let g = Gatekeeper::new(&s);
+        assert_eq!(g.check(&still, 0, 0.0, z, g.commit_growth(0.3)), None);
+        // kappa = 3: sigma 1/3 m grows the disc by 1 m, and the margin by 1 mm more.
+        let depth = g.check(&still, 0, 0.0, z, g.commit_growth(1.0 / 3.0)).unwrap();
+        assert!((depth + protocol::COMMIT_MARGIN_M).abs() < 1e-9, "{depth}");
+        assert_eq!(g.check(&still, 0, 0.0, z, 1.0), None, "the re-check's disc");
+        s.robot.radius_m = 1.1;
+        let depth = Gatekeeper::new(&s).check(&still, 0, 0.0, z, 0.0).unwrap();
+        assert!((depth + 0.1).abs() < 1e-9, "{depth}");
+    }
+}
