@@ -13,6 +13,7 @@ pub mod model;
 pub mod nonlinear;
 pub mod problem;
 pub mod process;
+pub mod terminal;
 
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SolverStatus;
@@ -21,7 +22,10 @@ use problem::{
     Assembly, Condensing, ConicSolver, Disc, Layout, PositionReach, Rows, Span, StaticData,
     StepData, csc_with_positions,
 };
-use protocol::{ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario};
+use terminal::{BrakeForm, TerminalBrake};
+use protocol::{
+    ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario, TerminalSafety,
+};
 use std::time::Instant;
 
 /// Why an MPC cannot be set up for a configuration.
@@ -44,7 +48,8 @@ pub struct LinearMpc {
     goal: [f64; 2],
     /// Obstacles as given (absolute coordinates, true radii).
     obstacles: Vec<protocol::Obstacle>,
-    safety_margin_m: f64,
+    /// The robot's radius and the safety margin `m`, added to every radius.
+    obstacle_margin_m: f64,
     uncertainty_sigmas: f64,
     max_solves: usize,
     refinement_tol_m: f64,
@@ -53,7 +58,7 @@ pub struct LinearMpc {
     hessian: CscMatrix<f64>,
     // Reused every step.
     /// One solver per [`Rows`] ([`Rows::index`]), all built at setup.
-    solvers: [ConicSolver; 4],
+    solvers: Vec<ConicSolver>,
     /// The rows of the last solve's program.
     rows: Rows,
     /// Whether this step needs the position box and the terminal set.
@@ -61,8 +66,13 @@ pub struct LinearMpc {
     /// Where the positions can be this step.
     reach: PositionReach,
     assembly: Assembly,
+    /// The step's constraint discs ([`problem::constraint_discs`]).
     discs: Vec<Disc>,
+    /// Those of a solve's program: the discs whose rows the input box does not imply.
+    kept: Vec<Disc>,
     reference: Vec<[f64; 2]>,
+    /// The reference's last velocity `w_bar_N` (the terminal rows are built at it).
+    reference_velocity: [f64; 2],
     /// The last solved iterate, stage-wise (`[z_0, ..., z_N, v_0, ..., v_{N-1}]`,
     /// [`Layout::z`], [`Layout::v`]): every convex solve's solution is feasible for the
     /// paper's constraint, so a failed refinement keeps this one.
@@ -100,7 +110,9 @@ impl LinearMpc {
             obstacles: scenario.obstacles.len(),
             linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
             condensed: c.qp_form.condensed(c.horizon),
+            terminal: terminal_brake(scenario),
         };
+        let layout_terminal = layout.terminal.is_some();
         let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
         let mut statics = StaticData {
             a,
@@ -132,6 +144,10 @@ impl LinearMpc {
                 .then(|| Condensing::new(&layout, (forced, free), &hessian)),
             ..Assembly::default()
         };
+        let solvers = Rows::every(&layout)
+            .map(|_| ConicSolver::new(problem::solver_settings))
+            .collect();
+        let rows = Rows::all(&layout);
         let mut mpc = LinearMpc {
             solution: vec![0.0; layout.stagewise()],
             hessian,
@@ -140,18 +156,21 @@ impl LinearMpc {
             terminal_weight,
             goal,
             obstacles: scenario.obstacles.clone(),
-            safety_margin_m: c.safety_margin_m,
+            obstacle_margin_m: scenario.obstacle_margin_m()
+                + if layout_terminal { terminal::PLAN_MARGIN_M } else { 0.0 },
             uncertainty_sigmas: c.uncertainty_sigmas,
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
-            solvers: std::array::from_fn(|_| ConicSolver::new(problem::solver_settings)),
-            rows: Rows::ALL,
+            solvers,
+            rows,
             box_and_terminal_needed: true,
             reach,
             assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
+            kept: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; c.horizon + 1],
+            reference_velocity: [0.0; 2],
             last_sample: None,
             last_z: vec![[0.0; 4]; c.horizon + 1],
         };
@@ -165,19 +184,22 @@ impl LinearMpc {
         problem::constraint_discs(
             &self.obstacles,
             self.goal,
-            self.safety_margin_m,
+            self.obstacle_margin_m,
             0.0,
             self.ts_s,
             0.0,
             &mut self.discs,
         );
-        for rows in Rows::EVERY {
+        for rows in Rows::every(&self.layout).collect::<Vec<_>>() {
+            self.kept.clear();
+            self.kept.extend_from_slice(&self.discs[..rows.discs]);
             self.fill([0.0; 4], rows);
-            let hessian = solver_hessian(&self.assembly, &self.hessian);
+            let variables = self.layout.variables(rows);
+            let hessian = padded(solver_hessian(&self.assembly, &self.hessian), variables);
             let built = self.solvers[rows.index()].build(
                 &self.assembly,
-                self.layout.variables(),
-                hessian,
+                variables,
+                &hessian,
                 &self.layout.cones(rows),
             );
             if !built {
@@ -209,7 +231,7 @@ impl LinearMpc {
         let started = Instant::now();
         let z = protocol::phi(x_bar);
         let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
-        let margin = self.safety_margin_m + self.uncertainty_sigmas * position_sigma_m;
+        let margin = self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m;
         problem::constraint_discs(
             &self.obstacles,
             self.goal,
@@ -290,31 +312,41 @@ impl LinearMpc {
         let Some(x) = self.solvers[self.rows.index()].x() else {
             return;
         };
+        // The states and inputs (sparse) or the inputs (condensed) come first; the decay
+        // slacks and the stop speed after them are not kept.
         match &self.assembly.condensing {
-            Some(condensing) => condensing.expand(x, &mut self.solution),
-            None => self.solution.copy_from_slice(x),
+            Some(condensing) => condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution),
+            None => {
+                let stagewise = self.solution.len();
+                self.solution.copy_from_slice(&x[..stagewise]);
+            }
         }
     }
 
     /// One convex solve at the current reference, without the rows the input box
     /// implies.
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32) {
-        let data = StepData {
-            z0,
-            discs: &self.discs,
-            reference: &self.reference,
-        };
-        let barrier_implied = data
-            .barrier(&self.layout, &self.statics)
-            .implied(&self.reach);
+        self.kept.clear();
+        for disc in &self.discs {
+            let data = StepData {
+                z0,
+                discs: std::slice::from_ref(disc),
+                reference: &self.reference,
+                reference_velocity: self.reference_velocity,
+                max_terminal_speed: self.reach.max_terminal_speed(),
+            };
+            if !data.barrier(&self.layout, &self.statics).implied(&self.reach) {
+                self.kept.push(*disc);
+            }
+        }
         let rows = Rows {
             box_and_terminal: self.box_and_terminal_needed,
-            barrier: !barrier_implied,
+            discs: self.kept.len(),
         };
         self.solve_with(z0, rows)
     }
 
-    /// One convex solve of the program with `rows`.
+    /// One convex solve of the program with `rows`, on the discs in `kept`.
     fn solve_with(&mut self, z0: [f64; 4], rows: Rows) -> (PlanStatus, u32) {
         self.rows = rows;
         self.fill(z0, rows);
@@ -324,15 +356,18 @@ impl LinearMpc {
     fn fill(&mut self, z0: [f64; 4], rows: Rows) {
         let data = StepData {
             z0,
-            discs: &self.discs,
+            discs: &self.kept,
             reference: &self.reference,
+            reference_velocity: self.reference_velocity,
+            max_terminal_speed: self.reach.max_terminal_speed(),
         };
         self.assembly.fill(&self.layout, &self.statics, &data, rows);
     }
 
-    /// The previous plan shifted by one sample, extended by one step of the LQR closed
-    /// loop (the candidate of the paper's feasibility argument). False when there is no
-    /// plan of the previous sample.
+    /// The previous plan shifted by one sample and extended by one step: the candidate of
+    /// the feasibility argument. The step is the LQR closed loop's (the paper's), or with
+    /// terminal safety one braking sample ([`TerminalBrake::step`], recursive feasibility
+    /// below). False when there is no plan of the previous sample.
     fn shifted_reference(&mut self, sample: u64) -> bool {
         if self.last_sample.is_none_or(|last| sample != last + 1) {
             return false;
@@ -342,35 +377,56 @@ impl LinearMpc {
         for i in 1..n {
             self.reference[i] = [z[i + 1][0], z[i + 1][2]];
         }
-        let z_n = Vector4::from(z[n]);
-        let next = (self.statics.a + self.statics.b * self.statics.k) * z_n;
+        let next = self.extension(z[n]);
         self.reference[n] = [next[0], next[2]];
+        self.reference_velocity = [next[1], next[3]];
         true
     }
 
-    /// Positions of the state braking at the input limit from `z0` (held at rest).
+    /// The state one sample after the last state `z_n` of a plan, in its shifted
+    /// successor: braking with terminal safety, the LQR closed loop without.
+    fn extension(&self, z_n: [f64; 4]) -> [f64; 4] {
+        match &self.layout.terminal {
+            Some(brake) => brake.step(z_n),
+            None => {
+                let next = (self.statics.a + self.statics.b * self.statics.k) * Vector4::from(z_n);
+                [next[0], next[1], next[2], next[3]]
+            }
+        }
+    }
+
+    /// Positions of the state braking from `z0` (held at rest): along its velocity at the
+    /// brake's deceleration with terminal safety (so the rollout is braking-safe whenever
+    /// the DFL's brake is), else each axis at the input limit.
     fn braking_reference(&mut self, z0: [f64; 4]) {
         let (ts, v_max) = (self.ts_s, self.statics.v_max);
         let mut z = z0;
         for i in 1..=self.layout.horizon {
-            for (p, vel) in [(0, 1), (2, 3)] {
-                let acc = (-z[vel] / ts).clamp(-v_max, v_max);
-                z[p] += z[vel] * ts + 0.5 * acc * ts * ts;
-                z[vel] += acc * ts;
+            match &self.layout.terminal {
+                Some(brake) => z = brake.step(z),
+                None => {
+                    for (p, vel) in [(0, 1), (2, 3)] {
+                        let acc = (-z[vel] / ts).clamp(-v_max, v_max);
+                        z[p] += z[vel] * ts + 0.5 * acc * ts * ts;
+                        z[vel] += acc * ts;
+                    }
+                }
             }
             self.reference[i] = [z[0], z[2]];
         }
+        self.reference_velocity = [z[1], z[3]];
     }
 
     /// Moves the reference to the current solution; returns the largest move, m.
     fn relinearize(&mut self) -> f64 {
-        let x = &self.solution;
+        let (x, l) = (&self.solution, &self.layout);
         let mut moved: f64 = 0.0;
-        for i in 1..=self.layout.horizon {
-            let p = [x[self.layout.z(i, 0)], x[self.layout.z(i, 2)]];
+        for i in 1..=l.horizon {
+            let p = [x[l.z(i, 0)], x[l.z(i, 2)]];
             moved = moved.max((p[0] - self.reference[i][0]).hypot(p[1] - self.reference[i][1]));
             self.reference[i] = p;
         }
+        self.reference_velocity = [x[l.z(l.horizon, 1)], x[l.z(l.horizon, 3)]];
         moved
     }
 
@@ -395,6 +451,14 @@ fn solver_hessian<'a>(assembly: &'a Assembly, stagewise: &'a CscMatrix<f64>) -> 
         Some(condensing) => condensing.hessian(),
         None => stagewise,
     }
+}
+
+/// `p` with empty rows and columns appended up to `n`: the decay slacks and the stop
+/// speed have no quadratic cost.
+fn padded(p: &CscMatrix<f64>, n: usize) -> CscMatrix<f64> {
+    let mut colptr = p.colptr.clone();
+    colptr.resize(n + 1, p.nnz());
+    CscMatrix::new(n, n, colptr, p.rowval.clone(), p.nzval.clone())
 }
 
 /// Upper triangle of `P` with `1/2 x'Px` = eq. (51),
@@ -423,6 +487,21 @@ fn stagewise_hessian(
         }
     }
     csc_with_positions(l.stagewise(), l.stagewise(), &entries).0
+}
+
+/// The terminal rows of `mpc.terminal_safety`, if any, with the scenario's one braking
+/// model (`dfl.brake_decel`).
+fn terminal_brake(scenario: &Scenario) -> Option<TerminalBrake> {
+    let form = match scenario.mpc.terminal_safety {
+        TerminalSafety::Brake => BrakeForm::Segment,
+        TerminalSafety::BrakeBall => BrakeForm::Ball,
+        TerminalSafety::None => return None,
+    };
+    Some(TerminalBrake {
+        decel: scenario.brake_decel(),
+        ts_s: scenario.timing.ts_s,
+        form,
+    })
 }
 
 /// `Q` and `R` of the scenario (eq. 51).
@@ -457,6 +536,16 @@ impl Mpc {
         if horizon == 0 || horizon > MAX_HORIZON {
             return Err(MpcError::Horizon(horizon));
         }
+        let without_obstacles;
+        let scenario = if scenario.fault.mpc_ignore_obstacles {
+            without_obstacles = Scenario {
+                obstacles: Vec::new(),
+                ..scenario.clone()
+            };
+            &without_obstacles
+        } else {
+            scenario
+        };
         Ok(match scenario.mpc.formulation {
             Formulation::Linear => Mpc::Linear(Box::new(LinearMpc::new(scenario)?)),
             Formulation::Nonlinear => Mpc::Nonlinear(Box::new(nonlinear::NonlinearMpc::new(
@@ -572,9 +661,14 @@ mod tests {
 
     #[test]
     fn every_solved_plan_satisfies_the_papers_nonconvex_cbf_at_every_stage() {
-        for gamma in [0.1, 0.5, 0.9] {
+        // With terminal safety too: these runs never need the decay relaxed.
+        for (gamma, terminal_safety) in [0.1, 0.5, 0.9]
+            .into_iter()
+            .flat_map(|g| [(g, TerminalSafety::None), (g, TerminalSafety::Brake)])
+        {
             let mut s = Scenario::default();
             s.mpc.gamma = gamma;
+            s.mpc.terminal_safety = terminal_safety;
             let plans = closed_loop(&s, 400);
             for p in &plans {
                 let slack = barrier_slack(p, &absolute_discs(&s), gamma);
@@ -605,8 +699,8 @@ mod tests {
             LinearMpc::new(&euclidean).unwrap(),
         );
         assert_eq!(
-            a.layout.cones(Rows::ALL).len(),
-            b.layout.cones(Rows::ALL).len()
+            a.layout.cones(Rows::all(&a.layout)).len(),
+            b.layout.cones(Rows::all(&b.layout)).len()
         );
         let discs = [Disc {
             center: [3.0, 3.5],
@@ -619,10 +713,12 @@ mod tests {
             z0: [7.0, -0.5, 7.0, -0.5],
             discs: &discs,
             reference: &reference,
+            reference_velocity: [0.0; 2],
+            max_terminal_speed: 0.0,
         };
         let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
-        fa.fill(&a.layout, &a.statics, &data, Rows::ALL);
-        fb.fill(&b.layout, &b.statics, &data, Rows::ALL);
+        fa.fill(&a.layout, &a.statics, &data, Rows::all(&a.layout));
+        fb.fill(&b.layout, &b.statics, &data, Rows::all(&b.layout));
         assert_eq!(fa.entries, fb.entries);
         assert_eq!(fa.b, fb.b);
         // And the closed loops agree number for number.
@@ -676,26 +772,48 @@ mod tests {
 
     #[test]
     fn the_condensed_program_gives_the_sparse_programs_plans() {
-        for gamma in [0.1, 1.0] {
-            let mut sparse = Scenario::default();
-            sparse.mpc.gamma = gamma;
-            sparse.mpc.qp_form = QpForm::Sparse;
-            let mut condensed = sparse.clone();
-            condensed.mpc.qp_form = QpForm::Condensed;
-            let (a, b) = (closed_loop(&sparse, 200), closed_loop(&condensed, 200));
-            for (a, b) in a.iter().zip(&b) {
-                for i in 0..=a.horizon as usize {
-                    let gap = (0..4)
-                        .map(|c| (a.z[i][c] - b.z[i][c]).abs())
-                        .fold(0.0, f64::max);
-                    // Both solved to clarabel's accuracy (duality gap 1e-3).
-                    assert!(
-                        gap < 1e-3,
-                        "gamma {gamma}, sample {} stage {i}: {gap:e}",
-                        a.sample
-                    );
+        for (gamma, terminal_safety) in [(0.1, "none"), (1.0, "none"), (0.1, "brake"), (1.0, "brake")] {
+            let sparse = Scenario::default()
+                .with_overrides(&[
+                    format!("mpc.gamma={gamma}"),
+                    format!("mpc.terminal_safety={terminal_safety}"),
+                    "mpc.qp_form=sparse".into(),
+                ])
+                .unwrap();
+            let condensed = sparse
+                .with_overrides(&["mpc.qp_form=condensed".into()])
+                .unwrap();
+            let mut other = LinearMpc::new(&condensed).unwrap();
+            let mut compared = 0;
+            // On the sparse closed loop's states, both programs solved on the same data:
+            // the same reference, discs and rows.
+            closed_loop_with(&sparse, 200, |mpc, plan| {
+                let z = plan.z[0];
+                let z0 = [z[0] - sparse.robot.goal[0], z[1], z[2] - sparse.robot.goal[1], z[3]];
+                other.discs.clone_from(&mpc.discs);
+                other.reference.clone_from(&mpc.reference);
+                other.reference_velocity = mpc.reference_velocity;
+                other.box_and_terminal_needed = mpc.box_and_terminal_needed;
+                other.reach.set_initial_state(z0);
+                for m in [&mut *mpc, &mut other] {
+                    assert_eq!(m.solve_once(z0).0, PlanStatus::Solved);
+                    m.load_solution();
                 }
-            }
+                assert_eq!(mpc.rows, other.rows);
+                let l = &mpc.layout;
+                let gap = (0..=l.horizon)
+                    .flat_map(|i| (0..4).map(move |c| l.z(i, c)))
+                    .map(|k| (mpc.solution[k] - other.solution[k]).abs())
+                    .fold(0.0, f64::max);
+                // Both solved to clarabel's accuracy (duality gap 1e-3, feasibility 1e-6).
+                assert!(
+                    gap < 1e-3,
+                    "gamma {gamma}, {terminal_safety}, sample {}: {gap:e}",
+                    plan.sample
+                );
+                compared += 1;
+            });
+            assert_eq!(compared, 200);
         }
     }
 
@@ -730,10 +848,12 @@ mod tests {
                 z0,
                 discs: &[],
                 reference: &mpc.reference,
+                reference_velocity: mpc.reference_velocity,
+                max_terminal_speed: 0.0,
             };
             let without_barrier = Rows {
                 box_and_terminal: true,
-                barrier: false,
+                discs: 0,
             };
             assert_holds_at_worst_inputs(&mpc, &data, without_barrier);
         }
@@ -770,6 +890,8 @@ mod tests {
                     z0,
                     discs: &mpc.discs,
                     reference: &mpc.reference,
+                    reference_velocity: mpc.reference_velocity,
+                    max_terminal_speed: mpc.reach.max_terminal_speed(),
                 };
                 if !data.barrier(&mpc.layout, &mpc.statics).implied(&mpc.reach) {
                     kept += 1;
@@ -778,7 +900,7 @@ mod tests {
                 left_out += 1;
                 let only_barrier = Rows {
                     box_and_terminal: false,
-                    barrier: true,
+                    discs: 1,
                 };
                 assert_holds_at_worst_inputs(&mpc, &data, only_barrier);
             }
@@ -795,6 +917,11 @@ mod tests {
     /// local maxima over the box's vertices of its violation `||s_2..|| - s_1` (convex
     /// in the inputs, so largest at a vertex), climbed by single sign flips from the
     /// vertices that make each of its rows extreme.
+    ///
+    /// With terminal safety a disc's rows also hold the decay slacks, which are zero, and
+    /// the terminal rows' variables, at their best values for the inputs
+    /// ([`terminal::TerminalRows::variables_at`]; each violation stays convex in the
+    /// inputs).
     fn assert_holds_at_worst_inputs(mpc: &LinearMpc, data: &StepData, rows: Rows) {
         use clarabel::solver::SupportedConeT;
         let (l, st) = (&mpc.layout, &mpc.statics);
@@ -802,23 +929,51 @@ mod tests {
         let (forced, free) = problem::rollout(l, &st.a, &st.b);
         let mut assembly = Assembly::default();
         assembly.fill(l, st, data, rows);
-        // Each row's slack as `s0 - coefficients' v`.
+        // Each row's slack as `s0 - coefficients' v - extra_terms' extras(v)`.
         let x_free = &free * Vector4::from(data.z0);
+        let stagewise = l.stagewise();
         let mut s0 = assembly.b.clone();
         let mut coefficients = vec![vec![0.0; forced.ncols()]; s0.len()];
+        let mut extra_terms = vec![Vec::new(); s0.len()];
         for &(r, column, value) in &assembly.entries {
+            if column >= stagewise {
+                extra_terms[r].push((column - stagewise, value));
+                continue;
+            }
             s0[r] -= value * x_free[column];
             for (j, c) in coefficients[r].iter_mut().enumerate() {
                 *c += value * forced[(column, j)];
             }
         }
+        let terminal = data.barrier(l, st).terminal;
+        let extras = |v: &[f64]| {
+            let mut extras = vec![0.0; l.variables(rows) - stagewise];
+            if let Some(terminal) = &terminal {
+                let w = [1, 3].map(|c| {
+                    let row = l.z(l.horizon, c);
+                    x_free[row] + (0..v.len()).map(|j| forced[(row, j)] * v[j]).sum::<f64>()
+                });
+                let first = l.terminal_variable(rows.discs) - stagewise;
+                for (k, value) in terminal.variables_at(w).enumerate() {
+                    extras[first + k] = value;
+                }
+            }
+            extras
+        };
         let slack = |r: usize, v: &[f64]| {
+            let on_extras: f64 = if extra_terms[r].is_empty() {
+                0.0
+            } else {
+                let extras = extras(v);
+                extra_terms[r].iter().map(|&(k, value)| value * extras[k]).sum()
+            };
             s0[r]
                 - coefficients[r]
                     .iter()
                     .zip(v)
                     .map(|(c, v)| c * v)
                     .sum::<f64>()
+                - on_extras
         };
         let extreme = |r: usize, sign: f64| -> Vec<f64> {
             coefficients[r]
@@ -884,9 +1039,12 @@ mod tests {
     #[test]
     fn leaving_out_implied_rows_changes_no_plan() {
         for qp_form in [QpForm::Sparse, QpForm::Condensed] {
-            let mut s = Scenario::default();
-            s.mpc.qp_form = qp_form;
-            leaving_out_implied_rows_changes_no_plan_of(&s);
+            for terminal_safety in [TerminalSafety::None, TerminalSafety::Brake] {
+                let mut s = Scenario::default();
+                s.mpc.qp_form = qp_form;
+                s.mpc.terminal_safety = terminal_safety;
+                leaving_out_implied_rows_changes_no_plan_of(&s);
+            }
         }
     }
 
@@ -903,16 +1061,26 @@ mod tests {
             let used = mpc.rows;
             mpc.load_solution();
             let reduced = mpc.solution.clone();
-            assert_eq!(mpc.solve_with(z0, Rows::ALL).0, PlanStatus::Solved);
+            mpc.kept = mpc.discs.clone();
+            assert_eq!(
+                mpc.solve_with(z0, Rows::all(&mpc.layout)).0,
+                PlanStatus::Solved
+            );
             mpc.load_solution();
             let all = mpc.solution.clone();
             compared[used.index()] += 1;
             // The same optimum, to the solver's accuracy: a duality gap of 1e-3 and
             // feasibility to 1e-6 (relative), which large multipliers of the CBF rows
-            // turn into a cost difference of 1e-5 relative.
+            // turn into a cost difference of 1e-5 relative, and a decay slack's (up to its
+            // weight) into up to 1e-6 of the weight in each of the two solves.
+            let slacks = if s.mpc.terminal_safety == TerminalSafety::None {
+                0.0
+            } else {
+                2e-6 * problem::DECAY_SLACK_WEIGHT
+            };
             let (c_all, c_reduced) = (cost(&mpc, &all), cost(&mpc, &reduced));
             assert!(
-                (c_all - c_reduced).abs() < 2e-3 + 1e-5 * c_all,
+                (c_all - c_reduced).abs() < 2e-3 + 1e-5 * c_all + slacks,
                 "sample {} {used:?}: cost {c_all} with every row, {c_reduced} without",
                 plan.sample
             );
@@ -924,9 +1092,254 @@ mod tests {
                 }
             }
         }
-        // The paper's run leaves out the box and terminal rows, and the CBF rows away from
-        // the obstacle.
-        assert!(compared[0] > 10 && compared[1] > 10, "{compared:?}");
+        // The paper's run leaves out the box and terminal rows, and the obstacle's rows
+        // away from it (`Rows::index`: 0 without the box and the disc, 2 with the disc).
+        assert!(compared[0] > 10 && compared[2] > 10, "{compared:?}");
+    }
+
+    /// Rows of a program violated at the stage-wise point `x` (with its extra variables),
+    /// beyond `tolerance`: `(first row of the cone, violation)`, and separately the number
+    /// of violated terminal-set rows (eqs. 45, 47).
+    fn violations(
+        mpc: &LinearMpc,
+        rows: Rows,
+        x: &[f64],
+        tolerance: f64,
+    ) -> (Vec<(usize, f64)>, usize) {
+        use clarabel::solver::SupportedConeT;
+        let l = &mpc.layout;
+        let mut s = mpc.assembly.b.clone();
+        for &(r, c, value) in &mpc.assembly.entries {
+            s[r] -= value * x[c];
+        }
+        let zero_rows = 4 + 4 * l.horizon;
+        let terminal_set = zero_rows + 4 * l.horizon + 4 * (l.horizon - 1);
+        let terminal_set = terminal_set..terminal_set + l.terminal_rows;
+        let (mut violated, mut terminal_set_violated) = (Vec::new(), 0);
+        let mut r = 0;
+        for cone in l.cones(rows) {
+            match cone {
+                SupportedConeT::ZeroConeT(d) => {
+                    for row in r..r + d {
+                        if s[row].abs() > tolerance {
+                            violated.push((row, s[row].abs()));
+                        }
+                    }
+                    r += d;
+                }
+                SupportedConeT::NonnegativeConeT(d) => {
+                    for row in r..r + d {
+                        if s[row] < -tolerance {
+                            if terminal_set.contains(&row) {
+                                terminal_set_violated += 1;
+                            } else {
+                                violated.push((row, -s[row]));
+                            }
+                        }
+                    }
+                    r += d;
+                }
+                SupportedConeT::SecondOrderConeT(d) => {
+                    let tail = s[r + 1..r + d].iter().map(|x| x * x).sum::<f64>().sqrt();
+                    if tail - s[r] > tolerance {
+                        violated.push((r, tail - s[r]));
+                    }
+                    r += d;
+                }
+                _ => unreachable!("the MPC uses no other cone"),
+            }
+        }
+        (violated, terminal_set_violated)
+    }
+
+    /// Closed loop of `scenario` on the MPC's own model (noise-free, the model holds). At
+    /// every sample after the first, before solving, the program is built with all its
+    /// rows at the candidate the step linearizes at (the previous plan shifted, extended
+    /// by one braking sample) and every row is evaluated at that candidate, with the decay
+    /// slacks it needs and the terminal variables at which the terminal rows are exact.
+    /// Returns `(samples checked, samples whose candidate broke only the terminal set,
+    /// samples not solved)`; panics on a candidate that breaks any other row.
+    fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
+        let mut mpc = LinearMpc::new(scenario).unwrap();
+        assert!(!mpc.layout.condensed, "the candidate is checked in stage-wise columns");
+        let (a, b) = model::discretize(scenario.timing.ts_s);
+        let [x, y, mut heading] = scenario.robot.start;
+        let mut z = Vector4::from(protocol::phi([x, y, heading, scenario.robot.zeta0]));
+        let (mut checked, mut terminal_set_only, mut unsolved) = (0, 0, 0);
+        let goal = scenario.robot.goal;
+        for k in 0..samples {
+            let zeta = z[1].hypot(z[3]);
+            if zeta > 0.0 {
+                heading = z[3].atan2(z[1]);
+            }
+            let z0 = [z[0] - goal[0], z[1], z[2] - goal[1], z[3]];
+            if mpc.last_sample == Some(k.wrapping_sub(1)) {
+                checked += 1;
+                // The step's own set-up, then the candidate and its extra variables.
+                problem::constraint_discs(
+                    &mpc.obstacles,
+                    goal,
+                    mpc.obstacle_margin_m,
+                    zeta,
+                    mpc.ts_s,
+                    std::f64::consts::SQRT_2 * mpc.statics.v_max,
+                    &mut mpc.discs,
+                );
+                assert!(mpc.shifted_reference(k));
+                mpc.reach.set_initial_state(z0);
+                mpc.kept = mpc.discs.clone();
+                let rows = Rows::all(&mpc.layout);
+                mpc.fill(z0, rows);
+                let l = mpc.layout.clone();
+                let n = l.horizon;
+                let brake = l.terminal.unwrap();
+                let mut states: Vec<[f64; 4]> = mpc.last_z[1..].to_vec();
+                states.push(brake.step(mpc.last_z[n]));
+                let mut x = vec![0.0; l.variables(rows)];
+                for (i, state) in states.iter().enumerate() {
+                    for c in 0..4 {
+                        x[l.z(i, c)] = state[c];
+                    }
+                }
+                for i in 0..n - 1 {
+                    for c in 0..2 {
+                        x[l.v(i, c)] = mpc.solution[l.v(i + 1, c)];
+                    }
+                }
+                let braking = brake.input([mpc.last_z[n][1], mpc.last_z[n][3]]);
+                for c in 0..2 {
+                    x[l.v(n - 1, c)] = braking[c];
+                }
+                // The slacks the candidate needs (stage 0's at the data `p_0`, as the
+                // program has it).
+                let decay = 1.0 - mpc.statics.gamma;
+                let slack_stages = l.decay_slacks(1);
+                for (j, disc) in mpc.discs.iter().enumerate() {
+                    let h = |z: [f64; 4]| disc.barrier([z[0], z[2]]);
+                    for i in 0..slack_stages {
+                        let from = if i == 0 { z0 } else { states[i] };
+                        let needed = decay * h(from) - h(states[i + 1]);
+                        x[l.decay_slack(j, i)] = needed.max(0.0);
+                    }
+                }
+                let data = StepData {
+                    z0,
+                    discs: &mpc.discs,
+                    reference: &mpc.reference,
+                    reference_velocity: mpc.reference_velocity,
+                    max_terminal_speed: mpc.reach.max_terminal_speed(),
+                };
+                let barrier = data.barrier(&l, &mpc.statics);
+                let first = l.terminal_variable(mpc.discs.len());
+                let w_n = [states[n][1], states[n][3]];
+                for (k, value) in barrier.terminal.unwrap().variables_at(w_n).enumerate() {
+                    x[first + k] = value;
+                }
+                // The candidate comes from a solution that meets the dynamics to the
+                // solver's tolerance (1e-6 relative: residuals of 1e-5 m seen here), which
+                // moves a barrier near the obstacle by up to 1e-4 m^2.
+                let (violated, terminal_set) = violations(&mpc, rows, &x, 1e-4);
+                assert!(
+                    violated.is_empty(),
+                    "sample {k}: the candidate breaks rows {violated:?}"
+                );
+                if terminal_set > 0 {
+                    terminal_set_only += 1;
+                }
+            }
+            let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
+            if !plan.is_solved() {
+                unsolved += 1;
+                break;
+            }
+            z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
+        }
+        (checked, terminal_set_only, unsolved)
+    }
+
+    /// The scenarios of the recursive feasibility test: the paper's, the two that ran into
+    /// their obstacle before terminal safety (issue 14; README, Known limitations),
+    /// `gamma = 1`, and three obstacles.
+    fn hard_scenarios() -> Vec<Scenario> {
+        let with = |overrides: &[&str]| {
+            let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+            let s = Scenario::default().with_overrides(&overrides).unwrap();
+            s.validate("test").unwrap();
+            s
+        };
+        let approach = [
+            "timing.ts_s=0.02",
+            "mpc.horizon=10",
+            "mpc.gamma=0.3",
+            "mpc.v_max=1",
+            "obstacles.0.radius=0.72",
+        ];
+        let mut three = with(&["mpc.gamma=0.2", "mpc.horizon=12"]);
+        three.obstacles.push(Obstacle {
+            x: 5.5,
+            y: 3.0,
+            radius: 0.8,
+        });
+        three.obstacles.push(Obstacle {
+            x: 1.0,
+            y: 4.5,
+            radius: 0.5,
+        });
+        vec![
+            with(&[]),
+            with(&approach),
+            with(&["timing.ts_s=0.01"]),
+            with(&["mpc.gamma=1"]),
+            three,
+        ]
+    }
+
+    #[test]
+    fn the_shifted_plan_extended_by_braking_is_feasible_at_the_next_sample() {
+        for form in ["brake", "brake_ball"] {
+            for mut s in hard_scenarios() {
+                s = s
+                    .with_overrides(&[
+                        format!("mpc.terminal_safety={form}"),
+                        "mpc.qp_form=sparse".into(),
+                    ])
+                    .unwrap();
+                let samples = (25.0 / s.timing.ts_s) as u64;
+                let (checked, terminal_set_only, unsolved) = check_candidates(&s, samples);
+                assert!(checked > samples / 2, "{form}: {checked} of {samples}");
+                // Assumption (d): the terminal set may refuse a candidate; none of these
+                // runs meets it (their position boxes are far, the LQR's inputs small).
+                assert_eq!(
+                    (terminal_set_only, unsolved),
+                    (0, 0),
+                    "{form}, ts {} N {} gamma {}",
+                    s.timing.ts_s,
+                    s.mpc.horizon,
+                    s.mpc.gamma
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn without_terminal_safety_the_fast_approach_loses_feasibility() {
+        // The same closed loop as the recursive-feasibility test's second scenario, in the
+        // paper's formulation: its problem turns infeasible as it nears the obstacle.
+        let s = hard_scenarios()[1]
+            .with_overrides(&["mpc.terminal_safety=none".into()])
+            .unwrap();
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        let (a, b) = model::discretize(s.timing.ts_s);
+        let [x, y, theta] = s.robot.start;
+        let mut z = Vector4::from(protocol::phi([x, y, theta, 0.0]));
+        let failed = (0..1000).find(|&k| {
+            let zeta = z[1].hypot(z[3]);
+            let heading = if zeta > 0.0 { z[3].atan2(z[1]) } else { theta };
+            let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
+            z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
+            !plan.is_solved()
+        });
+        assert!(failed.is_some(), "the paper's formulation stayed feasible");
     }
 
     #[test]
@@ -977,22 +1390,24 @@ mod tests {
         assert!(plan.solves >= 1 && plan.solve_ns > 0);
     }
 
-    #[test]
-    fn the_default_refinement_tolerance_stops_within_half_a_millimetre_of_convergence() {
+    /// Over closed loops at `gamma` 0.1 and 0.5 of `s`, carries the sequential
+    /// convexification on from where each step stopped, at the same state, to convergence
+    /// (plans moving less than `converged_m`, in fewer than `max_solves` solves); returns
+    /// the largest distance of a stopped plan's position from the converged one, m, and
+    /// the samples where the tolerance stopped early.
+    fn refinement_gap(s: &Scenario, max_solves: usize, converged_m: f64) -> (f64, usize) {
+        let (mut largest, mut stopped_early): (f64, usize) = (0.0, 0);
         for gamma in [0.1, 0.5] {
-            let mut s = Scenario::default();
+            let mut s = s.clone();
             s.mpc.gamma = gamma;
-            let mut stopped_early = 0;
             closed_loop_with(&s, 400, |mpc, plan| {
-                // Carry the sequential convexification on from where the step stopped,
-                // at the same state, to convergence.
                 let stopped = mpc.solution.clone();
                 let z = plan.z[0];
                 let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
-                (mpc.max_solves, mpc.refinement_tol_m) = (10, 1e-7);
+                (mpc.max_solves, mpc.refinement_tol_m) = (max_solves, converged_m);
                 let converged = mpc.refine(z0);
                 assert!(
-                    converged.status == PlanStatus::Solved && converged.solves < 10,
+                    converged.status == PlanStatus::Solved && (converged.solves as usize) < max_solves,
                     "gamma {gamma}, sample {}: {converged:?}",
                     plan.sample
                 );
@@ -1004,19 +1419,36 @@ mod tests {
                         d(0).hypot(d(2))
                     })
                     .fold(0.0, f64::max);
-                assert!(
-                    gap < 5e-4,
-                    "gamma {gamma}, sample {}: {gap:e} m from the converged plan",
-                    plan.sample
-                );
+                largest = largest.max(gap);
                 if plan.solves == 1 && gap > 1e-5 {
                     stopped_early += 1;
                 }
             });
-            // Along the obstacle the first solve moves the plan by millimetres to
-            // centimetres: those are the refinements the tolerance skips.
-            assert!(stopped_early > 10, "gamma {gamma}: {stopped_early}");
         }
+        (largest, stopped_early)
+    }
+
+    #[test]
+    fn the_default_refinement_tolerance_stops_within_half_a_millimetre_of_convergence() {
+        let mut s = Scenario::default();
+        s.mpc.terminal_safety = TerminalSafety::None;
+        let (gap, stopped_early) = refinement_gap(&s, 10, 1e-7);
+        assert!(gap < 5e-4, "{gap:e} m from the converged plan");
+        // Along the obstacle the first solve moves the plan by millimetres to
+        // centimetres: those are the refinements the tolerance skips.
+        assert!(stopped_early > 20, "{stopped_early}");
+    }
+
+    #[test]
+    fn with_terminal_safety_the_default_tolerance_stops_within_4_mm_of_convergence() {
+        // The terminal rows' majorant is exact only at the reference's velocity, so the
+        // first solve from the shifted plan's braking extension ends farther from
+        // convergence than the CBF's `d^2` alone would put it (3.0 mm measured), and the
+        // refinement converges more slowly (up to 26 solves to 10 µm, along the obstacle
+        // at gamma 0.5).
+        let (gap, stopped_early) = refinement_gap(&Scenario::default(), 40, 1e-5);
+        assert!(gap < 4e-3, "{gap:e} m from the converged plan");
+        assert!(stopped_early > 20, "{stopped_early}");
     }
 
     #[test]

@@ -106,7 +106,8 @@ pub struct NonlinearMpc {
     terminal: nalgebra::Matrix4<f64>,
     goal: [f64; 2],
     obstacles: Vec<protocol::Obstacle>,
-    safety_margin_m: f64,
+    /// The robot's radius and the safety margin `m`, added to every radius.
+    obstacle_margin_m: f64,
     uncertainty_sigmas: f64,
     // Reused every step.
     solver: ConicSolver,
@@ -144,7 +145,7 @@ impl NonlinearMpc {
             terminal: *terminal_weight_z,
             goal,
             obstacles: scenario.obstacles.clone(),
-            safety_margin_m: c.safety_margin_m,
+            obstacle_margin_m: scenario.obstacle_margin_m(),
             uncertainty_sigmas: c.uncertainty_sigmas,
             solver: ConicSolver::new(crate::problem::base_settings),
             assembly: Assembly::default(),
@@ -183,7 +184,7 @@ impl NonlinearMpc {
             x_bar[2],
             x_bar[3],
         ];
-        let margin = self.safety_margin_m + self.uncertainty_sigmas * position_sigma_m;
+        let margin = self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m;
         crate::problem::constraint_discs(
             &self.obstacles,
             self.goal,
@@ -382,6 +383,8 @@ impl NonlinearMpc {
             discs: &self.discs,
             reference: &self.reference,
             p0: [s0[0], s0[1]],
+            decay_slacks: None,
+            terminal: None,
         };
         asm.barrier(&barrier, |i| [4 * i, 4 * i + 1]);
         self.assembly = asm;

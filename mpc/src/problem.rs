@@ -12,7 +12,10 @@
 //! | 4(N-1) | nonneg | position box on `z_1 .. z_{N-1}` (eq. 53) |
 //! | at most 8(Nc+1) | nonneg | terminal input and position boxes on `(A+BK)^j z_N` (eqs. 45, 47), those the others do not imply |
 //! | 1 or N per obstacle | nonneg | CBF rows that are linear (see below) |
+//! | 2 per obstacle and stage | nonneg | bounds of the decay slacks (terminal safety, below) |
+//! | 0 or 2 per obstacle | nonneg | the terminal rows' linear part ([`crate::terminal`]) |
 //! | 4 per obstacle and stage | SOC(4) | CBF rows that are cones |
+//! | 4-5 per obstacle | SOC | braking-safe terminal state ([`crate::terminal`]) |
 //!
 //! The CBF `H(p_{i+1}) >= (1 - gamma) H(p_i)` (eq. 54) is convexified by replacing
 //! `H(p_{i+1})` with its linearization `L` at a reference `p_bar` (`L <= H` everywhere, so
@@ -21,6 +24,17 @@
 //! the cone `(t + 1, t - 1, 2 (p_i - o)) in SOC(4)`. With `gamma = 1`, or the Euclidean
 //! benchmark `H(p_i) >= 0`, every row is the linear `L(p_i) >= 0` on stages `1..=N`.
 //!
+//! Terminal safety (`mpc.terminal_safety`, [`crate::terminal`]): the last state `z_N`
+//! must be able to stop under the DFL's brake without entering a disc, and the CBF's
+//! decay may be relaxed by a slack `sigma_i` per obstacle and stage, penalized in the cost
+//! and bounded by the linearized barrier: `(1 - gamma) H(p_i) - sigma_i <= L_{i+1}(p_{i+1})`
+//! with `0 <= sigma_i <= (1 - gamma) (L_i(p_i) - floor_i)` (at stage 0, `H(p_0)` itself),
+//! `floor_i = (1 - gamma)^i min(H(p_0), 0)`. The bound keeps `H(p_i) >= floor_i` at every
+//! stage, which is `H >= 0` whenever the robot starts outside the disc: the relaxation
+//! trades the decay rate, never the barrier. The slacks and the terminal rows' variables
+//! follow the states and inputs (sparse) or the inputs (condensed), and exist only in the
+//! programs with the CBF rows.
+//!
 //! The sparsity pattern depends only on the configuration: [`Assembly`] writes the same
 //! entries in the same order every step, and only their values change.
 //!
@@ -28,10 +42,11 @@
 //! `|v| <= v_max`, the states are an affine image of a box, so each row's extreme value
 //! has a closed form ([`Span`], [`PositionReach`]). When every row of the position box
 //! and the terminal set holds at its extreme, that group is left out for the step; when
-//! every CBF row does, the CBF group is left out for the solve. The feasible set is the
-//! same, the program smaller: one solver per combination, all four built at setup. In
-//! the paper's run the first group is always implied (the box is 10 m away) and the CBF
-//! rows are whenever the obstacle is out of reach of the horizon.
+//! every row of a disc does, the disc is left out for the solve. The feasible set is the
+//! same, the program smaller: one solver per combination (with or without the first
+//! group, and the number of discs kept: the discs are data), all built at setup. In the
+//! paper's run the first group is always implied (the box is 10 m away) and the CBF rows
+//! are whenever the obstacle is out of reach of the horizon.
 //!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
 //! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`Condensing`]), the
@@ -40,6 +55,7 @@
 //! becomes a dense `2N x 2N` matrix and a linear term `G z_0`. Same program, fewer
 //! variables, denser rows.
 
+use crate::terminal::{TerminalBrake, TerminalRows};
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SupportedConeT;
 use nalgebra::{DMatrix, DVector, Matrix2x4, Matrix4};
@@ -57,6 +73,8 @@ pub struct Layout {
     /// States eliminated: the solver's variables are the inputs only (the [`Assembly`]
     /// then carries the [`Condensing`]).
     pub condensed: bool,
+    /// The braking-safe terminal rows and the decay slacks (`mpc.terminal_safety`).
+    pub terminal: Option<TerminalBrake>,
 }
 
 impl Layout {
@@ -72,81 +90,110 @@ impl Layout {
     pub fn stagewise(&self) -> usize {
         4 * (self.horizon + 1) + 2 * self.horizon
     }
-    /// Number of the solver's variables.
-    pub fn variables(&self) -> usize {
+    /// Number of the solver's variables of the states and inputs (sparse) or the inputs
+    /// (condensed).
+    pub fn base_variables(&self) -> usize {
         if self.condensed {
             2 * self.horizon
         } else {
             self.stagewise()
         }
     }
-    fn linear_barrier_rows(&self) -> usize {
-        barrier_row_counts(self.horizon, self.obstacles, self.linear_barrier).0
+    /// Number of the solver's variables in the program with `rows`: the base ones, and
+    /// for its discs the decay slacks and the terminal rows' variables.
+    pub fn variables(&self, rows: Rows) -> usize {
+        self.base_variables() + self.decay_slacks(rows.discs) + self.terminal_variables(rows.discs)
     }
-    fn cone_barriers(&self) -> usize {
-        barrier_row_counts(self.horizon, self.obstacles, self.linear_barrier).1
+    /// Decay slacks for `discs` discs: one per disc and stage, with terminal safety on a
+    /// CBF that is not linear.
+    pub fn decay_slacks(&self, discs: usize) -> usize {
+        if self.terminal.is_some() && !self.linear_barrier {
+            discs * self.horizon
+        } else {
+            0
+        }
+    }
+    /// Variables of the terminal rows for `discs` discs ([`TerminalBrake::variables`]).
+    pub fn terminal_variables(&self, discs: usize) -> usize {
+        self.terminal.map_or(0, |t| t.variables(discs))
+    }
+    /// Column of the decay slack of the program's disc `j` at stage `i`, numbered after
+    /// the stage-wise vector ([`Assembly::row`] places it after the solver's base
+    /// variables).
+    pub fn decay_slack(&self, j: usize, i: usize) -> usize {
+        self.stagewise() + j * self.horizon + i
+    }
+    /// Column of the first of the terminal rows' variables in a program with `discs`
+    /// discs, numbered as [`Layout::decay_slack`].
+    pub fn terminal_variable(&self, discs: usize) -> usize {
+        self.stagewise() + self.decay_slacks(discs)
     }
 
     /// The cones, in row order.
     pub fn cones(&self, rows: Rows) -> Vec<SupportedConeT<f64>> {
         let n = self.horizon;
-        let (linear_barrier_rows, cone_barriers) = if rows.barrier {
-            (self.linear_barrier_rows(), self.cone_barriers())
-        } else {
-            (0, 0)
-        };
+        let (linear_barrier_rows, cone_barriers) =
+            barrier_row_counts(n, rows.discs, self.linear_barrier);
         let box_and_terminal = if rows.box_and_terminal {
             4 * (n - 1) + self.terminal_rows
         } else {
             0
         };
-        let inequalities = 4 * n + box_and_terminal + linear_barrier_rows;
-        let mut cones = Vec::with_capacity(2 + cone_barriers);
+        let terminal_rows = self.terminal.map_or(0, |t| t.nonnegative_rows(rows.discs));
+        let inequalities = 4 * n
+            + box_and_terminal
+            + linear_barrier_rows
+            + 2 * self.decay_slacks(rows.discs)
+            + terminal_rows;
+        let mut cones = Vec::with_capacity(3 + cone_barriers + rows.discs);
         if !self.condensed {
             cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
         }
         cones.push(SupportedConeT::NonnegativeConeT(inequalities));
         cones.extend((0..cone_barriers).map(|_| SupportedConeT::SecondOrderConeT(4)));
+        if let Some(t) = self.terminal {
+            t.cones(rows.discs, &mut cones);
+        }
         cones
     }
 }
 
-/// Which rows a solve's program has. A group is left out when the input box implies
-/// each of its rows for this solve (every input sequence within the input box satisfies
-/// them): the same feasible set, a smaller program. One solver per combination.
+/// Which rows a solve's program has. Rows are left out when the input box implies them for
+/// this solve (every input sequence within the input box satisfies them): the same
+/// feasible set, a smaller program. The position box and the terminal set go as one
+/// group; the rows of each disc (its CBF rows, decay slacks and terminal rows) go with the
+/// disc. The discs are data, so one program serves any `discs` of them: one solver per
+/// combination, `2 (M + 1)` for `M` obstacles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Rows {
     /// The position box on `z_1 .. z_{N-1}` and the terminal set
     /// ([`StaticData::box_and_terminal_implied`]).
     pub box_and_terminal: bool,
-    /// The CBF rows ([`Barrier::implied`]).
-    pub barrier: bool,
+    /// Discs whose rows are in the program ([`Barrier::implied`] is false for them).
+    pub discs: usize,
 }
 
 impl Rows {
-    pub const ALL: Rows = Rows {
-        box_and_terminal: true,
-        barrier: true,
-    };
-    /// Every combination, in [`Rows::index`] order.
-    pub const EVERY: [Rows; 4] = [
-        Rows {
-            box_and_terminal: false,
-            barrier: false,
-        },
-        Rows {
-            box_and_terminal: false,
-            barrier: true,
-        },
+    /// Every row of a layout.
+    pub fn all(l: &Layout) -> Rows {
         Rows {
             box_and_terminal: true,
-            barrier: false,
-        },
-        Rows::ALL,
-    ];
+            discs: l.obstacles,
+        }
+    }
+
+    /// Every combination of a layout, in [`Rows::index`] order.
+    pub fn every(l: &Layout) -> impl Iterator<Item = Rows> {
+        (0..=l.obstacles).flat_map(|discs| {
+            [false, true].map(|box_and_terminal| Rows {
+                box_and_terminal,
+                discs,
+            })
+        })
+    }
 
     pub fn index(self) -> usize {
-        2 * usize::from(self.box_and_terminal) + usize::from(self.barrier)
+        2 * self.discs + usize::from(self.box_and_terminal)
     }
 }
 
@@ -172,6 +219,15 @@ impl Disc {
         (g, self.barrier(p_bar) - g[0] * p_bar[0] - g[1] * p_bar[1])
     }
 }
+
+/// Cost per m^2 of decay slack: a linear penalty, exact (the slacks stay zero and the plan
+/// is the unrelaxed one) while the unrelaxed program is feasible and the multipliers of its
+/// CBF rows stay below this. They reach about 1e4 in the paper's run, whose cost is in the
+/// thousands while the robot is metres from the goal (with 1e4 its plans relaxed the decay
+/// by up to 8e-3 m^2; with 1e5 never); with 1e6 clarabel, without equilibration, reported
+/// a feasible program infeasible. A slack's multiplier can reach this weight, so the
+/// solver's feasibility tolerance (1e-6) moves the cost by up to about 0.1.
+pub const DECAY_SLACK_WEIGHT: f64 = 1e5;
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
 /// (measured with callgrind on the paper run, instructions per MPC step, README): no
@@ -292,7 +348,7 @@ impl StaticData {
 /// `value <= bound` with a margin (relative 1e-9) against rounding. (A row left out then
 /// holds as well as the solver meets the input box, to its feasibility tolerance, as a
 /// kept row would.)
-fn below(value: f64, bound: f64) -> bool {
+pub(crate) fn below(value: f64, bound: f64) -> bool {
     value <= bound - 1e-9 * (1.0 + bound.abs())
 }
 
@@ -308,6 +364,10 @@ pub struct PositionReach {
     v_max: f64,
     /// `c_i` of the step.
     centers: Vec<[f64; 2]>,
+    /// The spans of the last state's velocity components `z_N[1]`, `z_N[3]`.
+    terminal_velocity: [Span; 2],
+    /// The step's `z_0`.
+    z0: [f64; 4],
 }
 
 impl PositionReach {
@@ -319,20 +379,37 @@ impl PositionReach {
         let rows: Vec<usize> = (0..=l.horizon)
             .flat_map(|i| [l.z(i, 0), l.z(i, 2)])
             .collect();
+        let velocity = |c| Span::of([(l.z(l.horizon, c), 1.0)], (forced, free), v_max);
         PositionReach {
             forced: forced.select_rows(&rows),
             free: free.select_rows(&rows),
             v_max,
             centers: vec![[0.0; 2]; l.horizon + 1],
+            terminal_velocity: [velocity(1), velocity(3)],
+            z0: [0.0; 4],
         }
     }
 
     /// Sets `c_i` from the step's `z_0`.
     pub fn set_initial_state(&mut self, z0: [f64; 4]) {
+        self.z0 = z0;
         for (i, center) in self.centers.iter_mut().enumerate() {
             *center =
                 std::array::from_fn(|k| (0..4).map(|c| self.free[(2 * i + k, c)] * z0[c]).sum());
         }
+    }
+
+    /// The horizon `N`.
+    pub fn horizon(&self) -> usize {
+        self.centers.len() - 1
+    }
+
+    /// The largest speed `|w_N|` of the last state.
+    pub fn max_terminal_speed(&self) -> f64 {
+        let [x, y] = self
+            .terminal_velocity
+            .map(|span| span.max(self.z0).max(-span.min(self.z0)));
+        x.hypot(y)
     }
 
     /// `v_max ||sum_k a_k D_i[k] + b_k D_j[k]||_1`: the largest `a'(p_i - c_i) + b'(p_j - c_j)`.
@@ -350,7 +427,7 @@ impl PositionReach {
     }
 
     /// `min g'p_i`.
-    fn min_linear(&self, i: usize, g: [f64; 2]) -> f64 {
+    pub fn min_linear(&self, i: usize, g: [f64; 2]) -> f64 {
         let c = self.centers[i];
         g[0] * c[0] + g[1] * c[1] - self.reach((i, g), (i, [0.0; 2]))
     }
@@ -421,6 +498,11 @@ impl Span {
     pub fn max(&self, z0: [f64; 4]) -> f64 {
         self.center(z0) + self.reach
     }
+
+    /// The smallest value.
+    pub fn min(&self, z0: [f64; 4]) -> f64 {
+        self.center(z0) - self.reach
+    }
 }
 
 /// The stage-wise vector as an affine map of the inputs and `z_0` (eq. 52 rolled out):
@@ -460,6 +542,11 @@ pub struct StepData<'a> {
     pub discs: &'a [Disc],
     /// Linearization points `p_bar_1 ..= p_bar_N` (index 0 is unused).
     pub reference: &'a [[f64; 2]],
+    /// The reference's last velocity `w_bar_N` (for the terminal rows).
+    pub reference_velocity: [f64; 2],
+    /// The largest `|w_N|` any input sequence in the box reaches from `z0`
+    /// ([`PositionReach::max_terminal_speed`]), m/s.
+    pub max_terminal_speed: f64,
 }
 
 impl<'a> StepData<'a> {
@@ -472,6 +559,22 @@ impl<'a> StepData<'a> {
             discs: self.discs,
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
+            decay_slacks: (l.decay_slacks(self.discs.len()) > 0).then(|| l.decay_slack(0, 0)),
+            terminal: l.terminal.filter(|_| !self.discs.is_empty()).map(|model| {
+                let n = l.horizon;
+                let p_bar = self.reference[n];
+                let w_bar = self.reference_velocity;
+                TerminalRows {
+                    model,
+                    discs: self.discs,
+                    reference: [p_bar[0], w_bar[0], p_bar[1], w_bar[1]],
+                    p0: [self.z0[0], self.z0[2]],
+                    position: [l.z(n, 0), l.z(n, 2)],
+                    velocity: [l.z(n, 1), l.z(n, 3)],
+                    first_variable: l.terminal_variable(self.discs.len()),
+                    max_speed: self.max_terminal_speed,
+                }
+            }),
         }
     }
 }
@@ -505,7 +608,8 @@ impl Assembly {
         self.b.push(b);
     }
 
-    /// Writes every row of the step's problem (see the module docs for the order).
+    /// Writes every row of the step's problem (see the module docs for the order), and
+    /// the objective's linear term.
     pub fn fill(&mut self, l: &Layout, s: &StaticData, d: &StepData, rows: Rows) {
         self.entries.clear();
         self.b.clear();
@@ -513,7 +617,18 @@ impl Assembly {
         if let Some(condensing) = &mut self.condensing {
             condensing.set_initial_state(d.z0, &mut self.q);
         } else {
+            self.q.clear();
             self.equality_rows(l, s, d.z0);
+        }
+        debug_assert_eq!(rows.discs, d.discs.len(), "a program's discs are the step's");
+        let variables = l.variables(rows);
+        if variables > l.base_variables() {
+            // The decay slacks' cost; the terminal rows' variables (after them) cost
+            // nothing.
+            self.q.resize(l.base_variables(), 0.0);
+            self.q.resize(variables, 0.0);
+            let slacks = l.base_variables()..l.base_variables() + l.decay_slacks(rows.discs);
+            self.q[slacks].fill(DECAY_SLACK_WEIGHT);
         }
         for i in 0..n {
             for c in 0..2 {
@@ -526,9 +641,7 @@ impl Assembly {
                 self.row(terms.into_iter().flatten(), bound);
             }
         }
-        if rows.barrier {
-            self.barrier(&d.barrier(l, s), |i| [l.z(i, 0), l.z(i, 2)]);
-        }
+        self.barrier(&d.barrier(l, s), |i| [l.z(i, 0), l.z(i, 2)]);
     }
 
     /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.
@@ -552,12 +665,15 @@ impl Assembly {
         }
     }
 
-    /// The CBF rows of eq. (54) (see the module docs): linear rows first (they belong to
-    /// the nonnegative cone), then the SOC(4) rows. `position(i)` gives the columns of
-    /// the position of stage `i`.
+    /// The CBF rows of eq. (54) (see the module docs): linear rows first, then the decay
+    /// slacks' bounds (both in the nonnegative cone), then the SOC(4) rows, then the
+    /// braking-safe terminal rows. `position(i)` gives the columns of the position of
+    /// stage `i`.
     pub fn barrier(&mut self, b: &Barrier, position: impl Fn(usize) -> [usize; 2]) {
         let n = b.horizon;
-        for disc in b.discs {
+        let decay = 1.0 - b.gamma;
+        let slack = |j: usize, i: usize| b.decay_slacks.map(|first| first + j * n + i);
+        for (j, disc) in b.discs.iter().enumerate() {
             if b.linear {
                 // L_i(p_i) >= 0, i = 1..=N.
                 for i in 1..=n {
@@ -566,25 +682,53 @@ impl Assembly {
                     self.row([(px, -g[0]), (py, -g[1])], c);
                 }
             } else {
+                // (1 - gamma) H(p_0) - sigma_0 <= L_1(p_1).
                 let (g, c) = b.first_row(disc);
                 let [px, py] = position(1);
-                self.row([(px, -g[0]), (py, -g[1])], c);
+                let relaxed = slack(j, 0).map(|s| (s, -1.0));
+                self.row([Some((px, -g[0])), Some((py, -g[1])), relaxed].into_iter().flatten(), c);
             }
         }
-        if b.linear {
-            return;
-        }
-        for disc in b.discs {
-            for i in 1..n {
-                let (h, t0) = b.cone_row(disc, i);
-                let [nx, ny] = position(i + 1);
-                let [px, py] = position(i);
-                let slope = [(nx, -h[0]), (ny, -h[1])];
-                self.row(slope, t0 + 1.0);
-                self.row(slope, t0 - 1.0);
-                self.row([(px, -2.0)], -2.0 * disc.center[0]);
-                self.row([(py, -2.0)], -2.0 * disc.center[1]);
+        if b.decay_slacks.is_some() {
+            // 0 <= sigma_i <= (1 - gamma) (L_i(p_i) - floor_i), L_0 = H at the data p_0.
+            for (j, disc) in b.discs.iter().enumerate() {
+                let h0 = disc.barrier(b.p0);
+                for i in 0..n {
+                    let Some(column) = slack(j, i) else { continue };
+                    let floor = decay.powi(i as i32) * h0.min(0.0);
+                    self.row([(column, -1.0)], 0.0);
+                    if i == 0 {
+                        self.row([(column, 1.0)], decay * (h0 - floor));
+                    } else {
+                        let (g, c) = disc.linearized_barrier(b.reference[i]);
+                        let [px, py] = position(i);
+                        let terms = [(column, 1.0), (px, -decay * g[0]), (py, -decay * g[1])];
+                        self.row(terms, decay * (c - floor));
+                    }
+                }
             }
+        }
+        if let Some(terminal) = &b.terminal {
+            terminal.write_nonnegative(self);
+        }
+        if !b.linear {
+            for (j, disc) in b.discs.iter().enumerate() {
+                for i in 1..n {
+                    // ||p_i - o||^2 <= t0 + h'p_{i+1} + sigma_i / (1 - gamma).
+                    let (h, t0) = b.cone_row(disc, i);
+                    let [nx, ny] = position(i + 1);
+                    let [px, py] = position(i);
+                    let relaxed = slack(j, i).map(|s| (s, -1.0 / decay));
+                    let slope = [Some((nx, -h[0])), Some((ny, -h[1])), relaxed];
+                    self.row(slope.into_iter().flatten(), t0 + 1.0);
+                    self.row(slope.into_iter().flatten(), t0 - 1.0);
+                    self.row([(px, -2.0)], -2.0 * disc.center[0]);
+                    self.row([(py, -2.0)], -2.0 * disc.center[1]);
+                }
+            }
+        }
+        if let Some(terminal) = &b.terminal {
+            terminal.write_cones(self);
         }
     }
 }
@@ -601,6 +745,11 @@ pub struct Barrier<'a> {
     pub reference: &'a [[f64; 2]],
     /// Position of stage 0 (data).
     pub p0: [f64; 2],
+    /// Terminal safety: the column of the first decay slack (obstacle `j`, stage `i` at
+    /// `first + j N + i`); none without terminal safety or with a linear CBF.
+    pub decay_slacks: Option<usize>,
+    /// Terminal safety: the braking-safe terminal rows.
+    pub terminal: Option<TerminalRows<'a>>,
 }
 
 /// The states as affine functions of the inputs (eq. 52 rolled out): the stage-wise
@@ -683,7 +832,14 @@ impl Condensing {
         entries: &mut Vec<(usize, usize, f64)>,
     ) -> f64 {
         let mut b = b;
+        let stagewise = self.free_response.len();
         for (column, value) in terms {
+            if column >= stagewise {
+                // A variable after the states and inputs (a decay slack, the stop
+                // speed): it follows the inputs.
+                entries.push((row, self.coefficients.len() + column - stagewise, value));
+                continue;
+            }
             b -= value * self.free_response[column];
             for (j, &t) in self.forced_transposed.column(column).iter().enumerate() {
                 if t != 0.0 {
@@ -736,6 +892,11 @@ impl Barrier<'_> {
     /// inputs is positive; a cone row `||p_i - o||^2 <= t0 + s g'p_{i+1}` when an upper
     /// bound of `||p_i - o||^2 - s g'p_{i+1}` is below `t0`.
     pub fn implied(&self, reach: &PositionReach) -> bool {
+        self.cbf_implied(reach) && self.terminal.is_none_or(|t| t.implied(reach))
+    }
+
+    /// [`Barrier::implied`] for the CBF rows (with zero decay slacks).
+    fn cbf_implied(&self, reach: &PositionReach) -> bool {
         let n = self.horizon;
         self.discs.iter().all(|disc| {
             let lowest = |i: usize| {
@@ -852,9 +1013,20 @@ fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
 
 /// A clarabel solver for a problem whose sparsity never changes: built from one
 /// assembly, afterwards only its values are updated (`update_A`, `update_b`, `update_q`).
+///
+/// Every program has a careful twin, built with it: clarabel's equilibration and
+/// iterative refinement of the KKT solves on (the settings leave both off for speed:
+/// README, Performance). It solves only when the plain solve stalls (`NumericalError`,
+/// `InsufficientProgress`, the primal residual stuck at 1e-6 to 1e-3: seen with the
+/// terminal rows where several discs squeeze the plan, and at Ts = 10 ms, where the inputs
+/// move the positions of a short horizon by millimetres). Either switch on every solve
+/// doubles the paper run's solve time; either alone in the twin left stalls.
 pub struct ConicSolver {
     settings: fn() -> clarabel::solver::DefaultSettings<f64>,
     solver: Option<clarabel::solver::DefaultSolver<f64>>,
+    careful: Option<clarabel::solver::DefaultSolver<f64>>,
+    /// Whether the last solution is the careful twin's.
+    careful_last: bool,
     /// Where each [`Assembly`] entry sits in the CSC values.
     nz_position: Vec<usize>,
     nzval: Vec<f64>,
@@ -865,31 +1037,43 @@ impl ConicSolver {
         ConicSolver {
             settings,
             solver: None,
+            careful: None,
+            careful_last: false,
             nz_position: Vec::new(),
             nzval: Vec::new(),
         }
     }
 
-    /// Solves the problem of `assembly` (the pattern it was built with). Returns the plan
-    /// status and the interior-point iterations.
+    /// Solves the problem of `assembly` (the pattern it was built with), on the careful
+    /// twin if the plain solve stalls. Returns the plan status and the
+    /// interior-point iterations of both.
     pub fn solve(&mut self, assembly: &Assembly) -> (protocol::PlanStatus, u32) {
-        use clarabel::solver::IPSolver;
-        if !self.update(assembly) {
-            return (protocol::PlanStatus::NumericalError, 0);
+        use clarabel::solver::SolverStatus;
+        self.careful_last = false;
+        for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
+            self.nzval[self.nz_position[t]] = v;
         }
-        let Some(solver) = self.solver.as_mut() else {
+        let Some((status, mut iterations)) = solve_with(&mut self.solver, &self.nzval, assembly)
+        else {
             return (protocol::PlanStatus::NumericalError, 0);
         };
-        solver.solve();
-        (
-            crate::plan_status(solver.solution.status),
-            solver.solution.iterations,
-        )
+        let mut status = status;
+        if matches!(
+            status,
+            SolverStatus::NumericalError | SolverStatus::InsufficientProgress
+        ) && let Some((twin, twin_iterations)) =
+            solve_with(&mut self.careful, &self.nzval, assembly)
+        {
+            self.careful_last = true;
+            (status, iterations) = (twin, iterations + twin_iterations);
+        }
+        (crate::plan_status(status), iterations)
     }
 
-    /// Builds the solver for the pattern of `assembly` (kept from then on) and solves it
-    /// once, so that clarabel's bookkeeping is in place before the next solve
-    /// ([`timers_kept_between_solves`]). False if clarabel refuses the data.
+    /// Builds the solver (and its careful twin) for the pattern of `assembly` (kept
+    /// from then on) and solves once, so that clarabel's bookkeeping is in place before
+    /// the next solve ([`timers_kept_between_solves`]). False if clarabel refuses the
+    /// data.
     pub fn build(
         &mut self,
         assembly: &Assembly,
@@ -905,51 +1089,73 @@ impl ConicSolver {
         } else {
             assembly.q.clone()
         };
-        let settings = (self.settings)();
-        debug_assert!(
-            settings.time_limit.is_infinite(),
-            "clarabel's clock runs from the build (timers_kept_between_solves)"
-        );
-        let solver =
-            clarabel::solver::DefaultSolver::new(objective, &q, &a, &assembly.b, cones, settings);
-        self.solver = solver.ok().map(|mut solver| {
-            use clarabel::solver::IPSolver;
-            solver.timers = Some(timers_kept_between_solves());
-            solver.solve();
-            solver
+        let built = |settings: clarabel::solver::DefaultSettings<f64>| {
+            debug_assert!(
+                settings.time_limit.is_infinite(),
+                "clarabel's clock runs from the build (timers_kept_between_solves)"
+            );
+            let solver = clarabel::solver::DefaultSolver::new(
+                objective,
+                &q,
+                &a,
+                &assembly.b,
+                cones,
+                settings,
+            );
+            solver.ok().map(|mut solver| {
+                use clarabel::solver::IPSolver;
+                solver.timers = Some(timers_kept_between_solves());
+                solver.solve();
+                solver
+            })
+        };
+        self.solver = built((self.settings)());
+        self.careful = built(clarabel::solver::DefaultSettings {
+            equilibrate_enable: true,
+            iterative_refinement_enable: true,
+            ..(self.settings)()
         });
-        self.solver.is_some()
+        self.solver.is_some() && self.careful.is_some()
     }
 
     pub fn is_built(&self) -> bool {
         self.solver.is_some()
     }
 
-    /// Writes the values of `assembly` (the pattern the solver was built with).
-    fn update(&mut self, assembly: &Assembly) -> bool {
-        let Some(solver) = self.solver.as_mut() else {
-            return false;
-        };
-        for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
-            self.nzval[self.nz_position[t]] = v;
-        }
-        solver
-            .update_A(&self.nzval)
-            .and_then(|()| solver.update_b(&assembly.b))
-            .and_then(|()| {
-                if assembly.q.is_empty() {
-                    Ok(())
-                } else {
-                    solver.update_q(&assembly.q)
-                }
-            })
-            .is_ok()
-    }
-
     /// The last solution's variables (none before the first solve).
     pub fn x(&self) -> Option<&[f64]> {
-        self.solver.as_ref().map(|s| s.solution.x.as_slice())
+        let last = if self.careful_last {
+            &self.careful
+        } else {
+            &self.solver
+        };
+        last.as_ref().map(|s| s.solution.x.as_slice())
     }
+}
+
+/// Writes the values (`nzval` of `A`, and `b`, `q` of `assembly`) into `solver` and solves;
+/// `None` if it is not built or refuses them.
+#[allow(clippy::ptr_arg)] // clarabel's `update_A` takes a `Vec`, not a slice (it needs `Sized`)
+fn solve_with(
+    solver: &mut Option<clarabel::solver::DefaultSolver<f64>>,
+    nzval: &Vec<f64>,
+    assembly: &Assembly,
+) -> Option<(clarabel::solver::SolverStatus, u32)> {
+    use clarabel::solver::IPSolver;
+    let solver = solver.as_mut()?;
+    solver
+        .update_A(nzval)
+        .and_then(|()| solver.update_b(&assembly.b))
+        .and_then(|()| {
+            if assembly.q.is_empty() {
+                Ok(())
+            } else {
+                solver.update_q(&assembly.q)
+            }
+        })
+        .ok()?;
+    solver.solve();
+    Some((solver.solution.status, solver.solution.iterations))
 }
 
 /// clarabel's timers, arranged so that `solve()` allocates nothing once it has run once.
