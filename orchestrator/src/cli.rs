@@ -47,6 +47,13 @@ enum Command {
     /// with noise seeds 1..=N and `monte_carlo.csv` gives the collision rate and the
     /// distribution of the minimum clearance per combination.
     Sweep(SweepArgs),
+    /// Run random valid worlds in process, on all cores, and report how they ended.
+    ///
+    /// Writes `fuzz.csv` (one row per world: its parameters, outcome, minimum clearance,
+    /// safety interventions, solver failures) and, for every world that did not reach the
+    /// goal, its scenario under `failed/` (`scmpc run FILE` replays it). Exit 1 if any
+    /// world collided, 2 on bad input.
+    Fuzz(FuzzArgs),
     /// Draw the paper's figure set from scratch (SVG and PNG) into a directory.
     Figures {
         /// Directory of the figures [default: docs/figures].
@@ -147,6 +154,25 @@ struct SweepArgs {
 }
 
 #[derive(Debug, clap::Args)]
+struct FuzzArgs {
+    /// Number of worlds.
+    #[arg(long, default_value_t = 200)]
+    count: usize,
+    /// Seed of the batch (the same seed draws the same worlds).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Override a value in every world, e.g. `plant.noise_variance=0.01` (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Directory of fuzz.csv and the failed worlds [default: a fresh directory under runs/].
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Runs at a time [default: the number of cores].
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+#[derive(Debug, clap::Args)]
 struct SwapArgs {
     /// Directory of the running run (its `run.json`).
     #[arg(long = "run", value_name = "DIR")]
@@ -203,6 +229,7 @@ pub fn main() -> ExitCode {
         Command::Run(args) => run(args),
         Command::Swap(args) => swap(args),
         Command::Sweep(args) => sweep(args),
+        Command::Fuzz(args) => fuzz(args),
         Command::Figures { out } => figures(&out),
         Command::Bench { out, realtime_s } => bench(out, realtime_s),
         Command::BenchPong { prefix } => match crate::bench::pong(&prefix) {
@@ -287,6 +314,54 @@ fn sweep(args: SweepArgs) -> ExitCode {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(EXIT_NOT_REACHED)
+    }
+}
+
+fn fuzz(args: FuzzArgs) -> ExitCode {
+    // Every world is drawn and validated before anything runs.
+    if let Err(e) = crate::fuzz::world(args.seed, 0, &args.overrides) {
+        eprint!("error: {e}");
+        return ExitCode::from(EXIT_BAD_INPUT);
+    }
+    let out = args
+        .out
+        .unwrap_or_else(|| default_run_dir(&format!("fuzz-{}", args.seed)));
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} worlds (seed {}) on {threads} threads into {}",
+        args.count,
+        args.seed,
+        out.display()
+    );
+    let stop = stop_flag();
+    match crate::fuzz::run(
+        args.seed,
+        args.count,
+        &args.overrides,
+        &out,
+        threads,
+        true,
+        &stop,
+    ) {
+        Ok(report) => {
+            print!("{}", report.table());
+            println!("fuzz directory: {}", out.display());
+            if report.collisions() > 0 {
+                ExitCode::from(EXIT_NOT_REACHED)
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => match e.downcast_ref::<protocol::ScenarioErrors>() {
+            Some(bad) => {
+                eprint!("error: {bad}");
+                ExitCode::from(EXIT_BAD_INPUT)
+            }
+            None => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(EXIT_NOT_REACHED)
+            }
+        },
     }
 }
 

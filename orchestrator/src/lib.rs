@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod cli;
 pub mod figures;
+pub mod fuzz;
 pub mod inprocess;
 pub mod monitor;
 pub mod multiproc;
