@@ -5,13 +5,14 @@
 //! fallback brake (`U2 = 0`, zeta to zero at the braking deceleration). A plan is committed
 //! only if that trajectory, rolled out from the current estimate, stays outside every
 //! obstacle disc grown by the robot's radius, `mpc.safety_margin_m`, `kappa sigma` and
-//! [`protocol::COMMIT_MARGIN_M`]. Otherwise the trajectory already committed goes on, and
+//! [`protocol::commit_margin_m`]. Otherwise the trajectory already committed goes on, and
 //! its brake follows: today's shifted-plan fallback, but checked. On every tick the
-//! committed trajectory is checked again from the new estimate; if it would enter an
-//! obstacle (grown by the robot's radius and `mpc.safety_margin_m`: the best estimate says
-//! it would hit), the DFL brakes at once. The margin between the two checks keeps the
-//! estimate's jitter and the robot's small departures from its linearized model (the zeta
-//! guard, commands held over an inner tick) from giving up trajectories that are safe. None of this depends on where a plan came from, so a swapped-in MPC
+//! committed trajectory is checked again from the new estimate, against the same discs
+//! without that last margin; if it would enter one, the DFL brakes at once. The margin
+//! between the two checks keeps the estimate's jitter and the robot's small departures
+//! from its linearized model (the zeta guard, commands held over an inner tick) from
+//! giving up trajectories that are safe; `kappa sigma` stays in both, since the estimate
+//! the trajectory is flown from is that far from the truth. None of this depends on where a plan came from, so a swapped-in MPC
 //! that ignores the obstacles cannot drive the robot into one while the model holds.
 //!
 //! The check is exact and closed form. Under the linearizing law the robot is two double
@@ -57,12 +58,17 @@ impl Gatekeeper {
         }
     }
 
-    /// How much the commit check grows every disc beyond the robot's radius and the safety
-    /// margin, for an estimate with position standard deviation `sigma_m`: `kappa sigma`
-    /// and [`protocol::COMMIT_MARGIN_M`], m. (The re-check of a committed trajectory grows
-    /// them by nothing.)
+    /// How much the re-check of a committed trajectory grows every disc beyond the robot's
+    /// radius and the safety margin, for an estimate with position standard deviation
+    /// `sigma_m`: `kappa sigma`, m.
+    pub fn keep_growth(&self, sigma_m: f64) -> f64 {
+        self.uncertainty_sigmas * sigma_m
+    }
+
+    /// How much the commit check grows every disc: [`Gatekeeper::keep_growth`] and
+    /// [`protocol::commit_margin_m`], m.
     pub fn commit_growth(&self, sigma_m: f64) -> f64 {
-        self.uncertainty_sigmas * sigma_m + protocol::COMMIT_MARGIN_M
+        self.keep_growth(sigma_m) + protocol::commit_margin_m(sigma_m)
     }
 
     /// Checks the trajectory that flies `plan` from the state `z = [x, xdot, y, ydot]`
@@ -120,9 +126,7 @@ impl Gatekeeper {
         };
         self.discs
             .iter()
-            .map(|&(center, radius)| {
-                protocol::segment_distance(p, end, center) - (radius + grow)
-            })
+            .map(|&(center, radius)| protocol::segment_distance(p, end, center) - (radius + grow))
             .filter(|c| *c < 0.0)
             .reduce(f64::min)
     }
@@ -301,7 +305,11 @@ mod tests {
             let truth = arc_min_distance(p, w, acc, duration, center) - radius;
             assert!(clearance <= truth + 1e-12, "bound above the truth");
             assert_eq!(clearance < 0.0, truth < 0.0, "p {p:?} w {w:?} acc {acc:?}");
-            if clearance == truth { exact += 1 } else { quick += 1 }
+            if clearance == truth {
+                exact += 1
+            } else {
+                quick += 1
+            }
         }
         assert!(quick > 100 && exact > 100, "{quick} quick, {exact} exact");
     }
@@ -364,11 +372,16 @@ mod tests {
         let z = [0.0, 0.0, 0.0, 0.0]; // at rest, 1.0 m from the edge
         let still = plan(0, 8, [0.0; 2]);
         let g = Gatekeeper::new(&s);
-        assert_eq!(g.check(&still, 0, 0.0, z, g.commit_growth(0.3)), None);
-        // kappa = 3: sigma 1/3 m grows the disc by 1 m, and the margin by 1 mm more.
-        let depth = g.check(&still, 0, 0.0, z, g.commit_growth(1.0 / 3.0)).unwrap();
+        // kappa = 3: sigma 0.24 m grows the disc by 0.72 m, and the commit margin by a
+        // sigma and 1 mm more: 0.961 m of the 1.0 m.
+        assert_eq!(g.check(&still, 0, 0.0, z, g.commit_growth(0.24)), None);
+        let depth = g.check(&still, 0, 0.0, z, g.commit_growth(0.25)).unwrap();
         assert!((depth + protocol::COMMIT_MARGIN_M).abs() < 1e-9, "{depth}");
-        assert_eq!(g.check(&still, 0, 0.0, z, 1.0), None, "the re-check's disc");
+        assert_eq!(
+            g.check(&still, 0, 0.0, z, g.keep_growth(0.25)),
+            None,
+            "re-check"
+        );
         s.robot.radius_m = 1.1;
         let depth = Gatekeeper::new(&s).check(&still, 0, 0.0, z, 0.0).unwrap();
         assert!((depth + 0.1).abs() < 1e-9, "{depth}");

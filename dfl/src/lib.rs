@@ -307,7 +307,11 @@ impl Dfl {
         let into_sample_s = (tick % self.inner_steps) as f64 * self.dt_s;
         let [x, y, theta, _] = estimate.state;
         let z = protocol::phi([x, y, theta, self.zeta]);
-        let commit_growth = gatekeeper.commit_growth(estimate.position_sigma());
+        let sigma = estimate.position_sigma();
+        let (commit_growth, keep_growth) = (
+            gatekeeper.commit_growth(sigma),
+            gatekeeper.keep_growth(sigma),
+        );
         let mut note = |intervention, plan_sample, clearance_m| {
             outcome = CheckOutcome {
                 intervention,
@@ -331,7 +335,7 @@ impl Dfl {
         // checked, nor once its plan is exhausted and the DFL brakes anyway).
         let unsafe_committed = match &self.active {
             Some(plan) if !committed && covering_element(plan, sample).is_some() => gatekeeper
-                .check(plan, sample, into_sample_s, z, 0.0)
+                .check(plan, sample, into_sample_s, z, keep_growth)
                 .map(|clearance| (plan.sample, clearance)),
             _ => None,
         };
@@ -631,6 +635,119 @@ mod tests {
         let a = dfl.step(&est, 6 * 10);
         assert_eq!(a.mode(), Some(CommandMode::Shifted));
         assert_eq!((a.plan_sample, a.v), (5, [1.0, 0.0]));
+    }
+
+    /// A robot at the origin heading along x at 1 m/s, an obstacle whose edge is 1 m
+    /// ahead; the safety check on or off.
+    fn approaching(gatekeeper: bool) -> (Dfl, Estimate) {
+        let mut s = Scenario::default();
+        s.obstacles = vec![protocol::Obstacle {
+            x: 1.5,
+            y: 0.0,
+            radius: 0.5,
+        }];
+        s.robot.zeta0 = 1.0;
+        s.dfl.gatekeeper = gatekeeper;
+        let estimate = Estimate {
+            state: [0.0, 0.0, 0.0, 1.0],
+            ..Estimate::default()
+        };
+        (Dfl::new(&s), estimate)
+    }
+
+    /// Plan `sample` accelerating at `ax` along x for 8 samples (0.4 s).
+    fn along_x(sample: u64, ax: f64) -> Plan {
+        let mut p = plan(sample, 8, PlanStatus::Solved);
+        p.v = [[ax, 0.0]; protocol::MAX_HORIZON];
+        p
+    }
+
+    #[test]
+    fn a_plan_into_an_obstacle_is_refused_and_the_committed_one_goes_on() {
+        // Braking at 2 m/s^2 for 0.4 s, then the brake: 0.25 m. Speeding up at 2 m/s^2:
+        // 0.56 m, then 0.54 m to stop, into the obstacle 1 m ahead.
+        let (mut dfl, estimate) = approaching(true);
+        assert!(dfl.offer(&along_x(0, -2.0)));
+        let a = dfl.step(&estimate, 0);
+        assert_eq!(
+            (a.mode(), a.intervention()),
+            (Some(CommandMode::Nominal), Some(Intervention::None))
+        );
+        assert!(dfl.offer(&along_x(1, 2.0)));
+        let a = dfl.step(&estimate, 10);
+        assert_eq!(a.intervention(), Some(Intervention::PlanRefused));
+        assert_eq!(
+            (a.mode(), a.plan_sample, a.v),
+            (Some(CommandMode::Shifted), 0, [-2.0, 0.0])
+        );
+        assert!(a.intervention_clearance_m < 0.0);
+        assert_eq!((a.safety_interventions, dfl.interventions()), (1, 1));
+    }
+
+    #[test]
+    fn without_a_committed_plan_an_unsafe_one_leaves_the_robot_braking() {
+        let (mut dfl, estimate) = approaching(true);
+        dfl.offer(&along_x(0, 2.0));
+        let a = dfl.step(&estimate, 0);
+        assert_eq!(
+            (a.mode(), a.intervention()),
+            (Some(CommandMode::Brake), Some(Intervention::PlanRefused))
+        );
+        assert_eq!(
+            a.linearizing_input,
+            [-3.0, 0.0],
+            "the brake at its deceleration"
+        );
+    }
+
+    #[test]
+    fn an_estimate_that_shows_the_committed_trajectory_unsafe_brings_the_brake_until_a_plan_passes()
+    {
+        let (mut dfl, estimate) = approaching(true);
+        dfl.offer(&along_x(0, -2.0));
+        dfl.step(&estimate, 0);
+        // The estimate jumps 0.8 m ahead: the rest of the plan and the brake now run 1.04 m.
+        let jumped = Estimate {
+            state: [0.8, 0.0, 0.0, 1.0],
+            ..Estimate::default()
+        };
+        let a = dfl.step(&jumped, 1);
+        assert_eq!(
+            (a.mode(), a.intervention()),
+            (
+                Some(CommandMode::SafetyBrake),
+                Some(Intervention::CommittedUnsafe)
+            )
+        );
+        assert_eq!(a.plan_sample, 0);
+        let a = dfl.step(&jumped, 2);
+        assert_eq!(
+            (a.mode(), a.intervention()),
+            (Some(CommandMode::SafetyBrake), Some(Intervention::None))
+        );
+        // A plan that stops in time from there (in 1/6 m) is committed and flown.
+        dfl.offer(&along_x(1, -3.0));
+        let a = dfl.step(&jumped, 10);
+        assert_eq!(
+            (a.mode(), a.intervention()),
+            (Some(CommandMode::Nominal), Some(Intervention::None))
+        );
+        assert_eq!(dfl.interventions(), 1);
+    }
+
+    #[test]
+    fn without_the_safety_check_the_unsafe_plan_is_flown() {
+        let (mut dfl, estimate) = approaching(false);
+        dfl.offer(&along_x(0, 2.0));
+        let a = dfl.step(&estimate, 0);
+        assert_eq!(
+            (a.mode(), a.v, a.intervention()),
+            (
+                Some(CommandMode::Nominal),
+                [2.0, 0.0],
+                Some(Intervention::None)
+            )
+        );
     }
 
     #[test]

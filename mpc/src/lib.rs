@@ -22,11 +22,11 @@ use problem::{
     Assembly, Condensing, ConicSolver, Disc, Layout, PositionReach, Rows, Span, StaticData,
     StepData, csc_with_positions,
 };
-use terminal::{BrakeForm, TerminalBrake};
 use protocol::{
     ConstraintKind, Formulation, Header, MAX_HORIZON, Plan, PlanStatus, Scenario, TerminalSafety,
 };
 use std::time::Instant;
+use terminal::{BrakeForm, TerminalBrake};
 
 /// Why an MPC cannot be set up for a configuration.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -112,7 +112,6 @@ impl LinearMpc {
             condensed: c.qp_form.condensed(c.horizon),
             terminal: terminal_brake(scenario),
         };
-        let layout_terminal = layout.terminal.is_some();
         let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
         let mut statics = StaticData {
             a,
@@ -156,8 +155,7 @@ impl LinearMpc {
             terminal_weight,
             goal,
             obstacles: scenario.obstacles.clone(),
-            obstacle_margin_m: scenario.obstacle_margin_m()
-                + if layout_terminal { terminal::PLAN_MARGIN_M } else { 0.0 },
+            obstacle_margin_m: scenario.obstacle_margin_m(),
             uncertainty_sigmas: c.uncertainty_sigmas,
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
@@ -220,6 +218,18 @@ impl LinearMpc {
         &self.discs
     }
 
+    /// What every obstacle's radius grows by in the constraints, for an estimate with
+    /// position standard deviation `position_sigma_m`, before the inter-sample term: the
+    /// robot's radius, the safety margin `m`, `kappa sigma`, and with terminal safety the
+    /// DFL's commit margin and a millimetre ([`terminal::plan_margin_m`]), m.
+    fn margin_m(&self, position_sigma_m: f64) -> f64 {
+        let plan_margin = match self.layout.terminal {
+            Some(_) => terminal::plan_margin_m(position_sigma_m),
+            None => 0.0,
+        };
+        self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m + plan_margin
+    }
+
     /// Forgets the previous plan: the next step linearizes at a braking rollout.
     pub fn reset(&mut self) {
         self.last_sample = None;
@@ -231,7 +241,7 @@ impl LinearMpc {
         let started = Instant::now();
         let z = protocol::phi(x_bar);
         let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
-        let margin = self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m;
+        let margin = self.margin_m(position_sigma_m);
         problem::constraint_discs(
             &self.obstacles,
             self.goal,
@@ -315,7 +325,9 @@ impl LinearMpc {
         // The states and inputs (sparse) or the inputs (condensed) come first; the decay
         // slacks and the stop speed after them are not kept.
         match &self.assembly.condensing {
-            Some(condensing) => condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution),
+            Some(condensing) => {
+                condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution)
+            }
             None => {
                 let stagewise = self.solution.len();
                 self.solution.copy_from_slice(&x[..stagewise]);
@@ -335,7 +347,10 @@ impl LinearMpc {
                 reference_velocity: self.reference_velocity,
                 max_terminal_speed: self.reach.max_terminal_speed(),
             };
-            if !data.barrier(&self.layout, &self.statics).implied(&self.reach) {
+            if !data
+                .barrier(&self.layout, &self.statics)
+                .implied(&self.reach)
+            {
                 self.kept.push(*disc);
             }
         }
@@ -772,7 +787,9 @@ mod tests {
 
     #[test]
     fn the_condensed_program_gives_the_sparse_programs_plans() {
-        for (gamma, terminal_safety) in [(0.1, "none"), (1.0, "none"), (0.1, "brake"), (1.0, "brake")] {
+        for (gamma, terminal_safety) in
+            [(0.1, "none"), (1.0, "none"), (0.1, "brake"), (1.0, "brake")]
+        {
             let sparse = Scenario::default()
                 .with_overrides(&[
                     format!("mpc.gamma={gamma}"),
@@ -789,7 +806,12 @@ mod tests {
             // the same reference, discs and rows.
             closed_loop_with(&sparse, 200, |mpc, plan| {
                 let z = plan.z[0];
-                let z0 = [z[0] - sparse.robot.goal[0], z[1], z[2] - sparse.robot.goal[1], z[3]];
+                let z0 = [
+                    z[0] - sparse.robot.goal[0],
+                    z[1],
+                    z[2] - sparse.robot.goal[1],
+                    z[3],
+                ];
                 other.discs.clone_from(&mpc.discs);
                 other.reference.clone_from(&mpc.reference);
                 other.reference_velocity = mpc.reference_velocity;
@@ -965,7 +987,10 @@ mod tests {
                 0.0
             } else {
                 let extras = extras(v);
-                extra_terms[r].iter().map(|&(k, value)| value * extras[k]).sum()
+                extra_terms[r]
+                    .iter()
+                    .map(|&(k, value)| value * extras[k])
+                    .sum()
             };
             s0[r]
                 - coefficients[r]
@@ -1161,7 +1186,10 @@ mod tests {
     /// samples not solved)`; panics on a candidate that breaks any other row.
     fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
         let mut mpc = LinearMpc::new(scenario).unwrap();
-        assert!(!mpc.layout.condensed, "the candidate is checked in stage-wise columns");
+        assert!(
+            !mpc.layout.condensed,
+            "the candidate is checked in stage-wise columns"
+        );
         let (a, b) = model::discretize(scenario.timing.ts_s);
         let [x, y, mut heading] = scenario.robot.start;
         let mut z = Vector4::from(protocol::phi([x, y, heading, scenario.robot.zeta0]));
@@ -1179,7 +1207,7 @@ mod tests {
                 problem::constraint_discs(
                     &mpc.obstacles,
                     goal,
-                    mpc.obstacle_margin_m,
+                    mpc.margin_m(0.0),
                     zeta,
                     mpc.ts_s,
                     std::f64::consts::SQRT_2 * mpc.statics.v_max,
@@ -1407,7 +1435,8 @@ mod tests {
                 (mpc.max_solves, mpc.refinement_tol_m) = (max_solves, converged_m);
                 let converged = mpc.refine(z0);
                 assert!(
-                    converged.status == PlanStatus::Solved && (converged.solves as usize) < max_solves,
+                    converged.status == PlanStatus::Solved
+                        && (converged.solves as usize) < max_solves,
                     "gamma {gamma}, sample {}: {converged:?}",
                     plan.sample
                 );

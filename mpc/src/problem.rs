@@ -620,7 +620,11 @@ impl Assembly {
             self.q.clear();
             self.equality_rows(l, s, d.z0);
         }
-        debug_assert_eq!(rows.discs, d.discs.len(), "a program's discs are the step's");
+        debug_assert_eq!(
+            rows.discs,
+            d.discs.len(),
+            "a program's discs are the step's"
+        );
         let variables = l.variables(rows);
         if variables > l.base_variables() {
             // The decay slacks' cost; the terminal rows' variables (after them) cost
@@ -686,7 +690,12 @@ impl Assembly {
                 let (g, c) = b.first_row(disc);
                 let [px, py] = position(1);
                 let relaxed = slack(j, 0).map(|s| (s, -1.0));
-                self.row([Some((px, -g[0])), Some((py, -g[1])), relaxed].into_iter().flatten(), c);
+                self.row(
+                    [Some((px, -g[0])), Some((py, -g[1])), relaxed]
+                        .into_iter()
+                        .flatten(),
+                    c,
+                );
             }
         }
         if b.decay_slacks.is_some() {

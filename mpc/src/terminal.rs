@@ -81,10 +81,13 @@ pub enum BrakeForm {
     Ball,
 }
 
-/// With terminal safety the MPC's constraint discs are this much larger than the discs the
-/// DFL's safety check commits against (m, beyond [`protocol::COMMIT_MARGIN_M`]), so that a
-/// plan met to the solver's tolerance (about a micrometre) passes the check.
-pub const PLAN_MARGIN_M: f64 = protocol::COMMIT_MARGIN_M + 1e-3;
+/// With terminal safety the MPC's constraint discs are larger than those the DFL's safety
+/// check commits against by this (m), so that a plan met to the solver's tolerance (about
+/// a micrometre) passes the check; together with the commit margin: the margin the MPC
+/// adds beyond `kappa sigma`, m, for a position standard deviation `sigma_m`.
+pub fn plan_margin_m(sigma_m: f64) -> f64 {
+    protocol::commit_margin_m(sigma_m) + 1e-3
+}
 
 /// Largest `c` of the segment form's AM-GM majorant (a reference approaching at less than
 /// `1 / MAX_C` of its speed): the majorant then exceeds `alpha_bar |w_bar|` at the
@@ -204,7 +207,9 @@ impl TerminalRows<'_> {
             let length = d[0].hypot(d[1]);
             (length > 0.0).then(|| [d[0] / length, d[1] / length])
         };
-        towards(p).or_else(|| towards(self.p0)).unwrap_or([1.0, 0.0])
+        towards(p)
+            .or_else(|| towards(self.p0))
+            .unwrap_or([1.0, 0.0])
     }
 
     fn reference_position(&self) -> [f64; 2] {
@@ -341,7 +346,10 @@ impl TerminalRows<'_> {
                     let row = self.segment_row(disc);
                     let quadratic = row.quadratic * (row.c + 1.0 / row.c) / 2.0;
                     let majorant = (row.beta + quadratic * speed) * speed;
-                    (row.normal, majorant / (2.0 * a) + 0.5 * self.model.ts_s * speed)
+                    (
+                        row.normal,
+                        majorant / (2.0 * a) + 0.5 * self.model.ts_s * speed,
+                    )
                 }
             };
             let offset = n[0] * disc.center[0] + n[1] * disc.center[1] + disc.radius;
@@ -372,7 +380,10 @@ mod tests {
             let moved = next[0].hypot(next[2]);
             let speed_after = next[1].hypot(next[3]);
             let drop = b.stop_distance_bound(speed) - b.stop_distance_bound(speed_after);
-            assert!(moved <= drop + 1e-12, "speed {speed}: moved {moved}, bound dropped {drop}");
+            assert!(
+                moved <= drop + 1e-12,
+                "speed {speed}: moved {moved}, bound dropped {drop}"
+            );
             // The input is within |v| <= a per axis and brakes along the velocity.
             let v = b.input([z[1], z[3]]);
             assert!(v[0].abs() <= 3.0 && v[1].abs() <= 3.0);
@@ -387,7 +398,10 @@ mod tests {
         for k in 0..=300 {
             let speed = 0.01 * f64::from(k);
             for hold in [0.005, 0.01, 0.05] {
-                assert!(protocol::stopping_distance(speed, 3.0, hold) <= b.stop_distance_bound(speed) + 1e-15);
+                assert!(
+                    protocol::stopping_distance(speed, 3.0, hold)
+                        <= b.stop_distance_bound(speed) + 1e-15
+                );
             }
         }
     }
