@@ -143,3 +143,58 @@ fn missing_scenario_file_is_refused() {
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("/nonexistent/scenario.toml"));
 }
+
+#[test]
+fn a_start_within_the_robots_radius_of_an_obstacle_is_refused() {
+    // 0.2 m from the paper's obstacle's edge, with a robot 0.3 m in radius.
+    refused_file(
+        "[robot]\nstart = [3.0, 5.2, 0.0]\nradius_m = 0.3\n",
+        "robot.start",
+    );
+    refused_set("robot.radius_m=-0.1", "robot.radius_m");
+}
+
+#[test]
+fn a_start_whose_braking_path_enters_an_obstacle_is_refused() {
+    // 1 m from the obstacle's edge, heading at it at 3 m/s: braking at 3 m/s^2 takes 1.5 m.
+    refused_file(
+        "[robot]\nstart = [3.0, 6.0, -1.5707963267948966]\nzeta0 = 3.0\n",
+        "robot.zeta0",
+    );
+}
+
+#[test]
+fn a_goal_inside_an_obstacle_is_refused() {
+    refused_set("robot.goal=[3.0, 3.0]", "robot.goal");
+}
+
+#[test]
+fn a_brake_the_input_box_cannot_deliver_is_refused_and_auto_follows_the_box() {
+    refused_set("dfl.brake_decel=4", "dfl.brake_decel");
+    refused_set("dfl.brake_decel=fast", "dfl.brake_decel");
+    refused_file(
+        "[mpc]\nv_max = 1.0\n[dfl]\nbrake_decel = 2.0\n",
+        "dfl.brake_decel",
+    );
+    // The default brake is the box's: a smaller box alone stays valid.
+    let dir = tempfile::tempdir().unwrap();
+    let out = run(&[
+        "run",
+        "--in-process",
+        "--set",
+        "mpc.v_max=1",
+        "--set",
+        "duration_s=0.5",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_ne!(out.status.code(), Some(2), "{}", stderr(&out));
+    let written = std::fs::read_to_string(dir.path().join("scenario.toml")).unwrap();
+    assert!(written.contains("brake_decel = \"auto\""), "{written}");
+}
+
+#[test]
+fn unknown_safety_settings_are_refused() {
+    refused_set("mpc.terminal_safety=sometimes", "mpc.terminal_safety");
+    refused_set("dfl.gatekeeper=maybe", "dfl.gatekeeper");
+}

@@ -388,12 +388,23 @@ pub fn paper_set(
     use crate::study::{RunSpec, compare_solve_times, run_all};
     ensure_font()?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let base = protocol::Scenario::default();
-    let noisy = crate::scenarios::load(Some("paper-noisy"), &[])
-        .map_err(|e| anyhow!("the built-in paper-noisy scenario: {e}"))?;
+    // The paper's study is of the paper's formulation: without the safety layers added
+    // since (README, Safety).
+    let paper = [
+        "mpc.terminal_safety=none".to_string(),
+        "dfl.gatekeeper=false".to_string(),
+    ];
+    let built_in = |name: &str| {
+        crate::scenarios::load(Some(name), &paper)
+            .map_err(|e| anyhow!("the built-in {name} scenario: {e}"))
+    };
+    let (base, noisy) = (built_in("paper")?, built_in("paper-noisy")?);
     let spec = |name: String, scenario: &protocol::Scenario, sets: &[String]| {
         let scenario = scenario
             .with_overrides(sets)
+            .map_err(|e| anyhow!("{name}: {e}"))?;
+        scenario
+            .validate(&name)
             .map_err(|e| anyhow!("{name}: {e}"))?;
         Ok::<_, anyhow::Error>(RunSpec {
             values: vec![name.clone()],

@@ -46,7 +46,8 @@ pub struct World {
 /// World `index` of the batch `seed`: the distribution of the module docs, `overrides`
 /// applied on top, validated.
 pub fn world(seed: u64, index: usize, overrides: &[String]) -> Result<World, ScenarioErrors> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64);
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64);
     let mut last_error = None;
     for _ in 0..MAX_DRAWS {
         let scenario = draw(&mut rng, index).with_overrides(overrides)?;
@@ -86,15 +87,17 @@ fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
     let count = rng.random_range(1..=6);
     let normal = [-start[1] / distance, start[0] / distance];
     s.obstacles = (0..count)
-        .map(|_| loop {
-            let along = rng.random_range(0.2..0.8);
-            let aside = rng.random_range(-1.5..1.5);
-            let radius = rng.random_range(0.2..1.5);
-            let x = start[0] * (1.0 - along) + aside * normal[0];
-            let y = start[1] * (1.0 - along) + aside * normal[1];
-            let clear = |p: [f64; 2]| (p[0] - x).hypot(p[1] - y) > radius + 0.3;
-            if clear(start) && clear([0.0, 0.0]) {
-                break Obstacle { x, y, radius };
+        .map(|_| {
+            loop {
+                let along = rng.random_range(0.2..0.8);
+                let aside = rng.random_range(-1.5..1.5);
+                let radius = rng.random_range(0.2..1.5);
+                let x = start[0] * (1.0 - along) + aside * normal[0];
+                let y = start[1] * (1.0 - along) + aside * normal[1];
+                let clear = |p: [f64; 2]| (p[0] - x).hypot(p[1] - y) > radius + 0.3;
+                if clear(start) && clear([0.0, 0.0]) {
+                    break Obstacle { x, y, radius };
+                }
             }
         })
         .collect();
@@ -236,7 +239,8 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
                 "{params},{},{:.6},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.min_clearance_m,
-                r.time_to_goal_s.map_or(String::new(), |t| format!("{t:.3}")),
+                r.time_to_goal_s
+                    .map_or(String::new(), |t| format!("{t:.3}")),
                 r.safety_interventions,
                 r.solver_failures,
                 r.deadline_misses,
@@ -285,7 +289,10 @@ mod tests {
 
     #[test]
     fn overrides_apply_to_every_world_and_a_world_they_invalidate_is_drawn_again() {
-        let overrides = ["mpc.gamma=0.2".to_string(), "robot.radius_m=0.4".to_string()];
+        let overrides = [
+            "mpc.gamma=0.2".to_string(),
+            "robot.radius_m=0.4".to_string(),
+        ];
         for i in 0..50 {
             let s = world(3, i, &overrides).unwrap().scenario;
             assert_eq!((s.mpc.gamma, s.robot.radius_m), (0.2, 0.4));

@@ -848,8 +848,7 @@ impl Scenario {
                          {radius} (clearance {clearance:.3} m)"
                     ),
                 );
-            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y])
-                <= o.radius + radius
+            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y]) <= o.radius + radius
             {
                 v.fail(
                     "robot.zeta0",
