@@ -143,7 +143,7 @@ impl LinearMpc {
                 .then(|| Condensing::new(&layout, (forced, free), &hessian)),
             ..Assembly::default()
         };
-        let solvers = Rows::every(&layout)
+        let solvers = (0..Rows::count(&layout))
             .map(|_| ConicSolver::new(problem::solver_settings))
             .collect();
         let rows = Rows::all(&layout);
@@ -348,17 +348,25 @@ impl LinearMpc {
                 max_terminal_speed: self.reach.max_terminal_speed(),
             };
             if !data
-                .barrier(&self.layout, &self.statics)
+                .barrier(&self.layout, &self.statics, false)
                 .implied(&self.reach)
             {
                 self.kept.push(*disc);
             }
         }
-        let rows = Rows {
+        let mut rows = Rows {
             box_and_terminal: self.box_and_terminal_needed,
             discs: self.kept.len(),
+            relaxed: false,
         };
-        self.solve_with(z0, rows)
+        let (status, iterations) = self.solve_with(z0, rows);
+        if status == PlanStatus::Solved || self.layout.decay_slacks(rows.discs) == 0 {
+            return (status, iterations);
+        }
+        // Braking needs the decay relaxed (module docs of `terminal`).
+        rows.relaxed = true;
+        let (status, more) = self.solve_with(z0, rows);
+        (status, iterations + more)
     }
 
     /// One convex solve of the program with `rows`, on the discs in `kept`.
@@ -876,6 +884,7 @@ mod tests {
             let without_barrier = Rows {
                 box_and_terminal: true,
                 discs: 0,
+                relaxed: false,
             };
             assert_holds_at_worst_inputs(&mpc, &data, without_barrier);
         }
@@ -915,14 +924,19 @@ mod tests {
                     reference_velocity: mpc.reference_velocity,
                     max_terminal_speed: mpc.reach.max_terminal_speed(),
                 };
-                if !data.barrier(&mpc.layout, &mpc.statics).implied(&mpc.reach) {
+                if !data
+                    .barrier(&mpc.layout, &mpc.statics, false)
+                    .implied(&mpc.reach)
+                {
                     kept += 1;
                     continue;
                 }
                 left_out += 1;
+                // Relaxed where the layout can be: its slack rows hold too, at zero.
                 let only_barrier = Rows {
                     box_and_terminal: false,
                     discs: 1,
+                    relaxed: mpc.layout.decay_slacks(1) > 0,
                 };
                 assert_holds_at_worst_inputs(&mpc, &data, only_barrier);
             }
@@ -967,7 +981,7 @@ mod tests {
                 *c += value * forced[(column, j)];
             }
         }
-        let terminal = data.barrier(l, st).terminal;
+        let terminal = data.barrier(l, st, rows.relaxed).terminal;
         let extras = |v: &[f64]| {
             let mut extras = vec![0.0; l.variables(rows) - stagewise];
             if let Some(terminal) = &terminal {
@@ -975,7 +989,7 @@ mod tests {
                     let row = l.z(l.horizon, c);
                     x_free[row] + (0..v.len()).map(|j| forced[(row, j)] * v[j]).sum::<f64>()
                 });
-                let first = l.terminal_variable(rows.discs) - stagewise;
+                let first = l.terminal_variable(rows) - stagewise;
                 for (k, value) in terminal.variables_at(w).enumerate() {
                     extras[first + k] = value;
                 }
@@ -1075,7 +1089,7 @@ mod tests {
 
     fn leaving_out_implied_rows_changes_no_plan_of(s: &Scenario) {
         let mut mpc = LinearMpc::new(s).unwrap();
-        let mut compared = [0; 4];
+        let mut compared = vec![0; Rows::count(&mpc.layout)];
         for plan in closed_loop(s, 400).iter().step_by(5) {
             let z = plan.z[0];
             let zeta = z[1].hypot(z[3]);
@@ -1118,8 +1132,17 @@ mod tests {
             }
         }
         // The paper's run leaves out the box and terminal rows, and the obstacle's rows
-        // away from it (`Rows::index`: 0 without the box and the disc, 2 with the disc).
-        assert!(compared[0] > 10 && compared[2] > 10, "{compared:?}");
+        // away from it.
+        let away = Rows {
+            box_and_terminal: false,
+            discs: 0,
+            relaxed: false,
+        };
+        let near = Rows { discs: 1, ..away };
+        assert!(
+            compared[away.index()] > 10 && compared[near.index()] > 10,
+            "{compared:?}"
+        );
     }
 
     /// Rows of a program violated at the stage-wise point `x` (with its extra variables),
@@ -1257,8 +1280,8 @@ mod tests {
                     reference_velocity: mpc.reference_velocity,
                     max_terminal_speed: mpc.reach.max_terminal_speed(),
                 };
-                let barrier = data.barrier(&l, &mpc.statics);
-                let first = l.terminal_variable(mpc.discs.len());
+                let barrier = data.barrier(&l, &mpc.statics, rows.relaxed);
+                let first = l.terminal_variable(rows);
                 let w_n = [states[n][1], states[n][3]];
                 for (k, value) in barrier.terminal.unwrap().variables_at(w_n).enumerate() {
                     x[first + k] = value;

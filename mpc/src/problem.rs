@@ -12,7 +12,7 @@
 //! | 4(N-1) | nonneg | position box on `z_1 .. z_{N-1}` (eq. 53) |
 //! | at most 8(Nc+1) | nonneg | terminal input and position boxes on `(A+BK)^j z_N` (eqs. 45, 47), those the others do not imply |
 //! | 1 or N per obstacle | nonneg | CBF rows that are linear (see below) |
-//! | 2 per obstacle and stage | nonneg | bounds of the decay slacks (terminal safety, below) |
+//! | 2 per obstacle and stage | nonneg | bounds of the decay slacks (relaxed programs, below) |
 //! | 0 or 2 per obstacle | nonneg | the terminal rows' linear part ([`crate::terminal`]) |
 //! | 4 per obstacle and stage | SOC(4) | CBF rows that are cones |
 //! | 4-5 per obstacle | SOC | braking-safe terminal state ([`crate::terminal`]) |
@@ -31,9 +31,10 @@
 //! with `0 <= sigma_i <= (1 - gamma) (L_i(p_i) - floor_i)` (at stage 0, `H(p_0)` itself),
 //! `floor_i = (1 - gamma)^i min(H(p_0), 0)`. The bound keeps `H(p_i) >= floor_i` at every
 //! stage, which is `H >= 0` whenever the robot starts outside the disc: the relaxation
-//! trades the decay rate, never the barrier. The slacks and the terminal rows' variables
-//! follow the states and inputs (sparse) or the inputs (condensed), and exist only in the
-//! programs with the CBF rows.
+//! trades the decay rate, never the barrier. A step solves the relaxed program only when
+//! the program without slacks is infeasible ([`Rows::relaxed`]). The slacks and the
+//! terminal rows' variables follow the states and inputs (sparse) or the inputs
+//! (condensed).
 //!
 //! The sparsity pattern depends only on the configuration: [`Assembly`] writes the same
 //! entries in the same order every step, and only their values change.
@@ -100,15 +101,23 @@ impl Layout {
         }
     }
     /// Number of the solver's variables in the program with `rows`: the base ones, and
-    /// for its discs the decay slacks and the terminal rows' variables.
+    /// for its discs the terminal rows' variables and, relaxed, the decay slacks.
     pub fn variables(&self, rows: Rows) -> usize {
-        self.base_variables() + self.decay_slacks(rows.discs) + self.terminal_variables(rows.discs)
+        self.base_variables() + self.slacks(rows) + self.terminal_variables(rows.discs)
     }
-    /// Decay slacks for `discs` discs: one per disc and stage, with terminal safety on a
-    /// CBF that is not linear.
+    /// Decay slacks a relaxed program with `discs` discs has: one per disc and stage, with
+    /// terminal safety on a CBF that is not linear.
     pub fn decay_slacks(&self, discs: usize) -> usize {
         if self.terminal.is_some() && !self.linear_barrier {
             discs * self.horizon
+        } else {
+            0
+        }
+    }
+    /// Decay slacks of the program with `rows`.
+    fn slacks(&self, rows: Rows) -> usize {
+        if rows.relaxed {
+            self.decay_slacks(rows.discs)
         } else {
             0
         }
@@ -123,10 +132,10 @@ impl Layout {
     pub fn decay_slack(&self, j: usize, i: usize) -> usize {
         self.stagewise() + j * self.horizon + i
     }
-    /// Column of the first of the terminal rows' variables in a program with `discs`
-    /// discs, numbered as [`Layout::decay_slack`].
-    pub fn terminal_variable(&self, discs: usize) -> usize {
-        self.stagewise() + self.decay_slacks(discs)
+    /// Column of the first of the terminal rows' variables in the program with `rows`,
+    /// numbered as [`Layout::decay_slack`].
+    pub fn terminal_variable(&self, rows: Rows) -> usize {
+        self.stagewise() + self.slacks(rows)
     }
 
     /// The cones, in row order.
@@ -140,11 +149,8 @@ impl Layout {
             0
         };
         let terminal_rows = self.terminal.map_or(0, |t| t.nonnegative_rows(rows.discs));
-        let inequalities = 4 * n
-            + box_and_terminal
-            + linear_barrier_rows
-            + 2 * self.decay_slacks(rows.discs)
-            + terminal_rows;
+        let inequalities =
+            4 * n + box_and_terminal + linear_barrier_rows + 2 * self.slacks(rows) + terminal_rows;
         let mut cones = Vec::with_capacity(3 + cone_barriers + rows.discs);
         if !self.condensed {
             cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
@@ -162,8 +168,10 @@ impl Layout {
 /// this solve (every input sequence within the input box satisfies them): the same
 /// feasible set, a smaller program. The position box and the terminal set go as one
 /// group; the rows of each disc (its CBF rows, decay slacks and terminal rows) go with the
-/// disc. The discs are data, so one program serves any `discs` of them: one solver per
-/// combination, `2 (M + 1)` for `M` obstacles.
+/// disc. The discs are data, so one program serves any `discs` of them. With terminal
+/// safety a step first solves the program without decay slacks and, only if that is
+/// infeasible, the relaxed one (the decay is relaxed only where braking needs it). One
+/// solver per combination, at most `4 (M + 1)` for `M` obstacles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Rows {
     /// The position box on `z_1 .. z_{N-1}` and the terminal set
@@ -171,29 +179,43 @@ pub struct Rows {
     pub box_and_terminal: bool,
     /// Discs whose rows are in the program ([`Barrier::implied`] is false for them).
     pub discs: usize,
+    /// The CBF's decay relaxed by slacks ([`Layout::decay_slacks`]).
+    pub relaxed: bool,
 }
 
 impl Rows {
-    /// Every row of a layout.
+    /// Every row of a layout, relaxed if it can be.
     pub fn all(l: &Layout) -> Rows {
         Rows {
             box_and_terminal: true,
             discs: l.obstacles,
+            relaxed: l.decay_slacks(l.obstacles) > 0,
         }
     }
 
-    /// Every combination of a layout, in [`Rows::index`] order.
+    /// Every combination of a layout (a program is relaxed only if it has slacks).
     pub fn every(l: &Layout) -> impl Iterator<Item = Rows> {
-        (0..=l.obstacles).flat_map(|discs| {
-            [false, true].map(|box_and_terminal| Rows {
-                box_and_terminal,
-                discs,
-            })
+        (0..=l.obstacles).flat_map(move |discs| {
+            let relaxed = l.decay_slacks(discs) > 0;
+            [(false, false), (true, false), (false, true), (true, true)]
+                .into_iter()
+                .filter(move |&(r, _)| relaxed || !r)
+                .map(move |(relaxed, box_and_terminal)| Rows {
+                    box_and_terminal,
+                    discs,
+                    relaxed,
+                })
         })
     }
 
+    /// Index in `0..Rows::count(l)`.
     pub fn index(self) -> usize {
-        2 * self.discs + usize::from(self.box_and_terminal)
+        4 * self.discs + 2 * usize::from(self.relaxed) + usize::from(self.box_and_terminal)
+    }
+
+    /// Number of indices for a layout.
+    pub fn count(l: &Layout) -> usize {
+        4 * (l.obstacles + 1)
     }
 }
 
@@ -220,13 +242,13 @@ impl Disc {
     }
 }
 
-/// Cost per m^2 of decay slack: a linear penalty, exact (the slacks stay zero and the plan
-/// is the unrelaxed one) while the unrelaxed program is feasible and the multipliers of its
-/// CBF rows stay below this. They reach about 1e4 in the paper's run, whose cost is in the
-/// thousands while the robot is metres from the goal (with 1e4 its plans relaxed the decay
-/// by up to 8e-3 m^2; with 1e5 never); with 1e6 clarabel, without equilibration, reported
-/// a feasible program infeasible. A slack's multiplier can reach this weight, so the
-/// solver's feasibility tolerance (1e-6) moves the cost by up to about 0.1.
+/// Cost per m^2 of decay slack in a relaxed program (solved only when the unrelaxed one is
+/// infeasible): a linear penalty, so the decay is relaxed no more than the multipliers of
+/// the CBF rows make worth it. They reach about 1e4 in the paper's run, whose cost is in
+/// the thousands while the robot is metres from the goal; with 1e6 clarabel, without
+/// equilibration, reported a feasible program infeasible. A slack's multiplier can reach
+/// this weight, so the solver's feasibility tolerance (1e-6) moves the cost by up to about
+/// 0.1.
 pub const DECAY_SLACK_WEIGHT: f64 = 1e5;
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
@@ -550,8 +572,13 @@ pub struct StepData<'a> {
 }
 
 impl<'a> StepData<'a> {
-    /// What the step's CBF rows are built from.
-    pub fn barrier(&self, l: &Layout, s: &StaticData) -> Barrier<'a> {
+    /// What the step's CBF rows are built from, in a program `relaxed` or not.
+    pub fn barrier(&self, l: &Layout, s: &StaticData, relaxed: bool) -> Barrier<'a> {
+        let rows = Rows {
+            box_and_terminal: false,
+            discs: self.discs.len(),
+            relaxed,
+        };
         Barrier {
             horizon: l.horizon,
             linear: l.linear_barrier,
@@ -559,7 +586,7 @@ impl<'a> StepData<'a> {
             discs: self.discs,
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
-            decay_slacks: (l.decay_slacks(self.discs.len()) > 0).then(|| l.decay_slack(0, 0)),
+            decay_slacks: (l.slacks(rows) > 0).then(|| l.decay_slack(0, 0)),
             terminal: l.terminal.filter(|_| !self.discs.is_empty()).map(|model| {
                 let n = l.horizon;
                 let p_bar = self.reference[n];
@@ -571,7 +598,7 @@ impl<'a> StepData<'a> {
                     p0: [self.z0[0], self.z0[2]],
                     position: [l.z(n, 0), l.z(n, 2)],
                     velocity: [l.z(n, 1), l.z(n, 3)],
-                    first_variable: l.terminal_variable(self.discs.len()),
+                    first_variable: l.terminal_variable(rows),
                     max_speed: self.max_terminal_speed,
                 }
             }),
@@ -631,7 +658,7 @@ impl Assembly {
             // nothing.
             self.q.resize(l.base_variables(), 0.0);
             self.q.resize(variables, 0.0);
-            let slacks = l.base_variables()..l.base_variables() + l.decay_slacks(rows.discs);
+            let slacks = l.base_variables()..l.base_variables() + l.slacks(rows);
             self.q[slacks].fill(DECAY_SLACK_WEIGHT);
         }
         for i in 0..n {
@@ -645,7 +672,7 @@ impl Assembly {
                 self.row(terms.into_iter().flatten(), bound);
             }
         }
-        self.barrier(&d.barrier(l, s), |i| [l.z(i, 0), l.z(i, 2)]);
+        self.barrier(&d.barrier(l, s, rows.relaxed), |i| [l.z(i, 0), l.z(i, 2)]);
     }
 
     /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.

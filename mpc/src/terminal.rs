@@ -65,7 +65,9 @@
 //!   `the_shifted_plan_extended_by_braking_is_feasible_at_the_next_sample` measures it.
 //!
 //! Without the decay slacks the last row can fail: braking towards a disc lowers `H` by
-//! more than the factor `1 - gamma` allows. The paper's candidate (the LQR step) satisfies
+//! more than the factor `1 - gamma` allows. So a step first solves the program without
+//! them (the paper's CBF exactly), and only if that is infeasible the relaxed one, which
+//! the candidate makes feasible. The paper's candidate (the LQR step) satisfies
 //! the terminal set but not the stopping condition: that is how a short horizon ran into
 //! obstacles (issue 14).
 
