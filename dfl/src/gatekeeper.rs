@@ -8,7 +8,10 @@
 //! [`protocol::commit_margin_m`]. Otherwise the trajectory already committed goes on, and
 //! its brake follows: today's shifted-plan fallback, but checked. On every tick the
 //! committed trajectory is checked again from the new estimate, against the same discs
-//! without that last margin; if it would enter one, the DFL brakes at once. The margin
+//! without that last margin; if it would enter one, the DFL brakes at once (unless braking
+//! from there would enter an obstacle deeper still: then the committed trajectory goes on).
+//! A robot already inside a grown disc (its uncertainty grew, say) is checked against the
+//! disc through its position: it may move, but not deeper. The margin
 //! between the two checks keeps the estimate's jitter and the robot's small departures
 //! from its linearized model (the zeta guard, commands held over an inner tick) from
 //! giving up trajectories that are safe; `kappa sigma` stays in both, since the estimate
@@ -83,7 +86,8 @@ impl Gatekeeper {
         z: [f64; 4],
         grow: f64,
     ) -> Option<f64> {
-        let mut p = [z[0], z[2]];
+        let start = [z[0], z[2]];
+        let mut p = start;
         let mut w = [z[1], z[3]];
         let mut deepest: Option<f64> = None;
         let mut note = |clearance: f64| {
@@ -100,7 +104,8 @@ impl Gatekeeper {
                 };
                 let acc = plan.v[i];
                 for &(center, radius) in &self.discs {
-                    note(arc_clearance(p, w, acc, duration, center, radius + grow));
+                    let radius = checked_radius(start, center, radius + grow);
+                    note(arc_clearance(p, w, acc, duration, center, radius));
                 }
                 for k in 0..2 {
                     p[k] += w[k] * duration + 0.5 * acc[k] * duration * duration;
@@ -108,15 +113,23 @@ impl Gatekeeper {
                 }
             }
         }
-        if let Some(clearance) = self.brake_clearance(p, w, grow) {
+        if let Some(clearance) = self.brake_clearance(p, w, grow, start) {
             note(clearance);
         }
         deepest
     }
 
+    /// Checks braking at once from the state `z = [x, xdot, y, ydot]` against every disc
+    /// grown by `grow` (m), as [`Gatekeeper::check`] does.
+    pub fn brake_check(&self, z: [f64; 4], grow: f64) -> Option<f64> {
+        let p = [z[0], z[2]];
+        self.brake_clearance(p, [z[1], z[3]], grow, p)
+    }
+
     /// The clearance of braking from position `p` with velocity `w`, if the brake path
-    /// enters a disc grown by `grow` (m).
-    fn brake_clearance(&self, p: [f64; 2], w: [f64; 2], grow: f64) -> Option<f64> {
+    /// enters a disc grown by `grow` (m) as a trajectory from `start` is checked
+    /// ([`checked_radius`]).
+    fn brake_clearance(&self, p: [f64; 2], w: [f64; 2], grow: f64, start: [f64; 2]) -> Option<f64> {
         let speed = w[0].hypot(w[1]);
         let stop = protocol::stopping_distance(speed, self.brake_decel, self.inner_tick_s);
         let end = if speed > 0.0 {
@@ -126,10 +139,23 @@ impl Gatekeeper {
         };
         self.discs
             .iter()
-            .map(|&(center, radius)| protocol::segment_distance(p, end, center) - (radius + grow))
+            .map(|&(center, radius)| {
+                let radius = checked_radius(start, center, radius + grow);
+                protocol::segment_distance(p, end, center) - radius
+            })
             .filter(|c| *c < 0.0)
             .reduce(f64::min)
     }
+}
+
+/// The radius a trajectory from `start` is checked against for a disc at `center` of
+/// radius `grown` (m): the grown radius, or, when `start` is inside it (the uncertainty
+/// grew, say), the robot's distance from the centre now, less a nanometre against rounding.
+/// A robot inside a grown disc may move, but not deeper; it never reaches the obstacle it
+/// is not already in.
+fn checked_radius(start: [f64; 2], center: [f64; 2], grown: f64) -> f64 {
+    let now = (start[0] - center[0]).hypot(start[1] - center[1]);
+    grown.min(now - 1e-9)
 }
 
 /// The smallest distance from `center` to the arc `q(t) = p + w t + acc t^2 / 2`,
@@ -334,6 +360,29 @@ mod tests {
     }
 
     #[test]
+    fn inside_a_grown_disc_a_trajectory_may_move_away_but_not_deeper() {
+        // 0.2 m from the edge, with a margin of 0.3 m: inside the grown disc, at rest.
+        let mut s = scenario_with_obstacle(1.5, 0.0, 0.5);
+        s.mpc.safety_margin_m = 0.3;
+        let g = Gatekeeper::new(&s);
+        let z = [0.8, 0.0, 0.0, 0.0];
+        assert_eq!(
+            g.check(&plan(0, 8, [-1.0, 0.0]), 0, 0.0, z, 0.0),
+            None,
+            "away"
+        );
+        assert_eq!(
+            g.check(&plan(0, 8, [0.0, 0.0]), 0, 0.0, z, 0.0),
+            None,
+            "staying"
+        );
+        assert!(
+            g.check(&plan(0, 8, [0.5, 0.0]), 0, 0.0, z, 0.0).is_some(),
+            "deeper"
+        );
+    }
+
+    #[test]
     fn braking_short_of_an_obstacle_passes_and_braking_into_it_fails() {
         // At 1 m/s towards an obstacle whose edge is 0.3 m ahead, braking at 3 m/s^2
         // stops in 1/6 m; at 2 m/s it needs 2/3 m.
@@ -368,22 +417,27 @@ mod tests {
 
     #[test]
     fn the_commit_check_grows_every_disc_by_the_uncertainty_and_the_margin() {
+        // From rest 1.0 m from the edge, creeping towards it at 0.5 m/s^2 for 0.4 s: 4 cm,
+        // then the brake from 0.2 m/s.
         let mut s = scenario_with_obstacle(1.5, 0.0, 0.5);
-        let z = [0.0, 0.0, 0.0, 0.0]; // at rest, 1.0 m from the edge
-        let still = plan(0, 8, [0.0; 2]);
+        let z = [0.0, 0.0, 0.0, 0.0];
+        let creep = plan(0, 8, [0.5, 0.0]);
+        let reach = 0.04 + protocol::stopping_distance(0.2, 3.0, s.inner_tick_s());
         let g = Gatekeeper::new(&s);
-        // kappa = 3: sigma 0.24 m grows the disc by 0.72 m, and the commit margin by a
-        // sigma and 1 mm more: 0.961 m of the 1.0 m.
-        assert_eq!(g.check(&still, 0, 0.0, z, g.commit_growth(0.24)), None);
-        let depth = g.check(&still, 0, 0.0, z, g.commit_growth(0.25)).unwrap();
-        assert!((depth + protocol::COMMIT_MARGIN_M).abs() < 1e-9, "{depth}");
+        // kappa = 3: sigma 0.23 m grows the disc by 0.69 m, the commit margin by a sigma
+        // and 1 mm more (0.921 m); sigma 0.24 m by 0.961 m, into which the creep reaches.
+        assert_eq!(g.check(&creep, 0, 0.0, z, g.commit_growth(0.23)), None);
+        let depth = g.check(&creep, 0, 0.0, z, g.commit_growth(0.24)).unwrap();
+        let expected = 1.0 - reach - g.commit_growth(0.24);
+        assert!((depth - expected).abs() < 1e-9, "{depth} vs {expected}");
         assert_eq!(
-            g.check(&still, 0, 0.0, z, g.keep_growth(0.25)),
+            g.check(&creep, 0, 0.0, z, g.keep_growth(0.24)),
             None,
             "re-check"
         );
-        s.robot.radius_m = 1.1;
-        let depth = Gatekeeper::new(&s).check(&still, 0, 0.0, z, 0.0).unwrap();
-        assert!((depth + 0.1).abs() < 1e-9, "{depth}");
+        // The robot's radius grows the disc too.
+        s.robot.radius_m = 0.96;
+        let depth = Gatekeeper::new(&s).check(&creep, 0, 0.0, z, 0.0).unwrap();
+        assert!((depth - (1.0 - reach - 0.96)).abs() < 1e-9, "{depth}");
     }
 }

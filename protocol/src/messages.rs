@@ -250,7 +250,8 @@ pub enum Intervention {
     /// goes on.
     PlanRefused = 1,
     /// The committed trajectory, flown from the current estimate, would enter an inflated
-    /// obstacle: the DFL brakes at once.
+    /// obstacle: the DFL brakes at once (or, should braking from there enter one deeper,
+    /// flies the trajectory on; reported once per plan).
     CommittedUnsafe = 2,
 }
 
