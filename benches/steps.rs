@@ -11,7 +11,8 @@ fn main() {
     divan::main();
 }
 
-/// The estimates and plans of the in-process closed loop of `scenario`, per sample.
+/// The estimates (per tick) and plans (per sample) of the in-process closed loop of
+/// `scenario`.
 fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
     let m = scenario.timing.inner_steps as u64;
     let dt = scenario.timing.ts_s / m as f64;
@@ -29,10 +30,10 @@ fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
             ..Header::default()
         };
         let e = estimator.step(applied, dt, plant.measure(), dfl.zeta(), header);
+        estimates.push(e);
         if tick.is_multiple_of(m) {
             let plan = mpc.step(tick / m, e.state, e.position_sigma());
             inbox.receive(&plan);
-            estimates.push(e);
             plans.push(plan);
         }
         inbox.release(tick / m, &mut dfl);
@@ -48,6 +49,10 @@ fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
 /// are the steps' own times.
 fn bench_mpc(bencher: divan::Bencher, scenario: &Scenario) {
     let (estimates, _) = closed_loop(scenario);
+    let estimates: Vec<Estimate> = estimates
+        .into_iter()
+        .step_by(scenario.timing.inner_steps)
+        .collect();
     let mut mpc = Mpc::new(scenario).expect("valid scenario");
     let mut k = 0;
     bencher.bench_local(|| {
@@ -70,6 +75,23 @@ fn mpc_step(bencher: divan::Bencher, horizon: usize) {
     let mut s = Scenario::default();
     s.mpc.horizon = horizon;
     bench_mpc(bencher, &s);
+}
+
+/// The paper's formulation (`mpc.terminal_safety = "none"`, and its closed loop without
+/// the DFL's safety check), to compare with `mpc_step`.
+#[divan::bench(sample_count = RUN_SAMPLES)]
+fn mpc_step_paper_formulation(bencher: divan::Bencher) {
+    bench_mpc(bencher, &paper_formulation());
+}
+
+/// The paper's scenario without the safety layers added to the paper's scheme.
+fn paper_formulation() -> Scenario {
+    Scenario::default()
+        .with_overrides(&[
+            "mpc.terminal_safety=none".into(),
+            "dfl.gatekeeper=false".into(),
+        ])
+        .expect("valid overrides")
 }
 
 /// The form `auto` does not pick for the horizon (`mpc.qp_form`): sparse at N = 8,
@@ -118,20 +140,40 @@ fn mpc_step_five_obstacles(bencher: divan::Bencher) {
 fn nonlinear_mpc_step(bencher: divan::Bencher) {
     let mut s = Scenario::default();
     s.mpc.formulation = protocol::Formulation::Nonlinear;
+    s.mpc.terminal_safety = protocol::TerminalSafety::None;
     bench_mpc(bencher, &s);
+}
+
+/// One DFL tick per iteration, walking the closed loop's ticks in order with each plan
+/// offered at its sample's first tick, as in a run (with the safety check: a commit
+/// check then, a re-check of the committed trajectory on every tick).
+fn bench_dfl(bencher: divan::Bencher, scenario: &Scenario) {
+    let (estimates, plans) = closed_loop(scenario);
+    let m = scenario.timing.inner_steps;
+    let mut dfl = Dfl::new(scenario);
+    let mut tick = 0;
+    bencher.bench_local(|| {
+        if tick == estimates.len() {
+            tick = 0;
+            dfl = Dfl::new(scenario);
+        }
+        if tick.is_multiple_of(m) {
+            dfl.offer(&plans[tick / m]);
+        }
+        let act = dfl.step(&estimates[tick], tick as u64);
+        tick += 1;
+        act
+    });
 }
 
 #[divan::bench]
 fn dfl_step(bencher: divan::Bencher) {
-    let s = Scenario::default();
-    let (estimates, plans) = closed_loop(&s);
-    let mut dfl = Dfl::new(&s);
-    let mut k = 0;
-    bencher.bench_local(|| {
-        k = (k + 1) % estimates.len();
-        dfl.offer(&plans[k]);
-        dfl.step(&estimates[k], k as u64 * 10)
-    });
+    bench_dfl(bencher, &Scenario::default());
+}
+
+#[divan::bench]
+fn dfl_step_without_safety_check(bencher: divan::Bencher) {
+    bench_dfl(bencher, &paper_formulation());
 }
 
 #[divan::bench]

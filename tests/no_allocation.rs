@@ -48,13 +48,21 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
         ("linear", "condensed"),
         ("nonlinear", "auto"),
     ] {
+        // The nonlinear baseline has no terminal safety rows.
+        let terminal_safety = if formulation == "linear" {
+            "brake"
+        } else {
+            "none"
+        };
         let scenario = Scenario::default()
             .with_overrides(&[
                 format!("mpc.formulation={formulation}"),
                 format!("mpc.qp_form={qp_form}"),
+                format!("mpc.terminal_safety={terminal_safety}"),
                 "plant.noise_variance=0.05".into(),
             ])
             .unwrap();
+        scenario.validate("test").unwrap();
         let m = scenario.timing.inner_steps as u64;
         let dt = scenario.timing.ts_s / m as f64;
         let mut plant = Plant::new(&scenario);

@@ -40,11 +40,13 @@ fn with_both_layers_off_the_paper_run_is_todays_trajectory_to_the_bit() {
     let columns: Vec<&str> = lines.next().unwrap().split(',').collect();
     let fixture: Vec<&str> = lines.collect();
     assert_eq!(fixture.len(), 61);
-    let sampled = rows
+    let sampled: Vec<_> = rows
         .iter()
         .step_by(100)
-        .chain(std::iter::once(rows.last().unwrap()));
-    for (row, line) in sampled.zip(&fixture) {
+        .chain(std::iter::once(rows.last().unwrap()))
+        .collect();
+    assert_eq!(sampled.len(), fixture.len());
+    for (row, line) in sampled.iter().zip(&fixture) {
         let got: Vec<&str> = columns.iter().map(|c| row[*c].as_str()).collect();
         assert_eq!(got.join(","), *line);
     }
@@ -142,16 +144,17 @@ fn the_robots_radius_keeps_its_edge_off_the_obstacle() {
     assert!(out.status.code().is_some(), "{}", stderr(&out));
     let s = summary(dir.path());
     assert_ne!(s["outcome"], "collided");
-    // The clearance is from the robot's edge; its centre keeps the radius more.
-    let edge = s["min_clearance_m"].as_f64().unwrap();
-    assert!(edge > 0.0, "{edge}");
+    // The judge measures from the robot's edge.
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0, "{s:#}");
+    // The robot's centre never comes within 0.3 m of the obstacle (the paper's point
+    // robot came within 3 mm of it).
     let rows = common::csv(&dir.path().join("trajectory.csv"));
     let centre = rows
         .iter()
         .map(|r| (common::num(r, "x") - 3.0).hypot(common::num(r, "y") - 3.5) - 1.5)
         .fold(f64::INFINITY, f64::min);
     assert!(
-        (centre - (edge + 0.3)).abs() < 1e-9,
-        "centre {centre}, edge {edge}"
+        centre > 0.3,
+        "centre {centre} m from the obstacle's surface"
     );
 }

@@ -51,6 +51,8 @@ pub struct LinearMpc {
     /// The robot's radius and the safety margin `m`, added to every radius.
     obstacle_margin_m: f64,
     uncertainty_sigmas: f64,
+    /// Whether the DFL checks the plans (`dfl.gatekeeper`): the discs grow by its margin.
+    checked: bool,
     max_solves: usize,
     refinement_tol_m: f64,
     ts_s: f64,
@@ -75,7 +77,8 @@ pub struct LinearMpc {
     reference_velocity: [f64; 2],
     /// The last solved iterate, stage-wise (`[z_0, ..., z_N, v_0, ..., v_{N-1}]`,
     /// [`Layout::z`], [`Layout::v`]): every convex solve's solution is feasible for the
-    /// paper's constraint, so a failed refinement keeps this one.
+    /// paper's constraint (a relaxed program's for its relaxed decay and `H >= 0`), so a
+    /// failed refinement keeps this one.
     solution: Vec<f64>,
     /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
     last_sample: Option<u64>,
@@ -157,6 +160,7 @@ impl LinearMpc {
             obstacles: scenario.obstacles.clone(),
             obstacle_margin_m: scenario.obstacle_margin_m(),
             uncertainty_sigmas: c.uncertainty_sigmas,
+            checked: scenario.dfl.gatekeeper,
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
@@ -218,16 +222,15 @@ impl LinearMpc {
         &self.discs
     }
 
-    /// What every obstacle's radius grows by in the constraints, for an estimate with
-    /// position standard deviation `position_sigma_m`, before the inter-sample term: the
-    /// robot's radius, the safety margin `m`, `kappa sigma`, and with terminal safety the
-    /// DFL's commit margin and a millimetre ([`terminal::plan_margin_m`]), m.
+    /// What every obstacle's radius grows by in the constraints
+    /// ([`problem::obstacle_growth_m`]), m.
     fn margin_m(&self, position_sigma_m: f64) -> f64 {
-        let plan_margin = match self.layout.terminal {
-            Some(_) => terminal::plan_margin_m(position_sigma_m),
-            None => 0.0,
-        };
-        self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m + plan_margin
+        problem::obstacle_growth_m(
+            self.obstacle_margin_m,
+            self.uncertainty_sigmas,
+            position_sigma_m,
+            self.checked,
+        )
     }
 
     /// Forgets the previous plan: the next step linearizes at a braking rollout.
@@ -299,9 +302,9 @@ impl LinearMpc {
             solves: 0,
         };
         for _ in 0..self.max_solves {
-            let (status, iterations) = self.solve_once(z0);
+            let (status, iterations, solves) = self.solve_once(z0);
             outcome.iterations += iterations;
-            outcome.solves += 1;
+            outcome.solves += solves;
             if status != PlanStatus::Solved {
                 if outcome.status != PlanStatus::Solved {
                     outcome.status = status;
@@ -323,7 +326,7 @@ impl LinearMpc {
             return;
         };
         // The states and inputs (sparse) or the inputs (condensed) come first; the decay
-        // slacks and the stop speed after them are not kept.
+        // slacks and the terminal rows' variables after them are not kept.
         match &self.assembly.condensing {
             Some(condensing) => {
                 condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution)
@@ -336,8 +339,9 @@ impl LinearMpc {
     }
 
     /// One convex solve at the current reference, without the rows the input box
-    /// implies.
-    fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32) {
+    /// implies; with terminal safety, if that fails, a second of the relaxed program.
+    /// Returns the status, the interior-point iterations and the solves.
+    fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
         self.kept.clear();
         for disc in &self.discs {
             let data = StepData {
@@ -361,12 +365,13 @@ impl LinearMpc {
         };
         let (status, iterations) = self.solve_with(z0, rows);
         if status == PlanStatus::Solved || self.layout.decay_slacks(rows.discs) == 0 {
-            return (status, iterations);
+            return (status, iterations, 1);
         }
-        // Braking needs the decay relaxed (module docs of `terminal`).
+        // Infeasible (or stalled): braking may need the decay relaxed (module docs of
+        // `terminal`).
         rows.relaxed = true;
         let (status, more) = self.solve_with(z0, rows);
-        (status, iterations + more)
+        (status, iterations + more, 2)
     }
 
     /// One convex solve of the program with `rows`, on the discs in `kept`.
@@ -476,8 +481,8 @@ fn solver_hessian<'a>(assembly: &'a Assembly, stagewise: &'a CscMatrix<f64>) -> 
     }
 }
 
-/// `p` with empty rows and columns appended up to `n`: the decay slacks and the stop
-/// speed have no quadratic cost.
+/// `p` with empty rows and columns appended up to `n`: the decay slacks and the terminal
+/// rows' variables have no quadratic cost.
 fn padded(p: &CscMatrix<f64>, n: usize) -> CscMatrix<f64> {
     let mut colptr = p.colptr.clone();
     colptr.resize(n + 1, p.nnz());
@@ -1101,25 +1106,20 @@ mod tests {
             mpc.load_solution();
             let reduced = mpc.solution.clone();
             mpc.kept = mpc.discs.clone();
-            assert_eq!(
-                mpc.solve_with(z0, Rows::all(&mpc.layout)).0,
-                PlanStatus::Solved
-            );
+            let all_rows = Rows {
+                relaxed: used.relaxed,
+                ..Rows::all(&mpc.layout)
+            };
+            assert_eq!(mpc.solve_with(z0, all_rows).0, PlanStatus::Solved);
             mpc.load_solution();
             let all = mpc.solution.clone();
             compared[used.index()] += 1;
             // The same optimum, to the solver's accuracy: a duality gap of 1e-3 and
             // feasibility to 1e-6 (relative), which large multipliers of the CBF rows
-            // turn into a cost difference of 1e-5 relative, and a decay slack's (up to its
-            // weight) into up to 1e-6 of the weight in each of the two solves.
-            let slacks = if s.mpc.terminal_safety == TerminalSafety::None {
-                0.0
-            } else {
-                2e-6 * problem::DECAY_SLACK_WEIGHT
-            };
+            // turn into a cost difference of 1e-5 relative.
             let (c_all, c_reduced) = (cost(&mpc, &all), cost(&mpc, &reduced));
             assert!(
-                (c_all - c_reduced).abs() < 2e-3 + 1e-5 * c_all + slacks,
+                (c_all - c_reduced).abs() < 2e-3 + 1e-5 * c_all,
                 "sample {} {used:?}: cost {c_all} with every row, {c_reduced} without",
                 plan.sample
             );
@@ -1391,6 +1391,37 @@ mod tests {
             !plan.is_solved()
         });
         assert!(failed.is_some(), "the paper's formulation stayed feasible");
+    }
+
+    #[test]
+    fn from_inside_a_constraint_disc_the_plan_leaves_it_no_slower_than_the_decay_allows() {
+        // With a safety margin of 0.3 m (and the check's 2 mm), 1 cm inside the constraint
+        // disc (H(p_0) < 0), at rest. The CBF asks the plan to leave as the decay does,
+        // H(p_i) >= (1 - gamma)^i H(p_0), and the terminal rows no more than that. (From
+        // deeper in, the paper's CBF alone asks more than the input box gives.)
+        let s = Scenario::default()
+            .with_overrides(&[
+                "mpc.safety_margin_m=0.3".into(),
+                "robot.start=[3.0, 5.292, 0.0]".into(),
+            ])
+            .unwrap();
+        s.validate("test").unwrap();
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        let plan = mpc.step(0, [3.0, 5.292, 0.0, 0.0], 0.0);
+        assert!(plan.is_solved(), "{:?}", plan.status());
+        let disc = mpc.constraint_discs()[0];
+        let goal = s.robot.goal;
+        let h = |z: [f64; 4]| disc.barrier([z[0] - goal[0], z[2] - goal[1]]);
+        let h0 = h(plan.z[0]);
+        assert!(h0 < 0.0, "the start should be inside the constraint disc");
+        for i in 1..=plan.horizon as usize {
+            let floor = (1.0 - s.mpc.gamma).powi(i as i32) * h0;
+            assert!(
+                h(plan.z[i]) >= floor - 1e-6,
+                "stage {i}: {} < {floor}",
+                h(plan.z[i])
+            );
+        }
     }
 
     #[test]

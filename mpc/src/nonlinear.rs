@@ -108,6 +108,8 @@ pub struct NonlinearMpc {
     obstacles: Vec<protocol::Obstacle>,
     /// The robot's radius and the safety margin `m`, added to every radius.
     obstacle_margin_m: f64,
+    /// Whether the DFL checks the plans (`dfl.gatekeeper`): the discs grow by its margin.
+    checked: bool,
     uncertainty_sigmas: f64,
     // Reused every step.
     solver: ConicSolver,
@@ -146,6 +148,7 @@ impl NonlinearMpc {
             goal,
             obstacles: scenario.obstacles.clone(),
             obstacle_margin_m: scenario.obstacle_margin_m(),
+            checked: scenario.dfl.gatekeeper,
             uncertainty_sigmas: c.uncertainty_sigmas,
             solver: ConicSolver::new(crate::problem::base_settings),
             assembly: Assembly::default(),
@@ -184,7 +187,12 @@ impl NonlinearMpc {
             x_bar[2],
             x_bar[3],
         ];
-        let margin = self.obstacle_margin_m + self.uncertainty_sigmas * position_sigma_m;
+        let margin = crate::problem::obstacle_growth_m(
+            self.obstacle_margin_m,
+            self.uncertainty_sigmas,
+            position_sigma_m,
+            self.checked,
+        );
         crate::problem::constraint_discs(
             &self.obstacles,
             self.goal,

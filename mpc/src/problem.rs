@@ -32,7 +32,7 @@
 //! `floor_i = (1 - gamma)^i min(H(p_0), 0)`. The bound keeps `H(p_i) >= floor_i` at every
 //! stage, which is `H >= 0` whenever the robot starts outside the disc: the relaxation
 //! trades the decay rate, never the barrier. A step solves the relaxed program only when
-//! the program without slacks is infeasible ([`Rows::relaxed`]). The slacks and the
+//! the program without slacks fails ([`Rows::relaxed`]). The slacks and the
 //! terminal rows' variables follow the states and inputs (sparse) or the inputs
 //! (condensed).
 //!
@@ -169,9 +169,11 @@ impl Layout {
 /// feasible set, a smaller program. The position box and the terminal set go as one
 /// group; the rows of each disc (its CBF rows, decay slacks and terminal rows) go with the
 /// disc. The discs are data, so one program serves any `discs` of them. With terminal
-/// safety a step first solves the program without decay slacks and, only if that is
-/// infeasible, the relaxed one (the decay is relaxed only where braking needs it). One
-/// solver per combination, at most `4 (M + 1)` for `M` obstacles.
+/// safety a step first solves the program without decay slacks and, only if that fails
+/// (infeasible, or the solver stalls), the relaxed one: the decay is relaxed only where
+/// braking needs it. (The relaxed program is a relaxation: its slacks' bounds ask
+/// `L_i(p_i) >= floor_i`, which the unrelaxed rows imply stage by stage.) One solver per
+/// combination, at most `4 (M + 1)` for `M` obstacles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Rows {
     /// The position box on `z_1 .. z_{N-1}` and the terminal set
@@ -289,9 +291,24 @@ pub fn base_settings() -> clarabel::solver::DefaultSettings<f64> {
     }
 }
 
+/// What every obstacle's radius grows by in the MPC's constraints, m, before the
+/// inter-sample term: `obstacle_margin_m` (the robot's radius and the safety margin `m`),
+/// `kappa sigma` for an estimate with position standard deviation `sigma_m`, and, when the
+/// DFL checks the plans (`dfl.gatekeeper`), the check's commit margin and a millimetre more
+/// ([`protocol::commit_margin_m`]): a plan met to the solver's tolerance (about a
+/// micrometre) then passes the check.
+pub fn obstacle_growth_m(obstacle_margin_m: f64, kappa: f64, sigma_m: f64, checked: bool) -> f64 {
+    let plan_margin = if checked {
+        protocol::commit_margin_m(sigma_m) + 1e-3
+    } else {
+        0.0
+    };
+    obstacle_margin_m + kappa * sigma_m + plan_margin
+}
+
 /// Fills `discs` with the constraint discs of one step: `obstacles` in coordinates
 /// relative to `goal`, each radius inflated by `margin_m` (the safety margin and the
-/// uncertainty term) and by the inter-sample dip. The CBF holds at the sample instants;
+/// uncertainty term, [`obstacle_growth_m`]) and by the inter-sample dip. The CBF holds at the sample instants;
 /// between two of them the robot moves along a chord of at most
 /// `d = |speed| Ts + accel_max Ts^2 / 2`. A segment of length `d` whose end points lie
 /// outside radius `R` comes no closer to the centre than `sqrt(R^2 - d^2 / 4)`, so the
@@ -600,6 +617,11 @@ impl<'a> StepData<'a> {
                     velocity: [l.z(n, 1), l.z(n, 3)],
                     first_variable: l.terminal_variable(rows),
                     max_speed: self.max_terminal_speed,
+                    floor_share: if l.linear_barrier {
+                        0.0
+                    } else {
+                        (1.0 - s.gamma).powi(n as i32)
+                    },
                 }
             }),
         }
@@ -1056,7 +1078,10 @@ fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
 /// `InsufficientProgress`, the primal residual stuck at 1e-6 to 1e-3: seen with the
 /// terminal rows where several discs squeeze the plan, and at Ts = 10 ms, where the inputs
 /// move the positions of a short horizon by millimetres). Either switch on every solve
-/// doubles the paper run's solve time; either alone in the twin left stalls.
+/// doubles the paper run's solve time; either alone in the twin left stalls. clarabel
+/// equilibrates once, at the build, and re-applies that scaling to every update: the
+/// twin's scaling is that of the setup's data, not of the stalled step's (it still
+/// finished every stall in the tests and the fuzz batches).
 pub struct ConicSolver {
     settings: fn() -> clarabel::solver::DefaultSettings<f64>,
     solver: Option<clarabel::solver::DefaultSolver<f64>>,

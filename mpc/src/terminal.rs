@@ -33,9 +33,12 @@
 //! Assumptions: (a) no noise and the model holds, so the state at sample `k + 1` is the
 //! plan's `z_1`; (b) `a = dfl.brake_decel <= mpc.v_max`, so the braking input
 //! `-min(a, |w| / Ts) w / |w|` ([`TerminalBrake::input`]) is in the input box; (c) the
-//! constraint discs at `k + 1` lie within those at `k` (the obstacles are fixed; noise-free,
-//! `sigma` does not grow; the inter-sample term grows with the speed, so a robot speeding
-//! up can break this by `d^2 / (8 r)`-sized amounts, micrometres); (d) the braking state
+//! constraint discs at `k + 1` lie within those at `k`: the obstacles are fixed and,
+//! noise-free, `sigma` does not grow, but the inter-sample term `sqrt(r^2 + d^2 / 4)`
+//! grows with the speed: by micrometres for the paper's obstacle, by 14 mm for `r = 0.2 m`
+//! at `Ts = 0.1 s` and `v_max = 5` speeding from 1 to 1.7 m/s; (d) the robot starts
+//! every sample outside every constraint disc, so every decay floor is zero (a robot
+//! inside a disc grown by a larger `kappa sigma` is not covered); (e) the braking state
 //! `z_N+` lies in the terminal set of eqs. (45, 47) and the position box.
 //!
 //! Claim: if the convexified program at `k` has a solution, the program at `k + 1`
@@ -43,31 +46,39 @@
 //! braking sample, [`TerminalBrake::step`]) has one: that very candidate.
 //! - Dynamics and input box: by (a) and (b).
 //! - Position box on stages `1..N-1`: they are the old stages `2..N` (the old `z_N` by the
-//!   terminal set's first rows); the new `z_N = z_N+` by (d).
+//!   terminal set's first rows); the new `z_N = z_N+` by (e).
 //! - CBF rows: at the candidate every linearization is exact (`L = H` at the reference),
 //!   so the new row between stages `i` and `i + 1` holds if the true CBF does. For the
 //!   stages taken from the old plan it does, with the old decay slack (which satisfies the
-//!   new, exact, bound as well: `L_old <= H`). For the last row, between the old `z_N` and
-//!   `z_N+`, the slack `max(0, (1 - gamma) H(p_N) - H(p_N+))` does, within its bound
-//!   `(1 - gamma) H(p_N)`, because `H(p_N+) >= 0`: `p_N+` lies on the old stopping path,
-//!   which the old terminal rows kept outside the disc.
+//!   new, exact, bound as well: `L_old <= H`, and by (d) both floors are zero). For the
+//!   last row, between the old `z_N` and `z_N+`, the slack
+//!   `max(0, (1 - gamma) H(p_N) - H(p_N+))` does, within its bound `(1 - gamma) H(p_N)`,
+//!   because `H(p_N+) >= 0`: `p_N+` lies on the old stopping path, which the old terminal
+//!   rows kept outside the disc.
 //! - Terminal rows: one braking sample moves the robot by at most the drop of `S`
 //!   (`S(s) - S(s+) >= s Ts - a Ts^2 / 2` for `s >= a Ts`, and `S(s) >= s Ts / 2`, the
 //!   whole last step, below), along the same line, so the new stopping path is a part of the
 //!   old one: outside the disc. The new rows are built at the candidate itself and are exact
 //!   there (the segment form's normal points at the closest point of the new segment; the
-//!   majorant equals `alpha+ |w|` at the reference), so they hold. (The ball shrinks by at
-//!   least the distance moved: `|p_N+ - o| >= |p_N - o| - d >= R + S(s+)`.)
+//!   majorant equals `alpha+ |w|` at the reference, but for a reference approaching at
+//!   less than `1 / MAX_C` of its speed, where it exceeds the stopping distance by at most
+//!   `|w|^2 / (4 a MAX_C)`, 75 µm at 3 m/s), so they hold. (The ball shrinks by at least the
+//!   distance moved: `|p_N+ - o| >= |p_N - o| - d >= R + S(s+)`.)
 //! - Terminal set (eqs. 45, 47): *not* guaranteed. It is invariant under the LQR step, not
-//!   under braking: this is assumption (d), and where it fails the MPC starts cold from the
+//!   under braking: this is assumption (e), and where it fails the MPC starts cold from the
 //!   braking rollout (feasible whenever braking from `z_0` is safe), and failing that the
 //!   DFL flies its committed trajectory. The test
 //!   `the_shifted_plan_extended_by_braking_is_feasible_at_the_next_sample` measures it.
 //!
+//! The refinement solves that follow keep feasibility: each program is built at the
+//! previous solution, where its rows are exact. Where (c) or (d) fails, or the 75 µm, the
+//! MPC's first solve may be infeasible: it retries relaxed, then cold, and the DFL's
+//! safety check stays.
+//!
 //! Without the decay slacks the last row can fail: braking towards a disc lowers `H` by
 //! more than the factor `1 - gamma` allows. So a step first solves the program without
-//! them (the paper's CBF exactly), and only if that is infeasible the relaxed one, which
-//! the candidate makes feasible. The paper's candidate (the LQR step) satisfies
+//! them (the paper's CBF exactly), and only if that fails the relaxed one, which the
+//! candidate makes feasible. The paper's candidate (the LQR step) satisfies
 //! the terminal set but not the stopping condition: that is how a short horizon ran into
 //! obstacles (issue 14).
 
@@ -83,17 +94,10 @@ pub enum BrakeForm {
     Ball,
 }
 
-/// With terminal safety the MPC's constraint discs are larger than those the DFL's safety
-/// check commits against by this (m), so that a plan met to the solver's tolerance (about
-/// a micrometre) passes the check; together with the commit margin: the margin the MPC
-/// adds beyond `kappa sigma`, m, for a position standard deviation `sigma_m`.
-pub fn plan_margin_m(sigma_m: f64) -> f64 {
-    protocol::commit_margin_m(sigma_m) + 1e-3
-}
-
 /// Largest `c` of the segment form's AM-GM majorant (a reference approaching at less than
 /// `1 / MAX_C` of its speed): the majorant then exceeds `alpha_bar |w_bar|` at the
-/// reference by at most `|w_bar|^2 / (2 MAX_C)`, a stopping distance of micrometres.
+/// reference by at most `|w_bar|^2 / (2 MAX_C)`, a stopping distance of
+/// `|w_bar|^2 / (4 a MAX_C)`: 75 µm at 3 m/s with `a = 3`.
 const MAX_C: f64 = 1e4;
 
 /// The braking model of the terminal rows, at the MPC's sample level.
@@ -188,6 +192,9 @@ pub struct TerminalRows<'a> {
     pub first_variable: usize,
     /// The largest `|w_N|` any input sequence in the box reaches, m/s.
     pub max_speed: f64,
+    /// `(1 - gamma)^N` (0 with a linear CBF): the share of a negative `H(p_0)` the decay
+    /// floor keeps at the last stage ([`TerminalRows::radius`]).
+    pub floor_share: f64,
 }
 
 /// The data of one disc's segment row: the normal, and the majorant of `alpha+ |w|`
@@ -201,6 +208,15 @@ struct SegmentRow {
 }
 
 impl TerminalRows<'_> {
+    /// The radius the stopping path must stay outside, m: the disc's, or, for a robot that
+    /// starts inside it (`H(p_0) < 0`), that of the CBF's decay floor at the last stage,
+    /// `sqrt(R^2 + (1 - gamma)^N H(p_0))`, so the robot may leave the disc as the decay
+    /// lets it instead of having to be out of it within the horizon.
+    fn radius(&self, disc: &Disc) -> f64 {
+        let floor = self.floor_share * disc.barrier(self.p0).min(0.0);
+        (disc.radius * disc.radius + floor).max(0.0).sqrt()
+    }
+
     /// The unit vector from `disc`'s centre towards `p` (towards `p_0`, or along x, when
     /// `p` is the centre).
     fn unit_from_center(&self, disc: &Disc, p: [f64; 2]) -> [f64; 2] {
@@ -289,7 +305,7 @@ impl TerminalRows<'_> {
         let (a, ts) = (self.model.decel, self.model.ts_s);
         // The distance's under-estimate scaled by 2a: 2a n'(p - o) - 2a R.
         let offset = |n: [f64; 2], disc: &Disc| {
-            2.0 * a * (n[0] * disc.center[0] + n[1] * disc.center[1] + disc.radius)
+            2.0 * a * (n[0] * disc.center[0] + n[1] * disc.center[1] + self.radius(disc))
         };
         match self.model.form {
             BrakeForm::Ball => {
@@ -354,7 +370,7 @@ impl TerminalRows<'_> {
                     )
                 }
             };
-            let offset = n[0] * disc.center[0] + n[1] * disc.center[1] + disc.radius;
+            let offset = n[0] * disc.center[0] + n[1] * disc.center[1] + self.radius(disc);
             below(largest, reach.min_linear(horizon, n) - offset)
         })
     }

@@ -261,7 +261,9 @@ pub struct Recorder {
     /// Newest sample judged (a replayed verdict is not counted twice).
     last_judged: Option<u64>,
     solver_failures: u64,
-    safety_interventions: u64,
+    /// The largest count of safety interventions each DFL (by producer epoch) reported:
+    /// its own count, which a tick with two interventions raises by two.
+    safety_interventions: BTreeMap<u32, u32>,
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
     commands: ModeCounts,
@@ -301,7 +303,7 @@ impl Recorder {
             longest_miss_streak: 0,
             last_judged: None,
             solver_failures: 0,
-            safety_interventions: 0,
+            safety_interventions: BTreeMap::new(),
             pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
             ticks: 0,
@@ -350,8 +352,12 @@ impl Recorder {
             CommandMode::ZetaGuard => self.commands.zeta_guard += 1,
             CommandMode::SafetyBrake => self.commands.safety_brake += 1,
         }
+        let count = self
+            .safety_interventions
+            .entry(act.header.epoch)
+            .or_default();
+        *count = (*count).max(act.safety_interventions);
         if let Some(reason) = act.intervention().filter(|i| *i != Intervention::None) {
-            self.safety_interventions += 1;
             self.event(
                 "safety_intervention",
                 serde_json::json!({
@@ -359,6 +365,7 @@ impl Recorder {
                     "reason": reason.as_str(),
                     "plan_sample": act.intervention_plan,
                     "clearance_m": act.intervention_clearance_m,
+                    "dfl_count": act.safety_interventions,
                 }),
             )?;
         }
@@ -509,7 +516,11 @@ impl Recorder {
             deadline_misses: self.deadline_misses,
             longest_miss_streak: self.longest_miss_streak,
             solver_failures: self.solver_failures,
-            safety_interventions: self.safety_interventions,
+            safety_interventions: self
+                .safety_interventions
+                .values()
+                .map(|&n| u64::from(n))
+                .sum(),
             faults: scenario.fault.describe(),
             steps: self.solve_us.len() as u64,
             ticks: self.ticks,
@@ -529,6 +540,40 @@ impl Recorder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_summary_counts_each_dfls_interventions_once_however_they_arrive() {
+        let dir = std::env::temp_dir().join(format!("scmpc-record-{}", std::process::id()));
+        let scenario = Scenario::default();
+        let mut recorder = Recorder::create(&dir, &scenario).unwrap();
+        let truth = GroundTruth {
+            pose: [7.0, 7.0, 0.0],
+            ..GroundTruth::default()
+        };
+        let estimate = Estimate::default();
+        // The first DFL: a tick with two interventions (a plan refused and the committed
+        // trajectory given up), then a replay of that tick; a restarted DFL (epoch 1)
+        // counts from zero again.
+        for (epoch, count, intervention) in [
+            (0, 0, Intervention::None),
+            (0, 2, Intervention::CommittedUnsafe),
+            (0, 2, Intervention::CommittedUnsafe),
+            (1, 1, Intervention::PlanRefused),
+        ] {
+            let mut act = Actuation {
+                safety_interventions: count,
+                intervention: intervention as u32,
+                ..Actuation::default()
+            };
+            act.header.epoch = epoch;
+            recorder.tick(&truth, &estimate, &act).unwrap();
+        }
+        let summary = recorder
+            .finish(&scenario, "test", Outcome::Timeout, 0.0, None)
+            .unwrap();
+        assert_eq!(summary.safety_interventions, 3);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn percentiles_use_nearest_rank() {

@@ -395,8 +395,8 @@ pub struct MpcConfig {
     /// without its stopping path entering an obstacle, and the CBF's decay may be relaxed
     /// where braking needs it (recursive feasibility); `brake_ball`: the same with the
     /// whole ball of the stopping distance kept clear (a standoff whatever the direction);
-    /// `none`: the paper's formulation exactly. The linear scheme only: the nonlinear
-    /// baseline is the paper's SCNMPC.
+    /// `none`: the paper's formulation exactly. The linear scheme only: with the nonlinear
+    /// baseline (the paper's SCNMPC) it must be `none`.
     pub terminal_safety: TerminalSafety,
 }
 
@@ -742,6 +742,14 @@ impl Scenario {
                     format!("must be below mpc.position_max on axis {axis}"),
                 );
             }
+        }
+        if m.formulation == Formulation::Nonlinear && m.terminal_safety != TerminalSafety::None {
+            v.fail(
+                "mpc.terminal_safety",
+                "the nonlinear baseline (mpc.formulation = \"nonlinear\") has no terminal \
+                 safety rows; set mpc.terminal_safety = \"none\" with it"
+                    .into(),
+            );
         }
         v.non_negative("mpc.safety_margin_m", m.safety_margin_m);
         v.non_negative("mpc.uncertainty_sigmas", m.uncertainty_sigmas);
