@@ -135,7 +135,9 @@ impl Estimator {
             EstimatorKind::Ekf => {
                 let ekf = match self.ekf.as_mut() {
                     Some(ekf) => {
-                        if let Some([u1, u2]) = applied {
+                        if let Some(command) = applied {
+                            // The wheels' speed limit is the robot's own, known to it.
+                            let [u1, u2] = self.scenario.plant.realized_inputs(command);
                             ekf.predict(u1, u2, dt_s);
                         }
                         ekf.update(y);
@@ -182,6 +184,28 @@ mod tests {
         for i in 0..3 {
             assert!((numeric[i] - f[(i, 2)]).abs() < 1e-8);
         }
+    }
+
+    #[test]
+    fn the_ekf_predicts_with_the_inputs_the_wheels_realize() {
+        // u2 = 10 rad/s asks the wheels for +-25 rad/s more than their mean; at 5 rad/s
+        // they turn the robot at 2 rad/s and do not move it forward.
+        let mut s = Scenario::default();
+        s.plant.max_wheel_speed_rad_s = 5.0;
+        s.plant.noise_variance = NoiseVariance::Uniform(1.0);
+        assert_eq!(s.plant.realized_inputs([0.2, 10.0]), [0.0, 2.0]);
+        let mut est = Estimator::new(&s);
+        est.step(None, 0.1, [0.0, 0.0, 0.0], 0.0, Header::default());
+        // The measurement (variance 1) barely moves the prediction.
+        let e = est.step(
+            Some([0.2, 10.0]),
+            0.1,
+            [0.0, 0.0, 0.2],
+            0.0,
+            Header::default(),
+        );
+        assert!((e.state[2] - 0.2).abs() < 1e-3, "heading {}", e.state[2]);
+        assert!(e.state[0].abs() < 1e-3, "x {}", e.state[0]);
     }
 
     #[test]

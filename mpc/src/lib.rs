@@ -51,8 +51,8 @@ pub struct LinearMpc {
     /// The robot's radius and the safety margin `m`, added to every radius.
     obstacle_margin_m: f64,
     uncertainty_sigmas: f64,
-    /// Whether the DFL checks the plans (`dfl.gatekeeper`): the discs grow by its margin.
-    checked: bool,
+    /// What the discs grow by for what follows the solver.
+    plan_margin: problem::PlanMargin,
     max_solves: usize,
     refinement_tol_m: f64,
     ts_s: f64,
@@ -160,7 +160,7 @@ impl LinearMpc {
             obstacles: scenario.obstacles.clone(),
             obstacle_margin_m: scenario.obstacle_margin_m(),
             uncertainty_sigmas: c.uncertainty_sigmas,
-            checked: scenario.dfl.gatekeeper,
+            plan_margin: crate::problem::PlanMargin::of(scenario),
             max_solves: c.max_solves.max(1),
             refinement_tol_m: c.refinement_tol_m,
             ts_s: scenario.timing.ts_s,
@@ -229,7 +229,7 @@ impl LinearMpc {
             self.obstacle_margin_m,
             self.uncertainty_sigmas,
             position_sigma_m,
-            self.checked,
+            self.plan_margin,
         )
     }
 

@@ -108,8 +108,8 @@ pub struct NonlinearMpc {
     obstacles: Vec<protocol::Obstacle>,
     /// The robot's radius and the safety margin `m`, added to every radius.
     obstacle_margin_m: f64,
-    /// Whether the DFL checks the plans (`dfl.gatekeeper`): the discs grow by its margin.
-    checked: bool,
+    /// What the discs grow by for what follows the solver.
+    plan_margin: crate::problem::PlanMargin,
     uncertainty_sigmas: f64,
     // Reused every step.
     solver: ConicSolver,
@@ -148,7 +148,7 @@ impl NonlinearMpc {
             goal,
             obstacles: scenario.obstacles.clone(),
             obstacle_margin_m: scenario.obstacle_margin_m(),
-            checked: scenario.dfl.gatekeeper,
+            plan_margin: crate::problem::PlanMargin::of(scenario),
             uncertainty_sigmas: c.uncertainty_sigmas,
             solver: ConicSolver::new(crate::problem::base_settings),
             assembly: Assembly::default(),
@@ -191,7 +191,7 @@ impl NonlinearMpc {
             self.obstacle_margin_m,
             self.uncertainty_sigmas,
             position_sigma_m,
-            self.checked,
+            self.plan_margin,
         );
         crate::problem::constraint_discs(
             &self.obstacles,

@@ -1,7 +1,7 @@
 //! The plant: a unicycle (differential-drive robot) integrated with RK4, with seeded
 //! Gaussian output noise, optional wheel-speed saturation and process disturbance.
 
-use protocol::{Scenario, WheelGeometry, wrap_angle};
+use protocol::{PlantConfig, Scenario, wrap_angle};
 pub mod process;
 
 use rand::SeedableRng;
@@ -33,9 +33,8 @@ pub fn rk4_step<const D: usize>(
 /// The simulated robot.
 pub struct Plant {
     pose: Pose,
-    geometry: WheelGeometry,
-    /// Wheel-speed limit, rad/s; `None` when unlimited.
-    max_wheel_speed_rad_s: Option<f64>,
+    /// The wheels and their speed limit.
+    config: PlantConfig,
     substeps: usize,
     noise: [Option<Normal<f64>>; 3],
     disturbance: Option<Normal<f64>>,
@@ -54,12 +53,7 @@ impl Plant {
         let var = p.noise_variance.per_axis();
         Plant {
             pose: scenario.robot.start,
-            geometry: WheelGeometry {
-                wheel_radius_m: p.wheel_radius_m,
-                wheel_base_m: p.wheel_base_m,
-            },
-            max_wheel_speed_rad_s: (p.max_wheel_speed_rad_s > 0.0)
-                .then_some(p.max_wheel_speed_rad_s),
+            config: p.clone(),
             substeps: p.rk4_substeps.max(1),
             noise: var.map(|v| gaussian(v.sqrt())),
             disturbance: gaussian(p.disturbance_std),
@@ -87,13 +81,7 @@ impl Plant {
 
     /// Wheel saturation: `(u1, u2)` as the wheels can realize them.
     pub fn saturate(&self, u1: f64, u2: f64) -> [f64; 2] {
-        match self.max_wheel_speed_rad_s {
-            None => [u1, u2],
-            Some(limit) => {
-                let w = self.geometry.wheel_speeds([u1, u2]);
-                self.geometry.body_inputs(w.map(|x| x.clamp(-limit, limit)))
-            }
-        }
+        self.config.realized_inputs([u1, u2])
     }
 
     /// Holds `(u1, u2)` (after saturation) for `dt_s` and integrates; returns what was applied.
@@ -171,11 +159,7 @@ mod tests {
         s.plant.max_wheel_speed_rad_s = 5.0;
         let p = Plant::new(&s);
         let [u1, u2] = p.saturate(10.0, 3.0);
-        let g = WheelGeometry {
-            wheel_radius_m: 0.1,
-            wheel_base_m: 0.5,
-        };
-        let w = g.wheel_speeds([u1, u2]);
+        let w = s.plant.wheel_geometry().wheel_speeds([u1, u2]);
         assert!(w.iter().all(|x| x.abs() <= 5.0 + 1e-12), "{w:?}");
     }
 }

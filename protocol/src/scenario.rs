@@ -268,6 +268,30 @@ pub struct PlantConfig {
     pub rk4_substeps: usize,
 }
 
+impl PlantConfig {
+    /// The wheels' geometry, the transform `T` (paper eq. 5).
+    pub fn wheel_geometry(&self) -> crate::WheelGeometry {
+        crate::WheelGeometry {
+            wheel_radius_m: self.wheel_radius_m,
+            wheel_base_m: self.wheel_base_m,
+        }
+    }
+
+    /// The inputs `[u1, u2]` (m/s, rad/s) as the wheels realize them: each wheel speed
+    /// clipped to `max_wheel_speed_rad_s` when that is set. The plant integrates these;
+    /// the EKF predicts with them (the robot's own actuator limits are known to it).
+    pub fn realized_inputs(&self, body: [f64; 2]) -> [f64; 2] {
+        if self.max_wheel_speed_rad_s > 0.0 {
+            let limit = self.max_wheel_speed_rad_s;
+            let geometry = self.wheel_geometry();
+            let wheels = geometry.wheel_speeds(body);
+            geometry.body_inputs(wheels.map(|w| w.clamp(-limit, limit)))
+        } else {
+            body
+        }
+    }
+}
+
 /// Output-noise variance, either shared by the three axes or per axis.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
