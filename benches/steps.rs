@@ -1,9 +1,10 @@
 //! The step functions of the four roles, each on the states of the paper's closed loop:
 //! `cargo bench --bench steps`.
 
-use dfl::{Dfl, PlanInbox};
+use dfl::Dfl;
 use estimator::Estimator;
 use mpc::Mpc;
+use orchestrator::closed_loop::ClosedLoop;
 use plant::Plant;
 use protocol::{Estimate, Header, Obstacle, Plan, Scenario};
 
@@ -12,34 +13,14 @@ fn main() {
 }
 
 /// The estimates (per tick) and plans (per sample) of the in-process closed loop of
-/// `scenario`.
+/// `scenario`, the loop `scmpc run --in-process` steps.
 fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
-    let m = scenario.timing.inner_steps as u64;
-    let dt = scenario.timing.ts_s / m as f64;
-    let mut plant = Plant::new(scenario);
-    let mut estimator = Estimator::new(scenario);
-    let mut mpc = Mpc::new(scenario).expect("paper scenario");
-    let mut dfl = Dfl::new(scenario);
-    let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
+    let mut closed_loop = ClosedLoop::new(scenario).expect("valid scenario");
     let (mut estimates, mut plans) = (Vec::new(), Vec::new());
-    let mut applied = None;
-    for tick in 0..(scenario.duration_s / dt) as u64 {
-        let header = Header {
-            tick,
-            time_s: tick as f64 * dt,
-            ..Header::default()
-        };
-        let e = estimator.step(applied, dt, plant.measure(), dfl.zeta(), header);
-        estimates.push(e);
-        if tick.is_multiple_of(m) {
-            let plan = mpc.step(tick / m, e.state, e.position_sigma());
-            inbox.receive(&plan);
-            plans.push(plan);
-        }
-        inbox.release(tick / m, &mut dfl);
-        let act = dfl.step(&e, tick);
-        plant.step(act.u1, act.u2, dt);
-        applied = Some([act.u1, act.u2]);
+    while !closed_loop.is_done() {
+        let tick = closed_loop.step();
+        estimates.push(tick.estimate);
+        plans.extend(tick.plan);
     }
     (estimates, plans)
 }
@@ -183,7 +164,7 @@ fn ekf_step(bencher: divan::Bencher) {
         .expect("valid override");
     let mut plant = Plant::new(&s);
     let mut estimator = Estimator::new(&s);
-    let dt = s.timing.ts_s / s.timing.inner_steps as f64;
+    let dt = s.timing.dt_s();
     let mut tick = 0;
     bencher.bench_local(|| {
         tick += 1;
@@ -199,6 +180,6 @@ fn ekf_step(bencher: divan::Bencher) {
 fn plant_step(bencher: divan::Bencher) {
     let s = Scenario::default();
     let mut plant = Plant::new(&s);
-    let dt = s.timing.ts_s / s.timing.inner_steps as f64;
+    let dt = s.timing.dt_s();
     bencher.bench_local(|| plant.step(0.5, 0.1, dt));
 }

@@ -4,25 +4,20 @@
 mod common;
 
 use common::{run, stderr, summary};
+use orchestrator::schema::Table;
 use std::path::Path;
 
 /// Trajectory rows as `(t, zeta, u2, mode)`.
 fn commands(dir: &Path) -> Vec<(f64, f64, f64, String)> {
-    let text = std::fs::read_to_string(dir.join("trajectory.csv")).unwrap();
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (t, zeta, u2, mode) = (col("t"), col("zeta"), col("u2"), col("mode"));
-    lines
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (
-                f[t].parse().unwrap(),
-                f[zeta].parse().unwrap(),
-                f[u2].parse().unwrap(),
-                f[mode].to_string(),
-            )
-        })
+    let table = Table::read(&dir.join("trajectory.csv")).unwrap();
+    let (t, zeta, u2) = (
+        table.numbers("t").unwrap(),
+        table.numbers("zeta").unwrap(),
+        table.numbers("u2").unwrap(),
+    );
+    let mode = table.column("mode").unwrap();
+    (0..table.len())
+        .map(|i| (t[i], zeta[i], u2[i], mode[i].to_string()))
         .collect()
 }
 

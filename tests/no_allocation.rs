@@ -1,12 +1,10 @@
 //! The steady state of every role's step performs no heap allocation: a counting global
-//! allocator around each call of the role libraries, on the paper scenario's closed loop.
-//! For the MPC this includes every clarabel `solve()`.
+//! allocator around each phase of the in-process closed loop (`ClosedLoop`, the one
+//! `scmpc run --in-process` steps), on the paper scenario with noise. For the MPC this
+//! includes every clarabel `solve()`; the plan phase includes the faults and the inbox.
 
-use dfl::{DeadlineMonitor, Dfl, PlanInbox};
-use estimator::Estimator;
-use mpc::Mpc;
-use plant::Plant;
-use protocol::{Header, Scenario};
+use orchestrator::closed_loop::ClosedLoop;
+use protocol::Scenario;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -64,53 +62,26 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
             .unwrap();
         scenario.validate("test").unwrap();
         let m = scenario.timing.inner_steps as u64;
-        let dt = scenario.timing.ts_s / m as f64;
-        let mut plant = Plant::new(&scenario);
-        let mut estimator = Estimator::new(&scenario);
-        let mut mpc = Mpc::new(&scenario).unwrap();
-        let mut dfl = Dfl::new(&scenario);
-        let mut inbox = PlanInbox::new(true, scenario.timing.ts_s);
-        let mut monitor = DeadlineMonitor::new(scenario.timing.ts_s);
-        let mut applied = None;
+        let mut closed_loop = ClosedLoop::new(&scenario).unwrap();
         // Warm-up: the first samples size every buffer.
         let warm_up = 20 * m;
         let mut counts = [0u64; 4];
-        for tick in 0..60 * m {
-            let header = Header {
-                tick,
-                time_s: tick as f64 * dt,
-                ..Header::default()
-            };
-            let (y, plant_a) = allocations(|| plant.measure());
-            let (estimate, est_a) =
-                allocations(|| estimator.step(applied, dt, y, dfl.zeta(), header));
-            let (mut mpc_a, mut inbox_a) = (0, 0);
-            if tick.is_multiple_of(m) {
-                let (plan, a) =
-                    allocations(|| mpc.step(tick / m, estimate.state, estimate.position_sigma()));
-                mpc_a = a;
+        while closed_loop.tick() < 60 * m {
+            let tick = closed_loop.tick();
+            let ((_, y), measure_a) = allocations(|| closed_loop.measure());
+            let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
+            let (plan, plan_a) = allocations(|| closed_loop.plan(&estimate));
+            if let Some(plan) = plan {
                 assert!(
                     plan.is_solved(),
                     "{formulation} {qp_form}: sample {} not solved",
                     tick / m
                 );
-                ((), inbox_a) = allocations(|| {
-                    inbox.receive(&plan);
-                    monitor.on_plan(&plan, 0);
-                });
             }
-            let (act, dfl_a) = allocations(|| {
-                inbox.release(tick / m, &mut dfl);
-                let act = dfl.step(&estimate, tick);
-                if let Some(mode) = act.mode().filter(|_| tick.is_multiple_of(m)) {
-                    monitor.sample_started(tick / m, mode);
-                }
-                act
-            });
-            let (_, step_a) = allocations(|| plant.step(act.u1, act.u2, dt));
-            applied = Some([act.u1, act.u2]);
+            let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));
+            let ((), integrate_a) = allocations(|| closed_loop.integrate(&actuation));
             if tick >= warm_up {
-                let by_role = [plant_a + step_a, est_a, mpc_a, inbox_a + dfl_a];
+                let by_role = [measure_a + integrate_a, estimate_a, plan_a, command_a];
                 for (c, a) in counts.iter_mut().zip(by_role) {
                     *c += a;
                 }

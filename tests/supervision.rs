@@ -6,6 +6,7 @@ use common::{
     events, kill_role_during_run, leftovers, scmpc, sigkill, spawn_run, summary, wait_for,
     wait_for_pid,
 };
+use orchestrator::schema::Table;
 use std::os::unix::process::CommandExt;
 use std::process::Stdio;
 use std::time::Duration;
@@ -40,13 +41,13 @@ fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal(
     let crash_t = ev.iter().find(|e| e["event"] == "crashed").unwrap()["t"]
         .as_f64()
         .unwrap();
-    let plans = std::fs::read_to_string(dir.path().join("plans.csv")).unwrap();
-    let resumed = plans.lines().skip(1).any(|l| {
-        let f: Vec<&str> = l.split(',').collect();
-        f[1].parse::<f64>()
-            .is_ok_and(|t| t > crash_t && t <= crash_t + 0.5)
-            && f[8] == "true"
-    });
+    let plans = Table::read(&dir.path().join("plans.csv")).unwrap();
+    let resumed = plans
+        .numbers("t")
+        .unwrap()
+        .into_iter()
+        .zip(plans.column("deadline_met").unwrap())
+        .any(|(t, met)| t > crash_t && t <= crash_t + 0.5 && met == "true");
     assert!(
         resumed,
         "no on-time plan within 0.5 s of the crash at t = {crash_t}"
@@ -154,20 +155,16 @@ fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
     let crash_t = ev.iter().find(|e| e["event"] == "crashed").unwrap()["t"]
         .as_f64()
         .unwrap();
-    let text = std::fs::read_to_string(dir.path().join("trajectory.csv")).unwrap();
-    // Columns: t, .., zeta (4), .., u2 (12), .., mode (15).
-    let braking: Vec<(f64, f64, f64)> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').collect::<Vec<_>>())
-        .filter(|f| f[15] == "brake")
-        .map(|f| {
-            (
-                f[0].parse().unwrap(),
-                f[4].parse().unwrap(),
-                f[12].parse().unwrap(),
-            )
-        })
+    let table = Table::read(&dir.path().join("trajectory.csv")).unwrap();
+    let (t, zeta, u2) = (
+        table.numbers("t").unwrap(),
+        table.numbers("zeta").unwrap(),
+        table.numbers("u2").unwrap(),
+    );
+    let braking: Vec<(f64, f64, f64)> = (table.column("mode").unwrap().iter())
+        .enumerate()
+        .filter(|(_, mode)| **mode == "brake")
+        .map(|(i, _)| (t[i], zeta[i], u2[i]))
         .collect();
     assert!(
         !braking.is_empty(),

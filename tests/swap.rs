@@ -4,6 +4,7 @@
 mod common;
 
 use common::{events, run, scmpc, spawn_run, summary, wait_for};
+use orchestrator::schema::Table;
 use std::path::Path;
 use std::time::Duration;
 
@@ -24,21 +25,21 @@ fn swapped(ev: &[serde_json::Value], role: &str) -> serde_json::Value {
 
 /// Every tick of the run is in `trajectory.csv` with a finite command and estimate.
 fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
-    let text = std::fs::read_to_string(dir.join("trajectory.csv")).unwrap();
-    let rows: Vec<Vec<&str>> = text
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').collect())
-        .collect();
-    assert_eq!(rows.len(), ticks, "ticks recorded");
-    for row in &rows {
-        for column in 5..13 {
-            let value: f64 = row[column].parse().unwrap();
-            assert!(
-                value.is_finite(),
-                "t = {}: column {column} is {value}",
-                row[0]
-            );
+    let table = Table::read(&dir.join("trajectory.csv")).unwrap();
+    assert_eq!(table.len(), ticks, "ticks recorded");
+    let t = table.numbers("t").unwrap();
+    for column in [
+        "x_hat",
+        "y_hat",
+        "theta_hat",
+        "zeta_hat",
+        "v1",
+        "v2",
+        "u1",
+        "u2",
+    ] {
+        for (i, value) in table.numbers(column).unwrap().into_iter().enumerate() {
+            assert!(value.is_finite(), "t = {}: {column} is {value}", t[i]);
         }
     }
 }
@@ -103,24 +104,23 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
     }
     // The replacement MPC runs its own options: plans of horizon 10 from its switch on.
     let mpc_switch = swapped(&ev, "mpc")["switch_tick"].as_u64().unwrap() / 10;
-    let plans = std::fs::read_to_string(out_dir.join("plans.csv")).unwrap();
-    let rows: Vec<Vec<&str>> = plans
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').collect())
-        .collect();
+    let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
     // One row per sample, none twice, none missing; the plan of the last sample (280, at
     // the run's final tick) may or may not arrive before a real-time run ends.
-    let samples: Vec<u64> = rows.iter().map(|r| r[0].parse().unwrap()).collect();
+    let samples: Vec<u64> = plans
+        .numbers("sample")
+        .unwrap()
+        .into_iter()
+        .map(|s| s as u64)
+        .collect();
     assert!(samples.len() >= 280, "{} plan rows", samples.len());
     assert!(
         samples.iter().enumerate().all(|(i, s)| *s == i as u64),
         "{samples:?}"
     );
-    for row in rows {
-        let sample: u64 = row[0].parse().unwrap();
-        let horizon = if sample < mpc_switch { "8" } else { "10" };
-        assert_eq!(row[12], horizon, "plan {sample}");
+    for (sample, horizon) in samples.iter().zip(plans.column("horizon").unwrap()) {
+        let expected = if *sample < mpc_switch { "8" } else { "10" };
+        assert_eq!(horizon, expected, "plan {sample}");
     }
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
 }

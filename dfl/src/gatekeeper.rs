@@ -57,7 +57,7 @@ impl Gatekeeper {
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             brake_decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,
-            inner_tick_s: scenario.inner_tick_s(),
+            inner_tick_s: scenario.timing.dt_s(),
         }
     }
 
@@ -341,9 +341,10 @@ mod tests {
     }
 
     fn scenario_with_obstacle(x: f64, y: f64, radius: f64) -> Scenario {
-        let mut s = Scenario::default();
-        s.obstacles = vec![Obstacle { x, y, radius }];
-        s
+        Scenario {
+            obstacles: vec![Obstacle { x, y, radius }],
+            ..Scenario::default()
+        }
     }
 
     fn plan(sample: u64, horizon: u32, v: [f64; 2]) -> Plan {
@@ -393,7 +394,7 @@ mod tests {
         let depth = g
             .check(&coasting, 0, 0.0, [0.0, 2.0, 0.0, 0.0], 0.0)
             .unwrap();
-        let expected = 0.3 - protocol::stopping_distance(2.0, 3.0, s.inner_tick_s());
+        let expected = 0.3 - protocol::stopping_distance(2.0, 3.0, s.timing.dt_s());
         assert!((depth - expected).abs() < 1e-12, "{depth} vs {expected}");
     }
 
@@ -422,7 +423,7 @@ mod tests {
         let mut s = scenario_with_obstacle(1.5, 0.0, 0.5);
         let z = [0.0, 0.0, 0.0, 0.0];
         let creep = plan(0, 8, [0.5, 0.0]);
-        let reach = 0.04 + protocol::stopping_distance(0.2, 3.0, s.inner_tick_s());
+        let reach = 0.04 + protocol::stopping_distance(0.2, 3.0, s.timing.dt_s());
         let g = Gatekeeper::new(&s);
         // kappa = 3: sigma 0.23 m grows the disc by 0.69 m, the commit margin by a sigma
         // and 1 mm more (0.921 m); sigma 0.24 m by 0.961 m, into which the creep reaches.

@@ -17,19 +17,7 @@ pub mod process;
 
 pub use gatekeeper::Gatekeeper;
 
-pub use protocol::phi;
-
-/// Inverse of [`phi`] on the branch `zeta >= 0`; at rest (`zeta = 0`) theta is not
-/// determined by `z` and `theta_at_rest_rad` is returned.
-pub fn phi_inverse(z: [f64; 4], theta_at_rest_rad: f64) -> [f64; 4] {
-    let zeta = z[1].hypot(z[3]);
-    let theta = if zeta > 0.0 {
-        z[3].atan2(z[1])
-    } else {
-        theta_at_rest_rad
-    };
-    [z[0], z[2], theta, zeta]
-}
+pub use protocol::{phi, phi_inverse};
 
 /// The linearizing input `U = [U1, U2]` for the virtual input `v` (paper eq. 1101):
 /// `U1 = v1 cos theta + v2 sin theta`, `U2 = (-v1 sin theta + v2 cos theta) / zeta`.
@@ -272,7 +260,7 @@ impl Dfl {
             zeta_threshold: scenario.dfl.zeta_threshold,
             brake_decel: scenario.brake_decel(),
             inner_steps: scenario.timing.inner_steps as u64,
-            dt_s: scenario.inner_tick_s(),
+            dt_s: scenario.timing.dt_s(),
             geometry: WheelGeometry {
                 wheel_radius_m: scenario.plant.wheel_radius_m,
                 wheel_base_m: scenario.plant.wheel_base_m,
@@ -720,12 +708,14 @@ mod tests {
     /// A robot at the origin heading along x at 1 m/s, an obstacle whose edge is 1 m
     /// ahead; the safety check on or off.
     fn approaching(gatekeeper: bool) -> (Dfl, Estimate) {
-        let mut s = Scenario::default();
-        s.obstacles = vec![protocol::Obstacle {
-            x: 1.5,
-            y: 0.0,
-            radius: 0.5,
-        }];
+        let mut s = Scenario {
+            obstacles: vec![protocol::Obstacle {
+                x: 1.5,
+                y: 0.0,
+                radius: 0.5,
+            }],
+            ..Scenario::default()
+        };
         s.robot.zeta0 = 1.0;
         s.dfl.gatekeeper = gatekeeper;
         let estimate = Estimate {
@@ -819,12 +809,14 @@ mod tests {
     fn a_committed_plan_swerving_away_flies_on_when_braking_would_go_in_deeper() {
         // A small obstacle straight ahead: braking along the heading runs through it (5 cm
         // deep), the committed plan's swerve clips it by 1.6 cm.
-        let mut s = Scenario::default();
-        s.obstacles = vec![protocol::Obstacle {
-            x: 0.15,
-            y: 0.0,
-            radius: 0.05,
-        }];
+        let mut s = Scenario {
+            obstacles: vec![protocol::Obstacle {
+                x: 0.15,
+                y: 0.0,
+                radius: 0.05,
+            }],
+            ..Scenario::default()
+        };
         s.robot.zeta0 = 1.0;
         let mut dfl = Dfl::new(&s);
         let mut swerve = plan(0, 8, PlanStatus::Solved);

@@ -36,7 +36,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
 
     let timing = &args.scenario.timing;
     let inner_steps = timing.inner_steps as u64;
-    let dt_ns = timing.ts_s / inner_steps as f64 * 1e9;
+    let dt_ns = timing.dt_s() * 1e9;
     let lockstep = args.mode == RunMode::Lockstep;
     let mut dfl = Dfl::new(&args.scenario);
     let mut inbox = PlanInbox::new(lockstep, timing.ts_s);
@@ -126,7 +126,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 braking_alone = true;
             }
             let next_tick = last_tick.unwrap_or(last) + silent_ticks(braking_alone);
-            let next_check = start_ns + (next_tick as f64 * dt_ns) as u64;
+            let next_check = start_ns + (timing.tick_time_s(next_tick) * 1e9) as u64;
             let until = Duration::from_nanos(next_check.saturating_sub(now).max(100_000));
             wait_for = Some(wait_for.map_or(until, |w: Duration| w.min(until)));
         }

@@ -26,7 +26,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     link.report(StatusEvent::Ready)?;
 
     let timing = &args.scenario.timing;
-    let dt = timing.ts_s / timing.inner_steps as f64;
+    let dt = timing.dt_s();
     let mut estimator = Estimator::new(&args.scenario);
     let mut heard: Option<Actuation> = None;
     let mut queue: VecDeque<(Measurement, u64)> = VecDeque::with_capacity(16);
@@ -92,7 +92,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         if let (RunMode::Realtime, Some(start_ns), Some(last)) =
             (args.mode, ctl.start_ns, last_tick)
         {
-            let expected = start_ns + ((last + 1) as f64 * dt * 1e9) as u64;
+            let expected = start_ns + (timing.tick_time_s(last + 1) * 1e9) as u64;
             if ipc::spin_wait(expected, || measurements.has_samples()) {
                 continue;
             }

@@ -52,13 +52,7 @@ fn paper_states(scenario: &Scenario) -> Result<Vec<[f64; 4]>, mpc::MpcError> {
     for k in 0..SAMPLES {
         states.push(x_bar);
         let z = mpc.step(k as u64, x_bar, 0.0).z[1];
-        let zeta = z[1].hypot(z[3]);
-        let heading = if zeta > 0.0 {
-            z[3].atan2(z[1])
-        } else {
-            x_bar[2]
-        };
-        x_bar = [z[0], z[2], heading, zeta];
+        x_bar = protocol::phi_inverse(z, x_bar[2]);
     }
     Ok(states)
 }

@@ -48,13 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         stopped_early += u32::from(plan.solves == 1 && full.solves > 1);
         let z = plan.z[1];
-        let zeta = z[1].hypot(z[3]);
-        let heading = if zeta > 0.0 {
-            z[3].atan2(z[1])
-        } else {
-            x_bar[2]
-        };
-        x_bar = [z[0], z[2], heading, zeta];
+        x_bar = protocol::phi_inverse(z, x_bar[2]);
     }
     println!(
         "refinement_tol_m {}: largest gap to the refined plan {:.3} mm (sample {gap_sample}); \

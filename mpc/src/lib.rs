@@ -668,9 +668,7 @@ mod tests {
         let mut z = Vector4::from(protocol::phi([x, y, theta, scenario.robot.zeta0]));
         for k in 0..samples {
             // x_bar with the same z (theta is irrelevant to z when zeta = 0).
-            let zeta = z[1].hypot(z[3]);
-            let heading = if zeta > 0.0 { z[3].atan2(z[1]) } else { theta };
-            let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
+            let plan = mpc.step(k, protocol::phi_inverse(z.into(), theta), 0.0);
             assert!(plan.is_solved(), "sample {k}: {:?}", plan.status());
             z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
             after_step(&mut mpc, &plan);
@@ -1097,8 +1095,7 @@ mod tests {
         let mut compared = vec![0; Rows::count(&mpc.layout)];
         for plan in closed_loop(s, 400).iter().step_by(5) {
             let z = plan.z[0];
-            let zeta = z[1].hypot(z[3]);
-            mpc.step(plan.sample, [z[0], z[2], z[3].atan2(z[1]), zeta], 0.0);
+            mpc.step(plan.sample, protocol::phi_inverse(z, 0.0), 0.0);
             let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
             // The rows left out at the current reference, then every row at the same one.
             assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
@@ -1168,20 +1165,20 @@ mod tests {
         for cone in l.cones(rows) {
             match cone {
                 SupportedConeT::ZeroConeT(d) => {
-                    for row in r..r + d {
-                        if s[row].abs() > tolerance {
-                            violated.push((row, s[row].abs()));
+                    for (row, slack) in s.iter().enumerate().skip(r).take(d) {
+                        if slack.abs() > tolerance {
+                            violated.push((row, slack.abs()));
                         }
                     }
                     r += d;
                 }
                 SupportedConeT::NonnegativeConeT(d) => {
-                    for row in r..r + d {
-                        if s[row] < -tolerance {
+                    for (row, slack) in s.iter().enumerate().skip(r).take(d) {
+                        if *slack < -tolerance {
                             if terminal_set.contains(&row) {
                                 terminal_set_violated += 1;
                             } else {
-                                violated.push((row, -s[row]));
+                                violated.push((row, -slack));
                             }
                         }
                     }
@@ -1384,9 +1381,7 @@ mod tests {
         let [x, y, theta] = s.robot.start;
         let mut z = Vector4::from(protocol::phi([x, y, theta, 0.0]));
         let failed = (0..1000).find(|&k| {
-            let zeta = z[1].hypot(z[3]);
-            let heading = if zeta > 0.0 { z[3].atan2(z[1]) } else { theta };
-            let plan = mpc.step(k, [z[0], z[2], heading, zeta], 0.0);
+            let plan = mpc.step(k, protocol::phi_inverse(z.into(), theta), 0.0);
             z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
             !plan.is_solved()
         });

@@ -4,6 +4,7 @@
 //! Text needs a TrueType font: the first of [`FONT_CANDIDATES`] that exists (or the file
 //! named by `SCMPC_FONT`) is used; Debian's `fonts-dejavu-core` provides one.
 
+use crate::schema::Table;
 use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -272,25 +273,15 @@ pub struct Trajectory {
 
 impl Trajectory {
     pub fn read(dir: &Path) -> anyhow::Result<Trajectory> {
-        let path = dir.join("trajectory.csv");
-        let text = std::fs::read_to_string(&path)
-            .with_context(|| format!("reading {}", path.display()))?;
-        let mut t = Trajectory::default();
-        for (n, line) in text.lines().enumerate().skip(1) {
-            let f: Vec<&str> = line.split(',').collect();
-            let num = |i: usize| -> anyhow::Result<f64> {
-                f.get(i)
-                    .and_then(|v| v.parse().ok())
-                    .ok_or_else(|| anyhow!("{}: line {}: column {i}", path.display(), n + 1))
-            };
-            t.t.push(num(0)?);
-            t.x.push(num(1)?);
-            t.y.push(num(2)?);
-            t.theta.push(num(3)?);
-            t.zeta.push(num(4)?);
-            t.clearance.push(num(17)?);
-        }
-        Ok(t)
+        let table = Table::read(&dir.join("trajectory.csv"))?;
+        Ok(Trajectory {
+            t: table.numbers("t")?,
+            x: table.numbers("x")?,
+            y: table.numbers("y")?,
+            theta: table.numbers("theta")?,
+            zeta: table.numbers("zeta")?,
+            clearance: table.numbers("clearance")?,
+        })
     }
 
     pub fn path(&self) -> Vec<(f64, f64)> {

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod cli;
+pub mod closed_loop;
 pub mod figures;
 pub mod fuzz;
 pub mod inprocess;
@@ -9,5 +10,6 @@ pub mod monitor;
 pub mod multiproc;
 pub mod record;
 pub mod scenarios;
+pub mod schema;
 pub mod study;
 pub mod swap;

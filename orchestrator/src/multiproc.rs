@@ -7,7 +7,6 @@
 //! loses nothing. Real time: the orchestrator publishes the monotonic time of tick 0 and
 //! records ticks as they complete, counting every tick it never receives whole.
 
-use crate::inprocess::tick_count;
 use crate::monitor::Outcome;
 use crate::record::{Latencies, ProcessReport, Recorder, Summary};
 use anyhow::{Context, anyhow, bail};
@@ -630,8 +629,7 @@ impl Driver<'_> {
         match self.mode {
             RunMode::Lockstep => self.cursor,
             RunMode::Realtime => {
-                let dt_ns =
-                    self.scenario.timing.ts_s / self.scenario.timing.inner_steps as f64 * 1e9;
+                let dt_ns = self.scenario.timing.dt_s() * 1e9;
                 (monotonic_ns().saturating_sub(self.start_ns) as f64 / dt_ns) as u64
             }
         }
@@ -641,8 +639,7 @@ impl Driver<'_> {
     /// replacement is scheduled to take over at a sample boundary [`SWITCH_LEAD_SAMPLES`]
     /// ahead; once that tick is recorded the old process is retired.
     fn supervise(&mut self) -> anyhow::Result<()> {
-        let time_s = self.cursor as f64 * self.scenario.timing.ts_s
-            / self.scenario.timing.inner_steps as f64;
+        let time_s = self.cursor as f64 * self.scenario.timing.dt_s();
         let mut requests = Vec::new();
         // Straight from shared memory: nothing waits on this listener.
         self.session.swap_requests.take(|r, _| requests.push(r))?;
@@ -894,7 +891,7 @@ impl Driver<'_> {
         &mut self,
         waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
     ) -> anyhow::Result<Outcome> {
-        let ticks = tick_count(self.scenario);
+        let ticks = self.scenario.tick_count();
         let inner_steps = self.scenario.timing.inner_steps as u64;
         for tick in 0..=ticks {
             self.session.command(ControlCommand::Grant, tick, 0)?;
@@ -941,7 +938,7 @@ impl Driver<'_> {
         &mut self,
         waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
     ) -> anyhow::Result<Outcome> {
-        let ticks = tick_count(self.scenario);
+        let ticks = self.scenario.tick_count();
         let inner_steps = self.scenario.timing.inner_steps as u64;
         self.start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.session

@@ -1,7 +1,9 @@
 //! The run directory: `trajectory.csv` (one row per inner tick), `plans.csv` (one row per
-//! MPC sample) and `summary.json`, plus the summary table printed at the end of a run.
+//! MPC sample; their columns in [`crate::schema`]) and `summary.json`, plus the summary
+//! table printed at the end of a run.
 
 use crate::monitor::{Monitor, Outcome};
+use crate::schema;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, PLAN_MISSING,
     Plan, PlanStatus, Scenario,
@@ -281,13 +283,11 @@ impl Recorder {
         let mut trajectory = BufWriter::new(File::create(dir.join("trajectory.csv"))?);
         writeln!(
             trajectory,
-            "t,x,y,theta,zeta,x_hat,y_hat,theta_hat,zeta_hat,v1,v2,u1,u2,omega_r,omega_l,mode,plan_sample,clearance"
+            "{}",
+            schema::header(&schema::TRAJECTORY_COLUMNS)
         )?;
         let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
-        writeln!(
-            plans,
-            "sample,t,status,solve_us,injected_delay_us,iterations,solves,arrival_ms,deadline_met,fallback,v1,v2,horizon,mpc_epoch"
-        )?;
+        writeln!(plans, "{}", schema::header(&schema::PLANS_COLUMNS))?;
         let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
             dir: dir.to_path_buf(),

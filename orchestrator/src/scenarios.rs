@@ -57,25 +57,6 @@ pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Scenario, Scen
     Ok(scenario)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn built_in_paper_is_the_default_scenario() {
-        assert_eq!(load(None, &[]).unwrap(), Scenario::default());
-    }
-
-    #[test]
-    fn paper_noisy_differs_only_in_name_and_noise() {
-        let noisy = load(Some("paper-noisy"), &[]).unwrap();
-        let mut expected = Scenario::default();
-        expected.name = "paper-noisy".into();
-        expected.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
-        assert_eq!(noisy, expected);
-    }
-}
-
 /// Checks that the program of every `[[swap]]` command can be started: `scmpc` (this
 /// executable), a path that exists, or a name found in `PATH`.
 pub fn check_swap_programs(scenario: &Scenario) -> Result<(), ScenarioErrors> {
@@ -108,4 +89,25 @@ fn program_exists(program: &str) -> bool {
     }
     std::env::var_os("PATH")
         .is_some_and(|path| std::env::split_paths(&path).any(|dir| dir.join(program).is_file()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn built_in_paper_is_the_default_scenario() {
+        assert_eq!(load(None, &[]).unwrap(), Scenario::default());
+    }
+
+    #[test]
+    fn paper_noisy_differs_only_in_name_and_noise() {
+        let noisy = load(Some("paper-noisy"), &[]).unwrap();
+        let mut expected = Scenario {
+            name: "paper-noisy".into(),
+            ..Scenario::default()
+        };
+        expected.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
+        assert_eq!(noisy, expected);
+    }
 }

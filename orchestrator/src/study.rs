@@ -400,25 +400,16 @@ pub fn compare_solve_times(
     })
 }
 
-/// The estimate `x_bar` at every sample boundary of the scenario's in-process run.
+/// The estimate `x_bar` at every sample boundary of the scenario's in-process run
+/// (recorded in `dir`).
 fn closed_loop_states(scenario: &Scenario, dir: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
-    inprocess::run(scenario, dir, &AtomicBool::new(false))?;
-    let m = scenario.timing.inner_steps;
-    let text = std::fs::read_to_string(dir.join("trajectory.csv"))?;
-    Ok(text
-        .lines()
-        .skip(1)
-        .step_by(m)
-        .filter_map(|line| {
-            let f: Vec<f64> = line
-                .split(',')
-                .skip(5)
-                .take(4)
-                .map_while(|v| v.parse().ok())
-                .collect();
-            (f.len() == 4).then(|| [f[0], f[1], f[2], f[3]])
-        })
-        .collect())
+    let mut states = Vec::new();
+    inprocess::run_observed(scenario, dir, &AtomicBool::new(false), |tick| {
+        if tick.plan.is_some() {
+            states.push(tick.estimate.state);
+        }
+    })?;
+    Ok(states)
 }
 
 #[cfg(test)]

@@ -22,14 +22,14 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     link.report(StatusEvent::Ready)?;
 
     let timing = &args.scenario.timing;
-    let dt = timing.ts_s / timing.inner_steps as f64;
+    let dt = timing.dt_s();
     let mut plant = Plant::new(&args.scenario);
     let mut latest: Option<Actuation> = None;
     let publish =
         |plant: &mut Plant, tick: u64, input_latency_ns: u64| -> Result<(), ProcessError> {
             let header = Header {
                 tick,
-                time_s: tick as f64 * dt,
+                time_s: timing.tick_time_s(tick),
                 input_latency_ns: input_latency_ns.min(u64::from(u32::MAX)) as u32,
                 ..Header::default()
             };
@@ -73,7 +73,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             }
             RunMode::Realtime => {
                 if let Some(start_ns) = ctl.start_ns {
-                    let deadline = start_ns + (tick as f64 * dt * 1e9) as u64;
+                    let deadline = start_ns + (timing.tick_time_s(tick) * 1e9) as u64;
                     sleep_until_ns(deadline);
                     actuation.drain(|a, _| {
                         if latest.is_none_or(|l| a.header.tick >= l.header.tick) {

@@ -24,6 +24,18 @@ pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {
     [x, zeta * theta.cos(), y, zeta * theta.sin()]
 }
 
+/// Inverse of [`phi`] on the branch `zeta >= 0`; at rest (`zeta = 0`) theta is not
+/// determined by `z` and `theta_at_rest_rad` is returned.
+pub fn phi_inverse(z: [f64; 4], theta_at_rest_rad: f64) -> [f64; 4] {
+    let zeta = z[1].hypot(z[3]);
+    let theta = if zeta > 0.0 {
+        z[3].atan2(z[1])
+    } else {
+        theta_at_rest_rad
+    };
+    [z[0], z[2], theta, zeta]
+}
+
 /// Distance the fallback brake covers from `speed_m_s` (either sign), m: `U2 = 0`, so
 /// the robot moves straight along its heading, and `U1` takes zeta to zero at `decel`
 /// (m/s^2), the command being held over steps of `hold_s` (the DFL's inner tick). The

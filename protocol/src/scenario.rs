@@ -232,6 +232,18 @@ pub struct Timing {
     pub inner_steps: usize,
 }
 
+impl Timing {
+    /// Inner (DFL, plant) tick `Ts / M`, s.
+    pub fn dt_s(&self) -> f64 {
+        self.ts_s / self.inner_steps as f64
+    }
+
+    /// Time of inner tick `tick`, s since the start of the run.
+    pub fn tick_time_s(&self, tick: u64) -> f64 {
+        tick as f64 * self.dt_s()
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Robot {
@@ -649,9 +661,9 @@ impl Scenario {
         self.robot.radius_m + self.mpc.safety_margin_m
     }
 
-    /// Inner (DFL, plant) tick `Ts / M`, s.
-    pub fn inner_tick_s(&self) -> f64 {
-        self.timing.ts_s / self.timing.inner_steps as f64
+    /// Number of inner ticks in a run of `duration_s` (rounded to the nearest tick).
+    pub fn tick_count(&self) -> u64 {
+        (self.duration_s / self.timing.dt_s()).round() as u64
     }
 
     /// The scenario as a TOML document, every key spelled out.
@@ -860,7 +872,7 @@ impl Scenario {
         // zeta0 < 0), U2 being zero.
         let decel = self.brake_decel();
         let stop = if decel > 0.0 && self.robot.zeta0.is_finite() {
-            crate::stopping_distance(self.robot.zeta0, decel, self.inner_tick_s())
+            crate::stopping_distance(self.robot.zeta0, decel, self.timing.dt_s())
         } else {
             0.0
         };

@@ -1,0 +1,182 @@
+//! The four roles stepped in one process, in the order of the data flow, with the lockstep
+//! semantics of the design (section 3). `scmpc run --in-process`, `sweep`, `figures`, the
+//! allocation test and the step benchmarks all step this one loop.
+//!
+//! Per inner tick `j` (time `t_j = j Ts / M`), phase by phase:
+//! 1. [`ClosedLoop::measure`]: the plant's true pose and its measurement;
+//! 2. [`ClosedLoop::estimate`]: the estimator predicts with the command of tick `j - 1`
+//!    and updates;
+//! 3. [`ClosedLoop::plan`]: on a sample boundary (`j = k M`) the MPC solves plan(k), with
+//!    the scenario's faults; a plan whose solve time (measured, plus any injected delay)
+//!    exceeds `Ts` arrives `ceil(solve / Ts)` samples late, as it would in real time;
+//! 4. [`ClosedLoop::command`]: plans whose arrival sample has come are released to the
+//!    DFL, which commands `[t_j, t_j+1)`; on a sample boundary the deadline monitor judges
+//!    the sample;
+//! 5. [`ClosedLoop::integrate`]: the plant integrates the command over the tick.
+//!
+//! [`ClosedLoop::step`] runs the five in order. The phases are public so that a caller can
+//! measure each (the allocation test counts allocations phase by phase).
+
+use dfl::{DeadlineMonitor, Dfl, PlanInbox};
+use estimator::Estimator;
+use mpc::Mpc;
+use plant::{Plant, Pose};
+use protocol::{
+    Actuation, DeadlineVerdict, Estimate, FaultConfig, GroundTruth, Header, Plan, Scenario, Timing,
+};
+
+/// One inner tick of the closed loop: what every role produced.
+#[derive(Debug, Clone)]
+pub struct Tick {
+    /// The plant's pose at the start of the tick.
+    pub truth: GroundTruth,
+    pub estimate: Estimate,
+    /// The plan solved at this tick (sample boundaries only).
+    pub plan: Option<Plan>,
+    /// The deadline monitor's verdict on the sample this tick starts (boundaries only).
+    pub verdict: Option<DeadlineVerdict>,
+    /// The DFL's command for the tick, with the deadline misses so far.
+    pub actuation: Actuation,
+}
+
+/// The plant, estimator, MPC and DFL of one scenario, stepped in lockstep.
+pub struct ClosedLoop {
+    plant: Plant,
+    estimator: Estimator,
+    mpc: Mpc,
+    dfl: Dfl,
+    inbox: PlanInbox,
+    deadlines: DeadlineMonitor,
+    faults: FaultConfig,
+    /// The command the estimator hears at the next tick (none before the first).
+    applied: Option<[f64; 2]>,
+    tick: u64,
+    ticks: u64,
+    timing: Timing,
+}
+
+impl ClosedLoop {
+    /// The roles of `scenario` at their initial states. The scenario must be validated.
+    pub fn new(scenario: &Scenario) -> Result<Self, mpc::MpcError> {
+        Ok(Self {
+            plant: Plant::new(scenario),
+            estimator: Estimator::new(scenario),
+            mpc: Mpc::new(scenario)?,
+            dfl: Dfl::new(scenario),
+            inbox: PlanInbox::new(true, scenario.timing.ts_s),
+            deadlines: DeadlineMonitor::new(scenario.timing.ts_s),
+            faults: scenario.fault.clone(),
+            applied: None,
+            tick: 0,
+            ticks: scenario.tick_count(),
+            timing: scenario.timing.clone(),
+        })
+    }
+
+    /// The sample of the current tick and whether the tick is that sample's first.
+    fn sample(&self) -> (u64, bool) {
+        let m = self.timing.inner_steps as u64;
+        (self.tick / m, self.tick.is_multiple_of(m))
+    }
+
+    /// The tick the next [`step`](Self::step) runs.
+    pub fn tick(&self) -> u64 {
+        self.tick
+    }
+
+    /// Whether every tick of the run's duration has been stepped.
+    pub fn is_done(&self) -> bool {
+        self.tick >= self.ticks
+    }
+
+    /// The header of the current tick.
+    pub fn header(&self) -> Header {
+        Header {
+            tick: self.tick,
+            time_s: self.timing.tick_time_s(self.tick),
+            ..Header::default()
+        }
+    }
+
+    /// The plant's true pose now (after the last integrated tick).
+    pub fn truth(&self) -> GroundTruth {
+        GroundTruth {
+            header: self.header(),
+            pose: self.plant.pose(),
+        }
+    }
+
+    /// Phase 1: the true pose at the start of the tick and the plant's measurement of it.
+    pub fn measure(&mut self) -> (GroundTruth, Pose) {
+        (self.truth(), self.plant.measure())
+    }
+
+    /// Phase 2: the estimate from the measurement and the previous tick's command.
+    pub fn estimate(&mut self, measurement: Pose) -> Estimate {
+        let header = self.header();
+        self.estimator.step(
+            self.applied,
+            self.timing.dt_s(),
+            measurement,
+            self.dfl.zeta(),
+            header,
+        )
+    }
+
+    /// Phase 3: on a sample boundary, the MPC's plan from `estimate` (with the scenario's
+    /// faults), handed to the DFL's inbox to arrive when its solve time says.
+    pub fn plan(&mut self, estimate: &Estimate) -> Option<Plan> {
+        let (sample, first_tick) = self.sample();
+        if !first_tick {
+            return None;
+        }
+        let mut plan = self
+            .mpc
+            .step(sample, estimate.state, estimate.position_sigma());
+        self.mpc.inject_faults(&mut plan, &self.faults);
+        plan.header = self.header();
+        self.inbox.receive(&plan);
+        let late_ns = (self.inbox.late(&plan) as f64 * self.timing.ts_s * 1e9) as u64;
+        self.deadlines.on_plan(&plan, late_ns);
+        Some(plan)
+    }
+
+    /// Phase 4: the DFL's command for the tick, after releasing the plans that have
+    /// arrived, and on a sample boundary the deadline monitor's verdict on the sample.
+    pub fn command(&mut self, estimate: &Estimate) -> (Actuation, Option<DeadlineVerdict>) {
+        let (sample, first_tick) = self.sample();
+        self.inbox.release(sample, &mut self.dfl);
+        let mut actuation = self.dfl.step(estimate, self.tick);
+        let verdict = match actuation.mode() {
+            Some(mode) if first_tick => self.deadlines.sample_started(sample, mode),
+            _ => None,
+        };
+        actuation.deadline_misses = self.deadlines.misses();
+        (actuation, verdict)
+    }
+
+    /// Phase 5: the plant integrates `actuation` over the tick; the next tick begins.
+    pub fn integrate(&mut self, actuation: &Actuation) {
+        self.plant
+            .step(actuation.u1, actuation.u2, self.timing.dt_s());
+        // The estimator is driven by the command it hears, as over IPC.
+        self.applied = Some([actuation.u1, actuation.u2]);
+        self.tick += 1;
+    }
+
+    /// One inner tick: the five phases in order.
+    pub fn step(&mut self) -> Tick {
+        let (truth, measurement) = self.measure();
+        let estimate = self.estimate(measurement);
+        let plan = self.plan(&estimate);
+        let (actuation, verdict) = self.command(&estimate);
+        self.integrate(&actuation);
+        Tick {
+            truth,
+            estimate,
+            plan,
+            verdict,
+            actuation,
+        }
+    }
+}
