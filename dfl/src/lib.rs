@@ -68,7 +68,7 @@ pub fn extended_dynamics(x_bar: &[f64; 4], v: [f64; 2], zeta_threshold: f64) -> 
     [zeta * theta.cos(), zeta * theta.sin(), u2, u1]
 }
 
-/// Which element of `plan` covers sample `current_sample`, if any (DESIGN.md section 3:
+/// Which element of `plan` covers sample `current_sample`, if any (README, "Deadlines":
 /// element `i` is valid on `[t_k + i Ts, t_k + (i + 1) Ts)`). A plan from the future
 /// covers nothing yet; a plan older than its horizon is exhausted.
 pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
@@ -77,7 +77,7 @@ pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
 }
 
 /// Samples a plan arrives late in lockstep: 0 if its solve took at most `Ts`, else
-/// `ceil(solve / Ts)` (DESIGN.md section 3: timing violations behave as in real time).
+/// `ceil(solve / Ts)` (README, "Deadlines": timing violations behave as in real time).
 pub fn late_samples(solve_ns: u64, ts_s: f64) -> u64 {
     let solve_s = solve_ns as f64 * 1e-9;
     if solve_s <= ts_s {

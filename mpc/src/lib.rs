@@ -217,7 +217,7 @@ impl LinearMpc {
     }
 
     /// The obstacles as the constraints see them: goal-relative, radius inflated by the
-    /// margin `m + kappa sigma` (DESIGN.md section 1).
+    /// margin `m + kappa sigma` (README, "What it does").
     pub fn constraint_discs(&self) -> &[Disc] {
         &self.discs
     }

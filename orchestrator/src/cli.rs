@@ -110,7 +110,7 @@ impl From<Mode> for RunMode {
 }
 
 /// What the orchestrator passes to a role process: on the command line, or in the
-/// environment of any command it starts for a role (DESIGN.md section 5), so a
+/// environment of any command it starts for a role (README, "Supervision"), so a
 /// replacement such as `scmpc mpc --set mpc.horizon=10` needs only its own options.
 #[derive(Debug, clap::Args)]
 struct RoleArgs {
@@ -261,18 +261,18 @@ fn stop_flag() -> Arc<AtomicBool> {
 }
 
 fn sweep(args: SweepArgs) -> ExitCode {
-    use crate::study;
+    use crate::sweep;
     let planned = scenarios::load(args.scenario.as_deref(), &args.overrides).and_then(|base| {
         let axes = args
             .grid
             .iter()
-            .map(|g| study::Axis::parse(g))
+            .map(|g| sweep::Axis::parse(g))
             .collect::<Result<Vec<_>, _>>()?;
         let out = args
             .out
             .clone()
             .unwrap_or_else(|| default_run_dir(&format!("{}-sweep", base.name)));
-        let runs = study::plan_runs(&base, &axes, args.seeds, &out)?;
+        let runs = sweep::plan_runs(&base, &axes, args.seeds, &out)?;
         Ok((axes, out, runs))
     });
     let (axes, out, runs) = match planned {
@@ -289,25 +289,25 @@ fn sweep(args: SweepArgs) -> ExitCode {
         runs.len(),
         out.display()
     );
-    let results = study::run_all(&runs, threads, true, &stop);
+    let results = sweep::run_all(&runs, threads, true, &stop);
     let written = std::fs::create_dir_all(&out)
         .map_err(anyhow::Error::from)
-        .and_then(|()| study::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results));
+        .and_then(|()| sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results));
     if let Err(e) = written {
         eprintln!("error: {e:#}");
         return ExitCode::from(EXIT_NOT_REACHED);
     }
-    let stats = study::seed_stats(&runs, &results);
+    let stats = sweep::seed_stats(&runs, &results);
     if args.seeds > 0
-        && let Err(e) = study::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)
+        && let Err(e) = sweep::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)
     {
         eprintln!("error: {e:#}");
         return ExitCode::from(EXIT_NOT_REACHED);
     }
     if args.seeds > 1 {
-        print!("{}", study::seed_table(&axes, &stats));
+        print!("{}", sweep::seed_table(&axes, &stats));
     } else {
-        print!("{}", study::run_table(&axes, &runs, &results));
+        print!("{}", sweep::run_table(&axes, &runs, &results));
     }
     println!("sweep directory: {}", out.display());
     if results.iter().all(Result::is_ok) {
@@ -413,8 +413,8 @@ fn bench(out: Option<PathBuf>, realtime_s: f64) -> ExitCode {
 }
 
 fn swap(args: SwapArgs) -> ExitCode {
-    let request = match crate::swap::swappable_role(&args.role)
-        .and_then(|role| crate::swap::build_request(role, &args.command))
+    let request = match crate::swap_client::swappable_role(&args.role)
+        .and_then(|role| crate::swap_client::build_request(role, &args.command))
     {
         Ok(r) => r,
         Err(e) => {
@@ -422,7 +422,7 @@ fn swap(args: SwapArgs) -> ExitCode {
             return ExitCode::from(EXIT_BAD_INPUT);
         }
     };
-    match crate::swap::send(&args.run_dir, &request) {
+    match crate::swap_client::send(&args.run_dir, &request) {
         Ok(reply) if reply.done == 1 => {
             println!(
                 "swapped {}: epoch {} from tick {} ({})",
@@ -441,7 +441,10 @@ fn swap(args: SwapArgs) -> ExitCode {
             );
             ExitCode::from(EXIT_NOT_REACHED)
         }
-        Err(e) if e.downcast_ref::<crate::swap::RequestError>().is_some() => {
+        Err(e)
+            if e.downcast_ref::<crate::swap_client::RequestError>()
+                .is_some() =>
+        {
             eprintln!("error: {e:#}");
             ExitCode::from(EXIT_BAD_INPUT)
         }

@@ -365,7 +365,7 @@ pub const HORIZONS: [usize; 5] = [8, 9, 10, 12, 14];
 #[derive(Debug)]
 pub struct FigureSet {
     pub files: Vec<PathBuf>,
-    pub solve_times: Vec<crate::study::SolveTimes>,
+    pub solve_times: Vec<crate::solve_times::SolveTimes>,
 }
 
 /// The paper's figure set, from scratch: runs every scenario it needs in process (on
@@ -376,7 +376,8 @@ pub fn paper_set(
     threads: usize,
     stop: &std::sync::atomic::AtomicBool,
 ) -> anyhow::Result<FigureSet> {
-    use crate::study::{RunSpec, compare_solve_times, run_all};
+    use crate::solve_times::compare_solve_times;
+    use crate::sweep::{RunSpec, run_all};
     ensure_font()?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     // The paper's study is of the paper's formulation: without the safety layers added
@@ -576,15 +577,16 @@ pub fn paper_set(
         let dir = out.join("runs").join(format!("solve-time-n-{n}"));
         solve_times.push(compare_solve_times(&base, n, &dir)?);
     }
-    let curve = |label: &str, color, faint, f: &dyn Fn(&crate::study::SolveTimes) -> f64| Series {
-        label: label.into(),
-        points: solve_times
-            .iter()
-            .map(|s| (s.horizon as f64, f(s) / 1e3))
-            .collect(),
-        faint,
-        color,
-    };
+    let curve =
+        |label: &str, color, faint, f: &dyn Fn(&crate::solve_times::SolveTimes) -> f64| Series {
+            label: label.into(),
+            points: solve_times
+                .iter()
+                .map(|s| (s.horizon as f64, f(s) / 1e3))
+                .collect(),
+            faint,
+            color,
+        };
     figures.push(Figure {
         stem: "solve_time".into(),
         title: "solve time per sample against N".into(),
@@ -610,7 +612,7 @@ pub fn paper_set(
     Ok(FigureSet { files, solve_times })
 }
 
-fn write_solve_times(path: &Path, times: &[crate::study::SolveTimes]) -> anyhow::Result<()> {
+fn write_solve_times(path: &Path, times: &[crate::solve_times::SolveTimes]) -> anyhow::Result<()> {
     let mut text = String::from(
         "horizon,linear_p50_us,linear_p99_us,linear_max_us,nonlinear_p50_us,nonlinear_p99_us,nonlinear_max_us,nonlinear_failures\n",
     );

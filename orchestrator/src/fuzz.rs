@@ -1,5 +1,5 @@
 //! `scmpc fuzz`: random valid worlds, each run in process on all cores, to measure the
-//! safety property (DESIGN.md section 8) on worlds nobody tuned for.
+//! safety property (README, "Safety") on worlds nobody tuned for.
 //!
 //! The distribution (every draw independent, uniform unless said otherwise; seeded, so
 //! `--seed` reproduces a batch exactly):
@@ -23,7 +23,7 @@
 
 use crate::monitor::Outcome;
 use crate::record::Summary;
-use crate::study::{self, RunSpec};
+use crate::sweep::{self, RunSpec};
 use anyhow::Context;
 use protocol::{NoiseVariance, Obstacle, Scenario, ScenarioErrors};
 use rand::{RngExt, SeedableRng};
@@ -190,7 +190,7 @@ pub fn run(
             dir: out.join("runs").join(format!("{:04}", w.index)),
         })
         .collect();
-    let results = study::run_all(&runs, threads, progress, stop);
+    let results = sweep::run_all(&runs, threads, progress, stop);
     let report = Report { worlds, results };
     let _ = std::fs::remove_dir_all(out.join("runs"));
     write_csv(&report, out).with_context(|| format!("writing {}", out.display()))?;

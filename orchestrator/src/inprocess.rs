@@ -44,9 +44,7 @@ pub fn run_observed(
     }
     let outcome = match outcome {
         Some(o) => o,
-        None => recorder
-            .final_pose(&closed_loop.truth())
-            .unwrap_or_else(|| recorder.monitor.final_outcome()),
+        None => recorder.end_of_run(Some(&closed_loop.truth())),
     };
     let summary = recorder.finish(
         scenario,

@@ -11,5 +11,6 @@ pub mod multiproc;
 pub mod record;
 pub mod scenarios;
 pub mod schema;
-pub mod study;
-pub mod swap;
+pub mod solve_times;
+pub mod swap_client;
+pub mod sweep;

@@ -392,11 +392,15 @@ impl Recorder {
         Ok(self.monitor.observe(t, x, y))
     }
 
-    /// The truth after the last tick, so the run is judged at its very end too.
-    pub fn final_pose(&mut self, truth: &GroundTruth) -> Option<Outcome> {
-        self.last_time_s = truth.header.time_s;
-        self.monitor
-            .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+    /// The outcome of a run that reached its last tick: the truth after that tick (when
+    /// there is one) is judged too, then the monitor decides.
+    pub fn end_of_run(&mut self, truth: Option<&GroundTruth>) -> Outcome {
+        let at_the_end = truth.and_then(|truth| {
+            self.last_time_s = truth.header.time_s;
+            self.monitor
+                .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+        });
+        at_the_end.unwrap_or_else(|| self.monitor.final_outcome())
     }
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.

@@ -298,7 +298,7 @@ impl<T: Message> Receiver<T> {
         }
     }
 
-    /// The border check of DESIGN.md section 4, in one place. A sample of a producer
+    /// The border check (README, "Supervision"), in one place. A sample of a producer
     /// being swapped in or out is [`EpochVerdict::Standby`]: skipped, not an error.
     fn check(&self, message: &T) -> Result<EpochVerdict, Rejection> {
         let h = message.header();
@@ -573,7 +573,7 @@ pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 
-/// How a run is clocked (DESIGN.md section 3).
+/// How a run is clocked (README, "Deadlines").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RunMode {
     /// Simulated time: every process waits for its inputs of the tick; deterministic.

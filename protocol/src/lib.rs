@@ -53,8 +53,8 @@ pub fn stopping_distance(speed_m_s: f64, decel: f64, hold_s: f64) -> f64 {
 /// current estimate, it would enter the obstacle grown by those alone. The gap between the
 /// two takes the estimate's drift from tick to tick (a fraction of sigma) and the
 /// difference between the robot and its linearized model (the zeta guard, the held
-/// inner-tick commands: micrometres) without giving up safe trajectories (DESIGN.md
-/// section 8). This is its fixed part, m.
+/// inner-tick commands: micrometres) without giving up safe trajectories (README,
+/// "Safety"). This is its fixed part, m.
 pub const COMMIT_MARGIN_M: f64 = 1e-3;
 
 /// The extra clearance of the commit check over the re-check (module docs of

@@ -1,7 +1,7 @@
 //! Every message that crosses a process boundary: `#[repr(C)]`, fixed size, no heap, so
 //! iceoryx2 can hand it over in shared memory without copying or serializing.
 //!
-//! Each carries a [`Header`] (DESIGN.md section 4). The in-process mode passes the very
+//! Each carries a [`Header`] (README, "Supervision"). The in-process mode passes the very
 //! same values between the roles, so both modes share one set of semantics.
 
 use iceoryx2::prelude::ZeroCopySend;
@@ -102,7 +102,7 @@ impl PlanStatus {
 }
 
 /// plan(k): a time-indexed input sequence. Element `i` is valid on
-/// `[t_k + i Ts, t_k + (i + 1) Ts)` (DESIGN.md section 3).
+/// `[t_k + i Ts, t_k + (i + 1) Ts)` (README, "Deadlines").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scmpc::Plan")]
@@ -169,7 +169,7 @@ pub enum CommandMode {
     /// A nominal command whose steering was zeroed by the zeta guard.
     ZetaGuard = 3,
     /// Braking because the safety check found the trajectory being flown no longer safe
-    /// from the current estimate (DESIGN.md section 8), until a new plan passes it.
+    /// from the current estimate (README, "Safety"), until a new plan passes it.
     SafetyBrake = 4,
 }
 
@@ -239,7 +239,7 @@ impl Actuation {
     }
 }
 
-/// What the DFL's safety check did at a tick (DESIGN.md section 8).
+/// What the DFL's safety check did at a tick (README, "Safety").
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Intervention {
@@ -277,7 +277,7 @@ impl Intervention {
 pub const PLAN_MISSING: u32 = u32::MAX;
 
 /// The DFL's judgement of one sample's deadline: plan(k) must be in its hands, solved, by
-/// `t_k + Ts` (DESIGN.md section 3). Published for every sample, met or missed.
+/// `t_k + Ts` (README, "Deadlines"). Published for every sample, met or missed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("scmpc::DeadlineVerdict")]
@@ -333,7 +333,7 @@ pub struct Control {
 }
 
 /// Which producer epoch of each [`Role`] (indexed by its code) consumers take, tick by
-/// tick (DESIGN.md section 5). A swap-in replacement is announced as `next` while it warms
+/// tick (README, "Supervision"). A swap-in replacement is announced as `next` while it warms
 /// up: its samples are neither used nor counted as rejected. Once `switch_tick` is set,
 /// samples of ticks before it are taken from `active` and from it on from `next`, so the
 /// hand-over happens at one sample boundary in every process alike. The schedule stays so
@@ -489,7 +489,7 @@ pub enum StatusEvent {
     Rejected = 2,
 }
 
-/// Why a consumer refused a sample (DESIGN.md section 4).
+/// Why a consumer refused a sample (README, "Supervision").
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rejection {

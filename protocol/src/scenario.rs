@@ -2,7 +2,7 @@
 //! dotted-key overrides of `--set`.
 //!
 //! Every key has a default, and the defaults are the paper's canonical scenario
-//! (DESIGN.md section 7): a file only has to name what it changes. Unknown keys are
+//! (README, "Scenario keys"): a file only has to name what it changes. Unknown keys are
 //! refused everywhere (`deny_unknown_fields`), so a typo never silently falls back to a
 //! default.
 
@@ -43,7 +43,7 @@ pub struct Scenario {
     pub swap: Vec<SwapConfig>,
 }
 
-/// One scheduled replacement of a role process, make-before-break (DESIGN.md section 5).
+/// One scheduled replacement of a role process, make-before-break (README, "Supervision").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SwapConfig {
@@ -146,7 +146,7 @@ impl SampleSet {
     }
 }
 
-/// Faults injected into a run (DESIGN.md section 3 is what they exercise).
+/// Faults injected into a run (what they exercise: README, "Deadlines").
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FaultConfig {
@@ -460,7 +460,7 @@ pub struct DflConfig {
     /// terminal rows, the brake and the safety check all use it
     /// ([`Scenario::brake_decel`]); a value above `mpc.v_max` is refused.
     pub brake_decel: BrakeDecel,
-    /// The safety check (DESIGN.md section 8): the DFL flies only a plan whose trajectory,
+    /// The safety check (README, "Safety"): the DFL flies only a plan whose trajectory,
     /// followed by the brake, it has checked against every obstacle, and brakes at once
     /// when the estimate shows the trajectory it flies is no longer safe.
     pub gatekeeper: bool,
@@ -490,7 +490,7 @@ pub struct Obstacle {
 }
 
 impl Default for Scenario {
-    /// The paper's canonical scenario (DESIGN.md section 7).
+    /// The paper's canonical scenario (README, "Scenario keys").
     fn default() -> Self {
         Scenario {
             name: "paper".into(),
@@ -647,7 +647,7 @@ impl Scenario {
 
     /// Deceleration of the fallback brake, m/s^2: `dfl.brake_decel`, whose `auto` is
     /// `mpc.v_max`. One braking model for the MPC's terminal rows, the DFL's brake and its
-    /// safety check (DESIGN.md section 8).
+    /// safety check (README, "Safety").
     pub fn brake_decel(&self) -> f64 {
         match self.dfl.brake_decel {
             BrakeDecel::Auto(_) => self.mpc.v_max,

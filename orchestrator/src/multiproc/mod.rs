@@ -1,0 +1,621 @@
+//! `scmpc run` over iceoryx2: the four roles as separate processes, launched, clocked and
+//! recorded by the orchestrator.
+//!
+//! Lockstep: the orchestrator grants tick `j` to the plant, and the data flow carries it
+//! through estimator, MPC and DFL; the orchestrator records tick `j` (it subscribes to
+//! every topic) before it grants `j + 1`, so the recorder is part of the handshake and
+//! loses nothing. Real time: the orchestrator publishes the monotonic time of tick 0 and
+//! records ticks as they complete, counting every tick it never receives whole.
+
+mod children;
+mod clock;
+mod supervision;
+mod swap_server;
+
+use crate::monitor::Outcome;
+use crate::record::{Latencies, ProcessReport, Recorder, Summary};
+use anyhow::{Context, anyhow, bail};
+use children::Children;
+use protocol::clock::monotonic_ns;
+use protocol::ipc::{self, Input, Receiver, RunMode, Sender, open_topic};
+use protocol::{
+    Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
+    Header, Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
+    SwapReply, SwapRequest,
+};
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use swap_server::{PendingSwap, Swap, scheduled_swaps};
+
+/// How long the processes have to report ready.
+const READY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long the processes have to exit after the stop command before they are killed.
+const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+/// Lockstep: a tick that makes no progress for this long means a process hung.
+const TICK_TIMEOUT: Duration = Duration::from_secs(10);
+/// Real time: lead time between the start command and tick 0.
+const START_LEAD: Duration = Duration::from_millis(100);
+/// How often the orchestrator looks at its children and the stop flag while waiting.
+const POLL: Duration = Duration::from_millis(20);
+/// How often the orchestrator checks that the processes of the run's nodes are alive.
+const NODE_SCAN: Duration = Duration::from_millis(50);
+/// How often it lists the run's nodes anew (and when one of their processes died).
+const NODE_LISTING: Duration = Duration::from_secs(1);
+/// A replacement is warm once it has published outputs spanning this many samples.
+const SWAP_WARMUP_SAMPLES: u64 = 2;
+/// A warm replacement takes over at the first sample boundary at least this many samples
+/// ahead, so every process has heard of the switch before its tick.
+const SWITCH_LEAD_SAMPLES: u64 = 2;
+/// A replacement not warm this long after it was started is stopped; the swap fails.
+const SWAP_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Environment of every role process the orchestrator starts (README, "Supervision"): a
+/// replacement command needs nothing else to join the run.
+pub const ENV_SCENARIO: &str = "SCMPC_SCENARIO";
+pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
+/// `lockstep` or `realtime`.
+pub const ENV_MODE: &str = "SCMPC_MODE";
+/// The producer epoch the process must stamp on every sample.
+pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
+/// `plant`, `estimator`, `mpc` or `dfl`.
+pub const ENV_ROLE: &str = "SCMPC_ROLE";
+
+fn mode_name(mode: RunMode) -> &'static str {
+    match mode {
+        RunMode::Lockstep => "lockstep",
+        RunMode::Realtime => "realtime",
+    }
+}
+
+/// Everything received for one tick.
+#[derive(Default)]
+struct TickSlot {
+    truth: Option<GroundTruth>,
+    measurement: Option<Measurement>,
+    estimate: Option<Estimate>,
+    /// With the orchestrator's own receipt latency, ns.
+    actuation: Option<(Actuation, u64)>,
+}
+
+impl TickSlot {
+    fn complete(&self) -> bool {
+        self.truth.is_some()
+            && self.measurement.is_some()
+            && self.estimate.is_some()
+            && self.actuation.is_some()
+    }
+}
+
+/// The slot of `tick`, unless the tick is already recorded (`tick < cursor`).
+fn slot(slots: &mut BTreeMap<u64, TickSlot>, cursor: u64, tick: u64) -> Option<&mut TickSlot> {
+    (tick >= cursor).then(|| slots.entry(tick).or_default())
+}
+
+/// The orchestrator's ports.
+struct Session {
+    control: Sender<Control>,
+    status: Receiver<Status>,
+    truth: Receiver<GroundTruth>,
+    measurement: Receiver<Measurement>,
+    estimate: Receiver<Estimate>,
+    plan: Receiver<Plan>,
+    actuation: Receiver<Actuation>,
+    deadline: Receiver<DeadlineVerdict>,
+    /// Live requests of `scmpc swap`, and the answers.
+    swap_requests: Receiver<SwapRequest>,
+    swap_replies: Sender<SwapReply>,
+    /// Which producer of each role is taken, announced with every control message.
+    schedule: std::cell::Cell<EpochSchedule>,
+    /// The node of the ports above; declared last, so it is dropped after them.
+    _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+}
+
+impl Session {
+    fn open(prefix: &str) -> Result<Session, ipc::IpcError> {
+        let node = ipc::create_node(prefix, "orchestrator", false)?;
+        let session = Session {
+            control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
+            status: open_topic(&node, ipc::STATUS)?.receiver()?,
+            truth: open_topic(&node, ipc::TRUTH)?.receiver_from(Role::Plant)?,
+            measurement: open_topic(&node, ipc::MEASUREMENT)?.receiver_from(Role::Plant)?,
+            estimate: open_topic(&node, ipc::ESTIMATE)?.receiver_from(Role::Estimator)?,
+            plan: open_topic(&node, ipc::PLAN)?.receiver_from(Role::Mpc)?,
+            actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
+            deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
+            swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
+            swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
+            schedule: std::cell::Cell::new(EpochSchedule::default()),
+            _node: node,
+        };
+        for input in session.inputs() {
+            input.follow(EpochSchedule::default());
+        }
+        Ok(session)
+    }
+
+    fn command(
+        &self,
+        command: ControlCommand,
+        tick: u64,
+        start_ns: u64,
+    ) -> Result<(), ipc::IpcError> {
+        self.control.send(Control {
+            header: Header {
+                tick,
+                ..Header::default()
+            },
+            command: command as u32,
+            start_ns,
+            epochs: self.schedule.get(),
+            ..Control::default()
+        })
+    }
+
+    /// The orchestrator's inputs, for housekeeping.
+    fn inputs(&self) -> [&dyn Input; 6] {
+        [
+            &self.truth,
+            &self.measurement,
+            &self.estimate,
+            &self.plan,
+            &self.actuation,
+            &self.deadline,
+        ]
+    }
+
+    /// Changes the epoch schedule, for the orchestrator and every process.
+    fn reschedule(&self, change: impl FnOnce(&mut EpochSchedule)) -> Result<(), ipc::IpcError> {
+        let mut schedule = self.schedule.get();
+        change(&mut schedule);
+        self.schedule.set(schedule);
+        for input in self.inputs() {
+            input.follow(schedule);
+        }
+        self.command(ControlCommand::Epochs, 0, 0)
+    }
+
+    /// The orchestrator's input carrying the output of `role`: how it sees a replacement
+    /// warm up.
+    fn output_of(&self, role: Role) -> &dyn Input {
+        match role {
+            Role::Plant => &self.truth,
+            Role::Estimator => &self.estimate,
+            Role::Mpc => &self.plan,
+            Role::Dfl => &self.actuation,
+        }
+    }
+
+    /// Samples the orchestrator itself refused, by rejection code, since the last call.
+    fn take_rejections(&self) -> [u64; 4] {
+        let mut total = [0; 4];
+        for input in self.inputs() {
+            for (t, n) in total.iter_mut().zip(input.take_rejections()) {
+                *t += n;
+            }
+        }
+        total
+    }
+}
+
+/// The state of a run while it is driven.
+struct Driver<'a> {
+    scenario: &'a Scenario,
+    mode: RunMode,
+    session: &'a Session,
+    children: &'a mut Children,
+    recorder: &'a mut Recorder,
+    latencies: Latencies,
+    slots: BTreeMap<u64, TickSlot>,
+    plans: BTreeMap<u64, Plan>,
+    verdicts: BTreeMap<u64, DeadlineVerdict>,
+    newest_truth: Option<u64>,
+    stop: &'a AtomicBool,
+    start_ns: u64,
+    record_gaps: u64,
+    restarts: u32,
+    /// Samples refused by any consumer, by reason.
+    rejected: BTreeMap<String, u64>,
+    /// The epoch the next started process gets.
+    next_epoch: u32,
+    /// Next tick to record (every earlier one is recorded).
+    cursor: u64,
+    /// Swaps not started yet, earliest first: the scenario's, and live requests (time 0).
+    scheduled: Vec<PendingSwap>,
+    swaps: Vec<Swap>,
+    swaps_done: u32,
+    ticks_without_estimate: u64,
+    /// Newest sample whose plan is recorded.
+    last_plan: Option<u64>,
+    last_node_scan: Instant,
+    /// `None`: list at the next scan (a process has just joined).
+    last_node_listing: Option<Instant>,
+    /// Processes of the run's living nodes, as last listed.
+    node_pids: Vec<u32>,
+}
+
+impl Driver<'_> {
+    /// Waits for input (at most [`POLL`]) and files everything received by tick.
+    fn pump(
+        &mut self,
+        waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    ) -> anyhow::Result<()> {
+        ipc::wait(waitset, POLL)?;
+        // Ticks already recorded come again only as replays: skipped.
+        let cursor = self.cursor;
+        let slots = &mut self.slots;
+        let newest = &mut self.newest_truth;
+        self.session.truth.drain(|m, _| {
+            *newest = (*newest).max(Some(m.header.tick));
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.truth = Some(m);
+            }
+        })?;
+        self.session.measurement.drain(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.measurement = Some(m);
+            }
+        })?;
+        self.session.estimate.drain(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.estimate = Some(m);
+            }
+        })?;
+        self.session.actuation.drain(|m, l| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.actuation = Some((m, l));
+            }
+        })?;
+        let plans = &mut self.plans;
+        self.session.plan.drain(|p, _| {
+            plans.insert(p.sample, p);
+        })?;
+        let mut restarted_ready = Vec::new();
+        let mut rejected = Vec::new();
+        self.session.status.drain(|s, _| {
+            if s.event == StatusEvent::Ready as u32 {
+                restarted_ready.extend(Role::from_code(s.role));
+            } else if s.event == StatusEvent::Rejected as u32 {
+                rejected.push((
+                    Role::from_code(s.role).map_or("unknown", Role::as_str),
+                    s.detail,
+                    s.count,
+                ));
+            }
+        })?;
+        for (code, count) in self.session.take_rejections().into_iter().enumerate() {
+            if count > 0 {
+                rejected.push(("orchestrator", code as u32, count));
+            }
+        }
+        for (consumer, code, count) in rejected {
+            let reason = Rejection::ALL
+                .get(code as usize)
+                .map_or("unknown", |r| r.as_str());
+            *self.rejected.entry(reason.to_string()).or_default() += count;
+            self.recorder.event(
+                "rejected",
+                serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
+            )?;
+        }
+        for role in restarted_ready {
+            // A process joined the running loop: tell it the clock and the schedule, and
+            // have every producer repeat its newest sample for it; watch its node.
+            self.recorder
+                .event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            self.last_node_listing = None;
+            match self.mode {
+                RunMode::Realtime => {
+                    self.session
+                        .command(ControlCommand::Start, 0, self.start_ns)?
+                }
+                RunMode::Lockstep => self.session.command(ControlCommand::Epochs, 0, 0)?,
+            }
+            self.session.command(ControlCommand::Replay, 0, 0)?;
+        }
+        let verdicts = &mut self.verdicts;
+        self.session.deadline.drain(|v, _| {
+            verdicts.insert(v.sample, v);
+        })?;
+        Ok(())
+    }
+
+    /// Records a whole tick; returns an outcome that ends the run.
+    fn record(&mut self, tick: u64, slot: TickSlot) -> anyhow::Result<Option<Outcome>> {
+        let (Some(truth), Some(measurement), Some((act, own_latency))) =
+            (slot.truth, slot.measurement, slot.actuation)
+        else {
+            return Ok(None);
+        };
+        let inner_steps = self.scenario.timing.inner_steps as u64;
+        let l = &mut self.latencies;
+        l.hop(
+            "control_to_plant",
+            u64::from(measurement.header.input_latency_ns),
+        );
+        // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
+        // recorded with an estimate of NaN.
+        self.ticks_without_estimate += u64::from(slot.estimate.is_none());
+        let estimate = slot.estimate.unwrap_or(Estimate {
+            state: [f64::NAN; 4],
+            ..Estimate::default()
+        });
+        if slot.estimate.is_some() {
+            l.hop(
+                "measurement_to_estimator",
+                u64::from(estimate.header.input_latency_ns),
+            );
+            l.hop("estimate_to_dfl", u64::from(act.header.input_latency_ns));
+        }
+        if self.mode == RunMode::Lockstep {
+            // In real time the orchestrator drains its buffers periodically: not a hop.
+            l.hop("actuation_to_orchestrator", own_latency);
+        }
+        if !tick.is_multiple_of(inner_steps) && slot.estimate.is_some() {
+            l.sensor_to_actuator(
+                act.header
+                    .publish_ns
+                    .saturating_sub(measurement.header.publish_ns),
+            );
+        }
+        Ok(self.recorder.tick(&truth, &estimate, &act)?)
+    }
+
+    /// Records every plan received, then every deadline verdict (the DFL judges sample k
+    /// at the start of sample k + 1, after plan(k) was published).
+    fn record_plans(&mut self) -> anyhow::Result<()> {
+        while let Some((sample, plan)) = self.plans.pop_first() {
+            // A replay repeats a plan already recorded.
+            if self.last_plan.is_some_and(|last| sample <= last) {
+                continue;
+            }
+            self.last_plan = Some(sample);
+            self.latencies
+                .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
+            self.recorder.plan(&plan);
+        }
+        while let Some((_, v)) = self.verdicts.pop_first() {
+            self.recorder.verdict(&v)?;
+        }
+        Ok(())
+    }
+}
+
+/// `run.json` of a run directory: how tools such as `scmpc swap` reach the running run.
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+pub struct RunInfo {
+    pub iceoryx2_prefix: String,
+    pub orchestrator_pid: u32,
+    pub mode: String,
+}
+
+impl RunInfo {
+    pub const FILE: &'static str = "run.json";
+
+    fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        let path = dir.join(Self::FILE);
+        std::fs::write(&path, serde_json::to_string_pretty(self)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))
+    }
+
+    pub fn read(dir: &Path) -> anyhow::Result<RunInfo> {
+        let path = dir.join(Self::FILE);
+        let text = std::fs::read_to_string(&path).with_context(|| {
+            format!(
+                "reading {} (is it the directory of a multi-process run?)",
+                path.display()
+            )
+        })?;
+        serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a run description", path.display()))
+    }
+}
+
+/// Runs the scenario as four processes on iceoryx2 resources named with `prefix` and
+/// writes `out`. The scenario must be valid. Whatever happens, every process is stopped
+/// and the run's iceoryx2 resources are removed before this returns.
+pub fn run(
+    scenario: &Scenario,
+    out: &Path,
+    mode: RunMode,
+    prefix: &str,
+    stop: &AtomicBool,
+) -> anyhow::Result<Summary> {
+    let started = Instant::now();
+    for stale in ipc::stale_run_prefixes() {
+        match ipc::remove_run_resources(&stale) {
+            Ok(()) => tracing::info!("removed the iceoryx2 resources of dead run `{stale}`"),
+            Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
+        }
+    }
+    let mut recorder =
+        Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    RunInfo {
+        iceoryx2_prefix: prefix.to_string(),
+        orchestrator_pid: std::process::id(),
+        mode: mode_name(mode).to_string(),
+    }
+    .write(out)?;
+    let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
+    if let Err(e) = ipc::remove_run_resources(prefix) {
+        tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
+    }
+    let (outcome, mut report) = result?;
+    report.leftover_files = ipc::leftover_files(prefix)
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    Ok(recorder.finish(
+        scenario,
+        mode_name(mode),
+        outcome,
+        started.elapsed().as_secs_f64(),
+        Some(report),
+    )?)
+}
+
+/// Launches the processes, clocks and records the run, and stops the processes. Every
+/// iceoryx2 port of the orchestrator is gone when this returns.
+fn drive(
+    scenario: &Scenario,
+    out: &Path,
+    mode: RunMode,
+    prefix: &str,
+    stop: &AtomicBool,
+    recorder: &mut Recorder,
+) -> anyhow::Result<(Outcome, ProcessReport)> {
+    let session = Session::open(prefix)?;
+    let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
+    let mut report = ProcessReport {
+        iceoryx2_prefix: prefix.to_string(),
+        ..ProcessReport::default()
+    };
+    report
+        .pids
+        .insert("orchestrator".into(), std::process::id());
+    for p in &children.list {
+        report.pids.insert(p.role.as_str().into(), p.child.id());
+        recorder.event(
+            "spawned",
+            serde_json::json!({ "role": p.role.as_str(), "pid": p.child.id() }),
+        )?;
+    }
+
+    // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
+    // time: it only records, so it drains its buffers every POLL instead of competing for
+    // the CPU with the control loop at every tick.
+    let waitset = ipc::waitset(false)?;
+    let mut guards = vec![session.status.attach(&waitset)?];
+    if mode == RunMode::Lockstep {
+        guards.push(session.truth.attach(&waitset)?);
+        guards.push(session.measurement.attach(&waitset)?);
+        guards.push(session.estimate.attach(&waitset)?);
+        guards.push(session.plan.attach(&waitset)?);
+        guards.push(session.actuation.attach(&waitset)?);
+        guards.push(session.deadline.attach(&waitset)?);
+    }
+    let outcome = wait_until_ready(&session, &waitset, &mut children, stop).and_then(|()| {
+        recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
+        let mut driver = Driver {
+            scenario,
+            mode,
+            session: &session,
+            children: &mut children,
+            recorder: &mut *recorder,
+            latencies: Latencies::default(),
+            slots: BTreeMap::new(),
+            plans: BTreeMap::new(),
+            verdicts: BTreeMap::new(),
+            newest_truth: None,
+            stop,
+            start_ns: 0,
+            record_gaps: 0,
+            restarts: 0,
+            rejected: BTreeMap::new(),
+            next_epoch: 0,
+            cursor: 0,
+            scheduled: scheduled_swaps(scenario),
+            swaps: Vec::new(),
+            swaps_done: 0,
+            ticks_without_estimate: 0,
+            last_plan: None,
+            last_node_scan: Instant::now(),
+            last_node_listing: None,
+            node_pids: Vec::new(),
+        };
+        let outcome = match mode {
+            RunMode::Lockstep => driver.lockstep(&waitset),
+            RunMode::Realtime => driver.realtime(&waitset),
+        };
+        let outcome = outcome.and_then(|o| driver.record_plans().map(|()| o));
+        for swap in std::mem::take(&mut driver.swaps) {
+            driver.fail_swap(swap, "the run ended before the switch")?;
+        }
+        for pending in std::mem::take(&mut driver.scheduled) {
+            if let Some(id) = pending.request {
+                driver.reply(id, None, "the run ended before the swap could start")?;
+            }
+        }
+        driver.latencies.report(&mut report);
+        report.record_gaps = driver.record_gaps;
+        report.ticks_without_estimate = driver.ticks_without_estimate;
+        report.restarts = driver.restarts;
+        report.swaps = driver.swaps_done;
+        report.rejected_samples = std::mem::take(&mut driver.rejected);
+        outcome
+    });
+    // Peak resident memory of every process still running, then stop them all whatever
+    // happened, then release the orchestrator's own ports.
+    for p in &children.list {
+        if let Some(kib) = peak_rss_kib(p.child.id()) {
+            let peak = report
+                .peak_rss_kib
+                .entry(p.role.as_str().into())
+                .or_default();
+            *peak = (*peak).max(kib);
+        }
+    }
+    if let Some(kib) = peak_rss_kib(std::process::id()) {
+        report.peak_rss_kib.insert("orchestrator".into(), kib);
+    }
+    let _ = session.command(ControlCommand::Stop, 0, 0);
+    for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
+        recorder.event(
+            "exited",
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
+        )?;
+    }
+    drop(guards);
+    Ok((outcome?, report))
+}
+
+/// Peak resident set size of process `pid` (`VmHWM`), KiB.
+fn peak_rss_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Waits until every role has reported ready.
+fn wait_until_ready(
+    session: &Session,
+    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    children: &mut Children,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let deadline = Instant::now() + READY_TIMEOUT;
+    let mut ready = [false; 4];
+    while !ready.iter().all(|r| *r) {
+        if let Some((p, status)) = children.take_exited() {
+            bail!(
+                "the {} process exited before it was ready ({status})",
+                p.role.as_str()
+            );
+        }
+        if stop.load(Ordering::Relaxed) {
+            bail!("interrupted while starting");
+        }
+        if Instant::now() > deadline {
+            let missing: Vec<&str> = Role::ALL
+                .iter()
+                .filter(|r| !ready[**r as usize])
+                .map(|r| r.as_str())
+                .collect();
+            return Err(anyhow!(
+                "no ready report within {READY_TIMEOUT:?} from: {}",
+                missing.join(", ")
+            ));
+        }
+        ipc::wait(waitset, POLL)?;
+        session.status.drain(|s, _| {
+            if s.event == StatusEvent::Ready as u32
+                && let Some(role) = Role::from_code(s.role)
+            {
+                ready[role as usize] = true;
+            }
+        })?;
+    }
+    Ok(())
+}

@@ -1,0 +1,71 @@
+//! The MPC's solve time in both formulations, the paper's linear scheme against the
+//! nonlinear baseline, on the states of one closed loop (`scmpc figures`).
+
+use crate::inprocess;
+use crate::record::Percentiles;
+use anyhow::Context;
+use protocol::{Formulation, Scenario};
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+/// Solve times of both formulations over the same states: the states the linear scheme's
+/// closed loop visits (at every sample), solved in sequence by one controller of each
+/// formulation (both warm-started from their previous plan), the two solves of a state
+/// one right after the other so that load on the machine weighs on both alike, µs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolveTimes {
+    pub horizon: usize,
+    pub linear_us: Percentiles,
+    pub nonlinear_us: Percentiles,
+    /// Nonlinear plans that were not `solved`.
+    pub nonlinear_failures: usize,
+}
+
+/// [`SolveTimes`] at horizon `horizon` of `base` (its closed loop run in process into
+/// `dir`).
+pub fn compare_solve_times(
+    base: &Scenario,
+    horizon: usize,
+    dir: &Path,
+) -> anyhow::Result<SolveTimes> {
+    let mut scenario = base.clone();
+    scenario.mpc.horizon = horizon;
+    scenario.mpc.formulation = Formulation::Linear;
+    let states = closed_loop_states(&scenario, dir)?;
+    let controller = |formulation: Formulation| {
+        let mut s = scenario.clone();
+        s.mpc.formulation = formulation;
+        mpc::Mpc::new(&s).context("setting up the MPC")
+    };
+    let (mut lin, mut nonlin) = (
+        controller(Formulation::Linear)?,
+        controller(Formulation::Nonlinear)?,
+    );
+    let mut linear = Vec::with_capacity(states.len());
+    let mut nonlinear = Vec::with_capacity(states.len());
+    let mut nonlinear_failures = 0;
+    for (k, x_bar) in states.iter().enumerate() {
+        linear.push(lin.step(k as u64, *x_bar, 0.0).solve_ns as f64 / 1e3);
+        let plan = nonlin.step(k as u64, *x_bar, 0.0);
+        nonlinear.push(plan.solve_ns as f64 / 1e3);
+        nonlinear_failures += usize::from(!plan.is_solved());
+    }
+    Ok(SolveTimes {
+        horizon,
+        linear_us: Percentiles::of(&linear),
+        nonlinear_us: Percentiles::of(&nonlinear),
+        nonlinear_failures,
+    })
+}
+
+/// The estimate `x_bar` at every sample boundary of the scenario's in-process run
+/// (recorded in `dir`).
+fn closed_loop_states(scenario: &Scenario, dir: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
+    let mut states = Vec::new();
+    inprocess::run_observed(scenario, dir, &AtomicBool::new(false), |tick| {
+        if tick.plan.is_some() {
+            states.push(tick.estimate.state);
+        }
+    })?;
+    Ok(states)
+}
