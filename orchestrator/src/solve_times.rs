@@ -69,3 +69,24 @@ fn closed_loop_states(scenario: &Scenario, dir: &Path) -> anyhow::Result<Vec<[f6
     })?;
     Ok(states)
 }
+
+/// `solve_times.csv`: a row per horizon, the percentiles of both formulations, µs.
+pub fn write_csv(path: &Path, times: &[SolveTimes]) -> anyhow::Result<()> {
+    let mut text = String::from(
+        "horizon,linear_p50_us,linear_p99_us,linear_max_us,nonlinear_p50_us,nonlinear_p99_us,nonlinear_max_us,nonlinear_failures\n",
+    );
+    for s in times {
+        text.push_str(&format!(
+            "{},{:.1},{:.1},{:.1},{:.1},{:.1},{:.1},{}\n",
+            s.horizon,
+            s.linear_us.p50,
+            s.linear_us.p99,
+            s.linear_us.max,
+            s.nonlinear_us.p50,
+            s.nonlinear_us.p99,
+            s.nonlinear_us.max,
+            s.nonlinear_failures
+        ));
+    }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
