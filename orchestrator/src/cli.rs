@@ -206,43 +206,67 @@ struct RunArgs {
     mode: Mode,
 }
 
+/// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
+/// one place that does.
+#[derive(Debug)]
+enum CliError {
+    /// Bad input, named (the file, key, flag or value): nothing ran. Exit
+    /// [`EXIT_BAD_INPUT`].
+    BadInput(String),
+    /// The command ran and printed its report, but missed its goal (a run that did not
+    /// reach the goal, a fuzz world that collided, a sweep run that failed). Exit
+    /// [`EXIT_NOT_REACHED`].
+    NotReached,
+    /// The command could not run to its end. Exit [`EXIT_NOT_REACHED`].
+    Failed(anyhow::Error),
+}
+
+impl From<anyhow::Error> for CliError {
+    fn from(e: anyhow::Error) -> Self {
+        CliError::Failed(e)
+    }
+}
+
+fn bad_input(e: impl std::fmt::Display) -> CliError {
+    CliError::BadInput(e.to_string())
+}
+
+type CliResult = Result<(), CliError>;
+
 /// Parses the command line and runs it.
 pub fn main() -> ExitCode {
     init_logging();
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let cli = Cli::parse();
-    match cli.command {
-        Command::Scenario { name } => match scenarios::built_in(&name) {
-            Some(text) => {
-                print!("{text}");
-                ExitCode::SUCCESS
-            }
-            None => {
-                let names: Vec<&str> = scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
-                eprintln!(
-                    "error: no built-in scenario `{name}` (there are: {})",
-                    names.join(", ")
-                );
-                ExitCode::from(EXIT_BAD_INPUT)
-            }
-        },
+    let result = match cli.command {
+        Command::Scenario { name } => scenario(&name),
         Command::Run(args) => run(args),
         Command::Swap(args) => swap(args),
         Command::Sweep(args) => sweep(args),
         Command::Fuzz(args) => fuzz(args),
         Command::Figures { out } => figures(&out),
         Command::Bench { out, realtime_s } => bench(out, realtime_s),
-        Command::BenchPong { prefix } => match crate::bench::pong(&prefix) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::FAILURE
-            }
-        },
+        Command::BenchPong { prefix } => crate::bench::pong(&prefix).map_err(CliError::Failed),
         Command::Plant(args) => role(args, Role::Plant, plant::process::run),
         Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
         Command::Mpc(args) => role(args, Role::Mpc, mpc::process::run),
         Command::Dfl(args) => role(args, Role::Dfl, dfl::process::run),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(CliError::BadInput(message)) => {
+            // Scenario errors end in a newline of their own (one line per key).
+            eprint!("error: {message}");
+            if !message.ends_with('\n') {
+                eprintln!();
+            }
+            ExitCode::from(EXIT_BAD_INPUT)
+        }
+        Err(CliError::NotReached) => ExitCode::from(EXIT_NOT_REACHED),
+        Err(CliError::Failed(e)) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
     }
 }
 
@@ -260,28 +284,28 @@ fn stop_flag() -> Arc<AtomicBool> {
     stop
 }
 
-fn sweep(args: SweepArgs) -> ExitCode {
+fn scenario(name: &str) -> CliResult {
+    let text = scenarios::built_in(name).ok_or_else(|| {
+        let names: Vec<&str> = scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
+        bad_input(format!(
+            "no built-in scenario `{name}` (there are: {})",
+            names.join(", ")
+        ))
+    })?;
+    print!("{text}");
+    Ok(())
+}
+
+fn sweep(args: SweepArgs) -> CliResult {
     use crate::sweep;
-    let planned = scenarios::load(args.scenario.as_deref(), &args.overrides).and_then(|base| {
-        let axes = args
-            .grid
-            .iter()
-            .map(|g| sweep::Axis::parse(g))
-            .collect::<Result<Vec<_>, _>>()?;
-        let out = args
-            .out
-            .clone()
-            .unwrap_or_else(|| default_run_dir(&format!("{}-sweep", base.name)));
-        let runs = sweep::plan_runs(&base, &axes, args.seeds, &out)?;
-        Ok((axes, out, runs))
-    });
-    let (axes, out, runs) = match planned {
-        Ok(p) => p,
-        Err(e) => {
-            eprint!("error: {e}");
-            return ExitCode::from(EXIT_BAD_INPUT);
-        }
-    };
+    let base = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    let axes = (args.grid.iter())
+        .map(|g| sweep::Axis::parse(g))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(bad_input)?;
+    let out =
+        (args.out.clone()).unwrap_or_else(|| default_run_dir(&format!("{}-sweep", base.name)));
+    let runs = sweep::plan_runs(&base, &axes, args.seeds, &out).map_err(bad_input)?;
     let stop = stop_flag();
     let threads = args.threads.unwrap_or_else(cores);
     eprintln!(
@@ -290,19 +314,11 @@ fn sweep(args: SweepArgs) -> ExitCode {
         out.display()
     );
     let results = sweep::run_all(&runs, threads, true, &stop);
-    let written = std::fs::create_dir_all(&out)
-        .map_err(anyhow::Error::from)
-        .and_then(|()| sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results));
-    if let Err(e) = written {
-        eprintln!("error: {e:#}");
-        return ExitCode::from(EXIT_NOT_REACHED);
-    }
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results)?;
     let stats = sweep::seed_stats(&runs, &results);
-    if args.seeds > 0
-        && let Err(e) = sweep::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)
-    {
-        eprintln!("error: {e:#}");
-        return ExitCode::from(EXIT_NOT_REACHED);
+    if args.seeds > 0 {
+        sweep::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)?;
     }
     if args.seeds > 1 {
         print!("{}", sweep::seed_table(&axes, &stats));
@@ -311,18 +327,15 @@ fn sweep(args: SweepArgs) -> ExitCode {
     }
     println!("sweep directory: {}", out.display());
     if results.iter().all(Result::is_ok) {
-        ExitCode::SUCCESS
+        Ok(())
     } else {
-        ExitCode::from(EXIT_NOT_REACHED)
+        Err(CliError::NotReached)
     }
 }
 
-fn fuzz(args: FuzzArgs) -> ExitCode {
+fn fuzz(args: FuzzArgs) -> CliResult {
     // Every world is drawn and validated before anything runs.
-    if let Err(e) = crate::fuzz::world(args.seed, 0, &args.overrides) {
-        eprint!("error: {e}");
-        return ExitCode::from(EXIT_BAD_INPUT);
-    }
+    crate::fuzz::world(args.seed, 0, &args.overrides).map_err(bad_input)?;
     let out = args
         .out
         .unwrap_or_else(|| default_run_dir(&format!("fuzz-{}", args.seed)));
@@ -334,7 +347,7 @@ fn fuzz(args: FuzzArgs) -> ExitCode {
         out.display()
     );
     let stop = stop_flag();
-    match crate::fuzz::run(
+    let report = crate::fuzz::run(
         args.seed,
         args.count,
         &args.overrides,
@@ -342,117 +355,78 @@ fn fuzz(args: FuzzArgs) -> ExitCode {
         threads,
         true,
         &stop,
-    ) {
-        Ok(report) => {
-            print!("{}", report.table());
-            println!("fuzz directory: {}", out.display());
-            if report.collisions() > 0 {
-                ExitCode::from(EXIT_NOT_REACHED)
-            } else {
-                ExitCode::SUCCESS
-            }
-        }
-        Err(e) => match e.downcast_ref::<protocol::ScenarioErrors>() {
-            Some(bad) => {
-                eprint!("error: {bad}");
-                ExitCode::from(EXIT_BAD_INPUT)
-            }
-            None => {
-                eprintln!("error: {e:#}");
-                ExitCode::from(EXIT_NOT_REACHED)
-            }
-        },
+    )
+    .map_err(|e| match e.downcast_ref::<protocol::ScenarioErrors>() {
+        Some(bad) => bad_input(bad),
+        None => CliError::Failed(e),
+    })?;
+    print!("{}", report.table());
+    println!("fuzz directory: {}", out.display());
+    if report.collisions() > 0 {
+        Err(CliError::NotReached)
+    } else {
+        Ok(())
     }
 }
 
-fn figures(out: &std::path::Path) -> ExitCode {
+fn figures(out: &std::path::Path) -> CliResult {
     let stop = stop_flag();
-    match crate::figures::paper_set(out, cores(), &stop) {
-        Ok(set) => {
-            println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
-            for s in &set.solve_times {
-                println!(
-                    "{:>7}  {:>8.0} / {:<8.0}     {:>8.0} / {:<8.0}",
-                    s.horizon,
-                    s.linear_us.p50,
-                    s.linear_us.p99,
-                    s.nonlinear_us.p50,
-                    s.nonlinear_us.p99
-                );
-            }
-            for f in &set.files {
-                println!("{}", f.display());
-            }
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_NOT_REACHED)
-        }
+    let set = crate::figures::paper_set(out, cores(), &stop)?;
+    println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
+    for s in &set.solve_times {
+        println!(
+            "{:>7}  {:>8.0} / {:<8.0}     {:>8.0} / {:<8.0}",
+            s.horizon, s.linear_us.p50, s.linear_us.p99, s.nonlinear_us.p50, s.nonlinear_us.p99
+        );
     }
+    for f in &set.files {
+        println!("{}", f.display());
+    }
+    Ok(())
 }
 
-fn bench(out: Option<PathBuf>, realtime_s: f64) -> ExitCode {
+fn bench(out: Option<PathBuf>, realtime_s: f64) -> CliResult {
     if !(realtime_s.is_finite() && realtime_s > 0.0) {
-        eprintln!("error: --realtime-s must be positive, got {realtime_s}");
-        return ExitCode::from(EXIT_BAD_INPUT);
+        return Err(bad_input(format!(
+            "--realtime-s must be positive, got {realtime_s}"
+        )));
     }
     let out = out.unwrap_or_else(|| default_run_dir("bench"));
     let stop = stop_flag();
-    match crate::bench::run(&out, realtime_s, &stop) {
-        Ok(report) => {
-            print!("{}", report.table());
-            println!("bench directory: {}", out.display());
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_NOT_REACHED)
-        }
-    }
+    let report = crate::bench::run(&out, realtime_s, &stop)?;
+    print!("{}", report.table());
+    println!("bench directory: {}", out.display());
+    Ok(())
 }
 
-fn swap(args: SwapArgs) -> ExitCode {
-    let request = match crate::swap_client::swappable_role(&args.role)
+fn swap(args: SwapArgs) -> CliResult {
+    let request = crate::swap_client::swappable_role(&args.role)
         .and_then(|role| crate::swap_client::build_request(role, &args.command))
-    {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return ExitCode::from(EXIT_BAD_INPUT);
-        }
-    };
-    match crate::swap_client::send(&args.run_dir, &request) {
-        Ok(reply) if reply.done == 1 => {
-            println!(
-                "swapped {}: epoch {} from tick {} ({})",
-                args.role,
-                reply.epoch,
-                reply.switch_tick,
-                reply.message()
-            );
-            ExitCode::SUCCESS
-        }
-        Ok(reply) => {
-            eprintln!(
-                "error: swap of the {} failed: {}",
-                args.role,
-                reply.message()
-            );
-            ExitCode::from(EXIT_NOT_REACHED)
-        }
-        Err(e)
-            if e.downcast_ref::<crate::swap_client::RequestError>()
-                .is_some() =>
+        .map_err(bad_input)?;
+    let reply = crate::swap_client::send(&args.run_dir, &request).map_err(|e| {
+        if e.downcast_ref::<crate::swap_client::RequestError>()
+            .is_some()
         {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_BAD_INPUT)
+            bad_input(format!("{e:#}"))
+        } else {
+            CliError::Failed(e)
         }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_NOT_REACHED)
-        }
+    })?;
+    if reply.done != 1 {
+        return Err(CliError::Failed(anyhow::anyhow!(
+            "swap of the {} failed: {}",
+            args.role,
+            reply.message()
+        )));
     }
+    println!(
+        "swapped {}: epoch {} from tick {} ({})",
+        args.role,
+        reply.epoch,
+        reply.switch_tick,
+        reply.message()
+    );
+    Ok(())
 }
 
 /// Runs one role process until the orchestrator stops it.
@@ -460,32 +434,24 @@ fn role(
     args: RoleArgs,
     this: Role,
     body: fn(&ProcessArgs) -> Result<(), ProcessError>,
-) -> ExitCode {
+) -> CliResult {
     // A replacement command that starts the wrong role would only be refused, sample by
     // sample, as the wrong epoch: say so at once.
     if let Ok(wanted) = std::env::var(crate::multiproc::ENV_ROLE)
         && wanted != this.as_str()
     {
-        eprintln!(
-            "error: this is the {} process, but the run started it as its {wanted} ({})",
+        return Err(bad_input(format!(
+            "this is the {} process, but the run started it as its {wanted} ({})",
             this.as_str(),
             crate::multiproc::ENV_ROLE
-        );
-        return ExitCode::from(EXIT_BAD_INPUT);
+        )));
     }
-    let scenario = match scenarios::load(Some(&args.scenario), &args.overrides) {
-        Ok(s) => s,
-        Err(e) => {
-            eprint!("error: {e}");
-            return ExitCode::from(EXIT_BAD_INPUT);
-        }
-    };
+    let scenario = scenarios::load(Some(&args.scenario), &args.overrides).map_err(bad_input)?;
     // A process of its own may change what it computes, never the loop's clock.
     if !args.overrides.is_empty()
         && scenarios::load(Some(&args.scenario), &[]).is_ok_and(|run| run.timing != scenario.timing)
     {
-        eprintln!("error: --set: `timing.*` must match the run's scenario");
-        return ExitCode::from(EXIT_BAD_INPUT);
+        return Err(bad_input("--set: `timing.*` must match the run's scenario"));
     }
     let process_args = ProcessArgs {
         scenario,
@@ -493,63 +459,36 @@ fn role(
         mode: args.mode.into(),
         epoch: args.epoch,
     };
-    match body(&process_args) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    body(&process_args).map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
 }
 
-fn run(args: RunArgs) -> ExitCode {
-    let scenario = match scenarios::load(args.scenario.as_deref(), &args.overrides) {
-        Ok(s) => s,
-        Err(e) => {
-            eprint!("error: {e}");
-            return ExitCode::from(EXIT_BAD_INPUT);
-        }
-    };
-    if let Err(e) = scenarios::check_swap_programs(&scenario) {
-        eprint!("error: {e}");
-        return ExitCode::from(EXIT_BAD_INPUT);
-    }
+fn run(args: RunArgs) -> CliResult {
+    let scenario = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
     let out = args.out.unwrap_or_else(|| default_run_dir(&scenario.name));
     if args.in_process && args.mode == Mode::Realtime {
-        eprintln!(
-            "error: --in-process runs in lockstep only; drop --mode realtime or --in-process"
-        );
-        return ExitCode::from(EXIT_BAD_INPUT);
+        return Err(bad_input(
+            "--in-process runs in lockstep only; drop --mode realtime or --in-process",
+        ));
     }
     let prefix = args.prefix.unwrap_or_else(protocol::ipc::new_prefix);
-    if let Err(e) = protocol::ipc::run_config(&prefix) {
-        eprintln!("error: --prefix: {e}");
-        return ExitCode::from(EXIT_BAD_INPUT);
-    }
+    protocol::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let stop = stop_flag();
-    let result = if args.in_process {
+    let summary = if args.in_process {
         inprocess::run(&scenario, &out, &stop)
     } else {
         multiproc::run(&scenario, &out, args.mode.into(), &prefix, &stop)
-    };
-    let result = result.with_context(|| format!("run of `{}`", scenario.name));
-    match result {
-        Ok(summary) => {
-            if let Err(e) = crate::figures::run_plots(&out, &scenario) {
-                eprintln!("warning: no plots for the run: {e:#}");
-            }
-            println!("run directory: {}", out.display());
-            print!("{}", summary.table());
-            if summary.outcome == crate::monitor::Outcome::Reached {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::from(EXIT_NOT_REACHED)
-            }
-        }
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::from(EXIT_NOT_REACHED)
-        }
+    }
+    .with_context(|| format!("run of `{}`", scenario.name))?;
+    if let Err(e) = crate::figures::run_plots(&out, &scenario) {
+        eprintln!("warning: no plots for the run: {e:#}");
+    }
+    println!("run directory: {}", out.display());
+    print!("{}", summary.table());
+    if summary.outcome == crate::monitor::Outcome::Reached {
+        Ok(())
+    } else {
+        Err(CliError::NotReached)
     }
 }
 
