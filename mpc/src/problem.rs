@@ -1304,6 +1304,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_plan_margin_follows_the_safety_layers() {
+        let with = |sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            PlanMargin::of(&protocol::Scenario::default().with_overrides(&sets).unwrap())
+        };
+        let paper = with(&["mpc.terminal_safety=none", "dfl.gatekeeper=false"]);
+        assert_eq!(paper, PlanMargin::None);
+        assert_eq!(paper.m(0.02), 0.0, "the paper's formulation exactly");
+        let unchecked = with(&["dfl.gatekeeper=false"]);
+        assert_eq!(unchecked, PlanMargin::Realization);
+        assert_eq!(unchecked.m(0.02), protocol::COMMIT_MARGIN_M);
+        for sets in [&[][..], &["mpc.terminal_safety=none"][..]] {
+            let checked = with(sets);
+            assert_eq!(checked, PlanMargin::Checked);
+            // Outside the check's commit margin, so the check passes the MPC's own plans.
+            assert!(checked.m(0.02) > protocol::commit_margin_m(0.02));
+        }
+    }
+
+    #[test]
     fn no_chord_between_two_samples_outside_the_constraint_disc_enters_the_obstacle() {
         for radius in [0.0, 0.05, 1.5] {
             for speed in [0.0, 0.5, 3.0] {
