@@ -87,31 +87,39 @@ impl Gatekeeper {
         grow: f64,
     ) -> Option<f64> {
         let start = [z[0], z[2]];
-        let mut p = start;
-        let mut w = [z[1], z[3]];
+        let velocity = [z[1], z[3]];
+        let first = crate::covering_element(plan, sample);
+        // The plan's stages from now: (acceleration, duration) of each.
+        let stages = || {
+            first.into_iter().flat_map(move |first| {
+                (first..plan.horizon as usize).map(move |i| {
+                    let duration = if i == first {
+                        (self.ts_s - into_sample_s).max(0.0)
+                    } else {
+                        self.ts_s
+                    };
+                    (plan.v[i], duration)
+                })
+            })
+        };
         let mut deepest: Option<f64> = None;
         let mut note = |clearance: f64| {
             if clearance < 0.0 {
                 deepest = Some(deepest.map_or(clearance, |d: f64| d.min(clearance)));
             }
         };
-        if let Some(first) = crate::covering_element(plan, sample) {
-            for i in first..plan.horizon as usize {
-                let duration = if i == first {
-                    (self.ts_s - into_sample_s).max(0.0)
-                } else {
-                    self.ts_s
-                };
-                let acc = plan.v[i];
-                for &(center, radius) in &self.discs {
-                    let radius = checked_radius(start, center, radius + grow);
-                    note(arc_clearance(p, w, acc, duration, center, radius));
-                }
-                for k in 0..2 {
-                    p[k] += w[k] * duration + 0.5 * acc[k] * duration * duration;
-                    w[k] += acc[k] * duration;
-                }
+        // Disc by disc, so that each disc's checked radius is computed once.
+        for &(center, radius) in &self.discs {
+            let radius = checked_radius(start, center, radius + grow);
+            let (mut p, mut w) = (start, velocity);
+            for (acc, duration) in stages() {
+                note(arc_clearance(p, w, acc, duration, center, radius));
+                advance(&mut p, &mut w, acc, duration);
             }
+        }
+        let (mut p, mut w) = (start, velocity);
+        for (acc, duration) in stages() {
+            advance(&mut p, &mut w, acc, duration);
         }
         if let Some(clearance) = self.brake_clearance(p, w, grow, start) {
             note(clearance);
@@ -145,6 +153,14 @@ impl Gatekeeper {
             })
             .filter(|c| *c < 0.0)
             .reduce(f64::min)
+    }
+}
+
+/// Moves position `p` and velocity `w` on by `duration` (s) at constant acceleration `acc`.
+fn advance(p: &mut [f64; 2], w: &mut [f64; 2], acc: [f64; 2], duration: f64) {
+    for k in 0..2 {
+        p[k] += w[k] * duration + 0.5 * acc[k] * duration * duration;
+        w[k] += acc[k] * duration;
     }
 }
 
