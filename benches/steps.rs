@@ -15,7 +15,8 @@ fn main() {
 /// The estimates (per tick) and plans (per sample) of the in-process closed loop of
 /// `scenario`, the loop `scmpc run --in-process` steps.
 fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
-    let mut closed_loop = ClosedLoop::new(scenario).expect("valid scenario");
+    let scenario = scenario.clone().validated("bench").expect("valid scenario");
+    let mut closed_loop = ClosedLoop::new(&scenario).expect("MPC set up");
     let (mut estimates, mut plans) = (Vec::new(), Vec::new());
     while !closed_loop.is_done() {
         let tick = closed_loop.step();

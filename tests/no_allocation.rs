@@ -59,8 +59,9 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
                 format!("mpc.terminal_safety={terminal_safety}"),
                 "plant.noise_variance=0.05".into(),
             ])
+            .unwrap()
+            .validated("test")
             .unwrap();
-        scenario.validate("test").unwrap();
         let m = scenario.timing.inner_steps as u64;
         let mut closed_loop = ClosedLoop::new(&scenario).unwrap();
         // Warm-up: the first samples size every buffer.

@@ -8,14 +8,17 @@
 //! `dfl.gatekeeper` it flies only plans its safety check has passed ([`gatekeeper`]).
 
 use protocol::{
-    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, Intervention, PLAN_MISSING, Plan,
-    PlanStatus, Scenario, WheelGeometry,
+    Actuation, CommandMode, Estimate, Header, Intervention, Plan, Scenario, WheelGeometry,
 };
 
 pub mod gatekeeper;
+pub mod inner_loop;
 pub mod process;
 
 pub use gatekeeper::Gatekeeper;
+pub use inner_loop::{
+    DeadlineMonitor, InnerLoop, PlanInbox, SILENT_TICKS, SilenceWatch, late_samples,
+};
 
 pub use protocol::{phi, phi_inverse};
 
@@ -74,149 +77,6 @@ pub fn extended_dynamics(x_bar: &[f64; 4], v: [f64; 2], zeta_threshold: f64) -> 
 pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
     let age = current_sample.checked_sub(plan.sample)?;
     (age < u64::from(plan.horizon)).then_some(age as usize)
-}
-
-/// Samples a plan arrives late in lockstep: 0 if its solve took at most `Ts`, else
-/// `ceil(solve / Ts)` (README, "Deadlines": timing violations behave as in real time).
-pub fn late_samples(solve_ns: u64, ts_s: f64) -> u64 {
-    let solve_s = solve_ns as f64 * 1e-9;
-    if solve_s <= ts_s {
-        0
-    } else {
-        (solve_s / ts_s).ceil() as u64
-    }
-}
-
-/// When plans reach the DFL. In lockstep a plan is held until its arrival sample
-/// ([`late_samples`]); in real time it is usable as soon as it is received.
-pub struct PlanInbox {
-    lockstep: bool,
-    ts_s: f64,
-    /// `(arrival sample, plan)` not yet offered to the DFL.
-    pending: Vec<(u64, Plan)>,
-    /// Newest sample a plan has been received for.
-    newest_received: Option<u64>,
-}
-
-impl PlanInbox {
-    pub fn new(lockstep: bool, ts_s: f64) -> PlanInbox {
-        PlanInbox {
-            lockstep,
-            ts_s,
-            pending: Vec::with_capacity(8),
-            newest_received: None,
-        }
-    }
-
-    /// Takes a received plan; returns the sample it becomes usable at.
-    pub fn receive(&mut self, plan: &Plan) -> u64 {
-        let arrival = if self.lockstep {
-            plan.sample + self.late(plan)
-        } else {
-            0
-        };
-        self.newest_received = self.newest_received.max(Some(plan.sample));
-        self.pending.push((arrival, *plan));
-        arrival.max(plan.sample)
-    }
-
-    /// Lockstep: samples plan(k) arrives late (its production time: solve plus any
-    /// injected delay).
-    pub fn late(&self, plan: &Plan) -> u64 {
-        late_samples(plan.solve_ns + plan.injected_delay_ns, self.ts_s)
-    }
-
-    /// Whether plan(`sample`) (or a newer one) has been received.
-    pub fn has_received(&self, sample: u64) -> bool {
-        self.newest_received.is_some_and(|s| s >= sample)
-    }
-
-    /// Lockstep: whether the DFL must wait for plan(`sample`) before commanding its first
-    /// tick. A DFL that has followed the run waits for every plan; one that joined later
-    /// (a restart or a replacement) cannot wait for a plan published before it listened,
-    /// so it waits only once it has received the plan of the previous sample.
-    pub fn must_wait_for(&self, sample: u64) -> bool {
-        self.lockstep
-            && !self.has_received(sample)
-            && (sample == 0 || self.has_received(sample - 1))
-    }
-
-    /// Offers the DFL every plan that has arrived by `current_sample`.
-    pub fn release(&mut self, current_sample: u64, dfl: &mut Dfl) {
-        self.pending.retain(|(arrival, plan)| {
-            let arrived = *arrival <= current_sample;
-            if arrived {
-                dfl.offer(plan);
-            }
-            !arrived
-        });
-    }
-}
-
-/// Judges every sample's deadline: plan(k) must reach the DFL, solved, by `t_k + Ts`.
-/// Sample k is judged at the first tick of sample k + 1, when its deadline has passed.
-#[derive(Debug, Clone)]
-pub struct DeadlineMonitor {
-    period_ns: u64,
-    /// `(sample, arrival after t_k in ns, status code, production ns)` of received plans
-    /// not yet judged.
-    arrivals: Vec<(u64, u64, u32, u64)>,
-    /// Mode of the first command of the sample being run.
-    current: Option<(u64, CommandMode)>,
-    misses: u32,
-}
-
-impl DeadlineMonitor {
-    pub fn new(ts_s: f64) -> DeadlineMonitor {
-        DeadlineMonitor {
-            period_ns: (ts_s * 1e9).round() as u64,
-            arrivals: Vec::with_capacity(8),
-            current: None,
-            misses: 0,
-        }
-    }
-
-    /// Misses so far (the live counter).
-    pub fn misses(&self) -> u32 {
-        self.misses
-    }
-
-    /// A plan reached the DFL `arrival_ns` after the start of its sample.
-    pub fn on_plan(&mut self, plan: &Plan, arrival_ns: u64) {
-        if self.arrivals.iter().all(|a| a.0 != plan.sample) {
-            self.arrivals.push((
-                plan.sample,
-                arrival_ns,
-                plan.status,
-                plan.solve_ns + plan.injected_delay_ns,
-            ));
-        }
-    }
-
-    /// The first command of `sample` was given in `mode`. Returns the verdict on the
-    /// previous sample, whose deadline has now passed.
-    pub fn sample_started(&mut self, sample: u64, mode: CommandMode) -> Option<DeadlineVerdict> {
-        let previous = self.current.replace((sample, mode));
-        let (judged, fallback) = previous.filter(|(s, _)| *s < sample)?;
-        let found = self.arrivals.iter().find(|a| a.0 == judged).copied();
-        self.arrivals.retain(|a| a.0 > judged);
-        let (arrival_ns, status, production_ns) =
-            found.map_or((u64::MAX, PLAN_MISSING, 0), |a| (a.1, a.2, a.3));
-        let met = status == PlanStatus::Solved as u32 && arrival_ns <= self.period_ns;
-        if !met {
-            self.misses += 1;
-        }
-        Some(DeadlineVerdict {
-            header: Header::default(),
-            sample: judged,
-            met: u32::from(met),
-            status,
-            production_ns,
-            arrival_ns,
-            fallback: fallback as u32,
-            misses_total: self.misses,
-        })
-    }
 }
 
 /// The DFL role: owns zeta and the newest usable plan (with the safety check on, the
@@ -464,7 +324,7 @@ impl Dfl {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::PlanStatus;
+    use protocol::{PLAN_MISSING, PlanStatus};
 
     #[test]
     fn phi_and_its_inverse_round_trip() {

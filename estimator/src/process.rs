@@ -3,44 +3,27 @@
 //! that actuation has been heard; in real time the newest actuation heard is used.
 
 use crate::Estimator;
-use protocol::ipc::{
-    self, ACTUATION, ControlState, ESTIMATE, Link, MEASUREMENT, ProcessArgs, ProcessError, RunMode,
-    open_topic,
-};
-use protocol::{Actuation, Estimate, Header, Measurement, Role, StatusEvent};
+use protocol::ipc::{ACTUATION, ESTIMATE, MEASUREMENT};
+use protocol::runtime::{Link, Next, ProcessArgs, ProcessError, RunMode, keep_newest};
+use protocol::{Actuation, Estimate, Header, Measurement, Role};
 use std::collections::VecDeque;
 
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let link = Link::open(args, Role::Estimator)?;
-    let mut ctl = ControlState::default();
-    let measurements =
-        open_topic::<Measurement>(&link.node, MEASUREMENT)?.receiver_from(Role::Plant)?;
-    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver_from(Role::Dfl)?;
-    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.sender(args.epoch)?;
-    let waitset = ipc::waitset(true)?;
-    let _guards = [
-        link.control().attach(&waitset)?,
-        measurements.attach(&waitset)?,
-        actuation.attach(&waitset)?,
-    ];
-    link.report(StatusEvent::Ready)?;
+    let measurements = link.input::<Measurement>(MEASUREMENT, Role::Plant)?;
+    let actuation = link.input::<Actuation>(ACTUATION, Role::Dfl)?;
+    let estimates = link.output::<Estimate>(ESTIMATE)?;
 
-    let timing = &args.scenario.timing;
-    let dt = timing.dt_s();
-    let mut estimator = Estimator::new(&args.scenario);
+    let scenario = &args.scenario;
+    let dt = scenario.timing.dt_s();
+    let mut estimator = Estimator::new(scenario);
     let mut heard: Option<Actuation> = None;
     let mut queue: VecDeque<(Measurement, u64)> = VecDeque::with_capacity(16);
     let mut last_tick: Option<u64> = None;
-    let mut cleared = false;
-    loop {
-        // Hot path: samples straight from shared memory, the periodic input first (its
-        // receipt time is the hop latency); system calls come after publishing.
+    link.run(&[&measurements, &actuation], &[&estimates], |ctl| {
+        // The periodic input first: its receipt time is the hop latency.
         measurements.take(|m, latency| queue.push_back((m, latency)))?;
-        actuation.take(|a, _| {
-            if heard.is_none_or(|h| a.header.tick >= h.header.tick) {
-                heard = Some(a);
-            }
-        })?;
+        actuation.take(|a, _| keep_newest(&mut heard, a))?;
         while let Some(&(m, latency)) = queue.front() {
             let tick = m.header.tick;
             if last_tick.is_some_and(|last| tick <= last) {
@@ -61,7 +44,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             queue.pop_front();
             last_tick = Some(tick);
             let applied = previous.filter(|_| tick > 0).map(|a| [a.u1, a.u2]);
-            let zeta = previous.map_or(args.scenario.robot.zeta0, |a| a.zeta);
+            let zeta = previous.map_or(scenario.robot.zeta0, |a| a.zeta);
             let header = Header {
                 tick,
                 time_s: m.header.time_s,
@@ -69,36 +52,21 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 ..Header::default()
             };
             let estimate = estimator.step(applied, dt, m.y, zeta, header);
-            if args.scenario.fault.estimator_delay_ms > 0.0 {
+            if scenario.fault.estimator_delay_ms > 0.0 {
                 std::thread::sleep(std::time::Duration::from_secs_f64(
-                    args.scenario.fault.estimator_delay_ms * 1e-3,
+                    scenario.fault.estimator_delay_ms * 1e-3,
                 ));
             }
             estimates.send(estimate)?;
         }
-        if !cleared {
-            // Consume the wake-ups, then take once more what came before that.
-            if !link.housekeeping(&mut ctl, &[&measurements, &actuation])? {
-                return Ok(());
-            }
-            if ctl.take_replay() {
-                estimates.replay()?;
-            }
-            cleared = true;
-            continue;
-        }
-        cleared = false;
         // Real time: the next measurement is due at the next tick; poll for it there.
-        if let (RunMode::Realtime, Some(start_ns), Some(last)) =
-            (args.mode, ctl.start_ns, last_tick)
-        {
-            let expected = start_ns + (timing.tick_time_s(last + 1) * 1e9) as u64;
-            if ipc::spin_wait(expected, || measurements.has_samples()) {
-                continue;
-            }
-        }
-        if !link.wait(&waitset, None)? {
-            return Ok(());
-        }
-    }
+        let due = last_tick.and_then(|last| ctl.at_ns(scenario.timing.tick_time_s(last + 1)));
+        Ok(match (args.mode, due) {
+            (RunMode::Realtime, Some(at_ns)) => Next::Expect {
+                input: &measurements,
+                at_ns,
+            },
+            _ => Next::Wait(None),
+        })
+    })
 }

@@ -3,36 +3,22 @@
 //! (a solve that overran `Ts` skips the samples it missed).
 
 use crate::Mpc;
-use protocol::ipc::{
-    self, ControlState, ESTIMATE, Link, PLAN, ProcessArgs, ProcessError, RunMode, open_topic,
-};
-use protocol::{Estimate, Header, Plan, Role, StatusEvent};
+use protocol::ipc::{ESTIMATE, PLAN};
+use protocol::runtime::{Link, Next, ProcessArgs, ProcessError, RunMode};
+use protocol::{Estimate, Header, Plan, Role};
 use std::collections::VecDeque;
 
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let mut mpc = Mpc::new(&args.scenario).map_err(|e| ProcessError::Setup(e.to_string()))?;
     let link = Link::open(args, Role::Mpc)?;
-    let mut ctl = ControlState::default();
-    let estimates = open_topic::<Estimate>(&link.node, ESTIMATE)?.receiver_from(Role::Estimator)?;
-    let plans = open_topic::<Plan>(&link.node, PLAN)?.sender(args.epoch)?;
-    let waitset = ipc::waitset(true)?;
-    let _guards = [
-        link.control().attach(&waitset)?,
-        estimates.attach(&waitset)?,
-    ];
-    link.report(StatusEvent::Ready)?;
+    let estimates = link.input::<Estimate>(ESTIMATE, Role::Estimator)?;
+    let plans = link.output::<Plan>(PLAN)?;
 
-    let inner_steps = args.scenario.timing.inner_steps as u64;
-    let sample_ns = args.scenario.timing.ts_s * 1e9;
+    let timing = &args.scenario.timing;
+    let inner_steps = timing.inner_steps as u64;
     let mut boundary: VecDeque<(Estimate, u64)> = VecDeque::with_capacity(16);
     let mut next_sample = 0u64;
-    let mut cleared = false;
-    loop {
-        // The MPC wakes once per sample, possibly after a long solve: a schedule sent in
-        // the meantime is applied before the estimates are judged. (The estimator and the
-        // DFL apply it in housekeeping after every input; until then they keep taking the
-        // old producer, which runs until the switch.)
-        link.sync(&mut ctl, &[&estimates])?;
+    link.run(&[&estimates], &[&plans], |ctl| {
         estimates.take(|e, latency| {
             // Boundary estimates of samples not solved yet (a replay repeats one that was).
             let tick = e.header.tick;
@@ -60,28 +46,16 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
             };
             plans.send(plan)?;
         }
-        if !cleared {
-            // Consume the wake-ups, then take once more what came before that.
-            if !link.housekeeping(&mut ctl, &[&estimates])? {
-                return Ok(());
-            }
-            if ctl.take_replay() {
-                plans.replay()?;
-            }
-            cleared = true;
-            continue;
-        }
-        cleared = false;
         // Real time: only every M-th estimate matters; rather than waking for each one
         // (and taking a core from the DFL), poll at the next sample boundary.
-        if let (RunMode::Realtime, Some(start_ns)) = (args.mode, ctl.start_ns) {
-            let expected = start_ns + (next_sample as f64 * sample_ns) as u64;
-            if ipc::spin_wait(expected, || estimates.has_samples()) {
-                continue;
-            }
-        }
-        if !link.wait(&waitset, None)? {
-            return Ok(());
-        }
-    }
+        Ok(
+            match (args.mode, ctl.at_ns(next_sample as f64 * timing.ts_s)) {
+                (RunMode::Realtime, Some(at_ns)) => Next::Expect {
+                    input: &estimates,
+                    at_ns,
+                },
+                _ => Next::Wait(None),
+            },
+        )
+    })
 }

@@ -18,7 +18,8 @@ use anyhow::{Context, anyhow};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as IpcService;
 use protocol::clock::{monotonic_ns, sleep_until_ns};
-use protocol::ipc::{self, RunMode};
+use protocol::ipc;
+use protocol::runtime::RunMode;
 use serde::Serialize;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -248,10 +249,8 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     }
     let raw = Percentiles::of(&raw?);
 
-    let scenario = protocol::Scenario {
-        duration_s: realtime_s,
-        ..protocol::Scenario::default()
-    };
+    let paper = protocol::Scenario::default().validated("the paper scenario")?;
+    let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
     let realtime: Summary = multiproc::run(
         &scenario,
         &out.join("realtime"),
@@ -260,7 +259,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         stop,
     )?;
     let lockstep: Summary = multiproc::run(
-        &protocol::Scenario::default(),
+        &paper,
         &out.join("lockstep"),
         RunMode::Lockstep,
         &ipc::new_prefix(),

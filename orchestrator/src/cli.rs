@@ -4,7 +4,7 @@ use crate::{inprocess, multiproc, scenarios};
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use protocol::Role;
-use protocol::ipc::{ProcessArgs, ProcessError, RunMode};
+use protocol::runtime::{ProcessArgs, ProcessError, RunMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;

@@ -17,12 +17,12 @@
 //! [`ClosedLoop::step`] runs the five in order. The phases are public so that a caller can
 //! measure each (the allocation test counts allocations phase by phase).
 
-use dfl::{DeadlineMonitor, Dfl, PlanInbox};
+use dfl::InnerLoop;
 use estimator::Estimator;
 use mpc::Mpc;
 use plant::{Plant, Pose};
 use protocol::{
-    Actuation, DeadlineVerdict, Estimate, FaultConfig, GroundTruth, Header, Plan, Scenario, Timing,
+    Actuation, DeadlineVerdict, Estimate, FaultConfig, GroundTruth, Header, Plan, Timing, Validated,
 };
 
 /// One inner tick of the closed loop: what every role produced.
@@ -44,9 +44,8 @@ pub struct ClosedLoop {
     plant: Plant,
     estimator: Estimator,
     mpc: Mpc,
-    dfl: Dfl,
-    inbox: PlanInbox,
-    deadlines: DeadlineMonitor,
+    /// The DFL with its plan inbox and deadline monitor.
+    inner: InnerLoop,
     faults: FaultConfig,
     /// The command the estimator hears at the next tick (none before the first).
     applied: Option<[f64; 2]>,
@@ -56,27 +55,19 @@ pub struct ClosedLoop {
 }
 
 impl ClosedLoop {
-    /// The roles of `scenario` at their initial states. The scenario must be validated.
-    pub fn new(scenario: &Scenario) -> Result<Self, mpc::MpcError> {
+    /// The roles of `scenario` at their initial states.
+    pub fn new(scenario: &Validated) -> Result<Self, mpc::MpcError> {
         Ok(Self {
             plant: Plant::new(scenario),
             estimator: Estimator::new(scenario),
             mpc: Mpc::new(scenario)?,
-            dfl: Dfl::new(scenario),
-            inbox: PlanInbox::new(true, scenario.timing.ts_s),
-            deadlines: DeadlineMonitor::new(scenario.timing.ts_s),
+            inner: InnerLoop::new(scenario, true),
             faults: scenario.fault.clone(),
             applied: None,
             tick: 0,
             ticks: scenario.tick_count(),
             timing: scenario.timing.clone(),
         })
-    }
-
-    /// The sample of the current tick and whether the tick is that sample's first.
-    fn sample(&self) -> (u64, bool) {
-        let m = self.timing.inner_steps as u64;
-        (self.tick / m, self.tick.is_multiple_of(m))
     }
 
     /// The tick the next [`step`](Self::step) runs.
@@ -118,7 +109,7 @@ impl ClosedLoop {
             self.applied,
             self.timing.dt_s(),
             measurement,
-            self.dfl.zeta(),
+            self.inner.dfl.zeta(),
             header,
         )
     }
@@ -126,7 +117,7 @@ impl ClosedLoop {
     /// Phase 3: on a sample boundary, the MPC's plan from `estimate` (with the scenario's
     /// faults), handed to the DFL's inbox to arrive when its solve time says.
     pub fn plan(&mut self, estimate: &Estimate) -> Option<Plan> {
-        let (sample, first_tick) = self.sample();
+        let (sample, first_tick) = self.inner.sample_of(self.tick);
         if !first_tick {
             return None;
         }
@@ -135,24 +126,14 @@ impl ClosedLoop {
             .step(sample, estimate.state, estimate.position_sigma());
         self.mpc.inject_faults(&mut plan, &self.faults);
         plan.header = self.header();
-        self.inbox.receive(&plan);
-        let late_ns = (self.inbox.late(&plan) as f64 * self.timing.ts_s * 1e9) as u64;
-        self.deadlines.on_plan(&plan, late_ns);
+        self.inner.receive(&plan, None);
         Some(plan)
     }
 
     /// Phase 4: the DFL's command for the tick, after releasing the plans that have
     /// arrived, and on a sample boundary the deadline monitor's verdict on the sample.
     pub fn command(&mut self, estimate: &Estimate) -> (Actuation, Option<DeadlineVerdict>) {
-        let (sample, first_tick) = self.sample();
-        self.inbox.release(sample, &mut self.dfl);
-        let mut actuation = self.dfl.step(estimate, self.tick);
-        let verdict = match actuation.mode() {
-            Some(mode) if first_tick => self.deadlines.sample_started(sample, mode),
-            _ => None,
-        };
-        actuation.deadline_misses = self.deadlines.misses();
-        (actuation, verdict)
+        self.inner.command(estimate, self.tick)
     }
 
     /// Phase 5: the plant integrates `actuation` over the tick; the next tick begins.

@@ -5,19 +5,19 @@ use crate::closed_loop::{ClosedLoop, Tick};
 use crate::monitor::Outcome;
 use crate::record::{Recorder, Summary};
 use anyhow::Context;
-use protocol::Scenario;
+use protocol::Validated;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out`.
-pub fn run(scenario: &Scenario, out: &Path, stop: &AtomicBool) -> anyhow::Result<Summary> {
+pub fn run(scenario: &Validated, out: &Path, stop: &AtomicBool) -> anyhow::Result<Summary> {
     run_observed(scenario, out, stop, |_| {})
 }
 
 /// [`run`], handing every tick to `observe` after it is recorded.
 pub fn run_observed(
-    scenario: &Scenario,
+    scenario: &Validated,
     out: &Path,
     stop: &AtomicBool,
     mut observe: impl FnMut(&Tick),

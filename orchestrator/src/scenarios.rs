@@ -1,6 +1,6 @@
 //! Built-in scenarios and loading a scenario from a file plus `--set` overrides.
 
-use protocol::{Scenario, ScenarioError, ScenarioErrors};
+use protocol::{Scenario, ScenarioError, ScenarioErrors, Validated};
 use std::path::Path;
 
 /// Built-in scenarios by name: the files of `scenarios/`, compiled in.
@@ -23,7 +23,7 @@ pub fn built_in(name: &str) -> Option<&'static str> {
 /// Loads `source` (a path, or the name of a built-in scenario; "paper" when `None`),
 /// applies the overrides and validates the result. Nothing is returned unless all of it
 /// is valid; every error names its origin and key.
-pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
+pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Validated, ScenarioErrors> {
     let source = source.unwrap_or("paper");
     let (origin, text) = if Path::new(source).exists() {
         let text = std::fs::read_to_string(source).map_err(|e| {
@@ -53,8 +53,7 @@ pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Scenario, Scen
     } else {
         format!("{origin} with --set")
     };
-    scenario.validate(&origin)?;
-    Ok(scenario)
+    scenario.validated(&origin)
 }
 
 /// Checks that the program of every `[[swap]]` command can be started: `scmpc` (this
@@ -97,7 +96,7 @@ mod tests {
 
     #[test]
     fn built_in_paper_is_the_default_scenario() {
-        assert_eq!(load(None, &[]).unwrap(), Scenario::default());
+        assert_eq!(*load(None, &[]).unwrap(), Scenario::default());
     }
 
     #[test]
@@ -108,6 +107,6 @@ mod tests {
             ..Scenario::default()
         };
         expected.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
-        assert_eq!(noisy, expected);
+        assert_eq!(*noisy, expected);
     }
 }

@@ -4,7 +4,7 @@
 use crate::inprocess;
 use crate::record::Percentiles;
 use anyhow::Context;
-use protocol::{Formulation, Scenario};
+use protocol::{Formulation, Validated};
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
@@ -24,16 +24,18 @@ pub struct SolveTimes {
 /// [`SolveTimes`] at horizon `horizon` of `base` (its closed loop run in process into
 /// `dir`).
 pub fn compare_solve_times(
-    base: &Scenario,
+    base: &Validated,
     horizon: usize,
     dir: &Path,
 ) -> anyhow::Result<SolveTimes> {
-    let mut scenario = base.clone();
-    scenario.mpc.horizon = horizon;
-    scenario.mpc.formulation = Formulation::Linear;
+    let sets = [
+        format!("mpc.horizon={horizon}"),
+        "mpc.formulation=linear".to_string(),
+    ];
+    let scenario = base.with_overrides(&sets, &format!("horizon {horizon}"))?;
     let states = closed_loop_states(&scenario, dir)?;
     let controller = |formulation: Formulation| {
-        let mut s = scenario.clone();
+        let mut s = (*scenario).clone();
         s.mpc.formulation = formulation;
         mpc::Mpc::new(&s).context("setting up the MPC")
     };
@@ -60,7 +62,7 @@ pub fn compare_solve_times(
 
 /// The estimate `x_bar` at every sample boundary of the scenario's in-process run
 /// (recorded in `dir`).
-fn closed_loop_states(scenario: &Scenario, dir: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
+fn closed_loop_states(scenario: &Validated, dir: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
     let mut states = Vec::new();
     inprocess::run_observed(scenario, dir, &AtomicBool::new(false), |tick| {
         if tick.plan.is_some() {

@@ -7,7 +7,7 @@ use crate::inprocess;
 use crate::monitor::Outcome;
 use crate::record::Summary;
 use anyhow::Context;
-use protocol::{Scenario, ScenarioError, ScenarioErrors};
+use protocol::{ScenarioError, ScenarioErrors, Validated};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -51,7 +51,7 @@ pub struct RunSpec {
     pub values: Vec<String>,
     /// Index of the grid combination (runs with other seeds share it).
     pub combination: usize,
-    pub scenario: Scenario,
+    pub scenario: Validated,
     pub dir: PathBuf,
 }
 
@@ -59,7 +59,7 @@ pub struct RunSpec {
 /// `1..=seeds`; with `seeds == 0` the scenario's own seed). Every combination is
 /// validated before anything runs.
 pub fn plan_runs(
-    base: &Scenario,
+    base: &Validated,
     axes: &[Axis],
     seeds: u64,
     out: &Path,
@@ -89,13 +89,13 @@ pub fn plan_runs(
             .zip(&values)
             .map(|(a, v)| format!("{}={v}", a.key))
             .collect();
-        let scenario = base.with_overrides(&overrides)?;
-        scenario.validate(&format!("--grid {}", overrides.join(" ")))?;
+        let origin = format!("--grid {}", overrides.join(" "));
+        let scenario = base.with_overrides(&overrides, &origin)?;
         for seed in &seed_list {
-            let mut scenario = scenario.clone();
-            if let Some(seed) = seed {
-                scenario.seed = *seed;
-            }
+            let scenario = match seed {
+                Some(seed) => scenario.with_overrides(&[format!("seed={seed}")], &origin)?,
+                None => scenario.clone(),
+            };
             let dir = out.join("runs").join(format!("{:04}", runs.len()));
             runs.push(RunSpec {
                 values: values.clone(),
@@ -360,7 +360,8 @@ mod tests {
             Axis::parse("mpc.gamma=0.1,0.5").unwrap(),
             Axis::parse("mpc.horizon=8,10,12").unwrap(),
         ];
-        let runs = plan_runs(&Scenario::default(), &axes, 2, Path::new("/tmp/x")).unwrap();
+        let paper = protocol::Scenario::default().validated("test").unwrap();
+        let runs = plan_runs(&paper, &axes, 2, Path::new("/tmp/x")).unwrap();
         assert_eq!(runs.len(), 12);
         assert_eq!(runs[0].values, ["0.1", "8"]);
         assert_eq!((runs[1].scenario.seed, runs[1].combination), (2, 0));
@@ -371,7 +372,8 @@ mod tests {
     #[test]
     fn a_bad_grid_value_is_refused_with_its_key() {
         let axes = [Axis::parse("mpc.gamma=0.1,2").unwrap()];
-        let err = plan_runs(&Scenario::default(), &axes, 0, Path::new("/tmp/x")).unwrap_err();
+        let paper = protocol::Scenario::default().validated("test").unwrap();
+        let err = plan_runs(&paper, &axes, 0, Path::new("/tmp/x")).unwrap_err();
         assert!(err.to_string().contains("mpc.gamma"), "{err}");
         assert!(Axis::parse("mpc.gamma").is_err());
         assert!(Axis::parse("mpc.gamma=0.1,").is_err());

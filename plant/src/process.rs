@@ -4,61 +4,39 @@
 
 use crate::Plant;
 use protocol::clock::sleep_until_ns;
-use protocol::ipc::{
-    self, ACTUATION, ControlState, Link, MEASUREMENT, ProcessArgs, ProcessError, RunMode, TRUTH,
-    open_topic,
-};
-use protocol::{Actuation, GroundTruth, Header, Measurement, Role, StatusEvent};
+use protocol::ipc::{ACTUATION, MEASUREMENT, TRUTH};
+use protocol::runtime::{Link, Next, ProcessArgs, ProcessError, RunMode, keep_newest};
+use protocol::{Actuation, GroundTruth, Header, Measurement, Role};
 
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
     let link = Link::open(args, Role::Plant)?;
-    let mut ctl = ControlState::default();
-    let measurement = open_topic::<Measurement>(&link.node, MEASUREMENT)?.sender(args.epoch)?;
-    let truth = open_topic::<GroundTruth>(&link.node, TRUTH)?.sender(args.epoch)?;
-    let actuation = open_topic::<Actuation>(&link.node, ACTUATION)?.receiver_from(Role::Dfl)?;
-    let waitset = ipc::waitset(true)?;
-    let _control = link.control().attach(&waitset)?;
-    let _actuation = actuation.attach(&waitset)?;
-    link.report(StatusEvent::Ready)?;
+    let measurement = link.output::<Measurement>(MEASUREMENT)?;
+    let truth = link.output::<GroundTruth>(TRUTH)?;
+    let actuation = link.input::<Actuation>(ACTUATION, Role::Dfl)?;
 
     let timing = &args.scenario.timing;
     let dt = timing.dt_s();
     let mut plant = Plant::new(&args.scenario);
     let mut latest: Option<Actuation> = None;
-    let publish =
-        |plant: &mut Plant, tick: u64, input_latency_ns: u64| -> Result<(), ProcessError> {
-            let header = Header {
-                tick,
-                time_s: timing.tick_time_s(tick),
-                input_latency_ns: input_latency_ns.min(u64::from(u32::MAX)) as u32,
-                ..Header::default()
-            };
-            truth.send(GroundTruth {
-                header,
-                pose: plant.pose(),
-            })?;
-            measurement.send(Measurement {
-                header,
-                y: plant.measure(),
-            })?;
-            Ok(())
-        };
     let mut tick = 0u64;
-    loop {
-        if !link.housekeeping(&mut ctl, &[&actuation])? {
-            return Ok(());
-        }
-        if ctl.take_replay() {
-            truth.replay()?;
-            measurement.replay()?;
-        }
-        actuation.take(|a, _| {
-            if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
-                latest = Some(a);
-            }
-        })?;
-        match args.mode {
-            RunMode::Lockstep => {
+    let publish = |plant: &mut Plant, tick: u64, input_latency_ns: u64| {
+        let header = Header {
+            tick,
+            time_s: timing.tick_time_s(tick),
+            input_latency_ns: input_latency_ns.min(u64::from(u32::MAX)) as u32,
+            ..Header::default()
+        };
+        let pose = plant.pose();
+        truth.send(GroundTruth { header, pose })?;
+        measurement.send(Measurement {
+            header,
+            y: plant.measure(),
+        })
+    };
+    link.run(&[&actuation], &[&truth, &measurement], |ctl| {
+        match (args.mode, ctl.at_ns(timing.tick_time_s(tick))) {
+            (RunMode::Lockstep, _) => {
+                actuation.take(|a, _| keep_newest(&mut latest, a))?;
                 // Tick j needs the grant for j and the actuation of tick j - 1.
                 let granted = ctl.granted.filter(|(g, _)| *g == tick);
                 let have_input = tick == 0 || latest.is_some_and(|a| a.header.tick + 1 == tick);
@@ -68,34 +46,25 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                     }
                     publish(&mut plant, tick, grant_latency)?;
                     tick += 1;
-                    continue;
                 }
+                Ok(Next::Wait(None))
             }
-            RunMode::Realtime => {
-                if let Some(start_ns) = ctl.start_ns {
-                    let deadline = start_ns + (timing.tick_time_s(tick) * 1e9) as u64;
-                    sleep_until_ns(deadline);
-                    actuation.drain(|a, _| {
-                        if latest.is_none_or(|l| a.header.tick >= l.header.tick) {
-                            latest = Some(a);
-                        }
-                    })?;
-                    if tick > 0 {
-                        // Hold the newest actuation; with none yet, stand still.
-                        let [u1, u2] = latest.map_or([0.0; 2], |a| [a.u1, a.u2]);
-                        plant.step(u1, u2, dt);
-                    }
-                    publish(&mut plant, tick, 0)?;
-                    tick += 1;
-                    if link.node.wait(std::time::Duration::ZERO).is_err() {
-                        return Ok(());
-                    }
-                    continue;
+            (RunMode::Realtime, Some(deadline_ns)) => {
+                sleep_until_ns(deadline_ns);
+                actuation.drain(|a, _| keep_newest(&mut latest, a))?;
+                if tick > 0 {
+                    // Hold the newest actuation; with none yet, stand still.
+                    let [u1, u2] = latest.map_or([0.0; 2], |a| [a.u1, a.u2]);
+                    plant.step(u1, u2, dt);
                 }
+                publish(&mut plant, tick, 0)?;
+                tick += 1;
+                Ok(Next::Again)
+            }
+            (RunMode::Realtime, None) => {
+                actuation.take(|a, _| keep_newest(&mut latest, a))?;
+                Ok(Next::Wait(None))
             }
         }
-        if !link.wait(&waitset, None)? {
-            return Ok(());
-        }
-    }
+    })
 }

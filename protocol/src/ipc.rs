@@ -358,8 +358,39 @@ impl<T: Message> Receiver<T> {
     }
 }
 
-/// What housekeeping needs of an input (every [`Receiver`]).
+impl<T: Message> Receiver<T> {
+    /// Attaches this receiver's listener to `waitset`; keep the guard while waiting.
+    pub fn attach<'w>(
+        &'w self,
+        waitset: &'w WaitSet<ipc::Service>,
+    ) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
+        waitset
+            .attach_notification(&self.listener)
+            .map_err(ctx("attaching a listener"))
+    }
+
+    /// Every pending sample, after clearing the wake-ups (so none is missed).
+    pub fn drain(&self, each: impl FnMut(T, u64)) -> Result<(), IpcError> {
+        self.clear_wakeups();
+        self.take(each)
+    }
+
+    /// Every pending sample, straight from shared memory (no system call). The caller
+    /// must [`clear_wakeups`](Self::clear_wakeups) and take once more before it blocks.
+    pub fn take(&self, mut each: impl FnMut(T, u64)) -> Result<(), IpcError> {
+        while let Some((message, latency)) = self.receive()? {
+            each(message, latency);
+        }
+        Ok(())
+    }
+}
+
+/// What the role runtime needs of an input, whatever it carries (every [`Receiver`]).
 pub trait Input {
+    /// The listener a WaitSet blocks on.
+    fn listener(&self) -> &Listener<ipc::Service>;
+    /// Whether a sample is waiting (without taking it).
+    fn has_samples(&self) -> bool;
     fn clear_wakeups(&self);
     fn follow(&self, schedule: EpochSchedule);
     /// Refused samples by [`Rejection`] code since the last call.
@@ -370,6 +401,12 @@ pub trait Input {
 }
 
 impl<T: Message> Input for Receiver<T> {
+    fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+    fn has_samples(&self) -> bool {
+        Receiver::has_samples(self)
+    }
     fn clear_wakeups(&self) {
         Receiver::clear_wakeups(self);
     }
@@ -381,6 +418,18 @@ impl<T: Message> Input for Receiver<T> {
     }
     fn take_standby_newest(&self) -> Option<u64> {
         self.standby_newest.take()
+    }
+}
+
+/// What the role runtime needs of an output, whatever it carries (every [`Sender`]).
+pub trait Output {
+    /// See [`Sender::replay`].
+    fn replay(&self) -> Result<(), IpcError>;
+}
+
+impl<T: Message> Output for Sender<T> {
+    fn replay(&self) -> Result<(), IpcError> {
+        Sender::replay(self)
     }
 }
 
@@ -567,242 +616,4 @@ pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
         }
     }
     found
-}
-
-/// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
-/// and exits (the orchestrator is gone, or a producer died and was not replaced).
-pub const INPUT_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
-
-/// How a run is clocked (README, "Deadlines").
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RunMode {
-    /// Simulated time: every process waits for its inputs of the tick; deterministic.
-    Lockstep,
-    /// Every process paced by the monotonic wall clock with absolute deadlines.
-    Realtime,
-}
-
-/// What a role process is started with.
-#[derive(Debug, Clone)]
-pub struct ProcessArgs {
-    pub scenario: crate::Scenario,
-    pub prefix: String,
-    pub mode: RunMode,
-    pub epoch: u32,
-}
-
-/// Why a role process stopped other than by a stop command or a signal.
-#[derive(Debug, thiserror::Error)]
-pub enum ProcessError {
-    #[error(transparent)]
-    Ipc(#[from] IpcError),
-    #[error("no input for {0:?}: giving up")]
-    InputLost(std::time::Duration),
-    #[error("setting up: {0}")]
-    Setup(String),
-}
-
-/// A role process's connection to the orchestrator: its node, the control topic it
-/// obeys and the status topic it reports on.
-pub struct Link {
-    pub args: ProcessArgs,
-    role: crate::Role,
-    control: Receiver<crate::Control>,
-    status: Sender<crate::Status>,
-    /// Declared last: dropped after the ports above.
-    pub node: Node<ipc::Service>,
-}
-
-/// What the orchestrator has said so far.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ControlState {
-    /// Newest lockstep grant, and its publish-to-receipt latency, ns.
-    pub granted: Option<(u64, u64)>,
-    /// Real-time tick 0, monotonic ns.
-    pub start_ns: Option<u64>,
-    pub stopped: bool,
-    /// A replay was asked for and not yet done (see [`ControlState::take_replay`]).
-    pub replay: bool,
-    /// The newest epoch schedule (`None` before the first control message).
-    pub schedule: Option<EpochSchedule>,
-}
-
-impl ControlState {
-    /// Whether a process of `role` with `epoch` is the one whose samples of `tick` are
-    /// taken (false before the orchestrator has said, and while warming up as a
-    /// replacement).
-    pub fn producing(&self, role: crate::Role, epoch: u32, tick: u64) -> bool {
-        self.schedule
-            .is_some_and(|s| s.producer_at(role, tick) == epoch)
-    }
-
-    /// Takes one control message.
-    fn apply(&mut self, c: &crate::Control, latency_ns: u64) {
-        self.schedule = Some(c.epochs);
-        match c.command() {
-            Some(crate::ControlCommand::Grant) => self.granted = Some((c.header.tick, latency_ns)),
-            Some(crate::ControlCommand::Start) => self.start_ns = Some(c.start_ns),
-            Some(crate::ControlCommand::Stop) => self.stopped = true,
-            Some(crate::ControlCommand::Replay) => self.replay = true,
-            Some(crate::ControlCommand::Epochs) | None => {}
-        }
-    }
-
-    /// Whether to replay every output now (once per request).
-    pub fn take_replay(&mut self) -> bool {
-        std::mem::take(&mut self.replay)
-    }
-}
-
-impl Link {
-    pub fn open(args: &ProcessArgs, role: crate::Role) -> Result<Link, IpcError> {
-        let node = create_node(
-            &args.prefix,
-            &format!("{}-{}", role.as_str(), args.epoch),
-            true,
-        )?;
-        let control = open_topic::<crate::Control>(&node, CONTROL)?.receiver()?;
-        let status = open_topic::<crate::Status>(&node, STATUS)?.sender(args.epoch)?;
-        Ok(Link {
-            node,
-            args: args.clone(),
-            role,
-            control,
-            status,
-        })
-    }
-
-    pub fn control(&self) -> &Receiver<crate::Control> {
-        &self.control
-    }
-
-    /// Tells the orchestrator about this process.
-    pub fn report(&self, event: crate::StatusEvent) -> Result<(), IpcError> {
-        self.status.send(crate::Status {
-            role: self.role as u32,
-            event: event as u32,
-            pid: std::process::id(),
-            ..crate::Status::default()
-        })
-    }
-
-    /// Takes every pending control message into `state`.
-    pub fn poll_control(&self, state: &mut ControlState) -> Result<(), IpcError> {
-        self.control.drain(|c, latency| state.apply(&c, latency))
-    }
-
-    /// Hot path, before taking inputs: takes pending control messages straight from
-    /// shared memory (no system call) and applies a changed epoch schedule to `inputs`, so
-    /// no sample is judged by a schedule older than the newest one sent before it.
-    pub fn sync(&self, ctl: &mut ControlState, inputs: &[&dyn Input]) -> Result<(), IpcError> {
-        let before = ctl.schedule;
-        self.control.take(|c, latency| ctl.apply(&c, latency))?;
-        if let Some(schedule) = ctl.schedule.filter(|s| Some(*s) != before) {
-            for input in inputs {
-                input.follow(schedule);
-            }
-        }
-        Ok(())
-    }
-
-    /// After publishing: consumes the wake-ups of `inputs` and takes pending control
-    /// messages. The caller must take its inputs once more before it blocks (a sample
-    /// may have come just before the wake-ups were consumed). `Ok(false)`: stop.
-    /// Also applies the epoch schedule and reports refused samples to the orchestrator.
-    pub fn housekeeping(
-        &self,
-        ctl: &mut ControlState,
-        inputs: &[&dyn Input],
-    ) -> Result<bool, IpcError> {
-        for input in inputs {
-            input.clear_wakeups();
-        }
-        self.poll_control(ctl)?;
-        for input in inputs {
-            if let Some(schedule) = ctl.schedule {
-                input.follow(schedule);
-            }
-            for (code, count) in input.take_rejections().into_iter().enumerate() {
-                if count > 0 {
-                    self.status.send(crate::Status {
-                        role: self.role as u32,
-                        event: crate::StatusEvent::Rejected as u32,
-                        pid: std::process::id(),
-                        detail: code as u32,
-                        count,
-                        ..crate::Status::default()
-                    })?;
-                }
-            }
-        }
-        Ok(!ctl.stopped)
-    }
-
-    /// Waits for input; `Ok(false)` means stop (a signal). Reports and fails after
-    /// [`INPUT_TIMEOUT`] without input.
-    pub fn wait(
-        &self,
-        waitset: &WaitSet<ipc::Service>,
-        timeout: Option<std::time::Duration>,
-    ) -> Result<bool, ProcessError> {
-        let timeout = timeout.unwrap_or(INPUT_TIMEOUT).min(INPUT_TIMEOUT);
-        match wait(waitset, timeout)? {
-            Wake::Input => Ok(true),
-            Wake::Terminate => Ok(false),
-            Wake::Timeout if timeout < INPUT_TIMEOUT => Ok(true),
-            Wake::Timeout => {
-                let _ = self.report(crate::StatusEvent::InputLost);
-                Err(ProcessError::InputLost(INPUT_TIMEOUT))
-            }
-        }
-    }
-}
-
-impl<T: Message> Receiver<T> {
-    /// Attaches this receiver's listener to `waitset`; keep the guard while waiting.
-    pub fn attach<'w>(
-        &'w self,
-        waitset: &'w WaitSet<ipc::Service>,
-    ) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
-        waitset
-            .attach_notification(&self.listener)
-            .map_err(ctx("attaching a listener"))
-    }
-
-    /// Every pending sample, after clearing the wake-ups (so none is missed).
-    pub fn drain(&self, each: impl FnMut(T, u64)) -> Result<(), IpcError> {
-        self.clear_wakeups();
-        self.take(each)
-    }
-
-    /// Every pending sample, straight from shared memory (no system call). The caller
-    /// must [`clear_wakeups`](Self::clear_wakeups) and take once more before it blocks.
-    pub fn take(&self, mut each: impl FnMut(T, u64)) -> Result<(), IpcError> {
-        while let Some((message, latency)) = self.receive()? {
-            each(message, latency);
-        }
-        Ok(())
-    }
-}
-
-/// Real time: how long before an expected sample a consumer starts polling for it, ns.
-pub const SPIN_LEAD_NS: u64 = 50_000;
-/// Real time: how long after the expected time a consumer keeps polling before it falls
-/// back to blocking in its WaitSet, ns.
-pub const SPIN_BUDGET_NS: u64 = 300_000;
-
-/// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
-/// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
-/// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
-/// periodic input's known arrival time does not (measured: README, real-time latency).
-pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
-    crate::clock::sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
-    let give_up = expected_ns + SPIN_BUDGET_NS;
-    while monotonic_ns() < give_up {
-        if ready() {
-            return true;
-        }
-        std::hint::spin_loop();
-    }
-    ready()
 }

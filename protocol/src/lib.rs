@@ -4,6 +4,7 @@
 pub mod clock;
 pub mod ipc;
 pub mod messages;
+pub mod runtime;
 pub mod scenario;
 
 pub use messages::*;

@@ -18,6 +18,37 @@ pub const MAX_INNER_STEPS: usize = 1000;
 /// Largest number of RK4 substeps per inner tick.
 pub const MAX_RK4_SUBSTEPS: usize = 1000;
 
+/// A scenario [`Scenario::validate`] has accepted: the only kind a run, a sweep, a figure,
+/// a role process or the in-process loop takes, so validation cannot be skipped. It reads
+/// as a [`Scenario`] (`Deref`); a changed copy is validated again
+/// ([`Validated::with_overrides`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Validated(Scenario);
+
+impl std::ops::Deref for Validated {
+    type Target = Scenario;
+    fn deref(&self) -> &Scenario {
+        &self.0
+    }
+}
+
+impl Validated {
+    /// A copy with `KEY=VALUE` overrides ([`Scenario::with_overrides`]), validated;
+    /// `origin` names it in errors.
+    pub fn with_overrides(
+        &self,
+        overrides: &[String],
+        origin: &str,
+    ) -> Result<Validated, ScenarioErrors> {
+        self.0.with_overrides(overrides)?.validated(origin)
+    }
+
+    /// The scenario, to change it (it must be validated again to run).
+    pub fn into_inner(self) -> Scenario {
+        self.0
+    }
+}
+
 /// A whole run's configuration. Defaults reproduce the paper's scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -706,6 +737,12 @@ impl Scenario {
             })?;
         }
         Ok(scenario)
+    }
+
+    /// The scenario as a [`Validated`] one, if [`Scenario::validate`] accepts it.
+    pub fn validated(self, origin: &str) -> Result<Validated, ScenarioErrors> {
+        self.validate(origin)?;
+        Ok(Validated(self))
     }
 
     /// Checks every value against its meaning; reports every problem with its dotted key.

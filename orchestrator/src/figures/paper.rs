@@ -56,7 +56,7 @@ pub fn paper_set(
 
 /// A built-in scenario in the paper's formulation: the paper's study is of it, without the
 /// safety layers added since (README, "Safety").
-fn paper_scenario(name: &str) -> anyhow::Result<protocol::Scenario> {
+fn paper_scenario(name: &str) -> anyhow::Result<protocol::Validated> {
     let paper = [
         "mpc.terminal_safety=none".to_string(),
         "dfl.gatekeeper=false".to_string(),
@@ -69,16 +69,13 @@ fn paper_scenario(name: &str) -> anyhow::Result<protocol::Scenario> {
 /// and (γ, N) pair of (b), the Euclidean constraint, and the noisy runs with the EKF and
 /// with the raw measurement (`κ = 0`).
 fn study_runs(
-    base: &protocol::Scenario,
-    noisy: &protocol::Scenario,
+    base: &protocol::Validated,
+    noisy: &protocol::Validated,
     out: &Path,
 ) -> anyhow::Result<Vec<crate::sweep::RunSpec>> {
-    let spec = |name: String, scenario: &protocol::Scenario, sets: &[String]| {
+    let spec = |name: String, scenario: &protocol::Validated, sets: &[String]| {
         let scenario = scenario
-            .with_overrides(sets)
-            .map_err(|e| anyhow!("{name}: {e}"))?;
-        scenario
-            .validate(&name)
+            .with_overrides(sets, &name)
             .map_err(|e| anyhow!("{name}: {e}"))?;
         Ok::<_, anyhow::Error>(crate::sweep::RunSpec {
             values: vec![name.clone()],

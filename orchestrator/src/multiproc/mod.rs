@@ -18,11 +18,12 @@ use crate::record::{Latencies, ProcessReport, Recorder, Summary};
 use anyhow::{Context, anyhow, bail};
 use children::Children;
 use protocol::clock::monotonic_ns;
-use protocol::ipc::{self, Input, Receiver, RunMode, Sender, open_topic};
+use protocol::ipc::{self, Input, Receiver, Sender, open_topic};
+use protocol::runtime::RunMode;
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
     Header, Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
-    SwapReply, SwapRequest,
+    SwapReply, SwapRequest, Validated,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -237,6 +238,70 @@ struct Driver<'a> {
     node_pids: Vec<u32>,
 }
 
+impl<'a> Driver<'a> {
+    fn new(
+        scenario: &'a Scenario,
+        mode: RunMode,
+        session: &'a Session,
+        children: &'a mut Children,
+        recorder: &'a mut Recorder,
+        stop: &'a AtomicBool,
+    ) -> Driver<'a> {
+        Driver {
+            scenario,
+            mode,
+            session,
+            children,
+            recorder,
+            latencies: Latencies::default(),
+            slots: BTreeMap::new(),
+            plans: BTreeMap::new(),
+            verdicts: BTreeMap::new(),
+            newest_truth: None,
+            stop,
+            start_ns: 0,
+            record_gaps: 0,
+            restarts: 0,
+            rejected: BTreeMap::new(),
+            next_epoch: 0,
+            cursor: 0,
+            scheduled: scheduled_swaps(scenario),
+            swaps: Vec::new(),
+            swaps_done: 0,
+            ticks_without_estimate: 0,
+            last_plan: None,
+            last_node_scan: Instant::now(),
+            last_node_listing: None,
+            node_pids: Vec::new(),
+        }
+    }
+
+    /// After the clock has stopped with `outcome`: records the plans still held, answers
+    /// every swap that did not happen, and fills `report` with the run's counts.
+    fn finish(
+        mut self,
+        outcome: anyhow::Result<Outcome>,
+        report: &mut ProcessReport,
+    ) -> anyhow::Result<Outcome> {
+        let outcome = outcome.and_then(|o| self.record_plans().map(|()| o));
+        for swap in std::mem::take(&mut self.swaps) {
+            self.fail_swap(swap, "the run ended before the switch")?;
+        }
+        for pending in std::mem::take(&mut self.scheduled) {
+            if let Some(id) = pending.request {
+                self.reply(id, None, "the run ended before the swap could start")?;
+            }
+        }
+        self.latencies.report(report);
+        report.record_gaps = self.record_gaps;
+        report.ticks_without_estimate = self.ticks_without_estimate;
+        report.restarts = self.restarts;
+        report.swaps = self.swaps_done;
+        report.rejected_samples = std::mem::take(&mut self.rejected);
+        outcome
+    }
+}
+
 /// `run.json` of a run directory: how tools such as `scmpc swap` reach the running run.
 #[derive(Debug, serde::Serialize, serde::Deserialize)]
 pub struct RunInfo {
@@ -268,10 +333,10 @@ impl RunInfo {
 }
 
 /// Runs the scenario as four processes on iceoryx2 resources named with `prefix` and
-/// writes `out`. The scenario must be valid. Whatever happens, every process is stopped
+/// writes `out`. Whatever happens, every process is stopped
 /// and the run's iceoryx2 resources are removed before this returns.
 pub fn run(
-    scenario: &Scenario,
+    scenario: &Validated,
     out: &Path,
     mode: RunMode,
     prefix: &str,
@@ -352,56 +417,29 @@ fn drive(
     }
     let outcome = wait_until_ready(&session, &waitset, &mut children, stop).and_then(|()| {
         recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
-        let mut driver = Driver {
-            scenario,
-            mode,
-            session: &session,
-            children: &mut children,
-            recorder: &mut *recorder,
-            latencies: Latencies::default(),
-            slots: BTreeMap::new(),
-            plans: BTreeMap::new(),
-            verdicts: BTreeMap::new(),
-            newest_truth: None,
-            stop,
-            start_ns: 0,
-            record_gaps: 0,
-            restarts: 0,
-            rejected: BTreeMap::new(),
-            next_epoch: 0,
-            cursor: 0,
-            scheduled: scheduled_swaps(scenario),
-            swaps: Vec::new(),
-            swaps_done: 0,
-            ticks_without_estimate: 0,
-            last_plan: None,
-            last_node_scan: Instant::now(),
-            last_node_listing: None,
-            node_pids: Vec::new(),
-        };
+        let mut driver = Driver::new(scenario, mode, &session, &mut children, recorder, stop);
         let outcome = match mode {
             RunMode::Lockstep => driver.lockstep(&waitset),
             RunMode::Realtime => driver.realtime(&waitset),
         };
-        let outcome = outcome.and_then(|o| driver.record_plans().map(|()| o));
-        for swap in std::mem::take(&mut driver.swaps) {
-            driver.fail_swap(swap, "the run ended before the switch")?;
-        }
-        for pending in std::mem::take(&mut driver.scheduled) {
-            if let Some(id) = pending.request {
-                driver.reply(id, None, "the run ended before the swap could start")?;
-            }
-        }
-        driver.latencies.report(&mut report);
-        report.record_gaps = driver.record_gaps;
-        report.ticks_without_estimate = driver.ticks_without_estimate;
-        report.restarts = driver.restarts;
-        report.swaps = driver.swaps_done;
-        report.rejected_samples = std::mem::take(&mut driver.rejected);
-        outcome
+        driver.finish(outcome, &mut report)
     });
     // Peak resident memory of every process still running, then stop them all whatever
     // happened, then release the orchestrator's own ports.
+    record_peak_rss(&children, &mut report);
+    let _ = session.command(ControlCommand::Stop, 0, 0);
+    for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
+        recorder.event(
+            "exited",
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
+        )?;
+    }
+    drop(guards);
+    Ok((outcome?, report))
+}
+
+/// The peak resident memory of every process still running and of the orchestrator.
+fn record_peak_rss(children: &Children, report: &mut ProcessReport) {
     for p in &children.list {
         if let Some(kib) = peak_rss_kib(p.child.id()) {
             let peak = report
@@ -414,15 +452,6 @@ fn drive(
     if let Some(kib) = peak_rss_kib(std::process::id()) {
         report.peak_rss_kib.insert("orchestrator".into(), kib);
     }
-    let _ = session.command(ControlCommand::Stop, 0, 0);
-    for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
-        recorder.event(
-            "exited",
-            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
-        )?;
-    }
-    drop(guards);
-    Ok((outcome?, report))
 }
 
 /// Peak resident set size of process `pid` (`VmHWM`), KiB.
