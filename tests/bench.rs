@@ -6,6 +6,7 @@ use common::{run_into_tempdir, stderr};
 
 #[test]
 fn scmpc_bench_reports_the_pipeline_against_a_raw_iceoryx2_ping_pong() {
+    let _machine = common::machine_alone();
     let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let table = String::from_utf8_lossy(&out.stdout);

@@ -35,6 +35,7 @@ fn both_modes(scenario: &str, sets: &[&str]) -> (tempfile::TempDir, tempfile::Te
 
 #[test]
 fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
+    let _machine = common::machine_shared();
     for scenario in ["paper", "paper-noisy"] {
         let (reference, ipc) = both_modes(scenario, &[]);
         assert_eq!(summary(ipc.path())["mode"], "lockstep");
@@ -56,6 +57,7 @@ fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
 
 #[test]
 fn the_four_roles_are_separate_processes() {
+    let _machine = common::machine_shared();
     let (dir, _) = run_into_tempdir(&["run", "--set", "duration_s=1"]);
     let pids = &summary(dir.path())["pids"];
     let mut all: Vec<u64> = ["orchestrator", "plant", "estimator", "mpc", "dfl"]
@@ -83,6 +85,7 @@ fn the_four_roles_are_separate_processes() {
 
 #[test]
 fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
+    let _machine = common::machine_alone();
     let prefix = unique_prefix("tap");
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn_run(
@@ -136,6 +139,7 @@ fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
 
 #[test]
 fn two_runs_at_the_same_time_do_not_see_each_other() {
+    let _machine = common::machine_shared();
     let dirs: Vec<tempfile::TempDir> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
     let children: Vec<_> = dirs
         .iter()
@@ -181,6 +185,7 @@ fn two_runs_at_the_same_time_do_not_see_each_other() {
 
 #[test]
 fn sigint_ends_every_process_within_two_seconds_and_leaves_no_shared_memory() {
+    let _machine = common::machine_alone();
     let prefix = unique_prefix("int");
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn_run(dir.path(), &["--mode", "realtime", "--prefix", &prefix]);

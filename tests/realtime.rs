@@ -6,6 +6,7 @@ use common::{run, run_into_tempdir, stderr, summary};
 
 #[test]
 fn realtime_paper_run_reaches_the_goal_without_collision_or_deadline_miss() {
+    let _machine = common::machine_alone();
     let (dir, out) = run_into_tempdir(&["run", "--mode", "realtime"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let s = summary(dir.path());
@@ -23,6 +24,7 @@ fn realtime_paper_run_reaches_the_goal_without_collision_or_deadline_miss() {
 
 #[test]
 fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
+    let _machine = common::machine_alone();
     // 1.5 Ts on every 20th sample over 20 s: samples 0, 20, ..., 380.
     let dir = tempfile::tempdir().unwrap();
     let args = [

@@ -30,6 +30,7 @@ const FAST_APPROACH: [&str; 10] = [
 
 #[test]
 fn with_both_layers_off_the_paper_run_is_todays_trajectory_to_the_bit() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&[&["run", "--in-process"][..], &PAPER_FORMULATION].concat());
     assert!(out.status.success(), "{}", stderr(&out));
     // Every 100th tick of the paper run as it was before the safety layers (and its
@@ -54,6 +55,7 @@ fn with_both_layers_off_the_paper_run_is_todays_trajectory_to_the_bit() {
 
 #[test]
 fn the_paper_run_with_both_layers_reaches_the_goal_close_to_the_papers_time_untouched() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&["run", "--in-process"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let s = summary(dir.path());
@@ -68,6 +70,7 @@ fn the_paper_run_with_both_layers_reaches_the_goal_close_to_the_papers_time_unto
 
 #[test]
 fn the_fast_approach_that_collided_is_safe_with_either_layer() {
+    let _machine = common::machine_shared();
     let run_with = |layers: &[&str]| {
         let (dir, out) =
             run_into_tempdir(&[&["run", "--in-process"][..], &FAST_APPROACH, layers].concat());
@@ -100,6 +103,7 @@ fn the_fast_approach_that_collided_is_safe_with_either_layer() {
 
 #[test]
 fn a_swapped_in_mpc_that_ignores_the_obstacles_cannot_drive_the_robot_into_one() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("faulty.toml");
     // The MPC is replaced, while the robot drives towards the obstacle, by one that plans
@@ -140,6 +144,7 @@ command = ["scmpc", "mpc", "--set", "fault.mpc_ignore_obstacles=true"]
 
 #[test]
 fn the_robots_radius_keeps_its_edge_off_the_obstacle() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&["run", "--in-process", "--set", "robot.radius_m=0.3"]);
     assert!(out.status.code().is_some(), "{}", stderr(&out));
     let s = summary(dir.path());

@@ -13,6 +13,7 @@ use std::time::Duration;
 
 #[test]
 fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     kill_role_during_run(
         dir.path(),
@@ -61,6 +62,7 @@ fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal(
 
 #[test]
 fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn_run(
         dir.path(),
@@ -90,6 +92,7 @@ fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
 
 #[test]
 fn after_sigkill_of_the_whole_process_group_a_new_run_starts_and_cleans_up() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let mut child = scmpc()
         .args([
@@ -140,6 +143,7 @@ fn after_sigkill_of_the_whole_process_group_a_new_run_starts_and_cleans_up() {
 
 #[test]
 fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     kill_role_during_run(
         dir.path(),
@@ -190,6 +194,7 @@ fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
 
 #[test]
 fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stopped() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     // A slow estimator stretches the lockstep run to a few seconds of wall time.
     let mut child = spawn_run(dir.path(), &["--set", "fault.estimator_delay_ms=0.5"]);
@@ -232,6 +237,7 @@ fn child_of(parent: u32) -> Option<u32> {
 
 #[test]
 fn a_role_process_dying_inside_a_wrapper_is_caught_by_dead_node_detection() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let exe = env!("CARGO_BIN_EXE_scmpc");
     // The wrapper outlives the estimator it starts: its exit status says nothing.

@@ -46,6 +46,7 @@ fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
 
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let file = scenario_file(
         dir.path(),
@@ -127,6 +128,7 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
 
 #[test]
 fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() {
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let run_dir = dir.path().join("run");
     let mut child = spawn_run(&run_dir, &["--mode", "realtime", "--set", "duration_s=5"]);
@@ -177,6 +179,7 @@ fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() 
 
 #[test]
 fn a_lockstep_swap_of_every_swappable_role_keeps_the_run_whole() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let file = scenario_file(
         dir.path(),

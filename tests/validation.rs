@@ -37,6 +37,7 @@ fn intrude<T: Message>(
 
 #[test]
 fn a_foreign_actuation_under_a_wrong_epoch_has_no_effect_and_is_counted() {
+    let _machine = common::machine_shared();
     let prefix = unique_prefix("epoch");
     let (reference, dir) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     run(&[
@@ -95,6 +96,7 @@ fn a_foreign_actuation_under_a_wrong_epoch_has_no_effect_and_is_counted() {
 
 #[test]
 fn a_sample_with_a_nan_is_rejected_and_counted_and_the_loop_continues() {
+    let _machine = common::machine_alone();
     let prefix = unique_prefix("nan");
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn_run(

@@ -86,6 +86,10 @@ pub struct LinearMpc {
 }
 
 impl LinearMpc {
+    /// Builds everything a step reuses, in the order the pieces depend on each other: the
+    /// model (paper eq. mobile46, discretized), the LQR terminal weight and set, the layout and Hessian, the spans
+    /// of the box and terminal rows, the rows' solvers (long, as a list: no step may
+    /// allocate, so all of it is made here).
     pub fn new(scenario: &Scenario) -> Result<LinearMpc, MpcError> {
         let c = &scenario.mpc;
         if c.horizon == 0 || c.horizon > MAX_HORIZON {

@@ -155,7 +155,8 @@ impl Latencies {
 }
 
 impl Summary {
-    /// The short table printed at the end of a run.
+    /// The short table printed at the end of a run (one line per row of the table, in the
+    /// order printed: long, but a list).
     pub fn table(&self) -> String {
         let opt = |v: Option<f64>| v.map_or("never".to_string(), |t| format!("{t:.2} s"));
         let rows = [

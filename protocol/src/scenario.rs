@@ -746,6 +746,7 @@ impl Scenario {
     }
 
     /// Checks every value against its meaning; reports every problem with its dotted key.
+    /// One check per key, in the schema's order: long, but a list to read against it.
     pub fn validate(&self, origin: &str) -> Result<(), ScenarioErrors> {
         let mut v = Validator {
             origin,

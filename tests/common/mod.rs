@@ -133,3 +133,24 @@ pub fn num(row: &std::collections::HashMap<String, String>, column: &str) -> f64
         .parse()
         .unwrap_or_else(|_| panic!("{column} = {:?}", row[column]))
 }
+
+/// The machine as the tests of one binary share it (cargo runs a binary's tests on
+/// parallel threads, and the binaries one after another).
+static MACHINE: std::sync::RwLock<()> = std::sync::RwLock::new(());
+
+/// For a real-time test: holds the machine alone for as long as the guard lives. Its
+/// timing claims (no deadline miss, no record gap, every tick) cannot hold with another
+/// run on the same two cores (README, "On a new machine").
+pub fn machine_alone() -> std::sync::RwLockWriteGuard<'static, ()> {
+    MACHINE
+        .write()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// For any other test that starts processes in a binary with real-time tests: shares the
+/// machine with tests like it, never with a real-time one.
+pub fn machine_shared() -> std::sync::RwLockReadGuard<'static, ()> {
+    MACHINE
+        .read()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}

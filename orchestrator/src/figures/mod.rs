@@ -144,6 +144,8 @@ impl Figure {
         if self.log_y { y.max(1e-9).log10() } else { y }
     }
 
+    /// Draws the figure: axes, then each series and marker in turn (long: one block per
+    /// kind of element, each a plotters call).
     fn draw<DB: DrawingBackend>(
         &self,
         root: &DrawingArea<DB, Shift>,

@@ -39,6 +39,18 @@ impl Driver<'_> {
         self.session.plan.drain(|p, _| {
             plans.insert(p.sample, p);
         })?;
+        self.take_status()?;
+        let verdicts = &mut self.verdicts;
+        self.session.deadline.drain(|v, _| {
+            verdicts.insert(v.sample, v);
+        })?;
+        Ok(())
+    }
+
+    /// Takes the processes' status reports: refused samples (the orchestrator's own
+    /// included) are counted and recorded by reason, and a process that joined the running
+    /// loop is told the clock and the schedule.
+    fn take_status(&mut self) -> anyhow::Result<()> {
         let mut restarted_ready = Vec::new();
         let mut rejected = Vec::new();
         self.session.status.drain(|s, _| {
@@ -82,10 +94,6 @@ impl Driver<'_> {
             }
             self.session.command(ControlCommand::Replay, 0, 0)?;
         }
-        let verdicts = &mut self.verdicts;
-        self.session.deadline.drain(|v, _| {
-            verdicts.insert(v.sample, v);
-        })?;
         Ok(())
     }
 
