@@ -292,3 +292,100 @@ fn a_role_process_dying_inside_a_wrapper_is_caught_by_dead_node_detection() {
     );
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
 }
+
+/// SIGKILLs the orchestrator alone of a run in `mode`; its role processes must stop the
+/// robot (real time), exit within 3 s, and the next run must remove the dead run's files.
+fn orchestrator_killed(mode: &str) {
+    use protocol::ipc::{TRUTH, create_node, open_topic, process_alive};
+    let prefix = common::unique_prefix("orphan");
+    let dir = tempfile::tempdir().unwrap();
+    let args = [
+        "--mode",
+        mode,
+        "--set",
+        "duration_s=600",
+        "--prefix",
+        &prefix,
+    ];
+    let mut child = common::spawn_run(dir.path(), &args);
+    let roles: Vec<u32> = ["plant", "estimator", "mpc", "dfl"]
+        .iter()
+        .map(|role| wait_for_pid(dir.path(), role))
+        .collect();
+    let node = create_node(&prefix, "tap", false).unwrap();
+    let tap = open_topic::<protocol::GroundTruth>(&node, TRUTH)
+        .unwrap()
+        .receiver()
+        .unwrap();
+    let mut poses = Vec::new();
+    let drain = |poses: &mut Vec<(u64, [f64; 3])>| {
+        while let Ok(Some((t, _))) = tap.receive() {
+            poses.push((t.header.tick, t.pose));
+        }
+        poses.last().map_or(0, |(tick, _)| *tick)
+    };
+    assert!(
+        wait_for(Duration::from_secs(10), || drain(&mut poses) >= 600),
+        "the run never reached t = 3 s"
+    );
+    common::sigkill(child.id());
+    child.wait().unwrap();
+    let killed_at = poses.len();
+    assert!(
+        wait_for(Duration::from_secs(3), || {
+            drain(&mut poses);
+            roles.iter().all(|pid| !process_alive(*pid))
+        }),
+        "role processes still alive 3 s after the orchestrator died: {:?}",
+        roles
+            .iter()
+            .filter(|pid| process_alive(**pid))
+            .collect::<Vec<_>>()
+    );
+    drain(&mut poses);
+    drop((tap, node));
+    if mode == "realtime" {
+        // Braked to rest before the plant stopped: its last poses do not move.
+        let after = &poses[killed_at..];
+        assert!(
+            after.len() > 20,
+            "the plant stopped at once: {}",
+            after.len()
+        );
+        let [x, y, _] = after[after.len() - 1].1;
+        for (_, [xi, yi, _]) in &after[after.len() - 10..] {
+            assert!((xi - x).hypot(yi - y) < 1e-9, "still moving at the end");
+        }
+        let [x0, y0, _] = after[0].1;
+        assert!(
+            (x - x0).hypot(y - y0) > 1e-3,
+            "it was not moving when killed"
+        );
+    }
+    let next = tempfile::tempdir().unwrap();
+    common::run(&[
+        "run",
+        "--set",
+        "duration_s=1",
+        "--out",
+        next.path().to_str().unwrap(),
+    ]);
+    assert_eq!(summary(next.path())["outcome"], "timeout");
+    assert!(
+        leftovers(&prefix).is_empty(),
+        "the dead run's files are still there: {:?}",
+        leftovers(&prefix)
+    );
+}
+
+#[test]
+fn when_the_orchestrator_is_killed_in_real_time_the_robot_brakes_to_rest_and_every_process_exits() {
+    let _machine = common::machine_alone();
+    orchestrator_killed("realtime");
+}
+
+#[test]
+fn when_the_orchestrator_is_killed_in_lockstep_every_process_exits() {
+    let _machine = common::machine_shared();
+    orchestrator_killed("lockstep");
+}

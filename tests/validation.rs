@@ -134,3 +134,82 @@ fn a_sample_with_a_nan_is_rejected_and_counted_and_the_loop_continues() {
     protocol::ipc::remove_run_resources(&prefix).unwrap();
     assert!(common::leftovers(&prefix).is_empty());
 }
+
+#[test]
+fn one_forged_measurement_a_million_ticks_ahead_is_refused_and_the_paper_run_goes_on() {
+    let _machine = common::machine_alone();
+    let prefix = unique_prefix("ahead");
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn_run(dir.path(), &["--mode", "realtime", "--prefix", &prefix]);
+    // A real measurement of the running run, copied: its run id and epoch are right.
+    let node = create_node(&prefix, "forger", false).unwrap();
+    let mut tap = None;
+    assert!(wait_for(Duration::from_secs(5), || {
+        tap = open_topic::<Measurement>(&node, MEASUREMENT)
+            .ok()
+            .and_then(|t| t.receiver().ok());
+        tap.is_some()
+    }));
+    let tap = tap.unwrap();
+    let mut real = None;
+    assert!(
+        wait_for(Duration::from_secs(10), || {
+            while let Ok(Some((m, _))) = tap.receive() {
+                real = Some(m);
+            }
+            real.is_some_and(|m| m.header.tick >= 400)
+        }),
+        "no measurement of t >= 2 s heard"
+    );
+    let mut forged = real.unwrap();
+    forged.header.tick += 1_000_000;
+    forged.header.time_s = forged.header.tick as f64 * 0.005; // consistent with its tick
+    let forger = open_topic::<Measurement>(&node, MEASUREMENT)
+        .unwrap()
+        .sender(forged.header.epoch)
+        .unwrap();
+    forger.send(forged).unwrap();
+    // Every subscriber of the topic gets it: the tap as well.
+    assert!(
+        wait_for(Duration::from_secs(5), || {
+            let mut heard = false;
+            while let Ok(Some((m, _))) = tap.receive() {
+                heard |= m.header.tick == forged.header.tick;
+            }
+            heard
+        }),
+        "the forged sample was never delivered"
+    );
+    let status = child.wait().unwrap();
+    drop((forger, tap, node));
+    assert!(status.success(), "the run did not reach the goal");
+
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["restarts"], 0);
+    assert_eq!(
+        s["rejected_samples"],
+        serde_json::json!({ "tick_ahead": 2 })
+    );
+    // Refused once by each consumer of the topic: the estimator and the recorder.
+    let refusals: Vec<_> = common::events(dir.path())
+        .into_iter()
+        .filter(|e| e["event"] == "rejected")
+        .map(|e| {
+            (
+                e["consumer"].clone(),
+                e["reason"].clone(),
+                e["count"].clone(),
+            )
+        })
+        .collect();
+    assert_eq!(refusals.len(), 2, "{refusals:?}");
+    for (consumer, reason, count) in refusals {
+        assert!(consumer == "estimator" || consumer == "orchestrator");
+        assert_eq!(
+            (reason.as_str(), count.as_u64()),
+            (Some("tick_ahead"), Some(1))
+        );
+    }
+}

@@ -64,7 +64,12 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 inner.dfl.adopt_zeta(e.state[3]);
             }
             commanding = ctl.producing(Role::Dfl, args.epoch, tick);
-            let (mut act, verdict) = inner.command(&e, tick);
+            // Orphaned (the orchestrator is gone): brake to rest before the process exits.
+            let (mut act, verdict) = if ctl.orphaned {
+                (inner.brake(tick), None)
+            } else {
+                inner.command(&e, tick)
+            };
             act.header.input_latency_ns = latency.min(u64::from(u32::MAX)) as u32;
             if let Some(verdict) = verdict {
                 deadlines.send(verdict)?;

@@ -125,6 +125,9 @@ struct RoleArgs {
     /// The producer epoch stamped on every sample.
     #[arg(long, default_value_t = 0, env = crate::multiproc::ENV_EPOCH)]
     epoch: u32,
+    /// The orchestrator's pid: when it is gone, the robot is stopped and the process exits.
+    #[arg(long, env = crate::multiproc::ENV_SUPERVISOR)]
+    supervisor_pid: Option<u32>,
     /// Override a value of the run's scenario for this process only, e.g.
     /// `mpc.horizon=10` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
@@ -458,6 +461,7 @@ fn role(
         prefix: args.prefix,
         mode: args.mode.into(),
         epoch: args.epoch,
+        supervisor_pid: args.supervisor_pid,
     };
     body(&process_args).map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
 }

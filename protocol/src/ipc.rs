@@ -15,9 +15,10 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use iceoryx2::waitset::WaitSetRunResult;
-use std::cell::Cell;
+use std::cell::{Cell, OnceCell};
 use std::fmt::Display;
 use std::marker::PhantomData;
+use std::rc::Rc;
 
 /// Noisy output of the plant.
 pub const MEASUREMENT: &str = "measurement";
@@ -205,7 +206,8 @@ impl<T: Message> Topic<T> {
             producer,
             schedule: Cell::new(None),
             last_tick: Cell::new(None),
-            rejected: Cell::new([0; 4]),
+            rejected: Cell::new([0; Rejection::COUNT]),
+            limit: OnceCell::new(),
             standby_newest: Cell::new(None),
             _payload: PhantomData,
         })
@@ -259,7 +261,9 @@ pub struct Receiver<T: Message> {
     schedule: Cell<Option<EpochSchedule>>,
     last_tick: Cell<Option<u64>>,
     /// Refused samples by [`Rejection`] code, since last taken.
-    rejected: Cell<[u64; 4]>,
+    rejected: Cell<[u64; Rejection::COUNT]>,
+    /// The clock a sample's tick is judged against ([`Receiver::bound_by`]).
+    limit: OnceCell<Rc<dyn TickLimit>>,
     /// Newest tick heard from a producer being swapped in or out (not taken).
     standby_newest: Cell<Option<u64>>,
     _payload: PhantomData<T>,
@@ -320,11 +324,30 @@ impl<T: Message> Receiver<T> {
         if !message.all_finite() {
             return Err(Rejection::NonFinite);
         }
+        if let Some(limit) = self.limit.get() {
+            // Judged against the clock, refreshed once before a sample is refused: a sample
+            // may overtake the control message that let its producer make it.
+            let ahead = |refresh| limit.newest_tick(refresh).is_none_or(|n| h.tick > n);
+            if ahead(false) && ahead(true) {
+                return Err(Rejection::TickAhead);
+            }
+            let tick_time_s = h.tick as f64 * limit.dt_s();
+            if (h.time_s - tick_time_s).abs() > TIME_TOLERANCE_S {
+                return Err(Rejection::TimeMismatch);
+            }
+        }
         if self.last_tick.get().is_some_and(|last| h.tick < last) {
             return Err(Rejection::TickBackwards);
         }
         self.last_tick.set(Some(h.tick));
         Ok(EpochVerdict::Take)
+    }
+
+    /// Judges every sample's tick and time against `limit` from now on (once; later calls
+    /// change nothing): a sample ahead of what its producer can have made by now is
+    /// refused as [`Rejection::TickAhead`] and changes nothing.
+    pub fn bound_by(&self, limit: Rc<dyn TickLimit>) {
+        let _ = self.limit.set(limit);
     }
 
     /// Takes samples by `schedule` from now on. When the producers of the role change,
@@ -385,6 +408,22 @@ impl<T: Message> Receiver<T> {
     }
 }
 
+/// Real time: how many ticks a sample may be ahead of the consumer's clock (the producer's
+/// clock is the same `CLOCK_MONOTONIC`; the slack covers rounding at a tick's edge).
+pub const TICK_SLACK: u64 = 2;
+/// Largest difference between a sample's time and its tick's, s (both are `tick * dt`).
+pub const TIME_TOLERANCE_S: f64 = 1e-6;
+
+/// What a consumer knows of "now", so that no sample can move it: the newest tick any
+/// producer can have published (README, "Supervision").
+pub trait TickLimit {
+    /// The newest tick a producer can have published by now (`None`: none yet). With
+    /// `refresh`, after taking what the clock's source has pending.
+    fn newest_tick(&self, refresh: bool) -> Option<u64>;
+    /// The inner tick, s.
+    fn dt_s(&self) -> f64;
+}
+
 /// What the role runtime needs of an input, whatever it carries (every [`Receiver`]).
 pub trait Input {
     /// The listener a WaitSet blocks on.
@@ -394,7 +433,7 @@ pub trait Input {
     fn clear_wakeups(&self);
     fn follow(&self, schedule: EpochSchedule);
     /// Refused samples by [`Rejection`] code since the last call.
-    fn take_rejections(&self) -> [u64; 4];
+    fn take_rejections(&self) -> [u64; Rejection::COUNT];
     /// Newest tick published by the replacement (or the retiring producer) of the role and
     /// not taken, since the last call: how the orchestrator sees a replacement warm up.
     fn take_standby_newest(&self) -> Option<u64>;
@@ -413,8 +452,8 @@ impl<T: Message> Input for Receiver<T> {
     fn follow(&self, schedule: EpochSchedule) {
         Receiver::follow(self, schedule);
     }
-    fn take_rejections(&self) -> [u64; 4] {
-        self.rejected.replace([0; 4])
+    fn take_rejections(&self) -> [u64; Rejection::COUNT] {
+        self.rejected.replace([0; Rejection::COUNT])
     }
     fn take_standby_newest(&self) -> Option<u64> {
         self.standby_newest.take()
@@ -557,10 +596,41 @@ pub fn remove_run_resources(prefix: &str) -> Result<(), IpcError> {
     Ok(())
 }
 
+/// Where every running run's prefix is registered with its orchestrator's pid: a file
+/// named after the prefix, holding the pid. A prefix given with `--prefix` does not name
+/// the pid, so this is how the next run finds it when its orchestrator was killed.
+fn run_registry() -> std::path::PathBuf {
+    std::env::temp_dir().join("scmpc-runs")
+}
+
+/// Registers run `prefix` as this process's, until [`unregister_run`].
+pub fn register_run(prefix: &str) -> std::io::Result<()> {
+    std::fs::create_dir_all(run_registry())?;
+    std::fs::write(run_registry().join(prefix), std::process::id().to_string())
+}
+
+/// Removes the registration of run `prefix` (once its resources are gone).
+pub fn unregister_run(prefix: &str) {
+    let _ = std::fs::remove_file(run_registry().join(prefix));
+}
+
 /// Prefixes of earlier runs whose orchestrator is gone (killed, say, with SIGKILL) but
-/// whose iceoryx2 files are still in `/dev/shm` or iceoryx2's directory. A run's prefix
-/// names its orchestrator's pid (`scmpc<pid>x…_`), so a dead pid means a dead run.
+/// whose iceoryx2 files may still be in `/dev/shm` or iceoryx2's directory: a registered
+/// run ([`register_run`]) whose pid is dead, or files whose prefix names a dead pid
+/// (`scmpc<pid>x…_`, the default prefix).
 pub fn stale_run_prefixes() -> Vec<String> {
+    let registered = std::fs::read_dir(run_registry())
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let pid: u32 = std::fs::read_to_string(entry.path())
+                .ok()?
+                .trim()
+                .parse()
+                .ok()?;
+            (!process_alive(pid)).then(|| entry.file_name().to_string_lossy().into_owned())
+        });
     let mut prefixes: Vec<String> = leftover_files(PREFIX_STEM)
         .iter()
         .filter_map(|path| {
@@ -576,6 +646,7 @@ pub fn stale_run_prefixes() -> Vec<String> {
                 .ok()?;
             (!process_alive(pid)).then(|| prefix.to_string())
         })
+        .chain(registered)
         .collect();
     prefixes.sort();
     prefixes.dedup();

@@ -497,14 +497,22 @@ pub enum Rejection {
     TickBackwards = 1,
     WrongRun = 2,
     WrongEpoch = 3,
+    /// A tick its producer cannot have reached yet: ahead of the clock (the lockstep grant,
+    /// or the real-time clock's tick plus [`TICK_SLACK`](crate::ipc::TICK_SLACK)).
+    TickAhead = 4,
+    /// A time that is not its tick's (`tick Ts / M`).
+    TimeMismatch = 5,
 }
 
 impl Rejection {
-    pub const ALL: [Rejection; 4] = [
+    pub const COUNT: usize = 6;
+    pub const ALL: [Rejection; Rejection::COUNT] = [
         Rejection::NonFinite,
         Rejection::TickBackwards,
         Rejection::WrongRun,
         Rejection::WrongEpoch,
+        Rejection::TickAhead,
+        Rejection::TimeMismatch,
     ];
     pub fn as_str(self) -> &'static str {
         match self {
@@ -512,6 +520,8 @@ impl Rejection {
             Rejection::TickBackwards => "tick_backwards",
             Rejection::WrongRun => "wrong_run",
             Rejection::WrongEpoch => "wrong_epoch",
+            Rejection::TickAhead => "tick_ahead",
+            Rejection::TimeMismatch => "time_mismatch",
         }
     }
 }

@@ -23,13 +23,15 @@
 
 use crate::clock::monotonic_ns;
 use crate::ipc::{
-    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, Wake, create_node, open_topic,
-    wait, waitset,
+    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TICK_SLACK, TickLimit, Wake,
+    create_node, open_topic, process_alive, wait, waitset,
 };
 use crate::messages::{EpochSchedule, Message};
 use crate::{Control, ControlCommand, Role, Status, StatusEvent};
 use iceoryx2::prelude::*;
-use std::time::Duration;
+use std::cell::Cell;
+use std::rc::Rc;
+use std::time::{Duration, Instant};
 
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
@@ -51,7 +53,16 @@ pub struct ProcessArgs {
     pub prefix: String,
     pub mode: RunMode,
     pub epoch: u32,
+    /// The orchestrator's pid, watched (README, "Supervision"); `None`: not watched.
+    pub supervisor_pid: Option<u32>,
 }
+
+/// How often a role process looks whether its orchestrator still lives.
+pub const SUPERVISOR_CHECK: Duration = Duration::from_millis(100);
+/// Real time: how long a role process runs on once its orchestrator is gone, so the DFL
+/// brakes the robot to rest ([`ControlState::orphaned`]), before it exits. In lockstep
+/// nothing moves without the orchestrator's grants and a process exits at once.
+pub const ORPHAN_GRACE: Duration = Duration::from_millis(1500);
 
 /// Why a role process stopped other than by a stop command or a signal.
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +87,11 @@ pub struct ControlState {
     pub replay: bool,
     /// The newest epoch schedule (`None` before the first control message).
     pub schedule: Option<EpochSchedule>,
+    /// Lockstep: the newest tick granted, as every control message carries it.
+    pub clock_tick: Option<u64>,
+    /// The orchestrator is gone: the DFL brakes, and the process exits after
+    /// [`ORPHAN_GRACE`].
+    pub orphaned: bool,
 }
 
 impl ControlState {
@@ -96,6 +112,7 @@ impl ControlState {
     /// Takes one control message.
     fn apply(&mut self, c: &Control, latency_ns: u64) {
         self.schedule = Some(c.epochs);
+        self.clock_tick = self.clock_tick.max(Some(c.header.tick));
         match c.command() {
             Some(ControlCommand::Grant) => self.granted = Some((c.header.tick, latency_ns)),
             Some(ControlCommand::Start) => self.start_ns = Some(c.start_ns),
@@ -122,12 +139,54 @@ pub enum Next<'a> {
     Again,
 }
 
+/// A role process's clock: the control topic and what it has said. Every input is bound
+/// by it ([`Receiver::bound_by`]): in lockstep a sample may be as new as the newest grant,
+/// in real time as the wall clock's tick plus [`TICK_SLACK`].
+struct RoleClock {
+    control: Receiver<Control>,
+    state: Cell<ControlState>,
+    mode: RunMode,
+    dt_s: f64,
+}
+
+impl RoleClock {
+    /// Takes pending control messages straight from shared memory (no system call).
+    fn take(&self) -> Result<(), IpcError> {
+        let mut state = self.state.get();
+        self.control.take(|c, latency| state.apply(&c, latency))?;
+        self.state.set(state);
+        Ok(())
+    }
+}
+
+impl TickLimit for RoleClock {
+    fn newest_tick(&self, refresh: bool) -> Option<u64> {
+        if refresh {
+            let _ = self.take();
+        }
+        let state = self.state.get();
+        match self.mode {
+            RunMode::Lockstep => state.clock_tick,
+            RunMode::Realtime => state.start_ns.map(|start| {
+                let elapsed_ns = monotonic_ns().saturating_sub(start) as f64;
+                (elapsed_ns / (self.dt_s * 1e9)) as u64 + TICK_SLACK
+            }),
+        }
+    }
+
+    fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+}
+
 /// A role process's connection to the orchestrator: its node, the control topic it
-/// obeys and the status topic it reports on.
+/// obeys (its clock) and the status topic it reports on.
 pub struct Link {
     role: Role,
     epoch: u32,
-    control: Receiver<Control>,
+    mode: RunMode,
+    supervisor_pid: Option<u32>,
+    clock: Rc<RoleClock>,
     status: Sender<Status>,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
@@ -140,13 +199,20 @@ impl Link {
             &format!("{}-{}", role.as_str(), args.epoch),
             true,
         )?;
-        let control = open_topic::<Control>(&node, CONTROL)?.receiver()?;
+        let clock = Rc::new(RoleClock {
+            control: open_topic::<Control>(&node, CONTROL)?.receiver()?,
+            state: Cell::new(ControlState::default()),
+            mode: args.mode,
+            dt_s: args.scenario.timing.dt_s(),
+        });
         let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
         Ok(Link {
             node,
             role,
             epoch: args.epoch,
-            control,
+            mode: args.mode,
+            supervisor_pid: args.supervisor_pid,
+            clock,
             status,
         })
     }
@@ -157,7 +223,9 @@ impl Link {
         name: &'static str,
         producer: Role,
     ) -> Result<Receiver<T>, IpcError> {
-        open_topic::<T>(&self.node, name)?.receiver_from(producer)
+        let input = open_topic::<T>(&self.node, name)?.receiver_from(producer)?;
+        input.bound_by(self.clock.clone());
+        Ok(input)
     }
 
     /// An output publishing on topic `name` with this process's epoch.
@@ -191,28 +259,48 @@ impl Link {
                 .attach_notification(listener)
                 .map_err(|e| IpcError(format!("attaching a listener: {e}")))
         };
-        let _control = attach(self.control.listener())?;
+        let _control = attach(self.clock.control.listener())?;
         let _inputs = inputs
             .iter()
             .map(|input| attach(input.listener()))
             .collect::<Result<Vec<_>, _>>()?;
         self.report(StatusEvent::Ready)?;
 
-        let mut ctl = ControlState::default();
+        let mut followed = None;
         let mut cleared = false;
+        let mut last_input = Instant::now();
+        let mut supervisor_checked = Instant::now();
+        let mut orphaned_at: Option<Instant> = None;
         loop {
-            self.sync(&mut ctl, inputs)?;
-            let next = step(&ctl).inspect_err(|e| {
+            self.sync(&mut followed, inputs)?;
+            let next = step(&self.clock.state.get()).inspect_err(|e| {
                 if matches!(e, ProcessError::InputLost(_)) {
                     let _ = self.report(StatusEvent::InputLost);
                 }
             })?;
-            let again = matches!(next, Next::Again);
-            if !cleared || again {
-                if !self.housekeeping(&mut ctl, inputs)? {
+            // Off the hot path (the step has published): is the orchestrator still there?
+            if let Some(since) = orphaned_at {
+                if since.elapsed() >= ORPHAN_GRACE {
                     return Ok(());
                 }
-                if ctl.take_replay() {
+            } else if supervisor_checked.elapsed() >= SUPERVISOR_CHECK {
+                supervisor_checked = Instant::now();
+                if self.supervisor_pid.is_some_and(|pid| !process_alive(pid)) {
+                    if self.mode == RunMode::Lockstep {
+                        return Ok(());
+                    }
+                    orphaned_at = Some(Instant::now());
+                    let mut state = self.clock.state.get();
+                    state.orphaned = true;
+                    self.clock.state.set(state);
+                }
+            }
+            let again = matches!(next, Next::Again);
+            if !cleared || again {
+                if !self.housekeeping(inputs)? {
+                    return Ok(());
+                }
+                if self.take_replay() {
                     for output in outputs {
                         output.replay()?;
                     }
@@ -228,48 +316,57 @@ impl Link {
                 Next::Wait(timeout) => timeout,
                 Next::Expect { input, at_ns } => {
                     if spin_wait(at_ns, || input.has_samples()) {
+                        last_input = Instant::now();
                         continue;
                     }
                     None
                 }
                 Next::Again => unreachable!("handled above"),
             };
-            if !self.wait(&waitset, timeout)? {
+            if !self.wait(&waitset, timeout, &mut last_input)? {
                 return Ok(());
             }
         }
     }
 
-    /// Takes every pending control message into `state`.
-    fn poll_control(&self, state: &mut ControlState) -> Result<(), IpcError> {
-        self.control.drain(|c, latency| state.apply(&c, latency))
+    /// Whether to replay every output now (once per request).
+    fn take_replay(&self) -> bool {
+        let mut state = self.clock.state.get();
+        let replay = state.take_replay();
+        self.clock.state.set(state);
+        replay
     }
 
     /// Before the step: takes pending control messages straight from shared memory (no
-    /// system call) and applies a changed epoch schedule to `inputs`, so no sample is
-    /// judged by a schedule older than the newest one sent before it.
-    fn sync(&self, ctl: &mut ControlState, inputs: &[&dyn Input]) -> Result<(), IpcError> {
-        let before = ctl.schedule;
-        self.control.take(|c, latency| ctl.apply(&c, latency))?;
-        if let Some(schedule) = ctl.schedule.filter(|s| Some(*s) != before) {
+    /// system call) and applies a changed epoch schedule to `inputs` (`followed`: the one
+    /// applied last), so no sample is judged by a schedule older than the newest one sent
+    /// before it.
+    fn sync(
+        &self,
+        followed: &mut Option<EpochSchedule>,
+        inputs: &[&dyn Input],
+    ) -> Result<(), IpcError> {
+        self.clock.take()?;
+        let schedule = self.clock.state.get().schedule;
+        if let Some(schedule) = schedule.filter(|s| Some(*s) != *followed) {
             for input in inputs {
                 input.follow(schedule);
             }
+            *followed = Some(schedule);
         }
         Ok(())
     }
 
-    /// After the step: consumes the wake-ups of `inputs`, drains the control topic,
-    /// applies the epoch schedule and reports refused samples. `Ok(false)`: stop.
-    fn housekeeping(
-        &self,
-        ctl: &mut ControlState,
-        inputs: &[&dyn Input],
-    ) -> Result<bool, IpcError> {
+    /// After the step: consumes the wake-ups of `inputs` and of the control topic, takes
+    /// the control messages, applies the epoch schedule and reports refused samples.
+    /// `Ok(false)`: stop.
+    fn housekeeping(&self, inputs: &[&dyn Input]) -> Result<bool, IpcError> {
         for input in inputs {
             input.clear_wakeups();
         }
-        self.poll_control(ctl)?;
+        self.clock.control.clear_wakeups();
+        self.clock.take()?;
+        let ctl = self.clock.state.get();
         for input in inputs {
             if let Some(schedule) = ctl.schedule {
                 input.follow(schedule);
@@ -290,18 +387,26 @@ impl Link {
         Ok(!ctl.stopped)
     }
 
-    /// Waits for input; `Ok(false)` means stop (a signal). Reports and fails after
-    /// [`INPUT_TIMEOUT`] without input.
+    /// Waits for input, at most `timeout` and [`SUPERVISOR_CHECK`] (the orchestrator is
+    /// looked at between waits); `Ok(false)` means stop (a signal). Fails after
+    /// [`INPUT_TIMEOUT`] without input since `last_input`.
     fn wait(
         &self,
         waitset: &WaitSet<ipc::Service>,
         timeout: Option<Duration>,
+        last_input: &mut Instant,
     ) -> Result<bool, ProcessError> {
-        let timeout = timeout.unwrap_or(INPUT_TIMEOUT).min(INPUT_TIMEOUT);
+        let mut timeout = timeout.unwrap_or(INPUT_TIMEOUT).min(INPUT_TIMEOUT);
+        if self.supervisor_pid.is_some() {
+            timeout = timeout.min(SUPERVISOR_CHECK);
+        }
         match wait(waitset, timeout)? {
-            Wake::Input => Ok(true),
+            Wake::Input => {
+                *last_input = Instant::now();
+                Ok(true)
+            }
             Wake::Terminate => Ok(false),
-            Wake::Timeout if timeout < INPUT_TIMEOUT => Ok(true),
+            Wake::Timeout if last_input.elapsed() < INPUT_TIMEOUT => Ok(true),
             Wake::Timeout => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
         }
     }

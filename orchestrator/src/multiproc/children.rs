@@ -63,6 +63,7 @@ impl Children {
             .env(ENV_MODE, self.mode)
             .env(ENV_EPOCH, epoch.to_string())
             .env(ENV_ROLE, role.as_str())
+            .env(ENV_SUPERVISOR, std::process::id().to_string())
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .spawn()

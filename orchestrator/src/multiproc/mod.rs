@@ -28,6 +28,7 @@ use protocol::{
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use swap_server::{PendingSwap, Swap, scheduled_swaps};
@@ -64,6 +65,8 @@ pub const ENV_MODE: &str = "SCMPC_MODE";
 pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
 /// `plant`, `estimator`, `mpc` or `dfl`.
 pub const ENV_ROLE: &str = "SCMPC_ROLE";
+/// The orchestrator's pid: a role process stops the robot and exits when it is gone.
+pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
 
 fn mode_name(mode: RunMode) -> &'static str {
     match mode {
@@ -111,12 +114,39 @@ struct Session {
     swap_replies: Sender<SwapReply>,
     /// Which producer of each role is taken, announced with every control message.
     schedule: std::cell::Cell<EpochSchedule>,
+    /// The run's clock as the orchestrator keeps it; its inputs are bound by it.
+    clock: Rc<RunClock>,
     /// The node of the ports above; declared last, so it is dropped after them.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
 }
 
+/// The orchestrator's clock, which bounds the ticks its inputs accept: in lockstep the
+/// tick granted last, in real time the wall clock's tick plus [`ipc::TICK_SLACK`].
+struct RunClock {
+    mode: RunMode,
+    dt_s: f64,
+    granted: std::cell::Cell<Option<u64>>,
+    start_ns: std::cell::Cell<Option<u64>>,
+}
+
+impl ipc::TickLimit for RunClock {
+    fn newest_tick(&self, _refresh: bool) -> Option<u64> {
+        match self.mode {
+            RunMode::Lockstep => self.granted.get(),
+            RunMode::Realtime => self.start_ns.get().map(|start| {
+                let elapsed_ns = monotonic_ns().saturating_sub(start) as f64;
+                (elapsed_ns / (self.dt_s * 1e9)) as u64 + ipc::TICK_SLACK
+            }),
+        }
+    }
+
+    fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+}
+
 impl Session {
-    fn open(prefix: &str) -> Result<Session, ipc::IpcError> {
+    fn open(prefix: &str, mode: RunMode, dt_s: f64) -> Result<Session, ipc::IpcError> {
         let node = ipc::create_node(prefix, "orchestrator", false)?;
         let session = Session {
             control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
@@ -130,23 +160,42 @@ impl Session {
             swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: std::cell::Cell::new(EpochSchedule::default()),
+            clock: Rc::new(RunClock {
+                mode,
+                dt_s,
+                granted: std::cell::Cell::new(None),
+                start_ns: std::cell::Cell::new(None),
+            }),
             _node: node,
         };
+        session.truth.bound_by(session.clock.clone());
+        session.measurement.bound_by(session.clock.clone());
+        session.estimate.bound_by(session.clock.clone());
+        session.plan.bound_by(session.clock.clone());
+        session.actuation.bound_by(session.clock.clone());
+        session.deadline.bound_by(session.clock.clone());
         for input in session.inputs() {
             input.follow(EpochSchedule::default());
         }
         Ok(session)
     }
 
+    /// Sends `command` with the schedule and, in its header, the tick granted last (a
+    /// process's clock in lockstep): `tick` for a grant.
     fn command(
         &self,
         command: ControlCommand,
         tick: u64,
         start_ns: u64,
     ) -> Result<(), ipc::IpcError> {
+        match command {
+            ControlCommand::Grant => self.clock.granted.set(Some(tick)),
+            ControlCommand::Start => self.clock.start_ns.set(Some(start_ns)),
+            _ => {}
+        }
         self.control.send(Control {
             header: Header {
-                tick,
+                tick: self.clock.granted.get().unwrap_or(0),
                 ..Header::default()
             },
             command: command as u32,
@@ -191,8 +240,8 @@ impl Session {
     }
 
     /// Samples the orchestrator itself refused, by rejection code, since the last call.
-    fn take_rejections(&self) -> [u64; 4] {
-        let mut total = [0; 4];
+    fn take_rejections(&self) -> [u64; Rejection::COUNT] {
+        let mut total = [0; Rejection::COUNT];
         for input in self.inputs() {
             for (t, n) in total.iter_mut().zip(input.take_rejections()) {
                 *t += n;
@@ -345,7 +394,10 @@ pub fn run(
     let started = Instant::now();
     for stale in ipc::stale_run_prefixes() {
         match ipc::remove_run_resources(&stale) {
-            Ok(()) => tracing::info!("removed the iceoryx2 resources of dead run `{stale}`"),
+            Ok(()) => {
+                ipc::unregister_run(&stale);
+                tracing::info!("removed the iceoryx2 resources of dead run `{stale}`")
+            }
             Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
         }
     }
@@ -357,9 +409,11 @@ pub fn run(
         mode: mode_name(mode).to_string(),
     }
     .write(out)?;
+    ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
-    if let Err(e) = ipc::remove_run_resources(prefix) {
-        tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
+    match ipc::remove_run_resources(prefix) {
+        Ok(()) => ipc::unregister_run(prefix),
+        Err(e) => tracing::warn!("cleaning up the run's iceoryx2 resources: {e}"),
     }
     let (outcome, mut report) = result?;
     report.leftover_files = ipc::leftover_files(prefix)
@@ -385,7 +439,7 @@ fn drive(
     stop: &AtomicBool,
     recorder: &mut Recorder,
 ) -> anyhow::Result<(Outcome, ProcessReport)> {
-    let session = Session::open(prefix)?;
+    let session = Session::open(prefix, mode, scenario.timing.dt_s())?;
     let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
     let mut report = ProcessReport {
         iceoryx2_prefix: prefix.to_string(),
