@@ -5,7 +5,7 @@
 //! command at the end of the tick, so waiting within it costs nothing).
 
 use crate::{InnerLoop, SilenceWatch};
-use protocol::clock::monotonic_ns;
+use protocol::clock::{monotonic_ns, tick_at};
 use protocol::ipc::{ACTUATION, DEADLINE, ESTIMATE, PLAN};
 use protocol::runtime::{INPUT_TIMEOUT, Link, Next, ProcessArgs, ProcessError, RunMode};
 use protocol::{Actuation, DeadlineVerdict, Estimate, Plan, Role};
@@ -81,8 +81,7 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         // Real time: brake on the DFL's own clock while the estimator is silent.
         if let (false, Some(start_ns)) = (lockstep, ctl.start_ns) {
             let now = monotonic_ns();
-            let now_tick = (now.saturating_sub(start_ns) as f64 / (timing.dt_s() * 1e9)) as u64;
-            if let Some(tick) = watch.brake_due(now_tick) {
+            if let Some(tick) = watch.brake_due(tick_at(start_ns, now, timing.dt_s())) {
                 if now.saturating_sub(last_estimate_ns) > INPUT_TIMEOUT.as_nanos() as u64 {
                     return Err(ProcessError::InputLost(INPUT_TIMEOUT));
                 }

@@ -11,6 +11,12 @@ pub fn monotonic_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
+/// The inner tick (of `dt_s` seconds) the monotonic clock is in at `now_ns`, counted from
+/// a real-time run's tick 0 at `start_ns` (0 before it).
+pub fn tick_at(start_ns: u64, now_ns: u64, dt_s: f64) -> u64 {
+    (now_ns.saturating_sub(start_ns) as f64 / (dt_s * 1e9)) as u64
+}
+
 /// Sleeps until the absolute monotonic time `deadline_ns` (no drift across periods).
 /// Returns early if a signal interrupts the sleep.
 pub fn sleep_until_ns(deadline_ns: u64) {

@@ -432,6 +432,8 @@ pub trait Input {
     fn has_samples(&self) -> bool;
     fn clear_wakeups(&self);
     fn follow(&self, schedule: EpochSchedule);
+    /// See [`Receiver::bound_by`].
+    fn bound_by(&self, limit: Rc<dyn TickLimit>);
     /// Refused samples by [`Rejection`] code since the last call.
     fn take_rejections(&self) -> [u64; Rejection::COUNT];
     /// Newest tick published by the replacement (or the retiring producer) of the role and
@@ -451,6 +453,9 @@ impl<T: Message> Input for Receiver<T> {
     }
     fn follow(&self, schedule: EpochSchedule) {
         Receiver::follow(self, schedule);
+    }
+    fn bound_by(&self, limit: Rc<dyn TickLimit>) {
+        Receiver::bound_by(self, limit);
     }
     fn take_rejections(&self) -> [u64; Rejection::COUNT] {
         self.rejected.replace([0; Rejection::COUNT])

@@ -21,7 +21,7 @@
 //! inputs of the tick (the plant for the orchestrator's grant); in real time it is paced
 //! by the run's start time ([`ControlState::at_ns`]).
 
-use crate::clock::monotonic_ns;
+use crate::clock::{monotonic_ns, tick_at};
 use crate::ipc::{
     CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TICK_SLACK, TickLimit, Wake,
     create_node, open_topic, process_alive, wait, waitset,
@@ -167,10 +167,9 @@ impl TickLimit for RoleClock {
         let state = self.state.get();
         match self.mode {
             RunMode::Lockstep => state.clock_tick,
-            RunMode::Realtime => state.start_ns.map(|start| {
-                let elapsed_ns = monotonic_ns().saturating_sub(start) as f64;
-                (elapsed_ns / (self.dt_s * 1e9)) as u64 + TICK_SLACK
-            }),
+            RunMode::Realtime => state
+                .start_ns
+                .map(|start| tick_at(start, monotonic_ns(), self.dt_s) + TICK_SLACK),
         }
     }
 

@@ -9,8 +9,7 @@ impl Driver<'_> {
         match self.mode {
             RunMode::Lockstep => self.cursor,
             RunMode::Realtime => {
-                let dt_ns = self.scenario.timing.dt_s() * 1e9;
-                (monotonic_ns().saturating_sub(self.start_ns) as f64 / dt_ns) as u64
+                tick_at(self.start_ns, monotonic_ns(), self.scenario.timing.dt_s())
             }
         }
     }

@@ -17,7 +17,7 @@ use crate::monitor::Outcome;
 use crate::record::{Latencies, ProcessReport, Recorder, Summary};
 use anyhow::{Context, anyhow, bail};
 use children::Children;
-use protocol::clock::monotonic_ns;
+use protocol::clock::{monotonic_ns, tick_at};
 use protocol::ipc::{self, Input, Receiver, Sender, open_topic};
 use protocol::runtime::RunMode;
 use protocol::{
@@ -133,10 +133,8 @@ impl ipc::TickLimit for RunClock {
     fn newest_tick(&self, _refresh: bool) -> Option<u64> {
         match self.mode {
             RunMode::Lockstep => self.granted.get(),
-            RunMode::Realtime => self.start_ns.get().map(|start| {
-                let elapsed_ns = monotonic_ns().saturating_sub(start) as f64;
-                (elapsed_ns / (self.dt_s * 1e9)) as u64 + ipc::TICK_SLACK
-            }),
+            RunMode::Realtime => (self.start_ns.get())
+                .map(|start| tick_at(start, monotonic_ns(), self.dt_s) + ipc::TICK_SLACK),
         }
     }
 
@@ -168,13 +166,8 @@ impl Session {
             }),
             _node: node,
         };
-        session.truth.bound_by(session.clock.clone());
-        session.measurement.bound_by(session.clock.clone());
-        session.estimate.bound_by(session.clock.clone());
-        session.plan.bound_by(session.clock.clone());
-        session.actuation.bound_by(session.clock.clone());
-        session.deadline.bound_by(session.clock.clone());
         for input in session.inputs() {
+            input.bound_by(session.clock.clone());
             input.follow(EpochSchedule::default());
         }
         Ok(session)
