@@ -198,3 +198,29 @@ fn unknown_safety_settings_are_refused() {
     refused_set("mpc.terminal_safety=sometimes", "mpc.terminal_safety");
     refused_set("dfl.gatekeeper=maybe", "dfl.gatekeeper");
 }
+
+#[test]
+fn a_start_outside_the_position_box_is_refused() {
+    refused_file(
+        "[robot]\nstart = [-5.0, 7.0, 0.0]\n\n[mpc]\nposition_min = [0.0, 0.0]\n",
+        "robot.start",
+    );
+}
+
+#[test]
+fn horizon_and_inner_steps_above_their_maxima_are_refused() {
+    refused_set(
+        &format!("mpc.horizon={}", protocol::MAX_HORIZON + 1),
+        "mpc.horizon",
+    );
+    refused_set(
+        &format!("timing.inner_steps={}", protocol::MAX_INNER_STEPS + 1),
+        "timing.inner_steps",
+    );
+}
+
+#[test]
+fn a_duration_of_zero_or_less_is_refused() {
+    refused_set("duration_s=0", "duration_s");
+    refused_set("duration_s=-1", "duration_s");
+}

@@ -1,32 +1,12 @@
-//! The steady state of every role's step performs no heap allocation: a counting global
-//! allocator around each phase of the in-process closed loop (`ClosedLoop`, the one
-//! `scmpc run --in-process` steps), on the paper scenario with noise. For the MPC this
-//! includes every clarabel `solve()`; the plan phase includes the faults and the inbox.
+//! After the first 20 samples, no role's step performs a heap allocation, to the end of
+//! the run: a counting global allocator around each phase of the in-process closed loop
+//! (`ClosedLoop`, the one `scmpc run --in-process` steps), for every solver program and
+//! every fallback. For the MPC this includes every clarabel `solve()`; the plan phase
+//! includes the faults and the inbox.
 
 use orchestrator::closed_loop::ClosedLoop;
-use protocol::Scenario;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicU64, Ordering};
-
-/// The system allocator, counting allocations (and reallocations).
-struct Counting;
-
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-// SAFETY: forwards to the system allocator unchanged.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use protocol::alloc_count::{Counting, allocations as allocated};
+use protocol::{CommandMode, Scenario};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -34,13 +14,54 @@ static GLOBAL: Counting = Counting;
 /// Allocations made by `f`. (The test harness runs other tests on other threads, so this
 /// file holds a single test.)
 fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = allocated();
     let out = f();
-    (out, ALLOCATIONS.load(Ordering::Relaxed) - before)
+    (out, allocated() - before)
+}
+
+/// Steps `scenario` to its end in process, each phase under the allocation counter;
+/// returns the allocations after the first 20 samples by plant, estimator, MPC and DFL,
+/// and the command modes the DFL used after them.
+fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 4], Vec<CommandMode>) {
+    let m = scenario.timing.inner_steps as u64;
+    let mut closed_loop = ClosedLoop::new(scenario).unwrap();
+    // Warm-up: the first samples size every buffer.
+    let warm_up = 20 * m;
+    let mut counts = [0u64; 4];
+    let mut modes = Vec::new();
+    while !closed_loop.is_done() {
+        let tick = closed_loop.tick();
+        let ((_, y), measure_a) = allocations(|| closed_loop.measure());
+        let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
+        let (_, plan_a) = allocations(|| closed_loop.plan(&estimate));
+        let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));
+        let ((), integrate_a) = allocations(|| closed_loop.integrate(&actuation));
+        if tick >= warm_up {
+            let by_role = [measure_a + integrate_a, estimate_a, plan_a, command_a];
+            for (c, a) in counts.iter_mut().zip(by_role) {
+                *c += a;
+            }
+            if let Some(mode) = actuation.mode().filter(|m| !modes.contains(m)) {
+                modes.push(mode);
+            }
+        }
+    }
+    (counts, modes)
+}
+
+fn scenario(overrides: &[&str]) -> protocol::Validated {
+    let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+    Scenario::default()
+        .with_overrides(&overrides)
+        .unwrap()
+        .validated("test")
+        .unwrap()
 }
 
 #[test]
-fn every_role_step_runs_without_heap_allocation_in_steady_state() {
+fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_included() {
+    // Every solver program, to the end of the run (the obstacle pass, the refinement
+    // solves and the goal included).
     for (formulation, qp_form) in [
         ("linear", "sparse"),
         ("linear", "condensed"),
@@ -52,45 +73,45 @@ fn every_role_step_runs_without_heap_allocation_in_steady_state() {
         } else {
             "none"
         };
-        let scenario = Scenario::default()
-            .with_overrides(&[
-                format!("mpc.formulation={formulation}"),
-                format!("mpc.qp_form={qp_form}"),
-                format!("mpc.terminal_safety={terminal_safety}"),
-                "plant.noise_variance=0.05".into(),
-            ])
-            .unwrap()
-            .validated("test")
-            .unwrap();
-        let m = scenario.timing.inner_steps as u64;
-        let mut closed_loop = ClosedLoop::new(&scenario).unwrap();
-        // Warm-up: the first samples size every buffer.
-        let warm_up = 20 * m;
-        let mut counts = [0u64; 4];
-        while closed_loop.tick() < 60 * m {
-            let tick = closed_loop.tick();
-            let ((_, y), measure_a) = allocations(|| closed_loop.measure());
-            let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
-            let (plan, plan_a) = allocations(|| closed_loop.plan(&estimate));
-            if let Some(plan) = plan {
-                assert!(
-                    plan.is_solved(),
-                    "{formulation} {qp_form}: sample {} not solved",
-                    tick / m
-                );
-            }
-            let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));
-            let ((), integrate_a) = allocations(|| closed_loop.integrate(&actuation));
-            if tick >= warm_up {
-                let by_role = [measure_a + integrate_a, estimate_a, plan_a, command_a];
-                for (c, a) in counts.iter_mut().zip(by_role) {
-                    *c += a;
-                }
-            }
-        }
+        let (counts, _) = count_whole_run(&scenario(&[
+            &format!("mpc.formulation={formulation}"),
+            &format!("mpc.qp_form={qp_form}"),
+            &format!("mpc.terminal_safety={terminal_safety}"),
+            "plant.noise_variance=0.05",
+        ]));
         assert_eq!(
             counts, [0; 4],
             "{formulation} {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL"
+        );
+    }
+    // Every fallback: failed solves (the cold retry, then the shifted plan and braking),
+    // late plans, and the gatekeeper refusing the plans of an MPC that ignores obstacles
+    // (the committed plan flown, then braking).
+    let faults: [(&[&str], &[CommandMode]); 2] = [
+        (
+            &[
+                "fault.mpc_fail_samples=[40, 41, 42, 43, 44, 45, 46, 47, 48, 49, 50, 51]",
+                "fault.mpc_delay_ms=70",
+                "fault.mpc_delay_samples=[80, 90]",
+            ],
+            &[CommandMode::Shifted, CommandMode::Brake],
+        ),
+        (
+            &["fault.mpc_ignore_obstacles=true"],
+            &[CommandMode::Shifted, CommandMode::Brake],
+        ),
+    ];
+    for (overrides, expected) in faults {
+        let (counts, modes) = count_whole_run(&scenario(overrides));
+        for mode in expected {
+            assert!(
+                modes.contains(mode),
+                "{overrides:?}: no {mode:?} in {modes:?}"
+            );
+        }
+        assert_eq!(
+            counts, [0; 4],
+            "{overrides:?}: allocations after warm-up by plant, estimator, MPC, DFL"
         );
     }
 }

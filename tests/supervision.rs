@@ -389,3 +389,37 @@ fn when_the_orchestrator_is_killed_in_lockstep_every_process_exits() {
     let _machine = common::machine_shared();
     orchestrator_killed("lockstep");
 }
+
+#[test]
+fn a_failed_producer_aborts_the_run_when_restarts_are_off_or_used_up() {
+    let _machine = common::machine_shared();
+    for policy in ["supervision.restart=never", "supervision.max_restarts=0"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = scmpc()
+            .args([
+                "run",
+                "--set",
+                "fault.estimator_nan_from_s=5",
+                "--set",
+                policy,
+            ])
+            .arg("--out")
+            .arg(dir.path())
+            .output()
+            .unwrap();
+        assert_ne!(out.status.code(), Some(0), "{policy}");
+        let s = summary(dir.path());
+        assert_eq!(s["outcome"], "aborted", "{policy}");
+        assert_eq!(s["restarts"], 0, "{policy}");
+        assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        let ev = events(dir.path());
+        for event in ["refused_too_long", "crashed"] {
+            assert!(
+                ev.iter()
+                    .any(|e| e["event"] == event && e["role"] == "estimator"),
+                "{policy}: no `{event}` in {ev:#?}"
+            );
+        }
+        assert!(!ev.iter().any(|e| e["event"] == "restarted"), "{policy}");
+    }
+}

@@ -15,6 +15,29 @@ fn scenario_file(dir: &Path, extra: &str) -> String {
     file.to_str().unwrap().to_string()
 }
 
+/// Runs scenario `file` in real time into `dir/run`; returns that directory, its summary
+/// and its events.
+fn run_realtime(
+    dir: &Path,
+    file: &str,
+) -> (
+    std::path::PathBuf,
+    serde_json::Value,
+    Vec<serde_json::Value>,
+) {
+    let out_dir = dir.join("run");
+    let out = run(&[
+        "run",
+        file,
+        "--mode",
+        "realtime",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.code().is_some(), "{}", common::stderr(&out));
+    (out_dir.clone(), summary(&out_dir), events(&out_dir))
+}
+
 /// The `swapped` event of `role`.
 fn swapped(ev: &[serde_json::Value], role: &str) -> serde_json::Value {
     ev.iter()
@@ -63,18 +86,7 @@ role = "mpc"
 command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
 "#,
     );
-    let out_dir = dir.path().join("run");
-    let out = run(&[
-        "run",
-        &file,
-        "--mode",
-        "realtime",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.code().is_some(), "{}", common::stderr(&out));
-    let s = summary(&out_dir);
-    let ev = events(&out_dir);
+    let (out_dir, s, ev) = run_realtime(dir.path(), &file);
     assert_eq!(s["deadline_misses"], 0);
     assert_eq!(s["record_gaps"], 0);
     assert_eq!(s["ticks_without_estimate"], 0);
@@ -161,10 +173,9 @@ fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() 
     let s = summary(&run_dir);
     let ev = events(&run_dir);
     swapped(&ev, "dfl");
-    assert!(
-        ev.iter()
-            .any(|e| e["event"] == "swap_failed" && e["role"] == "mpc")
-    );
+    assert!(ev.iter().any(
+        |e| e["event"] == "swap_refused" && e["reason"].as_str().unwrap().contains("not found")
+    ));
     assert_eq!(s["deadline_misses"], 0);
     assert_eq!(s["record_gaps"], 0);
     assert_eq!(s["swaps"], 1);
@@ -208,7 +219,11 @@ role = "mpc"
     assert_eq!(s["outcome"], "reached");
     assert_eq!(s["swaps"], 3);
     assert_eq!(s["deadline_misses"], 0);
-    assert!(s["rejected_samples"].as_object().unwrap().is_empty());
+    assert!(
+        s["rejected_samples"].as_object().unwrap().is_empty(),
+        "{}",
+        s["rejected_samples"]
+    );
     assert_every_tick_commanded(&out_dir, 6000);
     // Fresh processes of the same code continue the same trajectory closely.
     let t = s["time_to_goal_s"].as_f64().unwrap();
@@ -240,4 +255,52 @@ fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
         );
         assert!(!out_dir.exists());
     }
+}
+
+#[test]
+fn a_replacement_that_exits_or_publishes_nothing_within_10_s_is_dropped_and_the_old_process_stays()
+{
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let file = scenario_file(
+        dir.path(),
+        r#"duration_s = 12.5
+
+[[swap]]
+time_s = 1.0
+role = "mpc"
+command = ["sleep", "30"]
+
+[[swap]]
+time_s = 2.0
+role = "estimator"
+command = ["true"]
+"#,
+    );
+    let (_, s, ev) = run_realtime(dir.path(), &file);
+    let failed = |role: &str| {
+        ev.iter()
+            .find(|e| e["event"] == "swap_failed" && e["role"] == role)
+            .unwrap_or_else(|| panic!("no failed swap of the {role} in {ev:#?}"))
+            .clone()
+    };
+    let mpc = failed("mpc");
+    assert!(
+        mpc["reason"]
+            .as_str()
+            .unwrap()
+            .contains("published nothing usable"),
+        "{mpc}"
+    );
+    assert!((mpc["t"].as_f64().unwrap() - 11.0).abs() < 0.5, "{mpc}");
+    let estimator = failed("estimator");
+    assert!(
+        estimator["reason"].as_str().unwrap().contains("exited"),
+        "{estimator}"
+    );
+    assert_eq!(s["swaps"], 0);
+    assert_eq!(s["restarts"], 0);
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
 }

@@ -747,11 +747,18 @@ mod tests {
             ..Estimate::default()
         };
         let mut last = dfl.zeta();
+        // The speed falls at the braking deceleration, to exactly zero.
+        let per_tick = s.brake_decel() * s.timing.dt_s();
         for tick in 0..200 {
             let a = dfl.step(&est, tick);
             assert_eq!(a.mode(), Some(CommandMode::Brake));
             assert_eq!(a.u2, 0.0);
-            assert!(a.zeta >= 0.0 && a.zeta <= last, "zeta grew while braking");
+            let expected = (last - per_tick).max(0.0);
+            assert!(
+                (a.zeta - expected).abs() < 1e-9,
+                "tick {tick}: zeta {} not {expected}",
+                a.zeta
+            );
             last = a.zeta;
         }
         assert_eq!(dfl.zeta(), 0.0);

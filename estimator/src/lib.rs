@@ -227,19 +227,19 @@ mod tests {
         );
     }
 
-    #[test]
-    fn ekf_filters_noise_better_than_passthrough_and_wraps_the_heading() {
+    /// Drives the EKF in a circle through theta = pi (where the heading wraps) for `ticks`
+    /// ticks, measured with noise of variance 0.05 on every axis (`seed`); calls `each`
+    /// from tick 1000 on with the measurement, the estimate and the true pose.
+    fn noisy_circle(seed: u64, ticks: usize, mut each: impl FnMut([f64; 3], &Estimate, [f64; 3])) {
         use rand_distr::{Distribution, Normal};
         let mut s = Scenario::default();
         s.plant.noise_variance = NoiseVariance::Uniform(0.05);
         let mut ekf = Estimator::new(&s);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let n = Normal::new(0.0, 0.05f64.sqrt()).unwrap();
-        // Driving in a circle through theta = pi, where the heading wraps.
         let (u1, u2, dt) = (1.0, 0.5, 0.005);
         let mut truth = Vector3::new(0.0, 0.0, 3.0);
-        let (mut err_ekf, mut err_raw) = (0.0, 0.0);
-        for k in 0..2000 {
+        for k in 0..ticks {
             let y = [
                 truth[0] + n.sample(&mut rng),
                 truth[1] + n.sample(&mut rng),
@@ -247,15 +247,38 @@ mod tests {
             ];
             let e = ekf.step((k > 0).then_some([u1, u2]), dt, y, u1, Header::default());
             if k >= 1000 {
-                err_ekf +=
-                    (e.state[0] - truth[0]).powi(2) + wrap_angle(e.state[2] - truth[2]).powi(2);
-                err_raw += (y[0] - truth[0]).powi(2) + wrap_angle(y[2] - truth[2]).powi(2);
+                each(y, &e, [truth[0], truth[1], truth[2]]);
             }
             truth = predict_pose(&truth, u1, u2, dt).0;
         }
+    }
+
+    #[test]
+    fn ekf_filters_noise_better_than_passthrough_and_wraps_the_heading() {
+        let (mut err_ekf, mut err_raw) = (0.0, 0.0);
+        noisy_circle(3, 2000, |y, e, truth| {
+            err_ekf += (e.state[0] - truth[0]).powi(2) + wrap_angle(e.state[2] - truth[2]).powi(2);
+            err_raw += (y[0] - truth[0]).powi(2) + wrap_angle(y[2] - truth[2]).powi(2);
+        });
         assert!(
             err_ekf < 0.1 * err_raw,
             "EKF error {err_ekf} vs raw {err_raw}"
+        );
+    }
+
+    #[test]
+    fn the_reported_position_covariance_matches_the_actual_error() {
+        // sigma drives the kappa-sigma margin of the barrier: an optimistic covariance
+        // would shrink it below the true error.
+        let (mut squared_error, mut reported) = (0.0, 0.0);
+        noisy_circle(11, 6000, |_, e, truth| {
+            squared_error += (e.state[0] - truth[0]).powi(2) + (e.state[1] - truth[1]).powi(2);
+            reported += e.covariance[0] + e.covariance[4];
+        });
+        let ratio = (squared_error / reported).sqrt();
+        assert!(
+            (0.5..=1.2).contains(&ratio),
+            "actual position error is {ratio:.2} times the reported sigma"
         );
     }
 }

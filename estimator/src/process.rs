@@ -51,7 +51,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
                 input_latency_ns: latency.min(u64::from(u32::MAX)) as u32,
                 ..Header::default()
             };
-            let estimate = estimator.step(applied, dt, m.y, zeta, header);
+            let mut estimate = estimator.step(applied, dt, m.y, zeta, header);
+            if args.epoch == 0 && m.header.time_s >= scenario.fault.estimator_nan_from_s {
+                estimate.state[0] = f64::NAN;
+            }
             if scenario.fault.estimator_delay_ms > 0.0 {
                 std::thread::sleep(std::time::Duration::from_secs_f64(
                     scenario.fault.estimator_delay_ms * 1e-3,

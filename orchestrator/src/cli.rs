@@ -128,6 +128,10 @@ struct RoleArgs {
     /// The orchestrator's pid: when it is gone, the robot is stopped and the process exits.
     #[arg(long, env = crate::multiproc::ENV_SUPERVISOR)]
     supervisor_pid: Option<u32>,
+    /// The iceoryx2 id of the orchestrator's control publisher (hexadecimal): control
+    /// messages from any other publisher are refused.
+    #[arg(long, env = crate::multiproc::ENV_CONTROL_PUBLISHER, value_parser = parse_hex_id)]
+    control_publisher: Option<u128>,
     /// Override a value of the run's scenario for this process only, e.g.
     /// `mpc.horizon=10` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
@@ -462,8 +466,14 @@ fn role(
         mode: args.mode.into(),
         epoch: args.epoch,
         supervisor_pid: args.supervisor_pid,
+        control_publisher: args.control_publisher,
     };
     body(&process_args).map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
+}
+
+/// An iceoryx2 port id as printed by iceoryx2 (hexadecimal).
+fn parse_hex_id(text: &str) -> Result<u128, String> {
+    u128::from_str_radix(text, 16).map_err(|e| format!("`{text}` is not a hexadecimal id: {e}"))
 }
 
 fn run(args: RunArgs) -> CliResult {

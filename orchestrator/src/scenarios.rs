@@ -64,11 +64,11 @@ pub fn check_swap_programs(scenario: &Scenario) -> Result<(), ScenarioErrors> {
         .iter()
         .enumerate()
         .filter_map(|(i, swap)| {
-            let program = swap.command.first()?;
-            (!program_exists(program)).then(|| ScenarioError {
+            let message = check_swap_command(&swap.command).err()?;
+            Some(ScenarioError {
                 origin: "scenario".into(),
                 key: format!("swap.{i}.command"),
-                message: format!("program `{program}` not found"),
+                message,
             })
         })
         .collect();
@@ -76,6 +76,16 @@ pub fn check_swap_programs(scenario: &Scenario) -> Result<(), ScenarioErrors> {
         Ok(())
     } else {
         Err(ScenarioErrors(errors))
+    }
+}
+
+/// Whether a swap's command can be started (empty: the built-in process): the same check
+/// for the scenario's `[[swap]]` entries and for `scmpc swap` requests.
+pub fn check_swap_command(command: &[String]) -> Result<(), String> {
+    match command.first() {
+        Some(program) if program.trim().is_empty() => Err("the program is empty".into()),
+        Some(program) if !program_exists(program) => Err(format!("program `{program}` not found")),
+        _ => Ok(()),
     }
 }
 

@@ -68,8 +68,11 @@ pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> 
         &format!("swap-{}", std::process::id()),
         false,
     )?;
-    // Subscribe to the answers before asking.
+    // Subscribe to the answers (the orchestrator's alone) before asking.
     let replies = open_topic::<SwapReply>(&node, ipc::SWAP_REPLY)?.receiver()?;
+    let orchestrator = u128::from_str_radix(&info.swap_reply_publisher, 16)
+        .with_context(|| format!("{shown}: swap_reply_publisher is not a hexadecimal id"))?;
+    replies.pin_to(orchestrator);
     let requests = open_topic::<SwapRequest>(&node, ipc::SWAP)?.sender(0)?;
     let waitset = ipc::waitset(true)?;
     let _guard = replies.attach(&waitset)?;
@@ -78,7 +81,7 @@ pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> 
     loop {
         let mut answer = None;
         replies.drain(|r, _| {
-            if r.request_id == request.request_id {
+            if r.request_id == request.request_id && r.requester == requests.publisher_id() {
                 answer = Some(r);
             }
         })?;

@@ -162,4 +162,50 @@ mod tests {
         let w = s.plant.wheel_geometry().wheel_speeds([u1, u2]);
         assert!(w.iter().all(|x| x.abs() <= 5.0 + 1e-12), "{w:?}");
     }
+
+    #[test]
+    fn measurement_noise_has_the_configured_variance_on_every_axis() {
+        let mut s = Scenario::default();
+        s.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
+        let mut p = Plant::new(&s);
+        let truth = p.pose();
+        let n = 20_000;
+        let mut sum_sq = [0.0; 3];
+        for _ in 0..n {
+            let y = p.measure();
+            for axis in 0..3 {
+                sum_sq[axis] += wrap_angle(y[axis] - truth[axis]).powi(2);
+            }
+        }
+        for (axis, sq) in sum_sq.iter().enumerate() {
+            let variance = sq / n as f64;
+            // The sample variance of 20,000 draws is within 3 % of the true one (4 sigma).
+            assert!(
+                (variance / 0.05 - 1.0).abs() < 0.04,
+                "axis {axis}: variance {variance}"
+            );
+        }
+    }
+
+    #[test]
+    fn saturation_clamps_each_wheel_to_its_limit_and_changes_nothing_within_it() {
+        let mut s = Scenario::default();
+        s.plant.max_wheel_speed_rad_s = 5.0;
+        let geometry = s.plant.wheel_geometry();
+        let p = Plant::new(&s);
+        for body in [[10.0, 3.0], [-10.0, 0.0], [0.5, 40.0]] {
+            let wanted = geometry.wheel_speeds(body);
+            let [u1, u2] = p.saturate(body[0], body[1]);
+            let w = geometry.wheel_speeds([u1, u2]);
+            for (got, want) in w.iter().zip(wanted) {
+                assert!(
+                    (got - want.clamp(-5.0, 5.0)).abs() < 1e-9,
+                    "{body:?}: {w:?}"
+                );
+            }
+        }
+        let within = geometry.body_inputs([4.0, -3.0]);
+        let [u1, u2] = p.saturate(within[0], within[1]);
+        assert!((u1 - within[0]).abs() < 1e-12 && (u2 - within[1]).abs() < 1e-12);
+    }
 }

@@ -38,6 +38,18 @@ pub const SWAP: &str = "swap";
 /// Orchestrator to `scmpc swap`: how a requested swap ended.
 pub const SWAP_REPLY: &str = "swap_reply";
 
+/// Where output `topic` of `producer` sits in the publishers it announces when it joins
+/// ([`Status::publishers`](crate::Status::publishers)); `None`: not one of its outputs.
+pub fn output_slot(producer: crate::Role, topic: &str) -> Option<usize> {
+    use crate::Role;
+    match (producer, topic) {
+        (Role::Plant, TRUTH) | (Role::Estimator, ESTIMATE) | (Role::Mpc, PLAN) => Some(0),
+        (Role::Dfl, ACTUATION) => Some(0),
+        (Role::Plant, MEASUREMENT) | (Role::Dfl, DEADLINE) => Some(1),
+        _ => None,
+    }
+}
+
 /// Publishers a data topic admits: the producer, its replacement, the process it replaces
 /// while retiring, and one spare. Every receive looks at each publisher slot, so this is
 /// kept small (8 made the real-time loop measurably slower).
@@ -161,6 +173,7 @@ impl<T: Message> Topic<T> {
     /// A publisher stamping every sample with `epoch` and its publish time.
     pub fn sender(&self, epoch: u32) -> Result<Sender<T>, IpcError> {
         Ok(Sender {
+            name: self.name,
             publisher: self
                 .pubsub
                 .publisher_builder()
@@ -204,9 +217,12 @@ impl<T: Message> Topic<T> {
                 .map_err(ctx(format!("listener on `{}`", self.name)))?,
             run_id: self.run_id,
             producer,
+            slot: producer.and_then(|role| output_slot(role, self.name)),
+            pinned: Cell::new(None),
             schedule: Cell::new(None),
             last_tick: Cell::new(None),
             rejected: Cell::new([0; Rejection::COUNT]),
+            taken: Cell::new(0),
             limit: OnceCell::new(),
             standby_newest: Cell::new(None),
             _payload: PhantomData,
@@ -216,6 +232,7 @@ impl<T: Message> Topic<T> {
 
 /// Publishes `T` and wakes the topic's listeners.
 pub struct Sender<T: Message> {
+    name: &'static str,
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
     epoch: u32,
@@ -239,6 +256,11 @@ impl<T: Message> Sender<T> {
         Ok(())
     }
 
+    /// The iceoryx2 id of this sender's publisher: what its consumers pin it to.
+    pub fn publisher_id(&self) -> u128 {
+        self.publisher.id().value()
+    }
+
     /// Publishes the newest sample again (same tick, fresh publish time), if there is one:
     /// the answer to [`ControlCommand::Replay`](crate::ControlCommand::Replay).
     pub fn replay(&self) -> Result<(), IpcError> {
@@ -256,12 +278,18 @@ pub struct Receiver<T: Message> {
     run_id: u32,
     /// Role whose producer epoch is checked (`None`: any epoch, no tick order).
     producer: Option<crate::Role>,
+    /// Which of the producer's outputs this topic is ([`output_slot`]).
+    slot: Option<usize>,
+    /// The only publisher taken from, when set ([`Receiver::pin_to`]).
+    pinned: Cell<Option<u128>>,
     /// Which epoch of `producer` to take; `None` until the orchestrator has said (a
     /// process that joins a running run takes nothing before that).
     schedule: Cell<Option<EpochSchedule>>,
     last_tick: Cell<Option<u64>>,
     /// Refused samples by [`Rejection`] code, since last taken.
     rejected: Cell<[u64; Rejection::COUNT]>,
+    /// Samples taken so far.
+    taken: Cell<u64>,
     /// The clock a sample's tick is judged against ([`Receiver::bound_by`]).
     limit: OnceCell<Rc<dyn TickLimit>>,
     /// Newest tick heard from a producer being swapped in or out (not taken).
@@ -277,7 +305,22 @@ impl<T: Message> Receiver<T> {
     /// The next acceptable sample, if any, with its publish-to-receipt latency in ns.
     /// Refused samples are counted and skipped.
     pub fn receive(&self) -> Result<Option<(T, u64)>, IpcError> {
-        if self.producer.is_some() && self.schedule.get().is_none() {
+        Ok(self.receive_from()?.map(|(m, latency, _)| (m, latency)))
+    }
+
+    /// [`Receiver::receive`], with the iceoryx2 id of the sample's publisher.
+    pub fn receive_from(&self) -> Result<Option<(T, u64, u128)>, IpcError> {
+        // Nothing is judged before the orchestrator has named the producers and, for a
+        // bound receiver, before its clock knows "now" (a process that joins a real-time
+        // run may hear the schedule before the clock's start).
+        let no_clock = || {
+            self.limit.get().is_some_and(|l| {
+                l.newest_tick(false)
+                    .or_else(|| l.newest_tick(true))
+                    .is_none()
+            })
+        };
+        if self.producer.is_some() && (self.schedule.get().is_none() || no_clock()) {
             return Ok(None);
         }
         loop {
@@ -285,9 +328,13 @@ impl<T: Message> Receiver<T> {
                 return Ok(None);
             };
             let message = *sample.payload();
+            let origin = sample.origin().value();
             let latency = monotonic_ns().saturating_sub(message.header().publish_ns);
-            match self.check(&message) {
-                Ok(EpochVerdict::Take) => return Ok(Some((message, latency))),
+            match self.check(&message, origin) {
+                Ok(EpochVerdict::Take) => {
+                    self.taken.set(self.taken.get() + 1);
+                    return Ok(Some((message, latency, origin)));
+                }
                 Ok(_) => {
                     let tick = message.header().tick;
                     self.standby_newest
@@ -304,26 +351,44 @@ impl<T: Message> Receiver<T> {
 
     /// The border check (README, "Supervision"), in one place. A sample of a producer
     /// being swapped in or out is [`EpochVerdict::Standby`]: skipped, not an error.
-    fn check(&self, message: &T) -> Result<EpochVerdict, Rejection> {
+    /// The order matters: who sent it (run, epoch, publisher) before what it says, so a
+    /// stranger's sample is never blamed on the producer ([`Rejection::blames_producer`]).
+    fn check(&self, message: &T, origin: u128) -> Result<EpochVerdict, Rejection> {
         let h = message.header();
         if h.run_id != self.run_id {
             return Err(Rejection::WrongRun);
         }
-        let (Some(role), Some(schedule)) = (self.producer, self.schedule.get()) else {
-            return if message.all_finite() {
-                Ok(EpochVerdict::Take)
-            } else {
+        if self.pinned.get().is_some_and(|id| id != origin) {
+            return Err(Rejection::UnknownPublisher);
+        }
+        let content = || {
+            if !message.all_finite() {
                 Err(Rejection::NonFinite)
-            };
+            } else if !message.well_formed() {
+                Err(Rejection::Malformed)
+            } else {
+                Ok(())
+            }
         };
-        match schedule.judge(role, h.epoch, h.tick) {
-            EpochVerdict::Take => {}
-            EpochVerdict::Standby => return Ok(EpochVerdict::Standby),
-            EpochVerdict::Reject => return Err(Rejection::WrongEpoch),
+        let (Some(role), Some(schedule)) = (self.producer, self.schedule.get()) else {
+            return content().map(|()| EpochVerdict::Take);
+        };
+        let verdict = schedule.judge(role, h.epoch, h.tick);
+        if verdict == EpochVerdict::Reject {
+            return Err(Rejection::WrongEpoch);
         }
-        if !message.all_finite() {
-            return Err(Rejection::NonFinite);
+        // Until the producer's announcement is known here (a moment after it joins),
+        // its epoch alone vouches for it.
+        let pin = self
+            .slot
+            .and_then(|slot| schedule.publisher(role, h.epoch, slot));
+        if pin.is_some_and(|id| id != origin) {
+            return Err(Rejection::UnknownPublisher);
         }
+        if verdict == EpochVerdict::Standby {
+            return Ok(EpochVerdict::Standby);
+        }
+        content()?;
         if let Some(limit) = self.limit.get() {
             // Judged against the clock, refreshed once before a sample is refused: a sample
             // may overtake the control message that let its producer make it.
@@ -341,6 +406,12 @@ impl<T: Message> Receiver<T> {
         }
         self.last_tick.set(Some(h.tick));
         Ok(EpochVerdict::Take)
+    }
+
+    /// Takes samples only from the iceoryx2 publisher `id` from now on (the control topic:
+    /// the orchestrator's); others are refused as [`Rejection::UnknownPublisher`].
+    pub fn pin_to(&self, id: u128) {
+        self.pinned.set(Some(id));
     }
 
     /// Judges every sample's tick and time against `limit` from now on (once; later calls
@@ -436,6 +507,10 @@ pub trait Input {
     fn bound_by(&self, limit: Rc<dyn TickLimit>);
     /// Refused samples by [`Rejection`] code since the last call.
     fn take_rejections(&self) -> [u64; Rejection::COUNT];
+    /// The role whose samples this input takes (`None`: any sender).
+    fn producer(&self) -> Option<crate::Role>;
+    /// How many samples it has taken so far.
+    fn taken(&self) -> u64;
     /// Newest tick published by the replacement (or the retiring producer) of the role and
     /// not taken, since the last call: how the orchestrator sees a replacement warm up.
     fn take_standby_newest(&self) -> Option<u64>;
@@ -460,6 +535,12 @@ impl<T: Message> Input for Receiver<T> {
     fn take_rejections(&self) -> [u64; Rejection::COUNT] {
         self.rejected.replace([0; Rejection::COUNT])
     }
+    fn producer(&self) -> Option<crate::Role> {
+        self.producer
+    }
+    fn taken(&self) -> u64 {
+        self.taken.get()
+    }
     fn take_standby_newest(&self) -> Option<u64> {
         self.standby_newest.take()
     }
@@ -469,11 +550,21 @@ impl<T: Message> Input for Receiver<T> {
 pub trait Output {
     /// See [`Sender::replay`].
     fn replay(&self) -> Result<(), IpcError>;
+    /// The topic's name.
+    fn topic(&self) -> &'static str;
+    /// See [`Sender::publisher_id`].
+    fn publisher_id(&self) -> u128;
 }
 
 impl<T: Message> Output for Sender<T> {
     fn replay(&self) -> Result<(), IpcError> {
         Sender::replay(self)
+    }
+    fn topic(&self) -> &'static str {
+        self.name
+    }
+    fn publisher_id(&self) -> u128 {
+        Sender::publisher_id(self)
     }
 }
 
@@ -659,14 +750,29 @@ pub fn stale_run_prefixes() -> Vec<String> {
 }
 
 /// Whether process `pid` exists and is not a zombie (a killed process nobody reaped yet).
+///
+/// Allocation-free (a role process asks every 100 ms): the path and the file are read
+/// through stack buffers.
 pub fn process_alive(pid: u32) -> bool {
-    std::fs::read_to_string(format!("/proc/{pid}/stat"))
-        .ok()
-        .and_then(|stat| {
-            stat.rsplit_once(") ")
-                .map(|(_, rest)| !rest.starts_with('Z'))
-        })
-        .unwrap_or(false)
+    use std::io::{Read, Write};
+    use std::os::unix::ffi::OsStrExt;
+    let mut path = [0u8; 32];
+    let mut cursor = std::io::Cursor::new(&mut path[..]);
+    if write!(cursor, "/proc/{pid}/stat").is_err() {
+        return false;
+    }
+    let len = cursor.position() as usize;
+    let path = std::path::Path::new(std::ffi::OsStr::from_bytes(&path[..len]));
+    let mut stat = [0u8; 512];
+    let Ok(read) = std::fs::File::open(path).and_then(|mut f| f.read(&mut stat)) else {
+        return false;
+    };
+    // `pid (comm) S ...`: the state follows the last `) `.
+    let stat = &stat[..read];
+    stat.windows(2)
+        .rposition(|w| w == b") ")
+        .and_then(|at| stat.get(at + 2))
+        .is_some_and(|state| *state != b'Z')
 }
 
 /// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
@@ -692,4 +798,167 @@ pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
         }
     }
     found
+}
+
+#[cfg(test)]
+mod tests {
+    //! The border check on real iceoryx2 topics (each test on a prefix of its own).
+    use super::*;
+    use crate::{Control, ControlCommand, Header, Measurement, Role};
+
+    /// A clock by which tick `newest` is the newest any producer can have made.
+    struct FixedClock(u64);
+
+    impl TickLimit for FixedClock {
+        fn newest_tick(&self, _refresh: bool) -> Option<u64> {
+            Some(self.0)
+        }
+        fn dt_s(&self) -> f64 {
+            0.005
+        }
+    }
+
+    fn measurement(tick: u64) -> Measurement {
+        Measurement {
+            header: Header {
+                tick,
+                time_s: tick as f64 * 0.005,
+                ..Header::default()
+            },
+            ..Measurement::default()
+        }
+    }
+
+    /// Runs `test` with a node on a fresh prefix, then removes the prefix's files.
+    fn on_fresh_prefix(test: impl FnOnce(&Node<ipc::Service>)) {
+        let prefix = new_prefix();
+        let node = create_node(&prefix, "test", false).unwrap();
+        test(&node);
+        drop(node);
+        remove_run_resources(&prefix).unwrap();
+    }
+
+    fn refused(counts: [u64; Rejection::COUNT], reason: Rejection) -> u64 {
+        counts[reason as usize]
+    }
+
+    #[test]
+    fn a_sample_ahead_of_the_clock_or_off_its_tick_time_is_refused_and_moves_nothing() {
+        on_fresh_prefix(|node| {
+            let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+            let plant = topic.sender(0).unwrap();
+            let measurements = topic.receiver_from(Role::Plant).unwrap();
+            measurements.follow(EpochSchedule::default());
+            measurements.bound_by(Rc::new(FixedClock(100)));
+            plant.send(measurement(1_000_000)).unwrap();
+            let mut off_time = measurement(50);
+            off_time.header.time_s += 1e-3;
+            plant.send(off_time).unwrap();
+            plant.send(measurement(99)).unwrap();
+            let (m, _) = measurements.receive().unwrap().unwrap();
+            // The forged tick did not become "now": tick 99 is not behind anything.
+            assert_eq!(m.header.tick, 99);
+            let counts = measurements.take_rejections();
+            assert_eq!(refused(counts, Rejection::TickAhead), 1);
+            assert_eq!(refused(counts, Rejection::TimeMismatch), 1);
+            assert_eq!(counts.iter().sum::<u64>(), 2);
+        });
+    }
+
+    #[test]
+    fn a_sample_from_another_publisher_than_the_pinned_one_is_refused_whatever_its_header() {
+        on_fresh_prefix(|node| {
+            let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+            let plant = topic.sender(0).unwrap();
+            let intruder = topic.sender(0).unwrap();
+            let measurements = topic.receiver_from(Role::Plant).unwrap();
+            let mut schedule = EpochSchedule::default();
+            let slot = output_slot(Role::Plant, MEASUREMENT).unwrap();
+            let mut pins = [0; 2];
+            pins[slot] = plant.publisher_id();
+            assert!(schedule.pin(Role::Plant, 0, pins));
+            // A second announcement for the same epoch changes nothing.
+            assert!(!schedule.pin(Role::Plant, 0, [intruder.publisher_id(); 2]));
+            measurements.follow(schedule);
+            intruder.send(measurement(1)).unwrap();
+            plant.send(measurement(2)).unwrap();
+            let (m, _) = measurements.receive().unwrap().unwrap();
+            assert_eq!(m.header.tick, 2);
+            assert!(measurements.receive().unwrap().is_none());
+            let counts = measurements.take_rejections();
+            assert_eq!(refused(counts, Rejection::UnknownPublisher), 1);
+            assert_eq!(counts.iter().sum::<u64>(), 1);
+            assert!(!Rejection::UnknownPublisher.blames_producer());
+        });
+    }
+
+    #[test]
+    fn control_is_taken_from_the_orchestrators_publisher_alone_and_only_when_well_formed() {
+        on_fresh_prefix(|node| {
+            let topic = open_topic::<Control>(node, CONTROL).unwrap();
+            let orchestrator = topic.sender(0).unwrap();
+            let rogue = topic.sender(0).unwrap();
+            let control = topic.receiver().unwrap();
+            control.pin_to(orchestrator.publisher_id());
+            let command = |c: ControlCommand| Control {
+                command: c as u32,
+                ..Control::default()
+            };
+            rogue.send(command(ControlCommand::Stop)).unwrap();
+            orchestrator
+                .send(Control {
+                    command: 99,
+                    ..Control::default()
+                })
+                .unwrap();
+            orchestrator.send(command(ControlCommand::Grant)).unwrap();
+            let (c, _) = control.receive().unwrap().unwrap();
+            assert_eq!(c.command(), Some(ControlCommand::Grant));
+            assert!(control.receive().unwrap().is_none());
+            let counts = control.take_rejections();
+            assert_eq!(refused(counts, Rejection::UnknownPublisher), 1);
+            assert_eq!(refused(counts, Rejection::Malformed), 1);
+        });
+    }
+
+    #[test]
+    fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
+        on_fresh_prefix(|node| {
+            let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+            let measurements = topic.receiver_from(Role::Plant).unwrap();
+            measurements.follow(EpochSchedule::default());
+            let stranger = Topic {
+                run_id: topic.run_id ^ 1,
+                ..open_topic::<Measurement>(node, MEASUREMENT).unwrap()
+            };
+            let stranger = stranger.sender(0).unwrap();
+            stranger.send(measurement(1)).unwrap();
+            assert!(measurements.receive().unwrap().is_none());
+            assert_eq!(
+                refused(measurements.take_rejections(), Rejection::WrongRun),
+                1
+            );
+            // A payload of another type (and size) is not even let onto the topic.
+            let other = open_topic::<crate::Estimate>(node, MEASUREMENT);
+            assert!(
+                other.is_err(),
+                "an estimate type opened the measurement topic"
+            );
+        });
+    }
+
+    #[test]
+    fn a_process_is_alive_until_it_exits_and_a_zombie_counts_as_dead() {
+        assert!(process_alive(std::process::id()));
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let pid = child.id();
+        // Exited, not reaped yet: a zombie.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        while process_alive(pid) && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert!(!process_alive(pid), "the zombie {pid} counts as alive");
+        child.wait().unwrap();
+        assert!(!process_alive(pid));
+    }
 }

@@ -1,6 +1,7 @@
 //! What crosses process boundaries in scmpc: the message types, the scenario schema, and
 //! the few conventions every role must agree on (angle wrapping, the wheel transform).
 
+pub mod alloc_count;
 pub mod clock;
 pub mod ipc;
 pub mod messages;

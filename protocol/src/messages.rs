@@ -347,6 +347,12 @@ pub struct EpochSchedule {
     pub next: [u32; 4],
     /// First tick taken from `next`; [`SWITCH_UNSCHEDULED`] while it warms up.
     pub switch_tick: [u64; 4],
+    /// The iceoryx2 publisher of each output of `active` (by role, then by the output's
+    /// slot, [`output_slot`](crate::ipc::output_slot)), as the process announced it when it
+    /// joined; 0 while not known. A sample from another publisher is refused.
+    pub active_publishers: [[u128; 2]; 4],
+    /// The same for `next`.
+    pub next_publishers: [[u128; 2]; 4],
 }
 
 /// `switch_tick` of a replacement that is still warming up.
@@ -369,6 +375,8 @@ impl Default for EpochSchedule {
             active: [0; 4],
             next: [0; 4],
             switch_tick: [SWITCH_UNSCHEDULED; 4],
+            active_publishers: [[0; 2]; 4],
+            next_publishers: [[0; 2]; 4],
         }
     }
 }
@@ -400,6 +408,9 @@ impl EpochSchedule {
     /// replacement that takes over at once because the process it replaces died).
     pub fn activate(&mut self, role: Role, epoch: u32) {
         let r = role as usize;
+        let pins = self.pins(role, epoch).unwrap_or_default();
+        self.active_publishers[r] = pins;
+        self.next_publishers[r] = pins;
         self.active[r] = epoch;
         self.next[r] = epoch;
         self.switch_tick[r] = SWITCH_UNSCHEDULED;
@@ -419,9 +430,48 @@ impl EpochSchedule {
     /// (The producer an earlier swap replaced is forgotten: its samples are rejected.)
     pub fn announce(&mut self, role: Role, epoch: u32) {
         let r = role as usize;
-        self.active[r] = self.current(role);
+        let current = self.current(role);
+        self.active_publishers[r] = self.pins(role, current).unwrap_or_default();
+        self.next_publishers[r] = [0; 2];
+        self.active[r] = current;
         self.next[r] = epoch;
         self.switch_tick[r] = SWITCH_UNSCHEDULED;
+    }
+
+    /// The publishers of `epoch` of `role` by output slot (0: not known yet), if `epoch` is
+    /// named for the role.
+    fn pins(&self, role: Role, epoch: u32) -> Option<[u128; 2]> {
+        let r = role as usize;
+        if epoch == self.next[r] {
+            Some(self.next_publishers[r])
+        } else if epoch == self.active[r] {
+            Some(self.active_publishers[r])
+        } else {
+            None
+        }
+    }
+
+    /// Pins the outputs of `epoch` of `role` to the publishers it announced, once: an
+    /// epoch already pinned keeps its publishers (a second announcement is someone else's).
+    /// Whether anything changed.
+    pub fn pin(&mut self, role: Role, epoch: u32, publishers: [u128; 2]) -> bool {
+        let r = role as usize;
+        if self.pins(role, epoch) != Some([0; 2]) || publishers == [0; 2] {
+            return false;
+        }
+        if epoch == self.active[r] {
+            self.active_publishers[r] = publishers;
+        }
+        if epoch == self.next[r] {
+            self.next_publishers[r] = publishers;
+        }
+        true
+    }
+
+    /// The publisher that output `slot` of `epoch` of `role` was pinned to, if known.
+    pub fn publisher(&self, role: Role, epoch: u32, slot: usize) -> Option<u128> {
+        let id = self.pins(role, epoch)?.get(slot).copied()?;
+        (id != 0).then_some(id)
     }
 
     /// Takes the replacement of `role` from `tick` on.
@@ -489,6 +539,18 @@ pub enum StatusEvent {
     Rejected = 2,
 }
 
+impl StatusEvent {
+    pub fn from_code(code: u32) -> Option<StatusEvent> {
+        [
+            StatusEvent::Ready,
+            StatusEvent::InputLost,
+            StatusEvent::Rejected,
+        ]
+        .into_iter()
+        .find(|e| *e as u32 == code)
+    }
+}
+
 /// Why a consumer refused a sample (README, "Supervision").
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -502,10 +564,16 @@ pub enum Rejection {
     TickAhead = 4,
     /// A time that is not its tick's (`tick Ts / M`).
     TimeMismatch = 5,
+    /// From an iceoryx2 publisher other than the one the producer announced when it joined
+    /// (or, on the control topic, than the orchestrator's).
+    UnknownPublisher = 6,
+    /// A code, count or length outside what the message type allows
+    /// ([`Message::well_formed`]).
+    Malformed = 7,
 }
 
 impl Rejection {
-    pub const COUNT: usize = 6;
+    pub const COUNT: usize = 8;
     pub const ALL: [Rejection; Rejection::COUNT] = [
         Rejection::NonFinite,
         Rejection::TickBackwards,
@@ -513,6 +581,8 @@ impl Rejection {
         Rejection::WrongEpoch,
         Rejection::TickAhead,
         Rejection::TimeMismatch,
+        Rejection::UnknownPublisher,
+        Rejection::Malformed,
     ];
     pub fn as_str(self) -> &'static str {
         match self {
@@ -522,7 +592,19 @@ impl Rejection {
             Rejection::WrongEpoch => "wrong_epoch",
             Rejection::TickAhead => "tick_ahead",
             Rejection::TimeMismatch => "time_mismatch",
+            Rejection::UnknownPublisher => "unknown_publisher",
+            Rejection::Malformed => "malformed",
         }
+    }
+
+    /// Whether the refusal is the fault of the sample's own producer (its run, epoch and
+    /// publisher were right): what counts towards its failure
+    /// (README, "Supervision"). A stranger's samples never do.
+    pub fn blames_producer(self) -> bool {
+        !matches!(
+            self,
+            Rejection::WrongRun | Rejection::WrongEpoch | Rejection::UnknownPublisher
+        )
     }
 }
 
@@ -539,7 +621,17 @@ pub struct Status {
     /// [`Rejection`] code for [`StatusEvent::Rejected`].
     pub detail: u32,
     pub count: u64,
+    /// [`StatusEvent::Rejected`]: the [`Role`] code of the producer refused, or
+    /// [`NO_PRODUCER`] (the control topic).
+    pub producer: u32,
+    pub reserved: u32,
+    /// [`StatusEvent::Ready`]: the iceoryx2 publisher of each of the role's outputs, by
+    /// [`output_slot`](crate::ipc::output_slot) (0: none).
+    pub publishers: [u128; 2],
 }
+
+/// [`Status::producer`] of refused samples of a topic without a producer role (control).
+pub const NO_PRODUCER: u32 = u32::MAX;
 
 /// Longest command line a live swap request carries, bytes (arguments NUL-terminated).
 pub const MAX_COMMAND_BYTES: usize = 1024;
@@ -596,6 +688,14 @@ impl SwapRequest {
         Some(request)
     }
 
+    /// Whether the command fits and is empty or UTF-8 arguments, each NUL-terminated.
+    fn command_is_well_formed(&self) -> bool {
+        let len = self.command_len as usize;
+        len <= MAX_COMMAND_BYTES
+            && (len == 0 || self.command[len - 1] == 0)
+            && std::str::from_utf8(&self.command[..len]).is_ok()
+    }
+
     /// The command's program and arguments.
     pub fn command(&self) -> Vec<String> {
         let len = (self.command_len as usize).min(MAX_COMMAND_BYTES);
@@ -622,6 +722,9 @@ pub struct SwapReply {
     pub epoch: u32,
     /// First tick taken from the replacement.
     pub switch_tick: u64,
+    /// The iceoryx2 publisher of the request answered: the client that asked takes only
+    /// the replies addressed to it.
+    pub requester: u128,
     pub message_len: u32,
     pub reserved: u32,
     /// What happened, UTF-8.
@@ -636,6 +739,7 @@ impl Default for SwapReply {
             done: 0,
             epoch: 0,
             switch_tick: 0,
+            requester: 0,
             message_len: 0,
             reserved: 0,
             message: [0; MAX_REPLY_BYTES],
@@ -667,6 +771,8 @@ pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
     fn header_mut(&mut self) -> &mut Header;
     /// Whether every floating-point value of the message is finite.
     fn all_finite(&self) -> bool;
+    /// Whether every code, count and length is one the type allows.
+    fn well_formed(&self) -> bool;
 }
 
 fn finite(values: &[f64]) -> bool {
@@ -674,7 +780,7 @@ fn finite(values: &[f64]) -> bool {
 }
 
 macro_rules! impl_message {
-    ($($t:ty => |$m:ident| $finite:expr),* $(,)?) => {$(
+    ($($t:ty => |$m:ident| $finite:expr, $formed:expr);* $(;)?) => {$(
         impl Message for $t {
             fn header(&self) -> &Header {
                 &self.header
@@ -683,27 +789,41 @@ macro_rules! impl_message {
                 &mut self.header
             }
             fn all_finite(&self) -> bool {
+                #[allow(unused_variables)]
                 let $m = self;
                 $m.header.time_s.is_finite() && $finite
+            }
+            fn well_formed(&self) -> bool {
+                #[allow(unused_variables)]
+                let $m = self;
+                $formed
             }
         }
     )*};
 }
 
 impl_message!(
-    Measurement => |m| finite(&m.y),
-    GroundTruth => |m| finite(&m.pose),
-    Estimate => |m| finite(&m.state) && finite(&m.covariance),
+    Measurement => |m| finite(&m.y), true;
+    GroundTruth => |m| finite(&m.pose), true;
+    Estimate => |m| finite(&m.state) && finite(&m.covariance), true;
     Plan => |m| {
         let n = (m.horizon as usize).min(MAX_HORIZON);
         m.v[..n].iter().all(|v| finite(v)) && m.z[..=n].iter().all(|z| finite(z))
-    },
-    Actuation => |m| finite(&[m.u1, m.u2, m.zeta]) && finite(&m.wheels) && finite(&m.linearizing_input) && finite(&m.v),
-    DeadlineVerdict => |_m| true,
-    Control => |_m| true,
-    Status => |_m| true,
-    SwapRequest => |_m| true,
-    SwapReply => |_m| true,
+    }, m.horizon as usize <= MAX_HORIZON && PlanStatus::from_code(m.status).is_some();
+    Actuation => |m| {
+        finite(&[m.u1, m.u2, m.zeta]) && finite(&m.wheels) && finite(&m.linearizing_input) && finite(&m.v)
+    }, CommandMode::from_code(m.mode).is_some() && Intervention::from_code(m.intervention).is_some();
+    DeadlineVerdict => |m| true, m.met <= 1
+        && (m.status == PLAN_MISSING || PlanStatus::from_code(m.status).is_some())
+        && CommandMode::from_code(m.fallback).is_some();
+    Control => |m| true, m.command().is_some();
+    Status => |m| true, Role::from_code(m.role).is_some()
+        && StatusEvent::from_code(m.event).is_some()
+        && (m.event != StatusEvent::Rejected as u32
+            || (m.detail as usize) < Rejection::COUNT
+                && (m.producer == NO_PRODUCER || Role::from_code(m.producer).is_some()));
+    SwapRequest => |m| true, Role::from_code(m.role).is_some() && m.command_is_well_formed();
+    SwapReply => |m| true, m.done <= 1 && m.message_len as usize <= MAX_REPLY_BYTES;
 );
 
 #[cfg(test)]

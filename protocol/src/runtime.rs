@@ -21,13 +21,14 @@
 //! inputs of the tick (the plant for the orchestrator's grant); in real time it is paced
 //! by the run's start time ([`ControlState::at_ns`]).
 
+use crate::alloc_count::{ENV_COUNT_ALLOCATIONS, allocations};
 use crate::clock::{monotonic_ns, tick_at};
 use crate::ipc::{
     CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TICK_SLACK, TickLimit, Wake,
-    create_node, open_topic, process_alive, wait, waitset,
+    create_node, open_topic, output_slot, process_alive, wait, waitset,
 };
 use crate::messages::{EpochSchedule, Message};
-use crate::{Control, ControlCommand, Role, Status, StatusEvent};
+use crate::{Control, ControlCommand, NO_PRODUCER, Rejection, Role, Status, StatusEvent};
 use iceoryx2::prelude::*;
 use std::cell::Cell;
 use std::rc::Rc;
@@ -55,6 +56,9 @@ pub struct ProcessArgs {
     pub epoch: u32,
     /// The orchestrator's pid, watched (README, "Supervision"); `None`: not watched.
     pub supervisor_pid: Option<u32>,
+    /// The iceoryx2 id of the orchestrator's control publisher: control messages from
+    /// any other publisher are refused. `None`: not checked.
+    pub control_publisher: Option<u128>,
 }
 
 /// How often a role process looks whether its orchestrator still lives.
@@ -139,9 +143,16 @@ pub enum Next<'a> {
     Again,
 }
 
+/// Lockstep: how many ticks a sample may be ahead of the newest grant this process has
+/// heard. A grant is written into each subscriber's queue in turn, so the plant can act
+/// on it and the estimator and the DFL hear of the result before the orchestrator's send
+/// reaches their own queue (seen once in about 40 swap runs on one core: an estimate
+/// refused, the run stalled). Only one grant is ever in flight, so one tick covers it.
+pub const GRANT_IN_FLIGHT: u64 = 1;
+
 /// A role process's clock: the control topic and what it has said. Every input is bound
-/// by it ([`Receiver::bound_by`]): in lockstep a sample may be as new as the newest grant,
-/// in real time as the wall clock's tick plus [`TICK_SLACK`].
+/// by it ([`Receiver::bound_by`]): in lockstep a sample may be as new as the newest grant
+/// (plus [`GRANT_IN_FLIGHT`]), in real time as the wall clock's tick plus [`TICK_SLACK`].
 struct RoleClock {
     control: Receiver<Control>,
     state: Cell<ControlState>,
@@ -166,7 +177,7 @@ impl TickLimit for RoleClock {
         }
         let state = self.state.get();
         match self.mode {
-            RunMode::Lockstep => state.clock_tick,
+            RunMode::Lockstep => state.clock_tick.map(|t| t + GRANT_IN_FLIGHT),
             RunMode::Realtime => state
                 .start_ns
                 .map(|start| tick_at(start, monotonic_ns(), self.dt_s) + TICK_SLACK),
@@ -185,6 +196,8 @@ pub struct Link {
     epoch: u32,
     mode: RunMode,
     supervisor_pid: Option<u32>,
+    /// Ticks before allocations are counted ([`ENV_COUNT_ALLOCATIONS`]): 20 samples.
+    warm_up_ticks: u64,
     clock: Rc<RoleClock>,
     status: Sender<Status>,
     /// Declared last: dropped after the ports above.
@@ -198,8 +211,12 @@ impl Link {
             &format!("{}-{}", role.as_str(), args.epoch),
             true,
         )?;
+        let control = open_topic::<Control>(&node, CONTROL)?.receiver()?;
+        if let Some(id) = args.control_publisher {
+            control.pin_to(id);
+        }
         let clock = Rc::new(RoleClock {
-            control: open_topic::<Control>(&node, CONTROL)?.receiver()?,
+            control,
             state: Cell::new(ControlState::default()),
             mode: args.mode,
             dt_s: args.scenario.timing.dt_s(),
@@ -211,6 +228,7 @@ impl Link {
             epoch: args.epoch,
             mode: args.mode,
             supervisor_pid: args.supervisor_pid,
+            warm_up_ticks: 20 * args.scenario.timing.inner_steps as u64,
             clock,
             status,
         })
@@ -234,12 +252,28 @@ impl Link {
 
     /// Tells the orchestrator about this process.
     pub fn report(&self, event: StatusEvent) -> Result<(), IpcError> {
-        self.status.send(Status {
+        self.status.send(self.status_of(event))
+    }
+
+    fn status_of(&self, event: StatusEvent) -> Status {
+        Status {
             role: self.role as u32,
             event: event as u32,
             pid: std::process::id(),
             ..Status::default()
-        })
+        }
+    }
+
+    /// Ready, with the publisher of each of `outputs` its consumers are to pin
+    /// ([`EpochSchedule::pin`](crate::EpochSchedule::pin)).
+    fn report_ready(&self, outputs: &[&dyn Output]) -> Result<(), IpcError> {
+        let mut status = self.status_of(StatusEvent::Ready);
+        for output in outputs {
+            if let Some(slot) = output_slot(self.role, output.topic()) {
+                status.publishers[slot] = output.publisher_id();
+            }
+        }
+        self.status.send(status)
     }
 
     /// Runs the role until the orchestrator stops it or a signal comes (`Ok`), or until it
@@ -263,8 +297,36 @@ impl Link {
             .iter()
             .map(|input| attach(input.listener()))
             .collect::<Result<Vec<_>, _>>()?;
-        self.report(StatusEvent::Ready)?;
+        self.report_ready(outputs)?;
+        let mut warmed_up = None;
+        let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();
+        let result = self.drive(&waitset, inputs, outputs, &mut step, || {
+            if counting && warmed_up.is_none() {
+                let now = self.clock.newest_tick(false);
+                if now.is_some_and(|t| t >= self.warm_up_ticks) {
+                    warmed_up = Some(allocations());
+                }
+            }
+        });
+        if let Some(before) = warmed_up {
+            eprintln!(
+                "scmpc {}: {} heap allocations after warm-up",
+                self.role.as_str(),
+                allocations() - before
+            );
+        }
+        result
+    }
 
+    /// The loop of [`Link::run`]; `each_pass` is called once per pass, after the step.
+    fn drive<'i>(
+        &self,
+        waitset: &WaitSet<ipc::Service>,
+        inputs: &[&'i dyn Input],
+        outputs: &[&dyn Output],
+        step: &mut impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        mut each_pass: impl FnMut(),
+    ) -> Result<(), ProcessError> {
         let mut followed = None;
         let mut cleared = false;
         let mut last_input = Instant::now();
@@ -277,6 +339,7 @@ impl Link {
                     let _ = self.report(StatusEvent::InputLost);
                 }
             })?;
+            each_pass();
             // Off the hot path (the step has published): is the orchestrator still there?
             if let Some(since) = orphaned_at {
                 if since.elapsed() >= ORPHAN_GRACE {
@@ -322,7 +385,7 @@ impl Link {
                 }
                 Next::Again => unreachable!("handled above"),
             };
-            if !self.wait(&waitset, timeout, &mut last_input)? {
+            if !self.wait(waitset, timeout, &mut last_input)? {
                 return Ok(());
             }
         }
@@ -370,20 +433,31 @@ impl Link {
             if let Some(schedule) = ctl.schedule {
                 input.follow(schedule);
             }
-            for (code, count) in input.take_rejections().into_iter().enumerate() {
-                if count > 0 {
-                    self.status.send(Status {
-                        role: self.role as u32,
-                        event: StatusEvent::Rejected as u32,
-                        pid: std::process::id(),
-                        detail: code as u32,
-                        count,
-                        ..Status::default()
-                    })?;
-                }
+            self.report_rejections(input.take_rejections(), input.producer())?;
+        }
+        // Control messages refused (another publisher than the orchestrator's, malformed).
+        self.report_rejections(Input::take_rejections(&self.clock.control), None)?;
+        Ok(!ctl.stopped)
+    }
+
+    /// Tells the orchestrator how many samples of `producer` (`None`: the control topic)
+    /// were refused, by reason.
+    fn report_rejections(
+        &self,
+        counts: [u64; Rejection::COUNT],
+        producer: Option<Role>,
+    ) -> Result<(), IpcError> {
+        for (code, count) in counts.into_iter().enumerate() {
+            if count > 0 {
+                self.status.send(Status {
+                    detail: code as u32,
+                    count,
+                    producer: producer.map_or(NO_PRODUCER, |r| r as u32),
+                    ..self.status_of(StatusEvent::Rejected)
+                })?;
             }
         }
-        Ok(!ctl.stopped)
+        Ok(())
     }
 
     /// Waits for input, at most `timeout` and [`SUPERVISOR_CHECK`] (the orchestrator is

@@ -178,7 +178,7 @@ impl SampleSet {
 }
 
 /// Faults injected into a run (what they exercise: README, "Deadlines").
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FaultConfig {
     /// Delay added before the MPC publishes a plan, ms. In real time the MPC sleeps it; in
@@ -197,6 +197,24 @@ pub struct FaultConfig {
     /// The MPC plans as if there were no obstacles: a stand-in for a faulty MPC, to show
     /// that the DFL's safety check (`dfl.gatekeeper`) keeps the robot out of them anyway.
     pub mpc_ignore_obstacles: bool,
+    /// From this run time on, s, the estimator process started first (epoch 0) publishes
+    /// estimates with a NaN: a stand-in for a broken producer, to show it is refused, then
+    /// treated as failed and restarted (its restart is healthy). `inf` (the default): off.
+    pub estimator_nan_from_s: f64,
+}
+
+impl Default for FaultConfig {
+    fn default() -> Self {
+        FaultConfig {
+            mpc_delay_ms: 0.0,
+            mpc_delay_samples: SampleSet::default(),
+            mpc_delay_every: 0,
+            mpc_fail_samples: SampleSet::default(),
+            estimator_delay_ms: 0.0,
+            mpc_ignore_obstacles: false,
+            estimator_nan_from_s: f64::INFINITY,
+        }
+    }
 }
 
 impl FaultConfig {
@@ -249,6 +267,12 @@ impl FaultConfig {
         }
         if self.mpc_ignore_obstacles {
             faults.push("the MPC ignores the obstacles".into());
+        }
+        if self.estimator_nan_from_s.is_finite() {
+            faults.push(format!(
+                "the first estimator publishes NaN from {} s",
+                self.estimator_nan_from_s
+            ));
         }
         faults
     }
@@ -854,6 +878,15 @@ impl Scenario {
         let f = &self.fault;
         v.non_negative("fault.mpc_delay_ms", f.mpc_delay_ms);
         v.non_negative("fault.estimator_delay_ms", f.estimator_delay_ms);
+        if f.estimator_nan_from_s.is_nan() || f.estimator_nan_from_s < 0.0 {
+            v.fail(
+                "fault.estimator_nan_from_s",
+                format!(
+                    "must be a time, s, or inf (off), got {}",
+                    f.estimator_nan_from_s
+                ),
+            );
+        }
         for (key, set) in [
             ("fault.mpc_delay_samples", &f.mpc_delay_samples),
             ("fault.mpc_fail_samples", &f.mpc_fail_samples),

@@ -19,6 +19,8 @@ pub(super) struct Children {
     pub(super) scenario_file: std::path::PathBuf,
     pub(super) prefix: String,
     pub(super) mode: &'static str,
+    /// The orchestrator's control publisher, which the processes take control from.
+    pub(super) control_publisher: u128,
     pub(super) list: Vec<Proc>,
 }
 
@@ -27,12 +29,14 @@ impl Children {
         scenario_file: &Path,
         prefix: &str,
         mode: RunMode,
+        control_publisher: u128,
     ) -> anyhow::Result<Children> {
         let mut children = Children {
             exe: std::env::current_exe().context("locating the scmpc executable")?,
             scenario_file: scenario_file.to_path_buf(),
             prefix: prefix.to_string(),
             mode: mode_name(mode),
+            control_publisher,
             list: Vec::new(),
         };
         for role in Role::ALL {
@@ -64,6 +68,10 @@ impl Children {
             .env(ENV_EPOCH, epoch.to_string())
             .env(ENV_ROLE, role.as_str())
             .env(ENV_SUPERVISOR, std::process::id().to_string())
+            .env(
+                ENV_CONTROL_PUBLISHER,
+                format!("{:x}", self.control_publisher),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .spawn()

@@ -31,6 +31,7 @@ use std::process::{Child, Command, Stdio};
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
+use supervision::Blame;
 use swap_server::{PendingSwap, Swap, scheduled_swaps};
 
 /// How long the processes have to report ready.
@@ -67,6 +68,9 @@ pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
 pub const ENV_ROLE: &str = "SCMPC_ROLE";
 /// The orchestrator's pid: a role process stops the robot and exits when it is gone.
 pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
+/// The iceoryx2 id of the orchestrator's control publisher (hexadecimal): a role process
+/// takes control messages from it alone.
+pub const ENV_CONTROL_PUBLISHER: &str = "SCMPC_CONTROL_PUBLISHER";
 
 fn mode_name(mode: RunMode) -> &'static str {
     match mode {
@@ -221,6 +225,16 @@ impl Session {
         self.command(ControlCommand::Epochs, 0, 0)
     }
 
+    /// Pins the outputs of the process that sent the ready report `s` to the publishers it
+    /// announced, once per epoch (README, "Supervision"), and tells every process.
+    fn pin(&self, role: Role, s: &Status) -> Result<(), ipc::IpcError> {
+        let mut schedule = self.schedule.get();
+        if schedule.pin(role, s.header.epoch, s.publishers) {
+            self.reschedule(|now| *now = schedule)?;
+        }
+        Ok(())
+    }
+
     /// The orchestrator's input carrying the output of `role`: how it sees a replacement
     /// warm up.
     fn output_of(&self, role: Role) -> &dyn Input {
@@ -232,15 +246,18 @@ impl Session {
         }
     }
 
-    /// Samples the orchestrator itself refused, by rejection code, since the last call.
-    fn take_rejections(&self) -> [u64; Rejection::COUNT] {
-        let mut total = [0; Rejection::COUNT];
+    /// Samples the orchestrator itself refused since the last call: (producer, rejection
+    /// code, count).
+    fn take_rejections(&self) -> Vec<(Option<Role>, u32, u64)> {
+        let mut refused = Vec::new();
         for input in self.inputs() {
-            for (t, n) in total.iter_mut().zip(input.take_rejections()) {
-                *t += n;
+            for (code, count) in input.take_rejections().into_iter().enumerate() {
+                if count > 0 {
+                    refused.push((input.producer(), code as u32, count));
+                }
             }
         }
-        total
+        refused
     }
 }
 
@@ -262,6 +279,9 @@ struct Driver<'a> {
     restarts: u32,
     /// Samples refused by any consumer, by reason.
     rejected: BTreeMap<String, u64>,
+    /// Per role: since when its own samples have been refused, with the epoch refused and
+    /// how many of its samples the orchestrator had taken then ([`Driver::contain`]).
+    blamed: [Option<Blame>; 4],
     /// The epoch the next started process gets.
     next_epoch: u32,
     /// Next tick to record (every earlier one is recorded).
@@ -305,6 +325,7 @@ impl<'a> Driver<'a> {
             record_gaps: 0,
             restarts: 0,
             rejected: BTreeMap::new(),
+            blamed: [None; 4],
             next_epoch: 0,
             cursor: 0,
             scheduled: scheduled_swaps(scenario),
@@ -330,8 +351,8 @@ impl<'a> Driver<'a> {
             self.fail_swap(swap, "the run ended before the switch")?;
         }
         for pending in std::mem::take(&mut self.scheduled) {
-            if let Some(id) = pending.request {
-                self.reply(id, None, "the run ended before the swap could start")?;
+            if let Some(asker) = pending.request {
+                self.reply(asker, None, "the run ended before the swap could start")?;
             }
         }
         self.latencies.report(report);
@@ -350,6 +371,9 @@ pub struct RunInfo {
     pub iceoryx2_prefix: String,
     pub orchestrator_pid: u32,
     pub mode: String,
+    /// The iceoryx2 id of the publisher of swap replies (hexadecimal): `scmpc swap`
+    /// takes answers from it alone.
+    pub swap_reply_publisher: String,
 }
 
 impl RunInfo {
@@ -396,12 +420,6 @@ pub fn run(
     }
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
-    RunInfo {
-        iceoryx2_prefix: prefix.to_string(),
-        orchestrator_pid: std::process::id(),
-        mode: mode_name(mode).to_string(),
-    }
-    .write(out)?;
     ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
     match ipc::remove_run_resources(prefix) {
@@ -433,7 +451,19 @@ fn drive(
     recorder: &mut Recorder,
 ) -> anyhow::Result<(Outcome, ProcessReport)> {
     let session = Session::open(prefix, mode, scenario.timing.dt_s())?;
-    let mut children = Children::spawn(&out.join("scenario.toml"), prefix, mode)?;
+    RunInfo {
+        iceoryx2_prefix: prefix.to_string(),
+        orchestrator_pid: std::process::id(),
+        mode: mode_name(mode).to_string(),
+        swap_reply_publisher: format!("{:x}", session.swap_replies.publisher_id()),
+    }
+    .write(out)?;
+    let mut children = Children::spawn(
+        &out.join("scenario.toml"),
+        prefix,
+        mode,
+        session.control.publisher_id(),
+    )?;
     let mut report = ProcessReport {
         iceoryx2_prefix: prefix.to_string(),
         ..ProcessReport::default()
@@ -508,6 +538,14 @@ fn peak_rss_kib(pid: u32) -> Option<u64> {
     line.split_whitespace().nth(1)?.parse().ok()
 }
 
+/// The role of a ready report.
+fn ready_role(s: &Status) -> Option<(Role, Status)> {
+    (s.event == StatusEvent::Ready as u32)
+        .then(|| Role::from_code(s.role))
+        .flatten()
+        .map(|role| (role, *s))
+}
+
 /// Waits until every role has reported ready.
 fn wait_until_ready(
     session: &Session,
@@ -539,13 +577,12 @@ fn wait_until_ready(
             ));
         }
         ipc::wait(waitset, POLL)?;
-        session.status.drain(|s, _| {
-            if s.event == StatusEvent::Ready as u32
-                && let Some(role) = Role::from_code(s.role)
-            {
-                ready[role as usize] = true;
-            }
-        })?;
+        let mut joined = Vec::new();
+        session.status.drain(|s, _| joined.extend(ready_role(&s)))?;
+        for (role, s) in joined {
+            ready[role as usize] = true;
+            session.pin(role, &s)?;
+        }
     }
     Ok(())
 }

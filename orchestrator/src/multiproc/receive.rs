@@ -54,32 +54,34 @@ impl Driver<'_> {
         let mut restarted_ready = Vec::new();
         let mut rejected = Vec::new();
         self.session.status.drain(|s, _| {
-            if s.event == StatusEvent::Ready as u32 {
-                restarted_ready.extend(Role::from_code(s.role));
+            if let Some(joined) = ready_role(&s) {
+                restarted_ready.push(joined);
             } else if s.event == StatusEvent::Rejected as u32 {
                 rejected.push((
                     Role::from_code(s.role).map_or("unknown", Role::as_str),
+                    Role::from_code(s.producer),
                     s.detail,
                     s.count,
                 ));
             }
         })?;
-        for (code, count) in self.session.take_rejections().into_iter().enumerate() {
-            if count > 0 {
-                rejected.push(("orchestrator", code as u32, count));
-            }
+        for (producer, code, count) in self.session.take_rejections() {
+            rejected.push(("orchestrator", producer, code, count));
         }
-        for (consumer, code, count) in rejected {
-            let reason = Rejection::ALL
-                .get(code as usize)
-                .map_or("unknown", |r| r.as_str());
+        for (consumer, producer, code, count) in rejected {
+            let reason = Rejection::ALL.get(code as usize);
+            if let (Some(role), true) = (producer, reason.is_some_and(|r| r.blames_producer())) {
+                self.blame(role);
+            }
+            let reason = reason.map_or("unknown", |r| r.as_str());
             *self.rejected.entry(reason.to_string()).or_default() += count;
             self.recorder.event(
                 "rejected",
                 serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
             )?;
         }
-        for role in restarted_ready {
+        for (role, s) in restarted_ready {
+            self.session.pin(role, &s)?;
             // A process joined the running loop: tell it the clock and the schedule, and
             // have every producer repeat its newest sample for it; watch its node.
             self.recorder

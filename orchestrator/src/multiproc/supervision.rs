@@ -13,6 +13,7 @@ impl Driver<'_> {
             return Ok(Some(Outcome::Interrupted));
         }
         self.children.kill_overdue();
+        self.contain()?;
         if self.last_node_scan.elapsed() >= NODE_SCAN {
             self.last_node_scan = Instant::now();
             self.watch_nodes()?;
@@ -123,4 +124,57 @@ impl Driver<'_> {
         self.next_epoch += 1;
         self.next_epoch
     }
+
+    /// Notes that samples of the current producer of `role` were refused through its own
+    /// fault ([`Rejection::blames_producer`]).
+    pub(super) fn blame(&mut self, role: Role) {
+        let epoch = self.session.schedule.get().current(role);
+        let slot = &mut self.blamed[role as usize];
+        if slot.is_none_or(|b| b.epoch != epoch) {
+            *slot = Some(Blame {
+                since: Instant::now(),
+                epoch,
+                taken: self.session.output_of(role).taken(),
+            });
+        }
+    }
+
+    /// A producer whose samples have been refused for [`REFUSED_LIMIT`] with none taken
+    /// meanwhile has failed: it is recorded (`refused_too_long`) and killed, and its exit
+    /// is handled as a crash (restart or abort, by the scenario's policy). Meanwhile its
+    /// consumers fall back as for a silent producer (the DFL flies the committed plan,
+    /// then brakes).
+    fn contain(&mut self) -> anyhow::Result<()> {
+        for role in Role::ALL {
+            let Some(blame) = self.blamed[role as usize] else {
+                continue;
+            };
+            let recovered = self.session.output_of(role).taken() > blame.taken;
+            let replaced = self.session.schedule.get().current(role) != blame.epoch;
+            if recovered || replaced {
+                self.blamed[role as usize] = None;
+            } else if blame.since.elapsed() >= REFUSED_LIMIT {
+                self.blamed[role as usize] = None;
+                let pid = self.children.kill_running(role, blame.epoch);
+                self.recorder.event(
+                    "refused_too_long",
+                    serde_json::json!({ "role": role.as_str(), "epoch": blame.epoch, "pid": pid, "limit_s": REFUSED_LIMIT.as_secs_f64() }),
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How long a producer's own samples may be refused, none taken, before it is treated as
+/// failed ([`Driver::contain`]).
+pub(super) const REFUSED_LIMIT: Duration = Duration::from_millis(500);
+
+/// Samples of a producer refused through its own fault, since `since`.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Blame {
+    since: Instant,
+    epoch: u32,
+    /// Samples of the role the orchestrator had taken at `since`.
+    taken: u64,
 }

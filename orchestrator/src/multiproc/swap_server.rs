@@ -15,7 +15,7 @@ pub(super) struct Swap {
     pub(super) command: String,
     pub(super) started: Instant,
     /// The `scmpc swap` request to answer, if it came from one.
-    pub(super) request: Option<u64>,
+    pub(super) request: Option<Requester>,
     /// First and newest tick the replacement has published while warming up.
     pub(super) heard: Option<(u64, u64)>,
     /// First tick taken from the replacement, once scheduled.
@@ -28,7 +28,15 @@ pub(super) struct PendingSwap {
     pub(super) role: Role,
     pub(super) command: Vec<String>,
     /// The `scmpc swap` request to answer.
-    pub(super) request: Option<u64>,
+    pub(super) request: Option<Requester>,
+}
+
+/// Who asked for a live swap: the answer goes to this request of this client alone.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Requester {
+    pub(super) request_id: u64,
+    /// The iceoryx2 publisher the request came from.
+    pub(super) publisher: u128,
 }
 
 impl Driver<'_> {
@@ -37,21 +45,33 @@ impl Driver<'_> {
     /// ahead; once that tick is recorded the old process is retired.
     pub(super) fn supervise(&mut self) -> anyhow::Result<()> {
         let time_s = self.cursor as f64 * self.scenario.timing.dt_s();
-        let mut requests = Vec::new();
         // Straight from shared memory: nothing waits on this listener.
-        self.session.swap_requests.take(|r, _| requests.push(r))?;
-        for r in requests {
-            match Role::from_code(r.role) {
-                Some(Role::Plant) => {
-                    self.reply(r.request_id, None, "the plant cannot be swapped")?
-                }
-                Some(role) => self.scheduled.push(PendingSwap {
+        while let Some((r, _, publisher)) = self.session.swap_requests.receive_from()? {
+            let asker = Requester {
+                request_id: r.request_id,
+                publisher,
+            };
+            let command = r.command();
+            // A live request is held to what a scheduled swap is.
+            let checked = match Role::from_code(r.role) {
+                Some(Role::Plant) => Err("the plant cannot be swapped".to_string()),
+                Some(role) => crate::scenarios::check_swap_command(&command).map(|()| role),
+                None => Err(format!("no role with code {}", r.role)),
+            };
+            match checked {
+                Ok(role) => self.scheduled.push(PendingSwap {
                     time_s: 0.0,
                     role,
-                    command: r.command(),
-                    request: Some(r.request_id),
+                    command,
+                    request: Some(asker),
                 }),
-                None => self.reply(r.request_id, None, &format!("no role with code {}", r.role))?,
+                Err(why) => {
+                    self.recorder.event(
+                        "swap_refused",
+                        serde_json::json!({ "role": Role::from_code(r.role).map(Role::as_str), "command": command.join(" "), "reason": why }),
+                    )?;
+                    self.reply(asker, None, &why)?;
+                }
             }
         }
         // One swap per role at a time: the next starts once the process replaced has exited.
@@ -117,7 +137,7 @@ impl Driver<'_> {
         &mut self,
         role: Role,
         command: Vec<String>,
-        request: Option<u64>,
+        request: Option<Requester>,
     ) -> anyhow::Result<()> {
         let epoch = self.take_epoch();
         let replaces = self.session.schedule.get().current(role);
@@ -214,12 +234,13 @@ impl Driver<'_> {
     /// Answers a `scmpc swap` request: done with `swap`, or failed.
     pub(super) fn reply(
         &self,
-        request_id: u64,
+        to: Requester,
         swap: Option<&Swap>,
         message: &str,
     ) -> anyhow::Result<()> {
         let reply = SwapReply {
-            request_id,
+            request_id: to.request_id,
+            requester: to.publisher,
             done: u32::from(swap.is_some()),
             epoch: swap.map_or(0, |s| s.epoch),
             switch_tick: swap.and_then(|s| s.switch_tick).unwrap_or(0),
