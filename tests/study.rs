@@ -58,28 +58,33 @@ fn the_sweep_reproduces_the_papers_qualitative_findings() {
 }
 
 #[test]
-fn with_the_ekf_a_hundred_noise_seeds_never_collide() {
+fn with_the_ekf_a_hundred_noise_seeds_all_reach_the_goal_and_never_collide_but_kappa_0_does() {
     let (dir, out) = run_into_tempdir(&[
         "sweep",
         "paper-noisy",
         "--grid",
-        "estimator.kind=ekf,passthrough",
+        "mpc.uncertainty_sigmas=3,0",
         "--seeds",
         "100",
     ]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let stats = csv(&dir.path().join("monte_carlo.csv"));
-    let by_kind = |kind: &str| stats.iter().find(|r| r["estimator.kind"] == kind).unwrap();
-    let ekf = by_kind("ekf");
-    assert_eq!(num(ekf, "runs"), 100.0);
-    assert_eq!(num(ekf, "collisions"), 0.0, "{ekf:?}");
-    assert!(num(ekf, "clearance_min_m") > 0.0);
-    let passthrough = by_kind("passthrough");
-    assert_eq!(num(passthrough, "runs"), 100.0);
-    eprintln!(
-        "collision rate over 100 seeds: EKF {}, passthrough {}",
-        ekf["collision_rate"], passthrough["collision_rate"]
-    );
+    let by_kappa = |kappa: &str| {
+        stats
+            .iter()
+            .find(|r| r["mpc.uncertainty_sigmas"] == kappa)
+            .unwrap()
+    };
+    // The paper's margin, kappa = 3 standard deviations of the estimate.
+    let margin = by_kappa("3");
+    assert_eq!(num(margin, "runs"), 100.0);
+    assert_eq!(num(margin, "reached"), 100.0, "{margin:?}");
+    assert_eq!(num(margin, "collisions"), 0.0, "{margin:?}");
+    assert!(num(margin, "clearance_min_m") > 0.0);
+    // Without it the same seeds graze the obstacle: the margin is what keeps them out.
+    let none = by_kappa("0");
+    assert_eq!(num(none, "runs"), 100.0);
+    assert!(num(none, "collisions") > 0.0, "{none:?}");
     assert_eq!(csv(&dir.path().join("sweep.csv")).len(), 200);
 }
 
