@@ -423,3 +423,76 @@ fn a_failed_producer_aborts_the_run_when_restarts_are_off_or_used_up() {
         assert!(!ev.iter().any(|e| e["event"] == "restarted"), "{policy}");
     }
 }
+
+#[test]
+fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    kill_role_during_run(
+        dir.path(),
+        &["--mode", "realtime", "--set", "duration_s=10"],
+        "dfl",
+        Duration::from_secs(3),
+    );
+    let s = summary(dir.path());
+    let ev = events(dir.path());
+    for event in ["crashed", "restarted"] {
+        assert!(
+            ev.iter().any(|e| e["event"] == event && e["role"] == "dfl"),
+            "no `{event}` of the dfl in {ev:#?}"
+        );
+    }
+    // While no DFL runs the plant holds the last command: at most 40 ticks (0.2 s) go
+    // without one, and the robot stays clear of the obstacle.
+    let gaps = s["record_gaps"].as_u64().unwrap();
+    assert!(gaps <= 40, "{gaps} ticks without a command");
+    // Every other tick of the 10 s is recorded whole.
+    assert_eq!(s["ticks"].as_u64().unwrap() + gaps, 2000);
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+    assert_eq!(s["restarts"], 1);
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+}
+
+#[test]
+fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick_brakes_to_rest() {
+    let _machine = common::machine_alone();
+    let run = |delay_ms: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = scmpc()
+            .args([
+                "run",
+                "--mode",
+                "realtime",
+                "--set",
+                "duration_s=3",
+                "--set",
+            ])
+            .arg(format!("fault.estimator_delay_ms={delay_ms}"))
+            .arg("--out")
+            .arg(dir.path())
+            .output()
+            .unwrap();
+        assert!(out.status.code().is_some());
+        summary(dir.path())
+    };
+    // 2 ms of a 5 ms tick: every command 2 ms later, none missing.
+    let s = run("2");
+    let loop_us = s["loop_latency_us"]["p50"].as_f64().unwrap();
+    assert!(
+        (2000.0..5000.0).contains(&loop_us),
+        "sensor to actuator {loop_us} us"
+    );
+    assert_eq!(s["ticks_without_estimate"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["deadline_misses"], 0);
+    // 6 ms: the estimates fall behind the clock, and the DFL brakes on its own clock.
+    let s = run("6");
+    assert!(s["ticks_without_estimate"].as_u64().unwrap() > 0);
+    assert!(
+        s["commands"]["brake"].as_u64().unwrap() > 0,
+        "{}",
+        s["commands"]
+    );
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+    assert_ne!(s["outcome"], "reached");
+}
