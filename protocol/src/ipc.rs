@@ -305,11 +305,13 @@ impl<T: Message> Receiver<T> {
     /// The next acceptable sample, if any, with its publish-to-receipt latency in ns.
     /// Refused samples are counted and skipped.
     pub fn receive(&self) -> Result<Option<(T, u64)>, IpcError> {
-        Ok(self.receive_from()?.map(|(m, latency, _)| (m, latency)))
+        Ok(self
+            .receive_with_origin()?
+            .map(|(m, latency, _)| (m, latency)))
     }
 
     /// [`Receiver::receive`], with the iceoryx2 id of the sample's publisher.
-    pub fn receive_from(&self) -> Result<Option<(T, u64, u128)>, IpcError> {
+    pub fn receive_with_origin(&self) -> Result<Option<(T, u64, u128)>, IpcError> {
         // Nothing is judged before the orchestrator has named the producers and, for a
         // bound receiver, before its clock knows "now" (a process that joins a real-time
         // run may hear the schedule before the clock's start).

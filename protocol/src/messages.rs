@@ -860,6 +860,82 @@ mod tests {
     }
 
     #[test]
+    fn codes_counts_and_lengths_outside_their_type_are_malformed() {
+        let verdict = DeadlineVerdict {
+            status: PLAN_MISSING,
+            ..DeadlineVerdict::default()
+        };
+        assert!(verdict.well_formed());
+        for bad in [
+            DeadlineVerdict { met: 2, ..verdict },
+            DeadlineVerdict {
+                status: 17,
+                ..verdict
+            },
+            DeadlineVerdict {
+                fallback: 99,
+                ..verdict
+            },
+        ] {
+            assert!(!bad.well_formed(), "{bad:?}");
+        }
+        let plan = Plan {
+            status: PlanStatus::Solved as u32,
+            horizon: 8,
+            ..Plan::default()
+        };
+        assert!(plan.well_formed());
+        assert!(
+            !Plan {
+                horizon: MAX_HORIZON as u32 + 1,
+                ..plan
+            }
+            .well_formed()
+        );
+        assert!(!Plan { status: 9, ..plan }.well_formed());
+        let request = SwapRequest::new(1, Role::Mpc, &["scmpc".into(), "mpc".into()]).unwrap();
+        assert!(request.well_formed());
+        assert!(!SwapRequest { role: 9, ..request }.well_formed());
+        // A command that does not end in NUL, or runs past the buffer.
+        assert!(
+            !SwapRequest {
+                command_len: 4,
+                ..request
+            }
+            .well_formed()
+        );
+        assert!(
+            !SwapRequest {
+                command_len: MAX_COMMAND_BYTES as u32 + 1,
+                ..request
+            }
+            .well_formed()
+        );
+        let status = Status {
+            event: StatusEvent::Rejected as u32,
+            detail: Rejection::Malformed as u32,
+            producer: NO_PRODUCER,
+            ..Status::default()
+        };
+        assert!(status.well_formed());
+        assert!(
+            !Status {
+                detail: Rejection::COUNT as u32,
+                ..status
+            }
+            .well_formed()
+        );
+        assert!(!Status { event: 7, ..status }.well_formed());
+        assert!(
+            !Control {
+                command: 5,
+                ..Control::default()
+            }
+            .well_formed()
+        );
+    }
+
+    #[test]
     fn a_swap_request_carries_its_command_line_exactly() {
         let command: Vec<String> = ["scmpc", "mpc", "--set", "mpc.horizon=10", ""]
             .map(String::from)

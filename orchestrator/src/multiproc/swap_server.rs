@@ -46,7 +46,7 @@ impl Driver<'_> {
     pub(super) fn supervise(&mut self) -> anyhow::Result<()> {
         let time_s = self.cursor as f64 * self.scenario.timing.dt_s();
         // Straight from shared memory: nothing waits on this listener.
-        while let Some((r, _, publisher)) = self.session.swap_requests.receive_from()? {
+        while let Some((r, _, publisher)) = self.session.swap_requests.receive_with_origin()? {
             let asker = Requester {
                 request_id: r.request_id,
                 publisher,
