@@ -395,18 +395,15 @@ fn a_failed_producer_aborts_the_run_when_restarts_are_off_or_used_up() {
     let _machine = common::machine_shared();
     for policy in ["supervision.restart=never", "supervision.max_restarts=0"] {
         let dir = tempfile::tempdir().unwrap();
-        let out = scmpc()
-            .args([
-                "run",
-                "--set",
-                "fault.estimator_nan_from_s=5",
-                "--set",
-                policy,
-            ])
-            .arg("--out")
-            .arg(dir.path())
-            .output()
-            .unwrap();
+        let out = common::run(&[
+            "run",
+            "--set",
+            "fault.estimator_nan_from_s=5",
+            "--set",
+            policy,
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
         assert_ne!(out.status.code(), Some(0), "{policy}");
         let s = summary(dir.path());
         assert_eq!(s["outcome"], "aborted", "{policy}");
@@ -415,12 +412,14 @@ fn a_failed_producer_aborts_the_run_when_restarts_are_off_or_used_up() {
         let ev = events(dir.path());
         for event in ["refused_too_long", "crashed"] {
             assert!(
-                ev.iter()
-                    .any(|e| e["event"] == event && e["role"] == "estimator"),
+                common::has_event(&ev, event, "estimator"),
                 "{policy}: no `{event}` in {ev:#?}"
             );
         }
-        assert!(!ev.iter().any(|e| e["event"] == "restarted"), "{policy}");
+        assert!(
+            !common::has_event(&ev, "restarted", "estimator"),
+            "{policy}"
+        );
     }
 }
 
@@ -438,7 +437,7 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
     let ev = events(dir.path());
     for event in ["crashed", "restarted"] {
         assert!(
-            ev.iter().any(|e| e["event"] == event && e["role"] == "dfl"),
+            common::has_event(&ev, event, "dfl"),
             "no `{event}` of the dfl in {ev:#?}"
         );
     }
@@ -458,20 +457,18 @@ fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick
     let _machine = common::machine_alone();
     let run = |delay_ms: &str| {
         let dir = tempfile::tempdir().unwrap();
-        let out = scmpc()
-            .args([
-                "run",
-                "--mode",
-                "realtime",
-                "--set",
-                "duration_s=3",
-                "--set",
-            ])
-            .arg(format!("fault.estimator_delay_ms={delay_ms}"))
-            .arg("--out")
-            .arg(dir.path())
-            .output()
-            .unwrap();
+        let delay = format!("fault.estimator_delay_ms={delay_ms}");
+        let out = common::run(&[
+            "run",
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=3",
+            "--set",
+            &delay,
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
         assert!(out.status.code().is_some());
         summary(dir.path())
     };

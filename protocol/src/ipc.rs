@@ -224,6 +224,7 @@ impl<T: Message> Topic<T> {
             rejected: Cell::new([0; Rejection::COUNT]),
             taken: Cell::new(0),
             limit: OnceCell::new(),
+            clock_known: Cell::new(false),
             standby_newest: Cell::new(None),
             _payload: PhantomData,
         })
@@ -292,6 +293,8 @@ pub struct Receiver<T: Message> {
     taken: Cell<u64>,
     /// The clock a sample's tick is judged against ([`Receiver::bound_by`]).
     limit: OnceCell<Rc<dyn TickLimit>>,
+    /// Whether that clock has known "now" ([`Receiver::clock_known`]).
+    clock_known: Cell<bool>,
     /// Newest tick heard from a producer being swapped in or out (not taken).
     standby_newest: Cell<Option<u64>>,
     _payload: PhantomData<T>,
@@ -315,14 +318,7 @@ impl<T: Message> Receiver<T> {
         // Nothing is judged before the orchestrator has named the producers and, for a
         // bound receiver, before its clock knows "now" (a process that joins a real-time
         // run may hear the schedule before the clock's start).
-        let no_clock = || {
-            self.limit.get().is_some_and(|l| {
-                l.newest_tick(false)
-                    .or_else(|| l.newest_tick(true))
-                    .is_none()
-            })
-        };
-        if self.producer.is_some() && (self.schedule.get().is_none() || no_clock()) {
+        if self.producer.is_some() && (self.schedule.get().is_none() || !self.clock_known()) {
             return Ok(None);
         }
         loop {
@@ -353,6 +349,21 @@ impl<T: Message> Receiver<T> {
 
     /// The border check (README, "Supervision"), in one place. A sample of a producer
     /// being swapped in or out is [`EpochVerdict::Standby`]: skipped, not an error.
+    /// Whether the bound clock (if any) knows "now". A clock once known stays known, so
+    /// it is asked only until then (in real time asking reads the wall clock).
+    fn clock_known(&self) -> bool {
+        if self.clock_known.get() {
+            return true;
+        }
+        let known = self.limit.get().is_none_or(|l| {
+            l.newest_tick(false)
+                .or_else(|| l.newest_tick(true))
+                .is_some()
+        });
+        self.clock_known.set(known);
+        known
+    }
+
     /// The order matters: who sent it (run, epoch, publisher) before what it says, so a
     /// stranger's sample is never blamed on the producer ([`Rejection::blames_producer`]).
     fn check(&self, message: &T, origin: u128) -> Result<EpochVerdict, Rejection> {

@@ -61,6 +61,13 @@ pub fn wait_for(timeout: std::time::Duration, mut condition: impl FnMut() -> boo
     condition()
 }
 
+/// Whether `events` hold an `event` of `role`.
+pub fn has_event(events: &[serde_json::Value], event: &str, role: &str) -> bool {
+    events
+        .iter()
+        .any(|e| e["event"] == event && e["role"] == role)
+}
+
 /// The run's `events.jsonl` as far as it has been written.
 pub fn events(dir: &Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(dir.join("events.jsonl"))
