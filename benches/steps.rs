@@ -184,3 +184,28 @@ fn plant_step(bencher: divan::Bencher) {
     let dt = s.timing.dt_s();
     bencher.bench_local(|| plant.step(0.5, 0.1, dt));
 }
+
+/// One route search ([`planner::TangentGraph::shortest_path`]) per iteration, over 1000
+/// random fields of `n` discs in turn (`orchestrator::bench::planning_field`): the median
+/// is the median field's (`scmpc bench` reports p50 and p99).
+#[divan::bench(args = [5, 20], sample_count = 1000)]
+fn route_planning(bencher: divan::Bencher, n: usize) {
+    use orchestrator::bench::{PLANNING_FIELDS, PLANNING_START, planning_field};
+    let fields: Vec<Vec<planner::Disc>> = (0..PLANNING_FIELDS)
+        .map(|seed| planning_field(seed, n))
+        .collect();
+    let mut graph = planner::TangentGraph::with_capacity(n);
+    let mut k = 0;
+    bencher.bench_local(|| {
+        let discs = &fields[k % fields.len()];
+        k += 1;
+        graph
+            .shortest_path(
+                PLANNING_START,
+                [0.0, 0.0],
+                discs,
+                [[-10.0, 10.0], [-10.0, 10.0]],
+            )
+            .is_ok()
+    });
+}

@@ -224,3 +224,16 @@ fn a_duration_of_zero_or_less_is_refused() {
     refused_set("duration_s=0", "duration_s");
     refused_set("duration_s=-1", "duration_s");
 }
+
+#[test]
+fn bad_planner_settings_are_refused() {
+    refused_set("planner.kind=astar", "planner.kind");
+    refused_set("planner.period_s=-1", "planner.period_s");
+    refused_set("planner.clearance_m=-0.1", "planner.clearance_m");
+    refused_set("planner.speed_m_s=0", "planner.speed_m_s");
+    refused_set("planner.stray_m=0", "planner.stray_m");
+    refused_file(
+        "[planner]\nkind = \"route\"\n[mpc]\nformulation = \"nonlinear\"\nterminal_safety = \"none\"\n",
+        "planner.kind",
+    );
+}

@@ -22,22 +22,29 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
 /// Steps `scenario` to its end in process, each phase under the allocation counter;
 /// returns the allocations after the first 20 samples by plant, estimator, MPC and DFL,
 /// and the command modes the DFL used after them.
-fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 4], Vec<CommandMode>) {
+fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode>) {
     let m = scenario.timing.inner_steps as u64;
     let mut closed_loop = ClosedLoop::new(scenario).unwrap();
     // Warm-up: the first samples size every buffer.
     let warm_up = 20 * m;
-    let mut counts = [0u64; 4];
+    let mut counts = [0u64; 5];
     let mut modes = Vec::new();
     while !closed_loop.is_done() {
         let tick = closed_loop.tick();
         let ((_, y), measure_a) = allocations(|| closed_loop.measure());
         let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
         let (_, plan_a) = allocations(|| closed_loop.plan(&estimate));
+        let (_, route_a) = allocations(|| closed_loop.route(&estimate));
         let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));
         let ((), integrate_a) = allocations(|| closed_loop.integrate(&actuation));
         if tick >= warm_up {
-            let by_role = [measure_a + integrate_a, estimate_a, plan_a, command_a];
+            let by_role = [
+                measure_a + integrate_a,
+                estimate_a,
+                plan_a,
+                command_a,
+                route_a,
+            ];
             for (c, a) in counts.iter_mut().zip(by_role) {
                 *c += a;
             }
@@ -80,8 +87,20 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "plant.noise_variance=0.05",
         ]));
         assert_eq!(
-            counts, [0; 4],
-            "{formulation} {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL"
+            counts, [0; 5],
+            "{formulation} {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
+        );
+    }
+    // The route planner and the MPC following its route, through an obstacle field
+    // (replans by period, stall or stray included), both programs.
+    for qp_form in ["sparse", "condensed"] {
+        let field =
+            orchestrator::scenarios::load(Some("field"), &[format!("mpc.qp_form={qp_form}")])
+                .unwrap();
+        let (counts, _) = count_whole_run(&field);
+        assert_eq!(
+            counts, [0; 5],
+            "field, {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
         );
     }
     // Every fallback: failed solves (the cold retry, then the shifted plan and braking),
@@ -110,8 +129,8 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             );
         }
         assert_eq!(
-            counts, [0; 4],
-            "{overrides:?}: allocations after warm-up by plant, estimator, MPC, DFL"
+            counts, [0; 5],
+            "{overrides:?}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
         );
     }
 }

@@ -25,9 +25,15 @@ pub use protocol::{phi, phi_inverse};
 /// The linearizing input `U = [U1, U2]` for the virtual input `v` (paper eq. 1101):
 /// `U1 = v1 cos theta + v2 sin theta`, `U2 = (-v1 sin theta + v2 cos theta) / zeta`.
 ///
-/// The zeta guard sets `U2 = 0` when `|zeta| <= zeta_th` (the paper writes
-/// `zeta <= zeta_th`; the absolute value lets the robot steer while reversing too).
-/// Returns `U` and whether the guard zeroed `U2`.
+/// The zeta guard takes over when `|zeta| <= zeta_th` (the paper writes `zeta <=
+/// zeta_th`; the absolute value lets the robot steer while reversing too): `U2` is zero
+/// (the paper's guard), unless `v` points more than 45 degrees off the robot's axis
+/// (forwards or backwards). Then no `U1` realizes it, and a robot standing still with `v`
+/// across its axis would stay so (the stall of a robot that reaches the goal's
+/// neighbourhood sideways); instead it turns in place towards the nearer of the two
+/// directions of `v`, at the rate that would align it in [`TURN_IN_PLACE_S`]. Turning in
+/// place leaves `z` as it is (`zeta` is ~0), so the linear model the MPC plans on and the
+/// safety check flies still holds. Returns `U` and whether the guard acted.
 pub fn linearizing_input(
     theta_rad: f64,
     zeta: f64,
@@ -37,11 +43,25 @@ pub fn linearizing_input(
     let (s, c) = theta_rad.sin_cos();
     let u1 = v[0] * c + v[1] * s;
     if zeta.abs() <= zeta_threshold {
-        ([u1, 0.0], true)
+        let across = -v[0] * s + v[1] * c;
+        let turn = if across.abs() > u1.abs() && across.hypot(u1) >= TURN_IN_PLACE_MIN_ACCEL {
+            // Angle from the nearer end of the robot's axis to v, in (-pi/2, pi/2).
+            (across / u1).atan() / TURN_IN_PLACE_S
+        } else {
+            0.0
+        };
+        ([u1, turn], true)
     } else {
         ([u1, (-v[0] * s + v[1] * c) / zeta], false)
     }
 }
+
+/// Under the zeta guard, a robot whose plan points across its axis turns in place to
+/// align with it in this long, s ([`linearizing_input`]).
+pub const TURN_IN_PLACE_S: f64 = 0.25;
+/// Plans asking for less acceleration than this, m/s^2, are not turned towards (a robot at
+/// rest at its goal does not spin on rounding).
+pub const TURN_IN_PLACE_MIN_ACCEL: f64 = 1e-3;
 
 /// The linearizing input for the middle of an inner tick of `dt_s`: [`linearizing_input`]
 /// evaluated again at the heading and zeta half a tick on, as its first evaluation moves
@@ -344,12 +364,33 @@ mod tests {
 
     #[test]
     fn zeta_guard_zeroes_steering_below_threshold_in_both_directions() {
-        for zeta in [0.0, 0.005, -0.01, 0.01] {
-            let (u, guarded) = linearizing_input(0.7, zeta, [1.0, -2.0], 0.01);
-            assert!(guarded && u[1] == 0.0, "zeta {zeta}: {u:?}");
+        // v within 45 degrees of the robot's axis (forwards, then backwards).
+        for v in [[1.0, 0.5], [-1.0, -0.5]] {
+            for zeta in [0.0, 0.005, -0.01, 0.01] {
+                let (u, guarded) = linearizing_input(0.7, zeta, v, 0.01);
+                assert!(guarded && u[1] == 0.0, "zeta {zeta}: {u:?}");
+            }
         }
         let (u, guarded) = linearizing_input(0.7, -0.5, [1.0, -2.0], 0.01);
         assert!(!guarded && u[1] != 0.0);
+    }
+
+    #[test]
+    fn under_the_guard_a_plan_across_the_axis_turns_the_robot_in_place_towards_it() {
+        let theta = 0.7;
+        for v in [[1.0, -2.0], [-1.5, 1.0], [0.0, 1.0]] {
+            let ([u1, u2], guarded) = linearizing_input(theta, 0.0, v, 0.01);
+            assert!(guarded);
+            // Turning at u2 for TURN_IN_PLACE_S puts v on the robot's axis.
+            let aligned = theta + u2 * TURN_IN_PLACE_S;
+            let across = -v[0] * aligned.sin() + v[1] * aligned.cos();
+            assert!(across.abs() < 1e-12, "{v:?}: {across}");
+            assert!(u2.abs() <= std::f64::consts::FRAC_PI_2 / TURN_IN_PLACE_S);
+            assert_eq!(u1, v[0] * theta.cos() + v[1] * theta.sin());
+        }
+        // No turning for a plan that asks for (almost) nothing.
+        let (u, _) = linearizing_input(theta, 0.0, [0.0, 1e-4], 0.01);
+        assert_eq!(u[1], 0.0);
     }
 
     #[test]

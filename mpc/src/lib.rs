@@ -9,6 +9,7 @@
 //! once, at setup (one per set of rows the input box may imply, [`problem::Rows`]), and
 //! only their values are updated afterwards.
 
+pub mod follow;
 pub mod model;
 pub mod nonlinear;
 pub mod problem;
@@ -46,6 +47,18 @@ pub struct LinearMpc {
     /// `Q_bar`, the DARE solution (eq. 56).
     terminal_weight: Matrix4<f64>,
     goal: [f64; 2],
+    /// The cost's state weight `Q` (diagonal) on every stage before the last.
+    q_diag: [f64; 4],
+    /// Whether the cost may track a reference other than the goal (a route is followed):
+    /// then the objective's linear term is written every step, zero or not.
+    follows_route: bool,
+    /// Speed of the reference along a route (`planner.speed_m_s`), m/s.
+    route_speed_m_s: f64,
+    /// The stage-wise reference states on a route ([`follow::reference`]; absolute).
+    route_reference: Vec<[f64; 4]>,
+    /// The cost's linear term for the step's reference, as `(stage-wise column, value)`
+    /// ([`LinearMpc::set_reference`]); empty: the goal.
+    reference_cost: Vec<(usize, f64)>,
     /// Obstacles as given (absolute coordinates, true radii).
     obstacles: Vec<protocol::Obstacle>,
     /// The robot's radius and the safety margin `m`, added to every radius.
@@ -161,6 +174,11 @@ impl LinearMpc {
             statics,
             terminal_weight,
             goal,
+            q_diag: c.q_diag,
+            follows_route: scenario.planner.is_on(),
+            route_speed_m_s: scenario.planner.speed_m_s,
+            route_reference: vec![[0.0; 4]; c.horizon + 1],
+            reference_cost: Vec::with_capacity(4 * c.horizon + 4),
             obstacles: scenario.obstacles.clone(),
             obstacle_margin_m: scenario.obstacle_margin_m(),
             uncertainty_sigmas: c.uncertainty_sigmas,
@@ -240,6 +258,43 @@ impl LinearMpc {
     /// Forgets the previous plan: the next step linearizes at a braking rollout.
     pub fn reset(&mut self) {
         self.last_sample = None;
+    }
+
+    /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
+    /// `reference[i]` for `i = 1..=N`): eq. (51) with `z_i - r_i` for `z_i`, on every stage
+    /// after the first and in the terminal weight; `None`: the goal at rest (eq. 51
+    /// itself). Only the objective's linear term changes (`-2 Q r_i`, `-2 Q_bar r_N`); the
+    /// constraints, the terminal set included, stay those of the goal.
+    pub fn set_reference(&mut self, reference: Option<&[[f64; 4]]>) {
+        self.reference_cost.clear();
+        let Some(reference) = reference else {
+            return;
+        };
+        let l = &self.layout;
+        let relative = |z: [f64; 4]| [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
+        for (i, z) in reference.iter().enumerate().take(l.horizon).skip(1) {
+            let r = relative(*z);
+            for (c, (q, r)) in self.q_diag.iter().zip(r).enumerate() {
+                self.reference_cost.push((l.z(i, c), -2.0 * q * r));
+            }
+        }
+        let r = relative(reference[l.horizon]);
+        for c in 0..4 {
+            let weighted: f64 = (0..4).map(|k| self.terminal_weight[(c, k)] * r[k]).sum();
+            self.reference_cost
+                .push((l.z(l.horizon, c), -2.0 * weighted));
+        }
+    }
+
+    /// Drives the next steps along `route` from `position` ([`follow::reference`] at
+    /// `planner.speed_m_s`), or to the goal without one or on its last segment.
+    pub fn follow(&mut self, route: Option<&protocol::Route>, position: [f64; 2]) {
+        let mut reference = std::mem::take(&mut self.route_reference);
+        let on_route = route.is_some_and(|r| {
+            follow::reference(r, position, self.route_speed_m_s, self.ts_s, &mut reference)
+        });
+        self.set_reference(on_route.then_some(&reference[..]));
+        self.route_reference = reference;
     }
 
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
@@ -394,6 +449,10 @@ impl LinearMpc {
             max_terminal_speed: self.reach.max_terminal_speed(),
         };
         self.assembly.fill(&self.layout, &self.statics, &data, rows);
+        if self.follows_route {
+            self.assembly
+                .add_linear_cost(&self.layout, &self.reference_cost);
+        }
     }
 
     /// The previous plan shifted by one sample and extended by one step: the candidate of
@@ -602,6 +661,23 @@ impl Mpc {
             Mpc::Linear(m) => m.reset(),
             Mpc::Nonlinear(m) => m.reset(),
         }
+    }
+
+    /// plan(k) as [`Mpc::step`], driving along `route` ([`LinearMpc::follow`]) instead of
+    /// to the goal; without a route (none yet, or the planner off), to the goal. The
+    /// nonlinear baseline always drives to the goal (the validator refuses it with a
+    /// planner).
+    pub fn step_on_route(
+        &mut self,
+        sample: u64,
+        x_bar: [f64; 4],
+        position_sigma_m: f64,
+        route: Option<&protocol::Route>,
+    ) -> Plan {
+        if let Mpc::Linear(m) = self {
+            m.follow(route, [x_bar[0], x_bar[1]]);
+        }
+        self.step(sample, x_bar, position_sigma_m)
     }
 
     /// Applies the scenario's injected faults to plan(k): a forced failure (reported as
@@ -852,6 +928,53 @@ mod tests {
             });
             assert_eq!(compared, 200);
         }
+    }
+
+    #[test]
+    fn a_reference_draws_the_plan_to_it_in_both_programs_and_none_gives_the_goals_plan_back() {
+        let s = Scenario::default()
+            .with_overrides(&["planner.kind=route".into(), "obstacles=[]".into()])
+            .unwrap();
+        let x_bar = [7.0, 7.0, -2.356, 0.5];
+        let reference = [7.0, 0.0];
+        let at_rest = vec![[reference[0], 0.0, reference[1], 0.0]; s.mpc.horizon + 1];
+        let end = |p: &Plan| [p.z[p.horizon as usize][0], p.z[p.horizon as usize][2]];
+        // How well the first input points from the robot to `target` (cosine).
+        let aims_at = |p: &Plan, target: [f64; 2]| {
+            let (dx, dy) = (target[0] - x_bar[0], target[1] - x_bar[1]);
+            (p.v[0][0] * dx + p.v[0][1] * dy) / (p.v[0][0].hypot(p.v[0][1]) * dx.hypot(dy))
+        };
+        let mut ends = Vec::new();
+        for form in ["sparse", "condensed"] {
+            let s = s.with_overrides(&[format!("mpc.qp_form={form}")]).unwrap();
+            let mut mpc = LinearMpc::new(&s).unwrap();
+            let goal_plan = mpc.step(0, x_bar, 0.0);
+            let to_goal = end(&goal_plan);
+            mpc.reset();
+            mpc.set_reference(Some(&at_rest));
+            let reference_plan = mpc.step(0, x_bar, 0.0);
+            let to_reference = end(&reference_plan);
+            let from = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
+            assert!(from(to_reference, reference) < from(to_goal, reference));
+            assert!(
+                aims_at(&reference_plan, reference) > 0.9 && aims_at(&goal_plan, reference) < 0.8,
+                "{form}: {:?} vs {:?}",
+                reference_plan.v[0],
+                goal_plan.v[0]
+            );
+            // Back to the goal: the same plan as before any reference (the linear term
+            // is zeroed, not left at the reference's).
+            mpc.reset();
+            mpc.set_reference(None);
+            let again = end(&mpc.step(0, x_bar, 0.0));
+            assert!(
+                from(again, to_goal) < 1e-9,
+                "{form}: {again:?} vs {to_goal:?}"
+            );
+            ends.push(to_reference);
+        }
+        let gap = (ends[0][0] - ends[1][0]).hypot(ends[0][1] - ends[1][1]);
+        assert!(gap < 1e-3, "sparse and condensed differ by {gap}");
     }
 
     /// A deterministic sequence in (0, 1).

@@ -735,6 +735,30 @@ impl Assembly {
         self.barrier(&d.barrier(l, s, rows.relaxed), |i| [l.z(i, 0), l.z(i, 2)]);
     }
 
+    /// Adds `value` to the objective's linear term at each stage-wise `column` (rewritten
+    /// in the inputs when condensed: `T' q`). The term is written even when `terms` is
+    /// empty, so a solver that tracked a reference before is given zeros.
+    pub fn add_linear_cost(&mut self, l: &Layout, terms: &[(usize, f64)]) {
+        if self.q.len() < l.base_variables() {
+            self.q.resize(l.base_variables(), 0.0);
+        }
+        match &self.condensing {
+            Some(condensing) => {
+                for &(column, value) in terms {
+                    let inputs = condensing.forced_transposed.column(column);
+                    for (q, t) in self.q.iter_mut().zip(inputs.iter()) {
+                        *q += value * t;
+                    }
+                }
+            }
+            None => {
+                for &(column, value) in terms {
+                    self.q[column] += value;
+                }
+            }
+        }
+    }
+
     /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.
     fn equality_rows(&mut self, l: &Layout, s: &StaticData, z0: [f64; 4]) {
         for (c, z) in z0.into_iter().enumerate() {

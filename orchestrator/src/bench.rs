@@ -66,6 +66,52 @@ pub struct BenchReport {
     pub lockstep_wall_s: f64,
     /// Simulated seconds per wall second in lockstep.
     pub lockstep_speedup: f64,
+    /// One route search ([`planner::TangentGraph::shortest_path`]) over each of
+    /// [`PLANNING_FIELDS`] random fields ([`planning_field`]), by number of discs, µs.
+    pub route_planning_us: std::collections::BTreeMap<usize, Percentiles>,
+}
+
+/// Random fields per size in the route-planning benchmark.
+pub const PLANNING_FIELDS: u64 = 1000;
+
+/// A random field of `n` discs for the route-planning benchmarks: radii 0.2-0.8 m, centres
+/// uniform in `[0.5, 7.5]^2` between a start at (8, 8) and the goal at the origin (a disc
+/// over either is drawn again); seeded by `seed`.
+pub fn planning_field(seed: u64, n: usize) -> Vec<planner::Disc> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut discs = Vec::with_capacity(n);
+    while discs.len() < n {
+        let center = [rng.random_range(0.5..7.5), rng.random_range(0.5..7.5)];
+        let radius = rng.random_range(0.2..0.8);
+        let clear = |p: [f64; 2]| (center[0] - p[0]).hypot(center[1] - p[1]) > radius;
+        if clear(PLANNING_START) && clear([0.0, 0.0]) {
+            discs.push(planner::Disc { center, radius });
+        }
+    }
+    discs
+}
+
+/// Where the route-planning benchmark's robot starts, m.
+pub const PLANNING_START: [f64; 2] = [8.0, 8.0];
+
+/// One route search over each of `fields` fields of `n` discs, µs (a field without a
+/// route counts too: the search that says so is as long).
+pub fn route_planning_us(n: usize, fields: u64) -> Percentiles {
+    let mut graph = planner::TangentGraph::with_capacity(n);
+    let bounds = [[-10.0, 10.0], [-10.0, 10.0]];
+    let times: Vec<f64> = (0..fields)
+        .map(|seed| {
+            let discs = planning_field(seed, n);
+            let started = std::time::Instant::now();
+            let found = graph
+                .shortest_path(PLANNING_START, [0.0, 0.0], &discs, bounds)
+                .is_ok();
+            std::hint::black_box(found);
+            started.elapsed().as_secs_f64() * 1e6
+        })
+        .collect();
+    Percentiles::of(&times)
 }
 
 struct Ports<T: iceoryx2::prelude::ZeroCopySend + std::fmt::Debug + 'static> {
@@ -281,6 +327,10 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         lockstep_simulated_s: lockstep.simulated_s,
         lockstep_wall_s: lockstep.wall_s,
         lockstep_speedup: lockstep.simulated_s / lockstep.wall_s.max(1e-9),
+        route_planning_us: [5, 20]
+            .into_iter()
+            .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
+            .collect(),
     };
     let path = out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
@@ -297,8 +347,13 @@ impl BenchReport {
             .iter()
             .map(|(k, v)| format!("{k} {:.1}", *v as f64 / 1024.0))
             .collect();
+        let planning: String = self
+            .route_planning_us
+            .iter()
+            .map(|(n, q)| format!("  route, {n:>2} discs      {}\n", p(q)))
+            .collect();
         format!(
-            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n",
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}",
             self.machine,
             p(&self.raw_iceoryx2_one_way_us),
             p(&self.pipeline_hop_us),

@@ -90,6 +90,9 @@ enum Command {
     Mpc(RoleArgs),
     /// Role process: the DFL inner loop (started by `scmpc run`).
     Dfl(RoleArgs),
+    /// Role process: the route planner (started by `scmpc run` when `planner.kind =
+    /// "route"`).
+    Planner(RoleArgs),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -258,6 +261,7 @@ pub fn main() -> ExitCode {
         Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
         Command::Mpc(args) => role(args, Role::Mpc, mpc::process::run),
         Command::Dfl(args) => role(args, Role::Dfl, dfl::process::run),
+        Command::Planner(args) => role(args, Role::Planner, planner::process::run),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,22 +7,28 @@
 //! 2. [`ClosedLoop::estimate`]: the estimator predicts with the command of tick `j - 1`
 //!    and updates;
 //! 3. [`ClosedLoop::plan`]: on a sample boundary (`j = k M`) the MPC solves plan(k), with
-//!    the scenario's faults; a plan whose solve time (measured, plus any injected delay)
-//!    exceeds `Ts` arrives `ceil(solve / Ts)` samples late, as it would in real time;
+//!    the scenario's faults, following route(k - 1) if a planner runs; a plan whose solve
+//!    time (measured, plus any injected delay) exceeds `Ts` arrives `ceil(solve / Ts)`
+//!    samples late, as it would in real time;
+//!    then [`ClosedLoop::route`]: the planner's route(k) from the same estimate, which the
+//!    MPC follows from the next sample on (so the planner is never on the path from the
+//!    estimate to the plan);
 //! 4. [`ClosedLoop::command`]: plans whose arrival sample has come are released to the
 //!    DFL, which commands `[t_j, t_j+1)`; on a sample boundary the deadline monitor judges
 //!    the sample;
 //! 5. [`ClosedLoop::integrate`]: the plant integrates the command over the tick.
 //!
-//! [`ClosedLoop::step`] runs the five in order. The phases are public so that a caller can
+//! [`ClosedLoop::step`] runs them in order. The phases are public so that a caller can
 //! measure each (the allocation test counts allocations phase by phase).
 
 use dfl::InnerLoop;
 use estimator::Estimator;
 use mpc::Mpc;
+use planner::Planner;
 use plant::{Plant, Pose};
 use protocol::{
-    Actuation, DeadlineVerdict, Estimate, FaultConfig, GroundTruth, Header, Plan, Timing, Validated,
+    Actuation, DeadlineVerdict, Estimate, FaultConfig, GroundTruth, Header, Plan, Route, Timing,
+    Validated,
 };
 
 /// One inner tick of the closed loop: what every role produced.
@@ -33,6 +39,8 @@ pub struct Tick {
     pub estimate: Estimate,
     /// The plan solved at this tick (sample boundaries only).
     pub plan: Option<Plan>,
+    /// The planner's route of this tick (sample boundaries of runs with a planner).
+    pub route: Option<Route>,
     /// The deadline monitor's verdict on the sample this tick starts (boundaries only).
     pub verdict: Option<DeadlineVerdict>,
     /// The DFL's command for the tick, with the deadline misses so far.
@@ -44,6 +52,10 @@ pub struct ClosedLoop {
     plant: Plant,
     estimator: Estimator,
     mpc: Mpc,
+    /// The route planner (`planner.kind = "route"`).
+    planner: Option<Planner>,
+    /// The newest route, which the MPC follows at the next sample.
+    route: Option<Route>,
     /// The DFL with its plan inbox and deadline monitor.
     inner: InnerLoop,
     faults: FaultConfig,
@@ -61,6 +73,8 @@ impl ClosedLoop {
             plant: Plant::new(scenario),
             estimator: Estimator::new(scenario),
             mpc: Mpc::new(scenario)?,
+            planner: scenario.planner.is_on().then(|| Planner::new(scenario)),
+            route: None,
             inner: InnerLoop::new(scenario, true),
             faults: scenario.fault.clone(),
             applied: None,
@@ -121,13 +135,29 @@ impl ClosedLoop {
         if !first_tick {
             return None;
         }
-        let mut plan = self
-            .mpc
-            .step(sample, estimate.state, estimate.position_sigma());
+        let mut plan = self.mpc.step_on_route(
+            sample,
+            estimate.state,
+            estimate.position_sigma(),
+            self.route.as_ref(),
+        );
         self.mpc.inject_faults(&mut plan, &self.faults);
         plan.header = self.header();
         self.inner.receive(&plan, None);
         Some(plan)
+    }
+
+    /// Phase 3b: on a sample boundary of a run with a planner, route(k) from `estimate`.
+    pub fn route(&mut self, estimate: &Estimate) -> Option<Route> {
+        let planner = self.planner.as_mut()?;
+        let (sample, first_tick) = self.inner.sample_of(self.tick);
+        if !first_tick {
+            return None;
+        }
+        let mut route = planner.step(sample, estimate);
+        route.header = self.header();
+        self.route = Some(route);
+        Some(route)
     }
 
     /// Phase 4: the DFL's command for the tick, after releasing the plans that have
@@ -150,12 +180,14 @@ impl ClosedLoop {
         let (truth, measurement) = self.measure();
         let estimate = self.estimate(measurement);
         let plan = self.plan(&estimate);
+        let route = self.route(&estimate);
         let (actuation, verdict) = self.command(&estimate);
         self.integrate(&actuation);
         Tick {
             truth,
             estimate,
             plan,
+            route,
             verdict,
             actuation,
         }

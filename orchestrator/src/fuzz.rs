@@ -120,6 +120,7 @@ impl Report {
             Outcome::Timeout,
             Outcome::Interrupted,
             Outcome::Aborted,
+            Outcome::NoRoute,
         ];
         let mut counts: Vec<(&'static str, usize)> = outcomes
             .iter()
@@ -136,11 +137,23 @@ impl Report {
         counts
     }
 
-    pub fn collisions(&self) -> usize {
+    /// Worlds that ended with `outcome`.
+    pub fn count(&self, outcome: Outcome) -> usize {
         self.results
             .iter()
-            .filter(|r| r.as_ref().is_ok_and(|s| s.outcome == Outcome::Collided))
+            .filter(|r| r.as_ref().is_ok_and(|s| s.outcome == outcome))
             .count()
+    }
+
+    pub fn collisions(&self) -> usize {
+        self.count(Outcome::Collided)
+    }
+
+    /// Share of the worlds with a route (all but those ending `no_route`) that reached
+    /// the goal.
+    pub fn reach_of_routable(&self) -> f64 {
+        let routable = self.results.len() - self.count(Outcome::NoRoute);
+        self.count(Outcome::Reached) as f64 / routable.max(1) as f64
     }
 
     /// The table printed at the end: each outcome's count and rate, and the safety
@@ -162,6 +175,12 @@ impl Report {
             "  {} worlds; safety interventions {interventions}, solver failures {failures}\n",
             self.results.len()
         );
+        if self.count(Outcome::NoRoute) > 0 {
+            out += &format!(
+                "  reached {:.1} % of the worlds with a route\n",
+                100.0 * self.reach_of_routable()
+            );
+        }
         out
     }
 }
@@ -208,7 +227,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,max_wheel_speed_rad_s,start_distance_m,outcome,min_clearance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
+        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,max_wheel_speed_rad_s,start_distance_m,outcome,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
@@ -236,9 +255,10 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{:.6},{},{},{},{},{file}",
+                "{params},{},{:.6},{:.3},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.min_clearance_m,
+                r.final_distance_to_goal_m,
                 r.time_to_goal_s
                     .map_or(String::new(), |t| format!("{t:.3}")),
                 r.safety_interventions,
@@ -247,7 +267,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,{file}",
+                "{params},error: {},,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }

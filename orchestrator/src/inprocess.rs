@@ -39,7 +39,13 @@ pub fn run_observed(
         if let Some(verdict) = &tick.verdict {
             recorder.verdict(verdict)?;
         }
-        outcome = recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
+        let no_route = match &tick.route {
+            Some(route) => recorder.route(route)?,
+            None => None,
+        };
+        outcome = recorder
+            .tick(&tick.truth, &tick.estimate, &tick.actuation)?
+            .or(no_route);
         observe(&tick);
     }
     let outcome = match outcome {

@@ -20,6 +20,8 @@ pub enum Outcome {
     Interrupted,
     /// A process died and could not be replaced (a dead plant, or restarts exhausted).
     Aborted,
+    /// The planner found no route from the robot to the goal around the grown obstacles.
+    NoRoute,
 }
 
 impl Outcome {
@@ -31,14 +33,15 @@ impl Outcome {
             Outcome::Timeout => "timeout",
             Outcome::Interrupted => "interrupted",
             Outcome::Aborted => "aborted",
+            Outcome::NoRoute => "no_route",
         }
     }
 }
 
 /// Length of the stall window, s.
-pub const STALL_WINDOW_S: f64 = 2.0;
+pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
-pub const STALL_DISTANCE_M: f64 = 0.01;
+pub const STALL_DISTANCE_M: f64 = 0.005;
 
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;

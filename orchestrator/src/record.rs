@@ -6,7 +6,7 @@ use crate::monitor::{Monitor, Outcome};
 use crate::schema;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, PLAN_MISSING,
-    Plan, PlanStatus, Scenario,
+    Plan, PlanStatus, ReplanReason, Route, Scenario,
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -85,6 +85,10 @@ pub struct Summary {
     /// Interior-point iterations per MPC step.
     pub iterations: Percentiles,
     pub commands: ModeCounts,
+    /// Plans of the route planner after the first (`planner.kind = "route"`).
+    pub replans: u64,
+    /// Length of the first route, m (`None`: no planner, or no route).
+    pub route_length_m: Option<f64>,
     /// Only for runs over iceoryx2 (not `--in-process`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub processes: Option<ProcessReport>,
@@ -216,6 +220,12 @@ impl Summary {
             .iter()
             .map(|(k, v)| format!("  {k:<16} {v}\n"))
             .collect();
+        if let Some(length) = self.route_length_m {
+            table += &format!(
+                "  {:<16} {length:.2} m, {} replans\n",
+                "route", self.replans
+            );
+        }
         for fault in &self.faults {
             table += &format!("  {:<16} {fault}\n", "injected fault");
         }
@@ -270,6 +280,12 @@ pub struct Recorder {
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
     commands: ModeCounts,
+    /// `route.csv`, opened at the first route.
+    routes: Option<BufWriter<File>>,
+    /// The newest route plan recorded: the planner's epoch and its plan count.
+    last_route_plan: Option<(u32, u32)>,
+    route_plans: u64,
+    route_length_m: Option<f64>,
     ticks: u64,
     last_time_s: f64,
     /// The DFL's zeta at the start of the next tick.
@@ -307,6 +323,10 @@ impl Recorder {
             safety_interventions: BTreeMap::new(),
             pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
+            routes: None,
+            last_route_plan: None,
+            route_plans: 0,
+            route_length_m: None,
             ticks: 0,
             last_time_s: 0.0,
             zeta: scenario.robot.zeta0,
@@ -402,6 +422,44 @@ impl Recorder {
                 .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
         });
         at_the_end.unwrap_or_else(|| self.monitor.final_outcome())
+    }
+
+    /// A route as the planner publishes it (every sample): a new plan is written to
+    /// `route.csv` and counted; `no_route` ends the run (returned).
+    pub fn route(&mut self, route: &Route) -> std::io::Result<Option<Outcome>> {
+        let plan = (route.header.epoch, route.plans);
+        if self.last_route_plan == Some(plan) {
+            return Ok(None);
+        }
+        self.last_route_plan = Some(plan);
+        self.route_plans += 1;
+        let reason = ReplanReason::from_code(route.reason).map_or("unknown", ReplanReason::as_str);
+        if !route.is_ok() {
+            self.event(
+                "no_route",
+                serde_json::json!({ "sample": route.planned_sample, "reason": reason }),
+            )?;
+            return Ok(Some(Outcome::NoRoute));
+        }
+        if self.route_length_m.is_none() {
+            self.route_length_m = Some(route.length_m);
+        }
+        let routes = match &mut self.routes {
+            Some(file) => file,
+            None => {
+                let mut file = BufWriter::new(File::create(self.dir.join("route.csv"))?);
+                writeln!(file, "{}", schema::header(&schema::ROUTE_COLUMNS))?;
+                self.routes.insert(file)
+            }
+        };
+        for [x, y] in route.points() {
+            writeln!(
+                routes,
+                "{},{},{reason},{x},{y}",
+                self.route_plans, route.planned_sample
+            )?;
+        }
+        Ok(None)
     }
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
@@ -502,6 +560,9 @@ impl Recorder {
         }
         self.trajectory.flush()?;
         self.plans.flush()?;
+        if let Some(routes) = &mut self.routes {
+            routes.flush()?;
+        }
         self.event("end", serde_json::json!({ "outcome": outcome.as_str() }))?;
         self.events.flush()?;
         let m = &self.monitor;
@@ -534,6 +595,8 @@ impl Recorder {
             solve_us: Percentiles::of(&self.solve_us),
             iterations: Percentiles::of(&self.iterations),
             commands: self.commands,
+            replans: self.route_plans.saturating_sub(1),
+            route_length_m: self.route_length_m,
             processes,
         };
         let json = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;

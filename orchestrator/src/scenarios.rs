@@ -10,6 +10,7 @@ pub const BUILT_IN: &[(&str, &str)] = &[
         "paper-noisy",
         include_str!("../../scenarios/paper-noisy.toml"),
     ),
+    ("field", include_str!("../../scenarios/field.toml")),
 ];
 
 /// The text of a built-in scenario.

@@ -51,6 +51,12 @@ pub const PLANS_COLUMNS: [&str; 14] = [
     "mpc_epoch",
 ];
 
+/// Columns of `route.csv`, one row per waypoint of every route the planner planned (runs
+/// with `planner.kind = "route"`): the plan's number (1 = the first; a restarted or
+/// swapped planner counts on), the sample it was planned from, why it was planned, and
+/// the waypoint (m).
+pub const ROUTE_COLUMNS: [&str; 5] = ["plan", "sample", "reason", "x", "y"];
+
 /// The header line of a CSV file with `columns`.
 pub fn header(columns: &[&str]) -> String {
     columns.join(",")

@@ -14,7 +14,7 @@ pub const REPLY_TIMEOUT: Duration = Duration::from_secs(30);
 /// Why a swap request could not even be sent: bad input (exit code 2).
 #[derive(Debug, thiserror::Error)]
 pub enum RequestError {
-    #[error("no role `{0}` to swap: expected estimator, mpc or dfl")]
+    #[error("no role `{0}` to swap: expected estimator, mpc, dfl or planner")]
     Role(String),
     #[error("the plant is the simulated robot: it cannot be swapped")]
     Plant,

@@ -29,6 +29,8 @@ pub const PLAN: &str = "plan";
 pub const ACTUATION: &str = "actuation";
 /// The DFL's deadline verdict for every sample.
 pub const DEADLINE: &str = "deadline";
+/// The planner's route ([`Route`](crate::Route)).
+pub const ROUTE: &str = "route";
 /// Orchestrator to processes: clock grants, start, stop.
 pub const CONTROL: &str = "control";
 /// Processes to orchestrator: ready, input lost.
@@ -44,7 +46,7 @@ pub fn output_slot(producer: crate::Role, topic: &str) -> Option<usize> {
     use crate::Role;
     match (producer, topic) {
         (Role::Plant, TRUTH) | (Role::Estimator, ESTIMATE) | (Role::Mpc, PLAN) => Some(0),
-        (Role::Dfl, ACTUATION) => Some(0),
+        (Role::Dfl, ACTUATION) | (Role::Planner, ROUTE) => Some(0),
         (Role::Plant, MEASUREMENT) | (Role::Dfl, DEADLINE) => Some(1),
         _ => None,
     }

@@ -155,6 +155,119 @@ impl Plan {
     }
 }
 
+/// Most waypoints a [`Route`] carries.
+pub const ROUTE_CAPACITY: usize = 64;
+
+/// The planner's route to the goal (README, "Route planner"), published every sample:
+/// the waypoints of the newest plan, from the position it was planned at to the goal.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Route")]
+pub struct Route {
+    pub header: Header,
+    /// Sample `k` whose estimate this publication answers.
+    pub sample: u64,
+    /// Sample whose estimate the route was planned from (older than `sample` between
+    /// replans).
+    pub planned_sample: u64,
+    /// [`RouteStatus`] code.
+    pub status: u32,
+    /// Valid waypoints (`0` with [`RouteStatus::NoRoute`]).
+    pub count: u32,
+    /// Plans made so far by this process (1 after the first).
+    pub plans: u32,
+    /// [`ReplanReason`] code of the newest plan.
+    pub reason: u32,
+    /// Length of the polyline through the waypoints, m.
+    pub length_m: f64,
+    /// Wall time of the newest plan, ns.
+    pub plan_ns: u64,
+    /// `[x_m, y_m]` of each waypoint, for `i < count`; the last is the goal.
+    pub waypoints: [[f64; 2]; ROUTE_CAPACITY],
+}
+
+impl Default for Route {
+    fn default() -> Self {
+        Route {
+            header: Header::default(),
+            sample: 0,
+            planned_sample: 0,
+            status: RouteStatus::NoRoute as u32,
+            count: 0,
+            plans: 0,
+            reason: ReplanReason::Start as u32,
+            length_m: 0.0,
+            plan_ns: 0,
+            waypoints: [[0.0; 2]; ROUTE_CAPACITY],
+        }
+    }
+}
+
+impl Route {
+    /// The valid waypoints.
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.waypoints[..(self.count as usize).min(ROUTE_CAPACITY)]
+    }
+    pub fn status(&self) -> Option<RouteStatus> {
+        RouteStatus::from_code(self.status)
+    }
+    /// Whether the route can be followed (a route of at least one segment).
+    pub fn is_ok(&self) -> bool {
+        self.status() == Some(RouteStatus::Ok) && self.count >= 2
+    }
+}
+
+/// Whether a route was found.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RouteStatus {
+    Ok = 0,
+    /// The start and the goal are not connected around the grown obstacles.
+    NoRoute = 1,
+}
+
+impl RouteStatus {
+    pub fn from_code(code: u32) -> Option<RouteStatus> {
+        [RouteStatus::Ok, RouteStatus::NoRoute]
+            .into_iter()
+            .find(|s| *s as u32 == code)
+    }
+}
+
+/// Why the planner planned.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReplanReason {
+    /// The first estimate.
+    Start = 0,
+    /// `planner.period_s` has passed since the last plan.
+    Period = 1,
+    /// The robot has not moved for a while away from the goal.
+    Stall = 2,
+    /// The robot is farther than `planner.stray_m` from the route.
+    Stray = 3,
+}
+
+impl ReplanReason {
+    pub const ALL: [ReplanReason; 4] = [
+        ReplanReason::Start,
+        ReplanReason::Period,
+        ReplanReason::Stall,
+        ReplanReason::Stray,
+    ];
+    pub fn from_code(code: u32) -> Option<ReplanReason> {
+        ReplanReason::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ReplanReason::Start => "start",
+            ReplanReason::Period => "period",
+            ReplanReason::Stall => "stall",
+            ReplanReason::Stray => "stray",
+        }
+    }
+}
+
 /// Where an applied command came from.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -342,17 +455,17 @@ pub struct Control {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[type_name("scmpc::EpochSchedule")]
 pub struct EpochSchedule {
-    pub active: [u32; 4],
+    pub active: [u32; Role::COUNT],
     /// The replacement being started, or the same as `active` when there is none.
-    pub next: [u32; 4],
+    pub next: [u32; Role::COUNT],
     /// First tick taken from `next`; [`SWITCH_UNSCHEDULED`] while it warms up.
-    pub switch_tick: [u64; 4],
+    pub switch_tick: [u64; Role::COUNT],
     /// The iceoryx2 publisher of each output of `active` (by role, then by the output's
     /// slot, [`output_slot`](crate::ipc::output_slot)), as the process announced it when it
     /// joined; 0 while not known. A sample from another publisher is refused.
-    pub active_publishers: [[u128; 2]; 4],
+    pub active_publishers: [[u128; 2]; Role::COUNT],
     /// The same for `next`.
-    pub next_publishers: [[u128; 2]; 4],
+    pub next_publishers: [[u128; 2]; Role::COUNT],
 }
 
 /// `switch_tick` of a replacement that is still warming up.
@@ -372,11 +485,11 @@ impl Default for EpochSchedule {
     /// Epoch 0 of every role, no replacement.
     fn default() -> Self {
         EpochSchedule {
-            active: [0; 4],
-            next: [0; 4],
-            switch_tick: [SWITCH_UNSCHEDULED; 4],
-            active_publishers: [[0; 2]; 4],
-            next_publishers: [[0; 2]; 4],
+            active: [0; Role::COUNT],
+            next: [0; Role::COUNT],
+            switch_tick: [SWITCH_UNSCHEDULED; Role::COUNT],
+            active_publishers: [[0; 2]; Role::COUNT],
+            next_publishers: [[0; 2]; Role::COUNT],
         }
     }
 }
@@ -507,10 +620,21 @@ pub enum Role {
     Estimator = 1,
     Mpc = 2,
     Dfl = 3,
+    /// The route planner (README, "Route planner"): only in runs with `planner.kind =
+    /// "route"`.
+    Planner = 4,
 }
 
 impl Role {
-    pub const ALL: [Role; 4] = [Role::Plant, Role::Estimator, Role::Mpc, Role::Dfl];
+    /// How many roles there are (the length of per-role arrays).
+    pub const COUNT: usize = 5;
+    pub const ALL: [Role; Role::COUNT] = [
+        Role::Plant,
+        Role::Estimator,
+        Role::Mpc,
+        Role::Dfl,
+        Role::Planner,
+    ];
     pub fn from_code(code: u32) -> Option<Role> {
         Role::ALL.into_iter().find(|r| *r as u32 == code)
     }
@@ -523,6 +647,7 @@ impl Role {
             Role::Estimator => "estimator",
             Role::Mpc => "mpc",
             Role::Dfl => "dfl",
+            Role::Planner => "planner",
         }
     }
 }
@@ -816,6 +941,13 @@ impl_message!(
     DeadlineVerdict => |m| true, m.met <= 1
         && (m.status == PLAN_MISSING || PlanStatus::from_code(m.status).is_some())
         && CommandMode::from_code(m.fallback).is_some();
+    Route => |m| m.length_m.is_finite() && m.points().iter().all(|p| finite(p)),
+        m.count as usize <= ROUTE_CAPACITY && ReplanReason::from_code(m.reason).is_some()
+            && match m.status() {
+                Some(RouteStatus::Ok) => m.count >= 2,
+                Some(RouteStatus::NoRoute) => m.count == 0,
+                None => false,
+            };
     Control => |m| true, m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()
         && StatusEvent::from_code(m.event).is_some()

@@ -143,6 +143,18 @@ pub enum Next<'a> {
     Again,
 }
 
+impl<'a> Next<'a> {
+    /// For a role that acts once a sample on `input`: in real time, poll it at the start
+    /// of `sample` (`ts_s` long) rather than wake for every tick's sample; in lockstep (or
+    /// before the clock has started), wait for it.
+    pub fn at_sample(ctl: &ControlState, input: &'a dyn Input, sample: u64, ts_s: f64) -> Self {
+        match ctl.at_ns(sample as f64 * ts_s) {
+            Some(at_ns) => Next::Expect { input, at_ns },
+            None => Next::Wait(None),
+        }
+    }
+}
+
 /// Lockstep: how many ticks a sample may be ahead of the newest grant this process has
 /// heard. A grant is written into each subscriber's queue in turn, so the plant can act
 /// on it and the estimator and the DFL hear of the result before the orchestrator's send

@@ -65,6 +65,7 @@ pub struct Scenario {
     pub estimator: EstimatorConfig,
     pub mpc: MpcConfig,
     pub dfl: DflConfig,
+    pub planner: PlannerConfig,
     /// Circular obstacles; collisions are judged against these true radii.
     pub obstacles: Vec<Obstacle>,
     /// Injected faults, for tests and demonstrations (none by default).
@@ -81,7 +82,8 @@ pub struct SwapConfig {
     /// Simulated time the replacement is started at, s; it takes over at a later sample
     /// boundary, once it has warmed up.
     pub time_s: f64,
-    /// `estimator`, `mpc` or `dfl` (the plant is the simulated robot: not swappable).
+    /// `estimator`, `mpc`, `dfl` or `planner` (the plant is the simulated robot: not
+    /// swappable; the planner only runs with `planner.kind = "route"`).
     pub role: String,
     /// Program and arguments of the replacement; empty: a fresh built-in process of the
     /// role. A program named `scmpc` is the running `scmpc` executable itself.
@@ -521,6 +523,50 @@ pub struct DflConfig {
     pub gatekeeper: bool,
 }
 
+/// The route planner (README, "Route planner").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlannerConfig {
+    /// `none` (the paper: the MPC drives at the goal) or `route` (a planner process, and
+    /// the MPC follows its route).
+    pub kind: PlannerKind,
+    /// Replan at least this often, s; 0: only at the start, on a stall or a stray.
+    pub period_s: f64,
+    /// Room the route keeps from every grown obstacle, m (given up where a gap is too
+    /// narrow for it).
+    pub clearance_m: f64,
+    /// Speed of the MPC's reference along the route, m/s.
+    pub speed_m_s: f64,
+    /// Replan when the robot is farther than this from the route, m.
+    pub stray_m: f64,
+}
+
+/// `planner.kind`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlannerKind {
+    None,
+    Route,
+}
+
+impl Default for PlannerConfig {
+    fn default() -> Self {
+        PlannerConfig {
+            kind: PlannerKind::None,
+            period_s: 1.0,
+            clearance_m: 0.2,
+            speed_m_s: 0.8,
+            stray_m: 0.5,
+        }
+    }
+}
+
+impl PlannerConfig {
+    pub fn is_on(&self) -> bool {
+        self.kind == PlannerKind::Route
+    }
+}
+
 /// `dfl.brake_decel`: `"auto"` or a deceleration in m/s^2.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
@@ -557,6 +603,7 @@ impl Default for Scenario {
             estimator: EstimatorConfig::default(),
             mpc: MpcConfig::default(),
             dfl: DflConfig::default(),
+            planner: PlannerConfig::default(),
             obstacles: vec![Obstacle {
                 x: 3.0,
                 y: 3.5,
@@ -716,6 +763,14 @@ impl Scenario {
         self.robot.radius_m + self.mpc.safety_margin_m
     }
 
+    /// The role processes of a run: the four of the paper, and the planner when it is on.
+    pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
+        let planner = self.planner.is_on();
+        crate::Role::ALL
+            .into_iter()
+            .filter(move |r| *r != crate::Role::Planner || planner)
+    }
+
     /// Number of inner ticks in a run of `duration_s` (rounded to the nearest tick).
     pub fn tick_count(&self) -> u64 {
         (self.duration_s / self.timing.dt_s()).round() as u64
@@ -869,6 +924,20 @@ impl Scenario {
             }
         }
 
+        let p = &self.planner;
+        v.non_negative("planner.period_s", p.period_s);
+        v.non_negative("planner.clearance_m", p.clearance_m);
+        v.positive("planner.speed_m_s", p.speed_m_s);
+        v.positive("planner.stray_m", p.stray_m);
+        if p.is_on() && m.formulation == Formulation::Nonlinear {
+            v.fail(
+                "planner.kind",
+                "the nonlinear baseline (mpc.formulation = \"nonlinear\") drives at the goal \
+                 only; use planner.kind = \"none\" with it"
+                    .into(),
+            );
+        }
+
         for (i, o) in self.obstacles.iter().enumerate() {
             v.finite(&format!("obstacles.{i}.x"), o.x);
             v.finite(&format!("obstacles.{i}.y"), o.y);
@@ -909,14 +978,20 @@ impl Scenario {
                     ),
                 );
             }
-            if swap.swappable_role().is_none() {
-                v.fail(
+            match swap.swappable_role() {
+                None => v.fail(
                     &format!("swap.{i}.role"),
                     format!(
-                        "must be estimator, mpc or dfl (the plant cannot be swapped), got `{}`",
+                        "must be estimator, mpc, dfl or planner (the plant cannot be \
+                         swapped), got `{}`",
                         swap.role
                     ),
-                );
+                ),
+                Some(crate::Role::Planner) if !p.is_on() => v.fail(
+                    &format!("swap.{i}.role"),
+                    "no planner runs (planner.kind = \"none\"): nothing to swap".into(),
+                ),
+                Some(_) => {}
             }
             if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
                 v.fail(&format!("swap.{i}.command"), "the program is empty".into());

@@ -41,12 +41,23 @@ const PALETTE: [RGBColor; 8] = [
 ];
 
 /// One curve.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
     /// Drawn thinner and lighter (a noisy or secondary variant).
     pub faint: bool,
+    /// Drawn dashed (a route, a reference).
+    pub dashed: bool,
+    /// Palette index.
+    pub color: usize,
+}
+
+/// A labelled point, drawn as a filled circle (the start, the goal).
+#[derive(Debug, Clone)]
+pub struct Marker {
+    pub label: String,
+    pub at: (f64, f64),
     /// Palette index.
     pub color: usize,
 }
@@ -64,6 +75,7 @@ pub struct Figure {
     pub discs: Vec<(f64, f64, f64)>,
     /// Horizontal lines `(y, label)`.
     pub levels: Vec<(f64, String)>,
+    pub markers: Vec<Marker>,
     /// Same scale on both axes (paths in the plane).
     pub equal_axes: bool,
     /// Logarithmic y axis.
@@ -106,6 +118,10 @@ impl Figure {
                     ys.push(self.y(y));
                 }
             }
+        }
+        for m in &self.markers {
+            xs.push(m.at.0);
+            ys.push(self.y(m.at.1));
         }
         for &(x, y, r) in &self.discs {
             xs.extend([x - r, x + r]);
@@ -217,10 +233,25 @@ impl Figure {
                 .iter()
                 .filter(|p| p.0.is_finite() && p.1.is_finite())
                 .map(|&(x, y)| (x, self.y(y)));
-            chart
-                .draw_series(LineSeries::new(points, style))?
+            let drawn = if s.dashed {
+                chart.draw_series(DashedLineSeries::new(points, 8, 6, style))?
+            } else {
+                chart.draw_series(LineSeries::new(points, style))?
+            };
+            drawn
                 .label(s.label.as_str())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+        }
+        for m in &self.markers {
+            let style = PALETTE[m.color % PALETTE.len()].filled();
+            chart
+                .draw_series(std::iter::once(Circle::new(
+                    (m.at.0, self.y(m.at.1)),
+                    6,
+                    style,
+                )))?
+                .label(m.label.as_str())
+                .legend(move |(x, y)| Circle::new((x + 12, y), 5, style));
         }
         chart
             .configure_series_labels()
@@ -319,6 +350,29 @@ impl Trajectory {
     }
 }
 
+/// The waypoints of the first route of the run in `dir` (`route.csv`; `None` when the run
+/// had no planner or no route).
+fn first_route(dir: &Path) -> anyhow::Result<Option<Vec<(f64, f64)>>> {
+    let file = dir.join("route.csv");
+    if !file.exists() {
+        return Ok(None);
+    }
+    let table = Table::read(&file)?;
+    let (plan, x, y) = (
+        table.numbers("plan")?,
+        table.numbers("x")?,
+        table.numbers("y")?,
+    );
+    let first = plan.first().copied();
+    Ok(Some(
+        plan.iter()
+            .zip(x.iter().zip(&y))
+            .filter(|(p, _)| Some(**p) == first)
+            .map(|(_, (x, y))| (*x, *y))
+            .collect(),
+    ))
+}
+
 /// The obstacles of a scenario as discs `(x, y, radius)`.
 pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
     scenario
@@ -334,16 +388,37 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
     let series = |label: &str, points| Series {
         label: label.to_string(),
         points,
-        faint: false,
-        color: 0,
+        ..Series::default()
     };
+    let mut path = vec![series("robot", t.path())];
+    if let Some(route) = first_route(dir)? {
+        path.push(Series {
+            dashed: true,
+            color: 2,
+            ..series("route (first plan)", route)
+        });
+    }
+    let [sx, sy, _] = scenario.robot.start;
+    let [gx, gy] = scenario.robot.goal;
     Figure {
         stem: "path".into(),
         title: format!("{}: path", scenario.name),
         x_label: "x (m)".into(),
         y_label: "y (m)".into(),
-        series: vec![series("robot", t.path())],
+        series: path,
         discs: obstacle_discs(scenario),
+        markers: vec![
+            Marker {
+                label: "start".into(),
+                at: (sx, sy),
+                color: 3,
+            },
+            Marker {
+                label: "goal".into(),
+                at: (gx, gy),
+                color: 1,
+            },
+        ],
         equal_axes: true,
         ..Figure::default()
     }

@@ -139,6 +139,7 @@ fn series(label: String, points: Vec<(f64, f64)>, color: usize, faint: bool) -> 
         label,
         points,
         faint,
+        dashed: false,
         color,
     }
 }
@@ -265,6 +266,7 @@ fn solve_time_figure(solve_times: &[crate::solve_times::SolveTimes], ts_s: f64) 
                 .map(|s| (s.horizon as f64, f(s) / 1e3))
                 .collect(),
             faint,
+            dashed: false,
             color,
         };
     Figure {

@@ -25,8 +25,10 @@ pub(super) struct Children {
 }
 
 impl Children {
+    /// Starts a process for each of `roles`.
     pub(super) fn spawn(
         scenario_file: &Path,
+        roles: impl Iterator<Item = Role>,
         prefix: &str,
         mode: RunMode,
         control_publisher: u128,
@@ -39,7 +41,7 @@ impl Children {
             control_publisher,
             list: Vec::new(),
         };
-        for role in Role::ALL {
+        for role in roles {
             children.spawn_role(role, 0, &[])?;
         }
         Ok(children)

@@ -50,8 +50,8 @@ impl Driver<'_> {
             if tick == ticks {
                 return Ok(self.recorder.end_of_run(slot.truth.as_ref()));
             }
-            self.record_plans()?;
-            if let Some(outcome) = self.record(tick, slot)? {
+            let no_route = self.record_plans()?;
+            if let Some(outcome) = self.record(tick, slot)?.or(no_route) {
                 return Ok(outcome);
             }
             self.cursor = tick + 1;
@@ -80,7 +80,9 @@ impl Driver<'_> {
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.pump(waitset)?;
-            self.record_plans()?;
+            if let Some(outcome) = self.record_plans()? {
+                return Ok(outcome);
+            }
             self.supervise()?;
             while next <= ticks {
                 let complete = self.slots.get(&next).is_some_and(|s| {

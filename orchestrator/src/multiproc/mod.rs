@@ -22,8 +22,8 @@ use protocol::ipc::{self, Input, Receiver, Sender, open_topic};
 use protocol::runtime::RunMode;
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
-    Header, Measurement, Plan, Rejection, RestartPolicy, Role, Scenario, Status, StatusEvent,
-    SwapReply, SwapRequest, Validated,
+    Header, Measurement, Plan, Rejection, RestartPolicy, Role, Route, Scenario, Status,
+    StatusEvent, SwapReply, SwapRequest, Validated,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -113,6 +113,7 @@ struct Session {
     plan: Receiver<Plan>,
     actuation: Receiver<Actuation>,
     deadline: Receiver<DeadlineVerdict>,
+    route: Receiver<Route>,
     /// Live requests of `scmpc swap`, and the answers.
     swap_requests: Receiver<SwapRequest>,
     swap_replies: Sender<SwapReply>,
@@ -159,6 +160,7 @@ impl Session {
             plan: open_topic(&node, ipc::PLAN)?.receiver_from(Role::Mpc)?,
             actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
             deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
+            route: open_topic(&node, ipc::ROUTE)?.receiver_from(Role::Planner)?,
             swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: std::cell::Cell::new(EpochSchedule::default()),
@@ -203,7 +205,7 @@ impl Session {
     }
 
     /// The orchestrator's inputs, for housekeeping.
-    fn inputs(&self) -> [&dyn Input; 6] {
+    fn inputs(&self) -> [&dyn Input; 7] {
         [
             &self.truth,
             &self.measurement,
@@ -211,6 +213,7 @@ impl Session {
             &self.plan,
             &self.actuation,
             &self.deadline,
+            &self.route,
         ]
     }
 
@@ -243,6 +246,7 @@ impl Session {
             Role::Estimator => &self.estimate,
             Role::Mpc => &self.plan,
             Role::Dfl => &self.actuation,
+            Role::Planner => &self.route,
         }
     }
 
@@ -272,6 +276,8 @@ struct Driver<'a> {
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
     verdicts: BTreeMap<u64, DeadlineVerdict>,
+    /// Routes received and not recorded yet, in arrival order.
+    routes: Vec<Route>,
     newest_truth: Option<u64>,
     stop: &'a AtomicBool,
     start_ns: u64,
@@ -281,7 +287,7 @@ struct Driver<'a> {
     rejected: BTreeMap<String, u64>,
     /// Per role: since when its own samples have been refused, with the epoch refused and
     /// how many of its samples the orchestrator had taken then ([`Driver::contain`]).
-    blamed: [Option<Blame>; 4],
+    blamed: [Option<Blame>; Role::COUNT],
     /// The epoch the next started process gets.
     next_epoch: u32,
     /// Next tick to record (every earlier one is recorded).
@@ -319,13 +325,14 @@ impl<'a> Driver<'a> {
             slots: BTreeMap::new(),
             plans: BTreeMap::new(),
             verdicts: BTreeMap::new(),
+            routes: Vec::new(),
             newest_truth: None,
             stop,
             start_ns: 0,
             record_gaps: 0,
             restarts: 0,
             rejected: BTreeMap::new(),
-            blamed: [None; 4],
+            blamed: [None; Role::COUNT],
             next_epoch: 0,
             cursor: 0,
             scheduled: scheduled_swaps(scenario),
@@ -346,7 +353,7 @@ impl<'a> Driver<'a> {
         outcome: anyhow::Result<Outcome>,
         report: &mut ProcessReport,
     ) -> anyhow::Result<Outcome> {
-        let outcome = outcome.and_then(|o| self.record_plans().map(|()| o));
+        let outcome = outcome.and_then(|o| self.record_plans().map(|_| o));
         for swap in std::mem::take(&mut self.swaps) {
             self.fail_swap(swap, "the run ended before the switch")?;
         }
@@ -460,6 +467,7 @@ fn drive(
     .write(out)?;
     let mut children = Children::spawn(
         &out.join("scenario.toml"),
+        scenario.roles(),
         prefix,
         mode,
         session.control.publisher_id(),
@@ -491,16 +499,18 @@ fn drive(
         guards.push(session.plan.attach(&waitset)?);
         guards.push(session.actuation.attach(&waitset)?);
         guards.push(session.deadline.attach(&waitset)?);
+        guards.push(session.route.attach(&waitset)?);
     }
-    let outcome = wait_until_ready(&session, &waitset, &mut children, stop).and_then(|()| {
-        recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
-        let mut driver = Driver::new(scenario, mode, &session, &mut children, recorder, stop);
-        let outcome = match mode {
-            RunMode::Lockstep => driver.lockstep(&waitset),
-            RunMode::Realtime => driver.realtime(&waitset),
-        };
-        driver.finish(outcome, &mut report)
-    });
+    let outcome =
+        wait_until_ready(scenario, &session, &waitset, &mut children, stop).and_then(|()| {
+            recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
+            let mut driver = Driver::new(scenario, mode, &session, &mut children, recorder, stop);
+            let outcome = match mode {
+                RunMode::Lockstep => driver.lockstep(&waitset),
+                RunMode::Realtime => driver.realtime(&waitset),
+            };
+            driver.finish(outcome, &mut report)
+        });
     // Peak resident memory of every process still running, then stop them all whatever
     // happened, then release the orchestrator's own ports.
     record_peak_rss(&children, &mut report);
@@ -548,14 +558,15 @@ fn ready_role(s: &Status) -> Option<(Role, Status)> {
 
 /// Waits until every role has reported ready.
 fn wait_until_ready(
+    scenario: &Scenario,
     session: &Session,
     waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
     children: &mut Children,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let deadline = Instant::now() + READY_TIMEOUT;
-    let mut ready = [false; 4];
-    while !ready.iter().all(|r| *r) {
+    let mut ready = [false; Role::COUNT];
+    while !scenario.roles().all(|r| ready[r as usize]) {
         if let Some((p, status)) = children.take_exited() {
             bail!(
                 "the {} process exited before it was ready ({status})",
@@ -566,9 +577,9 @@ fn wait_until_ready(
             bail!("interrupted while starting");
         }
         if Instant::now() > deadline {
-            let missing: Vec<&str> = Role::ALL
-                .iter()
-                .filter(|r| !ready[**r as usize])
+            let missing: Vec<&str> = scenario
+                .roles()
+                .filter(|r| !ready[*r as usize])
                 .map(|r| r.as_str())
                 .collect();
             return Err(anyhow!(

@@ -39,6 +39,8 @@ impl Driver<'_> {
         self.session.plan.drain(|p, _| {
             plans.insert(p.sample, p);
         })?;
+        let routes = &mut self.routes;
+        self.session.route.drain(|r, _| routes.push(r))?;
         self.take_status()?;
         let verdicts = &mut self.verdicts;
         self.session.deadline.drain(|v, _| {
@@ -140,9 +142,14 @@ impl Driver<'_> {
         Ok(self.recorder.tick(&truth, &estimate, &act)?)
     }
 
-    /// Records every plan received, then every deadline verdict (the DFL judges sample k
-    /// at the start of sample k + 1, after plan(k) was published).
-    pub(super) fn record_plans(&mut self) -> anyhow::Result<()> {
+    /// Records every route and plan received, then every deadline verdict (the DFL judges
+    /// sample k at the start of sample k + 1, after plan(k) was published). Returns
+    /// [`Outcome::NoRoute`] when the planner found none.
+    pub(super) fn record_plans(&mut self) -> anyhow::Result<Option<Outcome>> {
+        let mut no_route = None;
+        for route in std::mem::take(&mut self.routes) {
+            no_route = no_route.or(self.recorder.route(&route)?);
+        }
         while let Some((sample, plan)) = self.plans.pop_first() {
             // A replay repeats a plan already recorded.
             if self.last_plan.is_some_and(|last| sample <= last) {
@@ -156,6 +163,6 @@ impl Driver<'_> {
         while let Some((_, v)) = self.verdicts.pop_first() {
             self.recorder.verdict(&v)?;
         }
-        Ok(())
+        Ok(no_route)
     }
 }

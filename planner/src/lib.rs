@@ -1,0 +1,384 @@
+//! The route planner (README, "Route planner"): a collision-free route from the robot to
+//! the goal around the obstacles, grown as the MPC grows them and by `planner.clearance_m`
+//! more, which the MPC follows ([`Route`]). No IPC here: the `scmpc planner` process
+//! ([`process`]) and the in-process loop both step a [`Planner`].
+//!
+//! The route is the shortest path in the tangent visibility graph ([`tangent_graph`]):
+//! exact for circles. Its arcs are written as waypoints on polygons circumscribed about
+//! their circles, so that every segment of the route, and not only its corners, keeps
+//! outside the grown obstacles.
+
+pub mod process;
+pub mod tangent_graph;
+
+use protocol::{Estimate, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated};
+pub use tangent_graph::{Bounds, Disc, Leg, NoRoute, TangentGraph};
+
+/// The robot counts as stalled when it has moved less than this ...
+pub const STALL_DISTANCE_M: f64 = 0.05;
+/// ... for this long, away from the goal.
+pub const STALL_WINDOW_S: f64 = 1.0;
+
+/// Widest turn of an arc between two waypoints, rad (30 degrees: the polygon's corners
+/// stand `R (1 / cos 15° - 1)`, 3.5 % of the radius, off the circle). Doubled while a
+/// route would not fit in [`ROUTE_CAPACITY`] waypoints.
+const ARC_STEP_RAD: f64 = std::f64::consts::PI / 6.0;
+
+/// How far inside its true radius a disc holding the start or the goal is shrunk to free
+/// them, m.
+const FREE_END_M: f64 = 1e-6;
+
+/// The planner's state across samples: the newest route and what decides the next plan.
+pub struct Planner {
+    graph: TangentGraph,
+    obstacles: Vec<protocol::Obstacle>,
+    discs: Vec<Disc>,
+    goal: [f64; 2],
+    goal_tolerance_m: f64,
+    bounds: Bounds,
+    /// What every obstacle grows by before `kappa sigma` and the clearance, m.
+    obstacle_margin_m: f64,
+    uncertainty_sigmas: f64,
+    clearance_m: f64,
+    period_s: f64,
+    stray_m: f64,
+    ts_s: f64,
+    route: Route,
+    /// Where and when the robot last moved by [`STALL_DISTANCE_M`].
+    moved: Option<(u64, [f64; 2])>,
+}
+
+impl Planner {
+    pub fn new(scenario: &Validated) -> Planner {
+        let m = &scenario.mpc;
+        Planner {
+            graph: TangentGraph::with_capacity(scenario.obstacles.len()),
+            obstacles: scenario.obstacles.clone(),
+            discs: Vec::with_capacity(scenario.obstacles.len()),
+            goal: scenario.robot.goal,
+            goal_tolerance_m: scenario.robot.goal_tolerance_m,
+            bounds: [
+                [m.position_min[0], m.position_max[0]],
+                [m.position_min[1], m.position_max[1]],
+            ],
+            obstacle_margin_m: scenario.obstacle_margin_m(),
+            uncertainty_sigmas: m.uncertainty_sigmas,
+            clearance_m: scenario.planner.clearance_m,
+            period_s: scenario.planner.period_s,
+            stray_m: scenario.planner.stray_m,
+            ts_s: scenario.timing.ts_s,
+            route: Route::default(),
+            moved: None,
+        }
+    }
+
+    /// The route for sample `sample` from its estimate: the newest one, planned again
+    /// first if this is the first sample, `planner.period_s` has passed, the robot has
+    /// stalled or strayed from it. The header is left for the caller.
+    pub fn step(&mut self, sample: u64, estimate: &Estimate) -> Route {
+        let position = [estimate.state[0], estimate.state[1]];
+        if let Some(reason) = self.replan_reason(sample, position) {
+            self.plan(sample, position, estimate.position_sigma(), reason);
+        }
+        self.route.sample = sample;
+        self.route
+    }
+
+    /// Why the route must be planned again at `sample`, if it must.
+    fn replan_reason(&mut self, sample: u64, position: [f64; 2]) -> Option<ReplanReason> {
+        if self.route.plans == 0 {
+            self.moved = Some((sample, position));
+            return Some(ReplanReason::Start);
+        }
+        let since_s = |then: u64| sample.saturating_sub(then) as f64 * self.ts_s;
+        let stalled = match self.moved {
+            Some((_, at)) if distance(at, position) >= STALL_DISTANCE_M => {
+                self.moved = Some((sample, position));
+                false
+            }
+            Some((then, _)) => {
+                since_s(then) >= STALL_WINDOW_S
+                    && distance(position, self.goal) > self.goal_tolerance_m
+            }
+            None => false,
+        };
+        if stalled {
+            self.moved = Some((sample, position));
+            Some(ReplanReason::Stall)
+        } else if self.route.is_ok() && distance_to_route(&self.route, position) > self.stray_m {
+            Some(ReplanReason::Stray)
+        } else if self.period_s > 0.0 && since_s(self.route.planned_sample) >= self.period_s {
+            Some(ReplanReason::Period)
+        } else {
+            None
+        }
+    }
+
+    /// Plans from `position` with the clearance, or without it if no route keeps it.
+    fn plan(&mut self, sample: u64, position: [f64; 2], sigma_m: f64, reason: ReplanReason) {
+        let started = std::time::Instant::now();
+        let growth = self.obstacle_margin_m + self.uncertainty_sigmas * sigma_m;
+        let mut found = false;
+        for clearance in [self.clearance_m, 0.0] {
+            self.grow_discs(position, growth + clearance);
+            let (graph, route) = (&mut self.graph, &mut self.route);
+            if let Ok(legs) = graph.shortest_path(position, self.goal, &self.discs, self.bounds) {
+                write_waypoints(position, legs, route);
+                found = true;
+                break;
+            }
+            if clearance == 0.0 {
+                break;
+            }
+        }
+        let route = &mut self.route;
+        if found {
+            route.status = RouteStatus::Ok as u32;
+            route.length_m = polyline_length(route.points());
+        } else {
+            route.status = RouteStatus::NoRoute as u32;
+            route.count = 0;
+            route.length_m = 0.0;
+        }
+        route.planned_sample = sample;
+        route.plans += 1;
+        route.reason = reason as u32;
+        route.plan_ns = started.elapsed().as_nanos() as u64;
+    }
+
+    /// The obstacles grown by `growth_m`, each shrunk where it would hold the robot or
+    /// the goal (a robot pinned at an obstacle's edge plans from where it is).
+    fn grow_discs(&mut self, position: [f64; 2], growth_m: f64) {
+        self.discs.clear();
+        for o in &self.obstacles {
+            let center = [o.x, o.y];
+            let radius = (o.radius + growth_m)
+                .min(distance(center, position) - FREE_END_M)
+                .min(distance(center, self.goal) - FREE_END_M);
+            if radius > 0.0 {
+                self.discs.push(Disc { center, radius });
+            }
+        }
+    }
+}
+
+/// Writes the route through `legs` from `start` into `route`: the start, each straight
+/// leg's end, and each arc as the corners of a polygon circumscribed about it (every
+/// segment tangent to the circle), with arc steps widened until it fits.
+fn write_waypoints(start: [f64; 2], legs: &[Leg], route: &mut Route) {
+    let mut step = ARC_STEP_RAD;
+    loop {
+        let needed = 1 + legs
+            .iter()
+            .map(|leg| match leg {
+                Leg::Straight { .. } => 1,
+                Leg::Arc { sweep, .. } => arc_pieces(*sweep, step) + 1,
+            })
+            .sum::<usize>();
+        if needed <= ROUTE_CAPACITY || step >= std::f64::consts::PI {
+            break;
+        }
+        step *= 2.0;
+    }
+    let mut count = 0;
+    let mut push = |p: [f64; 2]| {
+        if count < ROUTE_CAPACITY {
+            route.waypoints[count] = p;
+            count += 1;
+        }
+    };
+    push(start);
+    for leg in legs {
+        match *leg {
+            Leg::Straight { to } => push(to),
+            Leg::Arc {
+                disc,
+                from_angle,
+                sweep,
+                to,
+            } => {
+                let pieces = arc_pieces(sweep, step);
+                let turn = sweep / pieces as f64;
+                let corner = disc.radius / (0.5 * turn).cos();
+                for j in 0..pieces {
+                    let a = from_angle + (j as f64 + 0.5) * turn;
+                    push([
+                        disc.center[0] + corner * a.cos(),
+                        disc.center[1] + corner * a.sin(),
+                    ]);
+                }
+                push(to);
+            }
+        }
+    }
+    // The goal is the last waypoint even if the polygon had to be cut short.
+    if let Some(Leg::Straight { to } | Leg::Arc { to, .. }) = legs.last() {
+        route.waypoints[count - 1] = *to;
+    }
+    route.count = count as u32;
+}
+
+/// Straight pieces of an arc turning by `sweep` with turns of at most `step`.
+fn arc_pieces(sweep: f64, step: f64) -> usize {
+    ((sweep.abs() / step).ceil() as usize).max(1)
+}
+
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// Length of the polyline through `points`, m.
+pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
+    points.windows(2).map(|w| distance(w[0], w[1])).sum()
+}
+
+/// Distance from `position` to the route's polyline, m.
+pub fn distance_to_route(route: &Route, position: [f64; 2]) -> f64 {
+    route
+        .points()
+        .windows(2)
+        .map(|w| protocol::segment_distance(w[0], w[1], position))
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{Header, Obstacle, PlannerKind, Scenario};
+
+    fn scenario(obstacles: Vec<Obstacle>) -> Validated {
+        let mut s = Scenario::default();
+        s.planner.kind = PlannerKind::Route;
+        s.obstacles = obstacles;
+        s.validated("test").unwrap()
+    }
+
+    fn estimate_at(x: f64, y: f64) -> Estimate {
+        Estimate {
+            header: Header::default(),
+            state: [x, y, 0.0, 0.0],
+            ..Estimate::default()
+        }
+    }
+
+    #[test]
+    fn every_segment_of_the_route_keeps_the_clearance_from_every_grown_obstacle() {
+        let obstacles = vec![
+            Obstacle {
+                x: 3.0,
+                y: 3.5,
+                radius: 1.5,
+            },
+            Obstacle {
+                x: 5.0,
+                y: 1.0,
+                radius: 0.8,
+            },
+        ];
+        let s = scenario(obstacles.clone());
+        let mut planner = Planner::new(&s);
+        let route = planner.step(0, &estimate_at(7.0, 7.0));
+        assert!(route.is_ok());
+        let points = route.points();
+        assert_eq!(points[0], [7.0, 7.0]);
+        assert_eq!(*points.last().unwrap(), s.robot.goal);
+        // Grown by kappa sigma (sigma from a zero covariance: 0) and the clearance.
+        for w in points.windows(2) {
+            for o in &obstacles {
+                let d = protocol::segment_distance(w[0], w[1], [o.x, o.y]);
+                assert!(
+                    d >= o.radius + s.planner.clearance_m - 1e-9,
+                    "{w:?} {o:?}: {d}"
+                );
+            }
+        }
+        assert!((route.length_m - polyline_length(points)).abs() < 1e-12);
+        assert!(route.length_m > 7.0 * 2f64.sqrt());
+    }
+
+    #[test]
+    fn the_planner_replans_on_a_stall_a_stray_and_the_period_and_not_otherwise() {
+        let s = scenario(vec![Obstacle {
+            x: 3.0,
+            y: 3.5,
+            radius: 1.5,
+        }]);
+        let mut planner = Planner::new(&s);
+        let first = planner.step(0, &estimate_at(7.0, 7.0));
+        assert_eq!(first.reason, ReplanReason::Start as u32);
+        assert_eq!(first.plans, 1);
+        // Moving along the route: no plan before the period (1 s = 20 samples).
+        let along = first.points()[1];
+        let mut last = first;
+        for k in 1..20 {
+            let f = k as f64 / 40.0;
+            let p = [7.0 + f * (along[0] - 7.0), 7.0 + f * (along[1] - 7.0)];
+            last = planner.step(k, &estimate_at(p[0], p[1]));
+            assert_eq!(last.plans, 1, "sample {k}");
+        }
+        let periodic = planner.step(20, &estimate_at(last.points()[0][0], last.points()[0][1]));
+        assert_eq!(periodic.plans, 2);
+        assert_eq!(periodic.reason, ReplanReason::Period as u32);
+        // Far off the route.
+        let strayed = planner.step(21, &estimate_at(8.0, -2.0));
+        assert_eq!(strayed.reason, ReplanReason::Stray as u32);
+        // Standing still for a second.
+        let mut stalled = strayed;
+        for k in 22..=42 {
+            stalled = planner.step(k, &estimate_at(8.0, -2.0));
+        }
+        assert_eq!(stalled.reason, ReplanReason::Stall as u32);
+        assert_eq!(stalled.plans, 4);
+    }
+
+    #[test]
+    fn a_robot_inside_the_clearance_plans_from_where_it_is() {
+        let s = scenario(vec![Obstacle {
+            x: 3.0,
+            y: 3.5,
+            radius: 1.5,
+        }]);
+        let mut planner = Planner::new(&s);
+        // 5 cm off the obstacle's edge, within the 0.2 m clearance.
+        let route = planner.step(0, &estimate_at(3.0 + 1.55, 3.5));
+        assert!(route.is_ok());
+        assert_eq!(route.points()[0], [4.55, 3.5]);
+    }
+
+    #[test]
+    fn a_goal_walled_in_is_no_route() {
+        let ring = (0..8)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 8.0;
+                Obstacle {
+                    x: 1.5 * a.cos(),
+                    y: 1.5 * a.sin(),
+                    radius: 0.7,
+                }
+            })
+            .collect();
+        let s = scenario(ring);
+        let route = Planner::new(&s).step(0, &estimate_at(7.0, 7.0));
+        assert_eq!(route.status(), Some(RouteStatus::NoRoute));
+        assert_eq!(route.count, 0);
+    }
+
+    #[test]
+    fn a_route_with_many_arcs_fits_the_message_and_ends_at_the_goal() {
+        let legs: Vec<Leg> = (0..30)
+            .map(|k| Leg::Arc {
+                disc: Disc {
+                    center: [k as f64, 0.0],
+                    radius: 0.4,
+                },
+                from_angle: 0.0,
+                sweep: 3.0,
+                to: [k as f64 + 0.5, 0.0],
+            })
+            .collect();
+        let mut route = Route::default();
+        write_waypoints([-1.0, 0.0], &legs, &mut route);
+        assert!(route.count as usize <= ROUTE_CAPACITY);
+        assert_eq!(route.points().last(), Some(&[29.5, 0.0]));
+    }
+}

@@ -1,0 +1,170 @@
+//! The route planner (README, "Route planner"): random obstacle fields reached, the
+//! `field` scenario in every clock, no route, a planner killed or swapped mid-run.
+
+mod common;
+
+use common::{csv, events, has_event, num, run, run_into_tempdir, stderr, summary};
+use std::path::Path;
+
+#[test]
+fn with_the_planner_random_worlds_reach_the_goal_when_a_route_exists_and_never_collide() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out = run(&[
+        "fuzz",
+        "--count",
+        "200",
+        "--seed",
+        "17",
+        "--set",
+        "planner.kind=route",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    let rows = csv(&dir.path().join("fuzz.csv"));
+    assert_eq!(rows.len(), 200, "{}", stderr(&out));
+    let count = |outcome: &str| rows.iter().filter(|r| r["outcome"] == outcome).count();
+    assert_eq!(count("collided"), 0);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let routable = rows.len() - count("no_route");
+    let reached = count("reached");
+    assert!(
+        reached as f64 >= 0.95 * routable as f64,
+        "reached {reached} of {routable} worlds with a route"
+    );
+    for row in &rows {
+        assert!(num(row, "min_clearance_m") > 0.0, "{row:?}");
+    }
+}
+
+/// The `field` scenario run in `mode` (`--in-process` or a `--mode`) into a fresh
+/// directory; its summary must say it reached the goal.
+fn field(mode: &[&str]) -> tempfile::TempDir {
+    let (dir, out) = run_into_tempdir(&[&["run", "field"], mode].concat());
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "reached", "{mode:?}");
+    assert!(s["route_length_m"].as_f64().unwrap() > 0.0);
+    dir
+}
+
+#[test]
+fn the_field_is_reached_in_lockstep_exactly_as_in_process_and_not_without_the_planner() {
+    let _machine = common::machine_shared();
+    let lockstep = field(&[]);
+    let in_process = field(&["--in-process"]);
+    for file in ["trajectory.csv", "route.csv"] {
+        let read = |dir: &Path| std::fs::read(dir.join(file)).unwrap();
+        assert!(
+            read(lockstep.path()) == read(in_process.path()),
+            "{file} differs between lockstep and in-process"
+        );
+    }
+    let routes = csv(&lockstep.path().join("route.csv"));
+    assert_eq!(routes[0]["reason"], "start");
+    assert_eq!(
+        (num(&routes[0], "x"), num(&routes[0], "y")),
+        (8.0, 7.0),
+        "the first route starts at the start"
+    );
+    // The paper's controller alone does not get through this field.
+    let (none, out) =
+        run_into_tempdir(&["run", "field", "--in-process", "--set", "planner.kind=none"]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert_eq!(summary(none.path())["outcome"], "stalled");
+}
+
+#[test]
+fn a_goal_walled_in_ends_the_run_at_once_with_no_route() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    // Eight discs in a ring around the goal, overlapping.
+    let mut file = String::from("name = \"walled\"\n[planner]\nkind = \"route\"\n");
+    for k in 0..8 {
+        let a = f64::from(k) * std::f64::consts::TAU / 8.0;
+        file += &format!(
+            "[[obstacles]]\nx = {}\ny = {}\nradius = 0.7\n",
+            1.5 * a.cos(),
+            1.5 * a.sin()
+        );
+    }
+    let path = dir.path().join("walled.toml");
+    std::fs::write(&path, file).unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    let s = summary(&out_dir);
+    assert_eq!(s["outcome"], "no_route");
+    // At once: within the first sample's route, not after a stall timeout.
+    assert!(s["simulated_s"].as_f64().unwrap() < 0.2, "{s}");
+    assert!(events(&out_dir).iter().any(|e| e["event"] == "no_route"));
+}
+
+#[test]
+fn in_real_time_the_field_is_reached_with_no_deadline_miss_through_a_planner_killed_mid_run() {
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    common::kill_role_during_run(
+        dir.path(),
+        &["field", "--mode", "realtime"],
+        "planner",
+        std::time::Duration::from_secs(5),
+    );
+    let s = summary(dir.path());
+    let ev = events(dir.path());
+    assert!(has_event(&ev, "restarted", "planner"), "{ev:#?}");
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["deadline_misses"], 0);
+    // The restarted planner planned again, from where the robot was.
+    let routes = csv(&dir.path().join("route.csv"));
+    assert!(
+        routes
+            .iter()
+            .any(|r| r["plan"] != "1" && r["reason"] == "start")
+    );
+}
+
+#[test]
+fn the_planner_is_swapped_in_lockstep_and_a_run_without_one_refuses_its_swap() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("swap.toml");
+    let field = String::from_utf8(run(&["scenario", "field"]).stdout).unwrap();
+    std::fs::write(
+        &path,
+        format!("{field}\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n"),
+    )
+    .unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let s = summary(&out_dir);
+    assert_eq!(s["swaps"], 1);
+    assert_eq!(s["outcome"], "reached");
+    assert!(s["rejected_samples"].as_object().unwrap().is_empty(), "{s}");
+    assert!(has_event(&events(&out_dir), "swapped", "planner"));
+
+    std::fs::write(
+        &path,
+        "name = \"no-planner\"\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n",
+    )
+    .unwrap();
+    let out = run(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("swap.0.role"), "{}", stderr(&out));
+}
