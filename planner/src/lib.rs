@@ -19,6 +19,11 @@ pub const STALL_DISTANCE_M: f64 = 0.05;
 /// ... for this long, away from the goal.
 pub const STALL_WINDOW_S: f64 = 1.0;
 
+/// A periodic replan takes the new route only if it is shorter than what is left of the
+/// current one by this much, m (or the current one is blocked now): two routes of about
+/// the same length round an obstacle are not swapped sample after sample.
+pub const SWITCH_GAIN_M: f64 = 0.25;
+
 /// Widest turn of an arc between two waypoints, rad (30 degrees: the polygon's corners
 /// stand `R (1 / cos 15° - 1)`, 3.5 % of the radius, off the circle). Doubled while a
 /// route would not fit in [`ROUTE_CAPACITY`] waypoints.
@@ -43,7 +48,12 @@ pub struct Planner {
     period_s: f64,
     stray_m: f64,
     ts_s: f64,
+    /// The route published.
     route: Route,
+    /// The newest route planned (taken as `route`, or not: [`SWITCH_GAIN_M`]).
+    candidate: Route,
+    /// Sample of the newest plan, taken or not.
+    last_planned: Option<u64>,
     /// Where and when the robot last moved by [`STALL_DISTANCE_M`].
     moved: Option<(u64, [f64; 2])>,
 }
@@ -68,20 +78,52 @@ impl Planner {
             stray_m: scenario.planner.stray_m,
             ts_s: scenario.timing.ts_s,
             route: Route::default(),
+            candidate: Route::default(),
+            last_planned: None,
             moved: None,
         }
     }
 
     /// The route for sample `sample` from its estimate: the newest one, planned again
-    /// first if this is the first sample, `planner.period_s` has passed, the robot has
-    /// stalled or strayed from it. The header is left for the caller.
+    /// first if this is the first sample, `planner.period_s` has passed (the new route
+    /// taken if it is [`SWITCH_GAIN_M`] shorter than what is left of the old one, or the
+    /// old one is blocked), the robot has stalled or strayed from it. The header is left
+    /// for the caller.
     pub fn step(&mut self, sample: u64, estimate: &Estimate) -> Route {
         let position = [estimate.state[0], estimate.state[1]];
         if let Some(reason) = self.replan_reason(sample, position) {
-            self.plan(sample, position, estimate.position_sigma(), reason);
+            let growth =
+                self.obstacle_margin_m + self.uncertainty_sigmas * estimate.position_sigma();
+            self.plan(sample, position, growth, reason);
+            let better = |new: &Route, old: &Route| {
+                new.length_m < remaining_length(old, position) - SWITCH_GAIN_M
+            };
+            let keep = reason == ReplanReason::Period
+                && self.route.is_ok()
+                && self.candidate.is_ok()
+                && !better(&self.candidate, &self.route)
+                && !self.blocked(position, growth);
+            if !keep {
+                let plans = self.route.plans + 1;
+                self.route = self.candidate;
+                self.route.plans = plans;
+            }
         }
         self.route.sample = sample;
         self.route
+    }
+
+    /// Whether the rest of the route from the robot's closest point enters an obstacle
+    /// grown by `growth_m` (the clearance aside).
+    fn blocked(&mut self, position: [f64; 2], growth_m: f64) -> bool {
+        self.grow_discs(position, growth_m);
+        let points = self.route.points();
+        let (segment, _) = closest_segment(points, position);
+        points[segment..].windows(2).any(|w| {
+            self.discs
+                .iter()
+                .any(|d| protocol::segment_distance(w[0], w[1], d.center) < d.radius - 1e-9)
+        })
     }
 
     /// Why the route must be planned again at `sample`, if it must.
@@ -107,21 +149,26 @@ impl Planner {
             Some(ReplanReason::Stall)
         } else if self.route.is_ok() && distance_to_route(&self.route, position) > self.stray_m {
             Some(ReplanReason::Stray)
-        } else if self.period_s > 0.0 && since_s(self.route.planned_sample) >= self.period_s {
+        } else if self.period_s > 0.0
+            && self
+                .last_planned
+                .is_some_and(|then| since_s(then) >= self.period_s)
+        {
             Some(ReplanReason::Period)
         } else {
             None
         }
     }
 
-    /// Plans from `position` with the clearance, or without it if no route keeps it.
-    fn plan(&mut self, sample: u64, position: [f64; 2], sigma_m: f64, reason: ReplanReason) {
+    /// Plans `candidate` from `position` around the obstacles grown by `growth_m` and the
+    /// clearance, or without the clearance if no route keeps it.
+    fn plan(&mut self, sample: u64, position: [f64; 2], growth_m: f64, reason: ReplanReason) {
         let started = std::time::Instant::now();
-        let growth = self.obstacle_margin_m + self.uncertainty_sigmas * sigma_m;
+        self.last_planned = Some(sample);
         let mut found = false;
         for clearance in [self.clearance_m, 0.0] {
-            self.grow_discs(position, growth + clearance);
-            let (graph, route) = (&mut self.graph, &mut self.route);
+            self.grow_discs(position, growth_m + clearance);
+            let (graph, route) = (&mut self.graph, &mut self.candidate);
             if let Ok(legs) = graph.shortest_path(position, self.goal, &self.discs, self.bounds) {
                 write_waypoints(position, legs, route);
                 found = true;
@@ -131,7 +178,7 @@ impl Planner {
                 break;
             }
         }
-        let route = &mut self.route;
+        let route = &mut self.candidate;
         if found {
             route.status = RouteStatus::Ok as u32;
             route.length_m = polyline_length(route.points());
@@ -141,7 +188,6 @@ impl Planner {
             route.length_m = 0.0;
         }
         route.planned_sample = sample;
-        route.plans += 1;
         route.reason = reason as u32;
         route.plan_ns = started.elapsed().as_nanos() as u64;
     }
@@ -232,6 +278,32 @@ pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
     points.windows(2).map(|w| distance(w[0], w[1])).sum()
 }
 
+/// The segment of `points` closest to `position` (the first of equals), and the closest
+/// point on it.
+fn closest_segment(points: &[[f64; 2]], position: [f64; 2]) -> (usize, [f64; 2]) {
+    let mut best = (0, points[0], f64::INFINITY);
+    for (i, w) in points.windows(2).enumerate() {
+        let c = protocol::closest_point_on_segment(w[0], w[1], position);
+        let d = distance(c, position);
+        if d < best.2 {
+            best = (i, c, d);
+        }
+    }
+    (best.0, best.1)
+}
+
+/// The length of a route from `position`: to its closest point, then along it, m.
+pub fn remaining_length(route: &Route, position: [f64; 2]) -> f64 {
+    let points = route.points();
+    if points.len() < 2 {
+        return f64::INFINITY;
+    }
+    let (segment, at) = closest_segment(points, position);
+    distance(position, at)
+        + distance(at, points[segment + 1])
+        + polyline_length(&points[segment + 1..])
+}
+
 /// Distance from `position` to the route's polyline, m.
 pub fn distance_to_route(route: &Route, position: [f64; 2]) -> f64 {
     route
@@ -316,19 +388,47 @@ mod tests {
             last = planner.step(k, &estimate_at(p[0], p[1]));
             assert_eq!(last.plans, 1, "sample {k}");
         }
+        // The period's plan, from a point of the route: no shorter, so the route stays.
         let periodic = planner.step(20, &estimate_at(last.points()[0][0], last.points()[0][1]));
-        assert_eq!(periodic.plans, 2);
-        assert_eq!(periodic.reason, ReplanReason::Period as u32);
+        assert_eq!((periodic.plans, periodic.planned_sample), (1, 0));
         // Far off the route.
         let strayed = planner.step(21, &estimate_at(8.0, -2.0));
         assert_eq!(strayed.reason, ReplanReason::Stray as u32);
+        assert_eq!(strayed.plans, 2);
         // Standing still for a second.
         let mut stalled = strayed;
         for k in 22..=42 {
             stalled = planner.step(k, &estimate_at(8.0, -2.0));
         }
         assert_eq!(stalled.reason, ReplanReason::Stall as u32);
-        assert_eq!(stalled.plans, 4);
+        assert_eq!(stalled.plans, 3);
+    }
+
+    #[test]
+    fn a_periodic_plan_is_taken_when_it_is_clearly_shorter_than_the_rest_of_the_route() {
+        // One obstacle on the line from the start to the goal; the robot drifts to the
+        // other side of it (strays allowed) until going round that side is shorter.
+        let mut s = Scenario::default();
+        s.planner.kind = PlannerKind::Route;
+        s.planner.stray_m = 100.0;
+        s.robot.start = [6.0, 0.0, 0.0];
+        s.obstacles = vec![Obstacle {
+            x: 3.0,
+            y: 0.0,
+            radius: 1.0,
+        }];
+        let s = s.validated("test").unwrap();
+        let mut planner = Planner::new(&s);
+        let first = planner.step(0, &estimate_at(6.0, 0.0));
+        let side = first.points()[1][1].signum();
+        let mut route = first;
+        // At the period (1 s = 20 samples), 1 m to the other side.
+        for k in 1..=20 {
+            route = planner.step(k, &estimate_at(6.0, -side * 0.05 * k as f64));
+        }
+        assert_eq!(route.reason, ReplanReason::Period as u32);
+        assert_eq!(route.plans, 2);
+        assert_eq!(route.points()[1][1].signum(), -side, "round the other side");
     }
 
     #[test]

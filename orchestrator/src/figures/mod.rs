@@ -80,6 +80,8 @@ pub struct Figure {
     pub equal_axes: bool,
     /// Logarithmic y axis.
     pub log_y: bool,
+    /// The legend in the upper left corner (else the upper right).
+    pub legend_left: bool,
 }
 
 impl Figure {
@@ -238,9 +240,11 @@ impl Figure {
             } else {
                 chart.draw_series(LineSeries::new(points, style))?
             };
-            drawn
-                .label(s.label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+            if !s.label.is_empty() {
+                drawn
+                    .label(s.label.as_str())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+            }
         }
         for m in &self.markers {
             let style = PALETTE[m.color % PALETTE.len()].filled();
@@ -255,7 +259,11 @@ impl Figure {
         }
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(if self.legend_left {
+                SeriesLabelPosition::UpperLeft
+            } else {
+                SeriesLabelPosition::UpperRight
+            })
             .label_font(("sans-serif", 15))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
@@ -350,12 +358,12 @@ impl Trajectory {
     }
 }
 
-/// The waypoints of the first route of the run in `dir` (`route.csv`; `None` when the run
-/// had no planner or no route).
-fn first_route(dir: &Path) -> anyhow::Result<Option<Vec<(f64, f64)>>> {
+/// The waypoints of every route of the run in `dir`, in the order planned (`route.csv`;
+/// none when the run had no planner or no route).
+fn routes(dir: &Path) -> anyhow::Result<Vec<Vec<(f64, f64)>>> {
     let file = dir.join("route.csv");
     if !file.exists() {
-        return Ok(None);
+        return Ok(Vec::new());
     }
     let table = Table::read(&file)?;
     let (plan, x, y) = (
@@ -363,14 +371,14 @@ fn first_route(dir: &Path) -> anyhow::Result<Option<Vec<(f64, f64)>>> {
         table.numbers("x")?,
         table.numbers("y")?,
     );
-    let first = plan.first().copied();
-    Ok(Some(
-        plan.iter()
-            .zip(x.iter().zip(&y))
-            .filter(|(p, _)| Some(**p) == first)
-            .map(|(_, (x, y))| (*x, *y))
-            .collect(),
-    ))
+    let mut routes: Vec<(f64, Vec<(f64, f64)>)> = Vec::new();
+    for (p, point) in plan.into_iter().zip(x.into_iter().zip(y)) {
+        match routes.last_mut() {
+            Some((last, points)) if *last == p => points.push(point),
+            _ => routes.push((p, vec![point])),
+        }
+    }
+    Ok(routes.into_iter().map(|(_, points)| points).collect())
 }
 
 /// The obstacles of a scenario as discs `(x, y, radius)`.
@@ -391,11 +399,19 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
         ..Series::default()
     };
     let mut path = vec![series("robot", t.path())];
-    if let Some(route) = first_route(dir)? {
+    let routes = routes(dir)?;
+    // The first route, then the later plans faint (one legend entry for them all).
+    for (i, route) in routes.into_iter().enumerate() {
+        let label = match i {
+            0 => "route (first plan)",
+            1 => "later routes",
+            _ => "",
+        };
         path.push(Series {
             dashed: true,
-            color: 2,
-            ..series("route (first plan)", route)
+            faint: i > 0,
+            color: if i == 0 { 2 } else { 4 },
+            ..series(label, route)
         });
     }
     let [sx, sy, _] = scenario.robot.start;
@@ -420,6 +436,7 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
             },
         ],
         equal_axes: true,
+        legend_left: true,
         ..Figure::default()
     }
     .write(dir)?;
