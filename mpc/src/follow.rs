@@ -27,8 +27,9 @@ pub fn reference(
         return false;
     }
     let points = route.points();
-    let (segment, along_m) = closest(points, position);
-    let length = polyline_length(&points[segment..]);
+    let (segment, at, _) = protocol::closest_on_polyline(points, position);
+    let along_m = distance(points[segment], at);
+    let length = protocol::polyline_length(&points[segment..]);
     let speed_at =
         |s: f64| speed_m_s.min((2.0 * ARRIVAL_DECEL_M_S2 * (length - s).max(0.0)).sqrt());
     let mut s = along_m;
@@ -61,24 +62,6 @@ fn state_at(points: &[[f64; 2]], segment: usize, distance_m: f64, speed_m_s: f64
     }
     let end = points[points.len() - 1];
     [end[0], 0.0, end[1], 0.0]
-}
-
-/// The segment of `points` closest to `position` (the first of equals) and how far along
-/// it the closest point lies, m.
-fn closest(points: &[[f64; 2]], position: [f64; 2]) -> (usize, f64) {
-    let mut best = (0, 0.0, f64::INFINITY);
-    for (i, w) in points.windows(2).enumerate() {
-        let c = protocol::closest_point_on_segment(w[0], w[1], position);
-        let d = distance(c, position);
-        if d < best.2 {
-            best = (i, distance(w[0], c), d);
-        }
-    }
-    (best.0, best.1)
-}
-
-fn polyline_length(points: &[[f64; 2]]) -> f64 {
-    points.windows(2).map(|w| distance(w[0], w[1])).sum()
 }
 
 fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {

@@ -11,7 +11,10 @@
 pub mod process;
 pub mod tangent_graph;
 
-use protocol::{Estimate, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated};
+use protocol::{
+    Estimate, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated, closest_on_polyline,
+    polyline_length,
+};
 pub use tangent_graph::{Bounds, Disc, Leg, NoRoute, TangentGraph};
 
 /// The robot counts as stalled when it has moved less than this ...
@@ -118,7 +121,7 @@ impl Planner {
     fn blocked(&mut self, position: [f64; 2], growth_m: f64) -> bool {
         self.grow_discs(position, growth_m);
         let points = self.route.points();
-        let (segment, _) = closest_segment(points, position);
+        let (segment, _, _) = closest_on_polyline(points, position);
         points[segment..].windows(2).any(|w| {
             self.discs
                 .iter()
@@ -273,44 +276,23 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
-/// Length of the polyline through `points`, m.
-pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
-    points.windows(2).map(|w| distance(w[0], w[1])).sum()
-}
-
-/// The segment of `points` closest to `position` (the first of equals), and the closest
-/// point on it.
-fn closest_segment(points: &[[f64; 2]], position: [f64; 2]) -> (usize, [f64; 2]) {
-    let mut best = (0, points[0], f64::INFINITY);
-    for (i, w) in points.windows(2).enumerate() {
-        let c = protocol::closest_point_on_segment(w[0], w[1], position);
-        let d = distance(c, position);
-        if d < best.2 {
-            best = (i, c, d);
-        }
-    }
-    (best.0, best.1)
-}
-
 /// The length of a route from `position`: to its closest point, then along it, m.
 pub fn remaining_length(route: &Route, position: [f64; 2]) -> f64 {
     let points = route.points();
     if points.len() < 2 {
         return f64::INFINITY;
     }
-    let (segment, at) = closest_segment(points, position);
-    distance(position, at)
-        + distance(at, points[segment + 1])
-        + polyline_length(&points[segment + 1..])
+    let (segment, at, off) = closest_on_polyline(points, position);
+    off + distance(at, points[segment + 1]) + polyline_length(&points[segment + 1..])
 }
 
-/// Distance from `position` to the route's polyline, m.
+/// Distance from `position` to the route's polyline, m (infinite without one).
 pub fn distance_to_route(route: &Route, position: [f64; 2]) -> f64 {
-    route
-        .points()
-        .windows(2)
-        .map(|w| protocol::segment_distance(w[0], w[1], position))
-        .fold(f64::INFINITY, f64::min)
+    let points = route.points();
+    if points.len() < 2 {
+        return f64::INFINITY;
+    }
+    closest_on_polyline(points, position).2
 }
 
 #[cfg(test)]

@@ -47,7 +47,7 @@ struct Node {
     angle: f64,
 }
 
-/// An undirected edge; `arc` when it runs along its nodes' circle.
+/// An undirected edge: a tangent segment, or an arc between two nodes of one circle.
 #[derive(Debug, Clone, Copy)]
 struct Edge {
     a: u32,
@@ -253,9 +253,6 @@ impl TangentGraph {
             let (a, b) = (self.on_circle[k], self.on_circle[(k + 1) % count]);
             let from = self.nodes[a as usize].angle;
             let sweep = (self.nodes[b as usize].angle - from).rem_euclid(TAU);
-            if count == 2 && k == 1 && sweep == 0.0 {
-                break;
-            }
             let free = self
                 .blocked
                 .iter()

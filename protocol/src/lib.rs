@@ -86,6 +86,28 @@ pub fn segment_distance(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> f64 {
     (c[0] - point[0]).hypot(c[1] - point[1])
 }
 
+/// The segment of the polyline through `points` (at least two) closest to `point` (the
+/// first of equals), the closest point on it, and its distance from `point`, m.
+pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64; 2], f64) {
+    let mut best = (0, points[0], f64::INFINITY);
+    for (i, w) in points.windows(2).enumerate() {
+        let c = closest_point_on_segment(w[0], w[1], point);
+        let d = (c[0] - point[0]).hypot(c[1] - point[1]);
+        if d < best.2 {
+            best = (i, c, d);
+        }
+    }
+    best
+}
+
+/// Length of the polyline through `points`, m.
+pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
+    points
+        .windows(2)
+        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
+        .sum()
+}
+
 /// Differential-drive geometry: the transform `T` of paper eq. (5) between wheel speeds
 /// `[omega_r, omega_l]` (rad/s) and body inputs `[u1, u2]` (m/s, rad/s).
 #[derive(Debug, Clone, Copy, PartialEq)]
