@@ -6,6 +6,21 @@ mod common;
 use common::{csv, events, has_event, num, run, run_into_tempdir, stderr, summary};
 use std::path::Path;
 
+/// Writes the scenario `text` into `dir` and runs it (lockstep) into `dir/run`; returns
+/// that directory and the output.
+fn run_file(dir: &Path, text: &str) -> (std::path::PathBuf, std::process::Output) {
+    let path = dir.join("scenario.toml");
+    std::fs::write(&path, text).unwrap();
+    let out_dir = dir.join("run");
+    let out = run(&[
+        "run",
+        path.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    (out_dir, out)
+}
+
 #[test]
 fn with_the_planner_random_worlds_reach_the_goal_when_a_route_exists_and_never_collide() {
     let _machine = common::machine_shared();
@@ -88,15 +103,7 @@ fn a_goal_walled_in_ends_the_run_at_once_with_no_route() {
             1.5 * a.sin()
         );
     }
-    let path = dir.path().join("walled.toml");
-    std::fs::write(&path, file).unwrap();
-    let out_dir = dir.path().join("run");
-    let out = run(&[
-        "run",
-        path.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let (out_dir, out) = run_file(dir.path(), &file);
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     let s = summary(&out_dir);
     assert_eq!(s["outcome"], "no_route");
@@ -133,20 +140,9 @@ fn in_real_time_the_field_is_reached_with_no_deadline_miss_through_a_planner_kil
 fn the_planner_is_swapped_in_lockstep_and_a_run_without_one_refuses_its_swap() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("swap.toml");
     let field = String::from_utf8(run(&["scenario", "field"]).stdout).unwrap();
-    std::fs::write(
-        &path,
-        format!("{field}\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n"),
-    )
-    .unwrap();
-    let out_dir = dir.path().join("run");
-    let out = run(&[
-        "run",
-        path.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let swap = format!("{field}\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n");
+    let (out_dir, out) = run_file(dir.path(), &swap);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let s = summary(&out_dir);
     assert_eq!(s["swaps"], 1);
@@ -154,17 +150,10 @@ fn the_planner_is_swapped_in_lockstep_and_a_run_without_one_refuses_its_swap() {
     assert!(s["rejected_samples"].as_object().unwrap().is_empty(), "{s}");
     assert!(has_event(&events(&out_dir), "swapped", "planner"));
 
-    std::fs::write(
-        &path,
-        "name = \"no-planner\"\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n",
-    )
-    .unwrap();
-    let out = run(&[
-        "run",
-        path.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let refused = tempfile::tempdir().unwrap();
+    let no_planner = "name = \"no-planner\"\n[[swap]]\ntime_s = 4.0\nrole = \"planner\"\n";
+    let (refused_dir, out) = run_file(refused.path(), no_planner);
     assert_eq!(out.status.code(), Some(2));
+    assert!(!refused_dir.exists(), "a refused scenario started a run");
     assert!(stderr(&out).contains("swap.0.role"), "{}", stderr(&out));
 }

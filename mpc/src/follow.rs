@@ -5,7 +5,7 @@
 //! solves the paper's problem itself (terminal analysis and all). The reference enters
 //! the cost only; no constraint changes.
 
-use protocol::Route;
+use protocol::{Route, distance};
 
 /// The reference slows to rest at the goal at this deceleration, m/s^2: gently enough for
 /// the paper's cost (`R = 100 Q`) to follow it without overshooting the goal.
@@ -62,10 +62,6 @@ fn state_at(points: &[[f64; 2]], segment: usize, distance_m: f64, speed_m_s: f64
     }
     let end = points[points.len() - 1];
     [end[0], 0.0, end[1], 0.0]
-}
-
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ pub mod tangent_graph;
 
 use protocol::{
     Estimate, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated, closest_on_polyline,
-    polyline_length,
+    distance, polyline_length,
 };
 pub use tangent_graph::{Bounds, Disc, Leg, NoRoute, TangentGraph};
 
@@ -270,10 +270,6 @@ fn write_waypoints(start: [f64; 2], legs: &[Leg], route: &mut Route) {
 /// Straight pieces of an arc turning by `sweep` with turns of at most `step`.
 fn arc_pieces(sweep: f64, step: f64) -> usize {
     ((sweep.abs() / step).ceil() as usize).max(1)
-}
-
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 /// The length of a route from `position`: to its closest point, then along it, m.

@@ -16,6 +16,7 @@
 //! reserved for `n` discs up front ([`TangentGraph::with_capacity`]), so a search does not
 //! allocate.
 
+use protocol::distance;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::f64::consts::TAU;
@@ -352,10 +353,6 @@ impl TangentGraph {
         }
         self.legs.reverse();
     }
-}
-
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 /// Whether the segment `p q` stays outside every disc (touching allowed) and in the box.

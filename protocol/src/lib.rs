@@ -68,6 +68,11 @@ pub fn commit_margin_m(position_sigma_m: f64) -> f64 {
     position_sigma_m + COMMIT_MARGIN_M
 }
 
+/// Distance between two points, m.
+pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
 /// The point of the segment from `a` to `b` closest to `point`.
 pub fn closest_point_on_segment(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> [f64; 2] {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
@@ -92,7 +97,7 @@ pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64
     let mut best = (0, points[0], f64::INFINITY);
     for (i, w) in points.windows(2).enumerate() {
         let c = closest_point_on_segment(w[0], w[1], point);
-        let d = (c[0] - point[0]).hypot(c[1] - point[1]);
+        let d = distance(c, point);
         if d < best.2 {
             best = (i, c, d);
         }
@@ -102,10 +107,7 @@ pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64
 
 /// Length of the polyline through `points`, m.
 pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
-    points
-        .windows(2)
-        .map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]))
-        .sum()
+    points.windows(2).map(|w| distance(w[0], w[1])).sum()
 }
 
 /// Differential-drive geometry: the transform `T` of paper eq. (5) between wheel speeds
