@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{csv, num, run, run_into_tempdir, stderr};
+use common::{csv, num, run, scmpc, stderr};
 use std::path::Path;
 
 /// Pixels of a PNG figure: `(width, height, distinct colours, share of non-white pixels)`.
@@ -104,10 +104,31 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
     }
 }
 
+/// `scmpc run` in process for 6 s into a fresh directory, with no system font to be
+/// found (an empty font directory and home) and `SCMPC_FONT` as given.
+fn run_without_system_fonts(font: Option<&str>) -> (tempfile::TempDir, std::process::Output) {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = tempfile::tempdir().unwrap();
+    let mut command = scmpc();
+    command
+        .args(["run", "--in-process", "--set", "duration_s=6", "--out"])
+        .arg(dir.path())
+        .env_remove("SCMPC_FONT")
+        .env("HOME", empty.path())
+        .env("XDG_DATA_HOME", empty.path())
+        .env("XDG_DATA_DIRS", empty.path())
+        .env("FONTCONFIG_PATH", empty.path());
+    if let Some(font) = font {
+        command.env("SCMPC_FONT", font);
+    }
+    (dir, command.output().unwrap())
+}
+
 #[test]
-fn a_run_writes_its_path_and_distance_plots() {
-    let (dir, out) = run_into_tempdir(&["run", "--in-process", "--set", "duration_s=6"]);
-    assert!(out.status.code().is_some(), "{}", stderr(&out));
+fn a_run_writes_its_path_and_distance_plots_with_no_system_font() {
+    let (dir, out) = run_without_system_fonts(None);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out)); // 6 s: not reached
+    assert!(!stderr(&out).contains("no plots"), "{}", stderr(&out));
     let path = std::fs::read_to_string(dir.path().join("path.svg")).unwrap();
     assert!(path.contains("<polygon") && path.contains("<polyline"));
     let clearance = std::fs::read_to_string(dir.path().join("clearance.svg")).unwrap();
@@ -116,4 +137,16 @@ fn a_run_writes_its_path_and_distance_plots() {
         let (_, _, colours, ink) = png_content(&dir.path().join(format!("{stem}.png")));
         assert!(colours > 8 && ink > 0.02, "{stem}.png");
     }
+}
+
+#[test]
+fn a_font_file_that_cannot_be_read_is_named_and_the_run_keeps_its_records() {
+    let (dir, out) = run_without_system_fonts(Some("/nonexistent/font.ttf"));
+    let err = stderr(&out);
+    assert!(
+        err.contains("no plots") && err.contains("SCMPC_FONT=/nonexistent/font.ttf"),
+        "{err}"
+    );
+    assert!(dir.path().join("trajectory.csv").exists());
+    assert!(!dir.path().join("path.png").exists());
 }

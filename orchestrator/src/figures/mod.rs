@@ -1,8 +1,8 @@
 //! Figures as SVG and PNG, drawn with plotters: the paper's figure set (`scmpc figures`)
 //! and the plots of one run (`path` and `clearance`, written by `scmpc run`).
 //!
-//! Text needs a TrueType font: the first of [`FONT_CANDIDATES`] that exists (or the file
-//! named by `SCMPC_FONT`) is used; Debian's `fonts-dejavu-core` provides one.
+//! Text is drawn in DejaVu Sans, embedded in the executable (the `dejavu` crate): no system
+//! font is looked for. `SCMPC_FONT` names another TrueType file to use instead.
 
 use crate::schema::Table;
 use anyhow::{Context, anyhow};
@@ -14,14 +14,6 @@ use std::sync::OnceLock;
 mod paper;
 
 pub use paper::{FigureSet, GAMMA_HORIZON_PAIRS, GAMMAS, HORIZONS, paper_set};
-
-/// Where a sans-serif TrueType font is looked for.
-pub const FONT_CANDIDATES: [&str; 4] = [
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-];
 
 /// Width and height of every figure, px.
 const SIZE: (u32, u32) = (900, 700);
@@ -272,24 +264,28 @@ impl Figure {
     }
 }
 
-/// Registers a TrueType font for plotters' text, once per process.
+/// Names a TrueType file the figures use instead of the embedded DejaVu Sans.
+pub const ENV_FONT: &str = "SCMPC_FONT";
+
+/// Registers the figures' font for plotters' text, once per process: the file named by
+/// [`ENV_FONT`], or else the embedded DejaVu Sans.
 pub fn ensure_font() -> anyhow::Result<()> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let from_env = std::env::var("SCMPC_FONT").ok();
-        let candidates = from_env.iter().map(String::as_str).chain(FONT_CANDIDATES);
-        for path in candidates {
-            if let Ok(bytes) = std::fs::read(path) {
-                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                return plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
-                    .map_err(|_| format!("{path} is not a usable TrueType font"));
+        let (name, bytes): (String, &'static [u8]) = match std::env::var_os(ENV_FONT) {
+            Some(path) => {
+                let path = PathBuf::from(path);
+                let bytes = std::fs::read(&path)
+                    .map_err(|e| format!("{ENV_FONT}={}: {e}", path.display()))?;
+                (
+                    path.display().to_string(),
+                    Box::leak(bytes.into_boxed_slice()),
+                )
             }
-        }
-        Err(format!(
-            "no TrueType font for the figures: install Debian's fonts-dejavu-core, or name a \
-             .ttf file in SCMPC_FONT (looked for {})",
-            FONT_CANDIDATES.join(", ")
-        ))
+            None => ("the embedded DejaVu Sans".into(), dejavu::sans::regular()),
+        };
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| format!("{ENV_FONT}: {name} is not a usable TrueType font"))
     })
     .clone()
     .map_err(|e| anyhow!(e))
