@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{events, run, run_into_tempdir, stderr, summary};
+use common::{run_into_tempdir, stderr, summary};
 
 const PAPER_FORMULATION: [&str; 4] = [
     "--set",
@@ -120,22 +120,12 @@ command = ["scmpc", "mpc", "--set", "fault.mpc_ignore_obstacles=true"]
 "#,
     )
     .unwrap();
-    let out_dir = dir.path().join("run");
-    let out = run(&[
-        "run",
-        file.to_str().unwrap(),
-        "--mode",
-        "realtime",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.code().is_some(), "{}", stderr(&out));
-    let s = summary(&out_dir);
+    let (_, s, ev) = common::run_realtime(dir.path(), file.to_str().unwrap());
     assert_eq!(s["swaps"], 1, "{s:#}");
     assert_ne!(s["outcome"], "collided");
     assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0, "{s:#}");
     assert!(s["safety_interventions"].as_u64().unwrap() > 0, "{s:#}");
-    let refused = events(&out_dir)
+    let refused = ev
         .into_iter()
         .filter(|e| e["event"] == "safety_intervention" && e["reason"] == "plan_refused")
         .count();

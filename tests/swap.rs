@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{events, run, scmpc, spawn_run, summary, wait_for};
+use common::{events, run, run_realtime, scmpc, spawn_run, summary, wait_for};
 use orchestrator::schema::Table;
 use std::path::Path;
 use std::time::Duration;
@@ -13,29 +13,6 @@ fn scenario_file(dir: &Path, extra: &str) -> String {
     let file = dir.join("scenario.toml");
     std::fs::write(&file, format!("name = \"swaps\"\n{extra}")).unwrap();
     file.to_str().unwrap().to_string()
-}
-
-/// Runs scenario `file` in real time into `dir/run`; returns that directory, its summary
-/// and its events.
-fn run_realtime(
-    dir: &Path,
-    file: &str,
-) -> (
-    std::path::PathBuf,
-    serde_json::Value,
-    Vec<serde_json::Value>,
-) {
-    let out_dir = dir.join("run");
-    let out = run(&[
-        "run",
-        file,
-        "--mode",
-        "realtime",
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.code().is_some(), "{}", common::stderr(&out));
-    (out_dir.clone(), summary(&out_dir), events(&out_dir))
 }
 
 /// The `swapped` event of `role`.

@@ -76,6 +76,13 @@ enum Command {
         #[arg(long)]
         prefix: String,
     },
+    /// Print, as JSON, the layout of every message crossing a process boundary and what a
+    /// role process of another language needs to join a run.
+    ///
+    /// Each topic's iceoryx2 service and settings, each type's iceoryx2 name, size,
+    /// alignment and fields (name, offset, type), the codes of every enumeration, and the
+    /// environment a role process is started with (README, "A role in Python").
+    Schema,
     /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
@@ -161,6 +168,9 @@ struct SweepArgs {
     /// Runs at a time [default: the number of cores].
     #[arg(long)]
     threads: Option<usize>,
+    /// Write each run's `run.mcap` too (README, "Recording for Foxglove").
+    #[arg(long)]
+    mcap: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -180,6 +190,9 @@ struct FuzzArgs {
     /// Runs at a time [default: the number of cores].
     #[arg(long)]
     threads: Option<usize>,
+    /// Write each run's `run.mcap` too (README, "Recording for Foxglove").
+    #[arg(long)]
+    mcap: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -214,6 +227,9 @@ struct RunArgs {
     /// Clock of a multi-process run (`--in-process` is always lockstep).
     #[arg(long, value_enum, default_value = "lockstep")]
     mode: Mode,
+    /// Do not write `run.mcap` (README, "Recording for Foxglove").
+    #[arg(long)]
+    no_mcap: bool,
 }
 
 /// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
@@ -249,6 +265,10 @@ pub fn main() -> ExitCode {
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Schema => {
+            println!("{:#}", message_schema());
+            Ok(())
+        }
         Command::Scenario { name } => scenario(&name),
         Command::Run(args) => run(args),
         Command::Swap(args) => swap(args),
@@ -324,7 +344,7 @@ fn sweep(args: SweepArgs) -> CliResult {
         runs.len(),
         out.display()
     );
-    let results = sweep::run_all(&runs, threads, true, &stop);
+    let results = sweep::run_all(&runs, threads, true, args.mcap, &stop);
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results)?;
     let stats = sweep::seed_stats(&runs, &results);
@@ -493,9 +513,16 @@ fn run(args: RunArgs) -> CliResult {
     protocol::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let stop = stop_flag();
     let summary = if args.in_process {
-        inprocess::run(&scenario, &out, &stop)
+        inprocess::run(&scenario, &out, !args.no_mcap, &stop)
     } else {
-        multiproc::run(&scenario, &out, args.mode.into(), &prefix, &stop)
+        multiproc::run(
+            &scenario,
+            &out,
+            args.mode.into(),
+            &prefix,
+            !args.no_mcap,
+            &stop,
+        )
     }
     .with_context(|| format!("run of `{}`", scenario.name))?;
     if let Err(e) = crate::figures::run_plots(&out, &scenario) {
@@ -508,6 +535,32 @@ fn run(args: RunArgs) -> CliResult {
     } else {
         Err(CliError::NotReached)
     }
+}
+
+/// What `scmpc schema` prints.
+fn message_schema() -> serde_json::Value {
+    use crate::multiproc::{
+        ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO,
+        ENV_SUPERVISOR,
+    };
+    use protocol::layout;
+    serde_json::json!({
+        "iceoryx2": "0.10.0",
+        "service_type": "ipc",
+        "user_header": "()",
+        "services": layout::services(),
+        "types": layout::types(),
+        "codes": layout::codes(),
+        "environment": {
+            ENV_SCENARIO: "the run's scenario file (TOML, every key written out)",
+            ENV_PREFIX: "the iceoryx2 prefix of the run's resources (config.global.prefix)",
+            ENV_MODE: "lockstep or realtime",
+            ENV_EPOCH: "the producer epoch to stamp on every sample (Header.epoch)",
+            ENV_ROLE: "the role to play",
+            ENV_SUPERVISOR: "the orchestrator's pid: exit when it is gone",
+            ENV_CONTROL_PUBLISHER: "the iceoryx2 id of the orchestrator's control publisher, hexadecimal",
+        },
+    })
 }
 
 /// `runs/<name>-<UTC yyyymmdd-hhmmss>`, made unique with a counter if it exists.

@@ -209,7 +209,7 @@ pub fn run(
             dir: out.join("runs").join(format!("{:04}", w.index)),
         })
         .collect();
-    let results = sweep::run_all(&runs, threads, progress, stop);
+    let results = sweep::run_all(&runs, threads, progress, false, stop);
     let report = Report { worlds, results };
     let _ = std::fs::remove_dir_all(out.join("runs"));
     write_csv(&report, out).with_context(|| format!("writing {}", out.display()))?;

@@ -10,21 +10,33 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-/// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out`.
-pub fn run(scenario: &Validated, out: &Path, stop: &AtomicBool) -> anyhow::Result<Summary> {
-    run_observed(scenario, out, stop, |_| {})
+/// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out` (with
+/// `run.mcap` if `mcap`).
+pub fn run(
+    scenario: &Validated,
+    out: &Path,
+    mcap: bool,
+    stop: &AtomicBool,
+) -> anyhow::Result<Summary> {
+    run_observed(scenario, out, mcap, stop, |_| {})
 }
 
 /// [`run`], handing every tick to `observe` after it is recorded.
 pub fn run_observed(
     scenario: &Validated,
     out: &Path,
+    mcap: bool,
     stop: &AtomicBool,
     mut observe: impl FnMut(&Tick),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    if mcap {
+        recorder
+            .record_mcap(scenario)
+            .context("creating run.mcap")?;
+    }
     let mut closed_loop = ClosedLoop::new(scenario).context("setting up the MPC")?;
     let mut outcome = None;
     while outcome.is_none() && !closed_loop.is_done() {

@@ -14,7 +14,9 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+mod mcap;
 mod summary;
+pub use mcap::McapLog;
 pub use summary::{Latencies, ModeCounts, Percentiles, ProcessReport, Summary};
 
 /// Streams the run's records to its directory and accumulates the summary's statistics.
@@ -49,6 +51,8 @@ pub struct Recorder {
     last_time_s: f64,
     /// The DFL's zeta at the start of the next tick.
     zeta: f64,
+    /// `run.mcap`, when asked for ([`Recorder::record_mcap`]).
+    mcap: Option<McapLog>,
 }
 
 impl Recorder {
@@ -89,7 +93,14 @@ impl Recorder {
             ticks: 0,
             last_time_s: 0.0,
             zeta: scenario.robot.zeta0,
+            mcap: None,
         })
+    }
+
+    /// Records the run into `run.mcap` too, from now on.
+    pub fn record_mcap(&mut self, scenario: &Scenario) -> std::io::Result<()> {
+        self.mcap = Some(McapLog::create(&self.dir.join("run.mcap"), scenario)?);
+        Ok(())
     }
 
     /// One line of `events.jsonl`: `{"wall_s", "t", "event", ...fields}`, where `t` is the
@@ -102,6 +113,9 @@ impl Recorder {
         });
         if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
             line.extend(fields);
+        }
+        if let Some(mcap) = &self.mcap {
+            mcap.event(self.last_time_s, event, &line);
         }
         // Events are rare: flush each, so a live run can be followed in the file.
         writeln!(self.events, "{line}")?;
@@ -152,6 +166,9 @@ impl Recorder {
         self.ticks += 1;
         self.last_time_s = t;
         let clearance = self.monitor.clearance(x, y);
+        if let Some(mcap) = &self.mcap {
+            mcap.tick(truth, estimate, act);
+        }
         let e = &estimate.state;
         writeln!(
             self.trajectory,
@@ -203,6 +220,9 @@ impl Recorder {
         if self.route_length_m.is_none() {
             self.route_length_m = Some(route.length_m);
         }
+        if let Some(mcap) = &self.mcap {
+            mcap.route(route);
+        }
         let routes = match &mut self.routes {
             Some(file) => file,
             None => {
@@ -223,6 +243,9 @@ impl Recorder {
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
     pub fn plan(&mut self, plan: &Plan) {
+        if let Some(mcap) = &self.mcap {
+            mcap.plan(plan);
+        }
         if !plan.is_solved() {
             self.solver_failures += 1;
         }
@@ -238,6 +261,9 @@ impl Recorder {
             return Ok(());
         }
         self.last_judged = Some(v.sample);
+        if let Some(mcap) = &self.mcap {
+            mcap.verdict(v);
+        }
         let met = v.met != 0;
         let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
         let status = match v.status {
@@ -324,6 +350,9 @@ impl Recorder {
         }
         self.event("end", serde_json::json!({ "outcome": outcome.as_str() }))?;
         self.events.flush()?;
+        if let Some(mcap) = self.mcap.take() {
+            mcap.finish()?;
+        }
         let m = &self.monitor;
         let summary = Summary {
             scenario: scenario.name.clone(),

@@ -64,7 +64,7 @@ pub fn compare_solve_times(
 /// (recorded in `dir`).
 fn closed_loop_states(scenario: &Validated, dir: &Path) -> anyhow::Result<Vec<[f64; 4]>> {
     let mut states = Vec::new();
-    inprocess::run_observed(scenario, dir, &AtomicBool::new(false), |tick| {
+    inprocess::run_observed(scenario, dir, false, &AtomicBool::new(false), |tick| {
         if tick.plan.is_some() {
             states.push(tick.estimate.state);
         }

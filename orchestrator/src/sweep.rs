@@ -109,11 +109,12 @@ pub fn plan_runs(
 }
 
 /// Runs every spec in process on `threads` threads; results in spec order. Shows a
-/// progress bar on stderr when `progress`.
+/// progress bar on stderr when `progress`; writes each run's `run.mcap` when `mcap`.
 pub fn run_all(
     runs: &[RunSpec],
     threads: usize,
     progress: bool,
+    mcap: bool,
     stop: &AtomicBool,
 ) -> Vec<anyhow::Result<Summary>> {
     let bar = if progress {
@@ -134,7 +135,7 @@ pub fn run_all(
                 loop {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(spec) = runs.get(i) else { break };
-                    let result = inprocess::run(&spec.scenario, &spec.dir, stop);
+                    let result = inprocess::run(&spec.scenario, &spec.dir, mcap, stop);
                     if let Ok(mut r) = results.lock() {
                         r[i] = Some(result);
                     }

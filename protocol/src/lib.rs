@@ -4,6 +4,7 @@
 pub mod alloc_count;
 pub mod clock;
 pub mod ipc;
+pub mod layout;
 pub mod messages;
 pub mod runtime;
 pub mod scenario;

@@ -27,6 +27,29 @@ pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// Runs scenario `file` in real time into `dir/run`; returns that directory, its summary
+/// and its events.
+pub fn run_realtime(
+    dir: &Path,
+    file: &str,
+) -> (
+    std::path::PathBuf,
+    serde_json::Value,
+    Vec<serde_json::Value>,
+) {
+    let out_dir = dir.join("run");
+    let out = run(&[
+        "run",
+        file,
+        "--mode",
+        "realtime",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    (out_dir.clone(), summary(&out_dir), events(&out_dir))
+}
+
 /// The run directory's `summary.json`.
 pub fn summary(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json missing");

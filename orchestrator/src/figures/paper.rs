@@ -31,7 +31,7 @@ pub fn paper_set(
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (base, noisy) = (paper_scenario("paper")?, paper_scenario("paper-noisy")?);
     let specs = study_runs(&base, &noisy, out)?;
-    let results = crate::sweep::run_all(&specs, threads, true, stop);
+    let results = crate::sweep::run_all(&specs, threads, true, false, stop);
     let mut runs = StudyRuns::default();
     for (s, r) in specs.iter().zip(results) {
         r.with_context(|| format!("run {}", s.values[0]))?;

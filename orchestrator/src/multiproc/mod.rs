@@ -413,6 +413,7 @@ pub fn run(
     out: &Path,
     mode: RunMode,
     prefix: &str,
+    mcap: bool,
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
@@ -427,6 +428,11 @@ pub fn run(
     }
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    if mcap {
+        recorder
+            .record_mcap(scenario)
+            .context("creating run.mcap")?;
+    }
     ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
     match ipc::remove_run_resources(prefix) {

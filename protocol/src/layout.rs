@@ -1,0 +1,404 @@
+//! The memory layout of every message type, as a program in another language must build
+//! it to take part in a run (`scmpc schema`, README "A role in Python").
+//!
+//! Offsets come from the compiler (`offset_of!`), type names from iceoryx2's
+//! `ZeroCopySend`, so the description cannot drift from the types; what is written by hand
+//! is each field's name and type, and [`tests`] check that the fields cover every byte that
+//! is not alignment padding.
+
+use crate::ipc;
+use crate::messages::*;
+use iceoryx2::prelude::ZeroCopySend;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::mem::{align_of, offset_of, size_of};
+
+/// One field of a message type.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Field {
+    pub name: &'static str,
+    /// Bytes from the start of the type.
+    pub offset: usize,
+    /// Rust spelling: `u32`, `f64`, `[f64; 3]`, `[[u128; 2]; 5]`, or another type's name
+    /// (`scmpc::Header`).
+    #[serde(rename = "type")]
+    pub ty: String,
+    pub size: usize,
+}
+
+/// A `#[repr(C)]` type crossing a process boundary.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TypeLayout {
+    /// The iceoryx2 type name: a service opened with another name is refused.
+    pub type_name: &'static str,
+    pub size: usize,
+    pub alignment: usize,
+    pub fields: Vec<Field>,
+}
+
+/// One topic: its iceoryx2 publish-subscribe service (and the event service of the same
+/// name), the payload it carries and the settings every process opens it with.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ServiceLayout {
+    /// The iceoryx2 service name, under the run's prefix ([`ipc::run_config`]).
+    pub service: &'static str,
+    pub type_name: &'static str,
+    pub max_publishers: usize,
+    pub max_subscribers: usize,
+    pub subscriber_max_buffer_size: usize,
+    pub history_size: usize,
+    pub safe_overflow: bool,
+}
+
+macro_rules! layout {
+    ($t:ty { $($field:ident: $ty:ty),* $(,)? }) => {
+        TypeLayout {
+            // SAFETY: `type_name` only returns the name given in `#[type_name(..)]`.
+            type_name: unsafe { <$t as ZeroCopySend>::type_name() },
+            size: size_of::<$t>(),
+            alignment: align_of::<$t>(),
+            fields: vec![$(Field {
+                name: stringify!($field),
+                offset: offset_of!($t, $field),
+                ty: type_label(stringify!($ty)),
+                size: size_of::<$ty>(),
+            }),*],
+        }
+    };
+}
+
+/// A field type as written in the layout: the message types by their iceoryx2 names, the
+/// array lengths as numbers.
+fn type_label(rust: &str) -> String {
+    let lengths = [("N1", N1), ("N", N), ("R", R), ("W", W), ("C", C), ("B", B)];
+    match rust {
+        "Header" => "scmpc::Header".into(),
+        "EpochSchedule" => "scmpc::EpochSchedule".into(),
+        _ => lengths.iter().fold(rust.to_string(), |ty, (name, value)| {
+            ty.replace(&format!("; {name}]"), &format!("; {value}]"))
+        }),
+    }
+}
+
+const N: usize = MAX_HORIZON;
+const N1: usize = MAX_HORIZON + 1;
+const R: usize = Role::COUNT;
+const W: usize = ROUTE_CAPACITY;
+const C: usize = MAX_COMMAND_BYTES;
+const B: usize = MAX_REPLY_BYTES;
+
+/// Every type that crosses a process boundary, nested ones first.
+pub fn types() -> Vec<TypeLayout> {
+    vec![
+        layout!(Header {
+            tick: u64,
+            time_s: f64,
+            publish_ns: u64,
+            epoch: u32,
+            input_latency_ns: u32,
+            run_id: u32,
+            reserved: u32,
+        }),
+        layout!(EpochSchedule {
+            active: [u32; R],
+            next: [u32; R],
+            switch_tick: [u64; R],
+            active_publishers: [[u128; 2]; R],
+            next_publishers: [[u128; 2]; R],
+        }),
+        layout!(Measurement {
+            header: Header,
+            y: [f64; 3]
+        }),
+        layout!(GroundTruth {
+            header: Header,
+            pose: [f64; 3]
+        }),
+        layout!(Estimate {
+            header: Header,
+            state: [f64; 4],
+            covariance: [f64; 9],
+        }),
+        layout!(Plan {
+            header: Header,
+            sample: u64,
+            status: u32,
+            horizon: u32,
+            solve_ns: u64,
+            iterations: u32,
+            solves: u32,
+            injected_delay_ns: u64,
+            v: [[f64; 2]; N],
+            z: [[f64; 4]; N1],
+        }),
+        layout!(Route {
+            header: Header,
+            sample: u64,
+            planned_sample: u64,
+            status: u32,
+            count: u32,
+            plans: u32,
+            reason: u32,
+            length_m: f64,
+            plan_ns: u64,
+            waypoints: [[f64; 2]; W],
+        }),
+        layout!(Actuation {
+            header: Header,
+            u1: f64,
+            u2: f64,
+            wheels: [f64; 2],
+            linearizing_input: [f64; 2],
+            zeta: f64,
+            v: [f64; 2],
+            mode: u32,
+            deadline_misses: u32,
+            plan_sample: u64,
+            intervention: u32,
+            safety_interventions: u32,
+            intervention_plan: u64,
+            intervention_clearance_m: f64,
+        }),
+        layout!(DeadlineVerdict {
+            header: Header,
+            sample: u64,
+            met: u32,
+            status: u32,
+            production_ns: u64,
+            arrival_ns: u64,
+            fallback: u32,
+            misses_total: u32,
+        }),
+        layout!(Control {
+            header: Header,
+            command: u32,
+            reserved: u32,
+            start_ns: u64,
+            epochs: EpochSchedule,
+        }),
+        layout!(Status {
+            header: Header,
+            role: u32,
+            event: u32,
+            pid: u32,
+            detail: u32,
+            count: u64,
+            producer: u32,
+            reserved: u32,
+            publishers: [u128; 2],
+        }),
+        layout!(SwapRequest {
+            header: Header,
+            request_id: u64,
+            role: u32,
+            command_len: u32,
+            command: [u8; C],
+        }),
+        layout!(SwapReply {
+            header: Header,
+            request_id: u64,
+            done: u32,
+            epoch: u32,
+            switch_tick: u64,
+            requester: u128,
+            message_len: u32,
+            reserved: u32,
+            message: [u8; B],
+        }),
+    ]
+}
+
+/// The codes of every enumeration a message carries, and the constants a foreign role
+/// needs, by name.
+pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
+    fn named<T: Copy>(
+        all: &[T],
+        name: impl Fn(T) -> &'static str,
+        code: impl Fn(T) -> u32,
+    ) -> BTreeMap<&'static str, u64> {
+        all.iter().map(|&v| (name(v), u64::from(code(v)))).collect()
+    }
+    let commands = [
+        ("grant", ControlCommand::Grant),
+        ("start", ControlCommand::Start),
+        ("stop", ControlCommand::Stop),
+        ("epochs", ControlCommand::Epochs),
+        ("replay", ControlCommand::Replay),
+    ];
+    let events = [
+        ("ready", StatusEvent::Ready),
+        ("input_lost", StatusEvent::InputLost),
+        ("rejected", StatusEvent::Rejected),
+    ];
+    let slots = [
+        (ipc::TRUTH, Role::Plant),
+        (ipc::MEASUREMENT, Role::Plant),
+        (ipc::ESTIMATE, Role::Estimator),
+        (ipc::PLAN, Role::Mpc),
+        (ipc::ACTUATION, Role::Dfl),
+        (ipc::DEADLINE, Role::Dfl),
+        (ipc::ROUTE, Role::Planner),
+    ];
+    BTreeMap::from([
+        ("role", named(&Role::ALL, Role::as_str, |r| r as u32)),
+        (
+            "control_command",
+            commands.iter().map(|(n, c)| (*n, *c as u64)).collect(),
+        ),
+        (
+            "status_event",
+            events.iter().map(|(n, e)| (*n, *e as u64)).collect(),
+        ),
+        (
+            "rejection",
+            named(&Rejection::ALL, Rejection::as_str, |r| r as u32),
+        ),
+        (
+            "plan_status",
+            named(
+                &[
+                    PlanStatus::Solved,
+                    PlanStatus::Infeasible,
+                    PlanStatus::MaxIterations,
+                    PlanStatus::NumericalError,
+                ],
+                PlanStatus::as_str,
+                |s| s as u32,
+            ),
+        ),
+        (
+            "command_mode",
+            named(
+                &[
+                    CommandMode::Nominal,
+                    CommandMode::Shifted,
+                    CommandMode::Brake,
+                    CommandMode::ZetaGuard,
+                    CommandMode::SafetyBrake,
+                ],
+                CommandMode::as_str,
+                |m| m as u32,
+            ),
+        ),
+        (
+            "intervention",
+            named(
+                &[
+                    Intervention::None,
+                    Intervention::PlanRefused,
+                    Intervention::CommittedUnsafe,
+                ],
+                Intervention::as_str,
+                |i| i as u32,
+            ),
+        ),
+        (
+            "route_status",
+            BTreeMap::from([
+                ("ok", RouteStatus::Ok as u64),
+                ("no_route", RouteStatus::NoRoute as u64),
+            ]),
+        ),
+        (
+            "replan_reason",
+            named(&ReplanReason::ALL, ReplanReason::as_str, |r| r as u32),
+        ),
+        (
+            "output_slot",
+            slots
+                .iter()
+                .map(|&(topic, role)| (topic, ipc::output_slot(role, topic).unwrap_or(0) as u64))
+                .collect(),
+        ),
+        (
+            "constant",
+            BTreeMap::from([
+                ("max_horizon", MAX_HORIZON as u64),
+                ("route_capacity", ROUTE_CAPACITY as u64),
+                ("switch_unscheduled", SWITCH_UNSCHEDULED),
+                ("no_producer", u64::from(NO_PRODUCER)),
+                ("plan_missing", u64::from(PLAN_MISSING)),
+                ("role_count", Role::COUNT as u64),
+            ]),
+        ),
+    ])
+}
+
+/// Every topic, with the type it carries.
+pub fn services() -> Vec<ServiceLayout> {
+    let topic = |service: &'static str, type_name: &'static str| ServiceLayout {
+        service,
+        type_name,
+        max_publishers: if service == ipc::STATUS {
+            ipc::MAX_STATUS_PUBLISHERS
+        } else {
+            ipc::MAX_PUBLISHERS
+        },
+        max_subscribers: ipc::MAX_SUBSCRIBERS,
+        subscriber_max_buffer_size: ipc::SUBSCRIBER_BUFFER,
+        history_size: 0,
+        safe_overflow: true,
+    };
+    vec![
+        topic(ipc::MEASUREMENT, "scmpc::Measurement"),
+        topic(ipc::TRUTH, "scmpc::GroundTruth"),
+        topic(ipc::ESTIMATE, "scmpc::Estimate"),
+        topic(ipc::PLAN, "scmpc::Plan"),
+        topic(ipc::ACTUATION, "scmpc::Actuation"),
+        topic(ipc::DEADLINE, "scmpc::DeadlineVerdict"),
+        topic(ipc::ROUTE, "scmpc::Route"),
+        topic(ipc::CONTROL, "scmpc::Control"),
+        topic(ipc::STATUS, "scmpc::Status"),
+        topic(ipc::SWAP, "scmpc::SwapRequest"),
+        topic(ipc::SWAP_REPLY, "scmpc::SwapReply"),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_fields_of_every_type_cover_it_but_for_alignment_padding() {
+        for t in types() {
+            let mut end = 0;
+            for f in &t.fields {
+                assert!(f.offset >= end, "{}.{} overlaps", t.type_name, f.name);
+                // Padding before a field is less than the type's alignment.
+                assert!(
+                    f.offset - end < t.alignment,
+                    "{}.{}: gap",
+                    t.type_name,
+                    f.name
+                );
+                end = f.offset + f.size;
+            }
+            assert!(
+                t.size - end < t.alignment,
+                "{}: bytes after the last field",
+                t.type_name
+            );
+        }
+    }
+
+    #[test]
+    fn every_service_carries_a_described_type_and_array_lengths_are_numbers() {
+        let types = types();
+        for s in services() {
+            assert!(
+                types.iter().any(|t| t.type_name == s.type_name),
+                "{}",
+                s.service
+            );
+        }
+        let plan = types.iter().find(|t| t.type_name == "scmpc::Plan").unwrap();
+        let z = plan.fields.iter().find(|f| f.name == "z").unwrap();
+        assert_eq!(z.ty, "[[f64; 4]; 65]");
+        assert_eq!(z.size, 65 * 4 * 8);
+        let control = types
+            .iter()
+            .find(|t| t.type_name == "scmpc::Control")
+            .unwrap();
+        assert_eq!(control.fields.last().unwrap().ty, "scmpc::EpochSchedule");
+    }
+}

@@ -1,0 +1,246 @@
+//! The Python side: the message layouts of `python/scmpc` against `scmpc schema`, the
+//! Python estimator of `examples/python` swapped into a real-time run, and `run.mcap` read
+//! back by the `mcap` package.
+//!
+//! These tests make their own venv under the target directory and install pinned packages
+//! from PyPI into it ([`PYTHON_PACKAGES`]): they need CPython 3.11 or newer with pip
+//! (`python3`, or the interpreter named by `SCMPC_TEST_PYTHON`) and the network to PyPI.
+
+mod common;
+
+use common::{events, run, stderr};
+use orchestrator::schema::Table;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+/// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, and the
+/// MCAP reader the recording is checked with.
+const PYTHON_PACKAGES: [&str; 2] = ["iceoryx2==0.10.0", "mcap==1.6.0"];
+
+fn repo() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The venv's interpreter, made (once per test binary, kept between runs) if it is missing
+/// or holds other packages.
+fn python() -> &'static Path {
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON.get_or_init(|| {
+        let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-venv");
+        let python = venv.join("bin").join("python");
+        let marker = venv.join("scmpc-packages.txt");
+        let wanted = PYTHON_PACKAGES.join("\n");
+        if std::fs::read_to_string(&marker).is_ok_and(|m| m == wanted) && python.exists() {
+            return python;
+        }
+        let base = std::env::var("SCMPC_TEST_PYTHON").unwrap_or_else(|_| "python3".into());
+        let _ = std::fs::remove_dir_all(&venv);
+        let made = Command::new(&base).args(["-m", "venv"]).arg(&venv).output();
+        let made = made.unwrap_or_else(|e| panic!("cannot run `{base}` (CPython 3.11+): {e}"));
+        assert!(made.status.success(), "{base} -m venv: {}", stderr(&made));
+        let pip = Command::new(&python)
+            .args([
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--disable-pip-version-check",
+            ])
+            .args(PYTHON_PACKAGES)
+            .output()
+            .unwrap();
+        assert!(pip.status.success(), "pip install: {}", stderr(&pip));
+        std::fs::write(&marker, wanted).unwrap();
+        python
+    })
+}
+
+/// Runs the venv's Python on `script` with `args` (and `stdin`); fails the test on a
+/// non-zero exit. Returns its standard output.
+fn run_python(script: &Path, args: &[&Path], stdin: &[u8]) -> String {
+    use std::io::Write;
+    let mut child = Command::new(python())
+        .arg(script)
+        .args(args)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(stdin).unwrap();
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{}: {stdout}{}",
+        script.display(),
+        stderr(&out)
+    );
+    stdout
+}
+
+/// Every topic of `run.mcap` as `tests/python/read_mcap.py` read it.
+fn read_mcap(dir: &Path) -> serde_json::Value {
+    let script = repo().join("tests/python/read_mcap.py");
+    let out = run_python(&script, &[&dir.join("run.mcap")], b"");
+    serde_json::from_str(&out).unwrap()
+}
+
+#[test]
+fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {
+    let schema = run(&["schema"]);
+    assert_eq!(schema.status.code(), Some(0), "{}", stderr(&schema));
+    let out = run_python(&repo().join("tests/python/layouts.py"), &[], &schema.stdout);
+    assert!(out.contains("13 types, 11 services compared"), "{out}");
+}
+
+#[test]
+fn a_python_estimator_swapped_in_at_8_s_in_real_time_costs_no_deadline_and_no_tick() {
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let estimator = repo().join("examples/python/estimator.py");
+    let file = dir.path().join("scenario.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "name = \"python-estimator\"\nduration_s = 27.0\n\n[[swap]]\ntime_s = 8.0\nrole = \
+             \"estimator\"\ncommand = [{:?}, {:?}]\n",
+            python(),
+            estimator
+        ),
+    )
+    .unwrap();
+    let (out_dir, s, ev) = common::run_realtime(dir.path(), file.to_str().unwrap());
+    assert_eq!(s["outcome"], "reached", "{s:#}");
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["ticks_without_estimate"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["swaps"], 1);
+    assert!(
+        s["rejected_samples"].as_object().unwrap().is_empty(),
+        "{}",
+        s["rejected_samples"]
+    );
+    let swapped = ev
+        .iter()
+        .find(|e| e["event"] == "swapped" && e["role"] == "estimator")
+        .unwrap_or_else(|| panic!("no swap in {ev:#?}"));
+    let switch_tick = swapped["switch_tick"].as_u64().unwrap();
+    assert_eq!(switch_tick % 10, 0, "switch at tick {switch_tick}");
+    let switch_s = switch_tick as f64 * 0.005;
+    assert!((8.0..9.0).contains(&switch_s), "switch at {switch_s} s");
+    let python_epoch = swapped["to_epoch"].as_u64().unwrap();
+    assert!(python_epoch > 0);
+    // Every tick was commanded from a finite estimate.
+    let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
+    assert_eq!(trajectory.len(), 5400);
+    for column in ["x_hat", "y_hat", "theta_hat", "zeta_hat"] {
+        let values = trajectory.numbers(column).unwrap();
+        assert!(values.iter().all(|v| v.is_finite()), "{column}");
+    }
+    // The estimates recorded: the Rust estimator's before the switch, the Python one's
+    // from it on.
+    let mcap = read_mcap(&out_dir);
+    let estimates = &mcap["/estimator/estimate"];
+    let ticks = estimates["ticks"].as_array().unwrap();
+    let epochs = estimates["epochs"].as_array().unwrap();
+    assert_eq!(ticks.len(), 5400);
+    for (tick, epoch) in ticks.iter().zip(epochs) {
+        let expected = if tick.as_u64().unwrap() < switch_tick {
+            0
+        } else {
+            python_epoch
+        };
+        assert_eq!(epoch.as_u64(), Some(expected), "estimate of tick {tick}");
+    }
+}
+
+#[test]
+fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&["run", "field", "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let topics = read_mcap(&out_dir);
+    let count = |topic: &str| topics[topic]["count"].as_u64().unwrap_or(0) as usize;
+
+    let ticks = Table::read(&out_dir.join("trajectory.csv")).unwrap().len();
+    for topic in [
+        "/robot/truth",
+        "/robot/estimate",
+        "/estimator/estimate",
+        "/dfl/command",
+    ] {
+        assert_eq!(count(topic), ticks, "{topic}");
+    }
+    assert_eq!(count("/robot/covariance"), ticks.div_ceil(10));
+    let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
+    assert_eq!(count("/mpc/plan"), plans.len());
+    let horizons = plans.numbers("horizon").unwrap();
+    let poses = topics["/mpc/plan"]["poses"].as_array().unwrap();
+    for (poses, horizon) in poses.iter().zip(&horizons) {
+        assert_eq!(poses.as_f64(), Some(horizon + 1.0));
+    }
+    let judged = plans
+        .column("deadline_met")
+        .unwrap()
+        .iter()
+        .filter(|m| !m.is_empty())
+        .count();
+    assert_eq!(count("/dfl/deadline"), judged);
+    let routes = Table::read(&out_dir.join("route.csv")).unwrap();
+    let mut route_plans = routes.numbers("plan").unwrap();
+    route_plans.dedup();
+    assert_eq!(count("/planner/route"), route_plans.len());
+    assert_eq!(count("/events"), events(&out_dir).len());
+    assert_eq!(count("/world/obstacles"), 1);
+    let obstacles = std::fs::read_to_string(out_dir.join("scenario.toml"))
+        .unwrap()
+        .matches("[[obstacles]]")
+        .count();
+    let world = &topics["/world/obstacles"]["entities"];
+    assert_eq!(world["obstacles"], obstacles);
+    assert_eq!(world["obstacles_inflated"], obstacles);
+    assert_eq!(world["start_goal"], 2);
+
+    // Foxglove's own schemas where it has one, all JSON, on the run's simulated clock.
+    for (topic, schema) in [
+        ("/robot/truth", "foxglove.PoseInFrame"),
+        ("/mpc/plan", "foxglove.PosesInFrame"),
+        ("/world/obstacles", "foxglove.SceneUpdate"),
+        ("/events", "foxglove.Log"),
+        ("/dfl/command", "scmpc.Command"),
+    ] {
+        let t = &topics[topic];
+        assert_eq!(t["schema"], schema, "{topic}");
+        assert_eq!(t["schema_encoding"], "jsonschema");
+        assert_eq!(t["message_encoding"], "json");
+        assert_eq!(t["schema_is_json"], true);
+    }
+    let times = topics["/robot/truth"]["log_time_ns"].as_array().unwrap();
+    let t = Table::read(&out_dir.join("trajectory.csv"))
+        .unwrap()
+        .numbers("t")
+        .unwrap();
+    for (ns, t) in times.iter().zip(&t).step_by(997) {
+        assert!(
+            (ns.as_f64().unwrap() * 1e-9 - t).abs() < 1e-4,
+            "{ns} ns, t = {t}"
+        );
+    }
+
+    let no_mcap = dir.path().join("no-mcap");
+    let out = run(&[
+        "run",
+        "--set",
+        "duration_s=1",
+        "--no-mcap",
+        "--out",
+        no_mcap.to_str().unwrap(),
+    ]);
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    assert!(no_mcap.join("trajectory.csv").exists());
+    assert!(!no_mcap.join("run.mcap").exists());
+}
