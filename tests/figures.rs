@@ -5,6 +5,7 @@
 mod common;
 
 use common::{csv, num, run, scmpc, stderr};
+use orchestrator::schema::Table;
 use std::path::Path;
 
 /// Pixels of a PNG figure: `(width, height, distinct colours, share of non-white pixels)`.
@@ -131,6 +132,16 @@ fn a_run_writes_its_path_and_distance_plots_with_no_system_font() {
     assert!(!stderr(&out).contains("no plots"), "{}", stderr(&out));
     let path = std::fs::read_to_string(dir.path().join("path.svg")).unwrap();
     assert!(path.contains("<polygon") && path.contains("<polyline"));
+    for label in ["start", "goal", "MPC prediction, every 1 s"] {
+        assert!(path.contains(label), "path.svg lacks `{label}`");
+    }
+    // One prediction a second, N + 1 = 9 positions each, the first at t = 0.
+    let predictions = Table::read(&dir.path().join("predictions.csv")).unwrap();
+    let samples = predictions.numbers("sample").unwrap();
+    assert_eq!(samples.len(), 6 * 9);
+    let mut firsts = samples.clone();
+    firsts.dedup();
+    assert_eq!(firsts, [0.0, 20.0, 40.0, 60.0, 80.0, 100.0]);
     let clearance = std::fs::read_to_string(dir.path().join("clearance.svg")).unwrap();
     assert!(clearance.contains("clearance (m)") && clearance.contains("<polyline"));
     for stem in ["path", "clearance"] {

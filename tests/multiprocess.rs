@@ -243,3 +243,82 @@ fn a_scenario_error_is_refused_before_any_process_starts() {
     assert!(!out_dir.exists());
     assert!(leftovers(&prefix).is_empty());
 }
+
+/// `scmpc ARGS` with its stdout on a pseudo-terminal; returns what the terminal got.
+fn run_on_a_terminal(args: &[&str]) -> String {
+    use std::io::Read;
+    use std::os::fd::{FromRawFd, OwnedFd};
+    let (mut master, mut slave) = (0, 0);
+    // SAFETY: both pointers are to valid ints; name, termios and window size may be null.
+    let opened = unsafe {
+        libc::openpty(
+            &mut master,
+            &mut slave,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+            std::ptr::null(),
+        )
+    };
+    assert_eq!(opened, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: openpty returned two open descriptors that nothing else owns.
+    let (master, slave) = unsafe { (OwnedFd::from_raw_fd(master), OwnedFd::from_raw_fd(slave)) };
+    let mut child = common::scmpc()
+        .args(args)
+        .stdout(std::process::Stdio::from(slave))
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Read as it comes (a full terminal buffer would block the run); the read fails once
+    // the child, the last holder of the other end, is gone.
+    let reader = std::thread::spawn(move || {
+        let mut master = std::fs::File::from(master);
+        let mut seen = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = master.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            seen.extend_from_slice(&buf[..n]);
+        }
+        String::from_utf8_lossy(&seen).into_owned()
+    });
+    child.wait().unwrap();
+    reader.join().unwrap()
+}
+
+#[test]
+fn a_run_shows_a_live_status_line_on_a_terminal_and_nothing_extra_otherwise() {
+    let dir = tempfile::tempdir().unwrap();
+    let on_terminal = dir.path().join("terminal");
+    let seen = run_on_a_terminal(&[
+        "run",
+        "--set",
+        "duration_s=3",
+        "--out",
+        on_terminal.to_str().unwrap(),
+    ]);
+    let erase = "\r\x1b[2K";
+    assert!(
+        seen.contains(&format!("{erase}t ")) && seen.contains("/ 3.0 s | deadline misses 0"),
+        "{seen:?}"
+    );
+    assert!(
+        seen.contains("sensor→actuator") && seen.contains("clearance"),
+        "{seen:?}"
+    );
+    // The line is wiped before what the run prints at its end.
+    let end = seen.find("run directory:").unwrap();
+    assert!(seen[..end].ends_with(erase), "{seen:?}");
+    let piped = common::run(&[
+        "run",
+        "--set",
+        "duration_s=3",
+        "--out",
+        dir.path().join("piped").to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&piped.stdout);
+    assert!(
+        !stdout.contains('\r') && !stdout.contains('\x1b'),
+        "{stdout:?}"
+    );
+}

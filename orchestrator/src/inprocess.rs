@@ -46,7 +46,7 @@ pub fn run_observed(
         }
         let tick = closed_loop.step();
         if let Some(plan) = &tick.plan {
-            recorder.plan(plan);
+            recorder.plan(plan)?;
         }
         if let Some(verdict) = &tick.verdict {
             recorder.verdict(verdict)?;

@@ -1,5 +1,6 @@
 //! The run directory: `trajectory.csv` (one row per inner tick), `plans.csv` (one row per
-//! MPC sample), `route.csv` (every route planned; their columns in [`crate::schema`]),
+//! MPC sample), `route.csv` (every route planned), `predictions.csv` (a plan's predicted
+//! positions every second; their columns in [`crate::schema`]),
 //! `events.jsonl` and `summary.json` (with the table printed at the end of a run:
 //! [`summary`]).
 
@@ -24,6 +25,9 @@ pub struct Recorder {
     dir: PathBuf,
     trajectory: BufWriter<File>,
     plans: BufWriter<File>,
+    predictions: BufWriter<File>,
+    /// Simulated time from which the next solved plan goes to `predictions.csv`, s.
+    next_prediction_s: f64,
     events: BufWriter<File>,
     created: std::time::Instant,
     pub monitor: Monitor,
@@ -51,6 +55,9 @@ pub struct Recorder {
     last_time_s: f64,
     /// The DFL's zeta at the start of the next tick.
     zeta: f64,
+    /// Clearance and command mode of the newest tick recorded.
+    last_clearance_m: Option<f64>,
+    last_mode: Option<CommandMode>,
     /// `run.mcap`, when asked for ([`Recorder::record_mcap`]).
     mcap: Option<McapLog>,
 }
@@ -68,11 +75,19 @@ impl Recorder {
         )?;
         let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
         writeln!(plans, "{}", schema::header(&schema::PLANS_COLUMNS))?;
+        let mut predictions = BufWriter::new(File::create(dir.join("predictions.csv"))?);
+        writeln!(
+            predictions,
+            "{}",
+            schema::header(&schema::PREDICTION_COLUMNS)
+        )?;
         let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
             dir: dir.to_path_buf(),
             trajectory,
             plans,
+            predictions,
+            next_prediction_s: 0.0,
             events,
             created: std::time::Instant::now(),
             monitor: Monitor::new(scenario),
@@ -93,6 +108,8 @@ impl Recorder {
             ticks: 0,
             last_time_s: 0.0,
             zeta: scenario.robot.zeta0,
+            last_clearance_m: None,
+            last_mode: None,
             mcap: None,
         })
     }
@@ -124,6 +141,26 @@ impl Recorder {
 
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// Simulated time of the newest tick recorded, s.
+    pub fn simulated_s(&self) -> f64 {
+        self.last_time_s
+    }
+
+    /// Deadline misses so far.
+    pub fn deadline_misses(&self) -> u64 {
+        self.deadline_misses
+    }
+
+    /// The robot's clearance at the newest tick recorded, m.
+    pub fn last_clearance_m(&self) -> Option<f64> {
+        self.last_clearance_m
+    }
+
+    /// The command mode of the newest tick recorded.
+    pub fn last_mode(&self) -> Option<CommandMode> {
+        self.last_mode
     }
 
     /// One inner tick: the truth at `t_j`, the estimate used, and the command applied over
@@ -166,6 +203,8 @@ impl Recorder {
         self.ticks += 1;
         self.last_time_s = t;
         let clearance = self.monitor.clearance(x, y);
+        self.last_clearance_m = Some(clearance);
+        self.last_mode = Some(mode);
         if let Some(mcap) = &self.mcap {
             mcap.tick(truth, estimate, act);
         }
@@ -242,7 +281,7 @@ impl Recorder {
     }
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
-    pub fn plan(&mut self, plan: &Plan) {
+    pub fn plan(&mut self, plan: &Plan) -> std::io::Result<()> {
         if let Some(mcap) = &self.mcap {
             mcap.plan(plan);
         }
@@ -252,6 +291,14 @@ impl Recorder {
         self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
         self.pending_plans.insert(plan.sample, *plan);
+        if plan.is_solved() && plan.header.time_s >= self.next_prediction_s {
+            self.next_prediction_s = plan.header.time_s.floor() + 1.0;
+            let n = (plan.horizon as usize).min(protocol::MAX_HORIZON);
+            for (i, z) in plan.z[..=n].iter().enumerate() {
+                writeln!(self.predictions, "{},{i},{},{}", plan.sample, z[0], z[2])?;
+            }
+        }
+        Ok(())
     }
 
     /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row, and on a
@@ -345,6 +392,7 @@ impl Recorder {
         }
         self.trajectory.flush()?;
         self.plans.flush()?;
+        self.predictions.flush()?;
         if let Some(routes) = &mut self.routes {
             routes.flush()?;
         }

@@ -57,6 +57,10 @@ pub const PLANS_COLUMNS: [&str; 14] = [
 /// the waypoint (m).
 pub const ROUTE_COLUMNS: [&str; 5] = ["plan", "sample", "reason", "x", "y"];
 
+/// Columns of `predictions.csv`: the positions (m) the MPC predicted, `i` = 0..=N, in the
+/// first solved plan of every whole second of the run (the path figure draws them).
+pub const PREDICTION_COLUMNS: [&str; 4] = ["sample", "i", "x", "y"];
+
 /// The header line of a CSV file with `columns`.
 pub fn header(columns: &[&str]) -> String {
     columns.join(",")

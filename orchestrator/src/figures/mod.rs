@@ -356,14 +356,16 @@ impl Trajectory {
 
 /// The waypoints of every route of the run in `dir`, in the order planned (`route.csv`;
 /// none when the run had no planner or no route).
-fn routes(dir: &Path) -> anyhow::Result<Vec<Vec<(f64, f64)>>> {
-    let file = dir.join("route.csv");
+/// The polylines of `file` in `dir`: rows of `x` and `y`, one polyline per run of equal
+/// `key` values (none if the file does not exist).
+fn polylines(dir: &Path, file: &str, key: &str) -> anyhow::Result<Vec<Vec<(f64, f64)>>> {
+    let file = dir.join(file);
     if !file.exists() {
         return Ok(Vec::new());
     }
     let table = Table::read(&file)?;
     let (plan, x, y) = (
-        table.numbers("plan")?,
+        table.numbers(key)?,
         table.numbers("x")?,
         table.numbers("y")?,
     );
@@ -395,7 +397,22 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
         ..Series::default()
     };
     let mut path = vec![series("robot", t.path())];
-    let routes = routes(dir)?;
+    // The MPC's prediction every second (N Ts ahead of the robot), under the routes.
+    for (i, predicted) in polylines(dir, "predictions.csv", "sample")?
+        .into_iter()
+        .enumerate()
+    {
+        let label = if i == 0 {
+            "MPC prediction, every 1 s"
+        } else {
+            ""
+        };
+        path.push(Series {
+            color: 7,
+            ..series(label, predicted)
+        });
+    }
+    let routes = polylines(dir, "route.csv", "plan")?;
     // The first route, then the later plans faint (one legend entry for them all).
     for (i, route) in routes.into_iter().enumerate() {
         let label = match i {

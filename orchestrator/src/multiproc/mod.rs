@@ -10,6 +10,7 @@
 mod children;
 mod clock;
 mod receive;
+mod status_line;
 mod supervision;
 mod swap_server;
 
@@ -304,6 +305,9 @@ struct Driver<'a> {
     last_node_listing: Option<Instant>,
     /// Processes of the run's living nodes, as last listed.
     node_pids: Vec<u32>,
+    status_line: status_line::StatusLine,
+    /// Sensor to actuator of the newest tick recorded that has one, ns.
+    last_sensor_to_actuator_ns: Option<u64>,
 }
 
 impl<'a> Driver<'a> {
@@ -343,7 +347,23 @@ impl<'a> Driver<'a> {
             last_node_scan: Instant::now(),
             last_node_listing: None,
             node_pids: Vec::new(),
+            status_line: status_line::StatusLine::new(),
+            last_sensor_to_actuator_ns: None,
         }
+    }
+
+    /// Redraws the status line on a terminal, when due.
+    fn show_status(&mut self) {
+        let (recorder, duration_s) = (&*self.recorder, self.scenario.duration_s);
+        let latency = self.last_sensor_to_actuator_ns;
+        self.status_line.update(|| status_line::Live {
+            t_s: recorder.simulated_s(),
+            duration_s,
+            deadline_misses: recorder.deadline_misses(),
+            sensor_to_actuator_us: latency.map(|ns| ns as f64 / 1e3),
+            clearance_m: recorder.last_clearance_m(),
+            mode: recorder.last_mode().map_or("-", |m| m.as_str()),
+        });
     }
 
     /// After the clock has stopped with `outcome`: records the plans still held, answers
@@ -353,6 +373,7 @@ impl<'a> Driver<'a> {
         outcome: anyhow::Result<Outcome>,
         report: &mut ProcessReport,
     ) -> anyhow::Result<Outcome> {
+        self.status_line.clear();
         let outcome = outcome.and_then(|o| self.record_plans().map(|_| o));
         for swap in std::mem::take(&mut self.swaps) {
             self.fail_swap(swap, "the run ended before the switch")?;

@@ -133,11 +133,12 @@ impl Driver<'_> {
             l.hop("actuation_to_orchestrator", own_latency);
         }
         if !tick.is_multiple_of(inner_steps) && slot.estimate.is_some() {
-            l.sensor_to_actuator(
-                act.header
-                    .publish_ns
-                    .saturating_sub(measurement.header.publish_ns),
-            );
+            let ns = act
+                .header
+                .publish_ns
+                .saturating_sub(measurement.header.publish_ns);
+            l.sensor_to_actuator(ns);
+            self.last_sensor_to_actuator_ns = Some(ns);
         }
         Ok(self.recorder.tick(&truth, &estimate, &act)?)
     }
@@ -158,7 +159,7 @@ impl Driver<'_> {
             self.last_plan = Some(sample);
             self.latencies
                 .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
-            self.recorder.plan(&plan);
+            self.recorder.plan(&plan)?;
         }
         while let Some((_, v)) = self.verdicts.pop_first() {
             self.recorder.verdict(&v)?;

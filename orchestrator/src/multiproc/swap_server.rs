@@ -44,6 +44,7 @@ impl Driver<'_> {
     /// replacement is scheduled to take over at a sample boundary [`SWITCH_LEAD_SAMPLES`]
     /// ahead; once that tick is recorded the old process is retired.
     pub(super) fn supervise(&mut self) -> anyhow::Result<()> {
+        self.show_status();
         let time_s = self.cursor as f64 * self.scenario.timing.dt_s();
         // Straight from shared memory: nothing waits on this listener.
         while let Some((r, _, publisher)) = self.session.swap_requests.receive_with_origin()? {
