@@ -37,12 +37,14 @@ pub fn swappable_role(name: &str) -> Result<Role, RequestError> {
 }
 
 /// The request for `role`; a relative program path is made absolute, since the
-/// orchestrator starts it from its own working directory.
+/// orchestrator starts it from its own working directory (the other arguments are passed
+/// as they are). Symbolic links are kept: a venv's `bin/python` is a link to the
+/// interpreter, and only called by its own path does it use the venv.
 pub fn build_request(role: Role, command: &[String]) -> Result<SwapRequest, RequestError> {
     let mut command = command.to_vec();
     if let Some(program) = command.first_mut()
         && program.contains('/')
-        && let Ok(absolute) = std::fs::canonicalize(&*program)
+        && let Ok(absolute) = std::path::absolute(&*program)
     {
         *program = absolute.to_string_lossy().into_owned();
     }
@@ -99,5 +101,27 @@ pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> 
         {
             bail!("interrupted");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_relative_program_is_made_absolute_without_resolving_links() {
+        let request = build_request(
+            Role::Estimator,
+            &["venv/bin/python".into(), "estimator.py".into()],
+        )
+        .unwrap();
+        let cwd = std::env::current_dir().unwrap();
+        assert_eq!(
+            request.command(),
+            [
+                cwd.join("venv/bin/python").to_string_lossy().into_owned(),
+                "estimator.py".into()
+            ]
+        );
     }
 }
