@@ -67,20 +67,9 @@ impl Recorder {
     pub fn create(dir: &Path, scenario: &Scenario) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         std::fs::write(dir.join("scenario.toml"), scenario.to_toml())?;
-        let mut trajectory = BufWriter::new(File::create(dir.join("trajectory.csv"))?);
-        writeln!(
-            trajectory,
-            "{}",
-            schema::header(&schema::TRAJECTORY_COLUMNS)
-        )?;
-        let mut plans = BufWriter::new(File::create(dir.join("plans.csv"))?);
-        writeln!(plans, "{}", schema::header(&schema::PLANS_COLUMNS))?;
-        let mut predictions = BufWriter::new(File::create(dir.join("predictions.csv"))?);
-        writeln!(
-            predictions,
-            "{}",
-            schema::header(&schema::PREDICTION_COLUMNS)
-        )?;
+        let trajectory = csv_file(&dir.join("trajectory.csv"), &schema::TRAJECTORY_COLUMNS)?;
+        let plans = csv_file(&dir.join("plans.csv"), &schema::PLANS_COLUMNS)?;
+        let predictions = csv_file(&dir.join("predictions.csv"), &schema::PREDICTION_COLUMNS)?;
         let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
         Ok(Recorder {
             dir: dir.to_path_buf(),
@@ -264,11 +253,10 @@ impl Recorder {
         }
         let routes = match &mut self.routes {
             Some(file) => file,
-            None => {
-                let mut file = BufWriter::new(File::create(self.dir.join("route.csv"))?);
-                writeln!(file, "{}", schema::header(&schema::ROUTE_COLUMNS))?;
-                self.routes.insert(file)
-            }
+            None => self.routes.insert(csv_file(
+                &self.dir.join("route.csv"),
+                &schema::ROUTE_COLUMNS,
+            )?),
         };
         for [x, y] in route.points() {
             writeln!(
@@ -439,6 +427,13 @@ impl Recorder {
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;
         Ok(summary)
     }
+}
+
+/// A new CSV file at `path` with the header line of `columns`.
+fn csv_file(path: &Path, columns: &[&str]) -> std::io::Result<BufWriter<File>> {
+    let mut file = BufWriter::new(File::create(path)?);
+    writeln!(file, "{}", schema::header(columns))?;
+    Ok(file)
 }
 
 #[cfg(test)]
