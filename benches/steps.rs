@@ -18,8 +18,10 @@ fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
     let scenario = scenario.clone().validated("bench").expect("valid scenario");
     let mut closed_loop = ClosedLoop::new(&scenario).expect("MPC set up");
     let (mut estimates, mut plans) = (Vec::new(), Vec::new());
-    while !closed_loop.is_done() {
-        let tick = closed_loop.step();
+    while let Some(tick) = (!closed_loop.is_done())
+        .then(|| closed_loop.step())
+        .flatten()
+    {
         estimates.push(tick.estimate);
         plans.extend(tick.plan);
     }

@@ -33,6 +33,7 @@ fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode
         let tick = closed_loop.tick();
         let ((_, y), measure_a) = allocations(|| closed_loop.measure());
         let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
+        let (estimate, _) = estimate.expect("no fault refuses an estimate here");
         let (_, plan_a) = allocations(|| closed_loop.plan(&estimate));
         let (_, route_a) = allocations(|| closed_loop.route(&estimate));
         let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));

@@ -12,12 +12,12 @@ use protocol::{
 };
 
 pub mod gatekeeper;
-pub mod inner_loop;
 pub mod process;
+pub mod task;
 
 pub use gatekeeper::Gatekeeper;
-pub use inner_loop::{
-    DeadlineMonitor, InnerLoop, PlanInbox, SILENT_TICKS, SilenceWatch, late_samples,
+pub use task::{
+    DeadlineMonitor, DflTask, PLAN_WAIT_FRACTION, PlanInbox, SILENT_TICKS, SilenceWatch,
 };
 
 pub use protocol::{phi, phi_inverse};
@@ -489,20 +489,15 @@ mod tests {
     }
 
     #[test]
-    fn plans_within_the_period_are_on_time_and_slower_ones_late_by_whole_samples() {
-        assert_eq!(late_samples(10_000_000, 0.05), 0);
-        assert_eq!(late_samples(50_000_000, 0.05), 0);
-        assert_eq!(late_samples(50_000_001, 0.05), 2);
-        assert_eq!(late_samples(125_000_000, 0.05), 3);
-    }
-
-    #[test]
-    fn lockstep_inbox_holds_a_late_plan_until_its_arrival_sample() {
+    fn a_late_plan_is_held_until_the_sample_it_arrived_in() {
         let mut dfl = Dfl::new(&Scenario::default());
-        let mut inbox = PlanInbox::new(true, 0.05);
+        let mut inbox = PlanInbox::new(0.05);
         let mut p = plan(100, 8, PlanStatus::Solved);
-        p.solve_ns = 125_000_000; // 2.5 Ts: arrives at sample 103
-        assert_eq!(inbox.receive(&p), 103);
+        // Lockstep: a solve of 2.5 Ts arrives 3 whole samples late.
+        p.solve_ns = 125_000_000;
+        let lockstep = protocol::clock::RunClock::simulated_at(1000, 0.005);
+        let arrival_ns = lockstep.arrival_after_ns(5.0, p.solve_ns, 0.05);
+        assert_eq!(inbox.receive(&p, arrival_ns), 103);
         assert!(inbox.has_received(100));
         let est = Estimate::default();
         inbox.release(102, &mut dfl);
@@ -514,26 +509,25 @@ mod tests {
             (Some(CommandMode::Shifted), [3.0, 0.0]),
             "element 3 of plan 100"
         );
+        // Real time: received 1.2 Ts after its sample started, usable at once (sample 101).
+        let mut inbox = PlanInbox::new(0.05);
+        assert_eq!(
+            inbox.receive(&plan(100, 8, PlanStatus::Solved), 60_000_000),
+            101
+        );
     }
 
     #[test]
-    fn a_lockstep_dfl_waits_for_every_plan_unless_it_joined_after_the_previous_one() {
-        let mut inbox = PlanInbox::new(true, 0.05);
+    fn the_dfl_waits_for_every_plan_unless_it_joined_after_the_previous_one() {
+        let mut inbox = PlanInbox::new(0.05);
+        assert!(inbox.waits_for(0), "from the start, plan 0 is waited for");
         assert!(
-            inbox.must_wait_for(0),
-            "from the start, plan 0 is waited for"
-        );
-        assert!(
-            !inbox.must_wait_for(40),
+            !inbox.waits_for(40),
             "joined at sample 40: plan 39 never came"
         );
-        inbox.receive(&plan(40, 8, PlanStatus::Solved));
-        assert!(!inbox.must_wait_for(40), "plan 40 is here");
-        assert!(inbox.must_wait_for(41));
-        assert!(
-            !PlanInbox::new(false, 0.05).must_wait_for(0),
-            "real time never blocks"
-        );
+        inbox.receive(&plan(40, 8, PlanStatus::Solved), 0);
+        assert!(!inbox.waits_for(40), "plan 40 is here");
+        assert!(inbox.waits_for(41));
     }
 
     #[test]

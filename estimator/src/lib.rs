@@ -8,6 +8,8 @@ use nalgebra::{Matrix3, Vector3};
 use protocol::{Estimate, EstimatorKind, Header, Scenario, wrap_angle};
 
 pub mod process;
+pub mod task;
+pub use task::EstimatorTask;
 
 /// Smallest measurement variance the EKF uses, so a noise-free run is exact state
 /// feedback (to ~1e-8 relative) without a singular innovation covariance.

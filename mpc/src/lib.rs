@@ -14,6 +14,8 @@ pub mod model;
 pub mod nonlinear;
 pub mod problem;
 pub mod process;
+pub mod task;
+pub use task::MpcTask;
 pub mod terminal;
 
 use clarabel::algebra::CscMatrix;

@@ -4,7 +4,8 @@ use crate::{inprocess, multiproc, scenarios};
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use protocol::Role;
-use protocol::runtime::{ProcessArgs, ProcessError, RunMode};
+use protocol::clock::RunMode;
+use protocol::runtime::{ProcessArgs, ProcessError};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -530,7 +531,7 @@ fn run(args: RunArgs) -> CliResult {
     }
     println!("run directory: {}", out.display());
     print!("{}", summary.table());
-    if summary.outcome == crate::monitor::Outcome::Reached {
+    if summary.outcome == crate::judge::Outcome::Reached {
         Ok(())
     } else {
         Err(CliError::NotReached)

@@ -21,7 +21,7 @@
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
 //! invalid (a start inside a grown obstacle, say) is drawn again.
 
-use crate::monitor::Outcome;
+use crate::judge::Outcome;
 use crate::record::Summary;
 use crate::sweep::{self, RunSpec};
 use anyhow::Context;

@@ -2,7 +2,7 @@
 //! recorded.
 
 use crate::closed_loop::{ClosedLoop, Tick};
-use crate::monitor::Outcome;
+use crate::judge::{Judge, Outcome};
 use crate::record::{Recorder, Summary};
 use anyhow::Context;
 use protocol::Validated;
@@ -38,36 +38,54 @@ pub fn run_observed(
             .context("creating run.mcap")?;
     }
     let mut closed_loop = ClosedLoop::new(scenario).context("setting up the MPC")?;
+    let mut judge = Judge::new(scenario);
     let mut outcome = None;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {
             outcome = Some(Outcome::Interrupted);
             break;
         }
-        let tick = closed_loop.step();
+        let Some(tick) = closed_loop.step() else {
+            recorder.event(
+                "aborted",
+                serde_json::json!({ "role": "estimator", "reason": "estimate refused, no restart left" }),
+            )?;
+            outcome = Some(Outcome::Aborted);
+            break;
+        };
+        if tick.restarted_estimator {
+            recorder.event(
+                "restarted",
+                serde_json::json!({ "role": "estimator", "reason": "estimate refused" }),
+            )?;
+        }
         if let Some(plan) = &tick.plan {
             recorder.plan(plan)?;
         }
         if let Some(verdict) = &tick.verdict {
             recorder.verdict(verdict)?;
         }
-        let no_route = match &tick.route {
-            Some(route) => recorder.route(route)?,
-            None => None,
-        };
-        outcome = recorder
-            .tick(&tick.truth, &tick.estimate, &tick.actuation)?
-            .or(no_route);
+        let mut no_route = None;
+        if let Some(route) = &tick.route {
+            recorder.route(route)?;
+            no_route = judge.route(route);
+        }
+        recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
+        outcome = judge.tick(&tick.truth).or(no_route);
         observe(&tick);
     }
     let outcome = match outcome {
         Some(o) => o,
-        None => recorder.end_of_run(Some(&closed_loop.truth())),
+        None => {
+            let truth = closed_loop.final_truth();
+            recorder.final_truth(&truth);
+            judge.end_of_run(Some(&truth))
+        }
     };
     let summary = recorder.finish(
         scenario,
         "in-process",
-        outcome,
+        (outcome, &judge),
         started.elapsed().as_secs_f64(),
         None,
     )?;

@@ -6,7 +6,7 @@ pub mod closed_loop;
 pub mod figures;
 pub mod fuzz;
 pub mod inprocess;
-pub mod monitor;
+pub mod judge;
 pub mod multiproc;
 pub mod record;
 pub mod scenarios;

@@ -4,11 +4,11 @@
 //! `events.jsonl` and `summary.json` (with the table printed at the end of a run:
 //! [`summary`]).
 
-use crate::monitor::{Monitor, Outcome};
+use crate::judge::{Judge, Outcome, clearance_m};
 use crate::schema;
 use protocol::{
-    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, PLAN_MISSING,
-    Plan, PlanStatus, ReplanReason, Route, Scenario,
+    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
+    PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
 };
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -21,6 +21,7 @@ pub use mcap::McapLog;
 pub use summary::{Latencies, ModeCounts, Percentiles, ProcessReport, Summary};
 
 /// Streams the run's records to its directory and accumulates the summary's statistics.
+/// It decides nothing: how the run ends is the [`Judge`]'s.
 pub struct Recorder {
     dir: PathBuf,
     trajectory: BufWriter<File>,
@@ -30,7 +31,9 @@ pub struct Recorder {
     next_prediction_s: f64,
     events: BufWriter<File>,
     created: std::time::Instant,
-    pub monitor: Monitor,
+    /// For the clearance column: the obstacles and the robot's radius, m.
+    obstacles: Vec<Obstacle>,
+    robot_radius_m: f64,
     solve_us: Vec<f64>,
     iterations: Vec<f64>,
     deadline_misses: u64,
@@ -79,7 +82,8 @@ impl Recorder {
             next_prediction_s: 0.0,
             events,
             created: std::time::Instant::now(),
-            monitor: Monitor::new(scenario),
+            obstacles: scenario.obstacles.clone(),
+            robot_radius_m: scenario.robot.radius_m,
             solve_us: Vec::new(),
             iterations: Vec::new(),
             deadline_misses: 0,
@@ -153,13 +157,13 @@ impl Recorder {
     }
 
     /// One inner tick: the truth at `t_j`, the estimate used, and the command applied over
-    /// `[t_j, t_j+1)`. Returns an outcome that ends the run now.
+    /// `[t_j, t_j+1)`.
     pub fn tick(
         &mut self,
         truth: &GroundTruth,
         estimate: &Estimate,
         act: &Actuation,
-    ) -> std::io::Result<Option<Outcome>> {
+    ) -> std::io::Result<()> {
         let [x, y, theta] = truth.pose;
         // The DFL's zeta at t_j: where the previous command left it.
         let zeta = std::mem::replace(&mut self.zeta, act.zeta);
@@ -191,7 +195,7 @@ impl Recorder {
         }
         self.ticks += 1;
         self.last_time_s = t;
-        let clearance = self.monitor.clearance(x, y);
+        let clearance = clearance_m(&self.obstacles, self.robot_radius_m, x, y);
         self.last_clearance_m = Some(clearance);
         self.last_mode = Some(mode);
         if let Some(mcap) = &self.mcap {
@@ -213,37 +217,29 @@ impl Recorder {
             act.wheels[1],
             mode.as_str(),
             act.plan_sample,
-        )?;
-        Ok(self.monitor.observe(t, x, y))
+        )
     }
 
-    /// The outcome of a run that reached its last tick: the truth after that tick (when
-    /// there is one) is judged too, then the monitor decides.
-    pub fn end_of_run(&mut self, truth: Option<&GroundTruth>) -> Outcome {
-        let at_the_end = truth.and_then(|truth| {
-            self.last_time_s = truth.header.time_s;
-            self.monitor
-                .observe(truth.header.time_s, truth.pose[0], truth.pose[1])
-        });
-        at_the_end.unwrap_or_else(|| self.monitor.final_outcome())
+    /// The truth after the last tick: the run's simulated time ends there.
+    pub fn final_truth(&mut self, truth: &GroundTruth) {
+        self.last_time_s = truth.header.time_s;
     }
 
     /// A route as the planner publishes it (every sample): a new plan is written to
-    /// `route.csv` and counted; `no_route` ends the run (returned).
-    pub fn route(&mut self, route: &Route) -> std::io::Result<Option<Outcome>> {
+    /// `route.csv` and counted; none found is an event.
+    pub fn route(&mut self, route: &Route) -> std::io::Result<()> {
         let plan = (route.header.epoch, route.plans);
         if self.last_route_plan == Some(plan) {
-            return Ok(None);
+            return Ok(());
         }
         self.last_route_plan = Some(plan);
         self.route_plans += 1;
         let reason = ReplanReason::from_code(route.reason).map_or("unknown", ReplanReason::as_str);
         if !route.is_ok() {
-            self.event(
+            return self.event(
                 "no_route",
                 serde_json::json!({ "sample": route.planned_sample, "reason": reason }),
-            )?;
-            return Ok(Some(Outcome::NoRoute));
+            );
         }
         if self.route_length_m.is_none() {
             self.route_length_m = Some(route.length_m);
@@ -265,7 +261,7 @@ impl Recorder {
                 self.route_plans, route.planned_sample
             )?;
         }
-        Ok(None)
+        Ok(())
     }
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
@@ -364,12 +360,12 @@ impl Recorder {
         )
     }
 
-    /// Flushes the records and writes `summary.json`.
+    /// Flushes the records and writes `summary.json`, with the judge's findings.
     pub fn finish(
         mut self,
         scenario: &Scenario,
         mode: &str,
-        outcome: Outcome,
+        (outcome, judge): (Outcome, &Judge),
         wall_s: f64,
         processes: Option<ProcessReport>,
     ) -> std::io::Result<Summary> {
@@ -389,7 +385,7 @@ impl Recorder {
         if let Some(mcap) = self.mcap.take() {
             mcap.finish()?;
         }
-        let m = &self.monitor;
+        let m = judge;
         let summary = Summary {
             scenario: scenario.name.clone(),
             seed: scenario.seed,
@@ -468,7 +464,13 @@ mod tests {
             recorder.tick(&truth, &estimate, &act).unwrap();
         }
         let summary = recorder
-            .finish(&scenario, "test", Outcome::Timeout, 0.0, None)
+            .finish(
+                &scenario,
+                "test",
+                (Outcome::Timeout, &Judge::new(&scenario)),
+                0.0,
+                None,
+            )
             .unwrap();
         assert_eq!(summary.safety_interventions, 3);
         std::fs::remove_dir_all(&dir).unwrap();

@@ -4,7 +4,7 @@
 //! so (`fuzz` and `figures` too).
 
 use crate::inprocess;
-use crate::monitor::Outcome;
+use crate::judge::Outcome;
 use crate::record::Summary;
 use anyhow::Context;
 use protocol::{ScenarioError, ScenarioErrors, Validated};

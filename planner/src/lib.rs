@@ -9,6 +9,8 @@
 //! outside the grown obstacles.
 
 pub mod process;
+pub mod task;
+pub use task::PlannerTask;
 pub mod tangent_graph;
 
 use protocol::{

@@ -3,6 +3,8 @@
 
 use protocol::{PlantConfig, Scenario, wrap_angle};
 pub mod process;
+pub mod task;
+pub use task::PlantTask;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

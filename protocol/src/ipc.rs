@@ -376,15 +376,7 @@ impl<T: Message> Receiver<T> {
         if self.pinned.get().is_some_and(|id| id != origin) {
             return Err(Rejection::UnknownPublisher);
         }
-        let content = || {
-            if !message.all_finite() {
-                Err(Rejection::NonFinite)
-            } else if !message.well_formed() {
-                Err(Rejection::Malformed)
-            } else {
-                Ok(())
-            }
-        };
+        let content = || message.content_rejection().map_or(Ok(()), Err);
         let (Some(role), Some(schedule)) = (self.producer, self.schedule.get()) else {
             return content().map(|()| EpochVerdict::Take);
         };

@@ -8,6 +8,7 @@ pub mod layout;
 pub mod messages;
 pub mod runtime;
 pub mod scenario;
+pub mod task;
 
 pub use messages::*;
 pub use scenario::*;

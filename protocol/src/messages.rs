@@ -898,6 +898,18 @@ pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
     fn all_finite(&self) -> bool;
     /// Whether every code, count and length is one the type allows.
     fn well_formed(&self) -> bool;
+
+    /// What a consumer refuses in the message's content, if anything (the border check's
+    /// content rule, applied by every executor).
+    fn content_rejection(&self) -> Option<crate::Rejection> {
+        if !self.all_finite() {
+            Some(crate::Rejection::NonFinite)
+        } else if !self.well_formed() {
+            Some(crate::Rejection::Malformed)
+        } else {
+            None
+        }
+    }
 }
 
 fn finite(values: &[f64]) -> bool {

@@ -6,28 +6,33 @@
 //!
 //! 1. **sync**: control messages are taken straight from shared memory and a changed epoch
 //!    schedule is applied to every input before the step judges a sample by it;
-//! 2. **step**: the role's own work (every input sample it takes has passed the border
-//!    check of [`Receiver`](crate::ipc::Receiver): run, epoch, finite, tick order);
+//! 2. **step**: the role's own work: it hands what its inputs hold to its task
+//!    ([`crate::task`]) and publishes what the task makes (every input sample it takes has
+//!    passed the border check of [`Receiver`](crate::ipc::Receiver): run, epoch, finite,
+//!    tick order);
 //! 3. **housekeeping**, after the first step of a wake-up: the inputs' wake-ups are
 //!    consumed, the control topic drained (stop, grants, start, replay), refused samples
 //!    reported to the orchestrator, and every output replayed if the orchestrator asked.
 //!    The step runs once more after it, since a sample may have come just before its
 //!    wake-up was consumed;
-//! 4. **wait**: block in the WaitSet (control and every input attached), or in real time
-//!    poll an input around the time it is due ([`spin_wait`]); a process that hears
-//!    nothing for [`INPUT_TIMEOUT`] reports [`StatusEvent::InputLost`] and exits.
+//! 4. **wait**: until what the step named ([`Next`], in run time): block in the WaitSet
+//!    (control and every input attached), or in real time poll an input around the time
+//!    it is due ([`spin_wait`]) or sleep to a deadline; a process that hears nothing for
+//!    [`INPUT_TIMEOUT`] reports [`StatusEvent::InputLost`] and exits.
 //!
-//! The two clocks differ only in what the step returns: in lockstep a role waits for its
-//! inputs of the tick (the plant for the orchestrator's grant); in real time it is paced
-//! by the run's start time ([`ControlState::at_ns`]).
+//! The runtime owns time: a step never knows which clock runs. It asks the run's clock
+//! ([`RunClock`], through [`ControlState`]) and names times; the runtime turns them into
+//! waits (in lockstep time moves with the orchestrator's grants, so a wait for a time is a
+//! wait for the next control message or input; in real time, for the wall clock).
 
 use crate::alloc_count::{ENV_COUNT_ALLOCATIONS, allocations};
-use crate::clock::{monotonic_ns, tick_at};
+use crate::clock::{RunClock, RunMode, monotonic_ns, sleep_until_ns};
 use crate::ipc::{
-    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TICK_SLACK, TickLimit, Wake,
-    create_node, open_topic, output_slot, process_alive, wait, waitset,
+    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, create_node,
+    open_topic, output_slot, process_alive, wait, waitset,
 };
 use crate::messages::{EpochSchedule, Message};
+use crate::task::Context;
 use crate::{Control, ControlCommand, NO_PRODUCER, Rejection, Role, Status, StatusEvent};
 use iceoryx2::prelude::*;
 use std::cell::Cell;
@@ -37,15 +42,6 @@ use std::time::{Duration, Instant};
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
-
-/// How a run is clocked (README, "Deadlines").
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RunMode {
-    /// Simulated time: every process waits for its inputs of the tick; deterministic.
-    Lockstep,
-    /// Every process paced by the monotonic wall clock with absolute deadlines.
-    Realtime,
-}
 
 /// What a role process is started with.
 #[derive(Debug, Clone)]
@@ -79,47 +75,53 @@ pub enum ProcessError {
     Setup(String),
 }
 
-/// What the orchestrator has said so far.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// What the orchestrator has said so far, and what a step is told ([`Context`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControlState {
-    /// Newest lockstep grant, and its publish-to-receipt latency, ns.
-    pub granted: Option<(u64, u64)>,
-    /// Real-time tick 0, monotonic ns.
-    pub start_ns: Option<u64>,
+    role: Role,
+    epoch: u32,
+    /// The run's clock, as the grants and the start command set it.
+    pub clock: RunClock,
+    /// Publish-to-receipt latency of the newest grant, ns.
+    pub grant_latency_ns: u64,
+    /// Lockstep: the newest tick granted, as every control message carries it (a process
+    /// that joins a running loop hears it before any grant of its own).
+    pub heard_tick: Option<u64>,
     pub stopped: bool,
     /// A replay was asked for and not yet done (see [`ControlState::take_replay`]).
     pub replay: bool,
     /// The newest epoch schedule (`None` before the first control message).
     pub schedule: Option<EpochSchedule>,
-    /// Lockstep: the newest tick granted, as every control message carries it.
-    pub clock_tick: Option<u64>,
     /// The orchestrator is gone: the DFL brakes, and the process exits after
     /// [`ORPHAN_GRACE`].
     pub orphaned: bool,
 }
 
 impl ControlState {
-    /// Whether a process of `role` with `epoch` is the one whose samples of `tick` are
-    /// taken (false before the orchestrator has said, and while warming up as a
-    /// replacement).
-    pub fn producing(&self, role: Role, epoch: u32, tick: u64) -> bool {
-        self.schedule
-            .is_some_and(|s| s.producer_at(role, tick) == epoch)
-    }
-
-    /// Real time: the monotonic time, ns, `offset_s` after the run's start (`None` before
-    /// the orchestrator has started the clock).
-    pub fn at_ns(&self, offset_s: f64) -> Option<u64> {
-        self.start_ns.map(|start| start + (offset_s * 1e9) as u64)
+    fn new(role: Role, epoch: u32, clock: RunClock) -> ControlState {
+        ControlState {
+            role,
+            epoch,
+            clock,
+            grant_latency_ns: 0,
+            heard_tick: None,
+            stopped: false,
+            replay: false,
+            schedule: None,
+            orphaned: false,
+        }
     }
 
     /// Takes one control message.
     fn apply(&mut self, c: &Control, latency_ns: u64) {
         self.schedule = Some(c.epochs);
-        self.clock_tick = self.clock_tick.max(Some(c.header.tick));
+        self.heard_tick = self.heard_tick.max(Some(c.header.tick));
         match c.command() {
-            Some(ControlCommand::Grant) => self.granted = Some((c.header.tick, latency_ns)),
-            Some(ControlCommand::Start) => self.start_ns = Some(c.start_ns),
+            Some(ControlCommand::Grant) => {
+                self.clock.grant(c.header.tick);
+                self.grant_latency_ns = latency_ns;
+            }
+            Some(ControlCommand::Start) => self.clock.start(c.start_ns),
             Some(ControlCommand::Stop) => self.stopped = true,
             Some(ControlCommand::Replay) => self.replay = true,
             Some(ControlCommand::Epochs) | None => {}
@@ -132,24 +134,46 @@ impl ControlState {
     }
 }
 
-/// What a role's step waits for before it is called again.
+impl Context for ControlState {
+    fn clock(&self) -> &RunClock {
+        &self.clock
+    }
+
+    /// Whether this process's samples of `tick` are the ones taken (false before the
+    /// orchestrator has said, and while warming up as a replacement).
+    fn is_active(&self, tick: u64) -> bool {
+        self.schedule
+            .is_some_and(|s| s.producer_at(self.role, tick) == self.epoch)
+    }
+
+    fn orphaned(&self) -> bool {
+        self.orphaned
+    }
+
+    fn clock_latency_ns(&self) -> u64 {
+        self.grant_latency_ns
+    }
+}
+
+/// What a role's step waits for before it is called again; times are run times, s
+/// ([`RunClock`]).
 pub enum Next<'a> {
-    /// An input or a control message, or `timeout` (`None`: [`INPUT_TIMEOUT`]).
-    Wait(Option<Duration>),
-    /// Real time: `input` is due at monotonic `at_ns`; poll for it around then
-    /// ([`spin_wait`]) rather than wake on its event, and block if it does not come.
-    Expect { input: &'a dyn Input, at_ns: u64 },
-    /// Nothing: the step paces itself (the real-time plant sleeps to its deadlines).
-    Again,
+    /// An input or a control message, and in real time at most until the time given
+    /// (`None`: [`INPUT_TIMEOUT`]).
+    Wait(Option<f64>),
+    /// `input` is due at `at_s`: in real time poll for it around then ([`spin_wait`])
+    /// rather than wake on its event, and block if it does not come; in lockstep wait.
+    Expect { input: &'a dyn Input, at_s: f64 },
+    /// The step is due again at `at_s`: in real time sleep until then; in lockstep wait
+    /// (the time comes with a grant).
+    At(f64),
 }
 
 impl<'a> Next<'a> {
-    /// For a role that acts once a sample on `input`: in real time, poll it at the start
-    /// of `sample` (`ts_s` long) rather than wake for every tick's sample; in lockstep (or
-    /// before the clock has started), wait for it.
-    pub fn at_sample(ctl: &ControlState, input: &'a dyn Input, sample: u64, ts_s: f64) -> Self {
-        match ctl.at_ns(sample as f64 * ts_s) {
-            Some(at_ns) => Next::Expect { input, at_ns },
+    /// For a role that acts on a sample of `input` due at `at_s` (`None`: not known yet).
+    pub fn expect(input: &'a dyn Input, at_s: Option<f64>) -> Self {
+        match at_s {
+            Some(at_s) => Next::Expect { input, at_s },
             None => Next::Wait(None),
         }
     }
@@ -164,12 +188,11 @@ pub const GRANT_IN_FLIGHT: u64 = 1;
 
 /// A role process's clock: the control topic and what it has said. Every input is bound
 /// by it ([`Receiver::bound_by`]): in lockstep a sample may be as new as the newest grant
-/// (plus [`GRANT_IN_FLIGHT`]), in real time as the wall clock's tick plus [`TICK_SLACK`].
+/// heard plus [`GRANT_IN_FLIGHT`], in real time as the wall clock's tick plus
+/// [`TICK_SLACK`] ([`RunClock::newest_publishable`]).
 struct RoleClock {
     control: Receiver<Control>,
     state: Cell<ControlState>,
-    mode: RunMode,
-    dt_s: f64,
 }
 
 impl RoleClock {
@@ -188,16 +211,13 @@ impl TickLimit for RoleClock {
             let _ = self.take();
         }
         let state = self.state.get();
-        match self.mode {
-            RunMode::Lockstep => state.clock_tick.map(|t| t + GRANT_IN_FLIGHT),
-            RunMode::Realtime => state
-                .start_ns
-                .map(|start| tick_at(start, monotonic_ns(), self.dt_s) + TICK_SLACK),
-        }
+        state
+            .clock
+            .newest_publishable(state.heard_tick.map(|t| t + GRANT_IN_FLIGHT))
     }
 
     fn dt_s(&self) -> f64 {
-        self.dt_s
+        self.state.get().clock.dt_s()
     }
 }
 
@@ -206,7 +226,6 @@ impl TickLimit for RoleClock {
 pub struct Link {
     role: Role,
     epoch: u32,
-    mode: RunMode,
     supervisor_pid: Option<u32>,
     /// Ticks before allocations are counted ([`ENV_COUNT_ALLOCATIONS`]): 20 samples.
     warm_up_ticks: u64,
@@ -229,16 +248,17 @@ impl Link {
         }
         let clock = Rc::new(RoleClock {
             control,
-            state: Cell::new(ControlState::default()),
-            mode: args.mode,
-            dt_s: args.scenario.timing.dt_s(),
+            state: Cell::new(ControlState::new(
+                role,
+                args.epoch,
+                RunClock::new(args.mode, args.scenario.timing.dt_s()),
+            )),
         });
         let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
         Ok(Link {
             node,
             role,
             epoch: args.epoch,
-            mode: args.mode,
             supervisor_pid: args.supervisor_pid,
             warm_up_ticks: 20 * args.scenario.timing.inner_steps as u64,
             clock,
@@ -360,7 +380,7 @@ impl Link {
             } else if supervisor_checked.elapsed() >= SUPERVISOR_CHECK {
                 supervisor_checked = Instant::now();
                 if self.supervisor_pid.is_some_and(|pid| !process_alive(pid)) {
-                    if self.mode == RunMode::Lockstep {
+                    if self.clock.state.get().clock.mode() == RunMode::Lockstep {
                         return Ok(());
                     }
                     orphaned_at = Some(Instant::now());
@@ -369,7 +389,14 @@ impl Link {
                     self.clock.state.set(state);
                 }
             }
-            let again = matches!(next, Next::Again);
+            // In real time a step due at a time is slept to; in lockstep its time comes with
+            // a grant, like any input.
+            let clock = self.clock.state.get().clock;
+            let due_ns = match next {
+                Next::At(at_s) => clock.at_ns(at_s),
+                _ => None,
+            };
+            let again = due_ns.is_some();
             if !cleared || again {
                 if !self.housekeeping(inputs)? {
                     return Ok(());
@@ -382,20 +409,25 @@ impl Link {
                 if again && self.node.wait(Duration::ZERO).is_err() {
                     return Ok(()); // a signal
                 }
+                if let Some(at_ns) = due_ns {
+                    sleep_until_ns(at_ns);
+                }
                 cleared = !again;
                 continue;
             }
             cleared = false;
             let timeout = match next {
-                Next::Wait(timeout) => timeout,
-                Next::Expect { input, at_ns } => {
-                    if spin_wait(at_ns, || input.has_samples()) {
+                Next::Wait(until_s) => until_s
+                    .and_then(|t| clock.at_ns(t))
+                    .map(|at| Duration::from_nanos(at.saturating_sub(monotonic_ns()))),
+                Next::Expect { input, at_s } => match clock.at_ns(at_s) {
+                    Some(at_ns) if spin_wait(at_ns, || input.has_samples()) => {
                         last_input = Instant::now();
                         continue;
                     }
-                    None
-                }
-                Next::Again => unreachable!("handled above"),
+                    _ => None,
+                },
+                Next::At(_) => None,
             };
             if !self.wait(waitset, timeout, &mut last_input)? {
                 return Ok(());
@@ -497,14 +529,6 @@ impl Link {
     }
 }
 
-/// Keeps in `newest` the sample with the highest tick offered so far (a replay or a late
-/// sample of an older tick does not replace a newer one).
-pub fn keep_newest<T: Message>(newest: &mut Option<T>, sample: T) {
-    if newest.is_none_or(|n| sample.header().tick >= n.header().tick) {
-        *newest = Some(sample);
-    }
-}
-
 /// Real time: how long before an expected sample a consumer starts polling for it, ns.
 pub const SPIN_LEAD_NS: u64 = 50_000;
 /// Real time: how long after the expected time a consumer keeps polling before it falls
@@ -516,7 +540,7 @@ pub const SPIN_BUDGET_NS: u64 = 300_000;
 /// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
 /// periodic input's known arrival time does not (measured: README, real-time latency).
 pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
-    crate::clock::sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
+    sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
     let give_up = expected_ns + SPIN_BUDGET_NS;
     while monotonic_ns() < give_up {
         if ready() {

@@ -299,6 +299,36 @@ impl Timing {
     pub fn tick_time_s(&self, tick: u64) -> f64 {
         tick as f64 * self.dt_s()
     }
+
+    /// Inner ticks per sample, `M`.
+    pub fn ticks_per_sample(&self) -> u64 {
+        self.inner_steps as u64
+    }
+
+    /// The sample inner tick `tick` belongs to: `k = floor(j / M)`.
+    pub fn sample_of(&self, tick: u64) -> u64 {
+        tick / self.ticks_per_sample()
+    }
+
+    /// Whether inner tick `tick` is the first of its sample (`t_j = k Ts`).
+    pub fn starts_sample(&self, tick: u64) -> bool {
+        tick.is_multiple_of(self.ticks_per_sample())
+    }
+
+    /// The first inner tick of sample `sample`: `j = k M`.
+    pub fn first_tick(&self, sample: u64) -> u64 {
+        sample * self.ticks_per_sample()
+    }
+
+    /// Time of sample `sample` (of its first inner tick), s since the start of the run.
+    pub fn sample_time_s(&self, sample: u64) -> f64 {
+        self.tick_time_s(self.first_tick(sample))
+    }
+
+    /// The first inner tick of a sample at or after `tick`.
+    pub fn next_sample_start(&self, tick: u64) -> u64 {
+        tick.div_ceil(self.ticks_per_sample()) * self.ticks_per_sample()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -1,7 +1,15 @@
 //! The role processes the orchestrator started: spawning them with the run's environment,
 //! retiring, killing and reaping them.
 
-use super::*;
+use super::{
+    ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO, ENV_SUPERVISOR,
+};
+use anyhow::Context;
+use protocol::Role;
+use protocol::clock::RunMode;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
 
 /// One process the orchestrator started.
 pub(super) struct Proc {
@@ -22,6 +30,8 @@ pub(super) struct Children {
     /// The orchestrator's control publisher, which the processes take control from.
     pub(super) control_publisher: u128,
     pub(super) list: Vec<Proc>,
+    /// The epoch the process started last has (each start takes the next).
+    epoch: u32,
 }
 
 impl Children {
@@ -37,14 +47,21 @@ impl Children {
             exe: std::env::current_exe().context("locating the scmpc executable")?,
             scenario_file: scenario_file.to_path_buf(),
             prefix: prefix.to_string(),
-            mode: mode_name(mode),
+            mode: mode.as_str(),
             control_publisher,
             list: Vec::new(),
+            epoch: 0,
         };
         for role in roles {
             children.spawn_role(role, 0, &[])?;
         }
         Ok(children)
+    }
+
+    /// The producer epoch of the next process to start (a restart or a replacement).
+    pub(super) fn take_epoch(&mut self) -> u32 {
+        self.epoch += 1;
+        self.epoch
     }
 
     /// Starts a process for `role` with producer epoch `epoch`: `command` (program and

@@ -1,140 +1,124 @@
-//! Supervision: a process that exited (retired, a failed replacement, or a crash that is
-//! restarted or aborts the run), and the scan for dead iceoryx2 nodes.
+//! Supervision: the processes' status reports (refused samples, processes that joined),
+//! producers that fail the border checks, the scan for dead iceoryx2 nodes, and restarts.
 
-use super::*;
+use super::children::Children;
+use super::session::Session;
+use super::{NODE_LISTING, NODE_SCAN};
+use crate::record::Recorder;
+use protocol::ipc;
+use protocol::{ControlCommand, Rejection, RestartPolicy, Role, Status, StatusEvent, Supervision};
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
 
-impl Driver<'_> {
-    /// Ends the run on Ctrl-C; handles a process that exited: a retired one is
-    /// forgotten, a failed replacement cancels its swap, and a dead active process is
-    /// cleaned up after and then replaced by its warming replacement if there is one, else
-    /// restarted per the scenario's supervision policy, else the run ends as aborted.
-    pub(super) fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
-        if self.stop.load(Ordering::Relaxed) {
-            return Ok(Some(Outcome::Interrupted));
+/// How long a producer's own samples may be refused, none taken, before it is treated as
+/// failed ([`Supervisor::contain`]).
+pub(super) const REFUSED_LIMIT: Duration = Duration::from_millis(500);
+
+/// Samples of a producer refused through its own fault, since `since`.
+#[derive(Debug, Clone, Copy)]
+struct Blame {
+    since: Instant,
+    epoch: u32,
+    /// Samples of the role the orchestrator had taken at `since`.
+    taken: u64,
+}
+
+/// What supervision keeps across the run.
+pub(super) struct Supervisor {
+    policy: Supervision,
+    restarts: u32,
+    /// Samples refused by any consumer, by reason.
+    rejected: BTreeMap<String, u64>,
+    /// Per role: since when its own samples have been refused.
+    blamed: [Option<Blame>; Role::COUNT],
+    last_node_scan: Instant,
+    /// `None`: list at the next scan (a process has just joined).
+    last_node_listing: Option<Instant>,
+    /// Processes of the run's living nodes, as last listed.
+    node_pids: Vec<u32>,
+}
+
+impl Supervisor {
+    pub fn new(policy: &Supervision) -> Supervisor {
+        Supervisor {
+            policy: policy.clone(),
+            restarts: 0,
+            rejected: BTreeMap::new(),
+            blamed: [None; Role::COUNT],
+            last_node_scan: Instant::now(),
+            last_node_listing: None,
+            node_pids: Vec::new(),
         }
-        self.children.kill_overdue();
-        self.contain()?;
-        if self.last_node_scan.elapsed() >= NODE_SCAN {
-            self.last_node_scan = Instant::now();
-            self.watch_nodes()?;
-        }
-        let Some((proc, status)) = self.children.take_exited() else {
-            return Ok(None);
-        };
-        let role = proc.role;
-        let cleaned = self.clean_dead_nodes(Some((role, proc.epoch)))?;
-        if proc.retire_by.is_some() {
-            self.recorder.event(
-                "retired",
-                serde_json::json!({ "role": role.as_str(), "epoch": proc.epoch, "status": status.to_string() }),
-            )?;
-            return Ok(None);
-        }
-        if let Some(i) = self
-            .swaps
-            .iter()
-            .position(|s| s.role == role && s.epoch == proc.epoch)
-        {
-            let swap = self.swaps.remove(i);
-            self.fail_swap(swap, &format!("the replacement exited ({status})"))?;
-            return Ok(None);
-        }
-        // A terminal's Ctrl-C reaches the whole process group: the children may see it a
-        // moment before the orchestrator's handler runs.
-        std::thread::sleep(Duration::from_millis(20));
-        if self.stop.load(Ordering::Relaxed) {
-            return Ok(Some(Outcome::Interrupted));
-        }
-        self.recorder.event(
-            "crashed",
-            serde_json::json!({ "role": role.as_str(), "epoch": proc.epoch, "status": status.to_string(), "nodes_cleaned": cleaned }),
-        )?;
-        if let Some(i) = self.swaps.iter().position(|s| s.role == role) {
-            // Its replacement is already running: it takes over at once.
-            let swap = self.swaps.remove(i);
-            self.complete_swap(swap, "promoted after the crash")?;
-            return Ok(None);
-        }
-        let policy = &self.scenario.supervision;
-        let restartable = role != Role::Plant
-            && policy.restart == RestartPolicy::Always
-            && self.restarts < policy.max_restarts;
-        if !restartable {
-            return Ok(Some(Outcome::Aborted));
-        }
-        self.restarts += 1;
-        let epoch = self.take_epoch();
-        self.session.reschedule(|s| s.activate(role, epoch))?;
-        let pid = self.children.spawn_role(role, epoch, &[])?;
-        self.recorder.event(
-            "restarted",
-            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
-        )?;
-        Ok(None)
     }
 
-    /// Looks for dead nodes: a full iceoryx2 node listing (about 1 ms of CPU) every
-    /// [`NODE_LISTING`], and in between only whether the processes of the nodes listed
-    /// are still alive (microseconds), so the scan does not disturb the control loop.
-    pub(super) fn watch_nodes(&mut self) -> anyhow::Result<()> {
-        let someone_died = self.node_pids.iter().any(|pid| !ipc::process_alive(*pid));
-        if someone_died
-            || self
-                .last_node_listing
-                .is_none_or(|t| t.elapsed() >= NODE_LISTING)
-        {
-            self.clean_dead_nodes(None)?;
-            self.node_pids = ipc::node_pids(&self.children.prefix).unwrap_or_default();
-            self.last_node_listing = Some(Instant::now());
+    /// Restarts so far.
+    pub fn restarts(&self) -> u32 {
+        self.restarts
+    }
+
+    /// Samples refused so far, by reason.
+    pub fn take_rejected(&mut self) -> BTreeMap<String, u64> {
+        std::mem::take(&mut self.rejected)
+    }
+
+    /// Takes the processes' status reports: refused samples (the orchestrator's own
+    /// included) are counted and recorded by reason, and a process that joined the running
+    /// loop is told the clock and the schedule, and every producer repeats its newest
+    /// sample for it.
+    pub fn take_status(
+        &mut self,
+        session: &Session,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
+        let mut joined = Vec::new();
+        let mut rejected = Vec::new();
+        session.status.drain(|s, _| {
+            if let Some(ready) = ready_role(&s) {
+                joined.push(ready);
+            } else if s.event == StatusEvent::Rejected as u32 {
+                rejected.push((
+                    Role::from_code(s.role).map_or("unknown", Role::as_str),
+                    Role::from_code(s.producer),
+                    s.detail,
+                    s.count,
+                ));
+            }
+        })?;
+        for (producer, code, count) in session.take_rejections() {
+            rejected.push(("orchestrator", producer, code, count));
+        }
+        for (consumer, producer, code, count) in rejected {
+            let reason = Rejection::ALL.get(code as usize);
+            if let (Some(role), true) = (producer, reason.is_some_and(|r| r.blames_producer())) {
+                self.blame(session, role);
+            }
+            let reason = reason.map_or("unknown", |r| r.as_str());
+            *self.rejected.entry(reason.to_string()).or_default() += count;
+            recorder.event(
+                "rejected",
+                serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
+            )?;
+        }
+        for (role, s) in joined {
+            session.pin(role, &s)?;
+            recorder.event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            self.last_node_listing = None;
+            session.tell_the_clock()?;
+            session.command(ControlCommand::Replay)?;
         }
         Ok(())
     }
 
-    /// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
-    /// process that died while the process the orchestrator started for it lives on (a
-    /// wrapper script, say) is recorded as `dead_node`, and that process is killed, so its
-    /// exit is handled as a crash. Nothing is recorded for the node of `exited` (the child
-    /// whose exit is being handled) nor for one whose child has exited already (its exit
-    /// comes next). Returns how many nodes were cleaned.
-    pub(super) fn clean_dead_nodes(
-        &mut self,
-        exited: Option<(Role, u32)>,
-    ) -> anyhow::Result<usize> {
-        let names = ipc::cleanup_dead_nodes(&self.children.prefix).unwrap_or_default();
-        for name in &names {
-            let Some((role, epoch)) = ipc::role_of_node(name) else {
-                continue;
-            };
-            if exited == Some((role, epoch)) {
-                continue;
-            }
-            let ours = self.children.pid(role, epoch).is_some();
-            let killed = self.children.kill_running(role, epoch);
-            if killed.is_some() || !ours {
-                self.recorder.event(
-                    "dead_node",
-                    serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
-                )?;
-            }
-        }
-        Ok(names.len())
-    }
-
-    pub(super) fn take_epoch(&mut self) -> u32 {
-        self.next_epoch += 1;
-        self.next_epoch
-    }
-
     /// Notes that samples of the current producer of `role` were refused through its own
     /// fault ([`Rejection::blames_producer`]).
-    pub(super) fn blame(&mut self, role: Role) {
-        let epoch = self.session.schedule.get().current(role);
+    fn blame(&mut self, session: &Session, role: Role) {
+        let epoch = session.schedule().current(role);
         let slot = &mut self.blamed[role as usize];
         if slot.is_none_or(|b| b.epoch != epoch) {
             *slot = Some(Blame {
                 since: Instant::now(),
                 epoch,
-                taken: self.session.output_of(role).taken(),
+                taken: session.output_of(role).taken(),
             });
         }
     }
@@ -144,19 +128,24 @@ impl Driver<'_> {
     /// is handled as a crash (restart or abort, by the scenario's policy). Meanwhile its
     /// consumers fall back as for a silent producer (the DFL flies the committed plan,
     /// then brakes).
-    fn contain(&mut self) -> anyhow::Result<()> {
+    pub fn contain(
+        &mut self,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
         for role in Role::ALL {
             let Some(blame) = self.blamed[role as usize] else {
                 continue;
             };
-            let recovered = self.session.output_of(role).taken() > blame.taken;
-            let replaced = self.session.schedule.get().current(role) != blame.epoch;
+            let recovered = session.output_of(role).taken() > blame.taken;
+            let replaced = session.schedule().current(role) != blame.epoch;
             if recovered || replaced {
                 self.blamed[role as usize] = None;
             } else if blame.since.elapsed() >= REFUSED_LIMIT {
                 self.blamed[role as usize] = None;
-                let pid = self.children.kill_running(role, blame.epoch);
-                self.recorder.event(
+                let pid = children.kill_running(role, blame.epoch);
+                recorder.event(
                     "refused_too_long",
                     serde_json::json!({ "role": role.as_str(), "epoch": blame.epoch, "pid": pid, "limit_s": REFUSED_LIMIT.as_secs_f64() }),
                 )?;
@@ -164,17 +153,96 @@ impl Driver<'_> {
         }
         Ok(())
     }
+
+    /// Looks for dead nodes every [`NODE_SCAN`]: a full iceoryx2 node listing (about 1 ms
+    /// of CPU) every [`NODE_LISTING`], and in between only whether the processes of the
+    /// nodes listed are still alive (microseconds), so the scan does not disturb the
+    /// control loop.
+    pub fn watch_nodes(
+        &mut self,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
+        if self.last_node_scan.elapsed() < NODE_SCAN {
+            return Ok(());
+        }
+        self.last_node_scan = Instant::now();
+        let someone_died = self.node_pids.iter().any(|pid| !ipc::process_alive(*pid));
+        if someone_died
+            || self
+                .last_node_listing
+                .is_none_or(|t| t.elapsed() >= NODE_LISTING)
+        {
+            clean_dead_nodes(children, recorder, None)?;
+            self.node_pids = ipc::node_pids(&children.prefix).unwrap_or_default();
+            self.last_node_listing = Some(Instant::now());
+        }
+        Ok(())
+    }
+
+    /// A crashed process of `role`: restarted per the scenario's policy with a new epoch
+    /// (returns false when the policy allows none: the run ends aborted; a dead plant
+    /// always ends it).
+    pub fn restart(
+        &mut self,
+        role: Role,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<bool> {
+        let restartable = role != Role::Plant
+            && self.policy.restart == RestartPolicy::Always
+            && self.restarts < self.policy.max_restarts;
+        if !restartable {
+            return Ok(false);
+        }
+        self.restarts += 1;
+        let epoch = children.take_epoch();
+        session.reschedule(|s| s.activate(role, epoch))?;
+        let pid = children.spawn_role(role, epoch, &[])?;
+        recorder.event(
+            "restarted",
+            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
+        )?;
+        Ok(true)
+    }
 }
 
-/// How long a producer's own samples may be refused, none taken, before it is treated as
-/// failed ([`Driver::contain`]).
-pub(super) const REFUSED_LIMIT: Duration = Duration::from_millis(500);
+/// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
+/// process that died while the process the orchestrator started for it lives on (a
+/// wrapper script, say) is recorded as `dead_node`, and that process is killed, so its
+/// exit is handled as a crash. Nothing is recorded for the node of `exited` (the child
+/// whose exit is being handled) nor for one whose child has exited already (its exit
+/// comes next). Returns how many nodes were cleaned.
+pub(super) fn clean_dead_nodes(
+    children: &mut Children,
+    recorder: &mut Recorder,
+    exited: Option<(Role, u32)>,
+) -> anyhow::Result<usize> {
+    let names = ipc::cleanup_dead_nodes(&children.prefix).unwrap_or_default();
+    for name in &names {
+        let Some((role, epoch)) = ipc::role_of_node(name) else {
+            continue;
+        };
+        if exited == Some((role, epoch)) {
+            continue;
+        }
+        let ours = children.pid(role, epoch).is_some();
+        let killed = children.kill_running(role, epoch);
+        if killed.is_some() || !ours {
+            recorder.event(
+                "dead_node",
+                serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
+            )?;
+        }
+    }
+    Ok(names.len())
+}
 
-/// Samples of a producer refused through its own fault, since `since`.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Blame {
-    since: Instant,
-    epoch: u32,
-    /// Samples of the role the orchestrator had taken at `since`.
-    taken: u64,
+/// The role of a ready report.
+pub(super) fn ready_role(s: &Status) -> Option<(Role, Status)> {
+    (s.event == StatusEvent::Ready as u32)
+        .then(|| Role::from_code(s.role))
+        .flatten()
+        .map(|role| (role, *s))
 }

@@ -1,7 +1,7 @@
 //! `summary.json` and the table printed at the end of a run, and the statistics they
 //! are made of.
 
-use crate::monitor::Outcome;
+use crate::judge::Outcome;
 use serde::Serialize;
 use std::collections::BTreeMap;
 

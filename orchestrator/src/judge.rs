@@ -1,6 +1,7 @@
-//! Judges a run from the true pose: clearance, collision, goal, stall.
+//! The judge: decides how a run ends from what was recorded (the true pose tick by tick,
+//! and the routes): collision, stall, goal, no route, and at the end reached or timed out.
 
-use protocol::{Obstacle, Scenario};
+use protocol::{GroundTruth, Obstacle, Route, Scenario};
 use serde::Serialize;
 use std::collections::VecDeque;
 
@@ -46,8 +47,8 @@ pub const STALL_DISTANCE_M: f64 = 0.005;
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;
 
-/// Watches the true pose tick by tick.
-pub struct Monitor {
+/// Watches the recorded run tick by tick.
+pub struct Judge {
     obstacles: Vec<Obstacle>,
     /// The robot's radius, m: clearances are from its edge.
     robot_radius_m: f64,
@@ -65,9 +66,9 @@ pub struct Monitor {
     pub deviation_time_s: Option<f64>,
 }
 
-impl Monitor {
-    pub fn new(scenario: &Scenario) -> Monitor {
-        Monitor {
+impl Judge {
+    pub fn new(scenario: &Scenario) -> Judge {
+        Judge {
             obstacles: scenario.obstacles.clone(),
             robot_radius_m: scenario.robot.radius_m,
             start: [scenario.robot.start[0], scenario.robot.start[1]],
@@ -91,13 +92,28 @@ impl Monitor {
         ((x - self.start[0]) * dy - (y - self.start[1]) * dx).abs() / length
     }
 
-    /// Distance from the robot's edge (its centre, for the paper's point robot) to the
-    /// nearest obstacle surface, m.
+    /// Distance from the robot's edge to the nearest obstacle surface at `(x, y)`, m.
     pub fn clearance(&self, x: f64, y: f64) -> f64 {
-        self.obstacles
-            .iter()
-            .map(|o| (x - o.x).hypot(y - o.y) - o.radius - self.robot_radius_m)
-            .fold(f64::INFINITY, f64::min)
+        clearance_m(&self.obstacles, self.robot_radius_m, x, y)
+    }
+
+    /// A tick recorded: the truth at its start. Returns an outcome that ends the run now
+    /// (a collision or a stall).
+    pub fn tick(&mut self, truth: &GroundTruth) -> Option<Outcome> {
+        self.observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+    }
+
+    /// A route recorded: a planner that found none ends the run.
+    pub fn route(&mut self, route: &Route) -> Option<Outcome> {
+        (!route.is_ok()).then_some(Outcome::NoRoute)
+    }
+
+    /// The outcome of a run that reached its last tick: the truth after that tick (when
+    /// there is one) is judged too.
+    pub fn end_of_run(&mut self, truth: Option<&GroundTruth>) -> Outcome {
+        truth
+            .and_then(|truth| self.tick(truth))
+            .unwrap_or_else(|| self.final_outcome())
     }
 
     /// Observes the true position at time `t_s`; returns an outcome that ends the run now
@@ -140,7 +156,7 @@ impl Monitor {
     }
 
     /// The outcome of a run that went its full length.
-    pub fn final_outcome(&self) -> Outcome {
+    fn final_outcome(&self) -> Outcome {
         if self.inside_goal_since_s.is_some() {
             Outcome::Reached
         } else {
@@ -149,13 +165,22 @@ impl Monitor {
     }
 }
 
+/// Distance from the edge of a robot of radius `robot_radius_m` at `(x, y)` (its centre,
+/// for the paper's point robot) to the nearest obstacle surface, m.
+pub fn clearance_m(obstacles: &[Obstacle], robot_radius_m: f64, x: f64, y: f64) -> f64 {
+    obstacles
+        .iter()
+        .map(|o| (x - o.x).hypot(y - o.y) - o.radius - robot_radius_m)
+        .fold(f64::INFINITY, f64::min)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn a_robot_standing_still_away_from_the_goal_stalls_after_the_window() {
-        let mut m = Monitor::new(&Scenario::default());
+        let mut m = Judge::new(&Scenario::default());
         let mut ended = None;
         for i in 0..1000 {
             let t = i as f64 * 0.005;
@@ -173,7 +198,7 @@ mod tests {
     fn a_robot_standing_still_stalls_whatever_the_tick() {
         // 2 s is no whole number of these ticks.
         for tick_s in [0.0059318, 0.0033, 0.01] {
-            let mut m = Monitor::new(&Scenario::default());
+            let mut m = Judge::new(&Scenario::default());
             let ended = (0..2000)
                 .map(|i| i as f64 * tick_s)
                 .find_map(|t| m.observe(t, 7.0, 7.0).map(|o| (o, t)));
@@ -188,7 +213,7 @@ mod tests {
 
     #[test]
     fn a_robot_that_moved_a_centimetre_within_the_window_has_not_stalled() {
-        let mut m = Monitor::new(&Scenario::default());
+        let mut m = Judge::new(&Scenario::default());
         for i in 0..1000 {
             let t = i as f64 * 0.0059318;
             // 1.5 cm over each 2 s.
@@ -198,9 +223,9 @@ mod tests {
 
     #[test]
     fn entering_an_obstacle_is_a_collision_and_the_goal_needs_a_stay() {
-        let mut m = Monitor::new(&Scenario::default());
+        let mut m = Judge::new(&Scenario::default());
         assert_eq!(m.observe(0.0, 3.0, 2.1), Some(Outcome::Collided));
-        let mut m = Monitor::new(&Scenario::default());
+        let mut m = Judge::new(&Scenario::default());
         m.observe(0.0, 0.05, 0.0);
         m.observe(0.1, 0.5, 0.0);
         m.observe(0.2, 0.05, 0.0);

@@ -1,0 +1,373 @@
+//! The DFL role as a task ([`DflTask`]), with what surrounds the DFL in the loop and no
+//! IPC: the inbox its plans arrive in, the monitor that judges every sample's deadline and
+//! the watch on a silent estimator.
+
+use crate::Dfl;
+use protocol::clock::period_ns;
+use protocol::task::{Context, header_latency};
+use protocol::{
+    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan, PlanStatus,
+    Scenario, Timing,
+};
+use std::collections::VecDeque;
+
+/// When plans reach the DFL: plan(k) that arrived `a` after `t_k` is usable from sample
+/// `k + floor(a / Ts)`, the sample it arrived in. The arrival is the clock's
+/// ([`protocol::clock::RunClock::arrival_after_ns`]): in real time as measured (so a plan is usable once
+/// received), in lockstep from its production time (a plan whose solve overran `Ts` is
+/// held for the whole samples it would have taken).
+pub struct PlanInbox {
+    period_ns: u64,
+    /// `(usable from sample, plan)` not yet offered to the DFL.
+    pending: Vec<(u64, Plan)>,
+    /// Newest sample a plan has been received for.
+    newest_received: Option<u64>,
+}
+
+impl PlanInbox {
+    pub fn new(ts_s: f64) -> PlanInbox {
+        PlanInbox {
+            period_ns: period_ns(ts_s),
+            pending: Vec::with_capacity(8),
+            newest_received: None,
+        }
+    }
+
+    /// Takes plan(k) that arrived `arrival_ns` after `t_k`; returns the sample it becomes
+    /// usable at.
+    pub fn receive(&mut self, plan: &Plan, arrival_ns: u64) -> u64 {
+        let usable = plan.sample + arrival_ns / self.period_ns;
+        self.newest_received = self.newest_received.max(Some(plan.sample));
+        self.pending.push((usable, *plan));
+        usable
+    }
+
+    /// Whether plan(`sample`) (or a newer one) has been received.
+    pub fn has_received(&self, sample: u64) -> bool {
+        self.newest_received.is_some_and(|s| s >= sample)
+    }
+
+    /// Whether the DFL waits for plan(`sample`) before commanding its first tick (until
+    /// the plan comes or its wait is past). A DFL that has followed the run waits for
+    /// every plan; one that joined later (a restart or a replacement) cannot wait for a
+    /// plan published before it listened, so it waits only once it has received the plan
+    /// of the previous sample.
+    pub fn waits_for(&self, sample: u64) -> bool {
+        !self.has_received(sample) && (sample == 0 || self.has_received(sample - 1))
+    }
+
+    /// Offers the DFL every plan usable by `current_sample`.
+    pub fn release(&mut self, current_sample: u64, dfl: &mut Dfl) {
+        self.pending.retain(|(usable, plan)| {
+            let arrived = *usable <= current_sample;
+            if arrived {
+                dfl.offer(plan);
+            }
+            !arrived
+        });
+    }
+}
+
+/// Judges every sample's deadline: plan(k) must reach the DFL, solved, by `t_k + Ts`.
+/// Sample k is judged at the first tick of sample k + 1, when its deadline has passed.
+#[derive(Debug, Clone)]
+pub struct DeadlineMonitor {
+    period_ns: u64,
+    /// `(sample, arrival after t_k in ns, status code, production ns)` of received plans
+    /// not yet judged.
+    arrivals: Vec<(u64, u64, u32, u64)>,
+    /// Mode of the first command of the sample being run.
+    current: Option<(u64, CommandMode)>,
+    misses: u32,
+}
+
+impl DeadlineMonitor {
+    pub fn new(ts_s: f64) -> DeadlineMonitor {
+        DeadlineMonitor {
+            period_ns: period_ns(ts_s),
+            arrivals: Vec::with_capacity(8),
+            current: None,
+            misses: 0,
+        }
+    }
+
+    /// Misses so far (the live counter).
+    pub fn misses(&self) -> u32 {
+        self.misses
+    }
+
+    /// A plan reached the DFL `arrival_ns` after the start of its sample.
+    pub fn on_plan(&mut self, plan: &Plan, arrival_ns: u64) {
+        if self.arrivals.iter().all(|a| a.0 != plan.sample) {
+            self.arrivals.push((
+                plan.sample,
+                arrival_ns,
+                plan.status,
+                plan.solve_ns + plan.injected_delay_ns,
+            ));
+        }
+    }
+
+    /// The first command of `sample` was given in `mode`. Returns the verdict on the
+    /// previous sample, whose deadline has now passed.
+    pub fn sample_started(&mut self, sample: u64, mode: CommandMode) -> Option<DeadlineVerdict> {
+        let previous = self.current.replace((sample, mode));
+        let (judged, fallback) = previous.filter(|(s, _)| *s < sample)?;
+        let found = self.arrivals.iter().find(|a| a.0 == judged).copied();
+        self.arrivals.retain(|a| a.0 > judged);
+        let (arrival_ns, status, production_ns) =
+            found.map_or((u64::MAX, PLAN_MISSING, 0), |a| (a.1, a.2, a.3));
+        let met = status == PlanStatus::Solved as u32 && arrival_ns <= self.period_ns;
+        if !met {
+            self.misses += 1;
+        }
+        Some(DeadlineVerdict {
+            header: Header::default(),
+            sample: judged,
+            met: u32::from(met),
+            status,
+            production_ns,
+            arrival_ns,
+            fallback: fallback as u32,
+            misses_total: self.misses,
+        })
+    }
+}
+
+/// Share of an inner tick the DFL waits for the plan of a new sample before it falls back
+/// to the shifted previous plan (the plant only takes the command at the end of the tick,
+/// so waiting within it costs nothing). In lockstep the time of a tick is never past, so
+/// the DFL waits until the plan comes.
+pub const PLAN_WAIT_FRACTION: f64 = 0.8;
+
+/// The DFL role as a task ([`protocol::task`]): on each estimate, in tick order, the
+/// command of the newest plan covering the tick (README, "Deadlines"), with its plan
+/// inbox, its deadline monitor and its watch on a silent estimator.
+pub struct DflTask {
+    dfl: Dfl,
+    inbox: PlanInbox,
+    monitor: DeadlineMonitor,
+    watch: SilenceWatch,
+    timing: Timing,
+    /// Estimates not commanded yet, with their receipt latency, ns.
+    queue: VecDeque<(Estimate, u64)>,
+    /// Whether the plant takes this task's commands (not before the executor has said
+    /// so, nor while it warms up as a replacement).
+    commanding: bool,
+}
+
+impl DflTask {
+    pub fn new(scenario: &Scenario) -> DflTask {
+        let ts_s = scenario.timing.ts_s;
+        DflTask {
+            dfl: Dfl::new(scenario),
+            inbox: PlanInbox::new(ts_s),
+            monitor: DeadlineMonitor::new(ts_s),
+            watch: SilenceWatch::default(),
+            timing: scenario.timing.clone(),
+            queue: VecDeque::with_capacity(16),
+            commanding: false,
+        }
+    }
+
+    /// The DFL's integrator state zeta, m/s.
+    pub fn zeta(&self) -> f64 {
+        self.dfl.zeta()
+    }
+
+    /// An estimate received `latency_ns` after it was published.
+    pub fn hear_estimate(&mut self, estimate: Estimate, latency_ns: u64) {
+        self.queue.push_back((estimate, latency_ns));
+    }
+
+    /// A plan received now: it arrived, by the clock, after the start of its sample
+    /// ([`protocol::clock::RunClock::arrival_after_ns`]).
+    pub fn hear_plan(&mut self, plan: &Plan, context: &impl Context) {
+        let production_ns = plan.solve_ns + plan.injected_delay_ns;
+        let arrival_ns = context.clock().arrival_after_ns(
+            self.timing.sample_time_s(plan.sample),
+            production_ns,
+            self.timing.ts_s,
+        );
+        self.inbox.receive(plan, arrival_ns);
+        self.monitor.on_plan(plan, arrival_ns);
+    }
+
+    /// The command for the oldest estimate waiting, with, on the first tick of a sample,
+    /// the verdict on the previous sample; `None` while nothing is waiting, or while the
+    /// plan of a new sample is awaited ([`PlanInbox::waits_for`], for
+    /// [`PLAN_WAIT_FRACTION`] of the tick).
+    pub fn step(&mut self, context: &impl Context) -> Option<(Actuation, Option<DeadlineVerdict>)> {
+        while let Some(&(estimate, latency_ns)) = self.queue.front() {
+            let tick = estimate.header.tick;
+            if self.watch.is_stale(tick) {
+                self.queue.pop_front(); // older than a command already given (braking)
+                continue;
+            }
+            if self
+                .plan_wait_s(tick)
+                .is_some_and(|t| !context.clock().is_past(t))
+            {
+                return None;
+            }
+            self.queue.pop_front();
+            if !self.commanding {
+                // Not (yet) driving the plant: follow the zeta it is driven with.
+                self.dfl.adopt_zeta(estimate.state[3]);
+            }
+            self.commanding = context.is_active(tick);
+            // Orphaned (the supervisor is gone): brake to rest.
+            let (mut actuation, verdict) = if context.orphaned() {
+                (self.brake(tick), None)
+            } else {
+                self.command(&estimate, tick)
+            };
+            actuation.header.input_latency_ns = header_latency(latency_ns);
+            self.watch.heard(tick);
+            return Some((actuation, verdict));
+        }
+        None
+    }
+
+    /// Until when the command for `tick` waits for its sample's plan, s: on the first tick
+    /// of a sample whose plan the DFL waits for ([`PlanInbox::waits_for`]).
+    fn plan_wait_s(&self, tick: u64) -> Option<f64> {
+        let sample = self.timing.sample_of(tick);
+        (self.timing.starts_sample(tick) && self.inbox.waits_for(sample))
+            .then(|| (tick as f64 + PLAN_WAIT_FRACTION) * self.timing.dt_s())
+    }
+
+    /// A brake on the DFL's own clock when the estimator has been silent for
+    /// [`SILENT_TICKS`] ticks (then every tick until estimates come again): the plant must
+    /// not hold the last command. Never in lockstep, where time waits for the estimates.
+    pub fn brake_if_silent(&mut self, context: &impl Context) -> Option<Actuation> {
+        let clock = context.clock();
+        let due = self.watch.next_check()?;
+        if !clock.has_reached(self.timing.tick_time_s(due)) {
+            return None;
+        }
+        let now = clock.now_tick()?.max(due);
+        let tick = self.watch.brake_due(now)?;
+        Some(self.brake(tick))
+    }
+
+    /// When the task has something to do without an input, s: the end of a plan wait, or
+    /// the next look for a silent estimator.
+    pub fn next_wake_s(&self) -> Option<f64> {
+        let plan_wait = (self.queue.front()).and_then(|(e, _)| self.plan_wait_s(e.header.tick));
+        let silence = self.watch.next_check().map(|t| self.timing.tick_time_s(t));
+        match (plan_wait, silence) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// The command for `[t_tick, t_tick+1)` from `estimate`, after releasing the plans
+    /// usable by now; on the first tick of a sample, the verdict on the previous one
+    /// (stamped with the command's header).
+    fn command(&mut self, estimate: &Estimate, tick: u64) -> (Actuation, Option<DeadlineVerdict>) {
+        let sample = self.timing.sample_of(tick);
+        self.inbox.release(sample, &mut self.dfl);
+        let mut actuation = self.dfl.step(estimate, tick);
+        let verdict = match actuation.mode() {
+            Some(mode) if self.timing.starts_sample(tick) => {
+                self.monitor.sample_started(sample, mode)
+            }
+            _ => None,
+        }
+        .map(|verdict| DeadlineVerdict {
+            header: actuation.header,
+            ..verdict
+        });
+        actuation.deadline_misses = self.monitor.misses();
+        (actuation, verdict)
+    }
+
+    /// The fallback brake for `tick` (see [`Dfl::brake`]).
+    fn brake(&mut self, tick: u64) -> Actuation {
+        let mut actuation = self.dfl.brake(tick);
+        actuation.deadline_misses = self.monitor.misses();
+        actuation
+    }
+}
+
+/// After this many inner ticks without an estimate the DFL brakes on its own (real time:
+/// in lockstep time waits for the estimate).
+pub const SILENT_TICKS: u64 = 3;
+
+/// Real time: a silent estimator (dead, or stalled) must not leave the plant holding the
+/// last command. After [`SILENT_TICKS`] inner ticks without an estimate the DFL brakes on
+/// its own clock (the brake needs only zeta), then every tick, until estimates come again.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SilenceWatch {
+    /// The newest tick commanded, from an estimate or braking alone.
+    last_tick: Option<u64>,
+    braking_alone: bool,
+}
+
+impl SilenceWatch {
+    /// Whether an estimate of `tick` comes too late: a command for it was given already.
+    pub fn is_stale(&self, tick: u64) -> bool {
+        self.last_tick.is_some_and(|last| tick <= last)
+    }
+
+    /// The command for `tick` was given from an estimate.
+    pub fn heard(&mut self, tick: u64) {
+        self.last_tick = Some(tick);
+        self.braking_alone = false;
+    }
+
+    fn silent_ticks(&self) -> u64 {
+        if self.braking_alone { 1 } else { SILENT_TICKS }
+    }
+
+    /// With the clock in tick `now_tick`: the tick to brake at now, if the estimator has
+    /// been silent for too long (never before the first estimate).
+    pub fn brake_due(&mut self, now_tick: u64) -> Option<u64> {
+        let last = self.last_tick?;
+        (now_tick >= last + self.silent_ticks()).then(|| {
+            self.last_tick = Some(now_tick);
+            self.braking_alone = true;
+            now_tick
+        })
+    }
+
+    /// The tick at which to look again for silence.
+    pub fn next_check(&self) -> Option<u64> {
+        self.last_tick.map(|last| last + self.silent_ticks())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_silent_estimator_is_braked_for_after_silent_ticks_then_every_tick() {
+        let mut watch = SilenceWatch::default();
+        assert_eq!(
+            watch.brake_due(100),
+            None,
+            "no estimate yet: nothing to hold"
+        );
+        watch.heard(10);
+        assert!(watch.is_stale(10) && !watch.is_stale(11));
+        assert_eq!(watch.next_check(), Some(10 + SILENT_TICKS));
+        assert_eq!(watch.brake_due(10 + SILENT_TICKS - 1), None);
+        assert_eq!(watch.brake_due(10 + SILENT_TICKS), Some(13));
+        assert_eq!(watch.next_check(), Some(14), "braking alone: every tick");
+        assert_eq!(watch.brake_due(13), None);
+        assert_eq!(watch.brake_due(14), Some(14));
+        assert!(
+            watch.is_stale(14),
+            "an estimate of a braked tick is too late"
+        );
+        watch.heard(15);
+        assert_eq!(
+            watch.brake_due(16),
+            None,
+            "estimates again: back to the silent limit"
+        );
+        assert_eq!(watch.next_check(), Some(15 + SILENT_TICKS));
+    }
+}

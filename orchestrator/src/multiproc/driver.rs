@@ -1,0 +1,262 @@
+//! The driver of a multi-process run: the run's parts composed, and the clock driven.
+//!
+//! Lockstep: the driver grants tick `j` and waits until every sample of the tick (and the
+//! plan of a sample it starts) has come, records it, and only then grants `j + 1`, so the
+//! record is part of the handshake and loses nothing. Real time: it starts the clock and
+//! records ticks as they complete, counting every tick it never receives whole.
+//!
+//! Each part owns its state: [`Session`] the ports, the schedule and the clock;
+//! [`Children`] the processes; [`Intake`] what was received and not recorded yet;
+//! [`Recorder`] the files; [`Judge`] the outcome; [`Supervisor`] status reports, failed
+//! producers, dead nodes and restarts; [`SwapServer`] the swaps; [`StatusLine`] the line on
+//! the terminal.
+
+use super::children::Children;
+use super::intake::Intake;
+use super::session::Session;
+use super::status_line::{Live, StatusLine};
+use super::supervision::{Supervisor, clean_dead_nodes};
+use super::swap_server::{Parts, SwapServer};
+use super::{POLL, START_LEAD, TICK_TIMEOUT};
+use crate::judge::{Judge, Outcome};
+use crate::record::{ProcessReport, Recorder};
+use anyhow::bail;
+use iceoryx2::prelude::{WaitSet, ipc::Service};
+use protocol::Scenario;
+use protocol::clock::monotonic_ns;
+use protocol::ipc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// A run while it is driven.
+pub(super) struct Driver<'a> {
+    scenario: &'a Scenario,
+    session: &'a Session,
+    children: &'a mut Children,
+    recorder: &'a mut Recorder,
+    judge: Judge,
+    intake: Intake,
+    supervisor: Supervisor,
+    swaps: SwapServer,
+    status_line: StatusLine,
+    stop: &'a AtomicBool,
+}
+
+impl<'a> Driver<'a> {
+    pub fn new(
+        scenario: &'a Scenario,
+        session: &'a Session,
+        children: &'a mut Children,
+        recorder: &'a mut Recorder,
+        stop: &'a AtomicBool,
+    ) -> Driver<'a> {
+        Driver {
+            scenario,
+            session,
+            children,
+            recorder,
+            judge: Judge::new(scenario),
+            intake: Intake::new(
+                &scenario.timing,
+                scenario.tick_count(),
+                session.clock().mode(),
+            ),
+            supervisor: Supervisor::new(&scenario.supervision),
+            swaps: SwapServer::new(scenario),
+            status_line: StatusLine::new(),
+            stop,
+        }
+    }
+
+    /// Lockstep: every tick granted, whole, recorded and judged before the next.
+    pub fn lockstep(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
+        let ticks = self.scenario.tick_count();
+        for tick in 0..=ticks {
+            self.session.grant(tick)?;
+            let mut last_progress = Instant::now();
+            while !self.intake.has_whole(tick) {
+                if let Some(outcome) = self.check()? {
+                    return Ok(outcome);
+                }
+                if last_progress.elapsed() > TICK_TIMEOUT {
+                    bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+                }
+                let before = self.intake.filed();
+                self.take(waitset)?;
+                if self.intake.filed() != before {
+                    last_progress = Instant::now();
+                }
+            }
+            if let Some(outcome) = self.record_tick(tick)? {
+                return Ok(outcome);
+            }
+            self.serve_swaps()?;
+        }
+        Ok(self.judge.end_of_run(None))
+    }
+
+    /// Real time: the clock started, and ticks recorded and judged as they complete.
+    pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
+        let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
+        self.session.start(start_ns)?;
+        let end_ns = start_ns + (self.scenario.duration_s * 1e9) as u64;
+        let give_up_ns = end_ns + 5_000_000_000;
+        loop {
+            if let Some(outcome) = self.check()? {
+                return Ok(outcome);
+            }
+            if monotonic_ns() > give_up_ns {
+                bail!("the run did not finish within 5 s after its end: a process hung");
+            }
+            self.take(waitset)?;
+            if let Some(outcome) = self.intake.record_plans(self.recorder, &mut self.judge)? {
+                return Ok(outcome);
+            }
+            self.serve_swaps()?;
+            while let Some(slot) = self.intake.next_due(self.recorder)? {
+                let tick = self.intake.cursor - 1;
+                if let Some(outcome) = self.record_slot(tick, slot)? {
+                    return Ok(outcome);
+                }
+            }
+        }
+    }
+
+    /// Records and judges tick `tick` (with the plans received before it); the tick
+    /// after the last ends the run.
+    fn record_tick(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
+        let slot = self.intake.take_slot(tick);
+        let no_route = self.intake.record_plans(self.recorder, &mut self.judge)?;
+        Ok(self.record_slot(tick, slot)?.or(no_route))
+    }
+
+    fn record_slot(
+        &mut self,
+        tick: u64,
+        slot: super::intake::TickSlot,
+    ) -> anyhow::Result<Option<Outcome>> {
+        if tick == self.scenario.tick_count() {
+            if let Some(truth) = &slot.truth {
+                self.recorder.final_truth(truth);
+            }
+            return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
+        }
+        let truth = self.intake.record(slot, self.recorder)?;
+        Ok(truth.and_then(|truth| self.judge.tick(&truth)))
+    }
+
+    /// Waits for input (at most [`POLL`]) and takes everything received.
+    fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
+        ipc::wait(waitset, POLL)?;
+        self.intake.take(self.session)?;
+        self.supervisor.take_status(self.session, self.recorder)
+    }
+
+    /// Between ticks: the status line, and the swaps moved on.
+    fn serve_swaps(&mut self) -> anyhow::Result<()> {
+        self.show_status();
+        let recorded = self.intake.cursor;
+        let now_tick = self.session.clock().now_tick().unwrap_or(0).max(recorded);
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        self.swaps.serve(&mut parts, now_tick, recorded)
+    }
+
+    /// Redraws the status line on a terminal, when due.
+    fn show_status(&mut self) {
+        let (recorder, duration_s) = (&*self.recorder, self.scenario.duration_s);
+        let latency = self.intake.last_sensor_to_actuator_ns;
+        self.status_line.update(|| Live {
+            t_s: recorder.simulated_s(),
+            duration_s,
+            deadline_misses: recorder.deadline_misses(),
+            sensor_to_actuator_us: latency.map(|ns| ns as f64 / 1e3),
+            clearance_m: recorder.last_clearance_m(),
+            mode: recorder.last_mode().map_or("-", |m| m.as_str()),
+        });
+    }
+
+    /// Ends the run on Ctrl-C; supervises; handles a process that exited: a retired one
+    /// is forgotten, a failed replacement cancels its swap, and a dead active process is
+    /// cleaned up after and then replaced by its warming replacement if there is one, else
+    /// restarted per the scenario's supervision policy, else the run ends as aborted.
+    fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(Some(Outcome::Interrupted));
+        }
+        self.children.kill_overdue();
+        self.supervisor
+            .contain(self.session, self.children, self.recorder)?;
+        self.supervisor.watch_nodes(self.children, self.recorder)?;
+        let Some((proc, status)) = self.children.take_exited() else {
+            return Ok(None);
+        };
+        let (role, epoch) = (proc.role, proc.epoch);
+        let cleaned = clean_dead_nodes(self.children, self.recorder, Some((role, epoch)))?;
+        if proc.retire_by.is_some() {
+            self.recorder.event(
+                "retired",
+                serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status.to_string() }),
+            )?;
+            return Ok(None);
+        }
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        if self
+            .swaps
+            .replacement_exited(&mut parts, role, epoch, &status.to_string())?
+        {
+            return Ok(None);
+        }
+        // A terminal's Ctrl-C reaches the whole process group: the children may see it a
+        // moment before the orchestrator's handler runs.
+        std::thread::sleep(Duration::from_millis(20));
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(Some(Outcome::Interrupted));
+        }
+        parts.recorder.event(
+            "crashed",
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status.to_string(), "nodes_cleaned": cleaned }),
+        )?;
+        if self.swaps.promote(&mut parts, role)? {
+            return Ok(None);
+        }
+        let restarted =
+            self.supervisor
+                .restart(role, self.session, self.children, self.recorder)?;
+        Ok((!restarted).then_some(Outcome::Aborted))
+    }
+
+    /// After the clock has stopped with `outcome`: records the plans still held, answers
+    /// every swap that did not happen, and fills `report` with the run's counts. Returns
+    /// the outcome and the judge.
+    pub fn finish(
+        mut self,
+        outcome: anyhow::Result<Outcome>,
+        report: &mut ProcessReport,
+    ) -> anyhow::Result<(Outcome, Judge)> {
+        self.status_line.clear();
+        let outcome = outcome.and_then(|o| {
+            self.intake
+                .record_plans(self.recorder, &mut self.judge)
+                .map(|_| o)
+        });
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        self.swaps.finish(&mut parts)?;
+        self.intake.report(report);
+        report.restarts = self.supervisor.restarts();
+        report.swaps = self.swaps.done();
+        report.rejected_samples = self.supervisor.take_rejected();
+        Ok((outcome?, self.judge))
+    }
+}
