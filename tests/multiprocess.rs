@@ -55,6 +55,99 @@ fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
     }
 }
 
+/// `plans.csv` without the columns the machine's speed decides (solve time, arrival in
+/// real time).
+fn plans_made(dir: &Path) -> Vec<String> {
+    let table = orchestrator::schema::Table::read(&dir.join("plans.csv")).unwrap();
+    let keep = [
+        "sample",
+        "t",
+        "status",
+        "injected_delay_us",
+        "iterations",
+        "solves",
+        "deadline_met",
+        "fallback",
+        "v1",
+        "v2",
+        "horizon",
+        "mpc_epoch",
+    ];
+    let columns: Vec<Vec<&str>> = keep.iter().map(|c| table.column(c).unwrap()).collect();
+    (0..table.len())
+        .map(|r| columns.iter().map(|c| c[r]).collect::<Vec<_>>().join(","))
+        .collect()
+}
+
+#[test]
+fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
+    let _machine = common::machine_shared();
+    // Each fault key with a value that exercises it, over the part of the run it acts in.
+    let cases: [(&str, &[&str]); 7] = [
+        (
+            "mpc_delay_ms",
+            &[
+                "fault.mpc_delay_ms=60",
+                "fault.mpc_delay_samples=[20, 21, 22]",
+            ],
+        ),
+        (
+            "mpc_delay_samples",
+            &[
+                "fault.mpc_delay_ms=130",
+                "fault.mpc_delay_samples=\"30..40\"",
+            ],
+        ),
+        (
+            "mpc_delay_every",
+            &["fault.mpc_delay_ms=120", "fault.mpc_delay_every=7"],
+        ),
+        (
+            "mpc_fail_samples",
+            &["fault.mpc_fail_samples=[10, 11, 12, 50]"],
+        ),
+        ("estimator_delay_ms", &["fault.estimator_delay_ms=0.2"]),
+        ("mpc_ignore_obstacles", &["fault.mpc_ignore_obstacles=true"]),
+        ("estimator_nan_from_s", &["fault.estimator_nan_from_s=3"]),
+    ];
+    let keys = serde_json::to_value(protocol::FaultConfig::default()).unwrap();
+    let keys: Vec<&String> = keys.as_object().unwrap().keys().collect();
+    assert_eq!(
+        keys.len(),
+        cases.len(),
+        "a fault key without a case here: {keys:?}"
+    );
+    for (key, sets) in cases {
+        assert!(keys.iter().any(|k| *k == key), "{key} is no fault key");
+        let sets = [sets, &["duration_s=6"]].concat();
+        let (reference, ipc) = both_modes("paper-noisy", &sets);
+        assert!(
+            trajectory(ipc.path()) == trajectory(reference.path()),
+            "{key}: trajectories differ"
+        );
+        assert_eq!(
+            plans_made(ipc.path()),
+            plans_made(reference.path()),
+            "{key}: plans differ"
+        );
+        if key == "estimator_nan_from_s" {
+            for dir in [&reference, &ipc] {
+                let restarted = common::events(dir.path())
+                    .iter()
+                    .any(|e| e["event"] == "restarted" && e["role"] == "estimator");
+                assert!(restarted, "the refused estimator was not replaced");
+            }
+        }
+        for field in ["outcome", "deadline_misses", "solver_failures", "ticks"] {
+            assert_eq!(
+                summary(ipc.path())[field],
+                summary(reference.path())[field],
+                "{key}: {field}"
+            );
+        }
+    }
+}
+
 #[test]
 fn the_four_roles_are_separate_processes() {
     let _machine = common::machine_shared();
