@@ -133,7 +133,7 @@ fn nonlinear_mpc_step(bencher: divan::Bencher) {
 /// check then, a re-check of the committed trajectory on every tick).
 fn bench_dfl(bencher: divan::Bencher, scenario: &Scenario) {
     let (estimates, plans) = closed_loop(scenario);
-    let m = scenario.timing.inner_steps;
+    let timing = &scenario.timing;
     let mut dfl = Dfl::new(scenario);
     let mut tick = 0;
     bencher.bench_local(|| {
@@ -141,8 +141,8 @@ fn bench_dfl(bencher: divan::Bencher, scenario: &Scenario) {
             tick = 0;
             dfl = Dfl::new(scenario);
         }
-        if tick.is_multiple_of(m) {
-            dfl.offer(&plans[tick / m]);
+        if timing.starts_sample(tick as u64) {
+            dfl.offer(&plans[timing.sample_of(tick as u64) as usize]);
         }
         let act = dfl.step(&estimates[tick], tick as u64);
         tick += 1;

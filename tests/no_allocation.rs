@@ -23,10 +23,9 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
 /// returns the allocations after the first 20 samples by plant, estimator, MPC and DFL,
 /// and the command modes the DFL used after them.
 fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode>) {
-    let m = scenario.timing.inner_steps as u64;
     let mut closed_loop = ClosedLoop::new(scenario).unwrap();
     // Warm-up: the first samples size every buffer.
-    let warm_up = 20 * m;
+    let warm_up = scenario.timing.first_tick(20);
     let mut counts = [0u64; 5];
     let mut modes = Vec::new();
     while !closed_loop.is_done() {

@@ -8,7 +8,7 @@
 //! `dfl.gatekeeper` it flies only plans its safety check has passed ([`gatekeeper`]).
 
 use protocol::{
-    Actuation, CommandMode, Estimate, Header, Intervention, Plan, Scenario, WheelGeometry,
+    Actuation, CommandMode, Estimate, Header, Intervention, Plan, Scenario, Timing, WheelGeometry,
 };
 
 pub mod gatekeeper;
@@ -105,7 +105,8 @@ pub struct Dfl {
     zeta: f64,
     zeta_threshold: f64,
     brake_decel: f64,
-    inner_steps: u64,
+    timing: Timing,
+    /// The inner tick, s.
     dt_s: f64,
     geometry: WheelGeometry,
     /// The plan flown: with the safety check on, the committed one.
@@ -139,7 +140,7 @@ impl Dfl {
             zeta: scenario.robot.zeta0,
             zeta_threshold: scenario.dfl.zeta_threshold,
             brake_decel: scenario.brake_decel(),
-            inner_steps: scenario.timing.inner_steps as u64,
+            timing: scenario.timing.clone(),
             dt_s: scenario.timing.dt_s(),
             geometry: WheelGeometry {
                 wheel_radius_m: scenario.plant.wheel_radius_m,
@@ -198,8 +199,8 @@ impl Dfl {
         let Some(gatekeeper) = &self.gatekeeper else {
             return outcome;
         };
-        let sample = tick / self.inner_steps;
-        let into_sample_s = (tick % self.inner_steps) as f64 * self.dt_s;
+        let sample = self.timing.sample_of(tick);
+        let into_sample_s = self.timing.time_into_sample_s(tick);
         let [x, y, theta, _] = estimate.state;
         let z = protocol::phi([x, y, theta, self.zeta]);
         let sigma = estimate.position_sigma();
@@ -257,7 +258,7 @@ impl Dfl {
     /// caller's to fill.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let checked = self.check(estimate, tick);
-        let sample = tick / self.inner_steps;
+        let sample = self.timing.sample_of(tick);
         let theta = estimate.state[2];
         let chosen = self
             .active
@@ -316,7 +317,7 @@ impl Dfl {
         Actuation {
             header: Header {
                 tick,
-                time_s: tick as f64 * self.dt_s,
+                time_s: self.timing.tick_time_s(tick),
                 ..Header::default()
             },
             u1,

@@ -72,7 +72,17 @@ impl MpcTask {
     /// plan's `injected_delay_ns` is what the executor holds it before publishing.
     pub fn step(&mut self, context: &impl Context) -> Option<Plan> {
         let clock = context.clock();
-        while self.boundary.len() > 1 && clock.is_past(self.boundary[1].0.header.time_s) {
+        // A sample solved already (a replay heard in the same batch as the original), or
+        // one whose successor's time is past, is not solved.
+        while let Some((e, _)) = self.boundary.front() {
+            let solved = self.timing.sample_of(e.header.tick) < self.next_sample;
+            let behind = self
+                .boundary
+                .get(1)
+                .is_some_and(|(next, _)| clock.is_past(next.header.time_s));
+            if !(solved || behind) {
+                break;
+            }
             self.boundary.pop_front();
         }
         let &(estimate, latency_ns) = self.boundary.front()?;

@@ -43,7 +43,17 @@ impl PlannerTask {
     /// The route of the oldest boundary estimate waiting.
     pub fn step(&mut self, context: &impl Context) -> Option<Route> {
         let clock = context.clock();
-        while self.boundary.len() > 1 && clock.is_past(self.boundary[1].header.time_s) {
+        // A sample answered already (a replay heard in the same batch as the original), or
+        // one whose successor's time is past, is not answered.
+        while let Some(e) = self.boundary.front() {
+            let answered = self.timing.sample_of(e.header.tick) < self.next_sample;
+            let behind = self
+                .boundary
+                .get(1)
+                .is_some_and(|next| clock.is_past(next.header.time_s));
+            if !(answered || behind) {
+                break;
+            }
             self.boundary.pop_front();
         }
         let estimate = self.boundary.pop_front()?;

@@ -260,7 +260,7 @@ impl Link {
             role,
             epoch: args.epoch,
             supervisor_pid: args.supervisor_pid,
-            warm_up_ticks: 20 * args.scenario.timing.inner_steps as u64,
+            warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
             status,
         })

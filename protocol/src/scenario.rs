@@ -325,6 +325,11 @@ impl Timing {
         self.tick_time_s(self.first_tick(sample))
     }
 
+    /// How far inner tick `tick` is into its sample, s.
+    pub fn time_into_sample_s(&self, tick: u64) -> f64 {
+        (tick % self.ticks_per_sample()) as f64 * self.dt_s()
+    }
+
     /// The first inner tick of a sample at or after `tick`.
     pub fn next_sample_start(&self, tick: u64) -> u64 {
         tick.div_ceil(self.ticks_per_sample()) * self.ticks_per_sample()

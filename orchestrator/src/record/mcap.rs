@@ -12,7 +12,7 @@
 
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
-    Route, Scenario,
+    Route, Scenario, Timing,
 };
 use serde::Serialize;
 use serde_json::{Value, json};
@@ -139,8 +139,7 @@ struct McapFile {
     writer: mcap::Writer<BufWriter<File>>,
     channels: BTreeMap<&'static str, u16>,
     sequence: u32,
-    /// `M`: ticks per sample.
-    inner_steps: u64,
+    timing: Timing,
 }
 
 /// An error of the MCAP writer, as an I/O error (the recorder's).
@@ -172,7 +171,7 @@ impl McapFile {
             writer,
             channels,
             sequence: 0,
-            inner_steps: scenario.timing.inner_steps.max(1) as u64,
+            timing: scenario.timing.clone(),
         };
         log.write("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
@@ -211,7 +210,7 @@ impl McapFile {
             t,
             &PoseInFrame::new(t, pose(xh, yh, thetah)),
         )?;
-        if truth.header.tick.is_multiple_of(self.inner_steps) {
+        if self.timing.starts_sample(truth.header.tick) {
             self.write("/robot/covariance", t, &covariance_ellipse(t, estimate))?;
         }
         let record = EstimateRecord {
