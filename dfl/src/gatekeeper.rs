@@ -26,16 +26,15 @@
 //! cheap lower bound (the chord's distance less the arc's largest departure from it,
 //! `|v| T^2 / 8`) settles almost every arc; only arcs close to a disc solve the cubic.
 
-use protocol::{Obstacle, Plan, Scenario};
+use protocol::{Disc, Obstacle, ObstacleGrowth, Plan, Scenario};
 
 /// The checks of one DFL: the obstacles, the braking model, the clock.
 #[derive(Debug, Clone)]
 pub struct Gatekeeper {
-    /// Obstacle centres (absolute, m) and radii grown by the robot's radius and the
-    /// safety margin (m), before the uncertainty term.
-    discs: Vec<([f64; 2], f64)>,
-    /// `kappa`: standard deviations of the position estimate added to every radius.
-    uncertainty_sigmas: f64,
+    /// The obstacles (absolute, m) grown by the fixed part of the growth, before the
+    /// uncertainty term.
+    discs: Vec<Disc>,
+    growth: ObstacleGrowth,
     /// The fallback brake's deceleration, m/s^2.
     brake_decel: f64,
     ts_s: f64,
@@ -48,13 +47,13 @@ impl Gatekeeper {
     }
 
     fn with_obstacles(scenario: &Scenario, obstacles: &[Obstacle]) -> Gatekeeper {
-        let margin = scenario.obstacle_margin_m();
+        let growth = ObstacleGrowth::of(scenario);
         Gatekeeper {
             discs: obstacles
                 .iter()
-                .map(|o| ([o.x, o.y], o.radius + margin))
+                .map(|o| Disc::around(o, growth.fixed_m))
                 .collect(),
-            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
+            growth,
             brake_decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,
             inner_tick_s: scenario.timing.dt_s(),
@@ -65,7 +64,7 @@ impl Gatekeeper {
     /// radius and the safety margin, for an estimate with position standard deviation
     /// `sigma_m`: `kappa sigma`, m.
     pub fn keep_growth(&self, sigma_m: f64) -> f64 {
-        self.uncertainty_sigmas * sigma_m
+        self.growth.uncertainty_m(sigma_m)
     }
 
     /// How much the commit check grows every disc: [`Gatekeeper::keep_growth`] and
@@ -109,7 +108,7 @@ impl Gatekeeper {
             }
         };
         // Disc by disc, so that each disc's checked radius is computed once.
-        for &(center, radius) in &self.discs {
+        for &Disc { center, radius } in &self.discs {
             let radius = checked_radius(start, center, radius + grow);
             let (mut p, mut w) = (start, velocity);
             for (acc, duration) in stages() {
@@ -147,7 +146,7 @@ impl Gatekeeper {
         };
         self.discs
             .iter()
-            .map(|&(center, radius)| {
+            .map(|&Disc { center, radius }| {
                 let radius = checked_radius(start, center, radius + grow);
                 protocol::segment_distance(p, end, center) - radius
             })

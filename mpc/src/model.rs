@@ -4,7 +4,8 @@
 //! double integrators (paper eq. mobile46). Their zero-order-hold discretization is exact
 //! and closed-form.
 
-use nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2};
+use nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, Vector4};
+use protocol::Scenario;
 
 /// Error of the discrete algebraic Riccati equation solver.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -75,6 +76,20 @@ pub fn lqr_gain(
         .try_inverse()
         .ok_or(DareError::Singular)?;
     Ok(-s * b.transpose() * p * a)
+}
+
+/// `Q` and `R` of the scenario (eq. 51).
+pub fn q_matrix(scenario: &Scenario) -> Matrix4<f64> {
+    Matrix4::from_diagonal(&Vector4::from(scenario.mpc.q_diag))
+}
+pub fn r_matrix(scenario: &Scenario) -> Matrix2<f64> {
+    Matrix2::from_diagonal(&nalgebra::Vector2::from(scenario.mpc.r_diag))
+}
+
+/// `Q_bar`, the DARE solution of the scenario's linearized model (eq. 56).
+pub fn terminal_weight(scenario: &Scenario) -> Result<Matrix4<f64>, DareError> {
+    let (a, b) = discretize(scenario.timing.ts_s);
+    dare(&a, &b, &q_matrix(scenario), &r_matrix(scenario))
 }
 
 #[cfg(test)]

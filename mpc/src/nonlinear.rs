@@ -18,11 +18,13 @@
 //! `w = Phi(s_N)` tied to `s_N` by the linearization of `Phi` (Gauss-Newton). Here
 //! `R` weighs `[a, omega]`. The terminal set (eq. pr8) is left out.
 
-use crate::problem::{
-    Assembly, Barrier, ConicSolver, Disc, barrier_row_counts, csc_with_positions,
-};
+use crate::assembly::{Assembly, csc_with_positions};
+use crate::layout::barrier_row_counts;
+use crate::program::{Barrier, write_barrier};
+use crate::solver::ConicSolver;
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SupportedConeT;
+use protocol::Disc;
 use protocol::{ConstraintKind, Header, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
@@ -106,11 +108,10 @@ pub struct NonlinearMpc {
     terminal: nalgebra::Matrix4<f64>,
     goal: [f64; 2],
     obstacles: Vec<protocol::Obstacle>,
-    /// The robot's radius and the safety margin `m`, added to every radius.
-    obstacle_margin_m: f64,
+    /// How every obstacle grows (the robot's radius, the margin `m`, `kappa sigma`).
+    growth: protocol::ObstacleGrowth,
     /// What the discs grow by for what follows the solver.
-    plan_margin: crate::problem::PlanMargin,
-    uncertainty_sigmas: f64,
+    plan_margin: crate::discs::PlanMargin,
     // Reused every step.
     solver: ConicSolver,
     assembly: Assembly,
@@ -147,10 +148,9 @@ impl NonlinearMpc {
             terminal: *terminal_weight_z,
             goal,
             obstacles: scenario.obstacles.clone(),
-            obstacle_margin_m: scenario.obstacle_margin_m(),
-            plan_margin: crate::problem::PlanMargin::of(scenario),
-            uncertainty_sigmas: c.uncertainty_sigmas,
-            solver: ConicSolver::new(crate::problem::base_settings),
+            growth: protocol::ObstacleGrowth::of(scenario),
+            plan_margin: crate::discs::PlanMargin::of(scenario),
+            solver: ConicSolver::new(crate::solver::base_settings),
             assembly: Assembly::default(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; n + 1],
@@ -187,13 +187,9 @@ impl NonlinearMpc {
             x_bar[2],
             x_bar[3],
         ];
-        let margin = crate::problem::obstacle_growth_m(
-            self.obstacle_margin_m,
-            self.uncertainty_sigmas,
-            position_sigma_m,
-            self.plan_margin,
-        );
-        crate::problem::constraint_discs(
+        let margin =
+            crate::discs::obstacle_growth_m(&self.growth, position_sigma_m, self.plan_margin);
+        crate::discs::constraint_discs(
             &self.obstacles,
             self.goal,
             margin,
@@ -394,7 +390,7 @@ impl NonlinearMpc {
             decay_slacks: None,
             terminal: None,
         };
-        asm.barrier(&barrier, |i| [4 * i, 4 * i + 1]);
+        write_barrier(&mut asm, &barrier, |i| [4 * i, 4 * i + 1]);
         self.assembly = asm;
     }
 
@@ -457,7 +453,10 @@ mod tests {
     #[test]
     fn the_nonlinear_mpc_plans_around_the_obstacle_within_its_cbf() {
         let scenario = Scenario::default();
-        let mut mpc = NonlinearMpc::new(&scenario, &crate::terminal_weight(&scenario).unwrap());
+        let mut mpc = NonlinearMpc::new(
+            &scenario,
+            &crate::model::terminal_weight(&scenario).unwrap(),
+        );
         let start = scenario.robot.start;
         let plan = mpc.step(0, [start[0], start[1], start[2], 0.0], 0.0);
         assert_eq!(plan.status(), Some(PlanStatus::Solved));
@@ -469,7 +468,7 @@ mod tests {
                 radius: o.radius,
             })
             .collect();
-        assert!(crate::barrier_slack(&plan, &discs, scenario.mpc.gamma) > -1e-6);
+        assert!(crate::discs::barrier_slack(&plan, &discs, scenario.mpc.gamma) > -1e-6);
         assert!(
             plan.solves >= 2,
             "a cold start needs more than one iteration"

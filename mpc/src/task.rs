@@ -9,7 +9,8 @@
 //! has fallen behind, a sample whose successor's time is past is not solved: only the
 //! newest is.
 
-use crate::{Mpc, MpcError};
+use crate::Mpc;
+use crate::error::MpcError;
 use protocol::task::{Context, header_latency};
 use protocol::{Estimate, FaultConfig, Header, Plan, Route, Scenario, Timing};
 use std::collections::VecDeque;

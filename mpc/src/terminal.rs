@@ -82,99 +82,19 @@
 //! the terminal set but not the stopping condition: that is how a short horizon ran into
 //! obstacles (issue 14).
 
-use crate::problem::{Assembly, Disc, PositionReach, below};
+use crate::assembly::{Assembly, csc_with_positions};
+use crate::brake::{BrakeForm, TerminalBrake};
+use crate::reach::{PositionReach, below};
+use clarabel::algebra::CscMatrix;
 use clarabel::solver::SupportedConeT;
-
-/// How the last state's stopping path is kept off the discs (module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BrakeForm {
-    /// The stopping segment stays in a half-plane: no standoff when passing a disc.
-    Segment,
-    /// The ball of radius the stopping distance stays outside: a standoff of `S`.
-    Ball,
-}
+use nalgebra::{Matrix2x4, Matrix4};
+use protocol::Disc;
 
 /// Largest `c` of the segment form's AM-GM majorant (a reference approaching at less than
 /// `1 / MAX_C` of its speed): the majorant then exceeds `alpha_bar |w_bar|` at the
 /// reference by at most `|w_bar|^2 / (2 MAX_C)`, a stopping distance of
 /// `|w_bar|^2 / (4 a MAX_C)`: 75 µm at 3 m/s with `a = 3`.
 const MAX_C: f64 = 1e4;
-
-/// The braking model of the terminal rows, at the MPC's sample level.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TerminalBrake {
-    /// The brake's deceleration `a`, m/s^2 (at most `v_max`, assumption (b)).
-    pub decel: f64,
-    pub ts_s: f64,
-    pub form: BrakeForm,
-}
-
-impl TerminalBrake {
-    /// `S(s) = s^2 / (2 a) + Ts s / 2`, m: convex in the velocity, at least the distance the
-    /// DFL's brake covers ([`protocol::stopping_distance`] with a hold of at most `Ts`) and
-    /// the distance the MPC's braking samples cover ([`TerminalBrake::step`]), and it drops
-    /// by at least the length of each braking sample (module docs).
-    pub fn stop_distance_bound(&self, speed_m_s: f64) -> f64 {
-        let s = speed_m_s.abs();
-        s * s / (2.0 * self.decel) + 0.5 * self.ts_s * s
-    }
-
-    /// The input of one braking sample from velocity `w`: `-min(a, |w| / Ts) w / |w|`, so a
-    /// robot slower than `a Ts` stops exactly at the end of the sample.
-    pub fn input(&self, w: [f64; 2]) -> [f64; 2] {
-        let speed = w[0].hypot(w[1]);
-        if speed == 0.0 {
-            return [0.0; 2];
-        }
-        let decel = self.decel.min(speed / self.ts_s);
-        [-decel * w[0] / speed, -decel * w[1] / speed]
-    }
-
-    /// The state `z = [x, xdot, y, ydot]` one braking sample later (eq. 52 with
-    /// [`TerminalBrake::input`]).
-    pub fn step(&self, z: [f64; 4]) -> [f64; 4] {
-        let v = self.input([z[1], z[3]]);
-        let t = self.ts_s;
-        [
-            z[0] + z[1] * t + 0.5 * v[0] * t * t,
-            z[1] + v[0] * t,
-            z[2] + z[3] * t + 0.5 * v[1] * t * t,
-            z[3] + v[1] * t,
-        ]
-    }
-
-    /// Variables of the rows for `discs` discs: `tau` (ball), one `e` per disc (segment).
-    pub fn variables(&self, discs: usize) -> usize {
-        match (discs, self.form) {
-            (0, _) => 0,
-            (_, BrakeForm::Ball) => 1,
-            (_, BrakeForm::Segment) => discs,
-        }
-    }
-
-    /// Rows of the nonnegative cone: `e >= alpha` and `e >= 0` per disc (segment).
-    pub fn nonnegative_rows(&self, discs: usize) -> usize {
-        match self.form {
-            BrakeForm::Ball => 0,
-            BrakeForm::Segment => 2 * discs,
-        }
-    }
-
-    /// Appends the rows' cones (after the CBF's).
-    pub fn cones(&self, discs: usize, cones: &mut Vec<SupportedConeT<f64>>) {
-        if discs == 0 {
-            return;
-        }
-        if self.form == BrakeForm::Ball {
-            cones.push(SupportedConeT::SecondOrderConeT(3));
-        }
-        let size = match self.form {
-            BrakeForm::Ball => 4,
-            BrakeForm::Segment => 5,
-        };
-        cones.extend((0..discs).map(|_| SupportedConeT::SecondOrderConeT(size)));
-    }
-}
 
 /// The terminal rows of one program.
 #[derive(Debug, Clone, Copy)]
@@ -376,51 +296,86 @@ impl TerminalRows<'_> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+/// Eqs. (45) and (47) as rows `coeffs' z_N <= bound`: `-v_max <= K M_j z_N <= v_max` and
+/// the position box on `M_j z_N`, `M_j = (A + BK)^j`, `j = 0..=Nc`.
+pub fn terminal_set(
+    k: &Matrix2x4<f64>,
+    closed_loop: &Matrix4<f64>,
+    constraint_horizon: usize,
+    v_max: f64,
+    position_box: [[f64; 2]; 2],
+) -> Vec<([f64; 4], f64)> {
+    let mut rows = Vec::with_capacity(8 * (constraint_horizon + 1));
+    let mut m = Matrix4::identity();
+    for _ in 0..=constraint_horizon {
+        let km = k * m;
+        for c in 0..2 {
+            let coeffs: [f64; 4] = std::array::from_fn(|i| km[(c, i)]);
+            rows.push((coeffs, v_max));
+            rows.push((coeffs.map(|x| -x), v_max));
+        }
+        for (axis, r) in [(0, 0), (1, 2)] {
+            let coeffs: [f64; 4] = std::array::from_fn(|i| m[(r, i)]);
+            rows.push((coeffs, position_box[axis][1]));
+            rows.push((coeffs.map(|x| -x), -position_box[axis][0]));
+        }
+        m = closed_loop * m;
+    }
+    rows
+}
 
-    fn brake(form: BrakeForm) -> TerminalBrake {
-        TerminalBrake {
-            decel: 3.0,
-            ts_s: 0.05,
-            form,
+/// The rows of `rows` (`a' z <= b`, `z` in R^4) that the others do not imply. A row is
+/// dropped when the largest `a' z` over the remaining rows, found with a linear program,
+/// does not exceed `b`; an unbounded or failed program keeps the row. The set described
+/// is unchanged; the MPC only solves a smaller problem (for the paper: 88 rows to 48).
+pub fn prune_redundant(mut rows: Vec<([f64; 4], f64)>) -> Vec<([f64; 4], f64)> {
+    let mut i = 0;
+    while i < rows.len() {
+        let (a, b) = rows[i];
+        let others: Vec<([f64; 4], f64)> = rows
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, r)| *r)
+            .collect();
+        let implied = largest(a, &others).is_some_and(|m| m <= b + 1e-9 * (1.0 + b.abs()));
+        if implied {
+            rows.remove(i);
+        } else {
+            i += 1;
         }
     }
+    rows
+}
 
-    #[test]
-    fn one_braking_sample_moves_no_farther_than_the_stopping_bound_drops() {
-        let b = brake(BrakeForm::Segment);
-        for k in 0..=400 {
-            let speed = 0.01 * f64::from(k);
-            let z = [0.0, speed * 0.6, 0.0, speed * 0.8];
-            let next = b.step(z);
-            let moved = next[0].hypot(next[2]);
-            let speed_after = next[1].hypot(next[3]);
-            let drop = b.stop_distance_bound(speed) - b.stop_distance_bound(speed_after);
-            assert!(
-                moved <= drop + 1e-12,
-                "speed {speed}: moved {moved}, bound dropped {drop}"
-            );
-            // The input is within |v| <= a per axis and brakes along the velocity.
-            let v = b.input([z[1], z[3]]);
-            assert!(v[0].abs() <= 3.0 && v[1].abs() <= 3.0);
-            // A robot slower than a Ts = 0.15 m/s stops within the sample.
-            assert!(speed_after <= speed && (speed_after < 1e-12 || speed >= 0.15 - 1e-12));
-        }
+/// `max a' z` subject to `rows`, if bounded and solved.
+fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
+    use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
+    if rows.is_empty() {
+        return None;
     }
-
-    #[test]
-    fn the_stopping_bound_covers_the_dfls_brake() {
-        let b = brake(BrakeForm::Segment);
-        for k in 0..=300 {
-            let speed = 0.01 * f64::from(k);
-            for hold in [0.005, 0.01, 0.05] {
-                assert!(
-                    protocol::stopping_distance(speed, 3.0, hold)
-                        <= b.stop_distance_bound(speed) + 1e-15
-                );
-            }
-        }
-    }
+    let entries: Vec<(usize, usize, f64)> = rows
+        .iter()
+        .enumerate()
+        .flat_map(|(r, (coeffs, _))| (0..4).map(move |c| (r, c, coeffs[c])))
+        .filter(|e| e.2 != 0.0)
+        .collect();
+    let (matrix, _) = csc_with_positions(rows.len(), 4, &entries);
+    let bounds: Vec<f64> = rows.iter().map(|r| r.1).collect();
+    let q = a.map(|x| -x);
+    let settings = DefaultSettings::<f64> {
+        verbose: false,
+        ..DefaultSettings::default()
+    };
+    let mut solver = DefaultSolver::new(
+        &CscMatrix::zeros((4, 4)),
+        &q,
+        &matrix,
+        &bounds,
+        &[SupportedConeT::NonnegativeConeT(rows.len())],
+        settings,
+    )
+    .ok()?;
+    solver.solve();
+    (solver.solution.status == SolverStatus::Solved).then(|| -solver.solution.obj_val)
 }

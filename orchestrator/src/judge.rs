@@ -1,7 +1,7 @@
 //! The judge: decides how a run ends from what was recorded (the true pose tick by tick,
 //! and the routes): collision, stall, goal, no route, and at the end reached or timed out.
 
-use protocol::{GroundTruth, Obstacle, Route, Scenario};
+use protocol::{GroundTruth, Obstacle, ObstacleGrowth, Route, Scenario};
 use serde::Serialize;
 use std::collections::VecDeque;
 
@@ -51,7 +51,7 @@ pub const DEVIATION_M: f64 = 0.05;
 pub struct Judge {
     obstacles: Vec<Obstacle>,
     /// The robot's radius, m: clearances are from its edge.
-    robot_radius_m: f64,
+    footprint: ObstacleGrowth,
     start: [f64; 2],
     goal: [f64; 2],
     goal_tolerance_m: f64,
@@ -70,7 +70,7 @@ impl Judge {
     pub fn new(scenario: &Scenario) -> Judge {
         Judge {
             obstacles: scenario.obstacles.clone(),
-            robot_radius_m: scenario.robot.radius_m,
+            footprint: ObstacleGrowth::footprint(scenario),
             start: [scenario.robot.start[0], scenario.robot.start[1]],
             goal: scenario.robot.goal,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
@@ -94,7 +94,7 @@ impl Judge {
 
     /// Distance from the robot's edge to the nearest obstacle surface at `(x, y)`, m.
     pub fn clearance(&self, x: f64, y: f64) -> f64 {
-        clearance_m(&self.obstacles, self.robot_radius_m, x, y)
+        clearance_m(&self.obstacles, &self.footprint, [x, y])
     }
 
     /// A tick recorded: the truth at its start. Returns an outcome that ends the run now
@@ -165,12 +165,12 @@ impl Judge {
     }
 }
 
-/// Distance from the edge of a robot of radius `robot_radius_m` at `(x, y)` (its centre,
-/// for the paper's point robot) to the nearest obstacle surface, m.
-pub fn clearance_m(obstacles: &[Obstacle], robot_radius_m: f64, x: f64, y: f64) -> f64 {
+/// Distance from the edge of a robot with `footprint` at `p` (its centre, for the paper's
+/// point robot) to the nearest obstacle surface, m.
+pub fn clearance_m(obstacles: &[Obstacle], footprint: &ObstacleGrowth, p: [f64; 2]) -> f64 {
     obstacles
         .iter()
-        .map(|o| (x - o.x).hypot(y - o.y) - o.radius - robot_radius_m)
+        .map(|o| footprint.clearance_m(o, p))
         .fold(f64::INFINITY, f64::min)
 }
 

@@ -8,7 +8,7 @@ use crate::judge::{Judge, Outcome, clearance_m};
 use crate::schema;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
-    PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
+    ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
 };
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -31,9 +31,9 @@ pub struct Recorder {
     next_prediction_s: f64,
     events: BufWriter<File>,
     created: std::time::Instant,
-    /// For the clearance column: the obstacles and the robot's radius, m.
+    /// For the clearance column: the obstacles and the robot's footprint.
     obstacles: Vec<Obstacle>,
-    robot_radius_m: f64,
+    footprint: ObstacleGrowth,
     solve_us: Vec<f64>,
     iterations: Vec<f64>,
     deadline_misses: u64,
@@ -83,7 +83,7 @@ impl Recorder {
             events,
             created: std::time::Instant::now(),
             obstacles: scenario.obstacles.clone(),
-            robot_radius_m: scenario.robot.radius_m,
+            footprint: ObstacleGrowth::footprint(scenario),
             solve_us: Vec::new(),
             iterations: Vec::new(),
             deadline_misses: 0,
@@ -195,7 +195,7 @@ impl Recorder {
         }
         self.ticks += 1;
         self.last_time_s = t;
-        let clearance = clearance_m(&self.obstacles, self.robot_radius_m, x, y);
+        let clearance = clearance_m(&self.obstacles, &self.footprint, [x, y]);
         self.last_clearance_m = Some(clearance);
         self.last_mode = Some(mode);
         if let Some(mcap) = &self.mcap {

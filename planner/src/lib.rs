@@ -13,11 +13,12 @@ pub mod task;
 pub use task::PlannerTask;
 pub mod tangent_graph;
 
+pub use protocol::Disc;
 use protocol::{
-    Estimate, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated, closest_on_polyline,
-    distance, polyline_length,
+    Estimate, ObstacleGrowth, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated,
+    closest_on_polyline, distance, polyline_length,
 };
-pub use tangent_graph::{Bounds, Disc, Leg, NoRoute, TangentGraph};
+pub use tangent_graph::{Bounds, Leg, NoRoute, TangentGraph};
 
 /// The robot counts as stalled when it has moved less than this ...
 pub const STALL_DISTANCE_M: f64 = 0.05;
@@ -46,9 +47,8 @@ pub struct Planner {
     goal: [f64; 2],
     goal_tolerance_m: f64,
     bounds: Bounds,
-    /// What every obstacle grows by before `kappa sigma` and the clearance, m.
-    obstacle_margin_m: f64,
-    uncertainty_sigmas: f64,
+    /// How every obstacle grows (before the clearance).
+    growth: ObstacleGrowth,
     clearance_m: f64,
     period_s: f64,
     stray_m: f64,
@@ -76,8 +76,7 @@ impl Planner {
                 [m.position_min[0], m.position_max[0]],
                 [m.position_min[1], m.position_max[1]],
             ],
-            obstacle_margin_m: scenario.obstacle_margin_m(),
-            uncertainty_sigmas: m.uncertainty_sigmas,
+            growth: ObstacleGrowth::of(scenario),
             clearance_m: scenario.planner.clearance_m,
             period_s: scenario.planner.period_s,
             stray_m: scenario.planner.stray_m,
@@ -97,8 +96,7 @@ impl Planner {
     pub fn step(&mut self, sample: u64, estimate: &Estimate) -> Route {
         let position = [estimate.state[0], estimate.state[1]];
         if let Some(reason) = self.replan_reason(sample, position) {
-            let growth =
-                self.obstacle_margin_m + self.uncertainty_sigmas * estimate.position_sigma();
+            let growth = self.growth.total_m(estimate.position_sigma());
             self.plan(sample, position, growth, reason);
             let better = |new: &Route, old: &Route| {
                 new.length_m < remaining_length(old, position) - SWITCH_GAIN_M
@@ -202,8 +200,8 @@ impl Planner {
     fn grow_discs(&mut self, position: [f64; 2], growth_m: f64) {
         self.discs.clear();
         for o in &self.obstacles {
-            let center = [o.x, o.y];
-            let radius = (o.radius + growth_m)
+            let Disc { center, radius } = Disc::around(o, growth_m);
+            let radius = radius
                 .min(distance(center, position) - FREE_END_M)
                 .min(distance(center, self.goal) - FREE_END_M);
             if radius > 0.0 {

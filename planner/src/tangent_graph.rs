@@ -16,17 +16,10 @@
 //! reserved for `n` discs up front ([`TangentGraph::with_capacity`]), so a search does not
 //! allocate.
 
-use protocol::distance;
+use protocol::{Disc, distance};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 use std::f64::consts::TAU;
-
-/// A disc to go around, m.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Disc {
-    pub center: [f64; 2],
-    pub radius: f64,
-}
 
 /// The axis-aligned box every route stays in: `[min, max]` per axis, m.
 pub type Bounds = [[f64; 2]; 2];

@@ -3,6 +3,7 @@
 
 pub mod alloc_count;
 pub mod clock;
+pub mod geometry;
 pub mod ipc;
 pub mod layout;
 pub mod messages;
@@ -10,6 +11,7 @@ pub mod runtime;
 pub mod scenario;
 pub mod task;
 
+pub use geometry::*;
 pub use messages::*;
 pub use scenario::*;
 
@@ -68,48 +70,6 @@ pub const COMMIT_MARGIN_M: f64 = 1e-3;
 /// halved the worlds that reached their goal.
 pub fn commit_margin_m(position_sigma_m: f64) -> f64 {
     position_sigma_m + COMMIT_MARGIN_M
-}
-
-/// Distance between two points, m.
-pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
-}
-
-/// The point of the segment from `a` to `b` closest to `point`.
-pub fn closest_point_on_segment(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> [f64; 2] {
-    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-    let length_sq = dx * dx + dy * dy;
-    let t = if length_sq > 0.0 {
-        (((point[0] - a[0]) * dx + (point[1] - a[1]) * dy) / length_sq).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    [a[0] + t * dx, a[1] + t * dy]
-}
-
-/// Distance from `point` to the segment from `a` to `b`, m.
-pub fn segment_distance(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> f64 {
-    let c = closest_point_on_segment(a, b, point);
-    (c[0] - point[0]).hypot(c[1] - point[1])
-}
-
-/// The segment of the polyline through `points` (at least two) closest to `point` (the
-/// first of equals), the closest point on it, and its distance from `point`, m.
-pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64; 2], f64) {
-    let mut best = (0, points[0], f64::INFINITY);
-    for (i, w) in points.windows(2).enumerate() {
-        let c = closest_point_on_segment(w[0], w[1], point);
-        let d = distance(c, point);
-        if d < best.2 {
-            best = (i, c, d);
-        }
-    }
-    best
-}
-
-/// Length of the polyline through `points`, m.
-pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
-    points.windows(2).map(|w| distance(w[0], w[1])).sum()
 }
 
 /// Differential-drive geometry: the transform `T` of paper eq. (5) between wheel speeds

@@ -792,12 +792,6 @@ impl Scenario {
         }
     }
 
-    /// What every obstacle's true radius grows by before the uncertainty term `kappa
-    /// sigma`: the robot's radius and `mpc.safety_margin_m`, m.
-    pub fn obstacle_margin_m(&self) -> f64 {
-        self.robot.radius_m + self.mpc.safety_margin_m
-    }
-
     /// The role processes of a run: the four of the paper, and the planner when it is on.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.planner.is_on();
@@ -1045,7 +1039,8 @@ impl Scenario {
     /// position box, and the goal outside every obstacle.
     fn check_geometry(&self, v: &mut Validator) {
         let [sx, sy, heading] = self.robot.start;
-        let radius = self.robot.radius_m;
+        let footprint = crate::ObstacleGrowth::footprint(self);
+        let radius = footprint.fixed_m;
         if !(sx.is_finite() && sy.is_finite() && heading.is_finite() && radius.is_finite()) {
             return;
         }
@@ -1064,7 +1059,7 @@ impl Scenario {
         ];
         let [gx, gy] = self.robot.goal;
         for (i, o) in self.obstacles.iter().enumerate() {
-            let clearance = (sx - o.x).hypot(sy - o.y) - o.radius - radius;
+            let clearance = footprint.clearance_m(o, [sx, sy]);
             if clearance <= 0.0 {
                 v.fail(
                     "robot.start",
@@ -1073,7 +1068,8 @@ impl Scenario {
                          {radius} (clearance {clearance:.3} m)"
                     ),
                 );
-            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y]) <= o.radius + radius
+            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y])
+                <= crate::Disc::around(o, radius).radius
             {
                 v.fail(
                     "robot.zeta0",
@@ -1083,7 +1079,7 @@ impl Scenario {
                     ),
                 );
             }
-            if (gx - o.x).hypot(gy - o.y) <= o.radius + radius {
+            if footprint.clearance_m(o, [gx, gy]) <= 0.0 {
                 v.fail(
                     "robot.goal",
                     format!("({gx}, {gy}) is inside obstacle {i}, inflated by robot.radius_m"),

@@ -1,0 +1,175 @@
+//! The layout of the MPC's conic program: where each variable sits, how many rows of
+//! each cone there are, and which rows a solve's program has ([`Rows`]). The rows
+//! themselves, in order, are in [`crate::program`].
+
+use crate::brake::TerminalBrake;
+use clarabel::solver::SupportedConeT;
+
+/// Dimensions and the fixed parts of the problem.
+#[derive(Debug, Clone)]
+pub struct Layout {
+    /// Prediction horizon `N`.
+    pub horizon: usize,
+    /// Rows of the terminal set kept after [`crate::terminal::prune_redundant`].
+    pub terminal_rows: usize,
+    pub obstacles: usize,
+    /// All CBF rows linear (`gamma = 1` or the Euclidean benchmark).
+    pub linear_barrier: bool,
+    /// States eliminated: the solver's variables are the inputs only (the [`crate::assembly::Assembly`]
+    /// then carries the [`crate::assembly::Condensing`]).
+    pub condensed: bool,
+    /// The braking-safe terminal rows and the decay slacks (`mpc.terminal_safety`).
+    pub terminal: Option<TerminalBrake>,
+}
+
+impl Layout {
+    /// Stage-wise index (the sparse formulation's variable) of component `c` of `z_i`.
+    pub fn z(&self, i: usize, c: usize) -> usize {
+        4 * i + c
+    }
+    /// Stage-wise index (the sparse formulation's variable) of component `c` of `v_i`.
+    pub fn v(&self, i: usize, c: usize) -> usize {
+        4 * (self.horizon + 1) + 2 * i + c
+    }
+    /// Length of the stage-wise vector `[z_0, ..., z_N, v_0, ..., v_{N-1}]`.
+    pub fn stagewise(&self) -> usize {
+        4 * (self.horizon + 1) + 2 * self.horizon
+    }
+    /// Number of the solver's variables of the states and inputs (sparse) or the inputs
+    /// (condensed).
+    pub fn base_variables(&self) -> usize {
+        if self.condensed {
+            2 * self.horizon
+        } else {
+            self.stagewise()
+        }
+    }
+    /// Number of the solver's variables in the program with `rows`: the base ones, and
+    /// for its discs the terminal rows' variables and, relaxed, the decay slacks.
+    pub fn variables(&self, rows: Rows) -> usize {
+        self.base_variables() + self.slacks(rows) + self.terminal_variables(rows.discs)
+    }
+    /// Decay slacks a relaxed program with `discs` discs has: one per disc and stage, with
+    /// terminal safety on a CBF that is not linear.
+    pub fn decay_slacks(&self, discs: usize) -> usize {
+        if self.terminal.is_some() && !self.linear_barrier {
+            discs * self.horizon
+        } else {
+            0
+        }
+    }
+    /// Decay slacks of the program with `rows`.
+    pub fn slacks(&self, rows: Rows) -> usize {
+        if rows.relaxed {
+            self.decay_slacks(rows.discs)
+        } else {
+            0
+        }
+    }
+    /// Variables of the terminal rows for `discs` discs ([`TerminalBrake::variables`]).
+    pub fn terminal_variables(&self, discs: usize) -> usize {
+        self.terminal.map_or(0, |t| t.variables(discs))
+    }
+    /// Column of the decay slack of the program's disc `j` at stage `i`, numbered after
+    /// the stage-wise vector ([`crate::assembly::Assembly::row`] places it after the solver's base
+    /// variables).
+    pub fn decay_slack(&self, j: usize, i: usize) -> usize {
+        self.stagewise() + j * self.horizon + i
+    }
+    /// Column of the first of the terminal rows' variables in the program with `rows`,
+    /// numbered as [`Layout::decay_slack`].
+    pub fn terminal_variable(&self, rows: Rows) -> usize {
+        self.stagewise() + self.slacks(rows)
+    }
+
+    /// The cones, in row order.
+    pub fn cones(&self, rows: Rows) -> Vec<SupportedConeT<f64>> {
+        let n = self.horizon;
+        let (linear_barrier_rows, cone_barriers) =
+            barrier_row_counts(n, rows.discs, self.linear_barrier);
+        let box_and_terminal = if rows.box_and_terminal {
+            4 * (n - 1) + self.terminal_rows
+        } else {
+            0
+        };
+        let terminal_rows = self.terminal.map_or(0, |t| t.nonnegative_rows(rows.discs));
+        let inequalities =
+            4 * n + box_and_terminal + linear_barrier_rows + 2 * self.slacks(rows) + terminal_rows;
+        let mut cones = Vec::with_capacity(3 + cone_barriers + rows.discs);
+        if !self.condensed {
+            cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
+        }
+        cones.push(SupportedConeT::NonnegativeConeT(inequalities));
+        cones.extend((0..cone_barriers).map(|_| SupportedConeT::SecondOrderConeT(4)));
+        if let Some(t) = self.terminal {
+            t.cones(rows.discs, &mut cones);
+        }
+        cones
+    }
+}
+
+/// Which rows a solve's program has. Rows are left out when the input box implies them for
+/// this solve (every input sequence within the input box satisfies them): the same
+/// feasible set, a smaller program. The position box and the terminal set go as one
+/// group; the rows of each disc (its CBF rows, decay slacks and terminal rows) go with the
+/// disc. The discs are data, so one program serves any `discs` of them. With terminal
+/// safety a step first solves the program without decay slacks and, only if that fails
+/// (infeasible, or the solver stalls), the relaxed one: the decay is relaxed only where
+/// braking needs it. (The relaxed program is a relaxation: its slacks' bounds ask
+/// `L_i(p_i) >= floor_i`, which the unrelaxed rows imply stage by stage.) One solver per
+/// combination, at most `4 (M + 1)` for `M` obstacles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rows {
+    /// The position box on `z_1 .. z_{N-1}` and the terminal set
+    /// ([`crate::program::StaticData::box_and_terminal_implied`]).
+    pub box_and_terminal: bool,
+    /// Discs whose rows are in the program ([`crate::program::Barrier::implied`] is false for them).
+    pub discs: usize,
+    /// The CBF's decay relaxed by slacks ([`Layout::decay_slacks`]).
+    pub relaxed: bool,
+}
+
+impl Rows {
+    /// Every row of a layout, relaxed if it can be.
+    pub fn all(l: &Layout) -> Rows {
+        Rows {
+            box_and_terminal: true,
+            discs: l.obstacles,
+            relaxed: l.decay_slacks(l.obstacles) > 0,
+        }
+    }
+
+    /// Every combination of a layout (a program is relaxed only if it has slacks).
+    pub fn every(l: &Layout) -> impl Iterator<Item = Rows> {
+        (0..=l.obstacles).flat_map(move |discs| {
+            let relaxed = l.decay_slacks(discs) > 0;
+            [(false, false), (true, false), (false, true), (true, true)]
+                .into_iter()
+                .filter(move |&(r, _)| relaxed || !r)
+                .map(move |(relaxed, box_and_terminal)| Rows {
+                    box_and_terminal,
+                    discs,
+                    relaxed,
+                })
+        })
+    }
+
+    /// Index in `0..Rows::count(l)`.
+    pub fn index(self) -> usize {
+        4 * self.discs + 2 * usize::from(self.relaxed) + usize::from(self.box_and_terminal)
+    }
+
+    /// Number of indices for a layout.
+    pub fn count(l: &Layout) -> usize {
+        4 * (l.obstacles + 1)
+    }
+}
+
+/// Rows of the CBF part of the problem: `(linear rows, second-order cones)`.
+pub fn barrier_row_counts(horizon: usize, obstacles: usize, linear: bool) -> (usize, usize) {
+    if linear {
+        (obstacles * horizon, 0)
+    } else {
+        (obstacles, obstacles * (horizon - 1))
+    }
+}

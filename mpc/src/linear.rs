@@ -1,0 +1,583 @@
+//! The paper's linear scheme (eqs. 51-47) on the DFL-linearized model: each step builds
+//! `z_0 = Phi(x_hat)`, picks a linearization reference for the CBF rows (the previous plan
+//! shifted by one sample, or a braking rollout when cold), solves, and re-linearizes at
+//! the new plan until it moves less than `refinement_tol_m` (sequential convex
+//! programming; every iterate is feasible for the paper's nonconvex constraint and the
+//! cost never rises, up to the solver's duality gap). The conic programs are built once,
+//! at setup (one per set of rows the input box may imply, [`Rows`]), and only their
+//! values are updated afterwards.
+
+use crate::assembly::{Assembly, Condensing, csc_with_positions};
+use crate::brake::{BrakeForm, TerminalBrake};
+use crate::error::MpcError;
+use crate::follow;
+use crate::layout::{Layout, Rows};
+use crate::model::{self, r_matrix, terminal_weight};
+use crate::program::{self, StaticData, StepData};
+use crate::reach::{PositionReach, Span};
+use crate::solver::ConicSolver;
+use clarabel::algebra::CscMatrix;
+use nalgebra::{Matrix4, Vector4};
+use protocol::{
+    ConstraintKind, Disc, Header, MAX_HORIZON, ObstacleGrowth, Plan, PlanStatus, Scenario,
+    TerminalSafety,
+};
+use std::time::Instant;
+
+/// The linear scheme (eqs. 51-47) on the DFL-linearized model.
+pub struct LinearMpc {
+    layout: Layout,
+    statics: StaticData,
+    /// `Q_bar`, the DARE solution (eq. 56).
+    terminal_weight: Matrix4<f64>,
+    goal: [f64; 2],
+    /// The cost's state weight `Q` (diagonal) on every stage before the last.
+    q_diag: [f64; 4],
+    /// Whether the cost may track a reference other than the goal (a route is followed):
+    /// then the objective's linear term is written every step, zero or not.
+    follows_route: bool,
+    /// Speed of the reference along a route (`planner.speed_m_s`), m/s.
+    route_speed_m_s: f64,
+    /// The stage-wise reference states on a route ([`follow::reference`]; absolute).
+    route_reference: Vec<[f64; 4]>,
+    /// The cost's linear term for the step's reference, as `(stage-wise column, value)`
+    /// ([`LinearMpc::set_reference`]); empty: the goal.
+    reference_cost: Vec<(usize, f64)>,
+    /// Obstacles as given (absolute coordinates, true radii).
+    obstacles: Vec<protocol::Obstacle>,
+    /// How every obstacle grows (the robot's radius, the margin `m`, `kappa sigma`).
+    growth: ObstacleGrowth,
+    /// What the discs grow by for what follows the solver.
+    plan_margin: crate::discs::PlanMargin,
+    max_solves: usize,
+    refinement_tol_m: f64,
+    ts_s: f64,
+    /// Upper triangle of the sparse formulation's `P` (eq. 51).
+    hessian: CscMatrix<f64>,
+    // Reused every step.
+    /// One solver per [`Rows`] ([`Rows::index`]), all built at setup.
+    solvers: Vec<ConicSolver>,
+    /// The rows of the last solve's program.
+    rows: Rows,
+    /// Whether this step needs the position box and the terminal set.
+    box_and_terminal_needed: bool,
+    /// Where the positions can be this step.
+    reach: PositionReach,
+    assembly: Assembly,
+    /// The step's constraint discs ([`crate::discs::constraint_discs`]).
+    discs: Vec<Disc>,
+    /// Those of a solve's program: the discs whose rows the input box does not imply.
+    kept: Vec<Disc>,
+    reference: Vec<[f64; 2]>,
+    /// The reference's last velocity `w_bar_N` (the terminal rows are built at it).
+    reference_velocity: [f64; 2],
+    /// The last solved iterate, stage-wise (`[z_0, ..., z_N, v_0, ..., v_{N-1}]`,
+    /// [`Layout::z`], [`Layout::v`]): every convex solve's solution is feasible for the
+    /// paper's constraint (a relaxed program's for its relaxed decay and `H >= 0`), so a
+    /// failed refinement keeps this one.
+    solution: Vec<f64>,
+    /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
+    last_sample: Option<u64>,
+    last_z: Vec<[f64; 4]>,
+}
+
+impl LinearMpc {
+    /// Builds everything a step reuses, in the order the pieces depend on each other: the
+    /// model (paper eq. mobile46, discretized), the LQR terminal weight and set, the layout and Hessian, the spans
+    /// of the box and terminal rows, the rows' solvers (long, as a list: no step may
+    /// allocate, so all of it is made here).
+    pub fn new(scenario: &Scenario) -> Result<LinearMpc, MpcError> {
+        let c = &scenario.mpc;
+        if c.horizon == 0 || c.horizon > MAX_HORIZON {
+            return Err(MpcError::Horizon(c.horizon));
+        }
+        let (a, b) = model::discretize(scenario.timing.ts_s);
+        let r = r_matrix(scenario);
+        let terminal_weight = terminal_weight(scenario)?;
+        let k = model::lqr_gain(&a, &b, &r, &terminal_weight)?;
+        let goal = scenario.robot.goal;
+        let position_box = [
+            [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
+            [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
+        ];
+        let terminal_set = crate::terminal::prune_redundant(crate::terminal::terminal_set(
+            &k,
+            &(a + b * k),
+            c.constraint_horizon,
+            c.v_max,
+            position_box,
+        ));
+        let layout = Layout {
+            horizon: c.horizon,
+            terminal_rows: terminal_set.len(),
+            obstacles: scenario.obstacles.len(),
+            linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
+            condensed: c.qp_form.condensed(c.horizon),
+            terminal: terminal_brake(scenario),
+        };
+        let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
+        let mut statics = StaticData {
+            a,
+            b,
+            k,
+            terminal_set,
+            gamma: if c.constraint == ConstraintKind::Euclidean {
+                1.0
+            } else {
+                c.gamma
+            },
+            v_max: c.v_max,
+            position_box,
+            box_and_terminal_spans: Vec::new(),
+        };
+        let (forced, free) = crate::reach::rollout(&layout, &a, &b);
+        let spans = statics
+            .box_and_terminal_rows(&layout)
+            .map(|(terms, bound)| {
+                let terms = terms.into_iter().flatten();
+                (Span::of(terms, (&forced, &free), c.v_max), bound)
+            })
+            .collect();
+        statics.box_and_terminal_spans = spans;
+        let reach = PositionReach::new(&layout, (&forced, &free), c.v_max);
+        let assembly = Assembly {
+            condensing: layout
+                .condensed
+                .then(|| Condensing::new(&layout, (forced, free), &hessian)),
+            ..Assembly::default()
+        };
+        let solvers = (0..Rows::count(&layout))
+            .map(|_| ConicSolver::new(crate::solver::solver_settings))
+            .collect();
+        let rows = Rows::all(&layout);
+        let mut mpc = LinearMpc {
+            solution: vec![0.0; layout.stagewise()],
+            hessian,
+            layout,
+            statics,
+            terminal_weight,
+            goal,
+            q_diag: c.q_diag,
+            follows_route: scenario.planner.is_on(),
+            route_speed_m_s: scenario.planner.speed_m_s,
+            route_reference: vec![[0.0; 4]; c.horizon + 1],
+            reference_cost: Vec::with_capacity(4 * c.horizon + 4),
+            obstacles: scenario.obstacles.clone(),
+            growth: ObstacleGrowth::of(scenario),
+            plan_margin: crate::discs::PlanMargin::of(scenario),
+            max_solves: c.max_solves.max(1),
+            refinement_tol_m: c.refinement_tol_m,
+            ts_s: scenario.timing.ts_s,
+            solvers,
+            rows,
+            box_and_terminal_needed: true,
+            reach,
+            assembly,
+            discs: Vec::with_capacity(scenario.obstacles.len()),
+            kept: Vec::with_capacity(scenario.obstacles.len()),
+            reference: vec![[0.0; 2]; c.horizon + 1],
+            reference_velocity: [0.0; 2],
+            last_sample: None,
+            last_z: vec![[0.0; 4]; c.horizon + 1],
+        };
+        mpc.build_solvers()?;
+        Ok(mpc)
+    }
+
+    /// Builds the solver of each [`Rows`] (their patterns do not depend on the data, so
+    /// any values do), so that no step allocates for one.
+    fn build_solvers(&mut self) -> Result<(), MpcError> {
+        crate::discs::constraint_discs(
+            &self.obstacles,
+            self.goal,
+            self.growth.fixed_m,
+            0.0,
+            self.ts_s,
+            0.0,
+            &mut self.discs,
+        );
+        for rows in Rows::every(&self.layout).collect::<Vec<_>>() {
+            self.kept.clear();
+            self.kept.extend_from_slice(&self.discs[..rows.discs]);
+            self.fill([0.0; 4], rows);
+            let variables = self.layout.variables(rows);
+            let hessian = padded(solver_hessian(&self.assembly, &self.hessian), variables);
+            let built = self.solvers[rows.index()].build(
+                &self.assembly,
+                variables,
+                &hessian,
+                &self.layout.cones(rows),
+            );
+            if !built {
+                return Err(MpcError::Solver(rows));
+            }
+        }
+        Ok(())
+    }
+
+    /// The terminal weight `Q_bar` (DARE solution, eq. 56).
+    pub fn terminal_weight(&self) -> &Matrix4<f64> {
+        &self.terminal_weight
+    }
+
+    /// The obstacles as the constraints see them: goal-relative, radius inflated by the
+    /// margin `m + kappa sigma` (README, "What it does").
+    pub fn constraint_discs(&self) -> &[Disc] {
+        &self.discs
+    }
+
+    /// What every obstacle's radius grows by in the constraints
+    /// ([`crate::discs::obstacle_growth_m`]), m.
+    fn margin_m(&self, position_sigma_m: f64) -> f64 {
+        crate::discs::obstacle_growth_m(&self.growth, position_sigma_m, self.plan_margin)
+    }
+
+    /// Forgets the previous plan: the next step linearizes at a braking rollout.
+    pub fn reset(&mut self) {
+        self.last_sample = None;
+    }
+
+    /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
+    /// `reference[i]` for `i = 1..=N`): eq. (51) with `z_i - r_i` for `z_i`, on every stage
+    /// after the first and in the terminal weight; `None`: the goal at rest (eq. 51
+    /// itself). Only the objective's linear term changes (`-2 Q r_i`, `-2 Q_bar r_N`); the
+    /// constraints, the terminal set included, stay those of the goal.
+    pub fn set_reference(&mut self, reference: Option<&[[f64; 4]]>) {
+        self.reference_cost.clear();
+        let Some(reference) = reference else {
+            return;
+        };
+        let l = &self.layout;
+        let relative = |z: [f64; 4]| [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
+        for (i, z) in reference.iter().enumerate().take(l.horizon).skip(1) {
+            let r = relative(*z);
+            for (c, (q, r)) in self.q_diag.iter().zip(r).enumerate() {
+                self.reference_cost.push((l.z(i, c), -2.0 * q * r));
+            }
+        }
+        let r = relative(reference[l.horizon]);
+        for c in 0..4 {
+            let weighted: f64 = (0..4).map(|k| self.terminal_weight[(c, k)] * r[k]).sum();
+            self.reference_cost
+                .push((l.z(l.horizon, c), -2.0 * weighted));
+        }
+    }
+
+    /// Drives the next steps along `route` from `position` ([`follow::reference`] at
+    /// `planner.speed_m_s`), or to the goal without one or on its last segment.
+    pub fn follow(&mut self, route: Option<&protocol::Route>, position: [f64; 2]) {
+        let mut reference = std::mem::take(&mut self.route_reference);
+        let on_route = route.is_some_and(|r| {
+            follow::reference(r, position, self.route_speed_m_s, self.ts_s, &mut reference)
+        });
+        self.set_reference(on_route.then_some(&reference[..]));
+        self.route_reference = reference;
+    }
+
+    /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
+    /// `position_sigma_m` of its position. The header is left for the caller to fill.
+    pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
+        let started = Instant::now();
+        let z = protocol::phi(x_bar);
+        let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
+        let margin = self.margin_m(position_sigma_m);
+        crate::discs::constraint_discs(
+            &self.obstacles,
+            self.goal,
+            margin,
+            x_bar[3],
+            self.ts_s,
+            std::f64::consts::SQRT_2 * self.statics.v_max,
+            &mut self.discs,
+        );
+
+        let warm = self.shifted_reference(sample);
+        if !warm {
+            self.braking_reference(z0);
+        }
+        self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0);
+        self.reach.set_initial_state(z0);
+        let mut outcome = self.refine(z0);
+        if outcome.status != PlanStatus::Solved && warm {
+            // The shifted plan is no longer a usable linearization point: start cold.
+            self.braking_reference(z0);
+            let retry = self.refine(z0);
+            outcome = Outcome {
+                iterations: outcome.iterations + retry.iterations,
+                solves: outcome.solves + retry.solves,
+                ..retry
+            };
+        }
+
+        let mut plan = Plan {
+            header: Header::default(),
+            sample,
+            status: outcome.status as u32,
+            horizon: self.layout.horizon as u32,
+            iterations: outcome.iterations,
+            solves: outcome.solves,
+            ..Plan::default()
+        };
+        if outcome.status == PlanStatus::Solved {
+            self.write_solution(&mut plan);
+            self.last_sample = Some(sample);
+        } else {
+            self.last_sample = None;
+        }
+        plan.solve_ns = started.elapsed().as_nanos() as u64;
+        plan
+    }
+
+    /// Solves, re-linearizes at the solution, and repeats until the plan settles.
+    /// On a failed refinement the last solved iterate (feasible for the paper's
+    /// constraint) is kept in `solution`.
+    fn refine(&mut self, z0: [f64; 4]) -> Outcome {
+        let mut outcome = Outcome {
+            status: PlanStatus::NumericalError,
+            iterations: 0,
+            solves: 0,
+        };
+        for _ in 0..self.max_solves {
+            let (status, iterations, solves) = self.solve_once(z0);
+            outcome.iterations += iterations;
+            outcome.solves += solves;
+            if status != PlanStatus::Solved {
+                if outcome.status != PlanStatus::Solved {
+                    outcome.status = status;
+                }
+                break;
+            }
+            outcome.status = PlanStatus::Solved;
+            self.load_solution();
+            if self.relinearize() < self.refinement_tol_m {
+                break;
+            }
+        }
+        outcome
+    }
+
+    /// Copies the solver's solution into `solution` (stage-wise).
+    fn load_solution(&mut self) {
+        let Some(x) = self.solvers[self.rows.index()].x() else {
+            return;
+        };
+        // The states and inputs (sparse) or the inputs (condensed) come first; the decay
+        // slacks and the terminal rows' variables after them are not kept.
+        match &self.assembly.condensing {
+            Some(condensing) => {
+                condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution)
+            }
+            None => {
+                let stagewise = self.solution.len();
+                self.solution.copy_from_slice(&x[..stagewise]);
+            }
+        }
+    }
+
+    /// One convex solve at the current reference, without the rows the input box
+    /// implies; with terminal safety, if that fails, a second of the relaxed program.
+    /// Returns the status, the interior-point iterations and the solves.
+    fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
+        self.kept.clear();
+        for disc in &self.discs {
+            let data = StepData {
+                z0,
+                discs: std::slice::from_ref(disc),
+                reference: &self.reference,
+                reference_velocity: self.reference_velocity,
+                max_terminal_speed: self.reach.max_terminal_speed(),
+            };
+            if !data
+                .barrier(&self.layout, &self.statics, false)
+                .implied(&self.reach)
+            {
+                self.kept.push(*disc);
+            }
+        }
+        let mut rows = Rows {
+            box_and_terminal: self.box_and_terminal_needed,
+            discs: self.kept.len(),
+            relaxed: false,
+        };
+        let (status, iterations) = self.solve_with(z0, rows);
+        if status == PlanStatus::Solved || self.layout.decay_slacks(rows.discs) == 0 {
+            return (status, iterations, 1);
+        }
+        // Infeasible (or stalled): braking may need the decay relaxed (module docs of
+        // `terminal`).
+        rows.relaxed = true;
+        let (status, more) = self.solve_with(z0, rows);
+        (status, iterations + more, 2)
+    }
+
+    /// One convex solve of the program with `rows`, on the discs in `kept`.
+    fn solve_with(&mut self, z0: [f64; 4], rows: Rows) -> (PlanStatus, u32) {
+        self.rows = rows;
+        self.fill(z0, rows);
+        self.solvers[rows.index()].solve(&self.assembly)
+    }
+
+    fn fill(&mut self, z0: [f64; 4], rows: Rows) {
+        let data = StepData {
+            z0,
+            discs: &self.kept,
+            reference: &self.reference,
+            reference_velocity: self.reference_velocity,
+            max_terminal_speed: self.reach.max_terminal_speed(),
+        };
+        program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
+        if self.follows_route {
+            self.assembly
+                .add_linear_cost(&self.layout, &self.reference_cost);
+        }
+    }
+
+    /// The previous plan shifted by one sample and extended by one step: the candidate of
+    /// the feasibility argument. The step is the LQR closed loop's (the paper's), or with
+    /// terminal safety one braking sample ([`TerminalBrake::step`], recursive feasibility
+    /// below). False when there is no plan of the previous sample.
+    fn shifted_reference(&mut self, sample: u64) -> bool {
+        if self.last_sample.is_none_or(|last| sample != last + 1) {
+            return false;
+        }
+        let z = &self.last_z;
+        let n = self.layout.horizon;
+        for i in 1..n {
+            self.reference[i] = [z[i + 1][0], z[i + 1][2]];
+        }
+        let next = self.extension(z[n]);
+        self.reference[n] = [next[0], next[2]];
+        self.reference_velocity = [next[1], next[3]];
+        true
+    }
+
+    /// The state one sample after the last state `z_n` of a plan, in its shifted
+    /// successor: braking with terminal safety, the LQR closed loop without.
+    fn extension(&self, z_n: [f64; 4]) -> [f64; 4] {
+        match &self.layout.terminal {
+            Some(brake) => brake.step(z_n),
+            None => {
+                let next = (self.statics.a + self.statics.b * self.statics.k) * Vector4::from(z_n);
+                [next[0], next[1], next[2], next[3]]
+            }
+        }
+    }
+
+    /// Positions of the state braking from `z0` (held at rest): along its velocity at the
+    /// brake's deceleration with terminal safety (so the rollout is braking-safe whenever
+    /// the DFL's brake is), else each axis at the input limit.
+    fn braking_reference(&mut self, z0: [f64; 4]) {
+        let (ts, v_max) = (self.ts_s, self.statics.v_max);
+        let mut z = z0;
+        for i in 1..=self.layout.horizon {
+            match &self.layout.terminal {
+                Some(brake) => z = brake.step(z),
+                None => {
+                    for (p, vel) in [(0, 1), (2, 3)] {
+                        let acc = (-z[vel] / ts).clamp(-v_max, v_max);
+                        z[p] += z[vel] * ts + 0.5 * acc * ts * ts;
+                        z[vel] += acc * ts;
+                    }
+                }
+            }
+            self.reference[i] = [z[0], z[2]];
+        }
+        self.reference_velocity = [z[1], z[3]];
+    }
+
+    /// Moves the reference to the current solution; returns the largest move, m.
+    fn relinearize(&mut self) -> f64 {
+        let (x, l) = (&self.solution, &self.layout);
+        let mut moved: f64 = 0.0;
+        for i in 1..=l.horizon {
+            let p = [x[l.z(i, 0)], x[l.z(i, 2)]];
+            moved = moved.max((p[0] - self.reference[i][0]).hypot(p[1] - self.reference[i][1]));
+            self.reference[i] = p;
+        }
+        self.reference_velocity = [x[l.z(l.horizon, 1)], x[l.z(l.horizon, 3)]];
+        moved
+    }
+
+    /// Writes the solution into `plan` (absolute coordinates) and keeps its goal-relative
+    /// states for the next step's shifted reference.
+    fn write_solution(&mut self, plan: &mut Plan) {
+        let (x, l) = (&self.solution, &self.layout);
+        for i in 0..l.horizon {
+            plan.v[i] = [x[l.v(i, 0)], x[l.v(i, 1)]];
+        }
+        for i in 0..=l.horizon {
+            let z: [f64; 4] = std::array::from_fn(|c| x[l.z(i, c)]);
+            self.last_z[i] = z;
+            plan.z[i] = [z[0] + self.goal[0], z[1], z[2] + self.goal[1], z[3]];
+        }
+    }
+}
+
+/// Upper triangle of the solver's `P`: the sparse formulation's, or its condensed form.
+fn solver_hessian<'a>(assembly: &'a Assembly, stagewise: &'a CscMatrix<f64>) -> &'a CscMatrix<f64> {
+    match &assembly.condensing {
+        Some(condensing) => condensing.hessian(),
+        None => stagewise,
+    }
+}
+
+/// `p` with empty rows and columns appended up to `n`: the decay slacks and the terminal
+/// rows' variables have no quadratic cost.
+fn padded(p: &CscMatrix<f64>, n: usize) -> CscMatrix<f64> {
+    let mut colptr = p.colptr.clone();
+    colptr.resize(n + 1, p.nnz());
+    CscMatrix::new(n, n, colptr, p.rowval.clone(), p.nzval.clone())
+}
+
+/// Upper triangle of `P` with `1/2 x'Px` = eq. (51),
+/// `sum z_i'Q z_i + v_i'R v_i + z_N' Q_bar z_N`, on the stage-wise variables.
+fn stagewise_hessian(
+    l: &Layout,
+    q_diag: [f64; 4],
+    r_diag: [f64; 2],
+    terminal_weight: &Matrix4<f64>,
+) -> CscMatrix<f64> {
+    let n = l.horizon;
+    let mut entries = Vec::new();
+    for i in 0..n {
+        for (c, q) in q_diag.iter().enumerate() {
+            entries.push((l.z(i, c), l.z(i, c), 2.0 * q));
+        }
+    }
+    for c in 0..4 {
+        for r in 0..=c {
+            entries.push((l.z(n, r), l.z(n, c), 2.0 * terminal_weight[(r, c)]));
+        }
+    }
+    for i in 0..n {
+        for (c, r) in r_diag.iter().enumerate() {
+            entries.push((l.v(i, c), l.v(i, c), 2.0 * r));
+        }
+    }
+    csc_with_positions(l.stagewise(), l.stagewise(), &entries).0
+}
+
+/// The terminal rows of `mpc.terminal_safety`, if any, with the scenario's one braking
+/// model (`dfl.brake_decel`).
+fn terminal_brake(scenario: &Scenario) -> Option<TerminalBrake> {
+    let form = match scenario.mpc.terminal_safety {
+        TerminalSafety::Brake => BrakeForm::Segment,
+        TerminalSafety::BrakeBall => BrakeForm::Ball,
+        TerminalSafety::None => return None,
+    };
+    Some(TerminalBrake {
+        decel: scenario.brake_decel(),
+        ts_s: scenario.timing.ts_s,
+        form,
+    })
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Outcome {
+    status: PlanStatus,
+    iterations: u32,
+    solves: u32,
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,196 @@
+//! Where the states can be over every input sequence in the input box: the rollout of the
+//! model (eq. 52), the exact span of a linear function of one stage's state ([`Span`]) and
+//! bounds on the positions ([`PositionReach`]). They decide which rows a step's program
+//! may leave out (the input box implies them).
+
+use crate::layout::Layout;
+use nalgebra::{DMatrix, Matrix4};
+
+/// `value <= bound` with a margin (relative 1e-9) against rounding. (A row left out then
+/// holds as well as the solver meets the input box, to its feasibility tolerance, as a
+/// kept row would.)
+pub fn below(value: f64, bound: f64) -> bool {
+    value <= bound - 1e-9 * (1.0 + bound.abs())
+}
+
+/// The positions over every input sequence in the input box: `p_i = c_i + D_i v` with
+/// `|v| <= v_max` elementwise (eq. 52 rolled out, [`rollout`]), `c_i` the positions with
+/// zero inputs from the step's `z_0`.
+#[derive(Debug, Clone)]
+pub struct PositionReach {
+    /// `D`: row `2i + k` is axis `k` of stage `i`'s position, one column per input.
+    forced: DMatrix<f64>,
+    /// The rows of `F` for the same positions.
+    free: DMatrix<f64>,
+    v_max: f64,
+    /// `c_i` of the step.
+    centers: Vec<[f64; 2]>,
+    /// The spans of the last state's velocity components `z_N[1]`, `z_N[3]`.
+    terminal_velocity: [Span; 2],
+    /// The step's `z_0`.
+    z0: [f64; 4],
+}
+
+impl PositionReach {
+    pub fn new(
+        l: &Layout,
+        (forced, free): (&DMatrix<f64>, &DMatrix<f64>),
+        v_max: f64,
+    ) -> PositionReach {
+        let rows: Vec<usize> = (0..=l.horizon)
+            .flat_map(|i| [l.z(i, 0), l.z(i, 2)])
+            .collect();
+        let velocity = |c| Span::of([(l.z(l.horizon, c), 1.0)], (forced, free), v_max);
+        PositionReach {
+            forced: forced.select_rows(&rows),
+            free: free.select_rows(&rows),
+            v_max,
+            centers: vec![[0.0; 2]; l.horizon + 1],
+            terminal_velocity: [velocity(1), velocity(3)],
+            z0: [0.0; 4],
+        }
+    }
+
+    /// Sets `c_i` from the step's `z_0`.
+    pub fn set_initial_state(&mut self, z0: [f64; 4]) {
+        self.z0 = z0;
+        for (i, center) in self.centers.iter_mut().enumerate() {
+            *center =
+                std::array::from_fn(|k| (0..4).map(|c| self.free[(2 * i + k, c)] * z0[c]).sum());
+        }
+    }
+
+    /// The horizon `N`.
+    pub fn horizon(&self) -> usize {
+        self.centers.len() - 1
+    }
+
+    /// The largest speed `|w_N|` of the last state.
+    pub fn max_terminal_speed(&self) -> f64 {
+        let [x, y] = self
+            .terminal_velocity
+            .map(|span| span.max(self.z0).max(-span.min(self.z0)));
+        x.hypot(y)
+    }
+
+    /// `v_max ||sum_k a_k D_i[k] + b_k D_j[k]||_1`: the largest `a'(p_i - c_i) + b'(p_j - c_j)`.
+    fn reach(&self, (i, a): (usize, [f64; 2]), (j, b): (usize, [f64; 2])) -> f64 {
+        let d = &self.forced;
+        let norm: f64 = (0..d.ncols())
+            .map(|col| {
+                let on_input: f64 = (0..2)
+                    .map(|k| a[k] * d[(2 * i + k, col)] + b[k] * d[(2 * j + k, col)])
+                    .sum();
+                on_input.abs()
+            })
+            .sum();
+        self.v_max * norm
+    }
+
+    /// `min g'p_i`.
+    pub fn min_linear(&self, i: usize, g: [f64; 2]) -> f64 {
+        let c = self.centers[i];
+        g[0] * c[0] + g[1] * c[1] - self.reach((i, g), (i, [0.0; 2]))
+    }
+
+    /// An upper bound of `||p_i - o||^2 - h'p_j`: with `p_i - o = (c_i - o) + e`, the
+    /// part linear in the inputs at its largest, and `||e||^2` at most the sum of each
+    /// axis' largest `e_k^2`.
+    pub fn max_squared_distance_minus_linear(
+        &self,
+        i: usize,
+        o: [f64; 2],
+        (j, h): (usize, [f64; 2]),
+    ) -> f64 {
+        let (ci, cj) = (self.centers[i], self.centers[j]);
+        let offset = [ci[0] - o[0], ci[1] - o[1]];
+        let at_center = offset[0].powi(2) + offset[1].powi(2) - h[0] * cj[0] - h[1] * cj[1];
+        let linear = self.reach((i, offset.map(|x| 2.0 * x)), (j, h.map(|x| -x)));
+        let quadratic: f64 = (0..2)
+            .map(|k| {
+                let axis = if k == 0 { [1.0, 0.0] } else { [0.0, 1.0] };
+                self.reach((i, axis), (i, [0.0; 2])).powi(2)
+            })
+            .sum();
+        at_center + linear + quadratic
+    }
+}
+
+/// The values a linear function `a' z_i` of one stage's state takes over every input
+/// sequence in the input box: with `z_i = F_i z_0 + T_i v` ([`rollout`]) and
+/// `|v| <= v_max` elementwise, exactly the interval `(F_i' a)' z_0 +- v_max ||T_i' a||_1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Span {
+    /// `F_i' a`.
+    free: [f64; 4],
+    /// `v_max ||T_i' a||_1`.
+    reach: f64,
+}
+
+impl Span {
+    /// The span of `sum(value * x_stagewise[column])` through `(T, F)` of [`rollout`].
+    pub fn of(
+        terms: impl IntoIterator<Item = (usize, f64)>,
+        (forced, free): (&DMatrix<f64>, &DMatrix<f64>),
+        v_max: f64,
+    ) -> Span {
+        let mut on_inputs = vec![0.0; forced.ncols()];
+        let mut on_z0 = [0.0; 4];
+        for (column, value) in terms {
+            for (j, x) in on_inputs.iter_mut().enumerate() {
+                *x += value * forced[(column, j)];
+            }
+            for (c, x) in on_z0.iter_mut().enumerate() {
+                *x += value * free[(column, c)];
+            }
+        }
+        Span {
+            free: on_z0,
+            reach: v_max * on_inputs.iter().map(|x| x.abs()).sum::<f64>(),
+        }
+    }
+
+    /// The value with zero inputs.
+    fn center(&self, z0: [f64; 4]) -> f64 {
+        self.free.iter().zip(z0).map(|(f, z)| f * z).sum()
+    }
+
+    /// The largest value.
+    pub fn max(&self, z0: [f64; 4]) -> f64 {
+        self.center(z0) + self.reach
+    }
+
+    /// The smallest value.
+    pub fn min(&self, z0: [f64; 4]) -> f64 {
+        self.center(z0) - self.reach
+    }
+}
+
+/// The stage-wise vector as an affine map of the inputs and `z_0` (eq. 52 rolled out):
+/// `[z_0, ..., z_N, v] = T v + F z_0`, `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j`.
+/// Returns `(T, F)`.
+pub fn rollout(
+    l: &Layout,
+    a: &Matrix4<f64>,
+    b: &nalgebra::Matrix4x2<f64>,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let (n, rows, nv) = (l.horizon, l.stagewise(), 2 * l.horizon);
+    let mut forced = DMatrix::zeros(rows, nv);
+    let mut free = DMatrix::zeros(rows, 4);
+    free.view_mut((0, 0), (4, 4))
+        .copy_from(&Matrix4::identity());
+    // z_i = A z_{i-1} + B v_{i-1}, row block by row block.
+    for i in 1..=n {
+        let previous = forced.view((l.z(i - 1, 0), 0), (4, nv)).into_owned();
+        let previous_free = free.view((l.z(i - 1, 0), 0), (4, 4)).into_owned();
+        free.view_mut((l.z(i, 0), 0), (4, 4))
+            .copy_from(&(a * previous_free));
+        let mut block = forced.view_mut((l.z(i, 0), 0), (4, nv));
+        block.copy_from(&(a * previous));
+        block.view_mut((0, 2 * (i - 1)), (4, 2)).copy_from(b);
+    }
+    for j in 0..nv {
+        forced[(l.v(0, 0) + j, j)] = 1.0;
+    }
+    (forced, free)
+}

@@ -1,0 +1,127 @@
+//! Plane geometry every role shares (m): points, segments and polylines, and the obstacle
+//! discs everyone keeps clear of, grown by one rule ([`ObstacleGrowth`]).
+
+use crate::{Obstacle, Scenario};
+
+/// A disc in the plane, m: an obstacle as one consumer sees it (grown, and for the MPC in
+/// goal-relative coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Disc {
+    pub center: [f64; 2],
+    pub radius: f64,
+}
+
+impl Disc {
+    /// `obstacle` grown by `growth_m` (absolute coordinates).
+    pub fn around(obstacle: &Obstacle, growth_m: f64) -> Disc {
+        Disc {
+            center: [obstacle.x, obstacle.y],
+            radius: obstacle.radius + growth_m,
+        }
+    }
+
+    /// The barrier `H(p) = ||p - o||^2 - r^2` (paper eq. 100), m^2.
+    pub fn barrier(&self, p: [f64; 2]) -> f64 {
+        (p[0] - self.center[0]).powi(2) + (p[1] - self.center[1]).powi(2) - self.radius.powi(2)
+    }
+
+    /// Linearization of the barrier at `p_bar`: `L(p) = g'p + c`, returned as `(g, c)`.
+    pub fn linearized_barrier(&self, p_bar: [f64; 2]) -> ([f64; 2], f64) {
+        let g = [
+            2.0 * (p_bar[0] - self.center[0]),
+            2.0 * (p_bar[1] - self.center[1]),
+        ];
+        (g, self.barrier(p_bar) - g[0] * p_bar[0] - g[1] * p_bar[1])
+    }
+}
+
+/// The one rule by which an obstacle grows before anyone keeps clear of it (README,
+/// "Safety"): its radius, plus a fixed part (the robot's footprint `robot.radius_m` and
+/// the safety margin `mpc.safety_margin_m`), plus `kappa sigma` for an estimate whose
+/// position has standard deviation `sigma`. On top of it each consumer adds only its own
+/// term: the MPC its plan margin and the inter-sample chord, the DFL's check its commit
+/// margin, the planner its clearance. The judge grows the true obstacles by the footprint
+/// alone ([`ObstacleGrowth::footprint`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObstacleGrowth {
+    /// The fixed part, m.
+    pub fixed_m: f64,
+    /// `kappa`: standard deviations of the position estimate.
+    pub uncertainty_sigmas: f64,
+}
+
+impl ObstacleGrowth {
+    /// The growth of `scenario`'s MPC, DFL check and planner.
+    pub fn of(scenario: &Scenario) -> ObstacleGrowth {
+        ObstacleGrowth {
+            fixed_m: scenario.robot.radius_m + scenario.mpc.safety_margin_m,
+            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
+        }
+    }
+
+    /// The robot's footprint alone: what the judge keeps the true obstacles apart by.
+    pub fn footprint(scenario: &Scenario) -> ObstacleGrowth {
+        ObstacleGrowth {
+            fixed_m: scenario.robot.radius_m,
+            uncertainty_sigmas: 0.0,
+        }
+    }
+
+    /// `kappa sigma`, m.
+    pub fn uncertainty_m(&self, sigma_m: f64) -> f64 {
+        self.uncertainty_sigmas * sigma_m
+    }
+
+    /// The whole growth for an estimate with position standard deviation `sigma_m`, m.
+    pub fn total_m(&self, sigma_m: f64) -> f64 {
+        self.fixed_m + self.uncertainty_m(sigma_m)
+    }
+
+    /// How far a robot centred at `p` keeps clear of `obstacle` grown by the fixed part
+    /// (its edge to the obstacle's surface, for the footprint), m; negative inside.
+    pub fn clearance_m(&self, obstacle: &Obstacle, p: [f64; 2]) -> f64 {
+        distance(p, [obstacle.x, obstacle.y]) - obstacle.radius - self.fixed_m
+    }
+}
+
+/// Distance between two points, m.
+pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+/// The point of the segment from `a` to `b` closest to `point`.
+pub fn closest_point_on_segment(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> [f64; 2] {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let length_sq = dx * dx + dy * dy;
+    let t = if length_sq > 0.0 {
+        (((point[0] - a[0]) * dx + (point[1] - a[1]) * dy) / length_sq).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    [a[0] + t * dx, a[1] + t * dy]
+}
+
+/// Distance from `point` to the segment from `a` to `b`, m.
+pub fn segment_distance(a: [f64; 2], b: [f64; 2], point: [f64; 2]) -> f64 {
+    let c = closest_point_on_segment(a, b, point);
+    (c[0] - point[0]).hypot(c[1] - point[1])
+}
+
+/// The segment of the polyline through `points` (at least two) closest to `point` (the
+/// first of equals), the closest point on it, and its distance from `point`, m.
+pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64; 2], f64) {
+    let mut best = (0, points[0], f64::INFINITY);
+    for (i, w) in points.windows(2).enumerate() {
+        let c = closest_point_on_segment(w[0], w[1], point);
+        let d = distance(c, point);
+        if d < best.2 {
+            best = (i, c, d);
+        }
+    }
+    best
+}
+
+/// Length of the polyline through `points`, m.
+pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
+    points.windows(2).map(|w| distance(w[0], w[1])).sum()
+}
