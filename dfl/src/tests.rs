@@ -1,0 +1,454 @@
+use super::*;
+use protocol::{PLAN_MISSING, PlanStatus};
+
+#[test]
+fn phi_and_its_inverse_round_trip() {
+    for x_bar in [
+        [1.0, -2.0, 0.3, 0.8],
+        [0.0, 4.0, -2.9, 1.5],
+        [-3.0, 0.5, 3.1, 0.01],
+    ] {
+        let back = phi_inverse(phi(x_bar), 0.0);
+        for i in 0..4 {
+            assert!((back[i] - x_bar[i]).abs() < 1e-12, "{x_bar:?} -> {back:?}");
+        }
+    }
+    let at_rest = phi_inverse(phi([2.0, 3.0, 1.2, 0.0]), 1.2);
+    assert_eq!(at_rest, [2.0, 3.0, 1.2, 0.0]);
+}
+
+#[test]
+fn zeta_guard_zeroes_steering_below_threshold_in_both_directions() {
+    // v within 45 degrees of the robot's axis (forwards, then backwards).
+    for v in [[1.0, 0.5], [-1.0, -0.5]] {
+        for zeta in [0.0, 0.005, -0.01, 0.01] {
+            let (u, guarded) = linearizing_input(0.7, zeta, v, 0.01);
+            assert!(guarded && u[1] == 0.0, "zeta {zeta}: {u:?}");
+        }
+    }
+    let (u, guarded) = linearizing_input(0.7, -0.5, [1.0, -2.0], 0.01);
+    assert!(!guarded && u[1] != 0.0);
+}
+
+#[test]
+fn under_the_guard_a_plan_across_the_axis_turns_the_robot_in_place_towards_it() {
+    let theta = 0.7;
+    for v in [[1.0, -2.0], [-1.5, 1.0], [0.0, 1.0]] {
+        let ([u1, u2], guarded) = linearizing_input(theta, 0.0, v, 0.01);
+        assert!(guarded);
+        // Turning at u2 for TURN_IN_PLACE_S puts v on the robot's axis.
+        let aligned = theta + u2 * TURN_IN_PLACE_S;
+        let across = -v[0] * aligned.sin() + v[1] * aligned.cos();
+        assert!(across.abs() < 1e-12, "{v:?}: {across}");
+        assert!(u2.abs() <= std::f64::consts::FRAC_PI_2 / TURN_IN_PLACE_S);
+        assert_eq!(u1, v[0] * theta.cos() + v[1] * theta.sin());
+    }
+    // No turning for a plan that asks for (almost) nothing.
+    let (u, _) = linearizing_input(theta, 0.0, [0.0, 1e-4], 0.01);
+    assert_eq!(u[1], 0.0);
+}
+
+#[test]
+fn z_follows_the_double_integrator_under_the_linearizing_law() {
+    // Continuous DFL with constant v: z1'' = v1 and z3'' = v2 exactly, so after T
+    // seconds z matches the double integrator up to RK4's error.
+    let v = [0.4, -0.7];
+    let x0 = [1.0, 2.0, 0.5, 1.2];
+    let (t, steps) = (1.0, 1000);
+    let mut x = x0;
+    for _ in 0..steps {
+        x = plant::rk4_step(&x, t / steps as f64, |s| extended_dynamics(s, v, 0.01));
+    }
+    let z0 = phi(x0);
+    let expected = [
+        z0[0] + z0[1] * t + 0.5 * v[0] * t * t,
+        z0[1] + v[0] * t,
+        z0[2] + z0[3] * t + 0.5 * v[1] * t * t,
+        z0[3] + v[1] * t,
+    ];
+    let z = phi(x);
+    for i in 0..4 {
+        assert!(
+            (z[i] - expected[i]).abs() < 1e-9,
+            "z{i}: {} vs {}",
+            z[i],
+            expected[i]
+        );
+    }
+}
+
+#[test]
+fn the_mid_tick_law_follows_the_double_integrator_ten_times_closer() {
+    // A second of hard turning (about 1.7 rad/s) in 10 ms ticks, the commands held over
+    // each tick as the plant holds them: u1 the mean of zeta, u2 = U2.
+    let (dt, ticks, v) = (0.01, 100, [0.8, -1.5]);
+    let x0 = [0.0, 0.0, 0.3, 1.0];
+    let z0 = phi(x0);
+    let t = dt * f64::from(ticks);
+    let expected = [
+        z0[0] + z0[1] * t + 0.5 * v[0] * t * t,
+        z0[1] + v[0] * t,
+        z0[2] + z0[3] * t + 0.5 * v[1] * t * t,
+        z0[3] + v[1] * t,
+    ];
+    let error = |mid_tick: bool| {
+        let (mut pose, mut zeta) = ([x0[0], x0[1], x0[2]], x0[3]);
+        for _ in 0..ticks {
+            let (u, _) = if mid_tick {
+                mid_tick_linearizing_input(pose[2], zeta, v, 0.01, dt)
+            } else {
+                linearizing_input(pose[2], zeta, v, 0.01)
+            };
+            let u1 = zeta + 0.5 * u[0] * dt;
+            zeta += u[0] * dt;
+            for _ in 0..20 {
+                pose = plant::rk4_step(&pose, dt / 20.0, |x| plant::unicycle(x, u1, u[1]));
+            }
+        }
+        let z = phi([pose[0], pose[1], pose[2], zeta]);
+        (0..4)
+            .map(|i| (z[i] - expected[i]).abs())
+            .fold(0.0, f64::max)
+    };
+    let (start, mid) = (error(false), error(true));
+    assert!(
+        mid < start / 10.0,
+        "start of tick {start:e}, mid-tick {mid:e}"
+    );
+}
+
+fn plan(sample: u64, horizon: u32, status: PlanStatus) -> Plan {
+    let mut p = Plan {
+        sample,
+        horizon,
+        status: status as u32,
+        ..Plan::default()
+    };
+    for i in 0..horizon as usize {
+        p.v[i] = [i as f64, 0.0];
+    }
+    p
+}
+
+#[test]
+fn covering_element_is_the_age_of_the_plan_within_its_horizon() {
+    let p = plan(10, 8, PlanStatus::Solved);
+    assert_eq!(
+        covering_element(&p, 9),
+        None,
+        "a plan covers nothing before its sample"
+    );
+    assert_eq!(covering_element(&p, 10), Some(0));
+    assert_eq!(covering_element(&p, 17), Some(7));
+    assert_eq!(covering_element(&p, 18), None, "exhausted after N samples");
+}
+
+#[test]
+fn a_late_plan_is_held_until_the_sample_it_arrived_in() {
+    let mut dfl = Dfl::new(&Scenario::default());
+    let mut inbox = PlanInbox::new(0.05);
+    let mut p = plan(100, 8, PlanStatus::Solved);
+    // Lockstep: a solve of 2.5 Ts arrives 3 whole samples late.
+    p.solve_ns = 125_000_000;
+    let lockstep = protocol::clock::RunClock::simulated_at(1000, 0.005);
+    let arrival_ns = lockstep.arrival_after_ns(5.0, p.solve_ns, 0.05);
+    assert_eq!(inbox.receive(&p, arrival_ns), 103);
+    assert!(inbox.has_received(100));
+    let est = Estimate::default();
+    inbox.release(102, &mut dfl);
+    assert_eq!(dfl.step(&est, 1020).mode(), Some(CommandMode::Brake));
+    inbox.release(103, &mut dfl);
+    let a = dfl.step(&est, 1030);
+    assert_eq!(
+        (a.mode(), a.v),
+        (Some(CommandMode::Shifted), [3.0, 0.0]),
+        "element 3 of plan 100"
+    );
+    // Real time: received 1.2 Ts after its sample started, usable at once (sample 101).
+    let mut inbox = PlanInbox::new(0.05);
+    assert_eq!(
+        inbox.receive(&plan(100, 8, PlanStatus::Solved), 60_000_000),
+        101
+    );
+}
+
+#[test]
+fn the_dfl_waits_for_every_plan_unless_it_joined_after_the_previous_one() {
+    let mut inbox = PlanInbox::new(0.05);
+    assert!(inbox.waits_for(0), "from the start, plan 0 is waited for");
+    assert!(
+        !inbox.waits_for(40),
+        "joined at sample 40: plan 39 never came"
+    );
+    inbox.receive(&plan(40, 8, PlanStatus::Solved), 0);
+    assert!(!inbox.waits_for(40), "plan 40 is here");
+    assert!(inbox.waits_for(41));
+}
+
+#[test]
+fn a_joining_dfl_adopts_the_zeta_the_plant_is_driven_with() {
+    let mut dfl = Dfl::new(&Scenario::default());
+    dfl.adopt_zeta(0.8);
+    assert_eq!(dfl.zeta(), 0.8);
+    dfl.adopt_zeta(f64::NAN);
+    assert_eq!(dfl.zeta(), 0.8);
+}
+
+#[test]
+fn a_plan_arriving_exactly_at_the_deadline_meets_it_and_one_later_misses() {
+    let mut m = DeadlineMonitor::new(0.05);
+    m.sample_started(10, CommandMode::Nominal);
+    m.on_plan(&plan(10, 8, PlanStatus::Solved), 50_000_000);
+    let v = m.sample_started(11, CommandMode::Shifted).unwrap();
+    assert_eq!((v.sample, v.met, v.misses_total), (10, 1, 0));
+    m.on_plan(&plan(11, 8, PlanStatus::Solved), 50_000_001);
+    let v = m.sample_started(12, CommandMode::Nominal).unwrap();
+    assert_eq!(
+        (v.sample, v.met, v.misses_total, v.fallback),
+        (11, 0, 1, CommandMode::Shifted as u32)
+    );
+}
+
+#[test]
+fn a_missing_or_failed_plan_is_a_miss_with_its_status() {
+    let mut m = DeadlineMonitor::new(0.05);
+    m.sample_started(0, CommandMode::Brake);
+    let v = m.sample_started(1, CommandMode::Brake).unwrap();
+    assert_eq!((v.met, v.status), (0, PLAN_MISSING));
+    m.on_plan(&plan(1, 8, PlanStatus::NumericalError), 1_000_000);
+    let v = m.sample_started(2, CommandMode::Brake).unwrap();
+    assert_eq!(
+        (v.met, v.status, v.misses_total),
+        (0, PlanStatus::NumericalError as u32, 2)
+    );
+}
+
+#[test]
+fn a_plan_older_than_its_horizon_is_exhausted_and_the_dfl_brakes() {
+    let mut dfl = Dfl::new(&Scenario::default());
+    assert!(dfl.offer(&plan(10, 8, PlanStatus::Solved)));
+    let est = Estimate::default();
+    assert_eq!(
+        dfl.step(&est, 170).mode(),
+        Some(CommandMode::Shifted),
+        "element 7 still covers sample 17"
+    );
+    assert_eq!(
+        dfl.step(&est, 180).mode(),
+        Some(CommandMode::Brake),
+        "nothing covers sample 18"
+    );
+}
+
+#[test]
+fn older_or_failed_plans_never_replace_the_active_one() {
+    let mut dfl = Dfl::new(&Scenario::default());
+    assert!(dfl.offer(&plan(5, 8, PlanStatus::Solved)));
+    assert!(!dfl.offer(&plan(4, 8, PlanStatus::Solved)));
+    assert!(!dfl.offer(&plan(6, 8, PlanStatus::Infeasible)));
+    let est = Estimate {
+        state: [7.0, 7.0, 0.0, 0.0],
+        ..Estimate::default()
+    };
+    let a = dfl.step(&est, 6 * 10);
+    assert_eq!(a.mode(), Some(CommandMode::Shifted));
+    assert_eq!((a.plan_sample, a.v), (5, [1.0, 0.0]));
+}
+
+/// A robot at the origin heading along x at 1 m/s, an obstacle whose edge is 1 m
+/// ahead; the safety check on or off.
+fn approaching(gatekeeper: bool) -> (Dfl, Estimate) {
+    let mut s = Scenario {
+        obstacles: vec![protocol::Obstacle {
+            x: 1.5,
+            y: 0.0,
+            radius: 0.5,
+        }],
+        ..Scenario::default()
+    };
+    s.robot.zeta0 = 1.0;
+    s.dfl.gatekeeper = gatekeeper;
+    let estimate = Estimate {
+        state: [0.0, 0.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    (Dfl::new(&s), estimate)
+}
+
+/// Plan `sample` accelerating at `ax` along x for 8 samples (0.4 s).
+fn along_x(sample: u64, ax: f64) -> Plan {
+    let mut p = plan(sample, 8, PlanStatus::Solved);
+    p.v = [[ax, 0.0]; protocol::MAX_HORIZON];
+    p
+}
+
+#[test]
+fn a_plan_into_an_obstacle_is_refused_and_the_committed_one_goes_on() {
+    // Braking at 2 m/s^2 for 0.4 s, then the brake: 0.25 m. Speeding up at 2 m/s^2:
+    // 0.56 m, then 0.54 m to stop, into the obstacle 1 m ahead.
+    let (mut dfl, estimate) = approaching(true);
+    assert!(dfl.offer(&along_x(0, -2.0)));
+    let a = dfl.step(&estimate, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Nominal), Some(Intervention::None))
+    );
+    assert!(dfl.offer(&along_x(1, 2.0)));
+    let a = dfl.step(&estimate, 10);
+    assert_eq!(a.intervention(), Some(Intervention::PlanRefused));
+    assert_eq!(
+        (a.mode(), a.plan_sample, a.v),
+        (Some(CommandMode::Shifted), 0, [-2.0, 0.0])
+    );
+    assert!(a.intervention_clearance_m < 0.0);
+    assert_eq!((a.safety_interventions, dfl.interventions()), (1, 1));
+}
+
+#[test]
+fn without_a_committed_plan_an_unsafe_one_leaves_the_robot_braking() {
+    let (mut dfl, estimate) = approaching(true);
+    dfl.offer(&along_x(0, 2.0));
+    let a = dfl.step(&estimate, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Brake), Some(Intervention::PlanRefused))
+    );
+    assert_eq!(
+        a.linearizing_input,
+        [-3.0, 0.0],
+        "the brake at its deceleration"
+    );
+}
+
+#[test]
+fn an_estimate_that_shows_the_committed_trajectory_unsafe_brings_the_brake_until_a_plan_passes() {
+    let (mut dfl, estimate) = approaching(true);
+    dfl.offer(&along_x(0, -2.0));
+    dfl.step(&estimate, 0);
+    // The estimate jumps 0.8 m ahead: the rest of the plan and the brake now run 1.04 m.
+    let jumped = Estimate {
+        state: [0.8, 0.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    let a = dfl.step(&jumped, 1);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (
+            Some(CommandMode::SafetyBrake),
+            Some(Intervention::CommittedUnsafe)
+        )
+    );
+    assert_eq!(a.plan_sample, 0);
+    let a = dfl.step(&jumped, 2);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::SafetyBrake), Some(Intervention::None))
+    );
+    // A plan that stops in time from there (in 1/6 m) is committed and flown.
+    dfl.offer(&along_x(1, -3.0));
+    let a = dfl.step(&jumped, 10);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Nominal), Some(Intervention::None))
+    );
+    assert_eq!(dfl.interventions(), 1);
+}
+
+#[test]
+fn a_committed_plan_swerving_away_flies_on_when_braking_would_go_in_deeper() {
+    // A small obstacle straight ahead: braking along the heading runs through it (5 cm
+    // deep), the committed plan's swerve clips it by 1.6 cm.
+    let mut s = Scenario {
+        obstacles: vec![protocol::Obstacle {
+            x: 0.15,
+            y: 0.0,
+            radius: 0.05,
+        }],
+        ..Scenario::default()
+    };
+    s.robot.zeta0 = 1.0;
+    let mut dfl = Dfl::new(&s);
+    let mut swerve = plan(0, 8, PlanStatus::Solved);
+    swerve.v = [[0.0, 3.0]; protocol::MAX_HORIZON];
+    dfl.offer(&swerve);
+    let far = Estimate {
+        state: [-5.0, 0.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    assert_eq!(dfl.step(&far, 0).intervention(), Some(Intervention::None));
+    let close = Estimate {
+        state: [0.0, 0.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    let a = dfl.step(&close, 1);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (
+            Some(CommandMode::Nominal),
+            Some(Intervention::CommittedUnsafe)
+        )
+    );
+    assert!((-0.02..-0.01).contains(&a.intervention_clearance_m));
+    // Flown on, reported once.
+    let a = dfl.step(&close, 2);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Nominal), Some(Intervention::None))
+    );
+    assert_eq!(dfl.interventions(), 1);
+}
+
+#[test]
+fn an_older_plan_never_replaces_a_newer_one_given_up() {
+    let (mut dfl, estimate) = approaching(true);
+    dfl.offer(&along_x(5, -2.0));
+    dfl.step(&estimate, 50);
+    let jumped = Estimate {
+        state: [0.8, 0.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    assert_eq!(dfl.step(&jumped, 51).mode(), Some(CommandMode::SafetyBrake));
+    assert!(!dfl.offer(&along_x(4, -3.0)), "plan 4 is older than plan 5");
+}
+
+#[test]
+fn without_the_safety_check_the_unsafe_plan_is_flown() {
+    let (mut dfl, estimate) = approaching(false);
+    dfl.offer(&along_x(0, 2.0));
+    let a = dfl.step(&estimate, 0);
+    assert_eq!(
+        (a.mode(), a.v, a.intervention()),
+        (
+            Some(CommandMode::Nominal),
+            [2.0, 0.0],
+            Some(Intervention::None)
+        )
+    );
+}
+
+#[test]
+fn without_a_covering_plan_the_dfl_brakes_zeta_to_zero_without_steering() {
+    let mut s = Scenario::default();
+    s.robot.zeta0 = 1.0;
+    let mut dfl = Dfl::new(&s);
+    let est = Estimate {
+        state: [7.0, 7.0, 0.0, 1.0],
+        ..Estimate::default()
+    };
+    let mut last = dfl.zeta();
+    // The speed falls at the braking deceleration, to exactly zero.
+    let per_tick = s.brake_decel() * s.timing.dt_s();
+    for tick in 0..200 {
+        let a = dfl.step(&est, tick);
+        assert_eq!(a.mode(), Some(CommandMode::Brake));
+        assert_eq!(a.u2, 0.0);
+        let expected = (last - per_tick).max(0.0);
+        assert!(
+            (a.zeta - expected).abs() < 1e-9,
+            "tick {tick}: zeta {} not {expected}",
+            a.zeta
+        );
+        last = a.zeta;
+    }
+    assert_eq!(dfl.zeta(), 0.0);
+}

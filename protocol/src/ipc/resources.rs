@@ -1,0 +1,188 @@
+//! A run's iceoryx2 resources beyond its ports: the nodes of dead processes, the files a
+//! run leaves, and the registry of running runs that lets the next run clean up after a
+//! killed one.
+
+use super::*;
+
+/// Removes what dead nodes of the run left behind (their shared memory, their ports in
+/// every service): iceoryx2's dead-node detection, which sees a process die whoever
+/// started it. Returns the names of the nodes cleaned.
+pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
+    let config = run_config(prefix)?;
+    let mut dead = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        // Alive, or inaccessible or inconsistent: nothing this process can clean.
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    let mut names = Vec::with_capacity(dead.len());
+    for view in dead {
+        let name = view
+            .details()
+            .as_ref()
+            .map_or_else(String::new, |d| d.name().as_str().to_string());
+        if view.try_remove_stale_resources().is_ok() {
+            names.push(name);
+        }
+    }
+    Ok(names)
+}
+
+/// The process ids of the run's living nodes (iceoryx2's node listing, about 1 ms).
+pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
+    let config = run_config(prefix)?;
+    let mut pids = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Alive(view) = state
+            && let Some(details) = view.details()
+            && let Ok(pid) = u32::try_from(details.process_id().value())
+        {
+            pids.push(pid);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    Ok(pids)
+}
+
+/// The role and epoch of a role process's node, from its name (`<role>-<epoch>`).
+pub fn role_of_node(name: &str) -> Option<(crate::Role, u32)> {
+    let (role, epoch) = name.rsplit_once('-')?;
+    Some((crate::Role::from_name(role)?, epoch.parse().ok()?))
+}
+
+/// Removes every resource of a finished run: dead nodes' leftovers and, once no node of
+/// the run is alive, the run's global node-counter segment (iceoryx2 keeps it by design;
+/// the prefix is unique to the run, so nobody else can use it).
+pub fn remove_run_resources(prefix: &str) -> Result<(), IpcError> {
+    cleanup_dead_nodes(prefix)?;
+    let config = run_config(prefix)?;
+    let mut alive = 0;
+    Node::<ipc::Service>::list(&config, |_| {
+        alive += 1;
+        CallbackProgression::Continue
+    })
+    .map_err(ctx("listing nodes"))?;
+    if alive > 0 {
+        return Err(IpcError(format!(
+            "{alive} node(s) of the run are still alive"
+        )));
+    }
+    for path in leftover_files(prefix) {
+        if path.starts_with("/dev/shm") && path.to_string_lossy().ends_with(".global_mgmt") {
+            std::fs::remove_file(&path).map_err(ctx(format!("removing {}", path.display())))?;
+        }
+    }
+    Ok(())
+}
+
+/// Where every running run's prefix is registered with its orchestrator's pid: a file
+/// named after the prefix, holding the pid. A prefix given with `--prefix` does not name
+/// the pid, so this is how the next run finds it when its orchestrator was killed.
+fn run_registry() -> std::path::PathBuf {
+    std::env::temp_dir().join("scmpc-runs")
+}
+
+/// Registers run `prefix` as this process's, until [`unregister_run`].
+pub fn register_run(prefix: &str) -> std::io::Result<()> {
+    std::fs::create_dir_all(run_registry())?;
+    std::fs::write(run_registry().join(prefix), std::process::id().to_string())
+}
+
+/// Removes the registration of run `prefix` (once its resources are gone).
+pub fn unregister_run(prefix: &str) {
+    let _ = std::fs::remove_file(run_registry().join(prefix));
+}
+
+/// Prefixes of earlier runs whose orchestrator is gone (killed, say, with SIGKILL) but
+/// whose iceoryx2 files may still be in `/dev/shm` or iceoryx2's directory: a registered
+/// run ([`register_run`]) whose pid is dead, or files whose prefix names a dead pid
+/// (`scmpc<pid>x…_`, the default prefix).
+pub fn stale_run_prefixes() -> Vec<String> {
+    let registered = std::fs::read_dir(run_registry())
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let pid: u32 = std::fs::read_to_string(entry.path())
+                .ok()?
+                .trim()
+                .parse()
+                .ok()?;
+            (!process_alive(pid)).then(|| entry.file_name().to_string_lossy().into_owned())
+        });
+    let mut prefixes: Vec<String> = leftover_files(PREFIX_STEM)
+        .iter()
+        .filter_map(|path| {
+            let name = path.file_name()?.to_string_lossy().into_owned();
+            let start = name.find(PREFIX_STEM)?;
+            let rest = &name[start..];
+            let end = rest.find('_')?;
+            let prefix = &rest[..=end];
+            let pid: u32 = prefix[PREFIX_STEM.len()..]
+                .split('x')
+                .next()?
+                .parse()
+                .ok()?;
+            (!process_alive(pid)).then(|| prefix.to_string())
+        })
+        .chain(registered)
+        .collect();
+    prefixes.sort();
+    prefixes.dedup();
+    prefixes
+}
+
+/// Whether process `pid` exists and is not a zombie (a killed process nobody reaped yet).
+///
+/// Allocation-free (a role process asks every 100 ms): the path and the file are read
+/// through stack buffers.
+pub fn process_alive(pid: u32) -> bool {
+    use std::io::{Read, Write};
+    use std::os::unix::ffi::OsStrExt;
+    let mut path = [0u8; 32];
+    let mut cursor = std::io::Cursor::new(&mut path[..]);
+    if write!(cursor, "/proc/{pid}/stat").is_err() {
+        return false;
+    }
+    let len = cursor.position() as usize;
+    let path = std::path::Path::new(std::ffi::OsStr::from_bytes(&path[..len]));
+    let mut stat = [0u8; 512];
+    let Ok(read) = std::fs::File::open(path).and_then(|mut f| f.read(&mut stat)) else {
+        return false;
+    };
+    // `pid (comm) S ...`: the state follows the last `) `.
+    let stat = &stat[..read];
+    stat.windows(2)
+        .rposition(|w| w == b") ")
+        .and_then(|at| stat.get(at + 2))
+        .is_some_and(|state| *state != b'Z')
+}
+
+/// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
+/// a run leaves behind (empty after a clean run).
+pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
+    let mut found = Vec::new();
+    let mut stack = vec![
+        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from("/tmp/iceoryx2"),
+    ];
+    while let Some(dir) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries.flatten() {
+            let path = entry.path();
+            if entry.file_name().to_string_lossy().contains(prefix) {
+                found.push(path.clone());
+            }
+            if entry.file_type().is_ok_and(|t| t.is_dir()) && !dir.starts_with("/dev/shm") {
+                stack.push(path);
+            }
+        }
+    }
+    found
+}

@@ -1,0 +1,159 @@
+//! The border check on real iceoryx2 topics (each test on a prefix of its own).
+use super::*;
+use crate::{Control, ControlCommand, Header, Measurement, Role};
+
+/// A clock by which tick `newest` is the newest any producer can have made.
+struct FixedClock(u64);
+
+impl TickLimit for FixedClock {
+    fn newest_tick(&self, _refresh: bool) -> Option<u64> {
+        Some(self.0)
+    }
+    fn dt_s(&self) -> f64 {
+        0.005
+    }
+}
+
+fn measurement(tick: u64) -> Measurement {
+    Measurement {
+        header: Header {
+            tick,
+            time_s: tick as f64 * 0.005,
+            ..Header::default()
+        },
+        ..Measurement::default()
+    }
+}
+
+/// Runs `test` with a node on a fresh prefix, then removes the prefix's files.
+fn on_fresh_prefix(test: impl FnOnce(&Node<ipc::Service>)) {
+    let prefix = new_prefix();
+    let node = create_node(&prefix, "test", false).unwrap();
+    test(&node);
+    drop(node);
+    remove_run_resources(&prefix).unwrap();
+}
+
+fn refused(counts: [u64; Rejection::COUNT], reason: Rejection) -> u64 {
+    counts[reason as usize]
+}
+
+#[test]
+fn a_sample_ahead_of_the_clock_or_off_its_tick_time_is_refused_and_moves_nothing() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let plant = topic.sender(0).unwrap();
+        let measurements = topic.receiver_from(Role::Plant).unwrap();
+        measurements.follow(EpochSchedule::default());
+        measurements.bound_by(Rc::new(FixedClock(100)));
+        plant.send(measurement(1_000_000)).unwrap();
+        let mut off_time = measurement(50);
+        off_time.header.time_s += 1e-3;
+        plant.send(off_time).unwrap();
+        plant.send(measurement(99)).unwrap();
+        let (m, _) = measurements.receive().unwrap().unwrap();
+        // The forged tick did not become "now": tick 99 is not behind anything.
+        assert_eq!(m.header.tick, 99);
+        let counts = measurements.take_rejections();
+        assert_eq!(refused(counts, Rejection::TickAhead), 1);
+        assert_eq!(refused(counts, Rejection::TimeMismatch), 1);
+        assert_eq!(counts.iter().sum::<u64>(), 2);
+    });
+}
+
+#[test]
+fn a_sample_from_another_publisher_than_the_pinned_one_is_refused_whatever_its_header() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let plant = topic.sender(0).unwrap();
+        let intruder = topic.sender(0).unwrap();
+        let measurements = topic.receiver_from(Role::Plant).unwrap();
+        let mut schedule = EpochSchedule::default();
+        let slot = output_slot(Role::Plant, MEASUREMENT).unwrap();
+        let mut pins = [0; 2];
+        pins[slot] = plant.publisher_id();
+        assert!(schedule.pin(Role::Plant, 0, pins));
+        // A second announcement for the same epoch changes nothing.
+        assert!(!schedule.pin(Role::Plant, 0, [intruder.publisher_id(); 2]));
+        measurements.follow(schedule);
+        intruder.send(measurement(1)).unwrap();
+        plant.send(measurement(2)).unwrap();
+        let (m, _) = measurements.receive().unwrap().unwrap();
+        assert_eq!(m.header.tick, 2);
+        assert!(measurements.receive().unwrap().is_none());
+        let counts = measurements.take_rejections();
+        assert_eq!(refused(counts, Rejection::UnknownPublisher), 1);
+        assert_eq!(counts.iter().sum::<u64>(), 1);
+        assert!(!Rejection::UnknownPublisher.blames_producer());
+    });
+}
+
+#[test]
+fn control_is_taken_from_the_orchestrators_publisher_alone_and_only_when_well_formed() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Control>(node, CONTROL).unwrap();
+        let orchestrator = topic.sender(0).unwrap();
+        let rogue = topic.sender(0).unwrap();
+        let control = topic.receiver().unwrap();
+        control.pin_to(orchestrator.publisher_id());
+        let command = |c: ControlCommand| Control {
+            command: c as u32,
+            ..Control::default()
+        };
+        rogue.send(command(ControlCommand::Stop)).unwrap();
+        orchestrator
+            .send(Control {
+                command: 99,
+                ..Control::default()
+            })
+            .unwrap();
+        orchestrator.send(command(ControlCommand::Grant)).unwrap();
+        let (c, _) = control.receive().unwrap().unwrap();
+        assert_eq!(c.command(), Some(ControlCommand::Grant));
+        assert!(control.receive().unwrap().is_none());
+        let counts = control.take_rejections();
+        assert_eq!(refused(counts, Rejection::UnknownPublisher), 1);
+        assert_eq!(refused(counts, Rejection::Malformed), 1);
+    });
+}
+
+#[test]
+fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let measurements = topic.receiver_from(Role::Plant).unwrap();
+        measurements.follow(EpochSchedule::default());
+        let stranger = Topic {
+            run_id: topic.run_id ^ 1,
+            ..open_topic::<Measurement>(node, MEASUREMENT).unwrap()
+        };
+        let stranger = stranger.sender(0).unwrap();
+        stranger.send(measurement(1)).unwrap();
+        assert!(measurements.receive().unwrap().is_none());
+        assert_eq!(
+            refused(measurements.take_rejections(), Rejection::WrongRun),
+            1
+        );
+        // A payload of another type (and size) is not even let onto the topic.
+        let other = open_topic::<crate::Estimate>(node, MEASUREMENT);
+        assert!(
+            other.is_err(),
+            "an estimate type opened the measurement topic"
+        );
+    });
+}
+
+#[test]
+fn a_process_is_alive_until_it_exits_and_a_zombie_counts_as_dead() {
+    assert!(process_alive(std::process::id()));
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    // Exited, not reaped yet: a zombie.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    while process_alive(pid) && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    assert!(!process_alive(pid), "the zombie {pid} counts as alive");
+    child.wait().unwrap();
+    assert!(!process_alive(pid));
+}

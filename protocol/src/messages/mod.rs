@@ -1,0 +1,499 @@
+//! Every message that crosses a process boundary: `#[repr(C)]`, fixed size, no heap, so
+//! iceoryx2 can hand it over in shared memory without copying or serializing.
+//!
+//! Each carries a [`Header`] (README, "Supervision"). The in-process mode passes the very
+//! same values between the roles, so both modes share one set of semantics.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Compile-time maximum prediction horizon `N` a plan can carry.
+pub const MAX_HORIZON: usize = 64;
+
+/// Common to every message.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Header")]
+pub struct Header {
+    /// Inner tick `j` the message belongs to (time `j * Ts / M`).
+    pub tick: u64,
+    /// Simulated time of that tick, s.
+    pub time_s: f64,
+    /// Monotonic clock when published, ns (for per-hop latency).
+    pub publish_ns: u64,
+    /// Epoch of the producer: only samples of the active epoch of a role are used.
+    pub epoch: u32,
+    /// Publish-to-receipt latency of the input that triggered this message, ns
+    /// (saturating; 0 when there was none).
+    pub input_latency_ns: u32,
+    /// Identifies the run (a hash of its iceoryx2 prefix): a process left over from
+    /// another run on the same prefix is rejected.
+    pub run_id: u32,
+    pub reserved: u32,
+}
+
+/// Noisy output `y = [x, y, theta] + noise` of the plant.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Measurement")]
+pub struct Measurement {
+    pub header: Header,
+    /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
+    pub y: [f64; 3],
+}
+
+/// The plant's true state; read only by the recorder.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::GroundTruth")]
+pub struct GroundTruth {
+    pub header: Header,
+    /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
+    pub pose: [f64; 3],
+}
+
+/// The estimator's output: the extended state and the covariance of the pose.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Estimate")]
+pub struct Estimate {
+    pub header: Header,
+    /// `x_bar = [x_m, y_m, theta_rad, zeta_m_s]`; zeta is the DFL's integrator state.
+    pub state: [f64; 4],
+    /// Covariance of `[x, y, theta]`, row-major 3x3.
+    pub covariance: [f64; 9],
+}
+
+impl Estimate {
+    /// Largest standard deviation of the position, m (`sigma` of the uncertainty margin).
+    pub fn position_sigma(&self) -> f64 {
+        self.covariance[0].max(self.covariance[4]).max(0.0).sqrt()
+    }
+}
+
+/// Outcome of one MPC solve.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PlanStatus {
+    #[default]
+    Solved = 0,
+    Infeasible = 1,
+    MaxIterations = 2,
+    NumericalError = 3,
+}
+
+impl PlanStatus {
+    pub fn from_code(code: u32) -> Option<PlanStatus> {
+        Some(match code {
+            0 => PlanStatus::Solved,
+            1 => PlanStatus::Infeasible,
+            2 => PlanStatus::MaxIterations,
+            3 => PlanStatus::NumericalError,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PlanStatus::Solved => "solved",
+            PlanStatus::Infeasible => "infeasible",
+            PlanStatus::MaxIterations => "max_iterations",
+            PlanStatus::NumericalError => "numerical_error",
+        }
+    }
+}
+
+/// plan(k): a time-indexed input sequence. Element `i` is valid on
+/// `[t_k + i Ts, t_k + (i + 1) Ts)` (README, "Deadlines").
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Plan")]
+pub struct Plan {
+    pub header: Header,
+    /// Sample index `k` the plan was computed for.
+    pub sample: u64,
+    /// [`PlanStatus`] code.
+    pub status: u32,
+    /// Number of valid elements (the horizon `N`).
+    pub horizon: u32,
+    /// Wall time of the whole step (problem update, every solve), ns.
+    pub solve_ns: u64,
+    /// Interior-point iterations summed over the solves of this step.
+    pub iterations: u32,
+    /// Convex solves of this step (1 + refinements).
+    pub solves: u32,
+    /// Delay injected before publishing (fault injection), ns; in lockstep it counts as
+    /// production time like `solve_ns`.
+    pub injected_delay_ns: u64,
+    /// `v_i = [xddot, yddot]`, m/s^2, for `i < horizon`.
+    pub v: [[f64; 2]; MAX_HORIZON],
+    /// Predicted `z_i = [x, xdot, y, ydot]` for `i <= horizon`.
+    pub z: [[f64; 4]; MAX_HORIZON + 1],
+}
+
+impl Default for Plan {
+    fn default() -> Self {
+        Plan {
+            header: Header::default(),
+            sample: 0,
+            status: PlanStatus::Infeasible as u32,
+            horizon: 0,
+            solve_ns: 0,
+            iterations: 0,
+            solves: 0,
+            injected_delay_ns: 0,
+            v: [[0.0; 2]; MAX_HORIZON],
+            z: [[0.0; 4]; MAX_HORIZON + 1],
+        }
+    }
+}
+
+impl Plan {
+    pub fn status(&self) -> Option<PlanStatus> {
+        PlanStatus::from_code(self.status)
+    }
+    pub fn is_solved(&self) -> bool {
+        self.status() == Some(PlanStatus::Solved)
+    }
+}
+
+/// Most waypoints a [`Route`] carries.
+pub const ROUTE_CAPACITY: usize = 64;
+
+/// The planner's route to the goal (README, "Route planner"), published every sample:
+/// the waypoints of the newest plan, from the position it was planned at to the goal.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Route")]
+pub struct Route {
+    pub header: Header,
+    /// Sample `k` whose estimate this publication answers.
+    pub sample: u64,
+    /// Sample whose estimate the route was planned from (older than `sample` between
+    /// replans).
+    pub planned_sample: u64,
+    /// [`RouteStatus`] code.
+    pub status: u32,
+    /// Valid waypoints (`0` with [`RouteStatus::NoRoute`]).
+    pub count: u32,
+    /// Plans made so far by this process (1 after the first).
+    pub plans: u32,
+    /// [`ReplanReason`] code of the newest plan.
+    pub reason: u32,
+    /// Length of the polyline through the waypoints, m.
+    pub length_m: f64,
+    /// Wall time of the newest plan, ns.
+    pub plan_ns: u64,
+    /// `[x_m, y_m]` of each waypoint, for `i < count`; the last is the goal.
+    pub waypoints: [[f64; 2]; ROUTE_CAPACITY],
+}
+
+impl Default for Route {
+    fn default() -> Self {
+        Route {
+            header: Header::default(),
+            sample: 0,
+            planned_sample: 0,
+            status: RouteStatus::NoRoute as u32,
+            count: 0,
+            plans: 0,
+            reason: ReplanReason::Start as u32,
+            length_m: 0.0,
+            plan_ns: 0,
+            waypoints: [[0.0; 2]; ROUTE_CAPACITY],
+        }
+    }
+}
+
+impl Route {
+    /// The valid waypoints.
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.waypoints[..(self.count as usize).min(ROUTE_CAPACITY)]
+    }
+    pub fn status(&self) -> Option<RouteStatus> {
+        RouteStatus::from_code(self.status)
+    }
+    /// Whether the route can be followed (a route of at least one segment).
+    pub fn is_ok(&self) -> bool {
+        self.status() == Some(RouteStatus::Ok) && self.count >= 2
+    }
+}
+
+/// Whether a route was found.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RouteStatus {
+    Ok = 0,
+    /// The start and the goal are not connected around the grown obstacles.
+    NoRoute = 1,
+}
+
+impl RouteStatus {
+    pub fn from_code(code: u32) -> Option<RouteStatus> {
+        [RouteStatus::Ok, RouteStatus::NoRoute]
+            .into_iter()
+            .find(|s| *s as u32 == code)
+    }
+}
+
+/// Why the planner planned.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReplanReason {
+    /// The first estimate.
+    Start = 0,
+    /// `planner.period_s` has passed since the last plan.
+    Period = 1,
+    /// The robot has not moved for a while away from the goal.
+    Stall = 2,
+    /// The robot is farther than `planner.stray_m` from the route.
+    Stray = 3,
+}
+
+impl ReplanReason {
+    pub const ALL: [ReplanReason; 4] = [
+        ReplanReason::Start,
+        ReplanReason::Period,
+        ReplanReason::Stall,
+        ReplanReason::Stray,
+    ];
+    pub fn from_code(code: u32) -> Option<ReplanReason> {
+        ReplanReason::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ReplanReason::Start => "start",
+            ReplanReason::Period => "period",
+            ReplanReason::Stall => "stall",
+            ReplanReason::Stray => "stray",
+        }
+    }
+}
+
+/// Where an applied command came from.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CommandMode {
+    /// The element of the current sample's plan.
+    #[default]
+    Nominal = 0,
+    /// An element of an older plan (the current one is late or failed).
+    Shifted = 1,
+    /// No plan covers the current time: `U2 = 0`, `U1` brakes zeta to zero.
+    Brake = 2,
+    /// A nominal command whose steering was zeroed by the zeta guard.
+    ZetaGuard = 3,
+    /// Braking because the safety check found the trajectory being flown no longer safe
+    /// from the current estimate (README, "Safety"), until a new plan passes it.
+    SafetyBrake = 4,
+}
+
+impl CommandMode {
+    pub fn from_code(code: u32) -> Option<CommandMode> {
+        Some(match code {
+            0 => CommandMode::Nominal,
+            1 => CommandMode::Shifted,
+            2 => CommandMode::Brake,
+            3 => CommandMode::ZetaGuard,
+            4 => CommandMode::SafetyBrake,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CommandMode::Nominal => "nominal",
+            CommandMode::Shifted => "shifted",
+            CommandMode::Brake => "brake",
+            CommandMode::ZetaGuard => "zeta_guard",
+            CommandMode::SafetyBrake => "safety_brake",
+        }
+    }
+}
+
+/// The DFL's command for one inner tick, held by the plant until the next one.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::Actuation")]
+pub struct Actuation {
+    pub header: Header,
+    /// Forward speed applied over the tick, m/s (the mean of zeta over the tick).
+    pub u1: f64,
+    /// Turn rate applied over the tick, rad/s.
+    pub u2: f64,
+    /// `[omega_r, omega_l]` for `(u1, u2)` through `T^-1`, rad/s.
+    pub wheels: [f64; 2],
+    /// `U = [U1, U2]` of the linearizing law (eq. 1101), after the guard.
+    pub linearizing_input: [f64; 2],
+    /// The DFL's zeta at the end of the tick, m/s.
+    pub zeta: f64,
+    /// `v` in use, m/s^2 (zero while braking).
+    pub v: [f64; 2],
+    /// [`CommandMode`] code.
+    pub mode: u32,
+    /// The DFL's live count of deadline misses so far.
+    pub deadline_misses: u32,
+    /// Sample of the plan the command came from (meaningless while braking).
+    pub plan_sample: u64,
+    /// [`Intervention`] code of what the safety check did at this tick.
+    pub intervention: u32,
+    /// The DFL's live count of safety interventions so far.
+    pub safety_interventions: u32,
+    /// With an intervention: the plan it concerns (refused, or the one given up).
+    pub intervention_plan: u64,
+    /// With an intervention: how far the trajectory checked entered an inflated obstacle,
+    /// m (negative clearance).
+    pub intervention_clearance_m: f64,
+}
+
+impl Actuation {
+    pub fn mode(&self) -> Option<CommandMode> {
+        CommandMode::from_code(self.mode)
+    }
+    pub fn intervention(&self) -> Option<Intervention> {
+        Intervention::from_code(self.intervention)
+    }
+}
+
+/// What the DFL's safety check did at a tick (README, "Safety").
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Intervention {
+    #[default]
+    None = 0,
+    /// A solved plan was not committed: flown from the current estimate and followed by
+    /// the brake, it would enter an inflated obstacle. The trajectory already committed
+    /// goes on.
+    PlanRefused = 1,
+    /// The committed trajectory, flown from the current estimate, would enter an inflated
+    /// obstacle: the DFL brakes at once (or, should braking from there enter one deeper,
+    /// flies the trajectory on; reported once per plan).
+    CommittedUnsafe = 2,
+}
+
+impl Intervention {
+    pub fn from_code(code: u32) -> Option<Intervention> {
+        Some(match code {
+            0 => Intervention::None,
+            1 => Intervention::PlanRefused,
+            2 => Intervention::CommittedUnsafe,
+            _ => return None,
+        })
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Intervention::None => "none",
+            Intervention::PlanRefused => "plan_refused",
+            Intervention::CommittedUnsafe => "committed_unsafe",
+        }
+    }
+}
+
+/// [`DeadlineVerdict::status`] of a plan that never reached the DFL.
+pub const PLAN_MISSING: u32 = u32::MAX;
+
+/// The DFL's judgement of one sample's deadline: plan(k) must be in its hands, solved, by
+/// `t_k + Ts` (README, "Deadlines"). Published for every sample, met or missed.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
+#[type_name("scmpc::DeadlineVerdict")]
+pub struct DeadlineVerdict {
+    pub header: Header,
+    /// The sample `k` judged.
+    pub sample: u64,
+    /// 1 if the deadline was met.
+    pub met: u32,
+    /// [`PlanStatus`] code of plan(k), or [`PLAN_MISSING`].
+    pub status: u32,
+    /// The plan's solve time plus injected delay, ns (0 if missing).
+    pub production_ns: u64,
+    /// When plan(k) reached the DFL after `t_k`, ns (`u64::MAX` if missing).
+    pub arrival_ns: u64,
+    /// [`CommandMode`] of the first command of sample k: the fallback used on a miss.
+    pub fallback: u32,
+    /// Misses so far, this one included.
+    pub misses_total: u32,
+}
+
+/// Every message type: access to its [`Header`].
+pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
+    fn header(&self) -> &Header;
+    fn header_mut(&mut self) -> &mut Header;
+    /// Whether every floating-point value of the message is finite.
+    fn all_finite(&self) -> bool;
+    /// Whether every code, count and length is one the type allows.
+    fn well_formed(&self) -> bool;
+
+    /// What a consumer refuses in the message's content, if anything (the border check's
+    /// content rule, applied by every executor).
+    fn content_rejection(&self) -> Option<crate::Rejection> {
+        if !self.all_finite() {
+            Some(crate::Rejection::NonFinite)
+        } else if !self.well_formed() {
+            Some(crate::Rejection::Malformed)
+        } else {
+            None
+        }
+    }
+}
+
+fn finite(values: &[f64]) -> bool {
+    values.iter().all(|v| v.is_finite())
+}
+
+macro_rules! impl_message {
+    ($($t:ty => |$m:ident| $finite:expr, $formed:expr);* $(;)?) => {$(
+        impl Message for $t {
+            fn header(&self) -> &Header {
+                &self.header
+            }
+            fn header_mut(&mut self) -> &mut Header {
+                &mut self.header
+            }
+            fn all_finite(&self) -> bool {
+                #[allow(unused_variables)]
+                let $m = self;
+                $m.header.time_s.is_finite() && $finite
+            }
+            fn well_formed(&self) -> bool {
+                #[allow(unused_variables)]
+                let $m = self;
+                $formed
+            }
+        }
+    )*};
+}
+
+impl_message!(
+    Measurement => |m| finite(&m.y), true;
+    GroundTruth => |m| finite(&m.pose), true;
+    Estimate => |m| finite(&m.state) && finite(&m.covariance), true;
+    Plan => |m| {
+        let n = (m.horizon as usize).min(MAX_HORIZON);
+        m.v[..n].iter().all(|v| finite(v)) && m.z[..=n].iter().all(|z| finite(z))
+    }, m.horizon as usize <= MAX_HORIZON && PlanStatus::from_code(m.status).is_some();
+    Actuation => |m| {
+        finite(&[m.u1, m.u2, m.zeta]) && finite(&m.wheels) && finite(&m.linearizing_input) && finite(&m.v)
+    }, CommandMode::from_code(m.mode).is_some() && Intervention::from_code(m.intervention).is_some();
+    DeadlineVerdict => |m| true, m.met <= 1
+        && (m.status == PLAN_MISSING || PlanStatus::from_code(m.status).is_some())
+        && CommandMode::from_code(m.fallback).is_some();
+    Route => |m| m.length_m.is_finite() && m.points().iter().all(|p| finite(p)),
+        m.count as usize <= ROUTE_CAPACITY && ReplanReason::from_code(m.reason).is_some()
+            && match m.status() {
+                Some(RouteStatus::Ok) => m.count >= 2,
+                Some(RouteStatus::NoRoute) => m.count == 0,
+                None => false,
+            };
+    Control => |m| true, m.command().is_some();
+    Status => |m| true, Role::from_code(m.role).is_some()
+        && StatusEvent::from_code(m.event).is_some()
+        && (m.event != StatusEvent::Rejected as u32
+            || (m.detail as usize) < Rejection::COUNT
+                && (m.producer == NO_PRODUCER || Role::from_code(m.producer).is_some()));
+    SwapRequest => |m| true, Role::from_code(m.role).is_some() && m.command_is_well_formed();
+    SwapReply => |m| true, m.done <= 1 && m.message_len as usize <= MAX_REPLY_BYTES;
+);
+
+mod control;
+pub use control::*;
+
+#[cfg(test)]
+mod tests;

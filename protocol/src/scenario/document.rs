@@ -1,0 +1,154 @@
+//! A scenario as a TOML document: parsed with errors that name the dotted key (and the
+//! line), written back with every key spelled out, and changed by `--set KEY=VALUE`.
+
+use super::*;
+
+/// One thing wrong with a scenario: where it came from, the dotted key, and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScenarioError {
+    /// The file, `--set`, or `built-in`.
+    pub origin: String,
+    /// Dotted key, e.g. `mpc.gamma`; empty when the document as a whole is unreadable.
+    pub key: String,
+    pub message: String,
+}
+
+impl fmt::Display for ScenarioError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.key.is_empty() {
+            write!(f, "{}: {}", self.origin, self.message)
+        } else {
+            write!(f, "{}: `{}`: {}", self.origin, self.key, self.message)
+        }
+    }
+}
+
+/// All the problems found in one scenario, reported together.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub struct ScenarioErrors(pub Vec<ScenarioError>);
+
+impl fmt::Display for ScenarioErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(f, "invalid scenario:")?;
+        for e in &self.0 {
+            writeln!(f, "  {e}")?;
+        }
+        Ok(())
+    }
+}
+
+impl Scenario {
+    /// Parses a TOML document; `origin` names it in errors (a path, or `built-in`).
+    pub fn from_toml(text: &str, origin: &str) -> Result<Scenario, ScenarioErrors> {
+        toml::from_str::<Scenario>(text).map_err(|e| {
+            let at = e.span().map(|span| span.start);
+            let (key, line) = at.map_or((String::new(), 0), |offset| key_at(text, offset));
+            let message = e.message().trim().to_string();
+            let message = if line > 0 {
+                format!("{message} (line {line})")
+            } else {
+                message
+            };
+            ScenarioErrors(vec![ScenarioError {
+                origin: origin.to_string(),
+                key,
+                message,
+            }])
+        })
+    }
+
+    /// The scenario as a TOML document, every key spelled out.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_else(|e| format!("# cannot render scenario: {e}\n"))
+    }
+
+    /// Applies `KEY=VALUE` overrides in order. `KEY` is a dotted path that must already
+    /// exist (array elements by index: `obstacles.0.radius`); `VALUE` is a TOML value, or
+    /// a bare word taken as a string (`mpc.constraint=euclidean`). Nothing is applied
+    /// unless every override is valid.
+    pub fn with_overrides(&self, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
+        let mut doc = toml::Value::try_from(self).map_err(|e| {
+            ScenarioErrors(vec![ScenarioError {
+                origin: "--set".into(),
+                key: String::new(),
+                message: e.to_string(),
+            }])
+        })?;
+        let mut scenario = self.clone();
+        for item in overrides {
+            let err = |key: &str, message: String| {
+                ScenarioErrors(vec![ScenarioError {
+                    origin: "--set".into(),
+                    key: key.to_string(),
+                    message,
+                }])
+            };
+            let Some((key, raw)) = item.split_once('=') else {
+                return Err(err(item, "expected KEY=VALUE".into()));
+            };
+            let key = key.trim();
+            let slot = lookup_mut(&mut doc, key).ok_or_else(|| err(key, "unknown key".into()))?;
+            *slot = parse_value(raw.trim());
+            scenario = doc.clone().try_into::<Scenario>().map_err(|e| {
+                err(
+                    key,
+                    format!("bad value `{}`: {}", raw.trim(), e.message().trim()),
+                )
+            })?;
+        }
+        Ok(scenario)
+    }
+}
+
+/// The dotted key of the `key = value` line holding byte `offset` of a TOML document,
+/// with the 1-based line number (array-of-tables elements get their index).
+fn key_at(text: &str, offset: usize) -> (String, usize) {
+    let line_no = text[..offset.min(text.len())].matches('\n').count();
+    let mut table = String::new();
+    let mut array_counts: Vec<(String, usize)> = Vec::new();
+    for line in text.lines().take(line_no) {
+        let l = line.trim();
+        if let Some(name) = l.strip_prefix("[[").and_then(|r| r.split("]]").next()) {
+            let name = name.trim().to_string();
+            let index = match array_counts.iter_mut().find(|(n, _)| *n == name) {
+                Some((_, count)) => {
+                    *count += 1;
+                    *count - 1
+                }
+                None => {
+                    array_counts.push((name.clone(), 1));
+                    0
+                }
+            };
+            table = format!("{name}.{index}");
+        } else if let Some(name) = l.strip_prefix('[').and_then(|r| r.split(']').next()) {
+            table = name.trim().to_string();
+        }
+    }
+    let line = text.lines().nth(line_no).unwrap_or("");
+    let key = line.split('=').next().unwrap_or("").trim();
+    let dotted = match (table.is_empty(), key.is_empty() || key.starts_with('[')) {
+        (_, true) => table,
+        (true, false) => key.to_string(),
+        (false, false) => format!("{table}.{key}"),
+    };
+    (dotted, line_no + 1)
+}
+
+/// The value at a dotted path (`a.b.0.c`), if it exists.
+fn lookup_mut<'v>(doc: &'v mut toml::Value, key: &str) -> Option<&'v mut toml::Value> {
+    key.split('.').try_fold(doc, |node, part| match node {
+        toml::Value::Table(t) => t.get_mut(part),
+        toml::Value::Array(a) => part.parse::<usize>().ok().and_then(|i| a.get_mut(i)),
+        _ => None,
+    })
+}
+
+/// A `--set` value: a TOML value if it parses as one, else the bare text as a string.
+fn parse_value(raw: &str) -> toml::Value {
+    format!("v = {raw}")
+        .parse::<toml::Table>()
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()))
+}

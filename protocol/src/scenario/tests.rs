@@ -1,0 +1,110 @@
+use super::*;
+
+#[test]
+fn default_is_valid_and_round_trips_through_toml() {
+    let s = Scenario::default();
+    s.validate("built-in").unwrap();
+    let back = Scenario::from_toml(&s.to_toml(), "built-in").unwrap();
+    assert_eq!(back, s);
+}
+
+#[test]
+fn set_overrides_by_dotted_path_including_array_elements() {
+    let s = Scenario::default()
+        .with_overrides(&[
+            "mpc.gamma=0.3".into(),
+            "mpc.constraint=euclidean".into(),
+            "obstacles.0.radius=1".into(),
+            "plant.noise_variance=[0.05, 0.05, 0.01]".into(),
+        ])
+        .unwrap();
+    assert_eq!(s.mpc.gamma, 0.3);
+    assert_eq!(s.mpc.constraint, ConstraintKind::Euclidean);
+    assert_eq!(s.obstacles[0].radius, 1.0);
+    assert_eq!(s.plant.noise_variance.per_axis(), [0.05, 0.05, 0.01]);
+}
+
+#[test]
+fn set_refuses_unknown_keys_and_bad_types_naming_the_key() {
+    let e = Scenario::default()
+        .with_overrides(&["mpc.gama=0.3".into()])
+        .unwrap_err();
+    assert_eq!(e.0[0].key, "mpc.gama");
+    let e = Scenario::default()
+        .with_overrides(&["mpc.horizon=abc".into()])
+        .unwrap_err();
+    assert_eq!(e.0[0].key, "mpc.horizon");
+}
+
+#[test]
+fn validation_names_every_bad_key() {
+    let mut s = Scenario::default();
+    s.timing.ts_s = 0.0;
+    s.mpc.horizon = 0;
+    s.mpc.gamma = 1.5;
+    s.obstacles[0].radius = -1.0;
+    s.plant.noise_variance = NoiseVariance::Uniform(f64::NAN);
+    let keys: Vec<String> = s
+        .validate("t")
+        .unwrap_err()
+        .0
+        .into_iter()
+        .map(|e| e.key)
+        .collect();
+    for k in [
+        "timing.ts_s",
+        "mpc.horizon",
+        "mpc.gamma",
+        "obstacles.0.radius",
+        "plant.noise_variance.0",
+    ] {
+        assert!(keys.iter().any(|x| x == k), "{k} not reported in {keys:?}");
+    }
+}
+
+#[test]
+fn parse_errors_name_the_dotted_key_and_line() {
+    let text = "name = \"x\"\n[mpc]\nhorizon = \"eight\"\n";
+    let e = Scenario::from_toml(text, "f.toml").unwrap_err();
+    assert_eq!(e.0[0].key, "mpc.horizon");
+    assert!(e.0[0].message.contains("line 3"), "{}", e.0[0].message);
+    let text =
+        "[[obstacles]]\nx = 1\ny = 1\nradius = 1\n[[obstacles]]\nx = 1\ny = 2\nradius = \"r\"\n";
+    assert_eq!(
+        Scenario::from_toml(text, "f.toml").unwrap_err().0[0].key,
+        "obstacles.1.radius"
+    );
+}
+
+#[test]
+fn fault_sample_sets_take_lists_and_ranges() {
+    let s = Scenario::default()
+        .with_overrides(&[
+            "fault.mpc_delay_ms=125".into(),
+            "fault.mpc_delay_samples=\"100..=104\"".into(),
+            "fault.mpc_fail_samples=[7, 9]".into(),
+        ])
+        .unwrap();
+    let f = &s.fault;
+    assert_eq!((99..=105).filter(|k| f.mpc_delay_ns(*k) > 0).count(), 5);
+    assert_eq!(f.mpc_delay_ns(100), 125_000_000);
+    assert!(f.mpc_fails(9) && !f.mpc_fails(8));
+    assert!(
+        SampleSet::Range("3..5".into()).contains(4) && !SampleSet::Range("3..5".into()).contains(5)
+    );
+    assert_eq!(f.describe().len(), 2);
+    let mut bad = Scenario::default();
+    bad.fault.mpc_fail_samples = SampleSet::Range("ten".into());
+    assert_eq!(
+        bad.validate("t").unwrap_err().0[0].key,
+        "fault.mpc_fail_samples"
+    );
+}
+
+#[test]
+fn start_inside_an_obstacle_is_refused() {
+    let mut s = Scenario::default();
+    s.robot.start = [3.0, 3.5, 0.0];
+    let e = s.validate("t").unwrap_err();
+    assert!(e.0.iter().any(|e| e.key == "robot.start"));
+}

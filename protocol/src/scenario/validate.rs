@@ -1,0 +1,304 @@
+//! The scenario's one validator: every value checked against its meaning, every problem
+//! reported with its dotted key, nothing run before it passes.
+
+use super::*;
+
+impl Scenario {
+    /// The scenario as a [`Validated`] one, if [`Scenario::validate`] accepts it.
+    pub fn validated(self, origin: &str) -> Result<Validated, ScenarioErrors> {
+        self.validate(origin)?;
+        Ok(Validated(self))
+    }
+
+    /// Checks every value against its meaning; reports every problem with its dotted key.
+    /// One check per key, in the schema's order: long, but a list to read against it.
+    pub fn validate(&self, origin: &str) -> Result<(), ScenarioErrors> {
+        let mut v = Validator {
+            origin,
+            errors: Vec::new(),
+        };
+        v.positive("duration_s", self.duration_s);
+        v.positive("timing.ts_s", self.timing.ts_s);
+        v.in_range(
+            "timing.inner_steps",
+            self.timing.inner_steps,
+            1,
+            MAX_INNER_STEPS,
+        );
+
+        v.finite_all("robot.start", &self.robot.start);
+        v.finite("robot.zeta0", self.robot.zeta0);
+        v.finite_all("robot.goal", &self.robot.goal);
+        v.positive("robot.goal_tolerance_m", self.robot.goal_tolerance_m);
+        v.non_negative("robot.radius_m", self.robot.radius_m);
+
+        v.positive("plant.wheel_radius_m", self.plant.wheel_radius_m);
+        v.positive("plant.wheel_base_m", self.plant.wheel_base_m);
+        v.non_negative(
+            "plant.max_wheel_speed_rad_s",
+            self.plant.max_wheel_speed_rad_s,
+        );
+        v.non_negative_all(
+            "plant.noise_variance",
+            &self.plant.noise_variance.per_axis(),
+        );
+        v.non_negative("plant.disturbance_std", self.plant.disturbance_std);
+        v.in_range(
+            "plant.rk4_substeps",
+            self.plant.rk4_substeps,
+            1,
+            MAX_RK4_SUBSTEPS,
+        );
+
+        v.non_negative_all("estimator.process_noise", &self.estimator.process_noise);
+        v.non_negative_all(
+            "estimator.initial_variance",
+            &self.estimator.initial_variance,
+        );
+
+        let m = &self.mpc;
+        v.in_range("mpc.horizon", m.horizon, 1, MAX_HORIZON);
+        v.in_range(
+            "mpc.constraint_horizon",
+            m.constraint_horizon,
+            0,
+            MAX_CONSTRAINT_HORIZON,
+        );
+        if !(m.gamma.is_finite() && m.gamma > 0.0 && m.gamma <= 1.0) {
+            v.fail("mpc.gamma", format!("must be in (0, 1], got {}", m.gamma));
+        }
+        v.non_negative_all("mpc.q_diag", &m.q_diag);
+        for (i, r) in m.r_diag.iter().enumerate() {
+            v.positive(&format!("mpc.r_diag.{i}"), *r);
+        }
+        v.positive("mpc.v_max", m.v_max);
+        v.finite_all("mpc.position_min", &m.position_min);
+        v.finite_all("mpc.position_max", &m.position_max);
+        for axis in 0..2 {
+            if m.position_min[axis] >= m.position_max[axis] {
+                v.fail(
+                    "mpc.position_min",
+                    format!("must be below mpc.position_max on axis {axis}"),
+                );
+            }
+        }
+        if m.formulation == Formulation::Nonlinear && m.terminal_safety != TerminalSafety::None {
+            v.fail(
+                "mpc.terminal_safety",
+                "the nonlinear baseline (mpc.formulation = \"nonlinear\") has no terminal \
+                 safety rows; set mpc.terminal_safety = \"none\" with it"
+                    .into(),
+            );
+        }
+        v.non_negative("mpc.safety_margin_m", m.safety_margin_m);
+        v.non_negative("mpc.uncertainty_sigmas", m.uncertainty_sigmas);
+        v.in_range("mpc.max_solves", m.max_solves, 1, 100);
+        v.positive("mpc.refinement_tol_m", m.refinement_tol_m);
+
+        v.non_negative("dfl.zeta_threshold", self.dfl.zeta_threshold);
+        if let BrakeDecel::Value(decel) = self.dfl.brake_decel {
+            v.positive("dfl.brake_decel", decel);
+            if decel > m.v_max {
+                v.fail(
+                    "dfl.brake_decel",
+                    format!(
+                        "{decel} m/s^2 is more than the input box delivers along every \
+                         heading (mpc.v_max = {}); use at most that, or \"auto\"",
+                        m.v_max
+                    ),
+                );
+            }
+        }
+
+        let p = &self.planner;
+        v.non_negative("planner.period_s", p.period_s);
+        v.non_negative("planner.clearance_m", p.clearance_m);
+        v.positive("planner.speed_m_s", p.speed_m_s);
+        v.positive("planner.stray_m", p.stray_m);
+        if p.is_on() && m.formulation == Formulation::Nonlinear {
+            v.fail(
+                "planner.kind",
+                "the nonlinear baseline (mpc.formulation = \"nonlinear\") drives at the goal \
+                 only; use planner.kind = \"none\" with it"
+                    .into(),
+            );
+        }
+
+        for (i, o) in self.obstacles.iter().enumerate() {
+            v.finite(&format!("obstacles.{i}.x"), o.x);
+            v.finite(&format!("obstacles.{i}.y"), o.y);
+            v.non_negative(&format!("obstacles.{i}.radius"), o.radius);
+        }
+        self.check_geometry(&mut v);
+        let f = &self.fault;
+        v.non_negative("fault.mpc_delay_ms", f.mpc_delay_ms);
+        v.non_negative("fault.estimator_delay_ms", f.estimator_delay_ms);
+        if f.estimator_nan_from_s.is_nan() || f.estimator_nan_from_s < 0.0 {
+            v.fail(
+                "fault.estimator_nan_from_s",
+                format!(
+                    "must be a time, s, or inf (off), got {}",
+                    f.estimator_nan_from_s
+                ),
+            );
+        }
+        for (key, set) in [
+            ("fault.mpc_delay_samples", &f.mpc_delay_samples),
+            ("fault.mpc_fail_samples", &f.mpc_fail_samples),
+        ] {
+            if !set.is_well_formed() {
+                v.fail(
+                    key,
+                    "must be a list of samples or a range like \"100..=104\"".into(),
+                );
+            }
+        }
+
+        for (i, swap) in self.swap.iter().enumerate() {
+            if !(swap.time_s.is_finite() && swap.time_s >= 0.0 && swap.time_s < self.duration_s) {
+                v.fail(
+                    &format!("swap.{i}.time_s"),
+                    format!(
+                        "must be in [0, duration_s = {}), got {}",
+                        self.duration_s, swap.time_s
+                    ),
+                );
+            }
+            match swap.swappable_role() {
+                None => v.fail(
+                    &format!("swap.{i}.role"),
+                    format!(
+                        "must be estimator, mpc, dfl or planner (the plant cannot be \
+                         swapped), got `{}`",
+                        swap.role
+                    ),
+                ),
+                Some(crate::Role::Planner) if !p.is_on() => v.fail(
+                    &format!("swap.{i}.role"),
+                    "no planner runs (planner.kind = \"none\"): nothing to swap".into(),
+                ),
+                Some(_) => {}
+            }
+            if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
+                v.fail(&format!("swap.{i}.command"), "the program is empty".into());
+            }
+        }
+
+        if v.errors.is_empty() {
+            Ok(())
+        } else {
+            Err(ScenarioErrors(v.errors))
+        }
+    }
+
+    /// The start must be clear of every obstacle by the robot's radius, and so must the
+    /// robot's path when it brakes from its initial speed; the start must be inside the
+    /// position box, and the goal outside every obstacle.
+    fn check_geometry(&self, v: &mut Validator) {
+        let [sx, sy, heading] = self.robot.start;
+        let footprint = crate::ObstacleGrowth::footprint(self);
+        let radius = footprint.fixed_m;
+        if !(sx.is_finite() && sy.is_finite() && heading.is_finite() && radius.is_finite()) {
+            return;
+        }
+        // Braking from zeta0 moves the robot straight along its heading (backwards when
+        // zeta0 < 0), U2 being zero.
+        let decel = self.brake_decel();
+        let stop = if decel > 0.0 && self.robot.zeta0.is_finite() {
+            crate::stopping_distance(self.robot.zeta0, decel, self.timing.dt_s())
+        } else {
+            0.0
+        };
+        let direction = self.robot.zeta0.signum();
+        let stop_point = [
+            sx + direction * stop * heading.cos(),
+            sy + direction * stop * heading.sin(),
+        ];
+        let [gx, gy] = self.robot.goal;
+        for (i, o) in self.obstacles.iter().enumerate() {
+            let clearance = footprint.clearance_m(o, [sx, sy]);
+            if clearance <= 0.0 {
+                v.fail(
+                    "robot.start",
+                    format!(
+                        "({sx}, {sy}) is inside obstacle {i}, inflated by robot.radius_m = \
+                         {radius} (clearance {clearance:.3} m)"
+                    ),
+                );
+            } else if crate::segment_distance([sx, sy], stop_point, [o.x, o.y])
+                <= crate::Disc::around(o, radius).radius
+            {
+                v.fail(
+                    "robot.zeta0",
+                    format!(
+                        "braking from {} m/s at {decel} m/s^2 runs into obstacle {i}",
+                        self.robot.zeta0
+                    ),
+                );
+            }
+            if footprint.clearance_m(o, [gx, gy]) <= 0.0 {
+                v.fail(
+                    "robot.goal",
+                    format!("({gx}, {gy}) is inside obstacle {i}, inflated by robot.radius_m"),
+                );
+            }
+        }
+        let m = &self.mpc;
+        for (axis, s) in [sx, sy].into_iter().enumerate() {
+            if s < m.position_min[axis] || s > m.position_max[axis] {
+                v.fail(
+                    "robot.start",
+                    format!("({sx}, {sy}) is outside the position box"),
+                );
+                break;
+            }
+        }
+    }
+}
+
+/// Collects errors for [`Scenario::validate`].
+struct Validator<'a> {
+    origin: &'a str,
+    errors: Vec<ScenarioError>,
+}
+
+impl Validator<'_> {
+    fn fail(&mut self, key: &str, message: String) {
+        self.errors.push(ScenarioError {
+            origin: self.origin.to_string(),
+            key: key.to_string(),
+            message,
+        });
+    }
+    fn finite(&mut self, key: &str, x: f64) -> bool {
+        if !x.is_finite() {
+            self.fail(key, format!("must be a finite number, got {x}"));
+        }
+        x.is_finite()
+    }
+    fn finite_all(&mut self, key: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            self.finite(&format!("{key}.{i}"), *x);
+        }
+    }
+    fn positive(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x <= 0.0 {
+            self.fail(key, format!("must be positive, got {x}"));
+        }
+    }
+    fn non_negative(&mut self, key: &str, x: f64) {
+        if self.finite(key, x) && x < 0.0 {
+            self.fail(key, format!("must not be negative, got {x}"));
+        }
+    }
+    fn non_negative_all(&mut self, key: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            self.non_negative(&format!("{key}.{i}"), *x);
+        }
+    }
+    fn in_range(&mut self, key: &str, n: usize, lo: usize, hi: usize) {
+        if n < lo || n > hi {
+            self.fail(key, format!("must be in {lo}..={hi}, got {n}"));
+        }
+    }
+}
