@@ -1,4 +1,4 @@
-//! `scmpc bench` reports every number, and the numbers meet the README's targets.
+//! `scmpc bench` reports every number, and the numbers meet the targets of docs/performance.md.
 
 mod common;
 
@@ -22,8 +22,8 @@ fn scmpc_bench_reports_the_pipeline_against_a_raw_iceoryx2_ping_pong() {
             .as_f64()
             .unwrap_or_else(|| panic!("{path:?} missing in {text}"))
     };
-    // The README's targets (issue 7), asserted with the margin this machine's noise needs
-    // (README, "Performance"): a regression that doubles a number fails, a slow hour does
+    // The targets of docs/performance.md (issue 7), asserted with the margin this machine's noise needs
+    // (docs/performance.md): a regression that doubles a number fails, a slow hour does
     // not.
     let raw = number(&["raw_iceoryx2_one_way_us", "p50"]);
     let hop = number(&["pipeline_hop_us", "p50"]);

@@ -1,5 +1,5 @@
 //! Timing violations on purpose: every miss is flagged and the robot is never without a
-//! safe command (README, "Deadlines"). Real processes, lockstep clock.
+//! safe command (docs/design.md, "Deadlines and fallback"). Real processes, lockstep clock.
 
 mod common;
 

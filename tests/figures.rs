@@ -92,7 +92,7 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
     // The samples that set the time budget, the slow ones, are faster with the linear
     // scheme at every N. (The medians are about equal: from the shifted plan the
     // nonlinear SQP mostly converges in one subproblem, as the linear scheme needs one
-    // solve; README, "The nonlinear baseline".)
+    // solve; docs/study.md.)
     let times = csv(&dir.path().join("solve_times.csv"));
     assert_eq!(times.len(), 5);
     for row in &times {

@@ -1,4 +1,4 @@
-//! The route planner (README, "Route planner"): random obstacle fields reached, the
+//! The route planner (docs/planner.md): random obstacle fields reached, the
 //! `field` scenario in every clock, no route, a planner killed or swapped mid-run.
 
 mod common;

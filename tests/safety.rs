@@ -1,4 +1,4 @@
-//! The safety layers (README, Safety): braking-safe plans, the DFL's safety check, one
+//! The safety layers (docs/safety.md): braking-safe plans, the DFL's safety check, one
 //! braking model, the robot's radius; and that with both layers off the run is the
 //! paper's formulation as it was.
 
@@ -63,7 +63,7 @@ fn the_paper_run_with_both_layers_reaches_the_goal_close_to_the_papers_time_unto
     assert_eq!(s["safety_interventions"], 0);
     assert_eq!(s["commands"]["safety_brake"], 0);
     assert_eq!(s["solver_failures"], 0);
-    // 24.11 s in the paper's formulation (README).
+    // 24.11 s in the paper's formulation (docs/safety.md).
     let t = s["time_to_goal_s"].as_f64().unwrap();
     assert!((t - 24.11).abs() < 1.0, "time to goal {t}");
 }

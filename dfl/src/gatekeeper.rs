@@ -1,4 +1,4 @@
-//! The DFL's safety check (README, "Safety"): a gatekeeper in the sense of Agrawal and
+//! The DFL's safety check (docs/safety.md): a gatekeeper in the sense of Agrawal and
 //! Panagou (2024), with the Simplex idea of a verified fallback.
 //!
 //! The DFL flies only a *committed trajectory*: a plan followed, from its last state, by the

@@ -91,7 +91,7 @@ pub fn extended_dynamics(x_bar: &[f64; 4], v: [f64; 2], zeta_threshold: f64) -> 
     [zeta * theta.cos(), zeta * theta.sin(), u2, u1]
 }
 
-/// Which element of `plan` covers sample `current_sample`, if any (README, "Deadlines":
+/// Which element of `plan` covers sample `current_sample`, if any (docs/design.md, "Deadlines and fallback":
 /// element `i` is valid on `[t_k + i Ts, t_k + (i + 1) Ts)`). A plan from the future
 /// covers nothing yet; a plan older than its horizon is exhausted.
 pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {

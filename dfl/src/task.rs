@@ -141,7 +141,7 @@ impl DeadlineMonitor {
 pub const PLAN_WAIT_FRACTION: f64 = 0.8;
 
 /// The DFL role as a task ([`protocol::task`]): on each estimate, in tick order, the
-/// command of the newest plan covering the tick (README, "Deadlines"), with its plan
+/// command of the newest plan covering the tick (docs/design.md, "Deadlines and fallback"), with its plan
 /// inbox, its deadline monitor and its watch on a silent estimator.
 pub struct DflTask {
     dfl: Dfl,

@@ -1,4 +1,4 @@
-//! The braking model the MPC shares with the DFL's brake and check (README, "Safety"):
+//! The braking model the MPC shares with the DFL's brake and check (docs/safety.md):
 //! how far the brake takes the robot, and what the braking-safe terminal rows add to the
 //! program (their variables, rows and cones; the rows are written by
 //! [`crate::terminal::TerminalRows`]).

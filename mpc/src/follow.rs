@@ -1,4 +1,4 @@
-//! Following the planner's route (README, "Route planner"): the MPC's reference is a point
+//! Following the planner's route (docs/planner.md): the MPC's reference is a point
 //! moving along the route at `planner.speed_m_s` from the robot's closest point on it,
 //! stage by stage (position and velocity, `z_i = [x, xdot, y, ydot]`), coming to rest at
 //! the route's end, the goal; once every stage's reference is the goal at rest, the MPC

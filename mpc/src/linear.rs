@@ -221,7 +221,7 @@ impl LinearMpc {
     }
 
     /// The obstacles as the constraints see them: goal-relative, radius inflated by the
-    /// margin `m + kappa sigma` (README, "What it does").
+    /// margin `m + kappa sigma` (docs/design.md).
     pub fn constraint_discs(&self) -> &[Disc] {
         &self.discs
     }

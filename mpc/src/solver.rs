@@ -7,7 +7,7 @@ use clarabel::solver::{SolverStatus, SupportedConeT};
 use protocol::PlanStatus;
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
-/// (measured with callgrind on the paper run, instructions per MPC step, README): no
+/// (measured with callgrind on the paper run, instructions per MPC step, docs/performance.md): no
 /// iterative refinement of the KKT solves (their residual products were half the work),
 /// no equilibration (the problem is well scaled), a feasibility tolerance of 1e-6
 /// instead of 1e-8 (a micrometre on positions in metres: safety is decided by
@@ -49,7 +49,7 @@ pub fn base_settings() -> clarabel::solver::DefaultSettings<f64> {
 ///
 /// Every program has a careful twin, built with it: clarabel's equilibration and
 /// iterative refinement of the KKT solves on (the settings leave both off for speed:
-/// README, Performance). It solves only when the plain solve stalls (`NumericalError`,
+/// docs/performance.md). It solves only when the plain solve stalls (`NumericalError`,
 /// `InsufficientProgress`, the primal residual stuck at 1e-6 to 1e-3: seen with the
 /// terminal rows where several discs squeeze the plan, and at Ts = 10 ms, where the inputs
 /// move the positions of a short horizon by millimetres). Either switch on every solve

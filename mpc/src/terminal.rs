@@ -1,4 +1,4 @@
-//! The braking-safe terminal rows of `mpc.terminal_safety` (README, "Safety"), and the
+//! The braking-safe terminal rows of `mpc.terminal_safety` (docs/safety.md), and the
 //! recursive feasibility they give the linear scheme.
 //!
 //! The DFL's fallback brake (`U2 = 0`, zeta taken to zero at the deceleration `a`) moves

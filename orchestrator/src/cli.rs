@@ -82,9 +82,9 @@ enum Command {
     ///
     /// Each topic's iceoryx2 service and settings, each type's iceoryx2 name, size,
     /// alignment and fields (name, offset, type), the codes of every enumeration, and the
-    /// environment a role process is started with (README, "A role in Python").
+    /// environment a role process is started with (docs/python.md).
     Schema,
-    /// Print a built-in scenario (paper, paper-noisy) as TOML, to copy and edit.
+    /// Print a built-in scenario (paper, paper-noisy, field) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
         #[arg(default_value = "paper")]
@@ -121,7 +121,7 @@ impl From<Mode> for RunMode {
 }
 
 /// What the orchestrator passes to a role process: on the command line, or in the
-/// environment of any command it starts for a role (README, "Supervision"), so a
+/// environment of any command it starts for a role (docs/design.md, "Supervision"), so a
 /// replacement such as `scmpc mpc --set mpc.horizon=10` needs only its own options.
 #[derive(Debug, clap::Args)]
 struct RoleArgs {
@@ -169,7 +169,7 @@ struct SweepArgs {
     /// Runs at a time [default: the number of cores].
     #[arg(long)]
     threads: Option<usize>,
-    /// Write each run's `run.mcap` too (README, "Recording for Foxglove").
+    /// Write each run's `run.mcap` too (docs/foxglove.md).
     #[arg(long)]
     mcap: bool,
 }
@@ -191,7 +191,7 @@ struct FuzzArgs {
     /// Runs at a time [default: the number of cores].
     #[arg(long)]
     threads: Option<usize>,
-    /// Write each run's `run.mcap` too (README, "Recording for Foxglove").
+    /// Write each run's `run.mcap` too (docs/foxglove.md).
     #[arg(long)]
     mcap: bool,
 }
@@ -213,7 +213,7 @@ struct SwapArgs {
 struct RunArgs {
     /// Scenario file, or the name of a built-in scenario [default: paper].
     scenario: Option<String>,
-    /// Step all four roles in this process (deterministic; the reference for the other modes).
+    /// Step every role's task in this process (deterministic; the reference for the other modes).
     #[arg(long)]
     in_process: bool,
     /// Override a scenario value by its dotted key, e.g. `mpc.gamma=0.3` (repeatable).
@@ -228,7 +228,7 @@ struct RunArgs {
     /// Clock of a multi-process run (`--in-process` is always lockstep).
     #[arg(long, value_enum, default_value = "lockstep")]
     mode: Mode,
-    /// Do not write `run.mcap` (README, "Recording for Foxglove").
+    /// Do not write `run.mcap` (docs/foxglove.md).
     #[arg(long)]
     no_mcap: bool,
 }

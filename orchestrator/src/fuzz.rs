@@ -1,5 +1,5 @@
 //! `scmpc fuzz`: random valid worlds, each run in process on all cores, to measure the
-//! safety property (README, "Safety") on worlds nobody tuned for.
+//! safety property (docs/safety.md) on worlds nobody tuned for.
 //!
 //! The distribution (every draw independent, uniform unless said otherwise; seeded, so
 //! `--seed` reproduces a batch exactly):

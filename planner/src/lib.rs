@@ -1,4 +1,4 @@
-//! The route planner (README, "Route planner"): a collision-free route from the robot to
+//! The route planner (docs/planner.md): a collision-free route from the robot to
 //! the goal around the obstacles, grown as the MPC grows them and by `planner.clearance_m`
 //! more, which the MPC follows ([`Route`]). No IPC here: the `scmpc planner` process
 //! ([`process`]) and the in-process loop both step a [`Planner`].

@@ -1,5 +1,5 @@
 //! Counting heap allocations, to show that a process's steady state makes none
-//! (README, "Performance"). The `scmpc` executable installs [`Counting`] as its global
+//! (docs/performance.md). The `scmpc` executable installs [`Counting`] as its global
 //! allocator (one relaxed atomic add per allocation); a role process started with
 //! [`ENV_COUNT_ALLOCATIONS`] set prints how many it made after warm-up when it stops.
 

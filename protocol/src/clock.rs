@@ -36,7 +36,7 @@ pub fn sleep_until_ns(deadline_ns: u64) {
     };
 }
 
-/// How a run is clocked (README, "Clocks").
+/// How a run is clocked (docs/design.md, "Clocks").
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RunMode {
     /// Simulated time: every process waits for its inputs of the tick; deterministic.
@@ -56,7 +56,7 @@ impl RunMode {
 }
 
 /// A run's time, as the orchestrator, the role runtime and every task tell it: the one
-/// place that knows how the two clocks differ (README, "Clocks"). Times are seconds since
+/// place that knows how the two clocks differ (docs/design.md, "Clocks"). Times are seconds since
 /// tick 0 (`t_j = j Ts / M`).
 ///
 /// - **Lockstep** (simulated): time is the newest tick granted and moves only with the
@@ -177,7 +177,7 @@ impl RunClock {
     /// its consumer now, ns, for a producer of period `period_s`. Real time: measured (0
     /// before the start). Lockstep: at once if it was made within its period, else
     /// [`late_periods`] whole periods late, so that timing violations behave as they would
-    /// in real time (README, "Deadlines").
+    /// in real time (docs/design.md, "Deadlines and fallback").
     pub fn arrival_after_ns(&self, t_s: f64, production_ns: u64, period_s: f64) -> u64 {
         match self.mode {
             RunMode::Lockstep => late_periods(production_ns, period_s) * period_ns(period_s),

@@ -35,8 +35,7 @@ impl Disc {
     }
 }
 
-/// The one rule by which an obstacle grows before anyone keeps clear of it (README,
-/// "Safety"): its radius, plus a fixed part (the robot's footprint `robot.radius_m` and
+/// The one rule by which an obstacle grows before anyone keeps clear of it (docs/safety.md): its radius, plus a fixed part (the robot's footprint `robot.radius_m` and
 /// the safety margin `mpc.safety_margin_m`), plus `kappa sigma` for an estimate whose
 /// position has standard deviation `sigma`. On top of it each consumer adds only its own
 /// term: the MPC its plan margin and the inter-sample chord, the DFL's check its commit

@@ -1,5 +1,5 @@
 //! The memory layout of every message type, as a program in another language must build
-//! it to take part in a run (`scmpc schema`, README "A role in Python").
+//! it to take part in a run (`scmpc schema`, docs/python.md).
 //!
 //! Offsets come from the compiler (`offset_of!`), type names from iceoryx2's
 //! `ZeroCopySend`, so the description cannot drift from the types; what is written by hand

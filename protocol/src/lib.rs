@@ -59,13 +59,12 @@ pub fn stopping_distance(speed_m_s: f64, decel: f64, hold_s: f64) -> f64 {
 /// current estimate, it would enter the obstacle grown by those alone. The gap between the
 /// two takes the estimate's drift from tick to tick (a fraction of sigma) and the
 /// difference between the robot and its linearized model (the zeta guard, the held
-/// inner-tick commands: micrometres) without giving up safe trajectories (README,
-/// "Safety"). This is its fixed part, m.
+/// inner-tick commands: micrometres) without giving up safe trajectories (docs/safety.md). This is its fixed part, m.
 pub const COMMIT_MARGIN_M: f64 = 1e-3;
 
 /// The extra clearance of the commit check over the re-check (module docs of
 /// `dfl::gatekeeper`): one standard deviation `sigma_m` of the position estimate and
-/// [`COMMIT_MARGIN_M`], m. Measured on noisy random worlds (README, Safety), a margin of
+/// [`COMMIT_MARGIN_M`], m. Measured on noisy random worlds (docs/safety.md), a margin of
 /// [`COMMIT_MARGIN_M`] alone had the DFL give up trajectories several times a second and
 /// halved the worlds that reached their goal.
 pub fn commit_margin_m(position_sigma_m: f64) -> f64 {

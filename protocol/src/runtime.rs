@@ -50,7 +50,7 @@ pub struct ProcessArgs {
     pub prefix: String,
     pub mode: RunMode,
     pub epoch: u32,
-    /// The orchestrator's pid, watched (README, "Supervision"); `None`: not watched.
+    /// The orchestrator's pid, watched (docs/design.md, "Supervision"); `None`: not watched.
     pub supervisor_pid: Option<u32>,
     /// The iceoryx2 id of the orchestrator's control publisher: control messages from
     /// any other publisher are refused. `None`: not checked.
@@ -538,7 +538,7 @@ pub const SPIN_BUDGET_NS: u64 = 300_000;
 /// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
 /// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
 /// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
-/// periodic input's known arrival time does not (measured: README, real-time latency).
+/// periodic input's known arrival time does not (measured: docs/design.md, "Clocks").
 pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
     sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
     let give_up = expected_ns + SPIN_BUDGET_NS;

@@ -1,5 +1,5 @@
-//! What every role's task may ask of the executor that runs it (README, "Roles and
-//! tasks").
+//! What every role's task may ask of the executor that runs it (docs/design.md,
+//! "Roles and tasks").
 //!
 //! Each role crate exports one task: a value holding the role's whole behaviour (what it
 //! takes from its inputs, when it has what a step needs, the step, its faults, the headers

@@ -55,7 +55,7 @@ pub fn paper_set(
 }
 
 /// A built-in scenario in the paper's formulation: the paper's study is of it, without the
-/// safety layers added since (README, "Safety").
+/// safety layers added since (docs/safety.md).
 fn paper_scenario(name: &str) -> anyhow::Result<protocol::Validated> {
     let paper = [
         "mpc.terminal_safety=none".to_string(),

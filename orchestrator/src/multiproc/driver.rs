@@ -99,8 +99,8 @@ impl<'a> Driver<'a> {
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.session.start(start_ns)?;
-        let end_ns = start_ns + (self.scenario.duration_s * 1e9) as u64;
-        let give_up_ns = end_ns + 5_000_000_000;
+        let end_ns = self.session.clock().at_ns(self.scenario.duration_s);
+        let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
         loop {
             if let Some(outcome) = self.check()? {
                 return Ok(outcome);

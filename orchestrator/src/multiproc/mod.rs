@@ -1,4 +1,4 @@
-//! `scmpc run` over iceoryx2: the four roles as separate processes, launched, clocked and
+//! `scmpc run` over iceoryx2: every role as a separate process, launched, clocked and
 //! recorded by the orchestrator.
 //!
 //! Lockstep: the orchestrator grants tick `j` to the plant, and the data flow carries it
@@ -51,7 +51,7 @@ const SWITCH_LEAD_SAMPLES: u64 = 2;
 /// A replacement not warm this long after it was started is stopped; the swap fails.
 const SWAP_TIMEOUT: Duration = Duration::from_secs(10);
 
-/// Environment of every role process the orchestrator starts (README, "Supervision"): a
+/// Environment of every role process the orchestrator starts (docs/design.md, "Supervision"): a
 /// replacement command needs nothing else to join the run.
 pub const ENV_SCENARIO: &str = "SCMPC_SCENARIO";
 pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
@@ -100,7 +100,7 @@ impl RunInfo {
     }
 }
 
-/// Runs the scenario as four processes on iceoryx2 resources named with `prefix` and
+/// Runs the scenario as role processes on iceoryx2 resources named with `prefix` and
 /// writes `out`. Whatever happens, every process is stopped
 /// and the run's iceoryx2 resources are removed before this returns.
 pub fn run(

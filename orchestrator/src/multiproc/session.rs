@@ -151,7 +151,7 @@ impl Session {
     }
 
     /// Pins the outputs of the process that sent the ready report `s` to the publishers it
-    /// announced, once per epoch (README, "Supervision"), and tells every process.
+    /// announced, once per epoch (docs/design.md, "Supervision"), and tells every process.
     pub fn pin(&self, role: Role, s: &Status) -> Result<(), IpcError> {
         let mut schedule = self.schedule.get();
         if schedule.pin(role, s.header.epoch, s.publishers) {

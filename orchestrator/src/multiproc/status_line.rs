@@ -1,4 +1,4 @@
-//! The live status line of a multi-process run on a terminal (README, "Running"): one line
+//! The live status line of a multi-process run on a terminal (docs/running.md): one line
 //! on stdout, redrawn in place every [`REDRAW`], wiped at the end. Nothing is written when
 //! stdout is not a terminal.
 

@@ -10,7 +10,7 @@ use protocol::clock::RunMode;
 use protocol::{ControlCommand, Role, Scenario, SwapReply, Timing};
 use std::time::Instant;
 
-/// A replacement being swapped in (README, "Supervision").
+/// A replacement being swapped in (docs/design.md, "Supervision").
 struct Swap {
     role: Role,
     /// Epoch of the replacement, and of the process it replaces.

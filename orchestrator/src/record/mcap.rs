@@ -1,4 +1,4 @@
-//! `run.mcap`: the run for Foxglove (README, "Recording for Foxglove").
+//! `run.mcap`: the run for Foxglove (docs/foxglove.md).
 //!
 //! Messages are JSON with a JSON Schema. Channels whose schema is named after one of
 //! Foxglove's well-known schemas (`foxglove.PoseInFrame`, `foxglove.PosesInFrame`,

@@ -349,7 +349,7 @@ impl<T: Message> Receiver<T> {
         }
     }
 
-    /// The border check (README, "Supervision"), in one place. A sample of a producer
+    /// The border check (docs/design.md, "Supervision"), in one place. A sample of a producer
     /// being swapped in or out is [`EpochVerdict::Standby`]: skipped, not an error.
     /// Whether the bound clock (if any) knows "now". A clock once known stays known, so
     /// it is asked only until then (in real time asking reads the wall clock).
@@ -493,7 +493,7 @@ pub const TICK_SLACK: u64 = 2;
 pub const TIME_TOLERANCE_S: f64 = 1e-6;
 
 /// What a consumer knows of "now", so that no sample can move it: the newest tick any
-/// producer can have published (README, "Supervision").
+/// producer can have published (docs/design.md, "Supervision").
 pub trait TickLimit {
     /// The newest tick a producer can have published by now (`None`: none yet). With
     /// `refresh`, after taking what the clock's source has pending.

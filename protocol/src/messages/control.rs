@@ -39,7 +39,7 @@ pub struct Control {
 }
 
 /// Which producer epoch of each [`Role`] (indexed by its code) consumers take, tick by
-/// tick (README, "Supervision"). A swap-in replacement is announced as `next` while it warms
+/// tick (docs/design.md, "Supervision"). A swap-in replacement is announced as `next` while it warms
 /// up: its samples are neither used nor counted as rejected. Once `switch_tick` is set,
 /// samples of ticks before it are taken from `active` and from it on from `next`, so the
 /// hand-over happens at one sample boundary in every process alike. The schedule stays so
@@ -205,7 +205,7 @@ impl Control {
     }
 }
 
-/// The four roles of a run.
+/// The roles of a run: the paper's four and the route planner.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Role {
@@ -213,7 +213,7 @@ pub enum Role {
     Estimator = 1,
     Mpc = 2,
     Dfl = 3,
-    /// The route planner (README, "Route planner"): only in runs with `planner.kind =
+    /// The route planner (docs/planner.md): only in runs with `planner.kind =
     /// "route"`.
     Planner = 4,
 }
@@ -269,7 +269,7 @@ impl StatusEvent {
     }
 }
 
-/// Why a consumer refused a sample (README, "Supervision").
+/// Why a consumer refused a sample (docs/design.md, "Supervision").
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rejection {
@@ -317,7 +317,7 @@ impl Rejection {
 
     /// Whether the refusal is the fault of the sample's own producer (its run, epoch and
     /// publisher were right): what counts towards its failure
-    /// (README, "Supervision"). A stranger's samples never do.
+    /// (docs/design.md, "Supervision"). A stranger's samples never do.
     pub fn blames_producer(self) -> bool {
         !matches!(
             self,

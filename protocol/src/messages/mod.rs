@@ -1,7 +1,7 @@
 //! Every message that crosses a process boundary: `#[repr(C)]`, fixed size, no heap, so
 //! iceoryx2 can hand it over in shared memory without copying or serializing.
 //!
-//! Each carries a [`Header`] (README, "Supervision"). The in-process mode passes the very
+//! Each carries a [`Header`] (docs/design.md, "Supervision"). The in-process mode passes the very
 //! same values between the roles, so both modes share one set of semantics.
 
 use iceoryx2::prelude::ZeroCopySend;
@@ -102,7 +102,7 @@ impl PlanStatus {
 }
 
 /// plan(k): a time-indexed input sequence. Element `i` is valid on
-/// `[t_k + i Ts, t_k + (i + 1) Ts)` (README, "Deadlines").
+/// `[t_k + i Ts, t_k + (i + 1) Ts)` (docs/design.md, "Deadlines and fallback").
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("scmpc::Plan")]
@@ -158,7 +158,7 @@ impl Plan {
 /// Most waypoints a [`Route`] carries.
 pub const ROUTE_CAPACITY: usize = 64;
 
-/// The planner's route to the goal (README, "Route planner"), published every sample:
+/// The planner's route to the goal (docs/planner.md), published every sample:
 /// the waypoints of the newest plan, from the position it was planned at to the goal.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
@@ -282,7 +282,7 @@ pub enum CommandMode {
     /// A nominal command whose steering was zeroed by the zeta guard.
     ZetaGuard = 3,
     /// Braking because the safety check found the trajectory being flown no longer safe
-    /// from the current estimate (README, "Safety"), until a new plan passes it.
+    /// from the current estimate (docs/safety.md), until a new plan passes it.
     SafetyBrake = 4,
 }
 
@@ -352,7 +352,7 @@ impl Actuation {
     }
 }
 
-/// What the DFL's safety check did at a tick (README, "Safety").
+/// What the DFL's safety check did at a tick (docs/safety.md).
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Intervention {
@@ -390,7 +390,7 @@ impl Intervention {
 pub const PLAN_MISSING: u32 = u32::MAX;
 
 /// The DFL's judgement of one sample's deadline: plan(k) must be in its hands, solved, by
-/// `t_k + Ts` (README, "Deadlines"). Published for every sample, met or missed.
+/// `t_k + Ts` (docs/design.md, "Deadlines and fallback"). Published for every sample, met or missed.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
 #[type_name("scmpc::DeadlineVerdict")]

@@ -2,7 +2,7 @@
 //! dotted-key overrides of `--set`.
 //!
 //! Every key has a default, and the defaults are the paper's canonical scenario
-//! (README, "Scenario keys"): a file only has to name what it changes. Unknown keys are
+//! (docs/running.md, "Scenario keys"): a file only has to name what it changes. Unknown keys are
 //! refused everywhere (`deny_unknown_fields`), so a typo never silently falls back to a
 //! default.
 
@@ -75,7 +75,7 @@ pub struct Scenario {
     pub swap: Vec<SwapConfig>,
 }
 
-/// One scheduled replacement of a role process, make-before-break (README, "Supervision").
+/// One scheduled replacement of a role process, make-before-break (docs/design.md, "Supervision").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SwapConfig {
@@ -179,7 +179,7 @@ impl SampleSet {
     }
 }
 
-/// Faults injected into a run (what they exercise: README, "Deadlines").
+/// Faults injected into a run (what they exercise: docs/design.md, "Deadlines and fallback").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FaultConfig {
@@ -467,7 +467,7 @@ pub enum QpForm {
 }
 
 impl QpForm {
-    /// Longest horizon `Auto` condenses. Measured on the paper's run (README,
+    /// Longest horizon `Auto` condenses. Measured on the paper's run (docs/performance.md,
     /// Performance): condensed takes 27 % fewer instructions at N = 8, sparse 14 % fewer
     /// at N = 12 and 3x fewer at N = 30.
     pub const CONDENSED_UP_TO_HORIZON: usize = 10;
@@ -515,7 +515,7 @@ pub struct MpcConfig {
     /// Refinement stops once no predicted position moves more than this, m. A move of
     /// `d` leaves the convexified CBF exactly `d^2` (m^2) tighter than one linearized at
     /// the new plan (`H(p) - L(p) = |p - p_bar|^2`), so the re-solve it would start
-    /// changes the plan far less than `d` (measured in the README, Performance). The
+    /// changes the plan far less than `d` (measured: docs/performance.md). The
     /// default 2 cm refines only from a poor reference (a cold start, a plan bent by a
     /// new obstacle).
     pub refinement_tol_m: f64,
@@ -552,13 +552,13 @@ pub struct DflConfig {
     /// terminal rows, the brake and the safety check all use it
     /// ([`Scenario::brake_decel`]); a value above `mpc.v_max` is refused.
     pub brake_decel: BrakeDecel,
-    /// The safety check (README, "Safety"): the DFL flies only a plan whose trajectory,
+    /// The safety check (docs/safety.md): the DFL flies only a plan whose trajectory,
     /// followed by the brake, it has checked against every obstacle, and brakes at once
     /// when the estimate shows the trajectory it flies is no longer safe.
     pub gatekeeper: bool,
 }
 
-/// The route planner (README, "Route planner").
+/// The route planner (docs/planner.md).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlannerConfig {
@@ -626,7 +626,7 @@ pub struct Obstacle {
 }
 
 impl Default for Scenario {
-    /// The paper's canonical scenario (README, "Scenario keys").
+    /// The paper's canonical scenario (docs/running.md, "Scenario keys").
     fn default() -> Self {
         Scenario {
             name: "paper".into(),
@@ -731,7 +731,7 @@ impl Default for DflConfig {
 impl Scenario {
     /// Deceleration of the fallback brake, m/s^2: `dfl.brake_decel`, whose `auto` is
     /// `mpc.v_max`. One braking model for the MPC's terminal rows, the DFL's brake and its
-    /// safety check (README, "Safety").
+    /// safety check (docs/safety.md).
     pub fn brake_decel(&self) -> f64 {
         match self.dfl.brake_decel {
             BrakeDecel::Auto(_) => self.mpc.v_max,

@@ -166,7 +166,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
 }
 
 /// The scenarios of the recursive feasibility test: the paper's, the two that ran into
-/// their obstacle before terminal safety (issue 14; README, Known limitations),
+/// their obstacle before terminal safety (issue 14; docs/limitations.md),
 /// `gamma = 1`, and three obstacles.
 fn hard_scenarios() -> Vec<Scenario> {
     let with = |overrides: &[&str]| {
