@@ -73,7 +73,7 @@ fn plans_made(dir: &Path) -> Vec<String> {
 fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
     let _machine = common::machine_shared();
     // Each fault key with a value that exercises it, over the part of the run it acts in.
-    let cases: [(&str, &[&str]); 7] = [
+    let cases: [(&str, &[&str]); 10] = [
         (
             "mpc_delay_ms",
             &[
@@ -99,6 +99,10 @@ fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
         ("estimator_delay_ms", &["fault.estimator_delay_ms=0.2"]),
         ("mpc_ignore_obstacles", &["fault.mpc_ignore_obstacles=true"]),
         ("estimator_nan_from_s", &["fault.estimator_nan_from_s=3"]),
+        // The link faults act on links between hosts: on one host there is none.
+        ("link_delay_ms", &["fault.link_delay_ms=60"]),
+        ("link_loss", &["fault.link_loss=0.2"]),
+        ("link_down_s", &["fault.link_down_s=[1, 2]"]),
     ];
     let keys = serde_json::to_value(protocol::FaultConfig::default()).unwrap();
     let keys: Vec<&String> = keys.as_object().unwrap().keys().collect();

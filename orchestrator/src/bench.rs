@@ -302,6 +302,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         &out.join("realtime"),
         RunMode::Realtime,
         &ipc::new_prefix(),
+        &multiproc::HostsSetup::default(),
         false,
         stop,
     )?;
@@ -310,6 +311,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         &out.join("lockstep"),
         RunMode::Lockstep,
         &ipc::new_prefix(),
+        &multiproc::HostsSetup::default(),
         false,
         stop,
     )?;

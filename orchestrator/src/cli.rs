@@ -90,6 +90,12 @@ enum Command {
         #[arg(default_value = "paper")]
         name: String,
     },
+    /// The agent of a host: runs the roles a scenario places on this host, run after run
+    /// (docs/hosts.md).
+    ///
+    /// Listens on a Zenoh endpoint; an orchestrator given `--host NAME=ENDPOINT` joins it
+    /// to its run. Stops on Ctrl-C, stopping the processes of a run it serves.
+    Host(HostArgs),
     /// Role process: the plant (started by `scmpc run`).
     Plant(RoleArgs),
     /// Role process: the state estimator (started by `scmpc run`).
@@ -126,22 +132,22 @@ impl From<Mode> for RunMode {
 #[derive(Debug, clap::Args)]
 struct RoleArgs {
     /// The run's scenario file (the orchestrator writes it into the run directory).
-    #[arg(long, env = crate::multiproc::ENV_SCENARIO)]
+    #[arg(long, env = crate::children::ENV_SCENARIO)]
     scenario: String,
     /// The run's iceoryx2 resource prefix.
-    #[arg(long, env = crate::multiproc::ENV_PREFIX)]
+    #[arg(long, env = crate::children::ENV_PREFIX)]
     prefix: String,
-    #[arg(long, value_enum, default_value = "lockstep", env = crate::multiproc::ENV_MODE)]
+    #[arg(long, value_enum, default_value = "lockstep", env = crate::children::ENV_MODE)]
     mode: Mode,
     /// The producer epoch stamped on every sample.
-    #[arg(long, default_value_t = 0, env = crate::multiproc::ENV_EPOCH)]
+    #[arg(long, default_value_t = 0, env = crate::children::ENV_EPOCH)]
     epoch: u32,
     /// The orchestrator's pid: when it is gone, the robot is stopped and the process exits.
-    #[arg(long, env = crate::multiproc::ENV_SUPERVISOR)]
+    #[arg(long, env = crate::children::ENV_SUPERVISOR)]
     supervisor_pid: Option<u32>,
     /// The iceoryx2 id of the orchestrator's control publisher (hexadecimal): control
     /// messages from any other publisher are refused.
-    #[arg(long, env = crate::multiproc::ENV_CONTROL_PUBLISHER, value_parser = parse_hex_id)]
+    #[arg(long, env = crate::children::ENV_CONTROL_PUBLISHER, value_parser = parse_hex_id)]
     control_publisher: Option<u128>,
     /// Override a value of the run's scenario for this process only, e.g.
     /// `mpc.horizon=10` (repeatable).
@@ -209,6 +215,54 @@ struct SwapArgs {
     command: Vec<String>,
 }
 
+/// How this side secures its links to other hosts (docs/hosts.md).
+#[derive(Debug, clap::Args)]
+struct SecurityArgs {
+    /// The CA certificate (PEM) both sides trust: TLS with mutual authentication.
+    #[arg(long, value_name = "FILE", requires_all = ["tls_cert", "tls_key"])]
+    tls_ca: Option<PathBuf>,
+    /// This side's certificate (PEM), signed by the CA.
+    #[arg(long, value_name = "FILE", requires_all = ["tls_ca", "tls_key"])]
+    tls_cert: Option<PathBuf>,
+    /// This side's private key (PEM).
+    #[arg(long, value_name = "FILE", requires_all = ["tls_ca", "tls_cert"])]
+    tls_key: Option<PathBuf>,
+    /// Allow plain TCP to or from an address that is not on loopback.
+    #[arg(long)]
+    insecure: bool,
+}
+
+impl SecurityArgs {
+    fn security(&self) -> Result<hosts::net::Security, CliError> {
+        let tls = match (&self.tls_ca, &self.tls_cert, &self.tls_key) {
+            (Some(ca), Some(certificate), Some(private_key)) => Some(hosts::net::TlsFiles {
+                ca: ca.clone(),
+                certificate: certificate.clone(),
+                private_key: private_key.clone(),
+            }),
+            _ => None,
+        };
+        let security = hosts::net::Security {
+            tls,
+            insecure: self.insecure,
+        };
+        security.check_files().map_err(bad_input)?;
+        Ok(security)
+    }
+}
+
+#[derive(Debug, clap::Args)]
+struct HostArgs {
+    /// The host's name, as scenarios place roles on it (`[hosts] mpc = "NAME"`).
+    #[arg(long)]
+    name: String,
+    /// Where to listen: `tcp/ADDR:PORT` (loopback, or with --insecure) or `tls/ADDR:PORT`.
+    #[arg(long, value_name = "ENDPOINT")]
+    listen: String,
+    #[command(flatten)]
+    security: SecurityArgs,
+}
+
 #[derive(Debug, clap::Args)]
 struct RunArgs {
     /// Scenario file, or the name of a built-in scenario [default: paper].
@@ -231,6 +285,12 @@ struct RunArgs {
     /// Do not write `run.mcap` (docs/foxglove.md).
     #[arg(long)]
     no_mcap: bool,
+    /// Where the agent of a host the scenario places roles on listens, e.g.
+    /// `compute=tcp/127.0.0.1:7447` (repeatable; overrides `[hosts.endpoints]`).
+    #[arg(long = "host", value_name = "NAME=ENDPOINT")]
+    hosts: Vec<String>,
+    #[command(flatten)]
+    security: SecurityArgs,
 }
 
 /// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
@@ -278,6 +338,7 @@ pub fn main() -> ExitCode {
         Command::Figures { out } => figures(&out),
         Command::Bench { out, realtime_s } => bench(out, realtime_s),
         Command::BenchPong { prefix } => crate::bench::pong(&prefix).map_err(CliError::Failed),
+        Command::Host(args) => host(args),
         Command::Plant(args) => role(args, Role::Plant, plant::process::run),
         Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
         Command::Mpc(args) => role(args, Role::Mpc, mpc::process::run),
@@ -469,15 +530,16 @@ fn role(
 ) -> CliResult {
     // A replacement command that starts the wrong role would only be refused, sample by
     // sample, as the wrong epoch: say so at once.
-    if let Ok(wanted) = std::env::var(crate::multiproc::ENV_ROLE)
+    if let Ok(wanted) = std::env::var(crate::children::ENV_ROLE)
         && wanted != this.as_str()
     {
         return Err(bad_input(format!(
             "this is the {} process, but the run started it as its {wanted} ({})",
             this.as_str(),
-            crate::multiproc::ENV_ROLE
+            crate::children::ENV_ROLE
         )));
     }
+    protocol::clock::clock_shift_from_env().map_err(bad_input)?;
     let scenario = scenarios::load(Some(&args.scenario), &args.overrides).map_err(bad_input)?;
     // A process of its own may change what it computes, never the loop's clock.
     if !args.overrides.is_empty()
@@ -512,6 +574,16 @@ fn run(args: RunArgs) -> CliResult {
     }
     let prefix = args.prefix.unwrap_or_else(protocol::ipc::new_prefix);
     protocol::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
+    let hosts = if args.in_process {
+        multiproc::HostsSetup::default()
+    } else {
+        hosts_setup(
+            &scenario,
+            &args.hosts,
+            args.security.security()?,
+            args.mode.into(),
+        )?
+    };
     let stop = stop_flag();
     let summary = if args.in_process {
         inprocess::run(&scenario, &out, !args.no_mcap, &stop)
@@ -521,6 +593,7 @@ fn run(args: RunArgs) -> CliResult {
             &out,
             args.mode.into(),
             &prefix,
+            &hosts,
             !args.no_mcap,
             &stop,
         )
@@ -538,9 +611,84 @@ fn run(args: RunArgs) -> CliResult {
     }
 }
 
+/// Where each host the scenario places a role on listens (the scenario's
+/// `[hosts.endpoints]`, then `--host NAME=ENDPOINT`), each endpoint allowed by `security`.
+fn hosts_setup(
+    scenario: &protocol::Validated,
+    flags: &[String],
+    security: hosts::net::Security,
+    mode: RunMode,
+) -> Result<multiproc::HostsSetup, CliError> {
+    use protocol::endpoint::{Endpoint, is_host_name};
+    let mut endpoints = std::collections::BTreeMap::new();
+    for (name, text) in &scenario.hosts.endpoints {
+        let endpoint =
+            Endpoint::parse(text).map_err(|e| bad_input(format!("hosts.endpoints.{name}: {e}")))?;
+        endpoints.insert(name.clone(), endpoint);
+    }
+    for flag in flags {
+        let (name, text) = flag
+            .split_once('=')
+            .ok_or_else(|| bad_input(format!("--host {flag}: not NAME=ENDPOINT")))?;
+        if !is_host_name(name) || name == hosts::keys::ORCHESTRATOR {
+            return Err(bad_input(format!(
+                "--host {flag}: `{name}` is no host name"
+            )));
+        }
+        let endpoint =
+            Endpoint::parse(text).map_err(|e| bad_input(format!("--host {flag}: {e}")))?;
+        endpoints.insert(name.to_string(), endpoint);
+    }
+    let used = scenario.hosts.names();
+    for name in &used {
+        let endpoint = endpoints.get(name).ok_or_else(|| {
+            bad_input(format!(
+                "host `{name}`: no endpoint (give --host {name}=tcp/ADDR:PORT or [hosts.endpoints] {name})"
+            ))
+        })?;
+        security
+            .allows(endpoint)
+            .map_err(|e| bad_input(format!("host `{name}`: {e}")))?;
+    }
+    let f = &scenario.fault;
+    let link_faults = f.link_delay_ms > 0.0 || f.link_loss > 0.0 || f.link_is_ever_down();
+    if link_faults && !used.is_empty() && mode == RunMode::Lockstep {
+        return Err(bad_input(
+            "fault.link_*: the link faults act in real time (give --mode realtime); \
+             in lockstep a lost grant would stop the clock",
+        ));
+    }
+    endpoints.retain(|name, _| used.contains(name));
+    Ok(multiproc::HostsSetup {
+        endpoints,
+        security,
+    })
+}
+
+/// `scmpc host`: the agent of this host, until Ctrl-C.
+fn host(args: HostArgs) -> CliResult {
+    use protocol::endpoint::{Endpoint, is_host_name};
+    if !is_host_name(&args.name) || args.name == hosts::keys::ORCHESTRATOR {
+        return Err(bad_input(format!(
+            "--name {}: a host name is letters, digits, `-` and `_` (and not `{}`)",
+            args.name,
+            hosts::keys::ORCHESTRATOR
+        )));
+    }
+    let listen = Endpoint::parse(&args.listen).map_err(|e| bad_input(format!("--listen: {e}")))?;
+    let security = args.security.security()?;
+    security
+        .allows(&listen)
+        .map_err(|e| bad_input(format!("--listen: {e}")))?;
+    protocol::clock::clock_shift_from_env().map_err(bad_input)?;
+    let stop = stop_flag();
+    crate::agent::serve(&args.name, &listen, &security, &stop)?;
+    Ok(())
+}
+
 /// What `scmpc schema` prints.
 fn message_schema() -> serde_json::Value {
-    use crate::multiproc::{
+    use crate::children::{
         ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO,
         ENV_SUPERVISOR,
     };

@@ -1,6 +1,8 @@
 //! The `scmpc` command: scenario validation, the in-process run, recording and the summary.
 
+pub mod agent;
 pub mod bench;
+pub mod children;
 pub mod cli;
 pub mod closed_loop;
 pub mod figures;
@@ -9,6 +11,7 @@ pub mod inprocess;
 pub mod judge;
 pub mod multiproc;
 pub mod record;
+pub mod remote;
 pub mod scenarios;
 pub mod schema;
 pub mod solve_times;

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 mod mcap;
 mod summary;
 pub use mcap::McapLog;
-pub use summary::{Latencies, ModeCounts, Percentiles, ProcessReport, Summary};
+pub use summary::{Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Summary};
 
 /// Streams the run's records to its directory and accumulates the summary's statistics.
 /// It decides nothing: how the run ends is the [`Judge`]'s.

@@ -1,8 +1,50 @@
 //! Time: the system-wide monotonic clock, comparable across processes (`CLOCK_MONOTONIC`),
 //! and [`RunClock`], a run's time in either of its clocks.
+//!
+//! On a host of its own a process's monotonic clock is not the orchestrator's: its agent
+//! estimates the difference and hands its role processes the correction
+//! ([`ENV_CLOCK_CORRECTION_NS`]), so that every time stamp and deadline of a run is on the
+//! orchestrator's clock, on every host. [`ENV_CLOCK_OFFSET_MS`] shifts a process's clock on
+//! purpose, to test that on one machine, where the clocks agree anyway.
 
-/// Now on the monotonic clock, ns.
-pub fn monotonic_ns() -> u64 {
+use std::sync::OnceLock;
+
+/// Environment: an artificial offset of this process's monotonic clock, ms (a test of a
+/// host whose clock differs).
+pub const ENV_CLOCK_OFFSET_MS: &str = "SCMPC_CLOCK_OFFSET_MS";
+/// Environment: what to add to this host's clock to read the orchestrator's, ns (set by
+/// the host's agent for the role processes it starts).
+pub const ENV_CLOCK_CORRECTION_NS: &str = "SCMPC_CLOCK_CORRECTION_NS";
+
+/// The shift of this process's clock from `CLOCK_MONOTONIC`, ns, from its environment
+/// ([`ENV_CLOCK_OFFSET_MS`] and [`ENV_CLOCK_CORRECTION_NS`]); an error names the variable
+/// whose value is not a number.
+pub fn clock_shift_from_env() -> Result<i64, String> {
+    let read = |name: &str, scale: f64| -> Result<i64, String> {
+        match std::env::var(name) {
+            Err(_) => Ok(0),
+            Ok(text) if text.trim().is_empty() => Ok(0),
+            Ok(text) => text
+                .trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .map(|v| (v * scale).round() as i64)
+                .ok_or_else(|| format!("{name}={text}: not a number")),
+        }
+    };
+    Ok(read(ENV_CLOCK_OFFSET_MS, 1e6)? + read(ENV_CLOCK_CORRECTION_NS, 1.0)?)
+}
+
+/// This process's clock shift, ns (read once; an unreadable environment was refused by
+/// the command before it got here, and counts as no shift).
+fn shift_ns() -> i64 {
+    static SHIFT: OnceLock<i64> = OnceLock::new();
+    *SHIFT.get_or_init(|| clock_shift_from_env().unwrap_or(0))
+}
+
+/// `CLOCK_MONOTONIC`, ns.
+fn raw_monotonic_ns() -> u64 {
     let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
@@ -12,15 +54,22 @@ pub fn monotonic_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
+/// Now on the run's monotonic clock, ns: `CLOCK_MONOTONIC` shifted as the environment
+/// says (the orchestrator's clock on every host).
+pub fn monotonic_ns() -> u64 {
+    raw_monotonic_ns().saturating_add_signed(shift_ns())
+}
+
 /// The inner tick (of `dt_s` seconds) the monotonic clock is in at `now_ns`, counted from
 /// a real-time run's tick 0 at `start_ns` (0 before it).
 pub fn tick_at(start_ns: u64, now_ns: u64, dt_s: f64) -> u64 {
     (now_ns.saturating_sub(start_ns) as f64 / (dt_s * 1e9)) as u64
 }
 
-/// Sleeps until the absolute monotonic time `deadline_ns` (no drift across periods).
-/// Returns early if a signal interrupts the sleep.
+/// Sleeps until the absolute time `deadline_ns` on the run's clock ([`monotonic_ns`]; no
+/// drift across periods). Returns early if a signal interrupts the sleep.
 pub fn sleep_until_ns(deadline_ns: u64) {
+    let deadline_ns = deadline_ns.saturating_add_signed(-shift_ns());
     let ts = libc::timespec {
         tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
         tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,

@@ -3,6 +3,7 @@
 
 pub mod alloc_count;
 pub mod clock;
+pub mod endpoint;
 pub mod geometry;
 pub mod ipc;
 pub mod layout;

@@ -43,13 +43,29 @@ MAX_SUBSCRIBERS = 8
 SUBSCRIBER_BUFFER = 64
 
 
+def _clock_shift_ns():
+    """The shift of this process's clock (docs/hosts.md): an artificial offset in
+    ``SCMPC_CLOCK_OFFSET_MS`` and the correction to the orchestrator's clock that a host's
+    agent gives its role processes in ``SCMPC_CLOCK_CORRECTION_NS``."""
+    offset_ms = float(os.environ.get("SCMPC_CLOCK_OFFSET_MS", "").strip() or 0)
+    correction_ns = float(os.environ.get("SCMPC_CLOCK_CORRECTION_NS", "").strip() or 0)
+    return round(offset_ms * 1e6 + correction_ns)
+
+
+CLOCK_SHIFT_NS = _clock_shift_ns()
+
+
 def monotonic_ns():
-    """``CLOCK_MONOTONIC``, ns: the clock of every header's ``publish_ns`` and of ``start_ns``."""
-    return time.clock_gettime_ns(time.CLOCK_MONOTONIC)
+    """The run's clock, ns: ``CLOCK_MONOTONIC`` shifted to the orchestrator's on every host;
+    the clock of every header's ``publish_ns`` and of ``start_ns``."""
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC) + CLOCK_SHIFT_NS
 
 
 def run_id(prefix):
-    """The run's identity stamped on every sample: FNV-1a of its prefix."""
+    """The run's identity stamped on every sample: ``SCMPC_RUN_ID`` (hexadecimal) on a host
+    of its own, else FNV-1a of its prefix."""
+    if os.environ.get("SCMPC_RUN_ID", "").strip():
+        return int(os.environ["SCMPC_RUN_ID"], 16)
     h = 0x811C9DC5
     for b in prefix.encode():
         h = ((h ^ b) * 0x01000193) & 0xFFFFFFFF

@@ -11,20 +11,20 @@
 //! producers, dead nodes and restarts; [`SwapServer`] the swaps; [`StatusLine`] the line on
 //! the terminal.
 
-use super::children::Children;
 use super::intake::Intake;
 use super::session::Session;
 use super::status_line::{Live, StatusLine};
 use super::supervision::{Supervisor, clean_dead_nodes};
 use super::swap_server::{Parts, SwapServer};
 use super::{POLL, START_LEAD, TICK_TIMEOUT};
+use crate::children::Children;
 use crate::judge::{Judge, Outcome};
 use crate::record::{ProcessReport, Recorder};
 use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
-use protocol::Scenario;
 use protocol::clock::monotonic_ns;
 use protocol::ipc;
+use protocol::{Role, Scenario};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -149,7 +149,8 @@ impl<'a> Driver<'a> {
     fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
         ipc::wait(waitset, POLL)?;
         self.intake.take(self.session)?;
-        self.supervisor.take_status(self.session, self.recorder)
+        self.supervisor
+            .take_status(self.session, self.children, self.recorder)
     }
 
     /// Between ticks: the status line, and the swaps moved on.
@@ -191,6 +192,9 @@ impl<'a> Driver<'a> {
         self.supervisor
             .contain(self.session, self.children, self.recorder)?;
         self.supervisor.watch_nodes(self.children, self.recorder)?;
+        if let Some(host) = self.children.remote.as_ref().and_then(|r| r.take_lost()) {
+            return self.lose_host(&host);
+        }
         let Some((proc, status)) = self.children.take_exited() else {
             return Ok(None);
         };
@@ -199,7 +203,7 @@ impl<'a> Driver<'a> {
         if proc.retire_by.is_some() {
             self.recorder.event(
                 "retired",
-                serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status.to_string() }),
+                serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status }),
             )?;
             return Ok(None);
         }
@@ -210,7 +214,7 @@ impl<'a> Driver<'a> {
         };
         if self
             .swaps
-            .replacement_exited(&mut parts, role, epoch, &status.to_string())?
+            .replacement_exited(&mut parts, role, epoch, &status)?
         {
             return Ok(None);
         }
@@ -222,7 +226,7 @@ impl<'a> Driver<'a> {
         }
         parts.recorder.event(
             "crashed",
-            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status.to_string(), "nodes_cleaned": cleaned }),
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "nodes_cleaned": cleaned }),
         )?;
         if self.swaps.promote(&mut parts, role)? {
             return Ok(None);
@@ -231,6 +235,30 @@ impl<'a> Driver<'a> {
             self.supervisor
                 .restart(role, self.session, self.children, self.recorder)?;
         Ok((!restarted).then_some(Outcome::Aborted))
+    }
+
+    /// The agent of `host` is gone (docs/hosts.md): its processes are as good as crashed.
+    /// Each active producer among them fails over to this host, or the run ends aborted.
+    fn lose_host(&mut self, host: &str) -> anyhow::Result<Option<Outcome>> {
+        let gone = self.children.forget_host(host);
+        let roles: Vec<Role> = gone
+            .iter()
+            .filter(|p| self.session.schedule().current(p.role) == p.epoch)
+            .map(|p| p.role)
+            .collect();
+        self.recorder.event(
+            "host_lost",
+            serde_json::json!({ "host": host, "roles": roles.iter().map(|r| r.as_str()).collect::<Vec<_>>() }),
+        )?;
+        for role in roles {
+            let failed_over =
+                self.supervisor
+                    .fail_over(role, self.session, self.children, self.recorder)?;
+            if !failed_over {
+                return Ok(Some(Outcome::Aborted));
+            }
+        }
+        Ok(None)
     }
 
     /// After the clock has stopped with `outcome`: records the plans still held, answers

@@ -7,7 +7,6 @@
 //! loses nothing. Real time: the orchestrator publishes the monotonic time of tick 0 and
 //! records ticks as they complete, counting every tick it never receives whole.
 
-mod children;
 mod driver;
 mod intake;
 mod session;
@@ -15,15 +14,19 @@ mod status_line;
 mod supervision;
 mod swap_server;
 
+use crate::children::Children;
 use crate::judge::{Judge, Outcome};
 use crate::record::{ProcessReport, Recorder, Summary};
+use crate::remote::RemoteHosts;
 use anyhow::{Context, anyhow, bail};
-use children::Children;
 use driver::Driver;
+use hosts::net::Security;
 use protocol::clock::RunMode;
+use protocol::endpoint::Endpoint;
 use protocol::ipc;
 use protocol::{ControlCommand, Role, Scenario, Validated};
 use session::Session;
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -50,22 +53,6 @@ const SWAP_WARMUP_SAMPLES: u64 = 2;
 const SWITCH_LEAD_SAMPLES: u64 = 2;
 /// A replacement not warm this long after it was started is stopped; the swap fails.
 const SWAP_TIMEOUT: Duration = Duration::from_secs(10);
-
-/// Environment of every role process the orchestrator starts (docs/design.md, "Supervision"): a
-/// replacement command needs nothing else to join the run.
-pub const ENV_SCENARIO: &str = "SCMPC_SCENARIO";
-pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
-/// `lockstep` or `realtime`.
-pub const ENV_MODE: &str = "SCMPC_MODE";
-/// The producer epoch the process must stamp on every sample.
-pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
-/// `plant`, `estimator`, `mpc` or `dfl`.
-pub const ENV_ROLE: &str = "SCMPC_ROLE";
-/// The orchestrator's pid: a role process stops the robot and exits when it is gone.
-pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
-/// The iceoryx2 id of the orchestrator's control publisher (hexadecimal): a role process
-/// takes control messages from it alone.
-pub const ENV_CONTROL_PUBLISHER: &str = "SCMPC_CONTROL_PUBLISHER";
 
 /// `run.json` of a run directory: how tools such as `scmpc swap` reach the running run.
 #[derive(Debug, serde::Serialize, serde::Deserialize)]
@@ -100,14 +87,23 @@ impl RunInfo {
     }
 }
 
-/// Runs the scenario as role processes on iceoryx2 resources named with `prefix` and
-/// writes `out`. Whatever happens, every process is stopped
+/// Where the other hosts of a run listen, and how the links to them are secured
+/// (docs/hosts.md).
+#[derive(Debug, Clone, Default)]
+pub struct HostsSetup {
+    pub endpoints: BTreeMap<String, Endpoint>,
+    pub security: Security,
+}
+
+/// Runs the scenario as role processes on iceoryx2 resources named with `prefix` (roles
+/// placed on other hosts there, as `hosts` says) and writes `out`. Whatever happens, every process is stopped
 /// and the run's iceoryx2 resources are removed before this returns.
 pub fn run(
     scenario: &Validated,
     out: &Path,
     mode: RunMode,
     prefix: &str,
+    hosts: &HostsSetup,
     mcap: bool,
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
@@ -129,7 +125,7 @@ pub fn run(
             .context("creating run.mcap")?;
     }
     ipc::register_run(prefix).context("registering the run")?;
-    let result = drive(scenario, out, mode, prefix, stop, &mut recorder);
+    let result = drive(scenario, out, mode, prefix, hosts, stop, &mut recorder);
     match ipc::remove_run_resources(prefix) {
         Ok(()) => ipc::unregister_run(prefix),
         Err(e) => tracing::warn!("cleaning up the run's iceoryx2 resources: {e}"),
@@ -151,10 +147,11 @@ pub fn run(
 /// Launches the processes, clocks and records the run, and stops the processes. Every
 /// iceoryx2 port of the orchestrator is gone when this returns.
 fn drive(
-    scenario: &Scenario,
+    scenario: &Validated,
     out: &Path,
     mode: RunMode,
     prefix: &str,
+    hosts: &HostsSetup,
     stop: &AtomicBool,
     recorder: &mut Recorder,
 ) -> anyhow::Result<(Outcome, Judge, ProcessReport)> {
@@ -166,13 +163,38 @@ fn drive(
         swap_reply_publisher: format!("{:x}", session.swap_replies.publisher_id()),
     }
     .write(out)?;
-    let mut children = Children::spawn(
+    let remote = if scenario.hosts.names().is_empty() {
+        None
+    } else {
+        let remote = RemoteHosts::connect(
+            scenario,
+            mode,
+            prefix,
+            &hosts.endpoints,
+            &hosts.security,
+            session.control.publisher_id(),
+        )?;
+        for (name, link) in &remote.hosts {
+            recorder.event(
+                "host_joined",
+                serde_json::json!({
+                    "host": name, "endpoint": link.endpoint, "agent_pid": link.agent_pid,
+                    "prefix": link.prefix, "round_trip_us": link.clock.round_trip_ns as f64 / 1e3,
+                    "clock_correction_ms": link.clock.correction_ns as f64 / 1e6,
+                }),
+            )?;
+        }
+        Some(remote)
+    };
+    let mut children = Children::new(
         &out.join("scenario.toml"),
-        scenario.roles(),
         prefix,
         mode,
         session.control.publisher_id(),
+        Vec::new(),
+        remote,
     )?;
+    children.spawn_all(scenario.roles())?;
     let mut report = ProcessReport {
         iceoryx2_prefix: prefix.to_string(),
         ..ProcessReport::default()
@@ -181,10 +203,13 @@ fn drive(
         .pids
         .insert("orchestrator".into(), std::process::id());
     for p in &children.list {
-        report.pids.insert(p.role.as_str().into(), p.child.id());
+        report.pids.insert(p.role.as_str().into(), p.pid());
+        if let Some(host) = p.host() {
+            report.hosts.insert(p.role.as_str().into(), host.into());
+        }
         recorder.event(
             "spawned",
-            serde_json::json!({ "role": p.role.as_str(), "pid": p.child.id() }),
+            serde_json::json!({ "role": p.role.as_str(), "pid": p.pid(), "host": p.host() }),
         )?;
     }
 
@@ -222,15 +247,37 @@ fn drive(
             serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
         )?;
     }
+    if let Some(remote) = &children.remote {
+        report.links = link_reports(remote);
+    }
     drop(guards);
     let (outcome, judge) = outcome?;
     Ok((outcome, judge, report))
 }
 
+/// Ends the run on every other host and reports each link.
+fn link_reports(remote: &RemoteHosts) -> BTreeMap<String, crate::record::LinkReport> {
+    let mut counters = remote.end();
+    remote
+        .hosts
+        .iter()
+        .map(|(name, link)| {
+            let report = crate::record::LinkReport {
+                endpoint: link.endpoint.clone(),
+                round_trip_us: link.clock.round_trip_ns as f64 / 1e3,
+                clock_correction_ms: link.clock.correction_ns as f64 / 1e6,
+                clock_uncertainty_us: link.clock.uncertainty_ns() as f64 / 1e3,
+                host_bridge: counters.remove(name).unwrap_or_default(),
+            };
+            (name.clone(), report)
+        })
+        .collect()
+}
+
 /// The peak resident memory of every process still running and of the orchestrator.
 fn record_peak_rss(children: &Children, report: &mut ProcessReport) {
-    for p in &children.list {
-        if let Some(kib) = peak_rss_kib(p.child.id()) {
+    for p in children.list.iter().filter(|p| p.host().is_none()) {
+        if let Some(kib) = peak_rss_kib(p.pid()) {
             let peak = report
                 .peak_rss_kib
                 .entry(p.role.as_str().into())
@@ -286,7 +333,8 @@ fn wait_until_ready(
         session.status.drain(|s, _| joined.extend(ready_role(&s)))?;
         for (role, s) in joined {
             ready[role as usize] = true;
-            session.pin(role, &s)?;
+            let epoch = s.header.epoch;
+            session.pin(role, epoch, children.pins(role, epoch, s.publishers))?;
         }
     }
     Ok(())

@@ -150,11 +150,12 @@ impl Session {
         self.command(ControlCommand::Epochs)
     }
 
-    /// Pins the outputs of the process that sent the ready report `s` to the publishers it
-    /// announced, once per epoch (docs/design.md, "Supervision"), and tells every process.
-    pub fn pin(&self, role: Role, s: &Status) -> Result<(), IpcError> {
+    /// Pins the outputs of the process of `role` and `epoch` to `publishers` (those its
+    /// ready report announced, or the relays carrying it from another host), once per
+    /// epoch (docs/design.md, "Supervision"), and tells every process.
+    pub fn pin(&self, role: Role, epoch: u32, publishers: [u128; 2]) -> Result<(), IpcError> {
         let mut schedule = self.schedule.get();
-        if schedule.pin(role, s.header.epoch, s.publishers) {
+        if schedule.pin(role, epoch, publishers) {
             self.reschedule(|now| *now = schedule)?;
         }
         Ok(())

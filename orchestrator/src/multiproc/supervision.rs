@@ -1,9 +1,9 @@
 //! Supervision: the processes' status reports (refused samples, processes that joined),
 //! producers that fail the border checks, the scan for dead iceoryx2 nodes, and restarts.
 
-use super::children::Children;
 use super::session::Session;
 use super::{NODE_LISTING, NODE_SCAN};
+use crate::children::Children;
 use crate::record::Recorder;
 use protocol::ipc;
 use protocol::{ControlCommand, Rejection, RestartPolicy, Role, Status, StatusEvent, Supervision};
@@ -68,6 +68,7 @@ impl Supervisor {
     pub fn take_status(
         &mut self,
         session: &Session,
+        children: &Children,
         recorder: &mut Recorder,
     ) -> anyhow::Result<()> {
         let mut joined = Vec::new();
@@ -100,7 +101,8 @@ impl Supervisor {
             )?;
         }
         for (role, s) in joined {
-            session.pin(role, &s)?;
+            let epoch = s.header.epoch;
+            session.pin(role, epoch, children.pins(role, epoch, s.publishers))?;
             recorder.event("ready", serde_json::json!({ "role": role.as_str() }))?;
             self.last_node_listing = None;
             session.tell_the_clock()?;
@@ -178,6 +180,30 @@ impl Supervisor {
             self.last_node_listing = Some(Instant::now());
         }
         Ok(())
+    }
+
+    /// The host of a process of `role` is gone: with `supervision.failover = "local"` a
+    /// replacement starts on this host with a new epoch and takes over at once (its host
+    /// is lost, so nothing of the old one is left to break); returns false otherwise (the
+    /// run ends aborted).
+    pub fn fail_over(
+        &mut self,
+        role: Role,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<bool> {
+        if self.policy.failover != protocol::Failover::Local {
+            return Ok(false);
+        }
+        let epoch = children.take_epoch();
+        session.reschedule(|s| s.activate(role, epoch))?;
+        let pid = children.spawn_role(role, epoch, &[])?;
+        recorder.event(
+            "failed_over",
+            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
+        )?;
+        Ok(true)
     }
 
     /// A crashed process of `role`: restarted per the scenario's policy with a new epoch

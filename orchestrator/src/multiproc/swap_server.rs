@@ -2,9 +2,9 @@
 //! scenario's scheduled swaps and live requests, a replacement started beside the process
 //! it replaces, warmed up, switched in at a sample boundary, or stopped when it fails.
 
-use super::children::Children;
 use super::session::Session;
 use super::{STOP_TIMEOUT, SWAP_TIMEOUT, SWAP_WARMUP_SAMPLES, SWITCH_LEAD_SAMPLES};
+use crate::children::Children;
 use crate::record::Recorder;
 use protocol::clock::RunMode;
 use protocol::{ControlCommand, Role, Scenario, SwapReply, Timing};

@@ -114,6 +114,27 @@ pub struct ProcessReport {
     pub rejected_samples: BTreeMap<String, u64>,
     /// iceoryx2 files of the run still present after it ended (should be empty).
     pub leftover_files: Vec<String>,
+    /// The host each role ran on (roles on other hosts only; docs/hosts.md).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub hosts: BTreeMap<String, String>,
+    /// Each link to another host: its round trip, the clock offset and what it carried.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub links: BTreeMap<String, LinkReport>,
+}
+
+/// One link between the orchestrator's host and another (docs/hosts.md).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LinkReport {
+    /// Where the host's agent listened.
+    pub endpoint: String,
+    /// The shortest round trip of the clock exchange, µs.
+    pub round_trip_us: f64,
+    /// The host's clock against the orchestrator's, as estimated, ms (positive: behind).
+    pub clock_correction_ms: f64,
+    /// How far that estimate may be off (half the round trip), µs.
+    pub clock_uncertainty_us: f64,
+    /// What the host's bridge carried and refused.
+    pub host_bridge: hosts::LinkCounters,
 }
 
 /// Latency samples of a multi-process run, collected by the recorder.
@@ -231,6 +252,17 @@ impl Summary {
             table += &line("sensor→actuator", &p.loop_latency_us);
             let pids: Vec<String> = p.pids.iter().map(|(r, pid)| format!("{r} {pid}")).collect();
             table += &format!("  {:<16} {}\n", "processes", pids.join(", "));
+            for (role, host) in &p.hosts {
+                let link = p.links.get(host);
+                table += &format!(
+                    "  {:<16} {role} on `{host}`{}\n",
+                    "host",
+                    link.map_or(String::new(), |l| format!(
+                        " ({}, round trip {:.0} µs, clock {:+.3} ms ± {:.0} µs)",
+                        l.endpoint, l.round_trip_us, l.clock_correction_ms, l.clock_uncertainty_us
+                    ))
+                );
+            }
             if p.record_gaps > 0 {
                 table += &format!(
                     "  {:<16} {} ticks not recorded whole\n",

@@ -40,6 +40,39 @@ pub const SWAP: &str = "swap";
 /// Orchestrator to `scmpc swap`: how a requested swap ended.
 pub const SWAP_REPLY: &str = "swap_reply";
 
+/// The data flow (docs/design.md): each data topic, the role that produces it and the
+/// roles that take it (the orchestrator records every topic). The role processes open
+/// these inputs; a bridge between hosts carries a topic to every host with a role that
+/// takes it.
+pub const DATA_FLOW: [(&str, crate::Role, &[crate::Role]); 7] = {
+    use crate::Role::*;
+    [
+        (MEASUREMENT, Plant, &[Estimator]),
+        (TRUTH, Plant, &[]),
+        (ESTIMATE, Estimator, &[Mpc, Dfl, Planner]),
+        (PLAN, Mpc, &[Dfl]),
+        (ACTUATION, Dfl, &[Plant, Estimator]),
+        (DEADLINE, Dfl, &[]),
+        (ROUTE, Planner, &[Mpc]),
+    ]
+};
+
+/// The role that produces data topic `topic`.
+pub fn producer_of(topic: &str) -> Option<crate::Role> {
+    DATA_FLOW
+        .iter()
+        .find(|(t, _, _)| *t == topic)
+        .map(|(_, producer, _)| *producer)
+}
+
+/// The output topic of `producer` in publisher slot `slot` ([`output_slot`]).
+pub fn output_topic(producer: crate::Role, slot: usize) -> Option<&'static str> {
+    DATA_FLOW
+        .iter()
+        .map(|(t, _, _)| *t)
+        .find(|t| output_slot(producer, t) == Some(slot))
+}
+
 /// Where output `topic` of `producer` sits in the publishers it announces when it joins
 /// ([`Status::publishers`](crate::Status::publishers)); `None`: not one of its outputs.
 pub fn output_slot(producer: crate::Role, topic: &str) -> Option<usize> {
@@ -81,6 +114,22 @@ pub fn new_prefix() -> String {
         std::process::id(),
         monotonic_ns() % 1_000_000_000_000
     )
+}
+
+/// Environment: the run's id (hexadecimal) for a process on another host, whose iceoryx2
+/// prefix is its agent's, not the run's (docs/hosts.md).
+pub const ENV_RUN_ID: &str = "SCMPC_RUN_ID";
+
+/// The run id this process's topics stamp and check: [`ENV_RUN_ID`] if it is set, else
+/// that of `prefix`.
+fn topic_run_id(prefix: &str) -> u32 {
+    static OVERRIDE: std::sync::OnceLock<Option<u32>> = std::sync::OnceLock::new();
+    let from_env = *OVERRIDE.get_or_init(|| {
+        std::env::var(ENV_RUN_ID)
+            .ok()
+            .and_then(|text| u32::from_str_radix(text.trim(), 16).ok())
+    });
+    from_env.unwrap_or_else(|| run_id(prefix.as_bytes()))
 }
 
 /// The run's identity stamped on every sample: FNV-1a of its prefix.
@@ -162,7 +211,7 @@ pub fn open_topic<T: Message>(
         .event()
         .open_or_create()
         .map_err(ctx(format!("opening event service `{name}`")))?;
-    let run_id = run_id(node.config().global.prefix.as_bytes());
+    let run_id = topic_run_id(node.config().global.prefix.as_str());
     Ok(Topic {
         name,
         run_id,
@@ -625,6 +674,7 @@ fn signal_mode(handle_signals: bool) -> SignalHandlingMode {
 }
 
 mod resources;
+pub mod wire;
 pub use resources::*;
 
 #[cfg(test)]

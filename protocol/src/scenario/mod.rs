@@ -73,6 +73,48 @@ pub struct Scenario {
     pub supervision: Supervision,
     /// Scheduled swap-in replacements (`[[swap]]`), in any order.
     pub swap: Vec<SwapConfig>,
+    /// Roles on other hosts (docs/hosts.md).
+    pub hosts: HostsConfig,
+}
+
+/// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
+/// orchestrator's host (the plant, the simulated robot, always runs there), and where each
+/// named host's agent listens.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HostsConfig {
+    pub estimator: String,
+    pub mpc: String,
+    pub dfl: String,
+    pub planner: String,
+    /// Host name to the Zenoh endpoint its agent listens on (`tcp/ADDR:PORT` or
+    /// `tls/ADDR:PORT`); `scmpc run --host NAME=ENDPOINT` adds to it.
+    pub endpoints: std::collections::BTreeMap<String, String>,
+}
+
+impl HostsConfig {
+    /// The host `role` runs on (`None`: the orchestrator's).
+    pub fn of(&self, role: crate::Role) -> Option<&str> {
+        let name = match role {
+            crate::Role::Plant => "",
+            crate::Role::Estimator => &self.estimator,
+            crate::Role::Mpc => &self.mpc,
+            crate::Role::Dfl => &self.dfl,
+            crate::Role::Planner => &self.planner,
+        };
+        (!name.is_empty()).then_some(name)
+    }
+
+    /// The names of the hosts roles are placed on, each once, in order.
+    pub fn names(&self) -> Vec<String> {
+        let mut names: Vec<String> = crate::Role::ALL
+            .iter()
+            .filter_map(|r| self.of(*r).map(str::to_string))
+            .collect();
+        names.sort();
+        names.dedup();
+        names
+    }
 }
 
 /// One scheduled replacement of a role process, make-before-break (docs/design.md, "Supervision").
@@ -113,6 +155,16 @@ pub struct Supervision {
     pub restart: RestartPolicy,
     /// Restarts allowed over the whole run.
     pub max_restarts: u32,
+    /// When the host of a role is lost (docs/hosts.md): `none` ends the run `aborted`;
+    /// `local` starts a replacement on the orchestrator's host and the run goes on.
+    pub failover: Failover,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Failover {
+    None,
+    Local,
 }
 
 impl Default for Supervision {
@@ -120,6 +172,7 @@ impl Default for Supervision {
         Supervision {
             restart: RestartPolicy::Always,
             max_restarts: 3,
+            failover: Failover::None,
         }
     }
 }
@@ -203,6 +256,14 @@ pub struct FaultConfig {
     /// estimates with a NaN: a stand-in for a broken producer, to show it is refused, then
     /// treated as failed and restarted (its restart is healthy). `inf` (the default): off.
     pub estimator_nan_from_s: f64,
+    /// Every sample crossing a link between hosts is held this long by the bridge that
+    /// sends it, ms (docs/hosts.md; real time).
+    pub link_delay_ms: f64,
+    /// Probability that a sample crossing a link is dropped (real time).
+    pub link_loss: f64,
+    /// Run times `[from, to)`, s, in which every link between hosts is down: the samples
+    /// of those times are dropped (real time; `[0, 0]`: never).
+    pub link_down_s: [f64; 2],
 }
 
 impl Default for FaultConfig {
@@ -215,6 +276,9 @@ impl Default for FaultConfig {
             estimator_delay_ms: 0.0,
             mpc_ignore_obstacles: false,
             estimator_nan_from_s: f64::INFINITY,
+            link_delay_ms: 0.0,
+            link_loss: 0.0,
+            link_down_s: [0.0, 0.0],
         }
     }
 }
@@ -276,7 +340,27 @@ impl FaultConfig {
                 self.estimator_nan_from_s
             ));
         }
+        if self.link_delay_ms > 0.0 {
+            faults.push(format!("links delayed {} ms", self.link_delay_ms));
+        }
+        if self.link_loss > 0.0 {
+            faults.push(format!("links lose {} of their samples", self.link_loss));
+        }
+        if self.link_is_ever_down() {
+            let [from, to] = self.link_down_s;
+            faults.push(format!("links down from {from} s to {to} s"));
+        }
         faults
+    }
+
+    /// Whether `fault.link_down_s` cuts the links at some time.
+    pub fn link_is_ever_down(&self) -> bool {
+        self.link_down_s[1] > self.link_down_s[0]
+    }
+
+    /// Whether the links are down at run time `t_s`.
+    pub fn link_down_at(&self, t_s: f64) -> bool {
+        (self.link_down_s[0]..self.link_down_s[1]).contains(&t_s)
     }
 }
 
@@ -647,6 +731,7 @@ impl Default for Scenario {
             fault: FaultConfig::default(),
             supervision: Supervision::default(),
             swap: Vec::new(),
+            hosts: HostsConfig::default(),
         }
     }
 }

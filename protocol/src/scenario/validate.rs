@@ -154,6 +154,22 @@ impl Scenario {
             }
         }
 
+        v.non_negative("fault.link_delay_ms", f.link_delay_ms);
+        if !(0.0..1.0).contains(&f.link_loss) {
+            v.fail(
+                "fault.link_loss",
+                format!("must be a probability in [0, 1), got {}", f.link_loss),
+            );
+        }
+        let [from, to] = f.link_down_s;
+        if !(from.is_finite() && to.is_finite() && from >= 0.0 && to >= from) {
+            v.fail(
+                "fault.link_down_s",
+                format!("must be [from, to] with 0 <= from <= to, s, got [{from}, {to}]"),
+            );
+        }
+        self.check_hosts(&mut v);
+
         for (i, swap) in self.swap.iter().enumerate() {
             if !(swap.time_s.is_finite() && swap.time_s >= 0.0 && swap.time_s < self.duration_s) {
                 v.fail(
@@ -188,6 +204,38 @@ impl Scenario {
             Ok(())
         } else {
             Err(ScenarioErrors(v.errors))
+        }
+    }
+
+    /// Host names name hosts, endpoints parse, and a host's endpoint is known when it is
+    /// given in the scenario.
+    fn check_hosts(&self, v: &mut Validator) {
+        for role in crate::Role::ALL {
+            if let Some(host) = self.hosts.of(role)
+                && !crate::endpoint::is_host_name(host)
+            {
+                v.fail(
+                    &format!("hosts.{}", role.as_str()),
+                    format!("`{host}` is no host name (letters, digits, `-`, `_`)"),
+                );
+            }
+        }
+        for (name, endpoint) in &self.hosts.endpoints {
+            let key = format!("hosts.endpoints.{name}");
+            if !crate::endpoint::is_host_name(name) {
+                v.fail(
+                    &key,
+                    format!("`{name}` is no host name (letters, digits, `-`, `_`)"),
+                );
+            } else if let Err(e) = crate::endpoint::Endpoint::parse(endpoint) {
+                v.fail(&key, e);
+            }
+        }
+        if self.hosts.of(crate::Role::Planner).is_some() && !self.planner.is_on() {
+            v.fail(
+                "hosts.planner",
+                "no planner runs (planner.kind = \"none\")".into(),
+            );
         }
     }
 

@@ -1,0 +1,48 @@
+//! The Zenoh key expressions of scmpc. An agent answers on its host's key; everything of a
+//! run is under the run's key (the orchestrator's iceoryx2 prefix), so runs never meet.
+
+/// The name the orchestrator's host goes by in keys (refused as a host name).
+pub const ORCHESTRATOR: &str = "orchestrator";
+
+/// Where the agent of `host` takes join requests.
+pub fn agent_join(host: &str) -> String {
+    format!("scmpc/agent/{host}/join")
+}
+
+/// Samples of `topic` for `host` in `run` (`topic` may be `*`).
+pub fn to_host(run: &str, host: &str, topic: &str) -> String {
+    format!("scmpc/run/{run}/to/{host}/{topic}")
+}
+
+/// Where the agent of `host` takes the orchestrator's commands for `run`.
+pub fn host_command(run: &str, host: &str) -> String {
+    format!("scmpc/run/{run}/host/{host}/command")
+}
+
+/// Where the agent of `host` reports its role processes' exits in `run`.
+pub fn host_exits(run: &str, host: &str) -> String {
+    format!("scmpc/run/{run}/host/{host}/exit")
+}
+
+/// The orchestrator's clock in `run`: a query is answered with its time.
+pub fn clock(run: &str) -> String {
+    format!("scmpc/run/{run}/clock")
+}
+
+/// The liveliness token of `who` (a host, or [`ORCHESTRATOR`]) in `run`.
+pub fn alive(run: &str, who: &str) -> String {
+    format!("scmpc/run/{run}/alive/{who}")
+}
+
+/// The liveliness tokens of every host in `run`.
+pub fn alive_all(run: &str) -> String {
+    format!("scmpc/run/{run}/alive/*")
+}
+
+/// The zenoh key chunk of a run: its iceoryx2 prefix without what keys do not allow.
+pub fn run_of_prefix(prefix: &str) -> String {
+    prefix
+        .chars()
+        .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_')
+        .collect()
+}

@@ -1,0 +1,159 @@
+//! The Zenoh network of a run: peers that connect only where they are told (no multicast
+//! scouting, no gossip), over TCP on loopback, or over TLS with mutual authentication
+//! anywhere else. A non-loopback endpoint without TLS is refused unless the user says
+//! `--insecure`.
+
+use crate::HostError;
+use protocol::endpoint::{Endpoint, Transport};
+use std::path::PathBuf;
+use zenoh::Wait;
+
+/// The files of TLS with mutual authentication: the CA both sides trust, and this side's
+/// certificate and private key (PEM).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsFiles {
+    pub ca: PathBuf,
+    pub certificate: PathBuf,
+    pub private_key: PathBuf,
+}
+
+/// How this side secures its Zenoh links.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Security {
+    pub tls: Option<TlsFiles>,
+    /// Plain TCP off loopback, on the user's explicit word.
+    pub insecure: bool,
+}
+
+impl Security {
+    /// Whether `endpoint` may be used: loopback, TLS configured (a `tls/` endpoint needs
+    /// it), or `--insecure`. The error names what to give.
+    pub fn allows(&self, endpoint: &Endpoint) -> Result<(), String> {
+        match (endpoint.transport, &self.tls) {
+            (Transport::Tls, None) => Err(format!(
+                "{} is a TLS endpoint: give --tls-ca, --tls-cert and --tls-key",
+                endpoint.zenoh()
+            )),
+            (Transport::Tcp, Some(_)) => Err(format!(
+                "{} is plain TCP while TLS is configured: use tls/{}:{}",
+                endpoint.zenoh(),
+                endpoint.address,
+                endpoint.port
+            )),
+            (Transport::Tcp, None) if !endpoint.is_loopback() && !self.insecure => Err(format!(
+                "{} is not on loopback: configure TLS with mutual authentication \
+                 (--tls-ca, --tls-cert, --tls-key) or give --insecure",
+                endpoint.zenoh()
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// Checks that the TLS files can be read.
+    pub fn check_files(&self) -> Result<(), String> {
+        let Some(tls) = &self.tls else {
+            return Ok(());
+        };
+        for (option, path) in [
+            ("--tls-ca", &tls.ca),
+            ("--tls-cert", &tls.certificate),
+            ("--tls-key", &tls.private_key),
+        ] {
+            std::fs::metadata(path).map_err(|e| format!("{option} {}: {e}", path.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// The configuration of a peer that listens on `listen` and connects to `connect`.
+pub fn config(
+    listen: &[Endpoint],
+    connect: &[Endpoint],
+    security: &Security,
+) -> Result<zenoh::Config, HostError> {
+    let mut config = zenoh::Config::default();
+    let mut set = |key: &str, value: serde_json::Value| {
+        config
+            .insert_json5(key, &value.to_string())
+            .map_err(|e| HostError::Zenoh(format!("config {key}: {e}")))
+    };
+    let zenoh_endpoints = |list: &[Endpoint]| {
+        serde_json::Value::from(list.iter().map(Endpoint::zenoh).collect::<Vec<_>>())
+    };
+    set("mode", "peer".into())?;
+    set("listen/endpoints", zenoh_endpoints(listen))?;
+    set("connect/endpoints", zenoh_endpoints(connect))?;
+    set("scouting/multicast/enabled", false.into())?;
+    set("scouting/gossip/enabled", false.into())?;
+    if let Some(tls) = &security.tls {
+        let path = |p: &PathBuf| serde_json::Value::from(p.display().to_string());
+        set("transport/link/tls/root_ca_certificate", path(&tls.ca))?;
+        set(
+            "transport/link/tls/listen_certificate",
+            path(&tls.certificate),
+        )?;
+        set(
+            "transport/link/tls/listen_private_key",
+            path(&tls.private_key),
+        )?;
+        set(
+            "transport/link/tls/connect_certificate",
+            path(&tls.certificate),
+        )?;
+        set(
+            "transport/link/tls/connect_private_key",
+            path(&tls.private_key),
+        )?;
+        set("transport/link/tls/enable_mtls", true.into())?;
+        set("transport/link/tls/verify_name_on_connect", false.into())?;
+    }
+    Ok(config)
+}
+
+/// Opens a session with `config`.
+pub fn open(config: zenoh::Config) -> Result<zenoh::Session, HostError> {
+    zenoh::open(config)
+        .wait()
+        .map_err(|e| HostError::Zenoh(format!("opening a session: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plain_tcp_off_loopback_needs_tls_or_insecure() {
+        let remote = Endpoint::parse("tcp/10.0.0.7:7447").unwrap();
+        let local = Endpoint::parse("tcp/127.0.0.1:7447").unwrap();
+        let plain = Security::default();
+        assert!(plain.allows(&local).is_ok());
+        let refused = plain.allows(&remote).unwrap_err();
+        assert!(
+            refused.contains("--insecure") && refused.contains("--tls-ca"),
+            "{refused}"
+        );
+        let insecure = Security {
+            insecure: true,
+            ..Security::default()
+        };
+        assert!(insecure.allows(&remote).is_ok());
+        let tls_endpoint = Endpoint::parse("tls/10.0.0.7:7447").unwrap();
+        assert!(
+            plain
+                .allows(&tls_endpoint)
+                .unwrap_err()
+                .contains("--tls-cert")
+        );
+        let tls = Security {
+            tls: Some(TlsFiles {
+                ca: "ca.pem".into(),
+                certificate: "cert.pem".into(),
+                private_key: "key.pem".into(),
+            }),
+            insecure: false,
+        };
+        assert!(tls.allows(&tls_endpoint).is_ok());
+        assert!(tls.allows(&remote).is_err(), "TLS configured: no plain TCP");
+        assert!(config(std::slice::from_ref(&local), &[], &tls).is_ok());
+    }
+}

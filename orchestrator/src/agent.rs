@@ -1,0 +1,346 @@
+//! `scmpc host`: the agent of a host (docs/hosts.md), a long-lived process that serves run
+//! after run. An orchestrator asks it to join a run; it then runs the roles the scenario
+//! places on its host as ordinary role processes on an iceoryx2 prefix of its own, runs
+//! the host's bridge, starts, signals and reaps the processes as the orchestrator says,
+//! reports their exits, and at the end of the run (or when the orchestrator is gone)
+//! stops them and removes the run's resources. Its role processes take the run's id, and
+//! a clock corrected to the orchestrator's.
+
+use crate::children::Children;
+use anyhow::{Context, anyhow};
+use hosts::auth::RunKey;
+use hosts::bridge::{Bridge, BridgeSpec, LinkFaults};
+use hosts::keys::{self, ORCHESTRATOR};
+use hosts::messages::{self, CommandReply, Exit, HostCommand, JoinReply, JoinRequest};
+use hosts::net::{self, Security};
+use protocol::clock::{ENV_CLOCK_CORRECTION_NS, RunMode};
+use protocol::endpoint::Endpoint;
+use protocol::ipc::{self, CONTROL, ENV_RUN_ID};
+use protocol::runtime::ORPHAN_GRACE;
+use protocol::{Role, Scenario};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use zenoh::Wait;
+use zenoh::sample::SampleKind;
+
+/// How often the agent looks at its processes, its queries and the stop flag.
+const POLL: Duration = Duration::from_millis(20);
+/// How long role processes have to exit at the end of a run before they are killed.
+const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Serves runs on `listen` as host `name` until `stop`.
+pub fn serve(
+    name: &str,
+    listen: &Endpoint,
+    security: &Security,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let session = net::open(net::config(std::slice::from_ref(listen), &[], security)?)?;
+    let joins = session
+        .declare_queryable(keys::agent_join(name))
+        .wait()
+        .map_err(|e| anyhow!("zenoh: {e}"))?;
+    eprintln!(
+        "scmpc host `{name}`: listening on {} (pid {})",
+        listen.zenoh(),
+        std::process::id()
+    );
+    while !stop.load(Ordering::Relaxed) {
+        let Ok(Some(query)) = joins.recv_timeout(POLL) else {
+            continue;
+        };
+        let request: JoinRequest = match messages::request_of(&query) {
+            Ok(r) => r,
+            Err(e) => {
+                messages::answer(
+                    query,
+                    &JoinReply {
+                        error: e,
+                        ..JoinReply::default()
+                    },
+                );
+                continue;
+            }
+        };
+        match HostRun::join(&session, name, &request) {
+            Ok(mut run) => {
+                messages::answer(query, &run.reply());
+                eprintln!("scmpc host `{name}`: joined run {}", request.run);
+                let ended = run.serve(&session, &joins, stop);
+                run.end();
+                eprintln!("scmpc host `{name}`: run {} ended ({ended})", request.run);
+            }
+            Err(e) => {
+                let error = format!("{e:#}");
+                eprintln!("scmpc host `{name}`: refused run {}: {error}", request.run);
+                messages::answer(
+                    query,
+                    &JoinReply {
+                        error,
+                        ..JoinReply::default()
+                    },
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A run this host has joined.
+struct HostRun {
+    name: String,
+    run: String,
+    prefix: String,
+    dir: PathBuf,
+    clock: hosts::clock_sync::ClockLink,
+    children: Children,
+    commands: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    exits: zenoh::pubsub::Publisher<'static>,
+    orchestrator:
+        zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    _token: zenoh::liveliness::LivelinessToken,
+    /// Declared after the ports: dropped (stopped) after them.
+    bridge: Bridge,
+}
+
+impl HostRun {
+    fn join(session: &zenoh::Session, name: &str, r: &JoinRequest) -> anyhow::Result<HostRun> {
+        if r.host != name {
+            return Err(anyhow!("this is host `{name}`, not `{}`", r.host));
+        }
+        let scenario = Scenario::from_toml(&r.scenario_toml, "the orchestrator's scenario")
+            .and_then(|s| s.validated("the orchestrator's scenario"))
+            .map_err(|e| anyhow!("{e}"))?;
+        let mode = match r.mode.as_str() {
+            "lockstep" => RunMode::Lockstep,
+            "realtime" => RunMode::Realtime,
+            other => return Err(anyhow!("no clock `{other}`")),
+        };
+        let roles = r
+            .roles
+            .iter()
+            .map(|n| Role::from_name(n).ok_or_else(|| anyhow!("no role `{n}`")))
+            .collect::<anyhow::Result<Vec<Role>>>()?;
+        let key = RunKey::from_hex(&r.key).ok_or_else(|| anyhow!("a malformed run key"))?;
+        let clock = hosts::clock_sync::estimate(session, &r.run)?;
+        let prefix = ipc::new_prefix();
+        ipc::register_run(&prefix).context("registering the run")?;
+        let dir = std::env::temp_dir().join(format!("scmpc-host-{name}-{}", r.run));
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let scenario_file = dir.join("scenario.toml");
+        std::fs::write(&scenario_file, scenario.to_toml())
+            .with_context(|| format!("writing {}", scenario_file.display()))?;
+        let bridge = Bridge::start(
+            session,
+            BridgeSpec {
+                run: r.run.clone(),
+                host: name.to_string(),
+                prefix: prefix.clone(),
+                key,
+                send: r
+                    .send
+                    .iter()
+                    .map(|t| (t.clone(), vec![ORCHESTRATOR.to_string()]))
+                    .collect(),
+                receive: r.receive.clone(),
+                local_roles: Some(roles),
+                control_publisher: None,
+                faults: LinkFaults::of(
+                    &scenario,
+                    scenario.seed ^ u64::from(ipc::run_id(name.as_bytes())),
+                ),
+            },
+        )?;
+        let control = bridge
+            .relay_id(CONTROL)
+            .ok_or_else(|| anyhow!("the run sends no control to this host"))?;
+        let children = Children::new(
+            &scenario_file,
+            &prefix,
+            mode,
+            control,
+            vec![
+                (ENV_RUN_ID.to_string(), format!("{:x}", r.run_id)),
+                (
+                    ENV_CLOCK_CORRECTION_NS.to_string(),
+                    clock.correction_ns.to_string(),
+                ),
+            ],
+            None,
+        )?;
+        let zenoh_error = |e: zenoh::Error| anyhow!("zenoh: {e}");
+        let commands = session
+            .declare_queryable(keys::host_command(&r.run, name))
+            .wait()
+            .map_err(zenoh_error)?;
+        let exits = session
+            .declare_publisher(keys::host_exits(&r.run, name))
+            .wait()
+            .map_err(zenoh_error)?;
+        let orchestrator = session
+            .liveliness()
+            .declare_subscriber(keys::alive(&r.run, ORCHESTRATOR))
+            .history(true)
+            .wait()
+            .map_err(zenoh_error)?;
+        let token = session
+            .liveliness()
+            .declare_token(keys::alive(&r.run, name))
+            .wait()
+            .map_err(zenoh_error)?;
+        Ok(HostRun {
+            name: name.to_string(),
+            run: r.run.clone(),
+            prefix,
+            dir,
+            clock,
+            children,
+            commands,
+            exits,
+            orchestrator,
+            _token: token,
+            bridge,
+        })
+    }
+
+    fn reply(&self) -> JoinReply {
+        JoinReply {
+            error: String::new(),
+            agent_pid: std::process::id(),
+            prefix: self.prefix.clone(),
+            clock: self.clock,
+        }
+    }
+
+    /// Serves the run until its end, the orchestrator's loss or `stop`; says which.
+    fn serve(
+        &mut self,
+        session: &zenoh::Session,
+        joins: &zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+        stop: &AtomicBool,
+    ) -> &'static str {
+        let _ = session;
+        let mut orchestrator_gone: Option<Instant> = None;
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                return "the agent was stopped";
+            }
+            while let Ok(Some(query)) = joins.try_recv() {
+                let error = format!("busy with run {}", self.run);
+                messages::answer(
+                    query,
+                    &JoinReply {
+                        error,
+                        ..JoinReply::default()
+                    },
+                );
+            }
+            while let Ok(Some(sample)) = self.orchestrator.try_recv() {
+                if sample.kind() == SampleKind::Delete {
+                    orchestrator_gone.get_or_insert_with(Instant::now);
+                }
+            }
+            // Without its orchestrator a real-time robot brakes for the orphan grace; the
+            // processes of this host then stop.
+            if orchestrator_gone.is_some_and(|t| t.elapsed() >= ORPHAN_GRACE) {
+                return "the orchestrator is gone";
+            }
+            while let Some((p, status)) = self.children.take_exited() {
+                let _ = ipc::cleanup_dead_nodes(&self.prefix);
+                let exit = Exit {
+                    role: p.role.as_str().to_string(),
+                    epoch: p.epoch,
+                    pid: p.pid(),
+                    status,
+                };
+                if let Ok(bytes) = serde_json::to_vec(&exit) {
+                    let _ = self.exits.put(bytes).wait();
+                }
+            }
+            self.children.kill_overdue();
+            match self.commands.recv_timeout(POLL) {
+                Ok(Some(query)) => {
+                    let command: Result<HostCommand, String> = messages::request_of(&query);
+                    let ended = matches!(command, Ok(HostCommand::End));
+                    let reply = match command {
+                        Ok(c) => self.execute(c),
+                        Err(error) => CommandReply {
+                            error,
+                            ..CommandReply::default()
+                        },
+                    };
+                    messages::answer(query, &reply);
+                    if ended {
+                        return "the orchestrator ended it";
+                    }
+                }
+                _ => continue,
+            }
+        }
+    }
+
+    fn execute(&mut self, command: HostCommand) -> CommandReply {
+        let role_of = |name: &str| Role::from_name(name).ok_or_else(|| format!("no role `{name}`"));
+        let result = match command {
+            HostCommand::Spawn {
+                role,
+                epoch,
+                command,
+            } => role_of(&role).and_then(|role| {
+                self.children
+                    .spawn_role(role, epoch, &command)
+                    .map_err(|e| format!("{e:#}"))
+            }),
+            HostCommand::Terminate { role, epoch } => role_of(&role).map(|role| {
+                let pid = self.children.pid(role, epoch).unwrap_or(0);
+                self.children.retire(role, epoch, STOP_TIMEOUT);
+                pid
+            }),
+            HostCommand::Kill { role, epoch } => {
+                role_of(&role).map(|role| self.children.kill_running(role, epoch).unwrap_or(0))
+            }
+            HostCommand::End => {
+                self.stop_processes();
+                return CommandReply {
+                    link: self.bridge.counters(),
+                    ..CommandReply::default()
+                };
+            }
+        };
+        match result {
+            Ok(pid) => CommandReply {
+                pid,
+                ..CommandReply::default()
+            },
+            Err(error) => CommandReply {
+                error,
+                ..CommandReply::default()
+            },
+        }
+    }
+
+    fn stop_processes(&mut self) {
+        for p in &self.children.list {
+            if let crate::children::Handle::Local(child) = &p.handle
+                && let Ok(pid) = libc::pid_t::try_from(child.id())
+            {
+                // SAFETY: kill(2) on the pid of a child not reaped yet.
+                unsafe { libc::kill(pid, libc::SIGTERM) };
+            }
+        }
+        self.children.shut_down(STOP_TIMEOUT);
+    }
+
+    /// Stops what still runs and removes the run's resources; the agent goes on.
+    fn end(mut self) {
+        self.stop_processes();
+        let (prefix, dir, name) = (self.prefix.clone(), self.dir.clone(), self.name.clone());
+        drop(self);
+        match ipc::remove_run_resources(&prefix) {
+            Ok(()) => ipc::unregister_run(&prefix),
+            Err(e) => eprintln!("scmpc host `{name}`: removing the run's resources: {e}"),
+        }
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}

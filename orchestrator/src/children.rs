@@ -1,0 +1,364 @@
+//! The role processes of a run: started with the run's environment, here or on the host
+//! the scenario places their role on ([`RemoteHosts`]), retired, killed and reaped. The
+//! orchestrator and a host's agent (for the roles placed on its host) both keep theirs
+//! here.
+
+use crate::remote::RemoteHosts;
+use anyhow::Context;
+use protocol::Role;
+use protocol::clock::RunMode;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Environment of every role process (docs/design.md, "Supervision"): a replacement
+/// command needs nothing else to join the run.
+pub const ENV_SCENARIO: &str = "SCMPC_SCENARIO";
+pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
+/// `lockstep` or `realtime`.
+pub const ENV_MODE: &str = "SCMPC_MODE";
+/// The producer epoch the process must stamp on every sample.
+pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
+/// `plant`, `estimator`, `mpc`, `dfl` or `planner`.
+pub const ENV_ROLE: &str = "SCMPC_ROLE";
+/// The pid of the process supervising it (the orchestrator, or the agent of its host): a
+/// role process stops the robot and exits when it is gone.
+pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
+/// The iceoryx2 id of the publisher of control messages on its host (hexadecimal): a role
+/// process takes control messages from it alone.
+pub const ENV_CONTROL_PUBLISHER: &str = "SCMPC_CONTROL_PUBLISHER";
+
+/// How a process is reached.
+pub enum Handle {
+    /// Started here.
+    Local(Child),
+    /// Started by the agent of `host`; `exit` once it reported the process's end.
+    Remote {
+        host: String,
+        pid: u32,
+        exit: Option<String>,
+    },
+}
+
+/// One process started for the run.
+pub struct Proc {
+    pub role: Role,
+    pub epoch: u32,
+    pub handle: Handle,
+    /// Set when the process is being stopped on purpose (replaced): its exit is not a
+    /// crash, and it is killed if still alive at this instant.
+    pub retire_by: Option<Instant>,
+}
+
+impl Proc {
+    /// Its pid (on its host).
+    pub fn pid(&self) -> u32 {
+        match &self.handle {
+            Handle::Local(child) => child.id(),
+            Handle::Remote { pid, .. } => *pid,
+        }
+    }
+
+    /// The host it runs on (`None`: this one).
+    pub fn host(&self) -> Option<&str> {
+        match &self.handle {
+            Handle::Local(_) => None,
+            Handle::Remote { host, .. } => Some(host),
+        }
+    }
+}
+
+/// The run's processes; killed and reaped on drop whatever happened.
+pub struct Children {
+    exe: std::path::PathBuf,
+    scenario_file: std::path::PathBuf,
+    pub prefix: String,
+    mode: &'static str,
+    /// The publisher of control messages on this host, which the processes take control
+    /// from.
+    control_publisher: u128,
+    /// More environment for every process (an agent's: the run id, the clock correction).
+    extra_env: Vec<(String, String)>,
+    pub list: Vec<Proc>,
+    /// The epoch the process started last has (each start takes the next).
+    epoch: u32,
+    /// The other hosts of the run, when roles are placed on them.
+    pub remote: Option<RemoteHosts>,
+}
+
+impl Children {
+    /// No process yet.
+    pub fn new(
+        scenario_file: &Path,
+        prefix: &str,
+        mode: RunMode,
+        control_publisher: u128,
+        extra_env: Vec<(String, String)>,
+        remote: Option<RemoteHosts>,
+    ) -> anyhow::Result<Children> {
+        Ok(Children {
+            exe: std::env::current_exe().context("locating the scmpc executable")?,
+            scenario_file: scenario_file.to_path_buf(),
+            prefix: prefix.to_string(),
+            mode: mode.as_str(),
+            control_publisher,
+            extra_env,
+            list: Vec::new(),
+            epoch: 0,
+            remote,
+        })
+    }
+
+    /// Starts a process (epoch 0) for each of `roles`.
+    pub fn spawn_all(&mut self, roles: impl Iterator<Item = Role>) -> anyhow::Result<()> {
+        for role in roles {
+            self.spawn_role(role, 0, &[])?;
+        }
+        Ok(())
+    }
+
+    /// The producer epoch of the next process to start (a restart or a replacement).
+    pub fn take_epoch(&mut self) -> u32 {
+        self.epoch += 1;
+        self.epoch
+    }
+
+    /// Starts a process for `role` with producer epoch `epoch`, on the host the role is
+    /// placed on: `command` (program and arguments; a program named `scmpc` is this
+    /// executable), or the built-in role process when it is empty. Returns its pid.
+    pub fn spawn_role(
+        &mut self,
+        role: Role,
+        epoch: u32,
+        command: &[String],
+    ) -> anyhow::Result<u32> {
+        if let Some(remote) = &self.remote
+            && let Some(host) = remote.host_of(role)
+        {
+            let host = host.to_string();
+            let pid = remote.spawn(&host, role, epoch, command)?;
+            self.list.push(Proc {
+                role,
+                epoch,
+                handle: Handle::Remote {
+                    host,
+                    pid,
+                    exit: None,
+                },
+                retire_by: None,
+            });
+            return Ok(pid);
+        }
+        let builtin = [role.as_str().to_string()];
+        let (program, args) = match command.split_first() {
+            None => (self.exe.as_os_str(), &builtin[..]),
+            Some((p, args)) if p == "scmpc" => (self.exe.as_os_str(), args),
+            Some((p, args)) => (std::ffi::OsStr::new(p), args),
+        };
+        let child = Command::new(program)
+            .args(args)
+            .env(ENV_SCENARIO, &self.scenario_file)
+            .env(ENV_PREFIX, &self.prefix)
+            .env(ENV_MODE, self.mode)
+            .env(ENV_EPOCH, epoch.to_string())
+            .env(ENV_ROLE, role.as_str())
+            .env(ENV_SUPERVISOR, std::process::id().to_string())
+            .env(
+                ENV_CONTROL_PUBLISHER,
+                format!("{:x}", self.control_publisher),
+            )
+            .envs(self.extra_env.iter().map(|(k, v)| (k, v)))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .with_context(|| {
+                format!(
+                    "starting the {} process `{}`",
+                    role.as_str(),
+                    program.to_string_lossy()
+                )
+            })?;
+        let pid = child.id();
+        self.list.push(Proc {
+            role,
+            epoch,
+            handle: Handle::Local(child),
+            retire_by: None,
+        });
+        Ok(pid)
+    }
+
+    /// The publishers the outputs of the process of `role` and `epoch` are pinned to on
+    /// this host: those it `announced`, or, on another host, the relays carrying them.
+    pub fn pins(&self, role: Role, epoch: u32, announced: [u128; 2]) -> [u128; 2] {
+        let remote_host = self
+            .list
+            .iter()
+            .find(|p| p.role == role && p.epoch == epoch)
+            .and_then(Proc::host);
+        match (remote_host, &self.remote) {
+            (Some(_), Some(remote)) => remote.pins(role),
+            _ => announced,
+        }
+    }
+
+    pub fn pid(&self, role: Role, epoch: u32) -> Option<u32> {
+        self.list
+            .iter()
+            .find(|p| p.role == role && p.epoch == epoch)
+            .map(Proc::pid)
+    }
+
+    /// Asks the process of `role` and `epoch` to exit (SIGTERM; a role process leaves its
+    /// loop and closes its ports), and kills it after `grace`.
+    pub fn retire(&mut self, role: Role, epoch: u32, grace: Duration) {
+        let remote = self.remote.as_ref();
+        let Some(p) = self
+            .list
+            .iter_mut()
+            .find(|p| p.role == role && p.epoch == epoch)
+        else {
+            return;
+        };
+        p.retire_by = Some(Instant::now() + grace);
+        match &p.handle {
+            Handle::Local(child) => signal(child, libc::SIGTERM),
+            Handle::Remote { host, .. } => {
+                if let Some(remote) = remote {
+                    remote.terminate(host, role, epoch);
+                }
+            }
+        }
+    }
+
+    /// Kills the process of `role` and `epoch` if it is still running; returns its pid
+    /// then.
+    pub fn kill_running(&mut self, role: Role, epoch: u32) -> Option<u32> {
+        let remote = self.remote.as_ref();
+        let p = self
+            .list
+            .iter_mut()
+            .find(|p| p.role == role && p.epoch == epoch)?;
+        kill(p, remote)
+    }
+
+    /// Whether a process of `role` is being stopped.
+    pub fn retiring(&self, role: Role) -> bool {
+        self.list
+            .iter()
+            .any(|p| p.role == role && p.retire_by.is_some())
+    }
+
+    /// Kills retiring processes that outlived their grace period.
+    pub fn kill_overdue(&mut self) {
+        let now = Instant::now();
+        let remote = self.remote.as_ref();
+        for p in &mut self.list {
+            if p.retire_by.is_some_and(|by| now > by) {
+                let _ = kill(p, remote);
+            }
+        }
+    }
+
+    /// A process that has exited (reaped and forgotten), with its exit status.
+    pub fn take_exited(&mut self) -> Option<(Proc, String)> {
+        if let Some(remote) = &self.remote {
+            while let Some(exit) = remote.take_exit() {
+                let found = self.list.iter_mut().find(|p| {
+                    p.host() == Some(exit.host.as_str())
+                        && p.role.as_str() == exit.role
+                        && p.epoch == exit.epoch
+                });
+                if let Some(Proc {
+                    handle: Handle::Remote { exit: status, .. },
+                    ..
+                }) = found
+                {
+                    *status = Some(exit.status);
+                }
+            }
+        }
+        let index = self.list.iter_mut().position(|p| exited(p).is_some())?;
+        let mut proc = self.list.remove(index);
+        let status = exited(&mut proc)?;
+        Some((proc, status))
+    }
+
+    /// The processes on `host` (lost), forgotten as if they had exited.
+    pub fn forget_host(&mut self, host: &str) -> Vec<Proc> {
+        let (gone, kept) = std::mem::take(&mut self.list)
+            .into_iter()
+            .partition(|p| p.host() == Some(host));
+        self.list = kept;
+        gone
+    }
+
+    /// Waits up to `timeout` for every process to exit, then kills the rest; reaps all.
+    /// Returns each one's role, epoch, exit status and whether it had to be killed.
+    pub fn shut_down(&mut self, timeout: Duration) -> Vec<(Role, u32, String, bool)> {
+        let deadline = Instant::now() + timeout;
+        let mut ended = Vec::new();
+        while !self.list.is_empty() {
+            while let Some((p, status)) = self.take_exited() {
+                ended.push((p.role, p.epoch, status, false));
+            }
+            if self.list.is_empty() || Instant::now() >= deadline {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let remote = self.remote.as_ref();
+        for mut p in std::mem::take(&mut self.list) {
+            let _ = kill(&mut p, remote);
+            let status = match &mut p.handle {
+                Handle::Local(child) => child
+                    .wait()
+                    .map_or_else(|e| e.to_string(), |s| s.to_string()),
+                Handle::Remote { .. } => "killed on its host".to_string(),
+            };
+            ended.push((p.role, p.epoch, status, true));
+        }
+        ended
+    }
+}
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        let _ = self.shut_down(Duration::ZERO);
+    }
+}
+
+/// Sends `signal` to a child not reaped yet.
+fn signal(child: &Child, signal: libc::c_int) {
+    if let Ok(pid) = libc::pid_t::try_from(child.id()) {
+        // SAFETY: kill(2) on the pid of a child not reaped yet (so not reused).
+        unsafe { libc::kill(pid, signal) };
+    }
+}
+
+/// Kills `p` if it still runs; returns its pid then.
+fn kill(p: &mut Proc, remote: Option<&RemoteHosts>) -> Option<u32> {
+    let pid = p.pid();
+    match &mut p.handle {
+        Handle::Local(child) => {
+            if child.try_wait().ok().flatten().is_some() {
+                return None;
+            }
+            child.kill().ok().map(|()| pid)
+        }
+        Handle::Remote { host, exit, .. } => {
+            if exit.is_some() {
+                return None;
+            }
+            remote.map(|r| r.kill(host, p.role, p.epoch)).map(|()| pid)
+        }
+    }
+}
+
+/// The exit status of `p`, if it has exited.
+fn exited(p: &mut Proc) -> Option<String> {
+    match &mut p.handle {
+        Handle::Local(child) => child.try_wait().ok().flatten().map(|s| s.to_string()),
+        Handle::Remote { exit, .. } => exit.clone(),
+    }
+}

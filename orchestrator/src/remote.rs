@@ -1,0 +1,289 @@
+//! The orchestrator's side of a run whose roles are placed on other hosts (docs/hosts.md):
+//! it asks each host's agent to join the run (within [`JOIN_TIMEOUT`], or the run fails
+//! before tick 0 naming the host), runs the bridge of its own host, starts and signals
+//! role processes through the agents, hears their exits, and notices a host that is
+//! gone (its liveliness token goes away).
+
+use anyhow::{Context, anyhow};
+use hosts::auth::RunKey;
+use hosts::bridge::{Bridge, BridgeSpec, LinkFaults};
+use hosts::clock_sync::ClockLink;
+use hosts::keys::{self, ORCHESTRATOR};
+use hosts::messages::{self, CommandReply, Exit, HostCommand, JoinReply, JoinRequest};
+use hosts::net::{self, Security};
+use hosts::{LinkCounters, routes};
+use protocol::clock::RunMode;
+use protocol::endpoint::Endpoint;
+use protocol::ipc::{self, output_topic};
+use protocol::{Role, Validated};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::Duration;
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::{Sample, SampleKind};
+
+/// How long a host's agent has to answer the join request.
+pub const JOIN_TIMEOUT: Duration = Duration::from_secs(5);
+/// How long an agent has to answer a command.
+const COMMAND_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// One other host of the run, as it joined.
+#[derive(Debug, Clone)]
+pub struct HostLink {
+    pub endpoint: String,
+    pub agent_pid: u32,
+    /// Its iceoryx2 prefix for the run.
+    pub prefix: String,
+    pub clock: ClockLink,
+}
+
+/// A role process's exit, as its host's agent reported it.
+#[derive(Debug, Clone)]
+pub struct RemoteExit {
+    pub host: String,
+    pub role: String,
+    pub epoch: u32,
+    pub status: String,
+}
+
+/// The other hosts of a run.
+pub struct RemoteHosts {
+    run: String,
+    /// Where each role runs (the scenario's `[hosts]`).
+    placement: protocol::HostsConfig,
+    pub hosts: BTreeMap<String, HostLink>,
+    /// Hosts that were lost.
+    lost: RefCell<BTreeSet<String>>,
+    bridge: Bridge,
+    exits: Subscriber<FifoChannelHandler<Sample>>,
+    alive: Subscriber<FifoChannelHandler<Sample>>,
+    _clock: zenoh::query::Queryable<()>,
+    _token: zenoh::liveliness::LivelinessToken,
+    /// Declared last: closed after everything above.
+    session: zenoh::Session,
+}
+
+impl RemoteHosts {
+    /// Joins every host the scenario places a role on, at `endpoints`, for the run on
+    /// `prefix` whose control publisher is `control_publisher`; starts this host's bridge.
+    pub fn connect(
+        scenario: &Validated,
+        mode: RunMode,
+        prefix: &str,
+        endpoints: &BTreeMap<String, Endpoint>,
+        security: &Security,
+        control_publisher: u128,
+    ) -> anyhow::Result<RemoteHosts> {
+        let run = keys::run_of_prefix(prefix);
+        let key = RunKey::generate().map_err(|e| anyhow!(e))?;
+        let names = scenario.hosts.names();
+        let connect: Vec<Endpoint> = names.iter().map(|n| endpoints[n].clone()).collect();
+        let session = net::open(net::config(&[], &connect, security)?)?;
+        let clock = hosts::clock_sync::serve(&session, &run)?;
+        let token = session
+            .liveliness()
+            .declare_token(keys::alive(&run, ORCHESTRATOR))
+            .wait()
+            .map_err(|e| anyhow!("zenoh: declaring the orchestrator's token: {e}"))?;
+        let exits = session
+            .declare_subscriber(keys::host_exits(&run, "*"))
+            .wait()
+            .map_err(|e| anyhow!("zenoh: subscribing to exits: {e}"))?;
+        let alive = session
+            .liveliness()
+            .declare_subscriber(keys::alive_all(&run))
+            .history(true)
+            .wait()
+            .map_err(|e| anyhow!("zenoh: subscribing to the hosts' tokens: {e}"))?;
+        let running: Vec<Role> = scenario.roles().collect();
+        let placement = scenario.hosts.clone();
+        let routes = routes::plan(&running, |r| placement.of(r));
+        let bridge = Bridge::start(
+            &session,
+            BridgeSpec {
+                run: run.clone(),
+                host: ORCHESTRATOR.to_string(),
+                prefix: prefix.to_string(),
+                key: key.clone(),
+                send: routes.orchestrator_sends.clone(),
+                receive: routes.orchestrator_receives.clone(),
+                local_roles: None,
+                control_publisher: Some(control_publisher),
+                faults: LinkFaults::of(scenario, scenario.seed),
+            },
+        )?;
+        let mut hosts = BTreeMap::new();
+        for name in names {
+            let request = JoinRequest {
+                run: run.clone(),
+                run_id: ipc::run_id(prefix.as_bytes()),
+                key: key.to_hex(),
+                host: name.clone(),
+                mode: mode.as_str().to_string(),
+                scenario_toml: scenario.to_toml(),
+                roles: running
+                    .iter()
+                    .filter(|r| placement.of(**r) == Some(name.as_str()))
+                    .map(|r| r.as_str().to_string())
+                    .collect(),
+                send: routes.host_sends.get(&name).cloned().unwrap_or_default(),
+                receive: routes.host_receives.get(&name).cloned().unwrap_or_default(),
+            };
+            let endpoint = endpoints[&name].zenoh();
+            let reply: JoinReply =
+                messages::ask(&session, &keys::agent_join(&name), &request, JOIN_TIMEOUT).map_err(
+                    |e| anyhow!("host `{name}` at {endpoint} did not join the run: {e}"),
+                )?;
+            if !reply.error.is_empty() {
+                return Err(anyhow!(
+                    "host `{name}` at {endpoint} refused the run: {}",
+                    reply.error
+                ));
+            }
+            hosts.insert(
+                name,
+                HostLink {
+                    endpoint,
+                    agent_pid: reply.agent_pid,
+                    prefix: reply.prefix,
+                    clock: reply.clock,
+                },
+            );
+        }
+        Ok(RemoteHosts {
+            run,
+            placement,
+            hosts,
+            lost: RefCell::default(),
+            bridge,
+            exits,
+            alive,
+            _clock: clock,
+            _token: token,
+            session,
+        })
+    }
+
+    /// The host `role` runs on now (`None`: this one, also once its host was lost).
+    pub fn host_of(&self, role: Role) -> Option<&str> {
+        self.placement
+            .of(role)
+            .filter(|h| !self.lost.borrow().contains(*h))
+    }
+
+    /// The host the scenario places `role` on, lost or not.
+    pub fn placed_on(&self, role: Role) -> Option<&str> {
+        self.placement.of(role)
+    }
+
+    /// The publishers a process of `role` on another host is pinned to here: this host's
+    /// relays of its outputs.
+    pub fn pins(&self, role: Role) -> [u128; 2] {
+        std::array::from_fn(|slot| {
+            output_topic(role, slot)
+                .and_then(|t| self.bridge.relay_id(t))
+                .unwrap_or(0)
+        })
+    }
+
+    fn command(&self, host: &str, command: &HostCommand) -> anyhow::Result<CommandReply> {
+        let reply: CommandReply = messages::ask(
+            &self.session,
+            &keys::host_command(&self.run, host),
+            command,
+            COMMAND_TIMEOUT,
+        )
+        .with_context(|| format!("host `{host}`"))?;
+        if reply.error.is_empty() {
+            Ok(reply)
+        } else {
+            Err(anyhow!("host `{host}`: {}", reply.error))
+        }
+    }
+
+    /// Starts `role` with producer `epoch` on `host` (`command` as for a local process).
+    pub fn spawn(
+        &self,
+        host: &str,
+        role: Role,
+        epoch: u32,
+        command: &[String],
+    ) -> anyhow::Result<u32> {
+        let reply = self.command(
+            host,
+            &HostCommand::Spawn {
+                role: role.as_str().to_string(),
+                epoch,
+                command: command.to_vec(),
+            },
+        )?;
+        Ok(reply.pid)
+    }
+
+    /// Asks the process of `role` and `epoch` on `host` to exit (SIGTERM).
+    pub fn terminate(&self, host: &str, role: Role, epoch: u32) {
+        let role = role.as_str().to_string();
+        if let Err(e) = self.command(host, &HostCommand::Terminate { role, epoch }) {
+            tracing::warn!("{e:#}");
+        }
+    }
+
+    /// Kills the process of `role` and `epoch` on `host`.
+    pub fn kill(&self, host: &str, role: Role, epoch: u32) {
+        let role = role.as_str().to_string();
+        if let Err(e) = self.command(host, &HostCommand::Kill { role, epoch }) {
+            tracing::warn!("{e:#}");
+        }
+    }
+
+    /// An exit an agent reported since the last call.
+    pub fn take_exit(&self) -> Option<RemoteExit> {
+        while let Ok(Some(sample)) = self.exits.try_recv() {
+            let host = sample.key_expr().as_str().rsplit('/').nth(1)?.to_string();
+            if let Ok(exit) = serde_json::from_slice::<Exit>(&sample.payload().to_bytes()) {
+                return Some(RemoteExit {
+                    host,
+                    role: exit.role,
+                    epoch: exit.epoch,
+                    status: exit.status,
+                });
+            }
+        }
+        None
+    }
+
+    /// A host whose agent is gone (its token went away), once.
+    pub fn take_lost(&self) -> Option<String> {
+        while let Ok(Some(sample)) = self.alive.try_recv() {
+            if sample.kind() != SampleKind::Delete {
+                continue;
+            }
+            let host = sample.key_expr().as_str().rsplit('/').next()?.to_string();
+            if self.hosts.contains_key(&host) && self.lost.borrow_mut().insert(host.clone()) {
+                return Some(host);
+            }
+        }
+        None
+    }
+
+    /// Ends the run on every host that is still there: its agent stops its processes and
+    /// removes the run's resources. Returns what every link carried, by host (the
+    /// orchestrator's bridge under [`ORCHESTRATOR`]).
+    pub fn end(&self) -> BTreeMap<String, LinkCounters> {
+        let mut links = BTreeMap::from([(ORCHESTRATOR.to_string(), self.bridge.counters())]);
+        for host in self.hosts.keys() {
+            if self.lost.borrow().contains(host) {
+                continue;
+            }
+            match self.command(host, &HostCommand::End) {
+                Ok(reply) => {
+                    links.insert(host.clone(), reply.link);
+                }
+                Err(e) => tracing::warn!("ending the run: {e:#}"),
+            }
+        }
+        links
+    }
+}

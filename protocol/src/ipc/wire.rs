@@ -1,0 +1,185 @@
+//! Samples as bytes, for the bridge between hosts (docs/hosts.md): a sample crosses a link
+//! in its `#[repr(C)]` layout (`scmpc schema`), byte for byte, and is published on the
+//! other side as it was made (its header, with the producer's epoch, run id and publish
+//! time, untouched).
+//!
+//! Every message type is `#[repr(C)]` of integers and floats only (no `bool`, no enum: codes
+//! are `u32`; the layout test checks the field types), so any bytes of the right length are
+//! a value of the type; whether it makes sense is the consumers' border check.
+
+use super::*;
+use crate::messages::*;
+
+/// A subscriber that hands over each sample's bytes as they are in shared memory.
+pub trait WireTap {
+    /// The listener a WaitSet blocks on.
+    fn listener(&self) -> &Listener<ipc::Service>;
+    /// Every pending sample: its bytes and the iceoryx2 id of its publisher.
+    fn take(&self, each: &mut dyn FnMut(&[u8], u128)) -> Result<(), IpcError>;
+    /// Consumes the pending wake-ups.
+    fn clear_wakeups(&self);
+}
+
+/// A publisher that publishes bytes from another host as the sample they are.
+pub trait WireRelay {
+    /// Publishes `bytes` as a sample and notifies; false if they are not one (a wrong
+    /// length). `edit` may change the sample first (the control topic's publisher pins).
+    fn relay(
+        &self,
+        bytes: &[u8],
+        edit: &mut dyn FnMut(&mut dyn std::any::Any),
+    ) -> Result<bool, IpcError>;
+    /// The iceoryx2 id of its publisher: what local consumers pin the producers it carries to.
+    fn publisher_id(&self) -> u128;
+}
+
+struct Tap<T: Message> {
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+}
+
+impl<T: Message> WireTap for Tap<T> {
+    fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    fn take(&self, each: &mut dyn FnMut(&[u8], u128)) -> Result<(), IpcError> {
+        while let Some(sample) = self.subscriber.receive().map_err(ctx("receiving"))? {
+            let payload: &T = sample.payload();
+            // SAFETY: the payload is a `T` in shared memory, `size_of::<T>()` bytes written
+            // by its publisher (another process): read as bytes, as they are.
+            let bytes = unsafe {
+                std::slice::from_raw_parts(payload as *const T as *const u8, size_of::<T>())
+            };
+            each(bytes, sample.origin().value());
+        }
+        Ok(())
+    }
+
+    fn clear_wakeups(&self) {
+        let _ = self.listener.try_wait(|_| {});
+    }
+}
+
+struct Relay<T: Message> {
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<T: Message> WireRelay for Relay<T> {
+    fn relay(
+        &self,
+        bytes: &[u8],
+        edit: &mut dyn FnMut(&mut dyn std::any::Any),
+    ) -> Result<bool, IpcError> {
+        if bytes.len() != size_of::<T>() {
+            return Ok(false);
+        }
+        // SAFETY: the length is checked, and every bit pattern is a `T` (module docs).
+        let mut value: T = unsafe { std::ptr::read_unaligned(bytes.as_ptr() as *const T) };
+        edit(&mut value);
+        self.publisher.send_copy(value).map_err(ctx("publishing"))?;
+        self.notifier.notify().map_err(ctx("notifying"))?;
+        Ok(true)
+    }
+
+    fn publisher_id(&self) -> u128 {
+        self.publisher.id().value()
+    }
+}
+
+impl<T: Message> Topic<T> {
+    fn tap(&self) -> Result<Tap<T>, IpcError> {
+        Ok(Tap {
+            subscriber: self
+                .pubsub
+                .subscriber_builder()
+                .buffer_size(SUBSCRIBER_BUFFER)
+                .create()
+                .map_err(ctx(format!("subscriber on `{}`", self.name)))?,
+            listener: self
+                .event
+                .listener_builder()
+                .create()
+                .map_err(ctx(format!("listener on `{}`", self.name)))?,
+        })
+    }
+
+    fn relay(&self) -> Result<Relay<T>, IpcError> {
+        Ok(Relay {
+            publisher: self
+                .pubsub
+                .publisher_builder()
+                .create()
+                .map_err(ctx(format!("publisher on `{}`", self.name)))?,
+            notifier: self
+                .event
+                .notifier_builder()
+                .create()
+                .map_err(ctx(format!("notifier on `{}`", self.name)))?,
+        })
+    }
+}
+
+/// The topics a bridge carries: every topic of a run but the live swap requests and their
+/// replies, which stay with the orchestrator.
+pub const BRIDGED_TOPICS: [&str; 9] = [
+    MEASUREMENT,
+    TRUTH,
+    ESTIMATE,
+    PLAN,
+    ACTUATION,
+    DEADLINE,
+    ROUTE,
+    CONTROL,
+    STATUS,
+];
+
+/// Calls `$f::<T>(args)` for the message type `T` of topic `$name`.
+macro_rules! by_topic {
+    ($name:expr, $f:ident($($arg:expr),*)) => {
+        match $name {
+            MEASUREMENT => $f::<Measurement>(MEASUREMENT, $($arg),*),
+            TRUTH => $f::<GroundTruth>(TRUTH, $($arg),*),
+            ESTIMATE => $f::<Estimate>(ESTIMATE, $($arg),*),
+            PLAN => $f::<Plan>(PLAN, $($arg),*),
+            ACTUATION => $f::<Actuation>(ACTUATION, $($arg),*),
+            DEADLINE => $f::<DeadlineVerdict>(DEADLINE, $($arg),*),
+            ROUTE => $f::<Route>(ROUTE, $($arg),*),
+            CONTROL => $f::<Control>(CONTROL, $($arg),*),
+            STATUS => $f::<Status>(STATUS, $($arg),*),
+            other => Err(IpcError(format!("no bridged topic `{other}`"))),
+        }
+    };
+}
+
+fn tap_of<T: Message>(
+    name: &'static str,
+    node: &Node<ipc::Service>,
+) -> Result<Box<dyn WireTap>, IpcError> {
+    Ok(Box::new(open_topic::<T>(node, name)?.tap()?))
+}
+
+fn relay_of<T: Message>(
+    name: &'static str,
+    node: &Node<ipc::Service>,
+) -> Result<Box<dyn WireRelay>, IpcError> {
+    Ok(Box::new(open_topic::<T>(node, name)?.relay()?))
+}
+
+/// A tap on topic `name` (one of [`BRIDGED_TOPICS`]).
+pub fn tap(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
+    by_topic!(name, tap_of(node))
+}
+
+/// A relay onto topic `name` (one of [`BRIDGED_TOPICS`]).
+pub fn relay(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
+    by_topic!(name, relay_of(node))
+}
+
+/// The header of a sample's bytes, if they are long enough to hold one.
+pub fn header_of(bytes: &[u8]) -> Option<Header> {
+    (bytes.len() >= size_of::<Header>())
+        // SAFETY: the length is checked; a header is integers and floats (module docs).
+        .then(|| unsafe { std::ptr::read_unaligned(bytes.as_ptr() as *const Header) })
+}
