@@ -47,6 +47,9 @@ pub struct Recorder {
     safety_interventions: BTreeMap<u32, u32>,
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
+    /// Samples judged before their plan came (a plan later than its deadline over a slow
+    /// link): the row waits for the plan.
+    judged_without_plan: BTreeMap<u64, DeadlineVerdict>,
     commands: ModeCounts,
     /// `route.csv`, opened at the first route.
     routes: Option<BufWriter<File>>,
@@ -93,6 +96,7 @@ impl Recorder {
             solver_failures: 0,
             safety_interventions: BTreeMap::new(),
             pending_plans: BTreeMap::new(),
+            judged_without_plan: BTreeMap::new(),
             commands: ModeCounts::default(),
             routes: None,
             last_route_plan: None,
@@ -274,7 +278,12 @@ impl Recorder {
         }
         self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
-        self.pending_plans.insert(plan.sample, *plan);
+        match self.judged_without_plan.remove(&plan.sample) {
+            Some(v) => self.verdict_row(&v, Some(plan))?,
+            None => {
+                self.pending_plans.insert(plan.sample, *plan);
+            }
+        }
         if plan.is_solved() && plan.header.time_s >= self.next_prediction_s {
             self.next_prediction_s = plan.header.time_s.floor() + 1.0;
             let n = (plan.horizon as usize).min(protocol::MAX_HORIZON);
@@ -285,8 +294,8 @@ impl Recorder {
         Ok(())
     }
 
-    /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row, and on a
-    /// miss counts it and writes a `deadline_miss` event.
+    /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row (once its
+    /// plan is in too), and on a miss counts it and writes a `deadline_miss` event.
     pub fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {
         if self.last_judged.is_some_and(|last| v.sample <= last) {
             return Ok(());
@@ -296,12 +305,7 @@ impl Recorder {
             mcap.verdict(v);
         }
         let met = v.met != 0;
-        let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
-        let status = match v.status {
-            PLAN_MISSING => "missing",
-            code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
-        };
-        let arrival_ms = (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6);
+        let (status, arrival_ms, fallback) = verdict_fields(v);
         if met {
             self.miss_streak = 0;
         } else {
@@ -319,15 +323,19 @@ impl Recorder {
                 }),
             )?;
         }
-        let plan = self.pending_plans.remove(&v.sample);
-        self.plan_row(
-            v.sample,
-            plan.as_ref(),
-            status,
-            arrival_ms,
-            Some(met),
-            fallback,
-        )
+        match self.pending_plans.remove(&v.sample) {
+            Some(plan) => self.verdict_row(v, Some(&plan)),
+            None => {
+                self.judged_without_plan.insert(v.sample, *v);
+                Ok(())
+            }
+        }
+    }
+
+    /// The `plans.csv` row of a judged sample.
+    fn verdict_row(&mut self, v: &DeadlineVerdict, plan: Option<&Plan>) -> std::io::Result<()> {
+        let (status, arrival_ms, fallback) = verdict_fields(v);
+        self.plan_row(v.sample, plan, status, arrival_ms, Some(v.met != 0), fallback)
     }
 
     fn plan_row(
@@ -369,7 +377,11 @@ impl Recorder {
         wall_s: f64,
         processes: Option<ProcessReport>,
     ) -> std::io::Result<Summary> {
-        // Plans the run ended before the DFL could judge.
+        // Samples judged whose plan never came, and plans the run ended before the DFL
+        // could judge.
+        for (_, v) in std::mem::take(&mut self.judged_without_plan) {
+            self.verdict_row(&v, None)?;
+        }
         for (sample, plan) in std::mem::take(&mut self.pending_plans) {
             let status = plan.status().map_or("unknown", |s| s.as_str());
             self.plan_row(sample, Some(&plan), status, None, None, "")?;
@@ -423,6 +435,18 @@ impl Recorder {
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;
         Ok(summary)
     }
+}
+
+/// A verdict's plan status, arrival after `t_k` (ms, if the plan came) and fallback mode,
+/// as the record writes them.
+fn verdict_fields(v: &DeadlineVerdict) -> (&'static str, Option<f64>, &'static str) {
+    let status = match v.status {
+        PLAN_MISSING => "missing",
+        code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
+    };
+    let arrival_ms = (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6);
+    let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
+    (status, arrival_ms, fallback)
 }
 
 /// A new CSV file at `path` with the header line of `columns`.
