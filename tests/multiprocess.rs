@@ -55,20 +55,6 @@ fn lockstep_over_iceoryx2_matches_in_process_number_for_number() {
     }
 }
 
-/// `plans.csv` without the columns the machine's speed decides (solve time, arrival in
-/// real time).
-fn plans_made(dir: &Path) -> Vec<String> {
-    let table = orchestrator::schema::Table::read(&dir.join("plans.csv")).unwrap();
-    // The solve time and the real-time arrival depend on the machine.
-    let keep = orchestrator::schema::PLANS_COLUMNS
-        .iter()
-        .filter(|c| !["solve_us", "arrival_ms"].contains(c));
-    let columns: Vec<Vec<&str>> = keep.map(|c| table.column(c).unwrap()).collect();
-    (0..table.len())
-        .map(|r| columns.iter().map(|c| c[r]).collect::<Vec<_>>().join(","))
-        .collect()
-}
-
 #[test]
 fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
     let _machine = common::machine_shared();
@@ -120,8 +106,8 @@ fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
             "{key}: trajectories differ"
         );
         assert_eq!(
-            plans_made(ipc.path()),
-            plans_made(reference.path()),
+            common::plans_made(ipc.path()),
+            common::plans_made(reference.path()),
             "{key}: plans differ"
         );
         if key == "estimator_nan_from_s" {

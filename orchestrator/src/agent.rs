@@ -36,6 +36,7 @@ pub fn serve(
     security: &Security,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
+    crate::multiproc::remove_dead_runs();
     let session = net::open(net::config(std::slice::from_ref(listen), &[], security)?)?;
     let joins = session
         .declare_queryable(keys::agent_join(name))

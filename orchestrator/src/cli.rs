@@ -549,13 +549,24 @@ fn role(
     }
     let process_args = ProcessArgs {
         scenario,
-        prefix: args.prefix,
+        prefix: args.prefix.clone(),
         mode: args.mode.into(),
         epoch: args.epoch,
         supervisor_pid: args.supervisor_pid,
         control_publisher: args.control_publisher,
     };
-    body(&process_args).map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
+    let result = body(&process_args);
+    // Orphaned (the orchestrator or the host's agent is dead): the last process of the run
+    // to exit removes the run's resources, as nobody else will until the next run or agent
+    // starts on this machine.
+    if args
+        .supervisor_pid
+        .is_some_and(|pid| !protocol::ipc::process_alive(pid))
+        && protocol::ipc::remove_run_resources(&args.prefix).is_ok()
+    {
+        protocol::ipc::unregister_run(&args.prefix);
+    }
+    result.map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
 }
 
 /// An iceoryx2 port id as printed by iceoryx2 (hexadecimal).
@@ -749,8 +760,8 @@ fn utc_stamp(unix_s: u64) -> String {
 }
 
 fn init_logging() {
-    let filter =
-        tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG").unwrap_or_else(|_| "warn".into());
+    let filter = tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG")
+        .unwrap_or_else(|_| "warn,zenoh=error".into());
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

@@ -335,7 +335,14 @@ impl Recorder {
     /// The `plans.csv` row of a judged sample.
     fn verdict_row(&mut self, v: &DeadlineVerdict, plan: Option<&Plan>) -> std::io::Result<()> {
         let (status, arrival_ms, fallback) = verdict_fields(v);
-        self.plan_row(v.sample, plan, status, arrival_ms, Some(v.met != 0), fallback)
+        self.plan_row(
+            v.sample,
+            plan,
+            status,
+            arrival_ms,
+            Some(v.met != 0),
+            fallback,
+        )
     }
 
     fn plan_row(

@@ -18,7 +18,7 @@ use protocol::ipc::{self, output_topic};
 use protocol::{Role, Validated};
 use std::cell::RefCell;
 use std::collections::{BTreeMap, BTreeSet};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
@@ -132,10 +132,12 @@ impl RemoteHosts {
                 receive: routes.host_receives.get(&name).cloned().unwrap_or_default(),
             };
             let endpoint = endpoints[&name].zenoh();
-            let reply: JoinReply =
-                messages::ask(&session, &keys::agent_join(&name), &request, JOIN_TIMEOUT).map_err(
-                    |e| anyhow!("host `{name}` at {endpoint} did not join the run: {e}"),
-                )?;
+            let reply = ask_to_join(&session, &name, &request).map_err(|e| {
+                anyhow!(
+                    "host `{name}` at {endpoint} did not join the run: {e} (is `scmpc host \
+                     --name {name} --listen {endpoint}` running there?)"
+                )
+            })?;
             if !reply.error.is_empty() {
                 return Err(anyhow!(
                     "host `{name}` at {endpoint} refused the run: {}",
@@ -268,6 +270,11 @@ impl RemoteHosts {
         None
     }
 
+    /// Whether `host`'s agent went away during the run.
+    pub fn is_lost(&self, host: &str) -> bool {
+        self.lost.borrow().contains(host)
+    }
+
     /// Ends the run on every host that is still there: its agent stops its processes and
     /// removes the run's resources. Returns what every link carried, by host (the
     /// orchestrator's bridge under [`ORCHESTRATOR`]).
@@ -285,5 +292,28 @@ impl RemoteHosts {
             }
         }
         links
+    }
+}
+
+/// Asks the agent of `host` to join, again and again until it answers or [`JOIN_TIMEOUT`]
+/// passes: a query fails at once while the link to the agent is not up yet.
+fn ask_to_join(
+    session: &zenoh::Session,
+    host: &str,
+    request: &JoinRequest,
+) -> Result<JoinReply, hosts::HostError> {
+    let deadline = Instant::now() + JOIN_TIMEOUT;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match messages::ask(session, &keys::agent_join(host), request, left) {
+            Ok(reply) => return Ok(reply),
+            Err(_) if Instant::now() >= deadline => {
+                return Err(hosts::HostError::Protocol(format!(
+                    "no answer on {} within {JOIN_TIMEOUT:?}",
+                    keys::agent_join(host)
+                )));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(100)),
+        }
     }
 }

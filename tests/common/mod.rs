@@ -184,3 +184,17 @@ pub fn machine_shared() -> std::sync::RwLockReadGuard<'static, ()> {
         .read()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
+
+/// `plans.csv` without the columns the machine's speed decides (solve time, arrival in
+/// real time).
+pub fn plans_made(dir: &Path) -> Vec<String> {
+    let table = orchestrator::schema::Table::read(&dir.join("plans.csv")).unwrap();
+    // The solve time and the real-time arrival depend on the machine.
+    let keep = orchestrator::schema::PLANS_COLUMNS
+        .iter()
+        .filter(|c| !["solve_us", "arrival_ms"].contains(c));
+    let columns: Vec<Vec<&str>> = keep.map(|c| table.column(c).unwrap()).collect();
+    (0..table.len())
+        .map(|r| columns.iter().map(|c| c[r]).collect::<Vec<_>>().join(","))
+        .collect()
+}

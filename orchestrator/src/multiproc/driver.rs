@@ -28,6 +28,11 @@ use protocol::{Role, Scenario};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+/// How long the robot must stand still before an aborted real-time run ends, s.
+const AT_REST_FOR_S: f64 = 0.2;
+/// The longest an aborted real-time run waits for the robot to come to rest.
+const BRAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// A run while it is driven.
 pub(super) struct Driver<'a> {
     scenario: &'a Scenario,
@@ -95,31 +100,69 @@ impl<'a> Driver<'a> {
         Ok(self.judge.end_of_run(None))
     }
 
-    /// Real time: the clock started, and ticks recorded and judged as they complete.
+    /// Real time: the clock started, and ticks recorded and judged as they complete. A run
+    /// that must end aborted while the plant and the DFL still run (a producer lost with no
+    /// restart or failover left) goes on, recorded, until the DFL has braked the robot to
+    /// rest ([`AT_REST_FOR_S`] standing still, or [`BRAKE_TIMEOUT`]), and then ends.
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.session.start(start_ns)?;
         let end_ns = self.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
+        let mut aborting: Option<Instant> = None;
         loop {
-            if let Some(outcome) = self.check()? {
-                return Ok(outcome);
+            if let Some(since) = aborting {
+                if self.stop.load(Ordering::Relaxed) {
+                    return Ok(Outcome::Interrupted);
+                }
+                let t_s = self.recorder.simulated_s();
+                if self.judge.at_rest_for_s(t_s) >= AT_REST_FOR_S || since.elapsed() > BRAKE_TIMEOUT
+                {
+                    return Ok(Outcome::Aborted);
+                }
+                self.children.kill_overdue();
+            } else if let Some(outcome) = self.check()? {
+                if outcome != Outcome::Aborted || !self.can_brake_to_rest() {
+                    return Ok(outcome);
+                }
+                self.recorder
+                    .event("braking_to_rest", serde_json::json!({}))?;
+                aborting = Some(Instant::now());
             }
             if monotonic_ns() > give_up_ns {
+                if aborting.is_some() {
+                    return Ok(Outcome::Aborted);
+                }
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.take(waitset)?;
-            if let Some(outcome) = self.intake.record_plans(self.recorder, &mut self.judge)? {
-                return Ok(outcome);
+            let planned = self.intake.record_plans(self.recorder, &mut self.judge)?;
+            if aborting.is_none() {
+                if let Some(outcome) = planned {
+                    return Ok(outcome);
+                }
+                self.serve_swaps()?;
             }
-            self.serve_swaps()?;
             while let Some(slot) = self.intake.next_due(self.recorder)? {
                 let tick = self.intake.cursor - 1;
-                if let Some(outcome) = self.record_slot(tick, slot)? {
-                    return Ok(outcome);
+                match self.record_slot(tick, slot)? {
+                    Some(Outcome::Collided) => return Ok(Outcome::Collided),
+                    Some(_) if aborting.is_some() => return Ok(Outcome::Aborted),
+                    Some(outcome) => return Ok(outcome),
+                    None => {}
                 }
             }
         }
+    }
+
+    /// Whether the plant and the DFL still run, so that the DFL's fallbacks (the shifted
+    /// plan, then the brake) can bring the robot to rest before an aborted run ends.
+    fn can_brake_to_rest(&self) -> bool {
+        [Role::Plant, Role::Dfl].iter().all(|&role| {
+            self.children
+                .pid(role, self.session.schedule().current(role))
+                .is_some()
+        })
     }
 
     /// Records and judges tick `tick` (with the plans received before it); the tick

@@ -108,15 +108,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    for stale in ipc::stale_run_prefixes() {
-        match ipc::remove_run_resources(&stale) {
-            Ok(()) => {
-                ipc::unregister_run(&stale);
-                tracing::info!("removed the iceoryx2 resources of dead run `{stale}`")
-            }
-            Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
-        }
-    }
+    remove_dead_runs();
     let mut recorder =
         Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
     if mcap {
@@ -248,16 +240,20 @@ fn drive(
         )?;
     }
     if let Some(remote) = &children.remote {
-        report.links = link_reports(remote);
+        let mut counters = remote.end();
+        report.orchestrator_bridge = counters.remove(hosts::keys::ORCHESTRATOR);
+        report.links = link_reports(remote, counters);
     }
     drop(guards);
     let (outcome, judge) = outcome?;
     Ok((outcome, judge, report))
 }
 
-/// Ends the run on every other host and reports each link.
-fn link_reports(remote: &RemoteHosts) -> BTreeMap<String, crate::record::LinkReport> {
-    let mut counters = remote.end();
+/// Each link to another host, with what its host's bridge carried (`counters`, by host).
+fn link_reports(
+    remote: &RemoteHosts,
+    mut counters: BTreeMap<String, hosts::LinkCounters>,
+) -> BTreeMap<String, crate::record::LinkReport> {
     remote
         .hosts
         .iter()
@@ -267,7 +263,8 @@ fn link_reports(remote: &RemoteHosts) -> BTreeMap<String, crate::record::LinkRep
                 round_trip_us: link.clock.round_trip_ns as f64 / 1e3,
                 clock_correction_ms: link.clock.correction_ns as f64 / 1e6,
                 clock_uncertainty_us: link.clock.uncertainty_ns() as f64 / 1e3,
-                host_bridge: counters.remove(name).unwrap_or_default(),
+                host_bridge: counters.remove(name),
+                lost: remote.is_lost(name),
             };
             (name.clone(), report)
         })
@@ -338,4 +335,18 @@ fn wait_until_ready(
         }
     }
     Ok(())
+}
+
+/// Removes the iceoryx2 resources of runs on this machine whose orchestrator (or agent) is
+/// dead, as every run and every agent does when it starts.
+pub fn remove_dead_runs() {
+    for stale in ipc::stale_run_prefixes() {
+        match ipc::remove_run_resources(&stale) {
+            Ok(()) => {
+                ipc::unregister_run(&stale);
+                tracing::info!("removed the iceoryx2 resources of dead run `{stale}`")
+            }
+            Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
+        }
+    }
 }

@@ -120,6 +120,9 @@ pub struct ProcessReport {
     /// Each link to another host: its round trip, the clock offset and what it carried.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub links: BTreeMap<String, LinkReport>,
+    /// What the orchestrator's own bridge carried and refused, over all its links.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub orchestrator_bridge: Option<hosts::LinkCounters>,
 }
 
 /// One link between the orchestrator's host and another (docs/hosts.md).
@@ -133,8 +136,11 @@ pub struct LinkReport {
     pub clock_correction_ms: f64,
     /// How far that estimate may be off (half the round trip), µs.
     pub clock_uncertainty_us: f64,
-    /// What the host's bridge carried and refused.
-    pub host_bridge: hosts::LinkCounters,
+    /// What the host's bridge carried and refused (`null` when the host was lost: its
+    /// agent could not say).
+    pub host_bridge: Option<hosts::LinkCounters>,
+    /// Whether the host's agent went away during the run.
+    pub lost: bool,
 }
 
 /// Latency samples of a multi-process run, collected by the recorder.
@@ -258,8 +264,12 @@ impl Summary {
                     "  {:<16} {role} on `{host}`{}\n",
                     "host",
                     link.map_or(String::new(), |l| format!(
-                        " ({}, round trip {:.0} µs, clock {:+.3} ms ± {:.0} µs)",
-                        l.endpoint, l.round_trip_us, l.clock_correction_ms, l.clock_uncertainty_us
+                        " ({}, round trip {:.0} µs, clock {:+.3} ms ± {:.0} µs){}",
+                        l.endpoint,
+                        l.round_trip_us,
+                        l.clock_correction_ms,
+                        l.clock_uncertainty_us,
+                        if l.lost { ", lost during the run" } else { "" }
                     ))
                 );
             }

@@ -1,0 +1,644 @@
+//! Roles on another host (docs/hosts.md): a real `scmpc host` agent on loopback, real
+//! Zenoh between it and the orchestrator, real role processes on both "hosts".
+
+mod common;
+
+use common::{events, leftovers, run, scmpc, stderr, summary, wait_for};
+use orchestrator::schema::Table;
+use protocol::ipc::process_alive;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Output, Stdio};
+use std::sync::mpsc::{Receiver, channel};
+use std::time::Duration;
+
+/// The paper scenario, made short: it reaches its goal at 7.46 s (lockstep).
+const SHORT: [&str; 4] = ["--set", "mpc.r_diag=[3,3]", "--set", "duration_s=10"];
+
+/// A `scmpc host` agent listening on a free loopback port, stopped with the test.
+struct Agent {
+    child: Child,
+    endpoint: String,
+    /// The agent's stderr, line by line.
+    lines: Receiver<String>,
+}
+
+impl Agent {
+    /// Starts agent `name` with extra `args` and environment `env`; waits until it listens.
+    fn start(name: &str, scheme: &str, args: &[&str], env: &[(&str, &str)]) -> Agent {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("no free port")
+            .port();
+        let endpoint = format!("{scheme}/127.0.0.1:{port}");
+        let mut child = scmpc()
+            .args(["host", "--name", name, "--listen", &endpoint])
+            .args(args)
+            .envs(env.iter().copied())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("cannot start scmpc host");
+        let (send, lines) = channel();
+        let stderr = child.stderr.take().expect("stderr piped");
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if send.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let agent = Agent {
+            child,
+            endpoint,
+            lines,
+        };
+        agent.wait_for_line("listening on");
+        agent
+    }
+
+    fn plain(name: &str) -> Agent {
+        Agent::start(name, "tcp", &[], &[])
+    }
+
+    /// Waits (30 s at most) for a line of the agent's stderr that contains `text`.
+    fn wait_for_line(&self, text: &str) -> String {
+        let mut seen = Vec::new();
+        while let Ok(line) = self.lines.recv_timeout(Duration::from_secs(30)) {
+            if line.contains(text) {
+                return line;
+            }
+            seen.push(line);
+        }
+        panic!("the agent never said `{text}`: {seen:#?}");
+    }
+
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// iceoryx2 files of the agent's runs still on this machine.
+    fn leftovers(&self) -> Vec<std::path::PathBuf> {
+        leftovers(&format!("scmpc{}x", self.pid()))
+    }
+
+    /// `scmpc run ARGS` with the roles `placed` on this agent's host `name`, into `dir`.
+    fn run(&self, name: &str, placed: &[&str], dir: &Path, args: &[&str]) -> Output {
+        let host = format!("{name}={}", self.endpoint);
+        let mut all = vec!["run", "--host", &host, "--out", dir.to_str().unwrap()];
+        let sets: Vec<String> = placed.iter().map(|r| format!("hosts.{r}={name}")).collect();
+        for set in &sets {
+            all.extend(["--set", set]);
+        }
+        all.extend(args);
+        run(&all)
+    }
+}
+
+impl Drop for Agent {
+    fn drop(&mut self) {
+        // SAFETY: signalling the agent this test started.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+        let ended = wait_for(Duration::from_secs(5), || {
+            self.child.try_wait().ok().flatten().is_some()
+        });
+        if !ended {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Runs `scenario_args` on one host and with `placed` on agent `compute`; asserts both
+/// trajectories are the same bytes (and the plans the same) and the summary names each role's host.
+fn assert_same_run_across_hosts(agent: &Agent, placed: &[&str], scenario_args: &[&str]) {
+    let one = tempfile::tempdir().unwrap();
+    let two = tempfile::tempdir().unwrap();
+    let out = run(&[
+        &["run", "--out", one.path().to_str().unwrap()],
+        scenario_args,
+    ]
+    .concat());
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let out = agent.run("compute", placed, two.path(), scenario_args);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(
+        read(&one.path().join("trajectory.csv")) == read(&two.path().join("trajectory.csv")),
+        "trajectory.csv differs with {placed:?} on another host"
+    );
+    assert_eq!(
+        common::plans_made(one.path()),
+        common::plans_made(two.path()),
+        "plans.csv differs with {placed:?} on another host"
+    );
+    let s = summary(two.path());
+    assert_eq!(s["outcome"], "reached");
+    for role in placed {
+        assert_eq!(s["hosts"][role], "compute", "{s}");
+    }
+    assert!(s["hosts"].get("plant").is_none(), "{s}");
+    assert!(s["links"]["compute"]["round_trip_us"].as_f64().unwrap() > 0.0);
+    let spawned_on = |role: &str| {
+        events(two.path())
+            .into_iter()
+            .find(|e| e["event"] == "spawned" && e["role"] == role)
+            .map(|e| e["host"].clone())
+    };
+    assert_eq!(spawned_on("mpc"), Some("compute".into()));
+    assert_eq!(spawned_on("dfl"), Some(serde_json::Value::Null));
+}
+
+#[test]
+fn in_lockstep_the_paper_with_the_mpc_on_another_host_gives_the_same_bytes() {
+    let _machine = common::machine_shared();
+    let agent = Agent::plain("compute");
+    assert_same_run_across_hosts(&agent, &["mpc"], &["paper"]);
+    assert!(
+        wait_for(Duration::from_secs(5), || agent.leftovers().is_empty()),
+        "the agent left {:?}",
+        agent.leftovers()
+    );
+}
+
+#[test]
+fn in_lockstep_the_field_with_the_mpc_and_the_planner_on_another_host_gives_the_same_bytes() {
+    let _machine = common::machine_shared();
+    let agent = Agent::plain("compute");
+    assert_same_run_across_hosts(&agent, &["mpc", "planner"], &["field"]);
+}
+
+#[test]
+fn an_agent_serves_run_after_run_and_a_swap_of_a_remote_role_runs_on_its_host() {
+    let _machine = common::machine_shared();
+    let agent = Agent::plain("compute");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("swap.toml");
+    std::fs::write(
+        &file,
+        "name = \"remote swap\"\n[[swap]]\ntime_s = 3.0\nrole = \"mpc\"\n\
+         command = [\"scmpc\", \"mpc\", \"--set\", \"mpc.horizon=10\"]\n",
+    )
+    .unwrap();
+    let file = file.to_str().unwrap();
+    for run_no in 0..2 {
+        let out_dir = dir.path().join(format!("run{run_no}"));
+        let out = agent.run(
+            "compute",
+            &["mpc"],
+            &out_dir,
+            &[&[file][..], &SHORT].concat(),
+        );
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        let s = summary(&out_dir);
+        assert_eq!(s["outcome"], "reached");
+        assert_eq!(s["swaps"], 1, "{s}");
+        let ev = events(&out_dir);
+        let on_host = ev
+            .iter()
+            .filter(|e| e["event"] == "spawned" && e["role"] == "mpc")
+            .all(|e| e["host"] == "compute");
+        assert!(on_host, "an MPC ran on the orchestrator's host: {ev:#?}");
+        let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
+        let epochs = plans.numbers("mpc_epoch").unwrap();
+        assert!(epochs.contains(&0.0) && epochs.contains(&1.0), "no swap");
+    }
+}
+
+/// A real-time run's misses, gaps, outcome and clearance, asserted clean.
+fn assert_clean_realtime(s: &serde_json::Value) {
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["deadline_misses"], 0, "{s}");
+    assert_eq!(s["record_gaps"], 0, "{s}");
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot_inject() {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let dir = tempfile::tempdir().unwrap();
+    let prefix = common::unique_prefix("stranger");
+    let run_dir = dir.path().join("run");
+    let host = format!("compute={}", agent.endpoint);
+    let mut child = scmpc()
+        .args([
+            "run", "--mode", "realtime", "--prefix", &prefix, "--host", &host,
+        ])
+        .args([
+            "--set",
+            "hosts.mpc=compute",
+            "--out",
+            run_dir.to_str().unwrap(),
+        ])
+        .args(SHORT)
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    common::wait_for_pid(&run_dir, "mpc");
+    // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
+    let stranger = {
+        use zenoh::Wait;
+        let mut config = zenoh::Config::default();
+        config
+            .insert_json5("connect/endpoints", &format!("[\"{}\"]", agent.endpoint))
+            .unwrap();
+        config
+            .insert_json5("scouting/multicast/enabled", "false")
+            .unwrap();
+        let session = zenoh::open(config).wait().unwrap();
+        let key = hosts::keys::to_host(&hosts::keys::run_of_prefix(&prefix), "compute", "estimate");
+        let forged = vec![0x5a_u8; 512];
+        for _ in 0..20 {
+            session.put(&key, forged.clone()).wait().unwrap();
+            session
+                .put(&key, forged.clone())
+                .attachment(vec![7_u8; 32])
+                .wait()
+                .unwrap();
+        }
+        session
+    };
+    assert!(child.wait().unwrap().success());
+    drop(stranger);
+    let s = summary(&run_dir);
+    assert_clean_realtime(&s);
+    let link = &s["links"]["compute"];
+    let refused = link["host_bridge"]["refused_tag"].as_u64().unwrap();
+    assert_eq!(refused, 40, "forged samples not all refused: {link}");
+    assert!(link["host_bridge"]["received"].as_u64().unwrap() > 100);
+    assert!(s["orchestrator_bridge"]["received"].as_u64().unwrap() > 100);
+    assert!(leftovers(&prefix).is_empty());
+}
+
+#[test]
+fn in_real_time_a_host_clock_3_s_off_is_measured_within_1_ms_and_misses_no_deadline() {
+    let _machine = common::machine_alone();
+    for offset_ms in [3000.0, -3000.0_f64] {
+        let offset = format!("{offset_ms}");
+        let agent = Agent::start("compute", "tcp", &[], &[("SCMPC_CLOCK_OFFSET_MS", &offset)]);
+        let dir = tempfile::tempdir().unwrap();
+        let out = agent.run(
+            "compute",
+            &["mpc"],
+            dir.path(),
+            &[&["--mode", "realtime"][..], &SHORT].concat(),
+        );
+        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        let s = summary(dir.path());
+        assert_clean_realtime(&s);
+        // The agent's clock runs `offset` ahead: the correction takes it back.
+        let correction_ms = s["links"]["compute"]["clock_correction_ms"]
+            .as_f64()
+            .unwrap();
+        assert!(
+            (correction_ms + offset_ms).abs() < 1.0,
+            "offset {offset_ms} ms measured as a correction of {correction_ms} ms"
+        );
+    }
+}
+
+/// A real-time run of `SHORT` (made `duration_s` long) with the MPC on `agent` and
+/// `fault`; returns its directory and summary.
+fn link_fault_run(
+    agent: &Agent,
+    fault: &str,
+    duration_s: &str,
+) -> (tempfile::TempDir, serde_json::Value) {
+    let dir = tempfile::tempdir().unwrap();
+    let duration = format!("duration_s={duration_s}");
+    let out = agent.run(
+        "compute",
+        &["mpc"],
+        dir.path(),
+        &[
+            "--mode",
+            "realtime",
+            "--set",
+            "mpc.r_diag=[3,3]",
+            "--set",
+            &duration,
+            "--set",
+            fault,
+        ],
+    );
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    let s = summary(dir.path());
+    assert_eq!(s["outcome"], "reached", "{fault}: {s}");
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0, "{fault}");
+    (dir, s)
+}
+
+/// `plans.csv` as `(sample, arrival after t_k in ms or None, deadline met, fallback)`.
+fn verdicts(dir: &Path) -> Vec<(u64, Option<f64>, bool, String)> {
+    common::csv(&dir.join("plans.csv"))
+        .iter()
+        .filter(|row| !row["deadline_met"].is_empty())
+        .map(|row| {
+            (
+                common::num(row, "sample") as u64,
+                row["arrival_ms"].parse().ok(),
+                row["deadline_met"] == "true",
+                row["fallback"].clone(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn a_link_60_ms_slow_flags_every_late_plan_and_the_robot_still_reaches_the_goal() {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let (dir, s) = link_fault_run(&agent, "fault.link_delay_ms=60", "12");
+    let verdicts = verdicts(dir.path());
+    assert!(verdicts.len() > 200);
+    // Ts = 50 ms: a plan is in time iff it came within its own sample.
+    for (sample, arrival_ms, met, _) in &verdicts {
+        assert_eq!(
+            *met,
+            arrival_ms.is_some_and(|a| a < 50.0),
+            "sample {sample}"
+        );
+        assert!(!met, "sample {sample} came in time over a 60 ms link");
+    }
+    assert_eq!(s["deadline_misses"], verdicts.len() as u64);
+}
+
+#[test]
+fn a_link_down_from_2_to_4_s_gives_the_shifted_plan_then_the_brake_and_flying_resumes() {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let (dir, s) = link_fault_run(&agent, "fault.link_down_s=[2, 4]", "14");
+    let verdicts = verdicts(dir.path());
+    let missed: Vec<u64> = verdicts.iter().filter(|v| !v.2).map(|v| v.0).collect();
+    let first = *missed.first().expect("no plan missed");
+    // Samples are 50 ms: the link is down for samples 40..80 (give or take the one a
+    // plan was on its way in).
+    assert!((39..=41).contains(&first), "first miss at sample {first}");
+    assert!(missed.iter().all(|k| (39..=81).contains(k)), "{missed:?}");
+    assert!(missed.len() >= 38, "{missed:?}");
+    // The first missing plan is met by the shifted plan at once, the brake follows
+    // when the shifted plan runs out, and nominal flying comes back after.
+    let fallback = |k: u64| verdicts.iter().find(|v| v.0 == k).unwrap().3.clone();
+    assert_eq!(fallback(first), "shifted");
+    assert!(
+        missed.iter().any(|&k| fallback(k) == "brake"),
+        "never braked"
+    );
+    let trajectory = Table::read(&dir.path().join("trajectory.csv")).unwrap();
+    let (t, mode) = (
+        trajectory.numbers("t").unwrap(),
+        trajectory.column("mode").unwrap(),
+    );
+    let nominal_after = (0..t.len()).any(|i| t[i] > 4.5 && mode[i] == "nominal");
+    assert!(nominal_after, "no nominal command after the link came back");
+    let down = s["links"]["compute"]["host_bridge"]["down"]
+        .as_u64()
+        .unwrap()
+        + s["orchestrator_bridge"]["down"].as_u64().unwrap();
+    assert!(down > 0, "{s}");
+}
+
+#[test]
+fn a_link_losing_a_fifth_of_its_samples_still_reaches_the_goal_and_counts_the_losses() {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let (_dir, s) = link_fault_run(&agent, "fault.link_loss=0.2", "12");
+    let lost = s["links"]["compute"]["host_bridge"]["lost"]
+        .as_u64()
+        .unwrap()
+        + s["orchestrator_bridge"]["lost"].as_u64().unwrap();
+    let sent = s["links"]["compute"]["host_bridge"]["sent"]
+        .as_u64()
+        .unwrap()
+        + s["orchestrator_bridge"]["sent"].as_u64().unwrap();
+    // About a fifth of what was offered to the link.
+    let share = lost as f64 / (lost + sent) as f64;
+    assert!(
+        (0.1..0.3).contains(&share),
+        "lost {lost} of {}",
+        lost + sent
+    );
+    assert!(s["deadline_misses"].as_u64().unwrap() > 0);
+}
+
+/// A real-time run with the MPC on `agent`, whose agent is SIGKILLed once the run is 2 s
+/// in; returns the run's directory, summary and the remote MPC's pid.
+fn run_losing_the_host(failover: &str) -> (tempfile::TempDir, serde_json::Value, Agent, u32) {
+    let mut agent = Agent::plain("compute");
+    let dir = tempfile::tempdir().unwrap();
+    let host = format!("compute={}", agent.endpoint);
+    let policy = format!("supervision.failover={failover}");
+    let mut child = common::spawn_run(
+        dir.path(),
+        &[
+            &[
+                "--mode",
+                "realtime",
+                "--host",
+                &host,
+                "--set",
+                "hosts.mpc=compute",
+            ][..],
+            &["--set", &policy],
+            &SHORT,
+        ]
+        .concat(),
+    );
+    let mpc = common::wait_for_pid(dir.path(), "mpc");
+    std::thread::sleep(Duration::from_secs(2));
+    agent.child.kill().unwrap();
+    agent.child.wait().unwrap();
+    child.wait().unwrap();
+    let s = summary(dir.path());
+    (dir, s, agent, mpc)
+}
+
+#[test]
+fn when_the_agent_dies_with_failover_local_a_local_mpc_takes_over_and_the_goal_is_reached() {
+    let _machine = common::machine_alone();
+    let (dir, s, _agent, _) = run_losing_the_host("local");
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert!(s["links"]["compute"]["lost"].as_bool().unwrap());
+    let ev = events(dir.path());
+    assert!(common::has_event(&ev, "failed_over", "mpc"), "{ev:#?}");
+    let local = ev
+        .iter()
+        .any(|e| e["event"] == "spawned" && e["role"] == "mpc" && e["host"].is_null())
+        || ev.iter().any(|e| e["event"] == "failed_over");
+    assert!(local);
+}
+
+#[test]
+fn when_the_agent_dies_without_failover_the_run_aborts_at_rest_and_leaves_nothing() {
+    let _machine = common::machine_alone();
+    let (dir, s, agent, mpc) = run_losing_the_host("none");
+    assert_eq!(s["outcome"], "aborted", "{s}");
+    // Braked to rest before the run ended: the last recorded poses do not move.
+    let trajectory = Table::read(&dir.path().join("trajectory.csv")).unwrap();
+    let (x, y) = (
+        trajectory.numbers("x").unwrap(),
+        trajectory.numbers("y").unwrap(),
+    );
+    let n = x.len();
+    assert!(n > 20);
+    for i in n - 10..n {
+        assert!(
+            (x[i] - x[n - 1]).hypot(y[i] - y[n - 1]) < 1e-9,
+            "still moving"
+        );
+    }
+    assert!(
+        (x[n - 1] - x[0]).hypot(y[n - 1] - y[0]) > 0.5,
+        "it never drove"
+    );
+    let ev = events(dir.path());
+    assert!(ev.iter().any(|e| e["event"] == "host_lost"));
+    // No process of the run on either "host" after the orphan grace, no file left.
+    let mut pids: Vec<u32> = ["plant", "estimator", "dfl"]
+        .iter()
+        .map(|r| s["pids"][r].as_u64().unwrap() as u32)
+        .collect();
+    pids.push(mpc);
+    assert!(
+        wait_for(Duration::from_secs(3), || pids
+            .iter()
+            .all(|p| !process_alive(*p))),
+        "still running: {:?}",
+        pids.iter()
+            .filter(|p| process_alive(**p))
+            .collect::<Vec<_>>()
+    );
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+    assert!(
+        wait_for(Duration::from_secs(3), || agent.leftovers().is_empty()),
+        "the dead agent's run left {:?}",
+        agent.leftovers()
+    );
+}
+
+#[test]
+fn when_the_orchestrator_is_killed_the_remote_roles_stop_and_the_agent_serves_the_next_run() {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let dir = tempfile::tempdir().unwrap();
+    let host = format!("compute={}", agent.endpoint);
+    let mut child = common::spawn_run(
+        dir.path(),
+        &[
+            "--mode",
+            "realtime",
+            "--host",
+            &host,
+            "--set",
+            "hosts.mpc=compute",
+            "--set",
+            "duration_s=60",
+        ],
+    );
+    let mpc = common::wait_for_pid(dir.path(), "mpc");
+    std::thread::sleep(Duration::from_secs(1));
+    common::sigkill(child.id());
+    child.wait().unwrap();
+    assert!(
+        wait_for(Duration::from_secs(5), || !process_alive(mpc)),
+        "the remote MPC outlived its orchestrator"
+    );
+    agent.wait_for_line("ended");
+    assert!(wait_for(Duration::from_secs(3), || agent
+        .leftovers()
+        .is_empty()));
+    let next = tempfile::tempdir().unwrap();
+    let out = agent.run("compute", &["mpc"], next.path(), &["paper"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert_eq!(summary(next.path())["outcome"], "reached");
+}
+
+#[test]
+fn plain_tcp_off_loopback_is_refused_by_the_run_and_the_agent_naming_the_option() {
+    let endpoint = "tcp/192.0.2.7:7447";
+    let host = format!("compute={endpoint}");
+    let out = run(&["run", "--set", "hosts.mpc=compute", "--host", &host]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("--insecure"), "{}", stderr(&out));
+    let out = run(&["host", "--name", "compute", "--listen", endpoint]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("--insecure"), "{}", stderr(&out));
+}
+
+#[test]
+fn a_host_that_does_not_answer_fails_the_run_before_tick_0_naming_it() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    let dir = tempfile::tempdir().unwrap();
+    let host = format!("compute=tcp/127.0.0.1:{port}");
+    let out = run(&[
+        "run",
+        "--set",
+        "hosts.mpc=compute",
+        "--host",
+        &host,
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(stderr(&out).contains("compute"), "{}", stderr(&out));
+    // It never started: no summary.
+    assert!(!dir.path().join("summary.json").exists());
+}
+
+/// A CA and one certificate it signs for 127.0.0.1, as PEM files in `dir`.
+fn tls_files(dir: &Path) -> [String; 3] {
+    use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair};
+    let ca_key = KeyPair::generate().unwrap();
+    let mut ca_params = CertificateParams::new(Vec::new()).unwrap();
+    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
+    let ca = ca_params.self_signed(&ca_key).unwrap();
+    let issuer = Issuer::new(ca_params, ca_key);
+    let key = KeyPair::generate().unwrap();
+    let cert = CertificateParams::new(vec!["127.0.0.1".into(), "localhost".into()])
+        .unwrap()
+        .signed_by(&key, &issuer)
+        .unwrap();
+    let write = |name: &str, pem: String| {
+        let path = dir.join(name);
+        std::fs::write(&path, pem).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    [
+        write("ca.pem", ca.pem()),
+        write("cert.pem", cert.pem()),
+        write("key.pem", key.serialize_pem()),
+    ]
+}
+
+#[test]
+fn over_tls_with_mutual_authentication_the_remote_run_gives_the_same_bytes() {
+    let _machine = common::machine_shared();
+    let certs = tempfile::tempdir().unwrap();
+    let [ca, cert, key] = tls_files(certs.path());
+    let tls = ["--tls-ca", &ca, "--tls-cert", &cert, "--tls-key", &key];
+    let agent = Agent::start("compute", "tls", &tls, &[]);
+    let one = tempfile::tempdir().unwrap();
+    let two = tempfile::tempdir().unwrap();
+    let out = run(&[&["run", "--out", one.path().to_str().unwrap()][..], &SHORT].concat());
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let out = agent.run(
+        "compute",
+        &["mpc"],
+        two.path(),
+        &[&SHORT[..], &tls].concat(),
+    );
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(read(&one.path().join("trajectory.csv")) == read(&two.path().join("trajectory.csv")));
+    // Without the certificates the orchestrator cannot reach the agent.
+    let three = tempfile::tempdir().unwrap();
+    let out = agent.run("compute", &["mpc"], three.path(), &SHORT);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(stderr(&out).contains("compute"), "{}", stderr(&out));
+}
