@@ -5,7 +5,8 @@ mod common;
 use common::{run_into_tempdir, stderr};
 
 #[test]
-fn scmpc_bench_reports_the_pipeline_against_a_raw_iceoryx2_ping_pong() {
+fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_against_raw_zenoh()
+{
     let _machine = common::machine_alone();
     let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
@@ -34,6 +35,20 @@ fn scmpc_bench_reports_the_pipeline_against_a_raw_iceoryx2_ping_pong() {
         hop <= 3.0 * raw,
         "pipeline hop {hop} us against raw {raw} us"
     );
+    // Across hosts (docs/hosts.md): target 1.5 times a raw Zenoh hop; measured 1.77 to
+    // 2.18 times with both "hosts" on these two cores, so asserted at twice the target.
+    let zenoh = number(&["raw_zenoh_one_way_us", "p50"]);
+    let cross = number(&["cross_host_hop_us", "p50"]);
+    assert!(
+        zenoh > 0.0 && cross > zenoh,
+        "cross-host {cross} us, Zenoh {zenoh} us"
+    );
+    assert!(
+        cross <= 3.0 * zenoh,
+        "cross-host {cross} us against Zenoh {zenoh} us"
+    );
+    assert!(number(&["link_round_trip_us"]) > 0.0);
+    assert!(table.contains("raw Zenoh hop") && table.contains("cross-host hop"));
     assert!(number(&["sensor_to_actuator_us", "p50"]) > 0.0);
     assert!(number(&["solve_us", "p50"]) > 0.0);
     // Target: at most 20 MB resident per role process (measured 9.6 to 11.6 MiB).

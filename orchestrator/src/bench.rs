@@ -11,6 +11,10 @@
 //! - Real time: the paper run in real time: per-hop and sensor-to-actuator latency,
 //!   deadline misses, each process's peak resident memory.
 //! - Lockstep: the paper run in lockstep: how much faster than real time.
+//! - Across hosts ([`cross_host`]): a raw Zenoh ping-pong, and the real-time run with the
+//!   MPC on a second host over loopback.
+
+pub mod cross_host;
 
 use crate::multiproc;
 use crate::record::{Percentiles, Summary};
@@ -69,6 +73,8 @@ pub struct BenchReport {
     /// One route search ([`planner::TangentGraph::shortest_path`]) over each of
     /// [`PLANNING_FIELDS`] random fields ([`planning_field`]), by number of discs, µs.
     pub route_planning_us: std::collections::BTreeMap<usize, Percentiles>,
+    #[serde(flatten)]
+    pub cross_host: cross_host::CrossHost,
 }
 
 /// Random fields per size in the route-planning benchmark.
@@ -260,7 +266,7 @@ fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
 }
 
 /// A child process killed (if still running) and reaped when dropped.
-struct KillOnDrop(std::process::Child);
+struct KillOnDrop(pub std::process::Child);
 
 impl Drop for KillOnDrop {
     fn drop(&mut self) {
@@ -315,6 +321,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         false,
         stop,
     )?;
+    let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -335,6 +342,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
             .into_iter()
             .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
             .collect(),
+        cross_host,
     };
     let path = out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
@@ -356,8 +364,9 @@ impl BenchReport {
             .iter()
             .map(|(n, q)| format!("  route, {n:>2} discs      {}\n", p(q)))
             .collect();
+        let c = &self.cross_host;
         format!(
-            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}",
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
             self.machine,
             p(&self.raw_iceoryx2_one_way_us),
             p(&self.pipeline_hop_us),
@@ -368,7 +377,12 @@ impl BenchReport {
             rss.join(", "),
             self.lockstep_wall_s,
             self.lockstep_simulated_s,
-            self.lockstep_speedup
+            self.lockstep_speedup,
+            p(&c.raw_zenoh_one_way_us),
+            p(&c.cross_host_hop_us),
+            c.cross_host_ratio_p50,
+            c.link_round_trip_us,
+            c.cross_host_deadline_misses
         )
     }
 }

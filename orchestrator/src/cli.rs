@@ -74,8 +74,12 @@ enum Command {
     /// The other end of `scmpc bench`'s ping-pong (started by it).
     #[command(hide = true)]
     BenchPong {
-        #[arg(long)]
-        prefix: String,
+        /// The iceoryx2 ping-pong's prefix.
+        #[arg(long, required_unless_present = "zenoh")]
+        prefix: Option<String>,
+        /// The Zenoh ping-pong's endpoint, instead.
+        #[arg(long, conflicts_with = "prefix")]
+        zenoh: Option<String>,
     },
     /// Print, as JSON, the layout of every message crossing a process boundary and what a
     /// role process of another language needs to join a run.
@@ -337,7 +341,7 @@ pub fn main() -> ExitCode {
         Command::Fuzz(args) => fuzz(args),
         Command::Figures { out } => figures(&out),
         Command::Bench { out, realtime_s } => bench(out, realtime_s),
-        Command::BenchPong { prefix } => crate::bench::pong(&prefix).map_err(CliError::Failed),
+        Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
         Command::Host(args) => host(args),
         Command::Plant(args) => role(args, Role::Plant, plant::process::run),
         Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
@@ -476,6 +480,17 @@ fn figures(out: &std::path::Path) -> CliResult {
         println!("{}", f.display());
     }
     Ok(())
+}
+
+fn bench_pong(prefix: Option<String>, zenoh: Option<String>) -> CliResult {
+    match (prefix, zenoh) {
+        (_, Some(endpoint)) => {
+            let endpoint = protocol::endpoint::Endpoint::parse(&endpoint).map_err(bad_input)?;
+            crate::bench::cross_host::zenoh_pong(&endpoint).map_err(CliError::Failed)
+        }
+        (Some(prefix), None) => crate::bench::pong(&prefix).map_err(CliError::Failed),
+        (None, None) => Err(bad_input("--prefix or --zenoh is required")),
+    }
 }
 
 fn bench(out: Option<PathBuf>, realtime_s: f64) -> CliResult {
