@@ -123,6 +123,11 @@ impl Children {
         self.epoch
     }
 
+    /// The host `role` runs on now (`None`: this one, also once its host was lost).
+    pub fn host_of(&self, role: Role) -> Option<&str> {
+        self.remote.as_ref().and_then(|r| r.host_of(role))
+    }
+
     /// Starts a process for `role` with producer epoch `epoch`, on the host the role is
     /// placed on: `command` (program and arguments; a program named `scmpc` is this
     /// executable), or the built-in role process when it is empty. Returns its pid.
@@ -132,10 +137,9 @@ impl Children {
         epoch: u32,
         command: &[String],
     ) -> anyhow::Result<u32> {
-        if let Some(remote) = &self.remote
-            && let Some(host) = remote.host_of(role)
+        if let Some(host) = self.host_of(role).map(str::to_string)
+            && let Some(remote) = &self.remote
         {
-            let host = host.to_string();
             let pid = remote.spawn(&host, role, epoch, command)?;
             self.list.push(Proc {
                 role,

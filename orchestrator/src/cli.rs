@@ -732,8 +732,11 @@ fn message_schema() -> serde_json::Value {
             ENV_MODE: "lockstep or realtime",
             ENV_EPOCH: "the producer epoch to stamp on every sample (Header.epoch)",
             ENV_ROLE: "the role to play",
-            ENV_SUPERVISOR: "the orchestrator's pid: exit when it is gone",
+            ENV_SUPERVISOR: "the supervisor's pid (the orchestrator, or on another host its agent): brake and exit when it is gone",
             ENV_CONTROL_PUBLISHER: "the iceoryx2 id of the orchestrator's control publisher, hexadecimal",
+            protocol::ipc::ENV_RUN_ID: "the run id every Header.run carries, decimal (set on other hosts, whose prefix differs from the orchestrator's; else derived from the prefix)",
+            protocol::clock::ENV_CLOCK_CORRECTION_NS: "ns to add to this host's monotonic clock to read the orchestrator's (set on other hosts, docs/hosts.md)",
+            protocol::clock::ENV_CLOCK_OFFSET_MS: "a test's artificial offset of this process's clock, ms (docs/hosts.md)",
         },
     })
 }

@@ -203,7 +203,7 @@ impl SwapServer {
             Ok(pid) => {
                 p.recorder.event(
                     "swap_started",
-                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "replaces": replaces, "pid": pid, "command": shown }),
+                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "replaces": replaces, "pid": pid, "command": shown, "host": p.children.host_of(role) }),
                 )?;
                 self.swaps.push(Swap {
                     role,
