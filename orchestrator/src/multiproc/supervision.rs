@@ -196,13 +196,7 @@ impl Supervisor {
         if self.policy.failover != protocol::Failover::Local {
             return Ok(false);
         }
-        let epoch = children.take_epoch();
-        session.reschedule(|s| s.activate(role, epoch))?;
-        let pid = children.spawn_role(role, epoch, &[])?;
-        recorder.event(
-            "failed_over",
-            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
-        )?;
+        start_new_epoch(role, "failed_over", session, children, recorder)?;
         Ok(true)
     }
 
@@ -223,15 +217,28 @@ impl Supervisor {
             return Ok(false);
         }
         self.restarts += 1;
-        let epoch = children.take_epoch();
-        session.reschedule(|s| s.activate(role, epoch))?;
-        let pid = children.spawn_role(role, epoch, &[])?;
-        recorder.event(
-            "restarted",
-            serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
-        )?;
+        start_new_epoch(role, "restarted", session, children, recorder)?;
         Ok(true)
     }
+}
+
+/// Starts the built-in process of `role` with a new epoch, made active at once, and
+/// records `event` for it.
+fn start_new_epoch(
+    role: Role,
+    event: &str,
+    session: &Session,
+    children: &mut Children,
+    recorder: &mut Recorder,
+) -> anyhow::Result<()> {
+    let epoch = children.take_epoch();
+    session.reschedule(|s| s.activate(role, epoch))?;
+    let pid = children.spawn_role(role, epoch, &[])?;
+    recorder.event(
+        event,
+        serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
+    )?;
+    Ok(())
 }
 
 /// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role

@@ -175,6 +175,11 @@ pub fn create_node(
         .map_err(ctx(format!("creating node `{name}`")))
 }
 
+/// A publisher and the notifier that wakes its subscribers.
+pub(crate) type PublishingPorts<T> = (Publisher<ipc::Service, T, ()>, Notifier<ipc::Service>);
+/// A subscriber and the listener its publishers wake.
+pub(crate) type SubscribingPorts<T> = (Subscriber<ipc::Service, T, ()>, Listener<ipc::Service>);
+
 /// A publish-subscribe service and its event service, opened with the settings every
 /// process uses.
 pub struct Topic<T: Message> {
@@ -221,20 +226,44 @@ pub fn open_topic<T: Message>(
 }
 
 impl<T: Message> Topic<T> {
+    /// A publisher on the topic and the notifier that wakes its subscribers.
+    pub(crate) fn publishing_ports(&self) -> Result<PublishingPorts<T>, IpcError> {
+        let publisher = self
+            .pubsub
+            .publisher_builder()
+            .create()
+            .map_err(ctx(format!("publisher on `{}`", self.name)))?;
+        let notifier = self
+            .event
+            .notifier_builder()
+            .create()
+            .map_err(ctx(format!("notifier on `{}`", self.name)))?;
+        Ok((publisher, notifier))
+    }
+
+    /// A subscriber on the topic and the listener its publishers wake.
+    pub(crate) fn subscribing_ports(&self) -> Result<SubscribingPorts<T>, IpcError> {
+        let subscriber = self
+            .pubsub
+            .subscriber_builder()
+            .buffer_size(SUBSCRIBER_BUFFER)
+            .create()
+            .map_err(ctx(format!("subscriber on `{}`", self.name)))?;
+        let listener = self
+            .event
+            .listener_builder()
+            .create()
+            .map_err(ctx(format!("listener on `{}`", self.name)))?;
+        Ok((subscriber, listener))
+    }
+
     /// A publisher stamping every sample with `epoch` and its publish time.
     pub fn sender(&self, epoch: u32) -> Result<Sender<T>, IpcError> {
+        let (publisher, notifier) = self.publishing_ports()?;
         Ok(Sender {
             name: self.name,
-            publisher: self
-                .pubsub
-                .publisher_builder()
-                .create()
-                .map_err(ctx(format!("publisher on `{}`", self.name)))?,
-            notifier: self
-                .event
-                .notifier_builder()
-                .create()
-                .map_err(ctx(format!("notifier on `{}`", self.name)))?,
+            publisher,
+            notifier,
             epoch,
             run_id: self.run_id,
             last: Cell::new(None),
@@ -254,18 +283,10 @@ impl<T: Message> Topic<T> {
     }
 
     fn receiver_inner(&self, producer: Option<crate::Role>) -> Result<Receiver<T>, IpcError> {
+        let (subscriber, listener) = self.subscribing_ports()?;
         Ok(Receiver {
-            subscriber: self
-                .pubsub
-                .subscriber_builder()
-                .buffer_size(SUBSCRIBER_BUFFER)
-                .create()
-                .map_err(ctx(format!("subscriber on `{}`", self.name)))?,
-            listener: self
-                .event
-                .listener_builder()
-                .create()
-                .map_err(ctx(format!("listener on `{}`", self.name)))?,
+            subscriber,
+            listener,
             run_id: self.run_id,
             producer,
             slot: producer.and_then(|role| output_slot(role, self.name)),

@@ -90,33 +90,18 @@ impl<T: Message> WireRelay for Relay<T> {
 
 impl<T: Message> Topic<T> {
     fn tap(&self) -> Result<Tap<T>, IpcError> {
+        let (subscriber, listener) = self.subscribing_ports()?;
         Ok(Tap {
-            subscriber: self
-                .pubsub
-                .subscriber_builder()
-                .buffer_size(SUBSCRIBER_BUFFER)
-                .create()
-                .map_err(ctx(format!("subscriber on `{}`", self.name)))?,
-            listener: self
-                .event
-                .listener_builder()
-                .create()
-                .map_err(ctx(format!("listener on `{}`", self.name)))?,
+            subscriber,
+            listener,
         })
     }
 
     fn relay(&self) -> Result<Relay<T>, IpcError> {
+        let (publisher, notifier) = self.publishing_ports()?;
         Ok(Relay {
-            publisher: self
-                .pubsub
-                .publisher_builder()
-                .create()
-                .map_err(ctx(format!("publisher on `{}`", self.name)))?,
-            notifier: self
-                .event
-                .notifier_builder()
-                .create()
-                .map_err(ctx(format!("notifier on `{}`", self.name)))?,
+            publisher,
+            notifier,
         })
     }
 }
