@@ -26,6 +26,29 @@ use zenoh::sample::SampleKind;
 
 /// How often the agent looks at its processes, its queries and the stop flag.
 const POLL: Duration = Duration::from_millis(20);
+/// The start of the name of a run's directory (the scenario file) of an agent:
+/// `scmpc-host-<agent pid>-<host>-<run>`, under the temporary directory.
+const RUN_DIR_STEM: &str = "scmpc-host-";
+
+/// Removes the run directories of agents that are dead (SIGKILLed, say).
+fn remove_dead_run_dirs() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix(RUN_DIR_STEM)
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|pid| pid.parse::<u32>().ok());
+        if pid.is_some_and(|pid| !ipc::process_alive(pid)) {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+/// How long after joining the orchestrator's liveliness token must have been seen.
+const ORCHESTRATOR_TOKEN_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long role processes have to exit at the end of a run before they are killed.
 const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 
@@ -37,6 +60,7 @@ pub fn serve(
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     crate::multiproc::remove_dead_runs();
+    remove_dead_run_dirs();
     let session = net::open(net::config(std::slice::from_ref(listen), &[], security)?)?;
     let joins = session
         .declare_queryable(keys::agent_join(name))
@@ -127,7 +151,11 @@ impl HostRun {
         let clock = hosts::clock_sync::estimate(session, &r.run)?;
         let prefix = ipc::new_prefix();
         ipc::register_run(&prefix).context("registering the run")?;
-        let dir = std::env::temp_dir().join(format!("scmpc-host-{name}-{}", r.run));
+        let dir = std::env::temp_dir().join(format!(
+            "{RUN_DIR_STEM}{}-{name}-{}",
+            std::process::id(),
+            r.run
+        ));
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
         let scenario_file = dir.join("scenario.toml");
         std::fs::write(&scenario_file, scenario.to_toml())
@@ -223,6 +251,9 @@ impl HostRun {
     ) -> &'static str {
         let _ = session;
         let mut orchestrator_gone: Option<Instant> = None;
+        // An orchestrator that gave up on the join before this host answered never shows
+        // its token here: without it the run is over as well.
+        let (joined, mut orchestrator_seen) = (Instant::now(), false);
         loop {
             if stop.load(Ordering::Relaxed) {
                 return "the agent was stopped";
@@ -238,9 +269,15 @@ impl HostRun {
                 );
             }
             while let Ok(Some(sample)) = self.orchestrator.try_recv() {
-                if sample.kind() == SampleKind::Delete {
-                    orchestrator_gone.get_or_insert_with(Instant::now);
+                match sample.kind() {
+                    SampleKind::Put => orchestrator_seen = true,
+                    SampleKind::Delete => {
+                        orchestrator_gone.get_or_insert_with(Instant::now);
+                    }
                 }
+            }
+            if !orchestrator_seen && joined.elapsed() >= ORCHESTRATOR_TOKEN_TIMEOUT {
+                orchestrator_gone.get_or_insert_with(Instant::now);
             }
             // Without its orchestrator a real-time robot brakes for the orphan grace; the
             // processes of this host then stop.
@@ -338,9 +375,8 @@ impl HostRun {
         self.stop_processes();
         let (prefix, dir, name) = (self.prefix.clone(), self.dir.clone(), self.name.clone());
         drop(self);
-        match ipc::remove_run_resources(&prefix) {
-            Ok(()) => ipc::unregister_run(&prefix),
-            Err(e) => eprintln!("scmpc host `{name}`: removing the run's resources: {e}"),
+        if let Err(e) = ipc::remove_run(&prefix) {
+            eprintln!("scmpc host `{name}`: removing the run's resources: {e}");
         }
         let _ = std::fs::remove_dir_all(dir);
     }

@@ -577,9 +577,8 @@ fn role(
     if args
         .supervisor_pid
         .is_some_and(|pid| !protocol::ipc::process_alive(pid))
-        && protocol::ipc::remove_run_resources(&args.prefix).is_ok()
     {
-        protocol::ipc::unregister_run(&args.prefix);
+        let _ = protocol::ipc::remove_run(&args.prefix);
     }
     result.map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
 }

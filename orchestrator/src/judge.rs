@@ -44,9 +44,6 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
 
-/// A robot that moved less than this over a tick stands still, m.
-pub const AT_REST_M: f64 = 1e-9;
-
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;
 
@@ -67,9 +64,6 @@ pub struct Judge {
     /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
     /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
     pub deviation_time_s: Option<f64>,
-    /// The last true position and since when the robot has not moved from it, s.
-    last_position: Option<[f64; 2]>,
-    still_since_s: Option<f64>,
 }
 
 impl Judge {
@@ -85,15 +79,7 @@ impl Judge {
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
-            last_position: None,
-            still_since_s: None,
         }
-    }
-
-    /// How long the robot has stood exactly still (a braked robot does not move at all),
-    /// at time `t_s`.
-    pub fn at_rest_for_s(&self, t_s: f64) -> f64 {
-        self.still_since_s.map_or(0.0, |since| t_s - since)
     }
 
     /// Distance from `(x, y)` to the straight line through the start and the goal, m.
@@ -138,15 +124,6 @@ impl Judge {
         if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
             self.deviation_time_s = Some(t_s);
         }
-        let moved = self
-            .last_position
-            .is_none_or(|[lx, ly]| (x - lx).hypot(y - ly) > AT_REST_M);
-        if moved {
-            self.still_since_s = None;
-        } else {
-            self.still_since_s.get_or_insert(t_s);
-        }
-        self.last_position = Some([x, y]);
         let distance = (x - self.goal[0]).hypot(y - self.goal[1]);
         self.last_distance_to_goal_m = distance;
         if distance <= self.goal_tolerance_m {

@@ -47,9 +47,6 @@ pub struct Recorder {
     safety_interventions: BTreeMap<u32, u32>,
     /// Plans published but not judged yet, by sample.
     pending_plans: BTreeMap<u64, Plan>,
-    /// Samples judged before their plan came (a plan later than its deadline over a slow
-    /// link): the row waits for the plan.
-    judged_without_plan: BTreeMap<u64, DeadlineVerdict>,
     commands: ModeCounts,
     /// `route.csv`, opened at the first route.
     routes: Option<BufWriter<File>>,
@@ -64,6 +61,8 @@ pub struct Recorder {
     /// Clearance and command mode of the newest tick recorded.
     last_clearance_m: Option<f64>,
     last_mode: Option<CommandMode>,
+    /// Since when the DFL has commanded the robot to stand (no forward speed, ζ = 0), s.
+    commanded_rest_since_s: Option<f64>,
     /// `run.mcap`, when asked for ([`Recorder::record_mcap`]).
     mcap: Option<McapLog>,
 }
@@ -96,7 +95,6 @@ impl Recorder {
             solver_failures: 0,
             safety_interventions: BTreeMap::new(),
             pending_plans: BTreeMap::new(),
-            judged_without_plan: BTreeMap::new(),
             commands: ModeCounts::default(),
             routes: None,
             last_route_plan: None,
@@ -107,6 +105,7 @@ impl Recorder {
             zeta: scenario.robot.zeta0,
             last_clearance_m: None,
             last_mode: None,
+            commanded_rest_since_s: None,
             mcap: None,
         })
     }
@@ -160,6 +159,13 @@ impl Recorder {
         self.last_mode
     }
 
+    /// How long, up to the last recorded tick, the DFL has commanded the robot to stand
+    /// (a braked robot: no forward speed, ζ = 0), s.
+    pub fn commanded_rest_for_s(&self) -> f64 {
+        self.commanded_rest_since_s
+            .map_or(0.0, |since| self.last_time_s - since)
+    }
+
     /// One inner tick: the truth at `t_j`, the estimate used, and the command applied over
     /// `[t_j, t_j+1)`.
     pub fn tick(
@@ -202,6 +208,11 @@ impl Recorder {
         let clearance = clearance_m(&self.obstacles, &self.footprint, [x, y]);
         self.last_clearance_m = Some(clearance);
         self.last_mode = Some(mode);
+        if act.u1 == 0.0 && act.zeta == 0.0 {
+            self.commanded_rest_since_s.get_or_insert(t);
+        } else {
+            self.commanded_rest_since_s = None;
+        }
         if let Some(mcap) = &self.mcap {
             mcap.tick(truth, estimate, act);
         }
@@ -278,11 +289,10 @@ impl Recorder {
         }
         self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
-        match self.judged_without_plan.remove(&plan.sample) {
-            Some(v) => self.verdict_row(&v, Some(plan))?,
-            None => {
-                self.pending_plans.insert(plan.sample, *plan);
-            }
+        // A plan that comes after the DFL judged its sample (missing, over a slow link) has
+        // its row already.
+        if self.last_judged.is_none_or(|last| plan.sample > last) {
+            self.pending_plans.insert(plan.sample, *plan);
         }
         if plan.is_solved() && plan.header.time_s >= self.next_prediction_s {
             self.next_prediction_s = plan.header.time_s.floor() + 1.0;
@@ -294,8 +304,8 @@ impl Recorder {
         Ok(())
     }
 
-    /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row (once its
-    /// plan is in too), and on a miss counts it and writes a `deadline_miss` event.
+    /// The DFL's deadline verdict on a sample: writes the sample's `plans.csv` row, and on a
+    /// miss counts it and writes a `deadline_miss` event.
     pub fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {
         if self.last_judged.is_some_and(|last| v.sample <= last) {
             return Ok(());
@@ -305,7 +315,12 @@ impl Recorder {
             mcap.verdict(v);
         }
         let met = v.met != 0;
-        let (status, arrival_ms, fallback) = verdict_fields(v);
+        let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
+        let status = match v.status {
+            PLAN_MISSING => "missing",
+            code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
+        };
+        let arrival_ms = (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6);
         if met {
             self.miss_streak = 0;
         } else {
@@ -323,24 +338,13 @@ impl Recorder {
                 }),
             )?;
         }
-        match self.pending_plans.remove(&v.sample) {
-            Some(plan) => self.verdict_row(v, Some(&plan)),
-            None => {
-                self.judged_without_plan.insert(v.sample, *v);
-                Ok(())
-            }
-        }
-    }
-
-    /// The `plans.csv` row of a judged sample.
-    fn verdict_row(&mut self, v: &DeadlineVerdict, plan: Option<&Plan>) -> std::io::Result<()> {
-        let (status, arrival_ms, fallback) = verdict_fields(v);
+        let plan = self.pending_plans.remove(&v.sample);
         self.plan_row(
             v.sample,
-            plan,
+            plan.as_ref(),
             status,
             arrival_ms,
-            Some(v.met != 0),
+            Some(met),
             fallback,
         )
     }
@@ -384,11 +388,7 @@ impl Recorder {
         wall_s: f64,
         processes: Option<ProcessReport>,
     ) -> std::io::Result<Summary> {
-        // Samples judged whose plan never came, and plans the run ended before the DFL
-        // could judge.
-        for (_, v) in std::mem::take(&mut self.judged_without_plan) {
-            self.verdict_row(&v, None)?;
-        }
+        // Plans the run ended before the DFL could judge.
         for (sample, plan) in std::mem::take(&mut self.pending_plans) {
             let status = plan.status().map_or("unknown", |s| s.as_str());
             self.plan_row(sample, Some(&plan), status, None, None, "")?;
@@ -442,18 +442,6 @@ impl Recorder {
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;
         Ok(summary)
     }
-}
-
-/// A verdict's plan status, arrival after `t_k` (ms, if the plan came) and fallback mode,
-/// as the record writes them.
-fn verdict_fields(v: &DeadlineVerdict) -> (&'static str, Option<f64>, &'static str) {
-    let status = match v.status {
-        PLAN_MISSING => "missing",
-        code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
-    };
-    let arrival_ms = (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6);
-    let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
-    (status, arrival_ms, fallback)
 }
 
 /// A new CSV file at `path` with the header line of `columns`.

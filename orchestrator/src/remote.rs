@@ -279,6 +279,8 @@ impl RemoteHosts {
     /// removes the run's resources. Returns what every link carried, by host (the
     /// orchestrator's bridge under [`ORCHESTRATOR`]).
     pub fn end(&self) -> BTreeMap<String, LinkCounters> {
+        // A host lost after the driver last looked is not asked.
+        while self.take_lost().is_some() {}
         let mut links = BTreeMap::from([(ORCHESTRATOR.to_string(), self.bridge.counters())]);
         for host in self.hosts.keys() {
             if self.lost.borrow().contains(host) {
@@ -295,6 +297,9 @@ impl RemoteHosts {
     }
 }
 
+/// The shortest wait for an answer to one join request.
+const JOIN_ATTEMPT: Duration = Duration::from_millis(500);
+
 /// Asks the agent of `host` to join, again and again until it answers or [`JOIN_TIMEOUT`]
 /// passes: a query fails at once while the link to the agent is not up yet.
 fn ask_to_join(
@@ -305,12 +310,16 @@ fn ask_to_join(
     let deadline = Instant::now() + JOIN_TIMEOUT;
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
-        match messages::ask(session, &keys::agent_join(host), request, left) {
+        match messages::ask(
+            session,
+            &keys::agent_join(host),
+            request,
+            left.max(JOIN_ATTEMPT),
+        ) {
             Ok(reply) => return Ok(reply),
-            Err(_) if Instant::now() >= deadline => {
+            Err(e) if Instant::now() >= deadline => {
                 return Err(hosts::HostError::Protocol(format!(
-                    "no answer on {} within {JOIN_TIMEOUT:?}",
-                    keys::agent_join(host)
+                    "no answer within {JOIN_TIMEOUT:?} (the last attempt: {e})"
                 )));
             }
             Err(_) => std::thread::sleep(Duration::from_millis(100)),

@@ -28,7 +28,8 @@ use protocol::{Role, Scenario};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-/// How long the robot must stand still before an aborted real-time run ends, s.
+/// How long the DFL must have commanded the robot to stand before an aborted real-time
+/// run ends, s.
 const AT_REST_FOR_S: f64 = 0.2;
 /// The longest an aborted real-time run waits for the robot to come to rest.
 const BRAKE_TIMEOUT: Duration = Duration::from_secs(5);
@@ -103,7 +104,7 @@ impl<'a> Driver<'a> {
     /// Real time: the clock started, and ticks recorded and judged as they complete. A run
     /// that must end aborted while the plant and the DFL still run (a producer lost with no
     /// restart or failover left) goes on, recorded, until the DFL has braked the robot to
-    /// rest ([`AT_REST_FOR_S`] standing still, or [`BRAKE_TIMEOUT`]), and then ends.
+    /// rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]), and then ends.
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.session.start(start_ns)?;
@@ -115,8 +116,8 @@ impl<'a> Driver<'a> {
                 if self.stop.load(Ordering::Relaxed) {
                     return Ok(Outcome::Interrupted);
                 }
-                let t_s = self.recorder.simulated_s();
-                if self.judge.at_rest_for_s(t_s) >= AT_REST_FOR_S || since.elapsed() > BRAKE_TIMEOUT
+                if self.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
+                    || since.elapsed() > BRAKE_TIMEOUT
                 {
                     return Ok(Outcome::Aborted);
                 }

@@ -118,9 +118,8 @@ pub fn run(
     }
     ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, hosts, stop, &mut recorder);
-    match ipc::remove_run_resources(prefix) {
-        Ok(()) => ipc::unregister_run(prefix),
-        Err(e) => tracing::warn!("cleaning up the run's iceoryx2 resources: {e}"),
+    if let Err(e) = ipc::remove_run(prefix) {
+        tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
     let (outcome, judge, mut report) = result?;
     report.leftover_files = ipc::leftover_files(prefix)
@@ -341,11 +340,8 @@ fn wait_until_ready(
 /// dead, as every run and every agent does when it starts.
 pub fn remove_dead_runs() {
     for stale in ipc::stale_run_prefixes() {
-        match ipc::remove_run_resources(&stale) {
-            Ok(()) => {
-                ipc::unregister_run(&stale);
-                tracing::info!("removed the iceoryx2 resources of dead run `{stale}`")
-            }
+        match ipc::remove_run(&stale) {
+            Ok(()) => tracing::info!("removed the iceoryx2 resources of dead run `{stale}`"),
             Err(e) => tracing::warn!("cannot remove the resources of dead run `{stale}`: {e}"),
         }
     }

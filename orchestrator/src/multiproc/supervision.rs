@@ -236,7 +236,7 @@ fn start_new_epoch(
     let pid = children.spawn_role(role, epoch, &[])?;
     recorder.event(
         event,
-        serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch }),
+        serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch, "host": children.host_of(role) }),
     )?;
     Ok(())
 }

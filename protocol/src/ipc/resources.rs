@@ -54,6 +54,14 @@ pub fn role_of_node(name: &str) -> Option<(crate::Role, u32)> {
     Some((crate::Role::from_name(role)?, epoch.parse().ok()?))
 }
 
+/// Removes a finished run: its resources ([`remove_run_resources`]) and then its entry in
+/// the registry of running runs.
+pub fn remove_run(prefix: &str) -> Result<(), IpcError> {
+    remove_run_resources(prefix)?;
+    unregister_run(prefix);
+    Ok(())
+}
+
 /// Removes every resource of a finished run: dead nodes' leftovers and, once no node of
 /// the run is alive, the run's global node-counter segment (iceoryx2 keeps it by design;
 /// the prefix is unique to the run, so nobody else can use it).

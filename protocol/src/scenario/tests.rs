@@ -108,3 +108,31 @@ fn start_inside_an_obstacle_is_refused() {
     let e = s.validate("t").unwrap_err();
     assert!(e.0.iter().any(|e| e.key == "robot.start"));
 }
+
+#[test]
+fn link_faults_are_refused_without_a_role_on_another_host() {
+    let mut s = Scenario::default();
+    s.fault.link_delay_ms = 60.0;
+    s.fault.link_loss = 0.2;
+    s.fault.link_down_s = [1.0, 2.0];
+    let keys: Vec<String> = s
+        .validate("t")
+        .unwrap_err()
+        .0
+        .into_iter()
+        .map(|e| e.key)
+        .collect();
+    assert_eq!(
+        keys,
+        [
+            "fault.link_delay_ms",
+            "fault.link_loss",
+            "fault.link_down_s"
+        ]
+    );
+    s.hosts.mpc = "compute".into();
+    s.hosts
+        .endpoints
+        .insert("compute".into(), "tcp/127.0.0.1:7447".into());
+    assert!(s.validate("t").is_ok());
+}

@@ -168,6 +168,21 @@ impl Scenario {
                 format!("must be [from, to] with 0 <= from <= to, s, got [{from}, {to}]"),
             );
         }
+        let link_keys = [
+            ("fault.link_delay_ms", f.link_delay_ms > 0.0),
+            ("fault.link_loss", f.link_loss > 0.0),
+            ("fault.link_down_s", f.link_is_ever_down()),
+        ];
+        for (key, _) in link_keys.iter().filter(|(_, set)| *set) {
+            if self.hosts.names().is_empty() {
+                v.fail(
+                    key,
+                    "acts on the links between hosts, and no role is placed on another host \
+                     ([hosts], docs/hosts.md)"
+                        .into(),
+                );
+            }
+        }
         self.check_hosts(&mut v);
 
         for (i, swap) in self.swap.iter().enumerate() {
