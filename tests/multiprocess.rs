@@ -86,10 +86,14 @@ fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
         ("estimator_delay_ms", &["fault.estimator_delay_ms=0.2"]),
         ("mpc_ignore_obstacles", &["fault.mpc_ignore_obstacles=true"]),
         ("estimator_nan_from_s", &["fault.estimator_nan_from_s=3"]),
-        // The link faults act on links between hosts: on one host there is none.
     ];
     let keys = serde_json::to_value(protocol::FaultConfig::default()).unwrap();
-    let keys: Vec<&String> = keys.as_object().unwrap().keys().collect();
+    let keys: Vec<&String> = keys
+        .as_object()
+        .unwrap()
+        .keys()
+        .filter(|k| !k.starts_with("link_"))
+        .collect();
     assert_eq!(
         keys.len(),
         cases.len(),
