@@ -208,6 +208,11 @@ fn a_start_outside_the_position_box_is_refused() {
 }
 
 #[test]
+fn a_goal_outside_the_position_box_is_refused() {
+    refused_set("robot.goal=[0.0, 12.0]", "robot.goal");
+}
+
+#[test]
 fn horizon_and_inner_steps_above_their_maxima_are_refused() {
     refused_set(
         &format!("mpc.horizon={}", protocol::MAX_HORIZON + 1),

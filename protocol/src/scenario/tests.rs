@@ -136,3 +136,17 @@ fn link_faults_are_refused_without_a_role_on_another_host() {
         .insert("compute".into(), "tcp/127.0.0.1:7447".into());
     assert!(s.validate("t").is_ok());
 }
+
+#[test]
+fn a_goal_outside_the_position_box_is_refused() {
+    let mut s = Scenario::default();
+    s.robot.goal = [0.0, 12.0];
+    let e = s.validate("t").unwrap_err();
+    let goal =
+        e.0.iter()
+            .find(|e| e.key == "robot.goal")
+            .expect("robot.goal not named");
+    assert!(goal.message.contains("position box"), "{}", goal.message);
+    s.mpc.position_max = [10.0, 12.5];
+    assert!(s.validate("t").is_ok());
+}

@@ -256,7 +256,7 @@ impl Scenario {
 
     /// The start must be clear of every obstacle by the robot's radius, and so must the
     /// robot's path when it brakes from its initial speed; the start must be inside the
-    /// position box, and the goal outside every obstacle.
+    /// position box, and the goal outside every obstacle and inside the position box.
     fn check_geometry(&self, v: &mut Validator) {
         let [sx, sy, heading] = self.robot.start;
         let footprint = crate::ObstacleGrowth::footprint(self);
@@ -307,14 +307,21 @@ impl Scenario {
             }
         }
         let m = &self.mpc;
-        for (axis, s) in [sx, sy].into_iter().enumerate() {
-            if s < m.position_min[axis] || s > m.position_max[axis] {
-                v.fail(
-                    "robot.start",
-                    format!("({sx}, {sy}) is outside the position box"),
-                );
-                break;
-            }
+        let outside =
+            |p: [f64; 2]| (0..2).any(|a| p[a] < m.position_min[a] || p[a] > m.position_max[a]);
+        let [lo, hi] = [m.position_min, m.position_max];
+        let the_box = format!(
+            "the position box [{}, {}] x [{}, {}] (mpc.position_min, mpc.position_max)",
+            lo[0], hi[0], lo[1], hi[1]
+        );
+        if outside([sx, sy]) {
+            v.fail("robot.start", format!("({sx}, {sy}) is outside {the_box}"));
+        }
+        if outside([gx, gy]) {
+            v.fail(
+                "robot.goal",
+                format!("({gx}, {gy}) is outside {the_box}: no plan can reach it"),
+            );
         }
     }
 }
