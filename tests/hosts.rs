@@ -82,6 +82,31 @@ impl Agent {
         leftovers(&format!("scmpc{}x", self.pid()))
     }
 
+    /// Asserts that no iceoryx2 file of the agent's runs is left `within` the given time
+    /// (the agent, or the run's orphaned processes, remove them).
+    fn assert_left_nothing(&self, within: Duration) {
+        assert!(
+            wait_for(within, || self.leftovers().is_empty()),
+            "the agent's runs left {:?}",
+            self.leftovers()
+        );
+    }
+
+    /// Starts `scmpc run --mode realtime ARGS` into `dir` in the background with the MPC
+    /// on this agent's host `compute`.
+    fn spawn_realtime_run(&self, dir: &Path, args: &[&str]) -> Child {
+        let host = format!("compute={}", self.endpoint);
+        let placed = [
+            "--mode",
+            "realtime",
+            "--host",
+            &host,
+            "--set",
+            "hosts.mpc=compute",
+        ];
+        common::spawn_run(dir, &[&placed[..], args].concat())
+    }
+
     /// `scmpc run ARGS` with the roles `placed` on this agent's host `name`, into `dir`.
     fn run(&self, name: &str, placed: &[&str], dir: &Path, args: &[&str]) -> Output {
         let host = format!("{name}={}", self.endpoint);
@@ -160,11 +185,7 @@ fn in_lockstep_the_paper_with_the_mpc_on_another_host_gives_the_same_bytes() {
     let _machine = common::machine_shared();
     let agent = Agent::plain("compute");
     assert_same_run_across_hosts(&agent, &["mpc"], &["paper"]);
-    assert!(
-        wait_for(Duration::from_secs(5), || agent.leftovers().is_empty()),
-        "the agent left {:?}",
-        agent.leftovers()
-    );
+    agent.assert_left_nothing(Duration::from_secs(5));
 }
 
 #[test]
@@ -226,21 +247,8 @@ fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot
     let dir = tempfile::tempdir().unwrap();
     let prefix = common::unique_prefix("stranger");
     let run_dir = dir.path().join("run");
-    let host = format!("compute={}", agent.endpoint);
-    let mut child = scmpc()
-        .args([
-            "run", "--mode", "realtime", "--prefix", &prefix, "--host", &host,
-        ])
-        .args([
-            "--set",
-            "hosts.mpc=compute",
-            "--out",
-            run_dir.to_str().unwrap(),
-        ])
-        .args(SHORT)
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child =
+        agent.spawn_realtime_run(&run_dir, &[&["--prefix", &prefix][..], &SHORT].concat());
     common::wait_for_pid(&run_dir, "mpc");
     // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
     let stranger = {
@@ -442,24 +450,9 @@ fn a_link_losing_a_fifth_of_its_samples_still_reaches_the_goal_and_counts_the_lo
 fn run_losing_the_host(failover: &str) -> (tempfile::TempDir, serde_json::Value, Agent, u32) {
     let mut agent = Agent::plain("compute");
     let dir = tempfile::tempdir().unwrap();
-    let host = format!("compute={}", agent.endpoint);
     let policy = format!("supervision.failover={failover}");
-    let mut child = common::spawn_run(
-        dir.path(),
-        &[
-            &[
-                "--mode",
-                "realtime",
-                "--host",
-                &host,
-                "--set",
-                "hosts.mpc=compute",
-            ][..],
-            &["--set", &policy],
-            &SHORT,
-        ]
-        .concat(),
-    );
+    let mut child =
+        agent.spawn_realtime_run(dir.path(), &[&["--set", &policy][..], &SHORT].concat());
     let mpc = common::wait_for_pid(dir.path(), "mpc");
     std::thread::sleep(Duration::from_secs(2));
     agent.child.kill().unwrap();
@@ -522,11 +515,7 @@ fn when_the_agent_dies_without_failover_the_run_aborts_at_rest_and_leaves_nothin
             .collect::<Vec<_>>()
     );
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
-    assert!(
-        wait_for(Duration::from_secs(3), || agent.leftovers().is_empty()),
-        "the dead agent's run left {:?}",
-        agent.leftovers()
-    );
+    agent.assert_left_nothing(Duration::from_secs(3));
 }
 
 #[test]
@@ -534,20 +523,7 @@ fn when_the_orchestrator_is_killed_the_remote_roles_stop_and_the_agent_serves_th
     let _machine = common::machine_alone();
     let agent = Agent::plain("compute");
     let dir = tempfile::tempdir().unwrap();
-    let host = format!("compute={}", agent.endpoint);
-    let mut child = common::spawn_run(
-        dir.path(),
-        &[
-            "--mode",
-            "realtime",
-            "--host",
-            &host,
-            "--set",
-            "hosts.mpc=compute",
-            "--set",
-            "duration_s=60",
-        ],
-    );
+    let mut child = agent.spawn_realtime_run(dir.path(), &["--set", "duration_s=60"]);
     let mpc = common::wait_for_pid(dir.path(), "mpc");
     std::thread::sleep(Duration::from_secs(1));
     common::sigkill(child.id());
@@ -557,9 +533,7 @@ fn when_the_orchestrator_is_killed_the_remote_roles_stop_and_the_agent_serves_th
         "the remote MPC outlived its orchestrator"
     );
     agent.wait_for_line("ended");
-    assert!(wait_for(Duration::from_secs(3), || agent
-        .leftovers()
-        .is_empty()));
+    agent.assert_left_nothing(Duration::from_secs(3));
     let next = tempfile::tempdir().unwrap();
     let out = agent.run("compute", &["mpc"], next.path(), &["paper"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));

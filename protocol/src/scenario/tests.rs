@@ -36,6 +36,16 @@ fn set_refuses_unknown_keys_and_bad_types_naming_the_key() {
     assert_eq!(e.0[0].key, "mpc.horizon");
 }
 
+/// The keys the validator names for `s`, which it must refuse.
+fn refused_keys(s: &Scenario) -> Vec<String> {
+    s.validate("t")
+        .unwrap_err()
+        .0
+        .into_iter()
+        .map(|e| e.key)
+        .collect()
+}
+
 #[test]
 fn validation_names_every_bad_key() {
     let mut s = Scenario::default();
@@ -44,13 +54,7 @@ fn validation_names_every_bad_key() {
     s.mpc.gamma = 1.5;
     s.obstacles[0].radius = -1.0;
     s.plant.noise_variance = NoiseVariance::Uniform(f64::NAN);
-    let keys: Vec<String> = s
-        .validate("t")
-        .unwrap_err()
-        .0
-        .into_iter()
-        .map(|e| e.key)
-        .collect();
+    let keys = refused_keys(&s);
     for k in [
         "timing.ts_s",
         "mpc.horizon",
@@ -115,13 +119,7 @@ fn link_faults_are_refused_without_a_role_on_another_host() {
     s.fault.link_delay_ms = 60.0;
     s.fault.link_loss = 0.2;
     s.fault.link_down_s = [1.0, 2.0];
-    let keys: Vec<String> = s
-        .validate("t")
-        .unwrap_err()
-        .0
-        .into_iter()
-        .map(|e| e.key)
-        .collect();
+    let keys = refused_keys(&s);
     assert_eq!(
         keys,
         [
