@@ -10,7 +10,8 @@
 //! - [`reach`]: where the states can be over the input box (which rows are implied);
 //! - [`discs`]: the obstacles as the constraints see them;
 //! - [`assembly`]: the program's matrices, row by row, sparse or condensed;
-//! - [`terminal`]: the terminal set (eqs. 45, 47) and the braking-safe terminal rows;
+//! - [`terminal_set`]: the terminal set (eqs. 45, 47) about a sub-goal;
+//! - [`terminal`]: the braking-safe terminal rows;
 //! - [`program`]: every row of one step's program, in order;
 //! - [`solver`]: clarabel, built once, values updated each step;
 //! - [`follow`]: the reference along a route;
@@ -31,6 +32,7 @@ pub mod reach;
 pub mod solver;
 pub mod task;
 pub mod terminal;
+pub mod terminal_set;
 
 pub use linear::LinearMpc;
 pub use task::MpcTask;

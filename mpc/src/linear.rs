@@ -33,15 +33,21 @@ pub struct LinearMpc {
     goal: [f64; 2],
     /// The cost's state weight `Q` (diagonal) on every stage before the last.
     q_diag: [f64; 4],
-    /// Whether the cost may track a reference other than the goal (a route is followed):
-    /// then the objective's linear term is written every step, zero or not.
-    follows_route: bool,
+    /// Whether the objective's linear term is written every step, zero or not: once the
+    /// cost has tracked anything but the goal (a route, a sub-goal), since a solver keeps
+    /// the last linear term it was given.
+    writes_linear_term: bool,
     /// Speed of the reference along a route (`planner.speed_m_s`), m/s.
     route_speed_m_s: f64,
+    /// Whether the next step tracks `route_reference` (else the goal, or a sub-goal).
+    on_route: bool,
     /// The stage-wise reference states on a route ([`follow::reference`]; absolute).
     route_reference: Vec<[f64; 4]>,
+    /// The step's sub-goal ([`crate::terminal_set::sub_goal`]; goal-relative, m): the
+    /// terminal set and cost are taken about it.
+    sub_goal: [f64; 2],
     /// The cost's linear term for the step's reference, as `(stage-wise column, value)`
-    /// ([`LinearMpc::set_reference`]); empty: the goal.
+    /// ([`LinearMpc::write_reference_cost`]); empty: the goal.
     reference_cost: Vec<(usize, f64)>,
     /// Obstacles as given (absolute coordinates, true radii).
     obstacles: Vec<protocol::Obstacle>,
@@ -100,7 +106,7 @@ impl LinearMpc {
             [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
             [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
         ];
-        let terminal_set = crate::terminal::prune_redundant(crate::terminal::terminal_set(
+        let terminal_set = crate::terminal_set::prune_redundant(crate::terminal_set::terminal_set(
             &k,
             &(a + b * k),
             c.constraint_horizon,
@@ -158,9 +164,11 @@ impl LinearMpc {
             terminal_weight,
             goal,
             q_diag: c.q_diag,
-            follows_route: scenario.planner.is_on(),
+            writes_linear_term: scenario.planner.is_on(),
             route_speed_m_s: scenario.planner.speed_m_s,
+            on_route: false,
             route_reference: vec![[0.0; 4]; c.horizon + 1],
+            sub_goal: [0.0; 2],
             reference_cost: Vec::with_capacity(4 * c.horizon + 4),
             obstacles: scenario.obstacles.clone(),
             growth: ObstacleGrowth::of(scenario),
@@ -240,38 +248,78 @@ impl LinearMpc {
     /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
     /// `reference[i]` for `i = 1..=N`): eq. (51) with `z_i - r_i` for `z_i`, on every stage
     /// after the first and in the terminal weight; `None`: the goal at rest (eq. 51
-    /// itself). Only the objective's linear term changes (`-2 Q r_i`, `-2 Q_bar r_N`); the
-    /// constraints, the terminal set included, stay those of the goal.
+    /// itself). The terminal set and cost are taken about the sub-goal nearest `r_N`
+    /// ([`LinearMpc::step`]); the other constraints stay those of the goal.
     pub fn set_reference(&mut self, reference: Option<&[[f64; 4]]>) {
-        self.reference_cost.clear();
-        let Some(reference) = reference else {
-            return;
-        };
-        let l = &self.layout;
-        let relative = |z: [f64; 4]| [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
-        for (i, z) in reference.iter().enumerate().take(l.horizon).skip(1) {
-            let r = relative(*z);
-            for (c, (q, r)) in self.q_diag.iter().zip(r).enumerate() {
-                self.reference_cost.push((l.z(i, c), -2.0 * q * r));
-            }
-        }
-        let r = relative(reference[l.horizon]);
-        for c in 0..4 {
-            let weighted: f64 = (0..4).map(|k| self.terminal_weight[(c, k)] * r[k]).sum();
-            self.reference_cost
-                .push((l.z(l.horizon, c), -2.0 * weighted));
+        self.on_route = reference.is_some();
+        if let Some(reference) = reference {
+            self.route_reference
+                .copy_from_slice(&reference[..=self.layout.horizon]);
         }
     }
 
     /// Drives the next steps along `route` from `position` ([`follow::reference`] at
     /// `planner.speed_m_s`), or to the goal without one or on its last segment.
     pub fn follow(&mut self, route: Option<&protocol::Route>, position: [f64; 2]) {
-        let mut reference = std::mem::take(&mut self.route_reference);
-        let on_route = route.is_some_and(|r| {
-            follow::reference(r, position, self.route_speed_m_s, self.ts_s, &mut reference)
+        self.on_route = route.is_some_and(|r| {
+            follow::reference(
+                r,
+                position,
+                self.route_speed_m_s,
+                self.ts_s,
+                &mut self.route_reference,
+            )
         });
-        self.set_reference(on_route.then_some(&reference[..]));
-        self.route_reference = reference;
+    }
+
+    /// `z` (absolute) relative to the goal.
+    fn relative(&self, z: [f64; 4]) -> [f64; 4] {
+        [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]]
+    }
+
+    /// Sets the step's sub-goal from `z0` (goal-relative): the one nearest the route's
+    /// reference at stage `N`, or the goal ([`crate::terminal_set::sub_goal`]).
+    fn choose_sub_goal(&mut self, z0: [f64; 4]) {
+        let target = if self.on_route {
+            let r = self.relative(self.route_reference[self.layout.horizon]);
+            [r[0], r[2]]
+        } else {
+            [0.0; 2]
+        };
+        self.sub_goal =
+            crate::terminal_set::sub_goal(&self.statics.terminal_set, &self.statics.k, z0, target);
+    }
+
+    /// The cost's linear term: `-2 Q r_i` on stages `1..N` and `-2 Q_bar r_N`, the `r_i`
+    /// the route's reference (its last moved to the sub-goal) or, off a route, the
+    /// sub-goal at rest; nothing for the goal itself (eq. 51 as the paper has it).
+    fn write_reference_cost(&mut self) {
+        self.reference_cost.clear();
+        let s = self.sub_goal;
+        if !self.on_route && s == [0.0; 2] {
+            return;
+        }
+        let (l, goal) = (&self.layout, self.goal);
+        let stage = |i: usize| match self.on_route {
+            true => {
+                let z: [f64; 4] = self.route_reference[i];
+                [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
+            }
+            false => [s[0], 0.0, s[1], 0.0],
+        };
+        let cost = &mut self.reference_cost;
+        for i in 1..l.horizon {
+            for (c, (q, r)) in self.q_diag.iter().zip(stage(i)).enumerate() {
+                cost.push((l.z(i, c), -2.0 * q * r));
+            }
+        }
+        let mut r = stage(l.horizon);
+        [r[0], r[2]] = s;
+        for c in 0..4 {
+            let weighted: f64 = (0..4).map(|k| self.terminal_weight[(c, k)] * r[k]).sum();
+            cost.push((l.z(l.horizon, c), -2.0 * weighted));
+        }
+        self.writes_linear_term = true;
     }
 
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
@@ -295,7 +343,9 @@ impl LinearMpc {
         if !warm {
             self.braking_reference(z0);
         }
-        self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0);
+        self.choose_sub_goal(z0);
+        self.write_reference_cost();
+        self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0, self.sub_goal);
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
         if outcome.status != PlanStatus::Solved && warm {
@@ -382,6 +432,7 @@ impl LinearMpc {
         for disc in &self.discs {
             let data = StepData {
                 z0,
+                sub_goal: self.sub_goal,
                 discs: std::slice::from_ref(disc),
                 reference: &self.reference,
                 reference_velocity: self.reference_velocity,
@@ -420,13 +471,14 @@ impl LinearMpc {
     fn fill(&mut self, z0: [f64; 4], rows: Rows) {
         let data = StepData {
             z0,
+            sub_goal: self.sub_goal,
             discs: &self.kept,
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
-        if self.follows_route {
+        if self.writes_linear_term {
             self.assembly
                 .add_linear_cost(&self.layout, &self.reference_cost);
         }

@@ -61,6 +61,7 @@ use crate::assembly::Assembly;
 use crate::layout::{Layout, Rows};
 use crate::reach::{PositionReach, Span, below};
 use crate::terminal::TerminalRows;
+use crate::terminal_set::{Bound, SetRow};
 use nalgebra::{Matrix2x4, Matrix4};
 use protocol::Disc;
 
@@ -79,15 +80,15 @@ pub struct StaticData {
     pub a: Matrix4<f64>,
     pub b: nalgebra::Matrix4x2<f64>,
     pub k: Matrix2x4<f64>,
-    /// The terminal set (eqs. 45, 47) as rows `coeffs' z_N <= bound`, redundant ones
-    /// removed ([`crate::terminal::terminal_set`]).
-    pub terminal_set: Vec<([f64; 4], f64)>,
+    /// The terminal set (eqs. 45, 47) as rows `coeffs' z_N <= bound`, about a sub-goal,
+    /// redundant ones removed ([`crate::terminal_set`]).
+    pub terminal_set: Vec<SetRow>,
     pub gamma: f64,
     pub v_max: f64,
     /// Goal-relative position box `[min, max]` per axis.
     pub position_box: [[f64; 2]; 2],
     /// The span of each of [`StaticData::box_and_terminal_rows`], with its bound.
-    pub box_and_terminal_spans: Vec<(Span, f64)>,
+    pub box_and_terminal_spans: Vec<(Span, Bound)>,
 }
 
 /// Up to four `(column, value)` terms of a row on one stage's state.
@@ -95,30 +96,35 @@ type StateRow = [Option<(usize, f64)>; 4];
 
 impl StaticData {
     /// The position box on `z_1 .. z_{N-1}` (eq. 53), then the terminal set on `z_N`
-    /// (eqs. 45, 47), as rows `sum(value * x[column]) <= bound`.
-    pub fn box_and_terminal_rows(&self, l: &Layout) -> impl Iterator<Item = (StateRow, f64)> {
+    /// (eqs. 45, 47), as rows `sum(value * x[column]) <= bound` (the terminal set's bound
+    /// moves with the sub-goal, [`crate::terminal_set`]).
+    pub fn box_and_terminal_rows(&self, l: &Layout) -> impl Iterator<Item = (StateRow, Bound)> {
         let position_box = self.position_box;
         let boxes = (1..l.horizon).flat_map(move |i| {
             [(0, 0), (1, 2)].into_iter().flat_map(move |(axis, c)| {
                 let [min, max] = position_box[axis];
                 let one = |value| [Some((l.z(i, c), value)), None, None, None];
-                [(one(1.0), max), (one(-1.0), -min)]
+                [
+                    (one(1.0), Bound::fixed(max)),
+                    (one(-1.0), Bound::fixed(-min)),
+                ]
             })
         });
         let n = l.horizon;
-        let terminal = self.terminal_set.iter().map(move |&(coeffs, bound)| {
+        let terminal = self.terminal_set.iter().map(move |row| {
+            let coeffs = row.coeffs;
             let terms = std::array::from_fn(|c| (coeffs[c] != 0.0).then(|| (l.z(n, c), coeffs[c])));
-            (terms, bound)
+            (terms, row.bound)
         });
         boxes.chain(terminal)
     }
 
-    /// Whether every row of the position box and the terminal set holds, with a margin,
-    /// for every input sequence from `z0`.
-    pub fn box_and_terminal_implied(&self, z0: [f64; 4]) -> bool {
+    /// Whether every row of the position box and the terminal set about `sub_goal` holds,
+    /// with a margin, for every input sequence from `z0`.
+    pub fn box_and_terminal_implied(&self, z0: [f64; 4], sub_goal: [f64; 2]) -> bool {
         self.box_and_terminal_spans
             .iter()
-            .all(|(span, bound)| below(span.max(z0), *bound))
+            .all(|(span, bound)| below(span.max(z0), bound.at(sub_goal)))
     }
 }
 
@@ -127,6 +133,9 @@ impl StaticData {
 pub struct StepData<'a> {
     /// Goal-relative `z_0`.
     pub z0: [f64; 4],
+    /// The sub-goal the terminal set is taken about (goal-relative, m;
+    /// [`crate::terminal_set::sub_goal`]).
+    pub sub_goal: [f64; 2],
     pub discs: &'a [Disc],
     /// Linearization points `p_bar_1 ..= p_bar_N` (index 0 is unused).
     pub reference: &'a [[f64; 2]],
@@ -211,7 +220,7 @@ pub fn fill(asm: &mut Assembly, l: &Layout, s: &StaticData, d: &StepData, rows: 
     }
     if rows.box_and_terminal {
         for (terms, bound) in s.box_and_terminal_rows(l) {
-            asm.row(terms.into_iter().flatten(), bound);
+            asm.row(terms.into_iter().flatten(), bound.at(d.sub_goal));
         }
     }
     write_barrier(asm, &d.barrier(l, s, rows.relaxed), |i| {

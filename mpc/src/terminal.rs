@@ -82,12 +82,9 @@
 //! the terminal set but not the stopping condition: that is how a short horizon ran into
 //! obstacles (issue 14).
 
-use crate::assembly::{Assembly, csc_with_positions};
+use crate::assembly::Assembly;
 use crate::brake::{BrakeForm, TerminalBrake};
 use crate::reach::{PositionReach, below};
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::SupportedConeT;
-use nalgebra::{Matrix2x4, Matrix4};
 use protocol::Disc;
 
 /// Largest `c` of the segment form's AM-GM majorant (a reference approaching at less than
@@ -294,88 +291,4 @@ impl TerminalRows<'_> {
             below(largest, reach.min_linear(horizon, n) - offset)
         })
     }
-}
-
-/// Eqs. (45) and (47) as rows `coeffs' z_N <= bound`: `-v_max <= K M_j z_N <= v_max` and
-/// the position box on `M_j z_N`, `M_j = (A + BK)^j`, `j = 0..=Nc`.
-pub fn terminal_set(
-    k: &Matrix2x4<f64>,
-    closed_loop: &Matrix4<f64>,
-    constraint_horizon: usize,
-    v_max: f64,
-    position_box: [[f64; 2]; 2],
-) -> Vec<([f64; 4], f64)> {
-    let mut rows = Vec::with_capacity(8 * (constraint_horizon + 1));
-    let mut m = Matrix4::identity();
-    for _ in 0..=constraint_horizon {
-        let km = k * m;
-        for c in 0..2 {
-            let coeffs: [f64; 4] = std::array::from_fn(|i| km[(c, i)]);
-            rows.push((coeffs, v_max));
-            rows.push((coeffs.map(|x| -x), v_max));
-        }
-        for (axis, r) in [(0, 0), (1, 2)] {
-            let coeffs: [f64; 4] = std::array::from_fn(|i| m[(r, i)]);
-            rows.push((coeffs, position_box[axis][1]));
-            rows.push((coeffs.map(|x| -x), -position_box[axis][0]));
-        }
-        m = closed_loop * m;
-    }
-    rows
-}
-
-/// The rows of `rows` (`a' z <= b`, `z` in R^4) that the others do not imply. A row is
-/// dropped when the largest `a' z` over the remaining rows, found with a linear program,
-/// does not exceed `b`; an unbounded or failed program keeps the row. The set described
-/// is unchanged; the MPC only solves a smaller problem (for the paper: 88 rows to 48).
-pub fn prune_redundant(mut rows: Vec<([f64; 4], f64)>) -> Vec<([f64; 4], f64)> {
-    let mut i = 0;
-    while i < rows.len() {
-        let (a, b) = rows[i];
-        let others: Vec<([f64; 4], f64)> = rows
-            .iter()
-            .enumerate()
-            .filter(|&(j, _)| j != i)
-            .map(|(_, r)| *r)
-            .collect();
-        let implied = largest(a, &others).is_some_and(|m| m <= b + 1e-9 * (1.0 + b.abs()));
-        if implied {
-            rows.remove(i);
-        } else {
-            i += 1;
-        }
-    }
-    rows
-}
-
-/// `max a' z` subject to `rows`, if bounded and solved.
-fn largest(a: [f64; 4], rows: &[([f64; 4], f64)]) -> Option<f64> {
-    use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, SolverStatus};
-    if rows.is_empty() {
-        return None;
-    }
-    let entries: Vec<(usize, usize, f64)> = rows
-        .iter()
-        .enumerate()
-        .flat_map(|(r, (coeffs, _))| (0..4).map(move |c| (r, c, coeffs[c])))
-        .filter(|e| e.2 != 0.0)
-        .collect();
-    let (matrix, _) = csc_with_positions(rows.len(), 4, &entries);
-    let bounds: Vec<f64> = rows.iter().map(|r| r.1).collect();
-    let q = a.map(|x| -x);
-    let settings = DefaultSettings::<f64> {
-        verbose: false,
-        ..DefaultSettings::default()
-    };
-    let mut solver = DefaultSolver::new(
-        &CscMatrix::zeros((4, 4)),
-        &q,
-        &matrix,
-        &bounds,
-        &[SupportedConeT::NonnegativeConeT(rows.len())],
-        settings,
-    )
-    .ok()?;
-    solver.solve();
-    (solver.solution.status == SolverStatus::Solved).then(|| -solver.solution.obj_val)
 }

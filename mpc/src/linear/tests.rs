@@ -1,6 +1,7 @@
 //! Tests of the linear MPC on its own model.
 use super::*;
 use crate::discs::barrier_slack;
+use crate::terminal_set::SetRow;
 use protocol::{Obstacle, QpForm};
 
 mod implied_rows;
@@ -94,6 +95,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         .collect();
     let data = StepData {
         z0: [7.0, -0.5, 7.0, -0.5],
+        sub_goal: [0.0; 2],
         discs: &discs,
         reference: &reference,
         reference_velocity: [0.0; 2],
@@ -118,19 +120,17 @@ fn the_pruned_terminal_set_is_the_papers_set() {
     let c = &s.mpc;
     let (a, b) = model::discretize(s.timing.ts_s);
     let k = model::lqr_gain(&a, &b, &r_matrix(&s), &terminal_weight(&s).unwrap()).unwrap();
-    let full = crate::terminal::terminal_set(
+    let full = crate::terminal_set::terminal_set(
         &k,
         &(a + b * k),
         c.constraint_horizon,
         c.v_max,
         [[-10.0, 10.0]; 2],
     );
-    let pruned = crate::terminal::prune_redundant(full.clone());
-    assert_eq!((full.len(), pruned.len()), (88, 48));
-    let inside = |rows: &[([f64; 4], f64)], z: [f64; 4]| {
-        rows.iter()
-            .all(|(a, b)| a.iter().zip(z).map(|(a, z)| a * z).sum::<f64>() <= *b + 1e-9)
-    };
+    let pruned = crate::terminal_set::prune_redundant(full.clone());
+    assert_eq!((full.len(), pruned.len()), (88, 88));
+    let inside =
+        |rows: &[SetRow], z: [f64; 4]| rows.iter().all(|r| r.value(z) <= r.bound.at_goal + 1e-9);
     // A deterministic cloud of points, in and out of the set.
     let mut next = logistic(0.5);
     let (mut seen_in, mut seen_out) = (0, 0);
@@ -445,5 +445,74 @@ fn logistic(mut x: f64) -> impl FnMut() -> f64 {
     move || {
         x = (x * 3.9 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
         x
+    }
+}
+
+#[test]
+fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
+    // The safety rows (CBF, braking-safe terminal rows), the dynamics, the input box and
+    // the position box do not depend on the sub-goal: only the terminal set's bounds do.
+    let s = Scenario::default()
+        .with_overrides(&["mpc.qp_form=sparse".into()])
+        .unwrap();
+    let mut mpc = LinearMpc::new(&s).unwrap();
+    mpc.step(0, [7.0, 7.0, -2.356, 0.5], 0.0);
+    let data = |sub_goal| StepData {
+        z0: [7.0, -0.4, 7.0, -0.3],
+        sub_goal,
+        discs: &mpc.discs,
+        reference: &mpc.reference,
+        reference_velocity: mpc.reference_velocity,
+        max_terminal_speed: mpc.reach.max_terminal_speed(),
+    };
+    let rows = Rows::all(&mpc.layout);
+    let (mut at_goal, mut at_sub) = (Assembly::default(), Assembly::default());
+    program::fill(
+        &mut at_goal,
+        &mpc.layout,
+        &mpc.statics,
+        &data([0.0; 2]),
+        rows,
+    );
+    program::fill(
+        &mut at_sub,
+        &mpc.layout,
+        &mpc.statics,
+        &data([4.0, 3.0]),
+        rows,
+    );
+    assert_eq!(at_goal.entries, at_sub.entries);
+    let l = &mpc.layout;
+    let first = 4 + 4 * l.horizon + 4 * l.horizon + 4 * (l.horizon - 1);
+    let terminal_set = first..first + l.terminal_rows;
+    let moved: Vec<usize> = (0..at_goal.b.len())
+        .filter(|&r| at_goal.b[r] != at_sub.b[r])
+        .collect();
+    assert!(!moved.is_empty());
+    assert!(
+        moved.iter().all(|r| terminal_set.contains(r)),
+        "{moved:?} outside {terminal_set:?}"
+    );
+}
+
+#[test]
+fn far_from_the_goal_with_a_gentle_input_box_the_first_plan_is_solved() {
+    // Issue 27's reduced world: with the terminal set about the goal every solve was
+    // infeasible from sample 0.
+    let s = Scenario::default()
+        .with_overrides(&[
+            "timing.ts_s=0.02".into(),
+            "mpc.gamma=0.3".into(),
+            "mpc.v_max=1".into(),
+            "robot.goal=[-4.0291, 7.4458]".into(),
+            "obstacles=[{x = -2.6492, y = 2.2158, radius = 0.9735}, {x = -4.4048, y = 2.5833, radius = 1.4645}]".into(),
+        ])
+        .unwrap();
+    let mut mpc = LinearMpc::new(&s).unwrap();
+    let x_bar = [-3.611, -7.369, 3.3138, 0.5];
+    for sample in 0..5 {
+        let plan = mpc.step(sample, x_bar, 0.0);
+        assert_eq!(plan.status, PlanStatus::Solved as u32, "sample {sample}");
+        assert!(mpc.sub_goal != [0.0; 2], "the goal is out of reach");
     }
 }

@@ -16,13 +16,14 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             30.0 * next() - 15.0,
             8.0 * next() - 4.0,
         ];
-        if !mpc.statics.box_and_terminal_implied(z0) {
+        if !mpc.statics.box_and_terminal_implied(z0, [0.0; 2]) {
             kept += 1;
             continue;
         }
         left_out += 1;
         let data = StepData {
             z0,
+            sub_goal: [0.0; 2],
             discs: &[],
             reference: &mpc.reference,
             reference_velocity: mpc.reference_velocity,
@@ -66,6 +67,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             mpc.reach.set_initial_state(z0);
             let data = StepData {
                 z0,
+                sub_goal: mpc.sub_goal,
                 discs: &mpc.discs,
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,

@@ -132,6 +132,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
             }
             let data = StepData {
                 z0,
+                sub_goal: mpc.sub_goal,
                 discs: &mpc.discs,
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
