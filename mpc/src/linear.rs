@@ -37,8 +37,8 @@ pub struct LinearMpc {
     /// cost has tracked anything but the goal (a route, a sub-goal), since a solver keeps
     /// the last linear term it was given.
     writes_linear_term: bool,
-    /// Speed of the reference along a route (`planner.speed_m_s`), m/s.
-    route_speed_m_s: f64,
+    /// How fast the reference moves along a route ([`route_speed`]).
+    route_speed: follow::SpeedProfile,
     /// Whether the next step tracks `route_reference` (else the goal, or a sub-goal).
     on_route: bool,
     /// The stage-wise reference states on a route ([`follow::reference`]; absolute).
@@ -113,6 +113,7 @@ impl LinearMpc {
             c.v_max,
             position_box,
         ));
+        let route_speed = route_speed(scenario, &terminal_set);
         let layout = Layout {
             horizon: c.horizon,
             terminal_rows: terminal_set.len(),
@@ -165,7 +166,7 @@ impl LinearMpc {
             goal,
             q_diag: c.q_diag,
             writes_linear_term: scenario.planner.is_on(),
-            route_speed_m_s: scenario.planner.speed_m_s,
+            route_speed,
             on_route: false,
             route_reference: vec![[0.0; 4]; c.horizon + 1],
             sub_goal: [0.0; 2],
@@ -259,13 +260,13 @@ impl LinearMpc {
     }
 
     /// Drives the next steps along `route` from `position` ([`follow::reference`] at
-    /// `planner.speed_m_s`), or to the goal without one or on its last segment.
+    /// [`route_speed`]), or to the goal without one or on its last segment.
     pub fn follow(&mut self, route: Option<&protocol::Route>, position: [f64; 2]) {
         self.on_route = route.is_some_and(|r| {
             follow::reference(
                 r,
                 position,
-                self.route_speed_m_s,
+                &self.route_speed,
                 self.ts_s,
                 &mut self.route_reference,
             )
@@ -611,6 +612,31 @@ fn stagewise_hessian(
 
 /// The terminal rows of `mpc.terminal_safety`, if any, with the scenario's one braking
 /// model (`dfl.brake_decel`).
+/// The route's speed profile: cruising no faster than `planner.speed_m_s` (unless `auto`),
+/// than the wheels turn (`plant.max_wheel_speed_rad_s` times the wheel radius, when
+/// limited), and than a robot can follow a point `N` samples ahead of it and still come to
+/// rest at that point within the input box under the LQR
+/// ([`crate::terminal_set::tracking_speed`]: then the route's reference at stage `N` is
+/// its own sub-goal); on bends, `zeta^2 kappa <= mpc.v_max`.
+fn route_speed(
+    scenario: &Scenario,
+    terminal_set: &[crate::terminal_set::SetRow],
+) -> follow::SpeedProfile {
+    let lead_s = scenario.mpc.horizon as f64 * scenario.timing.ts_s;
+    let mut cruise_m_s = crate::terminal_set::tracking_speed(terminal_set, lead_s);
+    if let protocol::AutoOr::Value(bound) = scenario.planner.speed_m_s {
+        cruise_m_s = cruise_m_s.min(bound);
+    }
+    let p = &scenario.plant;
+    if p.max_wheel_speed_rad_s > 0.0 {
+        cruise_m_s = cruise_m_s.min(p.max_wheel_speed_rad_s * p.wheel_radius_m);
+    }
+    follow::SpeedProfile {
+        cruise_m_s,
+        lateral_m_s2: scenario.mpc.v_max,
+    }
+}
+
 fn terminal_brake(scenario: &Scenario) -> Option<TerminalBrake> {
     let form = match scenario.mpc.terminal_safety {
         TerminalSafety::Brake => BrakeForm::Segment,

@@ -635,7 +635,7 @@ pub struct DflConfig {
     /// `mpc.v_max`, the largest the input box delivers along every heading. The MPC's
     /// terminal rows, the brake and the safety check all use it
     /// ([`Scenario::brake_decel`]); a value above `mpc.v_max` is refused.
-    pub brake_decel: BrakeDecel,
+    pub brake_decel: AutoOr,
     /// The safety check (docs/safety.md): the DFL flies only a plan whose trajectory,
     /// followed by the brake, it has checked against every obstacle, and brakes at once
     /// when the estimate shows the trajectory it flies is no longer safe.
@@ -654,8 +654,9 @@ pub struct PlannerConfig {
     /// Room the route keeps from every grown obstacle, m (given up where a gap is too
     /// narrow for it).
     pub clearance_m: f64,
-    /// Speed of the MPC's reference along the route, m/s.
-    pub speed_m_s: f64,
+    /// Cruising speed of the MPC's reference along the route, m/s: an upper bound on the
+    /// speed profile the MPC derives from the input box (`mpc::follow`); `auto`: none.
+    pub speed_m_s: AutoOr,
     /// Replan when the robot is farther than this from the route, m.
     pub stray_m: f64,
 }
@@ -674,7 +675,7 @@ impl Default for PlannerConfig {
             kind: PlannerKind::None,
             period_s: 1.0,
             clearance_m: 0.2,
-            speed_m_s: 0.8,
+            speed_m_s: AutoOr::Auto(Auto::Auto),
             stray_m: 0.5,
         }
     }
@@ -686,10 +687,11 @@ impl PlannerConfig {
     }
 }
 
-/// `dfl.brake_decel`: `"auto"` or a deceleration in m/s^2.
+/// `"auto"` (a value derived from the rest of the scenario) or a number: `dfl.brake_decel`
+/// (m/s^2), `planner.speed_m_s` (m/s).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
-pub enum BrakeDecel {
+pub enum AutoOr {
     Auto(Auto),
     Value(f64),
 }
@@ -807,7 +809,7 @@ impl Default for DflConfig {
     fn default() -> Self {
         DflConfig {
             zeta_threshold: 0.01,
-            brake_decel: BrakeDecel::Auto(Auto::Auto),
+            brake_decel: AutoOr::Auto(Auto::Auto),
             gatekeeper: true,
         }
     }
@@ -819,8 +821,8 @@ impl Scenario {
     /// safety check (docs/safety.md).
     pub fn brake_decel(&self) -> f64 {
         match self.dfl.brake_decel {
-            BrakeDecel::Auto(_) => self.mpc.v_max,
-            BrakeDecel::Value(decel) => decel,
+            AutoOr::Auto(_) => self.mpc.v_max,
+            AutoOr::Value(decel) => decel,
         }
     }
 

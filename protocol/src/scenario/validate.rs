@@ -96,7 +96,7 @@ impl Scenario {
         v.positive("mpc.refinement_tol_m", m.refinement_tol_m);
 
         v.non_negative("dfl.zeta_threshold", self.dfl.zeta_threshold);
-        if let BrakeDecel::Value(decel) = self.dfl.brake_decel {
+        if let AutoOr::Value(decel) = self.dfl.brake_decel {
             v.positive("dfl.brake_decel", decel);
             if decel > m.v_max {
                 v.fail(
@@ -113,7 +113,9 @@ impl Scenario {
         let p = &self.planner;
         v.non_negative("planner.period_s", p.period_s);
         v.non_negative("planner.clearance_m", p.clearance_m);
-        v.positive("planner.speed_m_s", p.speed_m_s);
+        if let AutoOr::Value(speed) = p.speed_m_s {
+            v.positive("planner.speed_m_s", speed);
+        }
         v.positive("planner.stray_m", p.stray_m);
         if p.is_on() && m.formulation == Formulation::Nonlinear {
             v.fail(
