@@ -109,6 +109,8 @@ pub struct Dfl {
     /// The inner tick, s.
     dt_s: f64,
     geometry: WheelGeometry,
+    /// The wheels' limits (`plant.max_wheel_speed_rad_s`): the robot knows its actuators.
+    wheels: protocol::PlantConfig,
     /// The plan flown: with the safety check on, the committed one.
     active: Option<Plan>,
     /// The safety check (`dfl.gatekeeper`).
@@ -146,6 +148,7 @@ impl Dfl {
                 wheel_radius_m: scenario.plant.wheel_radius_m,
                 wheel_base_m: scenario.plant.wheel_base_m,
             },
+            wheels: scenario.plant.clone(),
             active: None,
             gatekeeper: scenario.dfl.gatekeeper.then(|| Gatekeeper::new(scenario)),
             offered: None,
@@ -314,6 +317,15 @@ impl Dfl {
         self.zeta += u[0] * self.dt_s;
         let u1 = 0.5 * (zeta_start + self.zeta);
         let u2 = u[1];
+        // Anti-windup: where the wheels saturate, zeta is held at the forward speed they
+        // realize, so the estimate (which carries zeta), the MPC's `z_0` and the brake
+        // start from the speed the robot has, not from one it was asked for and never
+        // reached (a robot believed 0.7 m/s faster brakes that much later). Without a
+        // wheel limit the realized inputs are the commanded ones and nothing changes.
+        let realized = self.wheels.realized_inputs([u1, u2])[0];
+        if realized.abs() < u1.abs() {
+            self.zeta = realized;
+        }
         Actuation {
             header: Header {
                 tick,

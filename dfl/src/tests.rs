@@ -452,3 +452,28 @@ fn without_a_covering_plan_the_dfl_brakes_zeta_to_zero_without_steering() {
     }
     assert_eq!(dfl.zeta(), 0.0);
 }
+
+#[test]
+fn where_the_wheels_saturate_zeta_is_held_at_the_speed_they_realize() {
+    // Wheels of 10 rad/s and radius 0.1 m: 1 m/s at most. Braking at 3 m/s^2 from
+    // zeta0 = 2 m/s (a value the wheels never realize): zeta is held at the 1 m/s they do
+    // and falls from there, not from 2.
+    let s = Scenario::default()
+        .with_overrides(&[
+            "plant.max_wheel_speed_rad_s=10".into(),
+            "robot.zeta0=2".into(),
+        ])
+        .unwrap();
+    let mut dfl = Dfl::new(&s);
+    let first = dfl.brake(0);
+    assert!((first.zeta - 1.0).abs() < 1e-12, "{}", first.zeta);
+    let second = dfl.brake(1);
+    assert!((second.zeta - (1.0 - 3.0 * s.timing.dt_s())).abs() < 1e-12);
+    // Without a wheel limit zeta integrates the input as before.
+    let mut free = Dfl::new(
+        &Scenario::default()
+            .with_overrides(&["robot.zeta0=2".into()])
+            .unwrap(),
+    );
+    assert!((free.brake(0).zeta - (2.0 - 3.0 * s.timing.dt_s())).abs() < 1e-12);
+}

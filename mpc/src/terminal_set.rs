@@ -232,6 +232,25 @@ pub fn sub_goal(rows: &[SetRow], k: &Matrix2x4<f64>, z0: [f64; 4], target: [f64;
     [rest[0] + t * along[0], rest[1] + t * along[1]]
 }
 
+/// The fastest speed, m/s, at which a robot following a point `lead_s` seconds ahead of
+/// it along an axis lies in the terminal set about that point at rest (the input rows;
+/// the box is the route's concern): the LQR about the point can take it to rest there
+/// within the input box. Along a diagonal each axis moves slower, so the axes bound it.
+pub fn tracking_speed(rows: &[SetRow], lead_s: f64) -> f64 {
+    let per_axis = |axis: usize| {
+        let mut unit = [0.0; 4];
+        unit[2 * axis] = -lead_s;
+        unit[2 * axis + 1] = 1.0;
+        rows.iter()
+            .filter(|r| r.kind == SetRowKind::Input)
+            .map(|r| (r.value(unit), r.bound.at_goal))
+            .filter(|(rate, _)| *rate > 0.0)
+            .map(|(rate, bound)| bound / rate)
+            .fold(f64::INFINITY, f64::min)
+    };
+    per_axis(0).min(per_axis(1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -352,23 +371,4 @@ mod tests {
             }
         }
     }
-}
-
-/// The fastest speed, m/s, at which a robot following a point `lead_s` seconds ahead of
-/// it along an axis lies in the terminal set about that point at rest (the input rows;
-/// the box is the route's concern): the LQR about the point can take it to rest there
-/// within the input box. Along a diagonal each axis moves slower, so the axes bound it.
-pub fn tracking_speed(rows: &[SetRow], lead_s: f64) -> f64 {
-    let per_axis = |axis: usize| {
-        let mut unit = [0.0; 4];
-        unit[2 * axis] = -lead_s;
-        unit[2 * axis + 1] = 1.0;
-        rows.iter()
-            .filter(|r| r.kind == SetRowKind::Input)
-            .map(|r| (r.value(unit), r.bound.at_goal))
-            .filter(|(rate, _)| *rate > 0.0)
-            .map(|(rate, bound)| bound / rate)
-            .fold(f64::INFINITY, f64::min)
-    };
-    per_axis(0).min(per_axis(1))
 }

@@ -6,32 +6,40 @@
 //!
 //! | what | drawn from |
 //! |---|---|
-//! | goal | the origin |
-//! | start | 4-9 m from the goal in any direction, heading towards the goal +- 90 degrees, at rest |
-//! | obstacles | 1-6; centre at 20-80 % of the way from start to goal, up to 1.5 m to either side of the line; radius 0.2-1.5 m; redrawn while the start or the goal is within 0.3 m of its edge |
-//! | `timing.ts_s` | 0.02-0.1 s (`M` = 10) |
-//! | `mpc.horizon` | 8-20 |
-//! | `mpc.gamma` | 0.05-1 |
-//! | `mpc.v_max` | 1-5 m/s^2 (the brake's deceleration follows: `auto`) |
-//! | wheel saturation | off in half the worlds, else `plant.max_wheel_speed_rad_s` 15-40 rad/s |
-//! | output noise | none (`--set plant.noise_variance=...` adds it) |
-//! | `duration_s` | 40 s; `seed` (noise) the world's index |
+//! | start, goal | anywhere in the position box (the paper's, ±10 m) at least [`EDGE_M`] inside its edges, at least 1 m apart (so up to its diagonal) |
+//! | start heading | any, −π to π |
+//! | `robot.zeta0` | at rest in half the worlds, else 0–1 m/s (already moving, whichever way it faces) |
+//! | `robot.radius_m` | 0–0.3 m |
+//! | obstacles | 1–6; centre at 20–80 % of the way from start to goal, up to 1.5 m to either side of the line; radius 0.2–1.5 m; redrawn while the start or the goal is within 0.3 m of its edge grown by the robot's radius |
+//! | `timing.ts_s` | 0.02–0.1 s (`M` = 10) |
+//! | `mpc.horizon` | 8–20 |
+//! | `mpc.gamma` | 0.05–1 |
+//! | `mpc.v_max` | 1–5 m/s² (the brake's deceleration follows: `auto`) |
+//! | wheel saturation | off in half the worlds, else `plant.max_wheel_speed_rad_s` 12–40 rad/s |
+//! | output noise | `plant.noise_variance` 0–0.01 (`--set plant.noise_variance=...` forces one) |
+//! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
+//! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
 //! invalid (a start inside a grown obstacle, say) is drawn again.
 
-use crate::judge::Outcome;
+use crate::judge::{Outcome, StallReason};
 use crate::record::Summary;
 use crate::sweep::{self, RunSpec};
 use anyhow::Context;
+use protocol::distance;
 use protocol::{NoiseVariance, Obstacle, Scenario, ScenarioErrors, Validated};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::f64::consts::{FRAC_PI_2, PI};
+use std::f64::consts::PI;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+
+/// Start and goal are drawn at least this far inside the position box's edges, m (a robot
+/// at an edge, already moving outwards, may have no way to stay in the box).
+pub const EDGE_M: f64 = 0.5;
 
 /// Draws of a world that its overrides make invalid before giving up.
 const MAX_DRAWS: usize = 100;
@@ -67,35 +75,55 @@ fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
         duration_s: 40.0,
         ..Scenario::default()
     };
-    let distance = rng.random_range(4.0..9.0);
-    let bearing = rng.random_range(-PI..PI);
-    let start = [distance * bearing.cos(), distance * bearing.sin()];
-    let towards_goal = (-start[1]).atan2(-start[0]);
-    let heading = protocol::wrap_angle(towards_goal + rng.random_range(-FRAC_PI_2..FRAC_PI_2));
-    s.robot.start = [start[0], start[1], heading];
-    s.robot.goal = [0.0, 0.0];
+    let c = &s.mpc;
+    let (lo, hi) = (c.position_min, c.position_max);
+    let mut anywhere = || [0, 1].map(|a| rng.random_range(lo[a] + EDGE_M..hi[a] - EDGE_M));
+    let goal = anywhere();
+    let start = loop {
+        let p = anywhere();
+        if distance(p, goal) >= 1.0 {
+            break p;
+        }
+    };
+    let span = distance(start, goal);
+    s.duration_s = 40.0 + 4.0 * (span - 9.0).max(0.0);
+    s.robot.start = [start[0], start[1], rng.random_range(-PI..PI)];
+    s.robot.goal = goal;
+    s.robot.zeta0 = if rng.random_bool(0.5) {
+        0.0
+    } else {
+        rng.random_range(0.0..1.0)
+    };
+    s.robot.radius_m = rng.random_range(0.0..0.3);
     s.timing.ts_s = rng.random_range(0.02..0.1);
     s.mpc.horizon = rng.random_range(8..=20);
     s.mpc.gamma = rng.random_range(0.05..=1.0);
     s.mpc.v_max = rng.random_range(1.0..5.0);
-    s.plant.noise_variance = NoiseVariance::Uniform(0.0);
+    s.plant.noise_variance = NoiseVariance::Uniform(rng.random_range(0.0..0.01));
+    s.plant.disturbance_std = if rng.random_bool(0.5) {
+        0.0
+    } else {
+        rng.random_range(0.0..0.02)
+    };
     s.plant.max_wheel_speed_rad_s = if rng.random_bool(0.5) {
-        rng.random_range(15.0..40.0)
+        rng.random_range(12.0..40.0)
     } else {
         0.0
     };
     let count = rng.random_range(1..=6);
-    let normal = [-start[1] / distance, start[0] / distance];
+    let along_line = [(goal[0] - start[0]) / span, (goal[1] - start[1]) / span];
+    let normal = [-along_line[1], along_line[0]];
+    let footprint = s.robot.radius_m;
     s.obstacles = (0..count)
         .map(|_| {
             loop {
-                let along = rng.random_range(0.2..0.8);
+                let along = span * rng.random_range(0.2..0.8);
                 let aside = rng.random_range(-1.5..1.5);
                 let radius = rng.random_range(0.2..1.5);
-                let x = start[0] * (1.0 - along) + aside * normal[0];
-                let y = start[1] * (1.0 - along) + aside * normal[1];
-                let clear = |p: [f64; 2]| (p[0] - x).hypot(p[1] - y) > radius + 0.3;
-                if clear(start) && clear([0.0, 0.0]) {
+                let x = start[0] + along * along_line[0] + aside * normal[0];
+                let y = start[1] + along * along_line[1] + aside * normal[1];
+                let clear = |p: [f64; 2]| distance(p, [x, y]) > radius + footprint + 0.3;
+                if clear(start) && clear(goal) {
                     break Obstacle { x, y, radius };
                 }
             }
@@ -145,6 +173,14 @@ impl Report {
             .count()
     }
 
+    /// Worlds that stalled or timed out for `reason`.
+    pub fn stall_count(&self, reason: StallReason) -> usize {
+        self.results
+            .iter()
+            .filter(|r| r.as_ref().is_ok_and(|s| s.stall_reason == Some(reason)))
+            .count()
+    }
+
     pub fn collisions(&self) -> usize {
         self.count(Outcome::Collided)
     }
@@ -166,6 +202,12 @@ impl Report {
                 "  {name:<12} {n:>5}  {:>5.1} %\n",
                 100.0 * n as f64 / total as f64
             );
+        }
+        for reason in StallReason::ALL {
+            let n = self.stall_count(reason);
+            if n > 0 {
+                out += &format!("    {:<24} {n:>5}\n", reason.as_str());
+            }
         }
         let summaries = self.results.iter().filter_map(|r| r.as_ref().ok());
         let (interventions, failures) = summaries.fold((0, 0), |(i, f), s| {
@@ -227,13 +269,13 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,max_wheel_speed_rad_s,start_distance_m,outcome,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
+        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
         let [x, y, _] = s.robot.start;
         let params = format!(
-            "{},{},{:.4},{},{:.4},{:.3},{},{:.2},{:.3}",
+            "{},{},{:.4},{},{:.4},{:.3},{},{:.4},{:.2},{:.3},{:.3},{:.3}",
             world.index,
             s.obstacles.len(),
             s.timing.ts_s,
@@ -241,7 +283,10 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             s.mpc.gamma,
             s.mpc.v_max,
             s.plant.noise_variance.per_axis()[0],
+            s.plant.disturbance_std,
             s.plant.max_wheel_speed_rad_s,
+            s.robot.radius_m,
+            s.robot.zeta0,
             (x - s.robot.goal[0]).hypot(y - s.robot.goal[1]),
         );
         let reached = result.as_ref().is_ok_and(|r| r.outcome == Outcome::Reached);
@@ -255,8 +300,9 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{:.6},{:.3},{},{},{},{},{file}",
+                "{params},{},{},{:.6},{:.3},{},{},{},{},{file}",
                 r.outcome.as_str(),
+                r.stall_reason.map_or("", |reason| reason.as_str()),
                 r.min_clearance_m,
                 r.final_distance_to_goal_m,
                 r.time_to_goal_s
@@ -267,7 +313,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,,{file}",
+                "{params},error: {},,,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }
@@ -289,20 +335,52 @@ mod tests {
 
     #[test]
     fn every_world_is_valid_and_within_the_documented_distribution() {
+        let (mut far, mut moving, mut noisy, mut disturbed) = (0, 0, 0, 0);
         for i in 0..300 {
             let s = world(1, i, &[]).unwrap().scenario;
-            let [x, y, _] = s.robot.start;
-            let distance = x.hypot(y);
-            assert!((4.0..9.0).contains(&distance), "{distance}");
+            let [x, y, heading] = s.robot.start;
+            let goal = s.robot.goal;
+            let span = distance([x, y], goal);
+            assert!(span >= 1.0, "{span}");
+            for p in [[x, y], goal] {
+                for (a, value) in p.into_iter().enumerate() {
+                    assert!(value >= s.mpc.position_min[a] + EDGE_M);
+                    assert!(value <= s.mpc.position_max[a] - EDGE_M);
+                }
+            }
+            assert!((-PI..PI).contains(&heading));
+            assert!((0.0..1.0).contains(&s.robot.zeta0));
+            assert!((0.0..0.3).contains(&s.robot.radius_m));
             assert!((1..=6).contains(&s.obstacles.len()));
             assert!((0.02..0.1).contains(&s.timing.ts_s));
             assert!((8..=20).contains(&s.mpc.horizon));
             assert!((0.05..=1.0).contains(&s.mpc.gamma));
+            assert!((1.0..5.0).contains(&s.mpc.v_max));
+            let wheels = s.plant.max_wheel_speed_rad_s;
+            assert!(wheels == 0.0 || (12.0..40.0).contains(&wheels), "{wheels}");
+            let noise = s.plant.noise_variance.per_axis()[0];
+            assert!((0.0..0.01).contains(&noise));
+            assert!((0.0..0.02).contains(&s.plant.disturbance_std));
+            assert_eq!(s.duration_s, 40.0 + 4.0 * (span - 9.0).max(0.0));
             for o in &s.obstacles {
                 assert!((0.2..1.5).contains(&o.radius));
-                assert!((o.x - x).hypot(o.y - y) > o.radius + 0.3);
-                assert!(o.x.hypot(o.y) > o.radius + 0.3);
+                let room = o.radius + s.robot.radius_m + 0.3;
+                assert!(distance([o.x, o.y], [x, y]) > room);
+                assert!(distance([o.x, o.y], goal) > room);
             }
+            far += usize::from(span > 15.0);
+            moving += usize::from(s.robot.zeta0 > 0.0);
+            noisy += usize::from(noise > 0.0);
+            disturbed += usize::from(s.plant.disturbance_std > 0.0);
+        }
+        // Each part of the distribution is drawn.
+        for (what, n) in [
+            ("far", far),
+            ("moving", moving),
+            ("noisy", noisy),
+            ("disturbed", disturbed),
+        ] {
+            assert!(n > 30, "{n} {what} worlds of 300");
         }
     }
 

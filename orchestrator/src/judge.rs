@@ -39,6 +39,59 @@ impl Outcome {
     }
 }
 
+/// Why a robot that stalled or timed out did not arrive, decided from what the run
+/// recorded ([`Judge::reason`]; the first that applies, in this order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StallReason {
+    /// No plan of the run was solved: no controller started the robot.
+    InfeasibleFromStart,
+    /// It ended within [`NEAR_GOAL_M`] of the goal, outside its tolerance: it went to and
+    /// fro, or crept, about the goal.
+    OscillatingNearGoal,
+    /// It ended at an obstacle (clearance within [`PINNED_CLEARANCE_M`] beyond the
+    /// safety margin) that lies towards the goal: the CBF holds it where the straight way
+    /// is blocked (a local minimum; a route planner goes round).
+    PinnedAtObstacle,
+    /// It timed out still getting nearer the goal (by more than [`STALL_DISTANCE_M`]
+    /// over the last stall window): the run was too short for it.
+    StillApproaching,
+    /// A route was being followed and the robot made no progress along it.
+    NoProgressOnRoute,
+    /// None of the above: it stopped away from the goal and from every obstacle.
+    NoProgress,
+}
+
+impl StallReason {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            StallReason::InfeasibleFromStart => "infeasible_from_start",
+            StallReason::OscillatingNearGoal => "oscillating_near_goal",
+            StallReason::PinnedAtObstacle => "pinned_at_obstacle",
+            StallReason::StillApproaching => "still_approaching",
+            StallReason::NoProgressOnRoute => "no_progress_on_route",
+            StallReason::NoProgress => "no_progress",
+        }
+    }
+
+    /// Every reason, in [`Judge::reason`]'s order.
+    pub const ALL: [StallReason; 6] = [
+        StallReason::InfeasibleFromStart,
+        StallReason::OscillatingNearGoal,
+        StallReason::PinnedAtObstacle,
+        StallReason::StillApproaching,
+        StallReason::NoProgressOnRoute,
+        StallReason::NoProgress,
+    ];
+}
+
+/// A robot that ends this near the goal (outside its tolerance) is
+/// [`StallReason::OscillatingNearGoal`], m.
+pub const NEAR_GOAL_M: f64 = 0.5;
+/// A robot whose edge ends within this of an obstacle grown by the safety margin is at
+/// it ([`StallReason::PinnedAtObstacle`]), m.
+pub const PINNED_CLEARANCE_M: f64 = 0.15;
+
 /// Length of the stall window, s.
 pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
@@ -64,6 +117,10 @@ pub struct Judge {
     /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
     /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
     pub deviation_time_s: Option<f64>,
+    /// `mpc.safety_margin_m`: a robot pinned at an obstacle stops about this far out.
+    safety_margin_m: f64,
+    /// The last true position.
+    last_position: [f64; 2],
 }
 
 impl Judge {
@@ -79,7 +136,48 @@ impl Judge {
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
+            safety_margin_m: scenario.mpc.safety_margin_m,
+            last_position: [scenario.robot.start[0], scenario.robot.start[1]],
         }
+    }
+
+    /// Why a run that ended `outcome` did not arrive (`None` unless it stalled or timed
+    /// out), from what it recorded: `solved_plans` of the MPC, whether it `followed_route`s,
+    /// and the judge's own watch of the true position.
+    pub fn reason(
+        &self,
+        outcome: Outcome,
+        solved_plans: u64,
+        followed_route: bool,
+    ) -> Option<StallReason> {
+        if !matches!(outcome, Outcome::Stalled | Outcome::Timeout) {
+            return None;
+        }
+        let [x, y] = self.last_position;
+        let towards_goal = [self.goal[0] - x, self.goal[1] - y];
+        let pinned = self.obstacles.iter().any(|o| {
+            let towards_obstacle = [o.x - x, o.y - y];
+            self.footprint.clearance_m(o, [x, y]) <= self.safety_margin_m + PINNED_CLEARANCE_M
+                && towards_obstacle[0] * towards_goal[0] + towards_obstacle[1] * towards_goal[1]
+                    > 0.0
+        });
+        let approaching = self.window.front().is_some_and(|&(_, wx, wy)| {
+            let then = (self.goal[0] - wx).hypot(self.goal[1] - wy);
+            then - self.last_distance_to_goal_m > STALL_DISTANCE_M
+        });
+        Some(if solved_plans == 0 {
+            StallReason::InfeasibleFromStart
+        } else if self.last_distance_to_goal_m <= NEAR_GOAL_M {
+            StallReason::OscillatingNearGoal
+        } else if pinned {
+            StallReason::PinnedAtObstacle
+        } else if outcome == Outcome::Timeout && approaching {
+            StallReason::StillApproaching
+        } else if followed_route {
+            StallReason::NoProgressOnRoute
+        } else {
+            StallReason::NoProgress
+        })
     }
 
     /// Distance from `(x, y)` to the straight line through the start and the goal, m.
@@ -126,6 +224,7 @@ impl Judge {
         }
         let distance = (x - self.goal[0]).hypot(y - self.goal[1]);
         self.last_distance_to_goal_m = distance;
+        self.last_position = [x, y];
         if distance <= self.goal_tolerance_m {
             self.inside_goal_since_s.get_or_insert(t_s);
         } else {
@@ -231,5 +330,63 @@ mod tests {
         m.observe(0.2, 0.05, 0.0);
         assert_eq!(m.inside_goal_since_s, Some(0.2));
         assert_eq!(m.final_outcome(), Outcome::Reached);
+    }
+
+    /// A judge that watched a robot stand at `at` for the stall window.
+    fn stood_at(scenario: &Scenario, at: [f64; 2]) -> (Judge, Outcome) {
+        let mut m = Judge::new(scenario);
+        let outcome = (0..1000)
+            .find_map(|i| m.observe(i as f64 * 0.01, at[0], at[1]))
+            .expect("stalls");
+        (m, outcome)
+    }
+
+    #[test]
+    fn a_stall_has_the_reason_the_record_shows() {
+        let paper = Scenario::default();
+        // Nothing solved: infeasible from the start, wherever it stands.
+        let (m, outcome) = stood_at(&paper, [7.0, 7.0]);
+        assert_eq!(outcome, Outcome::Stalled);
+        assert_eq!(
+            m.reason(outcome, 0, false),
+            Some(StallReason::InfeasibleFromStart)
+        );
+        // Solved plans, standing 5 cm from the obstacle (centre (3, 3.5), radius 1.5) on
+        // its far side from the goal: pinned; on its near side: not.
+        let behind = [3.0 + 1.55 * 0.6, 3.5 + 1.55 * 0.8];
+        let (m, outcome) = stood_at(&paper, behind);
+        assert_eq!(
+            m.reason(outcome, 10, false),
+            Some(StallReason::PinnedAtObstacle)
+        );
+        let before = [3.0 - 1.55 * 0.6, 3.5 - 1.55 * 0.8];
+        let (m, outcome) = stood_at(&paper, before);
+        assert_eq!(m.reason(outcome, 10, false), Some(StallReason::NoProgress));
+        assert_eq!(
+            m.reason(outcome, 10, true),
+            Some(StallReason::NoProgressOnRoute)
+        );
+        // Near the goal.
+        let (m, outcome) = stood_at(&paper, [0.3, 0.0]);
+        assert_eq!(
+            m.reason(outcome, 10, false),
+            Some(StallReason::OscillatingNearGoal)
+        );
+        // A robot that arrived has no reason.
+        assert_eq!(m.reason(Outcome::Reached, 10, false), None);
+    }
+
+    #[test]
+    fn a_timeout_while_still_getting_nearer_is_still_approaching() {
+        let mut m = Judge::new(&Scenario::default());
+        for i in 0..500 {
+            let t = i as f64 * 0.01;
+            assert_eq!(m.observe(t, -8.0 + 0.1 * t, -8.0), None);
+        }
+        assert_eq!(m.final_outcome(), Outcome::Timeout);
+        assert_eq!(
+            m.reason(Outcome::Timeout, 10, false),
+            Some(StallReason::StillApproaching)
+        );
     }
 }

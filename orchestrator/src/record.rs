@@ -410,6 +410,11 @@ impl Recorder {
             seed: scenario.seed,
             mode: mode.to_string(),
             outcome,
+            stall_reason: m.reason(
+                outcome,
+                (self.solve_us.len() as u64).saturating_sub(self.solver_failures),
+                self.route_plans > 0,
+            ),
             min_clearance_m: m.min_clearance_m,
             deviation_time_s: m.deviation_time_s,
             time_to_goal_s: if outcome == Outcome::Reached {

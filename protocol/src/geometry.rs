@@ -53,7 +53,9 @@ impl ObstacleGrowth {
     /// The growth of `scenario`'s MPC, DFL check and planner.
     pub fn of(scenario: &Scenario) -> ObstacleGrowth {
         ObstacleGrowth {
-            fixed_m: scenario.robot.radius_m + scenario.mpc.safety_margin_m,
+            fixed_m: scenario.robot.radius_m
+                + scenario.mpc.safety_margin_m
+                + disturbance_margin_m(scenario),
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
         }
     }
@@ -81,6 +83,25 @@ impl ObstacleGrowth {
     pub fn clearance_m(&self, obstacle: &Obstacle, p: [f64; 2]) -> f64 {
         distance(p, [obstacle.x, obstacle.y]) - obstacle.radius - self.fixed_m
     }
+}
+
+/// The room a robot held at an obstacle needs against the process disturbance
+/// (`plant.disturbance_std`, a white velocity drawn every inner tick), m; 0 without one.
+/// Over one sample the disturbance moves the robot by `sigma_1 = std dt sqrt(M)` (one
+/// standard deviation per axis); the CBF takes a robot pushed into a disc back out at the
+/// rate `gamma` a sample, so its depth is an AR(1) process with stationary deviation
+/// `sigma_1 / sqrt(1 - (1 - gamma)^2)`, and the growth is `kappa` of those. (The safety
+/// argument assumes no disturbance; a robot pinned at an obstacle in a disturbed world
+/// random-walked into it by 0.07 mm without this, issue 27.)
+pub fn disturbance_margin_m(scenario: &Scenario) -> f64 {
+    let std = scenario.plant.disturbance_std;
+    if std <= 0.0 {
+        return 0.0;
+    }
+    let t = &scenario.timing;
+    let per_sample = std * t.dt_s() * (t.inner_steps as f64).sqrt();
+    let decay = 1.0 - scenario.mpc.gamma.clamp(0.0, 1.0);
+    scenario.mpc.uncertainty_sigmas * per_sample / (1.0 - decay * decay).sqrt()
 }
 
 /// Distance between two points, m.
@@ -123,4 +144,23 @@ pub fn closest_on_polyline(points: &[[f64; 2]], point: [f64; 2]) -> (usize, [f64
 /// Length of the polyline through `points`, m.
 pub fn polyline_length(points: &[[f64; 2]]) -> f64 {
     points.windows(2).map(|w| distance(w[0], w[1])).sum()
+}
+
+#[cfg(test)]
+mod disturbance_tests {
+    use super::*;
+
+    #[test]
+    fn the_disturbance_margin_is_kappa_stationary_deviations_and_nothing_without_one() {
+        let paper = Scenario::default();
+        assert_eq!(disturbance_margin_m(&paper), 0.0);
+        assert_eq!(ObstacleGrowth::of(&paper).fixed_m, 0.0);
+        let s = paper
+            .with_overrides(&["plant.disturbance_std=0.02".into(), "mpc.gamma=0.19".into()])
+            .unwrap();
+        // sigma_1 = 0.02 * 0.005 * sqrt(10); 1 - 0.81^2 = 0.3439.
+        let expected = 3.0 * 0.02 * 0.005 * 10f64.sqrt() / 0.3439f64.sqrt();
+        assert!((disturbance_margin_m(&s) - expected).abs() < 1e-12);
+        assert!((ObstacleGrowth::of(&s).fixed_m - expected).abs() < 1e-12);
+    }
 }

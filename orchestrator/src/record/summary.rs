@@ -1,7 +1,7 @@
 //! `summary.json` and the table printed at the end of a run, and the statistics they
 //! are made of.
 
-use crate::judge::Outcome;
+use crate::judge::{Outcome, StallReason};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -47,6 +47,8 @@ pub struct Summary {
     /// `in-process`, `lockstep` or `realtime`.
     pub mode: String,
     pub outcome: Outcome,
+    /// Why a run that stalled or timed out did not arrive (`null` otherwise).
+    pub stall_reason: Option<StallReason>,
     /// Smallest distance from the robot's centre to an obstacle surface, m.
     pub min_clearance_m: f64,
     /// First time after which the robot stayed within the goal tolerance, s.
@@ -186,7 +188,13 @@ impl Summary {
                 "scenario",
                 format!("{} (seed {}, {})", self.scenario, self.seed, self.mode),
             ),
-            ("outcome", self.outcome.as_str().to_string()),
+            (
+                "outcome",
+                match self.stall_reason {
+                    Some(reason) => format!("{} ({})", self.outcome.as_str(), reason.as_str()),
+                    None => self.outcome.as_str().to_string(),
+                },
+            ),
             ("min clearance", format!("{:.3} m", self.min_clearance_m)),
             ("time to goal", opt(self.time_to_goal_s)),
             (
