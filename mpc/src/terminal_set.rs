@@ -371,4 +371,23 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn at_the_tracking_speed_a_robot_a_lead_behind_a_point_is_just_in_its_set() {
+        for overrides in [
+            vec![],
+            vec!["timing.ts_s=0.02".to_string(), "mpc.v_max=1".into()],
+        ] {
+            let s = Scenario::default().with_overrides(&overrides).unwrap();
+            let (rows, _, _) = set_of(&s);
+            let lead_s = s.mpc.horizon as f64 * s.timing.ts_s;
+            let speed = tracking_speed(&rows, lead_s);
+            assert!(speed.is_finite() && speed > 0.0, "{overrides:?}: {speed}");
+            // Along y, the point at rest at (0, 0), the robot `lead_s` of travel behind it.
+            let state = |c: f64| [0.0, 0.0, -lead_s * c, c];
+            let inside = |z: [f64; 4]| rows.iter().all(|r| r.value(z) <= r.bound.at_goal + 1e-9);
+            assert!(inside(state(speed)), "{overrides:?}");
+            assert!(!inside(state(1.01 * speed)), "{overrides:?}");
+        }
+    }
 }
