@@ -50,7 +50,7 @@ pub enum StallReason {
     /// fro, or crept, about the goal.
     OscillatingNearGoal,
     /// It ended at an obstacle (clearance within [`PINNED_CLEARANCE_M`] beyond the
-    /// safety margin) that lies towards the goal: the CBF holds it where the straight way
+    /// MPC's margins) that lies towards the goal: the CBF holds it where the straight way
     /// is blocked (a local minimum; a route planner goes round).
     PinnedAtObstacle,
     /// It timed out still getting nearer the goal (by more than [`STALL_DISTANCE_M`]
@@ -88,7 +88,7 @@ impl StallReason {
 /// A robot that ends this near the goal (outside its tolerance) is
 /// [`StallReason::OscillatingNearGoal`], m.
 pub const NEAR_GOAL_M: f64 = 0.5;
-/// A robot whose edge ends within this of an obstacle grown by the safety margin is at
+/// A robot whose edge ends within this of an obstacle grown by the MPC's margins is at
 /// it ([`StallReason::PinnedAtObstacle`]), m.
 pub const PINNED_CLEARANCE_M: f64 = 0.15;
 
@@ -117,8 +117,10 @@ pub struct Judge {
     /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
     /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
     pub deviation_time_s: Option<f64>,
-    /// `mpc.safety_margin_m`: a robot pinned at an obstacle stops about this far out.
-    safety_margin_m: f64,
+    /// How far out a robot held at an obstacle stops, at most, m: the MPC's margins (the
+    /// safety margin, the disturbance's, `kappa` output-noise deviations, an upper
+    /// bound on `kappa sigma`) and [`PINNED_CLEARANCE_M`].
+    pinned_within_m: f64,
     /// The last true position.
     last_position: [f64; 2],
 }
@@ -136,7 +138,7 @@ impl Judge {
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
-            safety_margin_m: scenario.mpc.safety_margin_m,
+            pinned_within_m: pinned_within_m(scenario),
             last_position: [scenario.robot.start[0], scenario.robot.start[1]],
         }
     }
@@ -157,7 +159,7 @@ impl Judge {
         let towards_goal = [self.goal[0] - x, self.goal[1] - y];
         let pinned = self.obstacles.iter().any(|o| {
             let towards_obstacle = [o.x - x, o.y - y];
-            self.footprint.clearance_m(o, [x, y]) <= self.safety_margin_m + PINNED_CLEARANCE_M
+            self.footprint.clearance_m(o, [x, y]) <= self.pinned_within_m
                 && towards_obstacle[0] * towards_goal[0] + towards_obstacle[1] * towards_goal[1]
                     > 0.0
         });
@@ -264,6 +266,21 @@ impl Judge {
     }
 }
 
+/// How far from an obstacle's surface (beyond the robot's radius) a robot the CBF holds
+/// there may stop, m ([`Judge::reason`]).
+fn pinned_within_m(scenario: &Scenario) -> f64 {
+    let growth = ObstacleGrowth::of(scenario);
+    let noise = scenario
+        .plant
+        .noise_variance
+        .per_axis()
+        .into_iter()
+        .take(2)
+        .fold(0.0, f64::max);
+    let margins = growth.fixed_m - scenario.robot.radius_m;
+    margins + growth.uncertainty_m(noise.max(0.0).sqrt()) + PINNED_CLEARANCE_M
+}
+
 /// Distance from the edge of a robot with `footprint` at `p` (its centre, for the paper's
 /// point robot) to the nearest obstacle surface, m.
 pub fn clearance_m(obstacles: &[Obstacle], footprint: &ObstacleGrowth, p: [f64; 2]) -> f64 {
@@ -365,6 +382,19 @@ mod tests {
         assert_eq!(
             m.reason(outcome, 10, true),
             Some(StallReason::NoProgressOnRoute)
+        );
+        // 0.35 m off it: pinned only where output noise grows the MPC's discs (kappa
+        // deviations of the noise, 0.3 m at a variance of 0.01).
+        let farther = [3.0 + 1.85 * 0.6, 3.5 + 1.85 * 0.8];
+        let (m, outcome) = stood_at(&paper, farther);
+        assert_eq!(m.reason(outcome, 10, false), Some(StallReason::NoProgress));
+        let noisy = paper
+            .with_overrides(&["plant.noise_variance=0.01".into()])
+            .unwrap();
+        let (m, outcome) = stood_at(&noisy, farther);
+        assert_eq!(
+            m.reason(outcome, 10, false),
+            Some(StallReason::PinnedAtObstacle)
         );
         // Near the goal.
         let (m, outcome) = stood_at(&paper, [0.3, 0.0]);

@@ -35,6 +35,16 @@ pub const SWITCH_GAIN_M: f64 = 0.25;
 /// route would not fit in [`ROUTE_CAPACITY`] waypoints.
 const ARC_STEP_RAD: f64 = std::f64::consts::PI / 6.0;
 
+/// Each replan on a stall keeps this much more room from the obstacles than the last
+/// (at least; [`Planner::extra_clearance_m`]), m: a route the robot could not follow (a
+/// bend too tight for it, a gap its grown discs close) is not planned again as it was.
+pub const STALL_CLEARANCE_STEP_M: f64 = 0.2;
+/// Stall replans that widen the clearance, at most.
+pub const MAX_CLEARANCE_STEPS: u32 = 3;
+/// A robot this far from where it last stalled has made way: the clearance is the
+/// configured one again, m.
+pub const CLEARANCE_RESET_M: f64 = 1.0;
+
 /// How far inside its true radius a disc holding the start or the goal is shrunk to free
 /// them, m.
 const FREE_END_M: f64 = 1e-6;
@@ -61,6 +71,12 @@ pub struct Planner {
     last_planned: Option<u64>,
     /// Where and when the robot last moved by [`STALL_DISTANCE_M`].
     moved: Option<(u64, [f64; 2])>,
+    /// Stall replans since the robot last made way (at most [`MAX_CLEARANCE_STEPS`]): each
+    /// widens the clearance.
+    clearance_steps: u32,
+    /// Where the last stall replan was; the robot [`CLEARANCE_RESET_M`] from it has made
+    /// way and the clearance is the configured one again.
+    stalled_at: [f64; 2],
 }
 
 impl Planner {
@@ -85,7 +101,15 @@ impl Planner {
             candidate: Route::default(),
             last_planned: None,
             moved: None,
+            clearance_steps: 0,
+            stalled_at: [0.0; 2],
         }
+    }
+
+    /// The room added to `planner.clearance_m` after the stalls so far, m: a step of
+    /// `max(planner.clearance_m, STALL_CLEARANCE_STEP_M)` per stall replan.
+    pub fn extra_clearance_m(&self) -> f64 {
+        f64::from(self.clearance_steps) * self.clearance_m.max(STALL_CLEARANCE_STEP_M)
     }
 
     /// The route for sample `sample` from its estimate: the newest one, planned again
@@ -96,6 +120,12 @@ impl Planner {
     pub fn step(&mut self, sample: u64, estimate: &Estimate) -> Route {
         let position = [estimate.state[0], estimate.state[1]];
         if let Some(reason) = self.replan_reason(sample, position) {
+            if reason == ReplanReason::Stall {
+                self.clearance_steps = (self.clearance_steps + 1).min(MAX_CLEARANCE_STEPS);
+                self.stalled_at = position;
+            } else if distance(position, self.stalled_at) > CLEARANCE_RESET_M {
+                self.clearance_steps = 0;
+            }
             let growth = self.growth.total_m(estimate.position_sigma());
             self.plan(sample, position, growth, reason);
             let better = |new: &Route, old: &Route| {
@@ -164,20 +194,24 @@ impl Planner {
     }
 
     /// Plans `candidate` from `position` around the obstacles grown by `growth_m` and the
-    /// clearance, or without the clearance if no route keeps it.
+    /// clearance widened after stalls, or by the plain clearance, or by none, the first
+    /// that leaves a route.
     fn plan(&mut self, sample: u64, position: [f64; 2], growth_m: f64, reason: ReplanReason) {
         let started = std::time::Instant::now();
         self.last_planned = Some(sample);
         let mut found = false;
-        for clearance in [self.clearance_m, 0.0] {
+        let widened = self.clearance_m + self.extra_clearance_m();
+        let mut tried = f64::NAN;
+        for clearance in [widened, self.clearance_m, 0.0] {
+            if clearance == tried {
+                continue;
+            }
+            tried = clearance;
             self.grow_discs(position, growth_m + clearance);
             let (graph, route) = (&mut self.graph, &mut self.candidate);
             if let Ok(legs) = graph.shortest_path(position, self.goal, &self.discs, self.bounds) {
                 write_waypoints(position, legs, route);
                 found = true;
-                break;
-            }
-            if clearance == 0.0 {
                 break;
             }
         }
@@ -407,6 +441,49 @@ mod tests {
         assert_eq!(route.reason, ReplanReason::Period as u32);
         assert_eq!(route.plans, 2);
         assert_eq!(route.points()[1][1].signum(), -side, "round the other side");
+    }
+
+    #[test]
+    fn each_stall_replans_with_more_room_until_the_robot_makes_way() {
+        let obstacle = Obstacle {
+            x: 3.0,
+            y: 3.5,
+            radius: 1.5,
+        };
+        let s = scenario(vec![obstacle.clone()]);
+        let mut planner = Planner::new(&s);
+        // The smallest distance of a route from the obstacle's centre.
+        let room = |route: &Route| {
+            route
+                .points()
+                .windows(2)
+                .map(|w| protocol::segment_distance(w[0], w[1], [obstacle.x, obstacle.y]))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let first = planner.step(0, &estimate_at(7.0, 7.0));
+        let mut rooms = vec![room(&first)];
+        // Standing still: a stall replan every second (20 samples), each with 0.2 m more
+        // (the configured clearance is 0.2), up to three.
+        let mut sample = 0;
+        for _ in 0..4 {
+            let mut route = first;
+            for _ in 0..21 {
+                sample += 1;
+                route = planner.step(sample, &estimate_at(7.0, 7.0));
+            }
+            assert_eq!(route.reason, ReplanReason::Stall as u32);
+            rooms.push(room(&route));
+        }
+        let clearance = s.planner.clearance_m;
+        for (k, r) in rooms.iter().enumerate() {
+            let steps = k.min(MAX_CLEARANCE_STEPS as usize) as f64;
+            let wanted = obstacle.radius + clearance + steps * STALL_CLEARANCE_STEP_M;
+            assert!(*r >= wanted - 1e-9, "stall {k}: {r} < {wanted}");
+        }
+        assert!(rooms[3] > rooms[0] + 0.5, "{rooms:?}");
+        // Far from where it stalled the clearance is the configured one again.
+        planner.step(sample + 1, &estimate_at(8.5, 7.0));
+        assert_eq!(planner.extra_clearance_m(), 0.0);
     }
 
     #[test]
