@@ -273,16 +273,11 @@ impl LinearMpc {
         });
     }
 
-    /// `z` (absolute) relative to the goal.
-    fn relative(&self, z: [f64; 4]) -> [f64; 4] {
-        [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]]
-    }
-
     /// Sets the step's sub-goal from `z0` (goal-relative): the one nearest the route's
     /// reference at stage `N`, or the goal ([`crate::terminal_set::sub_goal`]).
     fn choose_sub_goal(&mut self, z0: [f64; 4]) {
         let target = if self.on_route {
-            let r = self.relative(self.route_reference[self.layout.horizon]);
+            let r = goal_relative(self.route_reference[self.layout.horizon], self.goal);
             [r[0], r[2]]
         } else {
             [0.0; 2]
@@ -302,10 +297,7 @@ impl LinearMpc {
         }
         let (l, goal) = (&self.layout, self.goal);
         let stage = |i: usize| match self.on_route {
-            true => {
-                let z: [f64; 4] = self.route_reference[i];
-                [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
-            }
+            true => goal_relative(self.route_reference[i], goal),
             false => [s[0], 0.0, s[1], 0.0],
         };
         let cost = &mut self.reference_cost;
@@ -328,7 +320,7 @@ impl LinearMpc {
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
         let started = Instant::now();
         let z = protocol::phi(x_bar);
-        let z0 = [z[0] - self.goal[0], z[1], z[2] - self.goal[1], z[3]];
+        let z0 = goal_relative(z, self.goal);
         let margin = self.margin_m(position_sigma_m);
         crate::discs::constraint_discs(
             &self.obstacles,
@@ -564,6 +556,11 @@ impl LinearMpc {
             plan.z[i] = [z[0] + self.goal[0], z[1], z[2] + self.goal[1], z[3]];
         }
     }
+}
+
+/// `z = [x, xdot, y, ydot]` (absolute) relative to `goal`.
+fn goal_relative(z: [f64; 4], goal: [f64; 2]) -> [f64; 4] {
+    [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
 }
 
 /// Upper triangle of the solver's `P`: the sparse formulation's, or its condensed form.
