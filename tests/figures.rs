@@ -127,6 +127,10 @@ fn run_without_system_fonts(font: Option<&str>) -> (tempfile::TempDir, std::proc
 
 #[test]
 fn a_run_writes_its_path_and_distance_plots_with_no_system_font() {
+    // SCMPC_FONT unset, and set but empty (a script's way to unset it): the embedded font.
+    let (_, empty) = run_without_system_fonts(Some(""));
+    assert_eq!(empty.status.code(), Some(1), "{}", stderr(&empty));
+    assert!(!stderr(&empty).contains("no plots"), "{}", stderr(&empty));
     let (dir, out) = run_without_system_fonts(None);
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out)); // 6 s: not reached
     assert!(!stderr(&out).contains("no plots"), "{}", stderr(&out));

@@ -110,3 +110,15 @@ fn overrides_that_do_not_name_a_key_are_refused_before_anything_runs() {
     assert!(stderr(&out).contains("mpc.gama"), "{}", stderr(&out));
     assert!(!out_dir.exists());
 }
+
+#[test]
+fn fuzz_refuses_mcap_which_it_cannot_write() {
+    // fuzz keeps no run directories (a failed world replays from its file with
+    // `scmpc run FILE`, which writes run.mcap): `--mcap` is refused, not ignored.
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("fuzz");
+    let out = run(&["fuzz", "--mcap", "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("--mcap"), "{}", stderr(&out));
+    assert!(!out_dir.exists());
+}

@@ -363,6 +363,8 @@ fn run_on_a_terminal(args: &[&str]) -> String {
 
 #[test]
 fn a_run_shows_a_live_status_line_on_a_terminal_and_nothing_extra_otherwise() {
+    // Two multi-process runs: beside the real-time tests, not during them.
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let on_terminal = dir.path().join("terminal");
     let seen = run_on_a_terminal(&[

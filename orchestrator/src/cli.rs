@@ -201,9 +201,6 @@ struct FuzzArgs {
     /// Runs at a time [default: the number of cores].
     #[arg(long)]
     threads: Option<usize>,
-    /// Write each run's `run.mcap` too (docs/foxglove.md).
-    #[arg(long)]
-    mcap: bool,
 }
 
 #[derive(Debug, clap::Args)]

@@ -264,7 +264,8 @@ impl Figure {
     }
 }
 
-/// Names a TrueType file the figures use instead of the embedded DejaVu Sans.
+/// Names a TrueType file the figures use instead of the embedded DejaVu Sans; set but
+/// empty (`SCMPC_FONT=`, the usual way to unset a variable in a script) it is unset.
 pub const ENV_FONT: &str = "SCMPC_FONT";
 
 /// Registers the figures' font for plotters' text, once per process: the file named by
@@ -272,7 +273,8 @@ pub const ENV_FONT: &str = "SCMPC_FONT";
 pub fn ensure_font() -> anyhow::Result<()> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let (name, bytes): (String, &'static [u8]) = match std::env::var_os(ENV_FONT) {
+        let named = std::env::var_os(ENV_FONT).filter(|path| !path.is_empty());
+        let (name, bytes): (String, &'static [u8]) = match named {
             Some(path) => {
                 let path = PathBuf::from(path);
                 let bytes = std::fs::read(&path)
