@@ -74,9 +74,12 @@ pub fn reference(
     let ahead = &points[segment..];
     let length = protocol::polyline_length(ahead);
     let mut s = distance(points[segment], at);
+    // The limit at each stage's point serves twice: its velocity, and the step to the next.
+    let mut speed = profile.limit(ahead, s);
     for z in reference.iter_mut().skip(1) {
-        s = (s + ts_s * profile.limit(ahead, s)).min(length);
-        *z = state_at(ahead, s, profile.limit(ahead, s));
+        s = (s + ts_s * speed).min(length);
+        speed = profile.limit(ahead, s);
+        *z = state_at(ahead, s, speed);
     }
     let goal = points[points.len() - 1];
     reference[1..]
