@@ -2,90 +2,13 @@
 //! Python estimator of `examples/python` swapped into a real-time run, and `run.mcap` read
 //! back by the `mcap` package.
 //!
-//! These tests make their own venv under the target directory and install pinned packages
-//! from PyPI into it ([`PYTHON_PACKAGES`]): they need CPython 3.11 or newer with pip
-//! (`python3`, or the interpreter named by `SCMPC_TEST_PYTHON`) and the network to PyPI.
+//! These tests make their own venv under the target directory ([`common::python`]).
 
 mod common;
 
+use common::python::{python, read_mcap, repo, run_python};
 use common::{events, run, stderr};
 use orchestrator::schema::Table;
-use std::path::{Path, PathBuf};
-use std::process::Command;
-use std::sync::OnceLock;
-
-/// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, and the
-/// MCAP reader the recording is checked with.
-const PYTHON_PACKAGES: [&str; 2] = ["iceoryx2==0.10.0", "mcap==1.6.0"];
-
-fn repo() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// The venv's interpreter, made (once per test binary, kept between runs) if it is missing
-/// or holds other packages.
-fn python() -> &'static Path {
-    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-venv");
-        let python = venv.join("bin").join("python");
-        let marker = venv.join("scmpc-packages.txt");
-        let wanted = PYTHON_PACKAGES.join("\n");
-        if std::fs::read_to_string(&marker).is_ok_and(|m| m == wanted) && python.exists() {
-            return python;
-        }
-        let base = std::env::var("SCMPC_TEST_PYTHON").unwrap_or_else(|_| "python3".into());
-        let _ = std::fs::remove_dir_all(&venv);
-        let made = Command::new(&base).args(["-m", "venv"]).arg(&venv).output();
-        let made = made.unwrap_or_else(|e| panic!("cannot run `{base}` (CPython 3.11+): {e}"));
-        assert!(made.status.success(), "{base} -m venv: {}", stderr(&made));
-        let pip = Command::new(&python)
-            .args([
-                "-m",
-                "pip",
-                "install",
-                "--quiet",
-                "--disable-pip-version-check",
-            ])
-            .args(PYTHON_PACKAGES)
-            .output()
-            .unwrap();
-        assert!(pip.status.success(), "pip install: {}", stderr(&pip));
-        std::fs::write(&marker, wanted).unwrap();
-        python
-    })
-}
-
-/// Runs the venv's Python on `script` with `args` (and `stdin`); fails the test on a
-/// non-zero exit. Returns its standard output.
-fn run_python(script: &Path, args: &[&Path], stdin: &[u8]) -> String {
-    use std::io::Write;
-    let mut child = Command::new(python())
-        .arg(script)
-        .args(args)
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    child.stdin.take().unwrap().write_all(stdin).unwrap();
-    let out = child.wait_with_output().unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{}: {stdout}{}",
-        script.display(),
-        stderr(&out)
-    );
-    stdout
-}
-
-/// Every topic of `run.mcap` as `tests/python/read_mcap.py` read it.
-fn read_mcap(dir: &Path) -> serde_json::Value {
-    let script = repo().join("tests/python/read_mcap.py");
-    let out = run_python(&script, &[&dir.join("run.mcap")], b"");
-    serde_json::from_str(&out).unwrap()
-}
 
 #[test]
 fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {
@@ -141,7 +64,7 @@ fn a_python_estimator_swapped_in_at_8_s_in_real_time_costs_no_deadline_and_no_ti
     }
     // The estimates recorded: the Rust estimator's before the switch, the Python one's
     // from it on.
-    let mcap = read_mcap(&out_dir);
+    let mcap = read_mcap(&out_dir, false);
     let estimates = &mcap["/estimator/estimate"];
     let ticks = estimates["ticks"].as_array().unwrap();
     let epochs = estimates["epochs"].as_array().unwrap();
@@ -163,7 +86,7 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
     let out_dir = dir.path().join("run");
     let out = run(&["run", "field", "--out", out_dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-    let topics = read_mcap(&out_dir);
+    let topics = read_mcap(&out_dir, false);
     let count = |topic: &str| topics[topic]["count"].as_u64().unwrap_or(0) as usize;
 
     let ticks = Table::read(&out_dir.join("trajectory.csv")).unwrap().len();

@@ -25,6 +25,7 @@ use protocol::clock::RunMode;
 use protocol::clock::{monotonic_ns, sleep_until_ns};
 use protocol::ipc;
 use serde::Serialize;
+use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -212,10 +213,11 @@ pub fn pong(prefix: &str) -> anyhow::Result<()> {
 }
 
 /// Publish-to-receipt latencies of the raw ping-pong, both directions, µs.
-fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
+fn ping_pong(prefix: &str, stop: &AtomicBool) -> anyhow::Result<Vec<f64>> {
     let node = ipc::create_node(prefix, "bench-ping", false)?;
     let (ports, subscriber, listener) = open(&node, PING, PONG)?;
     let child = std::process::Command::new(std::env::current_exe()?)
+        .process_group(0)
         .args(["bench-pong", "--prefix", prefix])
         .spawn()
         .context("starting scmpc bench-pong")?;
@@ -235,6 +237,7 @@ fn ping_pong(prefix: &str) -> anyhow::Result<Vec<f64>> {
     let mut one_way = Vec::with_capacity(2 * ROUNDS as usize);
     let mut next = monotonic_ns();
     for seq in 1..=ROUNDS + WARM_UP {
+        crate::stop::check(stop)?;
         next += PING_PERIOD_NS;
         sleep_until_ns(next);
         send(&ports, seq, 0)?;
@@ -295,7 +298,7 @@ fn machine() -> String {
 pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<BenchReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let prefix = ipc::new_prefix();
-    let raw = ping_pong(&prefix);
+    let raw = ping_pong(&prefix, stop);
     if let Err(e) = ipc::remove_run_resources(&prefix) {
         tracing::warn!("cleaning up the ping-pong: {e}");
     }
@@ -312,6 +315,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         false,
         stop,
     )?;
+    crate::stop::check(stop)?;
     let lockstep: Summary = multiproc::run(
         &paper,
         &out.join("lockstep"),
@@ -321,6 +325,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         false,
         stop,
     )?;
+    crate::stop::check(stop)?;
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     let processes = realtime
         .processes

@@ -7,6 +7,7 @@ use crate::remote::RemoteHosts;
 use anyhow::Context;
 use protocol::Role;
 use protocol::clock::RunMode;
+use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -159,7 +160,10 @@ impl Children {
             Some((p, args)) if p == "scmpc" => (self.exe.as_os_str(), args),
             Some((p, args)) => (std::ffi::OsStr::new(p), args),
         };
+        // A group of its own: the terminal's signals (Ctrl-C, a closed terminal) reach the
+        // orchestrator alone, which stops the run in order (crate::stop).
         let child = Command::new(program)
+            .process_group(0)
             .args(args)
             .env(ENV_SCENARIO, &self.scenario_file)
             .env(ENV_PREFIX, &self.prefix)

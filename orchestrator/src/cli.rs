@@ -8,8 +8,6 @@ use protocol::clock::RunMode;
 use protocol::runtime::{ProcessArgs, ProcessError};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Exit code of a run that did not reach the goal (collided, stalled, timed out,
 /// interrupted) or failed at run time.
@@ -368,16 +366,6 @@ fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// A stop flag set by Ctrl-C.
-fn stop_flag() -> Arc<AtomicBool> {
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = Arc::clone(&stop);
-    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
-        tracing::warn!("cannot install the Ctrl-C handler: {e}");
-    }
-    stop
-}
-
 fn scenario(name: &str) -> CliResult {
     let text = scenarios::built_in(name).ok_or_else(|| {
         let names: Vec<&str> = scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
@@ -400,7 +388,7 @@ fn sweep(args: SweepArgs) -> CliResult {
     let out =
         (args.out.clone()).unwrap_or_else(|| default_run_dir(&format!("{}-sweep", base.name)));
     let runs = sweep::plan_runs(&base, &axes, args.seeds, &out).map_err(bad_input)?;
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     let threads = args.threads.unwrap_or_else(cores);
     eprintln!(
         "{} runs on {threads} threads into {}",
@@ -420,6 +408,7 @@ fn sweep(args: SweepArgs) -> CliResult {
         print!("{}", sweep::run_table(&axes, &runs, &results));
     }
     println!("sweep directory: {}", out.display());
+    crate::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
     if results.iter().all(Result::is_ok) {
         Ok(())
     } else {
@@ -440,7 +429,7 @@ fn fuzz(args: FuzzArgs) -> CliResult {
         args.seed,
         out.display()
     );
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     let report = crate::fuzz::run(
         args.seed,
         args.count,
@@ -456,6 +445,7 @@ fn fuzz(args: FuzzArgs) -> CliResult {
     })?;
     print!("{}", report.table());
     println!("fuzz directory: {}", out.display());
+    crate::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
     if report.collisions() > 0 {
         Err(CliError::NotReached)
     } else {
@@ -464,7 +454,7 @@ fn fuzz(args: FuzzArgs) -> CliResult {
 }
 
 fn figures(out: &std::path::Path) -> CliResult {
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     let set = crate::figures::paper_set(out, cores(), &stop)?;
     println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
     for s in &set.solve_times {
@@ -497,7 +487,7 @@ fn bench(out: Option<PathBuf>, realtime_s: f64) -> CliResult {
         )));
     }
     let out = out.unwrap_or_else(|| default_run_dir("bench"));
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     let report = crate::bench::run(&out, realtime_s, &stop)?;
     print!("{}", report.table());
     println!("bench directory: {}", out.display());
@@ -508,7 +498,8 @@ fn swap(args: SwapArgs) -> CliResult {
     let request = crate::swap_client::swappable_role(&args.role)
         .and_then(|role| crate::swap_client::build_request(role, &args.command))
         .map_err(bad_input)?;
-    let reply = crate::swap_client::send(&args.run_dir, &request).map_err(|e| {
+    let stop = crate::stop::on_signals();
+    let reply = crate::swap_client::send(&args.run_dir, &request, &stop).map_err(|e| {
         if e.downcast_ref::<crate::swap_client::RequestError>()
             .is_some()
         {
@@ -606,7 +597,7 @@ fn run(args: RunArgs) -> CliResult {
             args.mode.into(),
         )?
     };
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     let summary = if args.in_process {
         inprocess::run(&scenario, &out, !args.no_mcap, &stop)
     } else {
@@ -703,7 +694,7 @@ fn host(args: HostArgs) -> CliResult {
         .allows(&listen)
         .map_err(|e| bad_input(format!("--listen: {e}")))?;
     protocol::clock::clock_shift_from_env().map_err(bad_input)?;
-    let stop = stop_flag();
+    let stop = crate::stop::on_signals();
     crate::agent::serve(&args.name, &listen, &security, &stop)?;
     Ok(())
 }

@@ -15,5 +15,6 @@ pub mod remote;
 pub mod scenarios;
 pub mod schema;
 pub mod solve_times;
+pub mod stop;
 pub mod swap_client;
 pub mod sweep;

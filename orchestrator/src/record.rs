@@ -3,20 +3,29 @@
 //! positions every second; their columns in [`crate::schema`]),
 //! `events.jsonl` and `summary.json` (with the table printed at the end of a run:
 //! [`summary`]).
+//!
+//! Whatever ends the run, the records hold what happened up to [`FLUSH_PERIOD`] before
+//! the end, in whole lines ([`Lines`]), and a run that did not end in a summary says so:
+//! its directory keeps the [`INCOMPLETE`] file written when the run started.
 
 use crate::judge::{Judge, Outcome, clearance_m};
 use crate::schema;
+use lines::FlushClock;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
     ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
 };
 use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+/// The file of a run directory whose run has not written `summary.json`: it is going on,
+/// or it died (its orchestrator's pid, in the file, is gone). Removed with the summary.
+pub const INCOMPLETE: &str = "INCOMPLETE";
+
+mod lines;
 mod mcap;
 mod summary;
+pub use lines::{FLUSH_PERIOD, Lines};
 pub use mcap::McapLog;
 pub use summary::{Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Summary};
 
@@ -24,12 +33,12 @@ pub use summary::{Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport,
 /// It decides nothing: how the run ends is the [`Judge`]'s.
 pub struct Recorder {
     dir: PathBuf,
-    trajectory: BufWriter<File>,
-    plans: BufWriter<File>,
-    predictions: BufWriter<File>,
+    trajectory: Lines,
+    plans: Lines,
+    predictions: Lines,
     /// Simulated time from which the next solved plan goes to `predictions.csv`, s.
     next_prediction_s: f64,
-    events: BufWriter<File>,
+    events: Lines,
     created: std::time::Instant,
     /// For the clearance column: the obstacles and the robot's footprint.
     obstacles: Vec<Obstacle>,
@@ -49,7 +58,7 @@ pub struct Recorder {
     pending_plans: BTreeMap<u64, Plan>,
     commands: ModeCounts,
     /// `route.csv`, opened at the first route.
-    routes: Option<BufWriter<File>>,
+    routes: Option<Lines>,
     /// The newest route plan recorded: the planner's epoch and its plan count.
     last_route_plan: Option<(u32, u32)>,
     route_plans: u64,
@@ -65,17 +74,28 @@ pub struct Recorder {
     commanded_rest_since_s: Option<f64>,
     /// `run.mcap`, when asked for ([`Recorder::record_mcap`]).
     mcap: Option<McapLog>,
+    flush: FlushClock,
 }
 
 impl Recorder {
     /// Creates `dir` (and parents) and the record files.
     pub fn create(dir: &Path, scenario: &Scenario) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
+        std::fs::write(
+            dir.join(INCOMPLETE),
+            format!(
+                "This run has not written summary.json: it is going on, or its orchestrator \
+                 (pid {}) died.\nIts records hold what happened up to {} ms before that, in \
+                 whole lines; run.mcap is read by a reader that scans records in order.\n",
+                std::process::id(),
+                FLUSH_PERIOD.as_millis()
+            ),
+        )?;
         std::fs::write(dir.join("scenario.toml"), scenario.to_toml())?;
         let trajectory = csv_file(&dir.join("trajectory.csv"), &schema::TRAJECTORY_COLUMNS)?;
         let plans = csv_file(&dir.join("plans.csv"), &schema::PLANS_COLUMNS)?;
         let predictions = csv_file(&dir.join("predictions.csv"), &schema::PREDICTION_COLUMNS)?;
-        let events = BufWriter::new(File::create(dir.join("events.jsonl"))?);
+        let events = Lines::create(&dir.join("events.jsonl"))?;
         Ok(Recorder {
             dir: dir.to_path_buf(),
             trajectory,
@@ -107,6 +127,7 @@ impl Recorder {
             last_mode: None,
             commanded_rest_since_s: None,
             mcap: None,
+            flush: FlushClock::new(),
         })
     }
 
@@ -232,7 +253,22 @@ impl Recorder {
             act.wheels[1],
             mode.as_str(),
             act.plan_sample,
-        )
+        )?;
+        if self.flush.due() {
+            self.flush_files()?;
+        }
+        Ok(())
+    }
+
+    /// Hands every CSV file's buffered lines to the file system.
+    fn flush_files(&mut self) -> std::io::Result<()> {
+        self.trajectory.flush()?;
+        self.plans.flush()?;
+        self.predictions.flush()?;
+        if let Some(routes) = &mut self.routes {
+            routes.flush()?;
+        }
+        Ok(())
     }
 
     /// The truth after the last tick: the run's simulated time ends there.
@@ -393,13 +429,14 @@ impl Recorder {
             let status = plan.status().map_or("unknown", |s| s.as_str());
             self.plan_row(sample, Some(&plan), status, None, None, "")?;
         }
-        self.trajectory.flush()?;
-        self.plans.flush()?;
-        self.predictions.flush()?;
-        if let Some(routes) = &mut self.routes {
-            routes.flush()?;
-        }
-        self.event("end", serde_json::json!({ "outcome": outcome.as_str() }))?;
+        self.flush_files()?;
+        let interrupted_by = (outcome == Outcome::Interrupted)
+            .then(crate::stop::received)
+            .flatten();
+        self.event(
+            "end",
+            serde_json::json!({ "outcome": outcome.as_str(), "signal": interrupted_by }),
+        )?;
         self.events.flush()?;
         if let Some(mcap) = self.mcap.take() {
             mcap.finish()?;
@@ -415,6 +452,7 @@ impl Recorder {
                 (self.solve_us.len() as u64).saturating_sub(self.solver_failures),
                 self.route_plans > 0,
             ),
+            interrupted_by,
             min_clearance_m: m.min_clearance_m,
             deviation_time_s: m.deviation_time_s,
             time_to_goal_s: if outcome == Outcome::Reached {
@@ -445,14 +483,16 @@ impl Recorder {
         };
         let json = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;
+        std::fs::remove_file(self.dir.join(INCOMPLETE))?;
         Ok(summary)
     }
 }
 
-/// A new CSV file at `path` with the header line of `columns`.
-fn csv_file(path: &Path, columns: &[&str]) -> std::io::Result<BufWriter<File>> {
-    let mut file = BufWriter::new(File::create(path)?);
+/// A new CSV file at `path` with the header line of `columns`, on disk at once.
+fn csv_file(path: &Path, columns: &[&str]) -> std::io::Result<Lines> {
+    let mut file = Lines::create(path)?;
     writeln!(file, "{}", schema::header(columns))?;
+    file.flush()?;
     Ok(file)
 }
 

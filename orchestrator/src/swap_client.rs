@@ -3,9 +3,10 @@
 
 use crate::multiproc::RunInfo;
 use anyhow::{Context, bail};
-use protocol::ipc::{self, Wake, open_topic};
+use protocol::ipc::{self, open_topic};
 use protocol::{Role, SwapReply, SwapRequest};
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// How long `scmpc swap` waits for the orchestrator's answer.
@@ -53,8 +54,8 @@ pub fn build_request(role: Role, command: &[String]) -> Result<SwapRequest, Requ
     SwapRequest::new(id, role, &command).ok_or(RequestError::Command)
 }
 
-/// Sends `request` to the run in `run_dir` and waits for its answer.
-pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> {
+/// Sends `request` to the run in `run_dir` and waits for its answer, or until `stop` is set.
+pub fn send(run_dir: &Path, request: &SwapRequest, stop: &AtomicBool) -> anyhow::Result<SwapReply> {
     let shown = run_dir.display().to_string();
     let info = RunInfo::read(run_dir)
         .map_err(|e| RequestError::NotRunning(shown.clone(), format!("{e:#}")))?;
@@ -76,7 +77,7 @@ pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> 
         .with_context(|| format!("{shown}: swap_reply_publisher is not a hexadecimal id"))?;
     replies.pin_to(orchestrator);
     let requests = open_topic::<SwapRequest>(&node, ipc::SWAP)?.sender(0)?;
-    let waitset = ipc::waitset(true)?;
+    let waitset = ipc::waitset(false)?;
     let _guard = replies.attach(&waitset)?;
     requests.send(*request)?;
     let deadline = Instant::now() + REPLY_TIMEOUT;
@@ -96,10 +97,12 @@ pub fn send(run_dir: &Path, request: &SwapRequest) -> anyhow::Result<SwapReply> 
         if Instant::now() > deadline {
             bail!("no answer within {REPLY_TIMEOUT:?}");
         }
-        if ipc::wait(&waitset, Duration::from_millis(100)).context("waiting for the answer")?
-            == Wake::Terminate
-        {
-            bail!("interrupted");
+        ipc::wait(&waitset, Duration::from_millis(100)).context("waiting for the answer")?;
+        if stop.load(Ordering::Relaxed) {
+            bail!(
+                "interrupted by {} before the run answered",
+                crate::stop::received().unwrap_or("its caller")
+            );
         }
     }
 }

@@ -1,41 +1,63 @@
 """Reads a run.mcap with the `mcap` package (an independent reader) and prints, as JSON,
 per topic: its schema name and encodings, its message count, and for some topics what the
-messages hold (the estimates' ticks and epochs, the plans' pose counts)."""
+messages hold (the estimates' ticks and epochs, the plans' pose counts).
+
+With `--scan` it reads the records in file order with the package's non-seeking reader,
+as one reads a file cut short (a killed run): every message up to the cut, and
+`"cut": true` under the key `""` when the file ends inside a record or without its
+footer."""
 
 import json
 import sys
 
-from mcap.reader import make_reader
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader, make_reader
+
+
+def messages(f, scan):
+    if not scan:
+        yield from make_reader(f).iter_messages()
+        return
+    yield from NonSeekingReader(f).iter_messages(log_time_order=False)
 
 
 def main():
     topics = {}
+    scan = "--scan" in sys.argv[2:]
     with open(sys.argv[1], "rb") as f:
-        reader = make_reader(f)
-        for schema, channel, message in reader.iter_messages():
-            t = topics.setdefault(
-                channel.topic,
-                {
-                    "schema": schema.name,
-                    "schema_encoding": schema.encoding,
-                    "message_encoding": channel.message_encoding,
-                    "schema_is_json": bool(json.loads(schema.data)),
-                    "count": 0,
-                    "log_time_ns": [],
-                },
-            )
-            t["count"] += 1
-            body = json.loads(message.data)
-            if channel.topic == "/estimator/estimate":
-                t.setdefault("ticks", []).append(body["tick"])
-                t.setdefault("epochs", []).append(body["epoch"])
-            elif channel.topic == "/mpc/plan":
-                t.setdefault("poses", []).append(len(body["poses"]))
-            elif channel.topic == "/world/obstacles":
-                t["entities"] = {e["id"]: len(e["cylinders"]) + len(e["spheres"]) for e in body["entities"]}
-            if channel.topic in ("/robot/truth", "/dfl/deadline"):
-                t["log_time_ns"].append(message.log_time)
+        try:
+            for schema, channel, message in messages(f, scan):
+                add(topics, schema, channel, message)
+        except EndOfFile:
+            if not scan:
+                raise
+            topics[""] = {"cut": True}
     json.dump(topics, sys.stdout)
+
+
+def add(topics, schema, channel, message):
+    t = topics.setdefault(
+        channel.topic,
+        {
+            "schema": schema.name,
+            "schema_encoding": schema.encoding,
+            "message_encoding": channel.message_encoding,
+            "schema_is_json": bool(json.loads(schema.data)),
+            "count": 0,
+            "log_time_ns": [],
+        },
+    )
+    t["count"] += 1
+    body = json.loads(message.data)
+    if channel.topic == "/estimator/estimate":
+        t.setdefault("ticks", []).append(body["tick"])
+        t.setdefault("epochs", []).append(body["epoch"])
+    elif channel.topic == "/mpc/plan":
+        t.setdefault("poses", []).append(len(body["poses"]))
+    elif channel.topic == "/world/obstacles":
+        t["entities"] = {e["id"]: len(e["cylinders"]) + len(e["spheres"]) for e in body["entities"]}
+    if channel.topic in ("/robot/truth", "/dfl/deadline"):
+        t["log_time_ns"].append(message.log_time)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ use protocol::ipc;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -49,7 +50,7 @@ pub struct CrossHost {
 
 /// Measures both on loopback; the cross-host run (`scenario`, in real time) goes to `out`.
 pub fn measure(out: &Path, scenario: &Validated, stop: &AtomicBool) -> anyhow::Result<CrossHost> {
-    let raw = Percentiles::of(&zenoh_ping_pong()?);
+    let raw = Percentiles::of(&zenoh_ping_pong(stop)?);
     let endpoint = free_loopback_endpoint()?;
     let _agent = start_agent(&endpoint)?;
     let remote = scenario.with_overrides(&[format!("hosts.mpc={HOST}")], "the bench")?;
@@ -66,6 +67,7 @@ pub fn measure(out: &Path, scenario: &Validated, stop: &AtomicBool) -> anyhow::R
         false,
         stop,
     )?;
+    crate::stop::check(stop)?;
     let processes = summary
         .processes
         .as_ref()
@@ -99,6 +101,7 @@ fn free_loopback_endpoint() -> anyhow::Result<Endpoint> {
 /// cleanly) and reaped when dropped.
 fn start_agent(endpoint: &Endpoint) -> anyhow::Result<Agent> {
     let mut child = std::process::Command::new(std::env::current_exe()?)
+        .process_group(0)
         .args(["host", "--name", HOST, "--listen", &endpoint.zenoh()])
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
@@ -198,7 +201,7 @@ pub fn zenoh_pong(endpoint: &Endpoint) -> anyhow::Result<()> {
 }
 
 /// Publish-to-receipt latencies of the raw Zenoh ping-pong, both directions, µs.
-fn zenoh_ping_pong() -> anyhow::Result<Vec<f64>> {
+fn zenoh_ping_pong(stop: &AtomicBool) -> anyhow::Result<Vec<f64>> {
     let endpoint = free_loopback_endpoint()?;
     let session = session(std::slice::from_ref(&endpoint), &[])?;
     let pings = publisher(&session, PING_KEY)?;
@@ -207,6 +210,7 @@ fn zenoh_ping_pong() -> anyhow::Result<Vec<f64>> {
         .wait()
         .map_err(|e| anyhow!("zenoh subscriber: {e}"))?;
     let child = std::process::Command::new(std::env::current_exe()?)
+        .process_group(0)
         .args(["bench-pong", "--zenoh", &endpoint.zenoh()])
         .stdout(std::process::Stdio::null())
         .spawn()
@@ -233,6 +237,7 @@ fn zenoh_ping_pong() -> anyhow::Result<Vec<f64>> {
     let mut one_way = Vec::with_capacity(2 * ROUNDS as usize);
     let mut next = monotonic_ns();
     for seq in 1..=ROUNDS + WARM_UP {
+        crate::stop::check(stop)?;
         next += PING_PERIOD_NS;
         sleep_until_ns(next);
         ping(seq)?;

@@ -32,6 +32,7 @@ pub fn paper_set(
     let (base, noisy) = (paper_scenario("paper")?, paper_scenario("paper-noisy")?);
     let specs = study_runs(&base, &noisy, out)?;
     let results = crate::sweep::run_all(&specs, threads, true, false, stop);
+    crate::stop::check(stop)?;
     let mut runs = StudyRuns::default();
     for (s, r) in specs.iter().zip(results) {
         r.with_context(|| format!("run {}", s.values[0]))?;
@@ -42,6 +43,7 @@ pub fn paper_set(
     figures.extend(time_figures(&runs, base.robot.goal)?);
     let mut solve_times = Vec::new();
     for n in HORIZONS {
+        crate::stop::check(stop)?;
         let dir = out.join("runs").join(format!("solve-time-n-{n}"));
         solve_times.push(crate::solve_times::compare_solve_times(&base, n, &dir)?);
     }

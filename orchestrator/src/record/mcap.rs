@@ -20,6 +20,7 @@ use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
+use std::sync::mpsc::RecvTimeoutError;
 
 /// A channel of `run.mcap`: topic, schema name, JSON Schema.
 type Channel = (&'static str, &'static str, fn() -> Value);
@@ -85,16 +86,17 @@ impl McapLog {
         let thread = std::thread::Builder::new()
             .name("run.mcap".into())
             .spawn(move || {
-                for record in received {
-                    match record {
-                        Record::Tick(tick) => file.tick(&tick.0, &tick.1, &tick.2)?,
-                        Record::Plan(plan) => file.plan(&plan)?,
-                        Record::Route(route) => file.route(&route)?,
-                        Record::Verdict(v) => file.verdict(&v)?,
-                        Record::Event(t, event, line) => file.event(t, &event, &line)?,
+                let mut flush = super::FlushClock::new();
+                loop {
+                    match received.recv_timeout(super::FLUSH_PERIOD) {
+                        Ok(record) => file.record(record)?,
+                        Err(RecvTimeoutError::Timeout) => {}
+                        Err(RecvTimeoutError::Disconnected) => return file.finish(),
+                    }
+                    if flush.due() {
+                        file.flush()?;
                     }
                 }
-                file.finish()
             })?;
         Ok(McapLog { records, thread })
     }
@@ -151,7 +153,11 @@ impl McapFile {
     /// Creates `path` with every channel, and logs the world at time 0.
     fn create(path: &Path, scenario: &Scenario) -> std::io::Result<McapFile> {
         let file = BufWriter::new(File::create(path)?);
+        // Chunks are kept in memory until whole (no seeking back to patch a chunk's
+        // length), so a chunk on disk is a whole record: a run killed mid-chunk leaves a
+        // file whose records read in order up to the last flush.
         let mut writer = mcap::WriteOptions::new()
+            .disable_seeking(true)
             .profile("")
             .library(concat!("scmpc ", env!("CARGO_PKG_VERSION")))
             .create(file)
@@ -175,6 +181,22 @@ impl McapFile {
         };
         log.write("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
+    }
+
+    fn record(&mut self, record: Record) -> std::io::Result<()> {
+        match record {
+            Record::Tick(tick) => self.tick(&tick.0, &tick.1, &tick.2),
+            Record::Plan(plan) => self.plan(&plan),
+            Record::Route(route) => self.route(&route),
+            Record::Verdict(v) => self.verdict(&v),
+            Record::Event(t, event, line) => self.event(t, &event, &line),
+        }
+    }
+
+    /// Closes the chunk being written and hands it to the file system: a reader that scans
+    /// records in order reads everything up to here, whatever happens to the run after.
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.writer.flush().map_err(io)
     }
 
     fn write(&mut self, topic: &str, time_s: f64, message: &impl Serialize) -> std::io::Result<()> {

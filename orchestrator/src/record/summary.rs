@@ -49,6 +49,9 @@ pub struct Summary {
     pub outcome: Outcome,
     /// Why a run that stalled or timed out did not arrive (`null` otherwise).
     pub stall_reason: Option<StallReason>,
+    /// The signal that stopped an `interrupted` run (`SIGINT`, `SIGTERM`, `SIGHUP`;
+    /// `null` otherwise, or when the run was stopped by its caller).
+    pub interrupted_by: Option<&'static str>,
     /// Smallest distance from the robot's centre to an obstacle surface, m.
     pub min_clearance_m: f64,
     /// First time after which the robot stayed within the goal tolerance, s.
@@ -190,9 +193,12 @@ impl Summary {
             ),
             (
                 "outcome",
-                match self.stall_reason {
-                    Some(reason) => format!("{} ({})", self.outcome.as_str(), reason.as_str()),
-                    None => self.outcome.as_str().to_string(),
+                match (self.stall_reason, self.interrupted_by) {
+                    (Some(reason), _) => {
+                        format!("{} ({})", self.outcome.as_str(), reason.as_str())
+                    }
+                    (None, Some(signal)) => format!("{} ({signal})", self.outcome.as_str()),
+                    (None, None) => self.outcome.as_str().to_string(),
                 },
             ),
             ("min clearance", format!("{:.3} m", self.min_clearance_m)),
