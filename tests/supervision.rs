@@ -444,6 +444,85 @@ fn when_the_orchestrator_is_killed_in_lockstep_every_process_exits() {
     orchestrator_killed("lockstep", Duration::from_millis(500));
 }
 
+/// `scmpc ARGS` signalled with `signal` once its work has begun (it has made its `--out`
+/// directory or written to stderr): it must exit with `code`, say why on stderr
+/// (`interrupted by NAME`) unless it ends normally on the signal, and leave no process it
+/// started and no shared-memory file of its own behind.
+fn command_stopped_by(args: &[&str], signal: i32, name: &str, code: i32) {
+    use std::io::Read;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let mut command = scmpc();
+    command.args(args);
+    if args[0] != "host" {
+        command.arg("--out").arg(&out);
+    }
+    let mut child = command
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id();
+    let said = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let reader = {
+        let (said, mut stderr) = (said.clone(), child.stderr.take().unwrap());
+        std::thread::spawn(move || {
+            let mut byte = [0u8; 1];
+            while let Ok(1) = stderr.read(&mut byte) {
+                said.lock().unwrap().push(byte[0] as char);
+            }
+        })
+    };
+    let begun = || out.exists() || said.lock().unwrap().contains('\n');
+    assert!(
+        wait_for(Duration::from_secs(20), begun),
+        "{args:?} never began"
+    );
+    let children = common::children_of(pid);
+    // SAFETY: signalling the command this test started.
+    unsafe { libc::kill(pid as i32, signal) };
+    let status = child.wait().unwrap();
+    reader.join().unwrap();
+    let stderr = said.lock().unwrap().clone();
+    assert_eq!(status.code(), Some(code), "{args:?} {name}: {stderr}");
+    if code != 0 {
+        assert!(
+            stderr.contains(&format!("interrupted by {name}")),
+            "{args:?}: {stderr}"
+        );
+    }
+    let left: Vec<u32> = children
+        .into_iter()
+        .filter(|c| protocol::ipc::process_alive(*c))
+        .collect();
+    assert!(left.is_empty(), "{args:?} {name}: processes left {left:?}");
+    let own = format!("scmpc{pid}x");
+    let files: Vec<_> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(&own))
+        .collect();
+    assert!(files.is_empty(), "{args:?} {name}: {files:?}");
+}
+
+#[test]
+fn sweep_fuzz_figures_bench_and_host_stop_cleanly_on_sigterm_and_sighup() {
+    let _machine = common::machine_alone();
+    for (signal, name) in [(libc::SIGTERM, "SIGTERM"), (libc::SIGHUP, "SIGHUP")] {
+        command_stopped_by(&["fuzz", "--count", "2000"], signal, name, 1);
+        command_stopped_by(&["sweep", "--seeds", "500"], signal, name, 1);
+        command_stopped_by(&["figures"], signal, name, 1);
+        command_stopped_by(&["bench"], signal, name, 1);
+        let listen = "tcp/127.0.0.1:0";
+        command_stopped_by(
+            &["host", "--name", "h", "--listen", listen],
+            signal,
+            name,
+            0,
+        );
+    }
+}
+
 #[test]
 fn sigterm_and_sighup_end_a_real_time_run_as_ctrl_c_does_and_the_summary_names_the_signal() {
     let _machine = common::machine_alone();

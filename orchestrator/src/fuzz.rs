@@ -239,7 +239,7 @@ pub fn run(
     progress: bool,
     stop: &AtomicBool,
 ) -> anyhow::Result<Report> {
-    let worlds = (0..count)
+    let mut worlds = (0..count)
         .map(|i| world(seed, i, overrides))
         .collect::<Result<Vec<_>, _>>()?;
     let runs: Vec<RunSpec> = worlds
@@ -252,6 +252,7 @@ pub fn run(
         })
         .collect();
     let results = sweep::run_all(&runs, threads, progress, false, stop);
+    worlds.truncate(results.len()); // interrupted: the worlds that ran
     let report = Report { worlds, results };
     let _ = std::fs::remove_dir_all(out.join("runs"));
     write_csv(&report, out).with_context(|| format!("writing {}", out.display()))?;

@@ -110,6 +110,8 @@ pub fn plan_runs(
 
 /// Runs every spec in process on `threads` threads; results in spec order. Shows a
 /// progress bar on stderr when `progress`; writes each run's `run.mcap` when `mcap`.
+/// Once `stop` is set no run starts (those going on end `interrupted`): the results are
+/// then those of the first specs only, as many as had started.
 pub fn run_all(
     runs: &[RunSpec],
     threads: usize,
@@ -132,7 +134,7 @@ pub fn run_all(
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1) {
             scope.spawn(|| {
-                loop {
+                while !stop.load(Ordering::Relaxed) {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(spec) = runs.get(i) else { break };
                     let result = inprocess::run(&spec.scenario, &spec.dir, mcap, stop);
@@ -145,11 +147,13 @@ pub fn run_all(
         }
     });
     bar.finish_and_clear();
+    // Indices are taken in order and every one taken is run: the runs not started are the
+    // last ones.
     results
         .into_inner()
         .unwrap_or_default()
         .into_iter()
-        .map(|r| r.unwrap_or_else(|| Err(anyhow::anyhow!("not run"))))
+        .map_while(|r| r)
         .collect()
 }
 

@@ -117,6 +117,22 @@ pub fn wait_for_pid(dir: &Path, role: &str) -> u32 {
     pid.unwrap() as u32
 }
 
+/// The processes whose parent is `pid` now.
+pub fn children_of(pid: u32) -> Vec<u32> {
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    entries
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|child| {
+            let stat = std::fs::read_to_string(format!("/proc/{child}/stat")).unwrap_or_default();
+            // `pid (comm) state ppid ...`: the fields after the last `)`.
+            let after = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
+            after.split_whitespace().nth(1) == Some(pid.to_string().as_str())
+        })
+        .collect()
+}
+
 pub fn sigkill(pid: u32) {
     // SAFETY: sending a signal to a process this test started.
     unsafe { libc::kill(pid as i32, libc::SIGKILL) };
