@@ -242,3 +242,260 @@ fn bad_planner_settings_are_refused() {
         "planner.kind",
     );
 }
+
+/// The processes started for the run with iceoryx2 prefix `prefix` (their environment
+/// names it).
+fn processes_of_run(prefix: &str) -> Vec<u32> {
+    let wanted = format!("SCMPC_PREFIX={prefix}");
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| {
+            std::fs::read(format!("/proc/{pid}/environ"))
+                .is_ok_and(|env| env.split(|b| *b == 0).any(|v| v == wanted.as_bytes()))
+        })
+        .collect()
+}
+
+/// `command` must be refused: exit 2, the message naming `names`, no run directory at
+/// `out`, no process of the run `prefix` left and no shared-memory file of it. Returns what
+/// is wrong, if anything.
+fn refusal_problem(
+    mut command: std::process::Command,
+    out: &std::path::Path,
+    prefix: &str,
+    names: &str,
+) -> Option<String> {
+    let output = command.output().expect("cannot start scmpc");
+    let msg = stderr(&output);
+    let problem = if output.status.code() != Some(2) {
+        format!("exit {:?}", output.status.code())
+    } else if !msg.contains(names) {
+        "the message does not name it".to_string()
+    } else if out.exists() {
+        "a run directory was made".to_string()
+    } else if !common::leftovers(prefix).is_empty() {
+        format!("files left: {:?}", common::leftovers(prefix))
+    } else if !processes_of_run(prefix).is_empty() {
+        format!("processes left: {:?}", processes_of_run(prefix))
+    } else {
+        return None;
+    };
+    Some(format!("{problem}: {}", msg.trim_end()))
+}
+
+/// Every key the validator checks, and every guard of the command line, with a bad value:
+/// refused before anything starts (multi-process runs, so a half-started run would show).
+#[test]
+fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_nothing() {
+    // (--set values, the key the message must name)
+    let sets: &[(&[&str], &str)] = &[
+        (&["duration_s=0"], "duration_s"),
+        (&["seed=-1"], "seed"),
+        (&["timing.ts_s=-0.05"], "timing.ts_s"),
+        (&["timing.inner_steps=0"], "timing.inner_steps"),
+        (&["robot.start=[nan, 7.0, 0.0]"], "robot.start"),
+        (&["robot.zeta0=inf"], "robot.zeta0"),
+        (&["robot.goal=[inf, 0.0]"], "robot.goal"),
+        (&["robot.goal_tolerance_m=0"], "robot.goal_tolerance_m"),
+        (&["robot.radius_m=-0.1"], "robot.radius_m"),
+        (&["plant.wheel_radius_m=0"], "plant.wheel_radius_m"),
+        (&["plant.wheel_base_m=-0.5"], "plant.wheel_base_m"),
+        (
+            &["plant.max_wheel_speed_rad_s=-1"],
+            "plant.max_wheel_speed_rad_s",
+        ),
+        (
+            &["plant.noise_variance=[0.0, -1.0, 0.0]"],
+            "plant.noise_variance",
+        ),
+        (&["plant.disturbance_std=-0.01"], "plant.disturbance_std"),
+        (&["plant.rk4_substeps=0"], "plant.rk4_substeps"),
+        (&["estimator.kind=kalman"], "estimator.kind"),
+        (
+            &["estimator.process_noise=[0.0, -1.0, 0.0]"],
+            "estimator.process_noise",
+        ),
+        (
+            &["estimator.initial_variance=[-1.0, 0.0, 0.0]"],
+            "estimator.initial_variance",
+        ),
+        (&["mpc.formulation=quadratic"], "mpc.formulation"),
+        (&["mpc.qp_form=dense"], "mpc.qp_form"),
+        (&["mpc.horizon=0"], "mpc.horizon"),
+        (&["mpc.constraint_horizon=100000"], "mpc.constraint_horizon"),
+        (&["mpc.gamma=0"], "mpc.gamma"),
+        (&["mpc.constraint=circle"], "mpc.constraint"),
+        (&["mpc.q_diag=[1.0, -1.0, 1.0, 1.0]"], "mpc.q_diag"),
+        (&["mpc.r_diag=[100.0, 0.0]"], "mpc.r_diag.1"),
+        (&["mpc.v_max=0"], "mpc.v_max"),
+        (&["mpc.position_min=[10.0, -10.0]"], "mpc.position_min"),
+        (&["mpc.position_max=[nan, 10.0]"], "mpc.position_max"),
+        (&["mpc.safety_margin_m=-0.1"], "mpc.safety_margin_m"),
+        (&["mpc.uncertainty_sigmas=-1"], "mpc.uncertainty_sigmas"),
+        (&["mpc.max_solves=0"], "mpc.max_solves"),
+        (&["mpc.refinement_tol_m=0"], "mpc.refinement_tol_m"),
+        (&["mpc.terminal_safety=wall"], "mpc.terminal_safety"),
+        (&["mpc.formulation=nonlinear"], "mpc.terminal_safety"),
+        (&["dfl.zeta_threshold=-0.01"], "dfl.zeta_threshold"),
+        (&["dfl.brake_decel=0"], "dfl.brake_decel"),
+        (&["dfl.brake_decel=-1"], "dfl.brake_decel"),
+        (&["dfl.gatekeeper=maybe"], "dfl.gatekeeper"),
+        (&["planner.kind=astar"], "planner.kind"),
+        (&["planner.period_s=-1"], "planner.period_s"),
+        (&["planner.clearance_m=-0.1"], "planner.clearance_m"),
+        (&["planner.speed_m_s=0"], "planner.speed_m_s"),
+        (&["planner.stray_m=0"], "planner.stray_m"),
+        (&["obstacles.0.x=nan"], "obstacles.0.x"),
+        (&["obstacles.0.y=inf"], "obstacles.0.y"),
+        (&["obstacles.0.radius=-1"], "obstacles.0.radius"),
+        (&["fault.mpc_delay_ms=-5"], "fault.mpc_delay_ms"),
+        (&["fault.estimator_delay_ms=-5"], "fault.estimator_delay_ms"),
+        (
+            &["fault.estimator_nan_from_s=-1"],
+            "fault.estimator_nan_from_s",
+        ),
+        (
+            &["fault.mpc_delay_samples=\"ten\""],
+            "fault.mpc_delay_samples",
+        ),
+        (
+            &["fault.mpc_fail_samples=\"5..\""],
+            "fault.mpc_fail_samples",
+        ),
+        (&["fault.link_delay_ms=-1"], "fault.link_delay_ms"),
+        (&["fault.link_delay_ms=5"], "fault.link_delay_ms"),
+        (&["fault.link_loss=1"], "fault.link_loss"),
+        (&["fault.link_down_s=[5.0, 1.0]"], "fault.link_down_s"),
+        (&["hosts.mpc=\"box 1\""], "hosts.mpc"),
+        (&["hosts.endpoints.box=nowhere"], "hosts.endpoints.box"),
+        (&["hosts.planner=box"], "hosts.planner"),
+        (&["supervision.restart=sometimes"], "supervision.restart"),
+        (&["supervision.max_restarts=-1"], "supervision.max_restarts"),
+        (&["supervision.failover=remote"], "supervision.failover"),
+    ];
+    // (a scenario file, the key)
+    let files: &[(&str, &str)] = &[
+        (
+            "[[swap]]\ntime_s = 40.0\nrole = \"estimator\"\ncommand = []\n",
+            "swap.0.time_s",
+        ),
+        (
+            "[[swap]]\ntime_s = 5.0\nrole = \"plant\"\ncommand = []\n",
+            "swap.0.role",
+        ),
+        (
+            "[[swap]]\ntime_s = 5.0\nrole = \"estimator\"\ncommand = [\" \"]\n",
+            "swap.0.command",
+        ),
+    ];
+    // (the command line, what the message must name)
+    let guards: &[(&[&str], &str)] = &[
+        (
+            &["run", "--in-process", "--mode", "realtime"],
+            "--in-process",
+        ),
+        (&["run", "--prefix", "a/b"], "--prefix"),
+        (&["run", "--host", "mpc"], "--host mpc"),
+        (&["scenario", "nowhere"], "no built-in scenario `nowhere`"),
+        (&["bench", "--realtime-s", "0"], "--realtime-s"),
+        (&["bench", "--realtime-s=-1"], "--realtime-s"),
+        (&["fuzz", "--mcap"], "--mcap"),
+        (&["sweep", "--grid", "mpc.gama=0.1,0.2"], "mpc.gama"),
+        (
+            &[
+                "host",
+                "--name",
+                "orchestrator",
+                "--listen",
+                "tcp/127.0.0.1:0",
+            ],
+            "--name",
+        ),
+        (
+            &["host", "--name", "h", "--listen", "udp/127.0.0.1:0"],
+            "--listen",
+        ),
+        (&["swap", "--run", ".", "plant"], "plant"),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let mut problems = Vec::new();
+    let mut case = 0;
+    let mut next_case = || {
+        case += 1;
+        (
+            dir.path().join(format!("run-{case}")),
+            common::unique_prefix("bad"),
+        )
+    };
+    for (values, key) in sets {
+        let (out, prefix) = next_case();
+        let mut command = common::scmpc();
+        command
+            .args(["run", "--prefix", &prefix, "--out"])
+            .arg(&out);
+        for value in *values {
+            command.args(["--set", value]);
+        }
+        if let Some(p) = refusal_problem(command, &out, &prefix, key) {
+            problems.push(format!("--set {values:?}: {p}"));
+        }
+    }
+    for (toml, key) in files {
+        let (out, prefix) = next_case();
+        let file = out.with_extension("toml");
+        std::fs::write(&file, toml).unwrap();
+        let mut command = common::scmpc();
+        command
+            .args(["run", "--prefix", &prefix, "--out"])
+            .arg(&out)
+            .arg(&file);
+        if let Some(p) = refusal_problem(command, &out, &prefix, key) {
+            problems.push(format!("file {toml:?}: {p}"));
+        }
+    }
+    for (args, names) in guards {
+        let (out, prefix) = next_case();
+        let mut command = common::scmpc();
+        command.args(*args);
+        if let Some(p) = refusal_problem(command, &out, &prefix, names) {
+            problems.push(format!("{args:?}: {p}"));
+        }
+    }
+    // The role processes' own guards (the orchestrator starts them with its environment).
+    let scenario = dir.path().join("scenario.toml");
+    std::fs::write(&scenario, "").unwrap();
+    let role_guards: &[(&str, &[&str], &[(&str, &str)], &str)] = &[
+        ("mpc", &[], &[("SCMPC_ROLE", "estimator")], "SCMPC_ROLE"),
+        ("mpc", &["--set", "timing.ts_s=0.1"], &[], "timing.*"),
+        (
+            "dfl",
+            &["--control-publisher", "xyz"],
+            &[],
+            "--control-publisher",
+        ),
+        (
+            "plant",
+            &["--set", "plant.rk4_substeps=0"],
+            &[],
+            "plant.rk4_substeps",
+        ),
+    ];
+    for (role, args, env, names) in role_guards {
+        let (out, prefix) = next_case();
+        let mut command = common::scmpc();
+        command
+            .args([role, "--prefix", &prefix, "--scenario"])
+            .arg(&scenario)
+            .args(*args)
+            .envs(env.iter().copied());
+        if let Some(p) = refusal_problem(command, &out, &prefix, names) {
+            problems.push(format!("{role} {args:?} {env:?}: {p}"));
+        }
+    }
+    assert!(
+        problems.is_empty(),
+        "not refused as they should be:\n{}",
+        problems.join("\n")
+    );
+}
