@@ -271,15 +271,19 @@ mod tests {
     #[test]
     fn the_reported_position_covariance_matches_the_actual_error() {
         // sigma drives the kappa-sigma margin of the barrier: an optimistic covariance
-        // would shrink it below the true error.
+        // would shrink it below the true error. Pooled over eight noise seeds (each alone
+        // measured 0.65-0.92 over twenty seeds), the error must not exceed sigma, nor be
+        // so far below it that the margin is mostly waste.
         let (mut squared_error, mut reported) = (0.0, 0.0);
-        noisy_circle(11, 6000, |_, e, truth| {
-            squared_error += (e.state[0] - truth[0]).powi(2) + (e.state[1] - truth[1]).powi(2);
-            reported += e.covariance[0] + e.covariance[4];
-        });
+        for seed in 0..8 {
+            noisy_circle(seed, 6000, |_, e, truth| {
+                squared_error += (e.state[0] - truth[0]).powi(2) + (e.state[1] - truth[1]).powi(2);
+                reported += e.covariance[0] + e.covariance[4];
+            });
+        }
         let ratio = (squared_error / reported).sqrt();
         assert!(
-            (0.5..=1.2).contains(&ratio),
+            (0.6..=1.0).contains(&ratio),
             "actual position error is {ratio:.2} times the reported sigma"
         );
     }
