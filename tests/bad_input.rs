@@ -465,7 +465,9 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
     // The role processes' own guards (the orchestrator starts them with its environment).
     let scenario = dir.path().join("scenario.toml");
     std::fs::write(&scenario, "").unwrap();
-    let role_guards: &[(&str, &[&str], &[(&str, &str)], &str)] = &[
+    /// (role, arguments, environment, what the message must name)
+    type RoleGuard<'a> = (&'a str, &'a [&'a str], &'a [(&'a str, &'a str)], &'a str);
+    let role_guards: &[RoleGuard] = &[
         ("mpc", &[], &[("SCMPC_ROLE", "estimator")], "SCMPC_ROLE"),
         ("mpc", &["--set", "timing.ts_s=0.1"], &[], "timing.*"),
         (
