@@ -451,10 +451,11 @@ fn run_losing_the_host(failover: &str) -> (tempfile::TempDir, serde_json::Value,
     let mut agent = Agent::plain("compute");
     let dir = tempfile::tempdir().unwrap();
     let policy = format!("supervision.failover={failover}");
-    let mut child =
-        agent.spawn_realtime_run(dir.path(), &[&["--set", &policy][..], &SHORT].concat());
+    let prefix = common::unique_prefix("lost");
+    let set = ["--set", &policy, "--prefix", &prefix];
+    let mut child = agent.spawn_realtime_run(dir.path(), &[&set[..], &SHORT].concat());
     let mpc = common::wait_for_pid(dir.path(), "mpc");
-    std::thread::sleep(Duration::from_secs(2));
+    common::SimulatedClock::of(&prefix).wait_until(2.0);
     agent.child.kill().unwrap();
     agent.child.wait().unwrap();
     child.wait().unwrap();
@@ -523,9 +524,11 @@ fn when_the_orchestrator_is_killed_the_remote_roles_stop_and_the_agent_serves_th
     let _machine = common::machine_alone();
     let agent = Agent::plain("compute");
     let dir = tempfile::tempdir().unwrap();
-    let mut child = agent.spawn_realtime_run(dir.path(), &["--set", "duration_s=60"]);
+    let prefix = common::unique_prefix("orphan");
+    let args = ["--set", "duration_s=60", "--prefix", &prefix];
+    let mut child = agent.spawn_realtime_run(dir.path(), &args);
     let mpc = common::wait_for_pid(dir.path(), "mpc");
-    std::thread::sleep(Duration::from_secs(1));
+    common::SimulatedClock::of(&prefix).wait_until(1.0);
     common::sigkill(child.id());
     child.wait().unwrap();
     assert!(

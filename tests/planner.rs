@@ -124,12 +124,7 @@ fn a_goal_walled_in_ends_the_run_at_once_with_no_route() {
 fn in_real_time_the_field_is_reached_with_no_deadline_miss_through_a_planner_killed_mid_run() {
     let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
-    common::kill_role_during_run(
-        dir.path(),
-        &["field", "--mode", "realtime"],
-        "planner",
-        std::time::Duration::from_secs(5),
-    );
+    common::kill_role_during_run(dir.path(), &["field", "--mode", "realtime"], "planner", 5.0);
     let s = summary(dir.path());
     let ev = events(dir.path());
     assert!(has_event(&ev, "restarted", "planner"), "{ev:#?}");

@@ -16,12 +16,7 @@ use std::time::Duration;
 fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal() {
     let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
-    kill_role_during_run(
-        dir.path(),
-        &["--mode", "realtime"],
-        "mpc",
-        Duration::from_secs(5),
-    );
+    kill_role_during_run(dir.path(), &["--mode", "realtime"], "mpc", 5.0);
     let s = summary(dir.path());
     let ev = events(dir.path());
     assert!(
@@ -65,12 +60,20 @@ fn realtime_mpc_killed_at_5_s_is_restarted_and_the_robot_still_reaches_the_goal(
 fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
     let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
+    let prefix = common::unique_prefix("plant");
     let mut child = spawn_run(
         dir.path(),
-        &["--mode", "realtime", "--set", "duration_s=10"],
+        &[
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=10",
+            "--prefix",
+            &prefix,
+        ],
     );
     let plant = wait_for_pid(dir.path(), "plant");
-    std::thread::sleep(Duration::from_millis(500));
+    common::SimulatedClock::of(&prefix).wait_until(0.5);
     sigkill(plant);
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(1));
@@ -157,7 +160,7 @@ fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
         dir.path(),
         &["--mode", "realtime", "--set", "duration_s=6"],
         "estimator",
-        Duration::from_secs(3),
+        3.0,
     );
     let ev = events(dir.path());
     assert!(
@@ -202,7 +205,6 @@ fn while_the_estimator_is_down_the_dfl_brakes_on_its_own_clock() {
 
 #[test]
 fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stopped() {
-    use protocol::ipc::{TRUTH, create_node, open_topic};
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let prefix = common::unique_prefix("restart");
@@ -213,28 +215,12 @@ fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stop
         .into_iter()
         .map(|role| (role, wait_for_pid(dir.path(), role)))
         .collect();
-    let node = create_node(&prefix, "tap", false).unwrap();
-    let tap = open_topic::<protocol::GroundTruth>(&node, TRUTH)
-        .unwrap()
-        .receiver()
-        .unwrap();
-    let mut now_s = 0.0;
+    let mut clock = common::SimulatedClock::of(&prefix);
     // Each role is killed at a simulated time of its own, once the one before is back.
     for ((role, pid), at_s) in pids.into_iter().zip([5.0, 10.0, 15.0]) {
+        clock.wait_until(at_s);
         assert!(
-            wait_for(Duration::from_secs(20), || {
-                while let Ok(Some((truth, _))) = tap.receive() {
-                    now_s = truth.header.time_s;
-                }
-                now_s >= at_s
-            }),
-            "the run never reached {at_s} s"
-        );
-        // Still the run's process of that role, not a pid reused since.
-        let environ = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
-        let has = |var: String| environ.split(|b| *b == 0).any(|v| v == var.as_bytes());
-        assert!(
-            has(format!("SCMPC_ROLE={role}")) && has(format!("SCMPC_PREFIX={prefix}")),
+            common::is_role_process(pid, role, &prefix),
             "pid {pid} is no longer the {role}"
         );
         sigkill(pid);
@@ -246,7 +232,7 @@ fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stop
             events(dir.path())
         );
     }
-    drop((tap, node));
+    drop(clock);
     assert_eq!(child.wait().unwrap().code(), Some(0));
     let s = summary(dir.path());
     assert_eq!(s["restarts"], 3);
@@ -644,7 +630,7 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
         dir.path(),
         &["--mode", "realtime", "--set", "duration_s=10"],
         "dfl",
-        Duration::from_secs(3),
+        3.0,
     );
     let s = summary(dir.path());
     let ev = events(dir.path());

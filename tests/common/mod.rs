@@ -149,12 +149,63 @@ pub fn spawn_run(dir: &Path, args: &[&str]) -> std::process::Child {
         .expect("cannot start scmpc")
 }
 
-/// Runs `scmpc run ARGS` into `dir`, SIGKILLs the `role` process `after` the run is
-/// ready, and waits for the run to end.
-pub fn kill_role_during_run(dir: &Path, args: &[&str], role: &str, after: std::time::Duration) {
-    let mut child = spawn_run(dir, args);
+/// The simulated time of a run as its plant publishes it: a subscriber on the `truth`
+/// service of the run with iceoryx2 prefix `prefix`.
+pub struct SimulatedClock {
+    truth: protocol::ipc::Receiver<protocol::GroundTruth>,
+    _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
+    now_s: f64,
+}
+
+impl SimulatedClock {
+    pub fn of(prefix: &str) -> SimulatedClock {
+        use protocol::ipc::{TRUTH, create_node, open_topic};
+        let node = create_node(prefix, "test-clock", false).expect("a node of the run");
+        let truth = open_topic::<protocol::GroundTruth>(&node, TRUTH)
+            .and_then(|t| t.receiver())
+            .expect("the run's truth");
+        SimulatedClock {
+            truth,
+            _node: node,
+            now_s: 0.0,
+        }
+    }
+
+    /// Waits until the run has simulated `t_s` (at most 30 s of wall time).
+    pub fn wait_until(&mut self, t_s: f64) {
+        let reached = wait_for(std::time::Duration::from_secs(30), || {
+            while let Ok(Some((truth, _))) = self.truth.receive() {
+                self.now_s = truth.header.time_s;
+            }
+            self.now_s >= t_s
+        });
+        assert!(
+            reached,
+            "the run never reached t = {t_s} s (at {} s)",
+            self.now_s
+        );
+    }
+}
+
+/// Whether `pid` is the process of `role` in the run with iceoryx2 prefix `prefix` (and
+/// not a pid the system has given to another process since).
+pub fn is_role_process(pid: u32, role: &str, prefix: &str) -> bool {
+    let environ = std::fs::read(format!("/proc/{pid}/environ")).unwrap_or_default();
+    let has = |var: String| environ.split(|b| *b == 0).any(|v| v == var.as_bytes());
+    has(format!("SCMPC_ROLE={role}")) && has(format!("SCMPC_PREFIX={prefix}"))
+}
+
+/// Runs `scmpc run ARGS` into `dir`, SIGKILLs the `role` process once the run has
+/// simulated `at_s`, and waits for the run to end.
+pub fn kill_role_during_run(dir: &Path, args: &[&str], role: &str, at_s: f64) {
+    let prefix = unique_prefix("kill");
+    let mut child = spawn_run(dir, &[args, &["--prefix", &prefix]].concat());
     let pid = wait_for_pid(dir, role);
-    std::thread::sleep(after);
+    SimulatedClock::of(&prefix).wait_until(at_s);
+    assert!(
+        is_role_process(pid, role, &prefix),
+        "pid {pid} is no longer the {role}"
+    );
     sigkill(pid);
     child.wait().expect("the run did not end");
 }
