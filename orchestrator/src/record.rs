@@ -10,7 +10,7 @@
 
 use crate::judge::{Judge, Outcome, clearance_m};
 use crate::schema;
-use lines::FlushClock;
+use lines::{FlushClock, Lines};
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
     ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
@@ -25,7 +25,7 @@ pub const INCOMPLETE: &str = "INCOMPLETE";
 mod lines;
 mod mcap;
 mod summary;
-pub use lines::{FLUSH_PERIOD, Lines};
+pub use lines::FLUSH_PERIOD;
 pub use mcap::McapLog;
 pub use summary::{Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Summary};
 
