@@ -3,8 +3,10 @@
 //! `cargo run --release -p mpc --example idle_gap`.
 //!
 //! Steps the MPC over the first 200 samples of the paper run, once back to back, once
-//! after sleeping before every step, and once after sleeping and then spinning (the core
-//! awake, its caches as the sleep left them). Prints each case's percentiles.
+//! after sleeping before every step, once after sleeping and then spinning (the core
+//! awake, its caches as the sleep left them), and once after sleeping and then solving
+//! the last program again (`Mpc::rehearse`, what the real-time MPC process does 2.5 ms
+//! before each sample). Prints each case's percentiles, and the rehearsals' own.
 
 use mpc::Mpc;
 use protocol::Scenario;
@@ -15,8 +17,15 @@ const SAMPLES: usize = 200;
 fn main() -> Result<(), mpc::MpcError> {
     let scenario = Scenario::default();
     let states = paper_states(&scenario)?;
-    for (sleep_ms, spin_us) in [(0, 0), (50, 0), (50, 100), (50, 2000)] {
+    for (sleep_ms, spin_us, rehearse) in [
+        (0, 0, false),
+        (50, 0, false),
+        (50, 100, false),
+        (50, 2000, false),
+        (50, 0, true),
+    ] {
         let mut mpc = Mpc::new(&scenario)?;
+        let mut rehearsal_us = Vec::new();
         let mut step_us: Vec<f64> = states
             .iter()
             .enumerate()
@@ -26,20 +35,35 @@ fn main() -> Result<(), mpc::MpcError> {
                 while spin.elapsed() < Duration::from_micros(spin_us) {
                     std::hint::spin_loop();
                 }
+                if rehearse && k > 0 {
+                    let started = Instant::now();
+                    mpc.rehearse();
+                    rehearsal_us.push(started.elapsed().as_secs_f64() * 1e6);
+                }
                 let started = Instant::now();
                 mpc.step(k as u64, x_bar, 0.0);
                 started.elapsed().as_secs_f64() * 1e6
             })
             .collect();
-        step_us.sort_by(f64::total_cmp);
-        let at = |q: f64| step_us[((step_us.len() - 1) as f64 * q).round() as usize];
-        println!(
-            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs: step p50 {:>4.0} µs, p90 {:>4.0} µs",
-            at(0.5),
-            at(0.9)
+        let (p50, p90) = percentiles(&mut step_us);
+        print!(
+            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs, rehearse {rehearse:>5}: step p50 \
+             {p50:>4.0} µs, p90 {p90:>4.0} µs"
         );
+        if rehearse {
+            let (p50, p90) = percentiles(&mut rehearsal_us);
+            print!(" (rehearsal p50 {p50:.0} µs, p90 {p90:.0} µs)");
+        }
+        println!();
     }
     Ok(())
+}
+
+/// p50 and p90 of `values`, µs.
+fn percentiles(values: &mut [f64]) -> (f64, f64) {
+    values.sort_by(f64::total_cmp);
+    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.9))
 }
 
 /// The estimates `x_bar` of the paper run's first samples, the robot following each

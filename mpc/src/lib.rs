@@ -81,6 +81,15 @@ impl Mpc {
         }
     }
 
+    /// Solves the last program again for its memory's sake (a process idle since its last
+    /// step finds the solver in cache at the next one); changes no plan.
+    pub fn rehearse(&mut self) {
+        match self {
+            Mpc::Linear(m) => m.rehearse(),
+            Mpc::Nonlinear(m) => m.rehearse(),
+        }
+    }
+
     /// Forgets the previous plan: the next step starts cold.
     pub fn reset(&mut self) {
         match self {

@@ -246,6 +246,12 @@ impl LinearMpc {
         self.last_sample = None;
     }
 
+    /// Solves the last step's last program again ([`ConicSolver::rehearse`]): the next
+    /// step's plan is the same, its memory warm.
+    pub fn rehearse(&mut self) {
+        self.solvers[self.rows.index()].rehearse();
+    }
+
     /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
     /// `reference[i]` for `i = 1..=N`): eq. (51) with `z_i - r_i` for `z_i`, on every stage
     /// after the first and in the terminal weight; `None`: the goal at rest (eq. 51

@@ -164,6 +164,11 @@ impl NonlinearMpc {
         self.last_sample = None;
     }
 
+    /// Solves the last subproblem again ([`crate::solver::ConicSolver::rehearse`]).
+    pub fn rehearse(&mut self) {
+        self.solver.rehearse();
+    }
+
     fn s(&self, i: usize, c: usize) -> usize {
         4 * i + c
     }

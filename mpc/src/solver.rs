@@ -158,6 +158,18 @@ impl ConicSolver {
         self.solver.is_some()
     }
 
+    /// Solves the last problem again, for its memory's sake: a process that slept since its
+    /// last step finds the solver's working set (KKT matrix, factors, iterates) in cache at
+    /// its next one. It changes nothing that step sees: the step writes its own data first
+    /// and clarabel starts every solve afresh from the data; the solution read after the
+    /// last solve ([`ConicSolver::x`]) comes out the same.
+    pub fn rehearse(&mut self) {
+        use clarabel::solver::IPSolver;
+        if let Some(solver) = self.solver.as_mut() {
+            solver.solve();
+        }
+    }
+
     /// The last solution's variables (none before the first solve).
     pub fn x(&self) -> Option<&[f64]> {
         let last = if self.careful_last {

@@ -69,6 +69,19 @@ impl MpcTask {
         self.timing.sample_time_s(self.next_sample)
     }
 
+    /// Real time: when an idle MPC solves its last program again so that the next step
+    /// finds its memory warm ([`Mpc::rehearse`]), s: half an inner tick before the next
+    /// sample, between the last tick of this sample and the boundary (when the plant,
+    /// the estimator and the DFL are idle too).
+    pub fn rehearsal_s(&self) -> f64 {
+        self.next_due_s() - 0.5 * self.timing.dt_s()
+    }
+
+    /// Solves the last program again ([`Mpc::rehearse`]); changes no plan.
+    pub fn rehearse(&mut self) {
+        self.mpc.rehearse();
+    }
+
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the
     /// plan's `injected_delay_ns` is what the executor holds it before publishing.
     pub fn step(&mut self, context: &impl Context) -> Option<Plan> {

@@ -9,7 +9,8 @@
 //!   both directions are pooled. (Half the round trip would average two hops and hide
 //!   half of each tail.)
 //! - Real time: the paper run in real time: per-hop and sensor-to-actuator latency,
-//!   deadline misses, each process's peak resident memory.
+//!   deadline misses, each process's peak resident memory, and its MPC step against the
+//!   same samples stepped in process (back to back, caches hot).
 //! - Lockstep: the paper run in lockstep: how much faster than real time.
 //! - Across hosts ([`cross_host`]): a raw Zenoh ping-pong, and the real-time run with the
 //!   MPC on a second host over loopback.
@@ -64,6 +65,10 @@ pub struct BenchReport {
     pub sensor_to_actuator_us: Percentiles,
     /// MPC step of the real-time run (update, every solve), µs.
     pub solve_us: Percentiles,
+    /// MPC step of the same scenario in process (every sample stepped back to back), µs.
+    pub in_process_solve_us: Percentiles,
+    /// `solve_us.p50 / in_process_solve_us.p50`: what sleeping between samples costs.
+    pub realtime_step_ratio_p50: f64,
     pub realtime_deadline_misses: u64,
     pub peak_rss_kib: std::collections::BTreeMap<String, u64>,
     /// Simulated and wall time of the lockstep paper run, s.
@@ -316,6 +321,8 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         stop,
     )?;
     crate::stop::check(stop)?;
+    let hot = crate::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
+    crate::stop::check(stop)?;
     let lockstep: Summary = multiproc::run(
         &paper,
         &out.join("lockstep"),
@@ -338,6 +345,8 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         hop_ratio_p50: processes.hop_latency_us.p50 / raw.p50.max(1e-9),
         sensor_to_actuator_us: processes.loop_latency_us,
         solve_us: realtime.solve_us,
+        in_process_solve_us: hot.solve_us,
+        realtime_step_ratio_p50: realtime.solve_us.p50 / hot.solve_us.p50.max(1e-9),
         realtime_deadline_misses: realtime.deadline_misses,
         peak_rss_kib: processes.peak_rss_kib.clone(),
         lockstep_simulated_s: lockstep.simulated_s,
@@ -371,13 +380,15 @@ impl BenchReport {
             .collect();
         let c = &self.cross_host;
         format!(
-            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {}\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {} ({:.2}× in process at p50: {})\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
             self.machine,
             p(&self.raw_iceoryx2_one_way_us),
             p(&self.pipeline_hop_us),
             self.hop_ratio_p50,
             p(&self.sensor_to_actuator_us),
             p(&self.solve_us),
+            self.realtime_step_ratio_p50,
+            p(&self.in_process_solve_us),
             self.realtime_deadline_misses,
             rss.join(", "),
             self.lockstep_wall_s,
