@@ -148,7 +148,7 @@ impl Recorder {
         if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
             line.extend(fields);
         }
-        if let Some(mcap) = &self.mcap {
+        if let Some(mcap) = &mut self.mcap {
             mcap.event(self.last_time_s, event, &line);
         }
         // Events are rare: flush each, so a live run can be followed in the file.
@@ -234,7 +234,7 @@ impl Recorder {
         } else {
             self.commanded_rest_since_s = None;
         }
-        if let Some(mcap) = &self.mcap {
+        if let Some(mcap) = &mut self.mcap {
             mcap.tick(truth, estimate, act);
         }
         let e = &estimate.state;
@@ -295,7 +295,7 @@ impl Recorder {
         if self.route_length_m.is_none() {
             self.route_length_m = Some(route.length_m);
         }
-        if let Some(mcap) = &self.mcap {
+        if let Some(mcap) = &mut self.mcap {
             mcap.route(route);
         }
         let routes = match &mut self.routes {
@@ -317,7 +317,7 @@ impl Recorder {
 
     /// A plan as it is published; its `plans.csv` row waits for the DFL's verdict.
     pub fn plan(&mut self, plan: &Plan) -> std::io::Result<()> {
-        if let Some(mcap) = &self.mcap {
+        if let Some(mcap) = &mut self.mcap {
             mcap.plan(plan);
         }
         if !plan.is_solved() {
@@ -347,7 +347,7 @@ impl Recorder {
             return Ok(());
         }
         self.last_judged = Some(v.sample);
-        if let Some(mcap) = &self.mcap {
+        if let Some(mcap) = &mut self.mcap {
             mcap.verdict(v);
         }
         let met = v.met != 0;

@@ -21,6 +21,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 use std::sync::mpsc::RecvTimeoutError;
+use std::time::{Duration, Instant};
 
 /// A channel of `run.mcap`: topic, schema name, JSON Schema.
 type Channel = (&'static str, &'static str, fn() -> Value);
@@ -73,9 +74,17 @@ enum Record {
 
 /// `run.mcap` being written by its thread.
 pub struct McapLog {
-    records: std::sync::mpsc::Sender<Record>,
+    records: std::sync::mpsc::Sender<Vec<Record>>,
+    /// Records not handed over yet: the thread gets them in batches, so it wakes once per
+    /// batch rather than once per message (in lockstep, thousands of times a second).
+    batch: Vec<Record>,
+    handed: Instant,
     thread: std::thread::JoinHandle<std::io::Result<()>>,
 }
+
+/// Records per batch, and the longest a record waits for its batch.
+const BATCH: usize = 64;
+const BATCH_WAIT: Duration = Duration::from_millis(100);
 
 impl McapLog {
     /// Creates `path` with every channel and the world at time 0, and starts the thread
@@ -89,7 +98,11 @@ impl McapLog {
                 let mut flush = super::FlushClock::new();
                 loop {
                     match received.recv_timeout(super::FLUSH_PERIOD) {
-                        Ok(record) => file.record(record)?,
+                        Ok(batch) => {
+                            for record in batch {
+                                file.record(record)?;
+                            }
+                        }
                         Err(RecvTimeoutError::Timeout) => {}
                         Err(RecvTimeoutError::Disconnected) => return file.finish(),
                     }
@@ -98,37 +111,53 @@ impl McapLog {
                     }
                 }
             })?;
-        Ok(McapLog { records, thread })
+        Ok(McapLog {
+            records,
+            batch: Vec::with_capacity(BATCH),
+            handed: Instant::now(),
+            thread,
+        })
     }
 
-    /// Hands `record` to the thread; a thread that stopped on an error says so at
-    /// [`McapLog::finish`].
-    fn send(&self, record: Record) {
-        let _ = self.records.send(record);
+    /// Adds `record` to the batch, and hands the batch to the thread when it is full or
+    /// its first record has waited [`BATCH_WAIT`]; a thread that stopped on an error says
+    /// so at [`McapLog::finish`].
+    fn send(&mut self, record: Record) {
+        self.batch.push(record);
+        if self.batch.len() >= BATCH || self.handed.elapsed() >= BATCH_WAIT {
+            self.hand_over();
+        }
     }
 
-    pub fn tick(&self, truth: &GroundTruth, estimate: &Estimate, act: &Actuation) {
+    fn hand_over(&mut self) {
+        let batch = std::mem::replace(&mut self.batch, Vec::with_capacity(BATCH));
+        let _ = self.records.send(batch);
+        self.handed = Instant::now();
+    }
+
+    pub fn tick(&mut self, truth: &GroundTruth, estimate: &Estimate, act: &Actuation) {
         self.send(Record::Tick(Box::new((*truth, *estimate, *act))));
     }
 
-    pub fn plan(&self, plan: &Plan) {
+    pub fn plan(&mut self, plan: &Plan) {
         self.send(Record::Plan(Box::new(*plan)));
     }
 
-    pub fn route(&self, route: &Route) {
+    pub fn route(&mut self, route: &Route) {
         self.send(Record::Route(Box::new(*route)));
     }
 
-    pub fn verdict(&self, v: &DeadlineVerdict) {
+    pub fn verdict(&mut self, v: &DeadlineVerdict) {
         self.send(Record::Verdict(*v));
     }
 
-    pub fn event(&self, t: f64, event: &str, line: &Value) {
+    pub fn event(&mut self, t: f64, event: &str, line: &Value) {
         self.send(Record::Event(t, event.to_string(), line.clone()));
     }
 
     /// Waits for the thread to write everything and close the file.
-    pub fn finish(self) -> std::io::Result<()> {
+    pub fn finish(mut self) -> std::io::Result<()> {
+        self.hand_over();
         drop(self.records);
         self.thread
             .join()
@@ -142,6 +171,9 @@ struct McapFile {
     channels: BTreeMap<&'static str, u16>,
     sequence: u32,
     timing: Timing,
+    /// Reused for every message: its JSON, and a plan's or a route's poses.
+    json: Vec<u8>,
+    poses: Vec<Pose>,
 }
 
 /// An error of the MCAP writer, as an I/O error (the recorder's).
@@ -178,6 +210,8 @@ impl McapFile {
             channels,
             sequence: 0,
             timing: scenario.timing.clone(),
+            json: Vec::with_capacity(4096),
+            poses: Vec::with_capacity(protocol::MAX_HORIZON + 1),
         };
         log.write("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
@@ -201,7 +235,8 @@ impl McapFile {
 
     fn write(&mut self, topic: &str, time_s: f64, message: &impl Serialize) -> std::io::Result<()> {
         let channel_id = self.channels[topic];
-        let data = serde_json::to_vec(message).map_err(std::io::Error::other)?;
+        self.json.clear();
+        serde_json::to_writer(&mut self.json, message).map_err(std::io::Error::other)?;
         let time_ns = (time_s.max(0.0) * 1e9).round() as u64;
         self.sequence = self.sequence.wrapping_add(1);
         let header = mcap::records::MessageHeader {
@@ -211,7 +246,7 @@ impl McapFile {
             publish_time: time_ns,
         };
         self.writer
-            .write_to_known_channel(&header, &data)
+            .write_to_known_channel(&header, &self.json)
             .map_err(io)
     }
 
@@ -233,7 +268,12 @@ impl McapFile {
             &PoseInFrame::new(t, pose(xh, yh, thetah)),
         )?;
         if self.timing.starts_sample(truth.header.tick) {
-            self.write("/robot/covariance", t, &covariance_ellipse(t, estimate))?;
+            let ellipse = [covariance_ellipse(estimate)];
+            self.write(
+                "/robot/covariance",
+                t,
+                &SphereScene::new(t, "covariance", &ellipse),
+            )?;
         }
         let record = EstimateRecord {
             tick: estimate.header.tick,
@@ -268,11 +308,14 @@ impl McapFile {
     fn plan(&mut self, plan: &Plan) -> std::io::Result<()> {
         let t = plan.header.time_s;
         let n = (plan.horizon as usize).min(protocol::MAX_HORIZON);
-        let poses: Vec<Pose> = plan.z[..=n]
-            .iter()
-            .map(|[x, xdot, y, ydot]| pose(*x, *y, ydot.atan2(*xdot)))
-            .collect();
-        self.write("/mpc/plan", t, &poses_in_frame(t, poses))
+        let mut poses = std::mem::take(&mut self.poses);
+        poses.clear();
+        poses.extend(
+            (plan.z[..=n].iter()).map(|[x, xdot, y, ydot]| pose(*x, *y, ydot.atan2(*xdot))),
+        );
+        let written = self.write("/mpc/plan", t, &PosesInFrame::new(t, &poses));
+        self.poses = poses;
+        written
     }
 
     /// A new route of the planner.
@@ -291,7 +334,7 @@ impl McapFile {
                 pose(p[0], p[1], (to[1] - from[1]).atan2(to[0] - from[0]))
             })
             .collect();
-        self.write("/planner/route", t, &poses_in_frame(t, poses))
+        self.write("/planner/route", t, &PosesInFrame::new(t, &poses))
     }
 
     /// The DFL's deadline verdict on a sample.
@@ -301,19 +344,16 @@ impl McapFile {
             code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
         };
         let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
-        self.write(
-            "/dfl/deadline",
-            v.header.time_s,
-            &json!({
-                "sample": v.sample,
-                "met": v.met != 0,
-                "status": status,
-                "production_us": v.production_ns as f64 / 1e3,
-                "arrival_ms": (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6),
-                "fallback": fallback,
-                "misses_total": v.misses_total,
-            }),
-        )
+        let record = DeadlineRecord {
+            sample: v.sample,
+            met: v.met != 0,
+            status,
+            production_us: v.production_ns as f64 / 1e3,
+            arrival_ms: (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6),
+            fallback,
+            misses_total: v.misses_total,
+        };
+        self.write("/dfl/deadline", v.header.time_s, &record)
     }
 
     /// An event of `events.jsonl` (`line`: its whole JSON line) as a log message: warnings
@@ -370,14 +410,14 @@ fn timestamp(t: f64) -> Time {
     }
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Clone, Copy)]
 struct Vector3 {
     x: f64,
     y: f64,
     z: f64,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Clone, Copy)]
 struct Quaternion {
     x: f64,
     y: f64,
@@ -385,7 +425,7 @@ struct Quaternion {
     w: f64,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Clone, Copy)]
 struct Pose {
     position: Vector3,
     orientation: Quaternion,
@@ -456,8 +496,100 @@ struct CommandRecord {
     deadline_misses: u32,
 }
 
-fn poses_in_frame(t: f64, poses: Vec<Pose>) -> Value {
-    json!({ "timestamp": timestamp(t), "frame_id": FRAME, "poses": poses })
+/// `scmpc.DeadlineVerdict`: the DFL's verdict on a sample.
+#[derive(Serialize)]
+struct DeadlineRecord {
+    sample: u64,
+    met: bool,
+    status: &'static str,
+    production_us: f64,
+    arrival_ms: Option<f64>,
+    fallback: &'static str,
+    misses_total: u32,
+}
+
+/// `foxglove.PosesInFrame`.
+#[derive(Serialize)]
+struct PosesInFrame<'a> {
+    timestamp: Time,
+    frame_id: &'static str,
+    poses: &'a [Pose],
+}
+
+impl PosesInFrame<'_> {
+    fn new(t: f64, poses: &[Pose]) -> PosesInFrame<'_> {
+        PosesInFrame {
+            timestamp: timestamp(t),
+            frame_id: FRAME,
+            poses,
+        }
+    }
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct Color {
+    r: f64,
+    g: f64,
+    b: f64,
+    a: f64,
+}
+
+/// `foxglove.SpherePrimitive`.
+#[derive(Serialize)]
+struct Sphere {
+    pose: Pose,
+    size: Vector3,
+    color: Color,
+}
+
+/// `foxglove.SceneUpdate` of one entity made of spheres, kept until replaced; the other
+/// lists of Foxglove's schema are written empty (`[(); 0]` is `[]`).
+#[derive(Serialize)]
+struct SphereScene<'a> {
+    deletions: [(); 0],
+    entities: [SphereEntity<'a>; 1],
+}
+
+impl SphereScene<'_> {
+    fn new<'a>(t: f64, id: &'static str, spheres: &'a [Sphere]) -> SphereScene<'a> {
+        SphereScene {
+            deletions: [],
+            entities: [SphereEntity {
+                timestamp: timestamp(t),
+                frame_id: FRAME,
+                id,
+                lifetime: timestamp(0.0),
+                frame_locked: false,
+                metadata: [],
+                arrows: [],
+                cubes: [],
+                spheres,
+                cylinders: [],
+                lines: [],
+                triangles: [],
+                texts: [],
+                models: [],
+            }],
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct SphereEntity<'a> {
+    timestamp: Time,
+    frame_id: &'static str,
+    id: &'static str,
+    lifetime: Time,
+    frame_locked: bool,
+    metadata: [(); 0],
+    arrows: [(); 0],
+    cubes: [(); 0],
+    spheres: &'a [Sphere],
+    cylinders: [(); 0],
+    lines: [(); 0],
+    triangles: [(); 0],
+    texts: [(); 0],
+    models: [(); 0],
 }
 
 fn color(r: f64, g: f64, b: f64, a: f64) -> Value {
@@ -521,7 +653,7 @@ fn world(scenario: &Scenario) -> Value {
 
 /// The `COVARIANCE_SIGMAS` ellipse of the estimate's position covariance, as a flat
 /// sphere along the covariance's principal axes.
-fn covariance_ellipse(t: f64, estimate: &Estimate) -> Value {
+fn covariance_ellipse(estimate: &Estimate) -> Sphere {
     let c = &estimate.covariance;
     let (a, b, d) = (c[0], 0.5 * (c[1] + c[3]), c[4]);
     let mean = 0.5 * (a + d);
@@ -530,12 +662,20 @@ fn covariance_ellipse(t: f64, estimate: &Estimate) -> Value {
     let angle = 0.5 * (2.0 * b).atan2(a - d);
     let [x, y, ..] = estimate.state;
     let span = |variance: f64| 2.0 * COVARIANCE_SIGMAS * variance.sqrt();
-    let sphere = json!({
-        "pose": pose(x, y, angle),
-        "size": { "x": span(major), "y": span(minor), "z": 0.01 },
-        "color": color(0.2, 0.4, 1.0, 0.35),
-    });
-    json!({ "deletions": [], "entities": [entity(t, "covariance", vec![], vec![sphere])] })
+    Sphere {
+        pose: pose(x, y, angle),
+        size: Vector3 {
+            x: span(major),
+            y: span(minor),
+            z: 0.01,
+        },
+        color: Color {
+            r: 0.2,
+            g: 0.4,
+            b: 1.0,
+            a: 0.35,
+        },
+    }
 }
 
 // JSON Schemas of the channels. The `foxglove.*` ones describe the fields written here of
@@ -673,7 +813,8 @@ mod tests {
             covariance: [2.5, 1.5, 0.0, 1.5, 2.5, 0.0, 0.0, 0.0, 0.0],
             ..Estimate::default()
         };
-        let scene = covariance_ellipse(0.0, &estimate);
+        let ellipse = [covariance_ellipse(&estimate)];
+        let scene = serde_json::to_value(SphereScene::new(0.0, "covariance", &ellipse)).unwrap();
         let sphere = &scene["entities"][0]["spheres"][0];
         let span = |axis: &str| sphere["size"][axis].as_f64().unwrap();
         assert!((span("x") - 2.0 * 3.0 * 2.0).abs() < 1e-12);
