@@ -14,8 +14,10 @@
 //! - Lockstep: the paper run in lockstep: how much faster than real time.
 //! - Across hosts ([`cross_host`]): a raw Zenoh ping-pong, and the real-time run with the
 //!   MPC on a second host over loopback.
+//! - Scaling ([`scaling`]): the MPC step against the horizon and the obstacle count.
 
 pub mod cross_host;
+pub mod scaling;
 
 use crate::multiproc;
 use crate::record::{Percentiles, Summary};
@@ -81,6 +83,8 @@ pub struct BenchReport {
     pub route_planning_us: std::collections::BTreeMap<usize, Percentiles>,
     #[serde(flatten)]
     pub cross_host: cross_host::CrossHost,
+    /// The MPC step for every horizon and obstacle count of [`scaling`].
+    pub scaling: Vec<scaling::ScalingPoint>,
 }
 
 /// Random fields per size in the route-planning benchmark.
@@ -334,6 +338,8 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     )?;
     crate::stop::check(stop)?;
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
+    crate::stop::check(stop)?;
+    let scaling = scaling::measure(&out.join("scaling"), stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -357,6 +363,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
             .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
             .collect(),
         cross_host,
+        scaling,
     };
     let path = out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
@@ -399,6 +406,6 @@ impl BenchReport {
             c.cross_host_ratio_p50,
             c.link_round_trip_us,
             c.cross_host_deadline_misses
-        )
+        ) + &scaling::table(&self.scaling)
     }
 }
