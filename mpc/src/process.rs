@@ -2,48 +2,37 @@
 //! sample boundary estimate it takes.
 
 use crate::task::MpcTask;
-use protocol::clock::RunMode;
 use protocol::ipc::{ESTIMATE, Input, PLAN, ROUTE};
-use protocol::runtime::{Link, Next, ProcessArgs, ProcessError};
+use protocol::runtime::{ControlState, Link, Next, ProcessArgs, ProcessError};
 use protocol::{Estimate, Plan, Role, Route};
+use std::cell::RefCell;
 
 pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
-    let mut task = MpcTask::new(&args.scenario).map_err(|e| ProcessError::Setup(e.to_string()))?;
+    let task = MpcTask::new(&args.scenario).map_err(|e| ProcessError::Setup(e.to_string()))?;
+    let task = RefCell::new(task);
     let link = Link::open(args, Role::Mpc)?;
     let estimates = link.input::<Estimate>(ESTIMATE, Role::Estimator)?;
     let routes = link.input::<Route>(ROUTE, Role::Planner)?;
     let plans = link.output::<Plan>(PLAN)?;
-    let inputs: &[&dyn Input] = if task.follows_route() {
+    let inputs: &[&dyn Input] = if task.borrow().follows_route() {
         &[&estimates, &routes]
     } else {
         &[&estimates]
     };
-    // The sample (its start, s) whose rehearsal is done.
-    let mut rehearsed_for = None;
-    link.run(inputs, &[&plans], |context| {
+    let step = |context: &ControlState| {
+        let mut task = task.borrow_mut();
         routes.take(|r, _| task.hear_route(r))?;
         estimates.take(|e, latency| task.hear_estimate(e, latency))?;
         while let Some(plan) = task.step(context) {
             context.clock.hold(plan.injected_delay_ns);
             plans.send(plan)?;
         }
-        let due_s = task.next_due_s();
-        // Real time: asleep for most of `Ts`, the step would start with cold caches; a
-        // rehearsal shortly before the sample warms them (lockstep never sleeps).
-        let clock = &context.clock;
-        if clock.mode() == RunMode::Realtime && rehearsed_for != Some(due_s) {
-            let at_s = task.rehearsal_s();
-            if !clock.is_past(at_s) {
-                return Ok(Next::At(at_s));
-            }
-            // Not when it is late: the estimate would wait for it.
-            if !clock.is_past(at_s + 0.25 * (due_s - at_s)) {
-                task.rehearse();
-            }
-            rehearsed_for = Some(due_s);
-        }
         // Only every M-th estimate matters: rather than waking for each one (and taking a
         // core from the DFL), expect the next sample's.
-        Ok(Next::expect(&estimates, Some(due_s)))
-    })
+        Ok(Next::expect(&estimates, Some(task.next_due_s())))
+    };
+    // Asleep for most of `Ts` in real time, the step would start with cold caches: the
+    // runtime has the task solve its last program again shortly before the sample.
+    let rehearse = || task.borrow_mut().rehearse();
+    link.run_warming(inputs, &[&plans], step, Some(rehearse))
 }

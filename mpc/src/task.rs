@@ -69,15 +69,8 @@ impl MpcTask {
         self.timing.sample_time_s(self.next_sample)
     }
 
-    /// Real time: when an idle MPC solves its last program again so that the next step
-    /// finds its memory warm ([`Mpc::rehearse`]), s: half an inner tick before the next
-    /// sample, between the last tick of this sample and the boundary (when the plant,
-    /// the estimator and the DFL are idle too).
-    pub fn rehearsal_s(&self) -> f64 {
-        self.next_due_s() - 0.5 * self.timing.dt_s()
-    }
-
-    /// Solves the last program again ([`Mpc::rehearse`]); changes no plan.
+    /// Solves the last program again ([`Mpc::rehearse`]) to warm the solver's memory
+    /// before the next sample; changes no plan.
     pub fn rehearse(&mut self) {
         self.mpc.rehearse();
     }

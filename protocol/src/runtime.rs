@@ -18,7 +18,9 @@
 //! 4. **wait**: until what the step named ([`Next`], in run time): block in the WaitSet
 //!    (control and every input attached), or in real time poll an input around the time
 //!    it is due ([`spin_wait`]) or sleep to a deadline; a process that hears nothing for
-//!    [`INPUT_TIMEOUT`] reports [`StatusEvent::InputLost`] and exits.
+//!    [`INPUT_TIMEOUT`] reports [`StatusEvent::InputLost`] and exits. A role that asks
+//!    for it ([`Link::run_warming`]) is warmed up in real time shortly before an input it
+//!    expects.
 //!
 //! The runtime owns time: a step never knows which clock runs. It asks the run's clock
 //! ([`RunClock`], through [`ControlState`]) and names times; the runtime turns them into
@@ -38,6 +40,20 @@ use iceoryx2::prelude::*;
 use std::cell::Cell;
 use std::rc::Rc;
 use std::time::{Duration, Instant};
+
+/// How long before an expected input [`Link::run_warming`] warms its role up, in inner
+/// ticks: half a tick, after the last tick of the sample before (when the plant, the
+/// estimator and the DFL are idle too). Measured against 0.6 ms before the sample
+/// (docs/performance.md, "Performance near the limit").
+pub const WARM_UP_LEAD_TICKS: f64 = 0.5;
+
+/// When to warm up for an input due at run time `due_s` ([`Link::run_warming`]): from and
+/// at the latest, monotonic ns. `None` in lockstep and before the clock has started.
+fn warm_up_window_ns(clock: &RunClock, due_s: f64) -> Option<(u64, u64)> {
+    let lead_s = WARM_UP_LEAD_TICKS * clock.dt_s();
+    let from = clock.at_ns(due_s - lead_s)?;
+    Some((from, from + (0.25 * lead_s * 1e9) as u64))
+}
 
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
@@ -316,7 +332,25 @@ impl Link {
         &self,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
-        mut step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+    ) -> Result<(), ProcessError> {
+        self.run_warming(inputs, outputs, step, None::<fn()>)
+    }
+
+    /// [`Link::run`] for a role that idles between periodic inputs and whose step would
+    /// start with cold caches after sleeping (the MPC, asleep for most of `Ts`).
+    ///
+    /// In real time, once for each input it expects ([`Next::Expect`]), the runtime sleeps
+    /// until [`WARM_UP_LEAD_TICKS`] inner ticks before the input is due and calls
+    /// `warm_up` there, unless that time passed by more than a quarter of the lead
+    /// already (it would delay the step). Lockstep never calls it: its processes never
+    /// sleep for a time, and `warm_up` may not change what the step computes.
+    pub fn run_warming<'i>(
+        &self,
+        inputs: &[&'i dyn Input],
+        outputs: &[&dyn Output],
+        step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        warm_up: Option<impl FnMut()>,
     ) -> Result<(), ProcessError> {
         let waitset = waitset(true)?;
         let attach = |listener| {
@@ -332,14 +366,23 @@ impl Link {
         self.report_ready(outputs)?;
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();
-        let result = self.drive(&waitset, inputs, outputs, &mut step, || {
-            if counting && warmed_up.is_none() {
-                let now = self.clock.newest_tick(false);
-                if now.is_some_and(|t| t >= self.warm_up_ticks) {
-                    warmed_up = Some(allocations());
+        let mut step = step;
+        let mut warm_up = warm_up;
+        let result = self.drive(
+            &waitset,
+            inputs,
+            outputs,
+            &mut step,
+            warm_up.as_mut(),
+            || {
+                if counting && warmed_up.is_none() {
+                    let now = self.clock.newest_tick(false);
+                    if now.is_some_and(|t| t >= self.warm_up_ticks) {
+                        warmed_up = Some(allocations());
+                    }
                 }
-            }
-        });
+            },
+        );
         if let Some(before) = warmed_up {
             eprintln!(
                 "scmpc {}: {} heap allocations after warm-up",
@@ -350,15 +393,19 @@ impl Link {
         result
     }
 
-    /// The loop of [`Link::run`]; `each_pass` is called once per pass, after the step.
+    /// The loop of [`Link::run_warming`]; `each_pass` is called once per pass, after the
+    /// step.
     fn drive<'i>(
         &self,
         waitset: &WaitSet<ipc::Service>,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
         step: &mut impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        mut warm_up: Option<&mut impl FnMut()>,
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
+        // The expected input (its due time, s) warmed up for.
+        let mut warmed_for = None;
         let mut followed = None;
         let mut cleared = false;
         let mut last_input = Instant::now();
@@ -389,11 +436,18 @@ impl Link {
                     self.clock.state.set(state);
                 }
             }
-            // In real time a step due at a time is slept to; in lockstep its time comes with
-            // a grant, like any input.
+            // In real time a step due at a time is slept to, and so is a warm-up before an
+            // expected input; in lockstep a time comes with a grant, like any input.
             let clock = self.clock.state.get().clock;
+            let mut warming = None;
             let due_ns = match next {
                 Next::At(at_s) => clock.at_ns(at_s),
+                Next::Expect { at_s, .. } if warm_up.is_some() && warmed_for != Some(at_s) => {
+                    warmed_for = Some(at_s);
+                    let window = warm_up_window_ns(&clock, at_s);
+                    warming = window.map(|(_, latest)| latest);
+                    window.map(|(from, _)| from)
+                }
                 _ => None,
             };
             let again = due_ns.is_some();
@@ -411,6 +465,11 @@ impl Link {
                 }
                 if let Some(at_ns) = due_ns {
                     sleep_until_ns(at_ns);
+                }
+                if let (Some(latest_ns), Some(warm_up)) = (warming, warm_up.as_mut())
+                    && monotonic_ns() <= latest_ns
+                {
+                    warm_up();
                 }
                 cleared = !again;
                 continue;
@@ -549,4 +608,26 @@ pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
         std::hint::spin_loop();
     }
     ready()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_warm_up_comes_half_a_tick_before_an_expected_input_in_real_time_only() {
+        let dt_s = 0.005;
+        let mut realtime = RunClock::new(RunMode::Realtime, dt_s);
+        assert_eq!(warm_up_window_ns(&realtime, 1.0), None, "not started");
+        realtime.start(1_000_000_000);
+        // Due at 1 s of run time (2 s monotonic): from 2.5 ms before, skipped once a
+        // quarter of that lead is gone.
+        assert_eq!(
+            warm_up_window_ns(&realtime, 1.0),
+            Some((1_997_500_000, 1_998_125_000))
+        );
+        let mut lockstep = RunClock::new(RunMode::Lockstep, dt_s);
+        lockstep.grant(199);
+        assert_eq!(warm_up_window_ns(&lockstep, 1.0), None);
+    }
 }
