@@ -24,6 +24,13 @@ use protocol::{
 };
 use std::time::Instant;
 
+/// How far about the reference a disc must be out of reach to be deferred from a solve's
+/// program ([`LinearMpc::solve_once`]): its rows must hold for every input within this
+/// share of the input box of the reference's. Larger: fewer solves again, larger programs.
+/// Measured on the obstacle field at N = 16 and 30 (docs/performance.md): 0.05 had the
+/// lowest p99 of 0, 0.05, 0.1 and 0.25.
+const DEFERRAL_SHARE: f64 = 0.05;
+
 /// The linear scheme (eqs. 51-47) on the DFL-linearized model.
 pub struct LinearMpc {
     layout: Layout,
@@ -72,8 +79,22 @@ pub struct LinearMpc {
     assembly: Assembly,
     /// The step's constraint discs ([`crate::discs::constraint_discs`]).
     discs: Vec<Disc>,
-    /// Those of a solve's program: the discs whose rows the input box does not imply.
+    /// Those of a solve's program: discs whose rows the input box does not imply and
+    /// that lie near the plan ([`LinearMpc::solve_once`]).
     kept: Vec<Disc>,
+    /// Discs whose rows the input box does not imply, left out of a solve's program while
+    /// its solution meets their rows.
+    deferred: Vec<Disc>,
+    /// Whether discs away from the plan are deferred (false: every disc the input box does
+    /// not rule out is in the program, as a test's reference).
+    defers_discs: bool,
+    /// [`DEFERRAL_SHARE`] (a test defers more).
+    deferral_share: f64,
+    /// The positions about a plan ([`PositionReach::set_plan`]): the reference's, then a
+    /// solution's.
+    plan_reach: PositionReach,
+    /// A solve's solution, stage-wise, while its deferred discs are checked.
+    iterate: Vec<f64>,
     reference: Vec<[f64; 2]>,
     /// The reference's last velocity `w_bar_N` (the terminal rows are built at it).
     reference_velocity: [f64; 2],
@@ -157,8 +178,9 @@ impl LinearMpc {
             .map(|_| ConicSolver::new(crate::solver::solver_settings))
             .collect();
         let rows = Rows::all(&layout);
+        let layout_stagewise = layout.stagewise();
         let mut mpc = LinearMpc {
-            solution: vec![0.0; layout.stagewise()],
+            solution: vec![0.0; layout_stagewise],
             hessian,
             layout,
             statics,
@@ -180,10 +202,15 @@ impl LinearMpc {
             solvers,
             rows,
             box_and_terminal_needed: true,
+            plan_reach: reach.clone(),
             reach,
             assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
             kept: Vec::with_capacity(scenario.obstacles.len()),
+            deferred: Vec::with_capacity(scenario.obstacles.len()),
+            defers_discs: true,
+            deferral_share: DEFERRAL_SHARE,
+            iterate: vec![0.0; layout_stagewise],
             reference: vec![[0.0; 2]; c.horizon + 1],
             reference_velocity: [0.0; 2],
             last_sample: None,
@@ -426,38 +453,115 @@ impl LinearMpc {
     /// One convex solve at the current reference, without the rows the input box
     /// implies; with terminal safety, if that fails, a second of the relaxed program.
     /// Returns the status, the interior-point iterations and the solves.
+    ///
+    /// Discs are deferred exactly (constraint generation): a disc whose rows hold about the
+    /// reference, for every input within [`DEFERRAL_SHARE`] of the input box of it, is left
+    /// out of the program; when the solution misses a row of a deferred disc, that disc
+    /// joins the program and it is solved again. The program without a disc is a relaxation
+    /// of the one with it, so a solution that meets every deferred disc's rows is the
+    /// optimum of the program with every disc: the same plan, to the solver's tolerance,
+    /// from a smaller program. (The check is [`Barrier::implied`] at the solution; its
+    /// terminal rows are judged with the input box's largest speed, which errs towards
+    /// taking a disc in.)
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
         self.kept.clear();
-        for disc in &self.discs {
-            let data = StepData {
-                z0,
-                sub_goal: self.sub_goal,
-                discs: std::slice::from_ref(disc),
-                reference: &self.reference,
-                reference_velocity: self.reference_velocity,
-                max_terminal_speed: self.reach.max_terminal_speed(),
-            };
-            if !data
-                .barrier(&self.layout, &self.statics, false)
-                .implied(&self.reach)
-            {
-                self.kept.push(*disc);
+        self.deferred.clear();
+        let p0 = [z0[0], z0[2]];
+        let reference = &self.reference;
+        self.plan_reach.set_plan(
+            |i| if i == 0 { p0 } else { reference[i] },
+            self.reference_velocity,
+            self.deferral_share,
+        );
+        for j in 0..self.discs.len() {
+            let disc = self.discs[j];
+            let barrier = self.step_data(z0, std::slice::from_ref(&disc)).barrier(
+                &self.layout,
+                &self.statics,
+                false,
+            );
+            if barrier.implied(&self.reach) {
+                continue;
+            }
+            if self.defers_discs && barrier.implied(&self.plan_reach) {
+                self.deferred.push(disc);
+            } else {
+                self.kept.push(disc);
             }
         }
-        let mut rows = Rows {
-            box_and_terminal: self.box_and_terminal_needed,
-            discs: self.kept.len(),
-            relaxed: false,
-        };
-        let (status, iterations) = self.solve_with(z0, rows);
-        if status == PlanStatus::Solved || self.layout.decay_slacks(rows.discs) == 0 {
-            return (status, iterations, 1);
+        let (mut iterations, mut solves) = (0, 0);
+        let mut relaxed = false;
+        loop {
+            let rows = Rows {
+                box_and_terminal: self.box_and_terminal_needed,
+                discs: self.kept.len(),
+                relaxed,
+            };
+            let (status, more) = self.solve_with(z0, rows);
+            (iterations, solves) = (iterations + more, solves + 1);
+            if status != PlanStatus::Solved {
+                if relaxed || self.layout.decay_slacks(rows.discs) == 0 {
+                    return (status, iterations, solves);
+                }
+                // Infeasible (or stalled): braking may need the decay relaxed (module docs
+                // of `terminal`).
+                relaxed = true;
+            } else if !self.admit_missed_discs(z0) {
+                return (status, iterations, solves);
+            }
         }
-        // Infeasible (or stalled): braking may need the decay relaxed (module docs of
-        // `terminal`).
-        rows.relaxed = true;
-        let (status, more) = self.solve_with(z0, rows);
-        (status, iterations + more, 2)
+    }
+
+    /// Moves every deferred disc whose rows the last solution misses into `kept`; true if
+    /// there was one.
+    fn admit_missed_discs(&mut self, z0: [f64; 4]) -> bool {
+        if self.deferred.is_empty() {
+            return false;
+        }
+        let Some(x) = self.solvers[self.rows.index()].x() else {
+            return false;
+        };
+        match &self.assembly.condensing {
+            Some(condensing) => condensing.expand(&x[..2 * self.layout.horizon], &mut self.iterate),
+            None => {
+                let stagewise = self.iterate.len();
+                self.iterate.copy_from_slice(&x[..stagewise]);
+            }
+        }
+        let (l, x) = (&self.layout, &self.iterate);
+        let n = l.horizon;
+        let w_n = [x[l.z(n, 1)], x[l.z(n, 3)]];
+        self.plan_reach
+            .set_plan(|i| [x[l.z(i, 0)], x[l.z(i, 2)]], w_n, 0.0);
+        let mut admitted = false;
+        let mut j = 0;
+        while j < self.deferred.len() {
+            let disc = self.deferred[j];
+            let met = self
+                .step_data(z0, std::slice::from_ref(&disc))
+                .barrier(&self.layout, &self.statics, false)
+                .implied(&self.plan_reach);
+            if met {
+                j += 1;
+            } else {
+                self.deferred.swap_remove(j);
+                self.kept.push(disc);
+                admitted = true;
+            }
+        }
+        admitted
+    }
+
+    /// The step's data for the program on `discs`.
+    fn step_data<'a>(&'a self, z0: [f64; 4], discs: &'a [Disc]) -> StepData<'a> {
+        StepData {
+            z0,
+            sub_goal: self.sub_goal,
+            discs,
+            reference: &self.reference,
+            reference_velocity: self.reference_velocity,
+            max_terminal_speed: self.reach.max_terminal_speed(),
+        }
     }
 
     /// One convex solve of the program with `rows`, on the discs in `kept`.

@@ -23,12 +23,17 @@ pub struct PositionReach {
     /// The rows of `F` for the same positions.
     free: DMatrix<f64>,
     v_max: f64,
+    /// How far each input may be from the centres' inputs: `v_max` for the input box,
+    /// less about a plan ([`PositionReach::set_plan`]).
+    spread: f64,
     /// `c_i` of the step.
     centers: Vec<[f64; 2]>,
     /// The spans of the last state's velocity components `z_N[1]`, `z_N[3]`.
     terminal_velocity: [Span; 2],
     /// The step's `z_0`.
     z0: [f64; 4],
+    /// About a plan: the largest `|w_N|` ([`PositionReach::set_plan`]).
+    plan_terminal_speed: Option<f64>,
 }
 
 impl PositionReach {
@@ -45,18 +50,34 @@ impl PositionReach {
             forced: forced.select_rows(&rows),
             free: free.select_rows(&rows),
             v_max,
+            spread: v_max,
             centers: vec![[0.0; 2]; l.horizon + 1],
             terminal_velocity: [velocity(1), velocity(3)],
             z0: [0.0; 4],
+            plan_terminal_speed: None,
         }
     }
 
-    /// Sets `c_i` from the step's `z_0`.
+    /// Sets `c_i` from the step's `z_0`: the positions over the whole input box.
     pub fn set_initial_state(&mut self, z0: [f64; 4]) {
         self.z0 = z0;
+        self.spread = self.v_max;
+        self.plan_terminal_speed = None;
         for (i, center) in self.centers.iter_mut().enumerate() {
             *center =
                 std::array::from_fn(|k| (0..4).map(|c| self.free[(2 * i + k, c)] * z0[c]).sum());
+        }
+    }
+
+    /// The positions about one plan instead of the input box: `c_i = position(i)`, the plan's
+    /// stage-`i` position, its last velocity `w_N`, and every input within `share v_max`
+    /// of the plan's (`share = 0`: the plan alone).
+    pub fn set_plan(&mut self, position: impl Fn(usize) -> [f64; 2], w_n: [f64; 2], share: f64) {
+        self.spread = share * self.v_max;
+        let [x, y] = [0, 1].map(|k| w_n[k].abs() + share * self.terminal_velocity[k].reach);
+        self.plan_terminal_speed = Some(x.hypot(y));
+        for (i, center) in self.centers.iter_mut().enumerate() {
+            *center = position(i);
         }
     }
 
@@ -65,16 +86,23 @@ impl PositionReach {
         self.centers.len() - 1
     }
 
-    /// The largest speed `|w_N|` of the last state.
+    /// The largest speed `|w_N|` of the last state (over the input box from `z_0`, or
+    /// about the plan).
     pub fn max_terminal_speed(&self) -> f64 {
+        if let Some(speed) = self.plan_terminal_speed {
+            return speed;
+        }
         let [x, y] = self
             .terminal_velocity
             .map(|span| span.max(self.z0).max(-span.min(self.z0)));
         x.hypot(y)
     }
 
-    /// `v_max ||sum_k a_k D_i[k] + b_k D_j[k]||_1`: the largest `a'(p_i - c_i) + b'(p_j - c_j)`.
+    /// `spread ||sum_k a_k D_i[k] + b_k D_j[k]||_1`: the largest `a'(p_i - c_i) + b'(p_j - c_j)`.
     fn reach(&self, (i, a): (usize, [f64; 2]), (j, b): (usize, [f64; 2])) -> f64 {
+        if self.spread == 0.0 {
+            return 0.0;
+        }
         let d = &self.forced;
         let norm: f64 = (0..d.ncols())
             .map(|col| {
@@ -84,7 +112,7 @@ impl PositionReach {
                 on_input.abs()
             })
             .sum();
-        self.v_max * norm
+        self.spread * norm
     }
 
     /// `min g'p_i`.

@@ -263,11 +263,11 @@ impl TerminalRows<'_> {
         }
     }
 
-    /// Whether every row holds, with a margin, for every input sequence in the input box:
-    /// the smallest `n'(p_N - o) - R` against the largest right-hand side, with the speed
-    /// `|w_N|` (and the approach speed) at their largest.
+    /// Whether every row holds, with a margin, for every input sequence in `reach` (the
+    /// input box, or about a plan): the smallest `n'(p_N - o) - R` against the largest
+    /// right-hand side, with the speed `|w_N|` (and the approach speed) at their largest.
     pub fn implied(&self, reach: &PositionReach) -> bool {
-        let speed = self.max_speed;
+        let speed = reach.max_terminal_speed();
         let horizon = reach.horizon();
         let a = self.model.decel;
         self.discs.iter().all(|disc| {

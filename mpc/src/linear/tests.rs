@@ -516,3 +516,84 @@ fn far_from_the_goal_with_a_gentle_input_box_the_first_plan_is_solved() {
         assert!(mpc.sub_goal != [0.0; 2], "the goal is out of reach");
     }
 }
+
+/// The largest distance between the planned positions of two plans, m.
+fn plan_distance_m(a: &Plan, b: &Plan) -> f64 {
+    (0..=a.horizon as usize)
+        .map(|i| (a.z[i][0] - b.z[i][0]).hypot(a.z[i][2] - b.z[i][2]))
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn deferring_discs_away_from_the_plan_gives_the_plans_of_the_program_with_every_disc() {
+    // The paper's world at N = 30 with six more obstacles scattered about its path.
+    let s = Scenario::default()
+        .with_overrides(&[
+            "mpc.horizon=30".into(),
+            "obstacles=[{x = 3.0, y = 3.5, radius = 1.5}, {x = 6.0, y = 3.5, radius = 0.4}, \
+             {x = 1.5, y = 5.5, radius = 0.4}, {x = 5.5, y = 1.0, radius = 0.4}, \
+             {x = 0.5, y = 3.0, radius = 0.3}, {x = 2.0, y = 0.8, radius = 0.3}, \
+             {x = 8.0, y = 4.5, radius = 0.4}]"
+                .into(),
+        ])
+        .unwrap();
+    let mut deferring = LinearMpc::new(&s).unwrap();
+    let mut every = LinearMpc::new(&s).unwrap();
+    every.defers_discs = false;
+    let (a, b) = model::discretize(s.timing.ts_s);
+    let [x, y, theta] = s.robot.start;
+    let mut z = Vector4::from(protocol::phi([x, y, theta, s.robot.zeta0]));
+    let (mut deferring_discs, mut every_discs) = (0, 0);
+    let (mut first_apart, mut apart): (f64, f64) = (0.0, 0.0);
+    for k in 0..200 {
+        let x_bar = protocol::phi_inverse(z.into(), theta);
+        let plan = deferring.step(k, x_bar, 0.0);
+        let reference = every.step(k, x_bar, 0.0);
+        assert!(plan.is_solved(), "sample {k}: {:?}", plan.status());
+        deferring_discs += deferring.rows.discs;
+        every_discs += every.rows.discs;
+        let [p, r] = [plan.z[1], reference.z[1]];
+        first_apart = first_apart.max((p[0] - r[0]).hypot(p[2] - r[2]));
+        apart = apart.max(plan_distance_m(&plan, &reference));
+        z = a * z + b * nalgebra::Vector2::from(plan.v[0]);
+    }
+    // The same optimum to the solver's tolerance: a duality gap of 1e-3 leaves the
+    // inputs within millimetres per s^2 of it, so 30 stages on within a few millimetres.
+    assert!(
+        first_apart < 1e-4,
+        "the next positions {first_apart} m apart"
+    );
+    assert!(apart < 5e-3, "plans {apart} m apart");
+    assert!(
+        3 * deferring_discs < every_discs,
+        "discs in the programs: {deferring_discs} deferring, {every_discs} with every disc"
+    );
+}
+
+#[test]
+fn a_deferred_disc_the_solution_runs_into_joins_the_program() {
+    // At rest, the cold reference stays at the start; with no spread about it every disc
+    // off the start is deferred, and the plan towards the goal would run through this one.
+    let s = Scenario::default()
+        .with_overrides(&[
+            "mpc.horizon=30".into(),
+            "robot.start=[-3.0, 0.0, 0.0]".into(),
+            "robot.goal=[0.0, 0.0]".into(),
+            "obstacles=[{x = -1.8, y = 0.05, radius = 0.3}]".into(),
+        ])
+        .unwrap();
+    let x_bar = [-3.0, 0.0, 0.0, 0.0];
+    let mut deferring = LinearMpc::new(&s).unwrap();
+    deferring.deferral_share = 0.0;
+    let plan = deferring.step(0, x_bar, 0.0);
+    assert!(plan.is_solved(), "{:?}", plan.status());
+    let slack = barrier_slack(&plan, &absolute_discs(&s), s.mpc.gamma);
+    assert!(slack >= -1e-6, "CBF slack {slack:e}");
+    let mut every = LinearMpc::new(&s).unwrap();
+    every.defers_discs = false;
+    let reference = every.step(0, x_bar, 0.0);
+    // One more solve: the first, without the disc, ran into it.
+    assert_eq!(plan.solves, reference.solves + 1);
+    let apart = plan_distance_m(&plan, &reference);
+    assert!(apart < 5e-4, "plans {apart} m apart");
+}
