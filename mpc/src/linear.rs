@@ -454,15 +454,15 @@ impl LinearMpc {
     /// implies; with terminal safety, if that fails, a second of the relaxed program.
     /// Returns the status, the interior-point iterations and the solves.
     ///
-    /// Discs are deferred exactly (constraint generation): a disc whose rows hold about the
-    /// reference, for every input within [`DEFERRAL_SHARE`] of the input box of it, is left
-    /// out of the program; when the solution misses a row of a deferred disc, that disc
-    /// joins the program and it is solved again. The program without a disc is a relaxation
-    /// of the one with it, so a solution that meets every deferred disc's rows is the
-    /// optimum of the program with every disc: the same plan, to the solver's tolerance,
-    /// from a smaller program. (The check is [`Barrier::implied`] at the solution; its
-    /// terminal rows are judged with the input box's largest speed, which errs towards
-    /// taking a disc in.)
+    /// Discs are deferred exactly (constraint generation): a disc whose rows hold for every
+    /// input sequence within [`DEFERRAL_SHARE`] of the input box about the reference's is
+    /// left out of the program; when the solution misses a row of a deferred disc, that
+    /// disc joins the program and it is solved again. The program without a disc is a
+    /// relaxation of the one with it, so a solution that meets every deferred disc's rows
+    /// is the optimum of the program with every disc: the same plan, to the solver's
+    /// tolerance, from a smaller program. (The check is [`Barrier::implied`] at the
+    /// solution, where only the terminal rows are bounded rather than evaluated: with the
+    /// solution's `|w_N|` for the approach speed too, which errs towards taking a disc in.)
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
         self.kept.clear();
         self.deferred.clear();
