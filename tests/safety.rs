@@ -29,12 +29,16 @@ const FAST_APPROACH: [&str; 10] = [
 ];
 
 #[test]
-fn with_both_layers_off_the_paper_run_is_todays_trajectory_to_the_bit() {
+fn with_both_layers_off_the_paper_run_is_the_papers_formulation_as_it_was() {
     let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&[&["run", "--in-process"][..], &PAPER_FORMULATION].concat());
     assert!(out.status.success(), "{}", stderr(&out));
     // Every 100th tick of the paper run as it was before the safety layers (and its
-    // last): time, true pose and zeta, the DFL's v and u.
+    // last): time, true pose and zeta, the DFL's v and u. To the bit until the MPC began
+    // to defer discs away from the plan (issue 29): the same optimum from a smaller
+    // program at some steps, so the same run to the solver's tolerance (3.2e-7 at most
+    // in any column, measured).
+    const TOLERANCE: f64 = 1e-6;
     let expected = include_str!("fixtures/paper_trajectory_every_100th_tick.csv");
     let rows = common::csv(&dir.path().join("trajectory.csv"));
     let mut lines = expected.lines();
@@ -48,8 +52,15 @@ fn with_both_layers_off_the_paper_run_is_todays_trajectory_to_the_bit() {
         .collect();
     assert_eq!(sampled.len(), fixture.len());
     for (row, line) in sampled.iter().zip(&fixture) {
-        let got: Vec<&str> = columns.iter().map(|c| row[*c].as_str()).collect();
-        assert_eq!(got.join(","), *line);
+        for (column, expected) in columns.iter().zip(line.split(',')) {
+            let got = common::num(row, column);
+            let expected: f64 = expected.parse().unwrap();
+            assert!(
+                (got - expected).abs() <= TOLERANCE,
+                "t = {}: {column} {got} against {expected}",
+                row["t"]
+            );
+        }
     }
 }
 

@@ -48,7 +48,10 @@
 //! group, the number of discs kept, the discs being data, and relaxed or not), all built
 //! at setup. In the
 //! paper's run the first group is always implied (the box is 10 m away) and the CBF rows
-//! are whenever the obstacle is out of reach of the horizon.
+//! are whenever the obstacle is out of reach of the horizon. A disc the input box does not
+//! rule out may still be deferred for a solve, when it lies away from the reference, and
+//! joins the program only if the solution runs into it ([`crate::linear`]'s
+//! `LinearMpc::solve_once`): a relaxation checked at its solution, so the same optimum.
 //!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
 //! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`crate::assembly::Condensing`]), the
