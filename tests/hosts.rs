@@ -545,6 +545,7 @@ fn when_the_orchestrator_is_killed_the_remote_roles_stop_and_the_agent_serves_th
 
 #[test]
 fn plain_tcp_off_loopback_is_refused_by_the_run_and_the_agent_naming_the_option() {
+    let _machine = common::machine_shared();
     let endpoint = "tcp/192.0.2.7:7447";
     let host = format!("compute={endpoint}");
     let out = run(&["run", "--set", "hosts.mpc=compute", "--host", &host]);
@@ -557,6 +558,7 @@ fn plain_tcp_off_loopback_is_refused_by_the_run_and_the_agent_naming_the_option(
 
 #[test]
 fn a_host_that_does_not_answer_fails_the_run_before_tick_0_naming_it() {
+    let _machine = common::machine_shared();
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .unwrap()

@@ -301,6 +301,7 @@ fn sigint_ends_every_process_within_two_seconds_and_leaves_no_shared_memory() {
 
 #[test]
 fn a_scenario_error_is_refused_before_any_process_starts() {
+    let _machine = common::machine_shared();
     let prefix = unique_prefix("bad");
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("run");

@@ -12,6 +12,7 @@ use orchestrator::schema::Table;
 
 #[test]
 fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {
+    let _machine = common::machine_shared();
     let schema = run(&["schema"]);
     assert_eq!(schema.status.code(), Some(0), "{}", stderr(&schema));
     let out = run_python(&repo().join("tests/python/layouts.py"), &[], &schema.stdout);

@@ -209,6 +209,7 @@ role = "mpc"
 
 #[test]
 fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     for (extra, key) in [
         ("[[swap]]\ntime_s = 1.0\nrole = \"plant\"\n", "swap.0.role"),
