@@ -349,8 +349,8 @@ impl Link {
         &self,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
-        step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
-        warm_up: Option<impl FnMut()>,
+        mut step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        mut warm_up: Option<impl FnMut()>,
     ) -> Result<(), ProcessError> {
         let waitset = waitset(true)?;
         let attach = |listener| {
@@ -366,8 +366,6 @@ impl Link {
         self.report_ready(outputs)?;
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();
-        let mut step = step;
-        let mut warm_up = warm_up;
         let result = self.drive(
             &waitset,
             inputs,
