@@ -233,6 +233,26 @@ pub fn num(row: &std::collections::HashMap<String, String>, column: &str) -> f64
         .unwrap_or_else(|_| panic!("{column} = {:?}", row[column]))
 }
 
+/// Record gaps a real-time run may show when the machine, not the run, stalls: a process
+/// of the run descheduled for 15-20 ms on a shared two-core virtual machine leaves the DFL
+/// without estimates for as many ticks; it holds its last command, then brakes on its own
+/// (as designed), and the record counts those ticks as gaps. Seen: 4 gaps in one of six
+/// runs of the forged-sample test on the development machine (2026-11-26, deff995; the
+/// estimator silent from t = 28.12 s, long after the forgery at 2 s), 2 in the
+/// failed-swap test in a fresh-clone CI run of deff995. A test whose subject is not the
+/// timing allows this many; the real-time tests (`tests/realtime.rs`, the swaps that
+/// "cost no tick") allow none.
+pub const MACHINE_STALL_GAPS: u64 = 8;
+
+/// The run lost no tick to itself: at most [`MACHINE_STALL_GAPS`] record gaps.
+pub fn assert_few_record_gaps(summary: &serde_json::Value) {
+    let gaps = summary["record_gaps"].as_u64().expect("record_gaps");
+    assert!(
+        gaps <= MACHINE_STALL_GAPS,
+        "{gaps} record gaps: more than a stall of the machine explains"
+    );
+}
+
 /// The machine as the tests of one binary share it (cargo runs a binary's tests on
 /// parallel threads, and the binaries one after another).
 static MACHINE: std::sync::RwLock<()> = std::sync::RwLock::new(());
