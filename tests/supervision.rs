@@ -643,7 +643,18 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
     // While no DFL runs the plant holds the last command: at most 40 ticks (0.2 s) go
     // without one, and the robot stays clear of the obstacle.
     let gaps = s["record_gaps"].as_u64().unwrap();
-    assert!(gaps <= 40, "{gaps} ticks without a command");
+    assert!((1..=40).contains(&gaps), "{gaps} ticks without a command");
+    // Each gap names the silent process: the DFL, while the plant and its sensor went on.
+    let gap_events: Vec<_> = ev.iter().filter(|e| e["event"] == "record_gap").collect();
+    assert_eq!(gap_events.len() as u64, gaps);
+    for gap in gap_events {
+        let missing = gap["missing"].as_array().unwrap();
+        let names = |topic: &str| missing.iter().any(|m| m == topic);
+        assert!(
+            names("actuation") && !names("truth") && !names("measurement"),
+            "{gap}"
+        );
+    }
     // Every other tick of the 10 s is recorded whole.
     assert_eq!(s["ticks"].as_u64().unwrap() + gaps, 2000);
     assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);

@@ -37,6 +37,20 @@ impl TickSlot {
     fn commanded(&self) -> bool {
         self.truth.is_some() && self.measurement.is_some() && self.actuation.is_some()
     }
+
+    /// The topics whose sample of the tick never came, as the `record_gap` event names
+    /// them: which process was silent.
+    fn missing(&self) -> Vec<&'static str> {
+        [
+            ("truth", self.truth.is_none()),
+            ("measurement", self.measurement.is_none()),
+            ("estimate", self.estimate.is_none()),
+            ("actuation", self.actuation.is_none()),
+        ]
+        .into_iter()
+        .filter_map(|(topic, missing)| missing.then_some(topic))
+        .collect()
+    }
 }
 
 /// The slot of `tick`, unless the tick is already recorded (`tick < cursor`).
@@ -168,7 +182,10 @@ impl Intake {
         let slot = self.take_slot(tick);
         if tick < self.ticks && !complete && !slot.commanded() {
             self.record_gaps += 1;
-            recorder.event("record_gap", serde_json::json!({ "tick": tick }))?;
+            recorder.event(
+                "record_gap",
+                serde_json::json!({ "tick": tick, "missing": slot.missing() }),
+            )?;
         }
         Ok(Some(slot))
     }
