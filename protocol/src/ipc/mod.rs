@@ -295,6 +295,7 @@ impl<T: Message> Topic<T> {
             last_tick: Cell::new(None),
             rejected: Cell::new([0; Rejection::COUNT]),
             taken: Cell::new(0),
+            newest_publish_ns: Cell::new(None),
             limit: OnceCell::new(),
             clock_known: Cell::new(false),
             standby_newest: Cell::new(None),
@@ -363,6 +364,8 @@ pub struct Receiver<T: Message> {
     rejected: Cell<[u64; Rejection::COUNT]>,
     /// Samples taken so far.
     taken: Cell<u64>,
+    /// When the newest sample taken was published, monotonic ns.
+    newest_publish_ns: Cell<Option<u64>>,
     /// The clock a sample's tick is judged against ([`Receiver::bound_by`]).
     limit: OnceCell<Rc<dyn TickLimit>>,
     /// Whether that clock has known "now" ([`Receiver::clock_known`]).
@@ -403,6 +406,8 @@ impl<T: Message> Receiver<T> {
             match self.check(&message, origin) {
                 Ok(EpochVerdict::Take) => {
                     self.taken.set(self.taken.get() + 1);
+                    self.newest_publish_ns
+                        .set(Some(message.header().publish_ns));
                     return Ok(Some((message, latency, origin)));
                 }
                 Ok(_) => {
@@ -588,6 +593,8 @@ pub trait Input {
     fn producer(&self) -> Option<crate::Role>;
     /// How many samples it has taken so far.
     fn taken(&self) -> u64;
+    /// When the newest sample taken was published, monotonic ns (`None`: none taken).
+    fn newest_publish_ns(&self) -> Option<u64>;
     /// Newest tick published by the replacement (or the retiring producer) of the role and
     /// not taken, since the last call: how the orchestrator sees a replacement warm up.
     fn take_standby_newest(&self) -> Option<u64>;
@@ -617,6 +624,9 @@ impl<T: Message> Input for Receiver<T> {
     }
     fn taken(&self) -> u64 {
         self.taken.get()
+    }
+    fn newest_publish_ns(&self) -> Option<u64> {
+        self.newest_publish_ns.get()
     }
     fn take_standby_newest(&self) -> Option<u64> {
         self.standby_newest.take()
