@@ -18,8 +18,9 @@
 //! 4. **wait**: until what the step named ([`Next`], in run time): block in the WaitSet
 //!    (control and every input attached), or in real time poll an input around the time
 //!    it has been coming ([`spin_wait`], [`next_arrival_lag_ns`]) or sleep to a
-//!    deadline; a process that hears nothing for [`INPUT_TIMEOUT`] reports [`StatusEvent::InputLost`] and exits. A role that asks
-//!    for it ([`Link::run_warming`]) is warmed up in real time shortly before an input it
+//!    deadline; a process that hears nothing for [`INPUT_TIMEOUT`] reports
+//!    [`StatusEvent::InputLost`] and exits. A role that asks for it
+//!    ([`Link::run_warming`]) is warmed up in real time shortly before an input it
 //!    expects.
 //!
 //! The runtime owns time: a step never knows which clock runs. It asks the run's clock
@@ -405,7 +406,8 @@ impl Link {
         // The expected input (its due time, s) warmed up for.
         let mut warmed_for = None;
         // Real time: how long after its due time the expected input is published
-        // ([`next_arrival_lag_ns`]), and the input polled for with its due time, ns.
+        // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
+        // and the input polled for with its due time, ns.
         let mut arrival_lag_ns = 0;
         let mut polled: Option<(&dyn Input, u64)> = None;
         let mut followed = None;
