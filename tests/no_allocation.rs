@@ -2,7 +2,8 @@
 //! the run: a counting global allocator around each phase of the in-process closed loop
 //! (`ClosedLoop`, the one `scmpc run --in-process` steps), for every solver program and
 //! every fallback. For the MPC this includes every clarabel `solve()`; the plan phase
-//! includes the faults and the inbox.
+//! includes the faults and the inbox. The real-time MPC's rehearsal (`Mpc::rehearse`) is
+//! counted with the steps it comes before.
 
 use orchestrator::closed_loop::ClosedLoop;
 use protocol::alloc_count::{Counting, allocations as allocated};
@@ -101,6 +102,31 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
         assert_eq!(
             counts, [0; 5],
             "field, {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
+        );
+    }
+    // The real-time MPC's rehearsal before each sample (a dry step, then its state put
+    // back), in both programs: the robot follows each plan's first state, off by a drift.
+    for qp_form in ["sparse", "condensed"] {
+        let scenario = scenario(&[&format!("mpc.qp_form={qp_form}")]);
+        let mut mpc = mpc::Mpc::new(&scenario).unwrap();
+        let [x, y, theta] = scenario.robot.start;
+        let mut x_bar = [x, y, theta, scenario.robot.zeta0];
+        let mut counted = 0;
+        for k in 0..300 {
+            let (plan, a) = allocations(|| {
+                mpc.rehearse(u64::MAX);
+                mpc.step(k, x_bar, 0.01)
+            });
+            if k >= 20 {
+                counted += a;
+            }
+            let drift = 0.003 * (k as f64).sin();
+            x_bar = protocol::phi_inverse(plan.z[1], x_bar[2]);
+            x_bar[0] += drift;
+        }
+        assert_eq!(
+            counted, 0,
+            "{qp_form}: allocations in rehearsals and steps after 20"
         );
     }
     // Every fallback: failed solves (the cold retry, then the shifted plan and braking),

@@ -81,11 +81,13 @@ impl Mpc {
         }
     }
 
-    /// Solves the last program again for its memory's sake (a process idle since its last
-    /// step finds the solver in cache at the next one); changes no plan.
-    pub fn rehearse(&mut self) {
+    /// Warms the next step's memory (a process idle since its last step finds its working
+    /// set in cache at the next one): the linear scheme steps the next sample dry when
+    /// its last step took at most `dry_step_max_ns` ([`LinearMpc::rehearse`]), else, like
+    /// the nonlinear one, solves its last program again. Changes no plan.
+    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
         match self {
-            Mpc::Linear(m) => m.rehearse(),
+            Mpc::Linear(m) => m.rehearse(dry_step_max_ns),
             Mpc::Nonlinear(m) => m.rehearse(),
         }
     }

@@ -106,6 +106,13 @@ pub struct LinearMpc {
     /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
     last_sample: Option<u64>,
     last_z: Vec<[f64; 4]>,
+    /// The last step's estimate `x_bar` and position standard deviation, m, and its
+    /// duration, ns.
+    last_estimate: Option<([f64; 4], f64)>,
+    last_step_ns: u64,
+    /// What [`LinearMpc::rehearse`] keeps while its dry step runs: `last_z`, `solution`.
+    saved_last_z: Vec<[f64; 4]>,
+    saved_solution: Vec<f64>,
 }
 
 impl LinearMpc {
@@ -181,6 +188,7 @@ impl LinearMpc {
         let layout_stagewise = layout.stagewise();
         let mut mpc = LinearMpc {
             solution: vec![0.0; layout_stagewise],
+            saved_solution: vec![0.0; layout_stagewise],
             hessian,
             layout,
             statics,
@@ -215,6 +223,9 @@ impl LinearMpc {
             reference_velocity: [0.0; 2],
             last_sample: None,
             last_z: vec![[0.0; 4]; c.horizon + 1],
+            last_estimate: None,
+            last_step_ns: 0,
+            saved_last_z: vec![[0.0; 4]; c.horizon + 1],
         };
         mpc.build_solvers()?;
         Ok(mpc)
@@ -273,10 +284,39 @@ impl LinearMpc {
         self.last_sample = None;
     }
 
-    /// Solves the last step's last program again ([`ConicSolver::rehearse`]): the next
-    /// step's plan is the same, its memory warm.
-    pub fn rehearse(&mut self) {
-        self.solvers[self.rows.index()].rehearse();
+    /// A dry run of the next step, for its memory's sake: a process that slept since its
+    /// last step finds its working set (the discs, the reference, the assembly, the
+    /// solver it will use) in cache at the next one. It steps the next sample from the
+    /// estimate the last plan predicts (its `z_1`), then puts back what a step leaves for
+    /// the next (`last_sample`, `last_z`, `solution`, the last estimate), so the next
+    /// step's plan is the same. Everything else a step reads it writes first, except
+    /// `writes_linear_term`, which only ever turns on, and writing the linear term is
+    /// always right. Without a solved last plan, or when the last step took longer than
+    /// `dry_step_max_ns` (a dry step as long could run into the sample), it only solves
+    /// the last program again ([`ConicSolver::rehearse`]).
+    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
+        let (Some(sample), Some((x_bar, sigma_m)), true) = (
+            self.last_sample,
+            self.last_estimate,
+            self.last_step_ns <= dry_step_max_ns,
+        ) else {
+            self.solvers[self.rows.index()].rehearse();
+            return;
+        };
+        let z1 = self.last_z[1];
+        let predicted = protocol::phi_inverse(
+            [z1[0] + self.goal[0], z1[1], z1[2] + self.goal[1], z1[3]],
+            x_bar[2],
+        );
+        let last_step_ns = self.last_step_ns;
+        self.saved_last_z.copy_from_slice(&self.last_z);
+        self.saved_solution.copy_from_slice(&self.solution);
+        self.step(sample + 1, predicted, sigma_m);
+        self.last_z.copy_from_slice(&self.saved_last_z);
+        self.solution.copy_from_slice(&self.saved_solution);
+        self.last_sample = Some(sample);
+        self.last_estimate = Some((x_bar, sigma_m));
+        self.last_step_ns = last_step_ns;
     }
 
     /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
@@ -352,6 +392,7 @@ impl LinearMpc {
     /// `position_sigma_m` of its position. The header is left for the caller to fill.
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
         let started = Instant::now();
+        self.last_estimate = Some((x_bar, position_sigma_m));
         let z = protocol::phi(x_bar);
         let z0 = goal_relative(z, self.goal);
         let margin = self.margin_m(position_sigma_m);
@@ -401,6 +442,7 @@ impl LinearMpc {
             self.last_sample = None;
         }
         plan.solve_ns = started.elapsed().as_nanos() as u64;
+        self.last_step_ns = plan.solve_ns;
         plan
     }
 

@@ -3,7 +3,7 @@
 
 use crate::task::MpcTask;
 use protocol::ipc::{ESTIMATE, Input, PLAN, ROUTE};
-use protocol::runtime::{ControlState, Link, Next, ProcessArgs, ProcessError};
+use protocol::runtime::{ControlState, Link, Next, ProcessArgs, ProcessError, WARM_UP_LEAD_TICKS};
 use protocol::{Estimate, Plan, Role, Route};
 use std::cell::RefCell;
 
@@ -32,7 +32,10 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         Ok(Next::expect(&estimates, Some(task.next_due_s())))
     };
     // Asleep for most of `Ts` in real time, the step would start with cold caches: the
-    // runtime has the task solve its last program again shortly before the sample.
-    let rehearse = || task.borrow_mut().rehearse();
+    // runtime has the task rehearse shortly before the sample, a dry step if the last
+    // one took at most half that lead (so the rehearsal ends before the sample comes).
+    let lead_s = WARM_UP_LEAD_TICKS * args.scenario.timing.dt_s();
+    let dry_step_max_ns = (0.5 * lead_s * 1e9) as u64;
+    let rehearse = || task.borrow_mut().rehearse(dry_step_max_ns);
     link.run_warming(inputs, &[&plans], step, Some(rehearse))
 }

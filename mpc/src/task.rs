@@ -69,10 +69,10 @@ impl MpcTask {
         self.timing.sample_time_s(self.next_sample)
     }
 
-    /// Solves the last program again ([`Mpc::rehearse`]) to warm the solver's memory
-    /// before the next sample; changes no plan.
-    pub fn rehearse(&mut self) {
-        self.mpc.rehearse();
+    /// Warms the next step's memory before the next sample ([`Mpc::rehearse`]), with a
+    /// dry step if the last step took at most `dry_step_max_ns`; changes no plan.
+    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
+        self.mpc.rehearse(dry_step_max_ns);
     }
 
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the

@@ -597,3 +597,45 @@ fn a_deferred_disc_the_solution_runs_into_joins_the_program() {
     let apart = plan_distance_m(&plan, &reference);
     assert!(apart < 5e-4, "plans {apart} m apart");
 }
+
+#[test]
+fn a_rehearsal_before_every_step_changes_no_plan() {
+    // The robot drifts off every plan (as a real one does), so each rehearsal's dry step,
+    // from the state its last plan predicts, solves another program than the real step;
+    // a field of discs and the sparse program too, so discs join, leave and are deferred.
+    let field = "obstacles=[{x = 3.0, y = 3.5, radius = 1.5}, {x = 6.0, y = 3.5, radius = 0.4}, \
+                 {x = 1.5, y = 5.5, radius = 0.4}, {x = 5.5, y = 1.0, radius = 0.4}]";
+    for overrides in [vec![], vec![field.into(), "mpc.qp_form=\"sparse\"".into()]] {
+        let s = Scenario::default().with_overrides(&overrides).unwrap();
+        let mut rehearsing = LinearMpc::new(&s).unwrap();
+        let mut plain = LinearMpc::new(&s).unwrap();
+        let (a, b) = model::discretize(s.timing.ts_s);
+        let [x, y, theta] = s.robot.start;
+        let mut z = Vector4::from(protocol::phi([x, y, theta, s.robot.zeta0]));
+        let mut drift = logistic(0.3);
+        for k in 0..200 {
+            let x_bar = protocol::phi_inverse(z.into(), theta);
+            rehearsing.rehearse(u64::MAX);
+            let plan = rehearsing.step(k, x_bar, 0.01);
+            let reference = plain.step(k, x_bar, 0.01);
+            assert!(
+                reference.is_solved(),
+                "sample {k}: {:?}",
+                reference.status()
+            );
+            assert_eq!(
+                (plan.v, plan.z, plan.status, plan.iterations, plan.solves),
+                (
+                    reference.v,
+                    reference.z,
+                    reference.status,
+                    reference.iterations,
+                    reference.solves
+                ),
+                "sample {k} of {overrides:?}"
+            );
+            let push = nalgebra::Vector4::new(drift() - 0.5, 0.0, drift() - 0.5, 0.0) * 0.02;
+            z = a * z + b * nalgebra::Vector2::from(plan.v[0]) + push;
+        }
+    }
+}
