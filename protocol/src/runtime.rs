@@ -424,11 +424,12 @@ impl Link {
                 }
             })?;
             each_pass();
-            // Real time: the step has published; give the core to whatever waits for it
-            // there (a consumer spinning for this output on the same core runs now, not
-            // when this process next sleeps: the estimate → MPC hop p50 fell from 47-67 to
-            // 17-41 µs, docs/performance.md, "Hops: where the spin starts").
-            if self.clock.state.get().clock.mode() == RunMode::Realtime {
+            // Real time, after a wake-up's first step (the one that publishes; the step
+            // after housekeeping rarely does): give the core to whatever waits there for
+            // the output (a consumer spinning for it on this core runs now, not when this
+            // process next sleeps: the estimate → MPC hop p50 fell from 47-67 to 17-41 µs,
+            // docs/performance.md, "Hops: where the spin starts").
+            if !cleared && self.clock.state.get().clock.mode() == RunMode::Realtime {
                 std::thread::yield_now();
             }
             if let Some((input, due_ns)) = polled.take()
