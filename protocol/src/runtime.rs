@@ -512,6 +512,17 @@ impl Link {
                 },
                 Next::At(_) => None,
             };
+            // Lockstep: the next input comes as soon as the process before this one in the
+            // tick's chain has stepped, tens of µs from now; polling for it costs less than
+            // a wake-up from an event (docs/performance.md, "Lockstep").
+            if clock.mode() == RunMode::Lockstep
+                && lockstep_poll(|| {
+                    self.clock.control.has_samples() || inputs.iter().any(|i| i.has_samples())
+                })
+            {
+                last_input = Instant::now();
+                continue;
+            }
             if !self.wait(waitset, timeout, &mut last_input)? {
                 return Ok(());
             }
@@ -645,6 +656,28 @@ pub fn next_arrival_lag_ns(lag_ns: u64, published_ns: u64, due_ns: u64, dt_s: f6
     next.min(half_tick_ns)
 }
 
+/// Lockstep: how long a process polls shared memory for its next input, yielding its
+/// core between polls, before it blocks. About a tick of the MPC's sample in lockstep
+/// (a tick takes ~100-150 µs there); 0.3 ms did worse, 3 ms no better (docs/performance.md).
+pub const LOCKSTEP_POLL_NS: u64 = 1_000_000;
+
+/// Lockstep: polls `ready` (which must not make a system call to be worth it) for at most
+/// [`LOCKSTEP_POLL_NS`], yielding the core between polls, so that the process whose turn it
+/// is runs at once; whether `ready` came to hold. With every process of a run in the
+/// chain of a tick, one runs at a time: the others' polls cost it little.
+pub fn lockstep_poll(mut ready: impl FnMut() -> bool) -> bool {
+    let give_up = monotonic_ns() + LOCKSTEP_POLL_NS;
+    loop {
+        if ready() {
+            return true;
+        }
+        if monotonic_ns() >= give_up {
+            return false;
+        }
+        std::thread::yield_now();
+    }
+}
+
 /// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
 /// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
 /// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
@@ -664,6 +697,19 @@ pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_lockstep_poll_returns_once_ready_and_gives_up_after_its_budget() {
+        let mut polls = 0;
+        assert!(lockstep_poll(|| {
+            polls += 1;
+            polls == 3
+        }));
+        assert_eq!(polls, 3, "it returns at the first poll that is ready");
+        let started = monotonic_ns();
+        assert!(!lockstep_poll(|| false));
+        assert!(monotonic_ns() - started >= LOCKSTEP_POLL_NS);
+    }
 
     #[test]
     fn the_expected_lag_of_an_input_falls_at_once_rises_by_an_eighth_and_ignores_old_samples() {

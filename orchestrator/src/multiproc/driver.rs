@@ -2,7 +2,9 @@
 //!
 //! Lockstep: the driver grants tick `j` and waits until every sample of the tick (and the
 //! plan of a sample it starts) has come, records it, and only then grants `j + 1`, so the
-//! record is part of the handshake and loses nothing. Real time: it starts the clock and
+//! record is part of the handshake and loses nothing. It clears its wake-ups and checks
+//! the processes right after the grant, while the roles step, and then polls shared memory
+//! for the tick ([`protocol::runtime::lockstep_poll`]) before it blocks. Real time: it starts the clock and
 //! records ticks as they complete, counting every tick it never receives whole.
 //!
 //! Each part owns its state: [`Session`] the ports, the schedule and the clock;
@@ -24,6 +26,7 @@ use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
 use protocol::clock::monotonic_ns;
 use protocol::ipc;
+use protocol::runtime::lockstep_poll;
 use protocol::{Role, Scenario};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -79,6 +82,16 @@ impl<'a> Driver<'a> {
         let ticks = self.scenario.tick_count();
         for tick in 0..=ticks {
             self.session.grant(tick)?;
+            self.take_now()?;
+            if let Some(outcome) = self.check()? {
+                return Ok(outcome);
+            }
+            let mut taken = Ok(());
+            lockstep_poll(|| {
+                taken = self.intake.take_from_memory(self.session);
+                taken.is_err() || self.intake.has_whole(tick)
+            });
+            taken?;
             let mut last_progress = Instant::now();
             while !self.intake.has_whole(tick) {
                 if let Some(outcome) = self.check()? {
@@ -189,12 +202,17 @@ impl<'a> Driver<'a> {
         Ok(truth.and_then(|truth| self.judge.tick(&truth)))
     }
 
-    /// Waits for input (at most [`POLL`]) and takes everything received.
-    fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
-        ipc::wait(waitset, POLL)?;
+    /// Takes everything received, without waiting.
+    fn take_now(&mut self) -> anyhow::Result<()> {
         self.intake.take(self.session)?;
         self.supervisor
             .take_status(self.session, self.children, self.recorder)
+    }
+
+    /// Waits for input (at most [`POLL`]) and takes everything received.
+    fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
+        ipc::wait(waitset, POLL)?;
+        self.take_now()
     }
 
     /// Between ticks: the status line, and the swaps moved on.

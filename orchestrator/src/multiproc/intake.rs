@@ -103,47 +103,56 @@ impl Intake {
         }
     }
 
-    /// Files everything the data topics hold by tick. Ticks already recorded come again
-    /// only as replays: skipped.
+    /// Files everything the data topics hold by tick, after clearing their wake-ups (so
+    /// none is missed). Ticks already recorded come again only as replays: skipped.
     pub fn take(&mut self, session: &Session) -> anyhow::Result<()> {
+        for input in session.inputs() {
+            input.clear_wakeups();
+        }
+        self.take_from_memory(session)
+    }
+
+    /// [`Intake::take`] straight from shared memory, without a system call: the wake-ups
+    /// stay, so the caller takes with [`Intake::take`] before it blocks.
+    pub fn take_from_memory(&mut self, session: &Session) -> anyhow::Result<()> {
         let (cursor, ticks) = (self.cursor, self.ticks);
         let slots = &mut self.slots;
         let newest = &mut self.newest_truth;
-        session.truth.drain(|m, _| {
+        session.truth.take(|m, _| {
             *newest = (*newest).max(Some(m.header.tick));
             if let Some(s) = slot(slots, cursor, m.header.tick) {
                 s.truth = Some(m);
             }
         })?;
-        session.measurement.drain(|m, _| {
+        session.measurement.take(|m, _| {
             if let Some(s) = slot(slots, cursor, m.header.tick) {
                 s.measurement = Some(m);
             }
         })?;
-        session.estimate.drain(|m, _| {
+        session.estimate.take(|m, _| {
             if let Some(s) = slot(slots, cursor, m.header.tick) {
                 s.estimate = Some(m);
             }
         })?;
-        session.actuation.drain(|m, l| {
+        session.actuation.take(|m, l| {
             if let Some(s) = slot(slots, cursor, m.header.tick) {
                 s.actuation = Some((m, l));
             }
         })?;
         let plans = &mut self.plans;
-        session.plan.drain(|p, _| {
+        session.plan.take(|p, _| {
             if p.header.tick < ticks {
                 plans.insert(p.sample, p);
             }
         })?;
         let routes = &mut self.routes;
-        session.route.drain(|r, _| {
+        session.route.take(|r, _| {
             if r.header.tick < ticks {
                 routes.push(r);
             }
         })?;
         let verdicts = &mut self.verdicts;
-        session.deadline.drain(|v, _| {
+        session.deadline.take(|v, _| {
             if v.header.tick < ticks {
                 verdicts.insert(v.sample, v);
             }
