@@ -11,7 +11,9 @@
 //! - Real time: the paper run in real time: per-hop and sensor-to-actuator latency,
 //!   deadline misses, each process's peak resident memory, and its MPC step against the
 //!   same samples stepped in process (back to back, caches hot).
-//! - Lockstep: the paper run in lockstep: how much faster than real time.
+//! - Lockstep: the paper run in lockstep, with `run.mcap` and without, alternating
+//!   ([`LOCKSTEP_PAIRS`] pairs): how much faster than real time, and what the recording
+//!   costs.
 //! - Across hosts ([`cross_host`]): a raw Zenoh ping-pong, and the real-time run with the
 //!   MPC on a second host over loopback.
 //! - Scaling ([`scaling`]): the MPC step against the horizon and the obstacle count.
@@ -73,11 +75,17 @@ pub struct BenchReport {
     pub realtime_step_ratio_p50: f64,
     pub realtime_deadline_misses: u64,
     pub peak_rss_kib: std::collections::BTreeMap<String, u64>,
-    /// Simulated and wall time of the lockstep paper run, s.
+    /// Simulated time of the lockstep paper run, and its wall time with `run.mcap`
+    /// (median of [`LOCKSTEP_PAIRS`] runs), s.
     pub lockstep_simulated_s: f64,
     pub lockstep_wall_s: f64,
-    /// Simulated seconds per wall second in lockstep.
+    /// The same without `run.mcap`, s.
+    pub lockstep_wall_without_mcap_s: f64,
+    /// Simulated seconds per wall second in lockstep, with `run.mcap`.
     pub lockstep_speedup: f64,
+    /// What `run.mcap` adds to the lockstep wall time, as a share of the run without it:
+    /// the median over the pairs of `with / without - 1`.
+    pub lockstep_recording_share: f64,
     /// One route search ([`planner::TangentGraph::shortest_path`]) over each of
     /// [`PLANNING_FIELDS`] random fields ([`planning_field`]), by number of discs, µs.
     pub route_planning_us: std::collections::BTreeMap<usize, Percentiles>,
@@ -86,6 +94,10 @@ pub struct BenchReport {
     /// The MPC step for every horizon and obstacle count of [`scaling`].
     pub scaling: Vec<scaling::ScalingPoint>,
 }
+
+/// Lockstep paper runs with and without `run.mcap`, alternating: this machine's speed
+/// moves from minute to minute, so the recording's cost is a median of pairs.
+pub const LOCKSTEP_PAIRS: usize = 3;
 
 /// Random fields per size in the route-planning benchmark.
 pub const PLANNING_FIELDS: u64 = 1000;
@@ -327,16 +339,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     crate::stop::check(stop)?;
     let hot = crate::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
     crate::stop::check(stop)?;
-    let lockstep: Summary = multiproc::run(
-        &paper,
-        &out.join("lockstep"),
-        RunMode::Lockstep,
-        &ipc::new_prefix(),
-        &multiproc::HostsSetup::default(),
-        false,
-        stop,
-    )?;
-    crate::stop::check(stop)?;
+    let lockstep = lockstep_pairs(&paper, &out.join("lockstep"), stop)?;
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     crate::stop::check(stop)?;
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
@@ -356,8 +359,10 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         realtime_deadline_misses: realtime.deadline_misses,
         peak_rss_kib: processes.peak_rss_kib.clone(),
         lockstep_simulated_s: lockstep.simulated_s,
-        lockstep_wall_s: lockstep.wall_s,
-        lockstep_speedup: lockstep.simulated_s / lockstep.wall_s.max(1e-9),
+        lockstep_wall_s: lockstep.with_mcap_s,
+        lockstep_wall_without_mcap_s: lockstep.without_mcap_s,
+        lockstep_speedup: lockstep.simulated_s / lockstep.with_mcap_s.max(1e-9),
+        lockstep_recording_share: lockstep.recording_share,
         route_planning_us: [5, 20]
             .into_iter()
             .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
@@ -369,6 +374,51 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(report)
+}
+
+/// The lockstep runs' medians (nearest rank), s, and the recording's share.
+struct Lockstep {
+    simulated_s: f64,
+    with_mcap_s: f64,
+    without_mcap_s: f64,
+    recording_share: f64,
+}
+
+/// [`LOCKSTEP_PAIRS`] pairs of lockstep paper runs, with `run.mcap` and then without, into
+/// `out/with-mcap-<i>` and `out/without-mcap-<i>`.
+fn lockstep_pairs(
+    paper: &protocol::scenario::Validated,
+    out: &Path,
+    stop: &AtomicBool,
+) -> anyhow::Result<Lockstep> {
+    let mut simulated_s = 0.0;
+    let (mut with, mut without, mut shares) = (Vec::new(), Vec::new(), Vec::new());
+    for pair in 0..LOCKSTEP_PAIRS {
+        let mut wall_s = [0.0; 2];
+        for (mcap, name, wall) in [(true, "with-mcap", 0), (false, "without-mcap", 1)] {
+            let run: Summary = multiproc::run(
+                paper,
+                &out.join(format!("{name}-{pair}")),
+                RunMode::Lockstep,
+                &ipc::new_prefix(),
+                &multiproc::HostsSetup::default(),
+                mcap,
+                stop,
+            )?;
+            crate::stop::check(stop)?;
+            simulated_s = run.simulated_s;
+            wall_s[wall] = run.wall_s;
+        }
+        with.push(wall_s[0]);
+        without.push(wall_s[1]);
+        shares.push(wall_s[0] / wall_s[1].max(1e-9) - 1.0);
+    }
+    Ok(Lockstep {
+        simulated_s,
+        with_mcap_s: Percentiles::of(&with).p50,
+        without_mcap_s: Percentiles::of(&without).p50,
+        recording_share: Percentiles::of(&shares).p50,
+    })
 }
 
 impl BenchReport {
@@ -387,7 +437,7 @@ impl BenchReport {
             .collect();
         let c = &self.cross_host;
         format!(
-            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {} ({:.2}× in process at p50: {})\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {} ({:.2}× in process at p50: {})\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time) with run.mcap, {:.2} s without (recording {:+.1} %)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
             self.machine,
             p(&self.raw_iceoryx2_one_way_us),
             p(&self.pipeline_hop_us),
@@ -401,6 +451,8 @@ impl BenchReport {
             self.lockstep_wall_s,
             self.lockstep_simulated_s,
             self.lockstep_speedup,
+            self.lockstep_wall_without_mcap_s,
+            100.0 * self.lockstep_recording_share,
             p(&c.raw_zenoh_one_way_us),
             p(&c.cross_host_hop_us),
             c.cross_host_ratio_p50,
