@@ -657,8 +657,8 @@ pub fn next_arrival_lag_ns(lag_ns: u64, published_ns: u64, due_ns: u64, dt_s: f6
 }
 
 /// Lockstep: how long a process polls shared memory for its next input, yielding its
-/// core between polls, before it blocks. About a tick of the MPC's sample in lockstep
-/// (a tick takes ~100-150 µs there); 0.3 ms did worse, 3 ms no better (docs/performance.md).
+/// core between polls, before it blocks: longer than a lockstep tick with an MPC step
+/// (the others take ~100 µs); 0.3 ms did worse, 3 ms no better (docs/performance.md).
 pub const LOCKSTEP_POLL_NS: u64 = 1_000_000;
 
 /// Lockstep: polls `ready` (which must not make a system call to be worth it) for at most

@@ -3,9 +3,10 @@
 //! Lockstep: the driver grants tick `j` and waits until every sample of the tick (and the
 //! plan of a sample it starts) has come, records it, and only then grants `j + 1`, so the
 //! record is part of the handshake and loses nothing. It clears its wake-ups and checks
-//! the processes right after the grant, while the roles step, and then polls shared memory
-//! for the tick ([`protocol::runtime::lockstep_poll`]) before it blocks. Real time: it starts the clock and
-//! records ticks as they complete, counting every tick it never receives whole.
+//! the processes right after the grant, while the roles step, and then polls shared
+//! memory for the tick ([`protocol::runtime::lockstep_poll`]) before it blocks. Real time:
+//! it starts the clock and records ticks as they complete, counting every tick it never
+//! receives whole.
 //!
 //! Each part owns its state: [`Session`] the ports, the schedule and the clock;
 //! [`Children`] the processes; [`Intake`] what was received and not recorded yet;
