@@ -327,16 +327,13 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
 
     let paper = protocol::Scenario::default().validated("the paper scenario")?;
     let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
-    let realtime: Summary = multiproc::run(
+    let realtime = local_run(
         &scenario,
         &out.join("realtime"),
         RunMode::Realtime,
-        &ipc::new_prefix(),
-        &multiproc::HostsSetup::default(),
         false,
         stop,
     )?;
-    crate::stop::check(stop)?;
     let hot = crate::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
     crate::stop::check(stop)?;
     let lockstep = lockstep_pairs(&paper, &out.join("lockstep"), stop)?;
@@ -384,6 +381,27 @@ struct Lockstep {
     recording_share: f64,
 }
 
+/// A run of `scenario` on this host, on fresh iceoryx2 resources, into `dir`.
+fn local_run(
+    scenario: &protocol::scenario::Validated,
+    dir: &Path,
+    mode: RunMode,
+    mcap: bool,
+    stop: &AtomicBool,
+) -> anyhow::Result<Summary> {
+    let summary = multiproc::run(
+        scenario,
+        dir,
+        mode,
+        &ipc::new_prefix(),
+        &multiproc::HostsSetup::default(),
+        mcap,
+        stop,
+    )?;
+    crate::stop::check(stop)?;
+    Ok(summary)
+}
+
 /// [`LOCKSTEP_PAIRS`] pairs of lockstep paper runs, with `run.mcap` and then without, into
 /// `out/with-mcap-<i>` and `out/without-mcap-<i>`.
 fn lockstep_pairs(
@@ -394,24 +412,16 @@ fn lockstep_pairs(
     let mut simulated_s = 0.0;
     let (mut with, mut without, mut shares) = (Vec::new(), Vec::new(), Vec::new());
     for pair in 0..LOCKSTEP_PAIRS {
-        let mut wall_s = [0.0; 2];
-        for (mcap, name, wall) in [(true, "with-mcap", 0), (false, "without-mcap", 1)] {
-            let run: Summary = multiproc::run(
-                paper,
-                &out.join(format!("{name}-{pair}")),
-                RunMode::Lockstep,
-                &ipc::new_prefix(),
-                &multiproc::HostsSetup::default(),
-                mcap,
-                stop,
-            )?;
-            crate::stop::check(stop)?;
-            simulated_s = run.simulated_s;
-            wall_s[wall] = run.wall_s;
-        }
-        with.push(wall_s[0]);
-        without.push(wall_s[1]);
-        shares.push(wall_s[0] / wall_s[1].max(1e-9) - 1.0);
+        let run = |mcap, name| {
+            let dir = out.join(format!("{name}-{pair}"));
+            local_run(paper, &dir, RunMode::Lockstep, mcap, stop)
+        };
+        let recorded = run(true, "with-mcap")?;
+        let bare = run(false, "without-mcap")?;
+        simulated_s = recorded.simulated_s;
+        with.push(recorded.wall_s);
+        without.push(bare.wall_s);
+        shares.push(recorded.wall_s / bare.wall_s.max(1e-9) - 1.0);
     }
     Ok(Lockstep {
         simulated_s,

@@ -19,7 +19,7 @@
 //! 4. **wait**: until what the step named ([`Next`], in run time): block in the WaitSet
 //!    (control and every input attached), or in real time poll an input around the time
 //!    it has been coming ([`spin_wait`], [`next_arrival_lag_ns`]) or sleep to a
-//!    deadline; a process that hears nothing for [`INPUT_TIMEOUT`] reports
+//!    deadline; in lockstep first poll shared memory for a while ([`lockstep_poll`]); a process that hears nothing for [`INPUT_TIMEOUT`] reports
 //!    [`StatusEvent::InputLost`] and exits. A role that asks for it
 //!    ([`Link::run_warming`]) is warmed up in real time shortly before an input it
 //!    expects.
