@@ -47,7 +47,7 @@ impl Layout {
     /// Number of the solver's variables in the program with `rows`: the base ones, and
     /// for its discs the terminal rows' variables and, relaxed, the decay slacks.
     pub fn variables(&self, rows: Rows) -> usize {
-        self.base_variables() + self.slacks(rows) + self.terminal_variables(rows.discs)
+        self.base_variables() + self.slacks(rows) + self.terminal_variables(rows.terminal_discs())
     }
     /// Decay slacks a relaxed program with `discs` discs has: one per disc and stage, with
     /// terminal safety on a CBF that is not linear.
@@ -92,17 +92,20 @@ impl Layout {
         } else {
             0
         };
-        let terminal_rows = self.terminal.map_or(0, |t| t.nonnegative_rows(rows.discs));
+        let terminal_discs = rows.terminal_discs();
+        let terminal_rows = self
+            .terminal
+            .map_or(0, |t| t.nonnegative_rows(terminal_discs));
         let inequalities =
             4 * n + box_and_terminal + linear_barrier_rows + 2 * self.slacks(rows) + terminal_rows;
-        let mut cones = Vec::with_capacity(3 + cone_barriers + rows.discs);
+        let mut cones = Vec::with_capacity(3 + cone_barriers + terminal_discs);
         if !self.condensed {
             cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
         }
         cones.push(SupportedConeT::NonnegativeConeT(inequalities));
         cones.extend((0..cone_barriers).map(|_| SupportedConeT::SecondOrderConeT(4)));
         if let Some(t) = self.terminal {
-            t.cones(rows.discs, &mut cones);
+            t.cones(terminal_discs, &mut cones);
         }
         cones
     }
@@ -111,44 +114,85 @@ impl Layout {
 /// Which rows a solve's program has. Rows are left out when the input box implies them for
 /// this solve (every input sequence within the input box satisfies them): the same
 /// feasible set, a smaller program. The position box and the terminal set go as one
-/// group; the rows of each disc (its CBF rows, decay slacks and terminal rows) go with the
-/// disc. The discs are data, so one program serves any `discs` of them. With terminal
-/// safety a step first solves the program without decay slacks and, only if that fails
-/// (infeasible, or the solver stalls), the relaxed one: the decay is relaxed only where
-/// braking needs it. (The relaxed program is a relaxation: its slacks' bounds ask
-/// `L_i(p_i) >= floor_i`, which the unrelaxed rows imply stage by stage.) One solver per
-/// combination, at most `4 (M + 1)` for `M` obstacles.
+/// group; a disc's rows in two: its CBF rows with their decay slacks, and its terminal
+/// rows. A disc is in the program with both groups, with its terminal rows only (its CBF
+/// rows implied, or deferred, [`crate::linear`]), or not at all. The discs are data, so
+/// one program serves any discs of each kind. With terminal safety a step first solves
+/// the program without decay slacks and, only if that fails (infeasible, or the solver
+/// stalls), the relaxed one: the decay is relaxed only where braking needs it. (The
+/// relaxed program is a relaxation: its slacks' bounds ask `L_i(p_i) >= floor_i`, which
+/// the unrelaxed rows imply stage by stage.) One solver per combination, fewer than
+/// `4 (M + 1) (1 + MAX_TERMINAL_ONLY)` for `M` obstacles, all built at setup.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Rows {
     /// The position box on `z_1 .. z_{N-1}` and the terminal set
     /// ([`crate::program::StaticData::box_and_terminal_implied`]).
     pub box_and_terminal: bool,
-    /// Discs whose rows are in the program ([`crate::program::Barrier::implied`] is false for them).
+    /// Discs with every row in the program: CBF rows, decay slacks, terminal rows
+    /// ([`crate::program::Barrier::implied`] is false for them).
     pub discs: usize,
+    /// Discs after those with only their terminal rows in the program (terminal safety
+    /// only), at most [`MAX_TERMINAL_ONLY`], and none in a relaxed program: a step that
+    /// relaxes the decay does so for every disc it keeps.
+    pub terminal_only: usize,
     /// The CBF's decay relaxed by slacks ([`Layout::decay_slacks`]).
     pub relaxed: bool,
 }
 
+/// The most discs a program holds with their terminal rows only. A step with more such
+/// discs keeps the others whole (a larger program, the same optimum); each one more
+/// multiplies the programs built at setup.
+pub const MAX_TERMINAL_ONLY: usize = 1;
+
 impl Rows {
+    /// One whole disc and nothing else: a disc's rows on their own.
+    pub const ONE_DISC: Rows = Rows {
+        box_and_terminal: false,
+        discs: 1,
+        terminal_only: 0,
+        relaxed: false,
+    };
+
     /// Every row of a layout, relaxed if it can be.
     pub fn all(l: &Layout) -> Rows {
         Rows {
             box_and_terminal: true,
             discs: l.obstacles,
+            terminal_only: 0,
             relaxed: l.decay_slacks(l.obstacles) > 0,
         }
     }
 
-    /// Every combination of a layout (a program is relaxed only if it has slacks).
+    /// Discs with their terminal rows in the program.
+    pub fn terminal_discs(self) -> usize {
+        self.discs + self.terminal_only
+    }
+
+    /// The most discs a program of `l` holds with their terminal rows only.
+    pub fn max_terminal_only(l: &Layout) -> usize {
+        if l.terminal.is_some() {
+            MAX_TERMINAL_ONLY
+        } else {
+            0
+        }
+    }
+
+    /// Every combination of a layout (a program is relaxed only if it has slacks, and
+    /// then holds no disc with its terminal rows only).
     pub fn every(l: &Layout) -> impl Iterator<Item = Rows> {
-        (0..=l.obstacles).flat_map(move |discs| {
-            let relaxed = l.decay_slacks(discs) > 0;
+        let discs = (0..=l.obstacles).flat_map(move |discs| {
+            let most = Rows::max_terminal_only(l).min(l.obstacles - discs);
+            (0..=most).map(move |terminal_only| (discs, terminal_only))
+        });
+        discs.flat_map(move |(discs, terminal_only)| {
+            let relaxed = l.decay_slacks(discs) > 0 && terminal_only == 0;
             [(false, false), (true, false), (false, true), (true, true)]
                 .into_iter()
                 .filter(move |&(r, _)| relaxed || !r)
                 .map(move |(relaxed, box_and_terminal)| Rows {
                     box_and_terminal,
                     discs,
+                    terminal_only,
                     relaxed,
                 })
         })
@@ -156,12 +200,13 @@ impl Rows {
 
     /// Index in `0..Rows::count(l)`.
     pub fn index(self) -> usize {
-        4 * self.discs + 2 * usize::from(self.relaxed) + usize::from(self.box_and_terminal)
+        let discs = (1 + MAX_TERMINAL_ONLY) * self.discs + self.terminal_only;
+        4 * discs + 2 * usize::from(self.relaxed) + usize::from(self.box_and_terminal)
     }
 
     /// Number of indices for a layout.
     pub fn count(l: &Layout) -> usize {
-        4 * (l.obstacles + 1)
+        4 * (1 + MAX_TERMINAL_ONLY) * (l.obstacles + 1)
     }
 }
 

@@ -80,8 +80,10 @@ pub struct LinearMpc {
     /// The step's constraint discs ([`crate::discs::constraint_discs`]).
     discs: Vec<Disc>,
     /// Those of a solve's program: discs whose rows the input box does not imply and
-    /// that lie near the plan ([`LinearMpc::solve_once`]).
+    /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
+    /// with all their rows, the others with their terminal rows only.
     kept: Vec<Disc>,
+    kept_whole: usize,
     /// Discs whose rows the input box does not imply, left out of a solve's program while
     /// its solution meets their rows.
     deferred: Vec<Disc>,
@@ -215,6 +217,7 @@ impl LinearMpc {
             assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
             kept: Vec::with_capacity(scenario.obstacles.len()),
+            kept_whole: 0,
             deferred: Vec::with_capacity(scenario.obstacles.len()),
             defers_discs: true,
             deferral_share: DEFERRAL_SHARE,
@@ -245,7 +248,8 @@ impl LinearMpc {
         );
         for rows in Rows::every(&self.layout).collect::<Vec<_>>() {
             self.kept.clear();
-            self.kept.extend_from_slice(&self.discs[..rows.discs]);
+            self.kept
+                .extend_from_slice(&self.discs[..rows.terminal_discs()]);
             self.fill([0.0; 4], rows);
             let variables = self.layout.variables(rows);
             let hessian = padded(solver_hessian(&self.assembly, &self.hessian), variables);
@@ -505,8 +509,15 @@ impl LinearMpc {
     /// tolerance, from a smaller program. (The check is [`Barrier::implied`] at the
     /// solution, where only the terminal rows are bounded rather than evaluated: with the
     /// solution's `|w_N|` for the approach speed too, which errs towards taking a disc in.)
+    /// The same holds for a disc's two groups of rows: a disc whose CBF rows are implied or
+    /// deferrable but whose terminal rows are not joins with its terminal rows only
+    /// ([`Rows::terminal_only`]), and whole if the solution misses a CBF row of it, or if
+    /// the program fails (the whole disc's decay may need relaxing).
+    ///
+    /// [`Barrier::implied`]: crate::program::Barrier::implied
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
         self.kept.clear();
+        self.kept_whole = 0;
         self.deferred.clear();
         let p0 = [z0[0], z0[2]];
         let reference = &self.reference;
@@ -515,20 +526,29 @@ impl LinearMpc {
             self.reference_velocity,
             self.deferral_share,
         );
+        let most_terminal_only = Rows::max_terminal_only(&self.layout);
         for j in 0..self.discs.len() {
             let disc = self.discs[j];
             let barrier = self.step_data(z0, std::slice::from_ref(&disc)).barrier(
                 &self.layout,
                 &self.statics,
-                false,
+                Rows::ONE_DISC,
             );
-            if barrier.implied(&self.reach) {
+            let cbf_implied = barrier.cbf_implied(&self.reach);
+            let terminal_implied = barrier.terminal_implied(&self.reach);
+            if cbf_implied && terminal_implied {
                 continue;
             }
-            if self.defers_discs && barrier.implied(&self.plan_reach) {
+            let defers = self.defers_discs;
+            let cbf_met = cbf_implied || (defers && barrier.cbf_implied(&self.plan_reach));
+            let terminal_met =
+                terminal_implied || (defers && barrier.terminal_implied(&self.plan_reach));
+            if cbf_met && terminal_met {
                 self.deferred.push(disc);
-            } else {
+            } else if cbf_met && self.kept.len() - self.kept_whole < most_terminal_only {
                 self.kept.push(disc);
+            } else {
+                self.keep_whole(disc);
             }
         }
         let (mut iterations, mut solves) = (0, 0);
@@ -536,28 +556,40 @@ impl LinearMpc {
         loop {
             let rows = Rows {
                 box_and_terminal: self.box_and_terminal_needed,
-                discs: self.kept.len(),
+                discs: self.kept_whole,
+                terminal_only: self.kept.len() - self.kept_whole,
                 relaxed,
             };
             let (status, more) = self.solve_with(z0, rows);
             (iterations, solves) = (iterations + more, solves + 1);
             if status != PlanStatus::Solved {
-                if relaxed || self.layout.decay_slacks(rows.discs) == 0 {
+                if relaxed || self.layout.decay_slacks(rows.terminal_discs()) == 0 {
                     return (status, iterations, solves);
                 }
                 // Infeasible (or stalled): braking may need the decay relaxed (module docs
-                // of `terminal`).
+                // of `terminal`), of every disc the program holds.
+                self.kept_whole = self.kept.len();
                 relaxed = true;
-            } else if !self.admit_missed_discs(z0) {
+            } else if !self.admit_missed_rows(z0) {
                 return (status, iterations, solves);
             }
         }
     }
 
-    /// Moves every deferred disc whose rows the last solution misses into `kept`; true if
-    /// there was one.
-    fn admit_missed_discs(&mut self, z0: [f64; 4]) -> bool {
-        if self.deferred.is_empty() {
+    /// Puts `disc` in the program with all its rows: into `kept` after the whole discs
+    /// before it (so before those with their terminal rows only).
+    fn keep_whole(&mut self, disc: Disc) {
+        self.kept.push(disc);
+        let last = self.kept.len() - 1;
+        self.kept.swap(self.kept_whole, last);
+        self.kept_whole += 1;
+    }
+
+    /// Moves every deferred disc whose rows the last solution misses into `kept`, and
+    /// makes whole every disc in it with its terminal rows only whose CBF rows the
+    /// solution misses; true if there was one.
+    fn admit_missed_rows(&mut self, z0: [f64; 4]) -> bool {
+        if self.deferred.is_empty() && self.kept_whole == self.kept.len() {
             return false;
         }
         let Some(x) = self.solvers[self.rows.index()].x() else {
@@ -576,20 +608,40 @@ impl LinearMpc {
         self.plan_reach
             .set_plan(|i| [x[l.z(i, 0)], x[l.z(i, 2)]], w_n, 0.0);
         let mut admitted = false;
+        for j in self.kept_whole..self.kept.len() {
+            let met = self
+                .step_data(z0, std::slice::from_ref(&self.kept[j]))
+                .barrier(&self.layout, &self.statics, Rows::ONE_DISC)
+                .cbf_implied(&self.plan_reach);
+            if !met {
+                // The disc swapped to `j` comes from before it: checked already.
+                self.kept.swap(self.kept_whole, j);
+                self.kept_whole += 1;
+                admitted = true;
+            }
+        }
+        let most_terminal_only = Rows::max_terminal_only(&self.layout);
         let mut j = 0;
         while j < self.deferred.len() {
             let disc = self.deferred[j];
-            let met = self
-                .step_data(z0, std::slice::from_ref(&disc))
-                .barrier(&self.layout, &self.statics, false)
-                .implied(&self.plan_reach);
-            if met {
+            let barrier = self.step_data(z0, std::slice::from_ref(&disc)).barrier(
+                &self.layout,
+                &self.statics,
+                Rows::ONE_DISC,
+            );
+            let cbf_met = barrier.cbf_implied(&self.plan_reach);
+            if cbf_met && barrier.terminal_implied(&self.plan_reach) {
                 j += 1;
-            } else {
-                self.deferred.swap_remove(j);
-                self.kept.push(disc);
-                admitted = true;
+                continue;
             }
+            self.deferred.swap_remove(j);
+            let terminal_only = self.kept.len() - self.kept_whole;
+            if cbf_met && !self.rows.relaxed && terminal_only < most_terminal_only {
+                self.kept.push(disc);
+            } else {
+                self.keep_whole(disc);
+            }
+            admitted = true;
         }
         admitted
     }

@@ -43,15 +43,17 @@
 //! `|v| <= v_max`, the states are an affine image of a box, so each row's extreme value
 //! has a closed form ([`crate::reach::Span`], [`PositionReach`]). When every row of the position box
 //! and the terminal set holds at its extreme, that group is left out for the step; when
-//! every row of a disc does, the disc is left out for the solve. The feasible set is the
+//! every row of a disc does, the disc is left out for the solve, and when its CBF rows do,
+//! the disc is in the program with its terminal rows only. The feasible set is the
 //! same, the program smaller: one solver per combination (with or without the first
-//! group, the number of discs kept, the discs being data, and relaxed or not), all built
-//! at setup. In the
+//! group, the number of discs kept whole and with their terminal rows only, the discs
+//! being data, and relaxed or not), all built at setup. In the
 //! paper's run the first group is always implied (the box is 10 m away) and the CBF rows
 //! are whenever the obstacle is out of reach of the horizon. A disc the input box does not
 //! rule out may still be deferred for a solve, when it lies away from the reference, and
 //! joins the program only if the solution runs into it ([`crate::linear`]'s
 //! `LinearMpc::solve_once`): a relaxation checked at its solution, so the same optimum.
+//! So may its CBF rows alone, the disc keeping its terminal rows.
 //!
 //! Condensed formulation (`mpc.qp_form = "condensed"`): the states are eliminated with
 //! `z_i = A^i z_0 + sum_{j<i} A^(i-1-j) B v_j` (eq. 52 rolled out, [`crate::assembly::Condensing`]), the
@@ -150,18 +152,19 @@ pub struct StepData<'a> {
 }
 
 impl<'a> StepData<'a> {
-    /// What the step's CBF rows are built from, in a program `relaxed` or not.
-    pub fn barrier(&self, l: &Layout, s: &StaticData, relaxed: bool) -> Barrier<'a> {
-        let rows = Rows {
-            box_and_terminal: false,
-            discs: self.discs.len(),
-            relaxed,
-        };
+    /// What the step's CBF rows are built from, in the program with `rows`: the CBF rows
+    /// of the first `rows.discs` of the step's discs, the terminal rows of all of them.
+    pub fn barrier(&self, l: &Layout, s: &StaticData, rows: Rows) -> Barrier<'a> {
+        debug_assert_eq!(
+            rows.terminal_discs(),
+            self.discs.len(),
+            "a program's discs are the step's"
+        );
         Barrier {
             horizon: l.horizon,
             linear: l.linear_barrier,
             gamma: s.gamma,
-            discs: self.discs,
+            discs: &self.discs[..rows.discs],
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
             decay_slacks: (l.slacks(rows) > 0).then(|| l.decay_slack(0, 0)),
@@ -201,11 +204,6 @@ pub fn fill(asm: &mut Assembly, l: &Layout, s: &StaticData, d: &StepData, rows: 
         asm.q.clear();
         equality_rows(asm, l, s, d.z0);
     }
-    debug_assert_eq!(
-        rows.discs,
-        d.discs.len(),
-        "a program's discs are the step's"
-    );
     let variables = l.variables(rows);
     if variables > l.base_variables() {
         // The decay slacks' cost; the terminal rows' variables (after them) cost
@@ -226,9 +224,7 @@ pub fn fill(asm: &mut Assembly, l: &Layout, s: &StaticData, d: &StepData, rows: 
             asm.row(terms.into_iter().flatten(), bound.at(d.sub_goal));
         }
     }
-    write_barrier(asm, &d.barrier(l, s, rows.relaxed), |i| {
-        [l.z(i, 0), l.z(i, 2)]
-    });
+    write_barrier(asm, &d.barrier(l, s, rows), |i| [l.z(i, 0), l.z(i, 2)]);
 }
 
 /// `z_0` = measured state and the dynamics (eq. 52): the zero-cone rows.
@@ -367,11 +363,16 @@ impl Barrier<'_> {
     /// inputs is positive; a cone row `||p_i - o||^2 <= t0 + s g'p_{i+1}` when an upper
     /// bound of `||p_i - o||^2 - s g'p_{i+1}` is below `t0`.
     pub fn implied(&self, reach: &PositionReach) -> bool {
-        self.cbf_implied(reach) && self.terminal.is_none_or(|t| t.implied(reach))
+        self.cbf_implied(reach) && self.terminal_implied(reach)
+    }
+
+    /// [`Barrier::implied`] for the terminal rows.
+    pub fn terminal_implied(&self, reach: &PositionReach) -> bool {
+        self.terminal.is_none_or(|t| t.implied(reach))
     }
 
     /// [`Barrier::implied`] for the CBF rows (with zero decay slacks).
-    fn cbf_implied(&self, reach: &PositionReach) -> bool {
+    pub fn cbf_implied(&self, reach: &PositionReach) -> bool {
         let n = self.horizon;
         self.discs.iter().all(|disc| {
             let lowest = |i: usize| {

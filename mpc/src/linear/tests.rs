@@ -550,8 +550,8 @@ fn deferring_discs_away_from_the_plan_gives_the_plans_of_the_program_with_every_
         let plan = deferring.step(k, x_bar, 0.0);
         let reference = every.step(k, x_bar, 0.0);
         assert!(plan.is_solved(), "sample {k}: {:?}", plan.status());
-        deferring_discs += deferring.rows.discs;
-        every_discs += every.rows.discs;
+        deferring_discs += deferring.rows.terminal_discs();
+        every_discs += every.rows.terminal_discs();
         let [p, r] = [plan.z[1], reference.z[1]];
         first_apart = first_apart.max((p[0] - r[0]).hypot(p[2] - r[2]));
         apart = apart.max(plan_distance_m(&plan, &reference));
@@ -570,19 +570,25 @@ fn deferring_discs_away_from_the_plan_gives_the_plans_of_the_program_with_every_
     );
 }
 
-#[test]
-fn a_deferred_disc_the_solution_runs_into_joins_the_program() {
-    // At rest, the cold reference stays at the start; with no spread about it every disc
-    // off the start is deferred, and the plan towards the goal would run through this one.
+/// A robot at rest at `(-3, 0)` heading for the origin at N = 30, a disc of radius 0.3 m
+/// at `(disc_x_m, 0.05)`: the scenario and the estimate `x_bar`.
+fn at_rest_before_a_disc(disc_x_m: f64) -> (Scenario, [f64; 4]) {
     let s = Scenario::default()
         .with_overrides(&[
             "mpc.horizon=30".into(),
             "robot.start=[-3.0, 0.0, 0.0]".into(),
             "robot.goal=[0.0, 0.0]".into(),
-            "obstacles=[{x = -1.8, y = 0.05, radius = 0.3}]".into(),
+            format!("obstacles=[{{x = {disc_x_m}, y = 0.05, radius = 0.3}}]"),
         ])
         .unwrap();
-    let x_bar = [-3.0, 0.0, 0.0, 0.0];
+    (s, [-3.0, 0.0, 0.0, 0.0])
+}
+
+#[test]
+fn a_deferred_disc_the_solution_runs_into_joins_the_program() {
+    // At rest, the cold reference stays at the start; with no spread about it every disc
+    // off the start is deferred, and the plan towards the goal would run through this one.
+    let (s, x_bar) = at_rest_before_a_disc(-1.8);
     let mut deferring = LinearMpc::new(&s).unwrap();
     deferring.deferral_share = 0.0;
     let plan = deferring.step(0, x_bar, 0.0);
@@ -596,6 +602,51 @@ fn a_deferred_disc_the_solution_runs_into_joins_the_program() {
     assert_eq!(plan.solves, reference.solves + 1);
     let apart = plan_distance_m(&plan, &reference);
     assert!(apart < 5e-4, "plans {apart} m apart");
+}
+
+#[test]
+fn a_disc_kept_for_its_terminal_rows_whose_cbf_rows_the_solution_misses_becomes_whole() {
+    // A disc just ahead of a robot at rest: its terminal rows alone keep the plan out of
+    // it, but not at the CBF's decay rate (eq. 54).
+    let (s, x_bar) = at_rest_before_a_disc(-2.4);
+    let mut mpc = LinearMpc::new(&s).unwrap();
+    assert!(mpc.step(0, x_bar, 0.0).is_solved());
+    let z0 = goal_relative(protocol::phi(x_bar), mpc.goal);
+    let discs = absolute_discs(&s);
+    let solve = |mpc: &mut LinearMpc, rows: Rows| {
+        assert_eq!(mpc.solve_with(z0, rows).0, PlanStatus::Solved, "{rows:?}");
+        mpc.load_solution();
+        let mut plan = Plan {
+            horizon: s.mpc.horizon as u32,
+            ..Plan::default()
+        };
+        mpc.write_solution(&mut plan);
+        barrier_slack(&plan, &discs, s.mpc.gamma)
+    };
+    mpc.kept = mpc.discs.clone();
+    mpc.kept_whole = 0;
+    mpc.deferred.clear();
+    let terminal_only = Rows {
+        box_and_terminal: mpc.box_and_terminal_needed,
+        discs: 0,
+        terminal_only: 1,
+        relaxed: false,
+    };
+    let missed = solve(&mut mpc, terminal_only);
+    assert!(
+        missed < -1e-3,
+        "CBF slack {missed:e}: the solution keeps the CBF"
+    );
+    assert!(mpc.admit_missed_rows(z0));
+    assert_eq!((mpc.kept.len(), mpc.kept_whole), (1, 1));
+    let whole = Rows {
+        discs: 1,
+        terminal_only: 0,
+        ..terminal_only
+    };
+    let met = solve(&mut mpc, whole);
+    assert!(met >= -1e-6, "CBF slack {met:e}");
+    assert!(!mpc.admit_missed_rows(z0));
 }
 
 #[test]

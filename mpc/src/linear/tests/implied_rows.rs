@@ -32,6 +32,7 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
         let without_barrier = Rows {
             box_and_terminal: true,
             discs: 0,
+            terminal_only: 0,
             relaxed: false,
         };
         assert_holds_at_worst_inputs(&mpc, &data, without_barrier);
@@ -74,7 +75,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
             };
             if !data
-                .barrier(&mpc.layout, &mpc.statics, false)
+                .barrier(&mpc.layout, &mpc.statics, Rows::ONE_DISC)
                 .implied(&mpc.reach)
             {
                 kept += 1;
@@ -85,6 +86,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             let only_barrier = Rows {
                 box_and_terminal: false,
                 discs: 1,
+                terminal_only: 0,
                 relaxed: mpc.layout.decay_slacks(1) > 0,
             };
             assert_holds_at_worst_inputs(&mpc, &data, only_barrier);
@@ -130,7 +132,7 @@ fn assert_holds_at_worst_inputs(mpc: &LinearMpc, data: &StepData, rows: Rows) {
             *c += value * forced[(column, j)];
         }
     }
-    let terminal = data.barrier(l, st, rows.relaxed).terminal;
+    let terminal = data.barrier(l, st, rows).terminal;
     let extras = |v: &[f64]| {
         let mut extras = vec![0.0; l.variables(rows) - stagewise];
         if let Some(terminal) = &terminal {
@@ -275,15 +277,23 @@ fn leaving_out_implied_rows_changes_no_plan_of(s: &Scenario) {
         }
     }
     // The paper's run leaves out the box and terminal rows, and the obstacle's rows
-    // away from it.
+    // away from it; with terminal safety, its CBF rows alone for a while after the pass.
     let away = Rows {
         box_and_terminal: false,
         discs: 0,
+        terminal_only: 0,
         relaxed: false,
     };
     let near = Rows { discs: 1, ..away };
+    let passed = Rows {
+        terminal_only: 1,
+        ..away
+    };
+    let terminal_safety = mpc.layout.terminal.is_some();
     assert!(
-        compared[away.index()] > 10 && compared[near.index()] > 10,
+        compared[away.index()] > 10
+            && compared[near.index()] > 10
+            && (compared[passed.index()] > 5) == terminal_safety,
         "{compared:?}"
     );
 }

@@ -138,7 +138,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
             };
-            let barrier = data.barrier(&l, &mpc.statics, rows.relaxed);
+            let barrier = data.barrier(&l, &mpc.statics, rows);
             let first = l.terminal_variable(rows);
             let w_n = [states[n][1], states[n][3]];
             for (k, value) in barrier.terminal.unwrap().variables_at(w_n).enumerate() {
