@@ -22,6 +22,7 @@ use std::path::{Path, PathBuf};
 /// or it died (its orchestrator's pid, in the file, is gone). Removed with the summary.
 pub const INCOMPLETE: &str = "INCOMPLETE";
 
+mod json;
 mod lines;
 mod mcap;
 mod summary;

@@ -8,8 +8,11 @@
 //!
 //! The writer lives in the orchestrator, on a thread of its own: the recorder hands it
 //! copies of the messages ([`McapLog`]), and the thread encodes and writes them, so the
-//! recording costs the orchestrator's loop a copy per message.
+//! recording costs the orchestrator's loop a copy per message. The messages of every tick
+//! and plan are encoded by hand ([`super::json`]), the rest by serde_json, to the same
+//! bytes.
 
+use super::json::{Json, json_object};
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
     Route, Scenario, Timing,
@@ -213,7 +216,7 @@ impl McapFile {
             json: Vec::with_capacity(4096),
             poses: Vec::with_capacity(protocol::MAX_HORIZON + 1),
         };
-        log.write("/world/obstacles", 0.0, &world(scenario))?;
+        log.write_serde("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
     }
 
@@ -233,10 +236,28 @@ impl McapFile {
         self.writer.flush().map_err(io)
     }
 
-    fn write(&mut self, topic: &str, time_s: f64, message: &impl Serialize) -> std::io::Result<()> {
-        let channel_id = self.channels[topic];
+    /// Writes a message of the ticks and plans ([`Json`]).
+    fn write(&mut self, topic: &str, time_s: f64, message: &impl Json) -> std::io::Result<()> {
+        self.json.clear();
+        message.write_json(&mut self.json);
+        self.write_encoded(topic, time_s)
+    }
+
+    /// Writes any other message, with serde.
+    fn write_serde(
+        &mut self,
+        topic: &str,
+        time_s: f64,
+        message: &impl Serialize,
+    ) -> std::io::Result<()> {
         self.json.clear();
         serde_json::to_writer(&mut self.json, message).map_err(std::io::Error::other)?;
+        self.write_encoded(topic, time_s)
+    }
+
+    /// Writes the message encoded in `json` on `topic`'s channel.
+    fn write_encoded(&mut self, topic: &str, time_s: f64) -> std::io::Result<()> {
+        let channel_id = self.channels[topic];
         let time_ns = (time_s.max(0.0) * 1e9).round() as u64;
         self.sequence = self.sequence.wrapping_add(1);
         let header = mcap::records::MessageHeader {
@@ -269,7 +290,7 @@ impl McapFile {
         )?;
         if self.timing.starts_sample(truth.header.tick) {
             let ellipse = [covariance_ellipse(estimate)];
-            self.write(
+            self.write_serde(
                 "/robot/covariance",
                 t,
                 &SphereScene::new(t, "covariance", &ellipse),
@@ -353,7 +374,7 @@ impl McapFile {
             fallback,
             misses_total: v.misses_total,
         };
-        self.write("/dfl/deadline", v.header.time_s, &record)
+        self.write_serde("/dfl/deadline", v.header.time_s, &record)
     }
 
     /// An event of `events.jsonl` (`line`: its whole JSON line) as a log message: warnings
@@ -376,7 +397,7 @@ impl McapFile {
         } else {
             INFO
         };
-        self.write(
+        self.write_serde(
             "/events",
             t,
             &json!({
@@ -525,6 +546,49 @@ impl PosesInFrame<'_> {
         }
     }
 }
+
+json_object!(Time { sec, nsec });
+json_object!(Vector3 { x, y, z });
+json_object!(Quaternion { x, y, z, w });
+json_object!(Pose {
+    position,
+    orientation
+});
+json_object!(PoseInFrame {
+    timestamp,
+    frame_id,
+    pose
+});
+json_object!(PosesInFrame<'_> {
+    timestamp,
+    frame_id,
+    poses
+});
+json_object!(EstimateRecord {
+    tick,
+    epoch,
+    x,
+    y,
+    theta,
+    zeta,
+    covariance,
+    position_sigma
+});
+json_object!(CommandRecord {
+    tick,
+    epoch,
+    u1,
+    u2,
+    v1,
+    v2,
+    omega_r,
+    omega_l,
+    zeta,
+    mode,
+    mode_code,
+    plan_sample,
+    deadline_misses
+});
 
 #[derive(Serialize, Clone, Copy)]
 struct Color {
@@ -822,5 +886,73 @@ mod tests {
         let q = &sphere["pose"]["orientation"];
         let angle = 2.0 * q["z"].as_f64().unwrap().atan2(q["w"].as_f64().unwrap());
         assert!((angle - std::f64::consts::FRAC_PI_4).abs() < 1e-12);
+    }
+
+    /// `message` written by hand and by serde_json.
+    fn both(message: &(impl Json + Serialize)) -> (String, String) {
+        let mut by_hand = Vec::new();
+        message.write_json(&mut by_hand);
+        let by_hand = String::from_utf8(by_hand).unwrap();
+        (by_hand, serde_json::to_string(message).unwrap())
+    }
+
+    #[test]
+    fn the_hand_written_messages_are_byte_for_byte_serde_jsons() {
+        let numbers = [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            0.1,
+            1.0 / 3.0,
+            1e-300,
+            -4.9e-324,
+            1.7976931348623157e308,
+            123456789.125,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for (i, &a) in numbers.iter().enumerate() {
+            let b = numbers[(i + 5) % numbers.len()];
+            let c = numbers[(i + 9) % numbers.len()];
+            let p = pose(a, b, c);
+            let t = a.abs().min(1e9);
+            let poses = [p, pose(c, a, b)];
+            let estimate = EstimateRecord {
+                tick: u64::MAX - i as u64,
+                epoch: i as u32,
+                x: a,
+                y: b,
+                theta: c,
+                zeta: -a,
+                covariance: std::array::from_fn(|k| numbers[(i + k) % numbers.len()]),
+                position_sigma: b,
+            };
+            let command = CommandRecord {
+                tick: i as u64,
+                epoch: u32::MAX,
+                u1: a,
+                u2: b,
+                v1: c,
+                v2: -b,
+                omega_r: -c,
+                omega_l: a * 2.0,
+                zeta: b / 3.0,
+                mode: ["nominal", "say \"brake\"\n"][i % 2],
+                mode_code: 7,
+                plan_sample: u64::from(u32::MAX) + 1,
+                deadline_misses: 0,
+            };
+            for (by_hand, by_serde) in [
+                both(&PoseInFrame::new(t, p)),
+                both(&PosesInFrame::new(t, &poses)),
+                both(&PosesInFrame::new(t, &[])),
+                both(&estimate),
+                both(&command),
+            ] {
+                assert_eq!(by_hand, by_serde);
+            }
+        }
     }
 }
