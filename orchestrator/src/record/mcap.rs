@@ -104,6 +104,11 @@ impl McapLog {
                         Ok(batch) => {
                             for record in batch {
                                 file.record(record)?;
+                                // In lockstep every core runs a role polling for its
+                                // input (yielding between polls): give the core back after
+                                // each record, so that the role whose input came runs at
+                                // once, not after the rest of the batch.
+                                std::thread::yield_now();
                             }
                         }
                         Err(RecvTimeoutError::Timeout) => {}
