@@ -395,6 +395,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
             &["run", "--in-process", "--mode", "realtime"],
             "--in-process",
         ),
+        (&["run", "--keep-cores-awake"], "--keep-cores-awake"),
         (&["run", "--prefix", "a/b"], "--prefix"),
         (&["run", "--host", "mpc"], "--host mpc"),
         (&["scenario", "nowhere"], "no built-in scenario `nowhere`"),

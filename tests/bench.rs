@@ -85,6 +85,16 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
     assert!(lockstep.join("with-mcap-0/run.mcap").is_file());
     assert!(!lockstep.join("without-mcap-0/run.mcap").exists());
     assert!(number(&["lockstep_wall_without_mcap_s"]) > 0.0);
+    // The raw ping-pong and the real-time run again with every core kept awake.
+    assert!(dir.path().join("realtime-awake/summary.json").is_file());
+    for path in [
+        ["awake", "raw_iceoryx2_one_way_us", "p50"],
+        ["awake", "pipeline_hop_us", "p50"],
+        ["awake", "solve_us", "p50"],
+    ] {
+        assert!(number(&path) > 0.0, "{path:?}");
+    }
+    assert!(table.contains("cores kept awake"), "{table}");
     let share = number(&["lockstep_recording_share"]);
     assert!(
         (-0.5..=0.5).contains(&share),

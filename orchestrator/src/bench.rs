@@ -86,6 +86,9 @@ pub struct BenchReport {
     /// What `run.mcap` adds to the lockstep wall time, as a share of the run without it:
     /// the median over the pairs of `with / without - 1`.
     pub lockstep_recording_share: f64,
+    /// The raw ping-pong and the real-time run again, with every core kept awake
+    /// ([`crate::awake`], `scmpc run --keep-cores-awake`).
+    pub awake: AwakeReport,
     /// One route search ([`planner::TangentGraph::shortest_path`]) over each of
     /// [`PLANNING_FIELDS`] random fields ([`planning_field`]), by number of discs, µs.
     pub route_planning_us: std::collections::BTreeMap<usize, Percentiles>,
@@ -93,6 +96,20 @@ pub struct BenchReport {
     pub cross_host: cross_host::CrossHost,
     /// The MPC step for every horizon and obstacle count of [`scaling`].
     pub scaling: Vec<scaling::ScalingPoint>,
+}
+
+/// The real-time numbers of [`BenchReport`] with every core kept awake.
+#[derive(Debug, Serialize)]
+pub struct AwakeReport {
+    pub raw_iceoryx2_one_way_us: Percentiles,
+    pub pipeline_hop_us: Percentiles,
+    /// `pipeline_hop_us.p50 / raw_iceoryx2_one_way_us.p50`.
+    pub hop_ratio_p50: f64,
+    pub sensor_to_actuator_us: Percentiles,
+    pub solve_us: Percentiles,
+    /// `solve_us.p50` over the in-process step's ([`BenchReport::in_process_solve_us`]).
+    pub realtime_step_ratio_p50: f64,
+    pub realtime_deadline_misses: u64,
 }
 
 /// Lockstep paper runs with and without `run.mcap`, alternating: this machine's speed
@@ -209,6 +226,17 @@ fn send(ports: &Ports<Ping>, seq: u64, ping_latency_ns: u64) -> anyhow::Result<(
     Ok(())
 }
 
+/// Before blocking: consumes the listener's wake-ups, then whether no sample came in
+/// meanwhile (one that came between the last receive and the clearing would otherwise
+/// wait unseen, its wake-up gone).
+fn cleared_and_still_empty(
+    listener: &iceoryx2::port::listener::Listener<IpcService>,
+    subscriber: &iceoryx2::port::subscriber::Subscriber<IpcService, Ping, ()>,
+) -> bool {
+    let _ = listener.try_wait(|_| {});
+    subscriber.has_samples().ok() == Some(false)
+}
+
 /// `scmpc bench-pong`: answers every ping until `u64::MAX` or 10 s without one.
 pub fn pong(prefix: &str) -> anyhow::Result<()> {
     let node = ipc::create_node(prefix, "bench-pong", true)?;
@@ -226,7 +254,9 @@ pub fn pong(prefix: &str) -> anyhow::Result<()> {
             }
             send(&ports, seq, latency)?;
         }
-        let _ = listener.try_wait(|_| {});
+        if !cleared_and_still_empty(&listener, &subscriber) {
+            continue;
+        }
         if ipc::wait(&waitset, Duration::from_secs(10))? != ipc::Wake::Input {
             return Ok(());
         }
@@ -271,11 +301,11 @@ fn ping_pong(prefix: &str, stop: &AtomicBool) -> anyhow::Result<Vec<f64>> {
                     answered = Some([pong.ping_latency_ns, latency]);
                 }
             }
-            if answered.is_none() {
-                let _ = listener.try_wait(|_| {});
-                if ipc::wait(&waitset, Duration::from_secs(1))? == ipc::Wake::Timeout {
-                    return Err(anyhow!("no pong for ping {seq} within 1 s"));
-                }
+            if answered.is_none()
+                && cleared_and_still_empty(&listener, &subscriber)
+                && ipc::wait(&waitset, Duration::from_secs(1))? == ipc::Wake::Timeout
+            {
+                return Err(anyhow!("no pong for ping {seq} within 1 s"));
             }
         }
         if seq > WARM_UP
@@ -318,13 +348,7 @@ fn machine() -> String {
 /// Runs the whole benchmark into `out` (run directories and `bench.json`).
 pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<BenchReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let prefix = ipc::new_prefix();
-    let raw = ping_pong(&prefix, stop);
-    if let Err(e) = ipc::remove_run_resources(&prefix) {
-        tracing::warn!("cleaning up the ping-pong: {e}");
-    }
-    let raw = Percentiles::of(&raw?);
-
+    let raw = raw_ping_pong(stop)?;
     let paper = protocol::Scenario::default().validated("the paper scenario")?;
     let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
     let realtime = local_run(
@@ -336,6 +360,30 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     )?;
     let hot = crate::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
     crate::stop::check(stop)?;
+    let awake = {
+        let _awake = crate::awake::AwakeCores::start().context("keeping the cores awake")?;
+        let raw = raw_ping_pong(stop)?;
+        let run = local_run(
+            &scenario,
+            &out.join("realtime-awake"),
+            RunMode::Realtime,
+            false,
+            stop,
+        )?;
+        let hops = run
+            .processes
+            .as_ref()
+            .ok_or_else(|| anyhow!("the real-time run reported no processes"))?;
+        AwakeReport {
+            raw_iceoryx2_one_way_us: raw,
+            pipeline_hop_us: hops.hop_latency_us,
+            hop_ratio_p50: hops.hop_latency_us.p50 / raw.p50.max(1e-9),
+            sensor_to_actuator_us: hops.loop_latency_us,
+            solve_us: run.solve_us,
+            realtime_step_ratio_p50: run.solve_us.p50 / hot.solve_us.p50.max(1e-9),
+            realtime_deadline_misses: run.deadline_misses,
+        }
+    };
     let lockstep = lockstep_pairs(&paper, &out.join("lockstep"), stop)?;
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     crate::stop::check(stop)?;
@@ -360,6 +408,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         lockstep_wall_without_mcap_s: lockstep.without_mcap_s,
         lockstep_speedup: lockstep.simulated_s / lockstep.with_mcap_s.max(1e-9),
         lockstep_recording_share: lockstep.recording_share,
+        awake,
         route_planning_us: [5, 20]
             .into_iter()
             .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
@@ -371,6 +420,16 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(report)
+}
+
+/// The raw iceoryx2 ping-pong ([`ping_pong`]) on fresh resources, removed after it.
+fn raw_ping_pong(stop: &AtomicBool) -> anyhow::Result<Percentiles> {
+    let prefix = ipc::new_prefix();
+    let raw = ping_pong(&prefix, stop);
+    if let Err(e) = ipc::remove_run_resources(&prefix) {
+        tracing::warn!("cleaning up the ping-pong: {e}");
+    }
+    Ok(Percentiles::of(&raw?))
 }
 
 /// The lockstep runs' medians (nearest rank), s, and the recording's share.
@@ -447,7 +506,7 @@ impl BenchReport {
             .collect();
         let c = &self.cross_host;
         format!(
-            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {} ({:.2}× in process at p50: {})\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time) with run.mcap, {:.2} s without (recording {:+.1} %)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
+            "  machine              {}\n  raw iceoryx2 hop     {}\n  pipeline hop         {} ({:.2}× raw at p50)\n  sensor→actuator      {}\n  MPC step             {} ({:.2}× in process at p50: {})\n  deadline misses      {}\n  peak RSS (MiB)       {}\n  lockstep             {:.2} s for {:.0} s ({:.0}× real time) with run.mcap, {:.2} s without (recording {:+.1} %)\n  cores kept awake:\n    raw iceoryx2 hop   {}\n    pipeline hop       {} ({:.2}× raw at p50)\n    sensor→actuator    {}\n    MPC step           {} ({:.2}× in process at p50; {} deadline misses)\n{planning}  raw Zenoh hop        {}\n  cross-host hop       {} ({:.2}× raw Zenoh at p50; round trip {:.0} µs, {} deadline misses)\n",
             self.machine,
             p(&self.raw_iceoryx2_one_way_us),
             p(&self.pipeline_hop_us),
@@ -463,6 +522,13 @@ impl BenchReport {
             self.lockstep_speedup,
             self.lockstep_wall_without_mcap_s,
             100.0 * self.lockstep_recording_share,
+            p(&self.awake.raw_iceoryx2_one_way_us),
+            p(&self.awake.pipeline_hop_us),
+            self.awake.hop_ratio_p50,
+            p(&self.awake.sensor_to_actuator_us),
+            p(&self.awake.solve_us),
+            self.awake.realtime_step_ratio_p50,
+            self.awake.realtime_deadline_misses,
             p(&c.raw_zenoh_one_way_us),
             p(&c.cross_host_hop_us),
             c.cross_host_ratio_p50,

@@ -284,6 +284,11 @@ struct RunArgs {
     /// Do not write `run.mcap` (docs/foxglove.md).
     #[arg(long)]
     no_mcap: bool,
+    /// Real time: keep every core busy at idle priority for the run, so that no core
+    /// halts between samples (faster wake-ups and steps on a virtual machine, at the cost
+    /// of all idle CPU; docs/performance.md, "Idle cores").
+    #[arg(long)]
+    keep_cores_awake: bool,
     /// Where the agent of a host the scenario places roles on listens, e.g.
     /// `compute=tcp/127.0.0.1:7447` (repeatable; overrides `[hosts.endpoints]`).
     #[arg(long = "host", value_name = "NAME=ENDPOINT")]
@@ -585,6 +590,11 @@ fn run(args: RunArgs) -> CliResult {
             "--in-process runs in lockstep only; drop --mode realtime or --in-process",
         ));
     }
+    if args.keep_cores_awake && args.mode != Mode::Realtime {
+        return Err(bad_input(
+            "--keep-cores-awake is for --mode realtime (lockstep keeps its cores busy already)",
+        ));
+    }
     let prefix = args.prefix.unwrap_or_else(protocol::ipc::new_prefix);
     protocol::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let hosts = if args.in_process {
@@ -598,6 +608,11 @@ fn run(args: RunArgs) -> CliResult {
         )?
     };
     let stop = crate::stop::on_signals();
+    let awake = args
+        .keep_cores_awake
+        .then(crate::awake::AwakeCores::start)
+        .transpose()
+        .context("keeping the cores awake")?;
     let summary = if args.in_process {
         inprocess::run(&scenario, &out, !args.no_mcap, &stop)
     } else {
@@ -612,6 +627,7 @@ fn run(args: RunArgs) -> CliResult {
         )
     }
     .with_context(|| format!("run of `{}`", scenario.name))?;
+    drop(awake);
     if let Err(e) = crate::figures::run_plots(&out, &scenario) {
         eprintln!("warning: no plots for the run: {e:#}");
     }

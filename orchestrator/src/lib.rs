@@ -1,6 +1,7 @@
 //! The `scmpc` command: scenario validation, the in-process run, recording and the summary.
 
 pub mod agent;
+pub mod awake;
 pub mod bench;
 pub mod children;
 pub mod cli;
