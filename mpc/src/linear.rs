@@ -470,7 +470,8 @@ impl LinearMpc {
                 break;
             }
             outcome.status = PlanStatus::Solved;
-            self.load_solution();
+            // `solve_once` left the solution in `iterate`.
+            self.solution.copy_from_slice(&self.iterate);
             if self.relinearize() < self.refinement_tol_m {
                 break;
             }
@@ -478,21 +479,28 @@ impl LinearMpc {
         outcome
     }
 
-    /// Copies the solver's solution into `solution` (stage-wise).
-    fn load_solution(&mut self) {
+    /// Copies the last solve's solution into `iterate` (stage-wise); false without one.
+    fn load_iterate(&mut self) -> bool {
         let Some(x) = self.solvers[self.rows.index()].x() else {
-            return;
+            return false;
         };
         // The states and inputs (sparse) or the inputs (condensed) come first; the decay
         // slacks and the terminal rows' variables after them are not kept.
         match &self.assembly.condensing {
-            Some(condensing) => {
-                condensing.expand(&x[..2 * self.layout.horizon], &mut self.solution)
-            }
+            Some(condensing) => condensing.expand(&x[..2 * self.layout.horizon], &mut self.iterate),
             None => {
-                let stagewise = self.solution.len();
-                self.solution.copy_from_slice(&x[..stagewise]);
+                let stagewise = self.iterate.len();
+                self.iterate.copy_from_slice(&x[..stagewise]);
             }
+        }
+        true
+    }
+
+    /// Copies the last solve's solution into `solution` (stage-wise).
+    #[cfg(test)]
+    fn load_solution(&mut self) {
+        if self.load_iterate() {
+            self.solution.copy_from_slice(&self.iterate);
         }
     }
 
@@ -513,6 +521,8 @@ impl LinearMpc {
     /// deferrable but whose terminal rows are not joins with its terminal rows only
     /// ([`Rows::terminal_only`]), and whole if the solution misses a CBF row of it, or if
     /// the program fails (the whole disc's decay may need relaxing).
+    ///
+    /// A solved program leaves its solution in `iterate`.
     ///
     /// [`Barrier::implied`]: crate::program::Barrier::implied
     fn solve_once(&mut self, z0: [f64; 4]) -> (PlanStatus, u32, u32) {
@@ -587,20 +597,11 @@ impl LinearMpc {
 
     /// Moves every deferred disc whose rows the last solution misses into `kept`, and
     /// makes whole every disc in it with its terminal rows only whose CBF rows the
-    /// solution misses; true if there was one.
+    /// solution misses; true if there was one. The solution is in `iterate` after it.
     fn admit_missed_rows(&mut self, z0: [f64; 4]) -> bool {
-        if self.deferred.is_empty() && self.kept_whole == self.kept.len() {
+        if !self.load_iterate() || (self.deferred.is_empty() && self.kept_whole == self.kept.len())
+        {
             return false;
-        }
-        let Some(x) = self.solvers[self.rows.index()].x() else {
-            return false;
-        };
-        match &self.assembly.condensing {
-            Some(condensing) => condensing.expand(&x[..2 * self.layout.horizon], &mut self.iterate),
-            None => {
-                let stagewise = self.iterate.len();
-                self.iterate.copy_from_slice(&x[..stagewise]);
-            }
         }
         let (l, x) = (&self.layout, &self.iterate);
         let n = l.horizon;

@@ -351,25 +351,15 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     let raw = raw_ping_pong(stop)?;
     let paper = protocol::Scenario::default().validated("the paper scenario")?;
     let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
-    let realtime = local_run(
-        &scenario,
-        &out.join("realtime"),
-        RunMode::Realtime,
-        false,
-        stop,
-    )?;
+    let realtime_run =
+        |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);
+    let realtime = realtime_run("realtime")?;
     let hot = crate::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
     crate::stop::check(stop)?;
     let awake = {
         let _awake = crate::awake::AwakeCores::start().context("keeping the cores awake")?;
         let raw = raw_ping_pong(stop)?;
-        let run = local_run(
-            &scenario,
-            &out.join("realtime-awake"),
-            RunMode::Realtime,
-            false,
-            stop,
-        )?;
+        let run = realtime_run("realtime-awake")?;
         let hops = run
             .processes
             .as_ref()
