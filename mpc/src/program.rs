@@ -373,23 +373,24 @@ impl Barrier<'_> {
 
     /// [`Barrier::implied`] for the CBF rows (with zero decay slacks).
     pub fn cbf_implied(&self, reach: &PositionReach) -> bool {
-        let n = self.horizon;
-        self.discs.iter().all(|disc| {
-            let lowest = |i: usize| {
-                let (g, c) = disc.linearized_barrier(self.reference[i]);
-                reach.min_linear(i, g) + c
-            };
-            if self.linear {
-                return (1..=n).all(|i| below(0.0, lowest(i)));
-            }
+        self.discs
+            .iter()
+            .all(|disc| (0..self.horizon).all(|k| self.stage_implied(disc, k, reach)))
+    }
+
+    /// [`Barrier::cbf_implied`] for `disc`'s CBF row of stage `k` (`0..N`): with a
+    /// linear barrier `L_{k+1}(p_{k+1}) >= 0`; otherwise stage 0's linear first row, and
+    /// for `k >= 1` the cone on `p_k` and `p_{k+1}`.
+    fn stage_implied(&self, disc: &Disc, k: usize, reach: &PositionReach) -> bool {
+        if self.linear {
+            let (g, c) = disc.linearized_barrier(self.reference[k + 1]);
+            return below(0.0, reach.min_linear(k + 1, g) + c);
+        }
+        if k == 0 {
             let (g, c) = self.first_row(disc);
-            below(0.0, reach.min_linear(1, g) + c)
-                && (1..n).all(|i| {
-                    let (h, t0) = self.cone_row(disc, i);
-                    let largest =
-                        reach.max_squared_distance_minus_linear(i, disc.center, (i + 1, h));
-                    below(largest, t0)
-                })
-        })
+            return below(0.0, reach.min_linear(1, g) + c);
+        }
+        let (h, t0) = self.cone_row(disc, k);
+        reach.squared_distance_minus_linear_below(k, disc.center, (k + 1, h), t0)
     }
 }

@@ -26,6 +26,9 @@ pub struct PositionReach {
     /// How far each input may be from the centres' inputs: `v_max` for the input box,
     /// less about a plan ([`PositionReach::set_plan`]).
     spread: f64,
+    /// `||D_i[k]||_1` per stage `i` and axis `k`: how far each axis of `p_i` reaches per
+    /// unit of spread.
+    axis_reach: Vec<[f64; 2]>,
     /// `c_i` of the step.
     centers: Vec<[f64; 2]>,
     /// The spans of the last state's velocity components `z_N[1]`, `z_N[3]`.
@@ -46,8 +49,13 @@ impl PositionReach {
             .flat_map(|i| [l.z(i, 0), l.z(i, 2)])
             .collect();
         let velocity = |c| Span::of([(l.z(l.horizon, c), 1.0)], (forced, free), v_max);
+        let forced = forced.select_rows(&rows);
+        let axis_reach = (0..=l.horizon)
+            .map(|i| std::array::from_fn(|k| forced.row(2 * i + k).iter().map(|x| x.abs()).sum()))
+            .collect();
         PositionReach {
-            forced: forced.select_rows(&rows),
+            axis_reach,
+            forced,
             free: free.select_rows(&rows),
             v_max,
             spread: v_max,
@@ -104,7 +112,8 @@ impl PositionReach {
             return 0.0;
         }
         let d = &self.forced;
-        let norm: f64 = (0..d.ncols())
+        // The inputs from stage `max(i, j)` on move neither position.
+        let norm: f64 = (0..2 * i.max(j))
             .map(|col| {
                 let on_input: f64 = (0..2)
                     .map(|k| a[k] * d[(2 * i + k, col)] + b[k] * d[(2 * j + k, col)])
@@ -121,10 +130,46 @@ impl PositionReach {
         g[0] * c[0] + g[1] * c[1] - self.reach((i, g), (i, [0.0; 2]))
     }
 
+    /// Whether `||p_i - o||^2 - h'p_j` stays below `bound` over the reach: first by
+    /// [`PositionReach::boxed_max_squared_distance_minus_linear`], which decides in a
+    /// constant number of operations for a disc far from the reach, then by the tighter
+    /// [`PositionReach::max_squared_distance_minus_linear`], whose cost grows with the
+    /// stage. The first is never below the second, so the answer is the second's.
+    pub fn squared_distance_minus_linear_below(
+        &self,
+        i: usize,
+        o: [f64; 2],
+        (j, h): (usize, [f64; 2]),
+        bound: f64,
+    ) -> bool {
+        below(
+            self.boxed_max_squared_distance_minus_linear(i, o, (j, h)),
+            bound,
+        ) || below(self.max_squared_distance_minus_linear(i, o, (j, h)), bound)
+    }
+
+    /// A looser upper bound of `||p_i - o||^2 - h'p_j` than
+    /// [`PositionReach::max_squared_distance_minus_linear`]: each position in its own box,
+    /// every axis at its farthest, independently of the other position.
+    fn boxed_max_squared_distance_minus_linear(
+        &self,
+        i: usize,
+        o: [f64; 2],
+        (j, h): (usize, [f64; 2]),
+    ) -> f64 {
+        let (ci, cj) = (self.centers[i], self.centers[j]);
+        (0..2)
+            .map(|k| {
+                let farthest = (ci[k] - o[k]).abs() + self.spread * self.axis_reach[i][k];
+                farthest.powi(2) - h[k] * cj[k] + h[k].abs() * self.spread * self.axis_reach[j][k]
+            })
+            .sum()
+    }
+
     /// An upper bound of `||p_i - o||^2 - h'p_j`: with `p_i - o = (c_i - o) + e`, the
     /// part linear in the inputs at its largest, and `||e||^2` at most the sum of each
     /// axis' largest `e_k^2`.
-    pub fn max_squared_distance_minus_linear(
+    fn max_squared_distance_minus_linear(
         &self,
         i: usize,
         o: [f64; 2],
@@ -134,11 +179,9 @@ impl PositionReach {
         let offset = [ci[0] - o[0], ci[1] - o[1]];
         let at_center = offset[0].powi(2) + offset[1].powi(2) - h[0] * cj[0] - h[1] * cj[1];
         let linear = self.reach((i, offset.map(|x| 2.0 * x)), (j, h.map(|x| -x)));
-        let quadratic: f64 = (0..2)
-            .map(|k| {
-                let axis = if k == 0 { [1.0, 0.0] } else { [0.0, 1.0] };
-                self.reach((i, axis), (i, [0.0; 2])).powi(2)
-            })
+        let quadratic: f64 = self.axis_reach[i]
+            .iter()
+            .map(|norm| (self.spread * norm).powi(2))
             .sum();
         at_center + linear + quadratic
     }
@@ -221,4 +264,106 @@ pub fn rollout(
         forced[(l.v(0, 0) + j, j)] = 1.0;
     }
     (forced, free)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::Layout;
+
+    /// The cone row of a disc at `o` with radius `r` on stage `i` (as
+    /// `crate::program::Barrier`'s, with the decay `1 - gamma` = 0.9), linearized at the
+    /// reach's centre of stage `i + 1`: `(h, t0)`.
+    fn cone_row(reach: &PositionReach, i: usize, o: [f64; 2], r: f64) -> ([f64; 2], f64) {
+        let decay = 0.9;
+        let p_bar = reach.centers[i + 1];
+        let g = [2.0 * (p_bar[0] - o[0]), 2.0 * (p_bar[1] - o[1])];
+        let h_bar = (p_bar[0] - o[0]).powi(2) + (p_bar[1] - o[1]).powi(2) - r * r;
+        let c = h_bar - g[0] * p_bar[0] - g[1] * p_bar[1];
+        (g.map(|x| x / decay), (c + decay * r * r) / decay)
+    }
+
+    /// The box bound makes a far disc cheap to rule out. It must never rule out a row
+    /// that the tight bound keeps, both must bound the true value, and on discs within
+    /// 4 m of the robot it should rule out most of the rows the tight bound does.
+    #[test]
+    fn the_boxed_bound_is_never_below_the_tight_one_and_rules_out_most_rows() {
+        let layout = Layout {
+            horizon: 30,
+            terminal_rows: 0,
+            obstacles: 1,
+            linear_barrier: false,
+            condensed: false,
+            terminal: None,
+        };
+        let (a, b) = crate::model::discretize(0.05);
+        let (forced, free) = rollout(&layout, &a, &b);
+        let mut reach = PositionReach::new(&layout, (&forced, &free), 1.0);
+        let mut x = 0.3_f64;
+        let mut next = move || {
+            x = (x * 3.9 * (1.0 - x)).clamp(1e-6, 1.0 - 1e-6);
+            x
+        };
+        // Rows ruled out by the tight bound, and of them by the box.
+        let mut ruled_out = (0, 0);
+        for sample in 0..3_000 {
+            let z0 = [0.0, 4.0 * next() - 2.0, 0.0, 4.0 * next() - 2.0];
+            reach.set_initial_state(z0);
+            if sample % 2 == 1 {
+                // About a plan (the zero-input rollout), a tenth of the box about it.
+                let centers = reach.centers.clone();
+                reach.set_plan(|i| centers[i], [z0[1], z0[3]], 0.1);
+            }
+            let i = 1 + (next() * 28.0) as usize;
+            let o = [8.0 * next() - 4.0, 8.0 * next() - 4.0];
+            let r = 0.2 + next();
+            let (h, t0) = cone_row(&reach, i, o, r);
+            let tight = reach.max_squared_distance_minus_linear(i, o, (i + 1, h));
+            let boxed = reach.boxed_max_squared_distance_minus_linear(i, o, (i + 1, h));
+            assert!(
+                boxed >= tight,
+                "stage {i}, disc at {o:?}: {boxed} < {tight}"
+            );
+            assert_eq!(
+                reach.squared_distance_minus_linear_below(i, o, (i + 1, h), t0),
+                below(tight, t0)
+            );
+            // The tight bound holds at the box's corners (inputs alternating in blocks).
+            for corner in 0..8_u32 {
+                let v: Vec<f64> = (0..forced.ncols())
+                    .map(|c| {
+                        reach.spread
+                            * if (corner >> (c % 3)) & 1 == 1 {
+                                1.0
+                            } else {
+                                -1.0
+                            }
+                    })
+                    .collect();
+                let at = |stage: usize| -> [f64; 2] {
+                    std::array::from_fn(|k| {
+                        let row = reach.forced.row(2 * stage + k);
+                        let moved: f64 = row.iter().zip(&v).map(|(d, x)| d * x).sum();
+                        reach.centers[stage][k] + moved
+                    })
+                };
+                let (p, q) = (at(i), at(i + 1));
+                let value =
+                    (p[0] - o[0]).powi(2) + (p[1] - o[1]).powi(2) - h[0] * q[0] - h[1] * q[1];
+                assert!(
+                    value <= tight + 1e-9 * (1.0 + tight.abs()),
+                    "{value} > {tight}"
+                );
+            }
+            if below(tight, t0) {
+                ruled_out.0 += 1;
+                ruled_out.1 += usize::from(below(boxed, t0));
+            }
+        }
+        let (by_tight, by_box) = ruled_out;
+        assert!(
+            (1_000..2_000).contains(&by_tight) && 2 * by_box > by_tight,
+            "of {by_tight} rows of 3000 ruled out, the box rules out {by_box}"
+        );
+    }
 }
