@@ -2,7 +2,10 @@
 //! safety property (docs/safety.md) on worlds nobody tuned for.
 //!
 //! The distribution (every draw independent, uniform unless said otherwise; seeded, so
-//! `--seed` reproduces a batch exactly):
+//! `--seed` draws the same worlds, and every world runs the same unless a step of its
+//! MPC takes longer than `Ts`: such a plan counts as late by its measured time, as in
+//! lockstep (docs/design.md), so the world can end otherwise on a slower or busier
+//! machine; see docs/safety.md):
 //!
 //! | what | drawn from |
 //! |---|---|
