@@ -84,6 +84,15 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
     let lockstep = dir.path().join("lockstep");
     assert!(lockstep.join("with-mcap-0/run.mcap").is_file());
     assert!(!lockstep.join("without-mcap-0/run.mcap").exists());
+    // Half the pairs run the recorded run first, half second.
+    let ended = |run: &str| {
+        let summary = lockstep.join(run).join("summary.json");
+        std::fs::metadata(&summary)
+            .and_then(|m| m.modified())
+            .unwrap()
+    };
+    assert!(ended("with-mcap-0") < ended("without-mcap-0"));
+    assert!(ended("without-mcap-1") < ended("with-mcap-1"));
     assert!(number(&["lockstep_wall_without_mcap_s"]) > 0.0);
     // The raw ping-pong and the real-time run again with every core kept awake.
     assert!(dir.path().join("realtime-awake/summary.json").is_file());

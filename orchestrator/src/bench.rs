@@ -113,8 +113,10 @@ pub struct AwakeReport {
 }
 
 /// Lockstep paper runs with and without `run.mcap`, alternating: this machine's speed
-/// moves from minute to minute, so the recording's cost is a median of pairs.
-pub const LOCKSTEP_PAIRS: usize = 3;
+/// moves from minute to minute, so the recording's cost is a median of pairs. Half the
+/// pairs run the recorded run first and half the other: which run of a pair came first
+/// moved the median share by 9 points on the development machine (docs/performance.md).
+pub const LOCKSTEP_PAIRS: usize = 4;
 
 /// Random fields per size in the route-planning benchmark.
 pub const PLANNING_FIELDS: u64 = 1000;
@@ -451,8 +453,9 @@ fn local_run(
     Ok(summary)
 }
 
-/// [`LOCKSTEP_PAIRS`] pairs of lockstep paper runs, with `run.mcap` and then without, into
-/// `out/with-mcap-<i>` and `out/without-mcap-<i>`.
+/// [`LOCKSTEP_PAIRS`] pairs of lockstep paper runs, with `run.mcap` and without (the
+/// recorded one first in even pairs, second in odd ones), into `out/with-mcap-<i>` and
+/// `out/without-mcap-<i>`.
 fn lockstep_pairs(
     paper: &protocol::scenario::Validated,
     out: &Path,
@@ -465,8 +468,13 @@ fn lockstep_pairs(
             let dir = out.join(format!("{name}-{pair}"));
             local_run(paper, &dir, RunMode::Lockstep, mcap, stop)
         };
-        let recorded = run(true, "with-mcap")?;
-        let bare = run(false, "without-mcap")?;
+        let (recorded, bare) = if pair % 2 == 0 {
+            let recorded = run(true, "with-mcap")?;
+            (recorded, run(false, "without-mcap")?)
+        } else {
+            let bare = run(false, "without-mcap")?;
+            (run(true, "with-mcap")?, bare)
+        };
         simulated_s = recorded.simulated_s;
         with.push(recorded.wall_s);
         without.push(bare.wall_s);
