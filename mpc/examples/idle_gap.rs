@@ -4,9 +4,11 @@
 //!
 //! Steps the MPC over the first 200 samples of the paper run, once back to back, once
 //! after sleeping before every step, once after sleeping and then spinning (the core
-//! awake, its caches as the sleep left them), and once after sleeping and then rehearsing
+//! awake, its caches as the sleep left them), and after sleeping and then rehearsing
 //! (`Mpc::rehearse`: a dry step of the next sample from the state the last plan predicts,
-//! what the real-time MPC process does 2.5 ms before each sample). Prints each case's
+//! what the real-time MPC process does shortly before each sample's estimate comes) with
+//! 0, 0.5 or 3 ms between the rehearsal and the step (the rehearsal's effect fades within
+//! milliseconds: docs/performance.md, "The warm-up, just in time"). Prints each case's
 //! percentiles, and the rehearsals' own.
 
 use mpc::Mpc;
@@ -18,12 +20,15 @@ const SAMPLES: usize = 200;
 fn main() -> Result<(), mpc::MpcError> {
     let scenario = Scenario::default();
     let states = paper_states(&scenario)?;
+    // (sleep before each step ms, then spin µs, then rehearse and sleep µs before the step)
     for (sleep_ms, spin_us, rehearse) in [
-        (0, 0, false),
-        (50, 0, false),
-        (50, 100, false),
-        (50, 2000, false),
-        (50, 0, true),
+        (0, 0, None),
+        (50, 0, None),
+        (50, 100, None),
+        (50, 2000, None),
+        (50, 0, Some(0)),
+        (50, 0, Some(500)),
+        (50, 0, Some(3000)),
     ] {
         let mut mpc = Mpc::new(&scenario)?;
         let mut rehearsal_us = Vec::new();
@@ -36,10 +41,11 @@ fn main() -> Result<(), mpc::MpcError> {
                 while spin.elapsed() < Duration::from_micros(spin_us) {
                     std::hint::spin_loop();
                 }
-                if rehearse && k > 0 {
+                if let Some(gap_us) = rehearse.filter(|_| k > 0) {
                     let started = Instant::now();
                     mpc.rehearse(u64::MAX);
                     rehearsal_us.push(started.elapsed().as_secs_f64() * 1e6);
+                    std::thread::sleep(Duration::from_micros(gap_us));
                 }
                 let started = Instant::now();
                 mpc.step(k as u64, x_bar, 0.0);
@@ -47,11 +53,15 @@ fn main() -> Result<(), mpc::MpcError> {
             })
             .collect();
         let (p50, p90) = percentiles(&mut step_us);
+        let rehearsal = match rehearse {
+            Some(gap_us) => format!("rehearse {gap_us:>4} µs before"),
+            None => "no rehearsal".into(),
+        };
         print!(
-            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs, rehearse {rehearse:>5}: step p50 \
+            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs, {rehearsal:>24}: step p50 \
              {p50:>4.0} µs, p90 {p90:>4.0} µs"
         );
-        if rehearse {
+        if rehearse.is_some() {
             let (p50, p90) = percentiles(&mut rehearsal_us);
             print!(" (rehearsal p50 {p50:.0} µs, p90 {p90:.0} µs)");
         }

@@ -32,8 +32,9 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         Ok(Next::expect(&estimates, Some(task.next_due_s())))
     };
     // Asleep for most of `Ts` in real time, the step would start with cold caches: the
-    // runtime has the task rehearse shortly before the sample, a dry step if the last
-    // one took at most half that lead (so the rehearsal ends before the sample comes).
+    // runtime has the task rehearse just before the sample's estimate comes, a dry step
+    // if the last one took at most half the longest lead the runtime allows (so the
+    // rehearsal ends before the estimate comes).
     let lead_s = WARM_UP_LEAD_TICKS * args.scenario.timing.dt_s();
     let dry_step_max_ns = (0.5 * lead_s * 1e9) as u64;
     let rehearse = || task.borrow_mut().rehearse(dry_step_max_ns);

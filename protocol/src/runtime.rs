@@ -43,18 +43,45 @@ use std::cell::Cell;
 use std::rc::Rc;
 use std::time::{Duration, Instant};
 
-/// How long before an expected input [`Link::run_warming`] warms its role up, in inner
-/// ticks: half a tick, after the last tick of the sample before (when the plant, the
-/// estimator and the DFL are idle too). Measured against 0.6 ms before the sample
-/// (docs/performance.md, "Performance near the limit").
+/// How long before an expected input [`Link::run_warming`] warms its role up at the
+/// earliest, in inner ticks: half a tick, after the last tick of the sample before (when
+/// the plant, the estimator and the DFL are idle too). The first warm-up comes then;
+/// later ones as late as their length allows ([`warm_up_window_ns`]).
 pub const WARM_UP_LEAD_TICKS: f64 = 0.5;
 
-/// When to warm up for an input due at run time `due_s` ([`Link::run_warming`]): from and
-/// at the latest, monotonic ns. `None` in lockstep and before the clock has started.
-fn warm_up_window_ns(clock: &RunClock, due_s: f64) -> Option<(u64, u64)> {
+/// How long before an expected input's arrival a warm-up aims to have ended, ns: the
+/// sleep before it ends up to [`WAKE_LATENESS_NS`] late, and a warm-up can take longer
+/// than the last one. With 250 µs the estimate → MPC hop's p50 grew by about 10 µs, with
+/// 500 µs it did not (docs/performance.md, "The warm-up, just in time").
+pub const WARM_UP_MARGIN_NS: u64 = 500_000;
+
+/// When to warm up for an input due at run time `due_s` and published `arrival_lag_ns`
+/// after its due time ([`next_arrival_lag_ns`]): from and at the latest, monotonic ns;
+/// `None` in lockstep and before the clock has started. What a warm-up brings into the
+/// caches is gone again within a few milliseconds on a virtual machine, even on a core
+/// kept busy (docs/performance.md, "The warm-up, just in time"), so a warm-up aims to end
+/// [`WARM_UP_MARGIN_NS`] before the input comes: it starts as long before that as the
+/// last one took (`last_ns`) and an eighth more, but never more than
+/// [`WARM_UP_LEAD_TICKS`] before the due time, and is skipped if, taking as long as the
+/// last one, it would not end before the input comes. Without a last length (the first
+/// warm-up, or the one after a skipped one) it comes [`WARM_UP_LEAD_TICKS`] before the due
+/// time, skipped once a quarter of that lead is gone.
+fn warm_up_window_ns(
+    clock: &RunClock,
+    due_s: f64,
+    arrival_lag_ns: u64,
+    last_ns: Option<u64>,
+) -> Option<(u64, u64)> {
     let lead_s = WARM_UP_LEAD_TICKS * clock.dt_s();
-    let from = clock.at_ns(due_s - lead_s)?;
-    Some((from, from + (0.25 * lead_s * 1e9) as u64))
+    let earliest = clock.at_ns(due_s - lead_s)?;
+    let Some(last_ns) = last_ns else {
+        return Some((earliest, earliest + (0.25 * lead_s * 1e9) as u64));
+    };
+    let arrival = clock.at_ns(due_s)? + arrival_lag_ns;
+    let from = arrival
+        .saturating_sub(last_ns + last_ns / 8 + WARM_UP_MARGIN_NS)
+        .max(earliest);
+    Some((from, arrival.saturating_sub(last_ns)))
 }
 
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
@@ -343,10 +370,10 @@ impl Link {
     /// start with cold caches after sleeping (the MPC, asleep for most of `Ts`).
     ///
     /// In real time, once for each input it expects ([`Next::Expect`]), the runtime sleeps
-    /// until [`WARM_UP_LEAD_TICKS`] inner ticks before the input is due and calls
-    /// `warm_up` there, unless that time passed by more than a quarter of the lead
-    /// already (it would delay the step). Lockstep never calls it: its processes never
-    /// sleep for a time, and `warm_up` may not change what the step computes.
+    /// until shortly before the input comes and calls `warm_up` there, timed to end just
+    /// before it ([`warm_up_window_ns`]), unless it would not end in time (it would delay
+    /// the step). Lockstep never calls it: its processes never sleep for a time, and
+    /// `warm_up` may not change what the step computes.
     pub fn run_warming<'i>(
         &self,
         inputs: &[&'i dyn Input],
@@ -404,8 +431,10 @@ impl Link {
         mut warm_up: Option<&mut impl FnMut()>,
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
-        // The expected input (its due time, s) warmed up for.
+        // The expected input (its due time, s) warmed up for, and how long the last
+        // warm-up took (ns; none after a skipped one).
         let mut warmed_for = None;
+        let mut warm_up_ns = None;
         // Real time: how long after its due time the expected input is published
         // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
         // and the input polled for with its due time, ns.
@@ -463,7 +492,7 @@ impl Link {
                 Next::At(at_s) => clock.at_ns(at_s),
                 Next::Expect { at_s, .. } if warm_up.is_some() && warmed_for != Some(at_s) => {
                     warmed_for = Some(at_s);
-                    let window = warm_up_window_ns(&clock, at_s);
+                    let window = warm_up_window_ns(&clock, at_s, arrival_lag_ns, warm_up_ns);
                     warming = window.map(|(_, latest)| latest);
                     window.map(|(from, _)| from)
                 }
@@ -485,10 +514,12 @@ impl Link {
                 if let Some(at_ns) = due_ns {
                     sleep_until_ns(at_ns);
                 }
-                if let (Some(latest_ns), Some(warm_up)) = (warming, warm_up.as_mut())
-                    && monotonic_ns() <= latest_ns
-                {
-                    warm_up();
+                if let (Some(latest_ns), Some(warm_up)) = (warming, warm_up.as_mut()) {
+                    let started_ns = monotonic_ns();
+                    warm_up_ns = (started_ns <= latest_ns).then(|| {
+                        warm_up();
+                        monotonic_ns() - started_ns
+                    });
                 }
                 cleared = !again;
                 continue;
@@ -737,19 +768,45 @@ mod tests {
     }
 
     #[test]
-    fn the_warm_up_comes_half_a_tick_before_an_expected_input_in_real_time_only() {
+    fn the_first_warm_up_comes_half_a_tick_before_an_expected_input_in_real_time_only() {
         let dt_s = 0.005;
         let mut realtime = RunClock::new(RunMode::Realtime, dt_s);
-        assert_eq!(warm_up_window_ns(&realtime, 1.0), None, "not started");
+        assert_eq!(
+            warm_up_window_ns(&realtime, 1.0, 0, None),
+            None,
+            "not started"
+        );
         realtime.start(1_000_000_000);
         // Due at 1 s of run time (2 s monotonic): from 2.5 ms before, skipped once a
         // quarter of that lead is gone.
         assert_eq!(
-            warm_up_window_ns(&realtime, 1.0),
+            warm_up_window_ns(&realtime, 1.0, 200_000, None),
             Some((1_997_500_000, 1_998_125_000))
         );
         let mut lockstep = RunClock::new(RunMode::Lockstep, dt_s);
         lockstep.grant(199);
-        assert_eq!(warm_up_window_ns(&lockstep, 1.0), None);
+        assert_eq!(warm_up_window_ns(&lockstep, 1.0, 0, Some(100_000)), None);
+    }
+
+    #[test]
+    fn a_warm_up_aims_to_end_its_margin_before_the_input_comes_taking_as_long_as_the_last() {
+        let mut realtime = RunClock::new(RunMode::Realtime, 0.005);
+        realtime.start(1_000_000_000);
+        // Due at 2 s monotonic, coming 0.2 ms later; the last warm-up took 160 µs: from
+        // 180 µs and the margin before the input comes, at the latest 160 µs before it.
+        let arrival = 2_000_200_000;
+        assert_eq!(
+            warm_up_window_ns(&realtime, 1.0, 200_000, Some(160_000)),
+            Some((arrival - 180_000 - WARM_UP_MARGIN_NS, arrival - 160_000))
+        );
+        // A long one starts no earlier than half a tick before the due time, and one
+        // longer than that leaves no time to start it.
+        let (from, latest) = warm_up_window_ns(&realtime, 1.0, 200_000, Some(2_400_000)).unwrap();
+        assert_eq!((from, latest), (1_997_500_000, arrival - 2_400_000));
+        let (from, latest) = warm_up_window_ns(&realtime, 1.0, 200_000, Some(3_000_000)).unwrap();
+        assert!(
+            latest < from,
+            "never warmed up: it would run into the input"
+        );
     }
 }
