@@ -5,6 +5,51 @@ use crate::assembly::{Assembly, csc_with_positions};
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{SolverStatus, SupportedConeT};
 use protocol::PlanStatus;
+use std::cell::RefCell;
+use std::rc::Rc;
+
+/// Whether what a rehearsal warms up for has come ([`rehearsing`]).
+pub type ArrivalProbe = Rc<dyn Fn() -> bool>;
+
+/// What ends a rehearsal ([`rehearsing`]): a time, and whatever it warms up for coming.
+struct RehearsalEnd {
+    /// Monotonic ns ([`protocol::clock::monotonic_ns`]).
+    until_ns: u64,
+    came: ArrivalProbe,
+}
+
+thread_local! {
+    /// The end of the rehearsal running on this thread, if one is.
+    static REHEARSAL_END: RefCell<Option<RehearsalEnd>> = const { RefCell::new(None) };
+}
+
+/// Runs `rehearsal` so that it stops by `until_ns` (monotonic ns) or once `came` holds
+/// (polled between clarabel's interior-point iterations): a solve in it after that returns
+/// at once, and one under way at clarabel's next iteration (every solver checks between
+/// two, [`ConicSolver::build`]), unsolved. A warm-up that runs up to the moment its input
+/// comes ([`protocol::runtime`]) must not hold up the step it warms up for.
+pub fn rehearsing<R>(until_ns: u64, came: &ArrivalProbe, rehearsal: impl FnOnce() -> R) -> R {
+    struct Ends;
+    impl Drop for Ends {
+        fn drop(&mut self) {
+            REHEARSAL_END.take();
+        }
+    }
+    REHEARSAL_END.set(Some(RehearsalEnd {
+        until_ns,
+        came: came.clone(),
+    }));
+    let _ends = Ends;
+    rehearsal()
+}
+
+/// Whether a rehearsal runs on this thread and has come to its end ([`rehearsing`]).
+pub fn rehearsal_over() -> bool {
+    REHEARSAL_END.with_borrow(|end| {
+        end.as_ref()
+            .is_some_and(|end| protocol::clock::monotonic_ns() >= end.until_ns || (end.came)())
+    })
+}
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
 /// (measured with callgrind on the paper run, instructions per MPC step, docs/performance.md): no
@@ -86,6 +131,9 @@ impl ConicSolver {
     pub fn solve(&mut self, assembly: &Assembly) -> (protocol::PlanStatus, u32) {
         use clarabel::solver::SolverStatus;
         self.careful_last = false;
+        if rehearsal_over() {
+            return (protocol::PlanStatus::NumericalError, 0);
+        }
         for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
             self.nzval[self.nz_position[t]] = v;
         }
@@ -140,6 +188,7 @@ impl ConicSolver {
             );
             solver.ok().map(|mut solver| {
                 use clarabel::solver::IPSolver;
+                solver.set_termination_callback(|_| rehearsal_over());
                 solver.timers = Some(timers_kept_between_solves());
                 solver.solve();
                 solver
@@ -161,13 +210,15 @@ impl ConicSolver {
     /// Solves the last problem again, for its memory's sake: a process that slept since its
     /// last step finds the solver's working set (KKT matrix, factors, iterates) in cache at
     /// its next one. It changes nothing that step sees: the step writes its own data first
-    /// and clarabel starts every solve afresh from the data; the solution read after the
-    /// last solve ([`ConicSolver::x`]) comes out the same.
-    pub fn rehearse(&mut self) {
+    /// and clarabel starts every solve afresh from the data; the solution is read only
+    /// after a step's own solve ([`ConicSolver::x`]). Returns the interior-point
+    /// iterations (fewer when a [`rehearsing`] cuts it short).
+    pub fn rehearse(&mut self) -> u32 {
         use clarabel::solver::IPSolver;
-        if let Some(solver) = self.solver.as_mut() {
+        self.solver.as_mut().map_or(0, |solver| {
             solver.solve();
-        }
+            solver.solution.iterations
+        })
     }
 
     /// The last solution's variables (none before the first solve).

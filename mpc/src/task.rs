@@ -11,6 +11,7 @@
 
 use crate::Mpc;
 use crate::error::MpcError;
+use crate::solver::ArrivalProbe;
 use protocol::task::{Context, header_latency};
 use protocol::{Estimate, FaultConfig, Header, Plan, Route, Scenario, Timing};
 use std::collections::VecDeque;
@@ -70,9 +71,11 @@ impl MpcTask {
     }
 
     /// Warms the next step's memory before the next sample ([`Mpc::rehearse`]), with a
-    /// dry step if the last step took at most `dry_step_max_ns`; changes no plan.
-    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
-        self.mpc.rehearse(dry_step_max_ns);
+    /// dry step if the last step took at most `dry_step_max_ns`, stopping by `until_ns`
+    /// (monotonic ns) or once the estimate `came` ([`crate::solver::rehearsing`]); changes
+    /// no plan.
+    pub fn rehearse(&mut self, dry_step_max_ns: u64, until_ns: u64, came: &ArrivalProbe) {
+        crate::solver::rehearsing(until_ns, came, || self.mpc.rehearse(dry_step_max_ns));
     }
 
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the

@@ -49,23 +49,23 @@ use std::time::{Duration, Instant};
 /// later ones as late as their length allows ([`warm_up_window_ns`]).
 pub const WARM_UP_LEAD_TICKS: f64 = 0.5;
 
-/// How long before an expected input's arrival a warm-up aims to have ended, ns: the
-/// sleep before it ends up to [`WAKE_LATENESS_NS`] late, and a warm-up can take longer
-/// than the last one. With 250 µs the estimate → MPC hop's p50 grew by about 10 µs, with
-/// 500 µs it did not (docs/performance.md, "The warm-up, just in time").
+/// How long before an expected input comes the first warm-up for it aims to have ended,
+/// ns: the sleep before it ends late now and then (on this VM, with 250 µs, 10-30 % of
+/// the paper's samples had no warm-up at all; 0.5-5 % with 500 µs), and a warm-up can
+/// take longer than the last one. The time left until the input comes is
+/// filled with more warm-ups ([`Link::run_warming`]).
 pub const WARM_UP_MARGIN_NS: u64 = 500_000;
 
 /// When to warm up for an input due at run time `due_s` and published `arrival_lag_ns`
-/// after its due time ([`next_arrival_lag_ns`]): from and at the latest, monotonic ns;
-/// `None` in lockstep and before the clock has started. What a warm-up brings into the
-/// caches is gone again within a few milliseconds on a virtual machine, even on a core
-/// kept busy (docs/performance.md, "The warm-up, just in time"), so a warm-up aims to end
-/// [`WARM_UP_MARGIN_NS`] before the input comes: it starts as long before that as the
-/// last one took (`last_ns`) and an eighth more, but never more than
-/// [`WARM_UP_LEAD_TICKS`] before the due time, and is skipped if, taking as long as the
-/// last one, it would not end before the input comes. Without a last length (the first
-/// warm-up, or the one after a skipped one) it comes [`WARM_UP_LEAD_TICKS`] before the due
-/// time, skipped once a quarter of that lead is gone.
+/// after its due time ([`next_arrival_lag_ns`]): from and until, monotonic ns; `None` in
+/// lockstep and before the clock has started. What a warm-up brings into the caches is
+/// gone again within a millisecond or so on a virtual machine, even on a core kept busy
+/// (docs/performance.md, "The warm-up, just in time"), so the role warms up until the
+/// input comes (its warm-up looks for it), and at the latest until polling for it would
+/// give up ([`SPIN_BUDGET_NS`] after it is expected, [`spin_wait`]). The first warm-up
+/// starts [`WARM_UP_MARGIN_NS`] and as long as the last first one took (`last_ns`), and an
+/// eighth more, before the input is expected; never more than [`WARM_UP_LEAD_TICKS`]
+/// before the due time, where it starts without a last length.
 fn warm_up_window_ns(
     clock: &RunClock,
     due_s: f64,
@@ -74,14 +74,13 @@ fn warm_up_window_ns(
 ) -> Option<(u64, u64)> {
     let lead_s = WARM_UP_LEAD_TICKS * clock.dt_s();
     let earliest = clock.at_ns(due_s - lead_s)?;
-    let Some(last_ns) = last_ns else {
-        return Some((earliest, earliest + (0.25 * lead_s * 1e9) as u64));
-    };
     let arrival = clock.at_ns(due_s)? + arrival_lag_ns;
-    let from = arrival
-        .saturating_sub(last_ns + last_ns / 8 + WARM_UP_MARGIN_NS)
-        .max(earliest);
-    Some((from, arrival.saturating_sub(last_ns)))
+    let from = last_ns.map_or(earliest, |last_ns| {
+        arrival
+            .saturating_sub(last_ns + last_ns / 8 + WARM_UP_MARGIN_NS)
+            .max(earliest)
+    });
+    Some((from, arrival + SPIN_BUDGET_NS))
 }
 
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
@@ -363,23 +362,26 @@ impl Link {
         outputs: &[&dyn Output],
         step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
     ) -> Result<(), ProcessError> {
-        self.run_warming(inputs, outputs, step, None::<fn()>)
+        self.run_warming(inputs, outputs, step, None::<fn(u64)>)
     }
 
     /// [`Link::run`] for a role that idles between periodic inputs and whose step would
     /// start with cold caches after sleeping (the MPC, asleep for most of `Ts`).
     ///
-    /// In real time, once for each input it expects ([`Next::Expect`]), the runtime sleeps
-    /// until shortly before the input comes and calls `warm_up` there, timed to end just
-    /// before it ([`warm_up_window_ns`]), unless it would not end in time (it would delay
-    /// the step). Lockstep never calls it: its processes never sleep for a time, and
-    /// `warm_up` may not change what the step computes.
+    /// In real time, for each input it expects ([`Next::Expect`]), the runtime sleeps until
+    /// shortly before the input comes and from there calls `warm_up` again and again, a pass
+    /// of the step between two (which takes the input once it has come), until the input
+    /// comes or the window ends ([`warm_up_window_ns`]). `warm_up` is given the window's end
+    /// (monotonic ns) and must stop by then, and as soon as the input comes: what it warms
+    /// fades within a millisecond, so the step is to follow it at once. Lockstep never
+    /// calls it: its processes never sleep for a time, and `warm_up` may not change what
+    /// the step computes.
     pub fn run_warming<'i>(
         &self,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
         mut step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
-        mut warm_up: Option<impl FnMut()>,
+        mut warm_up: Option<impl FnMut(u64)>,
     ) -> Result<(), ProcessError> {
         let waitset = waitset(true)?;
         let attach = |listener| {
@@ -428,12 +430,15 @@ impl Link {
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
         step: &mut impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
-        mut warm_up: Option<&mut impl FnMut()>,
+        mut warm_up: Option<&mut impl FnMut(u64)>,
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
-        // The expected input (its due time, s) warmed up for, and how long the last
-        // warm-up took (ns; none after a skipped one).
+        // The expected input warmed up for (its due time, s), until when (monotonic ns)
+        // and how many times so far, and how long the first warm-up for the last one took
+        // (ns).
         let mut warmed_for = None;
+        let mut warm_until_ns = 0;
+        let mut warm_ups = 0;
         let mut warm_up_ns = None;
         // Real time: how long after its due time the expected input is published
         // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
@@ -486,15 +491,22 @@ impl Link {
             }
             // In real time a step due at a time is slept to, and so is a warm-up before an
             // expected input; in lockstep a time comes with a grant, like any input.
+            // Before an expected input a role warming up sleeps to its window and then,
+            // pass after pass of the step (which takes the input if it has come), warms up.
             let clock = self.clock.state.get().clock;
             let mut warming = None;
             let due_ns = match next {
                 Next::At(at_s) => clock.at_ns(at_s),
                 Next::Expect { at_s, .. } if warm_up.is_some() && warmed_for != Some(at_s) => {
                     warmed_for = Some(at_s);
+                    warm_ups = 0;
                     let window = warm_up_window_ns(&clock, at_s, arrival_lag_ns, warm_up_ns);
-                    warming = window.map(|(_, latest)| latest);
+                    warm_until_ns = window.map_or(0, |(_, until)| until);
                     window.map(|(from, _)| from)
+                }
+                Next::Expect { input, .. } if monotonic_ns() < warm_until_ns => {
+                    warming = Some(input);
+                    Some(0)
                 }
                 _ => None,
             };
@@ -514,12 +526,17 @@ impl Link {
                 if let Some(at_ns) = due_ns {
                     sleep_until_ns(at_ns);
                 }
-                if let (Some(latest_ns), Some(warm_up)) = (warming, warm_up.as_mut()) {
+                if let (Some(input), Some(warm_up)) = (warming, warm_up.as_mut()) {
                     let started_ns = monotonic_ns();
-                    warm_up_ns = (started_ns <= latest_ns).then(|| {
-                        warm_up();
-                        monotonic_ns() - started_ns
-                    });
+                    warm_up(warm_until_ns);
+                    let ended_ns = monotonic_ns();
+                    if warm_ups == 0 {
+                        // One cut short would have taken longer: start the next earlier.
+                        let took_ns = ended_ns - started_ns;
+                        let cut = ended_ns >= warm_until_ns || input.has_samples();
+                        warm_up_ns = Some(if cut { 2 * took_ns } else { took_ns });
+                    }
+                    warm_ups += 1;
                 }
                 cleared = !again;
                 continue;
@@ -777,11 +794,11 @@ mod tests {
             "not started"
         );
         realtime.start(1_000_000_000);
-        // Due at 1 s of run time (2 s monotonic): from 2.5 ms before, skipped once a
-        // quarter of that lead is gone.
+        // Due at 1 s of run time (2 s monotonic), coming 0.2 ms later: from 2.5 ms before
+        // the due time until polling for the input would give up.
         assert_eq!(
             warm_up_window_ns(&realtime, 1.0, 200_000, None),
-            Some((1_997_500_000, 1_998_125_000))
+            Some((1_997_500_000, 2_000_200_000 + SPIN_BUDGET_NS))
         );
         let mut lockstep = RunClock::new(RunMode::Lockstep, dt_s);
         lockstep.grant(199);
@@ -789,24 +806,21 @@ mod tests {
     }
 
     #[test]
-    fn a_warm_up_aims_to_end_its_margin_before_the_input_comes_taking_as_long_as_the_last() {
+    fn warm_ups_start_their_margin_and_the_last_ones_length_before_the_input_comes() {
         let mut realtime = RunClock::new(RunMode::Realtime, 0.005);
         realtime.start(1_000_000_000);
-        // Due at 2 s monotonic, coming 0.2 ms later; the last warm-up took 160 µs: from
-        // 180 µs and the margin before the input comes, at the latest 160 µs before it.
+        // Due at 2 s monotonic, coming 0.2 ms later; the last first warm-up took 160 µs:
+        // from 180 µs and the margin before the input comes, until polling would give up.
         let arrival = 2_000_200_000;
+        let until = arrival + SPIN_BUDGET_NS;
         assert_eq!(
             warm_up_window_ns(&realtime, 1.0, 200_000, Some(160_000)),
-            Some((arrival - 180_000 - WARM_UP_MARGIN_NS, arrival - 160_000))
+            Some((arrival - 180_000 - WARM_UP_MARGIN_NS, until))
         );
-        // A long one starts no earlier than half a tick before the due time, and one
-        // longer than that leaves no time to start it.
-        let (from, latest) = warm_up_window_ns(&realtime, 1.0, 200_000, Some(2_400_000)).unwrap();
-        assert_eq!((from, latest), (1_997_500_000, arrival - 2_400_000));
-        let (from, latest) = warm_up_window_ns(&realtime, 1.0, 200_000, Some(3_000_000)).unwrap();
-        assert!(
-            latest < from,
-            "never warmed up: it would run into the input"
+        // A long one starts no earlier than half a tick before the due time.
+        assert_eq!(
+            warm_up_window_ns(&realtime, 1.0, 200_000, Some(2_400_000)),
+            Some((1_997_500_000, until))
         );
     }
 }

@@ -1,8 +1,10 @@
 //! Tests of the linear MPC on its own model.
 use super::*;
 use crate::discs::barrier_slack;
+use crate::solver::ArrivalProbe;
 use crate::terminal_set::SetRow;
 use protocol::{Obstacle, QpForm};
+use std::rc::Rc;
 
 mod implied_rows;
 mod recursive_feasibility;
@@ -650,12 +652,22 @@ fn a_disc_kept_for_its_terminal_rows_whose_cbf_rows_the_solution_misses_becomes_
 }
 
 #[test]
-fn a_rehearsal_before_every_step_changes_no_plan() {
+fn a_rehearsal_before_every_step_changes_no_plan_even_cut_short() {
     // The robot drifts off every plan (as a real one does), so each rehearsal's dry step,
     // from the state its last plan predicts, solves another program than the real step;
     // a field of discs and the sparse program too, so discs join, leave and are deferred.
     let field = "obstacles=[{x = 3.0, y = 3.5, radius = 1.5}, {x = 6.0, y = 3.5, radius = 0.4}, \
                  {x = 1.5, y = 5.5, radius = 0.4}, {x = 5.5, y = 1.0, radius = 0.4}]";
+    let never: ArrivalProbe = Rc::new(|| false);
+    let polls_left = Rc::new(std::cell::Cell::new(0_u64));
+    let came_after_polls: ArrivalProbe = {
+        let polls_left = polls_left.clone();
+        Rc::new(move || {
+            let left = polls_left.get();
+            polls_left.set(left.saturating_sub(1));
+            left == 0
+        })
+    };
     for overrides in [vec![], vec![field.into(), "mpc.qp_form=\"sparse\"".into()]] {
         let s = Scenario::default().with_overrides(&overrides).unwrap();
         let mut rehearsing = LinearMpc::new(&s).unwrap();
@@ -666,7 +678,17 @@ fn a_rehearsal_before_every_step_changes_no_plan() {
         let mut drift = logistic(0.3);
         for k in 0..200 {
             let x_bar = protocol::phi_inverse(z.into(), theta);
-            rehearsing.rehearse(u64::MAX);
+            // Rehearsals that run to the end, that are cut short before they begin, and
+            // that are cut short in their solves, after `k % 8` polls of whether the
+            // estimate came.
+            polls_left.set(k % 8);
+            let until_ns = if k % 4 == 1 { 0 } else { u64::MAX - 1 };
+            let came = if k % 4 == 0 {
+                &never
+            } else {
+                &came_after_polls
+            };
+            crate::solver::rehearsing(until_ns, came, || rehearsing.rehearse(u64::MAX));
             let plan = rehearsing.step(k, x_bar, 0.01);
             let reference = plain.step(k, x_bar, 0.01);
             assert!(
@@ -689,4 +711,34 @@ fn a_rehearsal_before_every_step_changes_no_plan() {
             z = a * z + b * nalgebra::Vector2::from(plan.v[0]) + push;
         }
     }
+}
+
+#[test]
+fn a_rehearsal_at_its_end_stops_every_solve_in_it_and_none_after_it() {
+    let s = Scenario::default();
+    let mut mpc = LinearMpc::new(&s).unwrap();
+    let [x, y, theta] = s.robot.start;
+    let x_bar = [x, y, theta, s.robot.zeta0];
+    assert!(mpc.step(0, x_bar, 0.0).is_solved());
+    let (never, came): (ArrivalProbe, ArrivalProbe) = (Rc::new(|| false), Rc::new(|| true));
+    // Past its time, or with its input come: a solve about to start does not (the check
+    // in `ConicSolver::solve`), one under way stops before its first iteration (clarabel's
+    // termination callback).
+    for (until_ns, came) in [(0, &never), (u64::MAX - 1, &came)] {
+        let dry = crate::solver::rehearsing(until_ns, came, || mpc.step(1, x_bar, 0.0));
+        assert_eq!((dry.iterations, dry.is_solved()), (0, false));
+        let solver = &mut mpc.solvers[mpc.rows.index()];
+        assert_eq!(
+            crate::solver::rehearsing(until_ns, came, || solver.rehearse()),
+            0
+        );
+    }
+    let solver = &mut mpc.solvers[mpc.rows.index()];
+    assert!(
+        crate::solver::rehearsing(u64::MAX - 1, &never, || solver.rehearse()) > 0,
+        "a rehearsal with time left solves"
+    );
+    assert!(solver.rehearse() > 0, "outside a rehearsal a solve runs");
+    let plan = mpc.step(1, x_bar, 0.0);
+    assert!(plan.is_solved() && plan.iterations > 0);
 }
