@@ -419,7 +419,8 @@ impl LinearMpc {
         self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0, self.sub_goal);
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
-        if outcome.status != PlanStatus::Solved && warm {
+        // (A rehearsal at its end tries nothing more: `crate::solver::rehearsing`.)
+        if outcome.status != PlanStatus::Solved && warm && !crate::solver::rehearsal_over() {
             // The shifted plan is no longer a usable linearization point: start cold.
             self.braking_reference(z0);
             let retry = self.refine(z0);
@@ -573,7 +574,10 @@ impl LinearMpc {
             let (status, more) = self.solve_with(z0, rows);
             (iterations, solves) = (iterations + more, solves + 1);
             if status != PlanStatus::Solved {
-                if relaxed || self.layout.decay_slacks(rows.terminal_discs()) == 0 {
+                if relaxed
+                    || self.layout.decay_slacks(rows.terminal_discs()) == 0
+                    || crate::solver::rehearsal_over()
+                {
                     return (status, iterations, solves);
                 }
                 // Infeasible (or stalled): braking may need the decay relaxed (module docs

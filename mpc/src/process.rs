@@ -34,8 +34,8 @@ pub fn run(args: &ProcessArgs) -> Result<(), ProcessError> {
         Ok(Next::expect(&*estimates, Some(task.next_due_s())))
     };
     // Asleep for most of `Ts` in real time, the step would start with cold caches: the
-    // runtime has the task rehearse until just before the sample's estimate comes, a dry
-    // step if the last one took at most half the longest lead the runtime allows. The
+    // runtime has the task rehearse again and again until the sample's estimate comes, a
+    // dry step if the last one took at most half the longest lead the runtime allows. The
     // step before each rehearsal takes what came, so an estimate that comes during one is
     // the sample's, and ends it.
     let lead_s = WARM_UP_LEAD_TICKS * args.scenario.timing.dt_s();

@@ -52,8 +52,8 @@ pub const WARM_UP_LEAD_TICKS: f64 = 0.5;
 /// How long before an expected input comes the first warm-up for it aims to have ended,
 /// ns: the sleep before it ends late now and then (on this VM, with 250 µs, 10-30 % of
 /// the paper's samples had no warm-up at all; 0.5-5 % with 500 µs), and a warm-up can
-/// take longer than the last one. The time left until the input comes is
-/// filled with more warm-ups ([`Link::run_warming`]).
+/// take longer than the last one. The time left until the input comes is filled with
+/// more warm-ups ([`Link::run_warming`]).
 pub const WARM_UP_MARGIN_NS: u64 = 500_000;
 
 /// When to warm up for an input due at run time `due_s` and published `arrival_lag_ns`
@@ -61,8 +61,8 @@ pub const WARM_UP_MARGIN_NS: u64 = 500_000;
 /// lockstep and before the clock has started. What a warm-up brings into the caches is
 /// gone again within a millisecond or so on a virtual machine, even on a core kept busy
 /// (docs/performance.md, "The warm-up, just in time"), so the role warms up until the
-/// input comes (its warm-up looks for it), and at the latest until polling for it would
-/// give up ([`SPIN_BUDGET_NS`] after it is expected, [`spin_wait`]). The first warm-up
+/// input comes (its warm-up looks for it), and at the latest until [`SPIN_BUDGET_NS`]
+/// after it is expected (then it polls for it, [`spin_wait`]). The first warm-up
 /// starts [`WARM_UP_MARGIN_NS`] and as long as the last first one took (`last_ns`), and an
 /// eighth more, before the input is expected; never more than [`WARM_UP_LEAD_TICKS`]
 /// before the due time, where it starts without a last length.
@@ -372,8 +372,9 @@ impl Link {
     /// shortly before the input comes and from there calls `warm_up` again and again, a pass
     /// of the step between two (which takes the input once it has come), until the input
     /// comes or the window ends ([`warm_up_window_ns`]). `warm_up` is given the window's end
-    /// (monotonic ns) and must stop by then, and as soon as the input comes: what it warms
-    /// fades within a millisecond, so the step is to follow it at once. Lockstep never
+    /// (monotonic ns) and must stop by then, and should stop as soon as the input comes
+    /// (the MPC's stops its solves): what it warms fades within a millisecond, so the step
+    /// is to follow it at once. Lockstep never
     /// calls it: its processes never sleep for a time, and `warm_up` may not change what
     /// the step computes.
     pub fn run_warming<'i>(
@@ -434,11 +435,11 @@ impl Link {
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
         // The expected input warmed up for (its due time, s), until when (monotonic ns)
-        // and how many times so far, and how long the first warm-up for the last one took
-        // (ns).
+        // and whether its first warm-up is still to come, and how long the first warm-up
+        // for the last one took (ns).
         let mut warmed_for = None;
         let mut warm_until_ns = 0;
-        let mut warm_ups = 0;
+        let mut first_warm_up = false;
         let mut warm_up_ns = None;
         // Real time: how long after its due time the expected input is published
         // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
@@ -447,7 +448,9 @@ impl Link {
         let mut polled: Option<(&dyn Input, u64)> = None;
         let mut followed = None;
         let mut cleared = false;
+        // When an input was last heard, and how many samples the inputs had taken then.
         let mut last_input = Instant::now();
+        let mut taken_before = 0;
         let mut supervisor_checked = Instant::now();
         let mut orphaned_at: Option<Instant> = None;
         loop {
@@ -458,6 +461,11 @@ impl Link {
                 }
             })?;
             each_pass();
+            let taken: u64 = inputs.iter().map(|input| input.taken()).sum();
+            if taken != taken_before {
+                taken_before = taken;
+                last_input = Instant::now();
+            }
             // Real time, after a wake-up's first step (the one that publishes; the step
             // after housekeeping rarely does): give the core to whatever waits there for
             // the output (a consumer spinning for it on this core runs now, not when this
@@ -493,24 +501,27 @@ impl Link {
             // expected input; in lockstep a time comes with a grant, like any input.
             // Before an expected input a role warming up sleeps to its window and then,
             // pass after pass of the step (which takes the input if it has come), warms up.
+            // (The pass that takes the input learns its arrival lag from it.)
             let clock = self.clock.state.get().clock;
             let mut warming = None;
             let due_ns = match next {
                 Next::At(at_s) => clock.at_ns(at_s),
-                Next::Expect { at_s, .. } if warm_up.is_some() && warmed_for != Some(at_s) => {
-                    warmed_for = Some(at_s);
-                    warm_ups = 0;
-                    let window = warm_up_window_ns(&clock, at_s, arrival_lag_ns, warm_up_ns);
-                    warm_until_ns = window.map_or(0, |(_, until)| until);
-                    window.map(|(from, _)| from)
-                }
-                Next::Expect { input, .. } if monotonic_ns() < warm_until_ns => {
-                    warming = Some(input);
-                    Some(0)
+                Next::Expect { at_s, input } if warm_up.is_some() => {
+                    polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
+                    if warmed_for != Some(at_s) {
+                        warmed_for = Some(at_s);
+                        first_warm_up = true;
+                        let window = warm_up_window_ns(&clock, at_s, arrival_lag_ns, warm_up_ns);
+                        warm_until_ns = window.map_or(0, |(_, until)| until);
+                        window.map(|(from, _)| from)
+                    } else {
+                        warming = (monotonic_ns() < warm_until_ns).then_some(input);
+                        None
+                    }
                 }
                 _ => None,
             };
-            let again = due_ns.is_some();
+            let again = due_ns.is_some() || warming.is_some();
             if !cleared || again {
                 if !self.housekeeping(inputs)? {
                     return Ok(());
@@ -530,13 +541,12 @@ impl Link {
                     let started_ns = monotonic_ns();
                     warm_up(warm_until_ns);
                     let ended_ns = monotonic_ns();
-                    if warm_ups == 0 {
+                    if std::mem::take(&mut first_warm_up) {
                         // One cut short would have taken longer: start the next earlier.
                         let took_ns = ended_ns - started_ns;
                         let cut = ended_ns >= warm_until_ns || input.has_samples();
                         warm_up_ns = Some(if cut { 2 * took_ns } else { took_ns });
                     }
-                    warm_ups += 1;
                 }
                 cleared = !again;
                 continue;
