@@ -104,7 +104,8 @@ fn pin_at_idle_policy(core: usize) -> std::io::Result<()> {
 mod tests {
     use super::*;
 
-    /// `(core it may run on, policy)` of each thread of this process named `awake-*`.
+    /// `(core it may run on, policy)` of each live thread of this process named
+    /// `awake-*`. A thread that ends while it is read is left out.
     fn spinners() -> Vec<(String, String)> {
         let mut found = Vec::new();
         for task in std::fs::read_dir("/proc/self/task").unwrap() {
@@ -113,25 +114,42 @@ mod tests {
             if !name.starts_with("awake-") {
                 continue;
             }
-            let status = std::fs::read_to_string(dir.join("status")).unwrap();
-            let cores = status
-                .lines()
-                .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
-                .unwrap()
-                .trim()
-                .to_string();
-            let sched = std::fs::read_to_string(dir.join("sched")).unwrap();
-            let policy = sched
-                .lines()
-                .find(|l| l.starts_with("policy"))
-                .and_then(|l| l.split(':').nth(1))
-                .unwrap()
-                .trim()
-                .to_string();
-            found.push((cores, policy));
+            let (Ok(status), Ok(sched)) = (
+                std::fs::read_to_string(dir.join("status")),
+                std::fs::read_to_string(dir.join("sched")),
+            ) else {
+                continue;
+            };
+            let field = |text: &str, key: &str| {
+                text.lines()
+                    .find(|l| l.starts_with(key))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, value)| value.trim().to_string())
+            };
+            if field(&status, "State").is_some_and(|s| s.starts_with('Z') || s.starts_with('X')) {
+                continue;
+            }
+            found.push((
+                field(&status, "Cpus_allowed_list").unwrap(),
+                field(&sched, "policy").unwrap(),
+            ));
         }
         found.sort();
         found
+    }
+
+    /// `spinners()` once it is empty, or as it is after `timeout`. A joined thread has
+    /// returned, but the kernel lists it under `/proc/self/task` until it has released
+    /// it, a moment later.
+    fn spinners_once_gone(timeout: std::time::Duration) -> Vec<(String, String)> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            let found = spinners();
+            if found.is_empty() || std::time::Instant::now() > deadline {
+                return found;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
     }
 
     #[test]
@@ -146,6 +164,10 @@ mod tests {
         expected.sort();
         assert_eq!(spinners(), expected);
         drop(awake);
-        assert_eq!(spinners(), Vec::new(), "the spinners are joined at drop");
+        assert_eq!(
+            spinners_once_gone(std::time::Duration::from_secs(5)),
+            Vec::new(),
+            "the spinners are joined at drop"
+        );
     }
 }
