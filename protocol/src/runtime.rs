@@ -374,9 +374,8 @@ impl Link {
     /// comes or the window ends ([`warm_up_window_ns`]). `warm_up` is given the window's end
     /// (monotonic ns) and must stop by then, and should stop as soon as the input comes
     /// (the MPC's stops its solves): what it warms fades within a millisecond, so the step
-    /// is to follow it at once. Lockstep never
-    /// calls it: its processes never sleep for a time, and `warm_up` may not change what
-    /// the step computes.
+    /// is to follow it at once. Lockstep never calls it: its processes never sleep for a
+    /// time, and `warm_up` may not change what the step computes.
     pub fn run_warming<'i>(
         &self,
         inputs: &[&'i dyn Input],
