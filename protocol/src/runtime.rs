@@ -83,6 +83,66 @@ fn warm_up_window_ns(
     Some((from, arrival + SPIN_BUDGET_NS))
 }
 
+/// The warm-ups of a role before its expected inputs ([`Link::run_warming`]): the input
+/// they are for (its due time, s), until when (monotonic ns), whether the first one for it
+/// is still to come, and how long the first one for the last input took (ns), which times
+/// the next window ([`warm_up_window_ns`]).
+#[derive(Debug, Default)]
+struct WarmUps {
+    due_s: Option<f64>,
+    until_ns: u64,
+    first_to_come: bool,
+    first_took_ns: Option<u64>,
+}
+
+/// What a pass of a role warming up does before the input it expects ([`WarmUps::next`]).
+#[derive(Debug, PartialEq)]
+enum WarmUpPass {
+    /// The first pass expecting the input: sleep to the window's start (monotonic ns).
+    SleepTo(u64),
+    /// Warm up: the window is open and the input has not come (the step of this pass
+    /// would have taken it).
+    WarmUp,
+    /// Nothing: lockstep, the clock not started, or the window over (the role then polls
+    /// or waits for the input).
+    Wait,
+}
+
+impl WarmUps {
+    /// What this pass does before the input due at run time `due_s`, `now_ns` monotonic.
+    fn next(
+        &mut self,
+        clock: &RunClock,
+        due_s: f64,
+        arrival_lag_ns: u64,
+        now_ns: u64,
+    ) -> WarmUpPass {
+        if self.due_s != Some(due_s) {
+            self.due_s = Some(due_s);
+            self.first_to_come = true;
+            let window = warm_up_window_ns(clock, due_s, arrival_lag_ns, self.first_took_ns);
+            self.until_ns = window.map_or(0, |(_, until)| until);
+            return window.map_or(WarmUpPass::Wait, |(from, _)| WarmUpPass::SleepTo(from));
+        }
+        if now_ns < self.until_ns {
+            WarmUpPass::WarmUp
+        } else {
+            WarmUpPass::Wait
+        }
+    }
+
+    /// After a warm-up from `started_ns` to `ended_ns`, `came`: whether the input has come.
+    /// The first one for an input times the next window; one cut short (at the window's
+    /// end, or by the input) would have taken longer, so it counts twice.
+    fn warmed(&mut self, started_ns: u64, ended_ns: u64, came: bool) {
+        if std::mem::take(&mut self.first_to_come) {
+            let took_ns = ended_ns.saturating_sub(started_ns);
+            let cut = ended_ns >= self.until_ns || came;
+            self.first_took_ns = Some(if cut { 2 * took_ns } else { took_ns });
+        }
+    }
+}
+
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
@@ -433,13 +493,7 @@ impl Link {
         mut warm_up: Option<&mut impl FnMut(u64)>,
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
-        // The expected input warmed up for (its due time, s), until when (monotonic ns)
-        // and whether its first warm-up is still to come, and how long the first warm-up
-        // for the last one took (ns).
-        let mut warmed_for = None;
-        let mut warm_until_ns = 0;
-        let mut first_warm_up = false;
-        let mut warm_up_ns = None;
+        let mut warm_ups = WarmUps::default();
         // Real time: how long after its due time the expected input is published
         // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
         // and the input polled for with its due time, ns.
@@ -507,15 +561,13 @@ impl Link {
                 Next::At(at_s) => clock.at_ns(at_s),
                 Next::Expect { at_s, input } if warm_up.is_some() => {
                     polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
-                    if warmed_for != Some(at_s) {
-                        warmed_for = Some(at_s);
-                        first_warm_up = true;
-                        let window = warm_up_window_ns(&clock, at_s, arrival_lag_ns, warm_up_ns);
-                        warm_until_ns = window.map_or(0, |(_, until)| until);
-                        window.map(|(from, _)| from)
-                    } else {
-                        warming = (monotonic_ns() < warm_until_ns).then_some(input);
-                        None
+                    match warm_ups.next(&clock, at_s, arrival_lag_ns, monotonic_ns()) {
+                        WarmUpPass::SleepTo(from_ns) => Some(from_ns),
+                        WarmUpPass::WarmUp => {
+                            warming = Some(input);
+                            None
+                        }
+                        WarmUpPass::Wait => None,
                     }
                 }
                 _ => None,
@@ -538,14 +590,8 @@ impl Link {
                 }
                 if let (Some(input), Some(warm_up)) = (warming, warm_up.as_mut()) {
                     let started_ns = monotonic_ns();
-                    warm_up(warm_until_ns);
-                    let ended_ns = monotonic_ns();
-                    if std::mem::take(&mut first_warm_up) {
-                        // One cut short would have taken longer: start the next earlier.
-                        let took_ns = ended_ns - started_ns;
-                        let cut = ended_ns >= warm_until_ns || input.has_samples();
-                        warm_up_ns = Some(if cut { 2 * took_ns } else { took_ns });
-                    }
+                    warm_up(warm_ups.until_ns);
+                    warm_ups.warmed(started_ns, monotonic_ns(), input.has_samples());
                 }
                 cleared = !again;
                 continue;
@@ -831,5 +877,55 @@ mod tests {
             warm_up_window_ns(&realtime, 1.0, 200_000, Some(2_400_000)),
             Some((1_997_500_000, until))
         );
+    }
+
+    #[test]
+    fn warm_ups_repeat_until_their_window_ends_and_the_first_ones_length_times_the_next() {
+        let mut realtime = RunClock::new(RunMode::Realtime, 0.005);
+        realtime.start(1_000_000_000);
+        let lag = 200_000;
+        let mut warm_ups = WarmUps::default();
+        // The input due at 1 s of run time (2 s monotonic) comes 0.2 ms later. The first
+        // pass expecting it sleeps to half a tick before its due time.
+        let arrival = 2_000_200_000;
+        assert_eq!(
+            warm_ups.next(&realtime, 1.0, lag, 1_990_000_000),
+            WarmUpPass::SleepTo(1_997_500_000)
+        );
+        // From there every pass warms up, until polling for the input would give up.
+        assert_eq!(
+            warm_ups.next(&realtime, 1.0, lag, 1_997_500_000),
+            WarmUpPass::WarmUp
+        );
+        warm_ups.warmed(1_997_500_000, 1_997_660_000, false);
+        assert_eq!(
+            warm_ups.next(&realtime, 1.0, lag, 1_997_700_000),
+            WarmUpPass::WarmUp
+        );
+        warm_ups.warmed(1_997_700_000, 1_997_750_000, true);
+        assert_eq!(
+            warm_ups.next(&realtime, 1.0, lag, arrival + SPIN_BUDGET_NS),
+            WarmUpPass::Wait
+        );
+        // The next input's window starts by the first warm-up's 160 µs (the later one,
+        // cut short by the input, does not count), an eighth more and the margin.
+        let arrival = arrival + 500_000_000;
+        assert_eq!(
+            warm_ups.next(&realtime, 1.5, lag, arrival - 3_000_000),
+            WarmUpPass::SleepTo(arrival - 180_000 - WARM_UP_MARGIN_NS)
+        );
+        // A first warm-up cut short by the input counts twice its 100 µs.
+        warm_ups.warmed(arrival - 500_000, arrival - 400_000, true);
+        let arrival = arrival + 500_000_000;
+        assert_eq!(
+            warm_ups.next(&realtime, 2.0, lag, arrival - 3_000_000),
+            WarmUpPass::SleepTo(arrival - 225_000 - WARM_UP_MARGIN_NS)
+        );
+        // Lockstep never warms up.
+        let mut lockstep = RunClock::new(RunMode::Lockstep, 0.005);
+        lockstep.grant(199);
+        let mut warm_ups = WarmUps::default();
+        assert_eq!(warm_ups.next(&lockstep, 1.0, 0, 0), WarmUpPass::Wait);
+        assert_eq!(warm_ups.next(&lockstep, 1.0, 0, 0), WarmUpPass::Wait);
     }
 }
