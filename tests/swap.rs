@@ -208,6 +208,55 @@ role = "mpc"
 }
 
 #[test]
+fn in_lockstep_a_replacement_slow_to_start_holds_the_clock_and_switches_before_the_end() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    // The replacement starts half a second after it is spawned; the last second of the
+    // run takes a few ms in lockstep, so the clock must wait for the replacement to join.
+    // (Gentler inputs' weight: the goal is reached at 7.5 s, before the swap.)
+    let file = scenario_file(
+        dir.path(),
+        &format!(
+            r#"duration_s = 10.0
+
+[mpc]
+r_diag = [3.0, 3.0]
+
+[[swap]]
+time_s = 9.0
+role = "mpc"
+command = ["sh", "-c", "sleep 0.5 && exec \"$0\" mpc --set mpc.horizon=10", "{}"]
+"#,
+            env!("CARGO_BIN_EXE_scmpc")
+        ),
+    );
+    let out_dir = dir.path().join("run");
+    let out = run(&["run", &file, "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", common::stderr(&out));
+    let s = summary(&out_dir);
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["swaps"], 1, "{s}");
+    let switch_tick = swapped(&events(&out_dir), "mpc")["switch_tick"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        (1800.0..2000.0).contains(&switch_tick),
+        "switch at tick {switch_tick}"
+    );
+    let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
+    let horizons = plans.numbers("horizon").unwrap();
+    let epochs = plans.numbers("mpc_epoch").unwrap();
+    assert!(
+        epochs
+            .iter()
+            .zip(&horizons)
+            .any(|(&e, &n)| e == 1.0 && n == 10.0),
+        "no plan of the replacement"
+    );
+    assert_every_tick_commanded(&out_dir, 2000);
+}
+
+#[test]
 fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();

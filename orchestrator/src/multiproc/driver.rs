@@ -111,8 +111,33 @@ impl<'a> Driver<'a> {
                 return Ok(outcome);
             }
             self.serve_swaps()?;
+            if let Some(outcome) = self.await_replacements(waitset)? {
+                return Ok(outcome);
+            }
         }
         Ok(self.judge.end_of_run(None))
+    }
+
+    /// Lockstep: holds the clock while a replacement has not joined the run, so that a
+    /// swap comes at the same simulated time however long its process takes to start (on
+    /// another host, longer than the rest of a short run takes in lockstep). A replacement
+    /// that exits, or does not publish within the swap's timeout, fails its swap, and the
+    /// run goes on.
+    fn await_replacements(
+        &mut self,
+        waitset: &WaitSet<Service>,
+    ) -> anyhow::Result<Option<Outcome>> {
+        while self
+            .swaps
+            .awaiting_join(|role, epoch| self.supervisor.has_joined(role, epoch))
+        {
+            if let Some(outcome) = self.check()? {
+                return Ok(Some(outcome));
+            }
+            self.take(waitset)?;
+            self.serve_swaps()?;
+        }
+        Ok(None)
     }
 
     /// Real time: the clock started, and ticks recorded and judged as they complete. A run

@@ -36,6 +36,8 @@ pub(super) struct Supervisor {
     last_node_listing: Option<Instant>,
     /// Processes of the run's living nodes, as last listed.
     node_pids: Vec<u32>,
+    /// The processes (role, epoch) that have reported ready since the run started.
+    joined: Vec<(Role, u32)>,
 }
 
 impl Supervisor {
@@ -48,7 +50,13 @@ impl Supervisor {
             last_node_scan: Instant::now(),
             last_node_listing: None,
             node_pids: Vec::new(),
+            joined: Vec::new(),
         }
+    }
+
+    /// Whether the process of `role` and `epoch` has reported ready since the run started.
+    pub fn has_joined(&self, role: Role, epoch: u32) -> bool {
+        self.joined.contains(&(role, epoch))
     }
 
     /// Restarts so far.
@@ -102,6 +110,7 @@ impl Supervisor {
         }
         for (role, s) in joined {
             let epoch = s.header.epoch;
+            self.joined.push((role, epoch));
             session.pin(role, epoch, children.pins(role, epoch, s.publishers))?;
             recorder.event("ready", serde_json::json!({ "role": role.as_str() }))?;
             self.last_node_listing = None;

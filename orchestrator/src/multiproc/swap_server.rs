@@ -79,6 +79,12 @@ impl SwapServer {
         self.done
     }
 
+    /// Whether a replacement under way has not joined the run yet (`joined`: whether the
+    /// process of a role and epoch has reported ready).
+    pub fn awaiting_join(&self, joined: impl Fn(Role, u32) -> bool) -> bool {
+        self.swaps.iter().any(|s| !joined(s.role, s.epoch))
+    }
+
     /// Starts swaps that are due by run time `time_s`, takes live requests, and moves
     /// every swap on: a warm replacement is scheduled to take over at a sample boundary
     /// [`SWITCH_LEAD_SAMPLES`] ahead of `now_tick`; once tick `recorded` is past its switch
