@@ -723,10 +723,11 @@ fn a_rehearsal_at_its_end_stops_every_solve_in_it_and_none_after_it() {
     let (never, came): (ArrivalProbe, ArrivalProbe) = (Rc::new(|| false), Rc::new(|| true));
     // Past its time, or with its input come: a solve about to start does not (the check
     // in `ConicSolver::solve`), one under way stops before its first iteration (clarabel's
-    // termination callback).
+    // termination callback), and the dry step tries no relaxed or cold program after its
+    // first.
     for (until_ns, came) in [(0, &never), (u64::MAX - 1, &came)] {
         let dry = crate::solver::rehearsing(until_ns, came, || mpc.step(1, x_bar, 0.0));
-        assert_eq!((dry.iterations, dry.is_solved()), (0, false));
+        assert_eq!((dry.iterations, dry.solves, dry.is_solved()), (0, 1, false));
         let solver = &mut mpc.solvers[mpc.rows.index()];
         assert_eq!(
             crate::solver::rehearsing(until_ns, came, || solver.rehearse()),
