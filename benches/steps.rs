@@ -18,10 +18,7 @@ fn closed_loop(scenario: &Scenario) -> (Vec<Estimate>, Vec<Plan>) {
     let scenario = scenario.clone().validated("bench").expect("valid scenario");
     let mut closed_loop = ClosedLoop::new(&scenario).expect("MPC set up");
     let (mut estimates, mut plans) = (Vec::new(), Vec::new());
-    while let Some(tick) = (!closed_loop.is_done())
-        .then(|| closed_loop.step())
-        .flatten()
-    {
+    while let Some(Ok(tick)) = (!closed_loop.is_done()).then(|| closed_loop.step()) {
         estimates.push(tick.estimate);
         plans.extend(tick.plan);
     }

@@ -5,7 +5,7 @@ mod common;
 
 use common::{events, leftovers, run, scmpc, stderr, summary, wait_for};
 use orchestrator::schema::Table;
-use protocol::ipc::process_alive;
+use runtime::ipc::process_alive;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Output, Stdio};

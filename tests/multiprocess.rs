@@ -6,7 +6,7 @@ use common::{
     leftovers, run, run_into_tempdir, scmpc, spawn_run, stderr, summary, unique_prefix, wait_for,
 };
 use protocol::Measurement;
-use protocol::ipc::{MEASUREMENT, create_node, open_topic};
+use runtime::ipc::{MEASUREMENT, create_node, open_topic};
 use std::path::Path;
 use std::time::Duration;
 

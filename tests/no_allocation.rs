@@ -1,13 +1,13 @@
 //! After the first 20 samples, no role's step performs a heap allocation, to the end of
-//! the run: a counting global allocator around each phase of the in-process closed loop
+//! the run: a counting global allocator around each role's pass of the in-process closed loop
 //! (`ClosedLoop`, the one `scmpc run --in-process` steps), for every solver program and
-//! every fallback. For the MPC this includes every clarabel `solve()`; the plan phase
-//! includes the faults and the inbox. The real-time MPC's rehearsal (`Mpc::rehearse`) is
-//! counted with the steps it comes before.
+//! every fallback. For the MPC this includes every clarabel `solve()` and the faults; a
+//! role's pass includes handing what it gave to its consumers. The real-time MPC's warm-up
+//! (`Mpc::warm_up`) is counted with the steps it comes before.
 
 use orchestrator::closed_loop::ClosedLoop;
-use protocol::alloc_count::{Counting, allocations as allocated};
 use protocol::{CommandMode, Scenario};
+use runtime::alloc_count::{Counting, allocations as allocated};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -20,9 +20,9 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
     (out, allocated() - before)
 }
 
-/// Steps `scenario` to its end in process, each phase under the allocation counter;
-/// returns the allocations after the first 20 samples by plant, estimator, MPC and DFL,
-/// and the command modes the DFL used after them.
+/// Steps `scenario` to its end in process, each role's pass under the allocation counter;
+/// returns the allocations after the first 20 samples by role (in `Role` order: plant,
+/// estimator, MPC, DFL, planner), and the command modes the DFL used after them.
 fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode>) {
     let mut closed_loop = ClosedLoop::new(scenario).unwrap();
     // Warm-up: the first samples size every buffer.
@@ -30,26 +30,16 @@ fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode
     let mut counts = [0u64; 5];
     let mut modes = Vec::new();
     while !closed_loop.is_done() {
-        let tick = closed_loop.tick();
-        let ((_, y), measure_a) = allocations(|| closed_loop.measure());
-        let (estimate, estimate_a) = allocations(|| closed_loop.estimate(y));
-        let (estimate, _) = estimate.expect("no fault refuses an estimate here");
-        let (_, plan_a) = allocations(|| closed_loop.plan(&estimate));
-        let (_, route_a) = allocations(|| closed_loop.route(&estimate));
-        let ((actuation, _), command_a) = allocations(|| closed_loop.command(&estimate));
-        let ((), integrate_a) = allocations(|| closed_loop.integrate(&actuation));
-        if tick >= warm_up {
-            let by_role = [
-                measure_a + integrate_a,
-                estimate_a,
-                plan_a,
-                command_a,
-                route_a,
-            ];
+        let counting = closed_loop.tick() >= warm_up;
+        let mut by_role = [0u64; 5];
+        let tick = closed_loop
+            .step_each(|role, pass| by_role[role as usize] += allocations(pass).1)
+            .expect("no fault refuses a message here");
+        if counting {
             for (c, a) in counts.iter_mut().zip(by_role) {
                 *c += a;
             }
-            if let Some(mode) = actuation.mode().filter(|m| !modes.contains(m)) {
+            if let Some(mode) = tick.actuation.mode().filter(|m| !modes.contains(m)) {
                 modes.push(mode);
             }
         }
@@ -104,7 +94,7 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "field, {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
         );
     }
-    // The real-time MPC's rehearsal before each sample (a dry step, then its state put
+    // The real-time MPC's warm-up before each sample (a dry step, then its state put
     // back), in both programs: the robot follows each plan's first state, off by a drift.
     for qp_form in ["sparse", "condensed"] {
         let scenario = scenario(&[&format!("mpc.qp_form={qp_form}")]);
@@ -112,9 +102,10 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
         let [x, y, theta] = scenario.robot.start;
         let mut x_bar = [x, y, theta, scenario.robot.zeta0];
         let mut counted = 0;
+        let never: protocol::task::Cancel = std::rc::Rc::new(|| false);
         for k in 0..300 {
             let (plan, a) = allocations(|| {
-                mpc.rehearse(u64::MAX);
+                mpc.warm_up(u64::MAX, &never);
                 mpc.step(k, x_bar, 0.01)
             });
             if k >= 20 {
@@ -126,7 +117,7 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
         }
         assert_eq!(
             counted, 0,
-            "{qp_form}: allocations in rehearsals and steps after 20"
+            "{qp_form}: allocations in warm-ups and steps after 20"
         );
     }
     // Every fallback: failed solves (the cold retry, then the shifted plan and braking),

@@ -82,7 +82,7 @@ fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
     for role in ["estimator", "mpc", "dfl"] {
         let pid = s["pids"][role].as_u64().unwrap();
         assert!(
-            !protocol::ipc::process_alive(pid as u32),
+            !runtime::ipc::process_alive(pid as u32),
             "{role} still running"
         );
     }
@@ -298,7 +298,7 @@ fn a_role_process_dying_inside_a_wrapper_is_caught_by_dead_node_detection() {
     assert_eq!(s["outcome"], "interrupted");
     assert_eq!(s["restarts"], 1);
     assert!(
-        !protocol::ipc::process_alive(wrapper),
+        !runtime::ipc::process_alive(wrapper),
         "the wrapper still runs"
     );
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
@@ -355,7 +355,7 @@ fn records_survive(dir: &Path, kill_time_s: Option<f64>) {
 /// second before the kill in whole lines, and the next run must remove the dead run's
 /// files.
 fn orchestrator_killed(mode: &str, exit_within: Duration) {
-    use protocol::ipc::{TRUTH, create_node, open_topic, process_alive};
+    use runtime::ipc::{TRUTH, create_node, open_topic, process_alive};
     let prefix = common::unique_prefix("orphan");
     let dir = tempfile::tempdir().unwrap();
     let args = [
@@ -503,7 +503,7 @@ fn command_stopped_by(args: &[&str], signal: i32, name: &str, code: i32) {
     }
     let left: Vec<u32> = children
         .into_iter()
-        .filter(|c| protocol::ipc::process_alive(*c))
+        .filter(|c| runtime::ipc::process_alive(*c))
         .collect();
     assert!(left.is_empty(), "{args:?} {name}: processes left {left:?}");
     let own = format!("scmpc{pid}x");
@@ -583,7 +583,7 @@ fn sigterm_and_sighup_end_a_real_time_run_as_ctrl_c_does_and_the_summary_names_t
         assert!(!dir.path().join(orchestrator::record::INCOMPLETE).exists());
         let roles_gone = wait_for(
             Duration::from_secs(2).saturating_sub(sent.elapsed()),
-            || roles.iter().all(|pid| !protocol::ipc::process_alive(*pid)),
+            || roles.iter().all(|pid| !runtime::ipc::process_alive(*pid)),
         );
         assert!(roles_gone, "{name}: a role process outlived the run by 2 s");
     }

@@ -3,15 +3,15 @@
 mod common;
 
 use common::{run, spawn_run, summary, unique_prefix, wait_for};
-use protocol::ipc::CONTROL;
-use protocol::ipc::{ACTUATION, MEASUREMENT, create_node, open_topic};
-use protocol::{Actuation, Control, ControlCommand, Header, Measurement, Message};
+use protocol::{Actuation, Control, ControlCommand, Header, Measurement};
+use runtime::ipc::CONTROL;
+use runtime::ipc::{ACTUATION, MEASUREMENT, create_node, open_topic};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// Publishes `message` with `epoch` on the run `prefix`'s topic `name` every millisecond
 /// until `done`; returns how many were sent.
-fn intrude<T: Message>(
+fn intrude<T: runtime::ipc::Wire>(
     prefix: &str,
     name: &'static str,
     epoch: u32,
@@ -93,7 +93,7 @@ fn a_foreign_actuation_under_a_wrong_epoch_has_no_effect_and_is_counted() {
         "no wrong-epoch rejection counted ({sent} sent)"
     );
     // The intruder outlived the run's own clean-up: remove what the run left.
-    protocol::ipc::remove_run_resources(&prefix).unwrap();
+    runtime::ipc::remove_run_resources(&prefix).unwrap();
     assert!(common::leftovers(&prefix).is_empty());
 }
 

@@ -12,7 +12,6 @@ use protocol::{
 };
 
 pub mod gatekeeper;
-pub mod process;
 pub mod task;
 
 pub use gatekeeper::Gatekeeper;

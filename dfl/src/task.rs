@@ -3,17 +3,42 @@
 //! the watch on a silent estimator.
 
 use crate::Dfl;
-use protocol::clock::period_ns;
-use protocol::task::{Context, header_latency};
+use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
+use protocol::topics::{ACTUATION, DEADLINE, ESTIMATE, PLAN};
 use protocol::{
-    Actuation, CommandMode, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan, PlanStatus,
-    Scenario, Timing,
+    Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
+    PlanStatus, Role, Timing, Validated, period_ns,
 };
 use std::collections::VecDeque;
 
+/// What the DFL takes: the estimator's estimates (periodic) and the MPC's plans.
+#[derive(Debug, Clone, Copy)]
+pub enum DflInput {
+    Estimate(Estimate),
+    Plan(Plan),
+}
+protocol::task_input!(DflInput: Estimate, Plan);
+
+/// What a DFL step gives: on the first tick of a sample the verdict on the previous
+/// sample's deadline (published first), and the command for the tick.
+#[derive(Debug, Clone, Copy)]
+pub struct DflOutput {
+    pub verdict: Option<DeadlineVerdict>,
+    pub actuation: Actuation,
+}
+
+impl Outputs for DflOutput {
+    fn each(self, mut publish: impl FnMut(Data)) {
+        if let Some(verdict) = self.verdict {
+            publish(verdict.into());
+        }
+        publish(self.actuation.into());
+    }
+}
+
 /// When plans reach the DFL: plan(k) that arrived `a` after `t_k` is usable from sample
 /// `k + floor(a / Ts)`, the sample it arrived in. The arrival is the clock's
-/// ([`protocol::clock::RunClock::arrival_after_ns`]): in real time as measured (so a plan is usable once
+/// ([`Context::arrival_after_ns`]): in real time as measured (so a plan is usable once
 /// received), in lockstep from its production time (a plan whose solve overran `Ts` is
 /// held for the whole samples it would have taken).
 pub struct PlanInbox {
@@ -156,10 +181,15 @@ pub struct DflTask {
     commanding: bool,
 }
 
-impl DflTask {
-    pub fn new(scenario: &Scenario) -> DflTask {
+impl Task for DflTask {
+    const ROLE: Role = Role::Dfl;
+    const OUTPUTS: &'static [&'static str] = &[DEADLINE, ACTUATION];
+    type Input = DflInput;
+    type Output = DflOutput;
+
+    fn new(scenario: &Validated, _epoch: u32) -> Result<DflTask, TaskError> {
         let ts_s = scenario.timing.ts_s;
-        DflTask {
+        Ok(DflTask {
             dfl: Dfl::new(scenario),
             inbox: PlanInbox::new(ts_s),
             monitor: DeadlineMonitor::new(ts_s),
@@ -167,47 +197,79 @@ impl DflTask {
             timing: scenario.timing.clone(),
             queue: VecDeque::with_capacity(16),
             commanding: false,
+        })
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        &[ESTIMATE, PLAN]
+    }
+
+    /// An estimate is queued with its receipt latency; a plan goes to the inbox and the
+    /// deadline monitor with its arrival, by the clock, after the start of its sample
+    /// ([`Context::arrival_after_ns`]).
+    fn hear(&mut self, input: DflInput, latency_ns: u64, context: &impl Context) {
+        match input {
+            DflInput::Estimate(estimate) => self.queue.push_back((estimate, latency_ns)),
+            DflInput::Plan(plan) => {
+                let production_ns = plan.solve_ns + plan.injected_delay_ns;
+                let arrival_ns = context.arrival_after_ns(
+                    self.timing.sample_time_s(plan.sample),
+                    production_ns,
+                    self.timing.ts_s,
+                );
+                self.inbox.receive(&plan, arrival_ns);
+                self.monitor.on_plan(&plan, arrival_ns);
+            }
         }
-    }
-
-    /// The DFL's integrator state zeta, m/s.
-    pub fn zeta(&self) -> f64 {
-        self.dfl.zeta()
-    }
-
-    /// An estimate received `latency_ns` after it was published.
-    pub fn hear_estimate(&mut self, estimate: Estimate, latency_ns: u64) {
-        self.queue.push_back((estimate, latency_ns));
-    }
-
-    /// A plan received now: it arrived, by the clock, after the start of its sample
-    /// ([`protocol::clock::RunClock::arrival_after_ns`]).
-    pub fn hear_plan(&mut self, plan: &Plan, context: &impl Context) {
-        let production_ns = plan.solve_ns + plan.injected_delay_ns;
-        let arrival_ns = context.clock().arrival_after_ns(
-            self.timing.sample_time_s(plan.sample),
-            production_ns,
-            self.timing.ts_s,
-        );
-        self.inbox.receive(plan, arrival_ns);
-        self.monitor.on_plan(plan, arrival_ns);
     }
 
     /// The command for the oldest estimate waiting, with, on the first tick of a sample,
     /// the verdict on the previous sample; `None` while nothing is waiting, or while the
     /// plan of a new sample is awaited ([`PlanInbox::waits_for`], for
-    /// [`PLAN_WAIT_FRACTION`] of the tick).
-    pub fn step(&mut self, context: &impl Context) -> Option<(Actuation, Option<DeadlineVerdict>)> {
+    /// [`PLAN_WAIT_FRACTION`] of the tick). Without an estimate, a brake on the DFL's own
+    /// clock when the estimator has been silent for [`SILENT_TICKS`] ticks (then every
+    /// tick until estimates come again): the plant must not hold the last command. Never
+    /// in lockstep, where time waits for the estimates.
+    fn step(&mut self, context: &impl Context) -> Option<Publish<DflOutput>> {
+        let (actuation, verdict) = match self.command_next(context) {
+            Some(command) => command,
+            None => (self.brake_if_silent(context)?, None),
+        };
+        Some(Publish::now(DflOutput { verdict, actuation }))
+    }
+
+    /// When the task has something to do without an input: the end of a plan wait, or
+    /// the next look for a silent estimator. (No scheduled spin for the estimates, unlike
+    /// the estimator's for its measurements: on two cores a third spinning process starves
+    /// the plant and the estimator, docs/performance.md.)
+    fn next(&self) -> Due {
+        let plan_wait = (self.queue.front()).and_then(|(e, _)| self.plan_wait_s(e.header.tick));
+        let silence = self.watch.next_check().map(|t| self.timing.tick_time_s(t));
+        Due::Wait(match (plan_wait, silence) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        })
+    }
+}
+
+impl DflTask {
+    /// The DFL's integrator state zeta, m/s.
+    pub fn zeta(&self) -> f64 {
+        self.dfl.zeta()
+    }
+
+    /// The command for the oldest estimate waiting ([`Task::step`]).
+    fn command_next(
+        &mut self,
+        context: &impl Context,
+    ) -> Option<(Actuation, Option<DeadlineVerdict>)> {
         while let Some(&(estimate, latency_ns)) = self.queue.front() {
             let tick = estimate.header.tick;
             if self.watch.is_stale(tick) {
                 self.queue.pop_front(); // older than a command already given (braking)
                 continue;
             }
-            if self
-                .plan_wait_s(tick)
-                .is_some_and(|t| !context.clock().is_past(t))
-            {
+            if self.plan_wait_s(tick).is_some_and(|t| !context.is_past(t)) {
                 return None;
             }
             self.queue.pop_front();
@@ -237,29 +299,16 @@ impl DflTask {
             .then(|| (tick as f64 + PLAN_WAIT_FRACTION) * self.timing.dt_s())
     }
 
-    /// A brake on the DFL's own clock when the estimator has been silent for
-    /// [`SILENT_TICKS`] ticks (then every tick until estimates come again): the plant must
-    /// not hold the last command. Never in lockstep, where time waits for the estimates.
-    pub fn brake_if_silent(&mut self, context: &impl Context) -> Option<Actuation> {
-        let clock = context.clock();
+    /// A brake for the tick the clock is in, if the estimator has been silent too long
+    /// ([`SilenceWatch`]).
+    fn brake_if_silent(&mut self, context: &impl Context) -> Option<Actuation> {
         let due = self.watch.next_check()?;
-        if !clock.has_reached(self.timing.tick_time_s(due)) {
+        if !context.has_reached(self.timing.tick_time_s(due)) {
             return None;
         }
-        let now = clock.now_tick()?.max(due);
+        let now = context.now_tick()?.max(due);
         let tick = self.watch.brake_due(now)?;
         Some(self.brake(tick))
-    }
-
-    /// When the task has something to do without an input, s: the end of a plan wait, or
-    /// the next look for a silent estimator.
-    pub fn next_wake_s(&self) -> Option<f64> {
-        let plan_wait = (self.queue.front()).and_then(|(e, _)| self.plan_wait_s(e.header.tick));
-        let silence = self.watch.next_check().map(|t| self.timing.tick_time_s(t));
-        match (plan_wait, silence) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
     }
 
     /// The command for `[t_tick, t_tick+1)` from `estimate`, after releasing the plans

@@ -1,4 +1,5 @@
 use super::*;
+use protocol::task::Context;
 use protocol::{PLAN_MISSING, PlanStatus};
 
 #[test]
@@ -150,7 +151,7 @@ fn a_late_plan_is_held_until_the_sample_it_arrived_in() {
     let mut p = plan(100, 8, PlanStatus::Solved);
     // Lockstep: a solve of 2.5 Ts arrives 3 whole samples late.
     p.solve_ns = 125_000_000;
-    let lockstep = protocol::clock::RunClock::simulated_at(1000, 0.005);
+    let lockstep = protocol::task::SimulatedTime::at(1000, 0.005);
     let arrival_ns = lockstep.arrival_after_ns(5.0, p.solve_ns, 0.05);
     assert_eq!(inbox.receive(&p, arrival_ns), 103);
     assert!(inbox.has_received(100));

@@ -7,7 +7,6 @@
 use nalgebra::{Matrix3, Vector3};
 use protocol::{Estimate, EstimatorKind, Header, Scenario, wrap_angle};
 
-pub mod process;
 pub mod task;
 pub use task::EstimatorTask;
 

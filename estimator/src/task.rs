@@ -3,9 +3,18 @@
 //! carries the DFL's zeta from that actuation.
 
 use crate::Estimator;
-use protocol::task::{Context, header_latency, keep_newest};
-use protocol::{Actuation, Estimate, FaultConfig, Header, Measurement, Scenario};
+use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
+use protocol::topics::{ACTUATION, ESTIMATE, MEASUREMENT};
+use protocol::{Actuation, Estimate, FaultConfig, Header, Measurement, Role, Validated};
 use std::collections::VecDeque;
+
+/// What the estimator takes: the plant's measurements (periodic) and the DFL's commands.
+#[derive(Debug, Clone, Copy)]
+pub enum EstimatorInput {
+    Measurement(Measurement),
+    Actuation(Actuation),
+}
+protocol::task_input!(EstimatorInput: Measurement, Actuation);
 
 /// The estimator with the measurements waiting for it.
 pub struct EstimatorTask {
@@ -23,10 +32,16 @@ pub struct EstimatorTask {
     last_tick: Option<u64>,
 }
 
-impl EstimatorTask {
-    /// The task of the process with producer epoch `epoch`.
-    pub fn new(scenario: &Scenario, epoch: u32) -> EstimatorTask {
-        EstimatorTask {
+impl Task for EstimatorTask {
+    const ROLE: Role = Role::Estimator;
+    const OUTPUTS: &'static [&'static str] = &[ESTIMATE];
+    type Input = EstimatorInput;
+    type Output = Estimate;
+
+    /// The task of the process with producer epoch `epoch` (the injected NaN fault is the
+    /// first one's).
+    fn new(scenario: &Validated, epoch: u32) -> Result<EstimatorTask, TaskError> {
+        Ok(EstimatorTask {
             estimator: Estimator::new(scenario),
             dt_s: scenario.timing.dt_s(),
             zeta0: scenario.robot.zeta0,
@@ -35,37 +50,34 @@ impl EstimatorTask {
             heard: None,
             queue: VecDeque::with_capacity(16),
             last_tick: None,
+        })
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        &[MEASUREMENT, ACTUATION]
+    }
+
+    /// A measurement is queued with its receipt latency; of the actuations the newest is
+    /// kept.
+    fn hear(&mut self, input: EstimatorInput, latency_ns: u64, _context: &impl Context) {
+        match input {
+            EstimatorInput::Measurement(m) => self.queue.push_back((m, latency_ns)),
+            EstimatorInput::Actuation(a) => keep_newest(&mut self.heard, a),
         }
     }
 
-    /// A measurement received `latency_ns` after it was published.
-    pub fn hear_measurement(&mut self, measurement: Measurement, latency_ns: u64) {
-        self.queue.push_back((measurement, latency_ns));
-    }
-
-    /// An actuation heard (the newest is kept).
-    pub fn hear_actuation(&mut self, actuation: Actuation) {
-        keep_newest(&mut self.heard, actuation);
-    }
-
-    /// When the next measurement is due, s (`None` before the first).
-    pub fn next_due_s(&self) -> Option<f64> {
-        self.last_tick.map(|last| (last + 1) as f64 * self.dt_s)
-    }
-
-    /// How long a process of the estimator takes to publish each estimate
-    /// (`fault.estimator_delay_ms`): a slow estimator in real time, a slower run in
-    /// lockstep, nothing in process.
-    pub fn publish_delay(&self) -> std::time::Duration {
-        std::time::Duration::from_secs_f64(self.faults.estimator_delay_ms * 1e-3)
+    /// The next measurement is expected at its tick's time (not known before the first).
+    fn next(&self) -> Due {
+        Due::Expect(self.last_tick.map(|last| (last + 1) as f64 * self.dt_s))
     }
 
     /// The estimate of the oldest measurement waiting, once the actuation of the tick
     /// before it is heard, a newer one is, or its time is past (then with the newest
     /// older one). The first measurement a task takes starts its filter; a task that joins
     /// a running loop hears the actuation it needs again (the executor has every producer
-    /// repeat its newest sample for it).
-    pub fn step(&mut self, context: &impl Context) -> Option<Estimate> {
+    /// repeat its newest sample for it). A slow estimator (`fault.estimator_delay_ms`)
+    /// holds every estimate that long.
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Estimate>> {
         while let Some(&(m, latency_ns)) = self.queue.front() {
             let tick = m.header.tick;
             if self.last_tick.is_some_and(|last| tick <= last) {
@@ -76,17 +88,22 @@ impl EstimatorTask {
             let waiting = tick > 0
                 && previous.is_none_or(|a| a.header.tick + 1 != tick)
                 && self.heard.is_none_or(|a| a.header.tick < tick)
-                && !context.clock().is_past(m.header.time_s);
+                && !context.is_past(m.header.time_s);
             if waiting {
                 return None;
             }
             self.queue.pop_front();
             self.last_tick = Some(tick);
-            return Some(self.estimate(&m, latency_ns, previous));
+            return Some(Publish {
+                output: self.estimate(&m, latency_ns, previous),
+                hold_ns: (self.faults.estimator_delay_ms * 1e6) as u64,
+            });
         }
         None
     }
+}
 
+impl EstimatorTask {
     fn estimate(
         &mut self,
         m: &Measurement,

@@ -1,7 +1,7 @@
 //! The bridge of one host (docs/hosts.md): it forwards every topic with a producer on this
 //! host and a consumer on another from iceoryx2 to Zenoh, and the topics its roles take
 //! from other hosts from Zenoh to iceoryx2, byte for byte in the `#[repr(C)]` layouts
-//! (`protocol::ipc::wire`).
+//! (`runtime::ipc::wire`).
 //!
 //! Two threads: the sender blocks in an iceoryx2 WaitSet on the taps of the topics it
 //! sends, the receiver on the Zenoh subscriber of the keys addressed to this host. What
@@ -23,10 +23,10 @@
 use crate::auth::RunKey;
 use crate::keys;
 use crate::{HostError, LinkCounters};
-use protocol::ipc::wire::{self, WireRelay, WireTap};
-use protocol::ipc::{self, CONTROL, STATUS, output_slot, output_topic, producer_of};
 use protocol::{Control, EpochSchedule, Role, Status, StatusEvent};
 use rand::{Rng, RngExt, SeedableRng};
+use runtime::ipc::wire::{self, WireRelay, WireTap};
+use runtime::ipc::{self, CONTROL, STATUS, output_slot, output_topic, producer_of};
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
@@ -409,7 +409,7 @@ impl Outbox<'_> {
             let key = keys::to_host(&self.spec.run, host, topic);
             if data && self.spec.faults.delay_ns > 0 {
                 self.held.push_back(Held {
-                    due_ns: protocol::clock::monotonic_ns() + self.spec.faults.delay_ns,
+                    due_ns: runtime::clock::monotonic_ns() + self.spec.faults.delay_ns,
                     key,
                     bytes: bytes.to_vec(),
                 });
@@ -421,7 +421,7 @@ impl Outbox<'_> {
 
     /// Sends the held samples that are due; returns how long to wait for the next.
     fn send_due(&mut self) -> Duration {
-        let now = protocol::clock::monotonic_ns();
+        let now = runtime::clock::monotonic_ns();
         while self.held.front().is_some_and(|h| h.due_ns <= now) {
             if let Some(h) = self.held.pop_front() {
                 self.put(&h.key, &h.bytes);
@@ -454,7 +454,7 @@ impl Outbox<'_> {
 fn decode<T: Copy>(bytes: &[u8]) -> Option<T> {
     (bytes.len() == std::mem::size_of::<T>())
         // SAFETY: the length is checked; every message type is integers and floats
-        // (protocol::ipc::wire).
+        // (runtime::ipc::wire).
         .then(|| unsafe { std::ptr::read_unaligned(bytes.as_ptr() as *const T) })
 }
 
@@ -519,7 +519,7 @@ mod tests {
         schedule.active_publishers[Role::Estimator as usize] = [11, 0];
         schedule.active_publishers[Role::Mpc as usize] = [12, 0];
         let ready = HashMap::from([((Role::Mpc, 3), [99, 0])]);
-        let relays = HashMap::from([(protocol::ipc::ESTIMATE.to_string(), 7u128)]);
+        let relays = HashMap::from([(runtime::ipc::ESTIMATE.to_string(), 7u128)]);
         pin_for_host(&mut schedule, &[Role::Mpc], &ready, &relays);
         assert_eq!(schedule.active_publishers[Role::Estimator as usize], [7, 0]);
         assert_eq!(schedule.active_publishers[Role::Mpc as usize], [99, 0]);

@@ -3,12 +3,12 @@
 //! exchange with the shortest round trip, whose midpoint is when the orchestrator read its
 //! clock to within half that round trip (Cristian's method). The difference is the
 //! correction the host's role processes add to their clock
-//! ([`protocol::clock::ENV_CLOCK_CORRECTION_NS`]), so every deadline and time stamp of the
+//! ([`runtime::clock::ENV_CLOCK_CORRECTION_NS`]), so every deadline and time stamp of the
 //! run is on the orchestrator's clock; half the round trip is its uncertainty.
 
 use crate::HostError;
 use crate::keys;
-use protocol::clock::monotonic_ns;
+use runtime::clock::monotonic_ns;
 use std::time::Duration;
 use zenoh::Wait;
 

@@ -19,7 +19,7 @@ pub enum HostError {
     #[error("zenoh: {0}")]
     Zenoh(String),
     #[error(transparent)]
-    Ipc(#[from] protocol::ipc::IpcError),
+    Ipc(#[from] runtime::ipc::IpcError),
     #[error("bridge: {0}")]
     Bridge(String),
     #[error("{0}")]

@@ -13,7 +13,7 @@ use zenoh::Wait;
 pub struct JoinRequest {
     /// The run's key chunk ([`crate::keys::run_of_prefix`]).
     pub run: String,
-    /// The run id every sample carries (`protocol::ipc::run_id` of the run's prefix).
+    /// The run id every sample carries (`runtime::ipc::run_id` of the run's prefix).
     pub run_id: u32,
     /// The run's key (hexadecimal, [`crate::auth::RunKey`]).
     pub key: String,

@@ -4,7 +4,7 @@
 //! made on another host comes to it, and it forwards what a third host takes.
 
 use protocol::Role;
-use protocol::ipc::{CONTROL, DATA_FLOW, STATUS};
+use runtime::ipc::{CONTROL, DATA_FLOW, STATUS};
 use std::collections::BTreeMap;
 
 /// The links of a run.
@@ -78,7 +78,7 @@ fn push_once(list: &mut Vec<String>, topic: &str) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::ipc::{ESTIMATE, MEASUREMENT, PLAN, ROUTE};
+    use runtime::ipc::{ESTIMATE, MEASUREMENT, PLAN, ROUTE};
 
     #[test]
     fn only_topics_crossing_a_host_boundary_cross_and_a_third_host_gets_them_through_the_orchestrator()

@@ -4,12 +4,12 @@
 //!
 //! Steps the MPC over the first 200 samples of the paper run, once back to back, once
 //! after sleeping before every step, once after sleeping and then spinning (the core
-//! awake, its caches as the sleep left them), and after sleeping and then rehearsing
-//! (`Mpc::rehearse`: a dry step of the next sample from the state the last plan predicts,
+//! awake, its caches as the sleep left them), and after sleeping and then warming up
+//! (`Mpc::warm_up`: a dry step of the next sample from the state the last plan predicts,
 //! what the real-time MPC process does shortly before each sample's estimate comes) with
-//! 0, 0.5 or 3 ms between the rehearsal and the step (the rehearsal's effect fades within
+//! 0, 0.5 or 3 ms between the warm-up and the step (the warm-up's effect fades within
 //! milliseconds: docs/performance.md, "The warm-up, just in time"). Prints each case's
-//! percentiles, and the rehearsals' own.
+//! percentiles, and the warm-ups' own.
 
 use mpc::Mpc;
 use protocol::Scenario;
@@ -20,8 +20,8 @@ const SAMPLES: usize = 200;
 fn main() -> Result<(), mpc::MpcError> {
     let scenario = Scenario::default();
     let states = paper_states(&scenario)?;
-    // (sleep before each step ms, then spin µs, then rehearse and sleep µs before the step)
-    for (sleep_ms, spin_us, rehearse) in [
+    // (sleep before each step ms, then spin µs, then warm up and sleep µs before the step)
+    for (sleep_ms, spin_us, warm_up) in [
         (0, 0, None),
         (50, 0, None),
         (50, 100, None),
@@ -31,7 +31,8 @@ fn main() -> Result<(), mpc::MpcError> {
         (50, 0, Some(3000)),
     ] {
         let mut mpc = Mpc::new(&scenario)?;
-        let mut rehearsal_us = Vec::new();
+        let never: protocol::task::Cancel = std::rc::Rc::new(|| false);
+        let mut warm_up_us = Vec::new();
         let mut step_us: Vec<f64> = states
             .iter()
             .enumerate()
@@ -41,10 +42,10 @@ fn main() -> Result<(), mpc::MpcError> {
                 while spin.elapsed() < Duration::from_micros(spin_us) {
                     std::hint::spin_loop();
                 }
-                if let Some(gap_us) = rehearse.filter(|_| k > 0) {
+                if let Some(gap_us) = warm_up.filter(|_| k > 0) {
                     let started = Instant::now();
-                    mpc.rehearse(u64::MAX);
-                    rehearsal_us.push(started.elapsed().as_secs_f64() * 1e6);
+                    mpc.warm_up(u64::MAX, &never);
+                    warm_up_us.push(started.elapsed().as_secs_f64() * 1e6);
                     std::thread::sleep(Duration::from_micros(gap_us));
                 }
                 let started = Instant::now();
@@ -53,17 +54,17 @@ fn main() -> Result<(), mpc::MpcError> {
             })
             .collect();
         let (p50, p90) = percentiles(&mut step_us);
-        let rehearsal = match rehearse {
-            Some(gap_us) => format!("rehearse {gap_us:>4} µs before"),
-            None => "no rehearsal".into(),
+        let warm_up_label = match warm_up {
+            Some(gap_us) => format!("warm up {gap_us:>4} µs before"),
+            None => "no warm-up".into(),
         };
         print!(
-            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs, {rehearsal:>24}: step p50 \
+            "sleep {sleep_ms:>2} ms, spin {spin_us:>4} µs, {warm_up_label:>24}: step p50 \
              {p50:>4.0} µs, p90 {p90:>4.0} µs"
         );
-        if rehearse.is_some() {
-            let (p50, p90) = percentiles(&mut rehearsal_us);
-            print!(" (rehearsal p50 {p50:.0} µs, p90 {p90:.0} µs)");
+        if warm_up.is_some() {
+            let (p50, p90) = percentiles(&mut warm_up_us);
+            print!(" (warm-up p50 {p50:.0} µs, p90 {p90:.0} µs)");
         }
         println!();
     }

@@ -26,7 +26,6 @@ pub mod layout;
 pub mod linear;
 pub mod model;
 pub mod nonlinear;
-pub mod process;
 pub mod program;
 pub mod reach;
 pub mod solver;
@@ -83,12 +82,13 @@ impl Mpc {
 
     /// Warms the next step's memory (a process idle since its last step finds its working
     /// set in cache at the next one): the linear scheme steps the next sample dry when
-    /// its last step took at most `dry_step_max_ns` ([`LinearMpc::rehearse`]), else, like
-    /// the nonlinear one, solves its last program again. Changes no plan.
-    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
+    /// its last step took at most `dry_step_max_ns` ([`LinearMpc::warm_up`]), else, like
+    /// the nonlinear one, solves its last program again; every solve stops once `cancel`
+    /// holds. Changes no plan.
+    pub fn warm_up(&mut self, dry_step_max_ns: u64, cancel: &protocol::task::Cancel) {
         match self {
-            Mpc::Linear(m) => m.rehearse(dry_step_max_ns),
-            Mpc::Nonlinear(m) => m.rehearse(),
+            Mpc::Linear(m) => m.warm_up(dry_step_max_ns, cancel),
+            Mpc::Nonlinear(m) => m.warm_up(cancel),
         }
     }
 

@@ -15,9 +15,10 @@ use crate::layout::{Layout, Rows};
 use crate::model::{self, r_matrix, terminal_weight};
 use crate::program::{self, StaticData, StepData};
 use crate::reach::{PositionReach, Span};
-use crate::solver::ConicSolver;
+use crate::solver::{CancelSlot, ConicSolver};
 use clarabel::algebra::CscMatrix;
 use nalgebra::{Matrix4, Vector4};
+use protocol::task::Cancel;
 use protocol::{
     ConstraintKind, Disc, Header, MAX_HORIZON, ObstacleGrowth, Plan, PlanStatus, Scenario,
     TerminalSafety,
@@ -70,6 +71,9 @@ pub struct LinearMpc {
     // Reused every step.
     /// One solver per [`Rows`] ([`Rows::index`]), all built at setup.
     solvers: Vec<ConicSolver>,
+    /// A warm-up's cancel check while one runs: it cuts the solvers' solves short and
+    /// keeps a step from trying anything more ([`LinearMpc::warm_up`]).
+    cancel: CancelSlot,
     /// The rows of the last solve's program.
     rows: Rows,
     /// Whether this step needs the position box and the terminal set.
@@ -112,7 +116,7 @@ pub struct LinearMpc {
     /// duration, ns.
     last_estimate: Option<([f64; 4], f64)>,
     last_step_ns: u64,
-    /// What [`LinearMpc::rehearse`] keeps while its dry step runs: `last_z`, `solution`.
+    /// What [`LinearMpc::warm_up`] keeps while its dry step runs: `last_z`, `solution`.
     saved_last_z: Vec<[f64; 4]>,
     saved_solution: Vec<f64>,
 }
@@ -183,12 +187,14 @@ impl LinearMpc {
                 .then(|| Condensing::new(&layout, (forced, free), &hessian)),
             ..Assembly::default()
         };
+        let cancel = CancelSlot::default();
         let solvers = (0..Rows::count(&layout))
-            .map(|_| ConicSolver::new(crate::solver::solver_settings))
+            .map(|_| ConicSolver::new(crate::solver::solver_settings, cancel.clone()))
             .collect();
         let rows = Rows::all(&layout);
         let layout_stagewise = layout.stagewise();
         let mut mpc = LinearMpc {
+            cancel,
             solution: vec![0.0; layout_stagewise],
             saved_solution: vec![0.0; layout_stagewise],
             hessian,
@@ -288,7 +294,7 @@ impl LinearMpc {
         self.last_sample = None;
     }
 
-    /// A dry run of the next step, for its memory's sake: a process that slept since its
+    /// A warm-up: a dry run of the next step, for its memory's sake: a process that slept since its
     /// last step finds its working set (the discs, the reference, the assembly, the
     /// solver it will use) in cache at the next one. It steps the next sample from the
     /// estimate the last plan predicts (its `z_1`), then puts back what a step leaves for
@@ -297,14 +303,21 @@ impl LinearMpc {
     /// `writes_linear_term`, which only ever turns on, and writing the linear term is
     /// always right. Without a solved last plan, or when the last step took longer than
     /// `dry_step_max_ns` (a dry step as long could run into the sample), it only solves
-    /// the last program again ([`ConicSolver::rehearse`]).
-    pub fn rehearse(&mut self, dry_step_max_ns: u64) {
+    /// the last program again ([`ConicSolver::solve_again`]). Every solve in it stops
+    /// once `cancel` holds, and the step then tries nothing more.
+    pub fn warm_up(&mut self, dry_step_max_ns: u64, cancel: &Cancel) {
+        let slot = self.cancel.clone();
+        slot.during(cancel, || self.dry_step(dry_step_max_ns));
+    }
+
+    /// The warm-up of [`LinearMpc::warm_up`], its cancel check in place.
+    fn dry_step(&mut self, dry_step_max_ns: u64) {
         let (Some(sample), Some((x_bar, sigma_m)), true) = (
             self.last_sample,
             self.last_estimate,
             self.last_step_ns <= dry_step_max_ns,
         ) else {
-            self.solvers[self.rows.index()].rehearse();
+            self.solvers[self.rows.index()].solve_again();
             return;
         };
         let z1 = self.last_z[1];
@@ -419,8 +432,8 @@ impl LinearMpc {
         self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0, self.sub_goal);
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
-        // (A rehearsal at its end tries nothing more: `crate::solver::rehearsing`.)
-        if outcome.status != PlanStatus::Solved && warm && !crate::solver::rehearsal_over() {
+        // (A warm-up cut short tries nothing more: `CancelSlot`.)
+        if outcome.status != PlanStatus::Solved && warm && !self.cancel.cancelled() {
             // The shifted plan is no longer a usable linearization point: start cold.
             self.braking_reference(z0);
             let retry = self.refine(z0);
@@ -576,7 +589,7 @@ impl LinearMpc {
             if status != PlanStatus::Solved {
                 if relaxed
                     || self.layout.decay_slacks(rows.terminal_discs()) == 0
-                    || crate::solver::rehearsal_over()
+                    || self.cancel.cancelled()
                 {
                     return (status, iterations, solves);
                 }

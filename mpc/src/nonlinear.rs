@@ -21,10 +21,11 @@
 use crate::assembly::{Assembly, csc_with_positions};
 use crate::layout::barrier_row_counts;
 use crate::program::{Barrier, write_barrier};
-use crate::solver::ConicSolver;
+use crate::solver::{CancelSlot, ConicSolver};
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::SupportedConeT;
 use protocol::Disc;
+use protocol::task::Cancel;
 use protocol::{ConstraintKind, Header, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
@@ -114,6 +115,8 @@ pub struct NonlinearMpc {
     plan_margin: crate::discs::PlanMargin,
     // Reused every step.
     solver: ConicSolver,
+    /// A warm-up's cancel check while one runs ([`NonlinearMpc::warm_up`]).
+    cancel: CancelSlot,
     assembly: Assembly,
     discs: Vec<Disc>,
     reference: Vec<[f64; 2]>,
@@ -129,6 +132,7 @@ impl NonlinearMpc {
         let c = &scenario.mpc;
         let goal = scenario.robot.goal;
         let n = c.horizon;
+        let cancel = CancelSlot::default();
         NonlinearMpc {
             horizon: n,
             ts_s: scenario.timing.ts_s,
@@ -150,7 +154,8 @@ impl NonlinearMpc {
             obstacles: scenario.obstacles.clone(),
             growth: protocol::ObstacleGrowth::of(scenario),
             plan_margin: crate::discs::PlanMargin::of(scenario),
-            solver: ConicSolver::new(crate::solver::base_settings),
+            solver: ConicSolver::new(crate::solver::base_settings, cancel.clone()),
+            cancel,
             assembly: Assembly::default(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             reference: vec![[0.0; 2]; n + 1],
@@ -164,9 +169,11 @@ impl NonlinearMpc {
         self.last_sample = None;
     }
 
-    /// Solves the last subproblem again ([`crate::solver::ConicSolver::rehearse`]).
-    pub fn rehearse(&mut self) {
-        self.solver.rehearse();
+    /// A warm-up: solves the last subproblem again ([`ConicSolver::solve_again`]), cut
+    /// short once `cancel` holds.
+    pub fn warm_up(&mut self, cancel: &Cancel) {
+        let slot = self.cancel.clone();
+        slot.during(cancel, || self.solver.solve_again());
     }
 
     fn s(&self, i: usize, c: usize) -> usize {

@@ -5,51 +5,55 @@ use crate::assembly::{Assembly, csc_with_positions};
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{SolverStatus, SupportedConeT};
 use protocol::PlanStatus;
+use protocol::task::Cancel;
 use std::cell::RefCell;
 use std::rc::Rc;
 
-/// Whether what a rehearsal warms up for has come ([`rehearsing`]).
-pub type ArrivalProbe = Rc<dyn Fn() -> bool>;
+/// Where a warm-up's cancel check sits while the warm-up runs ([`CancelSlot::during`]):
+/// shared by every solver of an MPC and its step, it cuts their solves short between
+/// clarabel's interior-point iterations (the termination callback set at the build) and
+/// stops a step from trying anything more. A warm-up that runs up to the moment its input
+/// comes must not hold up the step it warms up for. Empty, it cancels nothing.
+#[derive(Clone, Default)]
+pub struct CancelSlot(Rc<RefCell<Option<Cancel>>>);
 
-/// What ends a rehearsal ([`rehearsing`]): a time, and whatever it warms up for coming.
-struct RehearsalEnd {
-    /// Monotonic ns ([`protocol::clock::monotonic_ns`]).
-    until_ns: u64,
-    came: ArrivalProbe,
-}
-
-thread_local! {
-    /// The end of the rehearsal running on this thread, if one is.
-    static REHEARSAL_END: RefCell<Option<RehearsalEnd>> = const { RefCell::new(None) };
-}
-
-/// Runs `rehearsal` so that it stops by `until_ns` (monotonic ns) or once `came` holds
-/// (polled between clarabel's interior-point iterations): a solve in it after that returns
-/// at once, and one under way at clarabel's next iteration (every solver checks between
-/// two, [`ConicSolver::build`]), unsolved. A warm-up that runs up to the moment its input
-/// comes ([`protocol::runtime`]) must not hold up the step it warms up for.
-pub fn rehearsing<R>(until_ns: u64, came: &ArrivalProbe, rehearsal: impl FnOnce() -> R) -> R {
-    struct Ends;
-    impl Drop for Ends {
-        fn drop(&mut self) {
-            REHEARSAL_END.take();
-        }
+impl CancelSlot {
+    /// Whether a warm-up runs and its cancel check holds.
+    pub fn cancelled(&self) -> bool {
+        self.0.borrow().as_ref().is_some_and(|cancel| cancel())
     }
-    REHEARSAL_END.set(Some(RehearsalEnd {
-        until_ns,
-        came: came.clone(),
-    }));
-    let _ends = Ends;
-    rehearsal()
+
+    /// Runs `warm_up` with `cancel` in the slot (a clone of the `Rc`: no allocation).
+    pub fn during<R>(&self, cancel: &Cancel, warm_up: impl FnOnce() -> R) -> R {
+        struct Empties<'a>(&'a CancelSlot);
+        impl Drop for Empties<'_> {
+            fn drop(&mut self) {
+                self.0.0.borrow_mut().take();
+            }
+        }
+        *self.0.borrow_mut() = Some(cancel.clone());
+        let _empties = Empties(self);
+        warm_up()
+    }
 }
 
-/// Whether a rehearsal runs on this thread and has come to its end ([`rehearsing`]).
-pub fn rehearsal_over() -> bool {
-    REHEARSAL_END.with_borrow(|end| {
-        end.as_ref()
-            .is_some_and(|end| protocol::clock::monotonic_ns() >= end.until_ns || (end.came)())
-    })
+/// A [`CancelSlot`] in clarabel's termination callback, which clarabel asks to be `Send`
+/// and `Sync` though it calls it only within `solve()`, on the thread that solves.
+struct OnTheSolvingThread(CancelSlot);
+
+impl OnTheSolvingThread {
+    fn cancelled(&self) -> bool {
+        self.0.cancelled()
+    }
 }
+
+// SAFETY: the callback holding this is boxed inside a clarabel solver that only
+// `ConicSolver` holds, in a private field it never moves out; `ConicSolver` holds a
+// `CancelSlot` itself (an `Rc`), so it is neither `Send` nor `Sync`: the callback is only
+// ever called, cloned and dropped on the thread that made it.
+unsafe impl Send for OnTheSolvingThread {}
+// SAFETY: as for `Send`.
+unsafe impl Sync for OnTheSolvingThread {}
 
 /// clarabel's settings for every MPC subproblem: what the accuracy needs and no more
 /// (measured with callgrind on the paper run, instructions per MPC step, docs/performance.md): no
@@ -104,6 +108,8 @@ pub fn base_settings() -> clarabel::solver::DefaultSettings<f64> {
 /// finished every stall in the tests and the fuzz batches).
 pub struct ConicSolver {
     settings: fn() -> clarabel::solver::DefaultSettings<f64>,
+    /// Cuts a solve of a warm-up short.
+    cancel: CancelSlot,
     solver: Option<clarabel::solver::DefaultSolver<f64>>,
     careful: Option<clarabel::solver::DefaultSolver<f64>>,
     /// Whether the last solution is the careful twin's.
@@ -114,9 +120,14 @@ pub struct ConicSolver {
 }
 
 impl ConicSolver {
-    pub fn new(settings: fn() -> clarabel::solver::DefaultSettings<f64>) -> ConicSolver {
+    /// A solver of `settings` whose solves `cancel` cuts short.
+    pub fn new(
+        settings: fn() -> clarabel::solver::DefaultSettings<f64>,
+        cancel: CancelSlot,
+    ) -> ConicSolver {
         ConicSolver {
             settings,
+            cancel,
             solver: None,
             careful: None,
             careful_last: false,
@@ -131,7 +142,7 @@ impl ConicSolver {
     pub fn solve(&mut self, assembly: &Assembly) -> (protocol::PlanStatus, u32) {
         use clarabel::solver::SolverStatus;
         self.careful_last = false;
-        if rehearsal_over() {
+        if self.cancel.cancelled() {
             return (protocol::PlanStatus::NumericalError, 0);
         }
         for (t, &(_, _, v)) in assembly.entries.iter().enumerate() {
@@ -188,7 +199,8 @@ impl ConicSolver {
             );
             solver.ok().map(|mut solver| {
                 use clarabel::solver::IPSolver;
-                solver.set_termination_callback(|_| rehearsal_over());
+                let cancel = OnTheSolvingThread(self.cancel.clone());
+                solver.set_termination_callback(move |_| cancel.cancelled());
                 solver.timers = Some(timers_kept_between_solves());
                 solver.solve();
                 solver
@@ -212,8 +224,8 @@ impl ConicSolver {
     /// its next one. It changes nothing that step sees: the step writes its own data first
     /// and clarabel starts every solve afresh from the data; the solution is read only
     /// after a step's own solve ([`ConicSolver::x`]). Returns the interior-point
-    /// iterations (fewer when a [`rehearsing`] cuts it short).
-    pub fn rehearse(&mut self) -> u32 {
+    /// iterations (fewer when its [`CancelSlot`] cuts it short).
+    pub fn solve_again(&mut self) -> u32 {
         use clarabel::solver::IPSolver;
         self.solver.as_mut().map_or(0, |solver| {
             solver.solve();

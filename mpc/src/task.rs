@@ -10,11 +10,25 @@
 //! newest is.
 
 use crate::Mpc;
-use crate::error::MpcError;
-use crate::solver::ArrivalProbe;
-use protocol::task::{Context, header_latency};
-use protocol::{Estimate, FaultConfig, Header, Plan, Route, Scenario, Timing};
+use protocol::task::{Cancel, Context, Due, Publish, Task, TaskError, header_latency};
+use protocol::topics::{ESTIMATE, PLAN, ROUTE};
+use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Timing, Validated};
 use std::collections::VecDeque;
+
+/// What the MPC takes: the estimator's estimates (periodic: one a sample matters) and,
+/// with a planner, its routes.
+#[derive(Debug, Clone, Copy)]
+pub enum MpcInput {
+    Estimate(Estimate),
+    Route(Route),
+}
+protocol::task_input!(MpcInput: Estimate, Route);
+
+/// A warm-up steps the next sample dry when the last step took at most this share of an
+/// inner tick (half the earliest a warm-up starts, half a tick before the sample's due
+/// time: a dry step as long could run into the sample), else it solves the last program
+/// again ([`Mpc::warm_up`]).
+pub const DRY_STEP_MAX_TICKS: f64 = 0.25;
 
 /// The MPC with the boundary estimates and the routes it has heard.
 pub struct MpcTask {
@@ -22,6 +36,8 @@ pub struct MpcTask {
     faults: FaultConfig,
     timing: Timing,
     follows_route: bool,
+    /// The longest last step after which a warm-up steps dry, ns ([`DRY_STEP_MAX_TICKS`]).
+    dry_step_max_ns: u64,
     /// Boundary estimates of samples not solved yet, with their receipt latency, ns.
     boundary: VecDeque<(Estimate, u64)>,
     /// The sample to solve next.
@@ -30,58 +46,80 @@ pub struct MpcTask {
     routes: VecDeque<Route>,
 }
 
-impl MpcTask {
-    pub fn new(scenario: &Scenario) -> Result<MpcTask, MpcError> {
+impl Task for MpcTask {
+    const ROLE: Role = Role::Mpc;
+    const OUTPUTS: &'static [&'static str] = &[PLAN];
+    type Input = MpcInput;
+    type Output = Plan;
+
+    fn new(scenario: &Validated, _epoch: u32) -> Result<MpcTask, TaskError> {
+        let mpc = Mpc::new(scenario).map_err(|e| TaskError {
+            role: Role::Mpc.as_str(),
+            reason: e.to_string(),
+        })?;
         Ok(MpcTask {
-            mpc: Mpc::new(scenario)?,
+            mpc,
             faults: scenario.fault.clone(),
             timing: scenario.timing.clone(),
             follows_route: scenario.planner.is_on(),
+            dry_step_max_ns: (DRY_STEP_MAX_TICKS * scenario.timing.dt_s() * 1e9) as u64,
             boundary: VecDeque::with_capacity(16),
             next_sample: 0,
             routes: VecDeque::with_capacity(4),
         })
     }
 
-    /// Whether the task takes routes (`planner.kind = "route"`).
-    pub fn follows_route(&self) -> bool {
-        self.follows_route
-    }
-
-    /// An estimate received `latency_ns` after it was published: kept if it starts a
-    /// sample not solved yet (a replay repeats one that was).
-    pub fn hear_estimate(&mut self, estimate: Estimate, latency_ns: u64) {
-        let tick = estimate.header.tick;
-        if self.timing.starts_sample(tick) && self.timing.sample_of(tick) >= self.next_sample {
-            self.boundary.push_back((estimate, latency_ns));
+    /// Estimates, and routes when a planner runs (`planner.kind = "route"`).
+    fn inputs(&self) -> &'static [&'static str] {
+        if self.follows_route {
+            &[ESTIMATE, ROUTE]
+        } else {
+            &[ESTIMATE]
         }
     }
 
-    /// A route heard.
-    pub fn hear_route(&mut self, route: Route) {
-        if self.routes.len() == self.routes.capacity() {
-            self.routes.pop_front();
+    /// An estimate is kept if it starts a sample not solved yet (a replay repeats one that
+    /// was), with its receipt latency; routes are kept a few samples' worth.
+    fn hear(&mut self, input: MpcInput, latency_ns: u64, _context: &impl Context) {
+        match input {
+            MpcInput::Estimate(estimate) => {
+                let tick = estimate.header.tick;
+                if self.timing.starts_sample(tick)
+                    && self.timing.sample_of(tick) >= self.next_sample
+                {
+                    self.boundary.push_back((estimate, latency_ns));
+                }
+            }
+            MpcInput::Route(route) => {
+                if self.routes.len() == self.routes.capacity() {
+                    self.routes.pop_front();
+                }
+                self.routes.push_back(route);
+            }
         }
-        self.routes.push_back(route);
     }
 
-    /// When the next sample starts, s.
-    pub fn next_due_s(&self) -> f64 {
-        self.timing.sample_time_s(self.next_sample)
+    /// Only every M-th estimate matters: rather than waking for each one (and taking a
+    /// core from the DFL), the next sample's is expected.
+    fn next(&self) -> Due {
+        Due::Expect(Some(self.timing.sample_time_s(self.next_sample)))
     }
 
-    /// Warms the next step's memory before the next sample ([`Mpc::rehearse`]), with a
-    /// dry step if the last step took at most `dry_step_max_ns`, stopping by `until_ns`
-    /// (monotonic ns) or once the estimate `came` ([`crate::solver::rehearsing`]); changes
-    /// no plan.
-    pub fn rehearse(&mut self, dry_step_max_ns: u64, until_ns: u64, came: &ArrivalProbe) {
-        crate::solver::rehearsing(until_ns, came, || self.mpc.rehearse(dry_step_max_ns));
+    /// Asleep for most of `Ts` in real time, the step would start with cold caches.
+    fn warms_up(&self) -> bool {
+        true
+    }
+
+    /// Warms the next step's memory before the next sample ([`Mpc::warm_up`]); changes no
+    /// plan.
+    fn warm_up(&mut self, cancel: &Cancel) {
+        self.mpc.warm_up(self.dry_step_max_ns, cancel);
     }
 
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the
-    /// plan's `injected_delay_ns` is what the executor holds it before publishing.
-    pub fn step(&mut self, context: &impl Context) -> Option<Plan> {
-        let clock = context.clock();
+    /// plan's `injected_delay_ns` (`fault.mpc_delay_*`) is how long it is held.
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Plan>> {
+        let clock = context;
         // A sample solved already (a replay heard in the same batch as the original), or
         // one whose successor's time is past, is not solved.
         while let Some((e, _)) = self.boundary.front() {
@@ -116,6 +154,9 @@ impl MpcTask {
             input_latency_ns: header_latency(latency_ns),
             ..Header::default()
         };
-        Some(plan)
+        Some(Publish {
+            output: plan,
+            hold_ns: plan.injected_delay_ns,
+        })
     }
 }

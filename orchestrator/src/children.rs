@@ -6,7 +6,7 @@
 use crate::remote::RemoteHosts;
 use anyhow::Context;
 use protocol::Role;
-use protocol::clock::RunMode;
+use runtime::clock::RunMode;
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};

@@ -4,8 +4,8 @@ use crate::{inprocess, multiproc, scenarios};
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use protocol::Role;
-use protocol::clock::RunMode;
-use protocol::runtime::{ProcessArgs, ProcessError};
+use runtime::clock::RunMode;
+use runtime::process::ProcessArgs;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -343,11 +343,11 @@ pub fn main() -> ExitCode {
         Command::Bench { out, realtime_s } => bench(out, realtime_s),
         Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
         Command::Host(args) => host(args),
-        Command::Plant(args) => role(args, Role::Plant, plant::process::run),
-        Command::Estimator(args) => role(args, Role::Estimator, estimator::process::run),
-        Command::Mpc(args) => role(args, Role::Mpc, mpc::process::run),
-        Command::Dfl(args) => role(args, Role::Dfl, dfl::process::run),
-        Command::Planner(args) => role(args, Role::Planner, planner::process::run),
+        Command::Plant(args) => role(args, Role::Plant),
+        Command::Estimator(args) => role(args, Role::Estimator),
+        Command::Mpc(args) => role(args, Role::Mpc),
+        Command::Dfl(args) => role(args, Role::Dfl),
+        Command::Planner(args) => role(args, Role::Planner),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -531,11 +531,7 @@ fn swap(args: SwapArgs) -> CliResult {
 }
 
 /// Runs one role process until the orchestrator stops it.
-fn role(
-    args: RoleArgs,
-    this: Role,
-    body: fn(&ProcessArgs) -> Result<(), ProcessError>,
-) -> CliResult {
+fn role(args: RoleArgs, this: Role) -> CliResult {
     // A replacement command that starts the wrong role would only be refused, sample by
     // sample, as the wrong epoch: say so at once.
     if let Ok(wanted) = std::env::var(crate::children::ENV_ROLE)
@@ -547,7 +543,7 @@ fn role(
             crate::children::ENV_ROLE
         )));
     }
-    protocol::clock::clock_shift_from_env().map_err(bad_input)?;
+    runtime::clock::clock_shift_from_env().map_err(bad_input)?;
     let scenario = scenarios::load(Some(&args.scenario), &args.overrides).map_err(bad_input)?;
     // A process of its own may change what it computes, never the loop's clock.
     if !args.overrides.is_empty()
@@ -563,15 +559,15 @@ fn role(
         supervisor_pid: args.supervisor_pid,
         control_publisher: args.control_publisher,
     };
-    let result = body(&process_args);
+    let result = crate::roles::serve(this, &process_args);
     // Orphaned (the orchestrator or the host's agent is dead): the last process of the run
     // to exit removes the run's resources, as nobody else will until the next run or agent
     // starts on this machine.
     if args
         .supervisor_pid
-        .is_some_and(|pid| !protocol::ipc::process_alive(pid))
+        .is_some_and(|pid| !runtime::ipc::process_alive(pid))
     {
-        let _ = protocol::ipc::remove_run(&args.prefix);
+        let _ = runtime::ipc::remove_run(&args.prefix);
     }
     result.map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
 }
@@ -595,8 +591,8 @@ fn run(args: RunArgs) -> CliResult {
             "--keep-cores-awake is for --mode realtime (lockstep keeps its cores busy already)",
         ));
     }
-    let prefix = args.prefix.unwrap_or_else(protocol::ipc::new_prefix);
-    protocol::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
+    let prefix = args.prefix.unwrap_or_else(runtime::ipc::new_prefix);
+    runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let hosts = if args.in_process {
         multiproc::HostsSetup::default()
     } else {
@@ -709,7 +705,7 @@ fn host(args: HostArgs) -> CliResult {
     security
         .allows(&listen)
         .map_err(|e| bad_input(format!("--listen: {e}")))?;
-    protocol::clock::clock_shift_from_env().map_err(bad_input)?;
+    runtime::clock::clock_shift_from_env().map_err(bad_input)?;
     let stop = crate::stop::on_signals();
     crate::agent::serve(&args.name, &listen, &security, &stop)?;
     Ok(())
@@ -721,7 +717,7 @@ fn message_schema() -> serde_json::Value {
         ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO,
         ENV_SUPERVISOR,
     };
-    use protocol::layout;
+    use runtime::layout;
     serde_json::json!({
         "iceoryx2": "0.10.0",
         "service_type": "ipc",
@@ -737,9 +733,9 @@ fn message_schema() -> serde_json::Value {
             ENV_ROLE: "the role to play",
             ENV_SUPERVISOR: "the supervisor's pid (the orchestrator, or on another host its agent): brake and exit when it is gone",
             ENV_CONTROL_PUBLISHER: "the iceoryx2 id of the orchestrator's control publisher, hexadecimal",
-            protocol::ipc::ENV_RUN_ID: "the run id every Header.run carries, decimal (set on other hosts, whose prefix differs from the orchestrator's; else derived from the prefix)",
-            protocol::clock::ENV_CLOCK_CORRECTION_NS: "ns to add to this host's monotonic clock to read the orchestrator's (set on other hosts, docs/hosts.md)",
-            protocol::clock::ENV_CLOCK_OFFSET_MS: "a test's artificial offset of this process's clock, ms (docs/hosts.md)",
+            runtime::ipc::ENV_RUN_ID: "the run id every Header.run carries, decimal (set on other hosts, whose prefix differs from the orchestrator's; else derived from the prefix)",
+            runtime::clock::ENV_CLOCK_CORRECTION_NS: "ns to add to this host's monotonic clock to read the orchestrator's (set on other hosts, docs/hosts.md)",
+            runtime::clock::ENV_CLOCK_OFFSET_MS: "a test's artificial offset of this process's clock, ms (docs/hosts.md)",
         },
     })
 }

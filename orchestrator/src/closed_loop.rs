@@ -1,38 +1,32 @@
-//! The in-process executor: every role's task ([`protocol::task`]) stepped in one process,
-//! in the order of the data flow, on a lockstep clock standing at the current tick.
+//! The in-process executor: every role's task ([`protocol::task::Task`]) stepped in one
+//! process on simulated time standing at the current tick, whatever the roles.
 //! `scmpc run --in-process`, `sweep`, `figures`, the allocation test and the step
-//! benchmarks all step this one loop; the role processes step the same tasks.
+//! benchmarks all step this one loop; the role processes step the same tasks
+//! ([`runtime::serve`]).
 //!
-//! Per inner tick `j` (time `t_j = j Ts / M`), phase by phase:
-//! 1. [`ClosedLoop::measure`]: the plant integrates the command of tick `j - 1` and
-//!    outputs its true pose and measurement;
-//! 2. [`ClosedLoop::estimate`]: the estimator's estimate of the measurement;
-//! 3. [`ClosedLoop::plan`]: on a sample boundary (`j = k M`) the MPC's plan(k), handed to
-//!    the DFL (a plan whose production time exceeds `Ts` arrives `ceil(production / Ts)`
-//!    samples late, as it would in real time); then [`ClosedLoop::route`]: the planner's
-//!    route(k) from the same estimate, which the MPC follows from the next sample on (so
-//!    the planner is never on the path from the estimate to the plan);
-//! 4. [`ClosedLoop::command`]: the DFL's command for `[t_j, t_j+1)` and, on a sample
-//!    boundary, its verdict on the previous sample's deadline;
-//! 5. [`ClosedLoop::integrate`]: the command is heard by the plant and the estimator; the
-//!    next tick begins.
+//! Per inner tick `j` (time `t_j = j Ts / M`), each running role in [`Role::ALL`] order is
+//! stepped until it has nothing more to give, and each message it gives is handed at once
+//! to every task that takes its topic ([`protocol::topics::DATA_FLOW`]). That order is the
+//! order of the data within a tick: the plant's measurement of tick `j` (after integrating
+//! the command of tick `j - 1`), the estimate, on a sample boundary the MPC's plan(k), the
+//! DFL's command for `[t_j, t_j+1)` with its verdict on the previous sample, and the
+//! planner's route(k), which the MPC follows from the next sample on (so the planner is
+//! never on the path from the estimate to the plan). A command reaches the plant and the
+//! estimator for the next tick. A plan whose production time exceeds `Ts` reaches the DFL
+//! `ceil(production / Ts)` samples late, as it would in real time
+//! ([`SimulatedTime`](protocol::task::SimulatedTime)).
 //!
-//! What a process executor adds, this one does as its supervision would: an estimate its
-//! consumers would refuse ([`protocol::Message::content_rejection`]) is replaced by the
-//! estimate of a restarted estimator (the scenario's restart policy), so that every
-//! injected fault gives the same run here as over iceoryx2 in lockstep.
-//! [`ClosedLoop::step`] runs the phases in order; they are public so that a caller can
-//! measure each (the allocation test counts allocations phase by phase).
+//! What a process executor adds, this one does as its supervision would: a message its
+//! consumers would refuse ([`protocol::Message::content_rejection`]) is dropped and its
+//! producer restarted as the scenario's restart policy allows (a new task, with the next
+//! producer epoch, that hears the newest sample of each of its inputs again), so that
+//! every injected fault gives the same run here as over iceoryx2 in lockstep.
 
-use dfl::DflTask;
-use estimator::EstimatorTask;
-use mpc::MpcTask;
-use planner::PlannerTask;
-use plant::PlantTask;
-use protocol::clock::RunClock;
+use crate::roles;
+use protocol::task::{Outputs, SimulatedTime, Task};
 use protocol::{
-    Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Message, Plan, RestartPolicy,
-    Route, Validated,
+    Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Plan, RestartPolicy, Role, Route,
+    Validated,
 };
 
 /// One inner tick of the closed loop: what every role produced.
@@ -49,41 +43,86 @@ pub struct Tick {
     pub verdict: Option<DeadlineVerdict>,
     /// The DFL's command for the tick, with the deadline misses so far.
     pub actuation: Actuation,
-    /// The estimator was restarted at this tick (its estimate was refused).
-    pub restarted_estimator: bool,
+    /// The role restarted at this tick (a message of it was refused).
+    pub restarted: Option<Role>,
+}
+
+/// Why the loop ended before its last tick.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Ended {
+    /// A message of `role` was refused and the restart policy allows no new process.
+    #[error("{topic} of the {} refused, no restart left", role.as_str())]
+    Aborted { role: Role, topic: &'static str },
+    /// A tick ended without a message every tick has (the tasks disagree with the
+    /// executor: a defect).
+    #[error("tick {tick} ended without a {topic}")]
+    Stalled { tick: u64, topic: &'static str },
+}
+
+/// A task as this executor steps it, whatever its role.
+pub trait Stepped {
+    fn role(&self) -> Role;
+    /// Whether it takes messages of `topic`.
+    fn takes(&self, topic: &str) -> bool;
+    fn hear(&mut self, data: Data, time: &SimulatedTime);
+    /// Steps the task once; what it gives is pushed to `given` (false: nothing).
+    fn step(&mut self, time: &SimulatedTime, given: &mut Vec<Data>) -> bool;
+}
+
+impl<T: Task> Stepped for T {
+    fn role(&self) -> Role {
+        T::ROLE
+    }
+
+    fn takes(&self, topic: &str) -> bool {
+        self.inputs().contains(&topic)
+    }
+
+    fn hear(&mut self, data: Data, time: &SimulatedTime) {
+        if let Ok(input) = T::Input::try_from(data) {
+            Task::hear(self, input, 0, time);
+        }
+    }
+
+    fn step(&mut self, time: &SimulatedTime, given: &mut Vec<Data>) -> bool {
+        match Task::step(self, time) {
+            Some(publish) => {
+                publish.output.each(|data| given.push(data));
+                true
+            }
+            None => false,
+        }
+    }
 }
 
 /// The tasks of one scenario, stepped in lockstep.
 pub struct ClosedLoop {
     scenario: Validated,
-    plant: PlantTask,
-    estimator: EstimatorTask,
-    mpc: MpcTask,
-    /// The route planner (`planner.kind = "route"`).
-    planner: Option<PlannerTask>,
-    dfl: DflTask,
-    /// The newest command, which a restarted estimator hears again.
-    last_actuation: Option<Actuation>,
-    /// Estimator restarts so far, and the epoch of the one running.
-    restarts: u32,
-    estimator_epoch: u32,
+    /// The running roles' tasks, in [`Role::ALL`] order.
+    tasks: Vec<Box<dyn Stepped>>,
+    /// Restarts so far, by role (the producer epoch of the one running).
+    restarts: [u32; Role::COUNT],
+    /// The newest message of each data topic, which a restarted task hears again.
+    newest: Vec<Data>,
+    /// What the tasks gave in this tick, in order.
+    given: Vec<Data>,
     tick: u64,
     ticks: u64,
 }
 
 impl ClosedLoop {
     /// The tasks of `scenario` at their initial states.
-    pub fn new(scenario: &Validated) -> Result<Self, mpc::MpcError> {
+    pub fn new(scenario: &Validated) -> Result<Self, protocol::task::TaskError> {
+        let tasks = scenario
+            .roles()
+            .map(|role| roles::in_process(role, scenario, 0))
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
             scenario: scenario.clone(),
-            plant: PlantTask::new(scenario),
-            estimator: EstimatorTask::new(scenario, 0),
-            mpc: MpcTask::new(scenario)?,
-            planner: scenario.planner.is_on().then(|| PlannerTask::new(scenario)),
-            dfl: DflTask::new(scenario),
-            last_actuation: None,
-            restarts: 0,
-            estimator_epoch: 0,
+            tasks,
+            restarts: [0; Role::COUNT],
+            newest: Vec::with_capacity(protocol::topics::DATA_FLOW.len()),
+            given: Vec::with_capacity(16),
             tick: 0,
             ticks: scenario.tick_count(),
         })
@@ -99,113 +138,126 @@ impl ClosedLoop {
         self.tick >= self.ticks
     }
 
-    /// The clock of the current tick.
-    fn clock(&self) -> RunClock {
-        RunClock::simulated_at(self.tick, self.scenario.timing.dt_s())
+    /// One inner tick: every role's pass in order.
+    pub fn step(&mut self) -> Result<Tick, Ended> {
+        self.step_each(|_, pass| pass())
     }
 
-    /// Phase 1: the plant's truth and measurement of the tick, after integrating the
-    /// command of the tick before.
-    pub fn measure(&mut self) -> (GroundTruth, Measurement) {
-        let clock = self.clock();
-        self.plant
-            .step(&clock)
-            .expect("in process the plant has heard the command of every earlier tick")
-    }
-
-    /// Phase 2: the estimate of `measurement`; `None` when it was refused and the
-    /// scenario's restart policy allows no new estimator (the run is aborted).
-    pub fn estimate(&mut self, measurement: Measurement) -> Option<(Estimate, bool)> {
-        let clock = self.clock();
-        self.estimator.hear_measurement(measurement, 0);
-        let estimate = self
-            .estimator
-            .step(&clock)
-            .expect("in process the estimator has heard the command of the tick before");
-        if estimate.content_rejection().is_none() {
-            return Some((estimate, false));
+    /// [`step`](Self::step), each role's pass (its steps and the hand-over of what it
+    /// gave) run through `around` (the allocation test counts allocations role by role).
+    pub fn step_each(
+        &mut self,
+        mut around: impl FnMut(Role, &mut dyn FnMut()),
+    ) -> Result<Tick, Ended> {
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s());
+        self.given.clear();
+        let mut restarted = None;
+        for i in 0..self.tasks.len() {
+            let role = self.tasks[i].role();
+            let mut refused = None;
+            around(role, &mut || refused = self.pass(i, &time));
+            while let Some(topic) = refused.take() {
+                self.restart(i, topic)?;
+                restarted = Some(role);
+                around(role, &mut || refused = self.pass(i, &time));
+            }
         }
-        let supervision = &self.scenario.supervision;
-        if supervision.restart != RestartPolicy::Always || self.restarts >= supervision.max_restarts
-        {
-            return None;
-        }
-        self.restarts += 1;
-        self.estimator_epoch += 1;
-        self.estimator = EstimatorTask::new(&self.scenario, self.estimator_epoch);
-        self.estimator.hear_measurement(measurement, 0);
-        if let Some(actuation) = self.last_actuation {
-            self.estimator.hear_actuation(actuation);
-        }
-        let estimate = self
-            .estimator
-            .step(&clock)
-            .expect("a restarted estimator estimates the measurement it joined at");
-        Some((estimate, true))
-    }
-
-    /// Phase 3: on a sample boundary, the MPC's plan from `estimate` (with the scenario's
-    /// faults), handed to the DFL.
-    pub fn plan(&mut self, estimate: &Estimate) -> Option<Plan> {
-        let clock = self.clock();
-        self.mpc.hear_estimate(*estimate, 0);
-        let plan = self.mpc.step(&clock)?;
-        self.dfl.hear_plan(&plan, &clock);
-        Some(plan)
-    }
-
-    /// Phase 3b: on a sample boundary of a run with a planner, route(k) from `estimate`,
-    /// handed to the MPC.
-    pub fn route(&mut self, estimate: &Estimate) -> Option<Route> {
-        let clock = self.clock();
-        let planner = self.planner.as_mut()?;
-        planner.hear_estimate(*estimate);
-        let route = planner.step(&clock)?;
-        self.mpc.hear_route(route);
-        Some(route)
-    }
-
-    /// Phase 4: the DFL's command for the tick and, on a sample boundary, its verdict on
-    /// the previous sample.
-    pub fn command(&mut self, estimate: &Estimate) -> (Actuation, Option<DeadlineVerdict>) {
-        let clock = self.clock();
-        self.dfl.hear_estimate(*estimate, 0);
-        self.dfl
-            .step(&clock)
-            .expect("in process the DFL has every plan it waits for")
-    }
-
-    /// Phase 5: the plant and the estimator hear `actuation`; the next tick begins.
-    pub fn integrate(&mut self, actuation: &Actuation) {
-        self.plant.hear(*actuation);
-        self.estimator.hear_actuation(*actuation);
-        self.last_actuation = Some(*actuation);
         self.tick += 1;
-    }
-
-    /// One inner tick: the five phases in order; `None` when the run is aborted (a
-    /// refused estimate with no restart left).
-    pub fn step(&mut self) -> Option<Tick> {
-        let (truth, measurement) = self.measure();
-        let (estimate, restarted_estimator) = self.estimate(measurement)?;
-        let plan = self.plan(&estimate);
-        let route = self.route(&estimate);
-        let (actuation, verdict) = self.command(&estimate);
-        self.integrate(&actuation);
-        Some(Tick {
-            truth,
-            estimate,
-            plan,
-            route,
-            verdict,
-            actuation,
-            restarted_estimator,
-        })
+        self.collect(restarted)
     }
 
     /// After the last tick: the plant's truth at the end of the run (its pose after the
     /// last command).
-    pub fn final_truth(&mut self) -> GroundTruth {
-        self.measure().0
+    pub fn final_truth(&mut self) -> Option<GroundTruth> {
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s());
+        self.given.clear();
+        let plant = self.tasks.iter().position(|t| t.role() == Role::Plant)?;
+        self.tasks[plant].step(&time, &mut self.given);
+        self.given.iter().find_map(|d| match d {
+            Data::Truth(truth) => Some(*truth),
+            _ => None,
+        })
+    }
+
+    /// Steps task `i` until it gives nothing more, handing each message to the tasks that
+    /// take its topic; the topic of a message its consumers would refuse (dropped), if one
+    /// came.
+    fn pass(&mut self, i: usize, time: &SimulatedTime) -> Option<&'static str> {
+        loop {
+            let from = self.given.len();
+            if !self.tasks[i].step(time, &mut self.given) {
+                return None;
+            }
+            for k in from..self.given.len() {
+                let data = self.given[k];
+                if data.content_rejection().is_some() {
+                    self.given.truncate(k);
+                    return Some(data.topic());
+                }
+                self.hand_over(data, time);
+            }
+        }
+    }
+
+    /// Hands `data` to every task that takes its topic, and keeps it as the newest.
+    fn hand_over(&mut self, data: Data, time: &SimulatedTime) {
+        match self.newest.iter_mut().find(|d| d.topic() == data.topic()) {
+            Some(newest) => *newest = data,
+            None => self.newest.push(data),
+        }
+        for task in self.tasks.iter_mut().filter(|t| t.takes(data.topic())) {
+            task.hear(data, time);
+        }
+    }
+
+    /// Replaces task `i`, whose message of `topic` was refused, by a new one if the
+    /// restart policy allows: it hears the newest message of each of its inputs.
+    fn restart(&mut self, i: usize, topic: &'static str) -> Result<(), Ended> {
+        let role = self.tasks[i].role();
+        let supervision = &self.scenario.supervision;
+        let restarts = &mut self.restarts[role as usize];
+        if supervision.restart != RestartPolicy::Always || *restarts >= supervision.max_restarts {
+            return Err(Ended::Aborted { role, topic });
+        }
+        *restarts += 1;
+        let task = roles::in_process(role, &self.scenario, *restarts)
+            .map_err(|_| Ended::Aborted { role, topic })?;
+        self.tasks[i] = task;
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s());
+        let task = &mut self.tasks[i];
+        for data in &self.newest {
+            if task.takes(data.topic()) {
+                task.hear(*data, &time);
+            }
+        }
+        Ok(())
+    }
+
+    /// The tick's record from what the tasks gave.
+    fn collect(&self, restarted: Option<Role>) -> Result<Tick, Ended> {
+        let (mut truth, mut estimate, mut actuation) = (None, None, None);
+        let (mut plan, mut route, mut verdict) = (None, None, None);
+        for data in &self.given {
+            match *data {
+                Data::Truth(m) => truth = Some(m),
+                Data::Estimate(m) => estimate = Some(m),
+                Data::Actuation(m) => actuation = Some(m),
+                Data::Plan(m) => plan = Some(m),
+                Data::Route(m) => route = Some(m),
+                Data::Deadline(m) => verdict = Some(m),
+                Data::Measurement(_) => {}
+            }
+        }
+        let tick = self.tick - 1;
+        let missing = |topic| Ended::Stalled { tick, topic };
+        Ok(Tick {
+            truth: truth.ok_or_else(|| missing(protocol::topics::TRUTH))?,
+            estimate: estimate.ok_or_else(|| missing(protocol::topics::ESTIMATE))?,
+            actuation: actuation.ok_or_else(|| missing(protocol::topics::ACTUATION))?,
+            plan,
+            route,
+            verdict,
+            restarted,
+        })
     }
 }

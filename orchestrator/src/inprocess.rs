@@ -1,7 +1,7 @@
 //! `scmpc run --in-process`: the [`ClosedLoop`] stepped to the end of the run, every tick
 //! recorded.
 
-use crate::closed_loop::{ClosedLoop, Tick};
+use crate::closed_loop::{ClosedLoop, Ended, Tick};
 use crate::judge::{Judge, Outcome};
 use crate::record::{Recorder, Summary};
 use anyhow::Context;
@@ -45,18 +45,23 @@ pub fn run_observed(
             outcome = Some(Outcome::Interrupted);
             break;
         }
-        let Some(tick) = closed_loop.step() else {
-            recorder.event(
-                "aborted",
-                serde_json::json!({ "role": "estimator", "reason": "estimate refused, no restart left" }),
-            )?;
-            outcome = Some(Outcome::Aborted);
-            break;
+        let tick = match closed_loop.step() {
+            Ok(tick) => tick,
+            Err(Ended::Aborted { role, topic }) => {
+                let reason = format!("{topic} refused, no restart left");
+                recorder.event(
+                    "aborted",
+                    serde_json::json!({ "role": role.as_str(), "reason": reason }),
+                )?;
+                outcome = Some(Outcome::Aborted);
+                break;
+            }
+            Err(stalled) => return Err(stalled.into()),
         };
-        if tick.restarted_estimator {
+        if let Some(role) = tick.restarted {
             recorder.event(
                 "restarted",
-                serde_json::json!({ "role": "estimator", "reason": "estimate refused" }),
+                serde_json::json!({ "role": role.as_str(), "reason": "output refused" }),
             )?;
         }
         if let Some(plan) = &tick.plan {
@@ -78,8 +83,10 @@ pub fn run_observed(
         Some(o) => o,
         None => {
             let truth = closed_loop.final_truth();
-            recorder.final_truth(&truth);
-            judge.end_of_run(Some(&truth))
+            if let Some(truth) = &truth {
+                recorder.final_truth(truth);
+            }
+            judge.end_of_run(truth.as_ref())
         }
     };
     let summary = recorder.finish(

@@ -13,6 +13,7 @@ pub mod judge;
 pub mod multiproc;
 pub mod record;
 pub mod remote;
+pub mod roles;
 pub mod scenarios;
 pub mod schema;
 pub mod solve_times;

@@ -3,8 +3,8 @@
 
 use crate::multiproc::RunInfo;
 use anyhow::{Context, bail};
-use protocol::ipc::{self, open_topic};
 use protocol::{Role, SwapReply, SwapRequest};
+use runtime::ipc::{self, open_topic};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -49,8 +49,7 @@ pub fn build_request(role: Role, command: &[String]) -> Result<SwapRequest, Requ
     {
         *program = absolute.to_string_lossy().into_owned();
     }
-    let id =
-        (u64::from(std::process::id()) << 32) | (protocol::clock::monotonic_ns() & 0xffff_ffff);
+    let id = (u64::from(std::process::id()) << 32) | (runtime::clock::monotonic_ns() & 0xffff_ffff);
     SwapRequest::new(id, role, &command).ok_or(RequestError::Command)
 }
 

@@ -8,7 +8,6 @@
 //! their circles, so that every segment of the route, and not only its corners, keeps
 //! outside the grown obstacles.
 
-pub mod process;
 pub mod task;
 pub use task::PlannerTask;
 pub mod tangent_graph;

@@ -4,9 +4,17 @@
 //! only the newest is.
 
 use crate::Planner;
-use protocol::task::Context;
-use protocol::{Estimate, Header, Route, Timing, Validated};
+use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::topics::{ESTIMATE, ROUTE};
+use protocol::{Estimate, Header, Role, Route, Timing, Validated};
 use std::collections::VecDeque;
+
+/// What the planner takes: the estimator's estimates.
+#[derive(Debug, Clone, Copy)]
+pub enum PlannerInput {
+    Estimate(Estimate),
+}
+protocol::task_input!(PlannerInput: Estimate);
 
 /// The planner with the boundary estimates it has not answered yet.
 pub struct PlannerTask {
@@ -17,32 +25,42 @@ pub struct PlannerTask {
     next_sample: u64,
 }
 
-impl PlannerTask {
-    pub fn new(scenario: &Validated) -> PlannerTask {
-        PlannerTask {
+impl Task for PlannerTask {
+    const ROLE: Role = Role::Planner;
+    const OUTPUTS: &'static [&'static str] = &[ROUTE];
+    type Input = PlannerInput;
+    type Output = Route;
+
+    fn new(scenario: &Validated, _epoch: u32) -> Result<PlannerTask, TaskError> {
+        Ok(PlannerTask {
             planner: Planner::new(scenario),
             timing: scenario.timing.clone(),
             boundary: VecDeque::with_capacity(16),
             next_sample: 0,
-        }
+        })
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        &[ESTIMATE]
     }
 
     /// An estimate heard: kept if it starts a sample not answered yet.
-    pub fn hear_estimate(&mut self, estimate: Estimate) {
+    fn hear(&mut self, input: PlannerInput, _latency_ns: u64, _context: &impl Context) {
+        let PlannerInput::Estimate(estimate) = input;
         let tick = estimate.header.tick;
         if self.timing.starts_sample(tick) && self.timing.sample_of(tick) >= self.next_sample {
             self.boundary.push_back(estimate);
         }
     }
 
-    /// When the next sample starts, s.
-    pub fn next_due_s(&self) -> f64 {
-        self.timing.sample_time_s(self.next_sample)
+    /// The estimate that starts the next sample is expected (not each one between).
+    fn next(&self) -> Due {
+        Due::Expect(Some(self.timing.sample_time_s(self.next_sample)))
     }
 
     /// The route of the oldest boundary estimate waiting.
-    pub fn step(&mut self, context: &impl Context) -> Option<Route> {
-        let clock = context.clock();
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Route>> {
+        let clock = context;
         // A sample answered already (a replay heard in the same batch as the original), or
         // one whose successor's time is past, is not answered.
         while let Some(e) = self.boundary.front() {
@@ -65,6 +83,6 @@ impl PlannerTask {
             time_s: estimate.header.time_s,
             ..Header::default()
         };
-        Some(route)
+        Some(Publish::now(route))
     }
 }

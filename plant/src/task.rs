@@ -3,8 +3,32 @@
 //! measurement of tick `j`.
 
 use crate::Plant;
-use protocol::task::{Context, header_latency, keep_newest};
-use protocol::{Actuation, GroundTruth, Header, Measurement, Scenario, Timing};
+use protocol::task::{
+    Context, Due, Outputs, Publish, Task, TaskError, header_latency, keep_newest,
+};
+use protocol::topics::{ACTUATION, MEASUREMENT, TRUTH};
+use protocol::{Actuation, Data, GroundTruth, Header, Measurement, Role, Timing, Validated};
+
+/// What the plant takes: the DFL's commands.
+#[derive(Debug, Clone, Copy)]
+pub enum PlantInput {
+    Actuation(Actuation),
+}
+protocol::task_input!(PlantInput: Actuation);
+
+/// What a plant step gives: the truth (for the record) and the measurement of one tick.
+#[derive(Debug, Clone, Copy)]
+pub struct PlantOutput {
+    pub truth: GroundTruth,
+    pub measurement: Measurement,
+}
+
+impl Outputs for PlantOutput {
+    fn each(self, mut publish: impl FnMut(Data)) {
+        publish(self.truth.into());
+        publish(self.measurement.into());
+    }
+}
 
 /// The plant, the actuation it holds, and the tick it makes next.
 pub struct PlantTask {
@@ -16,34 +40,44 @@ pub struct PlantTask {
     tick: u64,
 }
 
-impl PlantTask {
-    pub fn new(scenario: &Scenario) -> PlantTask {
-        PlantTask {
+impl Task for PlantTask {
+    const ROLE: Role = Role::Plant;
+    const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
+    type Input = PlantInput;
+    type Output = PlantOutput;
+
+    fn new(scenario: &Validated, _epoch: u32) -> Result<PlantTask, TaskError> {
+        Ok(PlantTask {
             plant: Plant::new(scenario),
             timing: scenario.timing.clone(),
             held: None,
             tick: 0,
-        }
+        })
+    }
+
+    fn inputs(&self) -> &'static [&'static str] {
+        &[ACTUATION]
     }
 
     /// An actuation heard; the newest is held until a newer one comes.
-    pub fn hear(&mut self, actuation: Actuation) {
+    fn hear(&mut self, input: PlantInput, _latency_ns: u64, _context: &impl Context) {
+        let PlantInput::Actuation(actuation) = input;
         keep_newest(&mut self.held, actuation);
     }
 
-    /// When the next tick is due, s.
-    pub fn next_due_s(&self) -> f64 {
-        self.timing.tick_time_s(self.tick)
+    /// The next tick is due at its time.
+    fn next(&self) -> Due {
+        Due::At(self.timing.tick_time_s(self.tick))
     }
 
     /// The next tick, once the clock has reached it and the actuation of the tick before
     /// has been heard or is too late (then the newest held is applied, or none: the robot
     /// stands still).
-    pub fn step(&mut self, context: &impl Context) -> Option<(GroundTruth, Measurement)> {
-        let (tick, clock) = (self.tick, context.clock());
+    fn step(&mut self, context: &impl Context) -> Option<Publish<PlantOutput>> {
+        let tick = self.tick;
         let due_s = self.timing.tick_time_s(tick);
         let previous_heard = self.held.is_some_and(|a| a.header.tick + 1 >= tick);
-        if !clock.has_reached(due_s) || !(tick == 0 || previous_heard || clock.is_past(due_s)) {
+        if !context.has_reached(due_s) || !(tick == 0 || previous_heard || context.is_past(due_s)) {
             return None;
         }
         if tick > 0 {
@@ -65,6 +99,6 @@ impl PlantTask {
             header,
             y: self.plant.measure(),
         };
-        Some((truth, measurement))
+        Some(Publish::now(PlantOutput { truth, measurement }))
     }
 }

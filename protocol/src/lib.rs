@@ -1,16 +1,16 @@
-//! What crosses process boundaries in scmpc: the message types, the scenario schema, and
-//! the few conventions every role must agree on (angle wrapping, the wheel transform).
+//! What every part of scmpc agrees on, and no transport: the message types and the data
+//! flow between roles, the scenario schema with its one validator, the [`task::Task`]
+//! every role implements, the geometry, and the few conventions every role must share
+//! (angle wrapping, the wheel transform). The crate `runtime` carries these messages over
+//! iceoryx2 (it turns on this crate's feature `iceoryx2`, which makes every message
+//! iceoryx2's `ZeroCopySend`); the role crates build without it.
 
-pub mod alloc_count;
-pub mod clock;
 pub mod endpoint;
 pub mod geometry;
-pub mod ipc;
-pub mod layout;
 pub mod messages;
-pub mod runtime;
 pub mod scenario;
 pub mod task;
+pub mod topics;
 
 pub use geometry::*;
 pub use messages::*;
@@ -41,6 +41,11 @@ pub fn phi_inverse(z: [f64; 4], theta_at_rest_rad: f64) -> [f64; 4] {
         theta_at_rest_rad
     };
     [z[0], z[2], theta, zeta]
+}
+
+/// A period in whole nanoseconds.
+pub fn period_ns(period_s: f64) -> u64 {
+    (period_s * 1e9).round() as u64
 }
 
 /// Distance the fallback brake covers from `speed_m_s` (either sign), m: `U2 = 0`, so

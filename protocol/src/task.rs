@@ -1,20 +1,36 @@
-//! What every role's task may ask of the executor that runs it (docs/design.md,
-//! "Roles and tasks").
+//! The one shape every role has: a [`Task`] (docs/design.md, "Roles and tasks").
 //!
-//! Each role crate exports one task: a value holding the role's whole behaviour (what it
-//! takes from its inputs, when it has what a step needs, the step, its faults, the headers
-//! of its outputs). Three executors run the same task values: the in-process loop of the
-//! orchestrator, the role runtime of a process ([`crate::runtime`], lockstep and real
-//! time) and, through the same runtime, a process on another host. A task never reads a
-//! clock nor knows which one runs: it asks the [`Context`] it is stepped with.
+//! A task is a value holding a role's whole behaviour: what it takes from its inputs
+//! ([`Task::hear`]), when it has what a step needs and the step itself ([`Task::step`]),
+//! when it is due next ([`Task::next`]), its injected faults (a slow step is a
+//! [`Publish::hold_ns`]), and the headers of its outputs. It does no I/O and reads no clock:
+//! it asks the [`Context`] it is handed. Executors own the rest and are generic over the
+//! trait: the in-process loop of the orchestrator, the role runtime of a process (crate
+//! `runtime`, lockstep and real time) and, through the same runtime, a process on
+//! another host.
 
-use crate::clock::RunClock;
-use crate::messages::Message;
+use crate::messages::{Data, Message};
+use crate::{Role, Validated};
+use std::rc::Rc;
 
-/// What a task is told when it is stepped.
+/// What a task is told when it is stepped: the run's time, as the executor's clock tells
+/// it (times are seconds since tick 0, `t_j = j Ts / M`), and the executor's state.
 pub trait Context {
-    /// The run's clock.
-    fn clock(&self) -> &RunClock;
+    /// Whether the run's time has reached `t_s` (lockstep: the tick of `t_s` or a later
+    /// one is granted).
+    fn has_reached(&self, t_s: f64) -> bool;
+
+    /// Whether the run's time is past `t_s`: an input still missing for `t_s` is not
+    /// coming in time. In lockstep the time of the tick being computed is never past.
+    fn is_past(&self, t_s: f64) -> bool;
+
+    /// The inner tick the run is in (`None` before the clock has started).
+    fn now_tick(&self) -> Option<u64>;
+
+    /// How long after run time `t_s` a sample that took `production_ns` to make reaches
+    /// its consumer now, ns, for a producer of period `period_s` (real time: measured;
+    /// lockstep: at once within the period, else whole periods late).
+    fn arrival_after_ns(&self, t_s: f64, production_ns: u64, period_s: f64) -> u64;
 
     /// Whether this task's outputs for `tick` are the ones its consumers take (not while
     /// it warms up as a replacement).
@@ -33,11 +49,148 @@ pub trait Context {
     }
 }
 
-/// In process every task is active, never orphaned, and hears the clock at once.
-impl Context for RunClock {
-    fn clock(&self) -> &RunClock {
-        self
+/// Simulated time standing at an inner tick: the lockstep clock's answers, and the
+/// context of a task stepped in process ([`Context`]; every task active, never orphaned,
+/// the clock heard at once). While a tick is computed its time stands at `t_j`, so no time
+/// is ever *past* before every input of the tick has come, and a computation takes no
+/// time unless it overruns its period ([`SimulatedTime::arrival_after_ns`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimulatedTime {
+    tick: u64,
+    dt_s: f64,
+}
+
+impl SimulatedTime {
+    /// The time of inner tick `tick` of `dt_s` seconds.
+    pub fn at(tick: u64, dt_s: f64) -> SimulatedTime {
+        SimulatedTime { tick, dt_s }
     }
+
+    fn now_s(&self) -> f64 {
+        self.tick as f64 * self.dt_s
+    }
+}
+
+impl Context for SimulatedTime {
+    fn has_reached(&self, t_s: f64) -> bool {
+        self.now_s() >= t_s
+    }
+
+    fn is_past(&self, t_s: f64) -> bool {
+        self.now_s() > t_s
+    }
+
+    fn now_tick(&self) -> Option<u64> {
+        Some(self.tick)
+    }
+
+    /// At once if the sample was made within its period, else `ceil(production /
+    /// period)` whole periods late, so that timing violations behave as they would in
+    /// real time (docs/design.md, "Deadlines and fallback").
+    fn arrival_after_ns(&self, _t_s: f64, production_ns: u64, period_s: f64) -> u64 {
+        let production_s = production_ns as f64 * 1e-9;
+        let late_periods = if production_s <= period_s {
+            0
+        } else {
+            (production_s / period_s).ceil() as u64
+        };
+        late_periods * crate::period_ns(period_s)
+    }
+}
+
+/// What a step gives, and how long its producer holds it before publishing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Publish<O> {
+    pub output: O,
+    /// An injected slow step (`fault.*_delay_ms`), ns: in real time the output is
+    /// published this long after the step. In lockstep, where time stands still until the
+    /// output comes, and in process it is published at once: a consumer that judges
+    /// lateness reads the production time from the message (a plan's `injected_delay_ns`).
+    pub hold_ns: u64,
+}
+
+impl<O> Publish<O> {
+    /// `output`, published at once.
+    pub fn now(output: O) -> Publish<O> {
+        Publish { output, hold_ns: 0 }
+    }
+}
+
+/// When a task is due again without being told, in run time, s.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Due {
+    /// When an input or a control message comes, and at the latest at the time given
+    /// (`None`: only then).
+    Wait(Option<f64>),
+    /// The task's periodic input (the first of [`Task::inputs`]) is due at the time given
+    /// (`None`: not known yet); in real time the runtime polls for it around then.
+    Expect(Option<f64>),
+    /// The step is due at the time given: in real time the runtime sleeps until then; in
+    /// lockstep the time comes with a grant.
+    At(f64),
+}
+
+/// What a warm-up asks to know whether it is to stop now (its time is over, or what it
+/// warms up for has come): set once by the runtime, cloned without allocating.
+pub type Cancel = Rc<dyn Fn() -> bool>;
+
+/// Messages a step gives, in the order they are published.
+pub trait Outputs: Copy {
+    /// Hands every message to `publish`, in order.
+    fn each(self, publish: impl FnMut(Data));
+}
+
+impl<M: Message + Into<Data>> Outputs for M {
+    fn each(self, mut publish: impl FnMut(Data)) {
+        publish(self.into());
+    }
+}
+
+/// Why a task could not be made.
+#[derive(Debug, thiserror::Error)]
+#[error("setting up the {role}: {reason}")]
+pub struct TaskError {
+    pub role: &'static str,
+    pub reason: String,
+}
+
+/// A role: a value the executor hands inputs to and steps (module docs).
+pub trait Task: Sized {
+    /// The role the task plays.
+    const ROLE: Role;
+    /// The topics of its outputs, in the order a step publishes them.
+    const OUTPUTS: &'static [&'static str];
+    /// What it takes: one variant per input topic.
+    type Input: TryFrom<Data>;
+    /// What one step gives.
+    type Output: Outputs;
+
+    /// The task of `scenario` for the process of producer epoch `epoch` (0: the first).
+    fn new(scenario: &Validated, epoch: u32) -> Result<Self, TaskError>;
+
+    /// The topics it takes, its periodic input (the one [`Due::Expect`] names) first.
+    fn inputs(&self) -> &'static [&'static str];
+
+    /// An input sample, received `latency_ns` after it was published.
+    fn hear(&mut self, input: Self::Input, latency_ns: u64, context: &impl Context);
+
+    /// The next output, once the task has what it needs; `None`: nothing to do now. The
+    /// executor steps the task again until it says `None`.
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Self::Output>>;
+
+    /// When the task is due again without being told.
+    fn next(&self) -> Due;
+
+    /// Whether it warms up before its periodic input in real time ([`Task::warm_up`]).
+    fn warms_up(&self) -> bool {
+        false
+    }
+
+    /// A warm-up for the next step: what a process that slept finds cold (caches) is
+    /// touched again, changing nothing a step computes. It stops as soon as `cancel`
+    /// holds. The runtime calls it in real time only, again and again before the periodic
+    /// input comes (docs/design.md, "Clocks").
+    fn warm_up(&mut self, _cancel: &Cancel) {}
 }
 
 /// Keeps in `newest` the sample with the highest tick offered so far (a replay or a late
@@ -51,4 +204,21 @@ pub fn keep_newest<T: Message>(newest: &mut Option<T>, sample: T) {
 /// A latency in the `u32` of a header, ns (saturating).
 pub fn header_latency(latency_ns: u64) -> u32 {
     latency_ns.min(u64::from(u32::MAX)) as u32
+}
+
+/// Implements `TryFrom<Data>` for a task's input enum whose variants are named as
+/// [`Data`]'s: `task_input!(MpcInput: Estimate, Route);`.
+#[macro_export]
+macro_rules! task_input {
+    ($input:ident: $($variant:ident),+ $(,)?) => {
+        impl TryFrom<$crate::Data> for $input {
+            type Error = $crate::Data;
+            fn try_from(data: $crate::Data) -> Result<Self, $crate::Data> {
+                match data {
+                    $($crate::Data::$variant(m) => Ok($input::$variant(m)),)+
+                    other => Err(other),
+                }
+            }
+        }
+    };
 }

@@ -60,7 +60,7 @@ pub fn summary(dir: &Path) -> serde_json::Value {
 
 /// Files of the iceoryx2 run `prefix` still in `/dev/shm` or iceoryx2's directory.
 pub fn leftovers(prefix: &str) -> Vec<std::path::PathBuf> {
-    protocol::ipc::leftover_files(prefix)
+    runtime::ipc::leftover_files(prefix)
 }
 
 /// A prefix no other test uses.
@@ -152,14 +152,14 @@ pub fn spawn_run(dir: &Path, args: &[&str]) -> std::process::Child {
 /// The simulated time of a run as its plant publishes it: a subscriber on the `truth`
 /// service of the run with iceoryx2 prefix `prefix`.
 pub struct SimulatedClock {
-    truth: protocol::ipc::Receiver<protocol::GroundTruth>,
+    truth: runtime::ipc::Receiver<protocol::GroundTruth>,
     _node: iceoryx2::node::Node<iceoryx2::service::ipc::Service>,
     now_s: f64,
 }
 
 impl SimulatedClock {
     pub fn of(prefix: &str) -> SimulatedClock {
-        use protocol::ipc::{TRUTH, create_node, open_topic};
+        use runtime::ipc::{TRUTH, create_node, open_topic};
         let node = create_node(prefix, "test-clock", false).expect("a node of the run");
         let truth = open_topic::<protocol::GroundTruth>(&node, TRUTH)
             .and_then(|t| t.receiver())

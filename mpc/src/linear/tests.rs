@@ -1,7 +1,6 @@
 //! Tests of the linear MPC on its own model.
 use super::*;
 use crate::discs::barrier_slack;
-use crate::solver::ArrivalProbe;
 use crate::terminal_set::SetRow;
 use protocol::{Obstacle, QpForm};
 use std::rc::Rc;
@@ -652,15 +651,16 @@ fn a_disc_kept_for_its_terminal_rows_whose_cbf_rows_the_solution_misses_becomes_
 }
 
 #[test]
-fn a_rehearsal_before_every_step_changes_no_plan_even_cut_short() {
-    // The robot drifts off every plan (as a real one does), so each rehearsal's dry step,
+fn a_warm_up_before_every_step_changes_no_plan_even_cut_short() {
+    // The robot drifts off every plan (as a real one does), so each warm-up's dry step,
     // from the state its last plan predicts, solves another program than the real step;
     // a field of discs and the sparse program too, so discs join, leave and are deferred.
     let field = "obstacles=[{x = 3.0, y = 3.5, radius = 1.5}, {x = 6.0, y = 3.5, radius = 0.4}, \
                  {x = 1.5, y = 5.5, radius = 0.4}, {x = 5.5, y = 1.0, radius = 0.4}]";
-    let never: ArrivalProbe = Rc::new(|| false);
+    let never: Cancel = Rc::new(|| false);
+    let at_once: Cancel = Rc::new(|| true);
     let polls_left = Rc::new(std::cell::Cell::new(0_u64));
-    let came_after_polls: ArrivalProbe = {
+    let after_polls: Cancel = {
         let polls_left = polls_left.clone();
         Rc::new(move || {
             let left = polls_left.get();
@@ -670,7 +670,7 @@ fn a_rehearsal_before_every_step_changes_no_plan_even_cut_short() {
     };
     for overrides in [vec![], vec![field.into(), "mpc.qp_form=\"sparse\"".into()]] {
         let s = Scenario::default().with_overrides(&overrides).unwrap();
-        let mut rehearsing = LinearMpc::new(&s).unwrap();
+        let mut warming = LinearMpc::new(&s).unwrap();
         let mut plain = LinearMpc::new(&s).unwrap();
         let (a, b) = model::discretize(s.timing.ts_s);
         let [x, y, theta] = s.robot.start;
@@ -678,18 +678,16 @@ fn a_rehearsal_before_every_step_changes_no_plan_even_cut_short() {
         let mut drift = logistic(0.3);
         for k in 0..200 {
             let x_bar = protocol::phi_inverse(z.into(), theta);
-            // Rehearsals that run to the end, that are cut short before they begin, and
-            // that are cut short in their solves, after 2, 3, 6 or 7 polls of whether the
-            // estimate came.
+            // Warm-ups that run to the end, that are cancelled before they begin, and
+            // that are cancelled in their solves, after 2, 3, 6 or 7 polls.
             polls_left.set(k % 8);
-            let until_ns = if k % 4 == 1 { 0 } else { u64::MAX - 1 };
-            let came = if k % 4 == 0 {
-                &never
-            } else {
-                &came_after_polls
+            let cancel = match k % 4 {
+                0 => &never,
+                1 => &at_once,
+                _ => &after_polls,
             };
-            crate::solver::rehearsing(until_ns, came, || rehearsing.rehearse(u64::MAX));
-            let plan = rehearsing.step(k, x_bar, 0.01);
+            warming.warm_up(u64::MAX, cancel);
+            let plan = warming.step(k, x_bar, 0.01);
             let reference = plain.step(k, x_bar, 0.01);
             assert!(
                 reference.is_solved(),
@@ -714,33 +712,28 @@ fn a_rehearsal_before_every_step_changes_no_plan_even_cut_short() {
 }
 
 #[test]
-fn a_rehearsal_at_its_end_stops_every_solve_in_it_and_none_after_it() {
+fn a_cancelled_warm_up_stops_every_solve_in_it_and_none_after_it() {
     let s = Scenario::default();
     let mut mpc = LinearMpc::new(&s).unwrap();
     let [x, y, theta] = s.robot.start;
     let x_bar = [x, y, theta, s.robot.zeta0];
     assert!(mpc.step(0, x_bar, 0.0).is_solved());
-    let (never, came): (ArrivalProbe, ArrivalProbe) = (Rc::new(|| false), Rc::new(|| true));
-    // Past its time, or with its input come: a solve about to start does not (the check
-    // in `ConicSolver::solve`), one under way stops before its first iteration (clarabel's
-    // termination callback), and the dry step tries no relaxed or cold program after its
-    // first.
-    for (until_ns, came) in [(0, &never), (u64::MAX - 1, &came)] {
-        let dry = crate::solver::rehearsing(until_ns, came, || mpc.step(1, x_bar, 0.0));
-        assert_eq!((dry.iterations, dry.solves, dry.is_solved()), (0, 1, false));
-        let solver = &mut mpc.solvers[mpc.rows.index()];
-        assert_eq!(
-            crate::solver::rehearsing(until_ns, came, || solver.rehearse()),
-            0
-        );
-        // Right after one that ended: nothing stops the solves.
-        assert!(solver.rehearse() > 0, "outside a rehearsal a solve runs");
-        let plan = mpc.step(1, x_bar, 0.0);
-        assert!(plan.is_solved() && plan.iterations > 0);
-    }
+    let (never, at_once): (Cancel, Cancel) = (Rc::new(|| false), Rc::new(|| true));
+    // Cancelled: a solve about to start does not (the check in `ConicSolver::solve`), one
+    // under way stops before its first iteration (clarabel's termination callback), and
+    // the dry step tries no relaxed or cold program after its first.
+    let slot = mpc.cancel.clone();
+    let dry = slot.during(&at_once, || mpc.step(1, x_bar, 0.0));
+    assert_eq!((dry.iterations, dry.solves, dry.is_solved()), (0, 1, false));
+    let solver = &mut mpc.solvers[mpc.rows.index()];
+    assert_eq!(slot.during(&at_once, || solver.solve_again()), 0);
+    // Right after one that ended: nothing stops the solves.
+    assert!(solver.solve_again() > 0, "outside a warm-up a solve runs");
+    let plan = mpc.step(1, x_bar, 0.0);
+    assert!(plan.is_solved() && plan.iterations > 0);
     let solver = &mut mpc.solvers[mpc.rows.index()];
     assert!(
-        crate::solver::rehearsing(u64::MAX - 1, &never, || solver.rehearse()) > 0,
-        "a rehearsal with time left solves"
+        slot.during(&never, || solver.solve_again()) > 0,
+        "a warm-up not cancelled solves"
     );
 }

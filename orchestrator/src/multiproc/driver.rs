@@ -4,7 +4,7 @@
 //! plan of a sample it starts) has come, records it, and only then grants `j + 1`, so the
 //! record is part of the handshake and loses nothing. It clears its wake-ups and checks
 //! the processes right after the grant, while the roles step, and then polls shared
-//! memory for the tick ([`protocol::runtime::lockstep_poll`]) before it blocks. Real time:
+//! memory for the tick ([`runtime::wait::lockstep_poll`]) before it blocks. Real time:
 //! it starts the clock and records ticks as they complete, counting every tick it never
 //! receives whole.
 //!
@@ -25,10 +25,10 @@ use crate::judge::{Judge, Outcome};
 use crate::record::{ProcessReport, Recorder};
 use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
-use protocol::clock::monotonic_ns;
-use protocol::ipc;
-use protocol::runtime::lockstep_poll;
 use protocol::{Role, Scenario};
+use runtime::clock::monotonic_ns;
+use runtime::ipc;
+use runtime::wait::lockstep_poll;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 

@@ -5,10 +5,10 @@
 use super::session::Session;
 use crate::judge::{Judge, Outcome};
 use crate::record::{Latencies, ProcessReport, Recorder};
-use protocol::clock::RunMode;
 use protocol::{
     Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing,
 };
+use runtime::clock::RunMode;
 use std::collections::BTreeMap;
 
 /// Everything received for one tick.

@@ -1,12 +1,12 @@
 //! The orchestrator's ports on the run's iceoryx2 topics, the epoch schedule it announces
 //! and the run's clock, which it keeps and which bounds what its inputs accept.
 
-use protocol::clock::{RunClock, RunMode};
-use protocol::ipc::{self, Input, IpcError, Receiver, Sender, TickLimit, open_topic};
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
     Header, Measurement, Plan, Role, Route, Status, SwapReply, SwapRequest,
 };
+use runtime::clock::{RunClock, RunMode};
+use runtime::ipc::{self, Input, IpcError, Receiver, Sender, TickLimit, open_topic};
 use std::cell::Cell;
 use std::rc::Rc;
 

@@ -5,8 +5,8 @@ use super::session::Session;
 use super::{NODE_LISTING, NODE_SCAN};
 use crate::children::Children;
 use crate::record::Recorder;
-use protocol::ipc;
 use protocol::{ControlCommand, Rejection, RestartPolicy, Role, Status, StatusEvent, Supervision};
+use runtime::ipc;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 

@@ -6,8 +6,8 @@ use super::session::Session;
 use super::{STOP_TIMEOUT, SWAP_TIMEOUT, SWAP_WARMUP_SAMPLES, SWITCH_LEAD_SAMPLES};
 use crate::children::Children;
 use crate::record::Recorder;
-use protocol::clock::RunMode;
 use protocol::{ControlCommand, Role, Scenario, SwapReply, Timing};
+use runtime::clock::RunMode;
 use std::time::Instant;
 
 /// A replacement being swapped in (docs/design.md, "Supervision").

@@ -3,6 +3,7 @@
 //! live swap request and its reply.
 
 use super::Header;
+#[cfg(feature = "iceoryx2")]
 use iceoryx2::prelude::ZeroCopySend;
 
 /// What the orchestrator tells every process.
@@ -25,8 +26,12 @@ pub enum ControlCommand {
 
 /// The orchestrator's clock and commands.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Control")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::Control")
+)]
 pub struct Control {
     pub header: Header,
     /// [`ControlCommand`] code.
@@ -45,8 +50,12 @@ pub struct Control {
 /// hand-over happens at one sample boundary in every process alike. The schedule stays so
 /// after the swap: the old producer's late samples are skipped, not rejected.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
-#[type_name("scmpc::EpochSchedule")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::EpochSchedule")
+)]
 pub struct EpochSchedule {
     pub active: [u32; Role::COUNT],
     /// The replacement being started, or the same as `active` when there is none.
@@ -54,7 +63,7 @@ pub struct EpochSchedule {
     /// First tick taken from `next`; [`SWITCH_UNSCHEDULED`] while it warms up.
     pub switch_tick: [u64; Role::COUNT],
     /// The iceoryx2 publisher of each output of `active` (by role, then by the output's
-    /// slot, [`output_slot`](crate::ipc::output_slot)), as the process announced it when it
+    /// slot, [`output_slot`](crate::topics::output_slot)), as the process announced it when it
     /// joined; 0 while not known. A sample from another publisher is refused.
     pub active_publishers: [[u128; 2]; Role::COUNT],
     /// The same for `next`.
@@ -278,7 +287,7 @@ pub enum Rejection {
     WrongRun = 2,
     WrongEpoch = 3,
     /// A tick its producer cannot have reached yet: ahead of the clock (the lockstep grant,
-    /// or the real-time clock's tick plus [`TICK_SLACK`](crate::ipc::TICK_SLACK)).
+    /// or the real-time clock's tick plus `TICK_SLACK` of the runtime).
     TickAhead = 4,
     /// A time that is not its tick's (`tick Ts / M`).
     TimeMismatch = 5,
@@ -327,8 +336,8 @@ impl Rejection {
 }
 
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Status")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Status"))]
 pub struct Status {
     pub header: Header,
     /// [`Role`] code.
@@ -344,7 +353,7 @@ pub struct Status {
     pub producer: u32,
     pub reserved: u32,
     /// [`StatusEvent::Ready`]: the iceoryx2 publisher of each of the role's outputs, by
-    /// [`output_slot`](crate::ipc::output_slot) (0: none).
+    /// [`output_slot`](crate::topics::output_slot) (0: none).
     pub publishers: [u128; 2],
 }
 
@@ -358,8 +367,12 @@ pub const MAX_REPLY_BYTES: usize = 256;
 
 /// `scmpc swap` to the orchestrator: replace `role` by a process started with `command`.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::SwapRequest")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::SwapRequest")
+)]
 pub struct SwapRequest {
     pub header: Header,
     /// Chosen by the requester; the reply carries it back.
@@ -429,8 +442,12 @@ impl SwapRequest {
 
 /// The orchestrator's answer to a [`SwapRequest`], once the swap is done or has failed.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::SwapReply")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::SwapReply")
+)]
 pub struct SwapReply {
     pub header: Header,
     pub request_id: u64,

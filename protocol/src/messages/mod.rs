@@ -4,6 +4,7 @@
 //! Each carries a [`Header`] (docs/design.md, "Supervision"). The in-process mode passes the very
 //! same values between the roles, so both modes share one set of semantics.
 
+#[cfg(feature = "iceoryx2")]
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Compile-time maximum prediction horizon `N` a plan can carry.
@@ -11,8 +12,8 @@ pub const MAX_HORIZON: usize = 64;
 
 /// Common to every message.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Header")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Header"))]
 pub struct Header {
     /// Inner tick `j` the message belongs to (time `j * Ts / M`).
     pub tick: u64,
@@ -33,8 +34,12 @@ pub struct Header {
 
 /// Noisy output `y = [x, y, theta] + noise` of the plant.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Measurement")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::Measurement")
+)]
 pub struct Measurement {
     pub header: Header,
     /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
@@ -43,8 +48,12 @@ pub struct Measurement {
 
 /// The plant's true state; read only by the recorder.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::GroundTruth")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::GroundTruth")
+)]
 pub struct GroundTruth {
     pub header: Header,
     /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
@@ -53,8 +62,12 @@ pub struct GroundTruth {
 
 /// The estimator's output: the extended state and the covariance of the pose.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Estimate")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::Estimate")
+)]
 pub struct Estimate {
     pub header: Header,
     /// `x_bar = [x_m, y_m, theta_rad, zeta_m_s]`; zeta is the DFL's integrator state.
@@ -104,8 +117,8 @@ impl PlanStatus {
 /// plan(k): a time-indexed input sequence. Element `i` is valid on
 /// `[t_k + i Ts, t_k + (i + 1) Ts)` (docs/design.md, "Deadlines and fallback").
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Plan")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Plan"))]
 pub struct Plan {
     pub header: Header,
     /// Sample index `k` the plan was computed for.
@@ -161,8 +174,8 @@ pub const ROUTE_CAPACITY: usize = 64;
 /// The planner's route to the goal (docs/planner.md), published every sample:
 /// the waypoints of the newest plan, from the position it was planned at to the goal.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Route")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Route"))]
 pub struct Route {
     pub header: Header,
     /// Sample `k` whose estimate this publication answers.
@@ -310,8 +323,12 @@ impl CommandMode {
 
 /// The DFL's command for one inner tick, held by the plant until the next one.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::Actuation")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::Actuation")
+)]
 pub struct Actuation {
     pub header: Header,
     /// Forward speed applied over the tick, m/s (the mean of zeta over the tick).
@@ -392,8 +409,12 @@ pub const PLAN_MISSING: u32 = u32::MAX;
 /// The DFL's judgement of one sample's deadline: plan(k) must be in its hands, solved, by
 /// `t_k + Ts` (docs/design.md, "Deadlines and fallback"). Published for every sample, met or missed.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, ZeroCopySend)]
-#[type_name("scmpc::DeadlineVerdict")]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::DeadlineVerdict")
+)]
 pub struct DeadlineVerdict {
     pub header: Header,
     /// The sample `k` judged.
@@ -412,8 +433,10 @@ pub struct DeadlineVerdict {
     pub misses_total: u32,
 }
 
-/// Every message type: access to its [`Header`].
-pub trait Message: Copy + core::fmt::Debug + ZeroCopySend + 'static {
+/// Every message type: access to its [`Header`]. (With the feature `iceoryx2`, which the
+/// runtime turns on, every message is also iceoryx2's `ZeroCopySend`; the role crates build
+/// without it.)
+pub trait Message: Copy + core::fmt::Debug + 'static {
     fn header(&self) -> &Header;
     fn header_mut(&mut self) -> &mut Header;
     /// Whether every floating-point value of the message is finite.
@@ -494,6 +517,65 @@ impl_message!(
 
 mod control;
 pub use control::*;
+
+/// Every data message of a run, one variant per data topic ([`crate::topics::DATA_FLOW`]):
+/// what executors hand from a task's outputs to the tasks that take them, whatever the
+/// roles ([`crate::task`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Data {
+    Measurement(Measurement),
+    Truth(GroundTruth),
+    Estimate(Estimate),
+    Plan(Plan),
+    Actuation(Actuation),
+    Deadline(DeadlineVerdict),
+    Route(Route),
+}
+
+macro_rules! data_variants {
+    ($($variant:ident($t:ty) => $topic:ident),* $(,)?) => {
+        impl Data {
+            /// The topic the message is published on.
+            pub fn topic(&self) -> &'static str {
+                match self {
+                    $(Data::$variant(_) => crate::topics::$topic,)*
+                }
+            }
+
+            /// What a consumer refuses in the message's content, if anything
+            /// ([`Message::content_rejection`]).
+            pub fn content_rejection(&self) -> Option<Rejection> {
+                match self {
+                    $(Data::$variant(m) => m.content_rejection(),)*
+                }
+            }
+
+            /// The message's header.
+            pub fn header(&self) -> &Header {
+                match self {
+                    $(Data::$variant(m) => m.header(),)*
+                }
+            }
+        }
+        $(
+            impl From<$t> for Data {
+                fn from(m: $t) -> Data {
+                    Data::$variant(m)
+                }
+            }
+        )*
+    };
+}
+
+data_variants!(
+    Measurement(Measurement) => MEASUREMENT,
+    Truth(GroundTruth) => TRUTH,
+    Estimate(Estimate) => ESTIMATE,
+    Plan(Plan) => PLAN,
+    Actuation(Actuation) => ACTUATION,
+    Deadline(DeadlineVerdict) => DEADLINE,
+    Route(Route) => ROUTE,
+);
 
 #[cfg(test)]
 mod tests;

@@ -6,7 +6,6 @@
 //! block in a WaitSet on the listener instead of spinning.
 
 use crate::clock::monotonic_ns;
-use crate::messages::{EpochSchedule, EpochVerdict, Message, Rejection};
 use iceoryx2::node::NodeView;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -15,75 +14,19 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use iceoryx2::waitset::WaitSetRunResult;
+use protocol::messages::{EpochSchedule, EpochVerdict, Message, Rejection};
 use std::cell::{Cell, OnceCell};
 use std::fmt::Display;
 use std::marker::PhantomData;
 use std::rc::Rc;
 
-/// Noisy output of the plant.
-pub const MEASUREMENT: &str = "measurement";
-/// True state of the plant (read by the recorder only).
-pub const TRUTH: &str = "truth";
-pub const ESTIMATE: &str = "estimate";
-pub const PLAN: &str = "plan";
-pub const ACTUATION: &str = "actuation";
-/// The DFL's deadline verdict for every sample.
-pub const DEADLINE: &str = "deadline";
-/// The planner's route ([`Route`](crate::Route)).
-pub const ROUTE: &str = "route";
-/// Orchestrator to processes: clock grants, start, stop.
-pub const CONTROL: &str = "control";
-/// Processes to orchestrator: ready, input lost.
-pub const STATUS: &str = "status";
-/// `scmpc swap` to orchestrator: live swap requests.
-pub const SWAP: &str = "swap";
-/// Orchestrator to `scmpc swap`: how a requested swap ended.
-pub const SWAP_REPLY: &str = "swap_reply";
+pub use protocol::topics::*;
 
-/// The data flow (docs/design.md): each data topic, the role that produces it and the
-/// roles that take it (the orchestrator records every topic). The role processes open
-/// these inputs; a bridge between hosts carries a topic to every host with a role that
-/// takes it.
-pub const DATA_FLOW: [(&str, crate::Role, &[crate::Role]); 7] = {
-    use crate::Role::*;
-    [
-        (MEASUREMENT, Plant, &[Estimator]),
-        (TRUTH, Plant, &[]),
-        (ESTIMATE, Estimator, &[Mpc, Dfl, Planner]),
-        (PLAN, Mpc, &[Dfl]),
-        (ACTUATION, Dfl, &[Plant, Estimator]),
-        (DEADLINE, Dfl, &[]),
-        (ROUTE, Planner, &[Mpc]),
-    ]
-};
+/// A message iceoryx2 can carry: every [`Message`] of `protocol` (whose feature
+/// `iceoryx2` this crate turns on).
+pub trait Wire: Message + ZeroCopySend {}
 
-/// The role that produces data topic `topic`.
-pub fn producer_of(topic: &str) -> Option<crate::Role> {
-    DATA_FLOW
-        .iter()
-        .find(|(t, _, _)| *t == topic)
-        .map(|(_, producer, _)| *producer)
-}
-
-/// The output topic of `producer` in publisher slot `slot` ([`output_slot`]).
-pub fn output_topic(producer: crate::Role, slot: usize) -> Option<&'static str> {
-    DATA_FLOW
-        .iter()
-        .map(|(t, _, _)| *t)
-        .find(|t| output_slot(producer, t) == Some(slot))
-}
-
-/// Where output `topic` of `producer` sits in the publishers it announces when it joins
-/// ([`Status::publishers`](crate::Status::publishers)); `None`: not one of its outputs.
-pub fn output_slot(producer: crate::Role, topic: &str) -> Option<usize> {
-    use crate::Role;
-    match (producer, topic) {
-        (Role::Plant, TRUTH) | (Role::Estimator, ESTIMATE) | (Role::Mpc, PLAN) => Some(0),
-        (Role::Dfl, ACTUATION) | (Role::Planner, ROUTE) => Some(0),
-        (Role::Plant, MEASUREMENT) | (Role::Dfl, DEADLINE) => Some(1),
-        _ => None,
-    }
-}
+impl<T: Message + ZeroCopySend> Wire for T {}
 
 /// Publishers a data topic admits: the producer, its replacement, the process it replaces
 /// while retiring, and one spare. Every receive looks at each publisher slot, so this is
@@ -182,7 +125,7 @@ pub(crate) type SubscribingPorts<T> = (Subscriber<ipc::Service, T, ()>, Listener
 
 /// A publish-subscribe service and its event service, opened with the settings every
 /// process uses.
-pub struct Topic<T: Message> {
+pub struct Topic<T: Wire> {
     name: &'static str,
     run_id: u32,
     pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
@@ -190,7 +133,7 @@ pub struct Topic<T: Message> {
 }
 
 /// Opens (or creates) topic `name` carrying `T`.
-pub fn open_topic<T: Message>(
+pub fn open_topic<T: Wire>(
     node: &Node<ipc::Service>,
     name: &'static str,
 ) -> Result<Topic<T>, IpcError> {
@@ -225,7 +168,7 @@ pub fn open_topic<T: Message>(
     })
 }
 
-impl<T: Message> Topic<T> {
+impl<T: Wire> Topic<T> {
     /// A publisher on the topic and the notifier that wakes its subscribers.
     pub(crate) fn publishing_ports(&self) -> Result<PublishingPorts<T>, IpcError> {
         let publisher = self
@@ -278,11 +221,11 @@ impl<T: Message> Topic<T> {
 
     /// A receiver that takes only samples of this run, from the active epoch of
     /// `producer`, finite, and in tick order; it counts every sample it refuses.
-    pub fn receiver_from(&self, producer: crate::Role) -> Result<Receiver<T>, IpcError> {
+    pub fn receiver_from(&self, producer: protocol::Role) -> Result<Receiver<T>, IpcError> {
         self.receiver_inner(Some(producer))
     }
 
-    fn receiver_inner(&self, producer: Option<crate::Role>) -> Result<Receiver<T>, IpcError> {
+    fn receiver_inner(&self, producer: Option<protocol::Role>) -> Result<Receiver<T>, IpcError> {
         let (subscriber, listener) = self.subscribing_ports()?;
         Ok(Receiver {
             subscriber,
@@ -305,7 +248,7 @@ impl<T: Message> Topic<T> {
 }
 
 /// Publishes `T` and wakes the topic's listeners.
-pub struct Sender<T: Message> {
+pub struct Sender<T: Wire> {
     name: &'static str,
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
@@ -315,7 +258,7 @@ pub struct Sender<T: Message> {
     last: Cell<Option<T>>,
 }
 
-impl<T: Message> Sender<T> {
+impl<T: Wire> Sender<T> {
     /// Stamps the publish time and the epoch, publishes a copy and notifies.
     pub fn send(&self, mut message: T) -> Result<(), IpcError> {
         let header = message.header_mut();
@@ -336,7 +279,7 @@ impl<T: Message> Sender<T> {
     }
 
     /// Publishes the newest sample again (same tick, fresh publish time), if there is one:
-    /// the answer to [`ControlCommand::Replay`](crate::ControlCommand::Replay).
+    /// the answer to [`ControlCommand::Replay`](protocol::ControlCommand::Replay).
     pub fn replay(&self) -> Result<(), IpcError> {
         match self.last.get() {
             Some(message) => self.send(message),
@@ -346,12 +289,12 @@ impl<T: Message> Sender<T> {
 }
 
 /// Receives `T`; its listener is what a WaitSet blocks on.
-pub struct Receiver<T: Message> {
+pub struct Receiver<T: Wire> {
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
     run_id: u32,
     /// Role whose producer epoch is checked (`None`: any epoch, no tick order).
-    producer: Option<crate::Role>,
+    producer: Option<protocol::Role>,
     /// Which of the producer's outputs this topic is ([`output_slot`]).
     slot: Option<usize>,
     /// The only publisher taken from, when set ([`Receiver::pin_to`]).
@@ -375,7 +318,7 @@ pub struct Receiver<T: Message> {
     _payload: PhantomData<T>,
 }
 
-impl<T: Message> Receiver<T> {
+impl<T: Wire> Receiver<T> {
     pub fn listener(&self) -> &Listener<ipc::Service> {
         &self.listener
     }
@@ -534,7 +477,7 @@ impl<T: Message> Receiver<T> {
     }
 }
 
-impl<T: Message> Receiver<T> {
+impl<T: Wire> Receiver<T> {
     /// Attaches this receiver's listener to `waitset`; keep the guard while waiting.
     pub fn attach<'w>(
         &'w self,
@@ -590,7 +533,7 @@ pub trait Input {
     /// Refused samples by [`Rejection`] code since the last call.
     fn take_rejections(&self) -> [u64; Rejection::COUNT];
     /// The role whose samples this input takes (`None`: any sender).
-    fn producer(&self) -> Option<crate::Role>;
+    fn producer(&self) -> Option<protocol::Role>;
     /// How many samples it has taken so far.
     fn taken(&self) -> u64;
     /// When the newest sample taken was published, monotonic ns (`None`: none taken).
@@ -600,7 +543,7 @@ pub trait Input {
     fn take_standby_newest(&self) -> Option<u64>;
 }
 
-impl<T: Message> Input for Receiver<T> {
+impl<T: Wire> Input for Receiver<T> {
     fn listener(&self) -> &Listener<ipc::Service> {
         &self.listener
     }
@@ -619,7 +562,7 @@ impl<T: Message> Input for Receiver<T> {
     fn take_rejections(&self) -> [u64; Rejection::COUNT] {
         self.rejected.replace([0; Rejection::COUNT])
     }
-    fn producer(&self) -> Option<crate::Role> {
+    fn producer(&self) -> Option<protocol::Role> {
         self.producer
     }
     fn taken(&self) -> u64 {
@@ -643,7 +586,7 @@ pub trait Output {
     fn publisher_id(&self) -> u128;
 }
 
-impl<T: Message> Output for Sender<T> {
+impl<T: Wire> Output for Sender<T> {
     fn replay(&self) -> Result<(), IpcError> {
         Sender::replay(self)
     }

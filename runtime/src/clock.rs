@@ -7,6 +7,7 @@
 //! orchestrator's clock, on every host. [`ENV_CLOCK_OFFSET_MS`] shifts a process's clock on
 //! purpose, to test that on one machine, where the clocks agree anyway.
 
+use protocol::task::{Context, SimulatedTime};
 use std::sync::OnceLock;
 
 /// Environment: an artificial offset of this process's monotonic clock, ms (a test of a
@@ -193,6 +194,11 @@ impl RunClock {
         }
     }
 
+    /// Lockstep: the simulated time of the newest tick granted.
+    fn simulated(&self) -> Option<SimulatedTime> {
+        self.granted.map(|tick| SimulatedTime::at(tick, self.dt_s))
+    }
+
     /// Real time: the monotonic time of run time `t_s`, ns (`None` in lockstep, and
     /// before the start).
     pub fn at_ns(&self, t_s: f64) -> Option<u64> {
@@ -208,7 +214,7 @@ impl RunClock {
     /// one is granted).
     pub fn has_reached(&self, t_s: f64) -> bool {
         match self.mode {
-            RunMode::Lockstep => self.granted.is_some_and(|g| g as f64 * self.dt_s >= t_s),
+            RunMode::Lockstep => self.simulated().is_some_and(|s| s.has_reached(t_s)),
             RunMode::Realtime => self.at_ns(t_s).is_some_and(|at| monotonic_ns() >= at),
         }
     }
@@ -217,7 +223,7 @@ impl RunClock {
     /// coming in time. In lockstep the time of the tick being computed is never past.
     pub fn is_past(&self, t_s: f64) -> bool {
         match self.mode {
-            RunMode::Lockstep => self.granted.is_some_and(|g| g as f64 * self.dt_s > t_s),
+            RunMode::Lockstep => self.simulated().is_some_and(|s| s.is_past(t_s)),
             RunMode::Realtime => self.at_ns(t_s).is_some_and(|at| monotonic_ns() > at),
         }
     }
@@ -225,20 +231,23 @@ impl RunClock {
     /// How long after run time `t_s` a sample that took `production_ns` to make reaches
     /// its consumer now, ns, for a producer of period `period_s`. Real time: measured (0
     /// before the start). Lockstep: at once if it was made within its period, else
-    /// [`late_periods`] whole periods late, so that timing violations behave as they would
+    /// [`SimulatedTime::arrival_after_ns`]: whole periods late, so that timing violations behave as they would
     /// in real time (docs/design.md, "Deadlines and fallback").
     pub fn arrival_after_ns(&self, t_s: f64, production_ns: u64, period_s: f64) -> u64 {
         match self.mode {
-            RunMode::Lockstep => late_periods(production_ns, period_s) * period_ns(period_s),
+            RunMode::Lockstep => {
+                SimulatedTime::at(0, self.dt_s).arrival_after_ns(t_s, production_ns, period_s)
+            }
             RunMode::Realtime => self
                 .at_ns(t_s)
                 .map_or(0, |at| monotonic_ns().saturating_sub(at)),
         }
     }
 
-    /// Real time: waits `ns` of run time before what follows is published (a slow
-    /// producer). Lockstep: nothing, since a computation's time is modelled by its
-    /// production time ([`RunClock::arrival_after_ns`]), never slept.
+    /// Real time: holds what follows `ns` (an output of a slow step,
+    /// [`Publish::hold_ns`](protocol::task::Publish)). Lockstep: nothing, since a
+    /// computation's time is modelled by its production time
+    /// ([`RunClock::arrival_after_ns`]), never slept.
     pub fn hold(&self, ns: u64) {
         if self.mode == RunMode::Realtime && ns > 0 {
             std::thread::sleep(std::time::Duration::from_nanos(ns));
@@ -246,20 +255,21 @@ impl RunClock {
     }
 }
 
-/// Lockstep: how many periods of `period_s` a sample that took `production_ns` arrives
-/// late: 0 if it was made within the period, else `ceil(production / period)`.
-pub fn late_periods(production_ns: u64, period_s: f64) -> u64 {
-    let production_s = production_ns as f64 * 1e-9;
-    if production_s <= period_s {
-        0
-    } else {
-        (production_s / period_s).ceil() as u64
+/// A task asks the run's clock ([`protocol::task::Context`]); in process every task is
+/// active, never orphaned, and hears the clock at once.
+impl protocol::task::Context for RunClock {
+    fn has_reached(&self, t_s: f64) -> bool {
+        RunClock::has_reached(self, t_s)
     }
-}
-
-/// A period in whole nanoseconds.
-pub fn period_ns(period_s: f64) -> u64 {
-    (period_s * 1e9).round() as u64
+    fn is_past(&self, t_s: f64) -> bool {
+        RunClock::is_past(self, t_s)
+    }
+    fn now_tick(&self) -> Option<u64> {
+        RunClock::now_tick(self)
+    }
+    fn arrival_after_ns(&self, t_s: f64, production_ns: u64, period_s: f64) -> u64 {
+        RunClock::arrival_after_ns(self, t_s, production_ns, period_s)
+    }
 }
 
 #[cfg(test)]
@@ -268,10 +278,6 @@ mod tests {
 
     #[test]
     fn in_lockstep_plans_within_the_period_are_on_time_and_slower_ones_late_by_whole_periods() {
-        assert_eq!(late_periods(10_000_000, 0.05), 0);
-        assert_eq!(late_periods(50_000_000, 0.05), 0);
-        assert_eq!(late_periods(50_000_001, 0.05), 2);
-        assert_eq!(late_periods(125_000_000, 0.05), 3);
         let clock = RunClock::simulated_at(7, 0.005);
         assert_eq!(clock.arrival_after_ns(0.0, 125_000_000, 0.05), 150_000_000);
         assert_eq!(clock.arrival_after_ns(0.0, 30_000, 0.05), 0);

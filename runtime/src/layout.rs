@@ -7,8 +7,8 @@
 //! is not alignment padding.
 
 use crate::ipc;
-use crate::messages::*;
 use iceoryx2::prelude::ZeroCopySend;
+use protocol::messages::*;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::mem::{align_of, offset_of, size_of};

@@ -1,6 +1,6 @@
 //! The border check on real iceoryx2 topics (each test on a prefix of its own).
 use super::*;
-use crate::{Control, ControlCommand, Header, Measurement, Role};
+use protocol::{Control, ControlCommand, Header, Measurement, Role};
 
 /// A clock by which tick `newest` is the newest any producer can have made.
 struct FixedClock(u64);
@@ -135,7 +135,7 @@ fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
             1
         );
         // A payload of another type (and size) is not even let onto the topic.
-        let other = open_topic::<crate::Estimate>(node, MEASUREMENT);
+        let other = open_topic::<protocol::Estimate>(node, MEASUREMENT);
         assert!(
             other.is_err(),
             "an estimate type opened the measurement topic"

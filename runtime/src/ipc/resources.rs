@@ -49,9 +49,9 @@ pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
 }
 
 /// The role and epoch of a role process's node, from its name (`<role>-<epoch>`).
-pub fn role_of_node(name: &str) -> Option<(crate::Role, u32)> {
+pub fn role_of_node(name: &str) -> Option<(protocol::Role, u32)> {
     let (role, epoch) = name.rsplit_once('-')?;
-    Some((crate::Role::from_name(role)?, epoch.parse().ok()?))
+    Some((protocol::Role::from_name(role)?, epoch.parse().ok()?))
 }
 
 /// Removes a finished run: its resources ([`remove_run_resources`]) and then its entry in

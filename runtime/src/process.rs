@@ -1,13 +1,14 @@
-//! The role runtime: the loop every role process runs, whatever its role.
+//! The loop every role process runs, whatever its role.
 //!
-//! A role opens its inputs and outputs on a [`Link`] and hands [`Link::run`] its step: a
-//! closure that takes what its inputs hold, computes, publishes, and says what it waits
-//! for next ([`Next`]). The runtime owns the rest, in one place:
+//! A process joins its run as a [`Member`] and hands [`Member::run`] its step
+//! ([`crate::serve`] builds it from the role's task): a closure that takes what its inputs
+//! hold, computes, publishes, and says what it waits for next ([`Next`]). The loop owns the
+//! rest, in one place:
 //!
 //! 1. **sync**: control messages are taken straight from shared memory and a changed epoch
 //!    schedule is applied to every input before the step judges a sample by it;
 //! 2. **step**: the role's own work: it hands what its inputs hold to its task
-//!    ([`crate::task`]) and publishes what the task makes (every input sample it takes has
+//!    ([`protocol::task`]) and publishes what the task makes (every input sample it takes has
 //!    passed the border check of [`Receiver`](crate::ipc::Receiver): run, epoch, finite,
 //!    tick order); in real time the process then yields its core once, to a consumer
 //!    spinning there for what it published;
@@ -18,130 +19,32 @@
 //!    wake-up was consumed;
 //! 4. **wait**: until what the step named ([`Next`], in run time): block in the WaitSet
 //!    (control and every input attached), or in real time poll an input around the time
-//!    it has been coming ([`spin_wait`], [`next_arrival_lag_ns`]) or sleep to a
-//!    deadline; in lockstep first poll shared memory for a while ([`lockstep_poll`]); a process that hears nothing for [`INPUT_TIMEOUT`] reports
+//!    it has been coming ([`spin_wait`](crate::wait::spin_wait), [`next_arrival_lag_ns`](crate::wait::next_arrival_lag_ns)) or sleep to a
+//!    deadline; in lockstep first poll shared memory for a while ([`lockstep_poll`](crate::wait::lockstep_poll)); a process that hears nothing for [`INPUT_TIMEOUT`] reports
 //!    [`StatusEvent::InputLost`] and exits. A role that asks for it
-//!    ([`Link::run_warming`]) is warmed up in real time shortly before an input it
+//!    ([`Member::run_warming`]) is warmed up in real time shortly before an input it
 //!    expects.
 //!
 //! The runtime owns time: a step never knows which clock runs. It asks the run's clock
-//! ([`RunClock`], through [`ControlState`]) and names times; the runtime turns them into
+//! ([`RunClock`], through [`ProcessContext`]) and names times; the runtime turns them into
 //! waits (in lockstep time moves with the orchestrator's grants, so a wait for a time is a
 //! wait for the next control message or input; in real time, for the wall clock).
 
 use crate::alloc_count::{ENV_COUNT_ALLOCATIONS, allocations};
 use crate::clock::{RunClock, RunMode, monotonic_ns, sleep_until_ns};
 use crate::ipc::{
-    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, create_node,
+    CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, Wire, create_node,
     open_topic, output_slot, process_alive, wait, waitset,
 };
-use crate::messages::{EpochSchedule, Message};
-use crate::task::Context;
-use crate::{Control, ControlCommand, NO_PRODUCER, Rejection, Role, Status, StatusEvent};
+use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, spin_wait};
+use crate::warm_up::{WarmUpPass, WarmUps};
 use iceoryx2::prelude::*;
+use protocol::messages::EpochSchedule;
+use protocol::task::Context;
+use protocol::{Control, ControlCommand, NO_PRODUCER, Rejection, Role, Status, StatusEvent};
 use std::cell::Cell;
 use std::rc::Rc;
 use std::time::{Duration, Instant};
-
-/// How long before an expected input [`Link::run_warming`] warms its role up at the
-/// earliest, in inner ticks: half a tick, after the last tick of the sample before (when
-/// the plant, the estimator and the DFL are idle too). The first warm-up comes then;
-/// later ones as late as their length allows ([`warm_up_window_ns`]).
-pub const WARM_UP_LEAD_TICKS: f64 = 0.5;
-
-/// How long before an expected input comes the first warm-up for it aims to have ended,
-/// ns: the sleep before it ends late now and then (on this VM, with 250 µs, 10-30 % of
-/// the paper's samples had no warm-up at all; 0.5-5 % with 500 µs), and a warm-up can
-/// take longer than the last one. The time left until the input comes is filled with
-/// more warm-ups ([`Link::run_warming`]).
-pub const WARM_UP_MARGIN_NS: u64 = 500_000;
-
-/// When to warm up for an input due at run time `due_s` and published `arrival_lag_ns`
-/// after its due time ([`next_arrival_lag_ns`]): from and until, monotonic ns; `None` in
-/// lockstep and before the clock has started. What a warm-up brings into the caches is
-/// gone again within a millisecond or so on a virtual machine, even on a core kept busy
-/// (docs/performance.md, "The warm-up, just in time"), so the role warms up until the
-/// input comes (its warm-up looks for it), and at the latest until [`SPIN_BUDGET_NS`]
-/// after it is expected (then it polls for it, [`spin_wait`]). The first warm-up
-/// starts [`WARM_UP_MARGIN_NS`] and as long as the last first one took (`last_ns`), and an
-/// eighth more, before the input is expected; never more than [`WARM_UP_LEAD_TICKS`]
-/// before the due time, where it starts without a last length.
-fn warm_up_window_ns(
-    clock: &RunClock,
-    due_s: f64,
-    arrival_lag_ns: u64,
-    last_ns: Option<u64>,
-) -> Option<(u64, u64)> {
-    let lead_s = WARM_UP_LEAD_TICKS * clock.dt_s();
-    let earliest = clock.at_ns(due_s - lead_s)?;
-    let arrival = clock.at_ns(due_s)? + arrival_lag_ns;
-    let from = last_ns.map_or(earliest, |last_ns| {
-        arrival
-            .saturating_sub(last_ns + last_ns / 8 + WARM_UP_MARGIN_NS)
-            .max(earliest)
-    });
-    Some((from, arrival + SPIN_BUDGET_NS))
-}
-
-/// The warm-ups of a role before its expected inputs ([`Link::run_warming`]): the input
-/// they are for (its due time, s), until when (monotonic ns), whether the first one for it
-/// is still to come, and how long the first one for the last input took (ns), which times
-/// the next window ([`warm_up_window_ns`]).
-#[derive(Debug, Default)]
-struct WarmUps {
-    due_s: Option<f64>,
-    until_ns: u64,
-    first_to_come: bool,
-    first_took_ns: Option<u64>,
-}
-
-/// What a pass of a role warming up does before the input it expects ([`WarmUps::next`]).
-#[derive(Debug, PartialEq)]
-enum WarmUpPass {
-    /// The first pass expecting the input: sleep to the window's start (monotonic ns).
-    SleepTo(u64),
-    /// Warm up: the window is open and the input has not come (the step of this pass
-    /// would have taken it).
-    WarmUp,
-    /// Nothing: lockstep, the clock not started, or the window over (the role then polls
-    /// or waits for the input).
-    Wait,
-}
-
-impl WarmUps {
-    /// What this pass does before the input due at run time `due_s`, `now_ns` monotonic.
-    fn next(
-        &mut self,
-        clock: &RunClock,
-        due_s: f64,
-        arrival_lag_ns: u64,
-        now_ns: u64,
-    ) -> WarmUpPass {
-        if self.due_s != Some(due_s) {
-            self.due_s = Some(due_s);
-            self.first_to_come = true;
-            let window = warm_up_window_ns(clock, due_s, arrival_lag_ns, self.first_took_ns);
-            self.until_ns = window.map_or(0, |(_, until)| until);
-            return window.map_or(WarmUpPass::Wait, |(from, _)| WarmUpPass::SleepTo(from));
-        }
-        if now_ns < self.until_ns {
-            WarmUpPass::WarmUp
-        } else {
-            WarmUpPass::Wait
-        }
-    }
-
-    /// After a warm-up from `started_ns` to `ended_ns`, `came`: whether the input has come.
-    /// The first one for an input times the next window; one cut short (at the window's
-    /// end, or by the input) would have taken longer, so it counts twice.
-    fn warmed(&mut self, started_ns: u64, ended_ns: u64, came: bool) {
-        if std::mem::take(&mut self.first_to_come) {
-            let took_ns = ended_ns.saturating_sub(started_ns);
-            let cut = ended_ns >= self.until_ns || came;
-            self.first_took_ns = Some(if cut { 2 * took_ns } else { took_ns });
-        }
-    }
-}
 
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
@@ -150,7 +53,7 @@ pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
 /// What a role process is started with.
 #[derive(Debug, Clone)]
 pub struct ProcessArgs {
-    pub scenario: crate::Validated,
+    pub scenario: protocol::Validated,
     pub prefix: String,
     pub mode: RunMode,
     pub epoch: u32,
@@ -164,7 +67,7 @@ pub struct ProcessArgs {
 /// How often a role process looks whether its orchestrator still lives.
 pub const SUPERVISOR_CHECK: Duration = Duration::from_millis(100);
 /// Real time: how long a role process runs on once its orchestrator is gone, so the DFL
-/// brakes the robot to rest ([`ControlState::orphaned`]), before it exits. In lockstep
+/// brakes the robot to rest ([`ProcessContext::orphaned`]), before it exits. In lockstep
 /// nothing moves without the orchestrator's grants and a process exits at once.
 pub const ORPHAN_GRACE: Duration = Duration::from_millis(1500);
 
@@ -181,7 +84,7 @@ pub enum ProcessError {
 
 /// What the orchestrator has said so far, and what a step is told ([`Context`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ControlState {
+pub struct ProcessContext {
     role: Role,
     epoch: u32,
     /// The run's clock, as the grants and the start command set it.
@@ -192,7 +95,7 @@ pub struct ControlState {
     /// that joins a running loop hears it before any grant of its own).
     pub heard_tick: Option<u64>,
     pub stopped: bool,
-    /// A replay was asked for and not yet done (see [`ControlState::take_replay`]).
+    /// A replay was asked for and not yet done (see [`ProcessContext::take_replay`]).
     pub replay: bool,
     /// The newest epoch schedule (`None` before the first control message).
     pub schedule: Option<EpochSchedule>,
@@ -201,9 +104,9 @@ pub struct ControlState {
     pub orphaned: bool,
 }
 
-impl ControlState {
-    fn new(role: Role, epoch: u32, clock: RunClock) -> ControlState {
-        ControlState {
+impl ProcessContext {
+    fn new(role: Role, epoch: u32, clock: RunClock) -> ProcessContext {
+        ProcessContext {
             role,
             epoch,
             clock,
@@ -238,9 +141,21 @@ impl ControlState {
     }
 }
 
-impl Context for ControlState {
-    fn clock(&self) -> &RunClock {
-        &self.clock
+impl Context for ProcessContext {
+    fn has_reached(&self, t_s: f64) -> bool {
+        self.clock.has_reached(t_s)
+    }
+
+    fn is_past(&self, t_s: f64) -> bool {
+        self.clock.is_past(t_s)
+    }
+
+    fn now_tick(&self) -> Option<u64> {
+        self.clock.now_tick()
+    }
+
+    fn arrival_after_ns(&self, t_s: f64, production_ns: u64, period_s: f64) -> u64 {
+        self.clock.arrival_after_ns(t_s, production_ns, period_s)
     }
 
     /// Whether this process's samples of `tick` are the ones taken (false before the
@@ -265,7 +180,7 @@ pub enum Next<'a> {
     /// An input or a control message, and in real time at most until the time given
     /// (`None`: [`INPUT_TIMEOUT`]).
     Wait(Option<f64>),
-    /// `input` is due at `at_s`: in real time poll for it around then ([`spin_wait`])
+    /// `input` is due at `at_s`: in real time poll for it around then ([`spin_wait`](crate::wait::spin_wait))
     /// rather than wake on its event, and block if it does not come; in lockstep wait.
     Expect { input: &'a dyn Input, at_s: f64 },
     /// The step is due again at `at_s`: in real time sleep until then; in lockstep wait
@@ -296,7 +211,7 @@ pub const GRANT_IN_FLIGHT: u64 = 1;
 /// [`TICK_SLACK`] ([`RunClock::newest_publishable`]).
 struct RoleClock {
     control: Receiver<Control>,
-    state: Cell<ControlState>,
+    state: Cell<ProcessContext>,
 }
 
 impl RoleClock {
@@ -327,7 +242,7 @@ impl TickLimit for RoleClock {
 
 /// A role process's connection to the orchestrator: its node, the control topic it
 /// obeys (its clock) and the status topic it reports on.
-pub struct Link {
+pub struct Member {
     role: Role,
     epoch: u32,
     supervisor_pid: Option<u32>,
@@ -339,8 +254,8 @@ pub struct Link {
     node: Node<ipc::Service>,
 }
 
-impl Link {
-    pub fn open(args: &ProcessArgs, role: Role) -> Result<Link, IpcError> {
+impl Member {
+    pub fn open(args: &ProcessArgs, role: Role) -> Result<Member, IpcError> {
         let node = create_node(
             &args.prefix,
             &format!("{}-{}", role.as_str(), args.epoch),
@@ -352,14 +267,14 @@ impl Link {
         }
         let clock = Rc::new(RoleClock {
             control,
-            state: Cell::new(ControlState::new(
+            state: Cell::new(ProcessContext::new(
                 role,
                 args.epoch,
                 RunClock::new(args.mode, args.scenario.timing.dt_s()),
             )),
         });
         let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
-        Ok(Link {
+        Ok(Member {
             node,
             role,
             epoch: args.epoch,
@@ -371,7 +286,7 @@ impl Link {
     }
 
     /// An input taking samples of topic `name` from the active process of `producer`.
-    pub fn input<T: Message>(
+    pub fn input<T: Wire>(
         &self,
         name: &'static str,
         producer: Role,
@@ -382,7 +297,7 @@ impl Link {
     }
 
     /// An output publishing on topic `name` with this process's epoch.
-    pub fn output<T: Message>(&self, name: &'static str) -> Result<Sender<T>, IpcError> {
+    pub fn output<T: Wire>(&self, name: &'static str) -> Result<Sender<T>, IpcError> {
         open_topic::<T>(&self.node, name)?.sender(self.epoch)
     }
 
@@ -401,7 +316,7 @@ impl Link {
     }
 
     /// Ready, with the publisher of each of `outputs` its consumers are to pin
-    /// ([`EpochSchedule::pin`](crate::EpochSchedule::pin)).
+    /// ([`EpochSchedule::pin`](protocol::EpochSchedule::pin)).
     fn report_ready(&self, outputs: &[&dyn Output]) -> Result<(), IpcError> {
         let mut status = self.status_of(StatusEvent::Ready);
         for output in outputs {
@@ -416,31 +331,31 @@ impl Link {
     /// fails (module docs). `step` is called on every wake-up with what the orchestrator
     /// has said; it takes from `inputs` and publishes on `outputs`, which the runtime
     /// attaches to its WaitSet, keeps in step with the epoch schedule and replays.
-    pub fn run<'i>(
+    pub(crate) fn run<'i>(
         &self,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
-        step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        step: impl FnMut(&ProcessContext) -> Result<Next<'i>, ProcessError>,
     ) -> Result<(), ProcessError> {
         self.run_warming(inputs, outputs, step, None::<fn(u64)>)
     }
 
-    /// [`Link::run`] for a role that idles between periodic inputs and whose step would
+    /// [`Member::run`] for a role that idles between periodic inputs and whose step would
     /// start with cold caches after sleeping (the MPC, asleep for most of `Ts`).
     ///
     /// In real time, for each input it expects ([`Next::Expect`]), the runtime sleeps until
     /// shortly before the input comes and from there calls `warm_up` again and again, a pass
     /// of the step between two (which takes the input once it has come), until the input
-    /// comes or the window ends ([`warm_up_window_ns`]). `warm_up` is given the window's end
+    /// comes or the window ends ([`warm_up_window_ns`](crate::warm_up)). `warm_up` is given the window's end
     /// (monotonic ns) and must stop by then, and should stop as soon as the input comes
     /// (the MPC's stops its solves): what it warms fades within a millisecond, so the step
     /// is to follow it at once. Lockstep never calls it: its processes never sleep for a
     /// time, and `warm_up` may not change what the step computes.
-    pub fn run_warming<'i>(
+    pub(crate) fn run_warming<'i>(
         &self,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
-        mut step: impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        mut step: impl FnMut(&ProcessContext) -> Result<Next<'i>, ProcessError>,
         mut warm_up: Option<impl FnMut(u64)>,
     ) -> Result<(), ProcessError> {
         let waitset = waitset(true)?;
@@ -482,20 +397,20 @@ impl Link {
         result
     }
 
-    /// The loop of [`Link::run_warming`]; `each_pass` is called once per pass, after the
+    /// The loop of [`Member::run_warming`]; `each_pass` is called once per pass, after the
     /// step.
     fn drive<'i>(
         &self,
         waitset: &WaitSet<ipc::Service>,
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
-        step: &mut impl FnMut(&ControlState) -> Result<Next<'i>, ProcessError>,
+        step: &mut impl FnMut(&ProcessContext) -> Result<Next<'i>, ProcessError>,
         mut warm_up: Option<&mut impl FnMut(u64)>,
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
         let mut warm_ups = WarmUps::default();
         // Real time: how long after its due time the expected input is published
-        // ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input),
+        // ([`next_arrival_lag_ns`](crate::wait::next_arrival_lag_ns); one lag, as every role expects one periodic input),
         // and the input polled for with its due time, ns.
         let mut arrival_lag_ns = 0;
         let mut polled: Option<(&dyn Input, u64)> = None;
@@ -723,209 +638,5 @@ impl Link {
             Wake::Timeout if last_input.elapsed() < INPUT_TIMEOUT => Ok(true),
             Wake::Timeout => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
         }
-    }
-}
-
-/// Real time: how long before an expected sample a consumer starts polling for it, ns.
-pub const SPIN_LEAD_NS: u64 = 50_000;
-/// Real time: how long after the expected time a consumer keeps polling before it falls
-/// back to blocking in its WaitSet, ns.
-pub const SPIN_BUDGET_NS: u64 = 300_000;
-
-/// Real time: how late a sleep of a role process ends on a virtual machine, ns (50 µs of
-/// Linux's default timer slack and the wake-up): a spin aimed at an input's expected
-/// publication starts this much earlier still, or it would start after the sample came.
-pub const WAKE_LATENESS_NS: u64 = 100_000;
-
-/// Real time: how long after its due time `due_ns` a periodic input is expected to be
-/// published next, ns: from `lag_ns`, the estimate so far, and the publication time of the
-/// sample taken for that due time, a low quantile of the lags (down to a shorter lag at
-/// once, up by an eighth of a longer one), at most half an inner tick of `dt_s` s. A
-/// sample is due at its tick's time but comes after its producer's chain has run (the
-/// estimate 0.15-0.27 ms after the sample in the paper's real-time run): a consumer
-/// spinning from the due time would take a core from that chain. A sample published more
-/// than half a tick before its due time is an older one: not counted.
-pub fn next_arrival_lag_ns(lag_ns: u64, published_ns: u64, due_ns: u64, dt_s: f64) -> u64 {
-    let half_tick_ns = (0.5 * dt_s * 1e9) as u64;
-    if published_ns + half_tick_ns < due_ns {
-        return lag_ns;
-    }
-    let seen_ns = published_ns.saturating_sub(due_ns);
-    let next = if seen_ns <= lag_ns {
-        seen_ns
-    } else {
-        lag_ns + (seen_ns - lag_ns) / 8
-    };
-    next.min(half_tick_ns)
-}
-
-/// Lockstep: how long a process polls shared memory for its next input, yielding its
-/// core between polls, before it blocks: longer than a lockstep tick with an MPC step
-/// (the others take ~100 µs); 0.3 ms did worse, 3 ms no better (docs/performance.md).
-pub const LOCKSTEP_POLL_NS: u64 = 1_000_000;
-
-/// Lockstep: polls `ready` (which must not make a system call to be worth it) for at most
-/// [`LOCKSTEP_POLL_NS`], yielding the core between polls, so that the process whose turn it
-/// is runs at once; whether `ready` came to hold. With every process of a run in the
-/// chain of a tick, one runs at a time: the others' polls cost it little.
-pub fn lockstep_poll(mut ready: impl FnMut() -> bool) -> bool {
-    let give_up = monotonic_ns() + LOCKSTEP_POLL_NS;
-    loop {
-        if ready() {
-            return true;
-        }
-        if monotonic_ns() >= give_up {
-            return false;
-        }
-        std::thread::yield_now();
-    }
-}
-
-/// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
-/// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
-/// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
-/// periodic input's known arrival time does not (measured: docs/design.md, "Clocks").
-pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
-    sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
-    let give_up = expected_ns + SPIN_BUDGET_NS;
-    while monotonic_ns() < give_up {
-        if ready() {
-            return true;
-        }
-        std::hint::spin_loop();
-    }
-    ready()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_lockstep_poll_returns_once_ready_and_gives_up_after_its_budget() {
-        let mut polls = 0;
-        assert!(lockstep_poll(|| {
-            polls += 1;
-            polls == 3
-        }));
-        assert_eq!(polls, 3, "it returns at the first poll that is ready");
-        let started = monotonic_ns();
-        assert!(!lockstep_poll(|| false));
-        assert!(monotonic_ns() - started >= LOCKSTEP_POLL_NS);
-    }
-
-    #[test]
-    fn the_expected_lag_of_an_input_falls_at_once_rises_by_an_eighth_and_ignores_old_samples() {
-        let (dt_s, due) = (0.005, 1_000_000_000);
-        // Published 240 µs after its due time: the lag rises by an eighth of the gap.
-        assert_eq!(next_arrival_lag_ns(0, due + 240_000, due, dt_s), 30_000);
-        assert_eq!(
-            next_arrival_lag_ns(30_000, due + 240_000, due, dt_s),
-            56_250
-        );
-        // An earlier one: down to its lag at once (before the due time: 0).
-        assert_eq!(next_arrival_lag_ns(56_250, due + 10_000, due, dt_s), 10_000);
-        assert_eq!(next_arrival_lag_ns(56_250, due - 20_000, due, dt_s), 0);
-        // A sample of an earlier tick says nothing of this one's lag.
-        assert_eq!(
-            next_arrival_lag_ns(56_250, due - 4_000_000, due, dt_s),
-            56_250
-        );
-        // Never past half a tick, however late the producer.
-        let mut lag = 0;
-        for _ in 0..200 {
-            lag = next_arrival_lag_ns(lag, due + 20_000_000, due, dt_s);
-        }
-        assert_eq!(lag, 2_500_000);
-    }
-
-    #[test]
-    fn the_first_warm_up_comes_half_a_tick_before_an_expected_input_in_real_time_only() {
-        let dt_s = 0.005;
-        let mut realtime = RunClock::new(RunMode::Realtime, dt_s);
-        assert_eq!(
-            warm_up_window_ns(&realtime, 1.0, 0, None),
-            None,
-            "not started"
-        );
-        realtime.start(1_000_000_000);
-        // Due at 1 s of run time (2 s monotonic), coming 0.2 ms later: from 2.5 ms before
-        // the due time until polling for the input would give up.
-        assert_eq!(
-            warm_up_window_ns(&realtime, 1.0, 200_000, None),
-            Some((1_997_500_000, 2_000_200_000 + SPIN_BUDGET_NS))
-        );
-        let mut lockstep = RunClock::new(RunMode::Lockstep, dt_s);
-        lockstep.grant(199);
-        assert_eq!(warm_up_window_ns(&lockstep, 1.0, 0, Some(100_000)), None);
-    }
-
-    #[test]
-    fn warm_ups_start_their_margin_and_the_last_ones_length_before_the_input_comes() {
-        let mut realtime = RunClock::new(RunMode::Realtime, 0.005);
-        realtime.start(1_000_000_000);
-        // Due at 2 s monotonic, coming 0.2 ms later; the last first warm-up took 160 µs:
-        // from 180 µs and the margin before the input comes, until polling would give up.
-        let arrival = 2_000_200_000;
-        let until = arrival + SPIN_BUDGET_NS;
-        assert_eq!(
-            warm_up_window_ns(&realtime, 1.0, 200_000, Some(160_000)),
-            Some((arrival - 180_000 - WARM_UP_MARGIN_NS, until))
-        );
-        // A long one starts no earlier than half a tick before the due time.
-        assert_eq!(
-            warm_up_window_ns(&realtime, 1.0, 200_000, Some(2_400_000)),
-            Some((1_997_500_000, until))
-        );
-    }
-
-    #[test]
-    fn warm_ups_repeat_until_their_window_ends_and_the_first_ones_length_times_the_next() {
-        let mut realtime = RunClock::new(RunMode::Realtime, 0.005);
-        realtime.start(1_000_000_000);
-        let lag = 200_000;
-        let mut warm_ups = WarmUps::default();
-        // The input due at 1 s of run time (2 s monotonic) comes 0.2 ms later. The first
-        // pass expecting it sleeps to half a tick before its due time.
-        let arrival = 2_000_200_000;
-        assert_eq!(
-            warm_ups.next(&realtime, 1.0, lag, 1_990_000_000),
-            WarmUpPass::SleepTo(1_997_500_000)
-        );
-        // From there every pass warms up, until polling for the input would give up.
-        assert_eq!(
-            warm_ups.next(&realtime, 1.0, lag, 1_997_500_000),
-            WarmUpPass::WarmUp
-        );
-        warm_ups.warmed(1_997_500_000, 1_997_660_000, false);
-        assert_eq!(
-            warm_ups.next(&realtime, 1.0, lag, 1_997_700_000),
-            WarmUpPass::WarmUp
-        );
-        warm_ups.warmed(1_997_700_000, 1_997_750_000, true);
-        assert_eq!(
-            warm_ups.next(&realtime, 1.0, lag, arrival + SPIN_BUDGET_NS),
-            WarmUpPass::Wait
-        );
-        // The next input's window starts by the first warm-up's 160 µs (the later one,
-        // cut short by the input, does not count), an eighth more and the margin.
-        let arrival = arrival + 500_000_000;
-        assert_eq!(
-            warm_ups.next(&realtime, 1.5, lag, arrival - 3_000_000),
-            WarmUpPass::SleepTo(arrival - 180_000 - WARM_UP_MARGIN_NS)
-        );
-        // A first warm-up cut short by the input counts twice its 100 µs.
-        warm_ups.warmed(arrival - 500_000, arrival - 400_000, true);
-        let arrival = arrival + 500_000_000;
-        assert_eq!(
-            warm_ups.next(&realtime, 2.0, lag, arrival - 3_000_000),
-            WarmUpPass::SleepTo(arrival - 225_000 - WARM_UP_MARGIN_NS)
-        );
-        // Lockstep never warms up.
-        let mut lockstep = RunClock::new(RunMode::Lockstep, 0.005);
-        lockstep.grant(199);
-        let mut warm_ups = WarmUps::default();
-        assert_eq!(warm_ups.next(&lockstep, 1.0, 0, 0), WarmUpPass::Wait);
-        assert_eq!(warm_ups.next(&lockstep, 1.0, 0, 0), WarmUpPass::Wait);
     }
 }

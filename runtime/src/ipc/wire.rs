@@ -8,7 +8,7 @@
 //! a value of the type; whether it makes sense is the consumers' border check.
 
 use super::*;
-use crate::messages::*;
+use protocol::messages::*;
 
 /// A subscriber that hands over each sample's bytes as they are in shared memory.
 pub trait WireTap {
@@ -33,12 +33,12 @@ pub trait WireRelay {
     fn publisher_id(&self) -> u128;
 }
 
-struct Tap<T: Message> {
+struct Tap<T: Wire> {
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
 }
 
-impl<T: Message> WireTap for Tap<T> {
+impl<T: Wire> WireTap for Tap<T> {
     fn listener(&self) -> &Listener<ipc::Service> {
         &self.listener
     }
@@ -61,12 +61,12 @@ impl<T: Message> WireTap for Tap<T> {
     }
 }
 
-struct Relay<T: Message> {
+struct Relay<T: Wire> {
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
 }
 
-impl<T: Message> WireRelay for Relay<T> {
+impl<T: Wire> WireRelay for Relay<T> {
     fn relay(
         &self,
         bytes: &[u8],
@@ -88,7 +88,7 @@ impl<T: Message> WireRelay for Relay<T> {
     }
 }
 
-impl<T: Message> Topic<T> {
+impl<T: Wire> Topic<T> {
     fn tap(&self) -> Result<Tap<T>, IpcError> {
         let (subscriber, listener) = self.subscribing_ports()?;
         Ok(Tap {
@@ -138,14 +138,14 @@ macro_rules! by_topic {
     };
 }
 
-fn tap_of<T: Message>(
+fn tap_of<T: Wire>(
     name: &'static str,
     node: &Node<ipc::Service>,
 ) -> Result<Box<dyn WireTap>, IpcError> {
     Ok(Box::new(open_topic::<T>(node, name)?.tap()?))
 }
 
-fn relay_of<T: Message>(
+fn relay_of<T: Wire>(
     name: &'static str,
     node: &Node<ipc::Service>,
 ) -> Result<Box<dyn WireRelay>, IpcError> {

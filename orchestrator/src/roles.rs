@@ -1,0 +1,41 @@
+//! Every role `scmpc` runs, and its task: the one place a role is registered. Adding a
+//! role is a crate with its [`Task`], a variant of [`Role`] with its topics in the data
+//! flow ([`protocol::topics::DATA_FLOW`]), and a line in [`roles!`] below; both executors
+//! then run it (docs/design.md, "Roles and tasks").
+
+use crate::closed_loop::Stepped;
+use protocol::task::{Task, TaskError};
+use protocol::{Role, Validated};
+use runtime::process::{ProcessArgs, ProcessError};
+
+/// Declares, for every role, how a process of it runs ([`serve`]) and how the in-process
+/// executor makes its task ([`in_process`]).
+macro_rules! roles {
+    ($($role:ident => $task:ty),* $(,)?) => {
+        /// Runs a process of `role` until the orchestrator stops it ([`runtime::serve`]).
+        pub fn serve(role: Role, args: &ProcessArgs) -> Result<(), ProcessError> {
+            match role {
+                $(Role::$role => runtime::serve::<$task>(args),)*
+            }
+        }
+
+        /// The task of `role` for the in-process executor, with producer epoch `epoch`.
+        pub fn in_process(
+            role: Role,
+            scenario: &Validated,
+            epoch: u32,
+        ) -> Result<Box<dyn Stepped>, TaskError> {
+            match role {
+                $(Role::$role => Ok(Box::new(<$task as Task>::new(scenario, epoch)?)),)*
+            }
+        }
+    };
+}
+
+roles! {
+    Plant => plant::PlantTask,
+    Estimator => estimator::EstimatorTask,
+    Mpc => mpc::MpcTask,
+    Dfl => dfl::DflTask,
+    Planner => planner::PlannerTask,
+}

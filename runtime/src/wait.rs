@@ -1,0 +1,118 @@
+//! How a role process waits for an input: polling shared memory in lockstep, a short
+//! scheduled spin around a periodic input's known arrival time in real time.
+
+use crate::clock::{monotonic_ns, sleep_until_ns};
+
+/// Real time: how long before an expected sample a consumer starts polling for it, ns.
+pub const SPIN_LEAD_NS: u64 = 50_000;
+/// Real time: how long after the expected time a consumer keeps polling before it falls
+/// back to blocking in its WaitSet, ns.
+pub const SPIN_BUDGET_NS: u64 = 300_000;
+
+/// Real time: how late a sleep of a role process ends on a virtual machine, ns (50 µs of
+/// Linux's default timer slack and the wake-up): a spin aimed at an input's expected
+/// publication starts this much earlier still, or it would start after the sample came.
+pub const WAKE_LATENESS_NS: u64 = 100_000;
+
+/// Real time: how long after its due time `due_ns` a periodic input is expected to be
+/// published next, ns: from `lag_ns`, the estimate so far, and the publication time of the
+/// sample taken for that due time, a low quantile of the lags (down to a shorter lag at
+/// once, up by an eighth of a longer one), at most half an inner tick of `dt_s` s. A
+/// sample is due at its tick's time but comes after its producer's chain has run (the
+/// estimate 0.15-0.27 ms after the sample in the paper's real-time run): a consumer
+/// spinning from the due time would take a core from that chain. A sample published more
+/// than half a tick before its due time is an older one: not counted.
+pub fn next_arrival_lag_ns(lag_ns: u64, published_ns: u64, due_ns: u64, dt_s: f64) -> u64 {
+    let half_tick_ns = (0.5 * dt_s * 1e9) as u64;
+    if published_ns + half_tick_ns < due_ns {
+        return lag_ns;
+    }
+    let seen_ns = published_ns.saturating_sub(due_ns);
+    let next = if seen_ns <= lag_ns {
+        seen_ns
+    } else {
+        lag_ns + (seen_ns - lag_ns) / 8
+    };
+    next.min(half_tick_ns)
+}
+
+/// Lockstep: how long a process polls shared memory for its next input, yielding its
+/// core between polls, before it blocks: longer than a lockstep tick with an MPC step
+/// (the others take ~100 µs); 0.3 ms did worse, 3 ms no better (docs/performance.md).
+pub const LOCKSTEP_POLL_NS: u64 = 1_000_000;
+
+/// Lockstep: polls `ready` (which must not make a system call to be worth it) for at most
+/// [`LOCKSTEP_POLL_NS`], yielding the core between polls, so that the process whose turn it
+/// is runs at once; whether `ready` came to hold. With every process of a run in the
+/// chain of a tick, one runs at a time: the others' polls cost it little.
+pub fn lockstep_poll(mut ready: impl FnMut() -> bool) -> bool {
+    let give_up = monotonic_ns() + LOCKSTEP_POLL_NS;
+    loop {
+        if ready() {
+            return true;
+        }
+        if monotonic_ns() >= give_up {
+            return false;
+        }
+        std::thread::yield_now();
+    }
+}
+
+/// Real time: sleeps until [`SPIN_LEAD_NS`] before `expected_ns`, then polls `ready` until it
+/// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
+/// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
+/// periodic input's known arrival time does not (measured: docs/design.md, "Clocks").
+pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
+    sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
+    let give_up = expected_ns + SPIN_BUDGET_NS;
+    while monotonic_ns() < give_up {
+        if ready() {
+            return true;
+        }
+        std::hint::spin_loop();
+    }
+    ready()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_lockstep_poll_returns_once_ready_and_gives_up_after_its_budget() {
+        let mut polls = 0;
+        assert!(lockstep_poll(|| {
+            polls += 1;
+            polls == 3
+        }));
+        assert_eq!(polls, 3, "it returns at the first poll that is ready");
+        let started = monotonic_ns();
+        assert!(!lockstep_poll(|| false));
+        assert!(monotonic_ns() - started >= LOCKSTEP_POLL_NS);
+    }
+
+    #[test]
+    fn the_expected_lag_of_an_input_falls_at_once_rises_by_an_eighth_and_ignores_old_samples() {
+        let (dt_s, due) = (0.005, 1_000_000_000);
+        // Published 240 µs after its due time: the lag rises by an eighth of the gap.
+        assert_eq!(next_arrival_lag_ns(0, due + 240_000, due, dt_s), 30_000);
+        assert_eq!(
+            next_arrival_lag_ns(30_000, due + 240_000, due, dt_s),
+            56_250
+        );
+        // An earlier one: down to its lag at once (before the due time: 0).
+        assert_eq!(next_arrival_lag_ns(56_250, due + 10_000, due, dt_s), 10_000);
+        assert_eq!(next_arrival_lag_ns(56_250, due - 20_000, due, dt_s), 0);
+        // A sample of an earlier tick says nothing of this one's lag.
+        assert_eq!(
+            next_arrival_lag_ns(56_250, due - 4_000_000, due, dt_s),
+            56_250
+        );
+        // Never past half a tick, however late the producer.
+        let mut lag = 0;
+        for _ in 0..200 {
+            lag = next_arrival_lag_ns(lag, due + 20_000_000, due, dt_s);
+        }
+        assert_eq!(lag, 2_500_000);
+    }
+}
