@@ -4,9 +4,9 @@
 use dfl::Dfl;
 use estimator::Estimator;
 use mpc::Mpc;
-use orchestrator::closed_loop::ClosedLoop;
 use plant::Plant;
 use protocol::{Estimate, Header, Obstacle, Plan, Scenario};
+use run::closed_loop::ClosedLoop;
 
 fn main() {
     divan::main();
@@ -185,11 +185,11 @@ fn plant_step(bencher: divan::Bencher) {
 }
 
 /// One route search ([`planner::TangentGraph::shortest_path`]) per iteration, over 1000
-/// random fields of `n` discs in turn (`orchestrator::bench::planning_field`): the median
+/// random fields of `n` discs in turn (`study::bench::planning_field`): the median
 /// is the median field's (`scmpc bench` reports p50 and p99).
 #[divan::bench(args = [5, 20], sample_count = 1000)]
 fn route_planning(bencher: divan::Bencher, n: usize) {
-    use orchestrator::bench::{PLANNING_FIELDS, PLANNING_START, planning_field};
+    use study::bench::{PLANNING_FIELDS, PLANNING_START, planning_field};
     let fields: Vec<Vec<planner::Disc>> = (0..PLANNING_FIELDS)
         .map(|seed| planning_field(seed, n))
         .collect();

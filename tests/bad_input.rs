@@ -502,3 +502,52 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         problems.join("\n")
     );
 }
+
+#[test]
+fn a_file_or_directory_named_like_a_built_in_does_not_shadow_it_and_a_name_of_neither_names_both() {
+    let dir = tempfile::tempdir().unwrap();
+    // A directory `paper` and a broken file `field` where the user works.
+    std::fs::create_dir(dir.path().join("paper")).unwrap();
+    std::fs::write(dir.path().join("field"), "not = [toml").unwrap();
+    std::fs::write(dir.path().join("mine"), "").unwrap();
+    let in_dir = |args: &[&str]| {
+        common::scmpc()
+            .args(args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    for name in ["paper", "field"] {
+        let out = in_dir(&[
+            "run",
+            name,
+            "--in-process",
+            "--no-mcap",
+            "--set",
+            "duration_s=0.5",
+            "--out",
+            &format!("run-{name}"),
+        ]);
+        assert_ne!(out.status.code(), Some(2), "{name}: {}", stderr(&out));
+        let summary = common::summary(&dir.path().join(format!("run-{name}")));
+        assert_eq!(summary["scenario"], name);
+    }
+    // A name that is no built-in: both ways to name a scenario, and the file that is there.
+    let out = in_dir(&["run", "mine", "--in-process"]);
+    let msg = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{msg}");
+    assert!(
+        msg.contains("not a built-in scenario (paper, paper-noisy, field")
+            && msg.contains("`./mine`"),
+        "{msg}"
+    );
+    // A path that is no file: the built-ins are named too.
+    let out = in_dir(&["run", "./nosuch.toml", "--in-process"]);
+    let msg = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{msg}");
+    assert!(
+        msg.contains("./nosuch.toml: cannot read the scenario file")
+            && msg.contains("a built-in scenario is named without a path separator or `.toml`"),
+        "{msg}"
+    );
+}

@@ -4,7 +4,7 @@
 mod common;
 
 use common::{run, stderr, summary};
-use orchestrator::schema::Table;
+use record::schema::Table;
 use std::path::Path;
 
 /// Trajectory rows as `(t, zeta, u2, mode)`.

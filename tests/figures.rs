@@ -5,7 +5,7 @@
 mod common;
 
 use common::{csv, num, run, scmpc, stderr};
-use orchestrator::schema::Table;
+use record::schema::Table;
 use std::path::Path;
 
 /// Pixels of a PNG figure: `(width, height, distinct colours, share of non-white pixels)`.
@@ -164,4 +164,44 @@ fn a_font_file_that_cannot_be_read_is_named_and_the_run_keeps_its_records() {
     );
     assert!(dir.path().join("trajectory.csv").exists());
     assert!(!dir.path().join("path.png").exists());
+}
+
+#[test]
+fn ctrl_c_stops_scmpc_figures_during_its_solve_time_comparison_and_names_the_signal() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = scmpc()
+        .args(["figures", "--out", dir.path().to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The comparison of the first horizon has begun once its closed loop has run (its
+    // trajectory recorded): from there it solves every state in both formulations.
+    let first = dir.path().join("runs/solve-time-n-8/summary.json");
+    assert!(
+        common::wait_for(std::time::Duration::from_secs(300), || first.exists()),
+        "the solve-time comparison never began"
+    );
+    let signalled = std::time::Instant::now();
+    // SAFETY: plain kill(2) of our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let exited = common::wait_for(std::time::Duration::from_secs(5), || {
+        child.try_wait().unwrap().is_some()
+    });
+    let took = signalled.elapsed();
+    if !exited {
+        let _ = child.kill();
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(exited, "still running 5 s after SIGINT");
+    // What it takes from the signal to the exit is measured (docs/performance.md), not
+    // asserted here beyond that it is not the rest of the comparison (seconds).
+    assert!(took < std::time::Duration::from_secs(2), "took {took:?}");
+    assert_ne!(out.status.code(), Some(0));
+    assert!(
+        stderr(&out).contains("interrupted by SIGINT"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("solve_times.csv").exists());
 }

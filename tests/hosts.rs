@@ -4,7 +4,7 @@
 mod common;
 
 use common::{events, leftovers, run, scmpc, stderr, summary, wait_for};
-use orchestrator::schema::Table;
+use record::schema::Table;
 use runtime::ipc::process_alive;
 use std::io::{BufRead, BufReader};
 use std::path::Path;

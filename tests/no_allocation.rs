@@ -5,8 +5,8 @@
 //! role's pass includes handing what it gave to its consumers. The real-time MPC's warm-up
 //! (`Mpc::warm_up`) is counted with the steps it comes before.
 
-use orchestrator::closed_loop::ClosedLoop;
 use protocol::{CommandMode, Scenario};
+use run::closed_loop::ClosedLoop;
 use runtime::alloc_count::{Counting, allocations as allocated};
 
 #[global_allocator]
@@ -86,8 +86,7 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
     // (replans by period, stall or stray included), both programs.
     for qp_form in ["sparse", "condensed"] {
         let field =
-            orchestrator::scenarios::load(Some("field"), &[format!("mpc.qp_form={qp_form}")])
-                .unwrap();
+            run::scenarios::load(Some("field"), &[format!("mpc.qp_form={qp_form}")]).unwrap();
         let (counts, _) = count_whole_run(&field);
         assert_eq!(
             counts, [0; 5],

@@ -8,7 +8,7 @@ mod common;
 
 use common::python::{python, read_mcap, repo, run_python};
 use common::{events, run, stderr};
-use orchestrator::schema::Table;
+use record::schema::Table;
 
 #[test]
 fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {

@@ -6,7 +6,7 @@ use common::{
     events, kill_role_during_run, leftovers, scmpc, sigkill, spawn_run, summary, wait_for,
     wait_for_pid,
 };
-use orchestrator::schema::Table;
+use record::schema::Table;
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::Stdio;
@@ -310,7 +310,7 @@ fn a_role_process_dying_inside_a_wrapper_is_caught_by_dead_node_detection() {
 /// `kill_time_s` (simulated), `trajectory.csv` and `run.mcap` reach within a second of the
 /// kill (in lockstep a second of wall time is tens of simulated seconds).
 fn records_survive(dir: &Path, kill_time_s: Option<f64>) {
-    assert!(dir.join(orchestrator::record::INCOMPLETE).exists());
+    assert!(dir.join(record::INCOMPLETE).exists());
     assert!(!dir.join("summary.json").exists());
     for file in [
         "trajectory.csv",
@@ -580,7 +580,7 @@ fn sigterm_and_sighup_end_a_real_time_run_as_ctrl_c_does_and_the_summary_names_t
             (&end["event"], &end["signal"]),
             (&"end".into(), &name.into())
         );
-        assert!(!dir.path().join(orchestrator::record::INCOMPLETE).exists());
+        assert!(!dir.path().join(record::INCOMPLETE).exists());
         let roles_gone = wait_for(
             Duration::from_secs(2).saturating_sub(sent.elapsed()),
             || roles.iter().all(|pid| !runtime::ipc::process_alive(*pid)),

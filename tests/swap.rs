@@ -4,7 +4,7 @@
 mod common;
 
 use common::{events, run, run_realtime, scmpc, spawn_run, summary, wait_for};
-use orchestrator::schema::Table;
+use record::schema::Table;
 use std::path::Path;
 use std::time::Duration;
 

@@ -12,6 +12,8 @@ use protocol::{
 use std::collections::VecDeque;
 
 /// What the DFL takes: the estimator's estimates (periodic) and the MPC's plans.
+// By value, as the messages come (boxing would allocate per sample).
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub enum DflInput {
     Estimate(Estimate),

@@ -17,6 +17,8 @@ use std::collections::VecDeque;
 
 /// What the MPC takes: the estimator's estimates (periodic: one a sample matters) and,
 /// with a planner, its routes.
+// By value, as the messages come (boxing would allocate per sample).
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub enum MpcInput {
     Estimate(Estimate),

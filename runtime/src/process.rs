@@ -240,6 +240,78 @@ impl TickLimit for RoleClock {
     }
 }
 
+/// Real time: polls `input`, due at `at_ns` and published `arrival_lag_ns` after it, around
+/// when it is expected ([`spin_wait`]); whether it came.
+fn spin_for(input: &dyn Input, at_ns: u64, arrival_lag_ns: u64) -> bool {
+    let expected_ns = at_ns + arrival_lag_ns.saturating_sub(WAKE_LATENESS_NS);
+    spin_wait(expected_ns, || input.has_samples())
+}
+
+/// What the loop knows of its inputs ([`Member::drive`]).
+struct Heard<'i> {
+    /// When an input was last heard, and how many samples the inputs had taken then.
+    last_input: Instant,
+    taken_before: u64,
+    /// Real time: how long after its due time the expected input is published
+    /// ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input), ns.
+    arrival_lag_ns: u64,
+    /// The input polled for, with its due time (monotonic ns).
+    polled: Option<(&'i dyn Input, u64)>,
+}
+
+impl<'i> Heard<'i> {
+    /// After a step: whether its inputs took samples (then an input was heard now).
+    fn count(&mut self, inputs: &[&dyn Input]) {
+        let taken: u64 = inputs.iter().map(|input| input.taken()).sum();
+        if taken != self.taken_before {
+            self.taken_before = taken;
+            self.last_input = Instant::now();
+        }
+    }
+
+    /// How long to block for `next` (`None` inside: [`INPUT_TIMEOUT`]); `None` when the
+    /// input it expects came while it was polled for in real time ([`spin_for`]).
+    fn spin_or_timeout(&mut self, next: &Next<'i>, clock: &RunClock) -> Option<Option<Duration>> {
+        match *next {
+            Next::Wait(until_s) => Some(
+                until_s
+                    .and_then(|t| clock.at_ns(t))
+                    .map(|at| Duration::from_nanos(at.saturating_sub(monotonic_ns()))),
+            ),
+            Next::Expect { input, at_s } => {
+                self.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
+                let lag_ns = self.arrival_lag_ns;
+                if self
+                    .polled
+                    .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
+                {
+                    self.last_input = Instant::now();
+                    return None;
+                }
+                Some(None)
+            }
+            Next::At(_) => Some(None),
+        }
+    }
+
+    /// After the pass that took the input polled for: its arrival lag, learned from it.
+    fn learn_lag(&mut self, dt_s: f64) {
+        if let Some((input, due_ns)) = self.polled.take()
+            && let Some(published_ns) = input.newest_publish_ns()
+        {
+            self.arrival_lag_ns =
+                next_arrival_lag_ns(self.arrival_lag_ns, published_ns, due_ns, dt_s);
+        }
+    }
+}
+
+/// When the orchestrator was last looked for, and when it was found gone
+/// ([`Member::supervisor_watch`]).
+struct SupervisorWatch {
+    checked: Instant,
+    orphaned_at: Option<Instant>,
+}
+
 /// A role process's connection to the orchestrator: its node, the control topic it
 /// obeys (its clock) and the status topic it reports on.
 pub struct Member {
@@ -409,18 +481,18 @@ impl Member {
         mut each_pass: impl FnMut(),
     ) -> Result<(), ProcessError> {
         let mut warm_ups = WarmUps::default();
-        // Real time: how long after its due time the expected input is published
-        // ([`next_arrival_lag_ns`](crate::wait::next_arrival_lag_ns); one lag, as every role expects one periodic input),
-        // and the input polled for with its due time, ns.
-        let mut arrival_lag_ns = 0;
-        let mut polled: Option<(&dyn Input, u64)> = None;
+        let mut heard = Heard {
+            last_input: Instant::now(),
+            taken_before: 0,
+            arrival_lag_ns: 0,
+            polled: None,
+        };
         let mut followed = None;
         let mut cleared = false;
-        // When an input was last heard, and how many samples the inputs had taken then.
-        let mut last_input = Instant::now();
-        let mut taken_before = 0;
-        let mut supervisor_checked = Instant::now();
-        let mut orphaned_at: Option<Instant> = None;
+        let mut watch = SupervisorWatch {
+            checked: Instant::now(),
+            orphaned_at: None,
+        };
         loop {
             self.sync(&mut followed, inputs)?;
             let next = step(&self.clock.state.get()).inspect_err(|e| {
@@ -429,11 +501,7 @@ impl Member {
                 }
             })?;
             each_pass();
-            let taken: u64 = inputs.iter().map(|input| input.taken()).sum();
-            if taken != taken_before {
-                taken_before = taken;
-                last_input = Instant::now();
-            }
+            heard.count(inputs);
             // Real time, after a wake-up's first step (the one that publishes; the step
             // after housekeeping rarely does): give the core to whatever waits there for
             // the output (a consumer spinning for it on this core runs now, not when this
@@ -442,28 +510,10 @@ impl Member {
             if !cleared && self.clock.state.get().clock.mode() == RunMode::Realtime {
                 std::thread::yield_now();
             }
-            if let Some((input, due_ns)) = polled.take()
-                && let Some(published_ns) = input.newest_publish_ns()
-            {
-                let dt_s = self.clock.state.get().clock.dt_s();
-                arrival_lag_ns = next_arrival_lag_ns(arrival_lag_ns, published_ns, due_ns, dt_s);
-            }
+            heard.learn_lag(self.clock.state.get().clock.dt_s());
             // Off the hot path (the step has published): is the orchestrator still there?
-            if let Some(since) = orphaned_at {
-                if since.elapsed() >= ORPHAN_GRACE {
-                    return Ok(());
-                }
-            } else if supervisor_checked.elapsed() >= SUPERVISOR_CHECK {
-                supervisor_checked = Instant::now();
-                if self.supervisor_pid.is_some_and(|pid| !process_alive(pid)) {
-                    if self.clock.state.get().clock.mode() == RunMode::Lockstep {
-                        return Ok(());
-                    }
-                    orphaned_at = Some(Instant::now());
-                    let mut state = self.clock.state.get();
-                    state.orphaned = true;
-                    self.clock.state.set(state);
-                }
+            if !self.supervisor_watch(&mut watch) {
+                return Ok(());
             }
             // In real time a step due at a time is slept to, and so is a warm-up before an
             // expected input; in lockstep a time comes with a grant, like any input.
@@ -471,37 +521,22 @@ impl Member {
             // pass after pass of the step (which takes the input if it has come), warms up.
             // (The pass that takes the input learns its arrival lag from it.)
             let clock = self.clock.state.get().clock;
-            let mut warming = None;
-            let due_ns = match next {
-                Next::At(at_s) => clock.at_ns(at_s),
+            let (due_ns, warming) = match next {
+                Next::At(at_s) => (clock.at_ns(at_s), None),
                 Next::Expect { at_s, input } if warm_up.is_some() => {
-                    polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
-                    match warm_ups.next(&clock, at_s, arrival_lag_ns, monotonic_ns()) {
-                        WarmUpPass::SleepTo(from_ns) => Some(from_ns),
-                        WarmUpPass::WarmUp => {
-                            warming = Some(input);
-                            None
-                        }
-                        WarmUpPass::Wait => None,
+                    heard.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
+                    match warm_ups.next(&clock, at_s, heard.arrival_lag_ns, monotonic_ns()) {
+                        WarmUpPass::SleepTo(from_ns) => (Some(from_ns), None),
+                        WarmUpPass::WarmUp => (None, Some(input)),
+                        WarmUpPass::Wait => (None, None),
                     }
                 }
-                _ => None,
+                _ => (None, None),
             };
             let again = due_ns.is_some() || warming.is_some();
             if !cleared || again {
-                if !self.housekeeping(inputs)? {
+                if !self.between_passes(inputs, outputs, again, due_ns)? {
                     return Ok(());
-                }
-                if self.take_replay() {
-                    for output in outputs {
-                        output.replay()?;
-                    }
-                }
-                if again && self.node.wait(Duration::ZERO).is_err() {
-                    return Ok(()); // a signal
-                }
-                if let Some(at_ns) = due_ns {
-                    sleep_until_ns(at_ns);
                 }
                 if let (Some(input), Some(warm_up)) = (warming, warm_up.as_mut()) {
                     let started_ns = monotonic_ns();
@@ -512,39 +547,77 @@ impl Member {
                 continue;
             }
             cleared = false;
-            let timeout = match next {
-                Next::Wait(until_s) => until_s
-                    .and_then(|t| clock.at_ns(t))
-                    .map(|at| Duration::from_nanos(at.saturating_sub(monotonic_ns()))),
-                Next::Expect { input, at_s } => match clock.at_ns(at_s) {
-                    Some(at_ns) => {
-                        polled = Some((input, at_ns));
-                        let expected_ns = at_ns + arrival_lag_ns.saturating_sub(WAKE_LATENESS_NS);
-                        if spin_wait(expected_ns, || input.has_samples()) {
-                            last_input = Instant::now();
-                            continue;
-                        }
-                        None
-                    }
-                    None => None,
-                },
-                Next::At(_) => None,
+            let Some(timeout) = heard.spin_or_timeout(&next, &clock) else {
+                continue; // the expected input came
             };
             // Lockstep: the next input comes as soon as the process before this one in the
             // tick's chain has stepped, tens of µs from now; polling for it costs less than
             // a wake-up from an event (docs/performance.md, "Lockstep").
-            if clock.mode() == RunMode::Lockstep
-                && lockstep_poll(|| {
-                    self.clock.control.has_samples() || inputs.iter().any(|i| i.has_samples())
-                })
-            {
-                last_input = Instant::now();
+            if clock.mode() == RunMode::Lockstep && self.poll(inputs) {
+                heard.last_input = Instant::now();
                 continue;
             }
-            if !self.wait(waitset, timeout, &mut last_input)? {
+            if !self.wait(waitset, timeout, &mut heard.last_input)? {
                 return Ok(());
             }
         }
+    }
+
+    /// Between two passes of the step: housekeeping, the replay of every output if asked,
+    /// and, before a pass `again` at a time, a look for a signal and the sleep to `due_ns`
+    /// (monotonic ns). `Ok(false)`: stop.
+    fn between_passes(
+        &self,
+        inputs: &[&dyn Input],
+        outputs: &[&dyn Output],
+        again: bool,
+        due_ns: Option<u64>,
+    ) -> Result<bool, ProcessError> {
+        if !self.housekeeping(inputs)? {
+            return Ok(false);
+        }
+        if self.take_replay() {
+            for output in outputs {
+                output.replay()?;
+            }
+        }
+        if again && self.node.wait(Duration::ZERO).is_err() {
+            return Ok(false); // a signal
+        }
+        if let Some(at_ns) = due_ns {
+            sleep_until_ns(at_ns);
+        }
+        Ok(true)
+    }
+
+    /// Whether the process goes on: every [`SUPERVISOR_CHECK`] it looks whether its
+    /// orchestrator lives. Once it is gone, a lockstep process stops at once (nothing moves
+    /// without grants); a real-time one is orphaned (the DFL brakes to rest) and stops
+    /// after [`ORPHAN_GRACE`].
+    fn supervisor_watch(&self, watch: &mut SupervisorWatch) -> bool {
+        if let Some(since) = watch.orphaned_at {
+            return since.elapsed() < ORPHAN_GRACE;
+        }
+        if watch.checked.elapsed() < SUPERVISOR_CHECK {
+            return true;
+        }
+        watch.checked = Instant::now();
+        if self.supervisor_pid.is_some_and(|pid| !process_alive(pid)) {
+            if self.clock.state.get().clock.mode() == RunMode::Lockstep {
+                return false;
+            }
+            watch.orphaned_at = Some(Instant::now());
+            let mut state = self.clock.state.get();
+            state.orphaned = true;
+            self.clock.state.set(state);
+        }
+        true
+    }
+
+    /// Lockstep: whether a control message or an input came while polling shared memory
+    /// for one ([`lockstep_poll`]).
+    fn poll(&self, inputs: &[&dyn Input]) -> bool {
+        lockstep_poll(|| self.clock.control.has_samples() || inputs.iter().any(|i| i.has_samples()))
     }
 
     /// Whether to replay every output now (once per request).

@@ -131,7 +131,9 @@ macro_rules! data_ports {
             }
         }
 
-        /// An output of one data topic.
+        /// An output of one data topic. (A sender keeps its last message for replays, so
+        /// the plan's is large; a role has one or two, made once.)
+        #[allow(clippy::large_enum_variant)]
         enum OutPort {
             $($variant(Sender<$t>),)*
         }

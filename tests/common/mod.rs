@@ -277,9 +277,9 @@ pub fn machine_shared() -> std::sync::RwLockReadGuard<'static, ()> {
 /// `plans.csv` without the columns the machine's speed decides (solve time, arrival in
 /// real time).
 pub fn plans_made(dir: &Path) -> Vec<String> {
-    let table = orchestrator::schema::Table::read(&dir.join("plans.csv")).unwrap();
+    let table = record::schema::Table::read(&dir.join("plans.csv")).unwrap();
     // The solve time and the real-time arrival depend on the machine.
-    let keep = orchestrator::schema::PLANS_COLUMNS
+    let keep = record::schema::PLANS_COLUMNS
         .iter()
         .filter(|c| !["solve_us", "arrival_ms"].contains(c));
     let columns: Vec<Vec<&str>> = keep.map(|c| table.column(c).unwrap()).collect();

@@ -521,6 +521,10 @@ pub use control::*;
 /// Every data message of a run, one variant per data topic ([`crate::topics::DATA_FLOW`]):
 /// what executors hand from a task's outputs to the tasks that take them, whatever the
 /// roles ([`crate::task`]).
+///
+/// A plan is large (about 3 KiB) and carried by value, as over shared memory: boxing it
+/// would allocate per plan, and the steady state allocates nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Data {
     Measurement(Measurement),

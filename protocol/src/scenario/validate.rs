@@ -11,12 +11,28 @@ impl Scenario {
     }
 
     /// Checks every value against its meaning; reports every problem with its dotted key.
-    /// One check per key, in the schema's order: long, but a list to read against it.
+    /// One check per key, in the schema's order, section by section.
     pub fn validate(&self, origin: &str) -> Result<(), ScenarioErrors> {
         let mut v = Validator {
             origin,
             errors: Vec::new(),
         };
+        self.check_basics(&mut v);
+        self.check_mpc_and_dfl(&mut v);
+        self.check_planner_and_obstacles(&mut v);
+        self.check_geometry(&mut v);
+        self.check_faults(&mut v);
+        self.check_hosts(&mut v);
+        self.check_swaps(&mut v);
+        if v.errors.is_empty() {
+            Ok(())
+        } else {
+            Err(ScenarioErrors(v.errors))
+        }
+    }
+
+    /// The run's length and clock, the robot, the plant and the estimator.
+    fn check_basics(&self, v: &mut Validator) {
         v.positive("duration_s", self.duration_s);
         v.positive("timing.ts_s", self.timing.ts_s);
         v.in_range(
@@ -55,7 +71,10 @@ impl Scenario {
             "estimator.initial_variance",
             &self.estimator.initial_variance,
         );
+    }
 
+    /// The MPC's keys, and the DFL's against the MPC's input box.
+    fn check_mpc_and_dfl(&self, v: &mut Validator) {
         let m = &self.mpc;
         v.in_range("mpc.horizon", m.horizon, 1, MAX_HORIZON);
         v.in_range(
@@ -109,8 +128,11 @@ impl Scenario {
                 );
             }
         }
+    }
 
-        let p = &self.planner;
+    /// The planner's keys and the obstacles' values.
+    fn check_planner_and_obstacles(&self, v: &mut Validator) {
+        let (p, m) = (&self.planner, &self.mpc);
         v.non_negative("planner.period_s", p.period_s);
         v.non_negative("planner.clearance_m", p.clearance_m);
         if let AutoOr::Value(speed) = p.speed_m_s {
@@ -131,7 +153,10 @@ impl Scenario {
             v.finite(&format!("obstacles.{i}.y"), o.y);
             v.non_negative(&format!("obstacles.{i}.radius"), o.radius);
         }
-        self.check_geometry(&mut v);
+    }
+
+    /// The injected faults (those of the links only with a role on another host).
+    fn check_faults(&self, v: &mut Validator) {
         let f = &self.fault;
         v.non_negative("fault.mpc_delay_ms", f.mpc_delay_ms);
         v.non_negative("fault.estimator_delay_ms", f.estimator_delay_ms);
@@ -185,8 +210,10 @@ impl Scenario {
                 );
             }
         }
-        self.check_hosts(&mut v);
+    }
 
+    /// Each `[[swap]]`: its time within the run, a swappable role, a program.
+    fn check_swaps(&self, v: &mut Validator) {
         for (i, swap) in self.swap.iter().enumerate() {
             if !(swap.time_s.is_finite() && swap.time_s >= 0.0 && swap.time_s < self.duration_s) {
                 v.fail(
@@ -206,7 +233,7 @@ impl Scenario {
                         swap.role
                     ),
                 ),
-                Some(crate::Role::Planner) if !p.is_on() => v.fail(
+                Some(crate::Role::Planner) if !self.planner.is_on() => v.fail(
                     &format!("swap.{i}.role"),
                     "no planner runs (planner.kind = \"none\"): nothing to swap".into(),
                 ),
@@ -215,12 +242,6 @@ impl Scenario {
             if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
                 v.fail(&format!("swap.{i}.command"), "the program is empty".into());
             }
-        }
-
-        if v.errors.is_empty() {
-            Ok(())
-        } else {
-            Err(ScenarioErrors(v.errors))
         }
     }
 

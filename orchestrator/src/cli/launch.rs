@@ -1,0 +1,188 @@
+//! The commands that run roles: `scmpc run`, a role process (`scmpc mpc`, ...) and a
+//! host's agent (`scmpc host`).
+
+use super::args::{HostArgs, Mode, RoleArgs, RunArgs};
+use super::{CliError, CliResult, bad_input};
+use anyhow::Context;
+use protocol::Role;
+use run::{inprocess, multiproc, scenarios};
+use runtime::clock::RunMode;
+use runtime::process::ProcessArgs;
+
+/// Runs one role process until the orchestrator stops it.
+pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
+    // A replacement command that starts the wrong role would only be refused, sample by
+    // sample, as the wrong epoch: say so at once.
+    if let Ok(wanted) = std::env::var(run::children::ENV_ROLE)
+        && wanted != this.as_str()
+    {
+        return Err(bad_input(format!(
+            "this is the {} process, but the run started it as its {wanted} ({})",
+            this.as_str(),
+            run::children::ENV_ROLE
+        )));
+    }
+    runtime::clock::clock_shift_from_env().map_err(bad_input)?;
+    let scenario = scenarios::load(Some(&args.scenario), &args.overrides).map_err(bad_input)?;
+    // A process of its own may change what it computes, never the loop's clock.
+    if !args.overrides.is_empty()
+        && scenarios::load(Some(&args.scenario), &[]).is_ok_and(|run| run.timing != scenario.timing)
+    {
+        return Err(bad_input("--set: `timing.*` must match the run's scenario"));
+    }
+    let process_args = ProcessArgs {
+        scenario,
+        prefix: args.prefix.clone(),
+        mode: args.mode.into(),
+        epoch: args.epoch,
+        supervisor_pid: args.supervisor_pid,
+        control_publisher: args.control_publisher,
+    };
+    let result = run::roles::serve(this, &process_args);
+    // Orphaned (the orchestrator or the host's agent is dead): the last process of the run
+    // to exit removes the run's resources, as nobody else will until the next run or agent
+    // starts on this machine.
+    if args
+        .supervisor_pid
+        .is_some_and(|pid| !runtime::ipc::process_alive(pid))
+    {
+        let _ = runtime::ipc::remove_run(&args.prefix);
+    }
+    result.map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
+}
+
+pub(super) fn run(args: RunArgs) -> CliResult {
+    let scenario = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
+    let out = args
+        .out
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
+    if args.in_process && args.mode == Mode::Realtime {
+        return Err(bad_input(
+            "--in-process runs in lockstep only; drop --mode realtime or --in-process",
+        ));
+    }
+    if args.keep_cores_awake && args.mode != Mode::Realtime {
+        return Err(bad_input(
+            "--keep-cores-awake is for --mode realtime (lockstep keeps its cores busy already)",
+        ));
+    }
+    let prefix = args.prefix.unwrap_or_else(runtime::ipc::new_prefix);
+    runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
+    let hosts = if args.in_process {
+        multiproc::HostsSetup::default()
+    } else {
+        hosts_setup(
+            &scenario,
+            &args.hosts,
+            args.security.security()?,
+            args.mode.into(),
+        )?
+    };
+    let stop = run::stop::on_signals();
+    let awake = args
+        .keep_cores_awake
+        .then(run::awake::AwakeCores::start)
+        .transpose()
+        .context("keeping the cores awake")?;
+    let summary = if args.in_process {
+        inprocess::run(&scenario, &out, !args.no_mcap, &stop)
+    } else {
+        multiproc::run(
+            &scenario,
+            &out,
+            args.mode.into(),
+            &prefix,
+            &hosts,
+            !args.no_mcap,
+            &stop,
+        )
+    }
+    .with_context(|| format!("run of `{}`", scenario.name))?;
+    drop(awake);
+    if let Err(e) = study::figures::run_plots(&out, &scenario) {
+        eprintln!("warning: no plots for the run: {e:#}");
+    }
+    println!("run directory: {}", out.display());
+    print!("{}", summary.table());
+    if summary.outcome == record::judge::Outcome::Reached {
+        Ok(())
+    } else {
+        Err(CliError::NotReached)
+    }
+}
+
+/// Where each host the scenario places a role on listens (the scenario's
+/// `[hosts.endpoints]`, then `--host NAME=ENDPOINT`), each endpoint allowed by `security`.
+fn hosts_setup(
+    scenario: &protocol::Validated,
+    flags: &[String],
+    security: hosts::net::Security,
+    mode: RunMode,
+) -> Result<multiproc::HostsSetup, CliError> {
+    use protocol::endpoint::{Endpoint, is_host_name};
+    let mut endpoints = std::collections::BTreeMap::new();
+    for (name, text) in &scenario.hosts.endpoints {
+        let endpoint =
+            Endpoint::parse(text).map_err(|e| bad_input(format!("hosts.endpoints.{name}: {e}")))?;
+        endpoints.insert(name.clone(), endpoint);
+    }
+    for flag in flags {
+        let (name, text) = flag
+            .split_once('=')
+            .ok_or_else(|| bad_input(format!("--host {flag}: not NAME=ENDPOINT")))?;
+        if !is_host_name(name) || name == hosts::keys::ORCHESTRATOR {
+            return Err(bad_input(format!(
+                "--host {flag}: `{name}` is no host name"
+            )));
+        }
+        let endpoint =
+            Endpoint::parse(text).map_err(|e| bad_input(format!("--host {flag}: {e}")))?;
+        endpoints.insert(name.to_string(), endpoint);
+    }
+    let used = scenario.hosts.names();
+    for name in &used {
+        let endpoint = endpoints.get(name).ok_or_else(|| {
+            bad_input(format!(
+                "host `{name}`: no endpoint (give --host {name}=tcp/ADDR:PORT or [hosts.endpoints] {name})"
+            ))
+        })?;
+        security
+            .allows(endpoint)
+            .map_err(|e| bad_input(format!("host `{name}`: {e}")))?;
+    }
+    let f = &scenario.fault;
+    let link_faults = f.link_delay_ms > 0.0 || f.link_loss > 0.0 || f.link_is_ever_down();
+    if link_faults && !used.is_empty() && mode == RunMode::Lockstep {
+        return Err(bad_input(
+            "fault.link_*: the link faults act in real time (give --mode realtime); \
+             in lockstep a lost grant would stop the clock",
+        ));
+    }
+    endpoints.retain(|name, _| used.contains(name));
+    Ok(multiproc::HostsSetup {
+        endpoints,
+        security,
+    })
+}
+
+/// `scmpc host`: the agent of this host, until Ctrl-C.
+pub(super) fn host(args: HostArgs) -> CliResult {
+    use protocol::endpoint::{Endpoint, is_host_name};
+    if !is_host_name(&args.name) || args.name == hosts::keys::ORCHESTRATOR {
+        return Err(bad_input(format!(
+            "--name {}: a host name is letters, digits, `-` and `_` (and not `{}`)",
+            args.name,
+            hosts::keys::ORCHESTRATOR
+        )));
+    }
+    let listen = Endpoint::parse(&args.listen).map_err(|e| bad_input(format!("--listen: {e}")))?;
+    let security = args.security.security()?;
+    security
+        .allows(&listen)
+        .map_err(|e| bad_input(format!("--listen: {e}")))?;
+    runtime::clock::clock_shift_from_env().map_err(bad_input)?;
+    let stop = run::stop::on_signals();
+    run::agent::serve(&args.name, &listen, &security, &stop)?;
+    Ok(())
+}

@@ -1,0 +1,289 @@
+//! The `scmpc` command line: [`args`] its grammar, [`launch`] the commands that run roles,
+//! and here the dispatch and the study commands, each a call into the crate that does it.
+
+use anyhow::Context;
+use clap::Parser;
+use protocol::Role;
+use run::scenarios;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// Exit code of a run that did not reach the goal (collided, stalled, timed out,
+/// interrupted) or failed at run time.
+pub const EXIT_NOT_REACHED: u8 = 1;
+/// Exit code of bad input: a scenario or an override that is refused before anything runs.
+pub const EXIT_BAD_INPUT: u8 = 2;
+
+mod args;
+mod launch;
+
+use args::{Cli, Command, FuzzArgs, SwapArgs, SweepArgs};
+
+/// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
+/// one place that does.
+#[derive(Debug)]
+enum CliError {
+    /// Bad input, named (the file, key, flag or value): nothing ran. Exit
+    /// [`EXIT_BAD_INPUT`].
+    BadInput(String),
+    /// The command ran and printed its report, but missed its goal (a run that did not
+    /// reach the goal, a fuzz world that collided, a sweep run that failed). Exit
+    /// [`EXIT_NOT_REACHED`].
+    NotReached,
+    /// The command could not run to its end. Exit [`EXIT_NOT_REACHED`].
+    Failed(anyhow::Error),
+}
+
+impl From<anyhow::Error> for CliError {
+    fn from(e: anyhow::Error) -> Self {
+        CliError::Failed(e)
+    }
+}
+
+fn bad_input(e: impl std::fmt::Display) -> CliError {
+    CliError::BadInput(e.to_string())
+}
+
+type CliResult = Result<(), CliError>;
+
+/// Parses the command line and runs it.
+pub fn main() -> ExitCode {
+    init_logging();
+    iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Schema => {
+            println!("{:#}", message_schema());
+            Ok(())
+        }
+        Command::Scenario { name } => scenario(&name),
+        Command::Run(args) => launch::run(args),
+        Command::Swap(args) => swap(args),
+        Command::Sweep(args) => sweep(args),
+        Command::Fuzz(args) => fuzz(args),
+        Command::Figures { out } => figures(&out),
+        Command::Bench { out, realtime_s } => bench(out, realtime_s),
+        Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
+        Command::Host(args) => launch::host(args),
+        Command::Plant(args) => launch::role(args, Role::Plant),
+        Command::Estimator(args) => launch::role(args, Role::Estimator),
+        Command::Mpc(args) => launch::role(args, Role::Mpc),
+        Command::Dfl(args) => launch::role(args, Role::Dfl),
+        Command::Planner(args) => launch::role(args, Role::Planner),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(CliError::BadInput(message)) => {
+            // Scenario errors end in a newline of their own (one line per key).
+            eprint!("error: {message}");
+            if !message.ends_with('\n') {
+                eprintln!();
+            }
+            ExitCode::from(EXIT_BAD_INPUT)
+        }
+        Err(CliError::NotReached) => ExitCode::from(EXIT_NOT_REACHED),
+        Err(CliError::Failed(e)) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(EXIT_NOT_REACHED)
+        }
+    }
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+fn scenario(name: &str) -> CliResult {
+    let text = scenarios::built_in(name).ok_or_else(|| {
+        let names: Vec<&str> = scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
+        bad_input(format!(
+            "no built-in scenario `{name}` (there are: {})",
+            names.join(", ")
+        ))
+    })?;
+    print!("{text}");
+    Ok(())
+}
+
+fn sweep(args: SweepArgs) -> CliResult {
+    use study::sweep;
+    let base = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    let axes = (args.grid.iter())
+        .map(|g| sweep::Axis::parse(g))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(bad_input)?;
+    let out = (args.out.clone())
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("{}-sweep", base.name)));
+    let runs = sweep::plan_runs(&base, &axes, args.seeds, &out).map_err(bad_input)?;
+    let stop = run::stop::on_signals();
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} runs on {threads} threads into {}",
+        runs.len(),
+        out.display()
+    );
+    let results = sweep::run_all(&runs, threads, true, args.mcap, &stop);
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results)?;
+    let stats = sweep::seed_stats(&runs, &results);
+    if args.seeds > 0 {
+        sweep::write_seed_stats(&out.join("monte_carlo.csv"), &axes, &stats)?;
+    }
+    if args.seeds > 1 {
+        print!("{}", sweep::seed_table(&axes, &stats));
+    } else {
+        print!("{}", sweep::run_table(&axes, &runs, &results));
+    }
+    println!("sweep directory: {}", out.display());
+    run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
+    if results.iter().all(Result::is_ok) {
+        Ok(())
+    } else {
+        Err(CliError::NotReached)
+    }
+}
+
+fn fuzz(args: FuzzArgs) -> CliResult {
+    // Every world is drawn and validated before anything runs.
+    study::fuzz::world(args.seed, 0, &args.overrides).map_err(bad_input)?;
+    let out = args
+        .out
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fuzz-{}", args.seed)));
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} worlds (seed {}) on {threads} threads into {}",
+        args.count,
+        args.seed,
+        out.display()
+    );
+    let stop = run::stop::on_signals();
+    let report = study::fuzz::run(
+        args.seed,
+        args.count,
+        &args.overrides,
+        &out,
+        threads,
+        true,
+        &stop,
+    )
+    .map_err(|e| match e.downcast_ref::<protocol::ScenarioErrors>() {
+        Some(bad) => bad_input(bad),
+        None => CliError::Failed(e),
+    })?;
+    print!("{}", report.table());
+    println!("fuzz directory: {}", out.display());
+    run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
+    if report.collisions() > 0 {
+        Err(CliError::NotReached)
+    } else {
+        Ok(())
+    }
+}
+
+fn figures(out: &std::path::Path) -> CliResult {
+    let stop = run::stop::on_signals();
+    let set = study::figures::paper_set(out, cores(), &stop)?;
+    println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
+    for s in &set.solve_times {
+        println!(
+            "{:>7}  {:>8.0} / {:<8.0}     {:>8.0} / {:<8.0}",
+            s.horizon, s.linear_us.p50, s.linear_us.p99, s.nonlinear_us.p50, s.nonlinear_us.p99
+        );
+    }
+    for f in &set.files {
+        println!("{}", f.display());
+    }
+    Ok(())
+}
+
+fn bench_pong(prefix: Option<String>, zenoh: Option<String>) -> CliResult {
+    match (prefix, zenoh) {
+        (_, Some(endpoint)) => {
+            let endpoint = protocol::endpoint::Endpoint::parse(&endpoint).map_err(bad_input)?;
+            study::bench::cross_host::zenoh_pong(&endpoint).map_err(CliError::Failed)
+        }
+        (Some(prefix), None) => study::bench::pong(&prefix).map_err(CliError::Failed),
+        (None, None) => Err(bad_input("--prefix or --zenoh is required")),
+    }
+}
+
+fn bench(out: Option<PathBuf>, realtime_s: f64) -> CliResult {
+    if !(realtime_s.is_finite() && realtime_s > 0.0) {
+        return Err(bad_input(format!(
+            "--realtime-s must be positive, got {realtime_s}"
+        )));
+    }
+    let out = out.unwrap_or_else(|| record::run_dir::default_run_dir("bench"));
+    let stop = run::stop::on_signals();
+    let report = study::bench::run(&out, realtime_s, &stop)?;
+    print!("{}", report.table());
+    println!("bench directory: {}", out.display());
+    Ok(())
+}
+
+fn swap(args: SwapArgs) -> CliResult {
+    let request = run::swap_client::swappable_role(&args.role)
+        .and_then(|role| run::swap_client::build_request(role, &args.command))
+        .map_err(bad_input)?;
+    let stop = run::stop::on_signals();
+    let reply = run::swap_client::send(&args.run_dir, &request, &stop).map_err(|e| {
+        if e.downcast_ref::<run::swap_client::RequestError>().is_some() {
+            bad_input(format!("{e:#}"))
+        } else {
+            CliError::Failed(e)
+        }
+    })?;
+    if reply.done != 1 {
+        return Err(CliError::Failed(anyhow::anyhow!(
+            "swap of the {} failed: {}",
+            args.role,
+            reply.message()
+        )));
+    }
+    println!(
+        "swapped {}: epoch {} from tick {} ({})",
+        args.role,
+        reply.epoch,
+        reply.switch_tick,
+        reply.message()
+    );
+    Ok(())
+}
+
+/// What `scmpc schema` prints.
+fn message_schema() -> serde_json::Value {
+    use run::children::{
+        ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO,
+        ENV_SUPERVISOR,
+    };
+    use runtime::layout;
+    serde_json::json!({
+        "iceoryx2": "0.10.0",
+        "service_type": "ipc",
+        "user_header": "()",
+        "services": layout::services(),
+        "types": layout::types(),
+        "codes": layout::codes(),
+        "environment": {
+            ENV_SCENARIO: "the run's scenario file (TOML, every key written out)",
+            ENV_PREFIX: "the iceoryx2 prefix of the run's resources (config.global.prefix)",
+            ENV_MODE: "lockstep or realtime",
+            ENV_EPOCH: "the producer epoch to stamp on every sample (Header.epoch)",
+            ENV_ROLE: "the role to play",
+            ENV_SUPERVISOR: "the supervisor's pid (the orchestrator, or on another host its agent): brake and exit when it is gone",
+            ENV_CONTROL_PUBLISHER: "the iceoryx2 id of the orchestrator's control publisher, hexadecimal",
+            runtime::ipc::ENV_RUN_ID: "the run id every Header.run carries, decimal (set on other hosts, whose prefix differs from the orchestrator's; else derived from the prefix)",
+            runtime::clock::ENV_CLOCK_CORRECTION_NS: "ns to add to this host's monotonic clock to read the orchestrator's (set on other hosts, docs/hosts.md)",
+            runtime::clock::ENV_CLOCK_OFFSET_MS: "a test's artificial offset of this process's clock, ms (docs/hosts.md)",
+        },
+    })
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG")
+        .unwrap_or_else(|_| "warn,zenoh=error".into());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}

@@ -1,0 +1,257 @@
+//! The encoder: an open `run.mcap`, its channels, and every message of a run as JSON.
+
+use super::foxglove::*;
+use super::*;
+
+/// An open `run.mcap`.
+pub(super) struct McapFile {
+    writer: mcap::Writer<BufWriter<File>>,
+    channels: BTreeMap<&'static str, u16>,
+    sequence: u32,
+    timing: Timing,
+    /// Reused for every message: its JSON, and a plan's or a route's poses.
+    json: Vec<u8>,
+    poses: Vec<Pose>,
+}
+
+/// An error of the MCAP writer, as an I/O error (the recorder's).
+fn io(e: mcap::McapError) -> std::io::Error {
+    std::io::Error::other(format!("run.mcap: {e}"))
+}
+
+impl McapFile {
+    /// Creates `path` with every channel, and logs the world at time 0.
+    pub(super) fn create(path: &Path, scenario: &Scenario) -> std::io::Result<McapFile> {
+        let file = BufWriter::new(File::create(path)?);
+        // Chunks are kept in memory until whole (no seeking back to patch a chunk's
+        // length), so a chunk on disk is a whole record: a run killed mid-chunk leaves a
+        // file whose records read in order up to the last flush.
+        let mut writer = mcap::WriteOptions::new()
+            .disable_seeking(true)
+            .profile("")
+            .library(concat!("scmpc ", env!("CARGO_PKG_VERSION")))
+            .create(file)
+            .map_err(io)?;
+        let mut channels = BTreeMap::new();
+        for (topic, schema_name, schema) in CHANNELS {
+            let schema = serde_json::to_vec(&schema()).map_err(std::io::Error::other)?;
+            let schema_id = writer
+                .add_schema(schema_name, "jsonschema", &schema)
+                .map_err(io)?;
+            let channel = writer
+                .add_channel(schema_id, topic, "json", &BTreeMap::new())
+                .map_err(io)?;
+            channels.insert(topic, channel);
+        }
+        let mut log = McapFile {
+            writer,
+            channels,
+            sequence: 0,
+            timing: scenario.timing.clone(),
+            json: Vec::with_capacity(4096),
+            poses: Vec::with_capacity(protocol::MAX_HORIZON + 1),
+        };
+        log.write_serde("/world/obstacles", 0.0, &world(scenario))?;
+        Ok(log)
+    }
+
+    pub(super) fn record(&mut self, record: Record) -> std::io::Result<()> {
+        match record {
+            Record::Tick(tick) => self.tick(&tick.0, &tick.1, &tick.2),
+            Record::Plan(plan) => self.plan(&plan),
+            Record::Route(route) => self.route(&route),
+            Record::Verdict(v) => self.verdict(&v),
+            Record::Event(t, event, line) => self.event(t, &event, &line),
+        }
+    }
+
+    /// Closes the chunk being written and hands it to the file system: a reader that scans
+    /// records in order reads everything up to here, whatever happens to the run after.
+    pub(super) fn flush(&mut self) -> std::io::Result<()> {
+        self.writer.flush().map_err(io)
+    }
+
+    /// Writes a message of the ticks and plans ([`Json`]).
+    pub(super) fn write(
+        &mut self,
+        topic: &str,
+        time_s: f64,
+        message: &impl Json,
+    ) -> std::io::Result<()> {
+        self.json.clear();
+        message.write_json(&mut self.json);
+        self.write_encoded(topic, time_s)
+    }
+
+    /// Writes any other message, with serde.
+    pub(super) fn write_serde(
+        &mut self,
+        topic: &str,
+        time_s: f64,
+        message: &impl Serialize,
+    ) -> std::io::Result<()> {
+        self.json.clear();
+        serde_json::to_writer(&mut self.json, message).map_err(std::io::Error::other)?;
+        self.write_encoded(topic, time_s)
+    }
+
+    /// Writes the message encoded in `json` on `topic`'s channel.
+    pub(super) fn write_encoded(&mut self, topic: &str, time_s: f64) -> std::io::Result<()> {
+        let channel_id = self.channels[topic];
+        let time_ns = (time_s.max(0.0) * 1e9).round() as u64;
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: self.sequence,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        self.writer
+            .write_to_known_channel(&header, &self.json)
+            .map_err(io)
+    }
+
+    /// One inner tick: the true and estimated poses, the estimate and the command applied;
+    /// at every sample's first tick, the estimate's covariance ellipse.
+    pub(super) fn tick(
+        &mut self,
+        truth: &GroundTruth,
+        estimate: &Estimate,
+        act: &Actuation,
+    ) -> std::io::Result<()> {
+        let t = truth.header.time_s;
+        let [x, y, theta] = truth.pose;
+        self.write("/robot/truth", t, &PoseInFrame::new(t, pose(x, y, theta)))?;
+        let [xh, yh, thetah, zeta] = estimate.state;
+        self.write(
+            "/robot/estimate",
+            t,
+            &PoseInFrame::new(t, pose(xh, yh, thetah)),
+        )?;
+        if self.timing.starts_sample(truth.header.tick) {
+            let ellipse = [covariance_ellipse(estimate)];
+            self.write_serde(
+                "/robot/covariance",
+                t,
+                &SphereScene::new(t, "covariance", &ellipse),
+            )?;
+        }
+        let record = EstimateRecord {
+            tick: estimate.header.tick,
+            epoch: estimate.header.epoch,
+            x: xh,
+            y: yh,
+            theta: thetah,
+            zeta,
+            covariance: estimate.covariance,
+            position_sigma: estimate.position_sigma(),
+        };
+        self.write("/estimator/estimate", t, &record)?;
+        let command = CommandRecord {
+            tick: act.header.tick,
+            epoch: act.header.epoch,
+            u1: act.u1,
+            u2: act.u2,
+            v1: act.v[0],
+            v2: act.v[1],
+            omega_r: act.wheels[0],
+            omega_l: act.wheels[1],
+            zeta: act.zeta,
+            mode: act.mode().map_or("unknown", CommandMode::as_str),
+            mode_code: act.mode,
+            plan_sample: act.plan_sample,
+            deadline_misses: act.deadline_misses,
+        };
+        self.write("/dfl/command", t, &command)
+    }
+
+    /// A plan as published: its predicted positions, each headed along its velocity.
+    pub(super) fn plan(&mut self, plan: &Plan) -> std::io::Result<()> {
+        let t = plan.header.time_s;
+        let n = (plan.horizon as usize).min(protocol::MAX_HORIZON);
+        let mut poses = std::mem::take(&mut self.poses);
+        poses.clear();
+        poses.extend(
+            (plan.z[..=n].iter()).map(|[x, xdot, y, ydot]| pose(*x, *y, ydot.atan2(*xdot))),
+        );
+        let written = self.write("/mpc/plan", t, &PosesInFrame::new(t, &poses));
+        self.poses = poses;
+        written
+    }
+
+    /// A new route of the planner.
+    pub(super) fn route(&mut self, route: &Route) -> std::io::Result<()> {
+        let t = route.header.time_s;
+        let points = route.points();
+        let poses: Vec<Pose> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                // Headed along the segment it starts (the goal: the one it ends).
+                let (from, to) = match points.get(i + 1) {
+                    Some(next) => (p, next),
+                    None => (&points[i.saturating_sub(1)], p),
+                };
+                pose(p[0], p[1], (to[1] - from[1]).atan2(to[0] - from[0]))
+            })
+            .collect();
+        self.write("/planner/route", t, &PosesInFrame::new(t, &poses))
+    }
+
+    /// The DFL's deadline verdict on a sample.
+    pub(super) fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {
+        let status = match v.status {
+            PLAN_MISSING => "missing",
+            code => PlanStatus::from_code(code).map_or("unknown", PlanStatus::as_str),
+        };
+        let fallback = CommandMode::from_code(v.fallback).map_or("unknown", CommandMode::as_str);
+        let record = DeadlineRecord {
+            sample: v.sample,
+            met: v.met != 0,
+            status,
+            production_us: v.production_ns as f64 / 1e3,
+            arrival_ms: (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6),
+            fallback,
+            misses_total: v.misses_total,
+        };
+        self.write_serde("/dfl/deadline", v.header.time_s, &record)
+    }
+
+    /// An event of `events.jsonl` (`line`: its whole JSON line) as a log message: warnings
+    /// for what went wrong, information otherwise.
+    pub(super) fn event(&mut self, t: f64, event: &str, line: &Value) -> std::io::Result<()> {
+        const INFO: u8 = 2;
+        const WARNING: u8 = 3;
+        let warning = [
+            "deadline_miss",
+            "safety_intervention",
+            "died",
+            "restarted",
+            "rejected",
+            "input_lost",
+            "no_route",
+            "swap_refused",
+        ];
+        let level = if warning.iter().any(|w| event.starts_with(w)) {
+            WARNING
+        } else {
+            INFO
+        };
+        self.write_serde(
+            "/events",
+            t,
+            &json!({
+                "timestamp": timestamp(t),
+                "level": level,
+                "message": line.to_string(),
+                "name": event,
+                "file": "events.jsonl",
+                "line": 0,
+            }),
+        )
+    }
+
+    pub(super) fn finish(mut self) -> std::io::Result<()> {
+        self.writer.finish().map(|_| ()).map_err(io)
+    }
+}

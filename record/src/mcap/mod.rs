@@ -1,0 +1,270 @@
+//! `run.mcap`: the run for Foxglove (docs/foxglove.md).
+//!
+//! Messages are JSON with a JSON Schema. Channels whose schema is named after one of
+//! Foxglove's well-known schemas (`foxglove.PoseInFrame`, `foxglove.PosesInFrame`,
+//! `foxglove.SceneUpdate`, `foxglove.Log`) show in its 3D and log panels without
+//! configuration; the `scmpc.*` channels carry the numbers for its plot panel. Every
+//! message is logged at its simulated time, so the timeline is the run's clock.
+//!
+//! The writer lives in the orchestrator, on a thread of its own: the recorder hands it
+//! copies of the messages ([`McapLog`]), and the thread encodes and writes them, so the
+//! recording costs the orchestrator's loop a copy per message. The messages of every tick
+//! and plan are encoded by hand ([`super::json`]), the rest by serde_json, to the same
+//! bytes. The encoder is in [`file`], Foxglove's types and the schemas in [`foxglove`].
+
+mod file;
+mod foxglove;
+
+use super::json::{Json, json_object};
+use file::McapFile;
+use foxglove::*;
+use protocol::{
+    Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
+    Route, Scenario, Timing,
+};
+use serde::Serialize;
+use serde_json::{Value, json};
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::Path;
+use std::sync::mpsc::RecvTimeoutError;
+use std::time::{Duration, Instant};
+
+/// A channel of `run.mcap`: topic, schema name, JSON Schema.
+type Channel = (&'static str, &'static str, fn() -> Value);
+
+/// Every channel of `run.mcap`.
+const CHANNELS: [Channel; 10] = [
+    (
+        "/world/obstacles",
+        "foxglove.SceneUpdate",
+        scene_update_schema,
+    ),
+    ("/robot/truth", "foxglove.PoseInFrame", pose_in_frame_schema),
+    (
+        "/robot/estimate",
+        "foxglove.PoseInFrame",
+        pose_in_frame_schema,
+    ),
+    (
+        "/robot/covariance",
+        "foxglove.SceneUpdate",
+        scene_update_schema,
+    ),
+    ("/mpc/plan", "foxglove.PosesInFrame", poses_in_frame_schema),
+    (
+        "/planner/route",
+        "foxglove.PosesInFrame",
+        poses_in_frame_schema,
+    ),
+    ("/estimator/estimate", "scmpc.Estimate", estimate_schema),
+    ("/dfl/command", "scmpc.Command", command_schema),
+    ("/dfl/deadline", "scmpc.DeadlineVerdict", deadline_schema),
+    ("/events", "foxglove.Log", log_schema),
+];
+
+/// The frame every pose is given in: the scenario's plane, z up.
+const FRAME: &str = "world";
+/// Height of the obstacle cylinders, m (the world is planar).
+const OBSTACLE_HEIGHT_M: f64 = 0.3;
+/// The covariance ellipse spans this many standard deviations each way.
+const COVARIANCE_SIGMAS: f64 = 3.0;
+
+/// What the recorder hands the writer thread.
+enum Record {
+    Tick(Box<(GroundTruth, Estimate, Actuation)>),
+    Plan(Box<Plan>),
+    Route(Box<Route>),
+    Verdict(DeadlineVerdict),
+    Event(f64, String, Value),
+}
+
+/// `run.mcap` being written by its thread.
+pub struct McapLog {
+    records: std::sync::mpsc::Sender<Vec<Record>>,
+    /// Records not handed over yet: the thread gets them in batches, so it wakes once per
+    /// batch rather than once per message (in lockstep, thousands of times a second).
+    batch: Vec<Record>,
+    handed: Instant,
+    thread: std::thread::JoinHandle<std::io::Result<()>>,
+}
+
+/// Records per batch, and the longest a record waits for its batch.
+const BATCH: usize = 64;
+const BATCH_WAIT: Duration = Duration::from_millis(100);
+
+impl McapLog {
+    /// Creates `path` with every channel and the world at time 0, and starts the thread
+    /// that writes the rest.
+    pub fn create(path: &Path, scenario: &Scenario) -> std::io::Result<McapLog> {
+        let mut file = McapFile::create(path, scenario)?;
+        let (records, received) = std::sync::mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("run.mcap".into())
+            .spawn(move || {
+                let mut flush = super::FlushClock::new();
+                loop {
+                    match received.recv_timeout(super::FLUSH_PERIOD) {
+                        Ok(batch) => {
+                            for record in batch {
+                                file.record(record)?;
+                                // In lockstep every core runs a role polling for its
+                                // input (yielding between polls): give the core back after
+                                // each record, so that the role whose input came runs at
+                                // once, not after the rest of the batch.
+                                std::thread::yield_now();
+                            }
+                        }
+                        Err(RecvTimeoutError::Timeout) => {}
+                        Err(RecvTimeoutError::Disconnected) => return file.finish(),
+                    }
+                    if flush.due() {
+                        file.flush()?;
+                    }
+                }
+            })?;
+        Ok(McapLog {
+            records,
+            batch: Vec::with_capacity(BATCH),
+            handed: Instant::now(),
+            thread,
+        })
+    }
+
+    /// Adds `record` to the batch, and hands the batch to the thread when it is full or
+    /// its first record has waited [`BATCH_WAIT`]; a thread that stopped on an error says
+    /// so at [`McapLog::finish`].
+    fn send(&mut self, record: Record) {
+        self.batch.push(record);
+        if self.batch.len() >= BATCH || self.handed.elapsed() >= BATCH_WAIT {
+            self.hand_over();
+        }
+    }
+
+    fn hand_over(&mut self) {
+        let batch = std::mem::replace(&mut self.batch, Vec::with_capacity(BATCH));
+        let _ = self.records.send(batch);
+        self.handed = Instant::now();
+    }
+
+    pub fn tick(&mut self, truth: &GroundTruth, estimate: &Estimate, act: &Actuation) {
+        self.send(Record::Tick(Box::new((*truth, *estimate, *act))));
+    }
+
+    pub fn plan(&mut self, plan: &Plan) {
+        self.send(Record::Plan(Box::new(*plan)));
+    }
+
+    pub fn route(&mut self, route: &Route) {
+        self.send(Record::Route(Box::new(*route)));
+    }
+
+    pub fn verdict(&mut self, v: &DeadlineVerdict) {
+        self.send(Record::Verdict(*v));
+    }
+
+    pub fn event(&mut self, t: f64, event: &str, line: &Value) {
+        self.send(Record::Event(t, event.to_string(), line.clone()));
+    }
+
+    /// Waits for the thread to write everything and close the file.
+    pub fn finish(mut self) -> std::io::Result<()> {
+        self.hand_over();
+        drop(self.records);
+        self.thread
+            .join()
+            .map_err(|_| std::io::Error::other("run.mcap: the writer thread panicked"))?
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_covariance_ellipse_lies_along_the_principal_axes() {
+        // Variance 4 along the diagonal x = y, 1 across it.
+        let estimate = Estimate {
+            covariance: [2.5, 1.5, 0.0, 1.5, 2.5, 0.0, 0.0, 0.0, 0.0],
+            ..Estimate::default()
+        };
+        let ellipse = [covariance_ellipse(&estimate)];
+        let scene = serde_json::to_value(SphereScene::new(0.0, "covariance", &ellipse)).unwrap();
+        let sphere = &scene["entities"][0]["spheres"][0];
+        let span = |axis: &str| sphere["size"][axis].as_f64().unwrap();
+        assert!((span("x") - 2.0 * 3.0 * 2.0).abs() < 1e-12);
+        assert!((span("y") - 2.0 * 3.0 * 1.0).abs() < 1e-12);
+        let q = &sphere["pose"]["orientation"];
+        let angle = 2.0 * q["z"].as_f64().unwrap().atan2(q["w"].as_f64().unwrap());
+        assert!((angle - std::f64::consts::FRAC_PI_4).abs() < 1e-12);
+    }
+
+    /// `message` written by hand and by serde_json.
+    fn both(message: &(impl Json + Serialize)) -> (String, String) {
+        let mut by_hand = Vec::new();
+        message.write_json(&mut by_hand);
+        let by_hand = String::from_utf8(by_hand).unwrap();
+        (by_hand, serde_json::to_string(message).unwrap())
+    }
+
+    #[test]
+    fn the_hand_written_messages_are_byte_for_byte_serde_jsons() {
+        let numbers = [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            0.1,
+            1.0 / 3.0,
+            1e-300,
+            -4.9e-324,
+            1.7976931348623157e308,
+            123456789.125,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for (i, &a) in numbers.iter().enumerate() {
+            let b = numbers[(i + 5) % numbers.len()];
+            let c = numbers[(i + 9) % numbers.len()];
+            let p = pose(a, b, c);
+            let t = a.abs().min(1e9);
+            let poses = [p, pose(c, a, b)];
+            let estimate = EstimateRecord {
+                tick: u64::MAX - i as u64,
+                epoch: i as u32,
+                x: a,
+                y: b,
+                theta: c,
+                zeta: -a,
+                covariance: std::array::from_fn(|k| numbers[(i + k) % numbers.len()]),
+                position_sigma: b,
+            };
+            let command = CommandRecord {
+                tick: i as u64,
+                epoch: u32::MAX,
+                u1: a,
+                u2: b,
+                v1: c,
+                v2: -b,
+                omega_r: -c,
+                omega_l: a * 2.0,
+                zeta: b / 3.0,
+                mode: ["nominal", "say \"brake\"\n"][i % 2],
+                mode_code: 7,
+                plan_sample: u64::from(u32::MAX) + 1,
+                deadline_misses: 0,
+            };
+            for (by_hand, by_serde) in [
+                both(&PoseInFrame::new(t, p)),
+                both(&PosesInFrame::new(t, &poses)),
+                both(&PosesInFrame::new(t, &[])),
+                both(&estimate),
+                both(&command),
+            ] {
+                assert_eq!(by_hand, by_serde);
+            }
+        }
+    }
+}

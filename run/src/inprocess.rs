@@ -1,0 +1,101 @@
+//! `scmpc run --in-process`: the [`ClosedLoop`] stepped to the end of the run, every tick
+//! recorded.
+
+use crate::closed_loop::{ClosedLoop, Ended, Tick};
+use anyhow::Context;
+use protocol::Validated;
+use record::judge::{Judge, Outcome};
+use record::{Recorder, Summary};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out` (with
+/// `run.mcap` if `mcap`).
+pub fn run(
+    scenario: &Validated,
+    out: &Path,
+    mcap: bool,
+    stop: &AtomicBool,
+) -> anyhow::Result<Summary> {
+    run_observed(scenario, out, mcap, stop, |_| {})
+}
+
+/// [`run`], handing every tick to `observe` after it is recorded.
+pub fn run_observed(
+    scenario: &Validated,
+    out: &Path,
+    mcap: bool,
+    stop: &AtomicBool,
+    mut observe: impl FnMut(&Tick),
+) -> anyhow::Result<Summary> {
+    let started = Instant::now();
+    let mut recorder =
+        Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
+    if mcap {
+        recorder
+            .record_mcap(scenario)
+            .context("creating run.mcap")?;
+    }
+    let mut closed_loop = ClosedLoop::new(scenario).context("setting up the MPC")?;
+    let mut judge = Judge::new(scenario);
+    let mut outcome = None;
+    while outcome.is_none() && !closed_loop.is_done() {
+        if stop.load(Ordering::Relaxed) {
+            outcome = Some(Outcome::Interrupted);
+            break;
+        }
+        let tick = match closed_loop.step() {
+            Ok(tick) => tick,
+            Err(Ended::Aborted { role, topic }) => {
+                let reason = format!("{topic} refused, no restart left");
+                recorder.event(
+                    "aborted",
+                    serde_json::json!({ "role": role.as_str(), "reason": reason }),
+                )?;
+                outcome = Some(Outcome::Aborted);
+                break;
+            }
+            Err(stalled) => return Err(stalled.into()),
+        };
+        if let Some(role) = tick.restarted {
+            recorder.event(
+                "restarted",
+                serde_json::json!({ "role": role.as_str(), "reason": "output refused" }),
+            )?;
+        }
+        if let Some(plan) = &tick.plan {
+            recorder.plan(plan)?;
+        }
+        if let Some(verdict) = &tick.verdict {
+            recorder.verdict(verdict)?;
+        }
+        let mut no_route = None;
+        if let Some(route) = &tick.route {
+            recorder.route(route)?;
+            no_route = judge.route(route);
+        }
+        recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
+        outcome = judge.tick(&tick.truth).or(no_route);
+        observe(&tick);
+    }
+    let outcome = match outcome {
+        Some(o) => o,
+        None => {
+            let truth = closed_loop.final_truth();
+            if let Some(truth) = &truth {
+                recorder.final_truth(truth);
+            }
+            judge.end_of_run(truth.as_ref())
+        }
+    };
+    let summary = recorder.finish(
+        scenario,
+        "in-process",
+        (outcome, &judge),
+        started.elapsed().as_secs_f64(),
+        None,
+        crate::stop::received(),
+    )?;
+    Ok(summary)
+}

@@ -1,0 +1,378 @@
+//! The driver of a multi-process run: the run's parts composed, and the clock driven.
+//!
+//! Lockstep: the driver grants tick `j` and waits until every sample of the tick (and the
+//! plan of a sample it starts) has come, records it, and only then grants `j + 1`, so the
+//! record is part of the handshake and loses nothing. It clears its wake-ups and checks
+//! the processes right after the grant, while the roles step, and then polls shared
+//! memory for the tick ([`runtime::wait::lockstep_poll`]) before it blocks. Real time:
+//! it starts the clock and records ticks as they complete, counting every tick it never
+//! receives whole.
+//!
+//! Each part owns its state: [`Session`] the ports, the schedule and the clock;
+//! [`Children`] the processes; [`Intake`] what was received and not recorded yet;
+//! [`Recorder`] the files; [`Judge`] the outcome; [`Supervisor`] status reports, failed
+//! producers, dead nodes and restarts; [`SwapServer`] the swaps; [`StatusLine`] the line on
+//! the terminal.
+
+use super::intake::Intake;
+use super::session::Session;
+use super::status_line::{Live, StatusLine};
+use super::supervision::{Supervisor, clean_dead_nodes};
+use super::swap_server::{Parts, SwapServer};
+use super::{POLL, START_LEAD, TICK_TIMEOUT};
+use crate::children::Children;
+use anyhow::bail;
+use iceoryx2::prelude::{WaitSet, ipc::Service};
+use protocol::{Role, Scenario};
+use record::judge::{Judge, Outcome};
+use record::{ProcessReport, Recorder};
+use runtime::clock::monotonic_ns;
+use runtime::ipc;
+use runtime::wait::lockstep_poll;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+/// How long the DFL must have commanded the robot to stand before an aborted real-time
+/// run ends, s.
+const AT_REST_FOR_S: f64 = 0.2;
+/// The longest an aborted real-time run waits for the robot to come to rest.
+const BRAKE_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// A run while it is driven.
+pub(super) struct Driver<'a> {
+    scenario: &'a Scenario,
+    session: &'a Session,
+    children: &'a mut Children,
+    recorder: &'a mut Recorder,
+    judge: Judge,
+    intake: Intake,
+    supervisor: Supervisor,
+    swaps: SwapServer,
+    status_line: StatusLine,
+    stop: &'a AtomicBool,
+}
+
+impl<'a> Driver<'a> {
+    pub fn new(
+        scenario: &'a Scenario,
+        session: &'a Session,
+        children: &'a mut Children,
+        recorder: &'a mut Recorder,
+        stop: &'a AtomicBool,
+    ) -> Driver<'a> {
+        Driver {
+            scenario,
+            session,
+            children,
+            recorder,
+            judge: Judge::new(scenario),
+            intake: Intake::new(
+                &scenario.timing,
+                scenario.tick_count(),
+                session.clock().mode(),
+            ),
+            supervisor: Supervisor::new(&scenario.supervision),
+            swaps: SwapServer::new(scenario),
+            status_line: StatusLine::new(),
+            stop,
+        }
+    }
+
+    /// Lockstep: every tick granted, whole, recorded and judged before the next.
+    pub fn lockstep(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
+        let ticks = self.scenario.tick_count();
+        for tick in 0..=ticks {
+            self.session.grant(tick)?;
+            self.take_now()?;
+            if let Some(outcome) = self.check()? {
+                return Ok(outcome);
+            }
+            let mut taken = Ok(());
+            lockstep_poll(|| {
+                taken = self.intake.take_from_memory(self.session);
+                taken.is_err() || self.intake.has_whole(tick)
+            });
+            taken?;
+            let mut last_progress = Instant::now();
+            while !self.intake.has_whole(tick) {
+                if let Some(outcome) = self.check()? {
+                    return Ok(outcome);
+                }
+                if last_progress.elapsed() > TICK_TIMEOUT {
+                    bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+                }
+                let before = self.intake.filed();
+                self.take(waitset)?;
+                if self.intake.filed() != before {
+                    last_progress = Instant::now();
+                }
+            }
+            if let Some(outcome) = self.record_tick(tick)? {
+                return Ok(outcome);
+            }
+            self.serve_swaps()?;
+            if let Some(outcome) = self.await_replacements(waitset)? {
+                return Ok(outcome);
+            }
+        }
+        Ok(self.judge.end_of_run(None))
+    }
+
+    /// Lockstep: holds the clock while a replacement has not joined the run, so that a
+    /// swap comes at the same simulated time however long its process takes to start (on
+    /// another host, longer than the rest of a short run takes in lockstep). A replacement
+    /// that exits, or does not publish within the swap's timeout, fails its swap, and the
+    /// run goes on.
+    fn await_replacements(
+        &mut self,
+        waitset: &WaitSet<Service>,
+    ) -> anyhow::Result<Option<Outcome>> {
+        while self
+            .swaps
+            .awaiting_join(|role, epoch| self.supervisor.has_joined(role, epoch))
+        {
+            if let Some(outcome) = self.check()? {
+                return Ok(Some(outcome));
+            }
+            self.take(waitset)?;
+            self.serve_swaps()?;
+        }
+        Ok(None)
+    }
+
+    /// Real time: the clock started, and ticks recorded and judged as they complete. A run
+    /// that must end aborted while the plant and the DFL still run (a producer lost with no
+    /// restart or failover left) goes on, recorded, until the DFL has braked the robot to
+    /// rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]), and then ends.
+    pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
+        let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
+        self.session.start(start_ns)?;
+        let end_ns = self.session.clock().at_ns(self.scenario.duration_s);
+        let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
+        let mut aborting: Option<Instant> = None;
+        loop {
+            if let Some(since) = aborting {
+                if self.stop.load(Ordering::Relaxed) {
+                    return Ok(Outcome::Interrupted);
+                }
+                if self.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
+                    || since.elapsed() > BRAKE_TIMEOUT
+                {
+                    return Ok(Outcome::Aborted);
+                }
+                self.children.kill_overdue();
+            } else if let Some(outcome) = self.check()? {
+                if outcome != Outcome::Aborted || !self.can_brake_to_rest() {
+                    return Ok(outcome);
+                }
+                self.recorder
+                    .event("braking_to_rest", serde_json::json!({}))?;
+                aborting = Some(Instant::now());
+            }
+            if monotonic_ns() > give_up_ns {
+                if aborting.is_some() {
+                    return Ok(Outcome::Aborted);
+                }
+                bail!("the run did not finish within 5 s after its end: a process hung");
+            }
+            self.take(waitset)?;
+            let planned = self.intake.record_plans(self.recorder, &mut self.judge)?;
+            if aborting.is_none() {
+                if let Some(outcome) = planned {
+                    return Ok(outcome);
+                }
+                self.serve_swaps()?;
+            }
+            while let Some(slot) = self.intake.next_due(self.recorder)? {
+                let tick = self.intake.cursor - 1;
+                match self.record_slot(tick, slot)? {
+                    Some(Outcome::Collided) => return Ok(Outcome::Collided),
+                    Some(_) if aborting.is_some() => return Ok(Outcome::Aborted),
+                    Some(outcome) => return Ok(outcome),
+                    None => {}
+                }
+            }
+        }
+    }
+
+    /// Whether the plant and the DFL still run, so that the DFL's fallbacks (the shifted
+    /// plan, then the brake) can bring the robot to rest before an aborted run ends.
+    fn can_brake_to_rest(&self) -> bool {
+        [Role::Plant, Role::Dfl].iter().all(|&role| {
+            self.children
+                .pid(role, self.session.schedule().current(role))
+                .is_some()
+        })
+    }
+
+    /// Records and judges tick `tick` (with the plans received before it); the tick
+    /// after the last ends the run.
+    fn record_tick(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
+        let slot = self.intake.take_slot(tick);
+        let no_route = self.intake.record_plans(self.recorder, &mut self.judge)?;
+        Ok(self.record_slot(tick, slot)?.or(no_route))
+    }
+
+    fn record_slot(
+        &mut self,
+        tick: u64,
+        slot: super::intake::TickSlot,
+    ) -> anyhow::Result<Option<Outcome>> {
+        if tick == self.scenario.tick_count() {
+            if let Some(truth) = &slot.truth {
+                self.recorder.final_truth(truth);
+            }
+            return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
+        }
+        let truth = self.intake.record(slot, self.recorder)?;
+        Ok(truth.and_then(|truth| self.judge.tick(&truth)))
+    }
+
+    /// Takes everything received, without waiting.
+    fn take_now(&mut self) -> anyhow::Result<()> {
+        self.intake.take(self.session)?;
+        self.supervisor
+            .take_status(self.session, self.children, self.recorder)
+    }
+
+    /// Waits for input (at most [`POLL`]) and takes everything received.
+    fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
+        ipc::wait(waitset, POLL)?;
+        self.take_now()
+    }
+
+    /// Between ticks: the status line, and the swaps moved on.
+    fn serve_swaps(&mut self) -> anyhow::Result<()> {
+        self.show_status();
+        let recorded = self.intake.cursor;
+        let now_tick = self.session.clock().now_tick().unwrap_or(0).max(recorded);
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        self.swaps.serve(&mut parts, now_tick, recorded)
+    }
+
+    /// Redraws the status line on a terminal, when due.
+    fn show_status(&mut self) {
+        let (recorder, duration_s) = (&*self.recorder, self.scenario.duration_s);
+        let latency = self.intake.last_sensor_to_actuator_ns;
+        self.status_line.update(|| Live {
+            t_s: recorder.simulated_s(),
+            duration_s,
+            deadline_misses: recorder.deadline_misses(),
+            sensor_to_actuator_us: latency.map(|ns| ns as f64 / 1e3),
+            clearance_m: recorder.last_clearance_m(),
+            mode: recorder.last_mode().map_or("-", |m| m.as_str()),
+        });
+    }
+
+    /// Ends the run on Ctrl-C; supervises; handles a process that exited: a retired one
+    /// is forgotten, a failed replacement cancels its swap, and a dead active process is
+    /// cleaned up after and then replaced by its warming replacement if there is one, else
+    /// restarted per the scenario's supervision policy, else the run ends as aborted.
+    fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(Some(Outcome::Interrupted));
+        }
+        self.children.kill_overdue();
+        self.supervisor
+            .contain(self.session, self.children, self.recorder)?;
+        self.supervisor.watch_nodes(self.children, self.recorder)?;
+        if let Some(host) = self.children.remote.as_ref().and_then(|r| r.take_lost()) {
+            return self.lose_host(&host);
+        }
+        let Some((proc, status)) = self.children.take_exited() else {
+            return Ok(None);
+        };
+        let (role, epoch) = (proc.role, proc.epoch);
+        let cleaned = clean_dead_nodes(self.children, self.recorder, Some((role, epoch)))?;
+        if proc.retire_by.is_some() {
+            self.recorder.event(
+                "retired",
+                serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status }),
+            )?;
+            return Ok(None);
+        }
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        if self
+            .swaps
+            .replacement_exited(&mut parts, role, epoch, &status)?
+        {
+            return Ok(None);
+        }
+        // A terminal's Ctrl-C reaches the whole process group: the children may see it a
+        // moment before the orchestrator's handler runs.
+        std::thread::sleep(Duration::from_millis(20));
+        if self.stop.load(Ordering::Relaxed) {
+            return Ok(Some(Outcome::Interrupted));
+        }
+        parts.recorder.event(
+            "crashed",
+            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "nodes_cleaned": cleaned }),
+        )?;
+        if self.swaps.promote(&mut parts, role)? {
+            return Ok(None);
+        }
+        let restarted =
+            self.supervisor
+                .restart(role, self.session, self.children, self.recorder)?;
+        Ok((!restarted).then_some(Outcome::Aborted))
+    }
+
+    /// The agent of `host` is gone (docs/hosts.md): its processes are as good as crashed.
+    /// Each active producer among them fails over to this host, or the run ends aborted.
+    fn lose_host(&mut self, host: &str) -> anyhow::Result<Option<Outcome>> {
+        let gone = self.children.forget_host(host);
+        let roles: Vec<Role> = gone
+            .iter()
+            .filter(|p| self.session.schedule().current(p.role) == p.epoch)
+            .map(|p| p.role)
+            .collect();
+        self.recorder.event(
+            "host_lost",
+            serde_json::json!({ "host": host, "roles": roles.iter().map(|r| r.as_str()).collect::<Vec<_>>() }),
+        )?;
+        for role in roles {
+            let failed_over =
+                self.supervisor
+                    .fail_over(role, self.session, self.children, self.recorder)?;
+            if !failed_over {
+                return Ok(Some(Outcome::Aborted));
+            }
+        }
+        Ok(None)
+    }
+
+    /// After the clock has stopped with `outcome`: records the plans still held, answers
+    /// every swap that did not happen, and fills `report` with the run's counts. Returns
+    /// the outcome and the judge.
+    pub fn finish(
+        mut self,
+        outcome: anyhow::Result<Outcome>,
+        report: &mut ProcessReport,
+    ) -> anyhow::Result<(Outcome, Judge)> {
+        self.status_line.clear();
+        let outcome = outcome.and_then(|o| {
+            self.intake
+                .record_plans(self.recorder, &mut self.judge)
+                .map(|_| o)
+        });
+        let mut parts = Parts {
+            session: self.session,
+            children: self.children,
+            recorder: self.recorder,
+        };
+        self.swaps.finish(&mut parts)?;
+        self.intake.report(report);
+        report.restarts = self.supervisor.restarts();
+        report.swaps = self.swaps.done();
+        report.rejected_samples = self.supervisor.take_rejected();
+        Ok((outcome?, self.judge))
+    }
+}

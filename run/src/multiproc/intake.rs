@@ -1,0 +1,289 @@
+//! What the orchestrator receives from the roles, filed by tick as it arrives, and recorded
+//! once a tick is whole: every tick's row with the hop latencies, the plans and the
+//! deadline verdicts in sample order, the routes.
+
+use super::session::Session;
+use protocol::{
+    Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing,
+};
+use record::judge::{Judge, Outcome};
+use record::{Latencies, ProcessReport, Recorder};
+use runtime::clock::RunMode;
+use std::collections::BTreeMap;
+
+/// Everything received for one tick.
+#[derive(Default)]
+pub(super) struct TickSlot {
+    pub truth: Option<GroundTruth>,
+    pub measurement: Option<Measurement>,
+    pub estimate: Option<Estimate>,
+    /// With the orchestrator's own receipt latency, ns.
+    pub actuation: Option<(Actuation, u64)>,
+}
+
+impl TickSlot {
+    /// Whether every sample of the tick has come (of the tick after the last, only the
+    /// truth is needed).
+    fn complete(&self, last: bool) -> bool {
+        self.truth.is_some()
+            && (last
+                || (self.measurement.is_some()
+                    && self.estimate.is_some()
+                    && self.actuation.is_some()))
+    }
+
+    /// Whether the plant was commanded at the tick (an estimate may be missing: the DFL
+    /// braked on its own while the estimator was silent).
+    fn commanded(&self) -> bool {
+        self.truth.is_some() && self.measurement.is_some() && self.actuation.is_some()
+    }
+
+    /// The topics whose sample of the tick never came, as the `record_gap` event names
+    /// them: which process was silent.
+    fn missing(&self) -> Vec<&'static str> {
+        [
+            ("truth", self.truth.is_none()),
+            ("measurement", self.measurement.is_none()),
+            ("estimate", self.estimate.is_none()),
+            ("actuation", self.actuation.is_none()),
+        ]
+        .into_iter()
+        .filter_map(|(topic, missing)| missing.then_some(topic))
+        .collect()
+    }
+}
+
+/// The slot of `tick`, unless the tick is already recorded (`tick < cursor`).
+fn slot(slots: &mut BTreeMap<u64, TickSlot>, cursor: u64, tick: u64) -> Option<&mut TickSlot> {
+    (tick >= cursor).then(|| slots.entry(tick).or_default())
+}
+
+/// The samples received and not recorded yet, and the counts of what was recorded.
+pub(super) struct Intake {
+    timing: Timing,
+    /// The run's ticks: samples of later ticks (the roles' answers to the last grant) are
+    /// not part of the run.
+    ticks: u64,
+    mode: RunMode,
+    slots: BTreeMap<u64, TickSlot>,
+    plans: BTreeMap<u64, Plan>,
+    verdicts: BTreeMap<u64, DeadlineVerdict>,
+    /// Routes received and not recorded yet, in arrival order.
+    routes: Vec<Route>,
+    /// The newest tick whose truth has come.
+    pub newest_truth: Option<u64>,
+    /// Next tick to record (every earlier one is recorded).
+    pub cursor: u64,
+    /// Newest sample whose plan is recorded.
+    last_plan: Option<u64>,
+    latencies: Latencies,
+    record_gaps: u64,
+    ticks_without_estimate: u64,
+    /// Sensor to actuator of the newest tick recorded that has one, ns.
+    pub last_sensor_to_actuator_ns: Option<u64>,
+}
+
+impl Intake {
+    pub fn new(timing: &Timing, ticks: u64, mode: RunMode) -> Intake {
+        Intake {
+            timing: timing.clone(),
+            ticks,
+            mode,
+            slots: BTreeMap::new(),
+            plans: BTreeMap::new(),
+            verdicts: BTreeMap::new(),
+            routes: Vec::new(),
+            newest_truth: None,
+            cursor: 0,
+            last_plan: None,
+            latencies: Latencies::default(),
+            record_gaps: 0,
+            ticks_without_estimate: 0,
+            last_sensor_to_actuator_ns: None,
+        }
+    }
+
+    /// Files everything the data topics hold by tick, after clearing their wake-ups (so
+    /// none is missed). Ticks already recorded come again only as replays: skipped.
+    pub fn take(&mut self, session: &Session) -> anyhow::Result<()> {
+        for input in session.inputs() {
+            input.clear_wakeups();
+        }
+        self.take_from_memory(session)
+    }
+
+    /// [`Intake::take`] straight from shared memory, without a system call: the wake-ups
+    /// stay, so the caller takes with [`Intake::take`] before it blocks.
+    pub fn take_from_memory(&mut self, session: &Session) -> anyhow::Result<()> {
+        let (cursor, ticks) = (self.cursor, self.ticks);
+        let slots = &mut self.slots;
+        let newest = &mut self.newest_truth;
+        session.truth.take(|m, _| {
+            *newest = (*newest).max(Some(m.header.tick));
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.truth = Some(m);
+            }
+        })?;
+        session.measurement.take(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.measurement = Some(m);
+            }
+        })?;
+        session.estimate.take(|m, _| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.estimate = Some(m);
+            }
+        })?;
+        session.actuation.take(|m, l| {
+            if let Some(s) = slot(slots, cursor, m.header.tick) {
+                s.actuation = Some((m, l));
+            }
+        })?;
+        let plans = &mut self.plans;
+        session.plan.take(|p, _| {
+            if p.header.tick < ticks {
+                plans.insert(p.sample, p);
+            }
+        })?;
+        let routes = &mut self.routes;
+        session.route.take(|r, _| {
+            if r.header.tick < ticks {
+                routes.push(r);
+            }
+        })?;
+        let verdicts = &mut self.verdicts;
+        session.deadline.take(|v, _| {
+            if v.header.tick < ticks {
+                verdicts.insert(v.sample, v);
+            }
+        })?;
+        Ok(())
+    }
+
+    /// Lockstep: whether tick `tick` is whole, with the plan of its sample when it starts
+    /// one.
+    pub fn has_whole(&self, tick: u64) -> bool {
+        let last = tick == self.ticks;
+        let plan_due = !last && self.timing.starts_sample(tick);
+        self.slots.get(&tick).is_some_and(|s| s.complete(last))
+            && (!plan_due || self.plans.contains_key(&self.timing.sample_of(tick)))
+    }
+
+    /// How many samples (of any tick) are filed: it grows while the roles make progress.
+    pub fn filed(&self) -> usize {
+        self.slots.len() + self.plans.len()
+    }
+
+    /// Real time: the next tick to record, if it is whole or overdue (its truth is two
+    /// samples old): `Some(None)` for a tick lost (counted as a record gap).
+    pub fn next_due(&mut self, recorder: &mut Recorder) -> anyhow::Result<Option<TickSlot>> {
+        let tick = self.cursor;
+        let overdue = self
+            .newest_truth
+            .is_some_and(|t| t >= tick + 2 * self.timing.ticks_per_sample());
+        let complete = self
+            .slots
+            .get(&tick)
+            .is_some_and(|s| s.complete(tick == self.ticks));
+        if !complete && !overdue {
+            return Ok(None);
+        }
+        let slot = self.take_slot(tick);
+        if tick < self.ticks && !complete && !slot.commanded() {
+            self.record_gaps += 1;
+            recorder.event(
+                "record_gap",
+                serde_json::json!({ "tick": tick, "missing": slot.missing() }),
+            )?;
+        }
+        Ok(Some(slot))
+    }
+
+    /// Takes the slot of `tick` (empty if nothing came); the cursor moves past it.
+    pub fn take_slot(&mut self, tick: u64) -> TickSlot {
+        self.cursor = tick + 1;
+        self.slots.remove(&tick).unwrap_or_default()
+    }
+
+    /// Records the tick of `slot` if the plant was commanded at it; returns its truth.
+    pub fn record(
+        &mut self,
+        slot: TickSlot,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<Option<GroundTruth>> {
+        let (Some(truth), Some(measurement), Some((act, own_latency))) =
+            (slot.truth, slot.measurement, slot.actuation)
+        else {
+            return Ok(None);
+        };
+        let l = &mut self.latencies;
+        l.hop(
+            "control_to_plant",
+            u64::from(measurement.header.input_latency_ns),
+        );
+        // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
+        // recorded with an estimate of NaN.
+        self.ticks_without_estimate += u64::from(slot.estimate.is_none());
+        let estimate = slot.estimate.unwrap_or(Estimate {
+            state: [f64::NAN; 4],
+            ..Estimate::default()
+        });
+        if slot.estimate.is_some() {
+            l.hop(
+                "measurement_to_estimator",
+                u64::from(estimate.header.input_latency_ns),
+            );
+            l.hop("estimate_to_dfl", u64::from(act.header.input_latency_ns));
+        }
+        if self.mode == RunMode::Lockstep {
+            // In real time the orchestrator drains its buffers periodically: not a hop.
+            l.hop("actuation_to_orchestrator", own_latency);
+        }
+        if !self.timing.starts_sample(truth.header.tick) && slot.estimate.is_some() {
+            let ns = act
+                .header
+                .publish_ns
+                .saturating_sub(measurement.header.publish_ns);
+            l.sensor_to_actuator(ns);
+            self.last_sensor_to_actuator_ns = Some(ns);
+        }
+        recorder.tick(&truth, &estimate, &act)?;
+        Ok(Some(truth))
+    }
+
+    /// Records every route and plan received, then every deadline verdict (the DFL judges
+    /// sample k at the start of sample k + 1, after plan(k) was published); the judge sees
+    /// every route.
+    pub fn record_plans(
+        &mut self,
+        recorder: &mut Recorder,
+        judge: &mut Judge,
+    ) -> anyhow::Result<Option<Outcome>> {
+        let mut no_route = None;
+        for route in std::mem::take(&mut self.routes) {
+            recorder.route(&route)?;
+            no_route = no_route.or(judge.route(&route));
+        }
+        while let Some((sample, plan)) = self.plans.pop_first() {
+            // A replay repeats a plan already recorded.
+            if self.last_plan.is_some_and(|last| sample <= last) {
+                continue;
+            }
+            self.last_plan = Some(sample);
+            self.latencies
+                .hop("estimate_to_mpc", u64::from(plan.header.input_latency_ns));
+            recorder.plan(&plan)?;
+        }
+        while let Some((_, v)) = self.verdicts.pop_first() {
+            recorder.verdict(&v)?;
+        }
+        Ok(no_route)
+    }
+
+    /// The counts of what was received, for the summary.
+    pub fn report(&self, report: &mut ProcessReport) {
+        self.latencies.report(report);
+        report.record_gaps = self.record_gaps;
+        report.ticks_without_estimate = self.ticks_without_estimate;
+    }
+}

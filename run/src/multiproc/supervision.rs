@@ -1,0 +1,290 @@
+//! Supervision: the processes' status reports (refused samples, processes that joined),
+//! producers that fail the border checks, the scan for dead iceoryx2 nodes, and restarts.
+
+use super::session::Session;
+use super::{NODE_LISTING, NODE_SCAN};
+use crate::children::Children;
+use protocol::{ControlCommand, Rejection, RestartPolicy, Role, Status, StatusEvent, Supervision};
+use record::Recorder;
+use runtime::ipc;
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+/// How long a producer's own samples may be refused, none taken, before it is treated as
+/// failed ([`Supervisor::contain`]).
+pub(super) const REFUSED_LIMIT: Duration = Duration::from_millis(500);
+
+/// Samples of a producer refused through its own fault, since `since`.
+#[derive(Debug, Clone, Copy)]
+struct Blame {
+    since: Instant,
+    epoch: u32,
+    /// Samples of the role the orchestrator had taken at `since`.
+    taken: u64,
+}
+
+/// What supervision keeps across the run.
+pub(super) struct Supervisor {
+    policy: Supervision,
+    restarts: u32,
+    /// Samples refused by any consumer, by reason.
+    rejected: BTreeMap<String, u64>,
+    /// Per role: since when its own samples have been refused.
+    blamed: [Option<Blame>; Role::COUNT],
+    last_node_scan: Instant,
+    /// `None`: list at the next scan (a process has just joined).
+    last_node_listing: Option<Instant>,
+    /// Processes of the run's living nodes, as last listed.
+    node_pids: Vec<u32>,
+    /// The processes (role, epoch) that have reported ready since the run started.
+    joined: Vec<(Role, u32)>,
+}
+
+impl Supervisor {
+    pub fn new(policy: &Supervision) -> Supervisor {
+        Supervisor {
+            policy: policy.clone(),
+            restarts: 0,
+            rejected: BTreeMap::new(),
+            blamed: [None; Role::COUNT],
+            last_node_scan: Instant::now(),
+            last_node_listing: None,
+            node_pids: Vec::new(),
+            joined: Vec::new(),
+        }
+    }
+
+    /// Whether the process of `role` and `epoch` has reported ready since the run started.
+    pub fn has_joined(&self, role: Role, epoch: u32) -> bool {
+        self.joined.contains(&(role, epoch))
+    }
+
+    /// Restarts so far.
+    pub fn restarts(&self) -> u32 {
+        self.restarts
+    }
+
+    /// Samples refused so far, by reason.
+    pub fn take_rejected(&mut self) -> BTreeMap<String, u64> {
+        std::mem::take(&mut self.rejected)
+    }
+
+    /// Takes the processes' status reports: refused samples (the orchestrator's own
+    /// included) are counted and recorded by reason, and a process that joined the running
+    /// loop is told the clock and the schedule, and every producer repeats its newest
+    /// sample for it.
+    pub fn take_status(
+        &mut self,
+        session: &Session,
+        children: &Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
+        let mut joined = Vec::new();
+        let mut rejected = Vec::new();
+        session.status.drain(|s, _| {
+            if let Some(ready) = ready_role(&s) {
+                joined.push(ready);
+            } else if s.event == StatusEvent::Rejected as u32 {
+                rejected.push((
+                    Role::from_code(s.role).map_or("unknown", Role::as_str),
+                    Role::from_code(s.producer),
+                    s.detail,
+                    s.count,
+                ));
+            }
+        })?;
+        for (producer, code, count) in session.take_rejections() {
+            rejected.push(("orchestrator", producer, code, count));
+        }
+        for (consumer, producer, code, count) in rejected {
+            let reason = Rejection::ALL.get(code as usize);
+            if let (Some(role), true) = (producer, reason.is_some_and(|r| r.blames_producer())) {
+                self.blame(session, role);
+            }
+            let reason = reason.map_or("unknown", |r| r.as_str());
+            *self.rejected.entry(reason.to_string()).or_default() += count;
+            recorder.event(
+                "rejected",
+                serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
+            )?;
+        }
+        for (role, s) in joined {
+            let epoch = s.header.epoch;
+            self.joined.push((role, epoch));
+            session.pin(role, epoch, children.pins(role, epoch, s.publishers))?;
+            recorder.event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            self.last_node_listing = None;
+            session.tell_the_clock()?;
+            session.command(ControlCommand::Replay)?;
+        }
+        Ok(())
+    }
+
+    /// Notes that samples of the current producer of `role` were refused through its own
+    /// fault ([`Rejection::blames_producer`]).
+    fn blame(&mut self, session: &Session, role: Role) {
+        let epoch = session.schedule().current(role);
+        let slot = &mut self.blamed[role as usize];
+        if slot.is_none_or(|b| b.epoch != epoch) {
+            *slot = Some(Blame {
+                since: Instant::now(),
+                epoch,
+                taken: session.output_of(role).taken(),
+            });
+        }
+    }
+
+    /// A producer whose samples have been refused for [`REFUSED_LIMIT`] with none taken
+    /// meanwhile has failed: it is recorded (`refused_too_long`) and killed, and its exit
+    /// is handled as a crash (restart or abort, by the scenario's policy). Meanwhile its
+    /// consumers fall back as for a silent producer (the DFL flies the committed plan,
+    /// then brakes).
+    pub fn contain(
+        &mut self,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
+        for role in Role::ALL {
+            let Some(blame) = self.blamed[role as usize] else {
+                continue;
+            };
+            let recovered = session.output_of(role).taken() > blame.taken;
+            let replaced = session.schedule().current(role) != blame.epoch;
+            if recovered || replaced {
+                self.blamed[role as usize] = None;
+            } else if blame.since.elapsed() >= REFUSED_LIMIT {
+                self.blamed[role as usize] = None;
+                let pid = children.kill_running(role, blame.epoch);
+                recorder.event(
+                    "refused_too_long",
+                    serde_json::json!({ "role": role.as_str(), "epoch": blame.epoch, "pid": pid, "limit_s": REFUSED_LIMIT.as_secs_f64() }),
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Looks for dead nodes every [`NODE_SCAN`]: a full iceoryx2 node listing (about 1 ms
+    /// of CPU) every [`NODE_LISTING`], and in between only whether the processes of the
+    /// nodes listed are still alive (microseconds), so the scan does not disturb the
+    /// control loop.
+    pub fn watch_nodes(
+        &mut self,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<()> {
+        if self.last_node_scan.elapsed() < NODE_SCAN {
+            return Ok(());
+        }
+        self.last_node_scan = Instant::now();
+        let someone_died = self.node_pids.iter().any(|pid| !ipc::process_alive(*pid));
+        if someone_died
+            || self
+                .last_node_listing
+                .is_none_or(|t| t.elapsed() >= NODE_LISTING)
+        {
+            clean_dead_nodes(children, recorder, None)?;
+            self.node_pids = ipc::node_pids(&children.prefix).unwrap_or_default();
+            self.last_node_listing = Some(Instant::now());
+        }
+        Ok(())
+    }
+
+    /// The host of a process of `role` is gone: with `supervision.failover = "local"` a
+    /// replacement starts on this host with a new epoch and takes over at once (its host
+    /// is lost, so nothing of the old one is left to break); returns false otherwise (the
+    /// run ends aborted).
+    pub fn fail_over(
+        &mut self,
+        role: Role,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<bool> {
+        if self.policy.failover != protocol::Failover::Local {
+            return Ok(false);
+        }
+        start_new_epoch(role, "failed_over", session, children, recorder)?;
+        Ok(true)
+    }
+
+    /// A crashed process of `role`: restarted per the scenario's policy with a new epoch
+    /// (returns false when the policy allows none: the run ends aborted; a dead plant
+    /// always ends it).
+    pub fn restart(
+        &mut self,
+        role: Role,
+        session: &Session,
+        children: &mut Children,
+        recorder: &mut Recorder,
+    ) -> anyhow::Result<bool> {
+        let restartable = role != Role::Plant
+            && self.policy.restart == RestartPolicy::Always
+            && self.restarts < self.policy.max_restarts;
+        if !restartable {
+            return Ok(false);
+        }
+        self.restarts += 1;
+        start_new_epoch(role, "restarted", session, children, recorder)?;
+        Ok(true)
+    }
+}
+
+/// Starts the built-in process of `role` with a new epoch, made active at once, and
+/// records `event` for it.
+fn start_new_epoch(
+    role: Role,
+    event: &str,
+    session: &Session,
+    children: &mut Children,
+    recorder: &mut Recorder,
+) -> anyhow::Result<()> {
+    let epoch = children.take_epoch();
+    session.reschedule(|s| s.activate(role, epoch))?;
+    let pid = children.spawn_role(role, epoch, &[])?;
+    recorder.event(
+        event,
+        serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch, "host": children.host_of(role) }),
+    )?;
+    Ok(())
+}
+
+/// iceoryx2's dead-node detection: removes what dead nodes of the run left. A role
+/// process that died while the process the orchestrator started for it lives on (a
+/// wrapper script, say) is recorded as `dead_node`, and that process is killed, so its
+/// exit is handled as a crash. Nothing is recorded for the node of `exited` (the child
+/// whose exit is being handled) nor for one whose child has exited already (its exit
+/// comes next). Returns how many nodes were cleaned.
+pub(super) fn clean_dead_nodes(
+    children: &mut Children,
+    recorder: &mut Recorder,
+    exited: Option<(Role, u32)>,
+) -> anyhow::Result<usize> {
+    let names = ipc::cleanup_dead_nodes(&children.prefix).unwrap_or_default();
+    for name in &names {
+        let Some((role, epoch)) = ipc::role_of_node(name) else {
+            continue;
+        };
+        if exited == Some((role, epoch)) {
+            continue;
+        }
+        let ours = children.pid(role, epoch).is_some();
+        let killed = children.kill_running(role, epoch);
+        if killed.is_some() || !ours {
+            recorder.event(
+                "dead_node",
+                serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
+            )?;
+        }
+    }
+    Ok(names.len())
+}
+
+/// The role of a ready report.
+pub(super) fn ready_role(s: &Status) -> Option<(Role, Status)> {
+    (s.event == StatusEvent::Ready as u32)
+        .then(|| Role::from_code(s.role))
+        .flatten()
+        .map(|role| (role, *s))
+}

@@ -1,0 +1,152 @@
+//! How the MPC step's cost grows with the horizon `N` and the number of obstacles: the
+//! paper's robot driven through random fields ([`super::planning_field`], a fixed seed per
+//! size, the first seed whose field has a route) along the planner's route, in process,
+//! for [`SIMULATED_S`] each; the step's percentiles per `(N, obstacles)`, as a table in
+//! `bench.json` and the figure `scaling.svg`/`.png`.
+
+use super::{PLANNING_START, planning_field};
+use crate::figures::{Figure, Series};
+use anyhow::{Context, anyhow};
+use protocol::{Obstacle, PlannerKind, Scenario, Validated};
+use record::Percentiles;
+use serde::Serialize;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+/// The horizons and the obstacle counts of the table.
+pub const HORIZONS: [usize; 3] = [8, 16, 30];
+pub const OBSTACLES: [usize; 4] = [1, 5, 12, 20];
+/// Simulated length of each run, s.
+pub const SIMULATED_S: f64 = 10.0;
+
+/// One cell of the table.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScalingPoint {
+    pub horizon: usize,
+    pub obstacles: usize,
+    /// MPC step (update, every solve) over the run's samples, µs.
+    pub step_us: Percentiles,
+}
+
+/// Runs every `(N, obstacles)` pair into `out` (one run directory each, without
+/// `run.mcap`) and draws the figure there.
+pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<Vec<ScalingPoint>> {
+    let mut points = Vec::new();
+    for obstacles in OBSTACLES {
+        let field = routable_field(obstacles)?;
+        for horizon in HORIZONS {
+            let scenario = field_scenario(&field, horizon)?;
+            let dir = out.join(format!("n{horizon}-obstacles{obstacles}"));
+            let summary = run::inprocess::run(&scenario, &dir, false, stop)?;
+            run::stop::check(stop)?;
+            points.push(ScalingPoint {
+                horizon,
+                obstacles,
+                step_us: summary.solve_us,
+            });
+        }
+    }
+    figure(&points)
+        .write(out)
+        .context("drawing the scaling figure")?;
+    Ok(points)
+}
+
+/// The first field of `n` discs (seeds from 1) through which the planner finds a route.
+fn routable_field(n: usize) -> anyhow::Result<Vec<Obstacle>> {
+    let mut graph = planner::TangentGraph::with_capacity(n);
+    let bounds = [[-10.0, 10.0], [-10.0, 10.0]];
+    (1..100)
+        .map(|seed| planning_field(seed, n))
+        .find(|discs| {
+            graph
+                .shortest_path(PLANNING_START, [0.0, 0.0], discs, bounds)
+                .is_ok()
+        })
+        .map(|discs| {
+            let obstacle = |d: &planner::Disc| Obstacle {
+                x: d.center[0],
+                y: d.center[1],
+                radius: d.radius,
+            };
+            discs.iter().map(obstacle).collect()
+        })
+        .ok_or_else(|| anyhow!("no field of {n} discs with a route in 99 seeds"))
+}
+
+/// The paper's robot from [`PLANNING_START`] to the origin through `field` along the
+/// planner's route, with horizon `horizon`.
+fn field_scenario(field: &[Obstacle], horizon: usize) -> anyhow::Result<Validated> {
+    let mut s = Scenario {
+        name: format!("scaling-n{horizon}-obstacles{}", field.len()),
+        duration_s: SIMULATED_S,
+        obstacles: field.to_vec(),
+        ..Scenario::default()
+    };
+    s.robot.start = [
+        PLANNING_START[0],
+        PLANNING_START[1],
+        -0.75 * std::f64::consts::PI,
+    ];
+    s.robot.goal = [0.0, 0.0];
+    s.mpc.horizon = horizon;
+    s.planner.kind = PlannerKind::Route;
+    s.validated("the scaling benchmark")
+        .map_err(|e| anyhow!("{e}"))
+}
+
+/// Step p50 and p99 against `N`, one pair of curves per obstacle count.
+fn figure(points: &[ScalingPoint]) -> Figure {
+    let curve = |obstacles: usize, color: usize, p99: bool| Series {
+        label: format!(
+            "{obstacles} obstacle{}, {}",
+            if obstacles == 1 { "" } else { "s" },
+            if p99 { "p99" } else { "median" }
+        ),
+        points: (points.iter())
+            .filter(|p| p.obstacles == obstacles)
+            .map(|p| {
+                let us = if p99 { p.step_us.p99 } else { p.step_us.p50 };
+                (p.horizon as f64, us / 1e3)
+            })
+            .collect(),
+        faint: p99,
+        color,
+        ..Series::default()
+    };
+    Figure {
+        stem: "scaling".into(),
+        title: "MPC step against N and the obstacles (random fields)".into(),
+        x_label: "prediction horizon N".into(),
+        y_label: "MPC step (ms, log scale)".into(),
+        series: (OBSTACLES.iter().enumerate())
+            .flat_map(|(i, &n)| [curve(n, i, false), curve(n, i, true)])
+            .collect(),
+        log_y: true,
+        legend_left: true,
+        ..Figure::default()
+    }
+}
+
+/// The table as `scmpc bench` prints it.
+pub fn table(points: &[ScalingPoint]) -> String {
+    let mut out = String::from("  MPC step p50 / p99 (µs)");
+    for n in HORIZONS {
+        out += &format!("{:>20}", format!("N = {n}"));
+    }
+    out.push('\n');
+    for obstacles in OBSTACLES {
+        out += &format!("  {obstacles:>2} obstacles            ");
+        for horizon in HORIZONS {
+            let cell = points
+                .iter()
+                .find(|p| p.horizon == horizon && p.obstacles == obstacles)
+                .map_or(String::from("-"), |p| {
+                    format!("{:.0} / {:.0}", p.step_us.p50, p.step_us.p99)
+                });
+            out += &format!("{cell:>20}");
+        }
+        out.push('\n');
+    }
+    out
+}

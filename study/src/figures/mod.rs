@@ -1,0 +1,468 @@
+//! Figures as SVG and PNG, drawn with plotters: the paper's figure set (`scmpc figures`)
+//! and the plots of one run (`path` and `clearance`, written by `scmpc run`).
+//!
+//! Text is drawn in DejaVu Sans, embedded in the executable (the `dejavu` crate): no system
+//! font is looked for. `SCMPC_FONT` names another TrueType file to use instead.
+
+use anyhow::{Context, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use record::schema::Table;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+mod paper;
+
+pub use paper::{FigureSet, GAMMA_HORIZON_PAIRS, GAMMAS, HORIZONS, paper_set};
+
+/// Width and height of every figure, px.
+const SIZE: (u32, u32) = (900, 700);
+/// Margins of the plotting area inside a figure, px: left (with the y labels), right,
+/// top (with the title), bottom (with the x labels).
+const PLOT_MARGINS: (u32, u32, u32, u32) = (85, 15, 55, 60);
+/// Series colours, distinguishable in print.
+const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(23, 190, 207),
+    RGBColor(227, 119, 194),
+];
+
+/// One curve.
+#[derive(Debug, Clone, Default)]
+pub struct Series {
+    pub label: String,
+    pub points: Vec<(f64, f64)>,
+    /// Drawn thinner and lighter (a noisy or secondary variant).
+    pub faint: bool,
+    /// Drawn dashed (a route, a reference).
+    pub dashed: bool,
+    /// Palette index.
+    pub color: usize,
+}
+
+/// A labelled point, drawn as a filled circle (the start, the goal).
+#[derive(Debug, Clone)]
+pub struct Marker {
+    pub label: String,
+    pub at: (f64, f64),
+    /// Palette index.
+    pub color: usize,
+}
+
+/// A figure: curves, obstacles to scale, horizontal reference lines.
+#[derive(Debug, Clone, Default)]
+pub struct Figure {
+    /// File name without extension.
+    pub stem: String,
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+    /// Circles `(x, y, radius)` in data units, drawn filled.
+    pub discs: Vec<(f64, f64, f64)>,
+    /// Horizontal lines `(y, label)`.
+    pub levels: Vec<(f64, String)>,
+    pub markers: Vec<Marker>,
+    /// Same scale on both axes (paths in the plane).
+    pub equal_axes: bool,
+    /// Logarithmic y axis.
+    pub log_y: bool,
+    /// The legend in the upper left corner (else the upper right).
+    pub legend_left: bool,
+}
+
+impl Figure {
+    /// Writes `<stem>.svg` and `<stem>.png` into `dir`; returns both paths.
+    pub fn write(&self, dir: &Path) -> anyhow::Result<[PathBuf; 2]> {
+        ensure_font()?;
+        let svg = dir.join(format!("{}.svg", self.stem));
+        let png = dir.join(format!("{}.png", self.stem));
+        {
+            let root = SVGBackend::new(&svg, SIZE).into_drawing_area();
+            self.draw(&root)
+                .map_err(|e| anyhow!("drawing {}: {e}", svg.display()))?;
+            root.present()
+                .map_err(|e| anyhow!("writing {}: {e}", svg.display()))?;
+        }
+        let mut pixels = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut pixels, SIZE).into_drawing_area();
+            self.draw(&root)
+                .map_err(|e| anyhow!("drawing {}: {e}", png.display()))?;
+            root.present()
+                .map_err(|e| anyhow!("drawing {}: {e}", png.display()))?;
+        }
+        write_png(&png, &pixels).with_context(|| format!("writing {}", png.display()))?;
+        Ok([svg, png])
+    }
+
+    /// The ranges of the axes: the data's, padded; equal scales for paths.
+    fn ranges(&self) -> ((f64, f64), (f64, f64)) {
+        let mut xs: Vec<f64> = Vec::new();
+        let mut ys: Vec<f64> = Vec::new();
+        for s in &self.series {
+            for &(x, y) in &s.points {
+                if x.is_finite() && y.is_finite() {
+                    xs.push(x);
+                    ys.push(self.y(y));
+                }
+            }
+        }
+        for m in &self.markers {
+            xs.push(m.at.0);
+            ys.push(self.y(m.at.1));
+        }
+        for &(x, y, r) in &self.discs {
+            xs.extend([x - r, x + r]);
+            ys.extend([y - r, y + r]);
+        }
+        ys.extend(self.levels.iter().map(|l| self.y(l.0)));
+        let span = |v: &[f64]| {
+            let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if lo.is_finite() && hi.is_finite() {
+                let pad = ((hi - lo) * 0.05).max(1e-3);
+                (lo - pad, hi + pad)
+            } else {
+                (0.0, 1.0)
+            }
+        };
+        let (mut x, mut y) = (span(&xs), span(&ys));
+        if self.equal_axes {
+            // One metre is as long on both axes: the spans follow the plot area's shape.
+            let (l, r, t, b) = PLOT_MARGINS;
+            let aspect = f64::from(SIZE.0 - l - r) / f64::from(SIZE.1 - t - b);
+            let half_y = ((x.1 - x.0) / aspect).max(y.1 - y.0) / 2.0;
+            let (cx, cy) = ((x.0 + x.1) / 2.0, (y.0 + y.1) / 2.0);
+            x = (cx - half_y * aspect, cx + half_y * aspect);
+            y = (cy - half_y, cy + half_y);
+        }
+        if self.log_y {
+            // Room above the data for the legend.
+            y.1 += 0.6;
+        }
+        (x, y)
+    }
+
+    /// A y value as plotted (log10 on a log axis).
+    fn y(&self, y: f64) -> f64 {
+        if self.log_y { y.max(1e-9).log10() } else { y }
+    }
+
+    /// Draws the figure: axes, then each series and marker in turn (long: one block per
+    /// kind of element, each a plotters call).
+    fn draw<DB: DrawingBackend>(
+        &self,
+        root: &DrawingArea<DB, Shift>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        root.fill(&WHITE)?;
+        let ((x0, x1), (y0, y1)) = self.ranges();
+        let (left, right, top, bottom) = PLOT_MARGINS;
+        let mut chart = ChartBuilder::on(root)
+            .caption(&self.title, ("sans-serif", 22))
+            .margin_left(left - 70)
+            .margin_right(right)
+            .margin_top(top - 30)
+            .margin_bottom(bottom - 45)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        let log_y = self.log_y;
+        let y_format = move |v: &f64| {
+            if log_y {
+                let value = 10f64.powf(*v);
+                let decimals = (1.0 - value.log10().floor()).clamp(0.0, 3.0) as usize;
+                format!("{value:.decimals$}")
+            } else {
+                format!("{v:.2}")
+            }
+        };
+        chart
+            .configure_mesh()
+            .x_desc(self.x_label.as_str())
+            .y_desc(self.y_label.as_str())
+            .y_label_formatter(&y_format)
+            .axis_desc_style(("sans-serif", 17))
+            .label_style(("sans-serif", 14))
+            .light_line_style(WHITE.mix(0.0))
+            .draw()?;
+        for &(cx, cy, r) in &self.discs {
+            let outline: Vec<(f64, f64)> = (0..=120)
+                .map(|i| {
+                    let a = i as f64 / 120.0 * std::f64::consts::TAU;
+                    (cx + r * a.cos(), cy + r * a.sin())
+                })
+                .collect();
+            chart.draw_series(std::iter::once(Polygon::new(
+                outline.clone(),
+                RGBColor(120, 120, 120).mix(0.35).filled(),
+            )))?;
+            chart.draw_series(std::iter::once(PathElement::new(outline, BLACK)))?;
+        }
+        for (y, label) in &self.levels {
+            let y = self.y(*y);
+            let style = RED.stroke_width(2);
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(x0, y), (x1, y)],
+                    style,
+                )))?
+                .label(label.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+        }
+        for s in &self.series {
+            let color = PALETTE[s.color % PALETTE.len()];
+            let style = if s.faint {
+                color.mix(0.7).stroke_width(1)
+            } else {
+                color.stroke_width(2)
+            };
+            let points = s
+                .points
+                .iter()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .map(|&(x, y)| (x, self.y(y)));
+            let drawn = if s.dashed {
+                chart.draw_series(DashedLineSeries::new(points, 8, 6, style))?
+            } else {
+                chart.draw_series(LineSeries::new(points, style))?
+            };
+            if !s.label.is_empty() {
+                drawn
+                    .label(s.label.as_str())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
+            }
+        }
+        for m in &self.markers {
+            let style = PALETTE[m.color % PALETTE.len()].filled();
+            chart
+                .draw_series(std::iter::once(Circle::new(
+                    (m.at.0, self.y(m.at.1)),
+                    6,
+                    style,
+                )))?
+                .label(m.label.as_str())
+                .legend(move |(x, y)| Circle::new((x + 12, y), 5, style));
+        }
+        chart
+            .configure_series_labels()
+            .position(if self.legend_left {
+                SeriesLabelPosition::UpperLeft
+            } else {
+                SeriesLabelPosition::UpperRight
+            })
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    }
+}
+
+/// Names a TrueType file the figures use instead of the embedded DejaVu Sans; set but
+/// empty (`SCMPC_FONT=`, the usual way to unset a variable in a script) it is unset.
+pub const ENV_FONT: &str = "SCMPC_FONT";
+
+/// Registers the figures' font for plotters' text, once per process: the file named by
+/// [`ENV_FONT`], or else the embedded DejaVu Sans.
+pub fn ensure_font() -> anyhow::Result<()> {
+    static FONT: OnceLock<Result<(), String>> = OnceLock::new();
+    FONT.get_or_init(|| {
+        let named = std::env::var_os(ENV_FONT).filter(|path| !path.is_empty());
+        let (name, bytes): (String, &'static [u8]) = match named {
+            Some(path) => {
+                let path = PathBuf::from(path);
+                let bytes = std::fs::read(&path)
+                    .map_err(|e| format!("{ENV_FONT}={}: {e}", path.display()))?;
+                (
+                    path.display().to_string(),
+                    Box::leak(bytes.into_boxed_slice()),
+                )
+            }
+            None => ("the embedded DejaVu Sans".into(), dejavu::sans::regular()),
+        };
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| format!("{ENV_FONT}: {name} is not a usable TrueType font"))
+    })
+    .clone()
+    .map_err(|e| anyhow!(e))
+}
+
+fn write_png(path: &Path, rgb: &[u8]) -> anyhow::Result<()> {
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, SIZE.0, SIZE.1);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(rgb)?;
+    Ok(writer.finish()?)
+}
+
+/// One run's `trajectory.csv`, the columns the figures use.
+#[derive(Debug, Clone, Default)]
+pub struct Trajectory {
+    pub t: Vec<f64>,
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub theta: Vec<f64>,
+    pub zeta: Vec<f64>,
+    pub clearance: Vec<f64>,
+}
+
+impl Trajectory {
+    pub fn read(dir: &Path) -> anyhow::Result<Trajectory> {
+        let table = Table::read(&dir.join("trajectory.csv"))?;
+        Ok(Trajectory {
+            t: table.numbers("t")?,
+            x: table.numbers("x")?,
+            y: table.numbers("y")?,
+            theta: table.numbers("theta")?,
+            zeta: table.numbers("zeta")?,
+            clearance: table.numbers("clearance")?,
+        })
+    }
+
+    pub fn path(&self) -> Vec<(f64, f64)> {
+        self.x.iter().copied().zip(self.y.iter().copied()).collect()
+    }
+    fn over_time(&self, v: &[f64]) -> Vec<(f64, f64)> {
+        self.t.iter().copied().zip(v.iter().copied()).collect()
+    }
+    /// Forward speed zeta over time, m/s.
+    pub fn speed(&self) -> Vec<(f64, f64)> {
+        self.over_time(&self.zeta)
+    }
+    pub fn clearance(&self) -> Vec<(f64, f64)> {
+        self.over_time(&self.clearance)
+    }
+    /// Component `c` of `z = Phi(x_bar)` (goal-relative positions) over time.
+    pub fn flat(&self, c: usize, goal: [f64; 2]) -> Vec<(f64, f64)> {
+        (0..self.t.len())
+            .map(|i| {
+                let z = protocol::phi([self.x[i], self.y[i], self.theta[i], self.zeta[i]]);
+                let v = match c {
+                    0 => z[0] - goal[0],
+                    2 => z[2] - goal[1],
+                    _ => z[c],
+                };
+                (self.t[i], v)
+            })
+            .collect()
+    }
+}
+
+/// The waypoints of every route of the run in `dir`, in the order planned (`route.csv`;
+/// none when the run had no planner or no route).
+/// The polylines of `file` in `dir`: rows of `x` and `y`, one polyline per run of equal
+/// `key` values (none if the file does not exist).
+fn polylines(dir: &Path, file: &str, key: &str) -> anyhow::Result<Vec<Vec<(f64, f64)>>> {
+    let file = dir.join(file);
+    if !file.exists() {
+        return Ok(Vec::new());
+    }
+    let table = Table::read(&file)?;
+    let (plan, x, y) = (
+        table.numbers(key)?,
+        table.numbers("x")?,
+        table.numbers("y")?,
+    );
+    let mut routes: Vec<(f64, Vec<(f64, f64)>)> = Vec::new();
+    for (p, point) in plan.into_iter().zip(x.into_iter().zip(y)) {
+        match routes.last_mut() {
+            Some((last, points)) if *last == p => points.push(point),
+            _ => routes.push((p, vec![point])),
+        }
+    }
+    Ok(routes.into_iter().map(|(_, points)| points).collect())
+}
+
+/// The obstacles of a scenario as discs `(x, y, radius)`.
+pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
+    scenario
+        .obstacles
+        .iter()
+        .map(|o| (o.x, o.y, o.radius))
+        .collect()
+}
+
+/// `path` and `clearance` of the run in `dir` (written by `scmpc run`).
+pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()> {
+    let t = Trajectory::read(dir)?;
+    let series = |label: &str, points| Series {
+        label: label.to_string(),
+        points,
+        ..Series::default()
+    };
+    let mut path = vec![series("robot", t.path())];
+    // The MPC's prediction every second (N Ts ahead of the robot), under the routes.
+    for (i, predicted) in polylines(dir, "predictions.csv", "sample")?
+        .into_iter()
+        .enumerate()
+    {
+        let label = if i == 0 {
+            "MPC prediction, every 1 s"
+        } else {
+            ""
+        };
+        path.push(Series {
+            color: 7,
+            ..series(label, predicted)
+        });
+    }
+    let routes = polylines(dir, "route.csv", "plan")?;
+    // The first route, then the later plans faint (one legend entry for them all).
+    for (i, route) in routes.into_iter().enumerate() {
+        let label = match i {
+            0 => "route (first plan)",
+            1 => "later routes",
+            _ => "",
+        };
+        path.push(Series {
+            dashed: true,
+            faint: i > 0,
+            color: if i == 0 { 2 } else { 4 },
+            ..series(label, route)
+        });
+    }
+    let [sx, sy, _] = scenario.robot.start;
+    let [gx, gy] = scenario.robot.goal;
+    Figure {
+        stem: "path".into(),
+        title: format!("{}: path", scenario.name),
+        x_label: "x (m)".into(),
+        y_label: "y (m)".into(),
+        series: path,
+        discs: obstacle_discs(scenario),
+        markers: vec![
+            Marker {
+                label: "start".into(),
+                at: (sx, sy),
+                color: 3,
+            },
+            Marker {
+                label: "goal".into(),
+                at: (gx, gy),
+                color: 1,
+            },
+        ],
+        equal_axes: true,
+        legend_left: true,
+        ..Figure::default()
+    }
+    .write(dir)?;
+    Figure {
+        stem: "clearance".into(),
+        title: format!("{}: distance to the obstacle", scenario.name),
+        x_label: "t (s)".into(),
+        y_label: "clearance (m)".into(),
+        series: vec![series("robot centre to obstacle surface", t.clearance())],
+        ..Figure::default()
+    }
+    .write(dir)?;
+    Ok(())
+}

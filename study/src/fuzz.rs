@@ -1,0 +1,404 @@
+//! `scmpc fuzz`: random valid worlds, each run in process on all cores, to measure the
+//! safety property (docs/safety.md) on worlds nobody tuned for.
+//!
+//! The distribution (every draw independent, uniform unless said otherwise; seeded, so
+//! `--seed` draws the same worlds, and every world runs the same unless a step of its
+//! MPC takes longer than `Ts`: such a plan counts as late by its measured time, as in
+//! lockstep (docs/design.md), so the world can end otherwise on a slower or busier
+//! machine; see docs/safety.md):
+//!
+//! | what | drawn from |
+//! |---|---|
+//! | start, goal | anywhere in the position box (the paper's, ±10 m) at least [`EDGE_M`] inside its edges, at least 1 m apart (so up to its diagonal) |
+//! | start heading | any, −π to π |
+//! | `robot.zeta0` | at rest in half the worlds, else 0–1 m/s (already moving, whichever way it faces) |
+//! | `robot.radius_m` | 0–0.3 m |
+//! | obstacles | 1–6; centre at 20–80 % of the way from start to goal, up to 1.5 m to either side of the line; radius 0.2–1.5 m; redrawn while the start or the goal is within 0.3 m of its edge grown by the robot's radius |
+//! | `timing.ts_s` | 0.02–0.1 s (`M` = 10) |
+//! | `mpc.horizon` | 8–20 |
+//! | `mpc.gamma` | 0.05–1 |
+//! | `mpc.v_max` | 1–5 m/s² (the brake's deceleration follows: `auto`) |
+//! | wheel saturation | off in half the worlds, else `plant.max_wheel_speed_rad_s` 12–40 rad/s |
+//! | output noise | `plant.noise_variance` 0–0.01 (`--set plant.noise_variance=...` forces one) |
+//! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
+//! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
+//!
+//! Every other key is the paper's. The `--set` overrides are applied on top of every world
+//! (a user fuzzes their own tuning), and the world is validated: one the overrides make
+//! invalid (a start inside a grown obstacle, say) is drawn again.
+
+use crate::sweep::{self, RunSpec};
+use anyhow::Context;
+use protocol::distance;
+use protocol::{NoiseVariance, Obstacle, Scenario, ScenarioErrors, Validated};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use record::Summary;
+use record::judge::{Outcome, StallReason};
+use std::f64::consts::PI;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+/// Start and goal are drawn at least this far inside the position box's edges, m (a robot
+/// at an edge, already moving outwards, may have no way to stay in the box).
+pub const EDGE_M: f64 = 0.5;
+
+/// Draws of a world that its overrides make invalid before giving up.
+const MAX_DRAWS: usize = 100;
+
+/// One generated world.
+#[derive(Debug, Clone)]
+pub struct World {
+    pub index: usize,
+    pub scenario: Validated,
+}
+
+/// World `index` of the batch `seed`: the distribution of the module docs, `overrides`
+/// applied on top, validated.
+pub fn world(seed: u64, index: usize, overrides: &[String]) -> Result<World, ScenarioErrors> {
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64);
+    let mut last_error = None;
+    for _ in 0..MAX_DRAWS {
+        let scenario = draw(&mut rng, index).with_overrides(overrides)?;
+        match scenario.validated(&format!("fuzz world {index}")) {
+            Ok(scenario) => return Ok(World { index, scenario }),
+            Err(e) => last_error = Some(e),
+        }
+    }
+    Err(last_error.unwrap_or_else(|| ScenarioErrors(Vec::new())))
+}
+
+/// One draw from the distribution (before overrides).
+fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
+    let mut s = Scenario {
+        name: format!("fuzz-{index:04}"),
+        seed: index as u64 + 1,
+        duration_s: 40.0,
+        ..Scenario::default()
+    };
+    let c = &s.mpc;
+    let (lo, hi) = (c.position_min, c.position_max);
+    let mut anywhere = || [0, 1].map(|a| rng.random_range(lo[a] + EDGE_M..hi[a] - EDGE_M));
+    let goal = anywhere();
+    let start = loop {
+        let p = anywhere();
+        if distance(p, goal) >= 1.0 {
+            break p;
+        }
+    };
+    let span = distance(start, goal);
+    s.duration_s = 40.0 + 4.0 * (span - 9.0).max(0.0);
+    s.robot.start = [start[0], start[1], rng.random_range(-PI..PI)];
+    s.robot.goal = goal;
+    s.robot.zeta0 = if rng.random_bool(0.5) {
+        0.0
+    } else {
+        rng.random_range(0.0..1.0)
+    };
+    s.robot.radius_m = rng.random_range(0.0..0.3);
+    s.timing.ts_s = rng.random_range(0.02..0.1);
+    s.mpc.horizon = rng.random_range(8..=20);
+    s.mpc.gamma = rng.random_range(0.05..=1.0);
+    s.mpc.v_max = rng.random_range(1.0..5.0);
+    s.plant.noise_variance = NoiseVariance::Uniform(rng.random_range(0.0..0.01));
+    s.plant.disturbance_std = if rng.random_bool(0.5) {
+        0.0
+    } else {
+        rng.random_range(0.0..0.02)
+    };
+    s.plant.max_wheel_speed_rad_s = if rng.random_bool(0.5) {
+        rng.random_range(12.0..40.0)
+    } else {
+        0.0
+    };
+    let count = rng.random_range(1..=6);
+    let along_line = [(goal[0] - start[0]) / span, (goal[1] - start[1]) / span];
+    let normal = [-along_line[1], along_line[0]];
+    let footprint = s.robot.radius_m;
+    s.obstacles = (0..count)
+        .map(|_| {
+            loop {
+                let along = span * rng.random_range(0.2..0.8);
+                let aside = rng.random_range(-1.5..1.5);
+                let radius = rng.random_range(0.2..1.5);
+                let x = start[0] + along * along_line[0] + aside * normal[0];
+                let y = start[1] + along * along_line[1] + aside * normal[1];
+                let clear = |p: [f64; 2]| distance(p, [x, y]) > radius + footprint + 0.3;
+                if clear(start) && clear(goal) {
+                    break Obstacle { x, y, radius };
+                }
+            }
+        })
+        .collect();
+    s
+}
+
+/// The outcome of a batch.
+pub struct Report {
+    pub worlds: Vec<World>,
+    pub results: Vec<anyhow::Result<Summary>>,
+}
+
+impl Report {
+    /// Worlds per outcome, in a fixed order (errors last).
+    pub fn counts(&self) -> Vec<(&'static str, usize)> {
+        let outcomes = [
+            Outcome::Reached,
+            Outcome::Collided,
+            Outcome::Stalled,
+            Outcome::Timeout,
+            Outcome::Interrupted,
+            Outcome::Aborted,
+            Outcome::NoRoute,
+        ];
+        let mut counts: Vec<(&'static str, usize)> = outcomes
+            .iter()
+            .map(|o| {
+                let n = self
+                    .results
+                    .iter()
+                    .filter(|r| r.as_ref().is_ok_and(|s| s.outcome == *o))
+                    .count();
+                (o.as_str(), n)
+            })
+            .collect();
+        counts.push(("error", self.results.iter().filter(|r| r.is_err()).count()));
+        counts
+    }
+
+    /// Worlds that ended with `outcome`.
+    pub fn count(&self, outcome: Outcome) -> usize {
+        self.results
+            .iter()
+            .filter(|r| r.as_ref().is_ok_and(|s| s.outcome == outcome))
+            .count()
+    }
+
+    /// Worlds that stalled or timed out for `reason`.
+    pub fn stall_count(&self, reason: StallReason) -> usize {
+        self.results
+            .iter()
+            .filter(|r| r.as_ref().is_ok_and(|s| s.stall_reason == Some(reason)))
+            .count()
+    }
+
+    pub fn collisions(&self) -> usize {
+        self.count(Outcome::Collided)
+    }
+
+    /// Share of the worlds with a route (all but those ending `no_route`) that reached
+    /// the goal.
+    pub fn reach_of_routable(&self) -> f64 {
+        let routable = self.results.len() - self.count(Outcome::NoRoute);
+        self.count(Outcome::Reached) as f64 / routable.max(1) as f64
+    }
+
+    /// The table printed at the end: each outcome's count and rate, and the safety
+    /// layers' activity.
+    pub fn table(&self) -> String {
+        let total = self.results.len().max(1);
+        let mut out = String::new();
+        for (name, n) in self.counts().into_iter().filter(|(_, n)| *n > 0) {
+            out += &format!(
+                "  {name:<12} {n:>5}  {:>5.1} %\n",
+                100.0 * n as f64 / total as f64
+            );
+        }
+        for reason in StallReason::ALL {
+            let n = self.stall_count(reason);
+            if n > 0 {
+                out += &format!("    {:<24} {n:>5}\n", reason.as_str());
+            }
+        }
+        let summaries = self.results.iter().filter_map(|r| r.as_ref().ok());
+        let (interventions, failures) = summaries.fold((0, 0), |(i, f), s| {
+            (i + s.safety_interventions, f + s.solver_failures)
+        });
+        out += &format!(
+            "  {} worlds; safety interventions {interventions}, solver failures {failures}\n",
+            self.results.len()
+        );
+        if self.count(Outcome::NoRoute) > 0 {
+            out += &format!(
+                "  reached {:.1} % of the worlds with a route\n",
+                100.0 * self.reach_of_routable()
+            );
+        }
+        out
+    }
+}
+
+/// Runs `count` worlds of batch `seed` on `threads` threads into `out`: `fuzz.csv`, a
+/// scenario file under `out/failed/` for every world that did not reach the goal, and no
+/// run directories (a failed world replays with `scmpc run FILE`).
+pub fn run(
+    seed: u64,
+    count: usize,
+    overrides: &[String],
+    out: &Path,
+    threads: usize,
+    progress: bool,
+    stop: &AtomicBool,
+) -> anyhow::Result<Report> {
+    let mut worlds = (0..count)
+        .map(|i| world(seed, i, overrides))
+        .collect::<Result<Vec<_>, _>>()?;
+    let runs: Vec<RunSpec> = worlds
+        .iter()
+        .map(|w| RunSpec {
+            values: Vec::new(),
+            combination: w.index,
+            scenario: w.scenario.clone(),
+            dir: out.join("runs").join(format!("{:04}", w.index)),
+        })
+        .collect();
+    let results = sweep::run_all(&runs, threads, progress, false, stop);
+    worlds.truncate(results.len()); // interrupted: the worlds that ran
+    let report = Report { worlds, results };
+    let _ = std::fs::remove_dir_all(out.join("runs"));
+    write_csv(&report, out).with_context(|| format!("writing {}", out.display()))?;
+    Ok(report)
+}
+
+/// Where the scenario of a world that did not reach the goal is kept.
+fn failed_file(out: &Path, index: usize) -> PathBuf {
+    out.join("failed").join(format!("{index:04}.toml"))
+}
+
+/// `fuzz.csv`, and the scenario file of every world that did not reach the goal.
+fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out.join("failed"))?;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
+    writeln!(
+        f,
+        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
+    )?;
+    for (world, result) in report.worlds.iter().zip(&report.results) {
+        let s = &world.scenario;
+        let [x, y, _] = s.robot.start;
+        let params = format!(
+            "{},{},{:.4},{},{:.4},{:.3},{},{:.4},{:.2},{:.3},{:.3},{:.3}",
+            world.index,
+            s.obstacles.len(),
+            s.timing.ts_s,
+            s.mpc.horizon,
+            s.mpc.gamma,
+            s.mpc.v_max,
+            s.plant.noise_variance.per_axis()[0],
+            s.plant.disturbance_std,
+            s.plant.max_wheel_speed_rad_s,
+            s.robot.radius_m,
+            s.robot.zeta0,
+            (x - s.robot.goal[0]).hypot(y - s.robot.goal[1]),
+        );
+        let reached = result.as_ref().is_ok_and(|r| r.outcome == Outcome::Reached);
+        let file = if reached {
+            String::new()
+        } else {
+            let path = failed_file(out, world.index);
+            std::fs::write(&path, s.to_toml())?;
+            path.display().to_string()
+        };
+        match result {
+            Ok(r) => writeln!(
+                f,
+                "{params},{},{},{:.6},{:.3},{},{},{},{},{file}",
+                r.outcome.as_str(),
+                r.stall_reason.map_or("", |reason| reason.as_str()),
+                r.min_clearance_m,
+                r.final_distance_to_goal_m,
+                r.time_to_goal_s
+                    .map_or(String::new(), |t| format!("{t:.3}")),
+                r.safety_interventions,
+                r.solver_failures,
+                r.deadline_misses,
+            )?,
+            Err(e) => writeln!(
+                f,
+                "{params},error: {},,,,,,,,{file}",
+                format!("{e:#}").replace(',', ";")
+            )?,
+        }
+    }
+    Ok(f.flush()?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_batch_is_the_same_for_a_seed_and_differs_across_seeds() {
+        let a = world(7, 3, &[]).unwrap().scenario;
+        assert_eq!(a, world(7, 3, &[]).unwrap().scenario);
+        assert_ne!(a, world(8, 3, &[]).unwrap().scenario);
+        assert_ne!(a, world(7, 4, &[]).unwrap().scenario);
+    }
+
+    #[test]
+    fn every_world_is_valid_and_within_the_documented_distribution() {
+        let (mut far, mut moving, mut noisy, mut disturbed) = (0, 0, 0, 0);
+        for i in 0..300 {
+            let s = world(1, i, &[]).unwrap().scenario;
+            let [x, y, heading] = s.robot.start;
+            let goal = s.robot.goal;
+            let span = distance([x, y], goal);
+            assert!(span >= 1.0, "{span}");
+            for p in [[x, y], goal] {
+                for (a, value) in p.into_iter().enumerate() {
+                    assert!(value >= s.mpc.position_min[a] + EDGE_M);
+                    assert!(value <= s.mpc.position_max[a] - EDGE_M);
+                }
+            }
+            assert!((-PI..PI).contains(&heading));
+            assert!((0.0..1.0).contains(&s.robot.zeta0));
+            assert!((0.0..0.3).contains(&s.robot.radius_m));
+            assert!((1..=6).contains(&s.obstacles.len()));
+            assert!((0.02..0.1).contains(&s.timing.ts_s));
+            assert!((8..=20).contains(&s.mpc.horizon));
+            assert!((0.05..=1.0).contains(&s.mpc.gamma));
+            assert!((1.0..5.0).contains(&s.mpc.v_max));
+            let wheels = s.plant.max_wheel_speed_rad_s;
+            assert!(wheels == 0.0 || (12.0..40.0).contains(&wheels), "{wheels}");
+            let noise = s.plant.noise_variance.per_axis()[0];
+            assert!((0.0..0.01).contains(&noise));
+            assert!((0.0..0.02).contains(&s.plant.disturbance_std));
+            assert_eq!(s.duration_s, 40.0 + 4.0 * (span - 9.0).max(0.0));
+            for o in &s.obstacles {
+                assert!((0.2..1.5).contains(&o.radius));
+                let room = o.radius + s.robot.radius_m + 0.3;
+                assert!(distance([o.x, o.y], [x, y]) > room);
+                assert!(distance([o.x, o.y], goal) > room);
+            }
+            far += usize::from(span > 15.0);
+            moving += usize::from(s.robot.zeta0 > 0.0);
+            noisy += usize::from(noise > 0.0);
+            disturbed += usize::from(s.plant.disturbance_std > 0.0);
+        }
+        // Each part of the distribution is drawn.
+        for (what, n) in [
+            ("far", far),
+            ("moving", moving),
+            ("noisy", noisy),
+            ("disturbed", disturbed),
+        ] {
+            assert!(n > 30, "{n} {what} worlds of 300");
+        }
+    }
+
+    #[test]
+    fn overrides_apply_to_every_world_and_a_world_they_invalidate_is_drawn_again() {
+        let overrides = [
+            "mpc.gamma=0.2".to_string(),
+            "robot.radius_m=0.4".to_string(),
+        ];
+        for i in 0..50 {
+            let s = world(3, i, &overrides).unwrap().scenario;
+            assert_eq!((s.mpc.gamma, s.robot.radius_m), (0.2, 0.4));
+        }
+        let unknown = world(3, 0, &["mpc.gama=0.2".to_string()]).unwrap_err();
+        assert_eq!(unknown.0[0].key, "mpc.gama");
+    }
+}

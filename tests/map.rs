@@ -1,0 +1,161 @@
+//! The map of the house cannot go stale: the crate table of docs/design.md ("Crates and
+//! what they may depend on") is the one `cargo metadata` reports, crate by crate, and no
+//! role crate reaches a transport.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+/// What a crate depends on: the workspace's crates, and the transports (iceoryx2, zenoh,
+/// `(optional)` after one that only a feature brings in).
+type Dependencies = BTreeMap<String, (BTreeSet<String>, BTreeSet<String>)>;
+
+const TRANSPORTS: [&str; 2] = ["iceoryx2", "zenoh"];
+
+/// The normal dependencies of every workspace crate, as `cargo metadata` declares them.
+fn from_cargo() -> Dependencies {
+    let out = std::process::Command::new(env!("CARGO"))
+        .args([
+            "metadata",
+            "--format-version",
+            "1",
+            "--no-deps",
+            "--offline",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let metadata: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let packages = metadata["packages"].as_array().unwrap();
+    let members: BTreeSet<&str> = packages
+        .iter()
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    packages
+        .iter()
+        .map(|p| {
+            let (mut crates, mut transports) = (BTreeSet::new(), BTreeSet::new());
+            for d in p["dependencies"].as_array().unwrap() {
+                let name = d["name"].as_str().unwrap();
+                if !d["kind"].is_null() {
+                    continue; // dev- and build-dependencies
+                }
+                if members.contains(name) {
+                    crates.insert(name.to_string());
+                } else if TRANSPORTS.contains(&name) {
+                    let optional = d["optional"].as_bool().unwrap_or(false);
+                    transports.insert(if optional {
+                        format!("{name} (optional)")
+                    } else {
+                        name.to_string()
+                    });
+                }
+            }
+            (
+                p["name"].as_str().unwrap().to_string(),
+                (crates, transports),
+            )
+        })
+        .collect()
+}
+
+/// The rows of the crate table of docs/design.md: crate, holds, depends on, transports.
+fn from_design() -> Dependencies {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/design.md");
+    let text = std::fs::read_to_string(path).unwrap();
+    let section = text
+        .split("## Crates and what they may depend on")
+        .nth(1)
+        .expect("docs/design.md has a section `Crates and what they may depend on`");
+    // A cell lists names by commas; a parenthesis after a name qualifies it.
+    let names = |cell: &str| -> BTreeSet<String> {
+        let mut depth = 0;
+        let cell: String = cell
+            .chars()
+            .map(|c| {
+                depth += i32::from(c == '(') - i32::from(c == ')');
+                if c == ',' && depth > 0 { ';' } else { c }
+            })
+            .collect();
+        cell.split(',')
+            .map(|n| n.trim())
+            .filter(|n| !n.is_empty())
+            .map(|n| match n.split_once(" (optional") {
+                Some((name, _)) => format!("{name} (optional)"),
+                None => n.to_string(),
+            })
+            .collect()
+    };
+    section
+        .lines()
+        .skip_while(|l| !l.starts_with("| crate |"))
+        .skip(2)
+        .take_while(|l| l.starts_with('|'))
+        .map(|row| {
+            let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+            let name = cells[1].trim_matches('`').to_string();
+            (name, (names(cells[3]), names(cells[4])))
+        })
+        .collect()
+}
+
+#[test]
+fn the_crate_table_of_the_design_is_the_one_cargo_metadata_reports() {
+    let (cargo, design) = (from_cargo(), from_design());
+    assert_eq!(
+        cargo.keys().collect::<Vec<_>>(),
+        design.keys().collect::<Vec<_>>(),
+        "the crates of the workspace against the rows of docs/design.md"
+    );
+    for (name, declared) in &cargo {
+        assert_eq!(
+            &design[name], declared,
+            "crate `{name}`: docs/design.md says (depends on, transports) {:?}, Cargo.toml {:?}",
+            design[name], declared
+        );
+    }
+}
+
+#[test]
+fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
+    let cargo = from_cargo();
+    for role in ["plant", "estimator", "mpc", "dfl", "planner"] {
+        let (crates, transports) = &cargo[role];
+        assert_eq!(
+            crates.iter().collect::<Vec<_>>(),
+            ["protocol"],
+            "{role} depends on {crates:?}"
+        );
+        assert!(transports.is_empty(), "{role} declares {transports:?}");
+        // Resolved, with the features its dependencies turn on: protocol's iceoryx2 is
+        // the runtime's to ask for, never a role's.
+        let out = std::process::Command::new(env!("CARGO"))
+            .args([
+                "tree",
+                "-p",
+                role,
+                "-e",
+                "normal",
+                "--prefix",
+                "none",
+                "--offline",
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let tree = String::from_utf8(out.stdout).unwrap();
+        let linked: Vec<&str> = tree
+            .lines()
+            .filter(|l| TRANSPORTS.iter().any(|t| l.starts_with(&format!("{t} v"))))
+            .collect();
+        assert!(linked.is_empty(), "cargo tree -p {role} lists {linked:?}");
+    }
+}
