@@ -19,7 +19,7 @@
 //! that ignores the obstacles cannot drive the robot into one while the model holds.
 //!
 //! The check is exact and closed form. Under the linearizing law the robot is two double
-//! integrators (paper eq. mobile46), so between samples, with the plan's `v` held, its
+//! integrators (paper eq. mobile46-1), so between samples, with the plan's `v` held, its
 //! position is a parabolic arc `p + w t + v t^2 / 2`; the closest point of an arc to a
 //! disc's centre is at an end or where `(q(t) - o) . q'(t) = 0`, a cubic in `t`. The brake
 //! moves the robot straight along its velocity for [`protocol::stopping_distance`]. A

@@ -1,16 +1,23 @@
-//! The safety-critical linear MPC (paper eqs. 51-47) on the DFL-linearized model, solved
-//! as a sequence of convex conic programs with clarabel ([`linear`]), and the nonlinear
-//! baseline it is compared with ([`nonlinear`]); [`MpcTask`] is the role.
+//! The safety-critical linear MPC (the paper's problem of eqs. 51 to 47) on the
+//! DFL-linearized model, solved as a sequence of convex conic programs with clarabel
+//! ([`linear`]), and the nonlinear baseline it is compared with ([`nonlinear`]); [`MpcTask`]
+//! is the role.
 //!
-//! The crate by concern, each file importing only those above it:
+//! Equations are cited by their labels in the paper's LaTeX source (`\label{eq:51}` is
+//! eq. 51): the problem of eqs. 51 to 47 is the cost (51), the model (52), the state and
+//! input constraints (53, 531), the CBF (54) and the terminal set (45-2, 47), in the
+//! paper's order; the linear model is eq. mobile46-1.
+//!
+//! The crate by concern, each file importing only files listed above it (and `error`,
+//! which names the layout's rows and the model's failures, only `layout` and `model`):
 //! - [`error`]: why an MPC cannot be set up;
-//! - [`model`]: the linear model (eq. mobile46, discretized), the DARE and the LQR gain;
+//! - [`model`]: the linear model (eq. mobile46-1, discretized), the DARE and the LQR gain;
 //! - [`brake`]: the braking model shared with the DFL;
 //! - [`layout`]: where each variable and row of the conic program sits;
 //! - [`reach`]: where the states can be over the input box (which rows are implied);
 //! - [`discs`]: the obstacles as the constraints see them;
 //! - [`assembly`]: the program's matrices, row by row, sparse or condensed;
-//! - [`terminal_set`]: the terminal set (eqs. 45, 47) about a sub-goal;
+//! - [`terminal_set`]: the terminal set (eqs. 45-2, 47) about a sub-goal;
 //! - [`terminal`]: the braking-safe terminal rows;
 //! - [`program`]: every row of one step's program, in order;
 //! - [`solver`]: clarabel, built once, values updated each step;

@@ -1,4 +1,4 @@
-//! The paper's linear scheme (eqs. 51-47) on the DFL-linearized model: each step builds
+//! The paper's linear scheme (problem of eqs. 51 to 47) on the DFL-linearized model: each step builds
 //! `z_0 = Phi(x_hat)`, picks a linearization reference for the CBF rows (the previous plan
 //! shifted by one sample, or a braking rollout when cold), solves, and re-linearizes at
 //! the new plan until it moves less than `refinement_tol_m` (sequential convex
@@ -32,7 +32,7 @@ use std::time::Instant;
 /// lowest p99 of 0, 0.05, 0.1 and 0.25.
 const DEFERRAL_SHARE: f64 = 0.05;
 
-/// The linear scheme (eqs. 51-47) on the DFL-linearized model.
+/// The linear scheme (problem of eqs. 51 to 47) on the DFL-linearized model.
 pub struct LinearMpc {
     layout: Layout,
     statics: StaticData,
@@ -123,7 +123,7 @@ pub struct LinearMpc {
 
 impl LinearMpc {
     /// Builds everything a step reuses, in the order the pieces depend on each other: the
-    /// model (paper eq. mobile46, discretized), the LQR terminal weight and set, the layout and Hessian, the spans
+    /// model (paper eq. mobile46-1, discretized), the LQR terminal weight and set, the layout and Hessian, the spans
     /// of the box and terminal rows, the rows' solvers (long, as a list: no step may
     /// allocate, so all of it is made here).
     pub fn new(scenario: &Scenario) -> Result<LinearMpc, MpcError> {

@@ -1,7 +1,7 @@
 //! The linear equivalent model and its LQR terminal ingredients.
 //!
 //! With `z = [x, xdot, y, ydot]` and `v = [xddot, yddot]` the DFL-linearized robot is two
-//! double integrators (paper eq. mobile46). Their zero-order-hold discretization is exact
+//! double integrators (paper eq. mobile46-1). Their zero-order-hold discretization is exact
 //! and closed-form.
 
 use nalgebra::{Matrix2, Matrix2x4, Matrix4, Matrix4x2, Vector4};

@@ -10,9 +10,10 @@
 //! newest is.
 
 use crate::Mpc;
+use protocol::samples::SampleQueue;
 use protocol::task::{Cancel, Context, Due, Publish, Task, TaskError, header_latency};
 use protocol::topics::{ESTIMATE, PLAN, ROUTE};
-use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Timing, Validated};
+use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Validated};
 use std::collections::VecDeque;
 
 /// What the MPC takes: the estimator's estimates (periodic: one a sample matters) and,
@@ -36,14 +37,11 @@ pub const DRY_STEP_MAX_TICKS: f64 = 0.25;
 pub struct MpcTask {
     mpc: Mpc,
     faults: FaultConfig,
-    timing: Timing,
     follows_route: bool,
     /// The longest last step after which a warm-up steps dry, ns ([`DRY_STEP_MAX_TICKS`]).
     dry_step_max_ns: u64,
     /// Boundary estimates of samples not solved yet, with their receipt latency, ns.
-    boundary: VecDeque<(Estimate, u64)>,
-    /// The sample to solve next.
-    next_sample: u64,
+    samples: SampleQueue<u64>,
     /// The newest routes heard, oldest first (a few samples' worth).
     routes: VecDeque<Route>,
 }
@@ -62,11 +60,9 @@ impl Task for MpcTask {
         Ok(MpcTask {
             mpc,
             faults: scenario.fault.clone(),
-            timing: scenario.timing.clone(),
             follows_route: scenario.planner.is_on(),
             dry_step_max_ns: (DRY_STEP_MAX_TICKS * scenario.timing.dt_s() * 1e9) as u64,
-            boundary: VecDeque::with_capacity(16),
-            next_sample: 0,
+            samples: SampleQueue::new(&scenario.timing),
             routes: VecDeque::with_capacity(4),
         })
     }
@@ -84,14 +80,7 @@ impl Task for MpcTask {
     /// was), with its receipt latency; routes are kept a few samples' worth.
     fn hear(&mut self, input: MpcInput, latency_ns: u64, _context: &impl Context) {
         match input {
-            MpcInput::Estimate(estimate) => {
-                let tick = estimate.header.tick;
-                if self.timing.starts_sample(tick)
-                    && self.timing.sample_of(tick) >= self.next_sample
-                {
-                    self.boundary.push_back((estimate, latency_ns));
-                }
-            }
+            MpcInput::Estimate(estimate) => self.samples.hear(estimate, latency_ns),
             MpcInput::Route(route) => {
                 if self.routes.len() == self.routes.capacity() {
                     self.routes.pop_front();
@@ -104,7 +93,7 @@ impl Task for MpcTask {
     /// Only every M-th estimate matters: rather than waking for each one (and taking a
     /// core from the DFL), the next sample's is expected.
     fn next(&self) -> Due {
-        Due::Expect(Some(self.timing.sample_time_s(self.next_sample)))
+        Due::Expect(Some(self.samples.next_due_s()))
     }
 
     /// Asleep for most of `Ts` in real time, the step would start with cold caches.
@@ -121,30 +110,14 @@ impl Task for MpcTask {
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the
     /// plan's `injected_delay_ns` (`fault.mpc_delay_*`) is how long it is held.
     fn step(&mut self, context: &impl Context) -> Option<Publish<Plan>> {
-        let clock = context;
-        // A sample solved already (a replay heard in the same batch as the original), or
-        // one whose successor's time is past, is not solved.
-        while let Some((e, _)) = self.boundary.front() {
-            let solved = self.timing.sample_of(e.header.tick) < self.next_sample;
-            let behind = self
-                .boundary
-                .get(1)
-                .is_some_and(|(next, _)| clock.is_past(next.header.time_s));
-            if !(solved || behind) {
-                break;
-            }
-            self.boundary.pop_front();
-        }
-        let &(estimate, latency_ns) = self.boundary.front()?;
-        let sample = self.timing.sample_of(estimate.header.tick);
+        let (sample, estimate, latency_ns) = self.samples.oldest(context)?;
         let route_due = self.follows_route
             && sample > 0
             && self.routes.back().is_none_or(|r| r.sample + 1 < sample);
-        if route_due && !clock.is_past(estimate.header.time_s) {
+        if route_due && !context.is_past(estimate.header.time_s) {
             return None; // route(k - 1) is on its way
         }
-        self.boundary.pop_front();
-        self.next_sample = sample + 1;
+        self.samples.answered();
         let route = self.routes.iter().rev().find(|r| r.sample < sample);
         let mut plan =
             self.mpc

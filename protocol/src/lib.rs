@@ -8,6 +8,7 @@
 pub mod endpoint;
 pub mod geometry;
 pub mod messages;
+pub mod samples;
 pub mod scenario;
 pub mod task;
 pub mod topics;
@@ -23,7 +24,7 @@ pub fn wrap_angle(theta_rad: f64) -> f64 {
     if w <= -PI { w + TAU } else { w }
 }
 
-/// `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` (paper eq. mobile37): the
+/// `z = Phi(x_bar) = [x, zeta cos theta, y, zeta sin theta]` (paper eq. mobile37-1): the
 /// map from the extended state to the linear equivalent model, shared by the MPC (which
 /// plans in `z`) and the DFL (which realizes it).
 pub fn phi(x_bar: [f64; 4]) -> [f64; 4] {

@@ -530,7 +530,7 @@ pub enum ConstraintKind {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Formulation {
-    /// The paper's scheme: linear MPC on the DFL-linearized model (eqs. 51-47).
+    /// The paper's scheme: linear MPC on the DFL-linearized model (problem of eqs. 51 to 47).
     Linear,
     /// The baseline SCNMPC on the unicycle itself (eqs. pr3-pr7), by sequential conic
     /// programming.
@@ -622,7 +622,7 @@ pub enum TerminalSafety {
     Brake,
     /// As `Brake`, with the ball of the stopping distance around the last state clear.
     BrakeBall,
-    /// The paper's formulation (eqs. 51-47) as it stands.
+    /// The paper's formulation (problem of eqs. 51 to 47) as it stands.
     None,
 }
 
