@@ -4,7 +4,7 @@
 
 use crate::layout::Layout;
 use clarabel::algebra::CscMatrix;
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Matrix4};
 
 /// The rows of `A` and `b`, written in a fixed order; buffers are reused between steps.
 /// Rows are given in stage-wise columns ([`Layout::z`], [`Layout::v`]); with a
@@ -200,6 +200,53 @@ pub fn csc_with_positions(
         colptr[c + 1] += colptr[c];
     }
     (CscMatrix::new(rows, cols, colptr, rowval, nzval), position)
+}
+
+/// Upper triangle of the solver's `P`: the sparse formulation's, or its condensed form.
+pub fn solver_hessian<'a>(
+    assembly: &'a Assembly,
+    stagewise: &'a CscMatrix<f64>,
+) -> &'a CscMatrix<f64> {
+    match &assembly.condensing {
+        Some(condensing) => condensing.hessian(),
+        None => stagewise,
+    }
+}
+
+/// `p` with empty rows and columns appended up to `n`: the decay slacks and the terminal
+/// rows' variables have no quadratic cost.
+pub fn padded(p: &CscMatrix<f64>, n: usize) -> CscMatrix<f64> {
+    let mut colptr = p.colptr.clone();
+    colptr.resize(n + 1, p.nnz());
+    CscMatrix::new(n, n, colptr, p.rowval.clone(), p.nzval.clone())
+}
+
+/// Upper triangle of `P` with `1/2 x'Px` = eq. (51),
+/// `sum z_i'Q z_i + v_i'R v_i + z_N' Q_bar z_N`, on the stage-wise variables.
+pub fn stagewise_hessian(
+    l: &Layout,
+    q_diag: [f64; 4],
+    r_diag: [f64; 2],
+    terminal_weight: &Matrix4<f64>,
+) -> CscMatrix<f64> {
+    let n = l.horizon;
+    let mut entries = Vec::new();
+    for i in 0..n {
+        for (c, q) in q_diag.iter().enumerate() {
+            entries.push((l.z(i, c), l.z(i, c), 2.0 * q));
+        }
+    }
+    for c in 0..4 {
+        for r in 0..=c {
+            entries.push((l.z(n, r), l.z(n, c), 2.0 * terminal_weight[(r, c)]));
+        }
+    }
+    for i in 0..n {
+        for (c, r) in r_diag.iter().enumerate() {
+            entries.push((l.v(i, c), l.v(i, c), 2.0 * r));
+        }
+    }
+    csc_with_positions(l.stagewise(), l.stagewise(), &entries).0
 }
 
 #[cfg(test)]

@@ -90,6 +90,23 @@ impl TerminalBrake {
     }
 }
 
+impl TerminalBrake {
+    /// The terminal rows of `mpc.terminal_safety`, if any, with the scenario's one braking
+    /// model (`dfl.brake_decel`).
+    pub fn of(scenario: &protocol::Scenario) -> Option<TerminalBrake> {
+        let form = match scenario.mpc.terminal_safety {
+            protocol::TerminalSafety::Brake => BrakeForm::Segment,
+            protocol::TerminalSafety::BrakeBall => BrakeForm::Ball,
+            protocol::TerminalSafety::None => return None,
+        };
+        Some(TerminalBrake {
+            decel: scenario.brake_decel(),
+            ts_s: scenario.timing.ts_s,
+            form,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

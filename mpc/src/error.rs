@@ -14,3 +14,12 @@ pub enum MpcError {
     #[error("clarabel refused the conic program ({0:?})")]
     Solver(Rows),
 }
+
+/// The horizon an MPC can be set up with: `1..=MAX_HORIZON` (the scenario's validator
+/// holds it too; an MPC set up from an unvalidated scenario checks it here).
+pub fn check_horizon(horizon: usize) -> Result<(), MpcError> {
+    if horizon == 0 || horizon > MAX_HORIZON {
+        return Err(MpcError::Horizon(horizon));
+    }
+    Ok(())
+}

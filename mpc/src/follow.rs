@@ -108,6 +108,31 @@ fn state_at(points: &[[f64; 2]], distance_m: f64, speed_m_s: f64) -> [f64; 4] {
     [end[0], 0.0, end[1], 0.0]
 }
 
+/// The route's speed profile: cruising no faster than `planner.speed_m_s` (unless `auto`),
+/// than the wheels turn (`plant.max_wheel_speed_rad_s` times the wheel radius, when
+/// limited), and than a robot can follow a point `N` samples ahead of it and still come to
+/// rest at that point within the input box under the LQR
+/// ([`crate::terminal_set::tracking_speed`]: then the route's reference at stage `N` is
+/// its own sub-goal); on bends, `zeta^2 kappa <= mpc.v_max`.
+pub fn route_speed(
+    scenario: &protocol::Scenario,
+    terminal_set: &[crate::terminal_set::SetRow],
+) -> SpeedProfile {
+    let lead_s = scenario.mpc.horizon as f64 * scenario.timing.ts_s;
+    let mut cruise_m_s = crate::terminal_set::tracking_speed(terminal_set, lead_s);
+    if let protocol::AutoOr::Value(bound) = scenario.planner.speed_m_s {
+        cruise_m_s = cruise_m_s.min(bound);
+    }
+    let p = &scenario.plant;
+    if p.max_wheel_speed_rad_s > 0.0 {
+        cruise_m_s = cruise_m_s.min(p.max_wheel_speed_rad_s * p.wheel_radius_m);
+    }
+    SpeedProfile {
+        cruise_m_s,
+        lateral_m_s2: scenario.mpc.v_max,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

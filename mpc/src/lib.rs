@@ -44,7 +44,7 @@ pub use linear::LinearMpc;
 pub use task::MpcTask;
 
 pub use error::MpcError;
-use protocol::{Formulation, MAX_HORIZON, Plan, PlanStatus, Scenario};
+use protocol::{Formulation, Plan, PlanStatus, Scenario};
 
 /// The MPC role: the paper's linear scheme, or the nonlinear baseline
 /// (`mpc.formulation`).
@@ -55,10 +55,7 @@ pub enum Mpc {
 
 impl Mpc {
     pub fn new(scenario: &Scenario) -> Result<Mpc, MpcError> {
-        let horizon = scenario.mpc.horizon;
-        if horizon == 0 || horizon > MAX_HORIZON {
-            return Err(MpcError::Horizon(horizon));
-        }
+        error::check_horizon(scenario.mpc.horizon)?;
         let without_obstacles;
         let scenario = if scenario.fault.mpc_ignore_obstacles {
             without_obstacles = Scenario {

@@ -7,22 +7,19 @@
 //! at setup (one per set of rows the input box may imply, [`Rows`]), and only their
 //! values are updated afterwards.
 
-use crate::assembly::{Assembly, Condensing, csc_with_positions};
-use crate::brake::{BrakeForm, TerminalBrake};
+use crate::assembly::{Assembly, Condensing};
+use crate::brake::TerminalBrake;
 use crate::error::MpcError;
 use crate::follow;
 use crate::layout::{Layout, Rows};
-use crate::model::{self, r_matrix, terminal_weight};
+use crate::model::{self, q_matrix, r_matrix};
 use crate::program::{self, StaticData, StepData};
-use crate::reach::{PositionReach, Span};
+use crate::reach::PositionReach;
 use crate::solver::{CancelSlot, ConicSolver};
 use clarabel::algebra::CscMatrix;
 use nalgebra::{Matrix4, Vector4};
 use protocol::task::Cancel;
-use protocol::{
-    ConstraintKind, Disc, Header, MAX_HORIZON, ObstacleGrowth, Plan, PlanStatus, Scenario,
-    TerminalSafety,
-};
+use protocol::{ConstraintKind, Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario};
 use std::time::Instant;
 
 /// How far about the reference a disc must be out of reach to be deferred from a solve's
@@ -128,58 +125,27 @@ impl LinearMpc {
     /// allocate, so all of it is made here).
     pub fn new(scenario: &Scenario) -> Result<LinearMpc, MpcError> {
         let c = &scenario.mpc;
-        if c.horizon == 0 || c.horizon > MAX_HORIZON {
-            return Err(MpcError::Horizon(c.horizon));
-        }
+        crate::error::check_horizon(c.horizon)?;
+        // The model (eq. mobile46-1), discretized once; the terminal weight (eq. 56) and
+        // the LQR gain of it.
         let (a, b) = model::discretize(scenario.timing.ts_s);
-        let r = r_matrix(scenario);
-        let terminal_weight = terminal_weight(scenario)?;
-        let k = model::lqr_gain(&a, &b, &r, &terminal_weight)?;
+        let terminal_weight = model::dare(&a, &b, &q_matrix(scenario), &r_matrix(scenario))?;
+        let k = model::lqr_gain(&a, &b, &r_matrix(scenario), &terminal_weight)?;
         let goal = scenario.robot.goal;
-        let position_box = [
-            [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
-            [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
-        ];
-        let terminal_set = crate::terminal_set::prune_redundant(crate::terminal_set::terminal_set(
-            &k,
-            &(a + b * k),
-            c.constraint_horizon,
-            c.v_max,
-            position_box,
-        ));
-        let route_speed = route_speed(scenario, &terminal_set);
+        let statics = StaticData::of(scenario, a, b, k);
+        let route_speed = follow::route_speed(scenario, &statics.terminal_set);
         let layout = Layout {
             horizon: c.horizon,
-            terminal_rows: terminal_set.len(),
+            terminal_rows: statics.terminal_set.len(),
             obstacles: scenario.obstacles.len(),
             linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
             condensed: c.qp_form.condensed(c.horizon),
-            terminal: terminal_brake(scenario),
+            terminal: TerminalBrake::of(scenario),
         };
-        let hessian = stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
-        let mut statics = StaticData {
-            a,
-            b,
-            k,
-            terminal_set,
-            gamma: if c.constraint == ConstraintKind::Euclidean {
-                1.0
-            } else {
-                c.gamma
-            },
-            v_max: c.v_max,
-            position_box,
-            box_and_terminal_spans: Vec::new(),
-        };
+        let hessian =
+            crate::assembly::stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
         let (forced, free) = crate::reach::rollout(&layout, &a, &b);
-        let spans = statics
-            .box_and_terminal_rows(&layout)
-            .map(|(terms, bound)| {
-                let terms = terms.into_iter().flatten();
-                (Span::of(terms, (&forced, &free), c.v_max), bound)
-            })
-            .collect();
-        statics.box_and_terminal_spans = spans;
+        let statics = statics.with_spans(&layout, (&forced, &free));
         let reach = PositionReach::new(&layout, (&forced, &free), c.v_max);
         let assembly = Assembly {
             condensing: layout
@@ -258,7 +224,10 @@ impl LinearMpc {
                 .extend_from_slice(&self.discs[..rows.terminal_discs()]);
             self.fill([0.0; 4], rows);
             let variables = self.layout.variables(rows);
-            let hessian = padded(solver_hessian(&self.assembly, &self.hessian), variables);
+            let hessian = crate::assembly::padded(
+                crate::assembly::solver_hessian(&self.assembly, &self.hessian),
+                variables,
+            );
             let built = self.solvers[rows.index()].build(
                 &self.assembly,
                 variables,
@@ -783,90 +752,6 @@ impl LinearMpc {
 /// `z = [x, xdot, y, ydot]` (absolute) relative to `goal`.
 fn goal_relative(z: [f64; 4], goal: [f64; 2]) -> [f64; 4] {
     [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
-}
-
-/// Upper triangle of the solver's `P`: the sparse formulation's, or its condensed form.
-fn solver_hessian<'a>(assembly: &'a Assembly, stagewise: &'a CscMatrix<f64>) -> &'a CscMatrix<f64> {
-    match &assembly.condensing {
-        Some(condensing) => condensing.hessian(),
-        None => stagewise,
-    }
-}
-
-/// `p` with empty rows and columns appended up to `n`: the decay slacks and the terminal
-/// rows' variables have no quadratic cost.
-fn padded(p: &CscMatrix<f64>, n: usize) -> CscMatrix<f64> {
-    let mut colptr = p.colptr.clone();
-    colptr.resize(n + 1, p.nnz());
-    CscMatrix::new(n, n, colptr, p.rowval.clone(), p.nzval.clone())
-}
-
-/// Upper triangle of `P` with `1/2 x'Px` = eq. (51),
-/// `sum z_i'Q z_i + v_i'R v_i + z_N' Q_bar z_N`, on the stage-wise variables.
-fn stagewise_hessian(
-    l: &Layout,
-    q_diag: [f64; 4],
-    r_diag: [f64; 2],
-    terminal_weight: &Matrix4<f64>,
-) -> CscMatrix<f64> {
-    let n = l.horizon;
-    let mut entries = Vec::new();
-    for i in 0..n {
-        for (c, q) in q_diag.iter().enumerate() {
-            entries.push((l.z(i, c), l.z(i, c), 2.0 * q));
-        }
-    }
-    for c in 0..4 {
-        for r in 0..=c {
-            entries.push((l.z(n, r), l.z(n, c), 2.0 * terminal_weight[(r, c)]));
-        }
-    }
-    for i in 0..n {
-        for (c, r) in r_diag.iter().enumerate() {
-            entries.push((l.v(i, c), l.v(i, c), 2.0 * r));
-        }
-    }
-    csc_with_positions(l.stagewise(), l.stagewise(), &entries).0
-}
-
-/// The terminal rows of `mpc.terminal_safety`, if any, with the scenario's one braking
-/// model (`dfl.brake_decel`).
-/// The route's speed profile: cruising no faster than `planner.speed_m_s` (unless `auto`),
-/// than the wheels turn (`plant.max_wheel_speed_rad_s` times the wheel radius, when
-/// limited), and than a robot can follow a point `N` samples ahead of it and still come to
-/// rest at that point within the input box under the LQR
-/// ([`crate::terminal_set::tracking_speed`]: then the route's reference at stage `N` is
-/// its own sub-goal); on bends, `zeta^2 kappa <= mpc.v_max`.
-fn route_speed(
-    scenario: &Scenario,
-    terminal_set: &[crate::terminal_set::SetRow],
-) -> follow::SpeedProfile {
-    let lead_s = scenario.mpc.horizon as f64 * scenario.timing.ts_s;
-    let mut cruise_m_s = crate::terminal_set::tracking_speed(terminal_set, lead_s);
-    if let protocol::AutoOr::Value(bound) = scenario.planner.speed_m_s {
-        cruise_m_s = cruise_m_s.min(bound);
-    }
-    let p = &scenario.plant;
-    if p.max_wheel_speed_rad_s > 0.0 {
-        cruise_m_s = cruise_m_s.min(p.max_wheel_speed_rad_s * p.wheel_radius_m);
-    }
-    follow::SpeedProfile {
-        cruise_m_s,
-        lateral_m_s2: scenario.mpc.v_max,
-    }
-}
-
-fn terminal_brake(scenario: &Scenario) -> Option<TerminalBrake> {
-    let form = match scenario.mpc.terminal_safety {
-        TerminalSafety::Brake => BrakeForm::Segment,
-        TerminalSafety::BrakeBall => BrakeForm::Ball,
-        TerminalSafety::None => return None,
-    };
-    Some(TerminalBrake {
-        decel: scenario.brake_decel(),
-        ts_s: scenario.timing.ts_s,
-        form,
-    })
 }
 
 #[derive(Debug, Clone, Copy)]

@@ -100,6 +100,59 @@ pub struct StaticData {
 type StateRow = [Option<(usize, f64)>; 4];
 
 impl StaticData {
+    /// The data of `scenario` with the discretized model `a`, `b` and the LQR gain `k`:
+    /// the goal-relative position box, the terminal set about the goal (eqs. 45-2, 47,
+    /// redundant rows pruned), `gamma` (1 for the Euclidean constraint); the rows' spans
+    /// come with [`StaticData::with_spans`].
+    pub fn of(
+        scenario: &protocol::Scenario,
+        a: Matrix4<f64>,
+        b: nalgebra::Matrix4x2<f64>,
+        k: Matrix2x4<f64>,
+    ) -> StaticData {
+        let (c, goal) = (&scenario.mpc, scenario.robot.goal);
+        let position_box = [
+            [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
+            [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],
+        ];
+        let terminal_set = crate::terminal_set::prune_redundant(crate::terminal_set::terminal_set(
+            &k,
+            &(a + b * k),
+            c.constraint_horizon,
+            c.v_max,
+            position_box,
+        ));
+        let euclidean = c.constraint == protocol::ConstraintKind::Euclidean;
+        StaticData {
+            a,
+            b,
+            k,
+            terminal_set,
+            gamma: if euclidean { 1.0 } else { c.gamma },
+            v_max: c.v_max,
+            position_box,
+            box_and_terminal_spans: Vec::new(),
+        }
+    }
+
+    /// With the span of every position-box and terminal row over the states the inputs
+    /// can reach (`reach`: the forced and free responses, [`crate::reach::rollout`]).
+    pub fn with_spans(
+        mut self,
+        layout: &Layout,
+        reach: (&nalgebra::DMatrix<f64>, &nalgebra::DMatrix<f64>),
+    ) -> StaticData {
+        let spans = self
+            .box_and_terminal_rows(layout)
+            .map(|(terms, bound)| {
+                let terms = terms.into_iter().flatten();
+                (Span::of(terms, reach, self.v_max), bound)
+            })
+            .collect();
+        self.box_and_terminal_spans = spans;
+        self
+    }
+
     /// The position box on `z_1 .. z_{N-1}` (eq. 53), then the terminal set on `z_N`
     /// (eqs. 45, 47), as rows `sum(value * x[column]) <= bound` (the terminal set's bound
     /// moves with the sub-goal, [`crate::terminal_set`]).

@@ -89,6 +89,13 @@ const B: usize = MAX_REPLY_BYTES;
 
 /// Every type that crosses a process boundary, nested ones first.
 pub fn types() -> Vec<TypeLayout> {
+    let mut types = data_types();
+    types.extend(control_types());
+    types
+}
+
+/// The header and every data message.
+fn data_types() -> Vec<TypeLayout> {
     vec![
         layout!(Header {
             tick: u64,
@@ -98,13 +105,6 @@ pub fn types() -> Vec<TypeLayout> {
             input_latency_ns: u32,
             run_id: u32,
             reserved: u32,
-        }),
-        layout!(EpochSchedule {
-            active: [u32; R],
-            next: [u32; R],
-            switch_tick: [u64; R],
-            active_publishers: [[u128; 2]; R],
-            next_publishers: [[u128; 2]; R],
         }),
         layout!(Measurement {
             header: Header,
@@ -169,6 +169,20 @@ pub fn types() -> Vec<TypeLayout> {
             fallback: u32,
             misses_total: u32,
         }),
+    ]
+}
+
+/// The messages between the orchestrator, the processes and `scmpc swap`, the epoch
+/// schedule (in every control message) first.
+fn control_types() -> Vec<TypeLayout> {
+    vec![
+        layout!(EpochSchedule {
+            active: [u32; R],
+            next: [u32; R],
+            switch_tick: [u64; R],
+            active_publishers: [[u128; 2]; R],
+            next_publishers: [[u128; 2]; R],
+        }),
         layout!(Control {
             header: Header,
             command: u32,
@@ -211,13 +225,6 @@ pub fn types() -> Vec<TypeLayout> {
 /// The codes of every enumeration a message carries, and the constants a foreign role
 /// needs, by name.
 pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
-    fn named<T: Copy>(
-        all: &[T],
-        name: impl Fn(T) -> &'static str,
-        code: impl Fn(T) -> u32,
-    ) -> BTreeMap<&'static str, u64> {
-        all.iter().map(|&v| (name(v), u64::from(code(v)))).collect()
-    }
     let commands = [
         ("grant", ControlCommand::Grant),
         ("start", ControlCommand::Start),
@@ -239,7 +246,8 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         (ipc::DEADLINE, Role::Dfl),
         (ipc::ROUTE, Role::Planner),
     ];
-    BTreeMap::from([
+    let mut codes = message_codes();
+    codes.extend([
         ("role", named(&Role::ALL, Role::as_str, |r| r as u32)),
         (
             "control_command",
@@ -253,6 +261,31 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
             "rejection",
             named(&Rejection::ALL, Rejection::as_str, |r| r as u32),
         ),
+        (
+            "output_slot",
+            slots
+                .iter()
+                .map(|&(topic, role)| (topic, ipc::output_slot(role, topic).unwrap_or(0) as u64))
+                .collect(),
+        ),
+        (
+            "constant",
+            BTreeMap::from([
+                ("max_horizon", MAX_HORIZON as u64),
+                ("route_capacity", ROUTE_CAPACITY as u64),
+                ("switch_unscheduled", SWITCH_UNSCHEDULED),
+                ("no_producer", u64::from(NO_PRODUCER)),
+                ("plan_missing", u64::from(PLAN_MISSING)),
+                ("role_count", Role::COUNT as u64),
+            ]),
+        ),
+    ]);
+    codes
+}
+
+/// The codes of the enumerations the data messages carry, by name.
+fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
+    BTreeMap::from([
         (
             "plan_status",
             named(
@@ -303,25 +336,15 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
             "replan_reason",
             named(&ReplanReason::ALL, ReplanReason::as_str, |r| r as u32),
         ),
-        (
-            "output_slot",
-            slots
-                .iter()
-                .map(|&(topic, role)| (topic, ipc::output_slot(role, topic).unwrap_or(0) as u64))
-                .collect(),
-        ),
-        (
-            "constant",
-            BTreeMap::from([
-                ("max_horizon", MAX_HORIZON as u64),
-                ("route_capacity", ROUTE_CAPACITY as u64),
-                ("switch_unscheduled", SWITCH_UNSCHEDULED),
-                ("no_producer", u64::from(NO_PRODUCER)),
-                ("plan_missing", u64::from(PLAN_MISSING)),
-                ("role_count", Role::COUNT as u64),
-            ]),
-        ),
     ])
+}
+
+fn named<T: Copy>(
+    all: &[T],
+    name: impl Fn(T) -> &'static str,
+    code: impl Fn(T) -> u32,
+) -> BTreeMap<&'static str, u64> {
+    all.iter().map(|&v| (name(v), u64::from(code(v)))).collect()
 }
 
 /// Every topic, with the type it carries.

@@ -1,8 +1,9 @@
 //! Tests of the linear MPC on its own model.
 use super::*;
 use crate::discs::barrier_slack;
+use crate::model::terminal_weight;
 use crate::terminal_set::SetRow;
-use protocol::{Obstacle, QpForm};
+use protocol::{Obstacle, QpForm, TerminalSafety};
 use std::rc::Rc;
 
 mod implied_rows;
