@@ -159,3 +159,125 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
         assert!(linked.is_empty(), "cargo tree -p {role} lists {linked:?}");
     }
 }
+
+/// Lines of code of a Rust source: neither blank nor comment lines, nor the inline test
+/// modules (`#[cfg(test)] mod ... { ... }`), each with its line number.
+fn code_lines(text: &str) -> Vec<(usize, &str)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut code = Vec::new();
+    let mut i = 0;
+    while i < lines.len() {
+        let next = lines.get(i + 1).map(|l| l.trim_start());
+        let test_module = lines[i].trim() == "#[cfg(test)]"
+            && next.is_some_and(|l| l.starts_with("mod ") || l.starts_with("pub mod "));
+        if test_module && next.is_some_and(|l| l.ends_with('{')) {
+            let mut depth = 0i64;
+            let mut j = i + 1;
+            while j < lines.len() {
+                depth +=
+                    lines[j].matches('{').count() as i64 - lines[j].matches('}').count() as i64;
+                if depth <= 0 {
+                    break;
+                }
+                j += 1;
+            }
+            i = j + 1;
+            continue;
+        }
+        let trimmed = lines[i].trim();
+        if !trimmed.is_empty() && !trimmed.starts_with("//") {
+            code.push((i + 1, lines[i]));
+        }
+        i += 1;
+    }
+    code
+}
+
+/// Every function of `code` longer than `limit` code lines: `(line, length)`.
+fn long_functions(code: &[(usize, &str)], limit: usize) -> Vec<(usize, usize)> {
+    let is_fn = |l: &str| {
+        let l = l.trim_start();
+        let l = l
+            .strip_prefix("pub(crate) ")
+            .or(l.strip_prefix("pub(super) "))
+            .unwrap_or(l);
+        let l = l.strip_prefix("pub ").unwrap_or(l);
+        let l = l.strip_prefix("const ").unwrap_or(l);
+        l.strip_prefix("unsafe ").unwrap_or(l).starts_with("fn ")
+    };
+    let mut long = Vec::new();
+    for (k, &(line, text)) in code.iter().enumerate() {
+        if !is_fn(text) {
+            continue;
+        }
+        let (mut depth, mut opened, mut length) = (0i64, false, 0);
+        for &(_, l) in &code[k..] {
+            length += 1;
+            depth += l.matches('{').count() as i64 - l.matches('}').count() as i64;
+            opened |= l.contains('{');
+            if (opened && depth <= 0) || (!opened && l.trim_end().ends_with(';')) {
+                break;
+            }
+        }
+        if length > limit {
+            long.push((line, length));
+        }
+    }
+    long
+}
+
+/// The Rust sources of the workspace outside tests, benchmarks and examples.
+fn library_sources() -> Vec<std::path::PathBuf> {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    let mut dirs = vec![root.to_path_buf()];
+    while let Some(dir) = dirs.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().to_string();
+            if path.is_dir() {
+                let skipped = ["target", "tests", "benches", "examples", "python", ".git"];
+                if !skipped.contains(&name.as_str()) {
+                    dirs.push(path);
+                }
+            } else if name.ends_with(".rs") && name != "tests.rs" {
+                files.push(path);
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+#[test]
+fn no_source_file_passes_600_code_lines_and_no_function_80() {
+    let mut over = Vec::new();
+    for path in library_sources() {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let code = code_lines(&text);
+        let name = path
+            .strip_prefix(env!("CARGO_MANIFEST_DIR"))
+            .unwrap()
+            .display()
+            .to_string();
+        if code.len() > 600 {
+            over.push(format!("{name}: {} code lines", code.len()));
+        }
+        for (line, length) in long_functions(&code, 80) {
+            over.push(format!("{name}:{line}: a function of {length} code lines"));
+        }
+    }
+    assert!(
+        over.is_empty(),
+        "past the house's sizes:\n{}",
+        over.join("\n")
+    );
+    // The counts see what they are meant to: a long function and a test module.
+    let sample = format!(
+        "fn long() {{\n{}}}\n#[cfg(test)]\nmod tests {{\n    fn t() {{}}\n}}\n",
+        "    let x = 1;\n".repeat(90)
+    );
+    let code = code_lines(&sample);
+    assert_eq!(code.len(), 92);
+    assert_eq!(long_functions(&code, 80), [(1, 92)]);
+}

@@ -277,6 +277,46 @@ struct Held {
     bytes: Vec<u8>,
 }
 
+type IpcService = iceoryx2::service::ipc::Service;
+
+/// What [`send_ports`] opens: the node, the taps, the publishers by key, the WaitSet.
+type SendPorts = (
+    iceoryx2::node::Node<IpcService>,
+    Vec<(String, Box<dyn WireTap>)>,
+    HashMap<String, zenoh::pubsub::Publisher<'static>>,
+    iceoryx2::waitset::WaitSet<IpcService>,
+);
+
+/// The ports of the sending side of a bridge: a tap of every topic it sends (and of the
+/// control topic, whose schedule pins what goes out), a Zenoh publisher per topic and
+/// host, and the WaitSet it waits in.
+fn send_ports(session: &zenoh::Session, spec: &BridgeSpec) -> Result<SendPorts, HostError> {
+    let node = ipc::create_node(&spec.prefix, &format!("bridge-out-{}", spec.host), false)?;
+    let mut taps: Vec<(String, Box<dyn WireTap>)> = Vec::new();
+    for topic in spec.send.keys() {
+        taps.push((topic.clone(), wire::tap(&node, topic)?));
+    }
+    if !spec.send.contains_key(CONTROL) {
+        // The schedule pins what goes out.
+        taps.push((CONTROL.to_string(), wire::tap(&node, CONTROL)?));
+    }
+    let mut publishers = HashMap::new();
+    for (topic, hosts) in &spec.send {
+        for host in hosts {
+            let key = keys::to_host(&spec.run, host, topic);
+            let publisher = session
+                .declare_publisher(key.clone())
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .wait()
+                .map_err(|e| HostError::Zenoh(format!("publisher {key}: {e}")))?;
+            publishers.insert(key, publisher);
+        }
+    }
+    let waitset = ipc::waitset(false)?;
+    Ok((node, taps, publishers, waitset))
+}
+
 /// The sending thread: iceoryx2 to Zenoh.
 fn send(
     session: zenoh::Session,
@@ -286,33 +326,7 @@ fn send(
     ready_pins: ReadyPins,
     ready: mpsc::Sender<Result<(), HostError>>,
 ) {
-    let setup = || -> Result<_, HostError> {
-        let node = ipc::create_node(&spec.prefix, &format!("bridge-out-{}", spec.host), false)?;
-        let mut taps: Vec<(String, Box<dyn WireTap>)> = Vec::new();
-        for topic in spec.send.keys() {
-            taps.push((topic.clone(), wire::tap(&node, topic)?));
-        }
-        if !spec.send.contains_key(CONTROL) {
-            // The schedule pins what goes out.
-            taps.push((CONTROL.to_string(), wire::tap(&node, CONTROL)?));
-        }
-        let mut publishers = HashMap::new();
-        for (topic, hosts) in &spec.send {
-            for host in hosts {
-                let key = keys::to_host(&spec.run, host, topic);
-                let publisher = session
-                    .declare_publisher(key.clone())
-                    .congestion_control(CongestionControl::Block)
-                    .express(true)
-                    .wait()
-                    .map_err(|e| HostError::Zenoh(format!("publisher {key}: {e}")))?;
-                publishers.insert(key, publisher);
-            }
-        }
-        let waitset = ipc::waitset(false)?;
-        Ok((node, taps, publishers, waitset))
-    };
-    let (_node, taps, publishers, waitset) = match setup() {
+    let (_node, taps, publishers, waitset) = match send_ports(&session, &spec) {
         Ok(parts) => parts,
         Err(e) => {
             let _ = ready.send(Err(e));

@@ -130,7 +130,12 @@ struct HostRun {
 }
 
 impl HostRun {
-    fn join(session: &zenoh::Session, name: &str, r: &JoinRequest) -> anyhow::Result<HostRun> {
+    /// What a join request asks of host `name`, checked: the scenario (validated as the
+    /// orchestrator's was), the clock, the roles and the run's key.
+    fn checked(
+        name: &str,
+        r: &JoinRequest,
+    ) -> anyhow::Result<(protocol::Validated, RunMode, Vec<Role>, RunKey)> {
         if r.host != name {
             return Err(anyhow!("this is host `{name}`, not `{}`", r.host));
         }
@@ -148,9 +153,16 @@ impl HostRun {
             .map(|n| Role::from_name(n).ok_or_else(|| anyhow!("no role `{n}`")))
             .collect::<anyhow::Result<Vec<Role>>>()?;
         let key = RunKey::from_hex(&r.key).ok_or_else(|| anyhow!("a malformed run key"))?;
-        let clock = hosts::clock_sync::estimate(session, &r.run)?;
-        let prefix = ipc::new_prefix();
-        ipc::register_run(&prefix).context("registering the run")?;
+        Ok((scenario, mode, roles, key))
+    }
+
+    /// The run's directory on this host, with the scenario's file the role processes
+    /// read.
+    fn run_dir(
+        name: &str,
+        r: &JoinRequest,
+        scenario: &protocol::Validated,
+    ) -> anyhow::Result<(std::path::PathBuf, std::path::PathBuf)> {
         let dir = std::env::temp_dir().join(format!(
             "{RUN_DIR_STEM}{}-{name}-{}",
             std::process::id(),
@@ -160,6 +172,17 @@ impl HostRun {
         let scenario_file = dir.join("scenario.toml");
         std::fs::write(&scenario_file, scenario.to_toml())
             .with_context(|| format!("writing {}", scenario_file.display()))?;
+        Ok((dir, scenario_file))
+    }
+
+    /// Joins the run of `r` as host `name`: the clock exchange, the run's directory, the
+    /// bridge, the processes' environment, and the topics of commands, exits and liveliness.
+    fn join(session: &zenoh::Session, name: &str, r: &JoinRequest) -> anyhow::Result<HostRun> {
+        let (scenario, mode, roles, key) = Self::checked(name, r)?;
+        let clock = hosts::clock_sync::estimate(session, &r.run)?;
+        let prefix = ipc::new_prefix();
+        ipc::register_run(&prefix).context("registering the run")?;
+        let (dir, scenario_file) = Self::run_dir(name, r, &scenario)?;
         let bridge = Bridge::start(
             session,
             BridgeSpec {

@@ -131,28 +131,8 @@ impl RemoteHosts {
                 send: routes.host_sends.get(&name).cloned().unwrap_or_default(),
                 receive: routes.host_receives.get(&name).cloned().unwrap_or_default(),
             };
-            let endpoint = endpoints[&name].zenoh();
-            let reply = ask_to_join(&session, &name, &request).map_err(|e| {
-                anyhow!(
-                    "host `{name}` at {endpoint} did not join the run: {e} (is `scmpc host \
-                     --name {name} --listen {endpoint}` running there?)"
-                )
-            })?;
-            if !reply.error.is_empty() {
-                return Err(anyhow!(
-                    "host `{name}` at {endpoint} refused the run: {}",
-                    reply.error
-                ));
-            }
-            hosts.insert(
-                name,
-                HostLink {
-                    endpoint,
-                    agent_pid: reply.agent_pid,
-                    prefix: reply.prefix,
-                    clock: reply.clock,
-                },
-            );
+            let link = join_host(&session, &name, &request, endpoints[&name].zenoh())?;
+            hosts.insert(name, link);
         }
         Ok(RemoteHosts {
             run,
@@ -299,6 +279,34 @@ impl RemoteHosts {
 
 /// The shortest wait for an answer to one join request.
 const JOIN_ATTEMPT: Duration = Duration::from_millis(500);
+
+/// Asks host `name`, listening at `endpoint`, to join the run as `request` says; its link
+/// once it has.
+fn join_host(
+    session: &zenoh::Session,
+    name: &str,
+    request: &JoinRequest,
+    endpoint: String,
+) -> anyhow::Result<HostLink> {
+    let reply = ask_to_join(session, name, request).map_err(|e| {
+        anyhow!(
+            "host `{name}` at {endpoint} did not join the run: {e} (is `scmpc host \
+             --name {name} --listen {endpoint}` running there?)"
+        )
+    })?;
+    if !reply.error.is_empty() {
+        return Err(anyhow!(
+            "host `{name}` at {endpoint} refused the run: {}",
+            reply.error
+        ));
+    }
+    Ok(HostLink {
+        endpoint,
+        agent_pid: reply.agent_pid,
+        prefix: reply.prefix,
+        clock: reply.clock,
+    })
+}
 
 /// Asks the agent of `host` to join, again and again until it answers or [`JOIN_TIMEOUT`]
 /// passes: a query fails at once while the link to the agent is not up yet.

@@ -136,6 +136,67 @@ pub fn run(
     )?)
 }
 
+/// The run's hosts, their agents connected and their joining recorded (`None`: every role
+/// on this host).
+fn connect_hosts(
+    scenario: &Validated,
+    mode: RunMode,
+    prefix: &str,
+    hosts: &HostsSetup,
+    session: &Session,
+    recorder: &mut Recorder,
+) -> anyhow::Result<Option<RemoteHosts>> {
+    if scenario.hosts.names().is_empty() {
+        return Ok(None);
+    }
+    let remote = RemoteHosts::connect(
+        scenario,
+        mode,
+        prefix,
+        &hosts.endpoints,
+        &hosts.security,
+        session.control.publisher_id(),
+    )?;
+    for (name, link) in &remote.hosts {
+        recorder.event(
+            "host_joined",
+            serde_json::json!({
+                "host": name, "endpoint": link.endpoint, "agent_pid": link.agent_pid,
+                "prefix": link.prefix, "round_trip_us": link.clock.round_trip_ns as f64 / 1e3,
+                "clock_correction_ms": link.clock.correction_ns as f64 / 1e6,
+            }),
+        )?;
+    }
+    Ok(Some(remote))
+}
+
+/// The pids and hosts of the processes spawned, each recorded as an event.
+fn spawned_report(
+    prefix: &str,
+    children: &Children,
+    recorder: &mut Recorder,
+) -> anyhow::Result<ProcessReport> {
+    let mut report = ProcessReport {
+        iceoryx2_prefix: prefix.to_string(),
+        ..ProcessReport::default()
+    };
+    report
+        .pids
+        .insert("orchestrator".into(), std::process::id());
+    for p in &children.list {
+        report.pids.insert(p.role.as_str().into(), p.pid());
+        if let Some(host) = p.host() {
+            report.hosts.insert(p.role.as_str().into(), host.into());
+        }
+        recorder.event(
+            "spawned",
+            serde_json::json!({ "role": p.role.as_str(), "pid": p.pid(), "host": p.host() }),
+        )?;
+    }
+
+    Ok(report)
+}
+
 /// Launches the processes, clocks and records the run, and stops the processes. Every
 /// iceoryx2 port of the orchestrator is gone when this returns.
 fn drive(
@@ -155,29 +216,7 @@ fn drive(
         swap_reply_publisher: format!("{:x}", session.swap_replies.publisher_id()),
     }
     .write(out)?;
-    let remote = if scenario.hosts.names().is_empty() {
-        None
-    } else {
-        let remote = RemoteHosts::connect(
-            scenario,
-            mode,
-            prefix,
-            &hosts.endpoints,
-            &hosts.security,
-            session.control.publisher_id(),
-        )?;
-        for (name, link) in &remote.hosts {
-            recorder.event(
-                "host_joined",
-                serde_json::json!({
-                    "host": name, "endpoint": link.endpoint, "agent_pid": link.agent_pid,
-                    "prefix": link.prefix, "round_trip_us": link.clock.round_trip_ns as f64 / 1e3,
-                    "clock_correction_ms": link.clock.correction_ns as f64 / 1e6,
-                }),
-            )?;
-        }
-        Some(remote)
-    };
+    let remote = connect_hosts(scenario, mode, prefix, hosts, &session, recorder)?;
     let mut children = Children::new(
         &out.join("scenario.toml"),
         prefix,
@@ -187,23 +226,7 @@ fn drive(
         remote,
     )?;
     children.spawn_all(scenario.roles())?;
-    let mut report = ProcessReport {
-        iceoryx2_prefix: prefix.to_string(),
-        ..ProcessReport::default()
-    };
-    report
-        .pids
-        .insert("orchestrator".into(), std::process::id());
-    for p in &children.list {
-        report.pids.insert(p.role.as_str().into(), p.pid());
-        if let Some(host) = p.host() {
-            report.hosts.insert(p.role.as_str().into(), host.into());
-        }
-        recorder.event(
-            "spawned",
-            serde_json::json!({ "role": p.role.as_str(), "pid": p.pid(), "host": p.host() }),
-        )?;
-    }
+    let mut report = spawned_report(prefix, &children, recorder)?;
 
     // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
     // time: it only records, so it drains its buffers every POLL instead of competing for

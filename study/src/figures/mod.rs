@@ -6,6 +6,7 @@
 
 use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use record::schema::Table;
 use std::path::{Path, PathBuf};
@@ -173,15 +174,7 @@ impl Figure {
             .y_label_area_size(70)
             .build_cartesian_2d(x0..x1, y0..y1)?;
         let log_y = self.log_y;
-        let y_format = move |v: &f64| {
-            if log_y {
-                let value = 10f64.powf(*v);
-                let decimals = (1.0 - value.log10().floor()).clamp(0.0, 3.0) as usize;
-                format!("{value:.decimals$}")
-            } else {
-                format!("{v:.2}")
-            }
-        };
+        let y_format = move |v: &f64| y_tick_label(log_y, *v);
         chart
             .configure_mesh()
             .x_desc(self.x_label.as_str())
@@ -215,6 +208,26 @@ impl Figure {
                 .label(label.as_str())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
         }
+        self.draw_lines_and_markers(&mut chart)?;
+        chart
+            .configure_series_labels()
+            .position(if self.legend_left {
+                SeriesLabelPosition::UpperLeft
+            } else {
+                SeriesLabelPosition::UpperRight
+            })
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    }
+
+    /// The series (solid, faint or dashed) and the markers, each with its legend entry.
+    fn draw_lines_and_markers<DB: DrawingBackend>(
+        &self,
+        chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
         for s in &self.series {
             let color = PALETTE[s.color % PALETTE.len()];
             let style = if s.faint {
@@ -249,17 +262,6 @@ impl Figure {
                 .label(m.label.as_str())
                 .legend(move |(x, y)| Circle::new((x + 12, y), 5, style));
         }
-        chart
-            .configure_series_labels()
-            .position(if self.legend_left {
-                SeriesLabelPosition::UpperLeft
-            } else {
-                SeriesLabelPosition::UpperRight
-            })
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
         Ok(())
     }
 }
@@ -465,4 +467,16 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
     }
     .write(dir)?;
     Ok(())
+}
+
+/// A y-axis tick label: the value to two decimals, or on a log axis (`v` = log10 of the
+/// value) the value with as many decimals as it needs, up to three.
+fn y_tick_label(log_y: bool, v: f64) -> String {
+    if log_y {
+        let value = 10f64.powf(v);
+        let decimals = (1.0 - value.log10().floor()).clamp(0.0, 3.0) as usize;
+        format!("{value:.decimals$}")
+    } else {
+        format!("{v:.2}")
+    }
 }
