@@ -43,8 +43,8 @@ pub struct Tick {
     pub verdict: Option<DeadlineVerdict>,
     /// The DFL's command for the tick, with the deadline misses so far.
     pub actuation: Actuation,
-    /// The role restarted at this tick (a message of it was refused).
-    pub restarted: Option<Role>,
+    /// The role restarted at this tick, with the topic of its message that was refused.
+    pub restarted: Option<(Role, &'static str)>,
 }
 
 /// Why the loop ended before its last tick.
@@ -158,7 +158,7 @@ impl ClosedLoop {
             around(role, &mut || refused = self.pass(i, &time));
             while let Some(topic) = refused.take() {
                 self.restart(i, topic)?;
-                restarted = Some(role);
+                restarted = Some((role, topic));
                 around(role, &mut || refused = self.pass(i, &time));
             }
         }
@@ -234,7 +234,7 @@ impl ClosedLoop {
     }
 
     /// The tick's record from what the tasks gave.
-    fn collect(&self, restarted: Option<Role>) -> Result<Tick, Ended> {
+    fn collect(&self, restarted: Option<(Role, &'static str)>) -> Result<Tick, Ended> {
         let (mut truth, mut estimate, mut actuation) = (None, None, None);
         let (mut plan, mut route, mut verdict) = (None, None, None);
         for data in &self.given {

@@ -58,10 +58,10 @@ pub fn run_observed(
             }
             Err(stalled) => return Err(stalled.into()),
         };
-        if let Some(role) = tick.restarted {
+        if let Some((role, topic)) = tick.restarted {
             recorder.event(
                 "restarted",
-                serde_json::json!({ "role": role.as_str(), "reason": "output refused" }),
+                serde_json::json!({ "role": role.as_str(), "reason": format!("{topic} refused") }),
             )?;
         }
         if let Some(plan) = &tick.plan {
