@@ -12,6 +12,9 @@ use runtime::process::{ProcessArgs, ProcessError};
 /// executor makes its task ([`in_process`]).
 macro_rules! roles {
     ($($role:ident => $task:ty),* $(,)?) => {
+        /// Every role registered, in the order of the data within a tick.
+        pub const ALL: &[Role] = &[$(Role::$role),*];
+
         /// Runs a process of `role` until the orchestrator stops it ([`runtime::serve`]).
         pub fn serve(role: Role, args: &ProcessArgs) -> Result<(), ProcessError> {
             match role {

@@ -88,17 +88,21 @@ pub enum Command {
     /// Listens on a Zenoh endpoint; an orchestrator given `--host NAME=ENDPOINT` joins it
     /// to its run. Stops on Ctrl-C, stopping the processes of a run it serves.
     Host(HostArgs),
-    /// Role process: the plant (started by `scmpc run`).
-    Plant(RoleArgs),
-    /// Role process: the state estimator (started by `scmpc run`).
-    Estimator(RoleArgs),
-    /// Role process: the MPC (started by `scmpc run`).
-    Mpc(RoleArgs),
-    /// Role process: the DFL inner loop (started by `scmpc run`).
-    Dfl(RoleArgs),
-    /// Role process: the route planner (started by `scmpc run` when `planner.kind =
-    /// "route"`).
-    Planner(RoleArgs),
+    // A role process (`scmpc plant`, `scmpc mpc`, ...): a subcommand per role of
+    // `run::roles`, added by `with_roles`.
+}
+
+/// The command line with a subcommand per role, each taking [`RoleArgs`]: the roles come
+/// from their registry ([`run::roles`]), so a new role needs no line here.
+pub fn with_roles(cli: clap::Command) -> clap::Command {
+    use clap::Args;
+    cli.subcommands(run::roles::ALL.iter().map(|role| {
+        let about = format!(
+            "Role process: the {} (started by `scmpc run`)",
+            role.as_str()
+        );
+        RoleArgs::augment_args(clap::Command::new(role.as_str())).about(about)
+    }))
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -2,7 +2,6 @@
 //! and here the dispatch and the study commands, each a call into the crate that does it.
 
 use anyhow::Context;
-use clap::Parser;
 use protocol::Role;
 use run::scenarios;
 use std::path::PathBuf;
@@ -17,7 +16,8 @@ pub const EXIT_BAD_INPUT: u8 = 2;
 mod args;
 mod launch;
 
-use args::{Cli, Command, FuzzArgs, SwapArgs, SweepArgs};
+use args::{Cli, Command, FuzzArgs, RoleArgs, SwapArgs, SweepArgs};
+use clap::{CommandFactory, FromArgMatches};
 
 /// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
 /// one place that does.
@@ -50,26 +50,20 @@ type CliResult = Result<(), CliError>;
 pub fn main() -> ExitCode {
     init_logging();
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
-    let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Schema => {
-            println!("{:#}", message_schema());
-            Ok(())
+    let matches = args::with_roles(Cli::command()).get_matches();
+    let role = matches
+        .subcommand()
+        .and_then(|(name, sub)| Some((Role::from_name(name)?, sub)));
+    let result = match role {
+        Some((role, sub)) => {
+            let args = RoleArgs::from_arg_matches(sub).unwrap_or_else(|e| e.exit());
+            launch::role(args, role)
         }
-        Command::Scenario { name } => scenario(&name),
-        Command::Run(args) => launch::run(args),
-        Command::Swap(args) => swap(args),
-        Command::Sweep(args) => sweep(args),
-        Command::Fuzz(args) => fuzz(args),
-        Command::Figures { out } => figures(&out),
-        Command::Bench { out, realtime_s } => bench(out, realtime_s),
-        Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
-        Command::Host(args) => launch::host(args),
-        Command::Plant(args) => launch::role(args, Role::Plant),
-        Command::Estimator(args) => launch::role(args, Role::Estimator),
-        Command::Mpc(args) => launch::role(args, Role::Mpc),
-        Command::Dfl(args) => launch::role(args, Role::Dfl),
-        Command::Planner(args) => launch::role(args, Role::Planner),
+        None => dispatch(
+            Cli::from_arg_matches(&matches)
+                .unwrap_or_else(|e| e.exit())
+                .command,
+        ),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -86,6 +80,25 @@ pub fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::from(EXIT_NOT_REACHED)
         }
+    }
+}
+
+/// Runs `command` (every command but a role process's).
+fn dispatch(command: Command) -> CliResult {
+    match command {
+        Command::Schema => {
+            println!("{:#}", message_schema());
+            Ok(())
+        }
+        Command::Scenario { name } => scenario(&name),
+        Command::Run(args) => launch::run(args),
+        Command::Swap(args) => swap(args),
+        Command::Sweep(args) => sweep(args),
+        Command::Fuzz(args) => fuzz(args),
+        Command::Figures { out } => figures(&out),
+        Command::Bench { out, realtime_s } => bench(out, realtime_s),
+        Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
+        Command::Host(args) => launch::host(args),
     }
 }
 
