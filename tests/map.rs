@@ -10,25 +10,28 @@ type Dependencies = BTreeMap<String, (BTreeSet<String>, BTreeSet<String>)>;
 
 const TRANSPORTS: [&str; 2] = ["iceoryx2", "zenoh"];
 
-/// The normal dependencies of every workspace crate, as `cargo metadata` declares them.
-fn from_cargo() -> Dependencies {
+/// What `cargo ARGS` prints, in the workspace (it must succeed).
+fn cargo(args: &[&str]) -> String {
     let out = std::process::Command::new(env!("CARGO"))
-        .args([
-            "metadata",
-            "--format-version",
-            "1",
-            "--no-deps",
-            "--offline",
-        ])
+        .args(args)
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let metadata: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "cargo {args:?}: {stderr}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The normal dependencies of every workspace crate, as `cargo metadata` declares them.
+fn from_cargo() -> Dependencies {
+    let out = cargo(&[
+        "metadata",
+        "--format-version",
+        "1",
+        "--no-deps",
+        "--offline",
+    ]);
+    let metadata: serde_json::Value = serde_json::from_str(&out).unwrap();
     let packages = metadata["packages"].as_array().unwrap();
     let members: BTreeSet<&str> = packages
         .iter()
@@ -121,9 +124,9 @@ fn the_crate_table_of_the_design_is_the_one_cargo_metadata_reports() {
 
 #[test]
 fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
-    let cargo = from_cargo();
+    let declared = from_cargo();
     for role in ["plant", "estimator", "mpc", "dfl", "planner"] {
-        let (crates, transports) = &cargo[role];
+        let (crates, transports) = &declared[role];
         assert_eq!(
             crates.iter().collect::<Vec<_>>(),
             ["protocol"],
@@ -132,26 +135,16 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
         assert!(transports.is_empty(), "{role} declares {transports:?}");
         // Resolved, with the features its dependencies turn on: protocol's iceoryx2 is
         // the runtime's to ask for, never a role's.
-        let out = std::process::Command::new(env!("CARGO"))
-            .args([
-                "tree",
-                "-p",
-                role,
-                "-e",
-                "normal",
-                "--prefix",
-                "none",
-                "--offline",
-            ])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        let tree = String::from_utf8(out.stdout).unwrap();
+        let tree = cargo(&[
+            "tree",
+            "-p",
+            role,
+            "-e",
+            "normal",
+            "--prefix",
+            "none",
+            "--offline",
+        ]);
         let linked: Vec<&str> = tree
             .lines()
             .filter(|l| TRANSPORTS.iter().any(|t| l.starts_with(&format!("{t} v"))))

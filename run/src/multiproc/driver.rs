@@ -41,9 +41,8 @@ const BRAKE_TIMEOUT: Duration = Duration::from_secs(5);
 /// A run while it is driven.
 pub(super) struct Driver<'a> {
     scenario: &'a Scenario,
-    session: &'a Session,
-    children: &'a mut Children,
-    recorder: &'a mut Recorder,
+    /// The run's ports, processes and record, as the swap server works with them too.
+    parts: Parts<'a>,
     judge: Judge,
     intake: Intake,
     supervisor: Supervisor,
@@ -62,9 +61,11 @@ impl<'a> Driver<'a> {
     ) -> Driver<'a> {
         Driver {
             scenario,
-            session,
-            children,
-            recorder,
+            parts: Parts {
+                session,
+                children,
+                recorder,
+            },
             judge: Judge::new(scenario),
             intake: Intake::new(
                 &scenario.timing,
@@ -82,14 +83,14 @@ impl<'a> Driver<'a> {
     pub fn lockstep(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let ticks = self.scenario.tick_count();
         for tick in 0..=ticks {
-            self.session.grant(tick)?;
+            self.parts.session.grant(tick)?;
             self.take_now()?;
             if let Some(outcome) = self.check()? {
                 return Ok(outcome);
             }
             let mut taken = Ok(());
             lockstep_poll(|| {
-                taken = self.intake.take_from_memory(self.session);
+                taken = self.intake.take_from_memory(self.parts.session);
                 taken.is_err() || self.intake.has_whole(tick)
             });
             taken?;
@@ -146,8 +147,8 @@ impl<'a> Driver<'a> {
     /// rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]), and then ends.
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
-        self.session.start(start_ns)?;
-        let end_ns = self.session.clock().at_ns(self.scenario.duration_s);
+        self.parts.session.start(start_ns)?;
+        let end_ns = self.parts.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
         let mut aborting: Option<Instant> = None;
         loop {
@@ -155,17 +156,18 @@ impl<'a> Driver<'a> {
                 if self.stop.load(Ordering::Relaxed) {
                     return Ok(Outcome::Interrupted);
                 }
-                if self.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
+                if self.parts.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
                     || since.elapsed() > BRAKE_TIMEOUT
                 {
                     return Ok(Outcome::Aborted);
                 }
-                self.children.kill_overdue();
+                self.parts.children.kill_overdue();
             } else if let Some(outcome) = self.check()? {
                 if outcome != Outcome::Aborted || !self.can_brake_to_rest() {
                     return Ok(outcome);
                 }
-                self.recorder
+                self.parts
+                    .recorder
                     .event("braking_to_rest", serde_json::json!({}))?;
                 aborting = Some(Instant::now());
             }
@@ -176,14 +178,16 @@ impl<'a> Driver<'a> {
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.take(waitset)?;
-            let planned = self.intake.record_plans(self.recorder, &mut self.judge)?;
+            let planned = self
+                .intake
+                .record_plans(self.parts.recorder, &mut self.judge)?;
             if aborting.is_none() {
                 if let Some(outcome) = planned {
                     return Ok(outcome);
                 }
                 self.serve_swaps()?;
             }
-            while let Some(slot) = self.intake.next_due(self.recorder)? {
+            while let Some(slot) = self.intake.next_due(self.parts.recorder)? {
                 let tick = self.intake.cursor - 1;
                 match self.record_slot(tick, slot)? {
                     Some(Outcome::Collided) => return Ok(Outcome::Collided),
@@ -199,8 +203,9 @@ impl<'a> Driver<'a> {
     /// plan, then the brake) can bring the robot to rest before an aborted run ends.
     fn can_brake_to_rest(&self) -> bool {
         [Role::Plant, Role::Dfl].iter().all(|&role| {
-            self.children
-                .pid(role, self.session.schedule().current(role))
+            self.parts
+                .children
+                .pid(role, self.parts.session.schedule().current(role))
                 .is_some()
         })
     }
@@ -209,7 +214,9 @@ impl<'a> Driver<'a> {
     /// after the last ends the run.
     fn record_tick(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
         let slot = self.intake.take_slot(tick);
-        let no_route = self.intake.record_plans(self.recorder, &mut self.judge)?;
+        let no_route = self
+            .intake
+            .record_plans(self.parts.recorder, &mut self.judge)?;
         Ok(self.record_slot(tick, slot)?.or(no_route))
     }
 
@@ -220,19 +227,19 @@ impl<'a> Driver<'a> {
     ) -> anyhow::Result<Option<Outcome>> {
         if tick == self.scenario.tick_count() {
             if let Some(truth) = &slot.truth {
-                self.recorder.final_truth(truth);
+                self.parts.recorder.final_truth(truth);
             }
             return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
         }
-        let truth = self.intake.record(slot, self.recorder)?;
+        let truth = self.intake.record(slot, self.parts.recorder)?;
         Ok(truth.and_then(|truth| self.judge.tick(&truth)))
     }
 
     /// Takes everything received, without waiting.
     fn take_now(&mut self) -> anyhow::Result<()> {
-        self.intake.take(self.session)?;
+        self.intake.take(self.parts.session)?;
         self.supervisor
-            .take_status(self.session, self.children, self.recorder)
+            .take_status(self.parts.session, self.parts.children, self.parts.recorder)
     }
 
     /// Waits for input (at most [`POLL`]) and takes everything received.
@@ -245,18 +252,19 @@ impl<'a> Driver<'a> {
     fn serve_swaps(&mut self) -> anyhow::Result<()> {
         self.show_status();
         let recorded = self.intake.cursor;
-        let now_tick = self.session.clock().now_tick().unwrap_or(0).max(recorded);
-        let mut parts = Parts {
-            session: self.session,
-            children: self.children,
-            recorder: self.recorder,
-        };
-        self.swaps.serve(&mut parts, now_tick, recorded)
+        let now_tick = self
+            .parts
+            .session
+            .clock()
+            .now_tick()
+            .unwrap_or(0)
+            .max(recorded);
+        self.swaps.serve(&mut self.parts, now_tick, recorded)
     }
 
     /// Redraws the status line on a terminal, when due.
     fn show_status(&mut self) {
-        let (recorder, duration_s) = (&*self.recorder, self.scenario.duration_s);
+        let (recorder, duration_s) = (&*self.parts.recorder, self.scenario.duration_s);
         let latency = self.intake.last_sensor_to_actuator_ns;
         self.status_line.update(|| Live {
             t_s: recorder.simulated_s(),
@@ -276,33 +284,39 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        self.children.kill_overdue();
+        self.parts.children.kill_overdue();
         self.supervisor
-            .contain(self.session, self.children, self.recorder)?;
-        self.supervisor.watch_nodes(self.children, self.recorder)?;
-        if let Some(host) = self.children.remote.as_ref().and_then(|r| r.take_lost()) {
+            .contain(self.parts.session, self.parts.children, self.parts.recorder)?;
+        self.supervisor
+            .watch_nodes(self.parts.children, self.parts.recorder)?;
+        if let Some(host) = self
+            .parts
+            .children
+            .remote
+            .as_ref()
+            .and_then(|r| r.take_lost())
+        {
             return self.lose_host(&host);
         }
-        let Some((proc, status)) = self.children.take_exited() else {
+        let Some((proc, status)) = self.parts.children.take_exited() else {
             return Ok(None);
         };
         let (role, epoch) = (proc.role, proc.epoch);
-        let cleaned = clean_dead_nodes(self.children, self.recorder, Some((role, epoch)))?;
+        let cleaned = clean_dead_nodes(
+            self.parts.children,
+            self.parts.recorder,
+            Some((role, epoch)),
+        )?;
         if proc.retire_by.is_some() {
-            self.recorder.event(
+            self.parts.recorder.event(
                 "retired",
                 serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status }),
             )?;
             return Ok(None);
         }
-        let mut parts = Parts {
-            session: self.session,
-            children: self.children,
-            recorder: self.recorder,
-        };
         if self
             .swaps
-            .replacement_exited(&mut parts, role, epoch, &status)?
+            .replacement_exited(&mut self.parts, role, epoch, &status)?
         {
             return Ok(None);
         }
@@ -312,36 +326,42 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        parts.recorder.event(
+        self.parts.recorder.event(
             "crashed",
             serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "nodes_cleaned": cleaned }),
         )?;
-        if self.swaps.promote(&mut parts, role)? {
+        if self.swaps.promote(&mut self.parts, role)? {
             return Ok(None);
         }
-        let restarted =
-            self.supervisor
-                .restart(role, self.session, self.children, self.recorder)?;
+        let restarted = self.supervisor.restart(
+            role,
+            self.parts.session,
+            self.parts.children,
+            self.parts.recorder,
+        )?;
         Ok((!restarted).then_some(Outcome::Aborted))
     }
 
     /// The agent of `host` is gone (docs/hosts.md): its processes are as good as crashed.
     /// Each active producer among them fails over to this host, or the run ends aborted.
     fn lose_host(&mut self, host: &str) -> anyhow::Result<Option<Outcome>> {
-        let gone = self.children.forget_host(host);
+        let gone = self.parts.children.forget_host(host);
         let roles: Vec<Role> = gone
             .iter()
-            .filter(|p| self.session.schedule().current(p.role) == p.epoch)
+            .filter(|p| self.parts.session.schedule().current(p.role) == p.epoch)
             .map(|p| p.role)
             .collect();
-        self.recorder.event(
+        self.parts.recorder.event(
             "host_lost",
             serde_json::json!({ "host": host, "roles": roles.iter().map(|r| r.as_str()).collect::<Vec<_>>() }),
         )?;
         for role in roles {
-            let failed_over =
-                self.supervisor
-                    .fail_over(role, self.session, self.children, self.recorder)?;
+            let failed_over = self.supervisor.fail_over(
+                role,
+                self.parts.session,
+                self.parts.children,
+                self.parts.recorder,
+            )?;
             if !failed_over {
                 return Ok(Some(Outcome::Aborted));
             }
@@ -360,15 +380,10 @@ impl<'a> Driver<'a> {
         self.status_line.clear();
         let outcome = outcome.and_then(|o| {
             self.intake
-                .record_plans(self.recorder, &mut self.judge)
+                .record_plans(self.parts.recorder, &mut self.judge)
                 .map(|_| o)
         });
-        let mut parts = Parts {
-            session: self.session,
-            children: self.children,
-            recorder: self.recorder,
-        };
-        self.swaps.finish(&mut parts)?;
+        self.swaps.finish(&mut self.parts)?;
         self.intake.report(report);
         report.restarts = self.supervisor.restarts();
         report.swaps = self.swaps.done();

@@ -56,7 +56,8 @@ pub(super) struct SwapServer {
     done: u32,
 }
 
-/// What the swap server works with: the run's ports, processes and record.
+/// The run's ports, processes and record: what the driver holds and the swap server works
+/// with.
 pub(super) struct Parts<'a> {
     pub session: &'a Session,
     pub children: &'a mut Children,
