@@ -23,7 +23,8 @@ fn swapped(ev: &[serde_json::Value], role: &str) -> serde_json::Value {
         .clone()
 }
 
-/// Every tick of the run is in `trajectory.csv` with a finite command and estimate.
+/// Every tick recorded in `trajectory.csv` (`ticks` of them) has a finite command and
+/// estimate.
 fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
     let table = Table::read(&dir.join("trajectory.csv")).unwrap();
     assert_eq!(table.len(), ticks, "ticks recorded");
@@ -44,6 +45,25 @@ fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
     }
 }
 
+/// The ticks of `record_gap` events from the swap's start to one second after its switch.
+fn gaps_around_swap(ev: &[serde_json::Value], role: &str) -> Vec<u64> {
+    let started = ev
+        .iter()
+        .find(|e| e["event"] == "swap_started" && e["role"] == role)
+        .and_then(|e| e["t"].as_f64())
+        .unwrap_or_else(|| panic!("no swap_started of the {role}"));
+    let first = (started / 0.005) as u64;
+    let last = swapped(ev, role)["switch_tick"].as_u64().unwrap() + 200;
+    ev.iter()
+        .filter(|e| e["event"] == "record_gap")
+        .filter_map(|e| e["tick"].as_u64())
+        .filter(|tick| (first..=last).contains(tick))
+        .collect()
+}
+
+/// The swaps' claim: no deadline missed and no tick lost from a swap's start to a second
+/// after its switch. A tick lost elsewhere is the machine's (a stall of a shared CI VM,
+/// issue 47's subject) and allowed as in the project's other real-time tests.
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
     let _machine = common::machine_alone();
@@ -65,15 +85,18 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
     );
     let (out_dir, s, ev) = run_realtime(dir.path(), &file);
     assert_eq!(s["deadline_misses"], 0);
-    assert_eq!(s["record_gaps"], 0);
-    assert_eq!(s["ticks_without_estimate"], 0);
+    common::assert_few_record_gaps(&s);
+    for role in ["estimator", "mpc"] {
+        assert_eq!(gaps_around_swap(&ev, role), [] as [u64; 0], "{role} swap");
+    }
+    let gaps = s["record_gaps"].as_u64().unwrap() as usize;
     assert_eq!(s["swaps"], 2);
     assert!(
         s["rejected_samples"].as_object().unwrap().is_empty(),
         "{}",
         s["rejected_samples"]
     );
-    assert_every_tick_commanded(&out_dir, 2800);
+    assert_every_tick_commanded(&out_dir, 2800 - gaps);
     for (role, at_s) in [("estimator", 8.0), ("mpc", 12.0)] {
         let e = swapped(&ev, role);
         let tick = e["switch_tick"].as_u64().unwrap();
