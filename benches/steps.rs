@@ -93,26 +93,10 @@ fn mpc_step_other_qp_form(bencher: divan::Bencher, horizon: usize) {
 fn mpc_step_five_obstacles(bencher: divan::Bencher) {
     let mut s = Scenario::default();
     s.obstacles.extend([
-        Obstacle {
-            x: -3.0,
-            y: 2.0,
-            radius: 0.5,
-        },
-        Obstacle {
-            x: 6.0,
-            y: -3.0,
-            radius: 0.8,
-        },
-        Obstacle {
-            x: -5.0,
-            y: -5.0,
-            radius: 1.0,
-        },
-        Obstacle {
-            x: 1.0,
-            y: 7.5,
-            radius: 0.6,
-        },
+        Obstacle::fixed(-3.0, 2.0, 0.5),
+        Obstacle::fixed(6.0, -3.0, 0.8),
+        Obstacle::fixed(-5.0, -5.0, 1.0),
+        Obstacle::fixed(1.0, 7.5, 0.6),
     ]);
     bench_mpc(bencher, &s);
 }

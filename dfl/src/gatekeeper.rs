@@ -26,7 +26,7 @@
 //! cheap lower bound (the chord's distance less the arc's largest departure from it,
 //! `|v| T^2 / 8`) settles almost every arc; only arcs close to a disc solve the cubic.
 
-use protocol::{Disc, Obstacle, ObstacleGrowth, Plan, Scenario};
+use protocol::{Disc, ObstacleGrowth, Plan, Scenario};
 
 /// The checks of one DFL: the obstacles, the braking model, the clock.
 #[derive(Debug, Clone)]
@@ -42,15 +42,13 @@ pub struct Gatekeeper {
 }
 
 impl Gatekeeper {
+    /// The checks against the obstacles known from the scenario. A tracked obstacle is
+    /// not checked here: the MPC keeps its plans clear of its predicted discs.
     pub fn new(scenario: &Scenario) -> Gatekeeper {
-        Gatekeeper::with_obstacles(scenario, &scenario.obstacles)
-    }
-
-    fn with_obstacles(scenario: &Scenario, obstacles: &[Obstacle]) -> Gatekeeper {
         let growth = ObstacleGrowth::of(scenario);
         Gatekeeper {
-            discs: obstacles
-                .iter()
+            discs: scenario
+                .known_obstacles()
                 .map(|o| Disc::around(o, growth.fixed_m))
                 .collect(),
             growth,
@@ -108,7 +106,7 @@ impl Gatekeeper {
             }
         };
         // Disc by disc, so that each disc's checked radius is computed once.
-        for &Disc { center, radius } in &self.discs {
+        for &Disc { center, radius, .. } in &self.discs {
             let radius = checked_radius(start, center, radius + grow);
             let (mut p, mut w) = (start, velocity);
             for (acc, duration) in stages() {
@@ -146,7 +144,7 @@ impl Gatekeeper {
         };
         self.discs
             .iter()
-            .map(|&Disc { center, radius }| {
+            .map(|&Disc { center, radius, .. }| {
                 let radius = checked_radius(start, center, radius + grow);
                 protocol::segment_distance(p, end, center) - radius
             })
@@ -283,7 +281,7 @@ fn quadratic_roots(a: f64, b: f64, c: f64) -> impl Iterator<Item = f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::PlanStatus;
+    use protocol::{Obstacle, PlanStatus};
 
     /// The smallest distance over a fine grid of the arc, for comparison.
     fn sampled_min_distance(
@@ -357,7 +355,7 @@ mod tests {
 
     fn scenario_with_obstacle(x: f64, y: f64, radius: f64) -> Scenario {
         Scenario {
-            obstacles: vec![Obstacle { x, y, radius }],
+            obstacles: vec![Obstacle::fixed(x, y, radius)],
             ..Scenario::default()
         }
     }

@@ -260,11 +260,7 @@ fn older_or_failed_plans_never_replace_the_active_one() {
 /// ahead; the safety check on or off.
 fn approaching(gatekeeper: bool) -> (Dfl, Estimate) {
     let mut s = Scenario {
-        obstacles: vec![protocol::Obstacle {
-            x: 1.5,
-            y: 0.0,
-            radius: 0.5,
-        }],
+        obstacles: vec![protocol::Obstacle::fixed(1.5, 0.0, 0.5)],
         ..Scenario::default()
     };
     s.robot.zeta0 = 1.0;
@@ -360,11 +356,7 @@ fn a_committed_plan_swerving_away_flies_on_when_braking_would_go_in_deeper() {
     // A small obstacle straight ahead: braking along the heading runs through it (5 cm
     // deep), the committed plan's swerve clips it by 1.6 cm.
     let mut s = Scenario {
-        obstacles: vec![protocol::Obstacle {
-            x: 0.15,
-            y: 0.0,
-            radius: 0.05,
-        }],
+        obstacles: vec![protocol::Obstacle::fixed(0.15, 0.0, 0.05)],
         ..Scenario::default()
     };
     s.robot.zeta0 = 1.0;

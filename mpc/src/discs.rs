@@ -69,15 +69,137 @@ pub fn constraint_discs(
     accel_max: f64,
     discs: &mut Vec<Disc>,
 ) {
-    let chord = speed_m_s.abs() * ts_s + 0.5 * accel_max * ts_s * ts_s;
+    let chord = chord_m(speed_m_s, ts_s, accel_max);
     discs.clear();
     discs.extend(obstacles.iter().map(|o| {
         let grown = Disc::around(o, margin_m);
-        Disc {
-            center: [grown.center[0] - goal[0], grown.center[1] - goal[1]],
-            radius: grown.radius.hypot(chord / 2.0),
-        }
+        Disc::still(
+            [grown.center[0] - goal[0], grown.center[1] - goal[1]],
+            grown.radius.hypot(chord / 2.0),
+        )
     }));
+}
+
+/// The longest chord the robot moves along between two samples, m:
+/// `|speed| Ts + accel_max Ts^2 / 2` ([`constraint_discs`]).
+pub fn chord_m(speed_m_s: f64, ts_s: f64, accel_max: f64) -> f64 {
+    speed_m_s.abs() * ts_s + 0.5 * accel_max * ts_s * ts_s
+}
+
+/// What every disc of one step grows by, and where the goal is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepGrowth {
+    /// The goal, m: the discs are goal-relative.
+    pub goal: [f64; 2],
+    /// The growth of every obstacle ([`obstacle_growth_m`]), m.
+    pub margin_m: f64,
+    /// The robot's speed, m/s, and the bound on its acceleration, m/s^2 (the
+    /// inter-sample chord, [`chord_m`]).
+    pub speed_m_s: f64,
+    pub accel_max: f64,
+    pub ts_s: f64,
+    /// `kappa`: standard deviations of a predicted position.
+    pub uncertainty_sigmas: f64,
+}
+
+/// The obstacles the MPC keeps clear of: those known from the scenario
+/// ([`protocol::Scenario::known_obstacles`]) and the newest tracks of the tracked ones.
+#[derive(Debug, Clone)]
+pub struct World {
+    known: Vec<protocol::Obstacle>,
+    /// Whether any obstacle is tracked (none are with `fault.mpc_ignore_obstacles`).
+    tracking: bool,
+    tracks: Vec<protocol::Track>,
+    /// The tracks' time, s.
+    tracks_time_s: f64,
+    /// `perception.accel_max`, m/s^2.
+    obstacle_accel_max: f64,
+}
+
+impl World {
+    pub fn of(scenario: &protocol::Scenario) -> World {
+        let tracked = scenario.tracked().count();
+        World {
+            known: scenario.known_obstacles().cloned().collect(),
+            tracking: tracked > 0,
+            tracks: Vec::with_capacity(tracked),
+            tracks_time_s: 0.0,
+            obstacle_accel_max: scenario.perception.accel_max,
+        }
+    }
+
+    /// The obstacles known from the scenario (absolute, true radii).
+    pub fn known(&self) -> &[protocol::Obstacle] {
+        &self.known
+    }
+
+    /// Takes the tracker's newest tracks.
+    pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
+        if self.tracking {
+            self.tracks.clear();
+            self.tracks.extend_from_slice(tracks.tracks());
+            self.tracks_time_s = tracks.header.time_s;
+        }
+    }
+
+    /// Fills `discs` with the step's constraint discs at the sample's time `t_s`: the
+    /// known obstacles' ([`constraint_discs`]), then each track's predicted one
+    /// ([`predicted_disc`]).
+    pub fn discs(&self, g: StepGrowth, t_s: f64, discs: &mut Vec<Disc>) {
+        let chord = chord_m(g.speed_m_s, g.ts_s, g.accel_max);
+        constraint_discs(
+            &self.known,
+            g.goal,
+            g.margin_m,
+            g.speed_m_s,
+            g.ts_s,
+            g.accel_max,
+            discs,
+        );
+        let age_s = t_s - self.tracks_time_s;
+        discs.extend(
+            self.tracks
+                .iter()
+                .map(|track| predicted_disc(track, age_s, &g, chord, self.obstacle_accel_max)),
+        );
+    }
+}
+
+/// The disc `track` predicts `age_s` after the track's time (docs/safety.md, "Moving
+/// obstacles"): centred where the track's velocity takes it (goal-relative), its radius
+/// the obstacle's grown by the step's margin, by `kappa sigma(t)` (at most
+/// `kappa (sigma_p + t sigma_v)`, [`protocol::Track::sigmas`]) and by `accel_max t^2 / 2`,
+/// `t` the time since the track, and by the inter-sample chord of the robot (`chord`, m)
+/// and the obstacle together as in [`constraint_discs`]. The disc moves on at the track's
+/// velocity and grows at the same rule ([`Disc::at`]).
+fn predicted_disc(
+    track: &protocol::Track,
+    age_s: f64,
+    g: &StepGrowth,
+    chord: f64,
+    accel_max: f64,
+) -> Disc {
+    let age = age_s.max(0.0);
+    let (sigma_p, sigma_v) = track.sigmas();
+    let [vx, vy] = track.velocity;
+    let kappa = g.uncertainty_sigmas;
+    let grown = track.radius_m
+        + g.margin_m
+        + kappa * (sigma_p + age * sigma_v)
+        + 0.5 * accel_max * age * age;
+    let chord = chord + vx.hypot(vy) * g.ts_s + 0.5 * accel_max * g.ts_s * g.ts_s;
+    Disc {
+        center: [
+            track.center[0] + vx * age_s - g.goal[0],
+            track.center[1] + vy * age_s - g.goal[1],
+        ],
+        radius: grown.hypot(chord / 2.0),
+        motion: protocol::DiscMotion {
+            velocity: track.velocity,
+            radius_rate: kappa * sigma_v + accel_max * age,
+            radius_accel: 0.5 * accel_max,
+        },
+    }
 }
 
 /// The smallest slack of the paper's (nonconvex) CBF inequality over a plan:
@@ -123,11 +245,7 @@ mod tests {
             for speed in [0.0, 0.5, 3.0] {
                 let (ts, accel_max) = (0.05, 4.0);
                 let chord = speed * ts + 0.5 * accel_max * ts * ts;
-                let obstacle = protocol::Obstacle {
-                    x: 1.0,
-                    y: 2.0,
-                    radius,
-                };
+                let obstacle = protocol::Obstacle::fixed(1.0, 2.0, radius);
                 let mut discs = Vec::new();
                 constraint_discs(&[obstacle], [0.0; 2], 0.0, speed, ts, accel_max, &mut discs);
                 let disc = discs[0];
@@ -159,10 +277,7 @@ mod tests {
 
     #[test]
     fn linearized_barrier_is_tight_at_the_reference_and_below_elsewhere() {
-        let disc = Disc {
-            center: [3.0, 3.5],
-            radius: 1.5,
-        };
+        let disc = Disc::still([3.0, 3.5], 1.5);
         let p_bar = [5.0, 1.0];
         let (g, c) = disc.linearized_barrier(p_bar);
         let l = |p: [f64; 2]| g[0] * p[0] + g[1] * p[1] + c;

@@ -84,6 +84,14 @@ impl Mpc {
         }
     }
 
+    /// Takes the tracker's newest tracks ([`LinearMpc::set_tracks`]; the nonlinear
+    /// baseline runs with obstacles at rest only).
+    pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
+        if let Mpc::Linear(m) = self {
+            m.set_tracks(tracks);
+        }
+    }
+
     /// Warms the next step's memory (a process idle since its last step finds its working
     /// set in cache at the next one): the linear scheme steps the next sample dry when
     /// its last step took at most `dry_step_max_ns` ([`LinearMpc::warm_up`]), else, like

@@ -19,7 +19,7 @@ use crate::solver::{CancelSlot, ConicSolver};
 use clarabel::algebra::CscMatrix;
 use nalgebra::{Matrix4, Vector4};
 use protocol::task::Cancel;
-use protocol::{ConstraintKind, Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario};
+use protocol::{ConstraintKind, Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario, Tracks};
 use std::time::Instant;
 
 /// How far about the reference a disc must be out of reach to be deferred from a solve's
@@ -54,8 +54,8 @@ pub struct LinearMpc {
     /// The cost's linear term for the step's reference, as `(stage-wise column, value)`
     /// ([`LinearMpc::write_reference_cost`]); empty: the goal.
     reference_cost: Vec<(usize, f64)>,
-    /// Obstacles as given (absolute coordinates, true radii).
-    obstacles: Vec<protocol::Obstacle>,
+    /// The obstacles known from the scenario and the newest tracks of the others.
+    world: crate::discs::World,
     /// How every obstacle grows (the robot's radius, the margin `m`, `kappa sigma`).
     growth: ObstacleGrowth,
     /// What the discs grow by for what follows the solver.
@@ -175,7 +175,7 @@ impl LinearMpc {
             route_reference: vec![[0.0; 4]; c.horizon + 1],
             sub_goal: [0.0; 2],
             reference_cost: Vec::with_capacity(4 * c.horizon + 4),
-            obstacles: scenario.obstacles.clone(),
+            world: crate::discs::World::of(scenario),
             growth: ObstacleGrowth::of(scenario),
             plan_margin: crate::discs::PlanMargin::of(scenario),
             max_solves: c.max_solves.max(1),
@@ -210,7 +210,7 @@ impl LinearMpc {
     /// any values do), so that no step allocates for one.
     fn build_solvers(&mut self) -> Result<(), MpcError> {
         crate::discs::constraint_discs(
-            &self.obstacles,
+            self.world.known(),
             self.goal,
             self.growth.fixed_m,
             0.0,
@@ -218,6 +218,9 @@ impl LinearMpc {
             0.0,
             &mut self.discs,
         );
+        // The tracked obstacles' discs (any values do).
+        self.discs
+            .resize(self.layout.obstacles, Disc::still([0.0; 2], 0.0));
         for rows in Rows::every(&self.layout).collect::<Vec<_>>() {
             self.kept.clear();
             self.kept
@@ -374,6 +377,12 @@ impl LinearMpc {
         self.writes_linear_term = true;
     }
 
+    /// Takes the tracker's newest tracks: the next steps keep clear of the discs they
+    /// predict ([`crate::discs::World::set_tracks`]).
+    pub fn set_tracks(&mut self, tracks: &Tracks) {
+        self.world.set_tracks(tracks);
+    }
+
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
     /// `position_sigma_m` of its position. The header is left for the caller to fill.
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
@@ -382,13 +391,16 @@ impl LinearMpc {
         let z = protocol::phi(x_bar);
         let z0 = goal_relative(z, self.goal);
         let margin = self.margin_m(position_sigma_m);
-        crate::discs::constraint_discs(
-            &self.obstacles,
-            self.goal,
-            margin,
-            x_bar[3],
-            self.ts_s,
-            std::f64::consts::SQRT_2 * self.statics.v_max,
+        self.world.discs(
+            crate::discs::StepGrowth {
+                goal: self.goal,
+                margin_m: margin,
+                speed_m_s: x_bar[3],
+                ts_s: self.ts_s,
+                accel_max: std::f64::consts::SQRT_2 * self.statics.v_max,
+                uncertainty_sigmas: self.growth.uncertainty_sigmas,
+            },
+            sample as f64 * self.ts_s,
             &mut self.discs,
         );
 
@@ -642,6 +654,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
+            stage_s: self.ts_s,
         }
     }
 
@@ -660,6 +673,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
+            stage_s: self.ts_s,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
         if self.writes_linear_term {

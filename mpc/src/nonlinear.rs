@@ -397,6 +397,9 @@ impl NonlinearMpc {
             linear: self.linear_barrier,
             gamma: self.gamma,
             discs: &self.discs,
+            // The baseline knows obstacles at rest only (the validator refuses it with a
+            // tracked one): every stage's disc is the same.
+            stage_s: 0.0,
             reference: &self.reference,
             p0: [s0[0], s0[1]],
             decay_slacks: None,
@@ -475,10 +478,7 @@ mod tests {
         let discs: Vec<Disc> = scenario
             .obstacles
             .iter()
-            .map(|o| Disc {
-                center: [o.x, o.y],
-                radius: o.radius,
-            })
+            .map(|o| Disc::still([o.x, o.y], o.radius))
             .collect();
         assert!(crate::discs::barrier_slack(&plan, &discs, scenario.mpc.gamma) > -1e-6);
         assert!(

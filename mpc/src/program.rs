@@ -202,6 +202,9 @@ pub struct StepData<'a> {
     /// The largest `|w_N|` any input sequence in the box reaches from `z0`
     /// ([`PositionReach::max_terminal_speed`]), m/s.
     pub max_terminal_speed: f64,
+    /// Time between two stages, s: a moving disc is taken at each stage's time
+    /// ([`Disc::at`]).
+    pub stage_s: f64,
 }
 
 impl<'a> StepData<'a> {
@@ -218,6 +221,7 @@ impl<'a> StepData<'a> {
             linear: l.linear_barrier,
             gamma: s.gamma,
             discs: &self.discs[..rows.discs],
+            stage_s: self.stage_s,
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
             decay_slacks: (l.slacks(rows) > 0).then(|| l.decay_slack(0, 0)),
@@ -239,6 +243,7 @@ impl<'a> StepData<'a> {
                     } else {
                         (1.0 - s.gamma).powi(n as i32)
                     },
+                    horizon_s: n as f64 * self.stage_s,
                 }
             }),
         }
@@ -313,7 +318,7 @@ pub fn write_barrier(asm: &mut Assembly, b: &Barrier, position: impl Fn(usize) -
         if b.linear {
             // L_i(p_i) >= 0, i = 1..=N.
             for i in 1..=n {
-                let (g, c) = disc.linearized_barrier(b.reference[i]);
+                let (g, c) = b.at(disc, i).linearized_barrier(b.reference[i]);
                 let [px, py] = position(i);
                 asm.row([(px, -g[0]), (py, -g[1])], c);
             }
@@ -341,7 +346,7 @@ pub fn write_barrier(asm: &mut Assembly, b: &Barrier, position: impl Fn(usize) -
                 if i == 0 {
                     asm.row([(column, 1.0)], decay * (h0 - floor));
                 } else {
-                    let (g, c) = disc.linearized_barrier(b.reference[i]);
+                    let (g, c) = b.at(disc, i).linearized_barrier(b.reference[i]);
                     let [px, py] = position(i);
                     let terms = [(column, 1.0), (px, -decay * g[0]), (py, -decay * g[1])];
                     asm.row(terms, decay * (c - floor));
@@ -363,8 +368,9 @@ pub fn write_barrier(asm: &mut Assembly, b: &Barrier, position: impl Fn(usize) -
                 let slope = [Some((nx, -h[0])), Some((ny, -h[1])), relaxed];
                 asm.row(slope.into_iter().flatten(), t0 + 1.0);
                 asm.row(slope.into_iter().flatten(), t0 - 1.0);
-                asm.row([(px, -2.0)], -2.0 * disc.center[0]);
-                asm.row([(py, -2.0)], -2.0 * disc.center[1]);
+                let center = b.at(disc, i).center;
+                asm.row([(px, -2.0)], -2.0 * center[0]);
+                asm.row([(py, -2.0)], -2.0 * center[1]);
             }
         }
     }
@@ -380,7 +386,10 @@ pub struct Barrier<'a> {
     /// Every row linear (`gamma = 1` or the Euclidean benchmark).
     pub linear: bool,
     pub gamma: f64,
+    /// The discs at stage 0's time.
     pub discs: &'a [Disc],
+    /// Time between two stages, s.
+    pub stage_s: f64,
     /// Linearization points of the positions of stages `1..=N` (index 0 unused).
     pub reference: &'a [[f64; 2]],
     /// Position of stage 0 (data).
@@ -393,21 +402,29 @@ pub struct Barrier<'a> {
 }
 
 impl Barrier<'_> {
-    /// Stage 0's row `(1 - gamma) H(p_0) <= L_1(p_1)` (`p_0` being data) as
+    /// `disc` at stage `i`'s time: a moving obstacle's predicted disc (eq. 54 with `H`
+    /// of the disc at each stage), a disc at rest itself.
+    fn at(&self, disc: &Disc, i: usize) -> Disc {
+        disc.at(i as f64 * self.stage_s)
+    }
+
+    /// Stage 0's row `(1 - gamma) H_0(p_0) <= L_1(p_1)` (`p_0` being data) as
     /// `g'p_1 + c >= 0`: returns `(g, c)`.
     fn first_row(&self, disc: &Disc) -> ([f64; 2], f64) {
-        let (g, c) = disc.linearized_barrier(self.reference[1]);
+        let (g, c) = self.at(disc, 1).linearized_barrier(self.reference[1]);
         (g, c - (1.0 - self.gamma) * disc.barrier(self.p0))
     }
 
-    /// Stage `i`'s cone (`1 <= i < N`), `||p_i - o||^2 <= t0 + h'p_{i+1}` with
-    /// `t0 + h'p = (L_{i+1}(p) + (1 - gamma) r^2) / (1 - gamma)`: returns `(h, t0)`.
+    /// Stage `i`'s cone (`1 <= i < N`), `||p_i - o_i||^2 <= t0 + h'p_{i+1}` with
+    /// `t0 + h'p = (L_{i+1}(p) + (1 - gamma) r_i^2) / (1 - gamma)`: returns `(h, t0)`.
     fn cone_row(&self, disc: &Disc, i: usize) -> ([f64; 2], f64) {
         let decay = 1.0 - self.gamma;
-        let (g, c) = disc.linearized_barrier(self.reference[i + 1]);
+        let (g, c) = self
+            .at(disc, i + 1)
+            .linearized_barrier(self.reference[i + 1]);
         (
             g.map(|x| x / decay),
-            (c + decay * disc.radius.powi(2)) / decay,
+            (c + decay * self.at(disc, i).radius.powi(2)) / decay,
         )
     }
 
@@ -436,7 +453,9 @@ impl Barrier<'_> {
     /// for `k >= 1` the cone on `p_k` and `p_{k+1}`.
     fn stage_implied(&self, disc: &Disc, k: usize, reach: &PositionReach) -> bool {
         if self.linear {
-            let (g, c) = disc.linearized_barrier(self.reference[k + 1]);
+            let (g, c) = self
+                .at(disc, k + 1)
+                .linearized_barrier(self.reference[k + 1]);
             return below(0.0, reach.min_linear(k + 1, g) + c);
         }
         if k == 0 {
@@ -444,6 +463,6 @@ impl Barrier<'_> {
             return below(0.0, reach.min_linear(1, g) + c);
         }
         let (h, t0) = self.cone_row(disc, k);
-        reach.squared_distance_minus_linear_below(k, disc.center, (k + 1, h), t0)
+        reach.squared_distance_minus_linear_below(k, self.at(disc, k).center, (k + 1, h), t0)
     }
 }

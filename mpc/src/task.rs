@@ -8,12 +8,18 @@
 //! any route (the first sample, a planner not heard yet) it drives to the goal. When it
 //! has fallen behind, a sample whose successor's time is past is not solved: only the
 //! newest is.
+//!
+//! With a tracker (an obstacle moves, or `perception.kind = "track"`) plan(k) keeps clear
+//! of the discs predicted by the newest tracks of a perception tick at or before sample
+//! k's: the task waits for those until half an inner tick after sample k's time (in
+//! lockstep: until they come). Before any track has come there is no plan: the DFL's
+//! fallback holds the robot (it cannot know where the moving obstacles are).
 
 use crate::Mpc;
 use protocol::samples::SampleQueue;
 use protocol::task::{Cancel, Context, Due, Publish, Task, TaskError, header_latency};
-use protocol::topics::{ESTIMATE, PLAN, ROUTE};
-use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Validated};
+use protocol::topics::{ESTIMATE, PLAN, ROUTE, TRACKS};
+use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Tracks, Validated};
 use std::collections::VecDeque;
 
 /// What the MPC takes: the estimator's estimates (periodic: one a sample matters) and,
@@ -24,8 +30,9 @@ use std::collections::VecDeque;
 pub enum MpcInput {
     Estimate(Estimate),
     Route(Route),
+    Tracks(Tracks),
 }
-protocol::task_input!(MpcInput: Estimate, Route);
+protocol::task_input!(MpcInput: Estimate, Route, Tracks);
 
 /// A warm-up steps the next sample dry when the last step took at most this share of an
 /// inner tick (half the earliest a warm-up starts, half a tick before the sample's due
@@ -44,6 +51,12 @@ pub struct MpcTask {
     samples: SampleQueue<u64>,
     /// The newest routes heard, oldest first (a few samples' worth).
     routes: VecDeque<Route>,
+    /// Inner ticks between two perception ticks; `None`: no tracker runs.
+    perception_ticks: Option<u64>,
+    /// The tick of the newest tracks heard.
+    tracks_tick: Option<u64>,
+    /// Half an inner tick, s: how long after a sample's time its tracks are waited for.
+    tracks_grace_s: f64,
 }
 
 impl Task for MpcTask {
@@ -64,15 +77,23 @@ impl Task for MpcTask {
             dry_step_max_ns: (DRY_STEP_MAX_TICKS * scenario.timing.dt_s() * 1e9) as u64,
             samples: SampleQueue::new(&scenario.timing),
             routes: VecDeque::with_capacity(4),
+            perception_ticks: scenario
+                .roles()
+                .any(|r| r == Role::Tracker)
+                .then(|| scenario.perception_ticks()),
+            tracks_tick: None,
+            tracks_grace_s: 0.5 * scenario.timing.dt_s(),
         })
     }
 
-    /// Estimates, and routes when a planner runs (`planner.kind = "route"`).
+    /// Estimates, routes when a planner runs (`planner.kind = "route"`), tracks when a
+    /// tracker does.
     fn inputs(&self) -> &'static [&'static str] {
-        if self.follows_route {
-            &[ESTIMATE, ROUTE]
-        } else {
-            &[ESTIMATE]
+        match (self.follows_route, self.perception_ticks.is_some()) {
+            (false, false) => &[ESTIMATE],
+            (true, false) => &[ESTIMATE, ROUTE],
+            (false, true) => &[ESTIMATE, TRACKS],
+            (true, true) => &[ESTIMATE, ROUTE, TRACKS],
         }
     }
 
@@ -86,6 +107,12 @@ impl Task for MpcTask {
                     self.routes.pop_front();
                 }
                 self.routes.push_back(route);
+            }
+            MpcInput::Tracks(tracks) => {
+                if self.tracks_tick.is_none_or(|t| tracks.header.tick > t) {
+                    self.tracks_tick = Some(tracks.header.tick);
+                    self.mpc.set_tracks(&tracks);
+                }
             }
         }
     }
@@ -116,6 +143,19 @@ impl Task for MpcTask {
             && self.routes.back().is_none_or(|r| r.sample + 1 < sample);
         if route_due && !context.is_past(estimate.header.time_s) {
             return None; // route(k - 1) is on its way
+        }
+        if let Some(period) = self.perception_ticks {
+            let tick = estimate.header.tick;
+            let due = tick - tick % period;
+            if self.tracks_tick.is_none_or(|t| t < due) {
+                if !context.is_past(estimate.header.time_s + self.tracks_grace_s) {
+                    return None; // the tracks of `due` are on their way
+                }
+                if self.tracks_tick.is_none() {
+                    self.samples.answered();
+                    return None; // no track yet: no plan
+                }
+            }
         }
         self.samples.answered();
         let route = self.routes.iter().rev().find(|r| r.sample < sample);

@@ -112,6 +112,9 @@ pub struct TerminalRows<'a> {
     /// `(1 - gamma)^N` (0 with a linear CBF): the share of a negative `H(p_0)` the decay
     /// floor keeps at the last stage ([`TerminalRows::radius`]).
     pub floor_share: f64,
+    /// Time of stage `N` after the discs' time, s: a moving disc is taken there, swept
+    /// over the longest stop ([`TerminalRows::discs`]).
+    pub horizon_s: f64,
 }
 
 /// The data of one disc's segment row: the normal, and the majorant of `alpha+ |w|`
@@ -125,6 +128,17 @@ struct SegmentRow {
 }
 
 impl TerminalRows<'_> {
+    /// The discs the stopping path must stay out of: each at stage `N`, and a moving one
+    /// swept over the longest stop from there (from `max_speed`, with a sample's hold),
+    /// so that the robot is stopped before the obstacle comes (passive safety,
+    /// docs/safety.md). A disc at rest is itself.
+    fn discs(&self) -> impl Iterator<Item = Disc> + '_ {
+        let stop_s = self.max_speed / self.model.decel + self.model.ts_s;
+        self.discs
+            .iter()
+            .map(move |d| d.at(self.horizon_s).swept(stop_s))
+    }
+
     /// The radius the stopping path must stay outside, m: the disc's, or, for a robot that
     /// starts inside it (`H(p_0) < 0`), that of the CBF's decay floor at the last stage,
     /// `sqrt(R^2 + (1 - gamma)^N H(p_0))`, so the robot may leave the disc as the decay
@@ -193,8 +207,8 @@ impl TerminalRows<'_> {
             BrakeForm::Ball => (Some(w[0].hypot(w[1])), None),
             BrakeForm::Segment => (
                 None,
-                Some(self.discs.iter().map(move |disc| {
-                    let n = self.segment_row(disc).normal;
+                Some(self.discs().map(move |disc| {
+                    let n = self.segment_row(&disc).normal;
                     (-(n[0] * w[0] + n[1] * w[1])).max(0.0)
                 })),
             ),
@@ -208,8 +222,8 @@ impl TerminalRows<'_> {
             return;
         }
         let [vx, vy] = self.velocity;
-        for (j, disc) in self.discs.iter().enumerate() {
-            let n = self.segment_row(disc).normal;
+        for (j, disc) in self.discs().enumerate() {
+            let n = self.segment_row(&disc).normal;
             let e = self.first_variable + j;
             asm.row([(e, -1.0), (vx, -n[0]), (vy, -n[1])], 0.0);
             asm.row([(e, -1.0)], 0.0);
@@ -232,11 +246,11 @@ impl TerminalRows<'_> {
                 asm.row([(tau, -1.0)], 0.0);
                 asm.row([(vx, -1.0)], 0.0);
                 asm.row([(vy, -1.0)], 0.0);
-                for disc in self.discs {
-                    let n = self.unit_from_center(disc, self.reference_position());
+                for disc in self.discs() {
+                    let n = self.unit_from_center(&disc, self.reference_position());
                     let t = [(px, -2.0 * a * n[0]), (py, -2.0 * a * n[1]), (tau, a * ts)];
-                    asm.row(t, 1.0 - offset(n, disc));
-                    asm.row(t, -1.0 - offset(n, disc));
+                    asm.row(t, 1.0 - offset(n, &disc));
+                    asm.row(t, -1.0 - offset(n, &disc));
                     asm.row([(vx, -2.0)], 0.0);
                     asm.row([(vy, -2.0)], 0.0);
                 }
@@ -244,16 +258,16 @@ impl TerminalRows<'_> {
             BrakeForm::Segment => {
                 // (t + 1, t - 1, q sqrt(2c) e, q sqrt(2/c) w_N) with
                 // t = 2a (n'(p_N - o) - R) - (a Ts + beta) e.
-                for (j, disc) in self.discs.iter().enumerate() {
-                    let row = self.segment_row(disc);
+                for (j, disc) in self.discs().enumerate() {
+                    let row = self.segment_row(&disc);
                     let (n, e) = (row.normal, self.first_variable + j);
                     let t = [
                         (px, -2.0 * a * n[0]),
                         (py, -2.0 * a * n[1]),
                         (e, a * ts + row.beta),
                     ];
-                    asm.row(t, 1.0 - offset(n, disc));
-                    asm.row(t, -1.0 - offset(n, disc));
+                    asm.row(t, 1.0 - offset(n, &disc));
+                    asm.row(t, -1.0 - offset(n, &disc));
                     asm.row([(e, -row.quadratic * (2.0 * row.c).sqrt())], 0.0);
                     let scale = row.quadratic * (2.0 / row.c).sqrt();
                     asm.row([(vx, -scale)], 0.0);
@@ -270,7 +284,8 @@ impl TerminalRows<'_> {
         let speed = reach.max_terminal_speed();
         let horizon = reach.horizon();
         let a = self.model.decel;
-        self.discs.iter().all(|disc| {
+        self.discs().all(|disc| {
+            let disc = &disc;
             let (n, largest) = match self.model.form {
                 BrakeForm::Ball => (
                     self.unit_from_center(disc, self.reference_position()),

@@ -233,12 +233,12 @@ impl Planner {
     fn grow_discs(&mut self, position: [f64; 2], growth_m: f64) {
         self.discs.clear();
         for o in &self.obstacles {
-            let Disc { center, radius } = Disc::around(o, growth_m);
+            let Disc { center, radius, .. } = Disc::around(o, growth_m);
             let radius = radius
                 .min(distance(center, position) - FREE_END_M)
                 .min(distance(center, self.goal) - FREE_END_M);
             if radius > 0.0 {
-                self.discs.push(Disc { center, radius });
+                self.discs.push(Disc::still(center, radius));
             }
         }
     }
@@ -347,16 +347,8 @@ mod tests {
     #[test]
     fn every_segment_of_the_route_keeps_the_clearance_from_every_grown_obstacle() {
         let obstacles = vec![
-            Obstacle {
-                x: 3.0,
-                y: 3.5,
-                radius: 1.5,
-            },
-            Obstacle {
-                x: 5.0,
-                y: 1.0,
-                radius: 0.8,
-            },
+            Obstacle::fixed(3.0, 3.5, 1.5),
+            Obstacle::fixed(5.0, 1.0, 0.8),
         ];
         let s = scenario(obstacles.clone());
         let mut planner = Planner::new(&s);
@@ -381,11 +373,7 @@ mod tests {
 
     #[test]
     fn the_planner_replans_on_a_stall_a_stray_and_the_period_and_not_otherwise() {
-        let s = scenario(vec![Obstacle {
-            x: 3.0,
-            y: 3.5,
-            radius: 1.5,
-        }]);
+        let s = scenario(vec![Obstacle::fixed(3.0, 3.5, 1.5)]);
         let mut planner = Planner::new(&s);
         let first = planner.step(0, &estimate_at(7.0, 7.0));
         assert_eq!(first.reason, ReplanReason::Start as u32);
@@ -423,11 +411,7 @@ mod tests {
         s.planner.kind = PlannerKind::Route;
         s.planner.stray_m = 100.0;
         s.robot.start = [6.0, 0.0, 0.0];
-        s.obstacles = vec![Obstacle {
-            x: 3.0,
-            y: 0.0,
-            radius: 1.0,
-        }];
+        s.obstacles = vec![Obstacle::fixed(3.0, 0.0, 1.0)];
         let s = s.validated("test").unwrap();
         let mut planner = Planner::new(&s);
         let first = planner.step(0, &estimate_at(6.0, 0.0));
@@ -444,11 +428,7 @@ mod tests {
 
     #[test]
     fn each_stall_replans_with_more_room_until_the_robot_makes_way() {
-        let obstacle = Obstacle {
-            x: 3.0,
-            y: 3.5,
-            radius: 1.5,
-        };
+        let obstacle = Obstacle::fixed(3.0, 3.5, 1.5);
         let s = scenario(vec![obstacle.clone()]);
         let mut planner = Planner::new(&s);
         // The smallest distance of a route from the obstacle's centre.
@@ -487,11 +467,7 @@ mod tests {
 
     #[test]
     fn a_robot_inside_the_clearance_plans_from_where_it_is() {
-        let s = scenario(vec![Obstacle {
-            x: 3.0,
-            y: 3.5,
-            radius: 1.5,
-        }]);
+        let s = scenario(vec![Obstacle::fixed(3.0, 3.5, 1.5)]);
         let mut planner = Planner::new(&s);
         // 5 cm off the obstacle's edge, within the 0.2 m clearance.
         let route = planner.step(0, &estimate_at(3.0 + 1.55, 3.5));
@@ -504,11 +480,7 @@ mod tests {
         let ring = (0..8)
             .map(|k| {
                 let a = k as f64 * std::f64::consts::TAU / 8.0;
-                Obstacle {
-                    x: 1.5 * a.cos(),
-                    y: 1.5 * a.sin(),
-                    radius: 0.7,
-                }
+                Obstacle::fixed(1.5 * a.cos(), 1.5 * a.sin(), 0.7)
             })
             .collect();
         let s = scenario(ring);
@@ -521,10 +493,7 @@ mod tests {
     fn a_route_with_many_arcs_fits_the_message_and_ends_at_the_goal() {
         let legs: Vec<Leg> = (0..30)
             .map(|k| Leg::Arc {
-                disc: Disc {
-                    center: [k as f64, 0.0],
-                    radius: 0.4,
-                },
+                disc: Disc::still([k as f64, 0.0], 0.4),
                 from_angle: 0.0,
                 sweep: 3.0,
                 to: [k as f64 + 0.5, 0.0],

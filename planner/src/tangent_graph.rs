@@ -410,7 +410,7 @@ fn circle_tangents(a: &Disc, b: &Disc) -> impl Iterator<Item = ([f64; 2], [f64; 
 /// that lie inside another disc or outside the box; false when the whole circle does.
 fn blocked_arcs(i: usize, discs: &[Disc], bounds: Bounds, blocked: &mut Vec<(f64, f64)>) -> bool {
     blocked.clear();
-    let Disc { center, radius } = discs[i];
+    let Disc { center, radius, .. } = discs[i];
     for (k, other) in discs.iter().enumerate() {
         if k == i {
             continue;
@@ -485,10 +485,7 @@ mod tests {
     #[test]
     fn with_nothing_in_the_way_the_route_is_the_straight_line() {
         let mut g = TangentGraph::with_capacity(1);
-        let far = [Disc {
-            center: [0.0, 5.0],
-            radius: 1.0,
-        }];
+        let far = [Disc::still([0.0, 5.0], 1.0)];
         let legs = g.shortest_path([-3.0, 0.0], [3.0, 0.0], &far, BOX).unwrap();
         assert_eq!(legs, &[Leg::Straight { to: [3.0, 0.0] }]);
     }
@@ -496,10 +493,7 @@ mod tests {
     #[test]
     fn around_one_disc_the_route_is_tangent_arc_tangent_of_the_exact_length() {
         let mut g = TangentGraph::with_capacity(1);
-        let disc = Disc {
-            center: [0.0, 0.0],
-            radius: 1.0,
-        };
+        let disc = Disc::still([0.0, 0.0], 1.0);
         let (s, goal) = ([-3.0, 0.0], [3.0, 0.0]);
         let legs = g.shortest_path(s, goal, &[disc], BOX).unwrap().to_vec();
         // Two tangents of sqrt(9 - 1) and the arc between their touch points, 2 (pi/2 -
@@ -514,16 +508,7 @@ mod tests {
     #[test]
     fn overlapping_discs_are_gone_around_as_one() {
         let mut g = TangentGraph::with_capacity(2);
-        let discs = [
-            Disc {
-                center: [0.0, -0.8],
-                radius: 1.0,
-            },
-            Disc {
-                center: [0.0, 0.8],
-                radius: 1.0,
-            },
-        ];
+        let discs = [Disc::still([0.0, -0.8], 1.0), Disc::still([0.0, 0.8], 1.0)];
         let (s, goal) = ([-3.0, 0.0], [3.0, 0.0]);
         let legs = g.shortest_path(s, goal, &discs, BOX).unwrap().to_vec();
         let mut at = s;
@@ -549,10 +534,7 @@ mod tests {
         let ring: Vec<Disc> = (0..8)
             .map(|k| {
                 let a = k as f64 * TAU / 8.0;
-                Disc {
-                    center: [2.0 * a.cos(), 2.0 * a.sin()],
-                    radius: 1.0,
-                }
+                Disc::still([2.0 * a.cos(), 2.0 * a.sin()], 1.0)
             })
             .collect();
         assert_eq!(
@@ -566,10 +548,7 @@ mod tests {
         let mut g = TangentGraph::with_capacity(1);
         // A disc touching the top and bottom of a narrow box blocks it; with a taller box
         // the route goes around.
-        let disc = [Disc {
-            center: [0.0, 0.0],
-            radius: 1.5,
-        }];
+        let disc = [Disc::still([0.0, 0.0], 1.5)];
         let narrow = [[-10.0, 10.0], [-1.0, 1.0]];
         assert!(
             g.shortest_path([-5.0, 0.0], [5.0, 0.0], &disc, narrow)

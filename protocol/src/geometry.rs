@@ -4,20 +4,79 @@
 use crate::{Obstacle, Scenario};
 
 /// A disc in the plane, m: an obstacle as one consumer sees it (grown, and for the MPC in
-/// goal-relative coordinates).
+/// goal-relative coordinates), at its time, and how it moves and grows after it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Disc {
     pub center: [f64; 2],
     pub radius: f64,
+    pub motion: DiscMotion,
+}
+
+/// How a predicted disc changes `t` seconds after its time: its centre moves at
+/// `velocity`, its radius grows by `radius_rate t + radius_accel t^2` (docs/safety.md,
+/// "Moving obstacles"). Zero for an obstacle at rest.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct DiscMotion {
+    /// m/s.
+    pub velocity: [f64; 2],
+    /// m/s.
+    pub radius_rate: f64,
+    /// m/s^2.
+    pub radius_accel: f64,
 }
 
 impl Disc {
-    /// `obstacle` grown by `growth_m` (absolute coordinates).
-    pub fn around(obstacle: &Obstacle, growth_m: f64) -> Disc {
+    /// A disc at rest.
+    pub fn still(center: [f64; 2], radius: f64) -> Disc {
         Disc {
-            center: [obstacle.x, obstacle.y],
-            radius: obstacle.radius + growth_m,
+            center,
+            radius,
+            motion: DiscMotion::default(),
         }
+    }
+
+    /// `obstacle` grown by `growth_m` (absolute coordinates), where it is at t = 0.
+    pub fn around(obstacle: &Obstacle, growth_m: f64) -> Disc {
+        Disc::still([obstacle.x, obstacle.y], obstacle.radius + growth_m)
+    }
+
+    /// Whether the disc moves or grows with time.
+    pub fn moves(&self) -> bool {
+        self.motion != DiscMotion::default()
+    }
+
+    /// The disc `t_s` after its time (itself, exactly, for a disc at rest).
+    pub fn at(&self, t_s: f64) -> Disc {
+        if !self.moves() {
+            return *self;
+        }
+        let m = &self.motion;
+        Disc {
+            center: [
+                self.center[0] + m.velocity[0] * t_s,
+                self.center[1] + m.velocity[1] * t_s,
+            ],
+            radius: self.radius + m.radius_rate * t_s + m.radius_accel * t_s * t_s,
+            motion: DiscMotion {
+                radius_rate: m.radius_rate + 2.0 * m.radius_accel * t_s,
+                ..*m
+            },
+        }
+    }
+
+    /// A disc at rest that holds this one over the `duration_s` after its time: centred
+    /// half way along the path of the centre, its radius the radius at the end plus half
+    /// that path (itself for a disc at rest).
+    pub fn swept(&self, duration_s: f64) -> Disc {
+        if !self.moves() {
+            return *self;
+        }
+        let end = self.at(duration_s);
+        let half = self.at(duration_s / 2.0);
+        Disc::still(
+            half.center,
+            end.radius + distance(self.center, end.center) / 2.0,
+        )
     }
 
     /// The barrier `H(p) = ||p - o||^2 - r^2` (paper eq. 100), m^2.

@@ -6,7 +6,7 @@
 
 /// Noisy output of the plant.
 pub const MEASUREMENT: &str = "measurement";
-/// True state of the plant (read by the recorder only).
+/// True state of the plant (the recorder's; the tracker measures the world at its ticks).
 pub const TRUTH: &str = "truth";
 pub const ESTIMATE: &str = "estimate";
 pub const PLAN: &str = "plan";
@@ -15,6 +15,8 @@ pub const ACTUATION: &str = "actuation";
 pub const DEADLINE: &str = "deadline";
 /// The planner's route ([`Route`](crate::Route)).
 pub const ROUTE: &str = "route";
+/// The tracker's tracks of the obstacles ([`Tracks`](crate::Tracks)).
+pub const TRACKS: &str = "tracks";
 /// Orchestrator to processes: clock grants, start, stop.
 pub const CONTROL: &str = "control";
 /// Processes to orchestrator: ready, input lost.
@@ -28,16 +30,17 @@ pub const SWAP_REPLY: &str = "swap_reply";
 /// roles that take it (the orchestrator records every topic). The role processes open
 /// these inputs; a bridge between hosts carries a topic to every host with a role that
 /// takes it.
-pub const DATA_FLOW: [(&str, crate::Role, &[crate::Role]); 7] = {
+pub const DATA_FLOW: [(&str, crate::Role, &[crate::Role]); 8] = {
     use crate::Role::*;
     [
         (MEASUREMENT, Plant, &[Estimator]),
-        (TRUTH, Plant, &[]),
+        (TRUTH, Plant, &[Tracker]),
         (ESTIMATE, Estimator, &[Mpc, Dfl, Planner]),
         (PLAN, Mpc, &[Dfl]),
         (ACTUATION, Dfl, &[Plant, Estimator]),
         (DEADLINE, Dfl, &[]),
         (ROUTE, Planner, &[Mpc]),
+        (TRACKS, Tracker, &[Mpc]),
     ]
 };
 
@@ -63,7 +66,7 @@ pub fn output_slot(producer: crate::Role, topic: &str) -> Option<usize> {
     use crate::Role;
     match (producer, topic) {
         (Role::Plant, TRUTH) | (Role::Estimator, ESTIMATE) | (Role::Mpc, PLAN) => Some(0),
-        (Role::Dfl, ACTUATION) | (Role::Planner, ROUTE) => Some(0),
+        (Role::Dfl, ACTUATION) | (Role::Planner, ROUTE) | (Role::Tracker, TRACKS) => Some(0),
         (Role::Plant, MEASUREMENT) | (Role::Dfl, DEADLINE) => Some(1),
         _ => None,
     }

@@ -11,7 +11,9 @@ use std::collections::VecDeque;
 pub enum Outcome {
     /// Within the goal tolerance from `time_to_goal_s` to the end of the run.
     Reached,
-    /// The robot entered an obstacle (true radius, grown by the robot's radius).
+    /// The robot entered an obstacle (true radius, grown by the robot's radius) while it
+    /// moved (a moving obstacle that runs into a robot at rest is counted apart:
+    /// [`Judge::contacts_at_rest`]).
     Collided,
     /// Moved less than [`STALL_DISTANCE_M`] over [`STALL_WINDOW_S`] away from the goal.
     Stalled,
@@ -97,6 +99,9 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
 
+/// A robot slower than this over an inner tick is at rest, m/s.
+pub const REST_SPEED_M_S: f64 = 1e-3;
+
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;
 
@@ -111,6 +116,14 @@ pub struct Judge {
     /// `(t, x, y)` over the last stall window.
     window: VecDeque<(f64, f64, f64)>,
     pub min_clearance_m: f64,
+    /// Least clearance to an obstacle that moves at some time, m (infinite without one).
+    pub min_moving_clearance_m: f64,
+    /// Contacts the robot made while it moved (the run ends at the first: `collided`).
+    pub contacts_moving: u64,
+    /// Contacts a moving obstacle made with the robot at rest (the run goes on).
+    pub contacts_at_rest: u64,
+    /// Whether the robot is in contact with an obstacle at the newest tick.
+    in_contact: bool,
     /// Start of the current stay within the goal tolerance.
     pub inside_goal_since_s: Option<f64>,
     pub last_distance_to_goal_m: f64,
@@ -121,8 +134,9 @@ pub struct Judge {
     /// safety margin, the disturbance's, `kappa` output-noise deviations, an upper
     /// bound on `kappa sigma`) and [`PINNED_CLEARANCE_M`].
     pinned_within_m: f64,
-    /// The last true position.
+    /// The last true position, and its time, s.
     last_position: [f64; 2],
+    last_time_s: f64,
 }
 
 impl Judge {
@@ -135,11 +149,16 @@ impl Judge {
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
             window: VecDeque::new(),
             min_clearance_m: f64::INFINITY,
+            min_moving_clearance_m: f64::INFINITY,
+            contacts_moving: 0,
+            contacts_at_rest: 0,
+            in_contact: false,
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
             pinned_within_m: pinned_within_m(scenario),
             last_position: [scenario.robot.start[0], scenario.robot.start[1]],
+            last_time_s: 0.0,
         }
     }
 
@@ -158,8 +177,14 @@ impl Judge {
         let [x, y] = self.last_position;
         let towards_goal = [self.goal[0] - x, self.goal[1] - y];
         let pinned = self.obstacles.iter().any(|o| {
-            let towards_obstacle = [o.x - x, o.y - y];
-            self.footprint.clearance_m(o, [x, y]) <= self.pinned_within_m
+            let c = o.center_at(self.last_time_s);
+            let towards_obstacle = [c[0] - x, c[1] - y];
+            clearance_m(
+                std::slice::from_ref(o),
+                &self.footprint,
+                self.last_time_s,
+                [x, y],
+            ) <= self.pinned_within_m
                 && towards_obstacle[0] * towards_goal[0] + towards_obstacle[1] * towards_goal[1]
                     > 0.0
         });
@@ -192,9 +217,10 @@ impl Judge {
         ((x - self.start[0]) * dy - (y - self.start[1]) * dx).abs() / length
     }
 
-    /// Distance from the robot's edge to the nearest obstacle surface at `(x, y)`, m.
-    pub fn clearance(&self, x: f64, y: f64) -> f64 {
-        clearance_m(&self.obstacles, &self.footprint, [x, y])
+    /// Distance from the robot's edge at `(x, y)` to the nearest obstacle surface at
+    /// time `t_s`, m.
+    pub fn clearance(&self, t_s: f64, x: f64, y: f64) -> f64 {
+        clearance_m(&self.obstacles, &self.footprint, t_s, [x, y])
     }
 
     /// A tick recorded: the truth at its start. Returns an outcome that ends the run now
@@ -219,8 +245,20 @@ impl Judge {
     /// Observes the true position at time `t_s`; returns an outcome that ends the run now
     /// (a collision or a stall).
     pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
-        let clearance = self.clearance(x, y);
+        let clearance = self.clearance(t_s, x, y);
         self.min_clearance_m = self.min_clearance_m.min(clearance);
+        let moving = self.obstacles.iter().filter(|o| o.moves());
+        let moving_clearance = moving
+            .map(|o| clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]))
+            .fold(f64::INFINITY, f64::min);
+        self.min_moving_clearance_m = self.min_moving_clearance_m.min(moving_clearance);
+        let dt = t_s - self.last_time_s;
+        let speed = if dt > 0.0 {
+            (x - self.last_position[0]).hypot(y - self.last_position[1]) / dt
+        } else {
+            0.0
+        };
+        self.last_time_s = t_s;
         if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
             self.deviation_time_s = Some(t_s);
         }
@@ -232,8 +270,17 @@ impl Judge {
         } else {
             self.inside_goal_since_s = None;
         }
+        let entered = clearance < 0.0 && !self.in_contact;
+        self.in_contact = clearance < 0.0;
         if clearance < 0.0 {
-            return Some(Outcome::Collided);
+            // At rest only against an obstacle that is moving then: the robot must have
+            // moved into one at rest.
+            let pushed = speed < REST_SPEED_M_S && self.contact_with_moving(t_s, x, y);
+            if !pushed {
+                self.contacts_moving += 1;
+                return Some(Outcome::Collided);
+            }
+            self.contacts_at_rest += u64::from(entered);
         }
         self.window.push_back((t_s, x, y));
         // Keep the newest sample at least a window old at the front (the tick need not
@@ -254,6 +301,14 @@ impl Judge {
             .iter()
             .all(|&(_, wx, wy)| (wx - x).hypot(wy - y) < STALL_DISTANCE_M);
         (full && still && distance > self.goal_tolerance_m).then_some(Outcome::Stalled)
+    }
+
+    /// Whether every obstacle the robot at `(x, y)` touches at `t_s` is moving then.
+    fn contact_with_moving(&self, t_s: f64, x: f64, y: f64) -> bool {
+        self.obstacles
+            .iter()
+            .filter(|o| clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]) < 0.0)
+            .all(|o| o.velocity_at(t_s) != [0.0; 2])
     }
 
     /// The outcome of a run that went its full length.
@@ -282,11 +337,17 @@ fn pinned_within_m(scenario: &Scenario) -> f64 {
 }
 
 /// Distance from the edge of a robot with `footprint` at `p` (its centre, for the paper's
-/// point robot) to the nearest obstacle surface, m.
-pub fn clearance_m(obstacles: &[Obstacle], footprint: &ObstacleGrowth, p: [f64; 2]) -> f64 {
+/// point robot) to the nearest obstacle surface at time `t_s` (where the obstacles truly
+/// are then), m.
+pub fn clearance_m(
+    obstacles: &[Obstacle],
+    footprint: &ObstacleGrowth,
+    t_s: f64,
+    p: [f64; 2],
+) -> f64 {
     obstacles
         .iter()
-        .map(|o| footprint.clearance_m(o, p))
+        .map(|o| protocol::distance(p, o.center_at(t_s)) - o.radius - footprint.fixed_m)
         .fold(f64::INFINITY, f64::min)
 }
 

@@ -12,7 +12,7 @@ use crate::judge::{Judge, Outcome, clearance_m};
 use lines::{FlushClock, Lines};
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
-    ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario,
+    ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario, Tracks,
 };
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -63,6 +63,8 @@ pub struct Recorder {
     commands: ModeCounts,
     /// `route.csv`, opened at the first route.
     routes: Option<Lines>,
+    /// `tracks.csv`, opened at the first tracks.
+    tracks: Option<Lines>,
     /// The newest route plan recorded: the planner's epoch and its plan count.
     last_route_plan: Option<(u32, u32)>,
     route_plans: u64,
@@ -121,6 +123,7 @@ impl Recorder {
             pending_plans: BTreeMap::new(),
             commands: ModeCounts::default(),
             routes: None,
+            tracks: None,
             last_route_plan: None,
             route_plans: 0,
             route_length_m: None,
@@ -230,7 +233,7 @@ impl Recorder {
         }
         self.ticks += 1;
         self.last_time_s = t;
-        let clearance = clearance_m(&self.obstacles, &self.footprint, [x, y]);
+        let clearance = clearance_m(&self.obstacles, &self.footprint, t, [x, y]);
         self.last_clearance_m = Some(clearance);
         self.last_mode = Some(mode);
         if act.u1 == 0.0 && act.zeta == 0.0 {
@@ -269,8 +272,8 @@ impl Recorder {
         self.trajectory.flush()?;
         self.plans.flush()?;
         self.predictions.flush()?;
-        if let Some(routes) = &mut self.routes {
-            routes.flush()?;
+        for file in [&mut self.routes, &mut self.tracks].into_iter().flatten() {
+            file.flush()?;
         }
         Ok(())
     }
@@ -314,6 +317,39 @@ impl Recorder {
                 routes,
                 "{},{},{reason},{x},{y}",
                 self.route_plans, route.planned_sample
+            )?;
+        }
+        Ok(())
+    }
+
+    /// The tracker's tracks, as published after each measurement: a `tracks.csv` row per
+    /// track, with the obstacle's true centre beside it.
+    pub fn tracks(&mut self, tracks: &Tracks) -> std::io::Result<()> {
+        let file = match &mut self.tracks {
+            Some(file) => file,
+            None => self.tracks.insert(csv_file(
+                &self.dir.join("tracks.csv"),
+                &schema::TRACK_COLUMNS,
+            )?),
+        };
+        let t = tracks.header.time_s;
+        for track in tracks.tracks() {
+            let truth = self
+                .obstacles
+                .get(track.obstacle as usize)
+                .map_or([f64::NAN; 2], |o| o.center_at(t));
+            let (sigma_p, sigma_v) = track.sigmas();
+            writeln!(
+                file,
+                "{t:.4},{},{},{},{},{},{},{sigma_p},{sigma_v},{},{}",
+                tracks.header.tick,
+                track.obstacle,
+                track.center[0],
+                track.center[1],
+                track.velocity[0],
+                track.velocity[1],
+                truth[0],
+                truth[1],
             )?;
         }
         Ok(())
@@ -458,6 +494,12 @@ impl Recorder {
             ),
             interrupted_by,
             min_clearance_m: m.min_clearance_m,
+            min_moving_clearance_m: m
+                .min_moving_clearance_m
+                .is_finite()
+                .then_some(m.min_moving_clearance_m),
+            contacts_moving: m.contacts_moving,
+            contacts_at_rest: m.contacts_at_rest,
             deviation_time_s: m.deviation_time_s,
             time_to_goal_s: if outcome == Outcome::Reached {
                 m.inside_goal_since_s

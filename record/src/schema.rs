@@ -57,6 +57,24 @@ pub const PLANS_COLUMNS: [&str; 14] = [
 /// the waypoint (m).
 pub const ROUTE_COLUMNS: [&str; 5] = ["plan", "sample", "reason", "x", "y"];
 
+/// Columns of `tracks.csv`: the tracker's estimate of each tracked obstacle after each
+/// measurement (`tick` of it), and its true centre then, m, m/s; `sigma_p_m` and
+/// `sigma_v_m_s` are the standard deviations of the position and the velocity along the
+/// worse axis.
+pub const TRACK_COLUMNS: [&str; 11] = [
+    "t",
+    "tick",
+    "obstacle",
+    "x",
+    "y",
+    "vx",
+    "vy",
+    "sigma_p_m",
+    "sigma_v_m_s",
+    "x_true",
+    "y_true",
+];
+
 /// Columns of `predictions.csv`: the positions (m) the MPC predicted, `i` = 0..=N, in the
 /// first solved plan of every whole second of the run (the path figure draws them).
 pub const PREDICTION_COLUMNS: [&str; 4] = ["sample", "i", "x", "y"];

@@ -54,6 +54,12 @@ pub struct Summary {
     pub interrupted_by: Option<&'static str>,
     /// Smallest distance from the robot's centre to an obstacle surface, m.
     pub min_clearance_m: f64,
+    /// Smallest distance to an obstacle that moves, m (`null` without one).
+    pub min_moving_clearance_m: Option<f64>,
+    /// Contacts the robot made while it moved (a run ends `collided` at the first).
+    pub contacts_moving: u64,
+    /// Contacts a moving obstacle made with the robot at rest (the run goes on).
+    pub contacts_at_rest: u64,
     /// First time after which the robot stayed within the goal tolerance, s.
     pub time_to_goal_s: Option<f64>,
     /// First time the robot was more than 5 cm off the straight start-goal line, s.
@@ -252,6 +258,12 @@ impl Summary {
             .iter()
             .map(|(k, v)| format!("  {k:<16} {v}\n"))
             .collect();
+        if let Some(clearance) = self.min_moving_clearance_m {
+            table += &format!(
+                "  {:<16} least clearance {clearance:.3} m; contacts: {} while moving, {} at rest\n",
+                "moving obstacles", self.contacts_moving, self.contacts_at_rest
+            );
+        }
         if let Some(length) = self.route_length_m {
             table += &format!(
                 "  {:<16} {length:.2} m, {} replans\n",

@@ -26,7 +26,7 @@ use crate::roles;
 use protocol::task::{Outputs, SimulatedTime, Task};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Plan, RestartPolicy, Role, Route,
-    Validated,
+    Tracks, Validated,
 };
 
 /// One inner tick of the closed loop: what every role produced.
@@ -39,6 +39,8 @@ pub struct Tick {
     pub plan: Option<Plan>,
     /// The planner's route of this tick (sample boundaries of runs with a planner).
     pub route: Option<Route>,
+    /// The tracker's tracks of this tick (perception ticks of runs with a tracker).
+    pub tracks: Option<Tracks>,
     /// The deadline monitor's verdict on the sample this tick starts (boundaries only).
     pub verdict: Option<DeadlineVerdict>,
     /// The DFL's command for the tick, with the deadline misses so far.
@@ -236,7 +238,7 @@ impl ClosedLoop {
     /// The tick's record from what the tasks gave.
     fn collect(&self, restarted: Option<(Role, &'static str)>) -> Result<Tick, Ended> {
         let (mut truth, mut estimate, mut actuation) = (None, None, None);
-        let (mut plan, mut route, mut verdict) = (None, None, None);
+        let (mut plan, mut route, mut verdict, mut tracks) = (None, None, None, None);
         for data in &self.given {
             match *data {
                 Data::Truth(m) => truth = Some(m),
@@ -245,6 +247,7 @@ impl ClosedLoop {
                 Data::Plan(m) => plan = Some(m),
                 Data::Route(m) => route = Some(m),
                 Data::Deadline(m) => verdict = Some(m),
+                Data::Tracks(m) => tracks = Some(m),
                 Data::Measurement(_) => {}
             }
         }
@@ -256,6 +259,7 @@ impl ClosedLoop {
             actuation: actuation.ok_or_else(|| missing(protocol::topics::ACTUATION))?,
             plan,
             route,
+            tracks,
             verdict,
             restarted,
         })

@@ -75,6 +75,9 @@ pub fn run_observed(
             recorder.route(route)?;
             no_route = judge.route(route);
         }
+        if let Some(tracks) = &tick.tracks {
+            recorder.tracks(tracks)?;
+        }
         recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
         outcome = judge.tick(&tick.truth).or(no_route);
         observe(&tick);

@@ -38,6 +38,7 @@ macro_rules! roles {
 roles! {
     Plant => plant::PlantTask,
     Estimator => estimator::EstimatorTask,
+    Tracker => tracker::TrackerTask,
     Mpc => mpc::MpcTask,
     Dfl => dfl::DflTask,
     Planner => planner::PlannerTask,

@@ -11,6 +11,7 @@ pub const BUILT_IN: &[(&str, &str)] = &[
         include_str!("../../scenarios/paper-noisy.toml"),
     ),
     ("field", include_str!("../../scenarios/field.toml")),
+    ("crossing", include_str!("../../scenarios/crossing.toml")),
 ];
 
 /// The text of a built-in scenario.

@@ -70,13 +70,22 @@ macro_rules! layout {
 /// A field type as written in the layout: the message types by their iceoryx2 names, the
 /// array lengths as numbers.
 fn type_label(rust: &str) -> String {
-    let lengths = [("N1", N1), ("N", N), ("R", R), ("W", W), ("C", C), ("B", B)];
+    let lengths = [
+        ("N1", N1),
+        ("N", N),
+        ("R", R),
+        ("W", W),
+        ("C", C),
+        ("B", B),
+        ("T", T),
+    ];
     match rust {
         "Header" => "scmpc::Header".into(),
         "EpochSchedule" => "scmpc::EpochSchedule".into(),
-        _ => lengths.iter().fold(rust.to_string(), |ty, (name, value)| {
-            ty.replace(&format!("; {name}]"), &format!("; {value}]"))
-        }),
+        _ => lengths.iter().fold(
+            rust.replace("[Track;", "[scmpc::Track;"),
+            |ty, (name, value)| ty.replace(&format!("; {name}]"), &format!("; {value}]")),
+        ),
     }
 }
 
@@ -86,12 +95,34 @@ const R: usize = Role::COUNT;
 const W: usize = ROUTE_CAPACITY;
 const C: usize = MAX_COMMAND_BYTES;
 const B: usize = MAX_REPLY_BYTES;
+const T: usize = MAX_TRACKS;
 
 /// Every type that crosses a process boundary, nested ones first.
 pub fn types() -> Vec<TypeLayout> {
     let mut types = data_types();
+    types.extend(track_types());
     types.extend(control_types());
     types
+}
+
+/// The tracker's message and the track it carries.
+fn track_types() -> Vec<TypeLayout> {
+    vec![
+        layout!(Track {
+            obstacle: u32,
+            reserved: u32,
+            radius_m: f64,
+            center: [f64; 2],
+            velocity: [f64; 2],
+            covariance: [f64; 6],
+        }),
+        layout!(Tracks {
+            header: Header,
+            count: u32,
+            dropped: u32,
+            tracks: [Track; T],
+        }),
+    ]
 }
 
 /// The header and every data message.
@@ -245,6 +276,7 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         (ipc::ACTUATION, Role::Dfl),
         (ipc::DEADLINE, Role::Dfl),
         (ipc::ROUTE, Role::Planner),
+        (ipc::TRACKS, Role::Tracker),
     ];
     let mut codes = message_codes();
     codes.extend([
@@ -370,6 +402,7 @@ pub fn services() -> Vec<ServiceLayout> {
         topic(ipc::ACTUATION, "scmpc::Actuation"),
         topic(ipc::DEADLINE, "scmpc::DeadlineVerdict"),
         topic(ipc::ROUTE, "scmpc::Route"),
+        topic(ipc::TRACKS, "scmpc::Tracks"),
         topic(ipc::CONTROL, "scmpc::Control"),
         topic(ipc::STATUS, "scmpc::Status"),
         topic(ipc::SWAP, "scmpc::SwapRequest"),

@@ -4,11 +4,13 @@
 
 use crate::ipc::{
     ACTUATION, DEADLINE, ESTIMATE, Input, IpcError, MEASUREMENT, Output, PLAN, ROUTE, Receiver,
-    Sender, TRUTH, producer_of,
+    Sender, TRACKS, TRUTH, producer_of,
 };
 use crate::process::{Member, Next, ProcessArgs, ProcessContext, ProcessError};
 use protocol::task::{Cancel, Due, Outputs, Task};
-use protocol::{Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route};
+use protocol::{
+    Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Tracks,
+};
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
@@ -177,4 +179,5 @@ data_ports!(
     Actuation(Actuation) = ACTUATION,
     Deadline(DeadlineVerdict) = DEADLINE,
     Route(Route) = ROUTE,
+    Tracks(Tracks) = TRACKS,
 );

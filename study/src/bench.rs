@@ -20,6 +20,7 @@
 
 pub mod cross_host;
 pub mod scaling;
+pub mod targets;
 
 use anyhow::{Context, anyhow};
 use iceoryx2::prelude::*;
@@ -96,6 +97,8 @@ pub struct BenchReport {
     pub cross_host: cross_host::CrossHost,
     /// The MPC step for every horizon and obstacle count of [`scaling`].
     pub scaling: Vec<scaling::ScalingPoint>,
+    /// The targets of docs/performance.md against the numbers above ([`targets::judge`]).
+    pub targets: Vec<targets::Target>,
 }
 
 /// The real-time numbers of [`BenchReport`] with every core kept awake.
@@ -133,7 +136,7 @@ pub fn planning_field(seed: u64, n: usize) -> Vec<planner::Disc> {
         let radius = rng.random_range(0.2..0.8);
         let clear = |p: [f64; 2]| (center[0] - p[0]).hypot(center[1] - p[1]) > radius;
         if clear(PLANNING_START) && clear([0.0, 0.0]) {
-            discs.push(planner::Disc { center, radius });
+            discs.push(planner::Disc::still(center, radius));
         }
     }
     discs
@@ -384,7 +387,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         .processes
         .as_ref()
         .ok_or_else(|| anyhow!("the real-time run reported no processes"))?;
-    let report = BenchReport {
+    let mut report = BenchReport {
         machine: machine(),
         raw_iceoryx2_one_way_us: raw,
         pipeline_hop_us: processes.hop_latency_us,
@@ -407,7 +410,9 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
             .collect(),
         cross_host,
         scaling,
+        targets: Vec::new(),
     };
+    report.targets = targets::judge(&report);
     let path = out.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
@@ -533,5 +538,6 @@ impl BenchReport {
             c.link_round_trip_us,
             c.cross_host_deadline_misses
         ) + &scaling::table(&self.scaling)
+            + &targets::table(&self.targets)
     }
 }

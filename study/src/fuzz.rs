@@ -127,7 +127,7 @@ fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
                 let y = start[1] + along * along_line[1] + aside * normal[1];
                 let clear = |p: [f64; 2]| distance(p, [x, y]) > radius + footprint + 0.3;
                 if clear(start) && clear(goal) {
-                    break Obstacle { x, y, radius };
+                    break Obstacle::fixed(x, y, radius);
                 }
             }
         })

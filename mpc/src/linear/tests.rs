@@ -38,10 +38,7 @@ fn closed_loop_with(
 fn absolute_discs(s: &Scenario) -> Vec<Disc> {
     s.obstacles
         .iter()
-        .map(|o| Disc {
-            center: [o.x, o.y],
-            radius: o.radius,
-        })
+        .map(|o| Disc::still([o.x, o.y], o.radius))
         .collect()
 }
 
@@ -88,10 +85,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         a.layout.cones(Rows::all(&a.layout)).len(),
         b.layout.cones(Rows::all(&b.layout)).len()
     );
-    let discs = [Disc {
-        center: [3.0, 3.5],
-        radius: 1.5,
-    }];
+    let discs = [Disc::still([3.0, 3.5], 1.5)];
     let reference: Vec<[f64; 2]> = (0..=8)
         .map(|i| [6.0 - 0.1 * i as f64, 6.0 - 0.12 * i as f64])
         .collect();
@@ -102,6 +96,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         reference: &reference,
         reference_velocity: [0.0; 2],
         max_terminal_speed: 0.0,
+        stage_s: 0.05,
     };
     let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
     program::fill(&mut fa, &a.layout, &a.statics, &data, Rows::all(&a.layout));
@@ -306,16 +301,8 @@ fn smaller_gamma_keeps_more_clearance() {
 #[test]
 fn several_obstacles_are_all_respected() {
     let mut s = Scenario::default();
-    s.obstacles.push(Obstacle {
-        x: 5.5,
-        y: 3.0,
-        radius: 0.8,
-    });
-    s.obstacles.push(Obstacle {
-        x: 1.0,
-        y: 4.5,
-        radius: 0.5,
-    });
+    s.obstacles.push(Obstacle::fixed(5.5, 3.0, 0.8));
+    s.obstacles.push(Obstacle::fixed(1.0, 4.5, 0.5));
     for p in closed_loop(&s, 400) {
         assert!(barrier_slack(&p, &absolute_discs(&s), s.mpc.gamma) >= -1e-6);
     }
@@ -466,6 +453,7 @@ fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
         reference: &mpc.reference,
         reference_velocity: mpc.reference_velocity,
         max_terminal_speed: mpc.reach.max_terminal_speed(),
+        stage_s: 0.05,
     };
     let rows = Rows::all(&mpc.layout);
     let (mut at_goal, mut at_sub) = (Assembly::default(), Assembly::default());

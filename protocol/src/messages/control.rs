@@ -225,14 +225,19 @@ pub enum Role {
     /// The route planner (docs/planner.md): only in runs with `planner.kind =
     /// "route"`.
     Planner = 4,
+    /// The tracker of moving obstacles (docs/running.md, "Moving obstacles"): only in
+    /// runs that track an obstacle.
+    Tracker = 5,
 }
 
 impl Role {
     /// How many roles there are (the length of per-role arrays).
-    pub const COUNT: usize = 5;
+    pub const COUNT: usize = 6;
+    /// In data-flow order: the in-process executor steps the roles of a tick in it.
     pub const ALL: [Role; Role::COUNT] = [
         Role::Plant,
         Role::Estimator,
+        Role::Tracker,
         Role::Mpc,
         Role::Dfl,
         Role::Planner,
@@ -250,6 +255,7 @@ impl Role {
             Role::Mpc => "mpc",
             Role::Dfl => "dfl",
             Role::Planner => "planner",
+            Role::Tracker => "tracker",
         }
     }
 }

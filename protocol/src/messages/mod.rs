@@ -230,6 +230,74 @@ impl Route {
     }
 }
 
+/// Most obstacles the tracker tracks.
+pub const MAX_TRACKS: usize = 32;
+
+/// One obstacle as the tracker sees it: its constant-velocity Kalman filter's state.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Track"))]
+pub struct Track {
+    /// Index of the obstacle in the scenario's `obstacles`.
+    pub obstacle: u32,
+    pub reserved: u32,
+    /// Its true radius, m (the tracker measures centres only).
+    pub radius_m: f64,
+    /// Estimated centre at the track's time, m.
+    pub center: [f64; 2],
+    /// Estimated velocity, m/s.
+    pub velocity: [f64; 2],
+    /// Covariance of `[position, velocity]` along x then along y (the axes are filtered
+    /// apart): `[var x, cov x vx, var vx, var y, cov y vy, var vy]`, m^2, m^2/s, m^2/s^2.
+    pub covariance: [f64; 6],
+}
+
+impl Track {
+    /// Standard deviations of the position and of the velocity along the worse axis,
+    /// m and m/s. The predicted position's `sigma(t) = sqrt(var p + 2 t cov + t^2 var v)`
+    /// is at most `sigma_p + t sigma_v` (the covariance is at most `sigma_p sigma_v`).
+    pub fn sigmas(&self) -> (f64, f64) {
+        let c = &self.covariance;
+        (
+            c[0].max(c[3]).max(0.0).sqrt(),
+            c[2].max(c[5]).max(0.0).sqrt(),
+        )
+    }
+}
+
+/// The tracker's tracks, published after each measurement of the obstacles.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Tracks"))]
+pub struct Tracks {
+    /// The tick of the newest measurement taken in (the tracks' time).
+    pub header: Header,
+    /// Valid tracks.
+    pub count: u32,
+    /// Measurements dropped so far (`fault.tracker_drop_samples`).
+    pub dropped: u32,
+    /// The tracks, for `i < count`, in the order of the scenario's obstacles.
+    pub tracks: [Track; MAX_TRACKS],
+}
+
+impl Default for Tracks {
+    fn default() -> Self {
+        Tracks {
+            header: Header::default(),
+            count: 0,
+            dropped: 0,
+            tracks: [Track::default(); MAX_TRACKS],
+        }
+    }
+}
+
+impl Tracks {
+    /// The valid tracks.
+    pub fn tracks(&self) -> &[Track] {
+        &self.tracks[..(self.count as usize).min(MAX_TRACKS)]
+    }
+}
+
 /// Whether a route was found.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -505,6 +573,9 @@ impl_message!(
                 Some(RouteStatus::NoRoute) => m.count == 0,
                 None => false,
             };
+    Tracks => |m| m.tracks().iter().all(|t| {
+        finite(&t.center) && finite(&t.velocity) && finite(&t.covariance) && t.radius_m.is_finite()
+    }), m.count as usize <= MAX_TRACKS;
     Control => |m| true, m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()
         && StatusEvent::from_code(m.event).is_some()
@@ -534,6 +605,7 @@ pub enum Data {
     Actuation(Actuation),
     Deadline(DeadlineVerdict),
     Route(Route),
+    Tracks(Tracks),
 }
 
 macro_rules! data_variants {
@@ -579,6 +651,7 @@ data_variants!(
     Actuation(Actuation) => ACTUATION,
     Deadline(DeadlineVerdict) => DEADLINE,
     Route(Route) => ROUTE,
+    Tracks(Tracks) => TRACKS,
 );
 
 #[cfg(test)]

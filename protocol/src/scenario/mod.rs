@@ -66,7 +66,10 @@ pub struct Scenario {
     pub mpc: MpcConfig,
     pub dfl: DflConfig,
     pub planner: PlannerConfig,
-    /// Circular obstacles; collisions are judged against these true radii.
+    /// The tracker of moving obstacles (docs/running.md, "Moving obstacles").
+    pub perception: PerceptionConfig,
+    /// Circular obstacles, at rest or moving; collisions are judged against these true
+    /// radii and positions.
     pub obstacles: Vec<Obstacle>,
     /// Injected faults, for tests and demonstrations (none by default).
     pub fault: FaultConfig,
@@ -87,6 +90,7 @@ pub struct HostsConfig {
     pub mpc: String,
     pub dfl: String,
     pub planner: String,
+    pub tracker: String,
     /// Host name to the Zenoh endpoint its agent listens on (`tcp/ADDR:PORT` or
     /// `tls/ADDR:PORT`); `scmpc run --host NAME=ENDPOINT` adds to it.
     pub endpoints: std::collections::BTreeMap<String, String>,
@@ -101,6 +105,7 @@ impl HostsConfig {
             crate::Role::Mpc => &self.mpc,
             crate::Role::Dfl => &self.dfl,
             crate::Role::Planner => &self.planner,
+            crate::Role::Tracker => &self.tracker,
         };
         (!name.is_empty()).then_some(name)
     }
@@ -174,193 +179,6 @@ impl Default for Supervision {
             max_restarts: 3,
             failover: Failover::None,
         }
-    }
-}
-
-/// Samples chosen by a list (`[100, 101]`) or an inclusive range (`"100..=104"`, also
-/// `"100..105"`).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum SampleSet {
-    List(Vec<u64>),
-    Range(String),
-}
-
-impl Default for SampleSet {
-    fn default() -> Self {
-        SampleSet::List(Vec::new())
-    }
-}
-
-impl SampleSet {
-    /// The inclusive bounds of a range, or `None` for a list or a malformed range.
-    fn range(&self) -> Option<(u64, u64)> {
-        let SampleSet::Range(text) = self else {
-            return None;
-        };
-        let (a, b, inclusive) = match text.split_once("..=") {
-            Some((a, b)) => (a, b, true),
-            None => {
-                let (a, b) = text.split_once("..")?;
-                (a, b, false)
-            }
-        };
-        let (a, b): (u64, u64) = (a.trim().parse().ok()?, b.trim().parse().ok()?);
-        if inclusive {
-            Some((a, b))
-        } else {
-            b.checked_sub(1).map(|b| (a, b))
-        }
-    }
-
-    pub fn contains(&self, sample: u64) -> bool {
-        match self {
-            SampleSet::List(list) => list.contains(&sample),
-            SampleSet::Range(_) => self.range().is_some_and(|(a, b)| (a..=b).contains(&sample)),
-        }
-    }
-
-    pub fn is_empty(&self) -> bool {
-        match self {
-            SampleSet::List(list) => list.is_empty(),
-            SampleSet::Range(_) => self.range().is_none_or(|(a, b)| a > b),
-        }
-    }
-
-    fn is_well_formed(&self) -> bool {
-        matches!(self, SampleSet::List(_)) || self.range().is_some()
-    }
-}
-
-/// Faults injected into a run (what they exercise: docs/design.md, "Deadlines and fallback").
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct FaultConfig {
-    /// Delay added before the MPC publishes a plan, ms. In real time the MPC sleeps it; in
-    /// lockstep it is added to the plan's production time, so the plan arrives late by the
-    /// same rule as a slow solve.
-    pub mpc_delay_ms: f64,
-    /// Samples whose plan is delayed.
-    pub mpc_delay_samples: SampleSet,
-    /// Also delay every n-th sample (`k % n == 0`); 0 = off.
-    pub mpc_delay_every: u64,
-    /// Samples whose solve is forced to fail (reported as `numerical_error`).
-    pub mpc_fail_samples: SampleSet,
-    /// The estimator sleeps this long before publishing each estimate, ms (real time: a
-    /// slow estimator; lockstep: only slower in wall time).
-    pub estimator_delay_ms: f64,
-    /// The MPC plans as if there were no obstacles: a stand-in for a faulty MPC, to show
-    /// that the DFL's safety check (`dfl.gatekeeper`) keeps the robot out of them anyway.
-    pub mpc_ignore_obstacles: bool,
-    /// From this run time on, s, the estimator process started first (epoch 0) publishes
-    /// estimates with a NaN: a stand-in for a broken producer, to show it is refused, then
-    /// treated as failed and restarted (its restart is healthy). `inf` (the default): off.
-    pub estimator_nan_from_s: f64,
-    /// Every sample crossing a link between hosts is held this long by the bridge that
-    /// sends it, ms (docs/hosts.md; real time).
-    pub link_delay_ms: f64,
-    /// Probability that a sample crossing a link is dropped (real time).
-    pub link_loss: f64,
-    /// Run times `[from, to)`, s, in which every link between hosts is down: the samples
-    /// of those times are dropped (real time; `[0, 0]`: never).
-    pub link_down_s: [f64; 2],
-}
-
-impl Default for FaultConfig {
-    fn default() -> Self {
-        FaultConfig {
-            mpc_delay_ms: 0.0,
-            mpc_delay_samples: SampleSet::default(),
-            mpc_delay_every: 0,
-            mpc_fail_samples: SampleSet::default(),
-            estimator_delay_ms: 0.0,
-            mpc_ignore_obstacles: false,
-            estimator_nan_from_s: f64::INFINITY,
-            link_delay_ms: 0.0,
-            link_loss: 0.0,
-            link_down_s: [0.0, 0.0],
-        }
-    }
-}
-
-impl FaultConfig {
-    /// The injected delay of plan(`sample`), ns.
-    pub fn mpc_delay_ns(&self, sample: u64) -> u64 {
-        let chosen = self.mpc_delay_samples.contains(sample)
-            || (self.mpc_delay_every > 0 && sample.is_multiple_of(self.mpc_delay_every));
-        if chosen && self.mpc_delay_ms > 0.0 {
-            (self.mpc_delay_ms * 1e6) as u64
-        } else {
-            0
-        }
-    }
-
-    pub fn mpc_fails(&self, sample: u64) -> bool {
-        self.mpc_fail_samples.contains(sample)
-    }
-
-    /// One line per injected fault, for the summary; empty for a clean run.
-    pub fn describe(&self) -> Vec<String> {
-        let mut faults = Vec::new();
-        let set = |s: &SampleSet| match s {
-            SampleSet::List(l) => format!("{l:?}"),
-            SampleSet::Range(r) => r.clone(),
-        };
-        if self.mpc_delay_ms > 0.0 && !self.mpc_delay_samples.is_empty() {
-            faults.push(format!(
-                "mpc delay {} ms at samples {}",
-                self.mpc_delay_ms,
-                set(&self.mpc_delay_samples)
-            ));
-        }
-        if self.mpc_delay_ms > 0.0 && self.mpc_delay_every > 0 {
-            faults.push(format!(
-                "mpc delay {} ms every {} samples",
-                self.mpc_delay_ms, self.mpc_delay_every
-            ));
-        }
-        if !self.mpc_fail_samples.is_empty() {
-            faults.push(format!(
-                "forced solver failure at samples {}",
-                set(&self.mpc_fail_samples)
-            ));
-        }
-        if self.estimator_delay_ms > 0.0 {
-            faults.push(format!(
-                "estimator delay {} ms per estimate",
-                self.estimator_delay_ms
-            ));
-        }
-        if self.mpc_ignore_obstacles {
-            faults.push("the MPC ignores the obstacles".into());
-        }
-        if self.estimator_nan_from_s.is_finite() {
-            faults.push(format!(
-                "the first estimator publishes NaN from {} s",
-                self.estimator_nan_from_s
-            ));
-        }
-        if self.link_delay_ms > 0.0 {
-            faults.push(format!("links delayed {} ms", self.link_delay_ms));
-        }
-        if self.link_loss > 0.0 {
-            faults.push(format!("links lose {} of their samples", self.link_loss));
-        }
-        if self.link_is_ever_down() {
-            let [from, to] = self.link_down_s;
-            faults.push(format!("links down from {from} s to {to} s"));
-        }
-        faults
-    }
-
-    /// Whether `fault.link_down_s` cuts the links at some time.
-    pub fn link_is_ever_down(&self) -> bool {
-        self.link_down_s[1] > self.link_down_s[0]
-    }
-
-    /// Whether the links are down at run time `t_s`.
-    pub fn link_down_at(&self, t_s: f64) -> bool {
-        (self.link_down_s[0]..self.link_down_s[1]).contains(&t_s)
     }
 }
 
@@ -703,14 +521,6 @@ pub enum Auto {
     Auto,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Obstacle {
-    pub x: f64,
-    pub y: f64,
-    pub radius: f64,
-}
-
 impl Default for Scenario {
     /// The paper's canonical scenario (docs/running.md, "Scenario keys").
     fn default() -> Self {
@@ -725,11 +535,8 @@ impl Default for Scenario {
             mpc: MpcConfig::default(),
             dfl: DflConfig::default(),
             planner: PlannerConfig::default(),
-            obstacles: vec![Obstacle {
-                x: 3.0,
-                y: 3.5,
-                radius: 1.5,
-            }],
+            perception: PerceptionConfig::default(),
+            obstacles: vec![Obstacle::fixed(3.0, 3.5, 1.5)],
             fault: FaultConfig::default(),
             supervision: Supervision::default(),
             swap: Vec::new(),
@@ -826,12 +633,45 @@ impl Scenario {
         }
     }
 
-    /// The role processes of a run: the four of the paper, and the planner when it is on.
+    /// The role processes of a run: the four of the paper, the tracker when it tracks an
+    /// obstacle, and the planner when it is on.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.planner.is_on();
-        crate::Role::ALL
-            .into_iter()
-            .filter(move |r| *r != crate::Role::Planner || planner)
+        let tracker = self.tracked().next().is_some();
+        crate::Role::ALL.into_iter().filter(move |r| match r {
+            crate::Role::Planner => planner,
+            crate::Role::Tracker => tracker,
+            _ => true,
+        })
+    }
+
+    /// Whether the tracker tracks obstacle `obstacle`: every one with `perception.kind =
+    /// "track"`, the moving ones with `auto`. The MPC takes the others from the scenario.
+    pub fn is_tracked(&self, obstacle: &Obstacle) -> bool {
+        self.perception.kind == PerceptionKind::Track || obstacle.moves()
+    }
+
+    /// The obstacles the tracker tracks, with their indices in `obstacles`, in order.
+    pub fn tracked(&self) -> impl Iterator<Item = (usize, &Obstacle)> {
+        self.obstacles
+            .iter()
+            .enumerate()
+            .filter(|(_, o)| self.is_tracked(o))
+    }
+
+    /// The obstacles known from the scenario (not tracked), in order.
+    pub fn known_obstacles(&self) -> impl Iterator<Item = &Obstacle> {
+        self.obstacles.iter().filter(|o| !self.is_tracked(o))
+    }
+
+    /// Inner ticks between two measurements of the tracker (`perception.period_s`, at
+    /// least one).
+    pub fn perception_ticks(&self) -> u64 {
+        let period = match self.perception.period_s {
+            AutoOr::Auto(_) => self.timing.ts_s,
+            AutoOr::Value(p) => p,
+        };
+        ((period / self.timing.dt_s()).round() as u64).max(1)
     }
 
     /// Number of inner ticks in a run of `duration_s` (rounded to the nearest tick).
@@ -842,6 +682,12 @@ impl Scenario {
 
 mod document;
 pub use document::{ScenarioError, ScenarioErrors};
+
+mod faults;
+pub use faults::*;
+
+mod world;
+pub use world::*;
 
 mod validate;
 

@@ -148,3 +148,103 @@ fn a_goal_outside_the_position_box_is_refused() {
     s.mpc.position_max = [10.0, 12.5];
     assert!(s.validate("t").is_ok());
 }
+
+/// The paper with `obstacle` appended, from a TOML table.
+fn with_obstacle(table: &str) -> Result<Validated, ScenarioErrors> {
+    let text = format!("[[obstacles]]\nx = 3.0\ny = 3.5\nradius = 1.5\n\n[[obstacles]]\n{table}");
+    Scenario::from_toml(&text, "t")?.validated("t")
+}
+
+#[test]
+fn an_obstacle_moves_at_its_velocity_or_along_its_path() {
+    let s = with_obstacle("x = -5.0\ny = 1.0\nradius = 0.3\nvelocity = [1.0, -0.5]").unwrap();
+    let o = &s.obstacles[1];
+    assert!(o.moves() && !s.obstacles[0].moves());
+    assert_eq!(o.center_at(2.0), [-3.0, 0.0]);
+    assert_eq!(o.velocity_at(7.0), [1.0, -0.5]);
+
+    let s =
+        with_obstacle("radius = 0.3\npath = [[1.0, 0.0, 0.0], [3.0, 2.0, 4.0], [4.0, 2.0, 4.0]]")
+            .unwrap();
+    let o = &s.obstacles[1];
+    // Held at its first point before it (x and y are filled in from it) and at its last
+    // after it; linear between.
+    assert_eq!([o.x, o.y], [0.0, 0.0]);
+    assert_eq!(o.center_at(-1.0), [0.0, 0.0]);
+    assert_eq!(o.center_at(2.0), [1.0, 2.0]);
+    assert_eq!(o.velocity_at(2.0), [1.0, 2.0]);
+    assert_eq!(o.velocity_at(3.5), [0.0, 0.0]);
+    assert_eq!(o.center_at(10.0), [2.0, 4.0]);
+    // Written back and read again, it is the same obstacle.
+    let back = Scenario::from_toml(&s.to_toml(), "t")
+        .unwrap()
+        .validated("t");
+    assert_eq!(back.unwrap(), s);
+}
+
+#[test]
+fn a_bad_motion_is_refused_naming_the_obstacle_and_the_key() {
+    for (table, key, says) in [
+        (
+            "x = 0.0\ny = 0.0\nradius = 0.3\nvelocity = [nan, 0.0]",
+            "obstacles.1.velocity.0",
+            "finite",
+        ),
+        (
+            "radius = 0.3\nvelocity = [1.0, 0.0]\npath = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]",
+            "obstacles.1.path",
+            "not both",
+        ),
+        (
+            "radius = 0.3\npath = [[0.0, 0.0, 0.0]]",
+            "obstacles.1.path",
+            "two",
+        ),
+        (
+            "radius = 0.3\npath = [[0.0, 0.0, 0.0], [2.0, 1.0, 1.0], [2.0, 2.0, 2.0]]",
+            "obstacles.1.path",
+            "increase",
+        ),
+        (
+            "radius = 0.3\npath = [[0.0, 0.0, 0.0], [inf, 1.0, 1.0]]",
+            "obstacles.1.path.1.0",
+            "finite",
+        ),
+        ("y = 0.0\nradius = 0.3", "obstacles.1.x", "missing"),
+        (
+            "x = 5.0\ny = 0.0\nradius = 0.3\npath = [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]",
+            "obstacles.1.x",
+            "path's position",
+        ),
+    ] {
+        let errors = with_obstacle(table).unwrap_err().0;
+        assert!(
+            errors
+                .iter()
+                .any(|e| e.key == key && e.message.contains(says)),
+            "{table}: {errors:?}"
+        );
+    }
+}
+
+#[test]
+fn a_tracker_runs_when_an_obstacle_moves_or_perception_tracks() {
+    let has_tracker = |s: &Validated| s.roles().any(|r| r == crate::Role::Tracker);
+    let paper = Scenario::default().validated("t").unwrap();
+    assert!(!has_tracker(&paper));
+    let moving = with_obstacle("x = -5.0\ny = 1.0\nradius = 0.3\nvelocity = [1.0, 0.0]").unwrap();
+    assert!(has_tracker(&moving));
+    assert_eq!(moving.known_obstacles().count(), 1);
+    let tracked = paper
+        .with_overrides(&["perception.kind=track".into()], "t")
+        .unwrap();
+    assert!(has_tracker(&tracked));
+    assert_eq!(tracked.known_obstacles().count(), 0);
+    // A swap or a host of a tracker that does not run is refused.
+    let swap = "[[swap]]\ntime_s = 1.0\nrole = \"tracker\"\ncommand = [\"scmpc\", \"tracker\"]\n";
+    let e = Scenario::from_toml(swap, "t")
+        .unwrap()
+        .validated("t")
+        .unwrap_err();
+    assert_eq!(e.0[0].key, "swap.0.role");
+}

@@ -5,7 +5,12 @@ use super::*;
 
 impl Scenario {
     /// The scenario as a [`Validated`] one, if [`Scenario::validate`] accepts it.
-    pub fn validated(self, origin: &str) -> Result<Validated, ScenarioErrors> {
+    pub fn validated(mut self, origin: &str) -> Result<Validated, ScenarioErrors> {
+        self.obstacles = self
+            .obstacles
+            .into_iter()
+            .map(Obstacle::with_start_of_path)
+            .collect();
         self.validate(origin)?;
         Ok(Validated(self))
     }
@@ -149,10 +154,32 @@ impl Scenario {
         }
 
         for (i, o) in self.obstacles.iter().enumerate() {
-            v.finite(&format!("obstacles.{i}.x"), o.x);
-            v.finite(&format!("obstacles.{i}.y"), o.y);
-            v.non_negative(&format!("obstacles.{i}.radius"), o.radius);
+            check_obstacle(v, i, o);
         }
+        let tracked = self.tracked().count();
+        if tracked > 0 && m.formulation == Formulation::Nonlinear {
+            v.fail(
+                "mpc.formulation",
+                "the nonlinear baseline knows obstacles at rest only; a moving or tracked \
+                 obstacle needs mpc.formulation = \"linear\""
+                    .into(),
+            );
+        }
+        if tracked > crate::MAX_TRACKS {
+            v.fail(
+                "obstacles",
+                format!(
+                    "{tracked} obstacles to track; the tracker tracks at most {}",
+                    crate::MAX_TRACKS
+                ),
+            );
+        }
+        let c = &self.perception;
+        if let AutoOr::Value(period) = c.period_s {
+            v.positive("perception.period_s", period);
+        }
+        v.non_negative("perception.noise_std", c.noise_std);
+        v.non_negative("perception.accel_max", c.accel_max);
     }
 
     /// The injected faults (those of the links only with a role on another host).
@@ -169,9 +196,11 @@ impl Scenario {
                 ),
             );
         }
+        v.non_negative("fault.tracker_delay_ms", f.tracker_delay_ms);
         for (key, set) in [
             ("fault.mpc_delay_samples", &f.mpc_delay_samples),
             ("fault.mpc_fail_samples", &f.mpc_fail_samples),
+            ("fault.tracker_drop_samples", &f.tracker_drop_samples),
         ] {
             if !set.is_well_formed() {
                 v.fail(
@@ -228,16 +257,16 @@ impl Scenario {
                 None => v.fail(
                     &format!("swap.{i}.role"),
                     format!(
-                        "must be estimator, mpc, dfl or planner (the plant cannot be \
-                         swapped), got `{}`",
+                        "must be estimator, mpc, dfl, planner or tracker (the plant cannot \
+                         be swapped), got `{}`",
                         swap.role
                     ),
                 ),
-                Some(crate::Role::Planner) if !self.planner.is_on() => v.fail(
-                    &format!("swap.{i}.role"),
-                    "no planner runs (planner.kind = \"none\"): nothing to swap".into(),
-                ),
-                Some(_) => {}
+                Some(role) => {
+                    if let Some(why) = self.absent(role) {
+                        v.fail(&format!("swap.{i}.role"), format!("{why}: nothing to swap"));
+                    }
+                }
             }
             if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
                 v.fail(&format!("swap.{i}.command"), "the program is empty".into());
@@ -269,12 +298,27 @@ impl Scenario {
                 v.fail(&key, e);
             }
         }
-        if self.hosts.of(crate::Role::Planner).is_some() && !self.planner.is_on() {
-            v.fail(
-                "hosts.planner",
-                "no planner runs (planner.kind = \"none\")".into(),
-            );
+        for role in [crate::Role::Planner, crate::Role::Tracker] {
+            if self.hosts.of(role).is_some()
+                && let Some(why) = self.absent(role)
+            {
+                v.fail(&format!("hosts.{}", role.as_str()), why);
+            }
         }
+    }
+
+    /// Why `role` runs no process in this scenario, if it does not.
+    fn absent(&self, role: crate::Role) -> Option<String> {
+        if self.roles().any(|r| r == role) {
+            return None;
+        }
+        Some(match role {
+            crate::Role::Planner => "no planner runs (planner.kind = \"none\")".into(),
+            crate::Role::Tracker => {
+                "no tracker runs (no obstacle moves and perception.kind = \"auto\")".into()
+            }
+            _ => format!("no {} runs", role.as_str()),
+        })
     }
 
     /// The start must be clear of every obstacle by the robot's radius, and so must the
@@ -322,10 +366,16 @@ impl Scenario {
                     ),
                 );
             }
-            if footprint.clearance_m(o, [gx, gy]) <= 0.0 {
+            // Where the obstacle comes to rest (an obstacle with a velocity never does).
+            if o.rest()
+                .is_some_and(|rest| crate::distance(rest, [gx, gy]) <= o.radius + radius)
+            {
                 v.fail(
                     "robot.goal",
-                    format!("({gx}, {gy}) is inside obstacle {i}, inflated by robot.radius_m"),
+                    format!(
+                        "({gx}, {gy}) is inside obstacle {i} where it rests, inflated by \
+                         robot.radius_m"
+                    ),
                 );
             }
         }
@@ -350,6 +400,63 @@ impl Scenario {
 }
 
 /// Collects errors for [`Scenario::validate`].
+/// Obstacle `i`: where it is and how it moves.
+fn check_obstacle(v: &mut Validator, i: usize, o: &Obstacle) {
+    let key = |name: &str| format!("obstacles.{i}.{name}");
+    v.non_negative(&key("radius"), o.radius);
+    v.finite_all(&key("velocity"), &o.velocity);
+    if o.path.is_empty() {
+        for (name, value) in [("x", o.x), ("y", o.y)] {
+            if value.is_nan() {
+                v.fail(
+                    &key(name),
+                    "missing: an obstacle without a path needs x and y".into(),
+                );
+            } else {
+                v.finite(&key(name), value);
+            }
+        }
+        return;
+    }
+    if o.velocity != [0.0; 2] {
+        v.fail(
+            &key("path"),
+            "give an obstacle a velocity or a path, not both".into(),
+        );
+    }
+    if o.path.len() < 2 {
+        v.fail(
+            &key("path"),
+            format!("needs at least two [t, x, y] points, got {}", o.path.len()),
+        );
+    }
+    for (j, point) in o.path.iter().enumerate() {
+        v.finite_all(&format!("obstacles.{i}.path.{j}"), point);
+    }
+    if let Some(j) = o.path.windows(2).position(|w| w[1][0] <= w[0][0]) {
+        v.fail(
+            &key("path"),
+            format!(
+                "times must increase strictly: point {} at t = {} s follows t = {} s",
+                j + 1,
+                o.path[j + 1][0],
+                o.path[j][0]
+            ),
+        );
+    }
+    let start = o.center_at(0.0);
+    if (o.x - start[0]).abs() > 1e-9 || (o.y - start[1]).abs() > 1e-9 {
+        v.fail(
+            &key("x"),
+            format!(
+                "({}, {}) is not the path's position at t = 0, ({}, {}): leave x and y out \
+                 with a path",
+                o.x, o.y, start[0], start[1]
+            ),
+        );
+    }
+}
+
 struct Validator<'a> {
     origin: &'a str,
     errors: Vec<ScenarioError>,

@@ -4,7 +4,7 @@
 
 use super::session::Session;
 use protocol::{
-    Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing,
+    Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing, Tracks,
 };
 use record::judge::{Judge, Outcome};
 use record::{Latencies, ProcessReport, Recorder};
@@ -70,6 +70,8 @@ pub(super) struct Intake {
     verdicts: BTreeMap<u64, DeadlineVerdict>,
     /// Routes received and not recorded yet, in arrival order.
     routes: Vec<Route>,
+    /// Tracks received and not recorded yet, in arrival order.
+    tracks: Vec<Tracks>,
     /// The newest tick whose truth has come.
     pub newest_truth: Option<u64>,
     /// Next tick to record (every earlier one is recorded).
@@ -93,6 +95,7 @@ impl Intake {
             plans: BTreeMap::new(),
             verdicts: BTreeMap::new(),
             routes: Vec::new(),
+            tracks: Vec::new(),
             newest_truth: None,
             cursor: 0,
             last_plan: None,
@@ -149,6 +152,12 @@ impl Intake {
         session.route.take(|r, _| {
             if r.header.tick < ticks {
                 routes.push(r);
+            }
+        })?;
+        let tracks = &mut self.tracks;
+        session.tracks.take(|t, _| {
+            if t.header.tick < ticks {
+                tracks.push(t);
             }
         })?;
         let verdicts = &mut self.verdicts;
@@ -263,6 +272,9 @@ impl Intake {
         for route in std::mem::take(&mut self.routes) {
             recorder.route(&route)?;
             no_route = no_route.or(judge.route(&route));
+        }
+        for tracks in std::mem::take(&mut self.tracks) {
+            recorder.tracks(&tracks)?;
         }
         while let Some((sample, plan)) = self.plans.pop_first() {
             // A replay repeats a plan already recorded.

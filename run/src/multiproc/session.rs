@@ -3,7 +3,7 @@
 
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
-    Header, Measurement, Plan, Role, Route, Status, SwapReply, SwapRequest,
+    Header, Measurement, Plan, Role, Route, Status, SwapReply, SwapRequest, Tracks,
 };
 use runtime::clock::{RunClock, RunMode};
 use runtime::ipc::{self, Input, IpcError, Receiver, Sender, TickLimit, open_topic};
@@ -37,6 +37,7 @@ pub(super) struct Session {
     pub actuation: Receiver<Actuation>,
     pub deadline: Receiver<DeadlineVerdict>,
     pub route: Receiver<Route>,
+    pub tracks: Receiver<Tracks>,
     /// Live requests of `scmpc swap`, and the answers.
     pub swap_requests: Receiver<SwapRequest>,
     pub swap_replies: Sender<SwapReply>,
@@ -60,6 +61,7 @@ impl Session {
             actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
             deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
             route: open_topic(&node, ipc::ROUTE)?.receiver_from(Role::Planner)?,
+            tracks: open_topic(&node, ipc::TRACKS)?.receiver_from(Role::Tracker)?,
             swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: Cell::new(EpochSchedule::default()),
@@ -127,7 +129,7 @@ impl Session {
     }
 
     /// The orchestrator's inputs, for housekeeping.
-    pub fn inputs(&self) -> [&dyn Input; 7] {
+    pub fn inputs(&self) -> [&dyn Input; 8] {
         [
             &self.truth,
             &self.measurement,
@@ -136,6 +138,7 @@ impl Session {
             &self.actuation,
             &self.deadline,
             &self.route,
+            &self.tracks,
         ]
     }
 
@@ -170,6 +173,7 @@ impl Session {
             Role::Mpc => &self.plan,
             Role::Dfl => &self.actuation,
             Role::Planner => &self.route,
+            Role::Tracker => &self.tracks,
         }
     }
 

@@ -108,7 +108,7 @@ impl<T: Wire> Topic<T> {
 
 /// The topics a bridge carries: every topic of a run but the live swap requests and their
 /// replies, which stay with the orchestrator.
-pub const BRIDGED_TOPICS: [&str; 9] = [
+pub const BRIDGED_TOPICS: [&str; 10] = [
     MEASUREMENT,
     TRUTH,
     ESTIMATE,
@@ -116,6 +116,7 @@ pub const BRIDGED_TOPICS: [&str; 9] = [
     ACTUATION,
     DEADLINE,
     ROUTE,
+    TRACKS,
     CONTROL,
     STATUS,
 ];
@@ -131,6 +132,7 @@ macro_rules! by_topic {
             ACTUATION => $f::<Actuation>(ACTUATION, $($arg),*),
             DEADLINE => $f::<DeadlineVerdict>(DEADLINE, $($arg),*),
             ROUTE => $f::<Route>(ROUTE, $($arg),*),
+            TRACKS => $f::<Tracks>(TRACKS, $($arg),*),
             CONTROL => $f::<Control>(CONTROL, $($arg),*),
             STATUS => $f::<Status>(STATUS, $($arg),*),
             other => Err(IpcError(format!("no bridged topic `{other}`"))),

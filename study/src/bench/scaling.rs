@@ -64,11 +64,7 @@ fn routable_field(n: usize) -> anyhow::Result<Vec<Obstacle>> {
                 .is_ok()
         })
         .map(|discs| {
-            let obstacle = |d: &planner::Disc| Obstacle {
-                x: d.center[0],
-                y: d.center[1],
-                radius: d.radius,
-            };
+            let obstacle = |d: &planner::Disc| Obstacle::fixed(d.center[0], d.center[1], d.radius);
             discs.iter().map(obstacle).collect()
         })
         .ok_or_else(|| anyhow!("no field of {n} discs with a route in 99 seeds"))

@@ -383,13 +383,63 @@ fn polylines(dir: &Path, file: &str, key: &str) -> anyhow::Result<Vec<Vec<(f64, 
     Ok(routes.into_iter().map(|(_, points)| points).collect())
 }
 
-/// The obstacles of a scenario as discs `(x, y, radius)`.
+/// The obstacles of a scenario as discs `(x, y, radius)`, where they are at t = 0.
 pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
     scenario
         .obstacles
         .iter()
         .map(|o| (o.x, o.y, o.radius))
         .collect()
+}
+
+/// Seconds between two time labels on the path of a run with moving obstacles.
+const TRACE_LABEL_S: f64 = 2.0;
+
+/// The moving obstacles' traces over the run (their centres), and beside them, every
+/// [`TRACE_LABEL_S`], where each obstacle and the robot (`robot`: the trajectory) were,
+/// labelled with the time: who was where when. Nothing without a moving obstacle.
+fn moving_traces(scenario: &protocol::Scenario, robot: &Trajectory) -> (Vec<Series>, Vec<Marker>) {
+    let end_s = robot.t.last().copied().unwrap_or(0.0);
+    let labels = (0..=(end_s / TRACE_LABEL_S) as usize).map(|i| i as f64 * TRACE_LABEL_S);
+    let (mut traces, mut markers) = (Vec::new(), Vec::new());
+    for (i, o) in scenario
+        .obstacles
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.moves())
+    {
+        let steps = (end_s / 0.1).ceil() as usize;
+        let points = (0..=steps)
+            .map(|k| o.center_at(k as f64 * 0.1))
+            .map(|[x, y]| (x, y))
+            .collect();
+        traces.push(Series {
+            label: format!("obstacle {i} (moving)"),
+            points,
+            dashed: true,
+            color: 5,
+            ..Series::default()
+        });
+        markers.extend(labels.clone().map(|t| {
+            let [x, y] = o.center_at(t);
+            Marker {
+                label: format!("{t:.0} s"),
+                at: (x, y),
+                color: 5,
+            }
+        }));
+    }
+    if !traces.is_empty() {
+        markers.extend(labels.filter_map(|t| {
+            let k = robot.t.iter().position(|&rt| rt >= t - 1e-9)?;
+            Some(Marker {
+                label: format!("{t:.0} s"),
+                at: (robot.x[k], robot.y[k]),
+                color: 0,
+            })
+        }));
+    }
+    (traces, markers)
 }
 
 /// `path` and `clearance` of the run in `dir` (written by `scmpc run`).
@@ -433,6 +483,21 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
     }
     let [sx, sy, _] = scenario.robot.start;
     let [gx, gy] = scenario.robot.goal;
+    let (traces, times) = moving_traces(scenario, &t);
+    path.extend(traces);
+    let mut markers = vec![
+        Marker {
+            label: "start".into(),
+            at: (sx, sy),
+            color: 3,
+        },
+        Marker {
+            label: "goal".into(),
+            at: (gx, gy),
+            color: 1,
+        },
+    ];
+    markers.extend(times);
     Figure {
         stem: "path".into(),
         title: format!("{}: path", scenario.name),
@@ -440,18 +505,7 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
         y_label: "y (m)".into(),
         series: path,
         discs: obstacle_discs(scenario),
-        markers: vec![
-            Marker {
-                label: "start".into(),
-                at: (sx, sy),
-                color: 3,
-            },
-            Marker {
-                label: "goal".into(),
-                at: (gx, gy),
-                color: 1,
-            },
-        ],
+        markers,
         equal_axes: true,
         legend_left: true,
         ..Figure::default()

@@ -28,6 +28,7 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             reference: &mpc.reference,
             reference_velocity: mpc.reference_velocity,
             max_terminal_speed: 0.0,
+            stage_s: 0.05,
         };
         let without_barrier = Rows {
             box_and_terminal: true,
@@ -50,10 +51,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
         s.mpc.gamma = gamma;
         s.mpc.qp_form = QpForm::Sparse; // rows checked in stage-wise columns
         let mut mpc = LinearMpc::new(&s).unwrap();
-        mpc.discs = vec![Disc {
-            center: [3.0, 3.5],
-            radius: 1.5,
-        }];
+        mpc.discs = vec![Disc::still([3.0, 3.5], 1.5)];
         let mut next = logistic(0.7);
         let (mut left_out, mut kept) = (0, 0);
         for _ in 0..1_000 {
@@ -73,6 +71,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
+                stage_s: 0.05,
             };
             if !data
                 .barrier(&mpc.layout, &mpc.statics, Rows::ONE_DISC)

@@ -85,7 +85,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
             checked += 1;
             // The step's own set-up, then the candidate and its extra variables.
             crate::discs::constraint_discs(
-                &mpc.obstacles,
+                mpc.world.known(),
                 goal,
                 mpc.margin_m(0.0),
                 zeta,
@@ -137,6 +137,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
+                stage_s: 0.05,
             };
             let barrier = data.barrier(&l, &mpc.statics, rows);
             let first = l.terminal_variable(rows);
@@ -184,16 +185,8 @@ fn hard_scenarios() -> Vec<Scenario> {
         "obstacles.0.radius=0.72",
     ];
     let mut three = with(&["mpc.gamma=0.2", "mpc.horizon=12"]);
-    three.obstacles.push(Obstacle {
-        x: 5.5,
-        y: 3.0,
-        radius: 0.8,
-    });
-    three.obstacles.push(Obstacle {
-        x: 1.0,
-        y: 4.5,
-        radius: 0.5,
-    });
+    three.obstacles.push(Obstacle::fixed(5.5, 3.0, 0.8));
+    three.obstacles.push(Obstacle::fixed(1.0, 4.5, 0.5));
     vec![
         with(&[]),
         with(&approach),

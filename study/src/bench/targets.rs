@@ -1,0 +1,97 @@
+//! The targets of docs/performance.md, judged in the benchmark's own report: each with the
+//! number measured against it and whether it was met. A timing target is a statement
+//! about this machine at this hour, so it is reported, never asserted by a test.
+
+use super::BenchReport;
+use serde::Serialize;
+
+/// One target and how this bench run measured against it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Target {
+    pub name: String,
+    /// The bound, in the unit of `measured`.
+    pub bound: f64,
+    /// Whether `measured` must stay at or below `bound` (else at or above it).
+    pub at_most: bool,
+    pub measured: f64,
+    pub met: bool,
+}
+
+impl Target {
+    fn new(name: impl Into<String>, measured: f64, at_most: bool, bound: f64) -> Target {
+        let met = if at_most {
+            measured <= bound
+        } else {
+            measured >= bound
+        };
+        Target {
+            name: name.into(),
+            bound,
+            at_most,
+            measured,
+            met,
+        }
+    }
+}
+
+/// Per-hop latency over a raw iceoryx2 hop, and over a raw Zenoh hop across hosts (p50).
+pub const HOP_RATIO: f64 = 1.5;
+/// Resident memory of each role process, MiB.
+pub const RSS_MIB: f64 = 20.0;
+/// Simulated seconds per wall second of the lockstep paper run.
+pub const LOCKSTEP_SPEEDUP: f64 = 20.0;
+/// What `run.mcap` adds to the lockstep wall time.
+pub const RECORDING_SHARE: f64 = 0.05;
+
+/// The targets of docs/performance.md as `report` measured them.
+pub fn judge(report: &BenchReport) -> Vec<Target> {
+    let mut targets = vec![
+        Target::new(
+            "pipeline hop / raw iceoryx2 hop (p50)",
+            report.hop_ratio_p50,
+            true,
+            HOP_RATIO,
+        ),
+        Target::new(
+            "cross-host hop / raw Zenoh hop (p50)",
+            report.cross_host.cross_host_ratio_p50,
+            true,
+            HOP_RATIO,
+        ),
+        Target::new(
+            "lockstep speed-up (× real time)",
+            report.lockstep_speedup,
+            false,
+            LOCKSTEP_SPEEDUP,
+        ),
+        Target::new(
+            "recording share of lockstep",
+            report.lockstep_recording_share,
+            true,
+            RECORDING_SHARE,
+        ),
+    ];
+    targets.extend(report.peak_rss_kib.iter().map(|(role, kib)| {
+        Target::new(
+            format!("peak RSS of the {role} (MiB)"),
+            *kib as f64 / 1024.0,
+            true,
+            RSS_MIB,
+        )
+    }));
+    targets
+}
+
+/// The targets as lines of the bench table.
+pub fn table(targets: &[Target]) -> String {
+    let mut text = String::from("  targets (docs/performance.md):\n");
+    for t in targets {
+        let bound = if t.at_most { "≤" } else { "≥" };
+        let verdict = if t.met { "met" } else { "NOT MET" };
+        text += &format!(
+            "    {:<40} {:>9.3} ({bound} {}: {verdict})\n",
+            t.name, t.measured, t.bound
+        );
+    }
+    text
+}
