@@ -537,7 +537,7 @@ fn a_file_or_directory_named_like_a_built_in_does_not_shadow_it_and_a_name_of_ne
     let msg = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{msg}");
     assert!(
-        msg.contains("not a built-in scenario (paper, paper-noisy, field")
+        msg.contains("not a built-in scenario (paper, paper-noisy, field, crossing")
             && msg.contains("`./mine`"),
         "{msg}"
     );

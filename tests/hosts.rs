@@ -176,7 +176,9 @@ fn assert_same_run_across_hosts(agent: &Agent, placed: &[&str], scenario_args: &
             .find(|e| e["event"] == "spawned" && e["role"] == role)
             .map(|e| e["host"].clone())
     };
-    assert_eq!(spawned_on("mpc"), Some("compute".into()));
+    for role in placed {
+        assert_eq!(spawned_on(role), Some("compute".into()), "{role}");
+    }
     assert_eq!(spawned_on("dfl"), Some(serde_json::Value::Null));
 }
 
@@ -193,6 +195,13 @@ fn in_lockstep_the_field_with_the_mpc_and_the_planner_on_another_host_gives_the_
     let _machine = common::machine_shared();
     let agent = Agent::plain("compute");
     assert_same_run_across_hosts(&agent, &["mpc", "planner"], &["field"]);
+}
+
+#[test]
+fn in_lockstep_crossing_with_the_tracker_on_another_host_gives_the_same_bytes() {
+    let _machine = common::machine_shared();
+    let agent = Agent::plain("compute");
+    assert_same_run_across_hosts(&agent, &["tracker"], &["crossing"]);
 }
 
 #[test]

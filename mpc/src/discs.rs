@@ -103,17 +103,20 @@ pub struct StepGrowth {
 }
 
 /// The obstacles the MPC keeps clear of: those known from the scenario
-/// ([`protocol::Scenario::known_obstacles`]) and the newest tracks of the tracked ones.
+/// ([`protocol::Scenario::known_obstacles`]) and a track of each tracked one.
 #[derive(Debug, Clone)]
 pub struct World {
     known: Vec<protocol::Obstacle>,
     /// Whether any obstacle is tracked (none are with `fault.mpc_ignore_obstacles`).
     tracking: bool,
-    tracks: Vec<protocol::Track>,
-    /// The tracks' time, s.
-    tracks_time_s: f64,
+    /// The track kept of each tracked obstacle heard of, with its time, s.
+    tracks: Vec<(protocol::Track, f64)>,
     /// `perception.accel_max`, m/s^2.
     obstacle_accel_max: f64,
+    /// `kappa`.
+    uncertainty_sigmas: f64,
+    /// `N Ts`, s: a track is judged by its disc at the end of the horizon.
+    horizon_s: f64,
 }
 
 impl World {
@@ -123,8 +126,9 @@ impl World {
             known: scenario.known_obstacles().cloned().collect(),
             tracking: tracked > 0,
             tracks: Vec::with_capacity(tracked),
-            tracks_time_s: 0.0,
             obstacle_accel_max: scenario.perception.accel_max,
+            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
+            horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
         }
     }
 
@@ -133,12 +137,31 @@ impl World {
         &self.known
     }
 
-    /// Takes the tracker's newest tracks.
+    /// Takes the tracker's newest tracks: each replaces the one kept of its obstacle
+    /// unless that one, predicted on, still gives the smaller disc at the end of the
+    /// horizon. So a restarted tracker, which knows nothing of the velocities yet, takes
+    /// over once its tracks are better than the last ones of the process before it.
     pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
-        if self.tracking {
-            self.tracks.clear();
-            self.tracks.extend_from_slice(tracks.tracks());
-            self.tracks_time_s = tracks.header.time_s;
+        if !self.tracking {
+            return;
+        }
+        let time_s = tracks.header.time_s;
+        let judged_at = time_s + self.horizon_s;
+        let (kappa, accel_max) = (self.uncertainty_sigmas, self.obstacle_accel_max);
+        let growth = |(track, time): &(protocol::Track, f64)| {
+            prediction_growth_m(track, judged_at - time, kappa, accel_max)
+        };
+        for track in tracks.tracks() {
+            let new = (*track, time_s);
+            let kept = self
+                .tracks
+                .iter_mut()
+                .find(|(k, _)| k.obstacle == track.obstacle);
+            match kept {
+                Some(kept) if growth(&new) <= growth(kept) => *kept = new,
+                Some(_) => {}
+                None => self.tracks.push(new),
+            }
         }
     }
 
@@ -156,13 +179,18 @@ impl World {
             g.accel_max,
             discs,
         );
-        let age_s = t_s - self.tracks_time_s;
-        discs.extend(
-            self.tracks
-                .iter()
-                .map(|track| predicted_disc(track, age_s, &g, chord, self.obstacle_accel_max)),
-        );
+        discs.extend(self.tracks.iter().map(|(track, time_s)| {
+            predicted_disc(track, t_s - time_s, &g, chord, self.obstacle_accel_max)
+        }));
     }
+}
+
+/// What a track's disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
+/// `kappa (sigma_p + t sigma_v)` ([`protocol::Track::sigmas`]), and `accel_max t^2 / 2`.
+fn prediction_growth_m(track: &protocol::Track, age_s: f64, kappa: f64, accel_max: f64) -> f64 {
+    let age = age_s.max(0.0);
+    let (sigma_p, sigma_v) = track.sigmas();
+    kappa * (sigma_p + age * sigma_v) + 0.5 * accel_max * age * age
 }
 
 /// The disc `track` predicts `age_s` after the track's time (docs/safety.md, "Moving
@@ -180,13 +208,10 @@ fn predicted_disc(
     accel_max: f64,
 ) -> Disc {
     let age = age_s.max(0.0);
-    let (sigma_p, sigma_v) = track.sigmas();
+    let (_, sigma_v) = track.sigmas();
     let [vx, vy] = track.velocity;
     let kappa = g.uncertainty_sigmas;
-    let grown = track.radius_m
-        + g.margin_m
-        + kappa * (sigma_p + age * sigma_v)
-        + 0.5 * accel_max * age * age;
+    let grown = track.radius_m + g.margin_m + prediction_growth_m(track, age, kappa, accel_max);
     let chord = chord + vx.hypot(vy) * g.ts_s + 0.5 * accel_max * g.ts_s * g.ts_s;
     Disc {
         center: [

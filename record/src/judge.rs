@@ -410,6 +410,38 @@ mod tests {
         assert_eq!(m.final_outcome(), Outcome::Reached);
     }
 
+    #[test]
+    fn a_moving_obstacle_is_judged_where_it_is_and_a_contact_at_rest_is_counted_apart() {
+        // A person of radius 0.3 m walking along y = 5 at 1 m/s from x = -3.
+        let mut s = Scenario::default();
+        s.obstacles.push(Obstacle {
+            velocity: [1.0, 0.0],
+            ..Obstacle::fixed(-3.0, 5.0, 0.3)
+        });
+        // A robot standing at (0, 5) from t = 2 s to 4 s (not long enough to stall):
+        // touched from t = 2.7 s to 3.3 s, one contact at rest, and the run goes on.
+        let mut m = Judge::new(&s);
+        for k in 20..=40 {
+            assert_eq!(
+                m.observe(k as f64 * 0.1, 0.0, 5.0),
+                None,
+                "t = {}",
+                k as f64 * 0.1
+            );
+        }
+        assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
+        assert!(m.min_moving_clearance_m < -0.2 && m.min_clearance_m < -0.2);
+        // A robot moving into the same person: a collision.
+        let mut m = Judge::new(&s);
+        assert_eq!(m.observe(2.8, 0.1, 5.0), None);
+        assert_eq!(m.observe(2.9, 0.0, 5.0), Some(Outcome::Collided));
+        assert_eq!((m.contacts_at_rest, m.contacts_moving), (0, 1));
+        // Standing where the person was at t = 0 touches nothing at t = 3 s.
+        let mut m = Judge::new(&s);
+        assert_eq!(m.observe(3.0, -3.0, 5.0), None);
+        assert!(m.min_clearance_m > 2.0);
+    }
+
     /// A judge that watched a robot stand at `at` for the stall window.
     fn stood_at(scenario: &Scenario, at: [f64; 2]) -> (Judge, Outcome) {
         let mut m = Judge::new(scenario);

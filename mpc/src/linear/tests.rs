@@ -7,6 +7,7 @@ use protocol::{Obstacle, QpForm, TerminalSafety};
 use std::rc::Rc;
 
 mod implied_rows;
+mod moving;
 mod recursive_feasibility;
 
 /// Closed loop of the MPC on its own linear model (exact DFL): returns every plan.

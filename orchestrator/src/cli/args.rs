@@ -76,7 +76,7 @@ pub enum Command {
     /// alignment and fields (name, offset, type), the codes of every enumeration, and the
     /// environment a role process is started with (docs/python.md).
     Schema,
-    /// Print a built-in scenario (paper, paper-noisy, field) as TOML, to copy and edit.
+    /// Print a built-in scenario (paper, paper-noisy, field, crossing) as TOML, to copy and edit.
     Scenario {
         /// Name of the built-in scenario.
         #[arg(default_value = "paper")]

@@ -174,6 +174,18 @@ impl FaultConfig {
                 self.estimator_nan_from_s
             ));
         }
+        if self.tracker_delay_ms > 0.0 {
+            faults.push(format!(
+                "tracker delay {} ms per publication",
+                self.tracker_delay_ms
+            ));
+        }
+        if !self.tracker_drop_samples.is_empty() {
+            faults.push(format!(
+                "the tracker drops its measurements at samples {}",
+                set(&self.tracker_drop_samples)
+            ));
+        }
         if self.link_delay_ms > 0.0 {
             faults.push(format!("links delayed {} ms", self.link_delay_ms));
         }

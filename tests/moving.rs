@@ -1,0 +1,185 @@
+//! A world that moves (issue 45): obstacles with velocities, the tracker process, the
+//! MPC's CBFs on the discs its tracks predict, and contacts judged against the obstacles'
+//! true positions.
+
+mod common;
+
+use common::{csv, events, num, run, stderr, summary};
+use std::path::Path;
+
+/// Runs `args` (after `run`) into `dir`; its summary.
+fn run_into(dir: &Path, args: &[&str]) -> serde_json::Value {
+    let out = run(&[&["run", "--out", dir.to_str().unwrap()], args].concat());
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    summary(dir)
+}
+
+fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The tracks follow the crossing person: after the first second the estimate is within
+/// a few sigma of the truth, and the velocity near the person's 1 m/s.
+fn assert_tracks_follow_the_truth(dir: &Path) {
+    let rows = csv(&dir.join("tracks.csv"));
+    assert!(rows.len() >= 500, "{} rows", rows.len());
+    for row in rows.iter().filter(|r| num(r, "t") >= 1.0) {
+        let error = (num(row, "x") - num(row, "x_true")).hypot(num(row, "y") - num(row, "y_true"));
+        assert!(error <= 4.0 * num(row, "sigma_p_m").max(1e-3), "{row:?}");
+        assert!((num(row, "vy") - 1.0).abs() < 0.3, "{row:?}");
+    }
+}
+
+#[test]
+fn crossing_is_reached_without_contact_in_process_and_identically_in_lockstep() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let (inprocess, lockstep) = (dir.path().join("in-process"), dir.path().join("lockstep"));
+    let s = run_into(&inprocess, &["crossing", "--in-process"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["contacts_moving"], 0);
+    assert_eq!(s["contacts_at_rest"], 0);
+    assert!(s["min_moving_clearance_m"].as_f64().unwrap() > 0.0, "{s}");
+    assert_tracks_follow_the_truth(&inprocess);
+
+    let s = run_into(&lockstep, &["crossing"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert!(s["pids"]["tracker"].as_u64().is_some(), "{s}");
+    for file in ["trajectory.csv", "tracks.csv"] {
+        assert!(
+            read(&inprocess.join(file)) == read(&lockstep.join(file)),
+            "{file} differs between in process and lockstep"
+        );
+    }
+}
+
+#[test]
+fn without_the_tracks_the_robot_runs_into_the_crossing_person() {
+    // The same world with an MPC that ignores every obstacle (the DFL's check knows only
+    // the standing one): what the tracks keep the robot out of.
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(
+        dir.path(),
+        &[
+            "crossing",
+            "--in-process",
+            "--set",
+            "fault.mpc_ignore_obstacles=true",
+        ],
+    );
+    assert_eq!(s["outcome"], "collided", "{s}");
+    assert_eq!(s["contacts_moving"], 1);
+    assert!(s["min_moving_clearance_m"].as_f64().unwrap() < 0.0, "{s}");
+}
+
+#[test]
+fn a_world_at_rest_runs_no_tracker() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(dir.path(), &["--set", "duration_s=1"]);
+    assert!(s["pids"]["dfl"].as_u64().is_some(), "{s}");
+    assert!(s["pids"].get("tracker").is_none(), "{s}");
+    assert!(s["min_moving_clearance_m"].is_null(), "{s}");
+    assert!(!dir.path().join("tracks.csv").exists());
+}
+
+#[test]
+fn a_robot_at_rest_gets_out_of_the_way_of_an_obstacle_coming_at_it() {
+    // The robot's goal is its start: it stands there, and a person walks at it.
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("walk-through.toml");
+    std::fs::write(
+        &file,
+        "name = \"walk-through\"\nduration_s = 6.0\n\n[robot]\nstart = [0.0, 0.0, 0.0]\n\
+         goal = [0.0, 0.0]\n\n[[obstacles]]\nx = -3.0\ny = 0.0\nradius = 0.3\n\
+         velocity = [1.0, 0.0]\n",
+    )
+    .unwrap();
+    let run_dir = dir.path().join("run");
+    let s = run_into(&run_dir, &[file.to_str().unwrap(), "--in-process"]);
+    assert_eq!(s["contacts_at_rest"], 0, "{s}");
+    assert_eq!(s["contacts_moving"], 0, "{s}");
+    assert!(s["min_moving_clearance_m"].as_f64().unwrap() > 0.0, "{s}");
+    // Where the person passes at t = 3 s, the robot no longer is.
+    let rows = csv(&run_dir.join("trajectory.csv"));
+    let at_3_s = rows.iter().find(|r| num(r, "t") >= 3.0).unwrap();
+    assert!(num(at_3_s, "x").hypot(num(at_3_s, "y")) > 0.3, "{at_3_s:?}");
+}
+
+#[test]
+fn dropped_measurements_grow_the_tracks_uncertainty_and_the_robot_still_keeps_clear() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(
+        dir.path(),
+        &[
+            "crossing",
+            "--in-process",
+            "--set",
+            "fault.tracker_drop_samples=\"40..=60\"",
+        ],
+    );
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["contacts_moving"], 0);
+    let rows = csv(&dir.path().join("tracks.csv"));
+    let sigma_at = |sample: u64| {
+        rows.iter()
+            .find(|r| num(r, "tick") as u64 == sample * 10)
+            .map(|r| num(r, "sigma_p_m"))
+            .unwrap()
+    };
+    // Predicted without measurements from sample 40 on: the position's sigma grows, and
+    // shrinks again once they come back.
+    assert!(
+        sigma_at(60) > 3.0 * sigma_at(39),
+        "{} {}",
+        sigma_at(60),
+        sigma_at(39)
+    );
+    assert!(sigma_at(80) < sigma_at(60));
+    assert!(s["faults"].to_string().contains("tracker"), "{s}");
+}
+
+#[test]
+fn realtime_crossing_survives_a_kill_of_the_tracker_and_a_live_swap_of_it() {
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("crossing-swap.toml");
+    let crossing = run(&["scenario", "crossing"]);
+    let text = String::from_utf8_lossy(&crossing.stdout).to_string();
+    std::fs::write(
+        &file,
+        text + "\n[[swap]]\ntime_s = 12.0\nrole = \"tracker\"\ncommand = [\"scmpc\", \"tracker\"]\n",
+    )
+    .unwrap();
+    let run_dir = dir.path().join("run");
+    common::kill_role_during_run(
+        &run_dir,
+        &[
+            file.to_str().unwrap(),
+            "--mode",
+            "realtime",
+            "--set",
+            "duration_s=26",
+        ],
+        "tracker",
+        5.0,
+    );
+    let s = summary(&run_dir);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["contacts_moving"], 0);
+    assert_eq!(s["deadline_misses"], 0, "{s}");
+    let ev = events(&run_dir);
+    assert!(
+        common::has_event(&ev, "restarted", "tracker"),
+        "no restart of the tracker"
+    );
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "swapped" && e["role"] == "tracker"),
+        "no swap of the tracker"
+    );
+    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+}
