@@ -108,6 +108,31 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
 }
 
 #[test]
+fn run_mcap_shows_the_moving_obstacles_every_tick_and_the_tracks_with_their_predicted_discs() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&["run", "crossing", "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let topics = read_mcap(&out_dir, false);
+    let count = |topic: &str| topics[topic]["count"].as_u64().unwrap_or(0) as usize;
+    let ticks = Table::read(&out_dir.join("trajectory.csv")).unwrap().len();
+    assert_eq!(count("/world/moving_obstacles"), ticks);
+    // The person crossing moves; the one standing is in the world at rest.
+    assert_eq!(
+        topics["/world/moving_obstacles"]["entities"]["obstacles_moving"],
+        1
+    );
+    assert_eq!(topics["/world/obstacles"]["entities"]["obstacles"], 1);
+    let tracks = Table::read(&out_dir.join("tracks.csv")).unwrap().len();
+    assert_eq!(count("/tracker/tracks"), tracks);
+    let entities = &topics["/tracker/tracks"]["entities"];
+    assert_eq!(entities["tracks"], 1);
+    assert_eq!(entities["predicted"], 8, "a disc per stage of N = 8");
+    assert_eq!(topics["/tracker/tracks"]["schema"], "foxglove.SceneUpdate");
+}
+
+#[test]
 fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();

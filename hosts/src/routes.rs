@@ -78,7 +78,7 @@ fn push_once(list: &mut Vec<String>, topic: &str) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use runtime::ipc::{ESTIMATE, MEASUREMENT, PLAN, ROUTE};
+    use runtime::ipc::{ESTIMATE, MEASUREMENT, PLAN, ROUTE, TRACKS};
 
     #[test]
     fn only_topics_crossing_a_host_boundary_cross_and_a_third_host_gets_them_through_the_orchestrator()
@@ -91,9 +91,13 @@ mod tests {
         });
         assert_eq!(routes.host_sends["compute"], [PLAN, STATUS]);
         assert_eq!(routes.host_sends["planning"], [ROUTE, STATUS]);
-        assert_eq!(routes.host_receives["compute"], [ESTIMATE, ROUTE, CONTROL]);
+        assert_eq!(
+            routes.host_receives["compute"],
+            [ESTIMATE, ROUTE, TRACKS, CONTROL]
+        );
         assert_eq!(routes.host_receives["planning"], [ESTIMATE, CONTROL]);
         assert_eq!(routes.orchestrator_sends[ROUTE], ["compute"]);
+        assert_eq!(routes.orchestrator_sends[TRACKS], ["compute"]);
         assert!(!routes.orchestrator_sends.contains_key(MEASUREMENT));
         assert!(
             !routes.orchestrator_sends.contains_key(PLAN),

@@ -99,7 +99,8 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
 
-/// A robot slower than this over an inner tick is at rest, m/s.
+/// A robot whose commanded forward speed (the DFL's ζ) is below this is at rest, m/s: a
+/// disturbance may still push it about, but it does not drive into anything.
 pub const REST_SPEED_M_S: f64 = 1e-3;
 
 /// A robot farther than this from the straight start-goal line has left it, m.
@@ -122,8 +123,10 @@ pub struct Judge {
     pub contacts_moving: u64,
     /// Contacts a moving obstacle made with the robot at rest (the run goes on).
     pub contacts_at_rest: u64,
-    /// Whether the robot is in contact with an obstacle at the newest tick.
-    in_contact: bool,
+    /// The contact at the newest tick, if any: whether it is one at rest.
+    contact: Option<bool>,
+    /// The robot's commanded forward speed at the newest tick, m/s ([`Judge::tick`]).
+    commanded_speed_m_s: f64,
     /// Start of the current stay within the goal tolerance.
     pub inside_goal_since_s: Option<f64>,
     pub last_distance_to_goal_m: f64,
@@ -152,7 +155,8 @@ impl Judge {
             min_moving_clearance_m: f64::INFINITY,
             contacts_moving: 0,
             contacts_at_rest: 0,
-            in_contact: false,
+            contact: None,
+            commanded_speed_m_s: 0.0,
             inside_goal_since_s: None,
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
@@ -223,9 +227,11 @@ impl Judge {
         clearance_m(&self.obstacles, &self.footprint, t_s, [x, y])
     }
 
-    /// A tick recorded: the truth at its start. Returns an outcome that ends the run now
-    /// (a collision or a stall).
-    pub fn tick(&mut self, truth: &GroundTruth) -> Option<Outcome> {
+    /// A tick recorded: the truth at its start, and the forward speed the DFL commands
+    /// over it (its ζ), m/s. Returns an outcome that ends the run now (a collision or a
+    /// stall).
+    pub fn tick(&mut self, truth: &GroundTruth, commanded_speed_m_s: f64) -> Option<Outcome> {
+        self.commanded_speed_m_s = commanded_speed_m_s;
         self.observe(truth.header.time_s, truth.pose[0], truth.pose[1])
     }
 
@@ -238,7 +244,7 @@ impl Judge {
     /// there is one) is judged too.
     pub fn end_of_run(&mut self, truth: Option<&GroundTruth>) -> Outcome {
         truth
-            .and_then(|truth| self.tick(truth))
+            .and_then(|truth| self.tick(truth, self.commanded_speed_m_s))
             .unwrap_or_else(|| self.final_outcome())
     }
 
@@ -252,12 +258,6 @@ impl Judge {
             .map(|o| clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]))
             .fold(f64::INFINITY, f64::min);
         self.min_moving_clearance_m = self.min_moving_clearance_m.min(moving_clearance);
-        let dt = t_s - self.last_time_s;
-        let speed = if dt > 0.0 {
-            (x - self.last_position[0]).hypot(y - self.last_position[1]) / dt
-        } else {
-            0.0
-        };
         self.last_time_s = t_s;
         if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
             self.deviation_time_s = Some(t_s);
@@ -270,17 +270,24 @@ impl Judge {
         } else {
             self.inside_goal_since_s = None;
         }
-        let entered = clearance < 0.0 && !self.in_contact;
-        self.in_contact = clearance < 0.0;
-        if clearance < 0.0 {
-            // At rest only against an obstacle that is moving then: the robot must have
-            // moved into one at rest.
-            let pushed = speed < REST_SPEED_M_S && self.contact_with_moving(t_s, x, y);
-            if !pushed {
+        let at_rest = self.commanded_speed_m_s.abs() < REST_SPEED_M_S;
+        // A contact is judged when it starts, and stays what it was until it ends (the
+        // obstacle may stop in the robot, the robot may drive out of its way). It starts
+        // at rest only against an obstacle moving then: a robot at rest cannot enter one
+        // at rest.
+        let contact = (clearance < 0.0).then(|| {
+            self.contact
+                .unwrap_or_else(|| at_rest && self.contact_with_moving(t_s, x, y))
+        });
+        let entered = contact.is_some() && self.contact.is_none();
+        self.contact = contact;
+        match contact {
+            Some(false) => {
                 self.contacts_moving += 1;
                 return Some(Outcome::Collided);
             }
-            self.contacts_at_rest += u64::from(entered);
+            Some(true) => self.contacts_at_rest += u64::from(entered),
+            None => {}
         }
         self.window.push_back((t_s, x, y));
         // Keep the newest sample at least a window old at the front (the tick need not
@@ -420,22 +427,31 @@ mod tests {
         });
         // A robot standing at (0, 5) from t = 2 s to 4 s (not long enough to stall):
         // touched from t = 2.7 s to 3.3 s, one contact at rest, and the run goes on.
+        let truth = |t: f64, x: f64| GroundTruth {
+            pose: [x, 5.0, 0.0],
+            header: protocol::Header {
+                time_s: t,
+                ..protocol::Header::default()
+            },
+        };
         let mut m = Judge::new(&s);
         for k in 20..=40 {
-            assert_eq!(
-                m.observe(k as f64 * 0.1, 0.0, 5.0),
-                None,
-                "t = {}",
-                k as f64 * 0.1
-            );
+            let t = k as f64 * 0.1;
+            assert_eq!(m.tick(&truth(t, 0.0), 0.0), None, "t = {t}");
         }
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
         assert!(m.min_moving_clearance_m < -0.2 && m.min_clearance_m < -0.2);
-        // A robot moving into the same person: a collision.
+        // A robot driving into the same person: a collision.
         let mut m = Judge::new(&s);
-        assert_eq!(m.observe(2.8, 0.1, 5.0), None);
-        assert_eq!(m.observe(2.9, 0.0, 5.0), Some(Outcome::Collided));
+        assert_eq!(m.tick(&truth(2.8, 0.1), -0.5), None);
+        assert_eq!(m.tick(&truth(2.9, 0.05), -0.5), Some(Outcome::Collided));
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (0, 1));
+        // A robot at rest that drives out of the person's way while in contact: still the
+        // contact at rest it was.
+        let mut m = Judge::new(&s);
+        assert_eq!(m.tick(&truth(2.9, 0.0), 0.0), None);
+        assert_eq!(m.tick(&truth(3.0, 0.05), 0.3), None);
+        assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
         // Standing where the person was at t = 0 touches nothing at t = 3 s.
         let mut m = Judge::new(&s);
         assert_eq!(m.observe(3.0, -3.0, 5.0), None);

@@ -323,8 +323,11 @@ impl Recorder {
     }
 
     /// The tracker's tracks, as published after each measurement: a `tracks.csv` row per
-    /// track, with the obstacle's true centre beside it.
+    /// track, with the obstacle's true centre beside it, and the tracks in `run.mcap`.
     pub fn tracks(&mut self, tracks: &Tracks) -> std::io::Result<()> {
+        if let Some(mcap) = &mut self.mcap {
+            mcap.tracks(tracks);
+        }
         let file = match &mut self.tracks {
             Some(file) => file,
             None => self.tracks.insert(csv_file(

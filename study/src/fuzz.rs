@@ -22,6 +22,7 @@
 //! | output noise | `plant.noise_variance` 0–0.01 (`--set plant.noise_variance=...` forces one) |
 //! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
+//! | moving obstacles | in half the worlds 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
@@ -132,7 +133,113 @@ fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
             }
         })
         .collect();
+    let mut moving = ChaCha8Rng::seed_from_u64(rng.random::<u64>() ^ 0x6d6f_7669_6e67);
+    if moving.random_bool(0.5) {
+        let way = Way {
+            start,
+            along: along_line,
+            normal,
+            span,
+        };
+        let count = moving.random_range(1..=2);
+        s.obstacles
+            .extend((0..count).map(|_| moving_obstacle(&mut moving, &way)));
+        s.perception.noise_std = if moving.random_bool(0.5) { 0.02 } else { 0.0 };
+    }
     s
+}
+
+/// The straight way from the start to the goal: where it starts, its unit direction and
+/// normal, its length, m.
+struct Way {
+    start: [f64; 2],
+    along: [f64; 2],
+    normal: [f64; 2],
+    span: f64,
+}
+
+impl Way {
+    /// The point `along_m` along the way and `aside_m` to its left.
+    fn at(&self, along_m: f64, aside_m: f64) -> [f64; 2] {
+        [0, 1].map(|a| self.start[a] + along_m * self.along[a] + aside_m * self.normal[a])
+    }
+}
+
+/// A person on the way (module docs): crossing it, coming along it, or stepping into it and
+/// standing.
+fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way) -> Obstacle {
+    let radius = rng.random_range(0.2..0.4);
+    let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+    match rng.random_range(0..3) {
+        0 => {
+            let speed = rng.random_range(0.5..1.5);
+            let level_at_s = 2.0 + way.span;
+            let [x, y] = way.at(way.span * rng.random_range(0.3..0.7), 0.0);
+            let v = way.normal.map(|n| side * speed * n);
+            Obstacle {
+                velocity: v,
+                ..Obstacle::fixed(x - v[0] * level_at_s, y - v[1] * level_at_s, radius)
+            }
+        }
+        1 => {
+            let speed = rng.random_range(0.3..1.0);
+            let from = way.span * rng.random_range(0.8..1.2);
+            let [x, y] = way.at(from, side * rng.random_range(0.0..0.5));
+            Obstacle {
+                velocity: way.along.map(|a| -speed * a),
+                ..Obstacle::fixed(x, y, radius)
+            }
+        }
+        _ => {
+            let along = way.span * rng.random_range(0.3..0.7);
+            let aside = side * rng.random_range(1.5..3.0);
+            let leaves_s = rng.random_range(1.0..6.0);
+            let speed = rng.random_range(0.5..1.2);
+            let path = step_in(aside.abs(), speed, leaves_s)
+                .map(|(t, d)| {
+                    let [x, y] = way.at(along, side * (aside.abs() - d));
+                    [t, x, y]
+                })
+                .collect();
+            Obstacle {
+                x: f64::NAN,
+                y: f64::NAN,
+                radius,
+                velocity: [0.0; 2],
+                path,
+            }
+        }
+    }
+}
+
+/// Acceleration of a person stepping into the way, m/s^2: within the tracker's default
+/// bound (`perception.accel_max`), the assumption of passive safety (docs/safety.md).
+const STEP_IN_ACCEL: f64 = 0.5;
+
+/// `(t, distance walked)` every 0.1 s of a walk of `distance_m` from rest to rest,
+/// leaving at `leaves_s`: accelerating at [`STEP_IN_ACCEL`] up to `speed_m_s` (or half way),
+/// on at that speed, braking the same to stop there; from rest at `(0, 0)`.
+fn step_in(distance_m: f64, speed_m_s: f64, leaves_s: f64) -> impl Iterator<Item = (f64, f64)> {
+    let a = STEP_IN_ACCEL;
+    let top = speed_m_s.min((a * distance_m).sqrt());
+    let ramp_s = top / a;
+    let cruise_s = (distance_m - top * ramp_s) / top;
+    let walk_s = 2.0 * ramp_s + cruise_s;
+    let walked = move |t: f64| {
+        if t <= ramp_s {
+            0.5 * a * t * t
+        } else if t <= ramp_s + cruise_s {
+            0.5 * top * ramp_s + top * (t - ramp_s)
+        } else {
+            let left = (walk_s - t).max(0.0);
+            distance_m - 0.5 * a * left * left
+        }
+    };
+    let steps = (walk_s / 0.1).ceil() as usize;
+    std::iter::once((0.0, 0.0)).chain((0..=steps).map(move |k| {
+        let t = (k as f64 * 0.1).min(walk_s);
+        (leaves_s + t, walked(t))
+    }))
 }
 
 /// The outcome of a batch.
@@ -220,6 +327,14 @@ impl Report {
             "  {} worlds; safety interventions {interventions}, solver failures {failures}\n",
             self.results.len()
         );
+        let at_rest = self
+            .results
+            .iter()
+            .filter(|r| r.as_ref().is_ok_and(|s| s.contacts_at_rest > 0))
+            .count();
+        if at_rest > 0 {
+            out += &format!("  contacts at rest in {at_rest} worlds\n");
+        }
         if self.count(Outcome::NoRoute) > 0 {
             out += &format!(
                 "  reached {:.1} % of the worlds with a route\n",
@@ -273,15 +388,16 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,file"
+        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
         let [x, y, _] = s.robot.start;
         let params = format!(
-            "{},{},{:.4},{},{:.4},{:.3},{},{:.4},{:.2},{:.3},{:.3},{:.3}",
+            "{},{},{},{:.4},{},{:.4},{:.3},{},{:.4},{:.2},{:.3},{:.3},{:.3}",
             world.index,
             s.obstacles.len(),
+            s.obstacles.iter().filter(|o| o.moves()).count(),
             s.timing.ts_s,
             s.mpc.horizon,
             s.mpc.gamma,
@@ -304,7 +420,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{},{:.6},{:.3},{},{},{},{},{file}",
+                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.stall_reason.map_or("", |reason| reason.as_str()),
                 r.min_clearance_m,
@@ -314,10 +430,11 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
                 r.safety_interventions,
                 r.solver_failures,
                 r.deadline_misses,
+                r.contacts_at_rest,
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,,,{file}",
+                "{params},error: {},,,,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }

@@ -54,7 +54,7 @@ def add(topics, schema, channel, message):
         t.setdefault("epochs", []).append(body["epoch"])
     elif channel.topic == "/mpc/plan":
         t.setdefault("poses", []).append(len(body["poses"]))
-    elif channel.topic == "/world/obstacles":
+    elif channel.topic in ("/world/obstacles", "/world/moving_obstacles", "/tracker/tracks"):
         t["entities"] = {e["id"]: len(e["cylinders"]) + len(e["spheres"]) for e in body["entities"]}
     if channel.topic in ("/robot/truth", "/dfl/deadline"):
         t["log_time_ns"].append(message.log_time)

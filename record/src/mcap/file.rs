@@ -12,6 +12,10 @@ pub(super) struct McapFile {
     /// Reused for every message: its JSON, and a plan's or a route's poses.
     json: Vec<u8>,
     poses: Vec<Pose>,
+    /// The obstacles that move: their true positions are logged every tick.
+    moving: Vec<protocol::Obstacle>,
+    /// How a track's predicted disc grows ([`foxglove::tracks`]).
+    prediction: Prediction,
 }
 
 /// An error of the MCAP writer, as an I/O error (the recorder's).
@@ -50,6 +54,13 @@ impl McapFile {
             timing: scenario.timing.clone(),
             json: Vec::with_capacity(4096),
             poses: Vec::with_capacity(protocol::MAX_HORIZON + 1),
+            moving: scenario
+                .obstacles
+                .iter()
+                .filter(|o| o.moves())
+                .cloned()
+                .collect(),
+            prediction: Prediction::of(scenario),
         };
         log.write_serde("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
@@ -60,6 +71,14 @@ impl McapFile {
             Record::Tick(tick) => self.tick(&tick.0, &tick.1, &tick.2),
             Record::Plan(plan) => self.plan(&plan),
             Record::Route(route) => self.route(&route),
+            Record::Tracks(tracks) => {
+                let t = tracks.header.time_s;
+                self.write_serde(
+                    "/tracker/tracks",
+                    t,
+                    &tracks_scene(&tracks, &self.prediction),
+                )
+            }
             Record::Verdict(v) => self.verdict(&v),
             Record::Event(t, event, line) => self.event(t, &event, &line),
         }
@@ -122,6 +141,13 @@ impl McapFile {
         let t = truth.header.time_s;
         let [x, y, theta] = truth.pose;
         self.write("/robot/truth", t, &PoseInFrame::new(t, pose(x, y, theta)))?;
+        if !self.moving.is_empty() {
+            self.write_serde(
+                "/world/moving_obstacles",
+                t,
+                &moving_obstacles(t, &self.moving),
+            )?;
+        }
         let [xh, yh, thetah, zeta] = estimate.state;
         self.write(
             "/robot/estimate",

@@ -257,7 +257,91 @@ pub(super) fn entity(t: f64, id: &str, cylinders: Vec<Value>, spheres: Vec<Value
     })
 }
 
-/// The obstacles as they are (grey) and grown by the robot's radius and
+/// A flat disc (a cylinder) centred at `center`, of `radius`, `height` and colour `c`.
+fn cylinder([x, y]: [f64; 2], radius: f64, height: f64, c: Value) -> Value {
+    json!({
+        "pose": pose(x, y, 0.0),
+        "size": { "x": 2.0 * radius, "y": 2.0 * radius, "z": height },
+        "bottom_scale": 1.0, "top_scale": 1.0, "color": c,
+    })
+}
+
+/// The moving obstacles where they truly are at `t` (grey, as those at rest).
+pub(super) fn moving_obstacles(t: f64, moving: &[protocol::Obstacle]) -> Value {
+    let discs = moving
+        .iter()
+        .map(|o| {
+            cylinder(
+                o.center_at(t),
+                o.radius,
+                OBSTACLE_HEIGHT_M,
+                color(0.45, 0.45, 0.45, 1.0),
+            )
+        })
+        .collect();
+    json!({ "deletions": [], "entities": [entity(t, "obstacles_moving", discs, vec![])] })
+}
+
+/// How a track's disc is predicted for the picture: `kappa`, the acceleration bound, and
+/// the stages of a plan (as the MPC grows it, without the robot's own margins).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Prediction {
+    kappa: f64,
+    accel_max: f64,
+    ts_s: f64,
+    horizon: usize,
+}
+
+impl Prediction {
+    pub(super) fn of(scenario: &Scenario) -> Prediction {
+        Prediction {
+            kappa: scenario.mpc.uncertainty_sigmas,
+            accel_max: scenario.perception.accel_max,
+            ts_s: scenario.timing.ts_s,
+            horizon: scenario.mpc.horizon,
+        }
+    }
+}
+
+/// The tracker's tracks: each estimated disc (blue, grown by `kappa sigma_p`), and the
+/// discs it predicts for the stages of a plan (faint blue; grown by
+/// `kappa (sigma_p + t sigma_v) + accel_max t^2 / 2`, as the MPC's are before its own
+/// margins).
+pub(super) fn tracks_scene(tracks: &Tracks, p: &Prediction) -> Value {
+    let t0 = tracks.header.time_s;
+    let (mut estimated, mut predicted) = (Vec::new(), Vec::new());
+    for track in tracks.tracks() {
+        let (sigma_p, sigma_v) = track.sigmas();
+        let blue = color(0.2, 0.4, 0.95, 0.8);
+        estimated.push(cylinder(
+            track.center,
+            track.radius_m + p.kappa * sigma_p,
+            OBSTACLE_HEIGHT_M,
+            blue,
+        ));
+        for i in 1..=p.horizon {
+            let t = i as f64 * p.ts_s;
+            let center = [
+                track.center[0] + track.velocity[0] * t,
+                track.center[1] + track.velocity[1] * t,
+            ];
+            let radius =
+                track.radius_m + p.kappa * (sigma_p + t * sigma_v) + 0.5 * p.accel_max * t * t;
+            predicted.push(cylinder(
+                center,
+                radius,
+                0.1 * OBSTACLE_HEIGHT_M,
+                color(0.2, 0.4, 0.95, 0.15),
+            ));
+        }
+    }
+    json!({
+        "deletions": [],
+        "entities": [entity(t0, "tracks", estimated, vec![]), entity(t0, "predicted", predicted, vec![])],
+    })
+}
+
+/// The obstacles at rest as they are (grey) and grown by the robot's radius and
 /// `mpc.safety_margin_m` (translucent red; the MPC grows them further by `κσ`), the
 /// start and the goal.
 pub(super) fn world(scenario: &Scenario) -> Value {
@@ -269,14 +353,11 @@ pub(super) fn world(scenario: &Scenario) -> Value {
             "bottom_scale": 1.0, "top_scale": 1.0, "color": c,
         })
     };
-    let obstacles = scenario
-        .obstacles
-        .iter()
+    let at_rest = || scenario.obstacles.iter().filter(|o| !o.moves());
+    let obstacles = at_rest()
         .map(|o| disc(o, o.radius, OBSTACLE_HEIGHT_M, color(0.45, 0.45, 0.45, 1.0)))
         .collect();
-    let inflated = scenario
-        .obstacles
-        .iter()
+    let inflated = at_rest()
         .map(|o| {
             disc(
                 o,

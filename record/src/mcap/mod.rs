@@ -20,7 +20,7 @@ use file::McapFile;
 use foxglove::*;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
-    Route, Scenario, Timing,
+    Route, Scenario, Timing, Tracks,
 };
 use serde::Serialize;
 use serde_json::{Value, json};
@@ -35,9 +35,19 @@ use std::time::{Duration, Instant};
 type Channel = (&'static str, &'static str, fn() -> Value);
 
 /// Every channel of `run.mcap`.
-const CHANNELS: [Channel; 10] = [
+const CHANNELS: [Channel; 12] = [
     (
         "/world/obstacles",
+        "foxglove.SceneUpdate",
+        scene_update_schema,
+    ),
+    (
+        "/world/moving_obstacles",
+        "foxglove.SceneUpdate",
+        scene_update_schema,
+    ),
+    (
+        "/tracker/tracks",
         "foxglove.SceneUpdate",
         scene_update_schema,
     ),
@@ -76,6 +86,7 @@ enum Record {
     Tick(Box<(GroundTruth, Estimate, Actuation)>),
     Plan(Box<Plan>),
     Route(Box<Route>),
+    Tracks(Box<Tracks>),
     Verdict(DeadlineVerdict),
     Event(f64, String, Value),
 }
@@ -158,6 +169,10 @@ impl McapLog {
 
     pub fn route(&mut self, route: &Route) {
         self.send(Record::Route(Box::new(*route)));
+    }
+
+    pub fn tracks(&mut self, tracks: &Tracks) {
+        self.send(Record::Tracks(Box::new(*tracks)));
     }
 
     pub fn verdict(&mut self, v: &DeadlineVerdict) {

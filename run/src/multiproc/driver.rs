@@ -232,7 +232,7 @@ impl<'a> Driver<'a> {
             return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
         }
         let truth = self.intake.record(slot, self.parts.recorder)?;
-        Ok(truth.and_then(|truth| self.judge.tick(&truth)))
+        Ok(truth.and_then(|(truth, speed)| self.judge.tick(&truth, speed)))
     }
 
     /// Takes everything received, without waiting.

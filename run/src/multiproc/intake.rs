@@ -214,12 +214,13 @@ impl Intake {
         self.slots.remove(&tick).unwrap_or_default()
     }
 
-    /// Records the tick of `slot` if the plant was commanded at it; returns its truth.
+    /// Records the tick of `slot` if the plant was commanded at it; returns its truth and
+    /// the forward speed commanded over it (the DFL's ζ), m/s.
     pub fn record(
         &mut self,
         slot: TickSlot,
         recorder: &mut Recorder,
-    ) -> anyhow::Result<Option<GroundTruth>> {
+    ) -> anyhow::Result<Option<(GroundTruth, f64)>> {
         let (Some(truth), Some(measurement), Some((act, own_latency))) =
             (slot.truth, slot.measurement, slot.actuation)
         else {
@@ -257,7 +258,7 @@ impl Intake {
             self.last_sensor_to_actuator_ns = Some(ns);
         }
         recorder.tick(&truth, &estimate, &act)?;
-        Ok(Some(truth))
+        Ok(Some((truth, act.zeta)))
     }
 
     /// Records every route and plan received, then every deadline verdict (the DFL judges
