@@ -402,6 +402,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["bench", "--realtime-s", "0"], "--realtime-s"),
         (&["bench", "--realtime-s=-1"], "--realtime-s"),
         (&["fuzz", "--mcap"], "--mcap"),
+        (&["fuzz", "--people", "1.5"], "--people"),
         (&["sweep", "--grid", "mpc.gama=0.1,0.2"], "mpc.gama"),
         (
             &[

@@ -60,7 +60,7 @@ fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
     let _machine = common::machine_shared();
     // Each fault key with a value that exercises it, over the part of the run it acts in
     // (the links' faults need a second host and real time: tests/hosts.rs).
-    let cases: [(&str, &[&str]); 7] = [
+    let cases: [(&str, &[&str]); 9] = [
         (
             "mpc_delay_ms",
             &[
@@ -86,6 +86,18 @@ fn every_fault_gives_the_same_run_in_process_and_in_lockstep() {
         ("estimator_delay_ms", &["fault.estimator_delay_ms=0.2"]),
         ("mpc_ignore_obstacles", &["fault.mpc_ignore_obstacles=true"]),
         ("estimator_nan_from_s", &["fault.estimator_nan_from_s=3"]),
+        // The tracker's, with the paper's obstacle tracked (a tracker runs).
+        (
+            "tracker_delay_ms",
+            &["perception.kind=track", "fault.tracker_delay_ms=0.2"],
+        ),
+        (
+            "tracker_drop_samples",
+            &[
+                "perception.kind=track",
+                "fault.tracker_drop_samples=[20, 21, 22]",
+            ],
+        ),
     ];
     let keys = serde_json::to_value(protocol::FaultConfig::default()).unwrap();
     let keys: Vec<&String> = keys

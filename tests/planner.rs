@@ -33,6 +33,9 @@ fn with_the_planner_random_worlds_reach_the_goal_when_a_route_exists_and_never_c
         "17",
         "--set",
         "planner.kind=route",
+        // The planner's worlds at rest (people on the way: tests/fuzz.rs, tests/moving.rs).
+        "--people",
+        "0",
         "--out",
         dir.path().to_str().unwrap(),
     ]);

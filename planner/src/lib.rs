@@ -51,6 +51,8 @@ const FREE_END_M: f64 = 1e-6;
 /// The planner's state across samples: the newest route and what decides the next plan.
 pub struct Planner {
     graph: TangentGraph,
+    /// The obstacles at rest known from the scenario: the route goes round them; the
+    /// tracked ones are the MPC's (docs/planner.md).
     obstacles: Vec<protocol::Obstacle>,
     discs: Vec<Disc>,
     goal: [f64; 2],
@@ -83,7 +85,7 @@ impl Planner {
         let m = &scenario.mpc;
         Planner {
             graph: TangentGraph::with_capacity(scenario.obstacles.len()),
-            obstacles: scenario.obstacles.clone(),
+            obstacles: scenario.known_obstacles().cloned().collect(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             goal: scenario.robot.goal,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,

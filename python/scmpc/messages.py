@@ -18,7 +18,8 @@ c_f64 = ctypes.c_double
 
 MAX_HORIZON = 64
 ROUTE_CAPACITY = 64
-ROLE_COUNT = 5
+ROLE_COUNT = 6
+MAX_TRACKS = 32
 MAX_COMMAND_BYTES = 1024
 MAX_REPLY_BYTES = 256
 SWITCH_UNSCHEDULED = 2**64 - 1
@@ -26,7 +27,7 @@ NO_PRODUCER = 2**32 - 1
 PLAN_MISSING = 2**32 - 1
 
 # Codes of the enumerations (``scmpc schema``, "codes").
-ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4}
+ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5}
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
 REJECTIONS = {
@@ -53,6 +54,7 @@ OUTPUT_SLOTS = {
     "actuation": 0,
     "deadline": 1,
     "route": 0,
+    "tracks": 0,
 }
 
 
@@ -211,6 +213,37 @@ class Route(Message):
         )
 
 
+class Track(Message):
+    _fields_ = [
+        ("obstacle", c_u32),
+        ("reserved", c_u32),
+        ("radius_m", c_f64),
+        ("center", c_f64 * 2),
+        ("velocity", c_f64 * 2),
+        ("covariance", c_f64 * 6),
+    ]
+
+
+class Tracks(Message):
+    _fields_ = [
+        ("header", Header),
+        ("count", c_u32),
+        ("dropped", c_u32),
+        ("tracks", Track * MAX_TRACKS),
+    ]
+
+    def floats(self):
+        n = min(self.count, MAX_TRACKS)
+        return [
+            x
+            for t in self.tracks[:n]
+            for x in (t.radius_m, *t.center, *t.velocity, *t.covariance)
+        ]
+
+    def well_formed(self):
+        return self.count <= MAX_TRACKS
+
+
 class Actuation(Message):
     _fields_ = [
         ("header", Header),
@@ -319,6 +352,7 @@ TOPICS = {
     "actuation": Actuation,
     "deadline": DeadlineVerdict,
     "route": Route,
+    "tracks": Tracks,
     "control": Control,
     "status": Status,
     "swap": SwapRequest,
@@ -336,6 +370,8 @@ TYPES = [
     Route,
     Actuation,
     DeadlineVerdict,
+    Track,
+    Tracks,
     Control,
     Status,
     SwapRequest,

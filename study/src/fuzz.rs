@@ -22,7 +22,7 @@
 //! | output noise | `plant.noise_variance` 0–0.01 (`--set plant.noise_variance=...` forces one) |
 //! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
-//! | moving obstacles | in half the worlds 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
+//! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
@@ -45,6 +45,9 @@ use std::sync::atomic::AtomicBool;
 /// at an edge, already moving outwards, may have no way to stay in the box).
 pub const EDGE_M: f64 = 0.5;
 
+/// The share of the worlds with people on the way (moving obstacles) by default.
+pub const PEOPLE: f64 = 0.5;
+
 /// Draws of a world that its overrides make invalid before giving up.
 const MAX_DRAWS: usize = 100;
 
@@ -57,12 +60,17 @@ pub struct World {
 
 /// World `index` of the batch `seed`: the distribution of the module docs, `overrides`
 /// applied on top, validated.
-pub fn world(seed: u64, index: usize, overrides: &[String]) -> Result<World, ScenarioErrors> {
+pub fn world(
+    seed: u64,
+    index: usize,
+    people: f64,
+    overrides: &[String],
+) -> Result<World, ScenarioErrors> {
     let mut rng =
         ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64);
     let mut last_error = None;
     for _ in 0..MAX_DRAWS {
-        let scenario = draw(&mut rng, index).with_overrides(overrides)?;
+        let scenario = draw(&mut rng, index, people).with_overrides(overrides)?;
         match scenario.validated(&format!("fuzz world {index}")) {
             Ok(scenario) => return Ok(World { index, scenario }),
             Err(e) => last_error = Some(e),
@@ -72,7 +80,7 @@ pub fn world(seed: u64, index: usize, overrides: &[String]) -> Result<World, Sce
 }
 
 /// One draw from the distribution (before overrides).
-fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
+fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
     let mut s = Scenario {
         name: format!("fuzz-{index:04}"),
         seed: index as u64 + 1,
@@ -134,7 +142,7 @@ fn draw(rng: &mut ChaCha8Rng, index: usize) -> Scenario {
         })
         .collect();
     let mut moving = ChaCha8Rng::seed_from_u64(rng.random::<u64>() ^ 0x6d6f_7669_6e67);
-    if moving.random_bool(0.5) {
+    if moving.random_bool(people.clamp(0.0, 1.0)) {
         let way = Way {
             start,
             along: along_line,
@@ -240,6 +248,15 @@ fn step_in(distance_m: f64, speed_m_s: f64, leaves_s: f64) -> impl Iterator<Item
         let t = (k as f64 * 0.1).min(walk_s);
         (leaves_s + t, walked(t))
     }))
+}
+
+/// A batch of worlds: its seed (the same seed draws the same worlds), how many, and the
+/// share of them with people on the way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Batch {
+    pub seed: u64,
+    pub count: usize,
+    pub people: f64,
 }
 
 /// The outcome of a batch.
@@ -349,8 +366,11 @@ impl Report {
 /// scenario file under `out/failed/` for every world that did not reach the goal, and no
 /// run directories (a failed world replays with `scmpc run FILE`).
 pub fn run(
-    seed: u64,
-    count: usize,
+    Batch {
+        seed,
+        count,
+        people,
+    }: Batch,
     overrides: &[String],
     out: &Path,
     threads: usize,
@@ -358,7 +378,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Report> {
     let mut worlds = (0..count)
-        .map(|i| world(seed, i, overrides))
+        .map(|i| world(seed, i, people, overrides))
         .collect::<Result<Vec<_>, _>>()?;
     let runs: Vec<RunSpec> = worlds
         .iter()
@@ -448,17 +468,18 @@ mod tests {
 
     #[test]
     fn a_batch_is_the_same_for_a_seed_and_differs_across_seeds() {
-        let a = world(7, 3, &[]).unwrap().scenario;
-        assert_eq!(a, world(7, 3, &[]).unwrap().scenario);
-        assert_ne!(a, world(8, 3, &[]).unwrap().scenario);
-        assert_ne!(a, world(7, 4, &[]).unwrap().scenario);
+        let a = world(7, 3, PEOPLE, &[]).unwrap().scenario;
+        assert_eq!(a, world(7, 3, PEOPLE, &[]).unwrap().scenario);
+        assert_ne!(a, world(8, 3, PEOPLE, &[]).unwrap().scenario);
+        assert_ne!(a, world(7, 4, PEOPLE, &[]).unwrap().scenario);
     }
 
     #[test]
     fn every_world_is_valid_and_within_the_documented_distribution() {
         let (mut far, mut moving, mut noisy, mut disturbed) = (0, 0, 0, 0);
+        let mut with_people = 0;
         for i in 0..300 {
-            let s = world(1, i, &[]).unwrap().scenario;
+            let s = world(1, i, PEOPLE, &[]).unwrap().scenario;
             let [x, y, heading] = s.robot.start;
             let goal = s.robot.goal;
             let span = distance([x, y], goal);
@@ -472,7 +493,10 @@ mod tests {
             assert!((-PI..PI).contains(&heading));
             assert!((0.0..1.0).contains(&s.robot.zeta0));
             assert!((0.0..0.3).contains(&s.robot.radius_m));
-            assert!((1..=6).contains(&s.obstacles.len()));
+            let people = s.obstacles.iter().filter(|o| o.moves()).count();
+            assert!((1..=6).contains(&(s.obstacles.len() - people)));
+            assert!(people <= 2);
+            with_people += usize::from(people > 0);
             assert!((0.02..0.1).contains(&s.timing.ts_s));
             assert!((8..=20).contains(&s.mpc.horizon));
             assert!((0.05..=1.0).contains(&s.mpc.gamma));
@@ -483,7 +507,19 @@ mod tests {
             assert!((0.0..0.01).contains(&noise));
             assert!((0.0..0.02).contains(&s.plant.disturbance_std));
             assert_eq!(s.duration_s, 40.0 + 4.0 * (span - 9.0).max(0.0));
-            for o in &s.obstacles {
+            for o in s.obstacles.iter().filter(|o| o.moves()) {
+                assert!((0.2..0.4).contains(&o.radius));
+                // A person stepping in speeds up and slows down within the tracker's bound.
+                for w in o.path.windows(3) {
+                    let v = |a: &[f64; 3], b: &[f64; 3]| {
+                        [(b[1] - a[1]) / (b[0] - a[0]), (b[2] - a[2]) / (b[0] - a[0])]
+                    };
+                    let (v0, v1) = (v(&w[0], &w[1]), v(&w[1], &w[2]));
+                    let dv = (v1[0] - v0[0]).hypot(v1[1] - v0[1]);
+                    assert!(dv <= STEP_IN_ACCEL * 0.1 + 1e-9 || w[0][0] == 0.0, "{dv}");
+                }
+            }
+            for o in s.obstacles.iter().filter(|o| !o.moves()) {
                 assert!((0.2..1.5).contains(&o.radius));
                 let room = o.radius + s.robot.radius_m + 0.3;
                 assert!(distance([o.x, o.y], [x, y]) > room);
@@ -496,6 +532,7 @@ mod tests {
         }
         // Each part of the distribution is drawn.
         for (what, n) in [
+            ("with people", with_people),
             ("far", far),
             ("moving", moving),
             ("noisy", noisy),
@@ -512,10 +549,10 @@ mod tests {
             "robot.radius_m=0.4".to_string(),
         ];
         for i in 0..50 {
-            let s = world(3, i, &overrides).unwrap().scenario;
+            let s = world(3, i, PEOPLE, &overrides).unwrap().scenario;
             assert_eq!((s.mpc.gamma, s.robot.radius_m), (0.2, 0.4));
         }
-        let unknown = world(3, 0, &["mpc.gama=0.2".to_string()]).unwrap_err();
+        let unknown = world(3, 0, PEOPLE, &["mpc.gama=0.2".to_string()]).unwrap_err();
         assert_eq!(unknown.0[0].key, "mpc.gama");
     }
 }

@@ -187,6 +187,9 @@ pub struct FuzzArgs {
     /// Override a value in every world, e.g. `plant.noise_variance=0.01` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
+    /// Share of the worlds with people on the way (moving obstacles), 0 to 1.
+    #[arg(long, default_value_t = study::fuzz::PEOPLE)]
+    pub people: f64,
     /// Directory of fuzz.csv and the failed worlds [default: a fresh directory under runs/].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,

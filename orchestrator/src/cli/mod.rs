@@ -158,7 +158,13 @@ fn sweep(args: SweepArgs) -> CliResult {
 
 fn fuzz(args: FuzzArgs) -> CliResult {
     // Every world is drawn and validated before anything runs.
-    study::fuzz::world(args.seed, 0, &args.overrides).map_err(bad_input)?;
+    if !(0.0..=1.0).contains(&args.people) {
+        return Err(bad_input(format!(
+            "--people {}: must be a share of the worlds, 0 to 1",
+            args.people
+        )));
+    }
+    study::fuzz::world(args.seed, 0, args.people, &args.overrides).map_err(bad_input)?;
     let out = args
         .out
         .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fuzz-{}", args.seed)));
@@ -170,19 +176,18 @@ fn fuzz(args: FuzzArgs) -> CliResult {
         out.display()
     );
     let stop = run::stop::on_signals();
-    let report = study::fuzz::run(
-        args.seed,
-        args.count,
-        &args.overrides,
-        &out,
-        threads,
-        true,
-        &stop,
-    )
-    .map_err(|e| match e.downcast_ref::<protocol::ScenarioErrors>() {
-        Some(bad) => bad_input(bad),
-        None => CliError::Failed(e),
-    })?;
+    let batch = study::fuzz::Batch {
+        seed: args.seed,
+        count: args.count,
+        people: args.people,
+    };
+    let report =
+        study::fuzz::run(batch, &args.overrides, &out, threads, true, &stop).map_err(|e| {
+            match e.downcast_ref::<protocol::ScenarioErrors>() {
+                Some(bad) => bad_input(bad),
+                None => CliError::Failed(e),
+            }
+        })?;
     print!("{}", report.table());
     println!("fuzz directory: {}", out.display());
     run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
