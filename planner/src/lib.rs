@@ -199,6 +199,9 @@ impl Planner {
     /// that leaves a route.
     fn plan(&mut self, sample: u64, position: [f64; 2], growth_m: f64, reason: ReplanReason) {
         let started = std::time::Instant::now();
+        // A robot outside the position box (it fled a moving obstacle across the box's
+        // edge by a few millimetres) plans from the nearest point inside it.
+        let position = [0, 1].map(|a| position[a].clamp(self.bounds[a][0], self.bounds[a][1]));
         self.last_planned = Some(sample);
         let mut found = false;
         let widened = self.clearance_m + self.extra_clearance_m();
@@ -489,6 +492,15 @@ mod tests {
         let route = Planner::new(&s).step(0, &estimate_at(7.0, 7.0));
         assert_eq!(route.status(), Some(RouteStatus::NoRoute));
         assert_eq!(route.count, 0);
+    }
+
+    #[test]
+    fn a_robot_just_outside_the_position_box_plans_from_the_nearest_point_inside() {
+        let s = scenario(vec![Obstacle::fixed(3.0, 3.5, 1.5)]);
+        let route = Planner::new(&s).step(0, &estimate_at(-10.005, 7.0));
+        assert_eq!(route.status(), Some(RouteStatus::Ok));
+        assert_eq!(route.points()[0], [-10.0, 7.0]);
+        assert_eq!(route.points().last(), Some(&[0.0, 0.0]));
     }
 
     #[test]
