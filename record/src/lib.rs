@@ -305,13 +305,11 @@ impl Recorder {
         if let Some(mcap) = &mut self.mcap {
             mcap.route(route);
         }
-        let routes = match &mut self.routes {
-            Some(file) => file,
-            None => self.routes.insert(csv_file(
-                &self.dir.join("route.csv"),
-                &schema::ROUTE_COLUMNS,
-            )?),
-        };
+        let routes = opened(
+            &mut self.routes,
+            &self.dir.join("route.csv"),
+            &schema::ROUTE_COLUMNS,
+        )?;
         for [x, y] in route.points() {
             writeln!(
                 routes,
@@ -328,13 +326,11 @@ impl Recorder {
         if let Some(mcap) = &mut self.mcap {
             mcap.tracks(tracks);
         }
-        let file = match &mut self.tracks {
-            Some(file) => file,
-            None => self.tracks.insert(csv_file(
-                &self.dir.join("tracks.csv"),
-                &schema::TRACK_COLUMNS,
-            )?),
-        };
+        let file = opened(
+            &mut self.tracks,
+            &self.dir.join("tracks.csv"),
+            &schema::TRACK_COLUMNS,
+        )?;
         let t = tracks.header.time_s;
         for track in tracks.tracks() {
             let truth = self
@@ -543,6 +539,18 @@ fn csv_file(path: &Path, columns: &[&str]) -> std::io::Result<Lines> {
     writeln!(file, "{}", schema::header(columns))?;
     file.flush()?;
     Ok(file)
+}
+
+/// The CSV file in `slot`, created at `path` with `columns` the first time it is needed.
+fn opened<'a>(
+    slot: &'a mut Option<Lines>,
+    path: &Path,
+    columns: &[&str],
+) -> std::io::Result<&'a mut Lines> {
+    match slot {
+        Some(file) => Ok(file),
+        None => Ok(slot.insert(csv_file(path, columns)?)),
+    }
 }
 
 #[cfg(test)]
