@@ -26,24 +26,37 @@
 //! cheap lower bound (the chord's distance less the arc's largest departure from it,
 //! `|v| T^2 / 8`) settles almost every arc; only arcs close to a disc solve the cubic.
 
-use protocol::{Disc, ObstacleGrowth, Plan, Scenario};
+use protocol::{Disc, KeptTracks, ObstacleGrowth, Plan, Scenario, Tracks};
 
 /// The checks of one DFL: the obstacles, the braking model, the clock.
 #[derive(Debug, Clone)]
 pub struct Gatekeeper {
-    /// The obstacles (absolute, m) grown by the fixed part of the growth, before the
-    /// uncertainty term.
+    /// The obstacles known from the scenario (absolute, m) grown by the fixed part of the
+    /// growth, before the uncertainty term.
     discs: Vec<Disc>,
+    /// The tracked obstacles' tracks, when any obstacle is tracked: checked as discs that
+    /// move and grow as predicted (docs/safety.md, "Moving obstacles").
+    tracks: Option<KeptTracks>,
     growth: ObstacleGrowth,
     /// The fallback brake's deceleration, m/s^2.
     brake_decel: f64,
     ts_s: f64,
     inner_tick_s: f64,
+    /// `N Ts`, s: how long from now every choice is checked against a moving disc, the
+    /// robot at rest after its brake included ([`Gatekeeper::moving_brake_clearance`]).
+    horizon_s: f64,
+}
+
+/// When a check starts: `into_sample_s` into sample `sample`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Moment {
+    pub sample: u64,
+    pub into_sample_s: f64,
 }
 
 impl Gatekeeper {
-    /// The checks against the obstacles known from the scenario. A tracked obstacle is
-    /// not checked here: the MPC keeps its plans clear of its predicted discs.
+    /// The checks against the obstacles known from the scenario and, once tracks come
+    /// ([`Gatekeeper::set_tracks`]), against the discs the tracks predict.
     pub fn new(scenario: &Scenario) -> Gatekeeper {
         let growth = ObstacleGrowth::of(scenario);
         Gatekeeper {
@@ -51,10 +64,22 @@ impl Gatekeeper {
                 .known_obstacles()
                 .map(|o| Disc::around(o, growth.fixed_m))
                 .collect(),
+            tracks: scenario
+                .tracked()
+                .next()
+                .map(|_| KeptTracks::of(scenario)),
             growth,
             brake_decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,
             inner_tick_s: scenario.timing.dt_s(),
+            horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
+        }
+    }
+
+    /// Takes the tracker's newest tracks ([`KeptTracks::take`]).
+    pub fn set_tracks(&mut self, tracks: &Tracks) {
+        if let Some(kept) = &mut self.tracks {
+            kept.take(tracks);
         }
     }
 
@@ -72,26 +97,19 @@ impl Gatekeeper {
     }
 
     /// Checks the trajectory that flies `plan` from the state `z = [x, xdot, y, ydot]`
-    /// (absolute coordinates) at `into_sample_s` into sample `sample`, and then brakes,
-    /// against every disc grown by `grow` (m). Returns `None` when the trajectory stays
-    /// outside them, else its deepest entry found (negative clearance, m).
-    pub fn check(
-        &self,
-        plan: &Plan,
-        sample: u64,
-        into_sample_s: f64,
-        z: [f64; 4],
-        grow: f64,
-    ) -> Option<f64> {
+    /// (absolute coordinates) at `now`, and then brakes, against every disc grown by
+    /// `grow` (m). Returns `None` when the trajectory stays outside them, else its deepest
+    /// entry found (negative clearance, m).
+    pub fn check(&self, plan: &Plan, now: Moment, z: [f64; 4], grow: f64) -> Option<f64> {
         let start = [z[0], z[2]];
         let velocity = [z[1], z[3]];
-        let first = crate::covering_element(plan, sample);
+        let first = crate::covering_element(plan, now.sample);
         // The plan's stages from now: (acceleration, duration) of each.
         let stages = || {
             first.into_iter().flat_map(move |first| {
                 (first..plan.horizon as usize).map(move |i| {
                     let duration = if i == first {
-                        (self.ts_s - into_sample_s).max(0.0)
+                        (self.ts_s - now.into_sample_s).max(0.0)
                     } else {
                         self.ts_s
                     };
@@ -99,36 +117,67 @@ impl Gatekeeper {
                 })
             })
         };
-        let mut deepest: Option<f64> = None;
-        let mut note = |clearance: f64| {
-            if clearance < 0.0 {
-                deepest = Some(deepest.map_or(clearance, |d: f64| d.min(clearance)));
-            }
-        };
+        let mut deepest = Deepest::default();
         // Disc by disc, so that each disc's checked radius is computed once.
         for &Disc { center, radius, .. } in &self.discs {
             let radius = checked_radius(start, center, radius + grow);
             let (mut p, mut w) = (start, velocity);
             for (acc, duration) in stages() {
-                note(arc_clearance(p, w, acc, duration, center, radius));
+                deepest.note(arc_clearance(p, w, acc, duration, center, radius));
                 advance(&mut p, &mut w, acc, duration);
             }
+        }
+        for disc in self.moving_discs(start, now, grow) {
+            let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
+            for (acc, duration) in stages() {
+                deepest.note(moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed)));
+                advance(&mut p, &mut w, acc, duration);
+                elapsed += duration;
+            }
+            deepest.note(self.moving_brake_clearance(p, w, &disc, elapsed));
         }
         let (mut p, mut w) = (start, velocity);
         for (acc, duration) in stages() {
             advance(&mut p, &mut w, acc, duration);
         }
         if let Some(clearance) = self.brake_clearance(p, w, grow, start) {
-            note(clearance);
+            deepest.note(clearance);
         }
-        deepest
+        deepest.0
     }
 
-    /// Checks braking at once from the state `z = [x, xdot, y, ydot]` against every disc
-    /// grown by `grow` (m), as [`Gatekeeper::check`] does.
-    pub fn brake_check(&self, z: [f64; 4], grow: f64) -> Option<f64> {
-        let p = [z[0], z[2]];
-        self.brake_clearance(p, [z[1], z[3]], grow, p)
+    /// Checks braking at once from the state `z = [x, xdot, y, ydot]` at `now` against
+    /// every disc grown by `grow` (m), as [`Gatekeeper::check`] does.
+    pub fn brake_check(&self, z: [f64; 4], now: Moment, grow: f64) -> Option<f64> {
+        let (p, w) = ([z[0], z[2]], [z[1], z[3]]);
+        let mut deepest = Deepest::default();
+        if let Some(clearance) = self.brake_clearance(p, w, grow, p) {
+            deepest.note(clearance);
+        }
+        for disc in self.moving_discs(p, now, grow) {
+            deepest.note(self.moving_brake_clearance(p, w, &disc, 0.0));
+        }
+        deepest.0
+    }
+
+    /// The discs the tracks predict at `now`, grown by the fixed part and `grow` (m), as
+    /// a trajectory from `start` is checked against them ([`checked_radius`]): none
+    /// before the first track.
+    fn moving_discs(
+        &self,
+        start: [f64; 2],
+        now: Moment,
+        grow: f64,
+    ) -> impl Iterator<Item = Disc> + '_ {
+        let now_s = now.sample as f64 * self.ts_s + now.into_sample_s;
+        let growth = self.growth.fixed_m + grow;
+        self.tracks
+            .iter()
+            .flat_map(move |kept| kept.discs_at(now_s, growth))
+            .map(move |disc| Disc {
+                radius: checked_radius(start, disc.center, disc.radius),
+                ..disc
+            })
     }
 
     /// The clearance of braking from position `p` with velocity `w`, if the brake path
@@ -150,6 +199,52 @@ impl Gatekeeper {
             })
             .filter(|c| *c < 0.0)
             .reduce(f64::min)
+    }
+
+    /// The clearance of braking, `elapsed_s` after now, from position `p` with velocity
+    /// `w` to a moving `disc` (as it is now), m; then of the robot at rest until
+    /// [`Gatekeeper::horizon_s`] after now. (Against a disc at rest, resting adds nothing;
+    /// against one coming at the robot it makes staying one choice among others, not a
+    /// safe one: the DFL can then take a plan out of the obstacle's way.) The brake is
+    /// taken as the arc of constant deceleration that stops in
+    /// [`protocol::stopping_distance`] (the held inner-tick commands stop a little later
+    /// than the continuous brake; the arc covers that distance, over a longer time).
+    fn moving_brake_clearance(&self, p: [f64; 2], w: [f64; 2], disc: &Disc, elapsed_s: f64) -> f64 {
+        let speed = w[0].hypot(w[1]);
+        let stop = protocol::stopping_distance(speed, self.brake_decel, self.inner_tick_s);
+        let (acc, duration) = if speed == 0.0 || stop == 0.0 {
+            ([0.0; 2], 0.0)
+        } else {
+            let decel = speed * speed / (2.0 * stop);
+            ([-decel * w[0] / speed, -decel * w[1] / speed], 2.0 * stop / speed)
+        };
+        let braking = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed_s));
+        let rest_s = self.horizon_s - elapsed_s - duration;
+        if rest_s <= 0.0 {
+            return braking;
+        }
+        let mut at_rest = p;
+        advance(&mut at_rest, &mut w.clone(), acc, duration);
+        let resting = moving_arc_clearance(
+            at_rest,
+            [0.0; 2],
+            [0.0; 2],
+            rest_s,
+            &disc.at(elapsed_s + duration),
+        );
+        braking.min(resting)
+    }
+}
+
+/// The deepest entry into a disc found so far (negative clearance, m), if any.
+#[derive(Debug, Clone, Copy, Default)]
+struct Deepest(Option<f64>);
+
+impl Deepest {
+    fn note(&mut self, clearance: f64) {
+        if clearance < 0.0 {
+            self.0 = Some(self.0.map_or(clearance, |d| d.min(clearance)));
+        }
     }
 }
 
@@ -198,8 +293,8 @@ pub fn arc_clearance(
 
 /// The smallest distance from `center` to the arc `q(t) = p + w t + acc t^2 / 2`,
 /// `t in [0, duration]`, m. The squared distance is a quartic in `t`; its stationary
-/// points are the roots of the cubic `g(t) = (q(t) - o) . (w + acc t)`, found by bisection
-/// on the intervals where `g` is monotone (split at the roots of `g'`).
+/// points are the roots of the cubic `g(t) = (q(t) - o) . (w + acc t)`
+/// ([`cubic_roots_within`]).
 pub fn arc_min_distance(
     p: [f64; 2],
     w: [f64; 2],
@@ -208,7 +303,6 @@ pub fn arc_min_distance(
     center: [f64; 2],
 ) -> f64 {
     let d = [p[0] - center[0], p[1] - center[1]];
-    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
     // g(t) = c3 t^3 + c2 t^2 + c1 t + c0.
     let (c3, c2, c1, c0) = (
         0.5 * dot(acc, acc),
@@ -216,7 +310,6 @@ pub fn arc_min_distance(
         dot(w, w) + dot(d, acc),
         dot(d, w),
     );
-    let g = |t: f64| ((c3 * t + c2) * t + c1) * t + c0;
     let distance = |t: f64| {
         let q = [
             d[0] + w[0] * t + 0.5 * acc[0] * t * t,
@@ -224,7 +317,71 @@ pub fn arc_min_distance(
         ];
         q[0].hypot(q[1])
     };
-    let mut best = distance(0.0).min(distance(duration));
+    cubic_roots_within([c3, c2, c1, c0], duration)
+        .map(distance)
+        .fold(distance(0.0).min(distance(duration)), f64::min)
+}
+
+/// The clearance of the arc `q(t) = p + w t + acc t^2 / 2`, `t in [0, duration]`, from a
+/// disc that moves and grows (`disc` as it is at the arc's start, [`Disc::at`]), m: the
+/// least `|q(t) - c(t)| - R(t)` found, negative when the arc enters the disc. Relative to
+/// the centre, which moves at a constant velocity, the arc is again a parabola, so
+/// `f(t) = |q(t) - c(t)|^2 - R(t)^2` is a quartic; where it is least on `[0, T]` (an end,
+/// or a root of its cubic derivative, [`cubic_roots_within`]) the clearance is taken. It
+/// is negative exactly where `f` is, so the arc enters the disc exactly when the
+/// clearance returned is negative. As for a disc at rest ([`arc_clearance`]), a lower
+/// bound is returned when it already shows the arc outside: the relative chord's
+/// distance less the arc's bulge and the radius at the end (the largest: the disc only
+/// grows).
+pub fn moving_arc_clearance(
+    p: [f64; 2],
+    w: [f64; 2],
+    acc: [f64; 2],
+    duration: f64,
+    disc: &Disc,
+) -> f64 {
+    let m = &disc.motion;
+    let d = [p[0] - disc.center[0], p[1] - disc.center[1]];
+    let u = [w[0] - m.velocity[0], w[1] - m.velocity[1]];
+    let (r0, r1, r2) = (disc.radius, m.radius_rate, m.radius_accel);
+    let radius = |t: f64| r0 + r1 * t + r2 * t * t;
+    let relative = |t: f64| {
+        [
+            d[0] + u[0] * t + 0.5 * acc[0] * t * t,
+            d[1] + u[1] * t + 0.5 * acc[1] * t * t,
+        ]
+    };
+    let clearance = |t: f64| {
+        let q = relative(t);
+        q[0].hypot(q[1]) - radius(t)
+    };
+    let t = duration;
+    let bulge = acc[0].hypot(acc[1]) * t * t / 8.0;
+    let lower_bound = protocol::segment_distance(d, relative(t), [0.0; 2]) - bulge - radius(t);
+    if lower_bound >= 0.0 {
+        return lower_bound;
+    }
+    // f(t) = e4 t^4 + e3 t^3 + e2 t^2 + e1 t + e0; f'(t) = 4 e4 t^3 + 3 e3 t^2 + ...
+    let e4 = 0.25 * dot(acc, acc) - r2 * r2;
+    let e3 = dot(u, acc) - 2.0 * r1 * r2;
+    let e2 = dot(u, u) + dot(d, acc) - r1 * r1 - 2.0 * r0 * r2;
+    let e1 = 2.0 * dot(d, u) - 2.0 * r0 * r1;
+    cubic_roots_within([4.0 * e4, 3.0 * e3, 2.0 * e2, e1], duration)
+        .map(clearance)
+        .fold(clearance(0.0).min(clearance(duration)), f64::min)
+}
+
+fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
+    a[0] * b[0] + a[1] * b[1]
+}
+
+/// The roots in `(0, duration)` of the cubic `g(t) = c3 t^3 + c2 t^2 + c1 t + c0`
+/// (`c = [c3, c2, c1, c0]`) where it changes sign, found by bisection on the intervals
+/// where `g` is monotone (split at the roots of `g'`); roots at the ends are left out
+/// (the callers count the ends anyway).
+fn cubic_roots_within(c: [f64; 4], duration: f64) -> impl Iterator<Item = f64> {
+    let [c3, c2, c1, c0] = c;
+    let g = move |t: f64| ((c3 * t + c2) * t + c1) * t + c0;
     // Split [0, T] where g' = 3 c3 t^2 + 2 c2 t + c1 vanishes.
     let mut bounds = [0.0, duration, duration, duration];
     let mut count = 1;
@@ -236,11 +393,11 @@ pub fn arc_min_distance(
     }
     bounds[count] = duration;
     bounds[..=count].sort_by(f64::total_cmp);
-    for pair in bounds[..=count].windows(2) {
-        let (mut lo, mut hi) = (pair[0], pair[1]);
+    (0..count).filter_map(move |i| {
+        let (mut lo, mut hi) = (bounds[i], bounds[i + 1]);
         let (g_lo, g_hi) = (g(lo), g(hi));
         if g_lo == 0.0 || g_hi == 0.0 || (g_lo < 0.0) == (g_hi < 0.0) {
-            continue; // the ends are already counted
+            return None;
         }
         let rising = g_hi > 0.0;
         for _ in 0..60 {
@@ -251,9 +408,8 @@ pub fn arc_min_distance(
                 lo = mid;
             }
         }
-        best = best.min(distance(0.5 * (lo + hi)));
-    }
-    best
+        Some(0.5 * (lo + hi))
+    })
 }
 
 /// The real roots of `a t^2 + b t + c` (none, or up to two; a linear equation when `a`
@@ -353,6 +509,108 @@ mod tests {
         assert!(quick > 100 && exact > 100, "{quick} quick, {exact} exact");
     }
 
+    fn at(sample: u64, into_sample_s: f64) -> Moment {
+        Moment {
+            sample,
+            into_sample_s,
+        }
+    }
+
+    #[test]
+    fn an_arc_enters_a_moving_growing_disc_exactly_when_the_clearance_found_is_negative() {
+        let mut next = sequence(0.43);
+        let (mut entering, mut clear) = (0, 0);
+        for _ in 0..3_000 {
+            let (p, w, acc) = (
+                [2.0 * next(), 2.0 * next()],
+                [3.0 * next(), 3.0 * next()],
+                [5.0 * next(), 5.0 * next()],
+            );
+            let duration = 0.05 + next().abs();
+            let disc = Disc {
+                center: [next(), next()],
+                radius: 0.2 + 0.5 * next().abs(),
+                motion: protocol::DiscMotion {
+                    velocity: [2.0 * next(), 2.0 * next()],
+                    radius_rate: next().abs(),
+                    radius_accel: 0.25 * next().abs(),
+                },
+            };
+            let found = moving_arc_clearance(p, w, acc, duration, &disc);
+            let sampled = (0..=20_000)
+                .map(|k| {
+                    let t = duration * f64::from(k) / 20_000.0;
+                    let at = disc.at(t);
+                    let q = [
+                        p[0] + w[0] * t + 0.5 * acc[0] * t * t - at.center[0],
+                        p[1] + w[1] * t + 0.5 * acc[1] * t * t - at.center[1],
+                    ];
+                    q[0].hypot(q[1]) - at.radius
+                })
+                .fold(f64::INFINITY, f64::min);
+            if sampled.abs() < 1e-3 {
+                continue; // grazing: within the grid's resolution
+            }
+            assert_eq!(found < 0.0, sampled < 0.0, "p {p:?} w {w:?} {disc:?}");
+            if sampled < 0.0 {
+                entering += 1;
+                // A clearance the arc has at some time: no deeper than the deepest.
+                assert!(found >= sampled - 1e-9, "{found} vs {sampled}");
+            } else {
+                clear += 1;
+            }
+        }
+        assert!(entering > 300 && clear > 300, "{entering} entering, {clear} clear");
+    }
+
+
+    /// The gatekeeper of a scenario whose only obstacle (0.3 m) starts at `(x, y)` and
+    /// moves at `velocity`, before any track.
+    fn tracking(x: f64, y: f64, velocity: [f64; 2]) -> Gatekeeper {
+        Gatekeeper::new(&Scenario {
+            obstacles: vec![Obstacle {
+                velocity,
+                ..Obstacle::fixed(x, y, 0.3)
+            }],
+            ..Scenario::default()
+        })
+    }
+
+    /// A track at `time_s` of the obstacle at `center` moving at `velocity` (1 cm of
+    /// position sigma).
+    fn track(time_s: f64, center: [f64; 2], velocity: [f64; 2]) -> protocol::Tracks {
+        let mut tracks = protocol::Tracks::default();
+        tracks.header.time_s = time_s;
+        tracks.count = 1;
+        tracks.tracks[0] = protocol::Track {
+            radius_m: 0.3,
+            center,
+            velocity,
+            covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
+            ..protocol::Track::default()
+        };
+        tracks
+    }
+
+    #[test]
+    fn running_into_where_a_moving_obstacle_will_be_fails_and_braking_short_of_it_passes() {
+        // At 1 m/s along x from 1.5 m short of the crossing; the obstacle crosses the way
+        // at 1 m/s, reaching it at t = 1.5 s.
+        let mut g = tracking(0.0, -1.5, [0.0, 1.0]);
+        let z = [-1.5, 1.0, 0.0, 0.0];
+        let coasting = plan(0, 20, [0.0, 0.0]);
+        assert_eq!(g.check(&coasting, at(0, 0.0), z, 0.0), None, "no track yet");
+        g.set_tracks(&track(0.0, [0.0, -1.5], [0.0, 1.0]));
+        assert!(g.check(&coasting, at(0, 0.0), z, 0.0).is_some());
+        assert_eq!(g.brake_check(z, at(0, 0.0), 0.0), None);
+        // Frozen where it is now, it would be far from the robot's way.
+        let frozen = Gatekeeper::new(&scenario_with_obstacle(0.0, -1.5, 0.3));
+        assert_eq!(frozen.check(&coasting, at(0, 0.0), z, 0.0), None);
+        // Tracked 2 s later, past the way and walking on, it leaves the coasting clear.
+        g.set_tracks(&track(2.0, [0.0, 0.5], [0.0, 1.0]));
+        assert_eq!(g.check(&plan(40, 20, [0.0; 2]), at(40, 0.0), z, 0.0), None);
+    }
+
     fn scenario_with_obstacle(x: f64, y: f64, radius: f64) -> Scenario {
         Scenario {
             obstacles: vec![Obstacle::fixed(x, y, radius)],
@@ -381,17 +639,17 @@ mod tests {
         let g = Gatekeeper::new(&s);
         let z = [0.8, 0.0, 0.0, 0.0];
         assert_eq!(
-            g.check(&plan(0, 8, [-1.0, 0.0]), 0, 0.0, z, 0.0),
+            g.check(&plan(0, 8, [-1.0, 0.0]), at(0, 0.0), z, 0.0),
             None,
             "away"
         );
         assert_eq!(
-            g.check(&plan(0, 8, [0.0, 0.0]), 0, 0.0, z, 0.0),
+            g.check(&plan(0, 8, [0.0, 0.0]), at(0, 0.0), z, 0.0),
             None,
             "staying"
         );
         assert!(
-            g.check(&plan(0, 8, [0.5, 0.0]), 0, 0.0, z, 0.0).is_some(),
+            g.check(&plan(0, 8, [0.5, 0.0]), at(0, 0.0), z, 0.0).is_some(),
             "deeper"
         );
     }
@@ -403,9 +661,9 @@ mod tests {
         let s = scenario_with_obstacle(1.3, 0.0, 1.0);
         let g = Gatekeeper::new(&s);
         let coasting = plan(0, 0, [0.0; 2]);
-        assert_eq!(g.check(&coasting, 0, 0.0, [0.0, 1.0, 0.0, 0.0], 0.0), None);
+        assert_eq!(g.check(&coasting, at(0, 0.0), [0.0, 1.0, 0.0, 0.0], 0.0), None);
         let depth = g
-            .check(&coasting, 0, 0.0, [0.0, 2.0, 0.0, 0.0], 0.0)
+            .check(&coasting, at(0, 0.0), [0.0, 2.0, 0.0, 0.0], 0.0)
             .unwrap();
         let expected = 0.3 - protocol::stopping_distance(2.0, 3.0, s.timing.dt_s());
         assert!((depth - expected).abs() < 1e-12, "{depth} vs {expected}");
@@ -419,14 +677,14 @@ mod tests {
         let z = [-1.0, 1.0, 0.0, 0.0];
         // Decelerating at 2 m/s^2 over 8 samples (0.4 s): 0.24 m, speed 0.2 m/s left,
         // stopping in 7 mm: clear.
-        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), 0, 0.0, z, 0.0), None);
+        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), at(0, 0.0), z, 0.0), None);
         // Accelerating at 2 m/s^2: 0.56 m in 0.4 s at 1.8 m/s, 0.54 m more to stop.
-        assert!(g.check(&plan(0, 8, [2.0, 0.0]), 0, 0.0, z, 0.0).is_some());
+        assert!(g.check(&plan(0, 8, [2.0, 0.0]), at(0, 0.0), z, 0.0).is_some());
         // Checked later in their lives, 0.19 m from the edge: only the last 0.025 s of
         // each is flown, then the brake: 0.210 m accelerating, 0.175 m decelerating.
         let z = [-0.19, 1.0, 0.0, 0.0];
-        assert!(g.check(&plan(0, 8, [2.0, 0.0]), 7, 0.025, z, 0.0).is_some());
-        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), 7, 0.025, z, 0.0), None);
+        assert!(g.check(&plan(0, 8, [2.0, 0.0]), at(7, 0.025), z, 0.0).is_some());
+        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), at(7, 0.025), z, 0.0), None);
     }
 
     #[test]
@@ -440,18 +698,18 @@ mod tests {
         let g = Gatekeeper::new(&s);
         // kappa = 3: sigma 0.23 m grows the disc by 0.69 m, the commit margin by a sigma
         // and 1 mm more (0.921 m); sigma 0.24 m by 0.961 m, into which the creep reaches.
-        assert_eq!(g.check(&creep, 0, 0.0, z, g.commit_growth(0.23)), None);
-        let depth = g.check(&creep, 0, 0.0, z, g.commit_growth(0.24)).unwrap();
+        assert_eq!(g.check(&creep, at(0, 0.0), z, g.commit_growth(0.23)), None);
+        let depth = g.check(&creep, at(0, 0.0), z, g.commit_growth(0.24)).unwrap();
         let expected = 1.0 - reach - g.commit_growth(0.24);
         assert!((depth - expected).abs() < 1e-9, "{depth} vs {expected}");
         assert_eq!(
-            g.check(&creep, 0, 0.0, z, g.keep_growth(0.24)),
+            g.check(&creep, at(0, 0.0), z, g.keep_growth(0.24)),
             None,
             "re-check"
         );
         // The robot's radius grows the disc too.
         s.robot.radius_m = 0.96;
-        let depth = Gatekeeper::new(&s).check(&creep, 0, 0.0, z, 0.0).unwrap();
+        let depth = Gatekeeper::new(&s).check(&creep, at(0, 0.0), z, 0.0).unwrap();
         assert!((depth - (1.0 - reach - 0.96)).abs() < 1e-9, "{depth}");
     }
 }

@@ -14,7 +14,7 @@ use protocol::{
 pub mod gatekeeper;
 pub mod task;
 
-pub use gatekeeper::Gatekeeper;
+pub use gatekeeper::{Gatekeeper, Moment};
 pub use task::{
     DeadlineMonitor, DflTask, PLAN_WAIT_FRACTION, PlanInbox, SILENT_TICKS, SilenceWatch,
 };
@@ -125,6 +125,26 @@ pub struct Dfl {
     interventions: u32,
 }
 
+/// What the DFL falls back to when the new plan is not committed and the committed
+/// trajectory is unsafe (or there is none): the brake (for the committed plan's sample, if
+/// one is given up; the brake's clearance if it touches; the committed trajectory's), or
+/// the committed trajectory flown on (its sample and clearance).
+#[derive(Debug, Clone, Copy)]
+enum Fallback {
+    Brake(Option<u64>, Option<f64>, f64),
+    Fly(u64, f64),
+}
+
+impl Fallback {
+    /// How deep the fallback enters an obstacle (negative, m), if it does.
+    fn clearance(self) -> Option<f64> {
+        match self {
+            Fallback::Brake(_, brake, _) => brake,
+            Fallback::Fly(_, clearance) => Some(clearance),
+        }
+    }
+}
+
 /// What the safety check did at one tick.
 #[derive(Debug, Clone, Copy, Default)]
 struct CheckOutcome {
@@ -177,6 +197,13 @@ impl Dfl {
         }
     }
 
+    /// Takes the tracker's tracks into the safety check (without one, nothing).
+    pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
+        if let Some(gatekeeper) = &mut self.gatekeeper {
+            gatekeeper.set_tracks(tracks);
+        }
+    }
+
     /// Offers a received plan. It becomes active if it is solved and newer than the active
     /// one; a failed plan is ignored, like a missed one, and an older one (out of order)
     /// never replaces a newer one. With the safety check on, it is only a candidate until
@@ -202,7 +229,10 @@ impl Dfl {
             return outcome;
         };
         let sample = self.timing.sample_of(tick);
-        let into_sample_s = self.timing.time_into_sample_s(tick);
+        let now = Moment {
+            sample,
+            into_sample_s: self.timing.time_into_sample_s(tick),
+        };
         let [x, y, theta, _] = estimate.state;
         let z = protocol::phi([x, y, theta, self.zeta]);
         let sigma = estimate.position_sigma();
@@ -218,38 +248,85 @@ impl Dfl {
                 count: outcome.count + 1,
             };
         };
-        let mut committed = false;
+        let mut refused = None;
         if let Some(plan) = self.offered.take() {
-            match gatekeeper.check(&plan, sample, into_sample_s, z, commit_growth) {
+            match gatekeeper.check(&plan, now, z, commit_growth) {
                 None => {
                     self.active = Some(plan);
                     self.safety_braking = false;
-                    committed = true;
+                    self.interventions += outcome.count;
+                    return outcome;
                 }
-                Some(clearance) => note(Intervention::PlanRefused, plan.sample, clearance),
+                Some(clearance) => refused = Some((plan, clearance)),
             }
         }
-        // The committed trajectory, flown from this estimate (not needed when it was just
-        // checked, nor once its plan is exhausted and the DFL brakes anyway).
-        let unsafe_committed = match &self.active {
-            Some(plan) if !committed && covering_element(plan, sample).is_some() => gatekeeper
-                .check(plan, sample, into_sample_s, z, keep_growth)
-                .map(|clearance| (plan.sample, clearance)),
-            _ => None,
+        // The committed trajectory, flown from this estimate (not needed once its plan is
+        // exhausted and the DFL brakes anyway), and, when it is unsafe or the robot
+        // brakes already, the brake.
+        let flying = self
+            .active
+            .filter(|plan| covering_element(plan, sample).is_some());
+        let fly = flying.map(|plan| (plan.sample, gatekeeper.check(&plan, now, z, keep_growth)));
+        if let Some((_, None)) = fly {
+            if let Some((plan, clearance)) = refused {
+                note(Intervention::PlanRefused, plan.sample, clearance);
+            }
+            self.interventions += outcome.count;
+            return outcome;
+        }
+        if fly.is_none() && refused.is_none() {
+            return outcome; // braking already, and nothing new to choose
+        }
+        let brake = gatekeeper.brake_check(z, now, keep_growth);
+        // The fallback that keeps the most clearance: the brake, unless braking from here
+        // would enter an obstacle deeper than the committed trajectory does (a plan
+        // turning away from it, say).
+        let fallback = match (fly, brake) {
+            (Some((plan_sample, Some(c))), Some(b)) if b < c => Fallback::Fly(plan_sample, c),
+            (Some((plan_sample, Some(c))), b) => Fallback::Brake(Some(plan_sample), b, c),
+            _ => Fallback::Brake(None, brake, 0.0),
         };
-        if let Some((plan_sample, clearance)) = unsafe_committed {
-            // Brake at once, unless braking from here would enter an obstacle deeper than
-            // the committed trajectory does (a plan turning away from it, say): then fly it
-            // on, reported once.
-            let braking = gatekeeper.brake_check(z, keep_growth);
-            if braking.is_none_or(|b| b >= clearance) {
-                note(Intervention::CommittedUnsafe, plan_sample, clearance);
+        // When every fallback would touch, a refused plan that touches less (or not at
+        // all, at the re-check's growth) is the better choice.
+        let touching = fallback.clearance();
+        let better_plan = refused.zip(touching).and_then(|((plan, _), touching)| {
+            let clearance = gatekeeper.check(&plan, now, z, keep_growth);
+            clearance
+                .is_none_or(|c| c > touching)
+                .then_some((plan, clearance.unwrap_or(0.0)))
+        });
+        if let Some((plan, clearance)) = better_plan {
+            note(Intervention::LeastUnsafe, plan.sample, clearance);
+            self.active = Some(plan);
+            self.safety_braking = false;
+            self.flown_unsafe = Some(plan.sample);
+            self.interventions += outcome.count;
+            return outcome;
+        }
+        if let Some((plan, clearance)) = refused {
+            note(Intervention::PlanRefused, plan.sample, clearance);
+        }
+        let least_unsafe = |every_touches: bool| {
+            if every_touches {
+                Intervention::LeastUnsafe
+            } else {
+                Intervention::CommittedUnsafe
+            }
+        };
+        match fallback {
+            Fallback::Brake(Some(plan_sample), brake, clearance) => {
+                note(least_unsafe(brake.is_some()), plan_sample, brake.unwrap_or(clearance));
                 self.active = None;
                 self.safety_braking = true;
-            } else if self.flown_unsafe != Some(plan_sample) {
-                note(Intervention::CommittedUnsafe, plan_sample, clearance);
-                self.flown_unsafe = Some(plan_sample);
             }
+            Fallback::Fly(plan_sample, clearance) => {
+                if self.flown_unsafe != Some(plan_sample) {
+                    note(Intervention::LeastUnsafe, plan_sample, clearance);
+                    self.flown_unsafe = Some(plan_sample);
+                }
+            }
+            // Braking already: nothing changes (a refused plan is reported above).
+            Fallback::Brake(None, ..) => {}
         }
         self.interventions += outcome.count;
         outcome

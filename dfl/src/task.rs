@@ -4,22 +4,24 @@
 
 use crate::Dfl;
 use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
-use protocol::topics::{ACTUATION, DEADLINE, ESTIMATE, PLAN};
+use protocol::topics::{ACTUATION, DEADLINE, ESTIMATE, PLAN, TRACKS};
 use protocol::{
     Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
-    PlanStatus, Role, Timing, Validated, period_ns,
+    PlanStatus, Role, Timing, Tracks, Validated, period_ns,
 };
 use std::collections::VecDeque;
 
-/// What the DFL takes: the estimator's estimates (periodic) and the MPC's plans.
+/// What the DFL takes: the estimator's estimates (periodic), the MPC's plans and, when
+/// its check runs and an obstacle is tracked, the tracker's tracks.
 // By value, as the messages come (boxing would allocate per sample).
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub enum DflInput {
     Estimate(Estimate),
     Plan(Plan),
+    Tracks(Tracks),
 }
-protocol::task_input!(DflInput: Estimate, Plan);
+protocol::task_input!(DflInput: Estimate, Plan, Tracks);
 
 /// What a DFL step gives: on the first tick of a sample the verdict on the previous
 /// sample's deadline (published first), and the command for the tick.
@@ -161,6 +163,67 @@ impl DeadlineMonitor {
     }
 }
 
+/// When tracks reach the DFL's check: those of the perception tick at or before a
+/// sample's start (the ones the sample's plan was made with, `mpc::MpcTask`) are waited
+/// for on its first tick, like its plan (in real time for [`PLAN_WAIT_FRACTION`] of the
+/// tick, in lockstep until they come), and taken from then on; later ones wait for the
+/// next sample. So the check sees the same tracks in process, in lockstep and in every
+/// order the topics are read in.
+pub struct TrackInbox {
+    /// Inner ticks between two measurements of the tracker.
+    perception_ticks: u64,
+    inner_steps: u64,
+    /// Tracks heard and not yet taken, oldest first.
+    pending: VecDeque<Tracks>,
+    /// Tick of the newest tracks heard.
+    newest: Option<u64>,
+}
+
+impl TrackInbox {
+    pub fn new(scenario: &Validated) -> TrackInbox {
+        TrackInbox {
+            perception_ticks: scenario.perception_ticks(),
+            inner_steps: scenario.timing.inner_steps as u64,
+            pending: VecDeque::with_capacity(4),
+            newest: None,
+        }
+    }
+
+    /// Keeps `tracks` if they are newer than every tracks heard (the newest four).
+    pub fn receive(&mut self, tracks: &Tracks) {
+        if self.newest.is_some_and(|t| tracks.header.tick <= t) {
+            return;
+        }
+        self.newest = Some(tracks.header.tick);
+        if self.pending.len() == self.pending.capacity() {
+            self.pending.pop_front();
+        }
+        self.pending.push_back(*tracks);
+    }
+
+    /// The perception tick whose tracks the command for `tick` is checked with: the last
+    /// at or before its sample's start.
+    fn due(&self, tick: u64) -> u64 {
+        let start = tick - tick % self.inner_steps;
+        start - start % self.perception_ticks
+    }
+
+    /// Whether the tracks due for `tick` have not come yet.
+    pub fn waits_for(&self, tick: u64) -> bool {
+        self.newest.is_none_or(|t| t < self.due(tick))
+    }
+
+    /// Hands the DFL every tracks due by `tick`, oldest first.
+    pub fn release(&mut self, tick: u64, dfl: &mut Dfl) {
+        let due = self.due(tick);
+        while self.pending.front().is_some_and(|t| t.header.tick <= due) {
+            if let Some(tracks) = self.pending.pop_front() {
+                dfl.set_tracks(&tracks);
+            }
+        }
+    }
+}
+
 /// Share of an inner tick the DFL waits for the plan of a new sample before it falls back
 /// to the shifted previous plan (the plant only takes the command at the end of the tick,
 /// so waiting within it costs nothing). In lockstep the time of a tick is never past, so
@@ -178,6 +241,8 @@ pub struct DflTask {
     timing: Timing,
     /// Estimates not commanded yet, with their receipt latency, ns.
     queue: VecDeque<(Estimate, u64)>,
+    /// The tracks, when the check runs and an obstacle is tracked.
+    tracks: Option<TrackInbox>,
     /// Whether the plant takes this task's commands (not before the executor has said
     /// so, nor while it warms up as a replacement).
     commanding: bool,
@@ -198,12 +263,18 @@ impl Task for DflTask {
             watch: SilenceWatch::default(),
             timing: scenario.timing.clone(),
             queue: VecDeque::with_capacity(16),
+            tracks: (scenario.dfl.gatekeeper && scenario.roles().any(|r| r == Role::Tracker))
+                .then(|| TrackInbox::new(scenario)),
             commanding: false,
         })
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        &[ESTIMATE, PLAN]
+        if self.tracks.is_some() {
+            &[ESTIMATE, PLAN, TRACKS]
+        } else {
+            &[ESTIMATE, PLAN]
+        }
     }
 
     /// An estimate is queued with its receipt latency; a plan goes to the inbox and the
@@ -221,6 +292,11 @@ impl Task for DflTask {
                 );
                 self.inbox.receive(&plan, arrival_ns);
                 self.monitor.on_plan(&plan, arrival_ns);
+            }
+            DflInput::Tracks(tracks) => {
+                if let Some(inbox) = &mut self.tracks {
+                    inbox.receive(&tracks);
+                }
             }
         }
     }
@@ -245,7 +321,7 @@ impl Task for DflTask {
     /// the estimator's for its measurements: on two cores a third spinning process starves
     /// the plant and the estimator, docs/performance.md.)
     fn next(&self) -> Due {
-        let plan_wait = (self.queue.front()).and_then(|(e, _)| self.plan_wait_s(e.header.tick));
+        let plan_wait = (self.queue.front()).and_then(|(e, _)| self.wait_s(e.header.tick));
         let silence = self.watch.next_check().map(|t| self.timing.tick_time_s(t));
         Due::Wait(match (plan_wait, silence) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -271,7 +347,7 @@ impl DflTask {
                 self.queue.pop_front(); // older than a command already given (braking)
                 continue;
             }
-            if self.plan_wait_s(tick).is_some_and(|t| !context.is_past(t)) {
+            if self.wait_s(tick).is_some_and(|t| !context.is_past(t)) {
                 return None;
             }
             self.queue.pop_front();
@@ -293,11 +369,13 @@ impl DflTask {
         None
     }
 
-    /// Until when the command for `tick` waits for its sample's plan, s: on the first tick
-    /// of a sample whose plan the DFL waits for ([`PlanInbox::waits_for`]).
-    fn plan_wait_s(&self, tick: u64) -> Option<f64> {
+    /// Until when the command for `tick` waits for its sample's plan or tracks, s: on the
+    /// first tick of a sample whose plan ([`PlanInbox::waits_for`]) or tracks
+    /// ([`TrackInbox::waits_for`]) the DFL waits for.
+    fn wait_s(&self, tick: u64) -> Option<f64> {
         let sample = self.timing.sample_of(tick);
-        (self.timing.starts_sample(tick) && self.inbox.waits_for(sample))
+        let tracks_due = (self.tracks.as_ref()).is_some_and(|t| t.waits_for(tick));
+        (self.timing.starts_sample(tick) && (self.inbox.waits_for(sample) || tracks_due))
             .then(|| (tick as f64 + PLAN_WAIT_FRACTION) * self.timing.dt_s())
     }
 
@@ -319,6 +397,9 @@ impl DflTask {
     fn command(&mut self, estimate: &Estimate, tick: u64) -> (Actuation, Option<DeadlineVerdict>) {
         let sample = self.timing.sample_of(tick);
         self.inbox.release(sample, &mut self.dfl);
+        if let Some(tracks) = &mut self.tracks {
+            tracks.release(tick, &mut self.dfl);
+        }
         let mut actuation = self.dfl.step(estimate, tick);
         let verdict = match actuation.mode() {
             Some(mode) if self.timing.starts_sample(tick) => {

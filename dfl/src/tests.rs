@@ -376,10 +376,8 @@ fn a_committed_plan_swerving_away_flies_on_when_braking_would_go_in_deeper() {
     let a = dfl.step(&close, 1);
     assert_eq!(
         (a.mode(), a.intervention()),
-        (
-            Some(CommandMode::Nominal),
-            Some(Intervention::CommittedUnsafe)
-        )
+        (Some(CommandMode::Nominal), Some(Intervention::LeastUnsafe)),
+        "every choice touches: the one that keeps the most clearance"
     );
     assert!((-0.02..-0.01).contains(&a.intervention_clearance_m));
     // Flown on, reported once.
@@ -469,4 +467,50 @@ fn where_the_wheels_saturate_zeta_is_held_at_the_speed_they_realize() {
             .unwrap(),
     );
     assert!((free.brake(0).zeta - (2.0 - 3.0 * s.timing.dt_s())).abs() < 1e-12);
+}
+
+#[test]
+fn when_every_choice_touches_the_dfl_takes_the_one_that_keeps_the_most_clearance() {
+    // At rest at the origin, a person 0.2 m away coming at the robot at 1 m/s: staying
+    // (the brake) is run into at once; a plan sideways clips the person's grown disc.
+    let mut s = Scenario {
+        obstacles: vec![protocol::Obstacle {
+            velocity: [1.0, 0.0],
+            ..protocol::Obstacle::fixed(-0.5, 0.0, 0.3)
+        }],
+        ..Scenario::default()
+    };
+    s.robot.zeta0 = 0.0;
+    let mut dfl = Dfl::new(&s);
+    let mut tracks = protocol::Tracks::default();
+    tracks.count = 1;
+    tracks.tracks[0] = protocol::Track {
+        radius_m: 0.3,
+        center: [-0.5, 0.0],
+        velocity: [1.0, 0.0],
+        covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
+        ..protocol::Track::default()
+    };
+    dfl.set_tracks(&tracks);
+    let at_rest = Estimate::default();
+    let mut towards = plan(0, 20, PlanStatus::Solved);
+    towards.v = [[-3.0, 0.0]; protocol::MAX_HORIZON];
+    dfl.offer(&towards);
+    let a = dfl.step(&at_rest, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Brake), Some(Intervention::PlanRefused)),
+        "into the person is worse than staying"
+    );
+    let mut sideways = plan(1, 20, PlanStatus::Solved);
+    sideways.v = [[0.0, 3.0]; protocol::MAX_HORIZON];
+    dfl.offer(&sideways);
+    let a = dfl.step(&at_rest, 10);
+    assert_eq!(
+        (a.mode(), a.intervention(), a.plan_sample),
+        (Some(CommandMode::ZetaGuard), Some(Intervention::LeastUnsafe), 1),
+        "out of the way (turning towards it first), though it touches the grown disc"
+    );
+    assert!(a.intervention_clearance_m < 0.0);
+    assert_eq!(dfl.interventions(), 2);
 }

@@ -2,7 +2,7 @@
 //! uses ([`protocol::ObstacleGrowth`]), by what the MPC keeps for what follows the solver
 //! ([`PlanMargin`]) and by the inter-sample chord, in goal-relative coordinates.
 
-use protocol::{Disc, ObstacleGrowth, Plan};
+use protocol::{Disc, KeptTracks, ObstacleGrowth, Plan};
 
 /// What the MPC keeps clear beyond the obstacles grown by the robot's radius, `m` and
 /// `kappa sigma`, for what happens to a plan after the solver: it is met only to the
@@ -103,32 +103,22 @@ pub struct StepGrowth {
 }
 
 /// The obstacles the MPC keeps clear of: those known from the scenario
-/// ([`protocol::Scenario::known_obstacles`]) and a track of each tracked one.
+/// ([`protocol::Scenario::known_obstacles`]) and the track kept of each tracked one
+/// ([`KeptTracks`]).
 #[derive(Debug, Clone)]
 pub struct World {
     known: Vec<protocol::Obstacle>,
     /// Whether any obstacle is tracked (none are with `fault.mpc_ignore_obstacles`).
     tracking: bool,
-    /// The track kept of each tracked obstacle heard of, with its time, s.
-    tracks: Vec<(protocol::Track, f64)>,
-    /// `perception.accel_max`, m/s^2.
-    obstacle_accel_max: f64,
-    /// `kappa`.
-    uncertainty_sigmas: f64,
-    /// `N Ts`, s: a track is judged by its disc at the end of the horizon.
-    horizon_s: f64,
+    tracks: KeptTracks,
 }
 
 impl World {
     pub fn of(scenario: &protocol::Scenario) -> World {
-        let tracked = scenario.tracked().count();
         World {
             known: scenario.known_obstacles().cloned().collect(),
-            tracking: tracked > 0,
-            tracks: Vec::with_capacity(tracked),
-            obstacle_accel_max: scenario.perception.accel_max,
-            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
-            horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
+            tracking: scenario.tracked().next().is_some(),
+            tracks: KeptTracks::of(scenario),
         }
     }
 
@@ -137,31 +127,10 @@ impl World {
         &self.known
     }
 
-    /// Takes the tracker's newest tracks: each replaces the one kept of its obstacle
-    /// unless that one, predicted on, still gives the smaller disc at the end of the
-    /// horizon. So a restarted tracker, which knows nothing of the velocities yet, takes
-    /// over once its tracks are better than the last ones of the process before it.
+    /// Takes the tracker's newest tracks ([`KeptTracks::take`]).
     pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
-        if !self.tracking {
-            return;
-        }
-        let time_s = tracks.header.time_s;
-        let judged_at = time_s + self.horizon_s;
-        let (kappa, accel_max) = (self.uncertainty_sigmas, self.obstacle_accel_max);
-        let growth = |(track, time): &(protocol::Track, f64)| {
-            prediction_growth_m(track, judged_at - time, kappa, accel_max)
-        };
-        for track in tracks.tracks() {
-            let new = (*track, time_s);
-            let kept = self
-                .tracks
-                .iter_mut()
-                .find(|(k, _)| k.obstacle == track.obstacle);
-            match kept {
-                Some(kept) if growth(&new) <= growth(kept) => *kept = new,
-                Some(_) => {}
-                None => self.tracks.push(new),
-            }
+        if self.tracking {
+            self.tracks.take(tracks);
         }
     }
 
@@ -179,27 +148,16 @@ impl World {
             g.accel_max,
             discs,
         );
-        discs.extend(self.tracks.iter().map(|(track, time_s)| {
-            predicted_disc(track, t_s - time_s, &g, chord, self.obstacle_accel_max)
+        discs.extend(self.tracks.tracks().iter().map(|(track, time_s)| {
+            predicted_disc(track, t_s - time_s, &g, chord, self.tracks.accel_max())
         }));
     }
 }
 
-/// What a track's disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
-/// `kappa (sigma_p + t sigma_v)` ([`protocol::Track::sigmas`]), and `accel_max t^2 / 2`.
-fn prediction_growth_m(track: &protocol::Track, age_s: f64, kappa: f64, accel_max: f64) -> f64 {
-    let age = age_s.max(0.0);
-    let (sigma_p, sigma_v) = track.sigmas();
-    kappa * (sigma_p + age * sigma_v) + 0.5 * accel_max * age * age
-}
-
-/// The disc `track` predicts `age_s` after the track's time (docs/safety.md, "Moving
-/// obstacles"): centred where the track's velocity takes it (goal-relative), its radius
-/// the obstacle's grown by the step's margin, by `kappa sigma(t)` (at most
-/// `kappa (sigma_p + t sigma_v)`, [`protocol::Track::sigmas`]) and by `accel_max t^2 / 2`,
-/// `t` the time since the track, and by the inter-sample chord of the robot (`chord`, m)
-/// and the obstacle together as in [`constraint_discs`]. The disc moves on at the track's
-/// velocity and grows at the same rule ([`Disc::at`]).
+/// The disc `track` predicts `age_s` after the track's time, as a constraint
+/// (docs/safety.md, "Moving obstacles"): [`protocol::predicted_disc`] grown by the step's
+/// margin, in goal-relative coordinates, and grown by the inter-sample chord of the robot
+/// (`chord`, m) and the obstacle together as in [`constraint_discs`].
 fn predicted_disc(
     track: &protocol::Track,
     age_s: f64,
@@ -207,23 +165,13 @@ fn predicted_disc(
     chord: f64,
     accel_max: f64,
 ) -> Disc {
-    let age = age_s.max(0.0);
-    let (_, sigma_v) = track.sigmas();
+    let disc = protocol::predicted_disc(track, age_s, g.margin_m, g.uncertainty_sigmas, accel_max);
     let [vx, vy] = track.velocity;
-    let kappa = g.uncertainty_sigmas;
-    let grown = track.radius_m + g.margin_m + prediction_growth_m(track, age, kappa, accel_max);
     let chord = chord + vx.hypot(vy) * g.ts_s + 0.5 * accel_max * g.ts_s * g.ts_s;
     Disc {
-        center: [
-            track.center[0] + vx * age_s - g.goal[0],
-            track.center[1] + vy * age_s - g.goal[1],
-        ],
-        radius: grown.hypot(chord / 2.0),
-        motion: protocol::DiscMotion {
-            velocity: track.velocity,
-            radius_rate: kappa * sigma_v + accel_max * age,
-            radius_accel: 0.5 * accel_max,
-        },
+        center: [disc.center[0] - g.goal[0], disc.center[1] - g.goal[1]],
+        radius: disc.radius.hypot(chord / 2.0),
+        motion: disc.motion,
     }
 }
 

@@ -8,6 +8,7 @@
 pub mod endpoint;
 pub mod geometry;
 pub mod messages;
+pub mod prediction;
 pub mod samples;
 pub mod scenario;
 pub mod task;
@@ -15,6 +16,7 @@ pub mod topics;
 
 pub use geometry::*;
 pub use messages::*;
+pub use prediction::*;
 pub use scenario::*;
 
 /// Wraps an angle to (-pi, pi], rad.

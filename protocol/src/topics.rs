@@ -40,7 +40,7 @@ pub const DATA_FLOW: [(&str, crate::Role, &[crate::Role]); 8] = {
         (ACTUATION, Dfl, &[Plant, Estimator]),
         (DEADLINE, Dfl, &[]),
         (ROUTE, Planner, &[Mpc]),
-        (TRACKS, Tracker, &[Mpc]),
+        (TRACKS, Tracker, &[Mpc, Dfl]),
     ]
 };
 

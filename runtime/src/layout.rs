@@ -352,6 +352,7 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
                     Intervention::None,
                     Intervention::PlanRefused,
                     Intervention::CommittedUnsafe,
+                    Intervention::LeastUnsafe,
                 ],
                 Intervention::as_str,
                 |i| i as u32,

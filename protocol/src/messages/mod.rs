@@ -451,6 +451,11 @@ pub enum Intervention {
     /// obstacle: the DFL brakes at once (or, should braking from there enter one deeper,
     /// flies the trajectory on; reported once per plan).
     CommittedUnsafe = 2,
+    /// Every choice would enter an inflated obstacle (a moving one coming at the robot,
+    /// say): the new plan, the committed trajectory and the brake, each flown from the
+    /// current estimate. The DFL takes the one that keeps the most clearance (the
+    /// command's mode says which); reported once per plan flown on.
+    LeastUnsafe = 3,
 }
 
 impl Intervention {
@@ -459,6 +464,7 @@ impl Intervention {
             0 => Intervention::None,
             1 => Intervention::PlanRefused,
             2 => Intervention::CommittedUnsafe,
+            3 => Intervention::LeastUnsafe,
             _ => return None,
         })
     }
@@ -467,6 +473,7 @@ impl Intervention {
             Intervention::None => "none",
             Intervention::PlanRefused => "plan_refused",
             Intervention::CommittedUnsafe => "committed_unsafe",
+            Intervention::LeastUnsafe => "least_unsafe",
         }
     }
 }

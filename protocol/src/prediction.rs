@@ -1,0 +1,175 @@
+//! What the tracks predict (docs/safety.md, "Moving obstacles"): the one rule by which
+//! every consumer of the tracker (the MPC's constraints, the DFL's check) keeps the
+//! newest track of each obstacle and grows its disc with the time since the track.
+
+use crate::{Disc, DiscMotion, Scenario, Track, Tracks};
+
+/// The track kept of each tracked obstacle heard of, with its time (s), and how its
+/// predictions grow.
+#[derive(Debug, Clone)]
+pub struct KeptTracks {
+    tracks: Vec<(Track, f64)>,
+    /// `perception.accel_max`, m/s^2.
+    accel_max: f64,
+    /// `kappa`: standard deviations of a predicted position.
+    uncertainty_sigmas: f64,
+    /// `N Ts`, s: a track is judged by its disc at the end of the MPC's horizon.
+    horizon_s: f64,
+}
+
+impl KeptTracks {
+    /// No track yet, for the tracked obstacles of `scenario`.
+    pub fn of(scenario: &Scenario) -> KeptTracks {
+        KeptTracks {
+            tracks: Vec::with_capacity(scenario.tracked().count()),
+            accel_max: scenario.perception.accel_max,
+            uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
+            horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
+        }
+    }
+
+    /// Takes the tracker's newest tracks: each replaces the one kept of its obstacle
+    /// unless that one, predicted on, still gives the smaller disc at the end of the
+    /// horizon. So a restarted tracker, which knows nothing of the velocities yet, takes
+    /// over once its tracks are better than the last ones of the process before it.
+    pub fn take(&mut self, tracks: &Tracks) {
+        let time_s = tracks.header.time_s;
+        let judged_at = time_s + self.horizon_s;
+        let (kappa, accel_max) = (self.uncertainty_sigmas, self.accel_max);
+        let growth = |(track, time): &(Track, f64)| {
+            prediction_growth_m(track, judged_at - time, kappa, accel_max)
+        };
+        for track in tracks.tracks() {
+            let new = (*track, time_s);
+            let new_growth = growth(&new);
+            match self.tracks.iter().position(|(k, _)| k.obstacle == track.obstacle) {
+                Some(i) if new_growth <= growth(&self.tracks[i]) => self.tracks[i] = new,
+                Some(_) => {}
+                None => self.tracks.push(new),
+            }
+        }
+    }
+
+    /// The tracks kept, each with its time, s.
+    pub fn tracks(&self) -> &[(Track, f64)] {
+        &self.tracks
+    }
+
+    /// `perception.accel_max`, m/s^2.
+    pub fn accel_max(&self) -> f64 {
+        self.accel_max
+    }
+
+    /// `kappa`.
+    pub fn uncertainty_sigmas(&self) -> f64 {
+        self.uncertainty_sigmas
+    }
+
+    /// What a track's disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
+    /// `kappa (sigma_p + t sigma_v)` ([`Track::sigmas`]), and `accel_max t^2 / 2`.
+    pub fn growth_m(&self, track: &Track, age_s: f64) -> f64 {
+        prediction_growth_m(track, age_s, self.uncertainty_sigmas, self.accel_max)
+    }
+
+    /// The disc of every track kept at time `t_s` (absolute), each obstacle's radius grown
+    /// by `growth_m` and by its prediction ([`predicted_disc`]).
+    pub fn discs_at(&self, t_s: f64, growth_m: f64) -> impl Iterator<Item = Disc> + '_ {
+        self.tracks.iter().map(move |(track, time_s)| {
+            predicted_disc(
+                track,
+                t_s - time_s,
+                growth_m,
+                self.uncertainty_sigmas,
+                self.accel_max,
+            )
+        })
+    }
+}
+
+/// What `track`'s disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
+/// `kappa (sigma_p + t sigma_v)` ([`Track::sigmas`]), and `accel_max t^2 / 2` (an obstacle
+/// that changes its velocity by at most `accel_max`).
+pub fn prediction_growth_m(track: &Track, age_s: f64, kappa: f64, accel_max: f64) -> f64 {
+    let age = age_s.max(0.0);
+    let (sigma_p, sigma_v) = track.sigmas();
+    kappa * (sigma_p + age * sigma_v) + 0.5 * accel_max * age * age
+}
+
+/// The disc `track` predicts `age_s` after its time (absolute): centred where the track's
+/// velocity takes it, its radius the obstacle's grown by `growth_m` and by
+/// [`prediction_growth_m`]. It moves on at the track's velocity and grows at the same rule
+/// ([`Disc::at`]).
+pub fn predicted_disc(
+    track: &Track,
+    age_s: f64,
+    growth_m: f64,
+    kappa: f64,
+    accel_max: f64,
+) -> Disc {
+    let age = age_s.max(0.0);
+    let (_, sigma_v) = track.sigmas();
+    let [vx, vy] = track.velocity;
+    Disc {
+        center: [
+            track.center[0] + vx * age_s,
+            track.center[1] + vy * age_s,
+        ],
+        radius: track.radius_m + growth_m + prediction_growth_m(track, age, kappa, accel_max),
+        motion: DiscMotion {
+            velocity: track.velocity,
+            radius_rate: kappa * sigma_v + accel_max * age,
+            radius_accel: 0.5 * accel_max,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn track(obstacle: u32, variance: f64) -> Track {
+        Track {
+            obstacle,
+            radius_m: 0.3,
+            center: [1.0, 2.0],
+            velocity: [1.0, 0.0],
+            covariance: [variance, 0.0, variance, variance, 0.0, variance],
+            ..Track::default()
+        }
+    }
+
+    fn tracks(time_s: f64, list: &[Track]) -> Tracks {
+        let mut tracks = Tracks::default();
+        tracks.header.time_s = time_s;
+        tracks.count = list.len() as u32;
+        tracks.tracks[..list.len()].copy_from_slice(list);
+        tracks
+    }
+
+    #[test]
+    fn a_new_track_replaces_the_kept_one_only_when_it_predicts_a_smaller_disc() {
+        let mut kept = KeptTracks::of(&Scenario::default());
+        kept.take(&tracks(0.0, &[track(0, 1e-4)]));
+        // A restarted tracker's first track: far less certain, so the old one, predicted
+        // on by 0.1 s, is kept.
+        kept.take(&tracks(0.1, &[track(0, 1.0)]));
+        assert_eq!(kept.tracks(), &[(track(0, 1e-4), 0.0)]);
+        kept.take(&tracks(0.2, &[track(0, 1e-4), track(3, 1.0)]));
+        assert_eq!(kept.tracks(), &[(track(0, 1e-4), 0.2), (track(3, 1.0), 0.2)]);
+    }
+
+    #[test]
+    fn a_predicted_disc_moves_with_the_track_and_grows_as_its_motion_says() {
+        let t = track(0, 0.01);
+        let (kappa, accel_max) = (2.0, 0.5);
+        let at = |age: f64| predicted_disc(&t, age, 0.1, kappa, accel_max);
+        assert_eq!(at(0.0).radius, 0.3 + 0.1 + kappa * (0.1 + 0.0));
+        for (from, by) in [(0.0, 1.0), (0.5, 0.25), (1.0, 2.0)] {
+            let stepped = at(from).at(by);
+            let direct = at(from + by);
+            assert!((stepped.radius - direct.radius).abs() < 1e-12);
+            assert!((stepped.center[0] - direct.center[0]).abs() < 1e-12);
+            assert_eq!(stepped.center[1], direct.center[1]);
+        }
+    }
+}
