@@ -65,6 +65,11 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             number(&["cross_host_ratio_p50"]),
             1.5,
         ),
+        (
+            "MPC step, 5 moving / 5 frozen obstacles (p50)",
+            number(&["moving_obstacles", "ratio_p50"]),
+            2.0,
+        ),
     ] {
         let t = judged(name);
         assert!(

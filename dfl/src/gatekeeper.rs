@@ -64,10 +64,7 @@ impl Gatekeeper {
                 .known_obstacles()
                 .map(|o| Disc::around(o, growth.fixed_m))
                 .collect(),
-            tracks: scenario
-                .tracked()
-                .next()
-                .map(|_| KeptTracks::of(scenario)),
+            tracks: scenario.tracked().next().map(|_| KeptTracks::of(scenario)),
             growth,
             brake_decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,
@@ -216,7 +213,10 @@ impl Gatekeeper {
             ([0.0; 2], 0.0)
         } else {
             let decel = speed * speed / (2.0 * stop);
-            ([-decel * w[0] / speed, -decel * w[1] / speed], 2.0 * stop / speed)
+            (
+                [-decel * w[0] / speed, -decel * w[1] / speed],
+                2.0 * stop / speed,
+            )
         };
         let braking = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed_s));
         let rest_s = self.horizon_s - elapsed_s - duration;
@@ -560,9 +560,11 @@ mod tests {
                 clear += 1;
             }
         }
-        assert!(entering > 300 && clear > 300, "{entering} entering, {clear} clear");
+        assert!(
+            entering > 300 && clear > 300,
+            "{entering} entering, {clear} clear"
+        );
     }
-
 
     /// The gatekeeper of a scenario whose only obstacle (0.3 m) starts at `(x, y)` and
     /// moves at `velocity`, before any track.
@@ -649,7 +651,8 @@ mod tests {
             "staying"
         );
         assert!(
-            g.check(&plan(0, 8, [0.5, 0.0]), at(0, 0.0), z, 0.0).is_some(),
+            g.check(&plan(0, 8, [0.5, 0.0]), at(0, 0.0), z, 0.0)
+                .is_some(),
             "deeper"
         );
     }
@@ -661,7 +664,10 @@ mod tests {
         let s = scenario_with_obstacle(1.3, 0.0, 1.0);
         let g = Gatekeeper::new(&s);
         let coasting = plan(0, 0, [0.0; 2]);
-        assert_eq!(g.check(&coasting, at(0, 0.0), [0.0, 1.0, 0.0, 0.0], 0.0), None);
+        assert_eq!(
+            g.check(&coasting, at(0, 0.0), [0.0, 1.0, 0.0, 0.0], 0.0),
+            None
+        );
         let depth = g
             .check(&coasting, at(0, 0.0), [0.0, 2.0, 0.0, 0.0], 0.0)
             .unwrap();
@@ -679,12 +685,21 @@ mod tests {
         // stopping in 7 mm: clear.
         assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), at(0, 0.0), z, 0.0), None);
         // Accelerating at 2 m/s^2: 0.56 m in 0.4 s at 1.8 m/s, 0.54 m more to stop.
-        assert!(g.check(&plan(0, 8, [2.0, 0.0]), at(0, 0.0), z, 0.0).is_some());
+        assert!(
+            g.check(&plan(0, 8, [2.0, 0.0]), at(0, 0.0), z, 0.0)
+                .is_some()
+        );
         // Checked later in their lives, 0.19 m from the edge: only the last 0.025 s of
         // each is flown, then the brake: 0.210 m accelerating, 0.175 m decelerating.
         let z = [-0.19, 1.0, 0.0, 0.0];
-        assert!(g.check(&plan(0, 8, [2.0, 0.0]), at(7, 0.025), z, 0.0).is_some());
-        assert_eq!(g.check(&plan(0, 8, [-2.0, 0.0]), at(7, 0.025), z, 0.0), None);
+        assert!(
+            g.check(&plan(0, 8, [2.0, 0.0]), at(7, 0.025), z, 0.0)
+                .is_some()
+        );
+        assert_eq!(
+            g.check(&plan(0, 8, [-2.0, 0.0]), at(7, 0.025), z, 0.0),
+            None
+        );
     }
 
     #[test]
@@ -699,7 +714,9 @@ mod tests {
         // kappa = 3: sigma 0.23 m grows the disc by 0.69 m, the commit margin by a sigma
         // and 1 mm more (0.921 m); sigma 0.24 m by 0.961 m, into which the creep reaches.
         assert_eq!(g.check(&creep, at(0, 0.0), z, g.commit_growth(0.23)), None);
-        let depth = g.check(&creep, at(0, 0.0), z, g.commit_growth(0.24)).unwrap();
+        let depth = g
+            .check(&creep, at(0, 0.0), z, g.commit_growth(0.24))
+            .unwrap();
         let expected = 1.0 - reach - g.commit_growth(0.24);
         assert!((depth - expected).abs() < 1e-9, "{depth} vs {expected}");
         assert_eq!(
@@ -709,7 +726,9 @@ mod tests {
         );
         // The robot's radius grows the disc too.
         s.robot.radius_m = 0.96;
-        let depth = Gatekeeper::new(&s).check(&creep, at(0, 0.0), z, 0.0).unwrap();
+        let depth = Gatekeeper::new(&s)
+            .check(&creep, at(0, 0.0), z, 0.0)
+            .unwrap();
         assert!((depth - (1.0 - reach - 0.96)).abs() < 1e-9, "{depth}");
     }
 }

@@ -315,7 +315,11 @@ impl Dfl {
         };
         match fallback {
             Fallback::Brake(Some(plan_sample), brake, clearance) => {
-                note(least_unsafe(brake.is_some()), plan_sample, brake.unwrap_or(clearance));
+                note(
+                    least_unsafe(brake.is_some()),
+                    plan_sample,
+                    brake.unwrap_or(clearance),
+                );
                 self.active = None;
                 self.safety_braking = true;
             }

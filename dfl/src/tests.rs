@@ -508,7 +508,11 @@ fn when_every_choice_touches_the_dfl_takes_the_one_that_keeps_the_most_clearance
     let a = dfl.step(&at_rest, 10);
     assert_eq!(
         (a.mode(), a.intervention(), a.plan_sample),
-        (Some(CommandMode::ZetaGuard), Some(Intervention::LeastUnsafe), 1),
+        (
+            Some(CommandMode::ZetaGuard),
+            Some(Intervention::LeastUnsafe),
+            1
+        ),
         "out of the way (turning towards it first), though it touches the grown disc"
     );
     assert!(a.intervention_clearance_m < 0.0);

@@ -169,7 +169,7 @@ impl LinearMpc {
             terminal_weight,
             goal,
             q_diag: c.q_diag,
-            writes_linear_term: scenario.planner.is_on(),
+            writes_linear_term: scenario.plans_routes(),
             route_speed,
             on_route: false,
             route_reference: vec![[0.0; 4]; c.horizon + 1],

@@ -73,7 +73,7 @@ impl Task for MpcTask {
         Ok(MpcTask {
             mpc,
             faults: scenario.fault.clone(),
-            follows_route: scenario.planner.is_on(),
+            follows_route: scenario.plans_routes(),
             dry_step_max_ns: (DRY_STEP_MAX_TICKS * scenario.timing.dt_s() * 1e9) as u64,
             samples: SampleQueue::new(&scenario.timing),
             routes: VecDeque::with_capacity(4),

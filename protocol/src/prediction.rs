@@ -42,7 +42,11 @@ impl KeptTracks {
         for track in tracks.tracks() {
             let new = (*track, time_s);
             let new_growth = growth(&new);
-            match self.tracks.iter().position(|(k, _)| k.obstacle == track.obstacle) {
+            match self
+                .tracks
+                .iter()
+                .position(|(k, _)| k.obstacle == track.obstacle)
+            {
                 Some(i) if new_growth <= growth(&self.tracks[i]) => self.tracks[i] = new,
                 Some(_) => {}
                 None => self.tracks.push(new),
@@ -110,10 +114,7 @@ pub fn predicted_disc(
     let (_, sigma_v) = track.sigmas();
     let [vx, vy] = track.velocity;
     Disc {
-        center: [
-            track.center[0] + vx * age_s,
-            track.center[1] + vy * age_s,
-        ],
+        center: [track.center[0] + vx * age_s, track.center[1] + vy * age_s],
         radius: track.radius_m + growth_m + prediction_growth_m(track, age, kappa, accel_max),
         motion: DiscMotion {
             velocity: track.velocity,
@@ -155,7 +156,10 @@ mod tests {
         kept.take(&tracks(0.1, &[track(0, 1.0)]));
         assert_eq!(kept.tracks(), &[(track(0, 1e-4), 0.0)]);
         kept.take(&tracks(0.2, &[track(0, 1e-4), track(3, 1.0)]));
-        assert_eq!(kept.tracks(), &[(track(0, 1e-4), 0.2), (track(3, 1.0), 0.2)]);
+        assert_eq!(
+            kept.tracks(),
+            &[(track(0, 1e-4), 0.2), (track(3, 1.0), 0.2)]
+        );
     }
 
     #[test]

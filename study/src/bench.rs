@@ -97,6 +97,8 @@ pub struct BenchReport {
     pub cross_host: cross_host::CrossHost,
     /// The MPC step for every horizon and obstacle count of [`scaling`].
     pub scaling: Vec<scaling::ScalingPoint>,
+    /// The MPC step with five moving obstacles and with the five frozen.
+    pub moving_obstacles: scaling::MovingCost,
     /// The targets of docs/performance.md against the numbers above ([`targets::judge`]).
     pub targets: Vec<targets::Target>,
 }
@@ -383,6 +385,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     run::stop::check(stop)?;
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
+    let moving_obstacles = scaling::moving_cost(&out.join("moving"), stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -410,6 +413,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
             .collect(),
         cross_host,
         scaling,
+        moving_obstacles,
         targets: Vec::new(),
     };
     report.targets = targets::judge(&report);
@@ -538,6 +542,12 @@ impl BenchReport {
             c.link_round_trip_us,
             c.cross_host_deadline_misses
         ) + &scaling::table(&self.scaling)
+            + &format!(
+                "  MPC step, 5 moving / 5 frozen  p50 {:.0} / {:.0} µs ({:.2}×)\n",
+                self.moving_obstacles.moving_step_us.p50,
+                self.moving_obstacles.frozen_step_us.p50,
+                self.moving_obstacles.ratio_p50
+            )
             + &targets::table(&self.targets)
     }
 }

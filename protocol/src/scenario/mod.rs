@@ -464,8 +464,8 @@ pub struct DflConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlannerConfig {
-    /// `none` (the paper: the MPC drives at the goal) or `route` (a planner process, and
-    /// the MPC follows its route).
+    /// `none` (the paper: the MPC drives at the goal), `route` (a planner process, and
+    /// the MPC follows its route) or `auto` ([`Scenario::plans_routes`]).
     pub kind: PlannerKind,
     /// Replan at least this often, s; 0: only at the start, on a stall or a stray.
     pub period_s: f64,
@@ -485,23 +485,18 @@ pub struct PlannerConfig {
 pub enum PlannerKind {
     None,
     Route,
+    Auto,
 }
 
 impl Default for PlannerConfig {
     fn default() -> Self {
         PlannerConfig {
-            kind: PlannerKind::None,
+            kind: PlannerKind::Auto,
             period_s: 1.0,
             clearance_m: 0.2,
             speed_m_s: AutoOr::Auto(Auto::Auto),
             stray_m: 0.5,
         }
-    }
-}
-
-impl PlannerConfig {
-    pub fn is_on(&self) -> bool {
-        self.kind == PlannerKind::Route
     }
 }
 
@@ -636,13 +631,29 @@ impl Scenario {
     /// The role processes of a run: the four of the paper, the tracker when it tracks an
     /// obstacle, and the planner when it is on.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
-        let planner = self.planner.is_on();
+        let planner = self.plans_routes();
         let tracker = self.tracked().next().is_some();
         crate::Role::ALL.into_iter().filter(move |r| match r {
             crate::Role::Planner => planner,
             crate::Role::Tracker => tracker,
             _ => true,
         })
+    }
+
+    /// Whether a route planner runs: with `planner.kind = "route"`, and with `auto` (the
+    /// default) in a world of more than one obstacle or of any moving one, where the
+    /// straight way to the goal is likely to be blocked and a route around the obstacles
+    /// at rest leaves the moving ones to the MPC. A world of one obstacle at rest (the
+    /// paper's) and the nonlinear baseline (which drives at the goal only) run none.
+    pub fn plans_routes(&self) -> bool {
+        match self.planner.kind {
+            PlannerKind::Route => true,
+            PlannerKind::None => false,
+            PlannerKind::Auto => {
+                self.mpc.formulation == Formulation::Linear
+                    && (self.obstacles.len() > 1 || self.obstacles.iter().any(Obstacle::moves))
+            }
+        }
     }
 
     /// Whether the tracker tracks obstacle `obstacle`: every one with `perception.kind =

@@ -144,7 +144,7 @@ impl Scenario {
             v.positive("planner.speed_m_s", speed);
         }
         v.positive("planner.stray_m", p.stray_m);
-        if p.is_on() && m.formulation == Formulation::Nonlinear {
+        if p.kind == PlannerKind::Route && m.formulation == Formulation::Nonlinear {
             v.fail(
                 "planner.kind",
                 "the nonlinear baseline (mpc.formulation = \"nonlinear\") drives at the goal \
@@ -313,7 +313,9 @@ impl Scenario {
             return None;
         }
         Some(match role {
-            crate::Role::Planner => "no planner runs (planner.kind = \"none\")".into(),
+            crate::Role::Planner => "no planner runs (planner.kind = \"none\", or \"auto\" \
+                                     in a world of one obstacle at rest)"
+                .into(),
             crate::Role::Tracker => {
                 "no tracker runs (no obstacle moves and perception.kind = \"auto\")".into()
             }

@@ -164,10 +164,9 @@ impl SwapServer {
             // A live request is held to what a scheduled swap is.
             let checked = match Role::from_code(r.role) {
                 Some(Role::Plant) => Err("the plant cannot be swapped".to_string()),
-                Some(role) if !self.roles.contains(&role) => Err(format!(
-                    "no {} runs in this run (planner.kind = \"none\")",
-                    role.as_str()
-                )),
+                Some(role) if !self.roles.contains(&role) => {
+                    Err(format!("no {} runs in this run", role.as_str()))
+                }
                 Some(role) => crate::scenarios::check_swap_command(&command).map(|()| role),
                 None => Err(format!("no role with code {}", r.role)),
             };

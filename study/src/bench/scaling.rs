@@ -2,7 +2,9 @@
 //! paper's robot driven through random fields ([`super::planning_field`], a fixed seed per
 //! size, the first seed whose field has a route) along the planner's route, in process,
 //! for [`SIMULATED_S`] each; the step's percentiles per `(N, obstacles)`, as a table in
-//! `bench.json` and the figure `scaling.svg`/`.png`.
+//! `bench.json` and the figure `scaling.svg`/`.png`. And what moving obstacles cost
+//! ([`moving_cost`]): the step with five people crossing the way against the same five
+//! frozen where they start.
 
 use super::{PLANNING_START, planning_field};
 use crate::figures::{Figure, Series};
@@ -145,4 +147,56 @@ pub fn table(points: &[ScalingPoint]) -> String {
         out.push('\n');
     }
     out
+}
+
+/// The people of [`moving_cost`]: `(x, y, vy)` at t = 0 (m, m/s), radius 0.3 m, each
+/// crossing the way from (-4, 0) to (9, 0).
+pub const PEOPLE: [(f64, f64, f64); 5] = [
+    (0.0, -3.0, 0.8),
+    (1.5, -4.0, 1.0),
+    (3.0, 3.0, -0.6),
+    (4.5, 4.0, -0.9),
+    (6.0, -5.0, 0.7),
+];
+
+/// The MPC step with the [`PEOPLE`] moving (tracked every sample) and frozen where they
+/// start (obstacles at rest, no tracker), in process, [`SIMULATED_S`] each.
+#[derive(Debug, Clone, Serialize)]
+pub struct MovingCost {
+    pub moving_step_us: Percentiles,
+    pub frozen_step_us: Percentiles,
+    /// `moving_step_us.p50 / frozen_step_us.p50`.
+    pub ratio_p50: f64,
+}
+
+/// Runs the two worlds of [`MovingCost`] into `out`.
+pub fn moving_cost(out: &Path, stop: &AtomicBool) -> anyhow::Result<MovingCost> {
+    let step_us = |name: &str, moving: bool| -> anyhow::Result<Percentiles> {
+        let mut s = Scenario {
+            name: format!("people-{name}"),
+            duration_s: SIMULATED_S,
+            obstacles: (PEOPLE.iter())
+                .map(|&(x, y, vy)| Obstacle {
+                    velocity: [0.0, if moving { vy } else { 0.0 }],
+                    ..Obstacle::fixed(x, y, 0.3)
+                })
+                .collect(),
+            ..Scenario::default()
+        };
+        s.robot.start = [-4.0, 0.0, 0.0];
+        s.robot.goal = [9.0, 0.0];
+        let s = s
+            .validated("the moving-obstacle benchmark")
+            .map_err(|e| anyhow!("{e}"))?;
+        let summary = run::inprocess::run(&s, &out.join(name), false, stop)?;
+        run::stop::check(stop)?;
+        Ok(summary.solve_us)
+    };
+    let moving_step_us = step_us("moving", true)?;
+    let frozen_step_us = step_us("frozen", false)?;
+    Ok(MovingCost {
+        ratio_p50: moving_step_us.p50 / frozen_step_us.p50.max(1e-9),
+        moving_step_us,
+        frozen_step_us,
+    })
 }

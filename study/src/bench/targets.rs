@@ -42,6 +42,8 @@ pub const RSS_MIB: f64 = 20.0;
 pub const LOCKSTEP_SPEEDUP: f64 = 20.0;
 /// What `run.mcap` adds to the lockstep wall time.
 pub const RECORDING_SHARE: f64 = 0.05;
+/// The MPC step with five moving obstacles over the same step with the five frozen (p50).
+pub const MOVING_STEP_RATIO: f64 = 2.0;
 
 /// The targets of docs/performance.md as `report` measured them.
 pub fn judge(report: &BenchReport) -> Vec<Target> {
@@ -69,6 +71,12 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             report.lockstep_recording_share,
             true,
             RECORDING_SHARE,
+        ),
+        Target::new(
+            "MPC step, 5 moving / 5 frozen obstacles (p50)",
+            report.moving_obstacles.ratio_p50,
+            true,
+            MOVING_STEP_RATIO,
         ),
     ];
     targets.extend(report.peak_rss_kib.iter().map(|(role, kib)| {
