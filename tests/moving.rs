@@ -54,20 +54,34 @@ fn crossing_is_reached_without_contact_in_process_and_identically_in_lockstep() 
 }
 
 #[test]
-fn without_the_tracks_the_robot_runs_into_the_crossing_person() {
-    // The same world with an MPC that ignores every obstacle (the DFL's check knows only
-    // the standing one): what the tracks keep the robot out of.
+fn the_dfls_check_on_the_tracks_alone_keeps_an_mpc_blind_to_obstacles_off_the_crossing_person() {
+    // The same world with an MPC that ignores every obstacle and drives straight at the
+    // goal (no planner, so it meets the person): the DFL's check refuses its plans into
+    // the discs the tracks predict. Without the check too, the robot runs into the person:
+    // what the tracks keep it out of.
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
-    let s = run_into(
-        dir.path(),
-        &[
-            "crossing",
-            "--in-process",
-            "--set",
-            "fault.mpc_ignore_obstacles=true",
-        ],
-    );
+    let blind = [
+        "crossing",
+        "--in-process",
+        "--set",
+        "fault.mpc_ignore_obstacles=true",
+        "--set",
+        "planner.kind=none",
+    ];
+    let checked = dir.path().join("checked");
+    let s = run_into(&checked, &blind);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["contacts_moving"], 0, "{s}");
+    assert!(s["min_moving_clearance_m"].as_f64().unwrap() > 0.0, "{s}");
+    let refused = events(&checked)
+        .iter()
+        .filter(|e| e["event"] == "safety_intervention" && e["reason"] == "plan_refused")
+        .count();
+    assert!(refused > 0, "no plan refused");
+
+    let unchecked = [&blind[..], &["--set", "dfl.gatekeeper=false"]].concat();
+    let s = run_into(&dir.path().join("unchecked"), &unchecked);
     assert_eq!(s["outcome"], "collided", "{s}");
     assert_eq!(s["contacts_moving"], 1);
     assert!(s["min_moving_clearance_m"].as_f64().unwrap() < 0.0, "{s}");

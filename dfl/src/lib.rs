@@ -125,24 +125,57 @@ pub struct Dfl {
     interventions: u32,
 }
 
-/// What the DFL falls back to when the new plan is not committed and the committed
-/// trajectory is unsafe (or there is none): the brake (for the committed plan's sample, if
-/// one is given up; the brake's clearance if it touches; the committed trajectory's), or
-/// the committed trajectory flown on (its sample and clearance).
+/// What the DFL flies when the new plan (if any) is not committed.
 #[derive(Debug, Clone, Copy)]
-enum Fallback {
+enum Choice {
+    /// The committed trajectory, safe, goes on; or the robot brakes already.
+    Unchanged,
+    /// The brake: for the committed plan's sample, if one is given up; the brake's
+    /// clearance if it touches; the committed trajectory's.
     Brake(Option<u64>, Option<f64>, f64),
+    /// The committed trajectory flown on though it touches (its sample and clearance):
+    /// the brake would go in deeper.
     Fly(u64, f64),
+    /// Every other choice touches; the refused plan touches least (its clearance at the
+    /// re-check's growth, 0 if it clears that).
+    Refused(Plan, f64),
 }
 
-impl Fallback {
-    /// How deep the fallback enters an obstacle (negative, m), if it does.
-    fn clearance(self) -> Option<f64> {
-        match self {
-            Fallback::Brake(_, brake, _) => brake,
-            Fallback::Fly(_, clearance) => Some(clearance),
+/// The choice of the least unsafe trajectory when the committed one (`flying`) is unsafe
+/// or there is none, and a new plan was `refused`, checked `at` (the moment, the state,
+/// the re-check's growth): the committed trajectory if it is safe; else the brake, unless
+/// braking from here would enter an obstacle deeper than the committed trajectory does (a
+/// plan turning away from it, say); and when that fallback touches too, the refused plan
+/// if it touches less.
+fn choose(
+    gatekeeper: &Gatekeeper,
+    at: (Moment, [f64; 4], f64),
+    flying: Option<&Plan>,
+    refused: Option<&Plan>,
+) -> Choice {
+    let (now, z, grow) = at;
+    let fly = flying.map(|plan| (plan.sample, gatekeeper.check(plan, now, z, grow)));
+    if matches!(fly, Some((_, None))) || (fly.is_none() && refused.is_none()) {
+        return Choice::Unchanged;
+    }
+    let brake = gatekeeper.brake_check(z, now, grow);
+    let fallback = match (fly, brake) {
+        (Some((plan_sample, Some(c))), Some(b)) if b < c => Choice::Fly(plan_sample, c),
+        (Some((plan_sample, Some(c))), b) => Choice::Brake(Some(plan_sample), b, c),
+        _ => Choice::Brake(None, brake, 0.0),
+    };
+    let touching = match fallback {
+        Choice::Brake(_, brake, _) => brake,
+        Choice::Fly(_, clearance) => Some(clearance),
+        _ => None,
+    };
+    if let (Some(plan), Some(touching)) = (refused, touching) {
+        let clearance = gatekeeper.check(plan, now, z, grow);
+        if clearance.is_none_or(|c| c > touching) {
+            return Choice::Refused(*plan, clearance.unwrap_or(0.0));
         }
     }
+    fallback
 }
 
 /// What the safety check did at one tick.
@@ -254,83 +287,49 @@ impl Dfl {
                 None => {
                     self.active = Some(plan);
                     self.safety_braking = false;
-                    self.interventions += outcome.count;
                     return outcome;
                 }
                 Some(clearance) => refused = Some((plan, clearance)),
             }
         }
         // The committed trajectory, flown from this estimate (not needed once its plan is
-        // exhausted and the DFL brakes anyway), and, when it is unsafe or the robot
-        // brakes already, the brake.
+        // exhausted and the DFL brakes anyway).
         let flying = self
             .active
             .filter(|plan| covering_element(plan, sample).is_some());
-        let fly = flying.map(|plan| (plan.sample, gatekeeper.check(&plan, now, z, keep_growth)));
-        if let Some((_, None)) = fly {
-            if let Some((plan, clearance)) = refused {
-                note(Intervention::PlanRefused, plan.sample, clearance);
-            }
-            self.interventions += outcome.count;
-            return outcome;
-        }
-        if fly.is_none() && refused.is_none() {
-            return outcome; // braking already, and nothing new to choose
-        }
-        let brake = gatekeeper.brake_check(z, now, keep_growth);
-        // The fallback that keeps the most clearance: the brake, unless braking from here
-        // would enter an obstacle deeper than the committed trajectory does (a plan
-        // turning away from it, say).
-        let fallback = match (fly, brake) {
-            (Some((plan_sample, Some(c))), Some(b)) if b < c => Fallback::Fly(plan_sample, c),
-            (Some((plan_sample, Some(c))), b) => Fallback::Brake(Some(plan_sample), b, c),
-            _ => Fallback::Brake(None, brake, 0.0),
-        };
-        // When every fallback would touch, a refused plan that touches less (or not at
-        // all, at the re-check's growth) is the better choice.
-        let touching = fallback.clearance();
-        let better_plan = refused.zip(touching).and_then(|((plan, _), touching)| {
-            let clearance = gatekeeper.check(&plan, now, z, keep_growth);
-            clearance
-                .is_none_or(|c| c > touching)
-                .then_some((plan, clearance.unwrap_or(0.0)))
-        });
-        if let Some((plan, clearance)) = better_plan {
+        let choice = choose(
+            gatekeeper,
+            (now, z, keep_growth),
+            flying.as_ref(),
+            refused.as_ref().map(|(plan, _)| plan),
+        );
+        if let Choice::Refused(plan, clearance) = choice {
             note(Intervention::LeastUnsafe, plan.sample, clearance);
             self.active = Some(plan);
             self.safety_braking = false;
             self.flown_unsafe = Some(plan.sample);
-            self.interventions += outcome.count;
-            return outcome;
-        }
-        if let Some((plan, clearance)) = refused {
+        } else if let Some((plan, clearance)) = refused {
             note(Intervention::PlanRefused, plan.sample, clearance);
         }
-        let least_unsafe = |every_touches: bool| {
-            if every_touches {
-                Intervention::LeastUnsafe
-            } else {
-                Intervention::CommittedUnsafe
-            }
-        };
-        match fallback {
-            Fallback::Brake(Some(plan_sample), brake, clearance) => {
-                note(
-                    least_unsafe(brake.is_some()),
-                    plan_sample,
-                    brake.unwrap_or(clearance),
-                );
+        match choice {
+            Choice::Brake(Some(plan_sample), brake, clearance) => {
+                let every_touches = brake.is_some();
+                let intervention = if every_touches {
+                    Intervention::LeastUnsafe
+                } else {
+                    Intervention::CommittedUnsafe
+                };
+                note(intervention, plan_sample, brake.unwrap_or(clearance));
                 self.active = None;
                 self.safety_braking = true;
             }
-            Fallback::Fly(plan_sample, clearance) => {
-                if self.flown_unsafe != Some(plan_sample) {
-                    note(Intervention::LeastUnsafe, plan_sample, clearance);
-                    self.flown_unsafe = Some(plan_sample);
-                }
+            Choice::Fly(plan_sample, clearance) if self.flown_unsafe != Some(plan_sample) => {
+                note(Intervention::LeastUnsafe, plan_sample, clearance);
+                self.flown_unsafe = Some(plan_sample);
             }
-            // Braking already: nothing changes (a refused plan is reported above).
-            Fallback::Brake(None, ..) => {}
+            // The committed trajectory goes on, or the robot brakes already; a refused
+            // plan is reported above.
+            _ => {}
         }
         self.interventions += outcome.count;
         outcome

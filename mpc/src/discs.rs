@@ -134,10 +134,19 @@ impl World {
         }
     }
 
+    /// Whether any track is kept (the step's discs move).
+    pub fn has_tracks(&self) -> bool {
+        !self.tracks.tracks().is_empty()
+    }
+
     /// Fills `discs` with the step's constraint discs at the sample's time `t_s`: the
     /// known obstacles' ([`constraint_discs`]), then each track's predicted one
-    /// ([`predicted_disc`]).
-    pub fn discs(&self, g: StepGrowth, t_s: f64, discs: &mut Vec<Disc>) {
+    /// ([`predicted_disc`]) as `prediction` says.
+    pub fn discs(&self, g: StepGrowth, t_s: f64, prediction: Prediction, discs: &mut Vec<Disc>) {
+        let accel_max = match prediction {
+            Prediction::Bounded => self.tracks.accel_max(),
+            Prediction::ConstantVelocity => 0.0,
+        };
         let chord = chord_m(g.speed_m_s, g.ts_s, g.accel_max);
         constraint_discs(
             &self.known,
@@ -148,10 +157,23 @@ impl World {
             g.accel_max,
             discs,
         );
-        discs.extend(self.tracks.tracks().iter().map(|(track, time_s)| {
-            predicted_disc(track, t_s - time_s, &g, chord, self.tracks.accel_max())
-        }));
+        discs.extend(
+            self.tracks
+                .tracks()
+                .iter()
+                .map(|(track, time_s)| predicted_disc(track, t_s - time_s, &g, chord, accel_max)),
+        );
     }
+}
+
+/// How a track's disc is predicted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Prediction {
+    /// Grown by `perception.accel_max t^2 / 2` (docs/safety.md): every plan.
+    Bounded,
+    /// At the track's velocity, grown by its uncertainty alone: the escape plan of a step
+    /// whose program with bounded predictions has no solution (`LinearMpc::step`).
+    ConstantVelocity,
 }
 
 /// The disc `track` predicts `age_s` after the track's time, as a constraint

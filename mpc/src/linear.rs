@@ -9,6 +9,7 @@
 
 use crate::assembly::{Assembly, Condensing};
 use crate::brake::TerminalBrake;
+use crate::discs::Prediction;
 use crate::error::MpcError;
 use crate::follow;
 use crate::layout::{Layout, Rows};
@@ -390,19 +391,17 @@ impl LinearMpc {
         self.last_estimate = Some((x_bar, position_sigma_m));
         let z = protocol::phi(x_bar);
         let z0 = goal_relative(z, self.goal);
-        let margin = self.margin_m(position_sigma_m);
-        self.world.discs(
-            crate::discs::StepGrowth {
-                goal: self.goal,
-                margin_m: margin,
-                speed_m_s: x_bar[3],
-                ts_s: self.ts_s,
-                accel_max: std::f64::consts::SQRT_2 * self.statics.v_max,
-                uncertainty_sigmas: self.growth.uncertainty_sigmas,
-            },
-            sample as f64 * self.ts_s,
-            &mut self.discs,
-        );
+        let growth = crate::discs::StepGrowth {
+            goal: self.goal,
+            margin_m: self.margin_m(position_sigma_m),
+            speed_m_s: x_bar[3],
+            ts_s: self.ts_s,
+            accel_max: std::f64::consts::SQRT_2 * self.statics.v_max,
+            uncertainty_sigmas: self.growth.uncertainty_sigmas,
+        };
+        let t_s = sample as f64 * self.ts_s;
+        self.world
+            .discs(growth, t_s, Prediction::Bounded, &mut self.discs);
 
         let warm = self.shifted_reference(sample);
         if !warm {
@@ -422,6 +421,26 @@ impl LinearMpc {
                 iterations: outcome.iterations + retry.iterations,
                 solves: outcome.solves + retry.solves,
                 ..retry
+            };
+        }
+
+        if outcome.status != PlanStatus::Solved
+            && self.world.has_tracks()
+            && !self.cancel.cancelled()
+        {
+            // No plan keeps clear of the obstacles moving as fast as they may: one that
+            // keeps clear of them moving as they do is offered instead. The DFL's check
+            // judges it against the bounded predictions, and flies it only when every
+            // other choice (the brake, the robot at rest) would touch too: a person
+            // coming at the robot, say (docs/safety.md, "Moving obstacles").
+            self.world
+                .discs(growth, t_s, Prediction::ConstantVelocity, &mut self.discs);
+            self.braking_reference(z0);
+            let escape = self.refine(z0);
+            outcome = Outcome {
+                iterations: outcome.iterations + escape.iterations,
+                solves: outcome.solves + escape.solves,
+                ..escape
             };
         }
 

@@ -363,8 +363,9 @@ impl Report {
 }
 
 /// Runs `count` worlds of batch `seed` on `threads` threads into `out`: `fuzz.csv`, a
-/// scenario file under `out/failed/` for every world that did not reach the goal, and no
-/// run directories (a failed world replays with `scmpc run FILE`).
+/// scenario file under `out/failed/` for every world that did not reach the goal or
+/// touched an obstacle on the way (at rest), and no run directories (such a world replays
+/// with `scmpc run FILE`).
 pub fn run(
     Batch {
         seed,
@@ -397,12 +398,14 @@ pub fn run(
     Ok(report)
 }
 
-/// Where the scenario of a world that did not reach the goal is kept.
+/// Where the scenario of a world that did not reach the goal, or touched an obstacle, is
+/// kept.
 fn failed_file(out: &Path, index: usize) -> PathBuf {
     out.join("failed").join(format!("{index:04}.toml"))
 }
 
-/// `fuzz.csv`, and the scenario file of every world that did not reach the goal.
+/// `fuzz.csv`, and the scenario file of every world that did not reach the goal or
+/// touched an obstacle.
 fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(out.join("failed"))?;
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
@@ -429,8 +432,9 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             s.robot.zeta0,
             (x - s.robot.goal[0]).hypot(y - s.robot.goal[1]),
         );
-        let reached = result.as_ref().is_ok_and(|r| r.outcome == Outcome::Reached);
-        let file = if reached {
+        let clean = (result.as_ref())
+            .is_ok_and(|r| r.outcome == Outcome::Reached && r.contacts_at_rest == 0);
+        let file = if clean {
             String::new()
         } else {
             let path = failed_file(out, world.index);

@@ -40,7 +40,8 @@ pub enum Command {
     ///
     /// Writes `fuzz.csv` (one row per world: its parameters, outcome, stall reason,
     /// minimum clearance, safety interventions, solver failures) and, for every world that
-    /// did not reach the goal, its scenario under `failed/` (`scmpc run FILE` replays it).
+    /// did not reach the goal or touched an obstacle (at rest), its scenario under `failed/`
+    /// (`scmpc run FILE` replays it).
     /// Exit 1 if any world collided, 2 on bad input.
     Fuzz(FuzzArgs),
     /// Draw the paper's figure set from scratch (SVG and PNG) into a directory.
