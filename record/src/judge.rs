@@ -99,6 +99,11 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
 
+/// A robot standing still with a moving obstacle this near (edge to surface) waits for
+/// it to pass and has not stalled, m: a person crossing or coming at it takes a few
+/// seconds to go by.
+pub const WAITING_WITHIN_M: f64 = 3.0;
+
 /// A robot whose commanded forward speed (the DFL's ζ) is below this is at rest, m/s: a
 /// disturbance may still push it about, but it does not drive into anything.
 pub const REST_SPEED_M_S: f64 = 1e-3;
@@ -307,7 +312,18 @@ impl Judge {
             .window
             .iter()
             .all(|&(_, wx, wy)| (wx - x).hypot(wy - y) < STALL_DISTANCE_M);
-        (full && still && distance > self.goal_tolerance_m).then_some(Outcome::Stalled)
+        let stalled = full && still && distance > self.goal_tolerance_m;
+        (stalled && !self.waits_for_moving(t_s, x, y)).then_some(Outcome::Stalled)
+    }
+
+    /// Whether an obstacle moving at `t_s` is within [`WAITING_WITHIN_M`] of the robot
+    /// at `(x, y)`.
+    fn waits_for_moving(&self, t_s: f64, x: f64, y: f64) -> bool {
+        self.obstacles.iter().any(|o| {
+            o.velocity_at(t_s) != [0.0; 2]
+                && clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y])
+                    <= WAITING_WITHIN_M
+        })
     }
 
     /// Whether every obstacle the robot at `(x, y)` touches at `t_s` is moving then.
@@ -376,6 +392,25 @@ mod tests {
         let (outcome, t) = ended.unwrap();
         assert_eq!(outcome, Outcome::Stalled);
         assert!((t - STALL_WINDOW_S).abs() < 0.01, "stalled at {t}");
+    }
+
+    #[test]
+    fn a_robot_waiting_for_a_person_to_pass_has_not_stalled_until_the_person_is_gone() {
+        // The person (0.3 m) walks past the robot standing at (7, 7) at 1 m/s along y = 5,
+        // from x = 5: within 3 m of the robot's edge until x = 7 + 2.62 m, at 4.62 s.
+        let mut s = Scenario::default();
+        s.obstacles = vec![Obstacle {
+            velocity: [1.0, 0.0],
+            ..Obstacle::fixed(5.0, 5.0, 0.3)
+        }];
+        let mut m = Judge::new(&s);
+        let ended = (0..4000)
+            .map(|i| i as f64 * 0.005)
+            .find_map(|t| m.observe(t, 7.0, 7.0).map(|o| (o, t)));
+        let (outcome, t) = ended.expect("never stalled");
+        assert_eq!(outcome, Outcome::Stalled);
+        // Still for 3 s at 3 s, but waiting for the person until 4.62 s.
+        assert!((4.6..4.65).contains(&t), "stalled at {t}");
     }
 
     #[test]

@@ -225,6 +225,7 @@ impl Recorder {
                 serde_json::json!({
                     "tick": truth.header.tick,
                     "reason": reason.as_str(),
+                    "command": mode.as_str(),
                     "plan_sample": act.intervention_plan,
                     "clearance_m": act.intervention_clearance_m,
                     "dfl_count": act.safety_interventions,
