@@ -116,3 +116,47 @@ fn a_disc_at_rest_is_itself_at_every_stage_and_a_moving_one_moves_and_grows() {
         assert!(protocol::distance(d.center, swept.center) + d.radius <= swept.radius + 1e-12);
     }
 }
+
+#[test]
+fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_escape() {
+    // At rest at the origin, a person (0.3 m) 0.8 m away walking at it at 1 m/s: the
+    // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach.
+    let mut s = Scenario::default();
+    s.robot.start = [0.0, 0.0, 0.0];
+    s.robot.goal = [0.0, 3.0];
+    s.obstacles = vec![Obstacle {
+        velocity: [1.0, 0.0],
+        ..Obstacle::fixed(-1.1, 0.0, 0.3)
+    }];
+    let tracks = exact_tracks(&s, 0.0);
+    let plan_with = |accel_max: f64| {
+        let mut s = s.clone();
+        s.perception.accel_max = accel_max;
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        mpc.set_tracks(&tracks);
+        mpc.step(0, [0.0; 4], 0.0)
+    };
+    // With no acceleration bound the prediction is the constant-velocity one, and the
+    // program has a plan at once.
+    let at_constant_velocity = plan_with(0.0);
+    assert!(at_constant_velocity.is_solved());
+    // With 3 m/s^2 the bounded program has none: after it failed, the step offers the
+    // plan of the constant-velocity prediction.
+    let escape = plan_with(3.0);
+    assert!(escape.is_solved(), "{:?}", escape.status());
+    assert!(
+        escape.solves > at_constant_velocity.solves,
+        "the bounded program first"
+    );
+    for i in 0..escape.horizon as usize {
+        for k in 0..2 {
+            assert!((escape.v[i][k] - at_constant_velocity.v[i][k]).abs() < 1e-9);
+        }
+    }
+    let person = &s.obstacles[0];
+    for i in 0..=escape.horizon as usize {
+        let p = [escape.z[i][0], escape.z[i][2]];
+        let center = person.center_at(i as f64 * s.timing.ts_s);
+        assert!(protocol::distance(p, center) > 0.3, "stage {i}");
+    }
+}
