@@ -84,7 +84,8 @@ fn the_papers_formulation_collides_in_such_worlds_and_fuzz_says_so() {
 
 #[test]
 fn a_world_that_did_not_reach_the_goal_replays_exactly_from_its_file() {
-    let (_dir, _, rows) = fuzz(12, 5, &[]);
+    // Without the planner some world stalls at an obstacle.
+    let (_dir, _, rows) = fuzz(12, 5, &["planner.kind=none"]);
     let failed = rows
         .iter()
         .find(|r| r["outcome"] != "reached")

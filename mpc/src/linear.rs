@@ -416,12 +416,7 @@ impl LinearMpc {
         if outcome.status != PlanStatus::Solved && warm && !self.cancel.cancelled() {
             // The shifted plan is no longer a usable linearization point: start cold.
             self.braking_reference(z0);
-            let retry = self.refine(z0);
-            outcome = Outcome {
-                iterations: outcome.iterations + retry.iterations,
-                solves: outcome.solves + retry.solves,
-                ..retry
-            };
+            outcome = outcome.then(self.refine(z0));
         }
 
         if outcome.status != PlanStatus::Solved
@@ -436,12 +431,7 @@ impl LinearMpc {
             self.world
                 .discs(growth, t_s, Prediction::ConstantVelocity, &mut self.discs);
             self.braking_reference(z0);
-            let escape = self.refine(z0);
-            outcome = Outcome {
-                iterations: outcome.iterations + escape.iterations,
-                solves: outcome.solves + escape.solves,
-                ..escape
-            };
+            outcome = outcome.then(self.refine(z0));
         }
 
         let mut plan = Plan {
@@ -792,6 +782,17 @@ struct Outcome {
     status: PlanStatus,
     iterations: u32,
     solves: u32,
+}
+
+impl Outcome {
+    /// The outcome of `retry`, tried after this one, with the work of both.
+    fn then(self, retry: Outcome) -> Outcome {
+        Outcome {
+            iterations: self.iterations + retry.iterations,
+            solves: self.solves + retry.solves,
+            ..retry
+        }
+    }
 }
 
 #[cfg(test)]
