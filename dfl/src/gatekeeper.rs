@@ -578,22 +578,6 @@ mod tests {
         })
     }
 
-    /// A track at `time_s` of the obstacle at `center` moving at `velocity` (1 cm of
-    /// position sigma).
-    fn track(time_s: f64, center: [f64; 2], velocity: [f64; 2]) -> protocol::Tracks {
-        let mut tracks = protocol::Tracks::default();
-        tracks.header.time_s = time_s;
-        tracks.count = 1;
-        tracks.tracks[0] = protocol::Track {
-            radius_m: 0.3,
-            center,
-            velocity,
-            covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
-            ..protocol::Track::default()
-        };
-        tracks
-    }
-
     #[test]
     fn running_into_where_a_moving_obstacle_will_be_fails_and_braking_short_of_it_passes() {
         // At 1 m/s along x from 1.5 m short of the crossing; the obstacle crosses the way
@@ -602,14 +586,14 @@ mod tests {
         let z = [-1.5, 1.0, 0.0, 0.0];
         let coasting = plan(0, 20, [0.0, 0.0]);
         assert_eq!(g.check(&coasting, at(0, 0.0), z, 0.0), None, "no track yet");
-        g.set_tracks(&track(0.0, [0.0, -1.5], [0.0, 1.0]));
+        g.set_tracks(&crate::tests::one_track(0.0, [0.0, -1.5], [0.0, 1.0]));
         assert!(g.check(&coasting, at(0, 0.0), z, 0.0).is_some());
         assert_eq!(g.brake_check(z, at(0, 0.0), 0.0), None);
         // Frozen where it is now, it would be far from the robot's way.
         let frozen = Gatekeeper::new(&scenario_with_obstacle(0.0, -1.5, 0.3));
         assert_eq!(frozen.check(&coasting, at(0, 0.0), z, 0.0), None);
         // Tracked 2 s later, past the way and walking on, it leaves the coasting clear.
-        g.set_tracks(&track(2.0, [0.0, 0.5], [0.0, 1.0]));
+        g.set_tracks(&crate::tests::one_track(2.0, [0.0, 0.5], [0.0, 1.0]));
         assert_eq!(g.check(&plan(40, 20, [0.0; 2]), at(40, 0.0), z, 0.0), None);
     }
 

@@ -138,7 +138,7 @@ enum Choice {
     Fly(u64, f64),
     /// Every other choice touches; the refused plan touches least (its clearance at the
     /// re-check's growth, 0 if it clears that).
-    Refused(Plan, f64),
+    Refused(f64),
 }
 
 /// The choice of the least unsafe trajectory when the committed one (`flying`) is unsafe
@@ -172,7 +172,7 @@ fn choose(
     if let (Some(plan), Some(touching)) = (refused, touching) {
         let clearance = gatekeeper.check(plan, now, z, grow);
         if clearance.is_none_or(|c| c > touching) {
-            return Choice::Refused(*plan, clearance.unwrap_or(0.0));
+            return Choice::Refused(clearance.unwrap_or(0.0));
         }
     }
     fallback
@@ -303,13 +303,15 @@ impl Dfl {
             flying.as_ref(),
             refused.as_ref().map(|(plan, _)| plan),
         );
-        if let Choice::Refused(plan, clearance) = choice {
-            note(Intervention::LeastUnsafe, plan.sample, clearance);
-            self.active = Some(plan);
-            self.safety_braking = false;
-            self.flown_unsafe = Some(plan.sample);
-        } else if let Some((plan, clearance)) = refused {
-            note(Intervention::PlanRefused, plan.sample, clearance);
+        match (choice, refused) {
+            (Choice::Refused(clearance), Some((plan, _))) => {
+                note(Intervention::LeastUnsafe, plan.sample, clearance);
+                self.active = Some(plan);
+                self.safety_braking = false;
+                self.flown_unsafe = Some(plan.sample);
+            }
+            (_, Some((plan, clearance))) => note(Intervention::PlanRefused, plan.sample, clearance),
+            _ => {}
         }
         match choice {
             Choice::Brake(Some(plan_sample), brake, clearance) => {

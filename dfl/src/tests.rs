@@ -482,16 +482,7 @@ fn when_every_choice_touches_the_dfl_takes_the_one_that_keeps_the_most_clearance
     };
     s.robot.zeta0 = 0.0;
     let mut dfl = Dfl::new(&s);
-    let mut tracks = protocol::Tracks::default();
-    tracks.count = 1;
-    tracks.tracks[0] = protocol::Track {
-        radius_m: 0.3,
-        center: [-0.5, 0.0],
-        velocity: [1.0, 0.0],
-        covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
-        ..protocol::Track::default()
-    };
-    dfl.set_tracks(&tracks);
+    dfl.set_tracks(&one_track(0.0, [-0.5, 0.0], [1.0, 0.0]));
     let at_rest = Estimate::default();
     let mut towards = plan(0, 20, PlanStatus::Solved);
     towards.v = [[-3.0, 0.0]; protocol::MAX_HORIZON];
@@ -517,4 +508,26 @@ fn when_every_choice_touches_the_dfl_takes_the_one_that_keeps_the_most_clearance
     );
     assert!(a.intervention_clearance_m < 0.0);
     assert_eq!(dfl.interventions(), 2);
+}
+
+/// The tracks at `time_s` of one obstacle (0.3 m) at `center` moving at `velocity`, with
+/// 1 cm of position sigma.
+pub(crate) fn one_track(time_s: f64, center: [f64; 2], velocity: [f64; 2]) -> protocol::Tracks {
+    let mut tracks = [protocol::Track::default(); protocol::MAX_TRACKS];
+    tracks[0] = protocol::Track {
+        radius_m: 0.3,
+        center,
+        velocity,
+        covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
+        ..protocol::Track::default()
+    };
+    protocol::Tracks {
+        header: protocol::Header {
+            time_s,
+            ..protocol::Header::default()
+        },
+        count: 1,
+        tracks,
+        ..protocol::Tracks::default()
+    }
 }

@@ -398,11 +398,13 @@ mod tests {
     fn a_robot_waiting_for_a_person_to_pass_has_not_stalled_until_the_person_is_gone() {
         // The person (0.3 m) walks past the robot standing at (7, 7) at 1 m/s along y = 5,
         // from x = 5: within 3 m of the robot's edge until x = 7 + 2.62 m, at 4.62 s.
-        let mut s = Scenario::default();
-        s.obstacles = vec![Obstacle {
-            velocity: [1.0, 0.0],
-            ..Obstacle::fixed(5.0, 5.0, 0.3)
-        }];
+        let s = Scenario {
+            obstacles: vec![Obstacle {
+                velocity: [1.0, 0.0],
+                ..Obstacle::fixed(5.0, 5.0, 0.3)
+            }],
+            ..Scenario::default()
+        };
         let mut m = Judge::new(&s);
         let ended = (0..4000)
             .map(|i| i as f64 * 0.005)
