@@ -213,12 +213,12 @@ impl TrackInbox {
         self.newest.is_none_or(|t| t < self.due(tick))
     }
 
-    /// Hands the DFL every tracks due by `tick`, oldest first.
-    pub fn release(&mut self, tick: u64, dfl: &mut Dfl) {
+    /// Hands `take` every tracks due by `tick`, oldest first.
+    pub fn release(&mut self, tick: u64, mut take: impl FnMut(&Tracks)) {
         let due = self.due(tick);
         while self.pending.front().is_some_and(|t| t.header.tick <= due) {
             if let Some(tracks) = self.pending.pop_front() {
-                dfl.set_tracks(&tracks);
+                take(&tracks);
             }
         }
     }
@@ -398,7 +398,7 @@ impl DflTask {
         let sample = self.timing.sample_of(tick);
         self.inbox.release(sample, &mut self.dfl);
         if let Some(tracks) = &mut self.tracks {
-            tracks.release(tick, &mut self.dfl);
+            tracks.release(tick, |t| self.dfl.set_tracks(t));
         }
         let mut actuation = self.dfl.step(estimate, tick);
         let verdict = match actuation.mode() {
@@ -473,6 +473,43 @@ impl SilenceWatch {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_tracks_of_a_samples_start_are_waited_for_and_later_ones_wait_for_the_next_sample() {
+        // Ten inner ticks a sample, a measurement every five.
+        let scenario = protocol::Scenario::default()
+            .with_overrides(&["perception.period_s=0.025".into()])
+            .and_then(|s| s.validated("test"))
+            .unwrap();
+        let mut inbox = TrackInbox::new(&scenario);
+        let heard = |tick: u64| Tracks {
+            header: Header {
+                tick,
+                ..Header::default()
+            },
+            ..Tracks::default()
+        };
+        let released = |inbox: &mut TrackInbox, tick: u64| {
+            let mut ticks = Vec::new();
+            inbox.release(tick, |t| ticks.push(t.header.tick));
+            ticks
+        };
+        assert!(inbox.waits_for(0), "no tracks yet");
+        inbox.receive(&heard(0));
+        assert!(!inbox.waits_for(0));
+        inbox.receive(&heard(5));
+        assert_eq!(released(&mut inbox, 3), vec![0]);
+        assert_eq!(
+            released(&mut inbox, 9),
+            Vec::<u64>::new(),
+            "tick 5: next sample"
+        );
+        assert!(inbox.waits_for(10), "the tracks of tick 10 not heard");
+        inbox.receive(&heard(10));
+        inbox.receive(&heard(10));
+        assert!(!inbox.waits_for(19));
+        assert_eq!(released(&mut inbox, 10), vec![5, 10], "each once, in order");
+    }
 
     #[test]
     fn a_silent_estimator_is_braked_for_after_silent_ticks_then_every_tick() {
