@@ -7,9 +7,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-/// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, and the
-/// MCAP reader the recording is checked with.
-const PYTHON_PACKAGES: [&str; 2] = ["iceoryx2==0.10.0", "mcap==1.6.0"];
+/// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, the
+/// MCAP reader the recording is checked with, and the ROS 2 CDR and type hashes the crate
+/// `ros2` is checked with.
+const PYTHON_PACKAGES: [&str; 3] = ["iceoryx2==0.10.0", "mcap==1.6.0", "rosbags==0.11.9"];
 
 pub fn repo() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -1,0 +1,110 @@
+//! The crate `ros2` writes rmw_zenoh's wire format as a ROS 2 peer reads it: `rosbags`
+//! (PyPI, pinned in the tests' venv: [`common::python`]) deserializes every message it
+//! encodes to the values put in, serializes them back to the same bytes, and computes
+//! the same RIHS01 type hashes for Jazzy and Kilted.
+
+mod common;
+
+use common::python::{repo, run_python};
+use ros2::cdr::{Header, Message, Odometry, Path, Pose, PoseStamped, Time, Twist, TwistStamped};
+use ros2::{Distro, MessageType};
+
+fn header(frame_id: &str) -> Header {
+    Header {
+        stamp: Time {
+            sec: 1_764_000_000,
+            nanosec: 123_456_789,
+        },
+        frame_id: frame_id.into(),
+    }
+}
+
+#[test]
+fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
+    let pose = Pose {
+        position: [1.5, -2.25, 0.0],
+        orientation: [0.0, 0.0, 0.38268343236508984, 0.9238795325112867],
+    };
+    let mut odometry = Odometry {
+        header: header("odom"),
+        child_frame_id: "base_link".into(),
+        pose,
+        pose_covariance: [0.0; 36],
+        twist: Twist {
+            linear: [0.4, 0.0, 0.0],
+            angular: [0.0, 0.0, -0.3],
+        },
+        twist_covariance: [0.0; 36],
+    };
+    odometry.pose_covariance[0] = 0.01;
+    odometry.twist_covariance[35] = 0.02;
+    let twist = TwistStamped {
+        header: header("base_link"),
+        twist: Twist {
+            linear: [0.7, 0.0, 0.0],
+            angular: [0.0, 0.0, 1.25],
+        },
+    };
+    let stamped = PoseStamped {
+        header: header("map"),
+        pose,
+    };
+    let path = Path {
+        header: header("odom"),
+        poses: vec![stamped.clone(); 3],
+    };
+    let hex = |bytes: Vec<u8>| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
+    let lines = [
+        (MessageType::Twist, hex(twist.twist.to_cdr())),
+        (MessageType::TwistStamped, hex(twist.to_cdr())),
+        (MessageType::Odometry, hex(odometry.to_cdr())),
+        (MessageType::PoseStamped, hex(stamped.to_cdr())),
+        (MessageType::Path, hex(path.to_cdr())),
+    ];
+    let stdin: String = lines
+        .iter()
+        .map(|(t, payload)| format!("{} {payload}\n", t.name()))
+        .collect();
+    let names: Vec<&std::path::Path> = MessageType::ALL
+        .iter()
+        .map(|t| std::path::Path::new(t.name()))
+        .collect();
+    let script = repo().join("tests/python/ros2_peer.py");
+    let out: serde_json::Value =
+        serde_json::from_str(&run_python(&script, &names, stdin.as_bytes())).unwrap();
+
+    for distro in Distro::ALL {
+        for t in MessageType::ALL {
+            assert_eq!(
+                out["hashes"][distro.as_str()][t.name()],
+                t.type_hash(distro),
+                "{} in {}",
+                t.name(),
+                distro.as_str()
+            );
+        }
+    }
+    let messages = out["messages"].as_array().unwrap();
+    assert_eq!(messages.len(), lines.len());
+    for m in messages {
+        assert_eq!(m["same_bytes"], true, "{m}");
+    }
+    let [twist_only, twist, odometry, stamped, path] = &messages[..] else {
+        panic!("{messages:?}")
+    };
+    assert_eq!(twist_only["message"]["angular"]["z"], 1.25);
+    let t = &twist["message"];
+    assert_eq!(t["header"]["frame_id"], "base_link");
+    assert_eq!(t["header"]["stamp"]["nanosec"], 123_456_789);
+    assert_eq!(t["twist"]["linear"]["x"], 0.7);
+    let o = &odometry["message"];
+    assert_eq!(o["child_frame_id"], "base_link");
+    assert_eq!(o["pose"]["pose"]["orientation"]["w"], 0.9238795325112867);
+    assert_eq!(o["pose"]["covariance"][0], 0.01);
+    assert_eq!(o["twist"]["twist"]["angular"]["z"], -0.3);
+    assert_eq!(o["twist"]["covariance"][35], 0.02);
+    assert_eq!(stamped["message"]["pose"]["position"]["y"], -2.25);
+    let poses = path["message"]["poses"].as_array().unwrap();
+    assert_eq!(poses.len(), 3);
+    assert_eq!(poses[2]["header"]["frame_id"], "map");
+}
