@@ -373,6 +373,19 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["supervision.restart=sometimes"], "supervision.restart"),
         (&["supervision.max_restarts=-1"], "supervision.max_restarts"),
         (&["supervision.failover=remote"], "supervision.failover"),
+        (&["plant.kind=robot"], "plant.kind"),
+        // A ROS 2 robot in lockstep (the default mode).
+        (&["plant.kind=ros2"], "plant.kind"),
+        (&["ros2.endpoint=udp/127.0.0.1:7447"], "ros2.endpoint"),
+        (&["ros2.endpoint=tcp/127.0.0.1"], "ros2.endpoint"),
+        (&["ros2.domain_id=233"], "ros2.domain_id"),
+        (&["ros2.namespace=\"robot 1\""], "ros2.namespace"),
+        (&["ros2.node=scmpc-1"], "ros2.node"),
+        (&["ros2.distro=humble"], "ros2.distro"),
+        (&["ros2.cmd_vel=cmd-vel"], "ros2.cmd_vel"),
+        (&["ros2.odom=\"\""], "ros2.odom"),
+        (&["ros2.goal_topic=1goal"], "ros2.goal_topic"),
+        (&["ros2.odom_timeout_s=0"], "ros2.odom_timeout_s"),
     ];
     // (a scenario file, the key)
     let files: &[(&str, &str)] = &[
@@ -419,6 +432,24 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
             "--listen",
         ),
         (&["swap", "--run", ".", "plant"], "plant"),
+        (
+            &["run", "--in-process", "--set", "plant.kind=ros2"],
+            "plant.kind",
+        ),
+        (
+            &[
+                "run",
+                "--mode",
+                "realtime",
+                "--set",
+                "plant.kind=ros2",
+                "--set",
+                "ros2.endpoint=tcp/10.0.0.7:7447",
+            ],
+            "ros2.endpoint",
+        ),
+        (&["sweep", "--set", "plant.kind=ros2"], "plant.kind"),
+        (&["fuzz", "--set", "plant.kind=ros2"], "plant.kind"),
     ];
     let dir = tempfile::tempdir().unwrap();
     let mut problems = Vec::new();

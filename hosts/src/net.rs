@@ -110,6 +110,51 @@ pub fn config(
     Ok(config)
 }
 
+/// The configuration of a client of the Zenoh router at `router` (a ROS 2 robot's
+/// `rmw_zenohd`, docs/ros2.md): it connects there alone and fails at once when it cannot.
+pub fn client_config(router: &Endpoint, security: &Security) -> Result<zenoh::Config, HostError> {
+    let mut config = config(&[], std::slice::from_ref(router), security)?;
+    config
+        .insert_json5("mode", "\"client\"")
+        .map_err(|e| HostError::Zenoh(format!("config mode: {e}")))?;
+    Ok(config)
+}
+
+/// The environment that hands a role process this side's TLS files (the robot process
+/// of `plant.kind = "ros2"` connects to the robot's router with them).
+pub const ENV_TLS: [&str; 3] = ["SCMPC_TLS_CA", "SCMPC_TLS_CERT", "SCMPC_TLS_KEY"];
+
+impl Security {
+    /// The TLS files as [`ENV_TLS`] variables (none without TLS).
+    pub fn to_env(&self) -> Vec<(String, String)> {
+        let Some(tls) = &self.tls else {
+            return Vec::new();
+        };
+        ENV_TLS
+            .iter()
+            .zip([&tls.ca, &tls.certificate, &tls.private_key])
+            .map(|(name, path)| (name.to_string(), path.display().to_string()))
+            .collect()
+    }
+
+    /// The TLS files of [`ENV_TLS`], when all three are set.
+    pub fn from_env() -> Security {
+        let [ca, certificate, private_key] = ENV_TLS.map(std::env::var_os);
+        let tls = match (ca, certificate, private_key) {
+            (Some(ca), Some(certificate), Some(private_key)) => Some(TlsFiles {
+                ca: ca.into(),
+                certificate: certificate.into(),
+                private_key: private_key.into(),
+            }),
+            _ => None,
+        };
+        Security {
+            tls,
+            insecure: false,
+        }
+    }
+}
+
 /// Opens a session with `config`.
 pub fn open(config: zenoh::Config) -> Result<zenoh::Session, HostError> {
     zenoh::open(config)

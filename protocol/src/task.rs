@@ -181,6 +181,12 @@ pub trait Task: Sized {
     /// When the task is due again without being told.
     fn next(&self) -> Due;
 
+    /// Why the task cannot go on, once it cannot (a robot whose odometry stopped): the
+    /// process then reports its input lost and exits with this reason.
+    fn gave_up(&self) -> Option<String> {
+        None
+    }
+
     /// Whether it warms up before its periodic input in real time ([`Task::warm_up`]).
     fn warms_up(&self) -> bool {
         false

@@ -525,6 +525,7 @@ impl Recorder {
             commands: self.commands,
             replans: self.route_plans.saturating_sub(1),
             route_length_m: self.route_length_m,
+            robot: summary::RobotReport::of(scenario),
             processes,
         };
         let json = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;

@@ -91,9 +91,53 @@ pub struct Summary {
     pub replans: u64,
     /// Length of the first route, m (`None`: no planner, or no route).
     pub route_length_m: Option<f64>,
+    /// The ROS 2 robot of `plant.kind = "ros2"` (docs/ros2.md).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robot: Option<RobotReport>,
     /// Only for runs over iceoryx2 (not `--in-process`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub processes: Option<ProcessReport>,
+}
+
+/// Where a ROS 2 robot's run started and went: its first odometry replaces `robot.start`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotReport {
+    /// The robot's Zenoh router.
+    pub endpoint: String,
+    /// The first odometry's pose, `[x_m, y_m, yaw_rad]`.
+    pub start: [f64; 3],
+    /// `[x_m, y_m]` in the odometry's frame.
+    pub goal: [f64; 2],
+    /// `robot.goal`, or the goal topic it came from.
+    pub goal_from: String,
+}
+
+impl RobotReport {
+    /// The report of `scenario`'s robot, if it drives one (its start is the first
+    /// odometry's by then).
+    pub fn of(scenario: &protocol::Scenario) -> Option<RobotReport> {
+        let r = &scenario.ros2;
+        (scenario.plant.kind == protocol::PlantKind::Ros2).then(|| RobotReport {
+            endpoint: r.endpoint.clone(),
+            start: scenario.robot.start,
+            goal: scenario.robot.goal,
+            goal_from: if r.wait_for_goal {
+                r.goal_topic.clone()
+            } else {
+                "robot.goal".into()
+            },
+        })
+    }
+
+    fn row(&self) -> String {
+        let [x, y, yaw] = self.start;
+        let [gx, gy] = self.goal;
+        format!(
+            "ROS 2 via {}: start ({x:.3}, {y:.3}, {yaw:.3}) from its first odometry \
+             (robot.start ignored), goal ({gx:.3}, {gy:.3}) from {}",
+            self.endpoint, self.goal_from
+        )
+    }
 }
 
 /// What a multi-process run adds to the summary.
@@ -254,10 +298,17 @@ impl Summary {
                 ),
             ),
         ];
-        let mut table: String = rows
+        let table: String = rows
             .iter()
             .map(|(k, v)| format!("  {k:<16} {v}\n"))
             .collect();
+        table + &self.rows_of_what_ran()
+    }
+
+    /// The end table's rows of what only some runs have: moving obstacles, a route, a
+    /// robot, faults, processes.
+    fn rows_of_what_ran(&self) -> String {
+        let mut table = String::new();
         if let Some(clearance) = self.min_moving_clearance_m {
             table += &format!(
                 "  {:<16} least clearance {clearance:.3} m; contacts: {} while moving, {} at rest\n",
@@ -269,6 +320,9 @@ impl Summary {
                 "  {:<16} {length:.2} m, {} replans\n",
                 "route", self.replans
             );
+        }
+        if let Some(robot) = &self.robot {
+            table += &format!("  {:<16} {}\n", "robot", robot.row());
         }
         for fault in &self.faults {
             table += &format!("  {:<16} {fault}\n", "injected fault");

@@ -15,8 +15,12 @@ macro_rules! roles {
         /// Every role registered, in the order of the data within a tick.
         pub const ALL: &[Role] = &[$(Role::$role),*];
 
-        /// Runs a process of `role` until the orchestrator stops it ([`runtime::serve`]).
+        /// Runs a process of `role` until the orchestrator stops it ([`runtime::serve`]);
+        /// the plant of `plant.kind = "ros2"` is a ROS 2 robot ([`robot::RobotTask`]).
         pub fn serve(role: Role, args: &ProcessArgs) -> Result<(), ProcessError> {
+            if role == Role::Plant && args.scenario.plant.kind == protocol::PlantKind::Ros2 {
+                return runtime::serve::<robot::RobotTask>(args);
+            }
             match role {
                 $(Role::$role => runtime::serve::<$task>(args),)*
             }
@@ -28,6 +32,14 @@ macro_rules! roles {
             scenario: &Validated,
             epoch: u32,
         ) -> Result<Box<dyn Stepped>, TaskError> {
+            if role == Role::Plant && scenario.plant.kind == protocol::PlantKind::Ros2 {
+                return Err(TaskError {
+                    role: "plant",
+                    reason: "plant.kind = \"ros2\": a robot is driven in real time only \
+                             (scmpc run --mode realtime)"
+                        .into(),
+                });
+            }
             match role {
                 $(Role::$role => Ok(Box::new(<$task as Task>::new(scenario, epoch)?)),)*
             }

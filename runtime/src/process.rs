@@ -80,6 +80,10 @@ pub enum ProcessError {
     InputLost(Duration),
     #[error("setting up: {0}")]
     Setup(String),
+    /// The task gave up ([`Task::gave_up`](protocol::task::Task::gave_up)): its input is
+    /// as good as lost.
+    #[error("{0}")]
+    GaveUp(String),
 }
 
 /// What the orchestrator has said so far, and what a step is told ([`Context`]).
@@ -496,7 +500,7 @@ impl Member {
         loop {
             self.sync(&mut followed, inputs)?;
             let next = step(&self.clock.state.get()).inspect_err(|e| {
-                if matches!(e, ProcessError::InputLost(_)) {
+                if matches!(e, ProcessError::InputLost(_) | ProcessError::GaveUp(_)) {
                     let _ = self.report(StatusEvent::InputLost);
                 }
             })?;

@@ -55,6 +55,9 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
             });
             sent?;
         }
+        if let Some(reason) = task.gave_up() {
+            return Err(ProcessError::GaveUp(reason));
+        }
         Ok(match task.next() {
             Due::Wait(until_s) => Next::Wait(until_s),
             Due::At(at_s) => Next::At(at_s),

@@ -8,9 +8,15 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 /// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, the
-/// MCAP reader the recording is checked with, and the ROS 2 CDR and type hashes the crate
-/// `ros2` is checked with.
-const PYTHON_PACKAGES: [&str; 3] = ["iceoryx2==0.10.0", "mcap==1.6.0", "rosbags==0.11.9"];
+/// MCAP reader the recording is checked with, the ROS 2 CDR and type hashes the crate
+/// `ros2` is checked with, and Zenoh for the simulated ROS 2 base (the version of the
+/// Rust side).
+const PYTHON_PACKAGES: [&str; 4] = [
+    "iceoryx2==0.10.0",
+    "mcap==1.6.0",
+    "rosbags==0.11.9",
+    "eclipse-zenoh==1.10.2",
+];
 
 pub fn repo() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -67,19 +67,32 @@ pub(super) fn run(args: RunArgs) -> CliResult {
             "--keep-cores-awake is for --mode realtime (lockstep keeps its cores busy already)",
         ));
     }
+    let robot = scenario.plant.kind == protocol::PlantKind::Ros2;
+    if robot && (args.in_process || args.mode != Mode::Realtime) {
+        return Err(bad_input(
+            "plant.kind = \"ros2\": a robot is driven in real time only \
+             (give --mode realtime, without --in-process)",
+        ));
+    }
     let prefix = args.prefix.unwrap_or_else(runtime::ipc::new_prefix);
     runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
+    let security = args.security.security()?;
+    if robot {
+        protocol::endpoint::Endpoint::parse(&scenario.ros2.endpoint)
+            .and_then(|e| security.allows(&e))
+            .map_err(|e| bad_input(format!("ros2.endpoint: {e}")))?;
+    }
     let hosts = if args.in_process {
         multiproc::HostsSetup::default()
     } else {
-        hosts_setup(
-            &scenario,
-            &args.hosts,
-            args.security.security()?,
-            args.mode.into(),
-        )?
+        hosts_setup(&scenario, &args.hosts, security.clone(), args.mode.into())?
     };
     let stop = run::stop::on_signals();
+    let scenario = if robot {
+        from_the_robot(scenario, &security, &stop)?
+    } else {
+        scenario
+    };
     let awake = args
         .keep_cores_awake
         .then(run::awake::AwakeCores::start)
@@ -110,6 +123,25 @@ pub(super) fn run(args: RunArgs) -> CliResult {
     } else {
         Err(CliError::NotReached)
     }
+}
+
+/// `scenario` starting where the ROS 2 robot's first odometry puts it, and going to the
+/// goal its goal topic gave (`ros2.wait_for_goal`; docs/ros2.md). Nothing runs yet.
+fn from_the_robot(
+    scenario: protocol::Validated,
+    security: &hosts::net::Security,
+    stop: &std::sync::atomic::AtomicBool,
+) -> Result<protocol::Validated, CliError> {
+    let start = robot::first_contact(&scenario.ros2, security, stop)
+        .context("the ROS 2 robot (plant.kind = \"ros2\")")?;
+    let mut moved = scenario.into_inner();
+    moved.robot.start = start.pose;
+    if let Some(goal) = start.goal {
+        moved.robot.goal = goal;
+    }
+    moved
+        .validated("the robot's first odometry")
+        .map_err(bad_input)
 }
 
 /// Where each host the scenario places a role on listens (the scenario's

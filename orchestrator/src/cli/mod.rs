@@ -118,9 +118,21 @@ fn scenario(name: &str) -> CliResult {
     Ok(())
 }
 
+/// Refuses a ROS 2 robot for `command`, which runs the simulated plant in process.
+fn simulated(scenario: &protocol::Validated, command: &str) -> CliResult {
+    match scenario.plant.kind {
+        protocol::PlantKind::Sim => Ok(()),
+        protocol::PlantKind::Ros2 => Err(bad_input(format!(
+            "plant.kind = \"ros2\": scmpc {command} runs the simulated plant in process; \
+             a robot is driven by `scmpc run --mode realtime`"
+        ))),
+    }
+}
+
 fn sweep(args: SweepArgs) -> CliResult {
     use study::sweep;
     let base = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    simulated(&base, "sweep")?;
     let axes = (args.grid.iter())
         .map(|g| sweep::Axis::parse(g))
         .collect::<Result<Vec<_>, _>>()
@@ -164,7 +176,9 @@ fn fuzz(args: FuzzArgs) -> CliResult {
             args.people
         )));
     }
-    study::fuzz::world(args.seed, 0, args.people, &args.overrides).map_err(bad_input)?;
+    let first =
+        study::fuzz::world(args.seed, 0, args.people, &args.overrides).map_err(bad_input)?;
+    simulated(&first.scenario, "fuzz")?;
     let out = args
         .out
         .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fuzz-{}", args.seed)));

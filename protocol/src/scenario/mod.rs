@@ -78,6 +78,8 @@ pub struct Scenario {
     pub swap: Vec<SwapConfig>,
     /// Roles on other hosts (docs/hosts.md).
     pub hosts: HostsConfig,
+    /// The ROS 2 robot of `plant.kind = "ros2"` (docs/ros2.md).
+    pub ros2: Ros2Config,
 }
 
 /// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
@@ -258,6 +260,10 @@ pub struct Robot {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlantConfig {
+    /// `sim`: the simulated robot below; `ros2`: a ROS 2 robot driven over rmw_zenoh
+    /// (the `[ros2]` section; real time only). The keys below are the simulator's, except
+    /// the wheels' geometry and limit, which the estimator and the DFL use either way.
+    pub kind: PlantKind,
     /// Wheel radius `r` of the transform `T` (paper eq. 5), m.
     pub wheel_radius_m: f64,
     /// Distance between the wheels `d` of the transform `T`, m.
@@ -536,6 +542,7 @@ impl Default for Scenario {
             supervision: Supervision::default(),
             swap: Vec::new(),
             hosts: HostsConfig::default(),
+            ros2: Ros2Config::default(),
         }
     }
 }
@@ -564,6 +571,7 @@ impl Default for Robot {
 impl Default for PlantConfig {
     fn default() -> Self {
         PlantConfig {
+            kind: PlantKind::Sim,
             wheel_radius_m: 0.1,
             wheel_base_m: 0.5,
             max_wheel_speed_rad_s: 0.0,
@@ -699,6 +707,9 @@ pub use faults::*;
 
 mod world;
 pub use world::*;
+
+mod ros2;
+pub use ros2::*;
 
 mod validate;
 

@@ -29,6 +29,9 @@ impl Scenario {
         self.check_faults(&mut v);
         self.check_hosts(&mut v);
         self.check_swaps(&mut v);
+        for (key, message) in self.ros2.problems() {
+            v.fail(key, message);
+        }
         if v.errors.is_empty() {
             Ok(())
         } else {

@@ -72,7 +72,12 @@ impl<'a> Driver<'a> {
                 scenario.tick_count(),
                 session.clock().mode(),
             ),
-            supervisor: Supervisor::new(&scenario.supervision),
+            supervisor: Supervisor::new(
+                &scenario.supervision,
+                (scenario.plant.kind == protocol::PlantKind::Ros2)
+                    .then(|| robot::odometry_key(&scenario.ros2).ok())
+                    .flatten(),
+            ),
             swaps: SwapServer::new(scenario),
             status_line: StatusLine::new(),
             stop,

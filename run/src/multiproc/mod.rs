@@ -95,6 +95,15 @@ pub struct HostsSetup {
     pub security: Security,
 }
 
+/// What the processes need beyond the run's environment: the TLS files of the robot's
+/// router for the robot process of `plant.kind = "ros2"` (docs/ros2.md).
+fn robot_env(scenario: &Validated, security: &Security) -> Vec<(String, String)> {
+    match scenario.plant.kind {
+        protocol::PlantKind::Ros2 => security.to_env(),
+        protocol::PlantKind::Sim => Vec::new(),
+    }
+}
+
 /// Runs the scenario as role processes on iceoryx2 resources named with `prefix` (roles
 /// placed on other hosts there, as `hosts` says) and writes `out`. Whatever happens, every process is stopped
 /// and the run's iceoryx2 resources are removed before this returns.
@@ -222,7 +231,7 @@ fn drive(
         prefix,
         mode,
         session.control.publisher_id(),
-        Vec::new(),
+        robot_env(scenario, &hosts.security),
         remote,
     )?;
     children.spawn_all(scenario.roles())?;

@@ -38,12 +38,16 @@ pub(super) struct Supervisor {
     node_pids: Vec<u32>,
     /// The processes (role, epoch) that have reported ready since the run started.
     joined: Vec<(Role, u32)>,
+    /// What the plant takes, when a lost input of it is worth naming (the key of a ROS 2
+    /// robot's odometry).
+    plant_input: Option<String>,
 }
 
 impl Supervisor {
-    pub fn new(policy: &Supervision) -> Supervisor {
+    pub fn new(policy: &Supervision, plant_input: Option<String>) -> Supervisor {
         Supervisor {
             policy: policy.clone(),
+            plant_input,
             restarts: 0,
             rejected: BTreeMap::new(),
             blamed: [None; Role::COUNT],
@@ -81,9 +85,12 @@ impl Supervisor {
     ) -> anyhow::Result<()> {
         let mut joined = Vec::new();
         let mut rejected = Vec::new();
+        let mut lost = Vec::new();
         session.status.drain(|s, _| {
             if let Some(ready) = ready_role(&s) {
                 joined.push(ready);
+            } else if s.event == StatusEvent::InputLost as u32 {
+                lost.extend(Role::from_code(s.role));
             } else if s.event == StatusEvent::Rejected as u32 {
                 rejected.push((
                     Role::from_code(s.role).map_or("unknown", Role::as_str),
@@ -106,6 +113,13 @@ impl Supervisor {
             recorder.event(
                 "rejected",
                 serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
+            )?;
+        }
+        for role in lost {
+            let input = self.plant_input.as_ref().filter(|_| role == Role::Plant);
+            recorder.event(
+                "input_lost",
+                serde_json::json!({ "role": role.as_str(), "input": input }),
             )?;
         }
         for (role, s) in joined {

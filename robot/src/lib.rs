@@ -1,0 +1,35 @@
+//! The plant role played by a ROS 2 robot (`plant.kind = "ros2"`, docs/ros2.md): a node on
+//! the robot's graph that publishes each inner tick's command on `cmd_vel` and measures
+//! the robot by its odometry, over rmw_zenoh's wire format (crate `ros2`) on a Zenoh
+//! client session to the robot's router ([`link`]). [`RobotTask`] is that node as the
+//! plant's task; [`first_contact`] is what the orchestrator learns before a run starts:
+//! the start pose and, if asked, the goal.
+
+pub mod link;
+pub mod task;
+pub mod watchdog;
+
+pub use link::{Heard, Link, first_contact, odometry_key};
+pub use task::RobotTask;
+
+/// What can go wrong with the robot.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    #[error("the robot's router at {endpoint}: {reason}")]
+    Router { endpoint: String, reason: String },
+    #[error("`{key}`: {reason}")]
+    Key { key: String, reason: String },
+    #[error(
+        "no odometry within {waited_s} s on `{key}` through the router at {endpoint}; \
+         the ROS 2 graph of domain {domain_id} has {graph}"
+    )]
+    NoOdometry {
+        waited_s: f64,
+        key: String,
+        endpoint: String,
+        domain_id: u32,
+        graph: String,
+    },
+    #[error("stopped before the robot's first odometry came")]
+    Stopped,
+}

@@ -1,0 +1,513 @@
+//! The robot's side of Zenoh: a client session to the robot's router, announced on the
+//! ROS 2 graph as a node with its publisher and subscriptions (liveliness tokens), the
+//! commands it sends, and the newest odometry (and goal) it has heard.
+
+use crate::RobotError;
+use protocol::Ros2Config;
+use protocol::endpoint::Endpoint;
+use ros2::cdr::{self, Message};
+use ros2::{Attachment, Distro, EntityKind, MessageType, Node, Qos};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use zenoh::Wait;
+use zenoh::qos::CongestionControl;
+
+/// How long the pipeline waits for the robot's first odometry.
+pub const FIRST_ODOMETRY: Duration = Duration::from_secs(5);
+/// How long a graph listing waits for the router's answer.
+const GRAPH_QUERY: Duration = Duration::from_secs(1);
+/// Every endpoint's QoS: reliable, volatile, keep-last 10 (a ROS 2 node's default).
+const QOS: Qos = Qos {
+    reliable: true,
+    transient_local: false,
+    depth: 10,
+};
+/// The frame a command is stamped in: the robot's body.
+const BASE_FRAME: &str = "base_link";
+
+/// An odometry message as the pipeline heard it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Heard {
+    /// `[x_m, y_m, yaw_rad]` in the odometry's frame.
+    pub pose: [f64; 3],
+    /// The robot's forward speed (m/s) and turn rate (rad/s) as the odometry says.
+    pub twist: [f64; 2],
+    /// When it arrived, on this host's monotonic clock, ns.
+    pub arrived_ns: u64,
+    /// How old it was at arrival: the wall clock then less its header's stamp, ns (0 when
+    /// the robot's clock is ahead).
+    pub age_at_arrival_ns: u64,
+}
+
+/// The yaw of the unit quaternion `[x, y, z, w]`, rad in (-pi, pi].
+pub fn yaw(q: [f64; 4]) -> f64 {
+    let [x, y, z, w] = q;
+    (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
+}
+
+/// The wall clock, ns since the UNIX epoch.
+fn wall_ns() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as i64)
+}
+
+/// `ns` since the UNIX epoch as a ROS 2 time.
+fn ros_time(ns: i64) -> cdr::Time {
+    cdr::Time {
+        sec: ns.div_euclid(1_000_000_000) as i32,
+        nanosec: ns.rem_euclid(1_000_000_000) as u32,
+    }
+}
+
+/// What an odometry payload says, heard at `arrived_ns` (monotonic) and `now_wall_ns`.
+fn hear_odometry(payload: &[u8], arrived_ns: u64, now_wall_ns: i64) -> Option<Heard> {
+    let odometry = cdr::Odometry::from_cdr(payload).ok()?;
+    let p = odometry.pose;
+    let stamp = odometry.header.stamp;
+    let stamp_ns = i64::from(stamp.sec) * 1_000_000_000 + i64::from(stamp.nanosec);
+    let pose = [p.position[0], p.position[1], yaw(p.orientation)];
+    let twist = [odometry.twist.linear[0], odometry.twist.angular[2]];
+    pose.iter()
+        .chain(&twist)
+        .all(|v| v.is_finite())
+        .then_some(Heard {
+            pose,
+            twist,
+            arrived_ns,
+            age_at_arrival_ns: now_wall_ns.saturating_sub(stamp_ns).max(0) as u64,
+        })
+}
+
+/// The robot's names, resolved: the node, its topics fully qualified, and their keys.
+#[derive(Debug, Clone)]
+struct Names {
+    distro: Distro,
+    cmd_vel: String,
+    command_type: MessageType,
+    odom: String,
+    goal: String,
+}
+
+impl Names {
+    fn of(config: &Ros2Config) -> Result<Names, RobotError> {
+        let invalid = |key: &str, e: ros2::NameError| RobotError::Key {
+            key: key.into(),
+            reason: e.to_string(),
+        };
+        let namespace =
+            ros2::keys::namespace(&config.namespace).map_err(|e| invalid("ros2.namespace", e))?;
+        let topic = |key: &str, name: &str| {
+            ros2::keys::qualified_topic(&namespace, name).map_err(|e| invalid(key, e))
+        };
+        Ok(Names {
+            distro: Distro::parse(&config.distro).ok_or_else(|| RobotError::Key {
+                key: "ros2.distro".into(),
+                reason: format!("`{}` is not a distribution this build knows", config.distro),
+            })?,
+            cmd_vel: topic("ros2.cmd_vel", &config.cmd_vel)?,
+            command_type: if config.stamped {
+                MessageType::TwistStamped
+            } else {
+                MessageType::Twist
+            },
+            odom: topic("ros2.odom", &config.odom)?,
+            goal: topic("ros2.goal_topic", &config.goal_topic)?,
+        })
+    }
+}
+
+/// The key the odometry of `config` is taken from.
+pub fn odometry_key(config: &Ros2Config) -> Result<String, RobotError> {
+    let names = Names::of(config)?;
+    Ok(ros2::keys::data_key(
+        config.domain_id,
+        &names.odom,
+        MessageType::Odometry,
+        names.distro,
+    ))
+}
+
+/// A publisher as rmw_zenoh's: its samples carry its sequence number, the time and its
+/// GID.
+struct RosPublisher {
+    publisher: zenoh::pubsub::Publisher<'static>,
+    gid: [u8; ros2::attachment::GID_LEN],
+    sequence_number: i64,
+}
+
+impl RosPublisher {
+    fn put(&mut self, payload: Vec<u8>) -> Result<(), String> {
+        self.sequence_number += 1;
+        let attachment = Attachment {
+            sequence_number: self.sequence_number,
+            source_timestamp_ns: wall_ns(),
+            gid: self.gid,
+        };
+        self.publisher
+            .put(payload)
+            .attachment(attachment.to_bytes().to_vec())
+            .wait()
+            .map_err(|e| e.to_string())
+    }
+}
+
+/// The pipeline's node on the robot's graph.
+pub struct Link {
+    session: zenoh::Session,
+    endpoint: String,
+    domain_id: u32,
+    names: Names,
+    command: RosPublisher,
+    odometry_key: String,
+    newest_odometry: Newest<Heard>,
+    newest_goal: Newest<[f64; 2]>,
+    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    _tokens: Vec<zenoh::liveliness::LivelinessToken>,
+}
+
+/// The newest value heard, shared with a subscriber's callback.
+type Newest<T> = Arc<Mutex<Option<T>>>;
+
+/// A subscriber to `key` that keeps the newest sample `parse` makes of a payload.
+fn keep_newest<T: Send + 'static>(
+    session: &zenoh::Session,
+    key: String,
+    parse: impl Fn(&zenoh::sample::Sample) -> Option<T> + Send + Sync + 'static,
+) -> zenoh::Result<(zenoh::pubsub::Subscriber<()>, Newest<T>)> {
+    let newest = Arc::new(Mutex::new(None));
+    let kept = newest.clone();
+    let subscriber = session
+        .declare_subscriber(key)
+        .callback(move |sample| {
+            if let (Some(value), Ok(mut kept)) = (parse(&sample), kept.lock()) {
+                *kept = Some(value);
+            }
+        })
+        .wait()?;
+    Ok((subscriber, newest))
+}
+
+/// The odometry of a sample; rmw_zenoh drops a sample without its attachment, and so does
+/// the pipeline.
+fn odometry_of(sample: &zenoh::sample::Sample) -> Option<Heard> {
+    let attached = sample
+        .attachment()
+        .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok());
+    let heard = hear_odometry(
+        &sample.payload().to_bytes(),
+        runtime::clock::monotonic_ns(),
+        wall_ns(),
+    );
+    heard.filter(|_| attached)
+}
+
+/// The position of a `geometry_msgs/msg/PoseStamped` sample, `[x_m, y_m]`.
+fn goal_of(sample: &zenoh::sample::Sample) -> Option<[f64; 2]> {
+    cdr::PoseStamped::from_cdr(&sample.payload().to_bytes())
+        .ok()
+        .map(|g| [g.pose.position[0], g.pose.position[1]])
+        .filter(|g| g.iter().all(|v| v.is_finite()))
+}
+
+impl Link {
+    /// Connects to the router of `config` with `security` and announces the node, its
+    /// command publisher and its odometry and goal subscriptions.
+    pub fn open(config: &Ros2Config, security: &hosts::net::Security) -> Result<Link, RobotError> {
+        let names = Names::of(config)?;
+        let router = |reason: String| RobotError::Router {
+            endpoint: config.endpoint.clone(),
+            reason,
+        };
+        let endpoint = Endpoint::parse(&config.endpoint).map_err(router)?;
+        let zenoh_config =
+            hosts::net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
+        let session = hosts::net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
+        let node = Node::new(
+            config.domain_id,
+            &session.zid().to_string(),
+            &config.namespace,
+            &config.node,
+        )
+        .map_err(|e| RobotError::Key {
+            key: "ros2.node".into(),
+            reason: e.to_string(),
+        })?;
+        let key = |topic: &str, message| {
+            ros2::keys::data_key(config.domain_id, topic, message, names.distro)
+        };
+        let zenoh_error = |e: zenoh::Error| router(e.to_string());
+        let publisher = session
+            .declare_publisher(key(&names.cmd_vel, names.command_type))
+            .congestion_control(CongestionControl::Drop)
+            .wait()
+            .map_err(zenoh_error)?;
+        let odometry_key = odometry_key(config)?;
+        let (odometry, newest_odometry) =
+            keep_newest(&session, odometry_key.clone(), odometry_of).map_err(zenoh_error)?;
+        let goal_key = key(&names.goal, MessageType::PoseStamped);
+        let (goal, newest_goal) = keep_newest(&session, goal_key, goal_of).map_err(zenoh_error)?;
+        let tokens = announce(&session, &node, &names).map_err(zenoh_error)?;
+        Ok(Link {
+            session,
+            endpoint: config.endpoint.clone(),
+            domain_id: config.domain_id,
+            names,
+            command: RosPublisher {
+                publisher,
+                gid: rand::random(),
+                sequence_number: 0,
+            },
+            odometry_key,
+            newest_odometry,
+            newest_goal,
+            _subscribers: vec![odometry, goal],
+            _tokens: tokens,
+        })
+    }
+
+    /// The key the odometry is taken from.
+    pub fn odometry_key(&self) -> &str {
+        &self.odometry_key
+    }
+
+    /// The newest odometry heard.
+    pub fn newest_odometry(&self) -> Option<Heard> {
+        self.newest_odometry.lock().ok().and_then(|n| *n)
+    }
+
+    /// The newest goal heard on the goal topic, `[x_m, y_m]`.
+    pub fn newest_goal(&self) -> Option<[f64; 2]> {
+        self.newest_goal.lock().ok().and_then(|n| *n)
+    }
+
+    /// Sends the command `forward_m_s`, `turn_rad_s` (a Twist or a TwistStamped).
+    pub fn command(&mut self, forward_m_s: f64, turn_rad_s: f64) -> Result<(), RobotError> {
+        let twist = cdr::Twist {
+            linear: [forward_m_s, 0.0, 0.0],
+            angular: [0.0, 0.0, turn_rad_s],
+        };
+        let payload = match self.names.command_type {
+            MessageType::TwistStamped => cdr::TwistStamped {
+                header: cdr::Header {
+                    stamp: ros_time(wall_ns()),
+                    frame_id: BASE_FRAME.into(),
+                },
+                twist,
+            }
+            .to_cdr(),
+            _ => twist.to_cdr(),
+        };
+        self.command.put(payload).map_err(|reason| RobotError::Key {
+            key: self.names.cmd_vel.clone(),
+            reason,
+        })
+    }
+
+    /// Waits until the first odometry comes (at most [`FIRST_ODOMETRY`]) or `stop`.
+    pub fn first_odometry(&self, stop: &AtomicBool) -> Result<Heard, RobotError> {
+        let since = Instant::now();
+        loop {
+            if let Some(heard) = self.newest_odometry() {
+                return Ok(heard);
+            }
+            if stop.load(Ordering::Relaxed) {
+                return Err(RobotError::Stopped);
+            }
+            if since.elapsed() >= FIRST_ODOMETRY {
+                return Err(RobotError::NoOdometry {
+                    waited_s: FIRST_ODOMETRY.as_secs_f64(),
+                    key: self.odometry_key.clone(),
+                    endpoint: self.endpoint.clone(),
+                    domain_id: self.domain_id,
+                    graph: graph_text(&self.graph()),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// The liveliness tokens of the robot's domain (every node, publisher and
+    /// subscription its graph knows), sorted.
+    pub fn graph(&self) -> Vec<String> {
+        let Ok(replies) = self
+            .session
+            .liveliness()
+            .get(format!("@ros2_lv/{}/**", self.domain_id))
+            .timeout(GRAPH_QUERY)
+            .wait()
+        else {
+            return Vec::new();
+        };
+        let mut tokens: Vec<String> = std::iter::from_fn(|| replies.recv().ok())
+            .filter_map(|reply| reply.result().ok().map(|s| s.key_expr().to_string()))
+            .collect();
+        tokens.sort();
+        tokens
+    }
+
+    /// Sends a zero twist and closes the session (what every end of a run does).
+    pub fn stop_and_close(mut self) -> Result<(), RobotError> {
+        let sent = self.command(0.0, 0.0);
+        let closed = self.session.close().wait().map_err(|e| RobotError::Router {
+            endpoint: self.endpoint.clone(),
+            reason: e.to_string(),
+        });
+        sent.and(closed)
+    }
+}
+
+/// The liveliness tokens of `node`, its publisher and its subscriptions, alive as long as
+/// they are held.
+fn announce(
+    session: &zenoh::Session,
+    node: &Node,
+    names: &Names,
+) -> zenoh::Result<Vec<zenoh::liveliness::LivelinessToken>> {
+    let entities = [
+        (1, EntityKind::Publisher, &names.cmd_vel, names.command_type),
+        (
+            2,
+            EntityKind::Subscription,
+            &names.odom,
+            MessageType::Odometry,
+        ),
+        (
+            3,
+            EntityKind::Subscription,
+            &names.goal,
+            MessageType::PoseStamped,
+        ),
+    ];
+    let mut tokens = vec![node.token()];
+    tokens.extend(entities.iter().map(|(id, kind, topic, message)| {
+        node.endpoint_token(*id, *kind, topic, *message, names.distro, QOS)
+    }));
+    tokens
+        .into_iter()
+        .map(|token| session.liveliness().declare_token(token).wait())
+        .collect()
+}
+
+/// The tokens of a graph as the error of a missing odometry lists them.
+fn graph_text(tokens: &[String]) -> String {
+    if tokens.is_empty() {
+        "no liveliness token at all (is the robot on this domain, and its router there?)".into()
+    } else {
+        format!("these liveliness tokens:\n  {}", tokens.join("\n  "))
+    }
+}
+
+/// What the orchestrator learns before a run starts: where the robot is, and where it is
+/// to go.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Start {
+    /// The first odometry's pose.
+    pub pose: [f64; 3],
+    /// The goal heard on the goal topic (`ros2.wait_for_goal`), `None`: `robot.goal`.
+    pub goal: Option<[f64; 2]>,
+}
+
+/// Connects to the robot of `config`, waits for its first odometry (and, with
+/// `ros2.wait_for_goal`, for a goal, as long as it takes) and disconnects. Nothing is
+/// published.
+pub fn first_contact(
+    config: &Ros2Config,
+    security: &hosts::net::Security,
+    stop: &AtomicBool,
+) -> Result<Start, RobotError> {
+    let link = Link::open(config, security)?;
+    let first = link.first_odometry(stop)?;
+    let goal = if config.wait_for_goal {
+        eprintln!(
+            "waiting for a goal on {} (RViz: \"2D Goal Pose\")",
+            link.names.goal
+        );
+        loop {
+            if let Some(goal) = link.newest_goal() {
+                break Some(goal);
+            }
+            if stop.load(Ordering::Relaxed) {
+                return Err(RobotError::Stopped);
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    } else {
+        None
+    };
+    let _ = link.session.close().wait();
+    Ok(Start {
+        pose: first.pose,
+        goal,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn yaw_is_the_quaternions_turn_about_z() {
+        for yaw_rad in [-3.0, -1.2, 0.0, 0.7, 2.356_194_490_192_345, 3.1] {
+            let half: f64 = yaw_rad / 2.0;
+            let q = [0.0, 0.0, half.sin(), half.cos()];
+            assert!((yaw(q) - yaw_rad).abs() < 1e-12, "{yaw_rad}");
+        }
+    }
+
+    #[test]
+    fn odometry_is_heard_with_its_age_and_refused_when_not_finite() {
+        let odometry = |x: f64| cdr::Odometry {
+            header: cdr::Header {
+                stamp: cdr::Time {
+                    sec: 10,
+                    nanosec: 500,
+                },
+                frame_id: "odom".into(),
+            },
+            child_frame_id: "base_link".into(),
+            pose: cdr::Pose {
+                position: [x, 2.0, 0.0],
+                orientation: [0.0, 0.0, 0.0, 1.0],
+            },
+            pose_covariance: [0.0; 36],
+            twist: cdr::Twist {
+                linear: [0.3, 0.0, 0.0],
+                angular: [0.0, 0.0, -0.1],
+            },
+            twist_covariance: [0.0; 36],
+        };
+        let heard = hear_odometry(&odometry(1.0).to_cdr(), 7, 10_000_002_500).unwrap();
+        assert_eq!(heard.pose, [1.0, 2.0, 0.0]);
+        assert_eq!(heard.twist, [0.3, -0.1]);
+        assert_eq!((heard.arrived_ns, heard.age_at_arrival_ns), (7, 2000));
+        // A robot clock ahead of this host's: no negative age.
+        assert_eq!(
+            hear_odometry(&odometry(1.0).to_cdr(), 7, 0)
+                .unwrap()
+                .age_at_arrival_ns,
+            0
+        );
+        assert_eq!(hear_odometry(&odometry(f64::NAN).to_cdr(), 7, 0), None);
+        assert_eq!(hear_odometry(&[0, 1, 0, 0, 9], 7, 0), None);
+    }
+
+    #[test]
+    fn ros_time_splits_negative_and_positive_ns() {
+        assert_eq!(
+            ros_time(1_500_000_000),
+            cdr::Time {
+                sec: 1,
+                nanosec: 500_000_000
+            }
+        );
+        assert_eq!(
+            ros_time(-1),
+            cdr::Time {
+                sec: -1,
+                nanosec: 999_999_999
+            }
+        );
+    }
+}

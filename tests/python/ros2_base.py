@@ -1,0 +1,320 @@
+"""A simulated ROS 2 differential-drive base for tests/ros2_robot.rs, built from public
+packages the project did not write: `eclipse-zenoh` for the transport and `rosbags` for
+the CDR and the RIHS01 type hashes. It speaks rmw_zenoh's wire format as a Jazzy or Kilted
+node would: it takes `cmd_vel` (TwistStamped or Twist) and publishes `odom` (Odometry) at
+50 Hz, with an actuator lag, odometry noise and a command watchdog like
+`diff_drive_controller`'s (`cmd_vel_timeout`).
+
+`--router ENDPOINT` runs a Zenoh router there instead (the robot's `rmw_zenohd`).
+
+On SIGTERM the base writes its log (JSON) to `--log`: its own truth, every command it
+took with its attachment, when it published odometry and when it went on after a
+SIGSTOP (SIGCONT), and every change of the ROS 2 graph
+(liveliness tokens appearing and going) as rmw_zenoh's graph cache would parse it. SIGSTOP pauses it, odometry and all."""
+
+import argparse
+import json
+import math
+import os
+import random
+import signal
+import struct
+import sys
+import threading
+import time
+import traceback
+
+import numpy as np
+import zenoh
+from rosbags.typesys import Stores, get_typestore
+
+STORES = {"jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED}
+DT_S = 0.005
+ODOMETRY_EVERY = 4  # 200 Hz / 4 = 50 Hz
+QOS = "::,10:,:,:,,"
+
+
+def dds_name(typename):
+    package, kind, name = typename.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def data_key(domain, topic, typename, store):
+    return f"{domain}/{topic.strip('/')}/{dds_name(typename)}/{store.hash_rihs01(typename)}"
+
+
+def attachment(sequence, gid):
+    return struct.pack("<qqB16s", sequence, time.time_ns(), 16, gid)
+
+
+def read_attachment(data):
+    if data is None or len(data) != 33 or data[16] != 16:
+        return None
+    sequence, stamp = struct.unpack_from("<qq", data)
+    return {"sequence": sequence, "source_timestamp_ns": stamp}
+
+
+def parse_token(key):
+    """A liveliness token as rmw_zenoh's graph cache reads it (`liveliness_utils.cpp`):
+    None when it would refuse it."""
+    parts = key.split("/")
+    if len(parts) < 9 or parts[0] != "@ros2_lv":
+        return None
+    entity = {
+        "domain": int(parts[1]),
+        "zid": parts[2],
+        "node_id": int(parts[3]),
+        "entity_id": int(parts[4]),
+        "kind": parts[5],
+        "enclave": parts[6].replace("%", "/"),
+        "namespace": parts[7].replace("%", "/"),
+        "node": parts[8],
+    }
+    if entity["kind"] == "NN":
+        return entity if len(parts) == 9 else None
+    if entity["kind"] not in ("MP", "MS", "SS", "SC") or len(parts) != 13:
+        return None
+    qos = parts[12].split(":")
+    if len(qos) != 6 or len(qos[2].split(",")) != 2 or len(qos[5].split(",")) != 3:
+        return None
+    history_depth = qos[2].split(",")[1]
+    entity.update(
+        topic=parts[9].replace("%", "/"),
+        type=parts[10],
+        type_hash=parts[11],
+        reliable=qos[0] in ("", "1"),
+        depth=int(history_depth) if history_depth else 42,
+    )
+    return entity
+
+
+class Base:
+    def __init__(self, args, store):
+        self.args = args
+        self.store = store
+        self.lock = threading.Lock()
+        x, y, yaw = args.start
+        self.pose = [x, y, yaw]
+        self.speed = [0.0, 0.0]  # what the wheels do: forward m/s, turn rad/s
+        self.wanted = [0.0, 0.0]
+        self.last_command = None  # monotonic s
+        self.commands = []
+        self.refused = 0
+        self.truth = []
+        self.odometry_ns = []
+        self.rng = random.Random(args.seed)
+
+    def on_command(self, sample):
+        attached = read_attachment(
+            sample.attachment.to_bytes() if sample.attachment is not None else None
+        )
+        if attached is None:
+            with self.lock:
+                self.refused += 1
+            return
+        message = self.store.deserialize_cdr(sample.payload.to_bytes(), self.args.command_type)
+        twist = message.twist if hasattr(message, "twist") else message
+        with self.lock:
+            self.wanted = [twist.linear.x, twist.angular.z]
+            self.last_command = time.monotonic()
+            self.commands.append(
+                dict(
+                    attached,
+                    received_ns=time.time_ns(),
+                    forward=twist.linear.x,
+                    turn=twist.angular.z,
+                    frame_id=message.header.frame_id if hasattr(message, "header") else None,
+                )
+            )
+
+    def step(self):
+        """One step of the wheels (first-order lag) and the unicycle."""
+        with self.lock:
+            quiet = self.last_command is None or (
+                time.monotonic() - self.last_command > self.args.watchdog_s
+            )
+            wanted = [0.0, 0.0] if quiet else list(self.wanted)
+            alpha = DT_S / (self.args.lag_s + DT_S)
+            self.speed = [s + alpha * (w - s) for s, w in zip(self.speed, wanted)]
+            v, w = self.speed
+            x, y, yaw = self.pose
+            self.pose = [x + DT_S * v * math.cos(yaw), y + DT_S * v * math.sin(yaw), yaw + DT_S * w]
+            self.truth.append([time.time_ns(), *self.pose, v, w])
+
+    def odometry(self):
+        t = self.store.types
+        noise = self.args.noise_std
+        with self.lock:
+            x, y, yaw = (p + self.rng.gauss(0.0, noise) for p in self.pose)
+            v, w = self.speed
+        now = time.time_ns()
+        covariance = np.zeros(36, dtype=np.float64)
+        return t["nav_msgs/msg/Odometry"](
+            header=t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=now // 10**9, nanosec=now % 10**9),
+                frame_id="odom",
+            ),
+            child_frame_id="base_link",
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=t["geometry_msgs/msg/Pose"](
+                    position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+                    orientation=t["geometry_msgs/msg/Quaternion"](
+                        x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)
+                    ),
+                ),
+                covariance=covariance,
+            ),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=t["geometry_msgs/msg/Twist"](
+                    linear=t["geometry_msgs/msg/Vector3"](x=v, y=0.0, z=0.0),
+                    angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=w),
+                ),
+                covariance=covariance,
+            ),
+        )
+
+
+def config(mode, listen=(), connect=()):
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def wait_for_term():
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    signal.signal(signal.SIGINT, lambda *_: done.set())
+    return done
+
+
+def router(endpoint):
+    done = wait_for_term()
+    session = zenoh.open(config("router", listen=[endpoint]))
+    print("router ready", flush=True)
+    done.wait()
+    session.close()
+
+
+def base(args):
+    store = get_typestore(STORES[args.distro])
+    args.command_type = (
+        "geometry_msgs/msg/TwistStamped" if args.stamped else "geometry_msgs/msg/Twist"
+    )
+    done = wait_for_term()
+    resumed_ns = []
+    signal.signal(signal.SIGCONT, lambda *_: resumed_ns.append(time.time_ns()))
+    session = zenoh.open(config("peer", connect=[args.connect]))
+    zid = str(session.zid())
+    the_base = Base(args, store)
+    cmd_key = data_key(args.domain, args.cmd_vel, args.command_type, store)
+    odom_key = data_key(args.domain, args.odom, "nav_msgs/msg/Odometry", store)
+    subscriber = session.declare_subscriber(cmd_key, the_base.on_command)
+    publisher = session.declare_publisher(odom_key)
+    node = f"@ros2_lv/{args.domain}/{zid}/0"
+    tokens = [
+        session.liveliness().declare_token(f"{node}/0/NN/%/%/base"),
+        session.liveliness().declare_token(
+            f"{node}/1/MP/%/%/base/%{args.odom.strip('/')}/{dds_name('nav_msgs/msg/Odometry')}/"
+            f"{store.hash_rihs01('nav_msgs/msg/Odometry')}/{QOS}"
+        ),
+        session.liveliness().declare_token(
+            f"{node}/2/MS/%/%/base/%{args.cmd_vel.strip('/')}/{dds_name(args.command_type)}/"
+            f"{store.hash_rihs01(args.command_type)}/{QOS}"
+        ),
+    ]
+    graph = []
+
+    def on_token(sample):
+        key = str(sample.key_expr)
+        with the_base.lock:
+            graph.append(
+                {
+                    "token": key,
+                    "alive": sample.kind == zenoh.SampleKind.PUT,
+                    "parsed": parse_token(key),
+                }
+            )
+
+    watcher = session.liveliness().declare_subscriber(
+        f"@ros2_lv/{args.domain}/**", on_token, history=True
+    )
+    gid = bytes(random.Random(args.seed).getrandbits(8) for _ in range(16))
+    # rosbags makes a type's (de)serializer on its first use: not while the base drives.
+    the_base.odometry_cdr = lambda: bytes(
+        store.serialize_cdr(the_base.odometry(), "nav_msgs/msg/Odometry")
+    )
+    the_base.odometry_cdr()
+    t = store.types
+    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    command = t["geometry_msgs/msg/Twist"](linear=zero, angular=zero)
+    if args.stamped:
+        stamp = t["builtin_interfaces/msg/Time"](sec=0, nanosec=0)
+        header = t["std_msgs/msg/Header"](stamp=stamp, frame_id="")
+        command = t["geometry_msgs/msg/TwistStamped"](header=header, twist=command)
+    payload = bytes(store.serialize_cdr(command, args.command_type))
+    store.deserialize_cdr(payload, args.command_type)
+    print("base ready", flush=True)
+    sequence = 0
+    next_s = time.monotonic()
+    steps = 0
+    while not done.is_set():
+        the_base.step()
+        steps += 1
+        if steps % ODOMETRY_EVERY == 0:
+            sequence += 1
+            publisher.put(the_base.odometry_cdr(), attachment=attachment(sequence, gid))
+            the_base.odometry_ns.append(time.time_ns())
+        next_s += DT_S
+        time.sleep(max(0.0, next_s - time.monotonic()))
+    with the_base.lock:
+        log = {
+            "truth": the_base.truth,
+            "commands": the_base.commands,
+            "refused_commands": the_base.refused,
+            "odometry_ns": the_base.odometry_ns,
+            "resumed_ns": resumed_ns,
+            "graph": graph,
+            "command_key": cmd_key,
+            "odometry_key": odom_key,
+        }
+    with open(args.log, "w") as f:
+        json.dump(log, f)
+    del subscriber, tokens, watcher
+    session.close()
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--router")
+    parser.add_argument("--connect")
+    parser.add_argument("--log")
+    parser.add_argument("--domain", type=int, default=0)
+    parser.add_argument("--distro", default="jazzy")
+    parser.add_argument("--cmd-vel", default="cmd_vel")
+    parser.add_argument("--odom", default="odom")
+    parser.add_argument("--twist", dest="stamped", action="store_false")
+    parser.add_argument("--start", type=float, nargs=3, default=[0.0, 0.0, 0.0])
+    parser.add_argument("--lag-s", type=float, default=0.05)
+    parser.add_argument("--noise-std", type=float, default=0.002)
+    parser.add_argument("--watchdog-s", type=float, default=0.5)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+    if args.router:
+        router(args.router)
+    else:
+        base(args)
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except BaseException:
+        # Zenoh's threads would keep a failed base alive: print why and go.
+        traceback.print_exc()
+        sys.stderr.flush()
+        os._exit(1)
+    sys.stdout.flush()
+    os._exit(0)

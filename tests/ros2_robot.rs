@@ -1,0 +1,382 @@
+//! A ROS 2 robot in place of the plant (`plant.kind = "ros2"`, docs/ros2.md): the pipeline
+//! drives a simulated base the project did not write the transport or the messages of
+//! (tests/python/ros2_base.py: `eclipse-zenoh` and `rosbags`, pinned in the tests' venv),
+//! through a Zenoh router as a robot running rmw_zenoh has one.
+
+mod common;
+
+use common::python::{python, repo};
+use common::{
+    SimulatedClock, events, leftovers, machine_alone, run, spawn_run, stderr, summary,
+    unique_prefix, wait_for, wait_for_pid,
+};
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::{Receiver, channel};
+use std::time::Duration;
+
+/// The paper's start, where the base starts (the run takes it from the first odometry).
+const PAPER_START: [&str; 3] = ["7", "7", "-2.356194490192345"];
+/// The paper's obstacle: centre and radius, m.
+const OBSTACLE: [f64; 3] = [3.0, 3.5, 1.5];
+/// `ros2.odom_timeout_s`'s default and the inner tick of the paper, s.
+const ODOM_TIMEOUT_S: f64 = 0.2;
+const TICK_S: f64 = 0.005;
+
+/// A Python process of tests/python/ros2_base.py, its stdout line by line.
+struct Python {
+    child: Child,
+    lines: Receiver<String>,
+}
+
+impl Python {
+    fn start(args: &[&str]) -> Python {
+        let mut child = Command::new(python())
+            .arg(repo().join("tests/python/ros2_base.py"))
+            .args(args)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("cannot start tests/python/ros2_base.py");
+        let (send, lines) = channel();
+        let stdout = child.stdout.take().expect("stdout piped");
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if send.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let python = Python { child, lines };
+        let ready = python.lines.recv_timeout(Duration::from_secs(60));
+        assert!(
+            ready.as_deref().is_ok_and(|l| l.ends_with("ready")),
+            "{args:?} never said it was ready: {ready:?}"
+        );
+        python
+    }
+
+    fn signal(&self, signal: i32) {
+        // SAFETY: a signal to a process this test started and has not reaped.
+        unsafe { libc::kill(self.child.id() as i32, signal) };
+    }
+
+    /// SIGTERM, then its exit (30 s at most).
+    fn stop(&mut self) {
+        self.signal(libc::SIGTERM);
+        let exited = wait_for(Duration::from_secs(30), || {
+            self.child.try_wait().ok().flatten().is_some()
+        });
+        assert!(exited, "the Python process did not exit on SIGTERM");
+    }
+}
+
+impl Drop for Python {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A robot: its Zenoh router on a free loopback port and the simulated base on it.
+struct Robot {
+    base: Python,
+    router: Python,
+    endpoint: String,
+    log: PathBuf,
+}
+
+impl Robot {
+    fn start(dir: &Path, base_args: &[&str]) -> Robot {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("no free port")
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let router = Python::start(&["--router", &endpoint]);
+        let log = dir.join("base.json");
+        let base = Python::start(
+            &[
+                &["--connect", &endpoint, "--log", log.to_str().unwrap()][..],
+                &["--start"],
+                &PAPER_START,
+                base_args,
+            ]
+            .concat(),
+        );
+        Robot {
+            base,
+            router,
+            endpoint,
+            log,
+        }
+    }
+
+    /// `--set ros2.endpoint=...`.
+    fn endpoint_set(&self) -> String {
+        format!("ros2.endpoint={}", self.endpoint)
+    }
+
+    /// Stops the base and the router; the base's log.
+    fn finish(mut self) -> Value {
+        self.base.stop();
+        self.router.stop();
+        let text = std::fs::read_to_string(&self.log).expect("the base wrote no log");
+        serde_json::from_str(&text).expect("the base's log is not JSON")
+    }
+}
+
+fn f64_of(value: &Value) -> f64 {
+    value.as_f64().expect("a number")
+}
+
+/// The base's own least clearance from the paper's obstacle, m.
+fn true_clearance_m(log: &Value) -> f64 {
+    log["truth"]
+        .as_array()
+        .expect("truth")
+        .iter()
+        .map(|row| {
+            let (x, y) = (f64_of(&row[1]), f64_of(&row[2]));
+            (x - OBSTACLE[0]).hypot(y - OBSTACLE[1]) - OBSTACLE[2]
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn is_zero(command: &Value) -> bool {
+    f64_of(&command["forward"]) == 0.0 && f64_of(&command["turn"]) == 0.0
+}
+
+/// The pipeline's tokens in the base's graph, as rmw_zenoh's graph cache parsed them:
+/// `(kind, topic, type, type hash)` of each, once each appeared, then went.
+fn pipeline_entities(log: &Value) -> Vec<(String, String, String, String)> {
+    let changes = log["graph"].as_array().expect("graph");
+    let ours = |c: &&Value| c["parsed"]["node"] == "scmpc";
+    let mut entities = Vec::new();
+    for change in changes.iter().filter(ours).filter(|c| c["alive"] == true) {
+        let parsed = &change["parsed"];
+        assert!(parsed.is_object(), "rmw_zenoh would refuse {change}");
+        let gone = changes
+            .iter()
+            .any(|c| c["token"] == change["token"] && c["alive"] == false);
+        assert!(gone, "{} was still alive after the run", change["token"]);
+        let text = |key: &str| parsed[key].as_str().unwrap_or_default().to_string();
+        entities.push((text("kind"), text("topic"), text("type"), text("type_hash")));
+    }
+    entities.sort();
+    entities
+}
+
+/// Drives the paper scenario on the base (`stamped`: TwistStamped, else Twist) and checks
+/// what the must-holds say, by the base's own truth and log.
+fn drive_the_paper_scenario(stamped: bool) {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let robot = Robot::start(dir.path(), if stamped { &[] } else { &["--twist"] });
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        "--mode",
+        "realtime",
+        "--no-mcap",
+        "--set",
+        "plant.kind=ros2",
+        "--set",
+        &format!("ros2.stamped={stamped}"),
+        "--set",
+        &robot.endpoint_set(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let log = robot.finish();
+    let summary = summary(&out_dir);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert_eq!(summary["outcome"], "reached");
+    assert_eq!(
+        summary["robot"]["start"][0].as_f64().map(f64::round),
+        Some(7.0)
+    );
+    let clearance = true_clearance_m(&log);
+    assert!(
+        clearance >= 0.0,
+        "the base entered the obstacle: {clearance} m"
+    );
+
+    let commands = log["commands"].as_array().expect("commands");
+    assert!(commands.len() > 1000, "{} commands", commands.len());
+    assert_eq!(log["refused_commands"], 0, "commands without an attachment");
+    let numbered = commands
+        .iter()
+        .enumerate()
+        .all(|(i, c)| c["sequence"] == i as u64 + 1);
+    assert!(numbered, "sequence numbers are not 1, 2, 3, ...");
+    assert!(is_zero(commands.last().unwrap()), "the last command moves");
+    let frame = if stamped {
+        Value::from("base_link")
+    } else {
+        Value::Null
+    };
+    assert!(commands.iter().all(|c| c["frame_id"] == frame));
+
+    let key = |name: &str| {
+        log[name]
+            .as_str()
+            .expect("key")
+            .split('/')
+            .collect::<Vec<_>>()
+    };
+    let (command, odometry) = (key("command_key"), key("odometry_key"));
+    let entity = |kind: &str, topic: &str, of: &[&str]| {
+        (kind.into(), topic.into(), of[2].into(), of[3].into())
+    };
+    let mut wanted = vec![
+        entity("MP", "/cmd_vel", &command),
+        entity("MS", "/odom", &odometry),
+        ("NN".into(), String::new(), String::new(), String::new()),
+    ];
+    let found = pipeline_entities(&log);
+    wanted.retain(|w| !found.contains(w));
+    assert!(
+        wanted.is_empty(),
+        "tokens missing: {wanted:?} among {found:?}"
+    );
+}
+
+#[test]
+fn the_paper_scenario_drives_a_simulated_base_to_its_goal_with_twist_stamped() {
+    drive_the_paper_scenario(true);
+}
+
+#[test]
+fn the_paper_scenario_drives_a_simulated_base_to_its_goal_with_twist() {
+    drive_the_paper_scenario(false);
+}
+
+#[test]
+fn odometry_that_stops_brakes_the_robot_within_the_timeout_and_aborts_the_run() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let robot = Robot::start(dir.path(), &[]);
+    let out_dir = dir.path().join("run");
+    let prefix = unique_prefix("ros2stop");
+    let mut run = spawn_run(
+        &out_dir,
+        &[
+            "--mode",
+            "realtime",
+            "--no-mcap",
+            "--set",
+            "plant.kind=ros2",
+            "--set",
+            &robot.endpoint_set(),
+            "--prefix",
+            &prefix,
+        ],
+    );
+    wait_for_pid(&out_dir, "plant");
+    SimulatedClock::of(&prefix).wait_until(2.0);
+    robot.base.signal(libc::SIGSTOP);
+    let ended = wait_for(Duration::from_secs(30), || {
+        run.try_wait().ok().flatten().is_some()
+    });
+    robot.base.signal(libc::SIGCONT);
+    assert!(ended, "the run went on without odometry");
+    let log = robot.finish();
+    assert_eq!(run.wait().unwrap().code(), Some(1));
+    assert_eq!(summary(&out_dir)["outcome"], "aborted");
+    let lost = events(&out_dir)
+        .into_iter()
+        .find(|e| e["event"] == "input_lost")
+        .expect("no input_lost event");
+    assert_eq!(lost["role"], "plant");
+    assert_eq!(lost["input"], log["odometry_key"]);
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+
+    // The newest odometry the base sent before it was paused, and the commands after.
+    let resumed_ns = log["resumed_ns"][0]
+        .as_i64()
+        .expect("the base never went on");
+    let last_odometry_ns = log["odometry_ns"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_i64().unwrap())
+        .take_while(|&t| t < resumed_ns)
+        .last()
+        .expect("no odometry before the pause");
+    let after: Vec<&Value> = log["commands"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["source_timestamp_ns"].as_i64().unwrap() > last_odometry_ns)
+        .collect();
+    let braking_from = after
+        .iter()
+        .rposition(|c| !is_zero(c))
+        .map_or(0, |moving| moving + 1);
+    let braked = after
+        .get(braking_from)
+        .expect("no zero twist after the odometry stopped");
+    let after_s =
+        (braked["source_timestamp_ns"].as_i64().unwrap() - last_odometry_ns) as f64 * 1e-9;
+    // One tick for the check, and one for the odometry's way to the pipeline.
+    assert!(
+        after_s <= ODOM_TIMEOUT_S + 2.0 * TICK_S,
+        "the first zero twist of the brake left {after_s} s after the last odometry"
+    );
+}
+
+#[test]
+fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let robot = Robot::start(dir.path(), &["--odom", "wheel_odom"]);
+    let out_dir = dir.path().join("run");
+    let prefix = unique_prefix("ros2none");
+    let out = run(&[
+        "run",
+        "--mode",
+        "realtime",
+        "--set",
+        "plant.kind=ros2",
+        "--set",
+        &robot.endpoint_set(),
+        "--prefix",
+        &prefix,
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    let message = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{message}");
+    for wanted in [
+        robot.endpoint.as_str(),
+        "`0/odom/nav_msgs::msg::dds_::Odometry_/RIHS01_",
+        "/MP/%/%/base/%wheel_odom/nav_msgs::msg::dds_::Odometry_/",
+    ] {
+        assert!(message.contains(wanted), "no `{wanted}` in: {message}");
+    }
+    assert!(!out_dir.join("summary.json").exists(), "a run started");
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    drop(robot);
+
+    // No router there at all.
+    let closed = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{closed}");
+    let out = run(&[
+        "run",
+        "--mode",
+        "realtime",
+        "--set",
+        "plant.kind=ros2",
+        "--set",
+        &format!("ros2.endpoint={endpoint}"),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains(&endpoint), "{}", stderr(&out));
+}
