@@ -10,6 +10,7 @@ use common::{
     SimulatedClock, events, leftovers, machine_alone, run, spawn_run, stderr, summary,
     unique_prefix, wait_for, wait_for_pid,
 };
+use runtime::ipc::process_alive;
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -113,11 +114,6 @@ impl Robot {
         }
     }
 
-    /// `--set ros2.endpoint=...`.
-    fn endpoint_set(&self) -> String {
-        format!("ros2.endpoint={}", self.endpoint)
-    }
-
     /// Stops the base and the router; the base's log.
     fn finish(mut self) -> Value {
         self.base.stop();
@@ -125,6 +121,38 @@ impl Robot {
         let text = std::fs::read_to_string(&self.log).expect("the base wrote no log");
         serde_json::from_str(&text).expect("the base's log is not JSON")
     }
+}
+
+/// `scmpc run` on the robot whose router is at `endpoint` (real time, no MCAP), with more
+/// `args`, into `out_dir`.
+fn run_on(endpoint: &str, args: &[&str], out_dir: &Path) -> std::process::Output {
+    let drive = drive_args(endpoint);
+    let out = ["--out", out_dir.to_str().unwrap()];
+    let drive: Vec<&str> = drive.iter().map(String::as_str).collect();
+    run(&[&["run"][..], &drive, args, &out].concat())
+}
+
+/// [`run_on`] in the background, on iceoryx2 prefix `prefix`.
+fn spawn_on(endpoint: &str, prefix: &str, out_dir: &Path) -> Child {
+    let args = [drive_args(endpoint), vec!["--prefix".into(), prefix.into()]].concat();
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    spawn_run(out_dir, &args)
+}
+
+/// The arguments of `scmpc run` that drive the robot whose router is at `endpoint`.
+fn drive_args(endpoint: &str) -> Vec<String> {
+    [
+        "--mode",
+        "realtime",
+        "--no-mcap",
+        "--set",
+        "plant.kind=ros2",
+        "--set",
+    ]
+    .map(String::from)
+    .into_iter()
+    .chain([format!("ros2.endpoint={endpoint}")])
+    .collect()
 }
 
 fn f64_of(value: &Value) -> f64 {
@@ -175,20 +203,8 @@ fn drive_the_paper_scenario(stamped: bool) {
     let dir = tempfile::tempdir().unwrap();
     let robot = Robot::start(dir.path(), if stamped { &[] } else { &["--twist"] });
     let out_dir = dir.path().join("run");
-    let out = run(&[
-        "run",
-        "--mode",
-        "realtime",
-        "--no-mcap",
-        "--set",
-        "plant.kind=ros2",
-        "--set",
-        &format!("ros2.stamped={stamped}"),
-        "--set",
-        &robot.endpoint_set(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let stamped_set = format!("ros2.stamped={stamped}");
+    let out = run_on(&robot.endpoint, &["--set", &stamped_set], &out_dir);
     let log = robot.finish();
     let summary = summary(&out_dir);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
@@ -218,6 +234,14 @@ fn drive_the_paper_scenario(stamped: bool) {
         Value::Null
     };
     assert!(commands.iter().all(|c| c["frame_id"] == frame));
+
+    // What RViz would show: each plan (N + 1 positions), the obstacle.
+    let views = &log["views"];
+    assert!(views["plan"]["count"].as_u64() > Some(100), "{views}");
+    assert_eq!(views["plan"]["frame_id"], "odom");
+    assert_eq!(views["plan"]["last"].as_array().map(Vec::len), Some(9));
+    let cylinder = serde_json::json!([[OBSTACLE[0], OBSTACLE[1], 2.0 * OBSTACLE[2], 3]]);
+    assert_eq!(views["obstacles"]["last"], cylinder);
 
     let key = |name: &str| {
         log[name]
@@ -254,26 +278,45 @@ fn the_paper_scenario_drives_a_simulated_base_to_its_goal_with_twist() {
 }
 
 #[test]
+fn a_goal_from_goal_pose_is_driven_to_and_its_route_shown() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    // Two obstacles: the route planner runs.
+    let scenario = dir.path().join("two.toml");
+    std::fs::write(
+        &scenario,
+        "duration_s = 8.0\n[mpc]\nr_diag = [3.0, 3.0]\n\
+         [[obstacles]]\nx = 3.0\ny = 3.5\nradius = 1.5\n\
+         [[obstacles]]\nx = -5.0\ny = -5.0\nradius = 0.5\n",
+    )
+    .unwrap();
+    let robot = Robot::start(dir.path(), &["--goal", "6", "5"]);
+    let out_dir = dir.path().join("run");
+    let file = scenario.to_str().unwrap();
+    let goal_set = ["--set", "ros2.wait_for_goal=true", file];
+    let out = run_on(&robot.endpoint, &goal_set, &out_dir);
+    let log = robot.finish();
+    let summary = summary(&out_dir);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert_eq!(summary["robot"]["goal"], serde_json::json!([6.0, 5.0]));
+    assert_eq!(summary["robot"]["goal_from"], "goal_pose");
+    let last = log["truth"].as_array().unwrap().last().unwrap();
+    let off_m = (f64_of(&last[1]) - 6.0).hypot(f64_of(&last[2]) - 5.0);
+    assert!(off_m < 0.1, "the base ended {off_m} m from the goal");
+    let route = &log["views"]["route"];
+    assert_eq!(route["frame_id"], "odom");
+    let waypoints = route["last"].as_array().expect("no route shown");
+    assert_eq!(waypoints.last(), Some(&serde_json::json!([6.0, 5.0])));
+}
+
+#[test]
 fn odometry_that_stops_brakes_the_robot_within_the_timeout_and_aborts_the_run() {
     let _alone = machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let robot = Robot::start(dir.path(), &[]);
     let out_dir = dir.path().join("run");
     let prefix = unique_prefix("ros2stop");
-    let mut run = spawn_run(
-        &out_dir,
-        &[
-            "--mode",
-            "realtime",
-            "--no-mcap",
-            "--set",
-            "plant.kind=ros2",
-            "--set",
-            &robot.endpoint_set(),
-            "--prefix",
-            &prefix,
-        ],
-    );
+    let mut run = spawn_on(&robot.endpoint, &prefix, &out_dir);
     wait_for_pid(&out_dir, "plant");
     SimulatedClock::of(&prefix).wait_until(2.0);
     robot.base.signal(libc::SIGSTOP);
@@ -328,25 +371,45 @@ fn odometry_that_stops_brakes_the_robot_within_the_timeout_and_aborts_the_run() 
 }
 
 #[test]
+fn a_stopped_or_a_killed_orchestrator_leaves_the_robot_with_a_zero_twist() {
+    let _alone = machine_alone();
+    for signal in [libc::SIGTERM, libc::SIGKILL] {
+        let dir = tempfile::tempdir().unwrap();
+        let robot = Robot::start(dir.path(), &[]);
+        let out_dir = dir.path().join("run");
+        let prefix = unique_prefix("ros2end");
+        let mut run = spawn_on(&robot.endpoint, &prefix, &out_dir);
+        let plant = wait_for_pid(&out_dir, "plant");
+        SimulatedClock::of(&prefix).wait_until(2.0);
+        // SAFETY: a signal to the orchestrator this test started and has not reaped.
+        unsafe { libc::kill(run.id() as i32, signal) };
+        run.wait().unwrap();
+        // Killed, the orchestrator leaves its processes to bring the robot to rest and go.
+        let gone = wait_for(Duration::from_secs(10), || !process_alive(plant));
+        assert!(gone, "signal {signal}: the robot process is still running");
+        let cleaned = wait_for(Duration::from_secs(10), || leftovers(&prefix).is_empty());
+        assert!(cleaned, "signal {signal}: {:?}", leftovers(&prefix));
+        let log = robot.finish();
+        let commands = log["commands"].as_array().unwrap();
+        assert!(
+            commands.iter().any(|c| !is_zero(c)),
+            "signal {signal}: never driven"
+        );
+        assert!(
+            is_zero(commands.last().unwrap()),
+            "signal {signal}: the robot's last command moves it"
+        );
+    }
+}
+
+#[test]
 fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
     let _alone = machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let robot = Robot::start(dir.path(), &["--odom", "wheel_odom"]);
     let out_dir = dir.path().join("run");
     let prefix = unique_prefix("ros2none");
-    let out = run(&[
-        "run",
-        "--mode",
-        "realtime",
-        "--set",
-        "plant.kind=ros2",
-        "--set",
-        &robot.endpoint_set(),
-        "--prefix",
-        &prefix,
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let out = run_on(&robot.endpoint, &["--prefix", &prefix], &out_dir);
     let message = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{message}");
     for wanted in [
@@ -366,17 +429,7 @@ fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
         .unwrap()
         .port();
     let endpoint = format!("tcp/127.0.0.1:{closed}");
-    let out = run(&[
-        "run",
-        "--mode",
-        "realtime",
-        "--set",
-        "plant.kind=ros2",
-        "--set",
-        &format!("ros2.endpoint={endpoint}"),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
+    let out = run_on(&endpoint, &[], &out_dir);
     assert_eq!(out.status.code(), Some(1));
     assert!(stderr(&out).contains(&endpoint), "{}", stderr(&out));
 }

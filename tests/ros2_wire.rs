@@ -6,7 +6,10 @@
 mod common;
 
 use common::python::{repo, run_python};
-use ros2::cdr::{Header, Message, Odometry, Path, Pose, PoseStamped, Time, Twist, TwistStamped};
+use ros2::cdr::{
+    Header, Marker, MarkerArray, Message, Odometry, Path, Pose, PoseStamped, Time, Twist,
+    TwistStamped,
+};
 use ros2::{Distro, MessageType};
 
 fn header(frame_id: &str) -> Header {
@@ -53,6 +56,25 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
         header: header("odom"),
         poses: vec![stamped.clone(); 3],
     };
+    let obstacle = |id, text: &str| Marker {
+        header: header("odom"),
+        ns: "obstacles".into(),
+        id,
+        kind: Marker::CYLINDER,
+        action: Marker::ADD,
+        pose,
+        scale: [3.0, 3.0, 0.5],
+        color: [0.75, 0.25, 0.125, 0.5],
+        lifetime: Time {
+            sec: 1,
+            nanosec: 500,
+        },
+        frame_locked: true,
+        text: text.into(),
+    };
+    let markers = MarkerArray {
+        markers: vec![obstacle(0, ""), obstacle(7, "person")],
+    };
     let hex = |bytes: Vec<u8>| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
     let lines = [
         (MessageType::Twist, hex(twist.twist.to_cdr())),
@@ -60,6 +82,7 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
         (MessageType::Odometry, hex(odometry.to_cdr())),
         (MessageType::PoseStamped, hex(stamped.to_cdr())),
         (MessageType::Path, hex(path.to_cdr())),
+        (MessageType::MarkerArray, hex(markers.to_cdr())),
     ];
     let stdin: String = lines
         .iter()
@@ -89,7 +112,7 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
     for m in messages {
         assert_eq!(m["same_bytes"], true, "{m}");
     }
-    let [twist_only, twist, odometry, stamped, path] = &messages[..] else {
+    let [twist_only, twist, odometry, stamped, path, markers] = &messages[..] else {
         panic!("{messages:?}")
     };
     assert_eq!(twist_only["message"]["angular"]["z"], 1.25);
@@ -107,4 +130,13 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
     let poses = path["message"]["poses"].as_array().unwrap();
     assert_eq!(poses.len(), 3);
     assert_eq!(poses[2]["header"]["frame_id"], "map");
+    let person = &markers["message"]["markers"][1];
+    assert_eq!(person["id"], 7);
+    assert_eq!(person["type"], Marker::CYLINDER);
+    assert_eq!(person["scale"]["x"], 3.0);
+    assert_eq!(person["color"]["b"], 0.125);
+    assert_eq!(person["lifetime"]["nanosec"], 500);
+    assert_eq!(person["frame_locked"], true);
+    assert_eq!(person["text"], "person");
+    assert_eq!(person["mesh_file"]["filename"], "");
 }

@@ -8,7 +8,7 @@ use protocol::endpoint::Endpoint;
 use ros2::cdr::{self, Message};
 use ros2::{Attachment, Distro, EntityKind, MessageType, Node, Qos};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
@@ -23,6 +23,9 @@ const QOS: Qos = Qos {
     transient_local: false,
     depth: 10,
 };
+/// How the obstacles are drawn: cylinders this tall (m), this colour (RGBA).
+const OBSTACLE_HEIGHT_M: f64 = 0.5;
+const OBSTACLE_COLOR: [f32; 4] = [0.85, 0.2, 0.15, 0.6];
 /// The frame a command is stamped in: the robot's body.
 const BASE_FRAME: &str = "base_link";
 
@@ -61,23 +64,25 @@ fn ros_time(ns: i64) -> cdr::Time {
     }
 }
 
-/// What an odometry payload says, heard at `arrived_ns` (monotonic) and `now_wall_ns`.
-fn hear_odometry(payload: &[u8], arrived_ns: u64, now_wall_ns: i64) -> Option<Heard> {
+/// What an odometry payload says, heard at `arrived_ns` (monotonic) and `now_wall_ns`,
+/// and the frame of its pose.
+fn hear_odometry(payload: &[u8], arrived_ns: u64, now_wall_ns: i64) -> Option<(Heard, String)> {
     let odometry = cdr::Odometry::from_cdr(payload).ok()?;
     let p = odometry.pose;
     let stamp = odometry.header.stamp;
     let stamp_ns = i64::from(stamp.sec) * 1_000_000_000 + i64::from(stamp.nanosec);
     let pose = [p.position[0], p.position[1], yaw(p.orientation)];
     let twist = [odometry.twist.linear[0], odometry.twist.angular[2]];
+    let heard = Heard {
+        pose,
+        twist,
+        arrived_ns,
+        age_at_arrival_ns: now_wall_ns.saturating_sub(stamp_ns).max(0) as u64,
+    };
     pose.iter()
         .chain(&twist)
         .all(|v| v.is_finite())
-        .then_some(Heard {
-            pose,
-            twist,
-            arrived_ns,
-            age_at_arrival_ns: now_wall_ns.saturating_sub(stamp_ns).max(0) as u64,
-        })
+        .then_some((heard, odometry.header.frame_id))
 }
 
 /// The robot's names, resolved: the node, its topics fully qualified, and their keys.
@@ -88,7 +93,14 @@ struct Names {
     command_type: MessageType,
     odom: String,
     goal: String,
+    plan: String,
+    route: String,
+    obstacles: String,
 }
+
+/// Where the pipeline shows its plan, its route and the obstacles (relative: under the
+/// node's namespace).
+pub const VIEW_TOPICS: [&str; 3] = ["scmpc/plan", "scmpc/route", "scmpc/obstacles"];
 
 impl Names {
     fn of(config: &Ros2Config) -> Result<Names, RobotError> {
@@ -114,6 +126,9 @@ impl Names {
             },
             odom: topic("ros2.odom", &config.odom)?,
             goal: topic("ros2.goal_topic", &config.goal_topic)?,
+            plan: topic("ros2", VIEW_TOPICS[0])?,
+            route: topic("ros2", VIEW_TOPICS[1])?,
+            obstacles: topic("ros2", VIEW_TOPICS[2])?,
         })
     }
 }
@@ -135,6 +150,26 @@ struct RosPublisher {
     publisher: zenoh::pubsub::Publisher<'static>,
     gid: [u8; ros2::attachment::GID_LEN],
     sequence_number: i64,
+}
+
+/// A publisher of `key` as rmw_zenoh's: a command or a view is dropped rather than
+/// blocking the loop when the network is congested.
+fn declare(session: &zenoh::Session, key: String) -> zenoh::Result<RosPublisher> {
+    Ok(RosPublisher {
+        publisher: session
+            .declare_publisher(key)
+            .congestion_control(CongestionControl::Drop)
+            .wait()?,
+        gid: rand::random(),
+        sequence_number: 0,
+    })
+}
+
+/// What RViz shows of the MPC: its plan, the route, the obstacles.
+struct Views {
+    plan: RosPublisher,
+    route: RosPublisher,
+    obstacles: RosPublisher,
 }
 
 impl RosPublisher {
@@ -162,7 +197,10 @@ pub struct Link {
     command: RosPublisher,
     odometry_key: String,
     newest_odometry: Newest<Heard>,
+    /// The odometry's frame, the first odometry's.
+    frame: Arc<OnceLock<String>>,
     newest_goal: Newest<[f64; 2]>,
+    views: Views,
     _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     _tokens: Vec<zenoh::liveliness::LivelinessToken>,
 }
@@ -189,9 +227,9 @@ fn keep_newest<T: Send + 'static>(
     Ok((subscriber, newest))
 }
 
-/// The odometry of a sample; rmw_zenoh drops a sample without its attachment, and so does
-/// the pipeline.
-fn odometry_of(sample: &zenoh::sample::Sample) -> Option<Heard> {
+/// The odometry of a sample and its frame; rmw_zenoh drops a sample without its
+/// attachment, and so does the pipeline.
+fn odometry_of(sample: &zenoh::sample::Sample) -> Option<(Heard, String)> {
     let attached = sample
         .attachment()
         .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok());
@@ -238,14 +276,24 @@ impl Link {
             ros2::keys::data_key(config.domain_id, topic, message, names.distro)
         };
         let zenoh_error = |e: zenoh::Error| router(e.to_string());
-        let publisher = session
-            .declare_publisher(key(&names.cmd_vel, names.command_type))
-            .congestion_control(CongestionControl::Drop)
-            .wait()
-            .map_err(zenoh_error)?;
+        let command =
+            declare(&session, key(&names.cmd_vel, names.command_type)).map_err(zenoh_error)?;
         let odometry_key = odometry_key(config)?;
-        let (odometry, newest_odometry) =
-            keep_newest(&session, odometry_key.clone(), odometry_of).map_err(zenoh_error)?;
+        let frame = Arc::new(OnceLock::new());
+        let first_frame = frame.clone();
+        let (odometry, newest_odometry) = keep_newest(&session, odometry_key.clone(), move |s| {
+            odometry_of(s).map(|(heard, frame)| {
+                first_frame.get_or_init(|| frame);
+                heard
+            })
+        })
+        .map_err(zenoh_error)?;
+        let view = |topic: &str, message| declare(&session, key(topic, message));
+        let views = Views {
+            plan: view(&names.plan, MessageType::Path).map_err(zenoh_error)?,
+            route: view(&names.route, MessageType::Path).map_err(zenoh_error)?,
+            obstacles: view(&names.obstacles, MessageType::MarkerArray).map_err(zenoh_error)?,
+        };
         let goal_key = key(&names.goal, MessageType::PoseStamped);
         let (goal, newest_goal) = keep_newest(&session, goal_key, goal_of).map_err(zenoh_error)?;
         let tokens = announce(&session, &node, &names).map_err(zenoh_error)?;
@@ -254,14 +302,12 @@ impl Link {
             endpoint: config.endpoint.clone(),
             domain_id: config.domain_id,
             names,
-            command: RosPublisher {
-                publisher,
-                gid: rand::random(),
-                sequence_number: 0,
-            },
+            command,
             odometry_key,
             newest_odometry,
+            frame,
             newest_goal,
+            views,
             _subscribers: vec![odometry, goal],
             _tokens: tokens,
         })
@@ -345,6 +391,86 @@ impl Link {
             .collect();
         tokens.sort();
         tokens
+    }
+
+    /// A header in the odometry's frame, stamped now.
+    fn view_header(&self) -> cdr::Header {
+        cdr::Header {
+            stamp: ros_time(wall_ns()),
+            frame_id: self.frame.get().cloned().unwrap_or_default(),
+        }
+    }
+
+    /// A path through `poses` (`[x_m, y_m, yaw_rad]`) in the odometry's frame.
+    fn path(&self, poses: impl Iterator<Item = [f64; 3]>) -> Vec<u8> {
+        let header = self.view_header();
+        let poses = poses
+            .map(|[x, y, yaw]| cdr::PoseStamped {
+                header: header.clone(),
+                pose: cdr::Pose {
+                    position: [x, y, 0.0],
+                    orientation: [0.0, 0.0, (yaw / 2.0).sin(), (yaw / 2.0).cos()],
+                },
+            })
+            .collect();
+        cdr::Path { header, poses }.to_cdr()
+    }
+
+    /// Shows the MPC's plan: `poses` its predicted positions and headings.
+    pub fn show_plan(&mut self, poses: impl Iterator<Item = [f64; 3]>) -> Result<(), RobotError> {
+        let payload = self.path(poses);
+        let topic = self.names.plan.clone();
+        self.views
+            .plan
+            .put(payload)
+            .map_err(|reason| RobotError::Key { key: topic, reason })
+    }
+
+    /// Shows the route through `waypoints` (`[x_m, y_m]`, each headed to the next).
+    pub fn show_route(&mut self, waypoints: &[[f64; 2]]) -> Result<(), RobotError> {
+        let heading = |i: usize| {
+            let [a, b] = [waypoints[i], waypoints[(i + 1).min(waypoints.len() - 1)]];
+            (b[1] - a[1]).atan2(b[0] - a[0])
+        };
+        let payload = self.path((0..waypoints.len()).map(|i| {
+            let [x, y] = waypoints[i];
+            [x, y, heading(i)]
+        }));
+        let topic = self.names.route.clone();
+        self.views
+            .route
+            .put(payload)
+            .map_err(|reason| RobotError::Key { key: topic, reason })
+    }
+
+    /// Shows the obstacles: `(id, [x_m, y_m], radius_m)` each, as cylinders.
+    pub fn show_obstacles(
+        &mut self,
+        discs: impl Iterator<Item = (i32, [f64; 2], f64)>,
+    ) -> Result<(), RobotError> {
+        let header = self.view_header();
+        let markers = discs
+            .map(|(id, [x, y], radius)| cdr::Marker {
+                header: header.clone(),
+                ns: "obstacles".into(),
+                id,
+                kind: cdr::Marker::CYLINDER,
+                action: cdr::Marker::ADD,
+                pose: cdr::Pose {
+                    position: [x, y, OBSTACLE_HEIGHT_M / 2.0],
+                    orientation: [0.0, 0.0, 0.0, 1.0],
+                },
+                scale: [2.0 * radius, 2.0 * radius, OBSTACLE_HEIGHT_M],
+                color: OBSTACLE_COLOR,
+                ..cdr::Marker::default()
+            })
+            .collect();
+        let payload = cdr::MarkerArray { markers }.to_cdr();
+        let topic = self.names.obstacles.clone();
+        self.views
+            .obstacles
+            .put(payload)
+            .map_err(|reason| RobotError::Key { key: topic, reason })
     }
 
     /// Sends a zero twist and closes the session (what every end of a run does).
@@ -478,7 +604,8 @@ mod tests {
             },
             twist_covariance: [0.0; 36],
         };
-        let heard = hear_odometry(&odometry(1.0).to_cdr(), 7, 10_000_002_500).unwrap();
+        let (heard, frame) = hear_odometry(&odometry(1.0).to_cdr(), 7, 10_000_002_500).unwrap();
+        assert_eq!(frame, "odom");
         assert_eq!(heard.pose, [1.0, 2.0, 0.0]);
         assert_eq!(heard.twist, [0.3, -0.1]);
         assert_eq!((heard.arrived_ns, heard.age_at_arrival_ns), (7, 2000));
@@ -486,6 +613,7 @@ mod tests {
         assert_eq!(
             hear_odometry(&odometry(1.0).to_cdr(), 7, 0)
                 .unwrap()
+                .0
                 .age_at_arrival_ns,
             0
         );

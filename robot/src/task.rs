@@ -1,15 +1,30 @@
 //! The robot as the plant's task: tick `j` is due at `t_j`; it measures the robot by its
 //! newest odometry, and each command the DFL gives is sent to the robot as soon as it is
-//! heard. Unlike every other task it does I/O and reads the clock: the robot is outside
-//! the pipeline's time.
+//! heard. It shows the MPC's plans, the route and the obstacles to RViz as they come.
+//! Unlike every other task it does I/O and reads the clock: the robot is outside the
+//! pipeline's time.
 
 use crate::watchdog::{Verdict, Watchdog};
 use crate::{Heard, Link, RobotError};
-use plant::task::{PlantInput, PlantOutput};
-use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency};
-use protocol::topics::{ACTUATION, MEASUREMENT, TRUTH};
-use protocol::{GroundTruth, Header, Measurement, Role, Timing, Validated};
+use plant::task::PlantOutput;
+use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
+use protocol::topics::{ACTUATION, MEASUREMENT, PLAN, ROUTE, TRACKS, TRUTH};
+use protocol::{
+    Actuation, GroundTruth, Header, Measurement, Obstacle, Plan, Role, Route, Timing, Tracks,
+    Validated,
+};
 use std::sync::atomic::AtomicBool;
+
+/// What the robot process takes: the DFL's commands, and what it shows (the plans, the
+/// route, the tracks).
+#[derive(Debug, Clone, Copy)]
+pub enum RobotInput {
+    Actuation(Actuation),
+    Plan(Plan),
+    Route(Route),
+    Tracks(Tracks),
+}
+protocol::task_input!(RobotInput: Actuation, Plan, Route, Tracks);
 
 /// The robot, the newest command sent, and the tick to measure next.
 pub struct RobotTask {
@@ -24,6 +39,13 @@ pub struct RobotTask {
     tick: u64,
     /// The newest odometry, for the tick's measurement.
     newest: Heard,
+    /// The topics it takes.
+    inputs: &'static [&'static str],
+    /// The obstacles, where they start; the tracked ones are shown where tracked.
+    obstacles: Vec<Obstacle>,
+    tracks: Option<Tracks>,
+    /// The plans of the route shown last.
+    route_plans: u32,
 }
 
 impl RobotTask {
@@ -35,12 +57,70 @@ impl RobotTask {
             tracing::warn!("sending a command: {e}");
         }
     }
+
+    /// A command newer than the last one sent goes to the robot at once (not while the
+    /// watchdog brakes).
+    fn command(&mut self, actuation: Actuation) {
+        let newer = self.sent.is_none_or(|sent| actuation.header.tick > sent);
+        if newer && self.verdict == Verdict::Drive {
+            self.sent = Some(actuation.header.tick);
+            self.send(actuation.u1, actuation.u2);
+        }
+    }
+
+    /// Shows a plan and the obstacles as they are now.
+    fn show_plan(&mut self, plan: &Plan) {
+        let Some(link) = &mut self.link else {
+            return;
+        };
+        let poses = (plan.z.iter())
+            .take(plan.horizon as usize + 1)
+            .map(|&[x, xdot, y, ydot]| [x, y, ydot.atan2(xdot)]);
+        let t_s = plan.header.time_s;
+        let tracked = |i: usize| {
+            let tracks = self.tracks.as_ref()?;
+            (tracks.tracks.iter())
+                .take(tracks.count as usize)
+                .find(|t| t.obstacle as usize == i)
+        };
+        let discs = self
+            .obstacles
+            .iter()
+            .enumerate()
+            .map(|(i, o)| match tracked(i) {
+                Some(track) => (i as i32, track.center, track.radius_m),
+                None => (i as i32, o.center_at(t_s), o.radius),
+            });
+        if let Err(e) = link
+            .show_plan(poses)
+            .and_then(|_| link.show_obstacles(discs))
+        {
+            tracing::warn!("showing the plan: {e}");
+        }
+    }
+
+    /// Shows a route the first time it is heard.
+    fn show_route(&mut self, route: &Route) {
+        let Some(link) = &mut self.link else {
+            return;
+        };
+        let waypoints = route
+            .waypoints
+            .get(..route.count as usize)
+            .unwrap_or_default();
+        if route.plans != self.route_plans && !waypoints.is_empty() {
+            self.route_plans = route.plans;
+            if let Err(e) = link.show_route(waypoints) {
+                tracing::warn!("showing the route: {e}");
+            }
+        }
+    }
 }
 
 impl Task for RobotTask {
     const ROLE: Role = Role::Plant;
     const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
-    type Input = PlantInput;
+    type Input = RobotInput;
     type Output = PlantOutput;
 
     /// Connects to the robot and waits for its first odometry (nothing is sent before).
@@ -53,6 +133,13 @@ impl Task for RobotTask {
         let newest = link
             .first_odometry(&AtomicBool::new(false))
             .map_err(error)?;
+        let runs = |role| scenario.roles().any(|r| r == role);
+        let inputs: &'static [&'static str] = match (runs(Role::Planner), runs(Role::Tracker)) {
+            (false, false) => &[ACTUATION, PLAN],
+            (true, false) => &[ACTUATION, PLAN, ROUTE],
+            (false, true) => &[ACTUATION, PLAN, TRACKS],
+            (true, true) => &[ACTUATION, PLAN, ROUTE, TRACKS],
+        };
         Ok(RobotTask {
             link: Some(link),
             timing: scenario.timing.clone(),
@@ -61,21 +148,25 @@ impl Task for RobotTask {
             sent: None,
             tick: 0,
             newest,
+            inputs,
+            obstacles: scenario.obstacles.clone(),
+            tracks: None,
+            route_plans: 0,
         })
     }
 
     fn inputs(&self) -> &'static [&'static str] {
-        &[ACTUATION]
+        self.inputs
     }
 
-    /// A command newer than the last one sent goes to the robot at once (not while the
-    /// watchdog brakes).
-    fn hear(&mut self, input: PlantInput, _latency_ns: u64, _context: &impl Context) {
-        let PlantInput::Actuation(actuation) = input;
-        let newer = self.sent.is_none_or(|sent| actuation.header.tick > sent);
-        if newer && self.verdict == Verdict::Drive {
-            self.sent = Some(actuation.header.tick);
-            self.send(actuation.u1, actuation.u2);
+    /// A command goes to the robot at once; a plan, a new route and the obstacles go to
+    /// RViz.
+    fn hear(&mut self, input: RobotInput, _latency_ns: u64, _context: &impl Context) {
+        match input {
+            RobotInput::Actuation(actuation) => self.command(actuation),
+            RobotInput::Plan(plan) => self.show_plan(&plan),
+            RobotInput::Route(route) => self.show_route(&route),
+            RobotInput::Tracks(tracks) => keep_newest(&mut self.tracks, tracks),
         }
     }
 

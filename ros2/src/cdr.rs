@@ -18,6 +18,8 @@ pub enum CdrError {
     Encapsulation([u8; 2]),
     #[error("the string at byte {0} is not NUL-terminated UTF-8")]
     String(usize),
+    #[error("{0} is not read by this crate")]
+    Unsupported(&'static str),
 }
 
 /// Writes a message's fields after the encapsulation header.
@@ -58,6 +60,15 @@ impl Writer {
 
     pub fn f64s(&mut self, values: &[f64]) {
         values.iter().for_each(|&v| self.f64(v));
+    }
+
+    pub fn f32(&mut self, value: f32) {
+        self.align(4);
+        self.bytes.extend_from_slice(&value.to_le_bytes());
+    }
+
+    pub fn bool(&mut self, value: bool) {
+        self.bytes.push(u8::from(value));
     }
 
     pub fn string(&mut self, value: &str) {
@@ -106,6 +117,11 @@ impl<'a> Reader<'a> {
         Ok(array)
     }
 
+    /// Bytes not read yet.
+    pub fn remaining(&self) -> usize {
+        self.bytes.len().saturating_sub(self.at)
+    }
+
     pub fn i32(&mut self) -> Result<i32, CdrError> {
         self.take().map(i32::from_le_bytes)
     }
@@ -116,6 +132,14 @@ impl<'a> Reader<'a> {
 
     pub fn f64(&mut self) -> Result<f64, CdrError> {
         self.take().map(f64::from_le_bytes)
+    }
+
+    pub fn f32(&mut self) -> Result<f32, CdrError> {
+        self.take().map(f32::from_le_bytes)
+    }
+
+    pub fn bool(&mut self) -> Result<bool, CdrError> {
+        self.take::<1>().map(|[b]| b != 0)
     }
 
     pub fn f64s<const N: usize>(&mut self) -> Result<[f64; N], CdrError> {
@@ -337,6 +361,9 @@ impl Message for Path {
         Ok(Path { header, poses })
     }
 }
+
+mod markers;
+pub use markers::{Marker, MarkerArray};
 
 #[cfg(test)]
 mod tests;

@@ -10,7 +10,10 @@ node would: it takes `cmd_vel` (TwistStamped or Twist) and publishes `odom` (Odo
 On SIGTERM the base writes its log (JSON) to `--log`: its own truth, every command it
 took with its attachment, when it published odometry and when it went on after a
 SIGSTOP (SIGCONT), and every change of the ROS 2 graph
-(liveliness tokens appearing and going) as rmw_zenoh's graph cache would parse it. SIGSTOP pauses it, odometry and all."""
+(liveliness tokens appearing and going) as rmw_zenoh's graph cache would parse it, and
+what it saw of the pipeline's views for RViz (`scmpc/plan`, `scmpc/route`,
+`scmpc/obstacles`). With `--goal X Y` it publishes that goal on `goal_pose` as RViz's
+"2D Goal Pose" does, every 0.2 s until the first command comes. SIGSTOP pauses it, odometry and all."""
 
 import argparse
 import json
@@ -174,6 +177,19 @@ class Base:
         )
 
 
+def goal_pose(store, x, y):
+    t = store.types
+    return t["geometry_msgs/msg/PoseStamped"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="odom"
+        ),
+        pose=t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        ),
+    )
+
+
 def config(mode, listen=(), connect=()):
     conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
@@ -241,6 +257,34 @@ def base(args):
     watcher = session.liveliness().declare_subscriber(
         f"@ros2_lv/{args.domain}/**", on_token, history=True
     )
+    views = {}
+
+    def viewer(name, typename):
+        def on_view(sample):
+            message = store.deserialize_cdr(sample.payload.to_bytes(), typename)
+            with the_base.lock:
+                seen = views.setdefault(name, {"count": 0})
+                seen["count"] += 1
+                if typename == "nav_msgs/msg/Path":
+                    seen["frame_id"] = message.header.frame_id
+                    seen["last"] = [[p.pose.position.x, p.pose.position.y] for p in message.poses]
+                else:
+                    seen["last"] = [
+                        [m.pose.position.x, m.pose.position.y, m.scale.x, m.type]
+                        for m in message.markers
+                    ]
+
+        key = data_key(args.domain, f"scmpc/{name}", typename, store)
+        return session.declare_subscriber(key, on_view)
+
+    viewers = [
+        viewer("plan", "nav_msgs/msg/Path"),
+        viewer("route", "nav_msgs/msg/Path"),
+        viewer("obstacles", "visualization_msgs/msg/MarkerArray"),
+    ]
+    goal_publisher = session.declare_publisher(
+        data_key(args.domain, "goal_pose", "geometry_msgs/msg/PoseStamped", store)
+    )
     gid = bytes(random.Random(args.seed).getrandbits(8) for _ in range(16))
     # rosbags makes a type's (de)serializer on its first use: not while the base drives.
     the_base.odometry_cdr = lambda: bytes(
@@ -263,6 +307,10 @@ def base(args):
     while not done.is_set():
         the_base.step()
         steps += 1
+        if args.goal and not the_base.commands and steps % 40 == 0:
+            # RViz's "2D Goal Pose", clicked again until the robot moves.
+            payload = bytes(store.serialize_cdr(goal_pose(store, *args.goal), "geometry_msgs/msg/PoseStamped"))
+            goal_publisher.put(payload, attachment=attachment(steps, gid))
         if steps % ODOMETRY_EVERY == 0:
             sequence += 1
             publisher.put(the_base.odometry_cdr(), attachment=attachment(sequence, gid))
@@ -276,13 +324,14 @@ def base(args):
             "refused_commands": the_base.refused,
             "odometry_ns": the_base.odometry_ns,
             "resumed_ns": resumed_ns,
+            "views": views,
             "graph": graph,
             "command_key": cmd_key,
             "odometry_key": odom_key,
         }
     with open(args.log, "w") as f:
         json.dump(log, f)
-    del subscriber, tokens, watcher
+    del subscriber, tokens, watcher, viewers
     session.close()
 
 
@@ -301,6 +350,7 @@ def main():
     parser.add_argument("--noise-std", type=float, default=0.002)
     parser.add_argument("--watchdog-s", type=float, default=0.5)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--goal", type=float, nargs=2)
     args = parser.parse_args()
     if args.router:
         router(args.router)

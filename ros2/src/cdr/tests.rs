@@ -124,3 +124,43 @@ fn payloads_that_are_not_the_message_are_refused_with_where() {
         Err(CdrError::Truncated(_))
     ));
 }
+
+#[test]
+fn a_marker_array_reads_back_and_a_marker_with_points_is_refused() {
+    let marker = Marker {
+        header: header("odom"),
+        ns: "obstacles".into(),
+        id: 2,
+        kind: Marker::CYLINDER,
+        action: Marker::ADD,
+        pose: pose(),
+        scale: [1.0, 1.0, 0.2],
+        color: [1.0, 0.5, 0.0, 0.8],
+        ..Marker::default()
+    };
+    let array = MarkerArray {
+        markers: vec![marker.clone(), marker],
+    };
+    let bytes = array.to_cdr();
+    assert_eq!(MarkerArray::from_cdr(&bytes), Ok(array.clone()));
+    // The first marker's `points` count follows its `frame_locked` byte, aligned to 4.
+    let one = array.markers[0].to_cdr();
+    let mut w = Writer::default();
+    let m = &array.markers[0];
+    m.header.write(&mut w);
+    w.string(&m.ns);
+    [m.id, m.kind, m.action].iter().for_each(|&v| w.i32(v));
+    m.pose.write(&mut w);
+    w.f64s(&m.scale);
+    m.color.iter().for_each(|&c| w.f32(c));
+    m.lifetime.write(&mut w);
+    w.bool(m.frame_locked);
+    let fields = w.into_bytes().len() - ENCAPSULATION_LE.len();
+    let points_at = ENCAPSULATION_LE.len() + fields.next_multiple_of(4);
+    let mut with_points = one.clone();
+    with_points[points_at] = 1;
+    assert_eq!(
+        Marker::from_cdr(&with_points),
+        Err(CdrError::Unsupported("a marker's points"))
+    );
+}
