@@ -382,6 +382,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["ros2.namespace=\"robot 1\""], "ros2.namespace"),
         (&["ros2.node=scmpc-1"], "ros2.node"),
         (&["ros2.distro=humble"], "ros2.distro"),
+        (&["ros2.wire=dds"], "ros2.wire"),
         (&["ros2.cmd_vel=cmd-vel"], "ros2.cmd_vel"),
         (&["ros2.odom=\"\""], "ros2.odom"),
         (&["ros2.goal_topic=1goal"], "ros2.goal_topic"),

@@ -310,6 +310,42 @@ fn a_goal_from_goal_pose_is_driven_to_and_its_route_shown() {
 }
 
 #[test]
+fn behind_zenoh_bridge_ros2dds_the_keys_are_the_topics_names() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let robot = Robot::start(dir.path(), &["--wire", "bridge"]);
+    let out_dir = dir.path().join("run");
+    let short = [
+        "--set",
+        "ros2.wire=bridge",
+        "--set",
+        "duration_s=8",
+        "--set",
+        "mpc.r_diag=[3.0, 3.0]",
+        "--set",
+        "robot.goal=[6.0, 5.0]",
+    ];
+    let out = run_on(&robot.endpoint, &short, &out_dir);
+    let log = robot.finish();
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert_eq!(summary(&out_dir)["outcome"], "reached");
+    assert_eq!(
+        (log["command_key"].as_str(), log["odometry_key"].as_str()),
+        (Some("cmd_vel"), Some("odom"))
+    );
+    let commands = log["commands"].as_array().unwrap();
+    assert!(commands.len() > 100, "{} commands", commands.len());
+    assert!(is_zero(commands.last().unwrap()), "the last command moves");
+    let ours = log["graph"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|c| c["parsed"]["node"] == "scmpc")
+        .count();
+    assert_eq!(ours, 0, "rmw_zenoh tokens behind a bridge");
+}
+
+#[test]
 fn odometry_that_stops_brakes_the_robot_within_the_timeout_and_aborts_the_run() {
     let _alone = machine_alone();
     let dir = tempfile::tempdir().unwrap();

@@ -3,8 +3,8 @@
 //! commands it sends, and the newest odometry (and goal) it has heard.
 
 use crate::RobotError;
-use protocol::Ros2Config;
 use protocol::endpoint::Endpoint;
+use protocol::{Ros2Config, Ros2Wire};
 use ros2::cdr::{self, Message};
 use ros2::{Attachment, Distro, EntityKind, MessageType, Node, Qos};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -88,6 +88,8 @@ fn hear_odometry(payload: &[u8], arrived_ns: u64, now_wall_ns: i64) -> Option<(H
 /// The robot's names, resolved: the node, its topics fully qualified, and their keys.
 #[derive(Debug, Clone)]
 struct Names {
+    domain_id: u32,
+    wire: Ros2Wire,
     distro: Distro,
     cmd_vel: String,
     command_type: MessageType,
@@ -96,6 +98,16 @@ struct Names {
     plan: String,
     route: String,
     obstacles: String,
+}
+
+impl Names {
+    /// The key of `topic`'s samples of type `message` on the robot's wire.
+    fn key(&self, topic: &str, message: MessageType) -> String {
+        match self.wire {
+            Ros2Wire::RmwZenoh => ros2::keys::data_key(self.domain_id, topic, message, self.distro),
+            Ros2Wire::Bridge => ros2::keys::bridge_key(topic),
+        }
+    }
 }
 
 /// Where the pipeline shows its plan, its route and the obstacles (relative: under the
@@ -114,6 +126,8 @@ impl Names {
             ros2::keys::qualified_topic(&namespace, name).map_err(|e| invalid(key, e))
         };
         Ok(Names {
+            domain_id: config.domain_id,
+            wire: config.wire,
             distro: Distro::parse(&config.distro).ok_or_else(|| RobotError::Key {
                 key: "ros2.distro".into(),
                 reason: format!("`{}` is not a distribution this build knows", config.distro),
@@ -136,12 +150,7 @@ impl Names {
 /// The key the odometry of `config` is taken from.
 pub fn odometry_key(config: &Ros2Config) -> Result<String, RobotError> {
     let names = Names::of(config)?;
-    Ok(ros2::keys::data_key(
-        config.domain_id,
-        &names.odom,
-        MessageType::Odometry,
-        names.distro,
-    ))
+    Ok(names.key(&names.odom, MessageType::Odometry))
 }
 
 /// A publisher as rmw_zenoh's: its samples carry its sequence number, the time and its
@@ -192,7 +201,6 @@ impl RosPublisher {
 pub struct Link {
     session: zenoh::Session,
     endpoint: String,
-    domain_id: u32,
     names: Names,
     command: RosPublisher,
     odometry_key: String,
@@ -228,11 +236,13 @@ fn keep_newest<T: Send + 'static>(
 }
 
 /// The odometry of a sample and its frame; rmw_zenoh drops a sample without its
-/// attachment, and so does the pipeline.
-fn odometry_of(sample: &zenoh::sample::Sample) -> Option<(Heard, String)> {
-    let attached = sample
-        .attachment()
-        .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok());
+/// attachment, and so does the pipeline when `attachment` is required (zenoh-bridge-ros2dds
+/// sends none).
+fn odometry_of(sample: &zenoh::sample::Sample, attachment: bool) -> Option<(Heard, String)> {
+    let attached = !attachment
+        || sample
+            .attachment()
+            .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok());
     let heard = hear_odometry(
         &sample.payload().to_bytes(),
         runtime::clock::monotonic_ns(),
@@ -272,17 +282,16 @@ impl Link {
             key: "ros2.node".into(),
             reason: e.to_string(),
         })?;
-        let key = |topic: &str, message| {
-            ros2::keys::data_key(config.domain_id, topic, message, names.distro)
-        };
+        let key = |topic: &str, message| names.key(topic, message);
         let zenoh_error = |e: zenoh::Error| router(e.to_string());
         let command =
             declare(&session, key(&names.cmd_vel, names.command_type)).map_err(zenoh_error)?;
         let odometry_key = odometry_key(config)?;
         let frame = Arc::new(OnceLock::new());
         let first_frame = frame.clone();
+        let attached = names.wire == Ros2Wire::RmwZenoh;
         let (odometry, newest_odometry) = keep_newest(&session, odometry_key.clone(), move |s| {
-            odometry_of(s).map(|(heard, frame)| {
+            odometry_of(s, attached).map(|(heard, frame)| {
                 first_frame.get_or_init(|| frame);
                 heard
             })
@@ -300,7 +309,6 @@ impl Link {
         Ok(Link {
             session,
             endpoint: config.endpoint.clone(),
-            domain_id: config.domain_id,
             names,
             command,
             odometry_key,
@@ -366,7 +374,7 @@ impl Link {
                     waited_s: FIRST_ODOMETRY.as_secs_f64(),
                     key: self.odometry_key.clone(),
                     endpoint: self.endpoint.clone(),
-                    domain_id: self.domain_id,
+                    domain_id: self.names.domain_id,
                     graph: graph_text(&self.graph()),
                 });
             }
@@ -380,7 +388,11 @@ impl Link {
         let Ok(replies) = self
             .session
             .liveliness()
-            .get(format!("@ros2_lv/{}/**", self.domain_id))
+            .get(match self.names.wire {
+                Ros2Wire::RmwZenoh => format!("@ros2_lv/{}/**", self.names.domain_id),
+                // The bridges' own tokens: `@/<zid>/@ros2_lv/<kind>/<key>/<type>...`.
+                Ros2Wire::Bridge => "@/*/@ros2_lv/**".into(),
+            })
             .timeout(GRAPH_QUERY)
             .wait()
         else {
@@ -485,12 +497,16 @@ impl Link {
 }
 
 /// The liveliness tokens of `node`, its publisher and its subscriptions, alive as long as
-/// they are held.
+/// they are held (none behind zenoh-bridge-ros2dds: the DDS graph learns of the topics
+/// from the bridge).
 fn announce(
     session: &zenoh::Session,
     node: &Node,
     names: &Names,
 ) -> zenoh::Result<Vec<zenoh::liveliness::LivelinessToken>> {
+    if names.wire == Ros2Wire::Bridge {
+        return Ok(Vec::new());
+    }
     let entities = [
         (1, EntityKind::Publisher, &names.cmd_vel, names.command_type),
         (

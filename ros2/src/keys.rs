@@ -161,6 +161,13 @@ pub fn data_key(domain_id: u32, topic: &str, message: MessageType, distro: Distr
     )
 }
 
+/// The key zenoh-bridge-ros2dds gives a topic's samples: its fully qualified name without
+/// the leading slash (the bridge's own `namespace`, if it has one, is left out of the
+/// topic given here), whatever the type.
+pub fn bridge_key(topic: &str) -> String {
+    topic.trim_start_matches('/').to_string()
+}
+
 /// A name with every `/` as `%` (an empty one is `%`), as in a liveliness token.
 fn mangle(name: &str) -> String {
     if name.is_empty() {

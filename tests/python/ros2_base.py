@@ -35,6 +35,8 @@ STORES = {"jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED}
 DT_S = 0.005
 ODOMETRY_EVERY = 4  # 200 Hz / 4 = 50 Hz
 QOS = "::,10:,:,:,,"
+# `--wire bridge`: the keys of zenoh-bridge-ros2dds, no attachments.
+BRIDGE = False
 
 
 def dds_name(typename):
@@ -43,6 +45,9 @@ def dds_name(typename):
 
 
 def data_key(domain, topic, typename, store):
+    if BRIDGE:
+        # zenoh-bridge-ros2dds: the topic's name alone.
+        return topic.strip("/")
     return f"{domain}/{topic.strip('/')}/{dds_name(typename)}/{store.hash_rihs01(typename)}"
 
 
@@ -111,6 +116,8 @@ class Base:
         attached = read_attachment(
             sample.attachment.to_bytes() if sample.attachment is not None else None
         )
+        if attached is None and BRIDGE:
+            attached = {}
         if attached is None:
             with self.lock:
                 self.refused += 1
@@ -313,7 +320,10 @@ def base(args):
             goal_publisher.put(payload, attachment=attachment(steps, gid))
         if steps % ODOMETRY_EVERY == 0:
             sequence += 1
-            publisher.put(the_base.odometry_cdr(), attachment=attachment(sequence, gid))
+            publisher.put(
+                the_base.odometry_cdr(),
+                attachment=None if BRIDGE else attachment(sequence, gid),
+            )
             the_base.odometry_ns.append(time.time_ns())
         next_s += DT_S
         time.sleep(max(0.0, next_s - time.monotonic()))
@@ -351,7 +361,10 @@ def main():
     parser.add_argument("--watchdog-s", type=float, default=0.5)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--goal", type=float, nargs=2)
+    parser.add_argument("--wire", choices=["rmw_zenoh", "bridge"], default="rmw_zenoh")
     args = parser.parse_args()
+    global BRIDGE
+    BRIDGE = args.wire == "bridge"
     if args.router:
         router(args.router)
     else:

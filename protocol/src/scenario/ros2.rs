@@ -13,6 +13,18 @@ pub enum PlantKind {
     Ros2,
 }
 
+/// `ros2.wire`: how the robot's topics are laid on Zenoh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ros2Wire {
+    /// rmw_zenoh's keys, attachments and liveliness tokens: a robot whose nodes run
+    /// `rmw_zenoh_cpp`.
+    RmwZenoh,
+    /// zenoh-bridge-ros2dds's keys (the topic's name alone): a DDS robot behind that
+    /// bridge.
+    Bridge,
+}
+
 /// The robot of `plant.kind = "ros2"`: the pipeline is a ROS 2 node on its graph that
 /// publishes the commands and takes the odometry.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -30,6 +42,8 @@ pub struct Ros2Config {
     /// The robot's ROS 2 distribution, whose type hashes are in the data keys: `jazzy`
     /// or `kilted`.
     pub distro: String,
+    /// `rmw_zenoh`, or `bridge` for a DDS robot behind zenoh-bridge-ros2dds.
+    pub wire: Ros2Wire,
     /// Where every inner tick's command (forward speed, turn rate) goes.
     pub cmd_vel: String,
     /// `geometry_msgs/msg/TwistStamped` (Jazzy's `diff_drive_controller`, Nav2); `false`:
@@ -55,6 +69,7 @@ impl Default for Ros2Config {
             namespace: String::new(),
             node: "scmpc".into(),
             distro: "jazzy".into(),
+            wire: Ros2Wire::RmwZenoh,
             cmd_vel: "cmd_vel".into(),
             stamped: true,
             odom: "odom".into(),
