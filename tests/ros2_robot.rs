@@ -22,6 +22,8 @@ use std::time::Duration;
 const PAPER_START: [&str; 3] = ["7", "7", "-2.356194490192345"];
 /// The paper's obstacle: centre and radius, m.
 const OBSTACLE: [f64; 3] = [3.0, 3.5, 1.5];
+/// The standard deviation of the base's odometry noise, m and rad.
+const ODOMETRY_NOISE_STD_M: f64 = 0.002;
 /// `ros2.odom_timeout_s`'s default and the inner tick of the paper, s.
 const ODOM_TIMEOUT_S: f64 = 0.2;
 const TICK_S: f64 = 0.005;
@@ -201,10 +203,19 @@ fn pipeline_entities(log: &Value) -> Vec<(String, String, String, String)> {
 fn drive_the_paper_scenario(stamped: bool) {
     let _alone = machine_alone();
     let dir = tempfile::tempdir().unwrap();
-    let robot = Robot::start(dir.path(), if stamped { &[] } else { &["--twist"] });
+    let noise = ODOMETRY_NOISE_STD_M.to_string();
+    let base_args = [
+        &["--noise-std", &noise][..],
+        if stamped { &[] } else { &["--twist"] },
+    ];
+    let robot = Robot::start(dir.path(), &base_args.concat());
     let out_dir = dir.path().join("run");
     let stamped_set = format!("ros2.stamped={stamped}");
-    let out = run_on(&robot.endpoint, &["--set", &stamped_set], &out_dir);
+    // The estimator is told the odometry's noise, as a user tells it their robot's: the
+    // paper's path skims the obstacle, and the MPC's margin of 3 sigma (κ) covers it.
+    let noise_set = format!("plant.noise_variance={}", ODOMETRY_NOISE_STD_M.powi(2));
+    let sets = ["--set", &stamped_set, "--set", &noise_set];
+    let out = run_on(&robot.endpoint, &sets, &out_dir);
     let log = robot.finish();
     let summary = summary(&out_dir);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
@@ -212,6 +223,11 @@ fn drive_the_paper_scenario(stamped: bool) {
     assert_eq!(
         summary["robot"]["start"][0].as_f64().map(f64::round),
         Some(7.0)
+    );
+    let odometry_age_us = summary["odometry_age_us"]["p50"].as_f64();
+    assert!(
+        odometry_age_us > Some(0.0),
+        "odometry age {odometry_age_us:?}"
     );
     let clearance = true_clearance_m(&log);
     assert!(

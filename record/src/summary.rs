@@ -154,6 +154,10 @@ pub struct ProcessReport {
     /// Measurement published to actuation published for the same tick, on ticks that are
     /// not sample boundaries (so without the MPC solve), µs.
     pub loop_latency_us: Percentiles,
+    /// A ROS 2 robot's odometry: its age when it reached the pipeline (the wall clock then
+    /// less its stamp), µs; `None` with the simulated plant.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub odometry_age_us: Option<Percentiles>,
     /// Ticks the recorder never received whole (real time only; lockstep waits).
     pub record_gaps: u64,
     /// Ticks commanded without an estimate (the DFL braking on its own clock).
@@ -203,6 +207,7 @@ pub struct LinkReport {
 pub struct Latencies {
     hops: BTreeMap<&'static str, Vec<f64>>,
     loop_us: Vec<f64>,
+    odometry_age_us: Vec<f64>,
 }
 
 impl Latencies {
@@ -218,6 +223,10 @@ impl Latencies {
     pub fn sensor_to_actuator(&mut self, latency_ns: u64) {
         self.loop_us.push(latency_ns as f64 / 1e3);
     }
+    /// How old a ROS 2 robot's odometry was when it arrived, ns.
+    pub fn odometry_age(&mut self, age_ns: u64) {
+        self.odometry_age_us.push(age_ns as f64 / 1e3);
+    }
     /// Fills the latency fields of `report`.
     pub fn report(&self, report: &mut ProcessReport) {
         let pooled: Vec<f64> = self.hops.values().flatten().copied().collect();
@@ -228,6 +237,8 @@ impl Latencies {
             .map(|(k, v)| (k.to_string(), Percentiles::of(v)))
             .collect();
         report.loop_latency_us = Percentiles::of(&self.loop_us);
+        report.odometry_age_us =
+            (!self.odometry_age_us.is_empty()).then(|| Percentiles::of(&self.odometry_age_us));
     }
 }
 
@@ -347,6 +358,9 @@ impl ProcessReport {
         };
         table += &line("hop latency", &self.hop_latency_us);
         table += &line("sensor→actuator", &self.loop_latency_us);
+        if let Some(age) = &self.odometry_age_us {
+            table += &line("odometry age", age);
+        }
         let pids: Vec<String> = self
             .pids
             .iter()

@@ -67,11 +67,7 @@ impl<'a> Driver<'a> {
                 recorder,
             },
             judge: Judge::new(scenario),
-            intake: Intake::new(
-                &scenario.timing,
-                scenario.tick_count(),
-                session.clock().mode(),
-            ),
+            intake: Intake::new(scenario, session.clock().mode()),
             supervisor: Supervisor::new(
                 &scenario.supervision,
                 (scenario.plant.kind == protocol::PlantKind::Ros2)

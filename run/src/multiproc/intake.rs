@@ -65,6 +65,8 @@ pub(super) struct Intake {
     /// not part of the run.
     ticks: u64,
     mode: RunMode,
+    /// The plant is a ROS 2 robot: a measurement's input latency is its odometry's age.
+    robot: bool,
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
     verdicts: BTreeMap<u64, DeadlineVerdict>,
@@ -86,11 +88,12 @@ pub(super) struct Intake {
 }
 
 impl Intake {
-    pub fn new(timing: &Timing, ticks: u64, mode: RunMode) -> Intake {
+    pub fn new(scenario: &protocol::Scenario, mode: RunMode) -> Intake {
         Intake {
-            timing: timing.clone(),
-            ticks,
+            timing: scenario.timing.clone(),
+            ticks: scenario.tick_count(),
             mode,
+            robot: scenario.plant.kind == protocol::PlantKind::Ros2,
             slots: BTreeMap::new(),
             plans: BTreeMap::new(),
             verdicts: BTreeMap::new(),
@@ -227,10 +230,12 @@ impl Intake {
             return Ok(None);
         };
         let l = &mut self.latencies;
-        l.hop(
-            "control_to_plant",
-            u64::from(measurement.header.input_latency_ns),
-        );
+        let plant_input_ns = u64::from(measurement.header.input_latency_ns);
+        if self.robot {
+            l.odometry_age(plant_input_ns);
+        } else {
+            l.hop("control_to_plant", plant_input_ns);
+        }
         // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
         // recorded with an estimate of NaN.
         self.ticks_without_estimate += u64::from(slot.estimate.is_none());
