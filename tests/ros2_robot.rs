@@ -88,6 +88,20 @@ struct Robot {
     router: Python,
     endpoint: String,
     log: PathBuf,
+    /// Zenoh's shared-memory files in /dev/shm before the robot started.
+    shm_before: Vec<PathBuf>,
+}
+
+/// Zenoh's shared-memory files in /dev/shm (the Python package makes them unless told
+/// not to).
+fn zenoh_shm_files() -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else {
+        return Vec::new();
+    };
+    entries
+        .filter_map(|e| Some(e.ok()?.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "zenoh"))
+        .collect()
 }
 
 impl Robot {
@@ -97,6 +111,7 @@ impl Robot {
             .expect("no free port")
             .port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
+        let shm_before = zenoh_shm_files();
         let router = Python::start(&["--router", &endpoint]);
         let log = dir.join("base.json");
         let base = Python::start(
@@ -113,13 +128,18 @@ impl Robot {
             router,
             endpoint,
             log,
+            shm_before,
         }
     }
 
-    /// Stops the base and the router; the base's log.
+    /// Stops the base and the router, which leave no shared-memory file; the base's log.
     fn finish(mut self) -> Value {
         self.base.stop();
         self.router.stop();
+        let left: Vec<PathBuf> = (zenoh_shm_files().into_iter())
+            .filter(|f| !self.shm_before.contains(f))
+            .collect();
+        assert!(left.is_empty(), "the robot left {left:?}");
         let text = std::fs::read_to_string(&self.log).expect("the base wrote no log");
         serde_json::from_str(&text).expect("the base's log is not JSON")
     }

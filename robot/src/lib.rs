@@ -30,6 +30,6 @@ pub enum RobotError {
         domain_id: u32,
         graph: String,
     },
-    #[error("stopped before the robot's first odometry came")]
+    #[error("stopped while waiting for the robot")]
     Stopped,
 }

@@ -13,6 +13,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
+mod views;
+use views::Views;
+
 /// How long the pipeline waits for the robot's first odometry.
 pub const FIRST_ODOMETRY: Duration = Duration::from_secs(5);
 /// How long a graph listing waits for the router's answer.
@@ -23,9 +26,6 @@ const QOS: Qos = Qos {
     transient_local: false,
     depth: 10,
 };
-/// How the obstacles are drawn: cylinders this tall (m), this colour (RGBA).
-const OBSTACLE_HEIGHT_M: f64 = 0.5;
-const OBSTACLE_COLOR: [f32; 4] = [0.85, 0.2, 0.15, 0.6];
 /// The frame a command is stamped in: the robot's body.
 const BASE_FRAME: &str = "base_link";
 
@@ -172,13 +172,6 @@ fn declare(session: &zenoh::Session, key: String) -> zenoh::Result<RosPublisher>
         gid: rand::random(),
         sequence_number: 0,
     })
-}
-
-/// What RViz shows of the MPC: its plan, the route, the obstacles.
-struct Views {
-    plan: RosPublisher,
-    route: RosPublisher,
-    obstacles: RosPublisher,
 }
 
 impl RosPublisher {
@@ -405,86 +398,6 @@ impl Link {
         tokens
     }
 
-    /// A header in the odometry's frame, stamped now.
-    fn view_header(&self) -> cdr::Header {
-        cdr::Header {
-            stamp: ros_time(wall_ns()),
-            frame_id: self.frame.get().cloned().unwrap_or_default(),
-        }
-    }
-
-    /// A path through `poses` (`[x_m, y_m, yaw_rad]`) in the odometry's frame.
-    fn path(&self, poses: impl Iterator<Item = [f64; 3]>) -> Vec<u8> {
-        let header = self.view_header();
-        let poses = poses
-            .map(|[x, y, yaw]| cdr::PoseStamped {
-                header: header.clone(),
-                pose: cdr::Pose {
-                    position: [x, y, 0.0],
-                    orientation: [0.0, 0.0, (yaw / 2.0).sin(), (yaw / 2.0).cos()],
-                },
-            })
-            .collect();
-        cdr::Path { header, poses }.to_cdr()
-    }
-
-    /// Shows the MPC's plan: `poses` its predicted positions and headings.
-    pub fn show_plan(&mut self, poses: impl Iterator<Item = [f64; 3]>) -> Result<(), RobotError> {
-        let payload = self.path(poses);
-        let topic = self.names.plan.clone();
-        self.views
-            .plan
-            .put(payload)
-            .map_err(|reason| RobotError::Key { key: topic, reason })
-    }
-
-    /// Shows the route through `waypoints` (`[x_m, y_m]`, each headed to the next).
-    pub fn show_route(&mut self, waypoints: &[[f64; 2]]) -> Result<(), RobotError> {
-        let heading = |i: usize| {
-            let [a, b] = [waypoints[i], waypoints[(i + 1).min(waypoints.len() - 1)]];
-            (b[1] - a[1]).atan2(b[0] - a[0])
-        };
-        let payload = self.path((0..waypoints.len()).map(|i| {
-            let [x, y] = waypoints[i];
-            [x, y, heading(i)]
-        }));
-        let topic = self.names.route.clone();
-        self.views
-            .route
-            .put(payload)
-            .map_err(|reason| RobotError::Key { key: topic, reason })
-    }
-
-    /// Shows the obstacles: `(id, [x_m, y_m], radius_m)` each, as cylinders.
-    pub fn show_obstacles(
-        &mut self,
-        discs: impl Iterator<Item = (i32, [f64; 2], f64)>,
-    ) -> Result<(), RobotError> {
-        let header = self.view_header();
-        let markers = discs
-            .map(|(id, [x, y], radius)| cdr::Marker {
-                header: header.clone(),
-                ns: "obstacles".into(),
-                id,
-                kind: cdr::Marker::CYLINDER,
-                action: cdr::Marker::ADD,
-                pose: cdr::Pose {
-                    position: [x, y, OBSTACLE_HEIGHT_M / 2.0],
-                    orientation: [0.0, 0.0, 0.0, 1.0],
-                },
-                scale: [2.0 * radius, 2.0 * radius, OBSTACLE_HEIGHT_M],
-                color: OBSTACLE_COLOR,
-                ..cdr::Marker::default()
-            })
-            .collect();
-        let payload = cdr::MarkerArray { markers }.to_cdr();
-        let topic = self.names.obstacles.clone();
-        self.views
-            .obstacles
-            .put(payload)
-            .map_err(|reason| RobotError::Key { key: topic, reason })
-    }
-
     /// Sends a zero twist and closes the session (what every end of a run does).
     pub fn stop_and_close(mut self) -> Result<(), RobotError> {
         let sent = self.command(0.0, 0.0);
@@ -562,10 +475,6 @@ pub fn first_contact(
     let link = Link::open(config, security)?;
     let first = link.first_odometry(stop)?;
     let goal = if config.wait_for_goal {
-        eprintln!(
-            "waiting for a goal on {} (RViz: \"2D Goal Pose\")",
-            link.names.goal
-        );
         loop {
             if let Some(goal) = link.newest_goal() {
                 break Some(goal);

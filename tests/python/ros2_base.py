@@ -203,6 +203,8 @@ def config(mode, listen=(), connect=()):
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    # No shared memory: it would leave files in /dev/shm, and the robot is on the network.
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     return conf
 
 

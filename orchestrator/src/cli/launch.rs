@@ -132,6 +132,12 @@ fn from_the_robot(
     security: &hosts::net::Security,
     stop: &std::sync::atomic::AtomicBool,
 ) -> Result<protocol::Validated, CliError> {
+    if scenario.ros2.wait_for_goal {
+        eprintln!(
+            "waiting for a goal on `{}` (RViz: \"2D Goal Pose\")",
+            scenario.ros2.goal_topic
+        );
+    }
     let start = robot::first_contact(&scenario.ros2, security, stop)
         .context("the ROS 2 robot (plant.kind = \"ros2\")")?;
     let mut moved = scenario.into_inner();
