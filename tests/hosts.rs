@@ -639,17 +639,36 @@ fn over_tls_with_mutual_authentication_the_remote_run_gives_the_same_bytes() {
     );
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert!(read(&one.path().join("trajectory.csv")) == read(&two.path().join("trajectory.csv")));
-    // With a certificate of another CA the orchestrator cannot reach the agent.
+    // Mutual: the agent refuses an orchestrator whose certificate another CA signed (the
+    // orchestrator itself trusts the agent's), and the orchestrator refuses an agent whose
+    // certificate is not of the CA it trusts (its own is good).
     let strangers = tempfile::tempdir().unwrap();
-    let [ca, cert, key] = tls_files(strangers.path());
-    let tls = ["--tls-ca", &ca, "--tls-cert", &cert, "--tls-key", &key];
-    let three = tempfile::tempdir().unwrap();
-    let out = agent.run(
-        "compute",
-        &["mpc"],
-        three.path(),
-        &[&SHORT[..], &tls].concat(),
-    );
-    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
-    assert!(stderr(&out).contains("did not join"), "{}", stderr(&out));
+    let [other_ca, other_cert, other_key] = tls_files(strangers.path());
+    let stranger_client = [
+        "--tls-ca",
+        &ca,
+        "--tls-cert",
+        &other_cert,
+        "--tls-key",
+        &other_key,
+    ];
+    let trusts_another = [
+        "--tls-ca",
+        &other_ca,
+        "--tls-cert",
+        &cert,
+        "--tls-key",
+        &key,
+    ];
+    for tls in [stranger_client, trusts_another] {
+        let three = tempfile::tempdir().unwrap();
+        let out = agent.run(
+            "compute",
+            &["mpc"],
+            three.path(),
+            &[&SHORT[..], &tls].concat(),
+        );
+        assert_eq!(out.status.code(), Some(1), "{tls:?}: {}", stderr(&out));
+        assert!(stderr(&out).contains("did not join"), "{}", stderr(&out));
+    }
 }
