@@ -492,6 +492,20 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         let (out, prefix) = next_case();
         let mut command = common::scmpc();
         command.args(*args);
+        // Where the command would write or open something, it is told where, so that
+        // "nothing started" is checked there.
+        match args[0] {
+            "run" => {
+                if !args.contains(&"--prefix") {
+                    command.args(["--prefix", &prefix]);
+                }
+                command.arg("--out").arg(&out);
+            }
+            "sweep" | "fuzz" | "bench" => {
+                command.arg("--out").arg(&out);
+            }
+            _ => {}
+        }
         if let Some(p) = refusal_problem(command, &out, &prefix, names) {
             problems.push(format!("{args:?}: {p}"));
         }
