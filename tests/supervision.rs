@@ -79,12 +79,20 @@ fn a_dead_plant_aborts_the_run_and_every_process_exits_cleanly() {
     assert_eq!(status.code(), Some(1));
     let s = summary(dir.path());
     assert_eq!(s["outcome"], "aborted");
+    let events = common::events(dir.path());
     for role in ["estimator", "mpc", "dfl"] {
         let pid = s["pids"][role].as_u64().unwrap();
         assert!(
             !runtime::ipc::process_alive(pid as u32),
             "{role} still running"
         );
+        // Stopped, not killed: each exited on its own, with status 0.
+        let exited = events
+            .iter()
+            .find(|e| e["event"] == "exited" && e["role"] == role)
+            .unwrap_or_else(|| panic!("no `exited` event for the {role}"));
+        assert_eq!(exited["killed"], false, "{exited}");
+        assert_eq!(exited["status"], "exit status: 0", "{exited}");
     }
     let prefix = s["iceoryx2_prefix"].as_str().unwrap();
     assert!(
@@ -239,10 +247,43 @@ fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stop
     assert_eq!(s["restarts"], 3);
     assert_eq!(s["outcome"], "reached");
     assert_eq!(s["ticks"], 24000);
-    // Restarted processes pick up the loop's state: the goal is reached as without crashes
-    // (24.16 s; 24.155-24.16 s in three runs on 2026-11-25).
+    // Restarted processes pick up the loop's state: the robot goes as it goes without
+    // crashes (a restarted estimator starts its covariance afresh, so not to the bit).
+    let calm = tempfile::tempdir().unwrap();
+    let out = common::run(&[
+        "run",
+        "--set",
+        "duration_s=120",
+        "--out",
+        calm.path().to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(0));
+    let calm_t = summary(calm.path())["time_to_goal_s"].as_f64().unwrap();
     let t = s["time_to_goal_s"].as_f64().unwrap();
-    assert!((t - 24.16).abs() < 0.05, "time to goal {t}");
+    assert!(
+        (t - calm_t).abs() < 0.05,
+        "time to goal {t} s, {calm_t} s without crashes"
+    );
+    let path = |dir: &Path| -> Vec<[f64; 2]> {
+        let rows = common::csv(&dir.join("trajectory.csv"));
+        rows.iter()
+            .map(|r| [common::num(r, "x"), common::num(r, "y")])
+            .collect()
+    };
+    let (restarted, calm) = (path(dir.path()), path(calm.path()));
+    // A restart loses the EKF's covariance and the MPC's warm start: the path moves by
+    // up to 2.2 cm (2026-11-27: 0.021-0.022 m in three runs, under 0.01 m in two); a
+    // restarted process that started over from the scenario's start would be metres off.
+    assert_eq!(restarted.len(), calm.len());
+    let apart_m = restarted
+        .iter()
+        .zip(&calm)
+        .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
+        .fold(0.0, f64::max);
+    assert!(
+        apart_m < 0.05,
+        "the restarted run strays {apart_m} m from the calm one"
+    );
 }
 
 #[test]
