@@ -74,9 +74,25 @@ fn the_paper_run_with_both_layers_reaches_the_goal_close_to_the_papers_time_unto
     assert_eq!(s["safety_interventions"], 0);
     assert_eq!(s["commands"]["safety_brake"], 0);
     assert_eq!(s["solver_failures"], 0);
-    // 24.11 s in the paper's formulation (docs/safety.md).
+    // The paper's formulation, run here too (24.11 s; docs/safety.md): the layers, which
+    // never act on this run, cost it at most a tenth of a second (24.16 s).
+    let (paper_dir, out) = run_into_tempdir(&[
+        "run",
+        "--in-process",
+        "--set",
+        "mpc.terminal_safety=none",
+        "--set",
+        "dfl.gatekeeper=false",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let paper_t = summary(paper_dir.path())["time_to_goal_s"]
+        .as_f64()
+        .unwrap();
     let t = s["time_to_goal_s"].as_f64().unwrap();
-    assert!((t - 24.11).abs() < 1.0, "time to goal {t}");
+    assert!(
+        (0.0..=0.1).contains(&(t - paper_t)),
+        "time to goal {t} s with the layers, {paper_t} s without"
+    );
 }
 
 #[test]
