@@ -95,28 +95,53 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
     }
     // The real-time MPC's warm-up before each sample (a dry step, then its state put
     // back), in both programs: the robot follows each plan's first state, off by a drift.
-    for qp_form in ["sparse", "condensed"] {
+    // Whole, and cut short as the estimate's arrival cuts it (the cancel check holds from
+    // its `k % 9`-th call on: anywhere in the rehearsal, or at once).
+    for (qp_form, cut_short) in [
+        ("sparse", false),
+        ("condensed", false),
+        ("sparse", true),
+        ("condensed", true),
+    ] {
+        use std::cell::Cell;
+        use std::rc::Rc;
         let scenario = scenario(&[&format!("mpc.qp_form={qp_form}")]);
         let mut mpc = mpc::Mpc::new(&scenario).unwrap();
         let [x, y, theta] = scenario.robot.start;
         let mut x_bar = [x, y, theta, scenario.robot.zeta0];
         let mut counted = 0;
-        let never: protocol::task::Cancel = std::rc::Rc::new(|| false);
+        let (checks, cut_at) = (Rc::new(Cell::new(0u64)), Rc::new(Cell::new(u64::MAX)));
+        let cancel: protocol::task::Cancel = {
+            let (checks, cut_at) = (checks.clone(), cut_at.clone());
+            Rc::new(move || {
+                checks.set(checks.get() + 1);
+                checks.get() > cut_at.get()
+            })
+        };
+        let mut most_checks = 0;
         for k in 0..300 {
+            checks.set(0);
+            cut_at.set(if cut_short { k % 9 } else { u64::MAX });
             let (plan, a) = allocations(|| {
-                mpc.warm_up(u64::MAX, &never);
+                mpc.warm_up(u64::MAX, &cancel);
                 mpc.step(k, x_bar, 0.01)
             });
             if k >= 20 {
                 counted += a;
             }
+            most_checks = most_checks.max(checks.get());
             let drift = 0.003 * (k as f64).sin();
             x_bar = protocol::phi_inverse(plan.z[1], x_bar[2]);
             x_bar[0] += drift;
         }
         assert_eq!(
             counted, 0,
-            "{qp_form}: allocations in warm-ups and steps after 20"
+            "{qp_form} (cut short: {cut_short}): allocations in warm-ups and steps after 20"
+        );
+        // A whole rehearsal asks at least 9 times: every cut falls inside one.
+        assert!(
+            cut_short || most_checks >= 9,
+            "{qp_form}: {most_checks} checks"
         );
     }
     // Every fallback: failed solves (the cold retry, then the shifted plan and braking),
