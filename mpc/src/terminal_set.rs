@@ -344,32 +344,53 @@ mod tests {
         assert!((z - s_hat).norm() < 1e-3, "{z:?} vs {sub:?}");
     }
 
+    /// A spread of states about `centre`: positions up to 6 m off, speeds up to 4 m/s
+    /// (a golden-angle spiral, the same every run).
+    fn states_about(centre: [f64; 2], count: usize) -> impl Iterator<Item = [f64; 4]> {
+        (0..count).map(move |i| {
+            let t = i as f64;
+            let (r, a) = (6.0 * (t * 0.618_034).fract(), t * 2.399_963);
+            let (speed, b) = (4.0 * (t * 0.414_21).fract(), t * 1.3);
+            [
+                centre[0] + r * a.cos(),
+                speed * b.cos(),
+                centre[1] + r * a.sin(),
+                speed * b.sin(),
+            ]
+        })
+    }
+
     #[test]
-    fn a_sub_goal_moves_the_input_rows_with_it_and_leaves_the_box_where_it_is() {
+    fn about_a_sub_goal_a_state_is_in_the_set_exactly_when_the_lqr_about_it_keeps_both_boxes() {
         let s = Scenario::default();
-        let (rows, _, _) = set_of(&s);
-        let sub = [2.0, -1.0];
-        for r in &rows {
-            match r.kind {
-                // coeffs' (z + s_hat) <= bound at s for z on the goal's boundary.
-                SetRowKind::Input => {
-                    let moved = r.coeffs[0] * sub[0] + r.coeffs[2] * sub[1];
-                    assert!((r.bound.at(sub) - (r.bound.at_goal + moved)).abs() < 1e-12);
-                }
-                // About the sub-goal the box row is `±e'(s_hat + M_j (z - s_hat)) <= B`:
-                // its bound less `coeffs' s_hat` is B minus the sub-goal's own coordinate.
-                SetRowKind::Position => {
-                    let moved = r.coeffs[0] * sub[0] + r.coeffs[2] * sub[1];
-                    let own = r.bound.at_goal + moved - r.bound.at(sub);
-                    assert!(
-                        [sub[0], -sub[0], sub[1], -sub[1]]
-                            .iter()
-                            .any(|x| (own - x).abs() < 1e-12),
-                        "{r:?}"
-                    );
-                }
+        let (rows, k, closed_loop) = set_of(&s);
+        let c = &s.mpc;
+        let goal = s.robot.goal;
+        let position_box =
+            [0, 1].map(|i| c.position_min[i] - goal[i]..=c.position_max[i] - goal[i]);
+        // Eqs. (45, 47) about `sub`, by simulation: the LQR closed loop about `s_hat` from
+        // `z0` keeps its inputs and its positions in their boxes for `Nc` steps.
+        let keeps_the_boxes = |z0: [f64; 4], sub: [f64; 2]| {
+            let s_hat = Vector4::new(sub[0], 0.0, sub[1], 0.0);
+            let mut z = Vector4::from(z0);
+            (0..=c.constraint_horizon).all(|_| {
+                let inside = (k * (z - s_hat)).amax() <= c.v_max
+                    && position_box[0].contains(&z[0])
+                    && position_box[1].contains(&z[2]);
+                z = s_hat + closed_loop * (z - s_hat);
+                inside
+            })
+        };
+        let mut seen = [0, 0];
+        for sub in [[0.0, 0.0], [2.0, -1.0], [-6.0, 4.5], [7.5, 7.5]] {
+            for z in states_about(sub, 3000) {
+                let in_set = keeps_the_boxes(z, sub);
+                let by_rows = rows.iter().all(|r| r.value(z) <= r.bound.at(sub));
+                assert_eq!(by_rows, in_set, "{z:?} about {sub:?}");
+                seen[usize::from(in_set)] += 1;
             }
         }
+        assert!(seen.iter().all(|&n| n > 500), "outside, inside: {seen:?}");
     }
 
     #[test]
