@@ -595,36 +595,11 @@ fn a_host_that_does_not_answer_fails_the_run_before_tick_0_naming_it() {
     assert!(!dir.path().join("summary.json").exists());
 }
 
-/// A CA and one certificate it signs for 127.0.0.1, as PEM files in `dir`.
-fn tls_files(dir: &Path) -> [String; 3] {
-    use rcgen::{BasicConstraints, CertificateParams, IsCa, Issuer, KeyPair};
-    let ca_key = KeyPair::generate().unwrap();
-    let mut ca_params = CertificateParams::new(Vec::new()).unwrap();
-    ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-    let ca = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = Issuer::new(ca_params, ca_key);
-    let key = KeyPair::generate().unwrap();
-    let cert = CertificateParams::new(vec!["127.0.0.1".into(), "localhost".into()])
-        .unwrap()
-        .signed_by(&key, &issuer)
-        .unwrap();
-    let write = |name: &str, pem: String| {
-        let path = dir.join(name);
-        std::fs::write(&path, pem).unwrap();
-        path.to_str().unwrap().to_string()
-    };
-    [
-        write("ca.pem", ca.pem()),
-        write("cert.pem", cert.pem()),
-        write("key.pem", key.serialize_pem()),
-    ]
-}
-
 #[test]
 fn over_tls_with_mutual_authentication_the_remote_run_gives_the_same_bytes() {
     let _machine = common::machine_shared();
     let certs = tempfile::tempdir().unwrap();
-    let [ca, cert, key] = tls_files(certs.path());
+    let [ca, cert, key] = common::tls_files(certs.path());
     let tls = ["--tls-ca", &ca, "--tls-cert", &cert, "--tls-key", &key];
     let agent = Agent::start("compute", "tls", &tls, &[]);
     let one = tempfile::tempdir().unwrap();
@@ -643,7 +618,7 @@ fn over_tls_with_mutual_authentication_the_remote_run_gives_the_same_bytes() {
     // orchestrator itself trusts the agent's), and the orchestrator refuses an agent whose
     // certificate is not of the CA it trusts (its own is good).
     let strangers = tempfile::tempdir().unwrap();
-    let [other_ca, other_cert, other_key] = tls_files(strangers.path());
+    let [other_ca, other_cert, other_key] = common::tls_files(strangers.path());
     let stranger_client = [
         "--tls-ca",
         &ca,

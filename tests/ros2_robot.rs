@@ -22,6 +22,15 @@ use std::time::Duration;
 const PAPER_START: [&str; 3] = ["7", "7", "-2.356194490192345"];
 /// The paper's obstacle: centre and radius, m.
 const OBSTACLE: [f64; 3] = [3.0, 3.5, 1.5];
+/// A short drive from the paper's start, clear of its obstacle: reached in about 6 s.
+const SHORT_DRIVE: [&str; 6] = [
+    "--set",
+    "duration_s=8",
+    "--set",
+    "mpc.r_diag=[3.0, 3.0]",
+    "--set",
+    "robot.goal=[6.0, 5.0]",
+];
 /// The standard deviation of the base's odometry noise, m and rad.
 const ODOMETRY_NOISE_STD_M: f64 = 0.002;
 /// `ros2.odom_timeout_s`'s default and the inner tick of the paper, s.
@@ -104,15 +113,31 @@ fn zenoh_shm_files() -> Vec<PathBuf> {
         .collect()
 }
 
+/// A free port on loopback.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("no free port")
+        .port()
+}
+
 impl Robot {
     fn start(dir: &Path, base_args: &[&str]) -> Robot {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .expect("no free port")
-            .port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
+        Robot::start_with(dir, base_args, None)
+    }
+
+    /// A robot whose router also listens on TLS with mutual authentication by the CA of
+    /// `tls` (`[ca, cert, key]`); the pipeline is to take [`Robot::endpoint`], now that one.
+    fn start_with(dir: &Path, base_args: &[&str], tls: Option<&[String; 3]>) -> Robot {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
         let shm_before = zenoh_shm_files();
-        let router = Python::start(&["--router", &endpoint]);
+        let tls_endpoint = format!("tls/127.0.0.1:{}", free_port());
+        let mut router_args = vec!["--router", &endpoint];
+        if let Some(files) = tls {
+            router_args.extend([tls_endpoint.as_str(), "--tls"]);
+            router_args.extend(files.iter().map(String::as_str));
+        }
+        let router = Python::start(&router_args);
         let log = dir.join("base.json");
         let base = Python::start(
             &[
@@ -126,7 +151,11 @@ impl Robot {
         Robot {
             base,
             router,
-            endpoint,
+            endpoint: if tls.is_some() {
+                tls_endpoint
+            } else {
+                endpoint
+            },
             log,
             shm_before,
         }
@@ -351,17 +380,8 @@ fn behind_zenoh_bridge_ros2dds_the_keys_are_the_topics_names() {
     let dir = tempfile::tempdir().unwrap();
     let robot = Robot::start(dir.path(), &["--wire", "bridge"]);
     let out_dir = dir.path().join("run");
-    let short = [
-        "--set",
-        "ros2.wire=bridge",
-        "--set",
-        "duration_s=8",
-        "--set",
-        "mpc.r_diag=[3.0, 3.0]",
-        "--set",
-        "robot.goal=[6.0, 5.0]",
-    ];
-    let out = run_on(&robot.endpoint, &short, &out_dir);
+    let bridge = [&SHORT_DRIVE[..], &["--set", "ros2.wire=bridge"]].concat();
+    let out = run_on(&robot.endpoint, &bridge, &out_dir);
     let log = robot.finish();
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     assert_eq!(summary(&out_dir)["outcome"], "reached");
@@ -379,6 +399,39 @@ fn behind_zenoh_bridge_ros2dds_the_keys_are_the_topics_names() {
         .filter(|c| c["parsed"]["node"] == "scmpc")
         .count();
     assert_eq!(ours, 0, "rmw_zenoh tokens behind a bridge");
+}
+
+#[test]
+fn over_tls_with_mutual_authentication_the_robot_is_driven_and_a_stranger_refused() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let certs = dir.path().join("certs");
+    let strangers = dir.path().join("strangers");
+    std::fs::create_dir_all(&certs).unwrap();
+    std::fs::create_dir_all(&strangers).unwrap();
+    let ours = common::tls_files(&certs);
+    let robot = Robot::start_with(dir.path(), &[], Some(&ours));
+    let with = |files: &[String; 3], out_dir: &str| {
+        let [ca, cert, key] = files.each_ref().map(String::as_str);
+        let tls = ["--tls-ca", ca, "--tls-cert", cert, "--tls-key", key];
+        run_on(
+            &robot.endpoint,
+            &[&SHORT_DRIVE[..], &tls].concat(),
+            &dir.path().join(out_dir),
+        )
+    };
+    let out = with(&ours, "ours");
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    // A certificate of another CA: the router refuses the pipeline, which says where.
+    let theirs = common::tls_files(&strangers);
+    let out = with(
+        &[ours[0].clone(), theirs[1].clone(), theirs[2].clone()],
+        "theirs",
+    );
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(stderr(&out).contains(&robot.endpoint), "{}", stderr(&out));
+    let log = robot.finish();
+    assert!(log["commands"].as_array().unwrap().len() > 100);
 }
 
 #[test]
@@ -496,11 +549,7 @@ fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
     drop(robot);
 
     // No router there at all.
-    let closed = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{closed}");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let out = run_on(&endpoint, &[], &out_dir);
     assert_eq!(out.status.code(), Some(1));
     assert!(stderr(&out).contains(&endpoint), "{}", stderr(&out));

@@ -5,7 +5,8 @@ node would: it takes `cmd_vel` (TwistStamped or Twist) and publishes `odom` (Odo
 50 Hz, with an actuator lag, odometry noise and a command watchdog like
 `diff_drive_controller`'s (`cmd_vel_timeout`).
 
-`--router ENDPOINT` runs a Zenoh router there instead (the robot's `rmw_zenohd`).
+`--router ENDPOINT...` runs a Zenoh router there instead (the robot's `rmw_zenohd`); with
+`--tls CA CERT KEY` its `tls/` endpoints ask for mutual authentication.
 
 On SIGTERM the base writes its log (JSON) to `--log`: its own truth, every command it
 took with its attachment, when it published odometry and when it went on after a
@@ -215,9 +216,20 @@ def wait_for_term():
     return done
 
 
-def router(endpoint):
+def router(endpoints, tls):
     done = wait_for_term()
-    session = zenoh.open(config("router", listen=[endpoint]))
+    conf = config("router", listen=endpoints)
+    if tls:
+        # TLS with mutual authentication, as a robot's rmw_zenohd would be set up.
+        ca, certificate, key = tls
+        for name, value in [
+            ("root_ca_certificate", ca),
+            ("listen_certificate", certificate),
+            ("listen_private_key", key),
+            ("enable_mtls", True),
+        ]:
+            conf.insert_json5(f"transport/link/tls/{name}", json.dumps(value))
+    session = zenoh.open(conf)
     print("router ready", flush=True)
     done.wait()
     session.close()
@@ -349,7 +361,8 @@ def base(args):
 
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("--router")
+    parser.add_argument("--router", nargs="+")
+    parser.add_argument("--tls", nargs=3, metavar=("CA", "CERT", "KEY"))
     parser.add_argument("--connect")
     parser.add_argument("--log")
     parser.add_argument("--domain", type=int, default=0)
@@ -368,7 +381,7 @@ def main():
     global BRIDGE
     BRIDGE = args.wire == "bridge"
     if args.router:
-        router(args.router)
+        router(args.router, args.tls)
     else:
         base(args)
 
