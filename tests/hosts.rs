@@ -6,10 +6,9 @@ mod common;
 use common::{events, leftovers, run, scmpc, stderr, summary, wait_for};
 use record::schema::Table;
 use runtime::ipc::process_alive;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Output, Stdio};
-use std::sync::mpsc::{Receiver, channel};
+use std::sync::mpsc::Receiver;
 use std::time::Duration;
 
 /// The paper scenario, made short: it reaches its goal at 7.46 s (lockstep).
@@ -39,15 +38,7 @@ impl Agent {
             .stderr(Stdio::piped())
             .spawn()
             .expect("cannot start scmpc host");
-        let (send, lines) = channel();
-        let stderr = child.stderr.take().expect("stderr piped");
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if send.send(line).is_err() {
-                    break;
-                }
-            }
-        });
+        let lines = common::lines_of(child.stderr.take().expect("stderr piped"));
         let agent = Agent {
             child,
             endpoint,

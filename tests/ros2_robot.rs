@@ -12,10 +12,9 @@ use common::{
 };
 use runtime::ipc::process_alive;
 use serde_json::Value;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::{Receiver, channel};
+use std::sync::mpsc::Receiver;
 use std::time::Duration;
 
 /// The paper's start, where the base starts (the run takes it from the first odometry).
@@ -51,15 +50,7 @@ impl Python {
             .stdout(Stdio::piped())
             .spawn()
             .expect("cannot start tests/python/ros2_base.py");
-        let (send, lines) = channel();
-        let stdout = child.stdout.take().expect("stdout piped");
-        std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                if send.send(line).is_err() {
-                    break;
-                }
-            }
-        });
+        let lines = common::lines_of(child.stdout.take().expect("stdout piped"));
         let python = Python { child, lines };
         let ready = python.lines.recv_timeout(Duration::from_secs(60));
         assert!(

@@ -312,3 +312,21 @@ pub fn tls_files(dir: &Path) -> [String; 3] {
         write("key.pem", key.serialize_pem()),
     ]
 }
+
+/// The lines of `stream` (a child's piped stdout or stderr) as they come, read on a thread
+/// of their own.
+pub fn lines_of(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc::Receiver<String> {
+    use std::io::BufRead;
+    let (send, lines) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stream)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if send.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    lines
+}

@@ -341,6 +341,15 @@ def base(args):
             the_base.odometry_ns.append(time.time_ns())
         next_s += DT_S
         time.sleep(max(0.0, next_s - time.monotonic()))
+    # Commands sent while the base was paused are still queued in its socket when SIGCONT
+    # and SIGTERM come together: take them all (no command for 0.3 s; 5 s at most).
+    quiet_since = time.monotonic()
+    seen = len(the_base.commands)
+    while time.monotonic() - quiet_since < 0.3 and time.monotonic() - next_s < 5.0:
+        time.sleep(0.02)
+        with the_base.lock:
+            if len(the_base.commands) != seen:
+                seen, quiet_since = len(the_base.commands), time.monotonic()
     with the_base.lock:
         log = {
             "truth": the_base.truth,
