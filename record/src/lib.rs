@@ -31,7 +31,9 @@ mod mcap;
 mod summary;
 pub use lines::FLUSH_PERIOD;
 pub use mcap::McapLog;
-pub use summary::{Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Summary};
+pub use summary::{
+    Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Scheduling, Summary,
+};
 
 /// Streams the run's records to its directory and accumulates the summary's statistics.
 /// It decides nothing: how the run ends is the [`Judge`]'s.

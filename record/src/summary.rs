@@ -164,6 +164,10 @@ pub struct ProcessReport {
     pub ticks_without_estimate: u64,
     /// Peak resident memory of each process at the end of the run (`VmHWM`), KiB.
     pub peak_rss_kib: BTreeMap<String, u64>,
+    /// Real time: how each process on this host ran, as the kernel said once it was ready
+    /// (`[realtime]`; docs/running.md, "Real-time scheduling"). Empty in lockstep.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub scheduling: BTreeMap<String, Scheduling>,
     /// Processes restarted after a crash.
     pub restarts: u32,
     /// Swap-in replacements that took over (details in events.jsonl).
@@ -182,6 +186,33 @@ pub struct ProcessReport {
     /// What the orchestrator's own bridge carried and refused, over all its links.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub orchestrator_bridge: Option<hosts::LinkCounters>,
+}
+
+/// How a process was scheduled, as `/proc` tells of its main thread.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct Scheduling {
+    /// `fifo`, `rr`, `other` (Linux's normal policy), `batch` or `idle`.
+    pub policy: String,
+    /// Its real-time priority (0 under `other`).
+    pub priority: u32,
+    /// Whether its memory is locked (`VmLck` above zero).
+    pub memory_locked: bool,
+    /// The CPUs it may run on (`Cpus_allowed_list`, e.g. `0-1`).
+    pub cpus: String,
+}
+
+impl Scheduling {
+    /// `fifo 50, locked, cpus 0-1`.
+    fn short(&self) -> String {
+        let mut text = self.policy.clone();
+        if self.priority > 0 {
+            text += &format!(" {}", self.priority);
+        }
+        if self.memory_locked {
+            text += ", locked";
+        }
+        text + &format!(", cpus {}", self.cpus)
+    }
 }
 
 /// One link between the orchestrator's host and another (docs/hosts.md).
@@ -367,6 +398,14 @@ impl ProcessReport {
             .map(|(r, pid)| format!("{r} {pid}"))
             .collect();
         table += &format!("  {:<16} {}\n", "processes", pids.join(", "));
+        if !self.scheduling.is_empty() {
+            let each: Vec<String> = self
+                .scheduling
+                .iter()
+                .map(|(r, s)| format!("{r} {}", s.short()))
+                .collect();
+            table += &format!("  {:<16} {}\n", "scheduling", each.join("; "));
+        }
         for (role, host) in &self.hosts {
             let link = self.links.get(host);
             table += &format!(

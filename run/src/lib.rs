@@ -13,5 +13,6 @@ pub mod multiproc;
 pub mod remote;
 pub mod roles;
 pub mod scenarios;
+pub mod scheduling;
 pub mod stop;
 pub mod swap_client;

@@ -8,6 +8,7 @@ pub mod clock;
 pub mod ipc;
 pub mod layout;
 pub mod process;
+pub mod realtime;
 pub mod serve;
 pub mod wait;
 pub mod warm_up;

@@ -36,6 +36,7 @@ use crate::ipc::{
     CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, Wire, create_node,
     open_topic, output_slot, process_alive, wait, waitset,
 };
+use crate::realtime::{Policy, Tier};
 use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, spin_wait};
 use crate::warm_up::{WarmUpPass, WarmUps};
 use iceoryx2::prelude::*;
@@ -326,6 +327,9 @@ pub struct Member {
     warm_up_ticks: u64,
     clock: Rc<RoleClock>,
     status: Sender<Status>,
+    /// Real time: the scheduling put in force once the process is set up (`None` in
+    /// lockstep).
+    policy: Option<Policy>,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
@@ -358,6 +362,8 @@ impl Member {
             warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
             status,
+            policy: (args.mode == RunMode::Realtime)
+                .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
         })
     }
 
@@ -445,6 +451,14 @@ impl Member {
             .iter()
             .map(|input| attach(input.listener()))
             .collect::<Result<Vec<_>, _>>()?;
+        // Set up: the real-time policy before the first step (the orchestrator warned once
+        // of what the machine refuses, and reads what each process runs under).
+        if let Some(Err(e)) = self.policy.as_ref().map(Policy::apply) {
+            eprintln!(
+                "scmpc {}: real-time policy not in force: {e}",
+                self.role.as_str()
+            );
+        }
         self.report_ready(outputs)?;
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();

@@ -74,6 +74,9 @@ pub(super) fn run(args: RunArgs) -> CliResult {
              (give --mode realtime, without --in-process)",
         ));
     }
+    if args.mode == Mode::Realtime {
+        run::scheduling::check(&scenario.realtime).map_err(bad_input)?;
+    }
     let prefix = args.prefix.unwrap_or_else(runtime::ipc::new_prefix);
     runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let security = args.security.security()?;

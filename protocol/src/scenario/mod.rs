@@ -80,6 +80,9 @@ pub struct Scenario {
     pub hosts: HostsConfig,
     /// The ROS 2 robot of `plant.kind = "ros2"` (docs/ros2.md).
     pub ros2: Ros2Config,
+    /// How a real-time run's processes are scheduled (docs/running.md, "Real-time
+    /// scheduling").
+    pub realtime: RealtimeConfig,
 }
 
 /// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
@@ -543,6 +546,7 @@ impl Default for Scenario {
             swap: Vec::new(),
             hosts: HostsConfig::default(),
             ros2: Ros2Config::default(),
+            realtime: RealtimeConfig::default(),
         }
     }
 }
@@ -710,6 +714,9 @@ pub use world::*;
 
 mod ros2;
 pub use ros2::*;
+
+mod realtime;
+pub use realtime::*;
 
 mod validate;
 

@@ -29,7 +29,12 @@ impl Scenario {
         self.check_faults(&mut v);
         self.check_hosts(&mut v);
         self.check_swaps(&mut v);
-        for (key, message) in self.ros2.problems() {
+        for (key, message) in self
+            .ros2
+            .problems()
+            .into_iter()
+            .chain(self.realtime.problems())
+        {
             v.fail(key, message);
         }
         if v.errors.is_empty() {

@@ -236,6 +236,11 @@ fn drive(
     )?;
     children.spawn_all(scenario.roles())?;
     let mut report = spawned_report(prefix, &children, recorder)?;
+    // Real time: the orchestrator's recording at its tier, below every role, for as long as
+    // the run lasts.
+    let _recording_tier = (mode == RunMode::Realtime)
+        .then(|| crate::scheduling::orchestrator(&scenario.realtime))
+        .flatten();
 
     // Lockstep: the orchestrator is part of the handshake and wakes on every sample. Real
     // time: it only records, so it drains its buffers every POLL instead of competing for
@@ -254,6 +259,9 @@ fn drive(
     let outcome =
         wait_until_ready(scenario, &session, &waitset, &mut children, stop).and_then(|()| {
             recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
+            if mode == RunMode::Realtime {
+                report.scheduling = scheduling_report(&children);
+            }
             let mut driver = Driver::new(scenario, &session, &mut children, recorder, stop);
             let outcome = match mode {
                 RunMode::Lockstep => driver.lockstep(&waitset),
@@ -300,6 +308,16 @@ fn link_reports(
             };
             (name.clone(), report)
         })
+        .collect()
+}
+
+/// How every process on this host runs, once ready, by role (and `orchestrator`).
+fn scheduling_report(children: &Children) -> BTreeMap<String, record::Scheduling> {
+    let local = children.list.iter().filter(|p| p.host().is_none());
+    local
+        .map(|p| (p.role.as_str().to_string(), p.pid()))
+        .chain([("orchestrator".to_string(), std::process::id())])
+        .filter_map(|(name, pid)| Some((name, crate::scheduling::observe(pid)?)))
         .collect()
 }
 
