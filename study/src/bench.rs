@@ -19,6 +19,7 @@
 //! - Scaling ([`scaling`]): the MPC step against the horizon and the obstacle count.
 
 pub mod cross_host;
+pub mod load;
 pub mod scaling;
 pub mod targets;
 

@@ -56,10 +56,21 @@ pub enum Command {
         /// Directory of the runs and bench.json [default: a fresh directory under runs/].
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
-        /// Length of the real-time run, s.
+        /// Length of each real-time run, s.
         #[arg(long, default_value_t = 10.0)]
         realtime_s: f64,
+        /// Instead: the real-time paper run beside N CPU-bound processes, with the
+        /// real-time policy and without, against the idle machine (docs/performance.md,
+        /// "Under load").
+        #[arg(long, value_name = "N")]
+        load: Option<usize>,
+        /// With --load: runs of each condition.
+        #[arg(long, default_value_t = 3, requires = "load")]
+        runs: usize,
     },
+    /// A CPU-bound process of `scmpc bench --load` (started by it).
+    #[command(hide = true)]
+    BenchBurn,
     /// The other end of `scmpc bench`'s ping-pong (started by it).
     #[command(hide = true)]
     BenchPong {

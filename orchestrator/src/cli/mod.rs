@@ -96,7 +96,13 @@ fn dispatch(command: Command) -> CliResult {
         Command::Sweep(args) => sweep(args),
         Command::Fuzz(args) => fuzz(args),
         Command::Figures { out } => figures(&out),
-        Command::Bench { out, realtime_s } => bench(out, realtime_s),
+        Command::Bench {
+            out,
+            realtime_s,
+            load,
+            runs,
+        } => bench(out, realtime_s, load, runs),
+        Command::BenchBurn => study::bench::load::burn(),
         Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
         Command::Host(args) => launch::host(args),
     }
@@ -239,14 +245,24 @@ fn bench_pong(prefix: Option<String>, zenoh: Option<String>) -> CliResult {
     }
 }
 
-fn bench(out: Option<PathBuf>, realtime_s: f64) -> CliResult {
+fn bench(out: Option<PathBuf>, realtime_s: f64, load: Option<usize>, runs: usize) -> CliResult {
     if !(realtime_s.is_finite() && realtime_s > 0.0) {
         return Err(bad_input(format!(
             "--realtime-s must be positive, got {realtime_s}"
         )));
     }
+    if load == Some(0) || runs == 0 {
+        return Err(bad_input("--load and --runs must be at least 1"));
+    }
     let out = out.unwrap_or_else(|| record::run_dir::default_run_dir("bench"));
     let stop = run::stop::on_signals();
+    if let Some(load) = load {
+        run::scheduling::check(&protocol::RealtimeConfig::default()).map_err(bad_input)?;
+        let report = study::bench::load::measure(&out, load, runs, realtime_s, &stop)?;
+        print!("{}", report.table());
+        println!("bench directory: {}", out.display());
+        return Ok(());
+    }
     let report = study::bench::run(&out, realtime_s, &stop)?;
     print!("{}", report.table());
     println!("bench directory: {}", out.display());
