@@ -1,25 +1,193 @@
-//! A real-time run of the whole paper scenario (30 s of wall time).
+//! Real-time runs of the paper scenario (30 s of wall time): beside two CPU-bound
+//! processes under the real-time policy, without permission for it, and with late plans.
 
 mod common;
 
 use common::{run, run_into_tempdir, stderr, summary};
+use std::os::unix::process::CommandExt;
+
+/// Ends of `scmpc bench-burn`, one CPU-bound process per core of this machine (of normal
+/// priority), killed and reaped when dropped.
+struct Load(Vec<std::process::Child>);
+
+impl Load {
+    fn one_per_core() -> Load {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        Load(
+            (0..cores)
+                .map(|_| {
+                    common::scmpc()
+                        .arg("bench-burn")
+                        .spawn()
+                        .expect("bench-burn")
+                })
+                .collect(),
+        )
+    }
+}
+
+impl Drop for Load {
+    fn drop(&mut self) {
+        for child in &mut self.0 {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// Whether this machine grants a process `SCHED_FIFO` (then the policy is in force).
+fn fifo_granted() -> bool {
+    let (policy, refusal) = runtime::realtime::Policy::for_this_process(
+        &protocol::RealtimeConfig::default(),
+        runtime::realtime::Tier::Actuation,
+    );
+    policy.fifo_priority.is_some() && refusal.is_none()
+}
 
 #[test]
-fn realtime_paper_run_reaches_the_goal_without_collision_or_deadline_miss() {
+fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_the_policy() {
     let _machine = common::machine_alone();
+    let _load = Load::one_per_core();
     let (dir, out) = run_into_tempdir(&["run", "--mode", "realtime"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let s = summary(dir.path());
     assert_eq!(s["mode"], "realtime");
     assert_eq!(s["outcome"], "reached");
     assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+    // Where the machine grants it, every process runs under the policy; elsewhere the
+    // load would decide this test's timing claims, as it did before the policy.
+    assert!(
+        fifo_granted(),
+        "this machine refuses SCHED_FIFO: the test's claims need it ({})",
+        stderr(&out)
+    );
+    for (process, priority) in [
+        ("plant", 50),
+        ("dfl", 50),
+        ("estimator", 49),
+        ("mpc", 48),
+        ("orchestrator", 47),
+    ] {
+        let sched = &s["scheduling"][process];
+        assert_eq!(sched["policy"], "fifo", "{process}: {sched}");
+        assert_eq!(sched["priority"], priority, "{process}");
+        assert_eq!(sched["memory_locked"], true, "{process}");
+    }
     assert_eq!(s["deadline_misses"], 0);
-    assert_eq!(s["record_gaps"], 0);
+    assert_eq!(s["record_gaps"], 0, "ticks without a command");
+    assert_eq!(s["ticks_without_estimate"], 0);
+    assert_eq!(s["commands"]["brake"], 0, "brakes from silence");
+    assert_eq!(s["commands"]["shifted"], 0, "late plans flown shifted");
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
     for key in ["p50", "p99", "max"] {
         assert!(s["loop_latency_us"][key].as_f64().unwrap() > 0.0);
         assert!(s["hop_latency_us"][key].as_f64().unwrap() > 0.0);
     }
+}
+
+#[test]
+fn without_permission_a_realtime_run_warns_once_and_runs_at_the_normal_policy() {
+    let _machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let mut command = common::scmpc();
+    command.args([
+        "run",
+        "--mode",
+        "realtime",
+        "--no-mcap",
+        "--set",
+        "duration_s=3",
+        "--out",
+    ]);
+    command.arg(dir.path());
+    // SAFETY: only system calls between fork and exec: the capabilities and limits that
+    // grant real-time scheduling and locked memory are taken from the child.
+    unsafe {
+        command.pre_exec(drop_realtime_grant);
+    }
+    let out = command.output().expect("cannot start scmpc");
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    let s = summary(dir.path());
+    assert_eq!(s["ticks"], 600, "the run went on: {}", stderr(&out));
+    let text = stderr(&out);
+    let warnings: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("real-time scheduling") || l.contains("real-time policy"))
+        .collect();
+    assert_eq!(warnings.len(), 1, "{text}");
+    assert!(
+        warnings[0].starts_with("warning: real-time scheduling: no real-time scheduling: no CAP_SYS_NICE and RLIMIT_RTPRIO is 0"),
+        "{}",
+        warnings[0]
+    );
+    for how in ["ulimit -r", "limits.conf", "setcap"] {
+        assert!(warnings[0].contains(how), "{how}: {}", warnings[0]);
+    }
+    for (process, sched) in s["scheduling"].as_object().unwrap() {
+        assert_eq!(sched["policy"], "other", "{process}");
+        assert_eq!(sched["memory_locked"], false, "{process}");
+    }
+    assert_eq!(s["scheduling"].as_object().unwrap().len(), 5);
+}
+
+/// In a child before exec: `RLIMIT_RTPRIO` 0, `RLIMIT_MEMLOCK` 8 MiB, and the
+/// capabilities `CAP_SYS_NICE` and `CAP_IPC_LOCK` dropped (as a user's shell without
+/// real-time grants has them).
+fn drop_realtime_grant() -> std::io::Result<()> {
+    const CAP_IPC_LOCK: u32 = 14;
+    const CAP_SYS_NICE: u32 = 23;
+    const LINUX_CAPABILITY_VERSION_3: u32 = 0x2008_0522;
+    #[repr(C)]
+    struct Header {
+        version: u32,
+        pid: i32,
+    }
+    #[repr(C)]
+    #[derive(Clone, Copy, Default)]
+    struct Data {
+        effective: u32,
+        permitted: u32,
+        inheritable: u32,
+    }
+    let fail = |r: libc::c_long| {
+        if r != 0 {
+            Err(std::io::Error::last_os_error())
+        } else {
+            Ok(())
+        }
+    };
+    let limit = |resource, value| {
+        let rlimit = libc::rlimit {
+            rlim_cur: value,
+            rlim_max: value,
+        };
+        // SAFETY: a plain system call with a struct owned here.
+        fail(unsafe { libc::setrlimit(resource, &rlimit) }.into())
+    };
+    limit(libc::RLIMIT_RTPRIO, 0)?;
+    limit(libc::RLIMIT_MEMLOCK, 8 << 20)?;
+    let mut header = Header {
+        version: LINUX_CAPABILITY_VERSION_3,
+        pid: 0,
+    };
+    let mut data = [Data::default(); 2];
+    // SAFETY: capget/capset with the version-3 header and its two data words.
+    unsafe {
+        fail(libc::syscall(
+            libc::SYS_capget,
+            &mut header,
+            data.as_mut_ptr(),
+        ))?;
+        let keep = !((1 << CAP_IPC_LOCK) | (1 << CAP_SYS_NICE));
+        data[0].effective &= keep;
+        data[0].permitted &= keep;
+        data[0].inheritable &= keep;
+        fail(libc::syscall(libc::SYS_capset, &mut header, data.as_ptr()))?;
+        for cap in [CAP_IPC_LOCK, CAP_SYS_NICE] {
+            fail(libc::prctl(libc::PR_CAPBSET_DROP, cap as libc::c_ulong, 0, 0, 0).into())?;
+        }
+    }
+    Ok(())
 }
 
 #[test]

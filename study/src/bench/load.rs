@@ -233,7 +233,11 @@ impl LoadReport {
             "  with the policy under load: 0 misses, 0 gaps, 0 brakes, hop p99 ≤ {HOP_P99_BOUND} × \
              {:.0} µs (idle, no policy) in every run: {}\n",
             self.idle_hop_p99_us,
-            if self.policy_holds { "holds" } else { "DOES NOT HOLD" }
+            if self.policy_holds {
+                "holds"
+            } else {
+                "DOES NOT HOLD"
+            }
         )
     }
 }
@@ -265,7 +269,11 @@ mod tests {
 
     #[test]
     fn the_policy_holds_only_if_every_loaded_run_with_it_is_clean_and_fast_enough() {
-        let idle = [run(0, "off", 90.0, 0), run(0, "off", 100.0, 0), run(0, "off", 300.0, 0)];
+        let idle = [
+            run(0, "off", 90.0, 0),
+            run(0, "off", 100.0, 0),
+            run(0, "off", 300.0, 0),
+        ];
         let judged = |with: Vec<LoadRun>| {
             let runs = idle.iter().cloned().chain(with).collect();
             verdict(String::new(), 2, 30.0, runs)
@@ -273,11 +281,20 @@ mod tests {
         let clean = judged(vec![run(2, "auto", 150.0, 0), run(2, "auto", 199.0, 0)]);
         assert_eq!(clean.idle_hop_p99_us, 100.0, "the median of the idle runs");
         assert!(clean.policy_holds);
-        assert!(!judged(vec![run(2, "auto", 150.0, 1)]).policy_holds, "a brake");
-        assert!(!judged(vec![run(2, "auto", 201.0, 0)]).policy_holds, "too slow");
+        assert!(
+            !judged(vec![run(2, "auto", 150.0, 1)]).policy_holds,
+            "a brake"
+        );
+        assert!(
+            !judged(vec![run(2, "auto", 201.0, 0)]).policy_holds,
+            "too slow"
+        );
         let mut refused = run(2, "auto", 50.0, 0);
         refused.dfl_fifo = false;
-        assert!(!judged(vec![refused]).policy_holds, "the machine refused it");
+        assert!(
+            !judged(vec![refused]).policy_holds,
+            "the machine refused it"
+        );
         // Loaded runs without the policy are reported, never judged.
         assert!(judged(vec![run(2, "off", 5000.0, 9), run(2, "auto", 60.0, 0)]).policy_holds);
     }
