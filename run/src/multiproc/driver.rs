@@ -149,6 +149,10 @@ impl<'a> Driver<'a> {
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.parts.session.start(start_ns)?;
+        self.parts.recorder.event(
+            "clock_started",
+            serde_json::json!({ "tick0_monotonic_ns": start_ns }),
+        )?;
         let end_ns = self.parts.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
         let mut aborting: Option<Instant> = None;
