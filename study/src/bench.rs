@@ -76,7 +76,11 @@ pub struct BenchReport {
     /// `solve_us.p50 / in_process_solve_us.p50`: what sleeping between samples costs.
     pub realtime_step_ratio_p50: f64,
     pub realtime_deadline_misses: u64,
+    /// Peak resident memory of each process of the real-time run, KiB: with the real-time
+    /// policy, its memory locked (the whole executable resident).
     pub peak_rss_kib: std::collections::BTreeMap<String, u64>,
+    /// The same in a lockstep run, whose memory is never locked: what the processes use.
+    pub peak_rss_unlocked_kib: std::collections::BTreeMap<String, u64>,
     /// Simulated time of the lockstep paper run, and its wall time with `run.mcap`
     /// (median of [`LOCKSTEP_PAIRS`] runs), s.
     pub lockstep_simulated_s: f64,
@@ -402,6 +406,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         realtime_step_ratio_p50: realtime.solve_us.p50 / hot.solve_us.p50.max(1e-9),
         realtime_deadline_misses: realtime.deadline_misses,
         peak_rss_kib: processes.peak_rss_kib.clone(),
+        peak_rss_unlocked_kib: lockstep.peak_rss_kib.clone(),
         lockstep_simulated_s: lockstep.simulated_s,
         lockstep_wall_s: lockstep.with_mcap_s,
         lockstep_wall_without_mcap_s: lockstep.without_mcap_s,
@@ -436,6 +441,8 @@ fn raw_ping_pong(stop: &AtomicBool) -> anyhow::Result<Percentiles> {
 
 /// The lockstep runs' medians (nearest rank), s, and the recording's share.
 struct Lockstep {
+    /// Peak resident memory of each process of the first run without `run.mcap`, KiB.
+    peak_rss_kib: std::collections::BTreeMap<String, u64>,
     simulated_s: f64,
     with_mcap_s: f64,
     without_mcap_s: f64,
@@ -472,6 +479,7 @@ fn lockstep_pairs(
     stop: &AtomicBool,
 ) -> anyhow::Result<Lockstep> {
     let mut simulated_s = 0.0;
+    let mut peak_rss_kib = std::collections::BTreeMap::new();
     let (mut with, mut without, mut shares) = (Vec::new(), Vec::new(), Vec::new());
     for pair in 0..LOCKSTEP_PAIRS {
         let run = |mcap, name| {
@@ -486,11 +494,17 @@ fn lockstep_pairs(
             (run(true, "with-mcap")?, bare)
         };
         simulated_s = recorded.simulated_s;
+        if pair == 0
+            && let Some(p) = &bare.processes
+        {
+            peak_rss_kib = p.peak_rss_kib.clone();
+        }
         with.push(recorded.wall_s);
         without.push(bare.wall_s);
         shares.push(recorded.wall_s / bare.wall_s.max(1e-9) - 1.0);
     }
     Ok(Lockstep {
+        peak_rss_kib,
         simulated_s,
         with_mcap_s: Percentiles::of(&with).p50,
         without_mcap_s: Percentiles::of(&without).p50,
@@ -502,11 +516,17 @@ impl BenchReport {
     pub fn table(&self) -> String {
         let p =
             |x: &Percentiles| format!("p50 {:.1}, p99 {:.1}, max {:.1} µs", x.p50, x.p99, x.max);
-        let rss: Vec<String> = self
-            .peak_rss_kib
-            .iter()
-            .map(|(k, v)| format!("{k} {:.1}", *v as f64 / 1024.0))
-            .collect();
+        let mib = |rss: &std::collections::BTreeMap<String, u64>| {
+            rss.iter()
+                .map(|(k, v)| format!("{k} {:.1}", *v as f64 / 1024.0))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let rss = format!(
+            "{} (real time, memory locked); {} (lockstep)",
+            mib(&self.peak_rss_kib),
+            mib(&self.peak_rss_unlocked_kib)
+        );
         let planning: String = self
             .route_planning_us
             .iter()
@@ -524,7 +544,7 @@ impl BenchReport {
             self.realtime_step_ratio_p50,
             p(&self.in_process_solve_us),
             self.realtime_deadline_misses,
-            rss.join(", "),
+            rss,
             self.lockstep_wall_s,
             self.lockstep_simulated_s,
             self.lockstep_speedup,

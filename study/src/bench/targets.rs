@@ -36,7 +36,7 @@ impl Target {
 
 /// Per-hop latency over a raw iceoryx2 hop, and over a raw Zenoh hop across hosts (p50).
 pub const HOP_RATIO: f64 = 1.5;
-/// Resident memory of each role process, MiB.
+/// Resident memory of each role process, its memory not locked, MiB.
 pub const RSS_MIB: f64 = 20.0;
 /// Simulated seconds per wall second of the lockstep paper run.
 pub const LOCKSTEP_SPEEDUP: f64 = 20.0;
@@ -79,9 +79,11 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             MOVING_STEP_RATIO,
         ),
     ];
-    targets.extend(report.peak_rss_kib.iter().map(|(role, kib)| {
+    // Judged where memory is not locked: locked, every process holds the whole executable
+    // resident (docs/performance.md, "Real time under load").
+    targets.extend(report.peak_rss_unlocked_kib.iter().map(|(role, kib)| {
         Target::new(
-            format!("peak RSS of the {role} (MiB)"),
+            format!("peak RSS of the {role}, unlocked (MiB)"),
             *kib as f64 / 1024.0,
             true,
             RSS_MIB,
