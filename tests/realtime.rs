@@ -39,7 +39,7 @@ impl Drop for Load {
 fn fifo_granted() -> bool {
     let (policy, refusal) = runtime::realtime::Policy::for_this_process(
         &protocol::RealtimeConfig::default(),
-        runtime::realtime::Tier::Actuation,
+        runtime::realtime::Tier::Control,
     );
     policy.fifo_priority.is_some() && refusal.is_none()
 }
@@ -162,7 +162,7 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
         ("plant", 50),
         ("dfl", 50),
         ("estimator", 49),
-        ("mpc", 48),
+        ("mpc", 50),
         ("orchestrator", 47),
     ] {
         let sched = &s["scheduling"][process];

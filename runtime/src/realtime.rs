@@ -2,14 +2,17 @@
 //! "Real-time scheduling"): what the machine grants ([`Grant`]), the policy of a process
 //! from its tier in the data path ([`Policy`]), and putting it in force ([`Policy::apply`]).
 //!
-//! The tiers follow the data path: the DFL and the plant (the robot's commands) above
-//! the estimator and the tracker, above the MPC and the route planner, above the
-//! orchestrator's recording. Every role that polls for its periodic input (the estimator,
-//! tracker, MPC and planner, [`crate::wait::spin_wait`]) polls for one whose producer is in
-//! a higher tier: on a shared core the producer preempts the poller, so a spin never holds
-//! back what it waits for, and each spin ends within a bound
-//! ([`SPIN_BUDGET_NS`](crate::wait::SPIN_BUDGET_NS)) and then blocks: nothing at a real-time
-//! priority runs long enough to meet the kernel's real-time throttling.
+//! The tiers follow the data path ([`Tier`]): the control loop (the plant, the MPC and
+//! the DFL) above the estimator and the tracker, above the route planner, above the
+//! orchestrator's recording. The estimator, tracker and planner poll for their periodic
+//! input ([`crate::wait::spin_wait`]) from a higher tier: on a shared core the producer
+//! preempts the poller, so their spin never holds back what it waits for. The MPC polls for
+//! the estimate of the tier below: on two cores the estimator runs on the other one (it
+//! polls there for the measurement), and on one core (`realtime.cpus` with one CPU) the
+//! MPC's warm-up holds it back until its window ends. Every spin ends within a bound
+//! ([`SPIN_BUDGET_NS`](crate::wait::SPIN_BUDGET_NS), the warm-up's window) and then
+//! blocks: nothing at a real-time priority runs long enough to meet the kernel's
+//! real-time throttling.
 //!
 //! Only the thread that runs the loop is real time: the policy is set with
 //! `SCHED_RESET_ON_FORK`, so the threads and processes it starts later begin at the normal
@@ -22,28 +25,31 @@ use protocol::{AUTO_TOP_PRIORITY, Priority, RealtimeConfig, Role, TIERS_BELOW_TO
 pub enum Tier {
     /// The orchestrator's recording.
     Recording,
-    /// The MPC and the route planner.
+    /// The route planner.
     Planning,
     /// The estimator and the tracker.
     Estimation,
-    /// The DFL and the plant (or the ROS 2 robot).
-    Actuation,
+    /// The plant (or the ROS 2 robot), the DFL and the MPC. The MPC shares the top tier:
+    /// one tier below, the DFL (woken by the estimate the MPC solves from) preempted its
+    /// solve on a shared core, and the idle machine's MPC step p50 rose from 33-42 to
+    /// 50-63 µs (docs/performance.md, "Real time under load").
+    Control,
 }
 
 impl Tier {
     /// The tier of `role`'s process.
     pub fn of(role: Role) -> Tier {
         match role {
-            Role::Dfl | Role::Plant => Tier::Actuation,
+            Role::Dfl | Role::Plant | Role::Mpc => Tier::Control,
             Role::Estimator | Role::Tracker => Tier::Estimation,
-            Role::Mpc | Role::Planner => Tier::Planning,
+            Role::Planner => Tier::Planning,
         }
     }
 
     /// Its `SCHED_FIFO` priority when the top tier has `top`.
     pub fn priority(self, top: u8) -> u8 {
         let below = match self {
-            Tier::Actuation => 0,
+            Tier::Control => 0,
             Tier::Estimation => 1,
             Tier::Planning => 2,
             Tier::Recording => TIERS_BELOW_TOP,
@@ -354,13 +360,13 @@ mod tests {
     }
 
     #[test]
-    fn every_polled_input_comes_from_a_higher_tier_and_recording_is_lowest() {
+    fn the_estimator_tracker_and_planner_poll_a_higher_tier_and_recording_is_lowest() {
         use protocol::topics::{ESTIMATE, MEASUREMENT, TRUTH};
-        // The roles that poll for their periodic input (their task's first), and that input.
+        // The roles that poll for their periodic input (their task's first), and that input
+        // (the MPC's, from the tier below it, in the module docs).
         for (consumer, topic) in [
             (Role::Estimator, MEASUREMENT),
             (Role::Tracker, TRUTH),
-            (Role::Mpc, ESTIMATE),
             (Role::Planner, ESTIMATE),
         ] {
             let (_, producer, consumers) = DATA_FLOW
@@ -389,6 +395,7 @@ mod tests {
         let (policy, refusal) =
             Policy::decide(&config(Priority::Auto), Tier::Planning, &root(), always);
         assert_eq!(policy.fifo_priority, Some(48));
+        assert_eq!(Tier::of(Role::Mpc), Tier::of(Role::Dfl));
         assert!(policy.lock_memory);
         assert_eq!(refusal, None);
         let limited = Grant {
@@ -396,11 +403,10 @@ mod tests {
             rtprio_limit: 20,
             ..root()
         };
-        let (policy, _) =
-            Policy::decide(&config(Priority::Auto), Tier::Actuation, &limited, always);
+        let (policy, _) = Policy::decide(&config(Priority::Auto), Tier::Control, &limited, always);
         assert_eq!(policy.fifo_priority, Some(20));
         let (policy, refusal) =
-            Policy::decide(&config(Priority::Off), Tier::Actuation, &root(), always);
+            Policy::decide(&config(Priority::Off), Tier::Control, &root(), always);
         assert_eq!(
             (policy.fifo_priority, policy.lock_memory, refusal),
             (None, false, None)
@@ -417,7 +423,7 @@ mod tests {
         };
         let (policy, refusal) = Policy::decide(
             &config(Priority::Auto),
-            Tier::Actuation,
+            Tier::Control,
             &unprivileged,
             |_| true,
         );
@@ -432,7 +438,7 @@ mod tests {
         );
         // Allowed by the limits, refused by the kernel.
         let (policy, refusal) =
-            Policy::decide(&config(Priority::Top(60)), Tier::Actuation, &root(), |_| {
+            Policy::decide(&config(Priority::Top(60)), Tier::Control, &root(), |_| {
                 false
             });
         assert_eq!(policy.fifo_priority, None);
