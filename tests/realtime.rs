@@ -161,7 +161,7 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
     for (process, priority) in [
         ("plant", 50),
         ("dfl", 50),
-        ("estimator", 49),
+        ("estimator", 50),
         ("mpc", 50),
         ("orchestrator", 47),
     ] {

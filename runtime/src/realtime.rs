@@ -2,14 +2,13 @@
 //! "Real-time scheduling"): what the machine grants ([`Grant`]), the policy of a process
 //! from its tier in the data path ([`Policy`]), and putting it in force ([`Policy::apply`]).
 //!
-//! The tiers follow the data path ([`Tier`]): the control loop (the plant, the MPC and
-//! the DFL) above the estimator and the tracker, above the route planner, above the
-//! orchestrator's recording. The estimator, tracker and planner poll for their periodic
-//! input ([`crate::wait::spin_wait`]) from a higher tier: on a shared core the producer
-//! preempts the poller, so their spin never holds back what it waits for. The MPC polls for
-//! the estimate of the tier below: on two cores the estimator runs on the other one (it
-//! polls there for the measurement), and on one core (`realtime.cpus` with one CPU) the
-//! MPC's warm-up holds it back until its window ends. Every spin ends within a bound
+//! The tiers follow the data path ([`Tier`]): the control loop (the plant, the estimator,
+//! the MPC and the DFL) above the tracker, above the route planner, above the
+//! orchestrator's recording. A role that polls for its periodic input
+//! ([`crate::wait::spin_wait`]: the estimator, tracker, MPC and planner) polls for one made
+//! in its own tier or a higher one: a producer of a higher tier preempts the poller on a
+//! shared core, and under `SCHED_FIFO` every poll yields the core, so a producer of the
+//! same priority waiting there runs within one poll. Every spin ends within a bound
 //! ([`SPIN_BUDGET_NS`](crate::wait::SPIN_BUDGET_NS), the warm-up's window) and then
 //! blocks: nothing at a real-time priority runs long enough to meet the kernel's
 //! real-time throttling.
@@ -21,18 +20,23 @@
 use protocol::{AUTO_TOP_PRIORITY, Priority, RealtimeConfig, Role, TIERS_BELOW_TOP};
 
 /// A process's place in the data path; the higher, the earlier it runs on a shared core.
+///
+/// The control loop shares one tier, as measured on an idle two-core machine (10 s paper
+/// runs, three against three without the policy; docs/performance.md, "Real time under
+/// load"): with the MPC one tier below the DFL, the DFL, woken by the estimate the MPC
+/// solves from, preempted the solve, and the MPC step p50 rose from 33-42 to 50-63 µs;
+/// with the estimator one tier below the plant, the plant's wake-up preempted the estimator
+/// polling for the measurement on the same core, and that hop's p50 rose from 7 to 11-21
+/// µs. In one tier, the kernel wakes each of them on a core that runs none of the others.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Tier {
     /// The orchestrator's recording.
     Recording,
     /// The route planner.
     Planning,
-    /// The estimator and the tracker.
-    Estimation,
-    /// The plant (or the ROS 2 robot), the DFL and the MPC. The MPC shares the top tier:
-    /// one tier below, the DFL (woken by the estimate the MPC solves from) preempted its
-    /// solve on a shared core, and the idle machine's MPC step p50 rose from 33-42 to
-    /// 50-63 µs (docs/performance.md, "Real time under load").
+    /// The tracker of moving obstacles.
+    Tracking,
+    /// The plant (or the ROS 2 robot), the estimator, the MPC and the DFL.
     Control,
 }
 
@@ -40,8 +44,8 @@ impl Tier {
     /// The tier of `role`'s process.
     pub fn of(role: Role) -> Tier {
         match role {
-            Role::Dfl | Role::Plant | Role::Mpc => Tier::Control,
-            Role::Estimator | Role::Tracker => Tier::Estimation,
+            Role::Plant | Role::Estimator | Role::Mpc | Role::Dfl => Tier::Control,
+            Role::Tracker => Tier::Tracking,
             Role::Planner => Tier::Planning,
         }
     }
@@ -50,7 +54,7 @@ impl Tier {
     pub fn priority(self, top: u8) -> u8 {
         let below = match self {
             Tier::Control => 0,
-            Tier::Estimation => 1,
+            Tier::Tracking => 1,
             Tier::Planning => 2,
             Tier::Recording => TIERS_BELOW_TOP,
         };
@@ -235,6 +239,7 @@ impl Policy {
         }
         if let Some(priority) = self.fifo_priority {
             set_fifo(priority)?;
+            FIFO_IN_FORCE.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         Ok(())
     }
@@ -267,6 +272,15 @@ impl Drop for InForce {
         }
         let _ = pin_to(&self.cpus_before);
     }
+}
+
+/// Whether this process's loop runs `SCHED_FIFO` ([`Policy::apply`]).
+static FIFO_IN_FORCE: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether this process's loop runs `SCHED_FIFO`: its polls then yield, so that a process
+/// of the same priority waiting for the core runs at once.
+pub fn fifo_in_force() -> bool {
+    FIFO_IN_FORCE.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// The last OS error, with the call that made it.
@@ -360,13 +374,13 @@ mod tests {
     }
 
     #[test]
-    fn the_estimator_tracker_and_planner_poll_a_higher_tier_and_recording_is_lowest() {
+    fn every_poll_is_for_an_input_of_its_own_tier_or_a_higher_one_and_recording_is_lowest() {
         use protocol::topics::{ESTIMATE, MEASUREMENT, TRUTH};
-        // The roles that poll for their periodic input (their task's first), and that input
-        // (the MPC's, from the tier below it, in the module docs).
+        // The roles that poll for their periodic input (their task's first), and that input.
         for (consumer, topic) in [
             (Role::Estimator, MEASUREMENT),
             (Role::Tracker, TRUTH),
+            (Role::Mpc, ESTIMATE),
             (Role::Planner, ESTIMATE),
         ] {
             let (_, producer, consumers) = DATA_FLOW
@@ -378,7 +392,7 @@ mod tests {
                 "{consumer:?} takes `{topic}`"
             );
             assert!(
-                Tier::of(*producer) > Tier::of(consumer),
+                Tier::of(*producer) >= Tier::of(consumer),
                 "{consumer:?} polls `{topic}` of {producer:?}"
             );
         }
@@ -395,7 +409,6 @@ mod tests {
         let (policy, refusal) =
             Policy::decide(&config(Priority::Auto), Tier::Planning, &root(), always);
         assert_eq!(policy.fifo_priority, Some(48));
-        assert_eq!(Tier::of(Role::Mpc), Tier::of(Role::Dfl));
         assert!(policy.lock_memory);
         assert_eq!(refusal, None);
         let limited = Grant {
@@ -448,12 +461,10 @@ mod tests {
             cap_ipc_lock: false,
             ..root()
         };
-        let (policy, refusal) = Policy::decide(
-            &config(Priority::Top(60)),
-            Tier::Estimation,
-            &no_lock,
-            |_| true,
-        );
+        let (policy, refusal) =
+            Policy::decide(&config(Priority::Top(60)), Tier::Tracking, &no_lock, |_| {
+                true
+            });
         assert_eq!(
             (policy.fifo_priority, policy.lock_memory),
             (Some(59), false)

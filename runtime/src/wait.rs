@@ -62,14 +62,22 @@ pub fn lockstep_poll(mut ready: impl FnMut() -> bool) -> bool {
 /// holds or [`SPIN_BUDGET_NS`] past `expected_ns`. Waking from an event on an idle core
 /// costs tens to hundreds of µs on a virtual machine; a short, scheduled spin around a
 /// periodic input's known arrival time does not (measured: docs/design.md, "Clocks").
+/// Under `SCHED_FIFO` ([`crate::realtime`]) each poll yields the core instead of spinning
+/// on it, so that a process of the same priority waiting for the core (the input's
+/// producer, say) runs at once.
 pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
     sleep_until_ns(expected_ns.saturating_sub(SPIN_LEAD_NS));
     let give_up = expected_ns + SPIN_BUDGET_NS;
+    let yields = crate::realtime::fifo_in_force();
     while monotonic_ns() < give_up {
         if ready() {
             return true;
         }
-        std::hint::spin_loop();
+        if yields {
+            std::thread::yield_now();
+        } else {
+            std::hint::spin_loop();
+        }
     }
     ready()
 }
