@@ -387,6 +387,9 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["ros2.odom=\"\""], "ros2.odom"),
         (&["ros2.goal_topic=1goal"], "ros2.goal_topic"),
         (&["ros2.odom_timeout_s=0"], "ros2.odom_timeout_s"),
+        (&["realtime.priority=3"], "realtime.priority"),
+        (&["realtime.priority=fifo"], "realtime.priority"),
+        (&["realtime.cpus=[0, 0]"], "realtime.cpus"),
     ];
     // (a scenario file, the key)
     let files: &[(&str, &str)] = &[
@@ -415,6 +418,11 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["scenario", "nowhere"], "no built-in scenario `nowhere`"),
         (&["bench", "--realtime-s", "0"], "--realtime-s"),
         (&["bench", "--realtime-s=-1"], "--realtime-s"),
+        (&["bench", "--load", "0"], "--load"),
+        (
+            &["run", "--mode", "realtime", "--set", "realtime.cpus=[1023]"],
+            "realtime.cpus: CPU 1023",
+        ),
         (&["fuzz", "--mcap"], "--mcap"),
         (&["fuzz", "--people", "1.5"], "--people"),
         (&["sweep", "--grid", "mpc.gama=0.1,0.2"], "mpc.gama"),
