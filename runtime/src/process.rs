@@ -262,6 +262,9 @@ struct Heard<'i> {
     arrival_lag_ns: u64,
     /// The input polled for, with its due time (monotonic ns).
     polled: Option<(&'i dyn Input, u64)>,
+    /// Whether the expected input is polled for (and warmed up for) at all
+    /// ([`Member::polls`]).
+    polls: bool,
 }
 
 impl<'i> Heard<'i> {
@@ -286,9 +289,10 @@ impl<'i> Heard<'i> {
             Next::Expect { input, at_s } => {
                 self.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
                 let lag_ns = self.arrival_lag_ns;
-                if self
-                    .polled
-                    .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
+                if self.polls
+                    && self
+                        .polled
+                        .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
                 {
                     self.last_input = Instant::now();
                     return None;
@@ -308,6 +312,15 @@ impl<'i> Heard<'i> {
                 next_arrival_lag_ns(self.arrival_lag_ns, published_ns, due_ns, dt_s);
         }
     }
+}
+
+/// Whether an input of `role` comes from a role on another host than its own.
+fn has_remote_producer(hosts: &protocol::HostsConfig, role: Role) -> bool {
+    protocol::topics::DATA_FLOW
+        .iter()
+        .any(|(_, producer, consumers)| {
+            consumers.contains(&role) && hosts.of(*producer) != hosts.of(role)
+        })
 }
 
 /// When the orchestrator was last looked for, and when it was found gone
@@ -330,6 +343,11 @@ pub struct Member {
     /// Real time: the scheduling put in force once the process is set up (`None` in
     /// lockstep).
     policy: Option<Policy>,
+    /// Whether the process polls (and warms up) for its expected input. Not under
+    /// `SCHED_FIFO` when an input of its role comes from another host: the bridge that
+    /// brings it runs at the normal policy, and a real-time poller on its core would hold
+    /// it back (the cross-host hop p50 doubled, 204-236 to 429 µs; docs/hosts.md).
+    polls: bool,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
@@ -354,6 +372,10 @@ impl Member {
             )),
         });
         let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
+        let policy = (args.mode == RunMode::Realtime)
+            .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0);
+        let fifo = policy.as_ref().is_some_and(|p| p.fifo_priority.is_some());
+        let polls = !(fifo && has_remote_producer(&args.scenario.hosts, role));
         Ok(Member {
             node,
             role,
@@ -362,8 +384,8 @@ impl Member {
             warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
             status,
-            policy: (args.mode == RunMode::Realtime)
-                .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
+            policy,
+            polls,
         })
     }
 
@@ -504,6 +526,7 @@ impl Member {
             taken_before: 0,
             arrival_lag_ns: 0,
             polled: None,
+            polls: self.polls,
         };
         let mut followed = None;
         let mut cleared = false;
@@ -541,7 +564,7 @@ impl Member {
             let clock = self.clock.state.get().clock;
             let (due_ns, warming) = match next {
                 Next::At(at_s) => (clock.at_ns(at_s), None),
-                Next::Expect { at_s, input } if warm_up.is_some() => {
+                Next::Expect { at_s, input } if warm_up.is_some() && self.polls => {
                     heard.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
                     match warm_ups.next(&clock, at_s, heard.arrival_lag_ns, monotonic_ns()) {
                         WarmUpPass::SleepTo(from_ns) => (Some(from_ns), None),

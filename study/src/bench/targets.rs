@@ -81,7 +81,12 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
     ];
     // Judged where memory is not locked: locked, every process holds the whole executable
     // resident (docs/performance.md, "Real time under load").
-    targets.extend(report.peak_rss_unlocked_kib.iter().map(|(role, kib)| {
+    // The orchestrator is not a role process: it holds the whole record of the run.
+    let roles = report
+        .peak_rss_unlocked_kib
+        .iter()
+        .filter(|(name, _)| name.as_str() != "orchestrator");
+    targets.extend(roles.map(|(role, kib)| {
         Target::new(
             format!("peak RSS of the {role}, unlocked (MiB)"),
             *kib as f64 / 1024.0,
