@@ -252,6 +252,18 @@ fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot
     let mut child =
         agent.spawn_realtime_run(&run_dir, &[&["--prefix", &prefix][..], &SHORT].concat());
     common::wait_for_pid(&run_dir, "mpc");
+    // Thread names are cut to 15 bytes.
+    let carriers = |host: &str| {
+        [format!("bridge-in-{host}"), format!("bridge-out-{host}")]
+            .map(|name| name[..name.len().min(15)].to_string())
+    };
+    let [agent_in, agent_out] = carriers("compute");
+    common::assert_threads_at_the_control_tier(agent.pid(), &[&agent_in, &agent_out, "rx-", "tx-"]);
+    let [orchestrator_in, orchestrator_out] = carriers("orchestrator");
+    common::assert_threads_at_the_control_tier(
+        child.id(),
+        &[&orchestrator_in, &orchestrator_out, "rx-", "tx-"],
+    );
     // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
     let stranger = {
         use zenoh::Wait;

@@ -7,8 +7,8 @@ mod common;
 
 use common::python::{python, repo};
 use common::{
-    SimulatedClock, events, leftovers, machine_alone, run, spawn_run, stderr, summary,
-    unique_prefix, wait_for, wait_for_pid,
+    SimulatedClock, assert_threads_at_the_control_tier, events, leftovers, machine_alone, run,
+    spawn_run, stderr, summary, unique_prefix, wait_for, wait_for_pid,
 };
 use runtime::ipc::process_alive;
 use serde_json::Value;
@@ -497,6 +497,9 @@ fn a_stopped_or_a_killed_orchestrator_leaves_the_robot_with_a_zero_twist() {
         let mut run = spawn_on(&robot.endpoint, &prefix, &out_dir);
         let plant = wait_for_pid(&out_dir, "plant");
         SimulatedClock::of(&prefix).wait_until(2.0);
+        // Zenoh's threads that bring the odometry and take the commands run at the loop's
+        // priority, as the loop does.
+        assert_threads_at_the_control_tier(plant, &["rx-", "tx-"]);
         // SAFETY: a signal to the orchestrator this test started and has not reaped.
         unsafe { libc::kill(run.id() as i32, signal) };
         run.wait().unwrap();

@@ -81,6 +81,11 @@ pub struct BridgeSpec {
     /// whose control messages go out.
     pub control_publisher: Option<u128>,
     pub faults: LinkFaults,
+    /// The `SCHED_FIFO` priority of the threads that carry samples, the bridge's and
+    /// Zenoh's (`None`: the normal policy). A real-time run's control tier: the bridge is
+    /// part of the control loop's data path, and at a lower priority the loop's processes
+    /// hold back the samples they wait for (docs/running.md, "Real-time scheduling").
+    pub carrier_priority: Option<u8>,
 }
 
 #[derive(Default)]
@@ -99,6 +104,8 @@ pub struct Bridge {
     counters: Arc<Counters>,
     relay_ids: HashMap<String, u128>,
     threads: Vec<JoinHandle<()>>,
+    /// Zenoh's runtime threads at the carriers' priority while the bridge runs.
+    _zenoh_raised: Option<runtime::realtime::RaisedThreads>,
 }
 
 /// The publisher ids of this host's processes, as their ready reports announced them.
@@ -127,6 +134,11 @@ impl Bridge {
         let relay_ids = receiver_up
             .recv()
             .map_err(|_| HostError::Bridge("the receiving thread ended".into()))??;
+        let zenoh_raised = spec.carrier_priority.and_then(|priority| {
+            runtime::realtime::raise_threads(&runtime::realtime::ZENOH_CARRIER_THREADS, priority)
+                .inspect_err(|e| not_raised(&spec.host, "Zenoh's threads", e))
+                .ok()
+        });
         let (sender_ready, sender_up) = mpsc::channel();
         let sender = {
             let (session, stop, counters) = (session.clone(), stop.clone(), counters.clone());
@@ -140,6 +152,7 @@ impl Bridge {
             counters,
             relay_ids,
             threads: vec![receiver, sender],
+            _zenoh_raised: zenoh_raised,
         };
         sender_up
             .recv()
@@ -204,6 +217,7 @@ fn receive(
             return;
         }
     };
+    raise(&spec);
     let relay_ids: HashMap<String, u128> = relays
         .iter()
         .map(|(topic, relay)| (topic.clone(), relay.publisher_id()))
@@ -241,6 +255,20 @@ fn receive(
             Err(e) => tracing::warn!("bridge {}: relaying: {e}", spec.host),
         }
     }
+}
+
+/// The calling thread at the carriers' priority, if any; the bridge carries on at the
+/// normal policy if the kernel refuses it.
+fn raise(spec: &BridgeSpec) {
+    if let Some(priority) = spec.carrier_priority
+        && let Err(e) = runtime::realtime::raise_this_thread(priority)
+    {
+        not_raised(&spec.host, "a thread", &e);
+    }
+}
+
+fn not_raised(host: &str, what: &str, e: &std::io::Error) {
+    tracing::warn!("bridge {host}: {what} not at the real-time priority: {e}");
 }
 
 /// The publisher pins of `schedule` as they hold on a host running `local` roles: a local
@@ -341,6 +369,7 @@ fn send(
         let _ = ready.send(Err(HostError::Bridge("attaching a listener".into())));
         return;
     }
+    raise(&spec);
     let _ = ready.send(Ok(()));
     let mut schedule: Option<EpochSchedule> = None;
     let mut outbox = Outbox {

@@ -202,6 +202,7 @@ impl HostRun {
                     &scenario,
                     scenario.seed ^ u64::from(ipc::run_id(name.as_bytes())),
                 ),
+                carrier_priority: crate::scheduling::bridge_priority(&scenario.realtime, mode),
             },
         )?;
         let control = bridge

@@ -112,6 +112,7 @@ impl RemoteHosts {
                 local_roles: None,
                 control_publisher: Some(control_publisher),
                 faults: LinkFaults::of(scenario, scenario.seed),
+                carrier_priority: crate::scheduling::bridge_priority(&scenario.realtime, mode),
             },
         )?;
         let mut hosts = BTreeMap::new();

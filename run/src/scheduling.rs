@@ -4,6 +4,7 @@
 //! kernel. Each role process puts its own in force ([`runtime::realtime`]).
 
 use protocol::RealtimeConfig;
+use runtime::clock::RunMode;
 use runtime::realtime::{InForce, Policy, Tier, allowed_cpus};
 
 /// Before a real-time run starts: every CPU of `realtime.cpus` must be one this process
@@ -40,6 +41,19 @@ pub fn orchestrator(realtime: &RealtimeConfig) -> Option<InForce> {
         }
         None => None,
     }
+}
+
+/// The `SCHED_FIFO` priority of a host's bridge in a run of `mode`: the control tier's in
+/// real time where the machine grants it (`None`: the normal policy; what is refused is
+/// warned of by [`check`] on the orchestrator's host).
+pub fn bridge_priority(realtime: &RealtimeConfig, mode: RunMode) -> Option<u8> {
+    (mode == RunMode::Realtime)
+        .then(|| {
+            Policy::for_this_process(realtime, Tier::Control)
+                .0
+                .fifo_priority
+        })
+        .flatten()
 }
 
 /// How process `pid`'s main thread is scheduled, from `/proc` (`None`: it is gone).

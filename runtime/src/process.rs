@@ -36,7 +36,7 @@ use crate::ipc::{
     CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, Wire, create_node,
     open_topic, output_slot, process_alive, wait, waitset,
 };
-use crate::realtime::{Policy, Tier};
+use crate::realtime::{self, Policy, Tier};
 use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, spin_wait};
 use crate::warm_up::{WarmUpPass, WarmUps};
 use iceoryx2::prelude::*;
@@ -262,9 +262,6 @@ struct Heard<'i> {
     arrival_lag_ns: u64,
     /// The input polled for, with its due time (monotonic ns).
     polled: Option<(&'i dyn Input, u64)>,
-    /// Whether the expected input is polled for (and warmed up for) at all
-    /// ([`Member::polls`]).
-    polls: bool,
 }
 
 impl<'i> Heard<'i> {
@@ -289,10 +286,9 @@ impl<'i> Heard<'i> {
             Next::Expect { input, at_s } => {
                 self.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
                 let lag_ns = self.arrival_lag_ns;
-                if self.polls
-                    && self
-                        .polled
-                        .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
+                if self
+                    .polled
+                    .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
                 {
                     self.last_input = Instant::now();
                     return None;
@@ -312,15 +308,6 @@ impl<'i> Heard<'i> {
                 next_arrival_lag_ns(self.arrival_lag_ns, published_ns, due_ns, dt_s);
         }
     }
-}
-
-/// Whether an input of `role` comes from a role on another host than its own.
-fn has_remote_producer(hosts: &protocol::HostsConfig, role: Role) -> bool {
-    protocol::topics::DATA_FLOW
-        .iter()
-        .any(|(_, producer, consumers)| {
-            consumers.contains(&role) && hosts.of(*producer) != hosts.of(role)
-        })
 }
 
 /// When the orchestrator was last looked for, and when it was found gone
@@ -343,11 +330,6 @@ pub struct Member {
     /// Real time: the scheduling put in force once the process is set up (`None` in
     /// lockstep).
     policy: Option<Policy>,
-    /// Whether the process polls (and warms up) for its expected input. Not under
-    /// `SCHED_FIFO` when an input of its role comes from another host: the bridge that
-    /// brings it runs at the normal policy, and a real-time poller on its core would hold
-    /// it back (the cross-host hop p50 doubled, 204-236 to 429 µs; docs/hosts.md).
-    polls: bool,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
@@ -372,10 +354,6 @@ impl Member {
             )),
         });
         let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
-        let policy = (args.mode == RunMode::Realtime)
-            .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0);
-        let fifo = policy.as_ref().is_some_and(|p| p.fifo_priority.is_some());
-        let polls = !(fifo && has_remote_producer(&args.scenario.hosts, role));
         Ok(Member {
             node,
             role,
@@ -384,8 +362,8 @@ impl Member {
             warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
             status,
-            policy,
-            polls,
+            policy: (args.mode == RunMode::Realtime)
+                .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
         })
     }
 
@@ -481,6 +459,22 @@ impl Member {
                 self.role.as_str()
             );
         }
+        // A task that talks Zenoh (the ROS 2 robot): the threads that bring its inputs
+        // and take its outputs at the loop's priority while it runs.
+        let _carriers = self
+            .policy
+            .as_ref()
+            .and_then(|p| p.fifo_priority)
+            .and_then(|priority| {
+                realtime::raise_threads(&realtime::ZENOH_CARRIER_THREADS, priority)
+                    .inspect_err(|e| {
+                        eprintln!(
+                            "scmpc {}: Zenoh's threads not raised: {e}",
+                            self.role.as_str()
+                        )
+                    })
+                    .ok()
+            });
         self.report_ready(outputs)?;
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();
@@ -526,7 +520,6 @@ impl Member {
             taken_before: 0,
             arrival_lag_ns: 0,
             polled: None,
-            polls: self.polls,
         };
         let mut followed = None;
         let mut cleared = false;
@@ -564,7 +557,7 @@ impl Member {
             let clock = self.clock.state.get().clock;
             let (due_ns, warming) = match next {
                 Next::At(at_s) => (clock.at_ns(at_s), None),
-                Next::Expect { at_s, input } if warm_up.is_some() && self.polls => {
+                Next::Expect { at_s, input } if warm_up.is_some() => {
                     heard.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
                     match warm_ups.next(&clock, at_s, heard.arrival_lag_ns, monotonic_ns()) {
                         WarmUpPass::SleepTo(from_ns) => (Some(from_ns), None),

@@ -264,12 +264,9 @@ impl Policy {
 
 impl Drop for InForce {
     fn drop(&mut self) {
-        let param = libc::sched_param { sched_priority: 0 };
-        // SAFETY: plain system calls on the calling thread, with a parameter owned here.
-        unsafe {
-            libc::sched_setscheduler(0, libc::SCHED_OTHER, &param);
-            libc::munlockall();
-        }
+        let _ = set_scheduler(0, libc::SCHED_OTHER, 0);
+        // SAFETY: a plain system call.
+        unsafe { libc::munlockall() };
         let _ = pin_to(&self.cpus_before);
     }
 }
@@ -299,15 +296,69 @@ fn fifo_allowed(priority: u8) -> bool {
 
 /// The calling thread at `SCHED_FIFO` `priority`, with `SCHED_RESET_ON_FORK`.
 fn set_fifo(priority: u8) -> std::io::Result<()> {
+    set_scheduler(0, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority)
+}
+
+/// The calling thread at `SCHED_FIFO` `priority` (with `SCHED_RESET_ON_FORK`): a thread of
+/// a process's own that carries the control loop's samples (a host's bridge), for as long
+/// as the thread lives. An error names the call.
+pub fn raise_this_thread(priority: u8) -> std::io::Result<()> {
+    set_fifo(priority)
+}
+
+/// The names of Zenoh's runtime threads that read and write its links (zenoh-runtime's
+/// `rx` and `tx` pools): the carriers of samples between hosts, and to a ROS 2 robot.
+pub const ZENOH_CARRIER_THREADS: [&str; 2] = ["rx-", "tx-"];
+
+/// Threads of this process that it did not start itself, at `SCHED_FIFO` until dropped,
+/// then back to the normal policy: Zenoh's runtime threads (`rx-N`, `tx-N`), which carry
+/// the samples between hosts. Without them at the loop's priority, a loop at
+/// `SCHED_FIFO` on a shared core holds back the samples it waits for.
+pub struct RaisedThreads {
+    tids: Vec<libc::pid_t>,
+}
+
+/// The threads of this process whose name starts with one of `prefixes`, at `SCHED_FIFO`
+/// `priority` (with `SCHED_RESET_ON_FORK`) until the value returned is dropped. A thread
+/// started later keeps the normal policy. An error names the call and the thread.
+pub fn raise_threads(prefixes: &[&str], priority: u8) -> std::io::Result<RaisedThreads> {
+    let mut raised = RaisedThreads { tids: Vec::new() };
+    for entry in std::fs::read_dir("/proc/self/task")? {
+        let path = entry?.path();
+        let Some(tid) = path.file_name().and_then(|n| n.to_str()?.parse().ok()) else {
+            continue;
+        };
+        // A thread that ended since the listing has no name left: skipped.
+        let Ok(name) = std::fs::read_to_string(path.join("comm")) else {
+            continue;
+        };
+        if !prefixes.iter().any(|p| name.starts_with(p)) {
+            continue;
+        }
+        set_scheduler(tid, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("thread {}: {e}", name.trim())))?;
+        raised.tids.push(tid);
+    }
+    Ok(raised)
+}
+
+impl Drop for RaisedThreads {
+    fn drop(&mut self) {
+        for &tid in &self.tids {
+            // A thread that has ended meanwhile: nothing to undo.
+            let _ = set_scheduler(tid, libc::SCHED_OTHER, 0);
+        }
+    }
+}
+
+/// Thread `tid` (0: the calling one) under `policy` at `priority`.
+fn set_scheduler(tid: libc::pid_t, policy: i32, priority: u8) -> std::io::Result<()> {
     let param = libc::sched_param {
         sched_priority: i32::from(priority),
     };
-    // SAFETY: a plain system call on the calling thread (`0`) with a parameter owned here.
-    let set = unsafe {
-        libc::sched_setscheduler(0, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, &param)
-    };
-    if set != 0 {
-        return Err(named("sched_setscheduler(SCHED_FIFO)"));
+    // SAFETY: a plain system call on a thread of this process, with a parameter owned here.
+    if unsafe { libc::sched_setscheduler(tid, policy, &param) } != 0 {
+        return Err(named("sched_setscheduler"));
     }
     Ok(())
 }
@@ -470,5 +521,57 @@ mod tests {
             (Some(59), false)
         );
         assert!(refusal.unwrap().0.contains("RLIMIT_MEMLOCK is 8192 KiB"));
+    }
+
+    /// `(policy, priority)` of thread `tid` of this process.
+    fn scheduling_of(tid: libc::pid_t) -> (i32, i32) {
+        let stat = std::fs::read_to_string(format!("/proc/self/task/{tid}/stat")).unwrap();
+        let fields: Vec<&str> = stat
+            .rsplit_once(')')
+            .unwrap()
+            .1
+            .split_whitespace()
+            .collect();
+        (
+            fields[41 - 3].parse().unwrap(),
+            fields[40 - 3].parse().unwrap(),
+        )
+    }
+
+    #[test]
+    fn raised_threads_are_those_named_and_go_back_to_normal_when_dropped() {
+        let started = |name: &str| {
+            let (tid_tx, tid_rx) = std::sync::mpsc::channel();
+            let (end_tx, end_rx) = std::sync::mpsc::channel::<()>();
+            let thread = std::thread::Builder::new()
+                .name(name.into())
+                .spawn(move || {
+                    // SAFETY: a plain system call.
+                    tid_tx.send(unsafe { libc::gettid() }).unwrap();
+                    let _ = end_rx.recv();
+                })
+                .unwrap();
+            (tid_rx.recv().unwrap(), end_tx, thread)
+        };
+        let carrier = started("rx-carrier-test");
+        let other = started("other-test");
+        match raise_threads(&["rx-carrier-"], 7) {
+            Ok(raised) => {
+                assert_eq!(scheduling_of(carrier.0), (libc::SCHED_FIFO, 7));
+                assert_eq!(scheduling_of(other.0), (libc::SCHED_OTHER, 0));
+                drop(raised);
+                assert_eq!(scheduling_of(carrier.0), (libc::SCHED_OTHER, 0));
+            }
+            // A machine without the grant: refused, naming the thread, nothing raised.
+            Err(e) => {
+                assert!(!fifo_allowed(7), "refused though allowed: {e}");
+                assert!(e.to_string().contains("rx-carrier-test"), "{e}");
+                assert_eq!(scheduling_of(carrier.0), (libc::SCHED_OTHER, 0));
+            }
+        }
+        for (_, end, thread) in [carrier, other] {
+            drop(end);
+            thread.join().unwrap();
+        }
     }
 }

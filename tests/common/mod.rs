@@ -330,3 +330,63 @@ pub fn lines_of(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc:
     });
     lines
 }
+
+/// `(name, policy, priority)` of each thread of process `pid` whose name starts with one
+/// of `prefixes`, from `/proc`.
+fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, u32, u32)> {
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the process's threads");
+    let mut threads = Vec::new();
+    for task in tasks.flatten() {
+        let (Ok(name), Ok(stat)) = (
+            std::fs::read_to_string(task.path().join("comm")),
+            std::fs::read_to_string(task.path().join("stat")),
+        ) else {
+            continue;
+        };
+        let name = name.trim().to_string();
+        if !prefixes.iter().any(|p| name.starts_with(p)) {
+            continue;
+        }
+        // After the name in parentheses: `rt_priority` is the 40th field, `policy` the 41st.
+        let fields: Vec<&str> = stat
+            .rsplit_once(')')
+            .unwrap()
+            .1
+            .split_whitespace()
+            .collect();
+        let field = |n: usize| fields[n - 3].parse().unwrap();
+        threads.push((name, field(41), field(40)));
+    }
+    threads.sort();
+    threads
+}
+
+/// Process `pid` has a thread named with each of `prefixes` (carriers of the control
+/// loop's samples: a bridge's, Zenoh's `rx-`/`tx-`), and each runs at the control loop's
+/// real-time priority where the machine grants one, at the normal policy where it does
+/// not.
+pub fn assert_threads_at_the_control_tier(pid: u32, prefixes: &[&str]) {
+    let (policy, _) = runtime::realtime::Policy::for_this_process(
+        &protocol::RealtimeConfig::default(),
+        runtime::realtime::Tier::Control,
+    );
+    let expected = policy
+        .fifo_priority
+        .map_or((libc::SCHED_OTHER as u32, 0), |p| {
+            (libc::SCHED_FIFO as u32, u32::from(p))
+        });
+    let threads = threads_of(pid, prefixes);
+    for prefix in prefixes {
+        assert!(
+            threads.iter().any(|(name, ..)| name.starts_with(prefix)),
+            "no thread {prefix} in process {pid}: {threads:?}"
+        );
+    }
+    for (name, policy, priority) in &threads {
+        assert_eq!(
+            (*policy, *priority),
+            expected,
+            "thread {name} of {pid}: {threads:?}"
+        );
+    }
+}
