@@ -110,3 +110,30 @@ pub fn table(targets: &[Target]) -> String {
     }
     text
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_target_is_met_on_its_side_of_the_bound_and_the_table_says_so() {
+        let cases = [
+            (1.49, true, true),
+            (1.5, true, true),
+            (1.51, true, false),
+            (3.0, true, false),
+            (19.9, false, false),
+            (20.0, false, true),
+        ];
+        for (measured, at_most, met) in cases {
+            let bound = if at_most { HOP_RATIO } else { LOCKSTEP_SPEEDUP };
+            let t = Target::new("ratio", measured, at_most, bound);
+            assert_eq!(
+                t.met, met,
+                "{measured} against {bound} (at most: {at_most})"
+            );
+            let line = table(std::slice::from_ref(&t));
+            assert_eq!(line.contains("NOT MET"), !met, "{line}");
+        }
+    }
+}
