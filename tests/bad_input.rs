@@ -237,6 +237,7 @@ fn bad_planner_settings_are_refused() {
     refused_set("planner.clearance_m=-0.1", "planner.clearance_m");
     refused_set("planner.speed_m_s=0", "planner.speed_m_s");
     refused_set("planner.stray_m=0", "planner.stray_m");
+    refused_set("planner.switch_margin=1", "planner.switch_margin");
     refused_file(
         "[planner]\nkind = \"route\"\n[mpc]\nformulation = \"nonlinear\"\nterminal_safety = \"none\"\n",
         "planner.kind",
@@ -346,6 +347,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["planner.clearance_m=-0.1"], "planner.clearance_m"),
         (&["planner.speed_m_s=0"], "planner.speed_m_s"),
         (&["planner.stray_m=0"], "planner.stray_m"),
+        (&["planner.switch_margin=-0.1"], "planner.switch_margin"),
         (&["obstacles.0.x=nan"], "obstacles.0.x"),
         (&["obstacles.0.y=inf"], "obstacles.0.y"),
         (&["obstacles.0.radius=-1"], "obstacles.0.radius"),

@@ -107,6 +107,17 @@ fn a_world_that_did_not_reach_the_goal_replays_exactly_from_its_file() {
         format!("{:.6}", s["min_clearance_m"].as_f64().unwrap()),
         failed["min_clearance_m"]
     );
+    // The final approach, as fuzz.csv gives it (empty: never within 0.2 m, or not at rest).
+    for column in [
+        "within_0_2_m_s",
+        "largest_distance_after_m",
+        "time_to_rest_s",
+    ] {
+        let replayed = s["arrival"][column]
+            .as_f64()
+            .map_or(String::new(), |v| format!("{v:.3}"));
+        assert_eq!(replayed, failed[column], "{column}: {}", s["arrival"]);
+    }
 }
 
 #[test]

@@ -93,6 +93,16 @@ fn the_field_is_reached_in_lockstep_exactly_as_in_process_and_not_without_the_pl
         (8.0, 7.0),
         "the first route starts at the start"
     );
+    // Why each route replaced the one before: a periodic replan only when the old one is
+    // blocked or the new one is shorter (the same way round, or another by the margin);
+    // the first route and the stall and stray replans always.
+    for r in &routes {
+        let expected: &[&str] = match r["reason"].as_str() {
+            "period" => &["same_way", "shorter", "blocked"],
+            _ => &["replanned"],
+        };
+        assert!(expected.contains(&r["switch"].as_str()), "{r:?}");
+    }
     // The paper's controller alone does not get through this field.
     let (none, out) =
         run_into_tempdir(&["run", "field", "--in-process", "--set", "planner.kind=none"]);

@@ -14,8 +14,8 @@ pub mod tangent_graph;
 
 pub use protocol::Disc;
 use protocol::{
-    Estimate, ObstacleGrowth, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, Validated,
-    closest_on_polyline, distance, polyline_length,
+    Estimate, ObstacleGrowth, ROUTE_CAPACITY, ReplanReason, Route, RouteStatus, RouteSwitch,
+    Validated, closest_on_polyline, distance, polyline_length,
 };
 pub use tangent_graph::{Bounds, Leg, NoRoute, TangentGraph};
 
@@ -24,9 +24,10 @@ pub const STALL_DISTANCE_M: f64 = 0.05;
 /// ... for this long, away from the goal.
 pub const STALL_WINDOW_S: f64 = 1.0;
 
-/// A periodic replan takes the new route only if it is shorter than what is left of the
-/// current one by this much, m (or the current one is blocked now): two routes of about
-/// the same length round an obstacle are not swapped sample after sample.
+/// A periodic replan takes a new route that goes round the obstacles the same way as the
+/// current one only if it is shorter than what is left of the current one by this much,
+/// m (or the current one is blocked now); one that goes another way, only if it is
+/// shorter by `planner.switch_margin` of it ([`Planner::switch`]).
 pub const SWITCH_GAIN_M: f64 = 0.25;
 
 /// Widest turn of an arc between two waypoints, rad (30 degrees: the polygon's corners
@@ -63,6 +64,9 @@ pub struct Planner {
     clearance_m: f64,
     period_s: f64,
     stray_m: f64,
+    /// `planner.switch_margin`: the share of the route left by which a route going
+    /// another way round must be shorter to replace it.
+    switch_margin: f64,
     ts_s: f64,
     /// The route published.
     route: Route,
@@ -97,6 +101,7 @@ impl Planner {
             clearance_m: scenario.planner.clearance_m,
             period_s: scenario.planner.period_s,
             stray_m: scenario.planner.stray_m,
+            switch_margin: scenario.planner.switch_margin,
             ts_s: scenario.timing.ts_s,
             route: Route::default(),
             candidate: Route::default(),
@@ -129,22 +134,45 @@ impl Planner {
             }
             let growth = self.growth.total_m(estimate.position_sigma());
             self.plan(sample, position, growth, reason);
-            let better = |new: &Route, old: &Route| {
-                new.length_m < remaining_length(old, position) - SWITCH_GAIN_M
-            };
-            let keep = reason == ReplanReason::Period
-                && self.route.is_ok()
-                && self.candidate.is_ok()
-                && !better(&self.candidate, &self.route)
-                && !self.blocked(position, growth);
-            if !keep {
+            if let Some(switch) = self.switch(reason, position, growth) {
                 let plans = self.route.plans + 1;
                 self.route = self.candidate;
                 self.route.plans = plans;
+                self.route.switch = switch as u32;
             }
         }
         self.route.sample = sample;
         self.route
+    }
+
+    /// Why the route just planned (`candidate`) replaces the current one (`None`: the
+    /// current one is kept). A replan on a stall or a stray, and one that finds no route
+    /// or has none to compare with, always replaces it. A periodic replan replaces it if
+    /// it is blocked now, or by a route that goes round the obstacles the same way and is
+    /// [`SWITCH_GAIN_M`] shorter than what is left of it, or by one that goes another way
+    /// and is `planner.switch_margin` of that shorter: two ways of about the same length
+    /// are not swapped replan after replan.
+    fn switch(
+        &mut self,
+        reason: ReplanReason,
+        position: [f64; 2],
+        growth_m: f64,
+    ) -> Option<RouteSwitch> {
+        let comparable =
+            reason == ReplanReason::Period && self.route.is_ok() && self.candidate.is_ok();
+        if !comparable {
+            return Some(RouteSwitch::Replanned);
+        }
+        if self.blocked(position, growth_m) {
+            return Some(RouteSwitch::Blocked);
+        }
+        let left_m = remaining_length(&self.route, position);
+        let new_m = self.candidate.length_m;
+        if same_way(&self.route, &self.candidate, position, &self.obstacles) {
+            (new_m < left_m - SWITCH_GAIN_M).then_some(RouteSwitch::SameWay)
+        } else {
+            (new_m < left_m * (1.0 - self.switch_margin)).then_some(RouteSwitch::Shorter)
+        }
     }
 
     /// Whether the rest of the route from the robot's closest point enters an obstacle
@@ -320,6 +348,46 @@ pub fn remaining_length(route: &Route, position: [f64; 2]) -> f64 {
     off + distance(at, points[segment + 1]) + polyline_length(&points[segment + 1..])
 }
 
+/// Whether `new`, planned from `position`, goes round every obstacle the same way as what
+/// is left of `old` from there: the loop out along `new` to the goal and back along `old`
+/// winds round no obstacle's centre. (Both keep out of every obstacle, so the loop
+/// passes no centre.)
+pub fn same_way(
+    old: &Route,
+    new: &Route,
+    position: [f64; 2],
+    obstacles: &[protocol::Obstacle],
+) -> bool {
+    let old_points = old.points();
+    if old_points.len() < 2 {
+        return false;
+    }
+    let (segment, at, _) = closest_on_polyline(old_points, position);
+    let mut ring: Vec<[f64; 2]> = vec![position];
+    ring.extend_from_slice(new.points());
+    ring.extend(old_points[segment + 1..].iter().rev());
+    ring.push(at);
+    obstacles
+        .iter()
+        .all(|o| winding_number(&ring, o.center_at(0.0)) == 0)
+}
+
+/// How many times the closed polygon through `ring` winds round `p` (counterclockwise
+/// positive): the signed crossings of the ray from `p` towards +x.
+fn winding_number(ring: &[[f64; 2]], p: [f64; 2]) -> i32 {
+    let mut winding = 0;
+    for (i, &a) in ring.iter().enumerate() {
+        let b = ring[(i + 1) % ring.len()];
+        let side = (b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1]);
+        if a[1] <= p[1] && b[1] > p[1] && side > 0.0 {
+            winding += 1;
+        } else if a[1] > p[1] && b[1] <= p[1] && side < 0.0 {
+            winding -= 1;
+        }
+    }
+    winding
+}
+
 /// Distance from `position` to the route's polyline, m (infinite without one).
 pub fn distance_to_route(route: &Route, position: [f64; 2]) -> f64 {
     let points = route.points();
@@ -428,7 +496,42 @@ mod tests {
         }
         assert_eq!(route.reason, ReplanReason::Period as u32);
         assert_eq!(route.plans, 2);
+        assert_eq!(route.switch, RouteSwitch::Shorter as u32);
         assert_eq!(route.points()[1][1].signum(), -side, "round the other side");
+    }
+
+    /// A route from `points`.
+    fn route_through(points: &[[f64; 2]]) -> Route {
+        let mut route = Route {
+            status: RouteStatus::Ok as u32,
+            count: points.len() as u32,
+            ..Route::default()
+        };
+        route.waypoints[..points.len()].copy_from_slice(points);
+        route
+    }
+
+    #[test]
+    fn routes_go_the_same_way_when_they_pass_every_obstacle_on_the_same_side() {
+        let obstacles = [
+            Obstacle::fixed(3.0, 0.0, 1.0),
+            Obstacle::fixed(8.0, 0.0, 1.0),
+        ];
+        // From (10, 0) to (0, 0): above both, below both, above one and below the other.
+        let above = route_through(&[[10.0, 0.0], [8.0, 1.5], [3.0, 1.5], [0.0, 0.0]]);
+        let above_too = route_through(&[[10.0, 0.0], [8.0, 2.0], [5.0, 2.5], [0.0, 0.0]]);
+        let below = route_through(&[[10.0, 0.0], [8.0, -1.5], [3.0, -1.5], [0.0, 0.0]]);
+        let mixed = route_through(&[[10.0, 0.0], [8.0, 1.5], [3.0, -1.5], [0.0, 0.0]]);
+        let at = [10.0, 0.0];
+        assert!(same_way(&above, &above_too, at, &obstacles));
+        assert!(!same_way(&above, &below, at, &obstacles));
+        assert!(!same_way(&above, &mixed, at, &obstacles));
+        // Partway along, past the first obstacle: only the rest of the old route counts.
+        let past = [5.5, 1.5];
+        let from_past = route_through(&[past, [3.0, 1.6], [0.0, 0.0]]);
+        assert!(same_way(&above, &from_past, past, &obstacles));
+        let under = route_through(&[past, [3.0, -1.5], [0.0, 0.0]]);
+        assert!(!same_way(&above, &under, past, &obstacles));
     }
 
     #[test]

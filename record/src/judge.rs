@@ -111,6 +111,61 @@ pub const REST_SPEED_M_S: f64 = 1e-3;
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;
 
+/// A robot this near its goal has arrived at its final approach ([`Arrival`]), m.
+pub const ARRIVING_WITHIN_M: f64 = 0.2;
+/// A robot that stays this near its goal to the end of the run has come to rest there
+/// ([`Arrival`]; the goal tolerance if that is smaller), m.
+pub const AT_REST_WITHIN_M: f64 = 0.05;
+
+/// How the robot ended its run at the goal (issue 48; docs/reach.md): from the first time
+/// it came within [`ARRIVING_WITHIN_M`] of the goal, how far it went from it again, and
+/// when its final stay within [`AT_REST_WITHIN_M`] (or the goal tolerance, if smaller)
+/// began. A robot that settles goes no farther than it was and comes to rest soon; one
+/// that wanders near its goal goes out again and takes long.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Arrival {
+    /// The rest radius: [`AT_REST_WITHIN_M`], or the goal tolerance if smaller, m.
+    pub rest_within_m: f64,
+    /// First time within [`ARRIVING_WITHIN_M`], s.
+    pub arriving_s: Option<f64>,
+    /// Largest distance to the goal from then on, m.
+    pub farthest_after_m: f64,
+    /// Start of the current stay within the rest radius, s.
+    pub resting_since_s: Option<f64>,
+}
+
+impl Arrival {
+    /// Before the run, for a goal tolerance of `goal_tolerance_m`.
+    pub fn new(goal_tolerance_m: f64) -> Arrival {
+        Arrival {
+            rest_within_m: AT_REST_WITHIN_M.min(goal_tolerance_m),
+            ..Arrival::default()
+        }
+    }
+
+    /// The robot `distance_m` from its goal at `t_s`.
+    pub fn observe(&mut self, t_s: f64, distance_m: f64) {
+        if self.arriving_s.is_none() && distance_m <= ARRIVING_WITHIN_M {
+            self.arriving_s = Some(t_s);
+        }
+        if self.arriving_s.is_some() {
+            self.farthest_after_m = self.farthest_after_m.max(distance_m);
+        }
+        if distance_m <= self.rest_within_m {
+            self.resting_since_s.get_or_insert(t_s);
+        } else {
+            self.resting_since_s = None;
+        }
+    }
+
+    /// From the first time within [`ARRIVING_WITHIN_M`] to the start of the stay within
+    /// the rest radius that lasts to the end of the run, s (`None`: it never arrived, or
+    /// ended outside the radius).
+    pub fn time_to_rest_s(&self) -> Option<f64> {
+        Some(self.resting_since_s? - self.arriving_s?)
+    }
+}
+
 /// Watches the recorded run tick by tick.
 pub struct Judge {
     obstacles: Vec<Obstacle>,
@@ -134,6 +189,8 @@ pub struct Judge {
     commanded_speed_m_s: f64,
     /// Start of the current stay within the goal tolerance.
     pub inside_goal_since_s: Option<f64>,
+    /// The final approach.
+    pub arrival: Arrival,
     pub last_distance_to_goal_m: f64,
     /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
     /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
@@ -163,6 +220,7 @@ impl Judge {
             contact: None,
             commanded_speed_m_s: 0.0,
             inside_goal_since_s: None,
+            arrival: Arrival::new(scenario.robot.goal_tolerance_m),
             last_distance_to_goal_m: f64::INFINITY,
             deviation_time_s: None,
             pinned_within_m: pinned_within_m(scenario),
@@ -275,6 +333,7 @@ impl Judge {
         } else {
             self.inside_goal_since_s = None;
         }
+        self.arrival.observe(t_s, distance);
         let at_rest = self.commanded_speed_m_s.abs() < REST_SPEED_M_S;
         // A contact is judged when it starts, and stays what it was until it ends (the
         // obstacle may stop in the robot, the robot may drive out of its way). It starts
@@ -377,6 +436,42 @@ pub fn clearance_m(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_arrival_is_the_first_time_within_0_2_m_then_the_farthest_and_the_final_rest() {
+        let mut a = Arrival::new(0.1);
+        assert_eq!(a.rest_within_m, AT_REST_WITHIN_M);
+        // In from 1 m, within 0.2 m at t = 3, out to 0.3 m, within 0.05 m at t = 6 for
+        // a moment, out to 0.08 m, and within 0.05 m from t = 8 to the end.
+        let path = [
+            (0.0, 1.0),
+            (3.0, 0.2),
+            (4.0, 0.3),
+            (5.0, 0.1),
+            (6.0, 0.04),
+            (7.0, 0.08),
+            (8.0, 0.05),
+            (9.0, 0.01),
+        ];
+        for (t, d) in path {
+            a.observe(t, d);
+        }
+        assert_eq!(a.arriving_s, Some(3.0));
+        assert_eq!(a.farthest_after_m, 0.3);
+        assert_eq!(a.time_to_rest_s(), Some(5.0));
+        // Ending outside the rest radius: never at rest.
+        a.observe(10.0, 0.06);
+        assert_eq!(a.time_to_rest_s(), None);
+        // Never within 0.2 m: nothing to say.
+        let mut far = Arrival::new(0.02);
+        far.observe(0.0, 0.21);
+        assert_eq!((far.arriving_s, far.time_to_rest_s()), (None, None));
+        // A goal tolerance under 0.05 m is the rest radius.
+        far.observe(1.0, 0.03);
+        assert_eq!((far.arriving_s, far.time_to_rest_s()), (Some(1.0), None));
+        far.observe(2.0, 0.02);
+        assert_eq!(far.time_to_rest_s(), Some(1.0));
+    }
 
     #[test]
     fn a_robot_standing_still_away_from_the_goal_stalls_after_the_window() {

@@ -12,7 +12,8 @@ use crate::judge::{Judge, Outcome, clearance_m};
 use lines::{FlushClock, Lines};
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, Intervention, Obstacle,
-    ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, Scenario, Tracks,
+    ObstacleGrowth, PLAN_MISSING, Plan, PlanStatus, ReplanReason, Route, RouteSwitch, Scenario,
+    Tracks,
 };
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -32,7 +33,8 @@ mod summary;
 pub use lines::FLUSH_PERIOD;
 pub use mcap::McapLog;
 pub use summary::{
-    Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Scheduling, Summary,
+    ArrivalReport, Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Scheduling,
+    Summary,
 };
 
 /// Streams the run's records to its directory and accumulates the summary's statistics.
@@ -296,6 +298,7 @@ impl Recorder {
         self.last_route_plan = Some(plan);
         self.route_plans += 1;
         let reason = ReplanReason::from_code(route.reason).map_or("unknown", ReplanReason::as_str);
+        let switch = RouteSwitch::from_code(route.switch).map_or("unknown", RouteSwitch::as_str);
         if !route.is_ok() {
             return self.event(
                 "no_route",
@@ -316,7 +319,7 @@ impl Recorder {
         for [x, y] in route.points() {
             writeln!(
                 routes,
-                "{},{},{reason},{x},{y}",
+                "{},{},{reason},{switch},{x},{y}",
                 self.route_plans, route.planned_sample
             )?;
         }
@@ -509,6 +512,7 @@ impl Recorder {
                 None
             },
             final_distance_to_goal_m: m.last_distance_to_goal_m,
+            arrival: ArrivalReport::of(&m.arrival),
             deadline_misses: self.deadline_misses,
             longest_miss_streak: self.longest_miss_streak,
             solver_failures: self.solver_failures,

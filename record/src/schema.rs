@@ -53,9 +53,11 @@ pub const PLANS_COLUMNS: [&str; 14] = [
 
 /// Columns of `route.csv`, one row per waypoint of every route the planner planned (runs
 /// with `planner.kind = "route"`): the plan's number (1 = the first; a restarted or
-/// swapped planner counts on), the sample it was planned from, why it was planned, and
-/// the waypoint (m).
-pub const ROUTE_COLUMNS: [&str; 5] = ["plan", "sample", "reason", "x", "y"];
+/// swapped planner counts on), the sample it was planned from, why it was planned, why it
+/// replaced the route before (`replanned`: the first, or a stall or stray replan, always
+/// taken; `same_way`, `shorter`, `blocked`: a periodic replan, `protocol::RouteSwitch`),
+/// and the waypoint (m).
+pub const ROUTE_COLUMNS: [&str; 6] = ["plan", "sample", "reason", "switch", "x", "y"];
 
 /// Columns of `tracks.csv`: the tracker's estimate of each tracked obstacle after each
 /// measurement (`tick` of it), and its true centre then, m, m/s; `sigma_p_m` and

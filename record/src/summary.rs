@@ -65,6 +65,8 @@ pub struct Summary {
     /// First time the robot was more than 5 cm off the straight start-goal line, s.
     pub deviation_time_s: Option<f64>,
     pub final_distance_to_goal_m: f64,
+    /// The final approach (`null`: never within 0.2 m of the goal).
+    pub arrival: Option<ArrivalReport>,
     /// Samples whose plan was not in the DFL's hands by `t_k + Ts`, or failed.
     pub deadline_misses: u64,
     /// Longest run of consecutive deadline misses.
@@ -97,6 +99,45 @@ pub struct Summary {
     /// Only for runs over iceoryx2 (not `--in-process`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub processes: Option<ProcessReport>,
+}
+
+/// The final approach ([`crate::judge::Arrival`]), as `summary.json` and the end table
+/// give it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ArrivalReport {
+    /// First time within 0.2 m of the goal, s.
+    pub within_0_2_m_s: f64,
+    /// Largest distance to the goal after that, m.
+    pub largest_distance_after_m: f64,
+    /// From then to the stay within `rest_within_m` that lasts to the end of the run, s
+    /// (`null`: the run ended outside it).
+    pub time_to_rest_s: Option<f64>,
+    /// The rest radius: 0.05 m, or the goal tolerance if smaller, m.
+    pub rest_within_m: f64,
+}
+
+impl ArrivalReport {
+    /// The report of `arrival` (`None`: the robot never came within 0.2 m of its goal).
+    pub fn of(arrival: &crate::judge::Arrival) -> Option<ArrivalReport> {
+        Some(ArrivalReport {
+            within_0_2_m_s: arrival.arriving_s?,
+            largest_distance_after_m: arrival.farthest_after_m,
+            time_to_rest_s: arrival.time_to_rest_s(),
+            rest_within_m: arrival.rest_within_m,
+        })
+    }
+
+    /// Its row of the end table.
+    fn text(&self) -> String {
+        let rest = self.time_to_rest_s.map_or_else(
+            || format!("not at rest within {} m at the end", self.rest_within_m),
+            |t| format!("at rest within {} m {t:.2} s later", self.rest_within_m),
+        );
+        format!(
+            "within 0.2 m at {:.2} s, then out to {:.3} m; {rest}",
+            self.within_0_2_m_s, self.largest_distance_after_m
+        )
+    }
 }
 
 /// Where a ROS 2 robot's run started and went: its first odometry replaces `robot.start`.
@@ -298,6 +339,11 @@ impl Summary {
             (
                 "final distance",
                 format!("{:.3} m", self.final_distance_to_goal_m),
+            ),
+            (
+                "arrival",
+                self.arrival
+                    .map_or("never within 0.2 m".to_string(), |a| a.text()),
             ),
             (
                 "samples / ticks",

@@ -34,8 +34,8 @@ use protocol::distance;
 use protocol::{NoiseVariance, Obstacle, Scenario, ScenarioErrors, Validated};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use record::Summary;
 use record::judge::{Outcome, StallReason};
+use record::{Percentiles, Summary};
 use std::f64::consts::PI;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -250,6 +250,10 @@ fn step_in(distance_m: f64, speed_m_s: f64, leaves_s: f64) -> impl Iterator<Item
     }))
 }
 
+/// A robot that goes farther than this from its goal after coming within 0.2 m of it
+/// wandered (Nav2's default goal tolerance), m.
+pub const WANDERED_BEYOND_M: f64 = 0.25;
+
 /// A batch of worlds: its seed (the same seed draws the same worlds), how many, and the
 /// share of them with people on the way.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -358,6 +362,49 @@ impl Report {
                 100.0 * self.reach_of_routable()
             );
         }
+        out + &self.arrival_table()
+    }
+
+    /// The final approaches ([`record::ArrivalReport`]) of the worlds that came within
+    /// 0.2 m of their goal: the largest distance after that, and the time to rest.
+    pub fn arrivals(&self) -> Vec<record::ArrivalReport> {
+        let summaries = self.results.iter().filter_map(|r| r.as_ref().ok());
+        summaries.filter_map(|s| s.arrival).collect()
+    }
+
+    /// The table's lines on the final approaches: percentiles over the worlds that came
+    /// within 0.2 m, and how many went out beyond [`WANDERED_BEYOND_M`] or ended
+    /// without coming to rest.
+    fn arrival_table(&self) -> String {
+        let arrivals = self.arrivals();
+        if arrivals.is_empty() {
+            return String::new();
+        }
+        let farthest: Vec<f64> = arrivals
+            .iter()
+            .map(|a| a.largest_distance_after_m)
+            .collect();
+        // A world that ended without coming to rest counts as never (infinite).
+        let to_rest: Vec<f64> = arrivals
+            .iter()
+            .map(|a| a.time_to_rest_s.unwrap_or(f64::INFINITY))
+            .collect();
+        let never = to_rest.iter().filter(|t| t.is_infinite()).count();
+        let beyond = farthest.iter().filter(|&&d| d > WANDERED_BEYOND_M).count();
+        let (f, r) = (Percentiles::of(&farthest), Percentiles::of(&to_rest));
+        let rest_m = arrivals.iter().map(|a| a.rest_within_m).fold(0.0, f64::max);
+        let mut out = format!(
+            "  after coming within 0.2 m ({} worlds): distance to the goal p50 {:.3}, p99 {:.3}, max {:.3} m; beyond {WANDERED_BEYOND_M} m in {beyond} ({:.1} %)\n",
+            arrivals.len(),
+            f.p50,
+            f.p99,
+            f.max,
+            100.0 * beyond as f64 / arrivals.len() as f64
+        );
+        out += &format!(
+            "  then to rest within {rest_m} m: p50 {:.2}, p99 {:.2}, max {:.2} s; not at rest at the end in {}\n",
+            r.p50, r.p99, r.max, never
+        );
         out
     }
 }
@@ -407,11 +454,12 @@ fn failed_file(out: &Path, index: usize) -> PathBuf {
 /// `fuzz.csv`, and the scenario file of every world that did not reach the goal or
 /// touched an obstacle.
 fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.3}"));
     std::fs::create_dir_all(out.join("failed"))?;
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,file"
+        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,within_0_2_m_s,largest_distance_after_m,time_to_rest_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
@@ -444,13 +492,15 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{file}",
+                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.stall_reason.map_or("", |reason| reason.as_str()),
                 r.min_clearance_m,
                 r.final_distance_to_goal_m,
-                r.time_to_goal_s
-                    .map_or(String::new(), |t| format!("{t:.3}")),
+                opt(r.time_to_goal_s),
+                opt(r.arrival.map(|a| a.within_0_2_m_s)),
+                opt(r.arrival.map(|a| a.largest_distance_after_m)),
+                opt(r.arrival.and_then(|a| a.time_to_rest_s)),
                 r.safety_interventions,
                 r.solver_failures,
                 r.deadline_misses,
@@ -458,7 +508,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,,,,{file}",
+                "{params},error: {},,,,,,,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }

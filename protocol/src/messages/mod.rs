@@ -191,6 +191,9 @@ pub struct Route {
     pub plans: u32,
     /// [`ReplanReason`] code of the newest plan.
     pub reason: u32,
+    /// [`RouteSwitch`] code: why the newest plan taken replaced the route before it.
+    pub switch: u32,
+    pub reserved: u32,
     /// Length of the polyline through the waypoints, m.
     pub length_m: f64,
     /// Wall time of the newest plan, ns.
@@ -209,6 +212,8 @@ impl Default for Route {
             count: 0,
             plans: 0,
             reason: ReplanReason::Start as u32,
+            switch: RouteSwitch::Replanned as u32,
+            reserved: 0,
             length_m: 0.0,
             plan_ns: 0,
             waypoints: [[0.0; 2]; ROUTE_CAPACITY],
@@ -345,6 +350,43 @@ impl ReplanReason {
             ReplanReason::Period => "period",
             ReplanReason::Stall => "stall",
             ReplanReason::Stray => "stray",
+        }
+    }
+}
+
+/// Why a replan's route replaced the route before it (a periodic replan keeps the route
+/// otherwise; docs/planner.md, "Replanning").
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RouteSwitch {
+    /// Always taken: the first route, and the replans on a stall or a stray.
+    Replanned = 0,
+    /// Round the obstacles the same way as the route before, and shorter than what is
+    /// left of it.
+    SameWay = 1,
+    /// Another way round, shorter than what is left of the route before by
+    /// `planner.switch_margin` of it.
+    Shorter = 2,
+    /// The route before is blocked now.
+    Blocked = 3,
+}
+
+impl RouteSwitch {
+    pub const ALL: [RouteSwitch; 4] = [
+        RouteSwitch::Replanned,
+        RouteSwitch::SameWay,
+        RouteSwitch::Shorter,
+        RouteSwitch::Blocked,
+    ];
+    pub fn from_code(code: u32) -> Option<RouteSwitch> {
+        RouteSwitch::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RouteSwitch::Replanned => "replanned",
+            RouteSwitch::SameWay => "same_way",
+            RouteSwitch::Shorter => "shorter",
+            RouteSwitch::Blocked => "blocked",
         }
     }
 }

@@ -486,6 +486,11 @@ pub struct PlannerConfig {
     pub speed_m_s: AutoOr,
     /// Replan when the robot is farther than this from the route, m.
     pub stray_m: f64,
+    /// A replan takes a route that goes round the obstacles another way than the current
+    /// one only if it is shorter than what is left of the current one by this share of
+    /// it (or the current one is blocked): two ways of about the same length are not
+    /// swapped replan after replan.
+    pub switch_margin: f64,
 }
 
 /// `planner.kind`.
@@ -505,6 +510,7 @@ impl Default for PlannerConfig {
             clearance_m: 0.2,
             speed_m_s: AutoOr::Auto(Auto::Auto),
             stray_m: 0.5,
+            switch_margin: 0.1,
         }
     }
 }

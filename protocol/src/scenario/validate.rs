@@ -152,6 +152,14 @@ impl Scenario {
             v.positive("planner.speed_m_s", speed);
         }
         v.positive("planner.stray_m", p.stray_m);
+        if v.finite("planner.switch_margin", p.switch_margin)
+            && !(0.0..1.0).contains(&p.switch_margin)
+        {
+            v.fail(
+                "planner.switch_margin",
+                format!("must be a share in [0, 1), got {}", p.switch_margin),
+            );
+        }
         if p.kind == PlannerKind::Route && m.formulation == Formulation::Nonlinear {
             v.fail(
                 "planner.kind",
