@@ -500,6 +500,52 @@ mod tests {
         assert_eq!(route.points()[1][1].signum(), -side, "round the other side");
     }
 
+    #[test]
+    fn a_periodic_plan_round_the_other_way_is_not_taken_unless_shorter_by_the_margin() {
+        // As above, but the robot drifts only 0.4 m to the other side: going round that
+        // side is then shorter by more than SWITCH_GAIN_M, less than 10 %.
+        let mut s = Scenario::default();
+        s.planner.kind = PlannerKind::Route;
+        s.planner.stray_m = 100.0;
+        s.robot.start = [6.0, 0.0, 0.0];
+        s.obstacles = vec![Obstacle::fixed(3.0, 0.0, 1.0)];
+        let s = s.validated("test").unwrap();
+        let mut planner = Planner::new(&s);
+        let first = planner.step(0, &estimate_at(6.0, 0.0));
+        let side = first.points()[1][1].signum();
+        let mut route = first;
+        for k in 1..=20 {
+            route = planner.step(k, &estimate_at(6.0, -side * 0.02 * k as f64));
+        }
+        let at = [6.0, -side * 0.4];
+        let (left_m, other) = (remaining_length(&route, at), planner.candidate);
+        assert_eq!(
+            other.points()[1][1].signum(),
+            -side,
+            "planned round the other side"
+        );
+        assert!(
+            other.length_m < left_m - SWITCH_GAIN_M
+                && other.length_m >= left_m * (1.0 - s.planner.switch_margin),
+            "{} m against {left_m} m left",
+            other.length_m
+        );
+        assert_eq!((route.plans, route.points()[1][1].signum()), (1, side));
+        // With no margin, the shorter way is taken.
+        let mut s = s.into_inner();
+        s.planner.switch_margin = 0.0;
+        let s = s.validated("test").unwrap();
+        let mut planner = Planner::new(&s);
+        let mut route = planner.step(0, &estimate_at(6.0, 0.0));
+        for k in 1..=20 {
+            route = planner.step(k, &estimate_at(6.0, -side * 0.02 * k as f64));
+        }
+        assert_eq!(
+            (route.plans, route.switch),
+            (2, RouteSwitch::Shorter as u32)
+        );
+    }
+
     /// A route from `points`.
     fn route_through(points: &[[f64; 2]]) -> Route {
         let mut route = Route {
