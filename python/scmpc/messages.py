@@ -45,6 +45,7 @@ COMMAND_MODES = {"nominal": 0, "shifted": 1, "brake": 2, "zeta_guard": 3, "safet
 INTERVENTIONS = {"none": 0, "plan_refused": 1, "committed_unsafe": 2, "least_unsafe": 3}
 ROUTE_STATUSES = {"ok": 0, "no_route": 1}
 REPLAN_REASONS = {"start": 0, "period": 1, "stall": 2, "stray": 3}
+ROUTE_SWITCHES = {"replanned": 0, "same_way": 1, "shorter": 2, "blocked": 3}
 # Where each output sits in the publishers a producer announces (Status.publishers).
 OUTPUT_SLOTS = {
     "truth": 0,
@@ -195,6 +196,8 @@ class Route(Message):
         ("count", c_u32),
         ("plans", c_u32),
         ("reason", c_u32),
+        ("switch", c_u32),
+        ("reserved", c_u32),
         ("length_m", c_f64),
         ("plan_ns", c_u64),
         ("waypoints", (c_f64 * 2) * ROUTE_CAPACITY),
@@ -209,6 +212,7 @@ class Route(Message):
         return (
             self.count <= ROUTE_CAPACITY
             and self.reason in REPLAN_REASONS.values()
+            and self.switch in ROUTE_SWITCHES.values()
             and ok.get(self.status, False)
         )
 

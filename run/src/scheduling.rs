@@ -59,11 +59,8 @@ pub fn bridge_priority(realtime: &RealtimeConfig, mode: RunMode) -> Option<u8> {
 /// How process `pid`'s main thread is scheduled, from `/proc` (`None`: it is gone).
 pub fn observe(pid: u32) -> Option<record::Scheduling> {
     let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The fields after the command's name (in parentheses, which may hold spaces): the
-    // 3rd field of the line first; `rt_priority` is the 40th, `policy` the 41st.
-    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
-    let priority = fields.get(40 - 3)?.parse().ok()?;
-    let policy = match fields.get(41 - 3)?.parse::<i32>().ok()? {
+    let (policy, priority) = runtime::realtime::scheduling_in_stat(&stat)?;
+    let policy = match policy {
         libc::SCHED_OTHER => "other",
         libc::SCHED_FIFO => "fifo",
         libc::SCHED_RR => "rr",

@@ -170,6 +170,8 @@ fn data_types() -> Vec<TypeLayout> {
             count: u32,
             plans: u32,
             reason: u32,
+            switch: u32,
+            reserved: u32,
             length_m: f64,
             plan_ns: u64,
             waypoints: [[f64; 2]; W],
@@ -368,6 +370,10 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         (
             "replan_reason",
             named(&ReplanReason::ALL, ReplanReason::as_str, |r| r as u32),
+        ),
+        (
+            "route_switch",
+            named(&RouteSwitch::ALL, RouteSwitch::as_str, |r| r as u32),
         ),
     ])
 }

@@ -238,7 +238,7 @@ impl Policy {
             prefault_stack();
         }
         if let Some(priority) = self.fifo_priority {
-            set_fifo(priority)?;
+            raise_this_thread(priority)?;
             FIFO_IN_FORCE.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         Ok(())
@@ -289,21 +289,27 @@ fn named(call: &str) -> std::io::Error {
 /// Whether the kernel lets a thread of this process run `SCHED_FIFO` at `priority`, tried
 /// on a thread that ends at once.
 fn fifo_allowed(priority: u8) -> bool {
-    std::thread::spawn(move || set_fifo(priority).is_ok())
+    std::thread::spawn(move || raise_this_thread(priority).is_ok())
         .join()
         .unwrap_or(false)
 }
 
-/// The calling thread at `SCHED_FIFO` `priority`, with `SCHED_RESET_ON_FORK`.
-fn set_fifo(priority: u8) -> std::io::Result<()> {
+/// The calling thread at `SCHED_FIFO` `priority` (with `SCHED_RESET_ON_FORK`), for as long
+/// as it lives: a loop's, or a thread of a process's own that carries the loop's samples
+/// (a host's bridge). An error names the call.
+pub fn raise_this_thread(priority: u8) -> std::io::Result<()> {
     set_scheduler(0, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority)
 }
 
-/// The calling thread at `SCHED_FIFO` `priority` (with `SCHED_RESET_ON_FORK`): a thread of
-/// a process's own that carries the control loop's samples (a host's bridge), for as long
-/// as the thread lives. An error names the call.
-pub fn raise_this_thread(priority: u8) -> std::io::Result<()> {
-    set_fifo(priority)
+/// `(policy, rt_priority)` of a thread or process from its `/proc/.../stat` line (the
+/// fields after the command's name, which may hold spaces: `rt_priority` is the 40th
+/// field of the line, `policy` the 41st).
+pub fn scheduling_in_stat(stat: &str) -> Option<(i32, u32)> {
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    Some((
+        fields.get(41 - 3)?.parse().ok()?,
+        fields.get(40 - 3)?.parse().ok()?,
+    ))
 }
 
 /// The names of Zenoh's runtime threads that read and write its links (zenoh-runtime's
@@ -524,18 +530,9 @@ mod tests {
     }
 
     /// `(policy, priority)` of thread `tid` of this process.
-    fn scheduling_of(tid: libc::pid_t) -> (i32, i32) {
+    fn scheduling_of(tid: libc::pid_t) -> (i32, u32) {
         let stat = std::fs::read_to_string(format!("/proc/self/task/{tid}/stat")).unwrap();
-        let fields: Vec<&str> = stat
-            .rsplit_once(')')
-            .unwrap()
-            .1
-            .split_whitespace()
-            .collect();
-        (
-            fields[41 - 3].parse().unwrap(),
-            fields[40 - 3].parse().unwrap(),
-        )
+        scheduling_in_stat(&stat).unwrap()
     }
 
     #[test]

@@ -333,7 +333,7 @@ pub fn lines_of(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc:
 
 /// `(name, policy, priority)` of each thread of process `pid` whose name starts with one
 /// of `prefixes`, from `/proc`.
-fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, u32, u32)> {
+fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, i32, u32)> {
     let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the process's threads");
     let mut threads = Vec::new();
     for task in tasks.flatten() {
@@ -347,15 +347,8 @@ fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, u32, u32)> {
         if !prefixes.iter().any(|p| name.starts_with(p)) {
             continue;
         }
-        // After the name in parentheses: `rt_priority` is the 40th field, `policy` the 41st.
-        let fields: Vec<&str> = stat
-            .rsplit_once(')')
-            .unwrap()
-            .1
-            .split_whitespace()
-            .collect();
-        let field = |n: usize| fields[n - 3].parse().unwrap();
-        threads.push((name, field(41), field(40)));
+        let (policy, priority) = runtime::realtime::scheduling_in_stat(&stat).expect("a stat line");
+        threads.push((name, policy, priority));
     }
     threads.sort();
     threads
@@ -372,9 +365,7 @@ pub fn assert_threads_at_the_control_tier(pid: u32, prefixes: &[&str]) {
     );
     let expected = policy
         .fifo_priority
-        .map_or((libc::SCHED_OTHER as u32, 0), |p| {
-            (libc::SCHED_FIFO as u32, u32::from(p))
-        });
+        .map_or((libc::SCHED_OTHER, 0), |p| (libc::SCHED_FIFO, u32::from(p)));
     let threads = threads_of(pid, prefixes);
     for prefix in prefixes {
         assert!(

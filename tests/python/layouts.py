@@ -75,6 +75,7 @@ def main():
         ("intervention", messages.INTERVENTIONS),
         ("route_status", messages.ROUTE_STATUSES),
         ("replan_reason", messages.REPLAN_REASONS),
+        ("route_switch", messages.ROUTE_SWITCHES),
         ("output_slot", messages.OUTPUT_SLOTS),
     ]:
         if codes[key] != mine:

@@ -617,6 +617,7 @@ impl_message!(
         && CommandMode::from_code(m.fallback).is_some();
     Route => |m| m.length_m.is_finite() && m.points().iter().all(|p| finite(p)),
         m.count as usize <= ROUTE_CAPACITY && ReplanReason::from_code(m.reason).is_some()
+            && RouteSwitch::from_code(m.switch).is_some()
             && match m.status() {
                 Some(RouteStatus::Ok) => m.count >= 2,
                 Some(RouteStatus::NoRoute) => m.count == 0,
