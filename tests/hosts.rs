@@ -252,18 +252,15 @@ fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot
     let mut child =
         agent.spawn_realtime_run(&run_dir, &[&["--prefix", &prefix][..], &SHORT].concat());
     common::wait_for_pid(&run_dir, "mpc");
-    // Thread names are cut to 15 bytes.
-    let carriers = |host: &str| {
-        [format!("bridge-in-{host}"), format!("bridge-out-{host}")]
-            .map(|name| name[..name.len().min(15)].to_string())
-    };
-    let [agent_in, agent_out] = carriers("compute");
-    common::assert_threads_at_the_control_tier(agent.pid(), &[&agent_in, &agent_out, "rx-", "tx-"]);
-    let [orchestrator_in, orchestrator_out] = carriers("orchestrator");
-    common::assert_threads_at_the_control_tier(
-        child.id(),
-        &[&orchestrator_in, &orchestrator_out, "rx-", "tx-"],
-    );
+    // The threads that carry the samples between the hosts run at the loop's priority:
+    // each bridge's two (names cut to 15 bytes) and Zenoh's workers.
+    for (pid, host) in [(agent.pid(), "compute"), (child.id(), "orchestrator")] {
+        let bridge = [format!("bridge-in-{host}"), format!("bridge-out-{host}")]
+            .map(|name| name[..name.len().min(15)].to_string());
+        let mut carriers: Vec<&str> = bridge.iter().map(String::as_str).collect();
+        carriers.extend(common::ZENOH_WORKERS);
+        common::assert_threads_at_the_control_tier(pid, &carriers);
+    }
     // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
     let stranger = {
         use zenoh::Wait;

@@ -499,7 +499,7 @@ fn a_stopped_or_a_killed_orchestrator_leaves_the_robot_with_a_zero_twist() {
         SimulatedClock::of(&prefix).wait_until(2.0);
         // Zenoh's threads that bring the odometry and take the commands run at the loop's
         // priority, as the loop does.
-        assert_threads_at_the_control_tier(plant, &["rx-", "tx-"]);
+        assert_threads_at_the_control_tier(plant, &common::ZENOH_WORKERS);
         // SAFETY: a signal to the orchestrator this test started and has not reaped.
         unsafe { libc::kill(run.id() as i32, signal) };
         run.wait().unwrap();

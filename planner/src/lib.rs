@@ -27,7 +27,7 @@ pub const STALL_WINDOW_S: f64 = 1.0;
 /// A periodic replan takes a new route that goes round the obstacles the same way as the
 /// current one only if it is shorter than what is left of the current one by this much,
 /// m (or the current one is blocked now); one that goes another way, only if it is
-/// shorter by `planner.switch_margin` of it ([`Planner::switch`]).
+/// shorter by `planner.switch_margin` of it, and at least by this ([`Planner::switch`]).
 pub const SWITCH_GAIN_M: f64 = 0.25;
 
 /// Widest turn of an arc between two waypoints, rad (30 degrees: the polygon's corners
@@ -120,9 +120,8 @@ impl Planner {
 
     /// The route for sample `sample` from its estimate: the newest one, planned again
     /// first if this is the first sample, `planner.period_s` has passed (the new route
-    /// taken if it is [`SWITCH_GAIN_M`] shorter than what is left of the old one, or the
-    /// old one is blocked), the robot has stalled or strayed from it. The header is left
-    /// for the caller.
+    /// taken as [`Planner::switch`] decides), the robot has stalled or strayed from it.
+    /// The header is left for the caller.
     pub fn step(&mut self, sample: u64, estimate: &Estimate) -> Route {
         let position = [estimate.state[0], estimate.state[1]];
         if let Some(reason) = self.replan_reason(sample, position) {
@@ -150,8 +149,9 @@ impl Planner {
     /// or has none to compare with, always replaces it. A periodic replan replaces it if
     /// it is blocked now, or by a route that goes round the obstacles the same way and is
     /// [`SWITCH_GAIN_M`] shorter than what is left of it, or by one that goes another way
-    /// and is `planner.switch_margin` of that shorter: two ways of about the same length
-    /// are not swapped replan after replan.
+    /// and is `planner.switch_margin` of that shorter (and never less than
+    /// [`SWITCH_GAIN_M`]): two ways of about the same length are not swapped replan after
+    /// replan, near the goal either.
     fn switch(
         &mut self,
         reason: ReplanReason,
@@ -171,7 +171,8 @@ impl Planner {
         if same_way(&self.route, &self.candidate, position, &self.obstacles) {
             (new_m < left_m - SWITCH_GAIN_M).then_some(RouteSwitch::SameWay)
         } else {
-            (new_m < left_m * (1.0 - self.switch_margin)).then_some(RouteSwitch::Shorter)
+            let gain_m = SWITCH_GAIN_M.max(left_m * self.switch_margin);
+            (new_m < left_m - gain_m).then_some(RouteSwitch::Shorter)
         }
     }
 

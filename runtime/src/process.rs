@@ -453,28 +453,28 @@ impl Member {
             .collect::<Result<Vec<_>, _>>()?;
         // Set up: the real-time policy before the first step (the orchestrator warned once
         // of what the machine refuses, and reads what each process runs under).
-        if let Some(Err(e)) = self.policy.as_ref().map(Policy::apply) {
-            eprintln!(
-                "scmpc {}: real-time policy not in force: {e}",
-                self.role.as_str()
-            );
-        }
+        let applied = match self.policy.as_ref().map(Policy::apply) {
+            Some(Err(e)) => {
+                eprintln!(
+                    "scmpc {}: real-time policy not in force: {e}",
+                    self.role.as_str()
+                );
+                None
+            }
+            applied => applied.and(self.policy.as_ref()),
+        };
         // A task that talks Zenoh (the ROS 2 robot): the threads that bring its inputs
         // and take its outputs at the loop's priority while it runs.
-        let _carriers = self
-            .policy
-            .as_ref()
-            .and_then(|p| p.fifo_priority)
-            .and_then(|priority| {
-                realtime::raise_threads(&realtime::ZENOH_CARRIER_THREADS, priority)
-                    .inspect_err(|e| {
-                        eprintln!(
-                            "scmpc {}: Zenoh's threads not raised: {e}",
-                            self.role.as_str()
-                        )
-                    })
-                    .ok()
-            });
+        let _carriers = applied.and_then(|p| p.fifo_priority).and_then(|priority| {
+            realtime::raise_threads(&realtime::ZENOH_CARRIER_THREADS, priority)
+                .inspect_err(|e| {
+                    eprintln!(
+                        "scmpc {}: Zenoh's threads not raised: {e}",
+                        self.role.as_str()
+                    )
+                })
+                .ok()
+        });
         self.report_ready(outputs)?;
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();

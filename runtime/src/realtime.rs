@@ -325,8 +325,9 @@ pub struct RaisedThreads {
 }
 
 /// The threads of this process whose name starts with one of `prefixes`, at `SCHED_FIFO`
-/// `priority` (with `SCHED_RESET_ON_FORK`) until the value returned is dropped. A thread
-/// started later keeps the normal policy. An error names the call and the thread.
+/// `priority` (with `SCHED_RESET_ON_FORK`) until the value returned is dropped: those that
+/// exist now (Zenoh's worker threads exist once its session is open); a thread started
+/// later keeps the normal policy. An error names the call and the thread.
 pub fn raise_threads(prefixes: &[&str], priority: u8) -> std::io::Result<RaisedThreads> {
     let mut raised = RaisedThreads { tids: Vec::new() };
     for entry in std::fs::read_dir("/proc/self/task")? {
@@ -341,9 +342,15 @@ pub fn raise_threads(prefixes: &[&str], priority: u8) -> std::io::Result<RaisedT
         if !prefixes.iter().any(|p| name.starts_with(p)) {
             continue;
         }
-        set_scheduler(tid, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority)
-            .map_err(|e| std::io::Error::new(e.kind(), format!("thread {}: {e}", name.trim())))?;
-        raised.tids.push(tid);
+        match set_scheduler(tid, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority) {
+            Ok(()) => raised.tids.push(tid),
+            // A thread that ended since its name was read (a runtime's idle helper).
+            Err(_) if !path.exists() => {}
+            Err(e) => {
+                let named = format!("thread {}: {e}", name.trim());
+                return Err(std::io::Error::new(e.kind(), named));
+            }
+        }
     }
     Ok(raised)
 }
@@ -351,8 +358,11 @@ pub fn raise_threads(prefixes: &[&str], priority: u8) -> std::io::Result<RaisedT
 impl Drop for RaisedThreads {
     fn drop(&mut self) {
         for &tid in &self.tids {
-            // A thread that has ended meanwhile: nothing to undo.
-            let _ = set_scheduler(tid, libc::SCHED_OTHER, 0);
+            // A thread that has ended meanwhile: nothing to undo (and its id, if reused,
+            // is another process's thread's, not one to lower).
+            if std::path::Path::new(&format!("/proc/self/task/{tid}")).exists() {
+                let _ = set_scheduler(tid, libc::SCHED_OTHER, 0);
+            }
         }
     }
 }

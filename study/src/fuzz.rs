@@ -401,9 +401,18 @@ impl Report {
             f.max,
             100.0 * beyond as f64 / arrivals.len() as f64
         );
+        let s = |t: f64| {
+            if t.is_finite() {
+                format!("{t:.2} s")
+            } else {
+                "never".to_string()
+            }
+        };
         out += &format!(
-            "  then to rest within {rest_m} m: p50 {:.2}, p99 {:.2}, max {:.2} s; not at rest at the end in {}\n",
-            r.p50, r.p99, r.max, never
+            "  then to rest within {rest_m} m: p50 {}, p99 {}, max {}; not at rest at the end in {never}\n",
+            s(r.p50),
+            s(r.p99),
+            s(r.max),
         );
         out
     }

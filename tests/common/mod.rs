@@ -331,9 +331,9 @@ pub fn lines_of(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc:
     lines
 }
 
-/// `(name, policy, priority)` of each thread of process `pid` whose name starts with one
-/// of `prefixes`, from `/proc`.
-fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, i32, u32)> {
+/// `(name, policy, priority)` of each thread of process `pid` named one of `names`, from
+/// `/proc`.
+fn threads_of(pid: u32, names: &[&str]) -> Vec<(String, i32, u32)> {
     let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).expect("the process's threads");
     let mut threads = Vec::new();
     for task in tasks.flatten() {
@@ -344,7 +344,7 @@ fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, i32, u32)> {
             continue;
         };
         let name = name.trim().to_string();
-        if !prefixes.iter().any(|p| name.starts_with(p)) {
+        if !names.contains(&name.as_str()) {
             continue;
         }
         let (policy, priority) = runtime::realtime::scheduling_in_stat(&stat).expect("a stat line");
@@ -354,11 +354,15 @@ fn threads_of(pid: u32, prefixes: &[&str]) -> Vec<(String, i32, u32)> {
     threads
 }
 
-/// Process `pid` has a thread named with each of `prefixes` (carriers of the control
-/// loop's samples: a bridge's, Zenoh's `rx-`/`tx-`), and each runs at the control loop's
-/// real-time priority where the machine grants one, at the normal policy where it does
-/// not.
-pub fn assert_threads_at_the_control_tier(pid: u32, prefixes: &[&str]) {
+/// Zenoh's worker threads that read and write its links (the default `rx` pool of two, the
+/// `tx` pool of one; helper threads it starts later are named on from these).
+pub const ZENOH_WORKERS: [&str; 3] = ["rx-0", "rx-1", "tx-0"];
+
+/// Process `pid` has a thread named each of `names` (carriers of the control loop's
+/// samples: a bridge's, Zenoh's workers; a name as `/proc` gives it, cut to 15 bytes),
+/// and each runs at the control loop's real-time priority where the machine grants one,
+/// at the normal policy where it does not (then this checks only that they exist).
+pub fn assert_threads_at_the_control_tier(pid: u32, names: &[&str]) {
     let (policy, _) = runtime::realtime::Policy::for_this_process(
         &protocol::RealtimeConfig::default(),
         runtime::realtime::Tier::Control,
@@ -366,11 +370,11 @@ pub fn assert_threads_at_the_control_tier(pid: u32, prefixes: &[&str]) {
     let expected = policy
         .fifo_priority
         .map_or((libc::SCHED_OTHER, 0), |p| (libc::SCHED_FIFO, u32::from(p)));
-    let threads = threads_of(pid, prefixes);
-    for prefix in prefixes {
+    let threads = threads_of(pid, names);
+    for wanted in names {
         assert!(
-            threads.iter().any(|(name, ..)| name.starts_with(prefix)),
-            "no thread {prefix} in process {pid}: {threads:?}"
+            threads.iter().any(|(name, ..)| name == wanted),
+            "no thread {wanted} in process {pid}: {threads:?}"
         );
     }
     for (name, policy, priority) in &threads {
