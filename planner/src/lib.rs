@@ -364,29 +364,34 @@ pub fn same_way(
         return false;
     }
     let (segment, at, _) = closest_on_polyline(old_points, position);
-    let mut ring: Vec<[f64; 2]> = vec![position];
-    ring.extend_from_slice(new.points());
-    ring.extend(old_points[segment + 1..].iter().rev());
-    ring.push(at);
+    // Walked without a buffer: the planner allocates nothing per sample.
+    let ring = || {
+        std::iter::once(position)
+            .chain(new.points().iter().copied())
+            .chain(old_points[segment + 1..].iter().rev().copied())
+            .chain(std::iter::once(at))
+    };
     obstacles
         .iter()
-        .all(|o| winding_number(&ring, o.center_at(0.0)) == 0)
+        .all(|o| winding_number(ring(), o.center_at(0.0)) == 0)
 }
 
 /// How many times the closed polygon through `ring` winds round `p` (counterclockwise
 /// positive): the signed crossings of the ray from `p` towards +x.
-fn winding_number(ring: &[[f64; 2]], p: [f64; 2]) -> i32 {
-    let mut winding = 0;
-    for (i, &a) in ring.iter().enumerate() {
-        let b = ring[(i + 1) % ring.len()];
-        let side = (b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1]);
-        if a[1] <= p[1] && b[1] > p[1] && side > 0.0 {
-            winding += 1;
-        } else if a[1] > p[1] && b[1] <= p[1] && side < 0.0 {
-            winding -= 1;
-        }
-    }
-    winding
+fn winding_number(ring: impl Iterator<Item = [f64; 2]> + Clone, p: [f64; 2]) -> i32 {
+    let next = ring.clone().cycle().skip(1);
+    ring.zip(next)
+        .map(|(a, b)| {
+            let side = (b[0] - a[0]) * (p[1] - a[1]) - (p[0] - a[0]) * (b[1] - a[1]);
+            if a[1] <= p[1] && b[1] > p[1] && side > 0.0 {
+                1
+            } else if a[1] > p[1] && b[1] <= p[1] && side < 0.0 {
+                -1
+            } else {
+                0
+            }
+        })
+        .sum()
 }
 
 /// Distance from `position` to the route's polyline, m (infinite without one).
