@@ -53,7 +53,10 @@ fn fifo_granted() -> bool {
 ///   "Real time under load");
 /// - a `SCHED_FIFO` 99 thread pinned to each CPU, waking every 10 ms (the scheduler's own
 ///   tick; a 1 ms watcher preempted the load so often that it hid the load's effect): a
-///   wake-up more than 2 ms late is a stall of that CPU, whatever took it.
+///   wake-up more than 2 ms late is a stall of that CPU, whatever took it. The stall ended
+///   then; it began at any time since the watcher's last wake-up, which it slept through
+///   (a fresh-clone CI at 9edad08 had a tick without a command 9.8 ms before both CPUs'
+///   watchers woke 3.8 ms late).
 struct Stalls {
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     watchers: Vec<std::thread::JoinHandle<Vec<(u64, u64)>>>,
@@ -115,7 +118,8 @@ fn steal_jiffies() -> Vec<u64> {
         .collect()
 }
 
-/// Wake-ups of a `SCHED_FIFO` 99 thread on `cpu` more than 2 ms late.
+/// Wake-ups of a `SCHED_FIFO` 99 thread on `cpu` more than 2 ms late: each a stall within
+/// the wake-up before and this one.
 fn watch_cpu(cpu: usize, stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)> {
     use runtime::clock::{monotonic_ns, sleep_until_ns};
     // SAFETY: plain system calls on the calling thread, with parameters owned here.
@@ -130,14 +134,14 @@ fn watch_cpu(cpu: usize, stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)
         assert_eq!(libc::sched_setscheduler(0, libc::SCHED_FIFO, &param), 0);
     }
     let mut stalls = Vec::new();
-    let mut due = monotonic_ns() + 10 * MS;
+    let mut woke = monotonic_ns();
     while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        let (before, due) = (woke, woke + 10 * MS);
         sleep_until_ns(due);
-        let woke = monotonic_ns();
+        woke = monotonic_ns();
         if woke > due + 2 * MS {
-            stalls.push((due, woke));
+            stalls.push((before, woke));
         }
-        due = woke + 10 * MS;
     }
     stalls
 }
