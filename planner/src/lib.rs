@@ -482,16 +482,21 @@ mod tests {
         assert_eq!(stalled.plans, 3);
     }
 
-    #[test]
-    fn a_periodic_plan_is_taken_when_it_is_clearly_shorter_than_the_rest_of_the_route() {
-        // One obstacle on the line from the start to the goal; the robot drifts to the
-        // other side of it (strays allowed) until going round that side is shorter.
+    /// One obstacle on the line from the start (6, 0) to the goal; strays allowed.
+    fn one_obstacle_ahead() -> Validated {
         let mut s = Scenario::default();
         s.planner.kind = PlannerKind::Route;
         s.planner.stray_m = 100.0;
         s.robot.start = [6.0, 0.0, 0.0];
         s.obstacles = vec![Obstacle::fixed(3.0, 0.0, 1.0)];
-        let s = s.validated("test").unwrap();
+        s.validated("test").unwrap()
+    }
+
+    #[test]
+    fn a_periodic_plan_is_taken_when_it_is_clearly_shorter_than_the_rest_of_the_route() {
+        // One obstacle on the line from the start to the goal; the robot drifts to the
+        // other side of it (strays allowed) until going round that side is shorter.
+        let s = one_obstacle_ahead();
         let mut planner = Planner::new(&s);
         let first = planner.step(0, &estimate_at(6.0, 0.0));
         let side = first.points()[1][1].signum();
@@ -510,12 +515,7 @@ mod tests {
     fn a_periodic_plan_round_the_other_way_is_not_taken_unless_shorter_by_the_margin() {
         // As above, but the robot drifts only 0.4 m to the other side: going round that
         // side is then shorter by more than SWITCH_GAIN_M, less than 10 %.
-        let mut s = Scenario::default();
-        s.planner.kind = PlannerKind::Route;
-        s.planner.stray_m = 100.0;
-        s.robot.start = [6.0, 0.0, 0.0];
-        s.obstacles = vec![Obstacle::fixed(3.0, 0.0, 1.0)];
-        let s = s.validated("test").unwrap();
+        let s = one_obstacle_ahead();
         let mut planner = Planner::new(&s);
         let first = planner.step(0, &estimate_at(6.0, 0.0));
         let side = first.points()[1][1].signum();
