@@ -1,5 +1,7 @@
 //! A record file that survives any end of the run: what reaches the disk ends on a whole
-//! line, and it reaches it at least every [`FLUSH_PERIOD`].
+//! line, and it reaches it at least every [`FLUSH_PERIOD`]. The one exception is outside
+//! the program: a SIGKILL that lands inside a write of several pages stops it between two
+//! pages (Linux checks for a fatal signal per page), which may cut the last line.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
