@@ -368,7 +368,7 @@ fn records_survive(dir: &Path, kill_time_s: Option<f64>) {
         let text = std::fs::read_to_string(dir.join(file)).unwrap();
         let tail = &text[text.len().saturating_sub(120)..];
         assert!(
-            text.ends_with('\n') || text.len() % PAGE_BYTES == 0,
+            text.ends_with('\n') || text.len().is_multiple_of(PAGE_BYTES),
             "{file} ends inside a line, {} bytes, not at a page boundary: {tail:?}",
             text.len()
         );
