@@ -53,7 +53,7 @@ const RUN_SAMPLES: u32 = 600;
 
 #[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
 fn mpc_step(bencher: divan::Bencher, horizon: usize) {
-    let mut s = Scenario::default();
+    let mut s = Scenario::paper();
     s.mpc.horizon = horizon;
     bench_mpc(bencher, &s);
 }
@@ -67,7 +67,7 @@ fn mpc_step_paper_formulation(bencher: divan::Bencher) {
 
 /// The paper's scenario without the safety layers added to the paper's scheme.
 fn paper_formulation() -> Scenario {
-    Scenario::default()
+    Scenario::paper()
         .with_overrides(&[
             "mpc.terminal_safety=none".into(),
             "dfl.gatekeeper=false".into(),
@@ -79,7 +79,7 @@ fn paper_formulation() -> Scenario {
 /// condensed at N = 30.
 #[divan::bench(args = [8, 30], sample_count = RUN_SAMPLES)]
 fn mpc_step_other_qp_form(bencher: divan::Bencher, horizon: usize) {
-    let mut s = Scenario::default();
+    let mut s = Scenario::paper();
     s.mpc.horizon = horizon;
     s.mpc.qp_form = if protocol::QpForm::Auto.condensed(horizon) {
         protocol::QpForm::Sparse
@@ -91,7 +91,7 @@ fn mpc_step_other_qp_form(bencher: divan::Bencher, horizon: usize) {
 
 #[divan::bench(sample_count = RUN_SAMPLES)]
 fn mpc_step_five_obstacles(bencher: divan::Bencher) {
-    let mut s = Scenario::default();
+    let mut s = Scenario::paper();
     s.obstacles.extend([
         Obstacle::fixed(-3.0, 2.0, 0.5),
         Obstacle::fixed(6.0, -3.0, 0.8),
@@ -103,7 +103,7 @@ fn mpc_step_five_obstacles(bencher: divan::Bencher) {
 
 #[divan::bench(sample_count = RUN_SAMPLES)]
 fn nonlinear_mpc_step(bencher: divan::Bencher) {
-    let mut s = Scenario::default();
+    let mut s = Scenario::paper();
     s.mpc.formulation = protocol::Formulation::Nonlinear;
     s.mpc.terminal_safety = protocol::TerminalSafety::None;
     bench_mpc(bencher, &s);
@@ -133,7 +133,7 @@ fn bench_dfl(bencher: divan::Bencher, scenario: &Scenario) {
 
 #[divan::bench]
 fn dfl_step(bencher: divan::Bencher) {
-    bench_dfl(bencher, &Scenario::default());
+    bench_dfl(bencher, &Scenario::paper());
 }
 
 #[divan::bench]
@@ -143,7 +143,7 @@ fn dfl_step_without_safety_check(bencher: divan::Bencher) {
 
 #[divan::bench]
 fn ekf_step(bencher: divan::Bencher) {
-    let s = Scenario::default()
+    let s = Scenario::paper()
         .with_overrides(&["plant.noise_variance=0.05".into()])
         .expect("valid override");
     let mut plant = Plant::new(&s);
@@ -162,7 +162,7 @@ fn ekf_step(bencher: divan::Bencher) {
 
 #[divan::bench]
 fn plant_step(bencher: divan::Bencher) {
-    let s = Scenario::default();
+    let s = Scenario::paper();
     let mut plant = Plant::new(&s);
     let dt = s.timing.dt_s();
     bencher.bench_local(|| plant.step(0.5, 0.1, dt));

@@ -348,6 +348,13 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["planner.speed_m_s=0"], "planner.speed_m_s"),
         (&["planner.stray_m=0"], "planner.stray_m"),
         (&["planner.switch_margin=-0.1"], "planner.switch_margin"),
+        (&["robot.goal=[1, 2, 3, 4]"], "robot.goal"),
+        (
+            &["robot.goal_yaw_tolerance_rad=0"],
+            "robot.goal_yaw_tolerance_rad",
+        ),
+        (&["robot.final_approach=dock"], "robot.final_approach"),
+        (&["mpc.approach_r_diag=[0, 1]"], "mpc.approach_r_diag.0"),
         (&["obstacles.0.x=nan"], "obstacles.0.x"),
         (&["obstacles.0.y=inf"], "obstacles.0.y"),
         (&["obstacles.0.radius=-1"], "obstacles.0.radius"),

@@ -31,7 +31,8 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     std::fs::write(
         &file,
         format!(
-            "name = \"python-estimator\"\nduration_s = 30.0\n\n[plant]\nnoise_variance = \
+            "name = \"python-estimator\"\nduration_s = 30.0\n\n[robot]\nfinal_approach = \
+             \"paper\"\n\n[plant]\nnoise_variance = \
              {noise_variance}\n\n[[swap]]\ntime_s = 8.0\nrole = \"estimator\"\ncommand = \
              [{:?}, {:?}]\n",
             python(),

@@ -8,10 +8,12 @@ use record::schema::Table;
 use std::path::Path;
 use std::time::Duration;
 
-/// Writes a scenario of the paper with `extra` appended; returns its path.
+/// Writes a scenario of the paper with `extra` appended (and the paper's arrival: the
+/// swaps go on until `duration_s`); returns its path.
 fn scenario_file(dir: &Path, extra: &str) -> String {
     let file = dir.join("scenario.toml");
-    std::fs::write(&file, format!("name = \"swaps\"\n{extra}")).unwrap();
+    let paper_arrival = "[robot]\nfinal_approach = \"paper\"\n";
+    std::fs::write(&file, format!("name = \"swaps\"\n{extra}\n{paper_arrival}")).unwrap();
     file.to_str().unwrap().to_string()
 }
 

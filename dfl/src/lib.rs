@@ -123,6 +123,66 @@ pub struct Dfl {
     /// Sample of the newest plan taken (offered, committed or given up).
     newest: Option<u64>,
     interventions: u32,
+    /// Where the robot is held once it arrives (`robot.final_approach = "settle"`).
+    goal_hold: Option<GoalHold>,
+    /// Holding the robot at its goal ([`GoalHold`]).
+    holding: bool,
+}
+
+/// Holding the robot at its goal (`robot.final_approach = "settle"`, docs/reach.md): a
+/// robot whose estimate is within the goal tolerance and whose speed is below
+/// [`protocol::HOLD_SPEED_M_S`] is braked to rest and held, unless the plan flown would
+/// take it out of the tolerance or the safety check finds that staying would be run into
+/// (a person walking at it): then it flies its plans, out of the way, as any robot does.
+/// An estimate beyond twice the tolerance (the robot pushed away) lets it go too.
+/// With a goal heading (`robot.goal = [x, y, theta]`) the held robot turns in place to it
+/// ([`GoalHold::turn`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GoalHold {
+    pub goal: protocol::Goal,
+    pub tolerance_m: f64,
+    pub yaw_tolerance_rad: f64,
+}
+
+/// How fast a held robot turns to its goal heading per radian it is off, 1/s.
+pub const TURN_GAIN_PER_S: f64 = 2.0;
+/// The fastest a held robot turns, rad/s.
+pub const TURN_RATE_RAD_S: f64 = 1.0;
+
+impl GoalHold {
+    /// The turn rate `U2` (rad/s) of a held robot heading `theta_rad`: towards the goal
+    /// heading, proportional to how far off it is up to [`TURN_RATE_RAD_S`], until within
+    /// half the yaw tolerance (so that it ends within the tolerance, not at its edge);
+    /// none without a goal heading.
+    pub fn turn(&self, theta_rad: f64) -> f64 {
+        let Some(yaw) = self.goal.yaw_rad else {
+            return 0.0;
+        };
+        let off = protocol::wrap_angle(yaw - theta_rad);
+        if off.abs() <= 0.5 * self.yaw_tolerance_rad {
+            return 0.0;
+        }
+        (TURN_GAIN_PER_S * off).clamp(-TURN_RATE_RAD_S, TURN_RATE_RAD_S)
+    }
+
+    /// Whether `plan` takes the robot out of the goal tolerance: the MPC, which sees the
+    /// obstacles' predicted discs, moves a robot at its goal away only to keep clear of
+    /// one (near its goal it drives towards it).
+    pub fn leaves(&self, plan: &Plan) -> bool {
+        plan.z[..=plan.horizon as usize]
+            .iter()
+            .any(|z| protocol::distance([z[0], z[2]], self.goal.position) > self.tolerance_m)
+    }
+
+    /// Whether a robot at `position` moving at `zeta` (m/s) is held, if it `was`.
+    pub fn holds(&self, was: bool, position: [f64; 2], zeta: f64) -> bool {
+        let distance_m = protocol::distance(position, self.goal.position);
+        if was {
+            distance_m <= 2.0 * self.tolerance_m
+        } else {
+            distance_m <= self.tolerance_m && zeta.abs() < protocol::HOLD_SPEED_M_S
+        }
+    }
 }
 
 /// What the DFL flies when the new plan (if any) is not committed.
@@ -208,6 +268,13 @@ impl Dfl {
             flown_unsafe: None,
             newest: None,
             interventions: 0,
+            goal_hold: (scenario.robot.final_approach == protocol::FinalApproach::Settle)
+                .then_some(GoalHold {
+                    goal: scenario.robot.goal,
+                    tolerance_m: scenario.robot.goal_tolerance_m,
+                    yaw_tolerance_rad: scenario.robot.goal_yaw_tolerance_rad,
+                }),
+            holding: false,
         }
     }
 
@@ -343,12 +410,21 @@ impl Dfl {
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let checked = self.check(estimate, tick);
         let sample = self.timing.sample_of(tick);
-        let theta = estimate.state[2];
+        let [x, y, theta, _] = estimate.state;
+        if let Some(hold) = self.goal_hold {
+            let leaves = self.active.is_some_and(|plan| hold.leaves(&plan));
+            self.holding = hold.holds(self.holding, [x, y], self.zeta)
+                && !leaves
+                && !self.staying_touches(estimate, tick);
+        }
         let chosen = self
             .active
             .as_ref()
+            .filter(|_| !self.holding)
             .and_then(|p| covering_element(p, sample).map(|i| (p.v[i], p.sample)));
-        let braking = if self.safety_braking {
+        let braking = if self.holding {
+            CommandMode::Hold
+        } else if self.safety_braking {
             CommandMode::SafetyBrake
         } else {
             CommandMode::Brake
@@ -369,13 +445,36 @@ impl Dfl {
                 };
                 (u, v, mode, plan_sample)
             }
-            None => (self.braking_input(), [0.0; 2], braking, 0),
+            None => {
+                let [u1, _] = self.braking_input();
+                let turn = self
+                    .goal_hold
+                    .filter(|_| self.holding)
+                    .map(|h| h.turn(theta));
+                ([u1, turn.unwrap_or(0.0)], [0.0; 2], braking, 0)
+            }
         };
         let mut act = self.command(tick, u, v, mode, plan_sample);
         act.intervention = checked.intervention as u32;
         act.intervention_plan = checked.plan_sample;
         act.intervention_clearance_m = checked.clearance_m;
         act
+    }
+
+    /// Whether the safety check finds that braking to rest from `estimate` at `tick` would
+    /// be run into (a person walking at the robot): a held robot then flies its plans.
+    fn staying_touches(&self, estimate: &Estimate, tick: u64) -> bool {
+        let Some(gatekeeper) = &self.gatekeeper else {
+            return false;
+        };
+        let now = Moment {
+            sample: self.timing.sample_of(tick),
+            into_sample_s: self.timing.time_into_sample_s(tick),
+        };
+        let [x, y, theta, _] = estimate.state;
+        let z = protocol::phi([x, y, theta, self.zeta]);
+        let grow = gatekeeper.keep_growth(estimate.position_sigma());
+        gatekeeper.brake_check(z, now, grow).is_some()
     }
 
     /// A braking command for `tick` without an estimate (the estimator is silent): braking

@@ -146,7 +146,7 @@ fn covering_element_is_the_age_of_the_plan_within_its_horizon() {
 
 #[test]
 fn a_late_plan_is_held_until_the_sample_it_arrived_in() {
-    let mut dfl = Dfl::new(&Scenario::default());
+    let mut dfl = Dfl::new(&paper_arrival());
     let mut inbox = PlanInbox::new(0.05);
     let mut p = plan(100, 8, PlanStatus::Solved);
     // Lockstep: a solve of 2.5 Ts arrives 3 whole samples late.
@@ -226,7 +226,7 @@ fn a_missing_or_failed_plan_is_a_miss_with_its_status() {
 
 #[test]
 fn a_plan_older_than_its_horizon_is_exhausted_and_the_dfl_brakes() {
-    let mut dfl = Dfl::new(&Scenario::default());
+    let mut dfl = Dfl::new(&paper_arrival());
     assert!(dfl.offer(&plan(10, 8, PlanStatus::Solved)));
     let est = Estimate::default();
     assert_eq!(
@@ -254,6 +254,14 @@ fn older_or_failed_plans_never_replace_the_active_one() {
     let a = dfl.step(&est, 6 * 10);
     assert_eq!(a.mode(), Some(CommandMode::Shifted));
     assert_eq!((a.plan_sample, a.v), (5, [1.0, 0.0]));
+}
+
+/// The default scenario with the paper's arrival: a robot at rest at its goal (the
+/// origin) flies its plans rather than being held there.
+fn paper_arrival() -> Scenario {
+    let mut s = Scenario::default();
+    s.robot.final_approach = protocol::FinalApproach::Paper;
+    s
 }
 
 /// A robot at the origin heading along x at 1 m/s, an obstacle whose edge is 1 m
@@ -481,7 +489,18 @@ fn when_every_choice_touches_the_dfl_takes_the_one_that_keeps_the_most_clearance
         ..Scenario::default()
     };
     s.robot.zeta0 = 0.0;
-    let mut dfl = Dfl::new(&s);
+    // At its goal: a robot that settles there is not held where it would be run into.
+    for arrival in [
+        protocol::FinalApproach::Paper,
+        protocol::FinalApproach::Settle,
+    ] {
+        s.robot.final_approach = arrival;
+        dodges_the_person(&s);
+    }
+}
+
+fn dodges_the_person(s: &Scenario) {
+    let mut dfl = Dfl::new(s);
     dfl.set_tracks(&one_track(0.0, [-0.5, 0.0], [1.0, 0.0]));
     let at_rest = Estimate::default();
     let mut towards = plan(0, 20, PlanStatus::Solved);
@@ -530,4 +549,76 @@ pub(crate) fn one_track(time_s: f64, center: [f64; 2], velocity: [f64; 2]) -> pr
         tracks,
         ..protocol::Tracks::default()
     }
+}
+
+#[test]
+fn a_slow_robot_within_the_goal_tolerance_is_braked_to_rest_and_held_until_pushed_away() {
+    // The default scenario settles at its goal, the origin, within 0.1 m.
+    let mut dfl = Dfl::new(&Scenario::default());
+    dfl.adopt_zeta(0.05);
+    let at = |x: f64| Estimate {
+        state: [x, 0.0, 0.0, 0.0],
+        ..Estimate::default()
+    };
+    let flown = |a: Actuation| a.mode() != Some(CommandMode::Hold);
+    dfl.offer(&along_x(0, 1.0));
+    assert!(flown(dfl.step(&at(0.05), 0)), "0.05 m/s: too fast to hold");
+    dfl.adopt_zeta(0.01);
+    assert!(flown(dfl.step(&at(0.15), 1)), "slow, 0.15 m out");
+    let held = dfl.step(&at(0.05), 2);
+    assert_eq!(held.mode(), Some(CommandMode::Hold));
+    assert_eq!(
+        (held.linearizing_input[1], held.zeta),
+        (0.0, 0.0),
+        "braked to rest"
+    );
+    // A plan goes on being offered; the robot stays held within twice the tolerance.
+    dfl.offer(&along_x(1, 1.0));
+    let held = dfl.step(&at(0.19), 10);
+    assert_eq!(
+        (held.mode(), held.u1, held.u2),
+        (Some(CommandMode::Hold), 0.0, 0.0)
+    );
+    assert!(flown(dfl.step(&at(0.21), 11)), "let go");
+    // A plan that takes the robot out of the tolerance (out of a person's way) is flown.
+    let mut away = along_x(2, 1.0);
+    away.z[3] = [0.5, 0.0, 0.0, 0.0];
+    dfl.offer(&away);
+    assert!(
+        flown(dfl.step(&at(0.05), 20)),
+        "the plan leaves the tolerance"
+    );
+    // With a goal heading the held robot turns in place to it, then stops turning.
+    let mut facing = Scenario::default();
+    facing.robot.goal.yaw_rad = Some(1.0);
+    let mut dfl = Dfl::new(&facing);
+    let turning = |dfl: &mut Dfl, theta: f64, tick| {
+        let estimate = Estimate {
+            state: [0.0, 0.0, theta, 0.0],
+            ..Estimate::default()
+        };
+        let a = dfl.step(&estimate, tick);
+        assert_eq!((a.mode(), a.zeta), (Some(CommandMode::Hold), 0.0));
+        a.u2
+    };
+    assert_eq!(
+        turning(&mut dfl, 0.0, 0),
+        TURN_RATE_RAD_S,
+        "1 rad off: at the fastest"
+    );
+    assert!(
+        (turning(&mut dfl, 0.8, 1) - 0.4).abs() < 1e-12,
+        "0.2 rad off"
+    );
+    assert!(
+        (turning(&mut dfl, 1.3, 2) + 0.6).abs() < 1e-12,
+        "past it: back"
+    );
+    assert_eq!(turning(&mut dfl, 1.04, 3), 0.0, "within half the tolerance");
+    // The paper's arrival holds nothing.
+    let mut paper = Scenario::default();
+    paper.robot.final_approach = protocol::FinalApproach::Paper;
+    let mut dfl = Dfl::new(&paper);
+    dfl.offer(&along_x(0, 1.0));
+    assert!(flown(dfl.step(&at(0.0), 0)));
 }

@@ -22,8 +22,10 @@
 //! - [`program`]: every row of one step's program, in order;
 //! - [`solver`]: clarabel, built once, values updated each step;
 //! - [`follow`]: the reference along a route;
-//! - [`linear`], [`nonlinear`]: the two MPCs; [`task`]: the role.
+//! - [`linear`], [`nonlinear`]: the two MPCs; [`approach`]: the final approach's;
+//!   [`task`]: the role.
 
+pub mod approach;
 pub mod assembly;
 pub mod brake;
 pub mod discs;
@@ -46,10 +48,11 @@ pub use task::MpcTask;
 pub use error::MpcError;
 use protocol::{Formulation, Plan, PlanStatus, Scenario};
 
-/// The MPC role: the paper's linear scheme, or the nonlinear baseline
-/// (`mpc.formulation`).
+/// The MPC role: the paper's linear scheme (with the MPC of its final approach,
+/// [`approach`]), or the nonlinear baseline (`mpc.formulation`), which keeps the paper's
+/// weights to the end.
 pub enum Mpc {
-    Linear(Box<LinearMpc>),
+    Linear(Box<LinearMpc>, Option<Box<approach::Approach>>),
     Nonlinear(Box<nonlinear::NonlinearMpc>),
 }
 
@@ -67,7 +70,10 @@ impl Mpc {
             scenario
         };
         Ok(match scenario.mpc.formulation {
-            Formulation::Linear => Mpc::Linear(Box::new(LinearMpc::new(scenario)?)),
+            Formulation::Linear => Mpc::Linear(
+                Box::new(LinearMpc::new(scenario)?),
+                approach::Approach::new(scenario)?.map(Box::new),
+            ),
             Formulation::Nonlinear => Mpc::Nonlinear(Box::new(nonlinear::NonlinearMpc::new(
                 scenario,
                 &model::terminal_weight(scenario)?,
@@ -78,17 +84,17 @@ impl Mpc {
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
     /// `position_sigma_m` of its position. The header is left for the caller to fill.
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
-        match self {
-            Mpc::Linear(m) => m.step(sample, x_bar, position_sigma_m),
-            Mpc::Nonlinear(m) => m.step(sample, x_bar, position_sigma_m),
-        }
+        self.step_on_route(sample, x_bar, position_sigma_m, None)
     }
 
     /// Takes the tracker's newest tracks ([`LinearMpc::set_tracks`]; the nonlinear
     /// baseline runs with obstacles at rest only).
     pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
-        if let Mpc::Linear(m) = self {
+        if let Mpc::Linear(m, approach) = self {
             m.set_tracks(tracks);
+            if let Some(a) = approach {
+                a.mpc.set_tracks(tracks);
+            }
         }
     }
 
@@ -99,7 +105,7 @@ impl Mpc {
     /// holds. Changes no plan.
     pub fn warm_up(&mut self, dry_step_max_ns: u64, cancel: &protocol::task::Cancel) {
         match self {
-            Mpc::Linear(m) => m.warm_up(dry_step_max_ns, cancel),
+            Mpc::Linear(m, approach) => active(m, approach).warm_up(dry_step_max_ns, cancel),
             Mpc::Nonlinear(m) => m.warm_up(cancel),
         }
     }
@@ -107,7 +113,12 @@ impl Mpc {
     /// Forgets the previous plan: the next step starts cold.
     pub fn reset(&mut self) {
         match self {
-            Mpc::Linear(m) => m.reset(),
+            Mpc::Linear(m, approach) => {
+                m.reset();
+                if let Some(a) = approach {
+                    a.mpc.reset();
+                }
+            }
             Mpc::Nonlinear(m) => m.reset(),
         }
     }
@@ -123,10 +134,31 @@ impl Mpc {
         position_sigma_m: f64,
         route: Option<&protocol::Route>,
     ) -> Plan {
-        if let Mpc::Linear(m) = self {
-            m.follow(route, [x_bar[0], x_bar[1]]);
+        match self {
+            Mpc::Linear(m, approach) => {
+                let position = [x_bar[0], x_bar[1]];
+                if let Some(a) = approach
+                    && a.update(position, route)
+                {
+                    // The MPC handed over to starts cold: its last plan is of another time.
+                    a.mpc.reset();
+                    m.reset();
+                }
+                let plan = {
+                    let active = active(m, approach);
+                    active.follow(route, position);
+                    active.step(sample, x_bar, position_sigma_m)
+                };
+                if plan.is_solved() || !approach.as_ref().is_some_and(|a| a.on) {
+                    return plan;
+                }
+                // The approach's program failed (its terminal set about the goal is out
+                // of reach: a person drives the robot off it): the paper's weights plan.
+                m.follow(route, position);
+                m.step(sample, x_bar, position_sigma_m)
+            }
+            Mpc::Nonlinear(m) => m.step(sample, x_bar, position_sigma_m),
         }
-        self.step(sample, x_bar, position_sigma_m)
     }
 
     /// Applies the scenario's injected faults to plan(k): a forced failure (reported as
@@ -138,5 +170,16 @@ impl Mpc {
             self.reset();
         }
         plan.injected_delay_ns = faults.mpc_delay_ns(plan.sample);
+    }
+}
+
+/// The linear MPC that steps next: the final approach's while the robot is on it.
+fn active<'a>(
+    m: &'a mut LinearMpc,
+    approach: &'a mut Option<Box<approach::Approach>>,
+) -> &'a mut LinearMpc {
+    match approach {
+        Some(a) if a.on => &mut a.mpc,
+        _ => m,
     }
 }

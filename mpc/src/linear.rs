@@ -132,7 +132,7 @@ impl LinearMpc {
         let (a, b) = model::discretize(scenario.timing.ts_s);
         let terminal_weight = model::dare(&a, &b, &q_matrix(scenario), &r_matrix(scenario))?;
         let k = model::lqr_gain(&a, &b, &r_matrix(scenario), &terminal_weight)?;
-        let goal = scenario.robot.goal;
+        let goal = scenario.robot.goal.position;
         let statics = StaticData::of(scenario, a, b, k);
         let route_speed = follow::route_speed(scenario, &statics.terminal_set);
         let layout = Layout {

@@ -130,7 +130,7 @@ impl NonlinearMpc {
     /// `terminal_weight_z` is the linear scheme's `Q_bar` (on `z`).
     pub fn new(scenario: &Scenario, terminal_weight_z: &nalgebra::Matrix4<f64>) -> NonlinearMpc {
         let c = &scenario.mpc;
-        let goal = scenario.robot.goal;
+        let goal = scenario.robot.goal.position;
         let n = c.horizon;
         let cancel = CancelSlot::default();
         NonlinearMpc {

@@ -110,7 +110,7 @@ impl StaticData {
         b: nalgebra::Matrix4x2<f64>,
         k: Matrix2x4<f64>,
     ) -> StaticData {
-        let (c, goal) = (&scenario.mpc, scenario.robot.goal);
+        let (c, goal) = (&scenario.mpc, scenario.robot.goal.position);
         let position_box = [
             [c.position_min[0] - goal[0], c.position_max[0] - goal[0]],
             [c.position_min[1] - goal[1], c.position_max[1] - goal[1]],

@@ -269,7 +269,7 @@ mod tests {
             &terminal_weight(scenario).unwrap(),
         )
         .unwrap();
-        let goal = scenario.robot.goal;
+        let goal = scenario.robot.goal.position;
         let position_box =
             [0, 1].map(|i| [c.position_min[i] - goal[i], c.position_max[i] - goal[i]]);
         let rows = prune_redundant(terminal_set(
@@ -285,7 +285,12 @@ mod tests {
     fn relative_z0(scenario: &Scenario) -> [f64; 4] {
         let r = &scenario.robot;
         let z = protocol::phi([r.start[0], r.start[1], r.start[2], r.zeta0]);
-        [z[0] - r.goal[0], z[1], z[2] - r.goal[1], z[3]]
+        [
+            z[0] - r.goal.position[0],
+            z[1],
+            z[2] - r.goal.position[1],
+            z[3],
+        ]
     }
 
     /// Issue 27's reduced world: 14.8 m from the goal with a gentle input box.
@@ -365,7 +370,7 @@ mod tests {
         let s = Scenario::default();
         let (rows, k, closed_loop) = set_of(&s);
         let c = &s.mpc;
-        let goal = s.robot.goal;
+        let goal = s.robot.goal.position;
         let position_box =
             [0, 1].map(|i| c.position_min[i] - goal[i]..=c.position_max[i] - goal[i]);
         // Eqs. (45, 47) about `sub`, by simulation: the LQR closed loop about `s_hat` from

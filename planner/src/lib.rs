@@ -91,7 +91,7 @@ impl Planner {
             graph: TangentGraph::with_capacity(scenario.obstacles.len()),
             obstacles: scenario.known_obstacles().cloned().collect(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
-            goal: scenario.robot.goal,
+            goal: scenario.robot.goal.position,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
             bounds: [
                 [m.position_min[0], m.position_max[0]],
@@ -166,7 +166,9 @@ impl Planner {
         if self.blocked(position, growth_m) {
             return Some(RouteSwitch::Blocked);
         }
-        let left_m = remaining_length(&self.route, position);
+        // What is left of the current route as it would be planned now: a route planned
+        // under more uncertainty (the start's) is not compared by its wider detours.
+        let left_m = taut_remaining_length(&self.route, position, &self.discs);
         let new_m = self.candidate.length_m;
         if same_way(&self.route, &self.candidate, position, &self.obstacles) {
             (new_m < left_m - SWITCH_GAIN_M).then_some(RouteSwitch::SameWay)
@@ -339,14 +341,32 @@ fn arc_pieces(sweep: f64, step: f64) -> usize {
     ((sweep.abs() / step).ceil() as usize).max(1)
 }
 
-/// The length of a route from `position`: to its closest point, then along it, m.
-pub fn remaining_length(route: &Route, position: [f64; 2]) -> f64 {
+/// The length of what is left of `route` from `position` pulled taut against `discs`, m:
+/// to the route's closest point, then each leg straight to the farthest waypoint it
+/// reaches without entering a disc. A route planned round obstacles grown more than
+/// `discs` (under the larger uncertainty of the start) cuts its corners; one planned
+/// round `discs` keeps its length.
+pub fn taut_remaining_length(route: &Route, position: [f64; 2], discs: &[Disc]) -> f64 {
     let points = route.points();
     if points.len() < 2 {
         return f64::INFINITY;
     }
+    let clear = |a: [f64; 2], b: [f64; 2]| {
+        discs
+            .iter()
+            .all(|d| protocol::segment_distance(a, b, d.center) >= d.radius - 1e-9)
+    };
     let (segment, at, off) = closest_on_polyline(points, position);
-    off + distance(at, points[segment + 1]) + polyline_length(&points[segment + 1..])
+    let (mut from, mut next, mut length_m) = (at, segment + 1, off);
+    while next < points.len() {
+        let reach = (next + 1..points.len())
+            .rev()
+            .find(|&j| clear(from, points[j]))
+            .unwrap_or(next);
+        length_m += distance(from, points[reach]);
+        (from, next) = (points[reach], reach + 1);
+    }
+    length_m
 }
 
 /// Whether `new`, planned from `position`, goes round every obstacle the same way as what
@@ -435,7 +455,7 @@ mod tests {
         assert!(route.is_ok());
         let points = route.points();
         assert_eq!(points[0], [7.0, 7.0]);
-        assert_eq!(*points.last().unwrap(), s.robot.goal);
+        assert_eq!(*points.last().unwrap(), s.robot.goal.position);
         // Grown by kappa sigma (sigma from a zero covariance: 0) and the clearance.
         for w in points.windows(2) {
             for o in &obstacles {
@@ -524,7 +544,8 @@ mod tests {
             route = planner.step(k, &estimate_at(6.0, -side * 0.02 * k as f64));
         }
         let at = [6.0, -side * 0.4];
-        let (left_m, other) = (remaining_length(&route, at), planner.candidate);
+        let left_m = taut_remaining_length(&route, at, &planner.discs);
+        let other = planner.candidate;
         assert_eq!(
             other.points()[1][1].signum(),
             -side,
@@ -561,6 +582,23 @@ mod tests {
         };
         route.waypoints[..points.len()].copy_from_slice(points);
         route
+    }
+
+    #[test]
+    fn what_is_left_of_a_route_is_measured_pulled_taut_round_the_obstacles_as_grown_now() {
+        // Over a disc at the origin, planned round it grown to 1.25 m.
+        let route = route_through(&[[-3.0, 0.0], [-1.0, 1.3], [1.0, 1.3], [3.0, 0.0]]);
+        let along = 2.0 * 2.0_f64.hypot(1.3) + 2.0;
+        let taut =
+            |radius| taut_remaining_length(&route, [-3.0, 0.0], &[Disc::still([0.0; 2], radius)]);
+        assert!((taut(1.25) - along).abs() < 1e-12, "no corner to cut");
+        // Grown to 0.9 m now: straight from the start to the third waypoint (0.93 m from
+        // the centre), then on.
+        let cut = 4.0_f64.hypot(1.3) + 2.0_f64.hypot(1.3);
+        assert!((taut(0.9) - cut).abs() < 1e-12, "{} m", taut(0.9));
+        // From off the route: the way to it first.
+        let off = taut_remaining_length(&route, [-3.0, -0.5], &[Disc::still([0.0; 2], 1.25)]);
+        assert!((off - along - 0.5).abs() < 1e-12);
     }
 
     #[test]

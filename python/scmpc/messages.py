@@ -41,7 +41,14 @@ REJECTIONS = {
     "malformed": 7,
 }
 PLAN_STATUSES = {"solved": 0, "infeasible": 1, "max_iterations": 2, "numerical_error": 3}
-COMMAND_MODES = {"nominal": 0, "shifted": 1, "brake": 2, "zeta_guard": 3, "safety_brake": 4}
+COMMAND_MODES = {
+    "nominal": 0,
+    "shifted": 1,
+    "brake": 2,
+    "zeta_guard": 3,
+    "safety_brake": 4,
+    "hold": 5,
+}
 INTERVENTIONS = {"none": 0, "plan_refused": 1, "committed_unsafe": 2, "least_unsafe": 3}
 ROUTE_STATUSES = {"ok": 0, "no_route": 1}
 REPLAN_REASONS = {"start": 0, "period": 1, "stall": 2, "stray": 3}

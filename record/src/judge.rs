@@ -1,7 +1,7 @@
 //! The judge: decides how a run ends from what was recorded (the true pose tick by tick,
 //! and the routes): collision, stall, goal, no route, and at the end reached or timed out.
 
-use protocol::{GroundTruth, Obstacle, ObstacleGrowth, Route, Scenario};
+use protocol::{Actuation, CommandMode, GroundTruth, Obstacle, ObstacleGrowth, Route, Scenario};
 use serde::Serialize;
 use std::collections::VecDeque;
 
@@ -187,11 +187,21 @@ pub struct Judge {
     contact: Option<bool>,
     /// The robot's commanded forward speed at the newest tick, m/s ([`Judge::tick`]).
     commanded_speed_m_s: f64,
+    /// The DFL holds the robot at its goal at the newest tick, at rest (not turning to the
+    /// goal heading; [`Judge::tick`]).
+    holding: bool,
+    /// The run ends `reached` once the DFL holds the robot within the goal tolerance
+    /// (`robot.final_approach = "settle"` without `robot.hold_at_goal`).
+    ends_at_hold: bool,
     /// Start of the current stay within the goal tolerance.
     pub inside_goal_since_s: Option<f64>,
     /// The final approach.
     pub arrival: Arrival,
     pub last_distance_to_goal_m: f64,
+    /// How far the newest true heading is from the goal's, rad (`None`: no goal heading).
+    pub last_heading_error_rad: Option<f64>,
+    goal_yaw_rad: Option<f64>,
+    goal_yaw_tolerance_rad: f64,
     /// First time the robot was more than [`DEVIATION_M`] off the straight start-goal
     /// line, s: how early the constraint makes it swerve (the paper's Fig. 4 (a)-(c)).
     pub deviation_time_s: Option<f64>,
@@ -210,7 +220,7 @@ impl Judge {
             obstacles: scenario.obstacles.clone(),
             footprint: ObstacleGrowth::footprint(scenario),
             start: [scenario.robot.start[0], scenario.robot.start[1]],
-            goal: scenario.robot.goal,
+            goal: scenario.robot.goal.position,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
             window: VecDeque::new(),
             min_clearance_m: f64::INFINITY,
@@ -219,9 +229,15 @@ impl Judge {
             contacts_at_rest: 0,
             contact: None,
             commanded_speed_m_s: 0.0,
+            holding: false,
+            ends_at_hold: scenario.robot.final_approach == protocol::FinalApproach::Settle
+                && !scenario.robot.hold_at_goal,
             inside_goal_since_s: None,
             arrival: Arrival::new(scenario.robot.goal_tolerance_m),
             last_distance_to_goal_m: f64::INFINITY,
+            last_heading_error_rad: None,
+            goal_yaw_rad: scenario.robot.goal.yaw_rad,
+            goal_yaw_tolerance_rad: scenario.robot.goal_yaw_tolerance_rad,
             deviation_time_s: None,
             pinned_within_m: pinned_within_m(scenario),
             last_position: [scenario.robot.start[0], scenario.robot.start[1]],
@@ -290,12 +306,15 @@ impl Judge {
         clearance_m(&self.obstacles, &self.footprint, t_s, [x, y])
     }
 
-    /// A tick recorded: the truth at its start, and the forward speed the DFL commands
-    /// over it (its ζ), m/s. Returns an outcome that ends the run now (a collision or a
-    /// stall).
-    pub fn tick(&mut self, truth: &GroundTruth, commanded_speed_m_s: f64) -> Option<Outcome> {
-        self.commanded_speed_m_s = commanded_speed_m_s;
-        self.observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+    /// A tick recorded: the truth at its start, and the DFL's command over it (its ζ, the
+    /// forward speed, and whether it holds the robot at its goal). Returns an outcome that
+    /// ends the run now (a collision, a stall, or the robot held within the goal
+    /// tolerance).
+    pub fn tick(&mut self, truth: &GroundTruth, act: &Actuation) -> Option<Outcome> {
+        self.commanded_speed_m_s = act.zeta;
+        // Held, and done turning to the goal heading.
+        self.holding = act.mode() == Some(CommandMode::Hold) && act.u2 == 0.0;
+        self.observe_pose(truth)
     }
 
     /// A route recorded: a planner that found none ends the run.
@@ -307,12 +326,21 @@ impl Judge {
     /// there is one) is judged too.
     pub fn end_of_run(&mut self, truth: Option<&GroundTruth>) -> Outcome {
         truth
-            .and_then(|truth| self.tick(truth, self.commanded_speed_m_s))
+            .and_then(|truth| self.observe_pose(truth))
             .unwrap_or_else(|| self.final_outcome())
     }
 
+    /// Observes the true pose; returns an outcome that ends the run now ([`Judge::observe`]).
+    fn observe_pose(&mut self, truth: &GroundTruth) -> Option<Outcome> {
+        self.last_heading_error_rad = self
+            .goal_yaw_rad
+            .map(|yaw| protocol::wrap_angle(truth.pose[2] - yaw).abs());
+        self.observe(truth.header.time_s, truth.pose[0], truth.pose[1])
+    }
+
     /// Observes the true position at time `t_s`; returns an outcome that ends the run now
-    /// (a collision or a stall).
+    /// (a collision, a stall, or the robot held at its goal, within the goal tolerance
+    /// and, with a goal heading, the yaw tolerance).
     pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
         let clearance = self.clearance(t_s, x, y);
         self.min_clearance_m = self.min_clearance_m.min(clearance);
@@ -371,6 +399,12 @@ impl Judge {
             .window
             .iter()
             .all(|&(_, wx, wy)| (wx - x).hypot(wy - y) < STALL_DISTANCE_M);
+        let facing = self
+            .last_heading_error_rad
+            .is_none_or(|e| e <= self.goal_yaw_tolerance_rad);
+        if self.ends_at_hold && self.holding && facing && distance <= self.goal_tolerance_m {
+            return Some(Outcome::Reached);
+        }
         let stalled = full && still && distance > self.goal_tolerance_m;
         (stalled && !self.waits_for_moving(t_s, x, y)).then_some(Outcome::Stalled)
     }
@@ -436,6 +470,79 @@ pub fn clearance_m(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A command at forward speed `zeta`, m/s.
+    fn moving(zeta: f64) -> Actuation {
+        Actuation {
+            zeta,
+            ..Actuation::default()
+        }
+    }
+
+    /// The truth at `t_s`, at `x` on the x axis.
+    fn at(t_s: f64, x: f64) -> GroundTruth {
+        GroundTruth {
+            pose: [x, 0.0, 0.0],
+            header: protocol::Header {
+                time_s: t_s,
+                ..protocol::Header::default()
+            },
+        }
+    }
+
+    #[test]
+    fn a_robot_held_within_the_goal_tolerance_ends_the_run_reached_unless_it_holds_on() {
+        let held = Actuation {
+            mode: CommandMode::Hold as u32,
+            ..Actuation::default()
+        };
+        let mut m = Judge::new(&Scenario::default());
+        assert_eq!(m.tick(&at(1.0, 0.05), &moving(0.01)), None, "not held yet");
+        assert_eq!(
+            m.tick(&at(1.1, 0.15), &held),
+            None,
+            "held outside the tolerance"
+        );
+        assert_eq!(m.tick(&at(1.2, 0.05), &held), Some(Outcome::Reached));
+        let mut s = Scenario::default();
+        s.robot.hold_at_goal = true;
+        let mut m = Judge::new(&s);
+        assert_eq!(
+            m.tick(&at(1.2, 0.05), &held),
+            None,
+            "holds on to duration_s"
+        );
+        s.robot.final_approach = protocol::FinalApproach::Paper;
+        s.robot.hold_at_goal = false;
+        let mut m = Judge::new(&s);
+        assert_eq!(m.tick(&at(1.2, 0.05), &held), None, "the paper's arrival");
+    }
+
+    #[test]
+    fn with_a_goal_heading_the_run_ends_once_the_held_robot_has_turned_to_it() {
+        let mut s = Scenario::default();
+        s.robot.goal.yaw_rad = Some(1.0);
+        let mut m = Judge::new(&s);
+        let facing = |t_s: f64, theta: f64| GroundTruth {
+            pose: [0.0, 0.0, theta],
+            ..at(t_s, 0.0)
+        };
+        let (held, turning) = (
+            Actuation {
+                mode: CommandMode::Hold as u32,
+                ..Actuation::default()
+            },
+            Actuation {
+                mode: CommandMode::Hold as u32,
+                u2: 0.1,
+                ..Actuation::default()
+            },
+        );
+        assert_eq!(m.tick(&facing(1.0, 0.0), &held), None, "1 rad off");
+        assert_eq!(m.last_heading_error_rad, Some(1.0));
+        assert_eq!(m.tick(&facing(1.1, 0.95), &turning), None, "still turning");
+        assert_eq!(m.tick(&facing(1.2, 0.95), &held), Some(Outcome::Reached));
+    }
 
     #[test]
     fn the_arrival_is_the_first_time_within_0_2_m_then_the_farthest_and_the_final_rest() {
@@ -569,20 +676,23 @@ mod tests {
         let mut m = Judge::new(&s);
         for k in 20..=40 {
             let t = k as f64 * 0.1;
-            assert_eq!(m.tick(&truth(t, 0.0), 0.0), None, "t = {t}");
+            assert_eq!(m.tick(&truth(t, 0.0), &moving(0.0)), None, "t = {t}");
         }
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
         assert!(m.min_moving_clearance_m < -0.2 && m.min_clearance_m < -0.2);
         // A robot driving into the same person: a collision.
         let mut m = Judge::new(&s);
-        assert_eq!(m.tick(&truth(2.8, 0.1), -0.5), None);
-        assert_eq!(m.tick(&truth(2.9, 0.05), -0.5), Some(Outcome::Collided));
+        assert_eq!(m.tick(&truth(2.8, 0.1), &moving(-0.5)), None);
+        assert_eq!(
+            m.tick(&truth(2.9, 0.05), &moving(-0.5)),
+            Some(Outcome::Collided)
+        );
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (0, 1));
         // A robot at rest that drives out of the person's way while in contact: still the
         // contact at rest it was.
         let mut m = Judge::new(&s);
-        assert_eq!(m.tick(&truth(2.9, 0.0), 0.0), None);
-        assert_eq!(m.tick(&truth(3.0, 0.05), 0.3), None);
+        assert_eq!(m.tick(&truth(2.9, 0.0), &moving(0.0)), None);
+        assert_eq!(m.tick(&truth(3.0, 0.05), &moving(0.3)), None);
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
         // Standing where the person was at t = 0 touches nothing at t = 3 s.
         let mut m = Judge::new(&s);

@@ -217,6 +217,7 @@ impl Recorder {
             CommandMode::Brake => self.commands.brake += 1,
             CommandMode::ZetaGuard => self.commands.zeta_guard += 1,
             CommandMode::SafetyBrake => self.commands.safety_brake += 1,
+            CommandMode::Hold => self.commands.hold += 1,
         }
         let count = self
             .safety_interventions
@@ -512,6 +513,7 @@ impl Recorder {
                 None
             },
             final_distance_to_goal_m: m.last_distance_to_goal_m,
+            final_heading_error_rad: m.last_heading_error_rad,
             arrival: ArrivalReport::of(&m.arrival),
             deadline_misses: self.deadline_misses,
             longest_miss_streak: self.longest_miss_streak,

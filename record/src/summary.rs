@@ -37,6 +37,7 @@ pub struct ModeCounts {
     pub brake: u64,
     pub zeta_guard: u64,
     pub safety_brake: u64,
+    pub hold: u64,
 }
 
 /// `summary.json`.
@@ -65,6 +66,8 @@ pub struct Summary {
     /// First time the robot was more than 5 cm off the straight start-goal line, s.
     pub deviation_time_s: Option<f64>,
     pub final_distance_to_goal_m: f64,
+    /// How far the final heading is from the goal's, rad (`null`: a goal without one).
+    pub final_heading_error_rad: Option<f64>,
     /// The final approach (`null`: never within 0.2 m of the goal).
     pub arrival: Option<ArrivalReport>,
     /// Samples whose plan was not in the DFL's hands by `t_k + Ts`, or failed.
@@ -161,7 +164,7 @@ impl RobotReport {
         (scenario.plant.kind == protocol::PlantKind::Ros2).then(|| RobotReport {
             endpoint: r.endpoint.clone(),
             start: scenario.robot.start,
-            goal: scenario.robot.goal,
+            goal: scenario.robot.goal.position,
             goal_from: if r.wait_for_goal {
                 r.goal_topic.clone()
             } else {
@@ -341,6 +344,13 @@ impl Summary {
                 format!("{:.3} m", self.final_distance_to_goal_m),
             ),
             (
+                "final heading",
+                self.final_heading_error_rad
+                    .map_or("no goal heading".into(), |e| {
+                        format!("{e:.3} rad from the goal's")
+                    }),
+            ),
+            (
                 "arrival",
                 self.arrival
                     .map_or("never within 0.2 m".to_string(), |a| a.text()),
@@ -359,12 +369,13 @@ impl Summary {
             (
                 "commands",
                 format!(
-                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}",
+                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}, hold {}",
                     self.commands.nominal,
                     self.commands.shifted,
                     self.commands.brake,
                     self.commands.zeta_guard,
-                    self.commands.safety_brake
+                    self.commands.safety_brake,
+                    self.commands.hold
                 ),
             ),
             (

@@ -200,7 +200,7 @@ pub struct Link {
     newest_odometry: Newest<Heard>,
     /// The odometry's frame, the first odometry's.
     frame: Arc<OnceLock<String>>,
-    newest_goal: Newest<[f64; 2]>,
+    newest_goal: Newest<protocol::Goal>,
     views: Views,
     _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     _tokens: Vec<zenoh::liveliness::LivelinessToken>,
@@ -244,12 +244,22 @@ fn odometry_of(sample: &zenoh::sample::Sample, attachment: bool) -> Option<(Hear
     heard.filter(|_| attached)
 }
 
-/// The position of a `geometry_msgs/msg/PoseStamped` sample, `[x_m, y_m]`.
-fn goal_of(sample: &zenoh::sample::Sample) -> Option<[f64; 2]> {
-    cdr::PoseStamped::from_cdr(&sample.payload().to_bytes())
-        .ok()
-        .map(|g| [g.pose.position[0], g.pose.position[1]])
-        .filter(|g| g.iter().all(|v| v.is_finite()))
+/// The position and heading of a `geometry_msgs/msg/PoseStamped` sample (RViz's "2D Goal
+/// Pose" sets both).
+fn goal_of(sample: &zenoh::sample::Sample) -> Option<protocol::Goal> {
+    let pose = cdr::PoseStamped::from_cdr(&sample.payload().to_bytes())
+        .ok()?
+        .pose;
+    let goal = protocol::Goal {
+        position: [pose.position[0], pose.position[1]],
+        yaw_rad: Some(yaw(pose.orientation)),
+    };
+    let finite = goal
+        .position
+        .iter()
+        .chain(&goal.yaw_rad)
+        .all(|v| v.is_finite());
+    finite.then_some(goal)
 }
 
 impl Link {
@@ -324,8 +334,8 @@ impl Link {
         self.newest_odometry.lock().ok().and_then(|n| *n)
     }
 
-    /// The newest goal heard on the goal topic, `[x_m, y_m]`.
-    pub fn newest_goal(&self) -> Option<[f64; 2]> {
+    /// The newest goal heard on the goal topic.
+    pub fn newest_goal(&self) -> Option<protocol::Goal> {
         self.newest_goal.lock().ok().and_then(|n| *n)
     }
 
@@ -461,7 +471,7 @@ pub struct Start {
     /// The first odometry's pose.
     pub pose: [f64; 3],
     /// The goal heard on the goal topic (`ros2.wait_for_goal`), `None`: `robot.goal`.
-    pub goal: Option<[f64; 2]>,
+    pub goal: Option<protocol::Goal>,
 }
 
 /// Connects to the robot of `config`, waits for its first odometry (and, with

@@ -79,7 +79,7 @@ pub fn run_observed(
             recorder.tracks(tracks)?;
         }
         recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
-        outcome = judge.tick(&tick.truth, tick.actuation.zeta).or(no_route);
+        outcome = judge.tick(&tick.truth, &tick.actuation).or(no_route);
         observe(&tick);
     }
     let outcome = match outcome {

@@ -135,8 +135,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn built_in_paper_is_the_default_scenario() {
-        assert_eq!(*load(None, &[]).unwrap(), Scenario::default());
+    fn built_in_paper_is_the_default_scenario_but_for_its_final_approach() {
+        assert_eq!(*load(None, &[]).unwrap(), Scenario::paper());
+        assert_eq!(
+            Scenario::paper().robot.final_approach,
+            protocol::FinalApproach::Paper
+        );
+        assert_eq!(
+            Scenario::default().robot.final_approach,
+            protocol::FinalApproach::Settle
+        );
     }
 
     #[test]
@@ -144,7 +152,7 @@ mod tests {
         let noisy = load(Some("paper-noisy"), &[]).unwrap();
         let mut expected = Scenario {
             name: "paper-noisy".into(),
-            ..Scenario::default()
+            ..Scenario::paper()
         };
         expected.plant.noise_variance = protocol::NoiseVariance::Uniform(0.05);
         assert_eq!(*noisy, expected);

@@ -342,6 +342,7 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
                     CommandMode::Brake,
                     CommandMode::ZetaGuard,
                     CommandMode::SafetyBrake,
+                    CommandMode::Hold,
                 ],
                 CommandMode::as_str,
                 |m| m as u32,

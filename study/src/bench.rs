@@ -361,7 +361,7 @@ fn machine() -> String {
 pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<BenchReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let raw = raw_ping_pong(stop)?;
-    let paper = protocol::Scenario::default().validated("the paper scenario")?;
+    let paper = protocol::Scenario::paper().validated("the paper scenario")?;
     let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
     let realtime_run =
         |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);

@@ -100,7 +100,7 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
     let span = distance(start, goal);
     s.duration_s = 40.0 + 4.0 * (span - 9.0).max(0.0);
     s.robot.start = [start[0], start[1], rng.random_range(-PI..PI)];
-    s.robot.goal = goal;
+    s.robot.goal.position = goal;
     s.robot.zeta0 = if rng.random_bool(0.5) {
         0.0
     } else {
@@ -487,7 +487,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             s.plant.max_wheel_speed_rad_s,
             s.robot.radius_m,
             s.robot.zeta0,
-            (x - s.robot.goal[0]).hypot(y - s.robot.goal[1]),
+            (x - s.robot.goal.position[0]).hypot(y - s.robot.goal.position[1]),
         );
         let clean = (result.as_ref())
             .is_ok_and(|r| r.outcome == Outcome::Reached && r.contacts_at_rest == 0);
@@ -544,7 +544,7 @@ mod tests {
         for i in 0..300 {
             let s = world(1, i, PEOPLE, &[]).unwrap().scenario;
             let [x, y, heading] = s.robot.start;
-            let goal = s.robot.goal;
+            let goal = s.robot.goal.position;
             let span = distance([x, y], goal);
             assert!(span >= 1.0, "{span}");
             for p in [[x, y], goal] {

@@ -171,9 +171,9 @@ fn the_condensed_program_gives_the_sparse_programs_plans() {
         closed_loop_with(&sparse, 200, |mpc, plan| {
             let z = plan.z[0];
             let z0 = [
-                z[0] - sparse.robot.goal[0],
+                z[0] - sparse.robot.goal.position[0],
                 z[1],
-                z[2] - sparse.robot.goal[1],
+                z[2] - sparse.robot.goal.position[1],
                 z[3],
             ];
             other.discs.clone_from(&mpc.discs);
@@ -267,7 +267,7 @@ fn from_inside_a_constraint_disc_the_plan_leaves_it_no_slower_than_the_decay_all
     let plan = mpc.step(0, [3.0, 5.292, 0.0, 0.0], 0.0);
     assert!(plan.is_solved(), "{:?}", plan.status());
     let disc = mpc.constraint_discs()[0];
-    let goal = s.robot.goal;
+    let goal = s.robot.goal.position;
     let h = |z: [f64; 4]| disc.barrier([z[0] - goal[0], z[2] - goal[1]]);
     let h0 = h(plan.z[0]);
     assert!(h0 < 0.0, "the start should be inside the constraint disc");
@@ -334,7 +334,12 @@ fn refinement_gap(s: &Scenario, max_solves: usize, converged_m: f64) -> (f64, us
         closed_loop_with(&s, 400, |mpc, plan| {
             let stopped = mpc.solution.clone();
             let z = plan.z[0];
-            let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
+            let z0 = [
+                z[0] - s.robot.goal.position[0],
+                z[1],
+                z[2] - s.robot.goal.position[1],
+                z[3],
+            ];
             (mpc.max_solves, mpc.refinement_tol_m) = (max_solves, converged_m);
             let converged = mpc.refine(z0);
             assert!(

@@ -146,7 +146,12 @@ fn from_the_robot(
     let mut moved = scenario.into_inner();
     moved.robot.start = start.pose;
     if let Some(goal) = start.goal {
-        moved.robot.goal = goal;
+        // Its heading is turned to only by a robot that settles at its goal.
+        let settles = moved.robot.final_approach == protocol::FinalApproach::Settle;
+        moved.robot.goal = protocol::Goal {
+            yaw_rad: goal.yaw_rad.filter(|_| settles),
+            ..goal
+        };
     }
     moved
         .validated("the robot's first odometry")

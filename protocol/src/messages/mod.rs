@@ -407,6 +407,9 @@ pub enum CommandMode {
     /// Braking because the safety check found the trajectory being flown no longer safe
     /// from the current estimate (docs/safety.md), until a new plan passes it.
     SafetyBrake = 4,
+    /// Held at the goal (`robot.final_approach = "settle"`, docs/reach.md): `U2 = 0`, `U1`
+    /// brakes zeta to zero and the robot stays at rest; plans are checked, not flown.
+    Hold = 5,
 }
 
 impl CommandMode {
@@ -417,6 +420,7 @@ impl CommandMode {
             2 => CommandMode::Brake,
             3 => CommandMode::ZetaGuard,
             4 => CommandMode::SafetyBrake,
+            5 => CommandMode::Hold,
             _ => return None,
         })
     }
@@ -427,6 +431,7 @@ impl CommandMode {
             CommandMode::Brake => "brake",
             CommandMode::ZetaGuard => "zeta_guard",
             CommandMode::SafetyBrake => "safety_brake",
+            CommandMode::Hold => "hold",
         }
     }
 }

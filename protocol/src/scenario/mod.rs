@@ -250,15 +250,94 @@ pub struct Robot {
     pub start: [f64; 3],
     /// Initial value of the dynamic extension `zeta` (the forward speed), m/s.
     pub zeta0: f64,
-    /// Goal position `[x_m, y_m]`; the MPC regulates `z` to this point at rest.
-    pub goal: [f64; 2],
+    /// The goal, `[x_m, y_m]` or `[x_m, y_m, theta_rad]`: the MPC regulates `z` to its
+    /// position at rest; a robot held there turns in place to its heading, if it has one.
+    pub goal: Goal,
     /// The robot has reached the goal while its centre stays within this distance, m.
     pub goal_tolerance_m: f64,
+    /// With a goal heading: how near it the robot turns, rad.
+    pub goal_yaw_tolerance_rad: f64,
     /// Radius of the robot's footprint, m (0: the paper's point robot). Every obstacle is
     /// inflated by it in the MPC, the DFL's safety check and the judge, so clearances are
     /// measured from the robot's edge.
     pub radius_m: f64,
+    /// How the robot ends its run at the goal (docs/reach.md, "Arriving and coming to
+    /// rest").
+    pub final_approach: FinalApproach,
+    /// With `final_approach = "settle"`: the robot held at its goal keeps holding until
+    /// `duration_s` instead of ending the run there.
+    pub hold_at_goal: bool,
 }
+
+/// The goal of a run (`robot.goal`): a position and, if given, a heading. In a file,
+/// `[x, y]` or `[x, y, theta]`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Goal {
+    /// `[x_m, y_m]`.
+    pub position: [f64; 2],
+    /// The heading to turn to at the goal, rad (`robot.final_approach = "settle"`).
+    pub yaw_rad: Option<f64>,
+}
+
+impl Goal {
+    /// A goal without a heading.
+    pub fn at(position: [f64; 2]) -> Goal {
+        Goal {
+            position,
+            yaw_rad: None,
+        }
+    }
+}
+
+impl Serialize for Goal {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let [x, y] = self.position;
+        match self.yaw_rad {
+            Some(yaw) => [x, y, yaw].serialize(serializer),
+            None => [x, y].serialize(serializer),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Goal {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Goal, D::Error> {
+        match Vec::<f64>::deserialize(deserializer)?[..] {
+            [x, y] => Ok(Goal::at([x, y])),
+            [x, y, yaw] => Ok(Goal {
+                position: [x, y],
+                yaw_rad: Some(yaw),
+            }),
+            ref other => Err(serde::de::Error::custom(format!(
+                "a goal is [x, y] or [x, y, theta], got {} numbers",
+                other.len()
+            ))),
+        }
+    }
+}
+
+/// How the robot ends its run at the goal (`robot.final_approach`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FinalApproach {
+    /// Within [`APPROACH_RADIUS_M`] of the goal (along the route, with a planner) the MPC
+    /// weighs the state by `mpc.approach_q_diag` and the input by `mpc.approach_r_diag`,
+    /// driving the robot to rest at the goal without passing it; once within
+    /// `robot.goal_tolerance_m` and slower than [`HOLD_SPEED_M_S`], the DFL brakes to rest
+    /// and holds it there, and the run ends `reached` (`robot.hold_at_goal`: it goes on).
+    Settle,
+    /// The paper's formulation to the end: the paper's weights all the way, no hold; the
+    /// run goes on to `duration_s`.
+    Paper,
+}
+
+/// How near the goal the final approach begins (`robot.final_approach = "settle"`), m:
+/// the straight-line distance without a planner, the route's length left with one.
+pub const APPROACH_RADIUS_M: f64 = 1.0;
+/// A robot that has begun its final approach leaves it only beyond this distance, m (a
+/// robot pushed back, or a route that grew).
+pub const APPROACH_LEFT_BEYOND_M: f64 = 1.5;
+/// The DFL holds a robot within the goal tolerance once its speed is below this, m/s.
+pub const HOLD_SPEED_M_S: f64 = 0.02;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -411,6 +490,13 @@ pub struct MpcConfig {
     pub q_diag: [f64; 4],
     /// Diagonal of the input weight `R` on `v = [xddot, yddot]`.
     pub r_diag: [f64; 2],
+    /// `Q` on the final approach (`robot.final_approach = "settle"`): by default, with
+    /// `approach_r_diag`, an LQR per axis critically damped at about 1.4 rad/s (the
+    /// paper's weights give 0.3 rad/s, damping 0.7: a robot coming in fast passes its goal
+    /// and takes tens of seconds to settle).
+    pub approach_q_diag: [f64; 4],
+    /// `R` on the final approach.
+    pub approach_r_diag: [f64; 2],
     /// Input box `|v_i| <= v_max`, m/s^2.
     pub v_max: f64,
     /// Lower corner of the position box on `(z1, z3)`, m.
@@ -531,6 +617,16 @@ pub enum Auto {
     Auto,
 }
 
+impl Scenario {
+    /// The paper's canonical scenario (`scenarios/paper.toml`): the defaults, with the
+    /// paper's arrival (`robot.final_approach = "paper"`).
+    pub fn paper() -> Scenario {
+        let mut s = Scenario::default();
+        s.robot.final_approach = FinalApproach::Paper;
+        s
+    }
+}
+
 impl Default for Scenario {
     /// The paper's canonical scenario (docs/running.md, "Scenario keys").
     fn default() -> Self {
@@ -571,9 +667,12 @@ impl Default for Robot {
         Robot {
             start: [7.0, 7.0, -3.0 * std::f64::consts::FRAC_PI_4],
             zeta0: 0.0,
-            goal: [0.0, 0.0],
+            goal: Goal::at([0.0, 0.0]),
             goal_tolerance_m: 0.1,
+            goal_yaw_tolerance_rad: 0.1,
             radius_m: 0.0,
+            final_approach: FinalApproach::Settle,
+            hold_at_goal: false,
         }
     }
 }
@@ -613,6 +712,8 @@ impl Default for MpcConfig {
             constraint: ConstraintKind::Cbf,
             q_diag: [1.0; 4],
             r_diag: [100.0; 2],
+            approach_q_diag: [4.0; 4],
+            approach_r_diag: [1.0; 2],
             v_max: 3.0,
             position_min: [-10.0, -10.0],
             position_max: [10.0, 10.0],

@@ -67,6 +67,36 @@ fn validation_names_every_bad_key() {
 }
 
 #[test]
+fn a_goal_takes_an_optional_heading_that_needs_the_settling_approach() {
+    let s = Scenario::default()
+        .with_overrides(&["robot.goal=[1, 2, 0.5]".into()])
+        .unwrap();
+    assert_eq!(s.robot.goal.position, [1.0, 2.0]);
+    assert_eq!(s.robot.goal.yaw_rad, Some(0.5));
+    let back = Scenario::from_toml(&s.to_toml(), "t").unwrap();
+    assert_eq!(back.robot.goal, s.robot.goal);
+    let plain = Scenario::from_toml(&Scenario::default().to_toml(), "t").unwrap();
+    assert_eq!(plain.robot.goal, Goal::at([0.0, 0.0]));
+    for bad in ["robot.goal=[1]", "robot.goal=[1, 2, 3, 4]"] {
+        let e = Scenario::default()
+            .with_overrides(&[bad.into()])
+            .unwrap_err();
+        assert_eq!(e.0[0].key, "robot.goal", "{bad}");
+        assert!(
+            e.0[0].message.contains("[x, y, theta]"),
+            "{}",
+            e.0[0].message
+        );
+    }
+    let mut paper = s.clone();
+    paper.robot.final_approach = FinalApproach::Paper;
+    assert_eq!(refused_keys(&paper), ["robot.goal"]);
+    let mut wide = s;
+    wide.robot.goal_yaw_tolerance_rad = 4.0;
+    assert_eq!(refused_keys(&wide), ["robot.goal_yaw_tolerance_rad"]);
+}
+
+#[test]
 fn parse_errors_name_the_dotted_key_and_line() {
     let text = "name = \"x\"\n[mpc]\nhorizon = \"eight\"\n";
     let e = Scenario::from_toml(text, "f.toml").unwrap_err();
@@ -138,7 +168,7 @@ fn link_faults_are_refused_without_a_role_on_another_host() {
 #[test]
 fn a_goal_outside_the_position_box_is_refused() {
     let mut s = Scenario::default();
-    s.robot.goal = [0.0, 12.0];
+    s.robot.goal.position = [0.0, 12.0];
     let e = s.validate("t").unwrap_err();
     let goal =
         e.0.iter()

@@ -57,8 +57,26 @@ impl Scenario {
 
         v.finite_all("robot.start", &self.robot.start);
         v.finite("robot.zeta0", self.robot.zeta0);
-        v.finite_all("robot.goal", &self.robot.goal);
+        v.finite_all("robot.goal", &self.robot.goal.position);
+        if let Some(yaw) = self.robot.goal.yaw_rad
+            && v.finite("robot.goal.2", yaw)
+            && self.robot.final_approach != super::FinalApproach::Settle
+        {
+            v.fail(
+                "robot.goal",
+                "a goal heading needs robot.final_approach = \"settle\" (the paper's \
+                 arrival has none)"
+                    .into(),
+            );
+        }
         v.positive("robot.goal_tolerance_m", self.robot.goal_tolerance_m);
+        let yaw_tolerance = self.robot.goal_yaw_tolerance_rad;
+        if !(yaw_tolerance > 0.0 && yaw_tolerance <= std::f64::consts::PI) {
+            v.fail(
+                "robot.goal_yaw_tolerance_rad",
+                format!("must be in (0, pi], got {yaw_tolerance}"),
+            );
+        }
         v.non_negative("robot.radius_m", self.robot.radius_m);
 
         v.positive("plant.wheel_radius_m", self.plant.wheel_radius_m);
@@ -99,9 +117,14 @@ impl Scenario {
         if !(m.gamma.is_finite() && m.gamma > 0.0 && m.gamma <= 1.0) {
             v.fail("mpc.gamma", format!("must be in (0, 1], got {}", m.gamma));
         }
-        v.non_negative_all("mpc.q_diag", &m.q_diag);
-        for (i, r) in m.r_diag.iter().enumerate() {
-            v.positive(&format!("mpc.r_diag.{i}"), *r);
+        for (key, q, r) in [
+            ("", &m.q_diag, &m.r_diag),
+            ("approach_", &m.approach_q_diag, &m.approach_r_diag),
+        ] {
+            v.non_negative_all(&format!("mpc.{key}q_diag"), q);
+            for (i, r) in r.iter().enumerate() {
+                v.positive(&format!("mpc.{key}r_diag.{i}"), *r);
+            }
         }
         v.positive("mpc.v_max", m.v_max);
         v.finite_all("mpc.position_min", &m.position_min);
@@ -362,7 +385,7 @@ impl Scenario {
             sx + direction * stop * heading.cos(),
             sy + direction * stop * heading.sin(),
         ];
-        let [gx, gy] = self.robot.goal;
+        let [gx, gy] = self.robot.goal.position;
         for (i, o) in self.obstacles.iter().enumerate() {
             let clearance = footprint.clearance_m(o, [sx, sy]);
             if clearance <= 0.0 {

@@ -371,7 +371,7 @@ pub(super) fn world(scenario: &Scenario) -> Value {
     let [sx, sy, _] = scenario.robot.start;
     let ends = vec![
         marker([sx, sy], color(0.1, 0.4, 0.9, 1.0)),
-        marker(scenario.robot.goal, color(0.1, 0.7, 0.2, 1.0)),
+        marker(scenario.robot.goal.position, color(0.1, 0.7, 0.2, 1.0)),
     ];
     json!({
         "deletions": [],

@@ -237,7 +237,7 @@ impl<'a> Driver<'a> {
             return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
         }
         let truth = self.intake.record(slot, self.parts.recorder)?;
-        Ok(truth.and_then(|(truth, speed)| self.judge.tick(&truth, speed)))
+        Ok(truth.and_then(|(truth, act)| self.judge.tick(&truth, &act)))
     }
 
     /// Takes everything received, without waiting.

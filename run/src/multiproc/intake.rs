@@ -218,12 +218,12 @@ impl Intake {
     }
 
     /// Records the tick of `slot` if the plant was commanded at it; returns its truth and
-    /// the forward speed commanded over it (the DFL's ζ), m/s.
+    /// the DFL's command over it.
     pub fn record(
         &mut self,
         slot: TickSlot,
         recorder: &mut Recorder,
-    ) -> anyhow::Result<Option<(GroundTruth, f64)>> {
+    ) -> anyhow::Result<Option<(GroundTruth, Actuation)>> {
         let (Some(truth), Some(measurement), Some((act, own_latency))) =
             (slot.truth, slot.measurement, slot.actuation)
         else {
@@ -263,7 +263,7 @@ impl Intake {
             self.last_sensor_to_actuator_ns = Some(ns);
         }
         recorder.tick(&truth, &estimate, &act)?;
-        Ok(Some((truth, act.zeta)))
+        Ok(Some((truth, act)))
     }
 
     /// Records every route and plan received, then every deadline verdict (the DFL judges

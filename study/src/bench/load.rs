@@ -101,7 +101,7 @@ pub fn measure(
     stop: &AtomicBool,
 ) -> anyhow::Result<LoadReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let paper = protocol::Scenario::default().validated("the paper scenario")?;
+    let paper = protocol::Scenario::paper().validated("the paper scenario")?;
     let mut all = Vec::new();
     for (condition, with_load, priority) in [
         ("idle", 0, "off"),

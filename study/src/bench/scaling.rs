@@ -79,14 +79,14 @@ fn field_scenario(field: &[Obstacle], horizon: usize) -> anyhow::Result<Validate
         name: format!("scaling-n{horizon}-obstacles{}", field.len()),
         duration_s: SIMULATED_S,
         obstacles: field.to_vec(),
-        ..Scenario::default()
+        ..Scenario::paper()
     };
     s.robot.start = [
         PLANNING_START[0],
         PLANNING_START[1],
         -0.75 * std::f64::consts::PI,
     ];
-    s.robot.goal = [0.0, 0.0];
+    s.robot.goal.position = [0.0, 0.0];
     s.mpc.horizon = horizon;
     s.planner.kind = PlannerKind::Route;
     s.validated("the scaling benchmark")
@@ -181,10 +181,10 @@ pub fn moving_cost(out: &Path, stop: &AtomicBool) -> anyhow::Result<MovingCost> 
                     ..Obstacle::fixed(x, y, 0.3)
                 })
                 .collect(),
-            ..Scenario::default()
+            ..Scenario::paper()
         };
         s.robot.start = [-4.0, 0.0, 0.0];
-        s.robot.goal = [9.0, 0.0];
+        s.robot.goal.position = [9.0, 0.0];
         let s = s
             .validated("the moving-obstacle benchmark")
             .map_err(|e| anyhow!("{e}"))?;

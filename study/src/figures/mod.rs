@@ -482,7 +482,7 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
         });
     }
     let [sx, sy, _] = scenario.robot.start;
-    let [gx, gy] = scenario.robot.goal;
+    let [gx, gy] = scenario.robot.goal.position;
     let (traces, times) = moving_traces(scenario, &t);
     path.extend(traces);
     let mut markers = vec![

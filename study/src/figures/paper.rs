@@ -40,7 +40,7 @@ pub fn paper_set(
             .insert(s.values[0].clone(), Trajectory::read(&s.dir)?);
     }
     let mut figures = path_figures(&runs, obstacle_discs(&base))?;
-    figures.extend(time_figures(&runs, base.robot.goal)?);
+    figures.extend(time_figures(&runs, base.robot.goal.position)?);
     let mut solve_times = Vec::new();
     for n in HORIZONS {
         run::stop::check(stop)?;

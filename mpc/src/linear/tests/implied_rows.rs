@@ -243,7 +243,12 @@ fn leaving_out_implied_rows_changes_no_plan_of(s: &Scenario) {
     for plan in closed_loop(s, 400).iter().step_by(5) {
         let z = plan.z[0];
         mpc.step(plan.sample, protocol::phi_inverse(z, 0.0), 0.0);
-        let z0 = [z[0] - s.robot.goal[0], z[1], z[2] - s.robot.goal[1], z[3]];
+        let z0 = [
+            z[0] - s.robot.goal.position[0],
+            z[1],
+            z[2] - s.robot.goal.position[1],
+            z[3],
+        ];
         // The rows left out at the current reference, then every row at the same one.
         assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
         let used = mpc.rows;

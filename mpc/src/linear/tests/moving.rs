@@ -8,7 +8,7 @@ use super::*;
 fn crossing() -> Scenario {
     let mut s = Scenario::default();
     s.robot.start = [-4.0, 0.0, 0.0];
-    s.robot.goal = [4.0, 0.0];
+    s.robot.goal.position = [4.0, 0.0];
     s.obstacles = vec![Obstacle {
         velocity: [0.0, 1.0],
         ..Obstacle::fixed(0.5, -5.0, 0.3)
@@ -123,7 +123,7 @@ fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_e
     // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach.
     let mut s = Scenario::default();
     s.robot.start = [0.0, 0.0, 0.0];
-    s.robot.goal = [0.0, 3.0];
+    s.robot.goal.position = [0.0, 3.0];
     s.obstacles = vec![Obstacle {
         velocity: [1.0, 0.0],
         ..Obstacle::fixed(-1.1, 0.0, 0.3)

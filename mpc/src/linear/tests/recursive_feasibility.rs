@@ -74,7 +74,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
     let [x, y, mut heading] = scenario.robot.start;
     let mut z = Vector4::from(protocol::phi([x, y, heading, scenario.robot.zeta0]));
     let (mut checked, mut terminal_set_only, mut unsolved) = (0, 0, 0);
-    let goal = scenario.robot.goal;
+    let goal = scenario.robot.goal.position;
     for k in 0..samples {
         let zeta = z[1].hypot(z[3]);
         if zeta > 0.0 {
