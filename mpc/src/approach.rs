@@ -4,7 +4,9 @@
 //! its own LQR, terminal weight (DARE) and terminal set, so the terminal ingredients match
 //! the cost they close. The paper's weights (`R = 100 Q`) let a robot that comes in fast
 //! pass its goal and wander about it for tens of seconds; the approach weights bring it to
-//! rest there. Every safety row is the same in both.
+//! rest there. Every safety row is the same in both. Where the approach's program fails
+//! (its terminal set about the goal out of reach: a person drives the robot off it), the
+//! sample is solved with the paper's weights ([`crate::Mpc::step_on_route`]).
 
 use crate::{LinearMpc, MpcError};
 use protocol::{
