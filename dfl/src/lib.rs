@@ -412,9 +412,9 @@ impl Dfl {
         let sample = self.timing.sample_of(tick);
         let [x, y, theta, _] = estimate.state;
         if let Some(hold) = self.goal_hold {
-            let leaves = self.active.is_some_and(|plan| hold.leaves(&plan));
+            // Checked in order of cost, and only near the goal.
             self.holding = hold.holds(self.holding, [x, y], self.zeta)
-                && !leaves
+                && !self.active.as_ref().is_some_and(|plan| hold.leaves(plan))
                 && !self.staying_touches(estimate, tick);
         }
         let chosen = self
