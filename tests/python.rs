@@ -21,7 +21,7 @@ fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {
 
 #[test]
 fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_no_tick() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let estimator = repo().join("examples/python/estimator.py");
     let file = dir.path().join("scenario.toml");
@@ -44,10 +44,7 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     assert_eq!(s["outcome"], "reached", "{s:#}");
     assert_eq!(s["deadline_misses"], 0);
     assert_eq!(s["ticks_without_estimate"], 0);
-    // What the orchestrator records is not this test's subject: a stall of the machine may
-    // cost it a tick or two (2 record gaps in a fresh-clone CI run on 2026-11-27, with no
-    // miss and no tick without an estimate).
-    common::assert_few_record_gaps(&s);
+    machine.assert_every_fault_in_a_stall(&ev);
     assert_eq!(s["swaps"], 1);
     assert!(
         s["rejected_samples"].as_object().unwrap().is_empty(),
@@ -61,12 +58,28 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     let switch_tick = swapped["switch_tick"].as_u64().unwrap();
     assert_eq!(switch_tick % 10, 0, "switch at tick {switch_tick}");
     let switch_s = switch_tick as f64 * 0.005;
-    assert!((8.0..9.0).contains(&switch_s), "switch at {switch_s} s");
+    // Started at 8 s; switched within a second of reporting ready. How long Python takes to
+    // start is its own: 0.15-0.2 s warm, 1.3-2 s for the first run after minutes idle on
+    // the development machine (2026-11-28).
+    let at = |event: &str| {
+        ev.iter()
+            .find(|e| e["event"] == event && e["role"] == "estimator")
+            .and_then(|e| e["t"].as_f64())
+            .unwrap_or_else(|| panic!("no {event} of the estimator"))
+    };
+    assert!((8.0..8.1).contains(&at("swap_started")), "{ev:#?}");
+    let ready_s = at("ready");
+    assert!(
+        switch_s > ready_s && switch_s < ready_s + 1.0,
+        "switch at {switch_s} s, ready at {ready_s} s"
+    );
     let python_epoch = swapped["to_epoch"].as_u64().unwrap();
     assert!(python_epoch > 0);
-    // Every tick was commanded from a finite estimate.
+    // Every tick was commanded from a finite estimate, but those lost in a stall of the
+    // machine (a CI run at ca71f2d had 12, a run on the development machine 8).
     let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
-    assert_eq!(trajectory.len(), 6000);
+    let gaps = s["record_gaps"].as_u64().unwrap() as usize;
+    assert_eq!(trajectory.len(), 6000 - gaps);
     for column in ["x_hat", "y_hat", "theta_hat", "zeta_hat"] {
         let values = trajectory.numbers(column).unwrap();
         assert!(values.iter().all(|v| v.is_finite()), "{column}");
@@ -75,17 +88,20 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     // truth, per axis (RMS), is a small part of the noise's sigma (measured on 2026-11-25:
     // 0.010 m after the switch against 0.012 m for the Rust EKF before it, sigma 0.22 m).
     let column = |name| trajectory.numbers(name).unwrap();
-    let (x, y, x_hat, y_hat) = (column("x"), column("y"), column("x_hat"), column("y_hat"));
-    let rms_error = |ticks: std::ops::Range<usize>| {
-        let n = ticks.len() as f64;
-        let sum: f64 = ticks
-            .map(|i| (x_hat[i] - x[i]).powi(2) + (y_hat[i] - y[i]).powi(2))
+    let (t, x, y) = (column("t"), column("x"), column("y"));
+    let (x_hat, y_hat) = (column("x_hat"), column("y_hat"));
+    let rms_error = |from_s: f64, to_s: f64| {
+        let rows: Vec<usize> = (0..t.len())
+            .filter(|&i| (from_s..to_s).contains(&t[i]))
+            .collect();
+        let sum: f64 = rows
+            .iter()
+            .map(|&i| (x_hat[i] - x[i]).powi(2) + (y_hat[i] - y[i]).powi(2))
             .sum();
-        (sum / (2.0 * n)).sqrt()
+        (sum / (2.0 * rows.len() as f64)).sqrt()
     };
-    let switch = switch_tick as usize;
     // From 1 s in (the initial variance spent) to the switch, and from 1 s after it.
-    let (rust_m, python_m) = (rms_error(200..switch), rms_error(switch + 200..6000));
+    let (rust_m, python_m) = (rms_error(1.0, switch_s), rms_error(switch_s + 1.0, 30.0));
     let sigma = f64::sqrt(noise_variance);
     assert!(
         python_m < 0.25 * sigma && python_m < 2.0 * rust_m,
@@ -97,7 +113,7 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     let estimates = &mcap["/estimator/estimate"];
     let ticks = estimates["ticks"].as_array().unwrap();
     let epochs = estimates["epochs"].as_array().unwrap();
-    assert_eq!(ticks.len(), 6000);
+    assert_eq!(ticks.len(), trajectory.len());
     for (tick, epoch) in ticks.iter().zip(epochs) {
         let expected = if tick.as_u64().unwrap() < switch_tick {
             0

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{run, run_into_tempdir, stderr, summary};
+use common::{run, run_into_tempdir, stalls, stderr, summary};
 use std::os::unix::process::CommandExt;
 
 /// Ends of `scmpc bench-burn`, one CPU-bound process per core of this machine (of normal
@@ -44,119 +44,16 @@ fn fifo_granted() -> bool {
     policy.fifo_priority.is_some() && refusal.is_none()
 }
 
-/// Stalls of the machine itself, while it lives: times when nothing of this system ran on
-/// a CPU, which no priority of the pipeline can beat. Two watches:
-/// - steal time (`/proc/stat`, in 10 ms jiffies), read every 20 ms at normal priority: the
-///   hypervisor took the CPU. Beside two CPU-bound processes the host stalls a CPU of the
-///   development machine for 4-16 ms a few times a minute, none when idle; each such stall
-///   of a `SCHED_FIFO` 99 probe showed as steal within 50 ms of its end (docs/performance.md,
-///   "Real time under load");
-/// - a `SCHED_FIFO` 99 thread pinned to each CPU, waking every 10 ms (the scheduler's own
-///   tick; a 1 ms watcher preempted the load so often that it hid the load's effect): a
-///   wake-up more than 2 ms late is a stall of that CPU, whatever took it. The stall ended
-///   then; it began at any time since the watcher's last wake-up, which it slept through
-///   (a fresh-clone CI at 9edad08 had a tick without a command 9.8 ms before both CPUs'
-///   watchers woke 3.8 ms late).
-struct Stalls {
-    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-    watchers: Vec<std::thread::JoinHandle<Vec<(u64, u64)>>>,
-}
-
-const MS: u64 = 1_000_000;
-
-impl Stalls {
-    fn watch() -> Stalls {
-        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let mut watchers = Vec::new();
-        let running = stop.clone();
-        watchers.push(std::thread::spawn(move || watch_steal(&running)));
-        for cpu in runtime::realtime::allowed_cpus().expect("the CPUs") {
-            let running = stop.clone();
-            watchers.push(std::thread::spawn(move || watch_cpu(cpu, &running)));
-        }
-        Stalls { stop, watchers }
-    }
-
-    /// Every stall seen, as `(from, to)` monotonic ns within which it fell.
-    fn stop(self) -> Vec<(u64, u64)> {
-        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
-        self.watchers
-            .into_iter()
-            .flat_map(|w| w.join().expect("a watcher panicked"))
-            .collect()
-    }
-}
-
-/// Steal time that grew: within the 50 ms before it was seen.
-fn watch_steal(stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)> {
-    let mut stalls = Vec::new();
-    let mut before = steal_jiffies();
-    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        let now = steal_jiffies();
-        if now != before {
-            let seen = runtime::clock::monotonic_ns();
-            stalls.push((seen - 50 * MS, seen));
-        }
-        before = now;
-    }
-    stalls
-}
-
-/// Each CPU's steal time so far, jiffies (the 8th value of its `cpuN` line).
-fn steal_jiffies() -> Vec<u64> {
-    std::fs::read_to_string("/proc/stat")
-        .expect("/proc/stat")
-        .lines()
-        .filter(|l| l.starts_with("cpu") && !l.starts_with("cpu "))
-        .map(|l| {
-            l.split_whitespace()
-                .nth(8)
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0)
-        })
-        .collect()
-}
-
-/// Wake-ups of a `SCHED_FIFO` 99 thread on `cpu` more than 2 ms late: each a stall within
-/// the wake-up before and this one.
-fn watch_cpu(cpu: usize, stop: &std::sync::atomic::AtomicBool) -> Vec<(u64, u64)> {
-    use runtime::clock::{monotonic_ns, sleep_until_ns};
-    // SAFETY: plain system calls on the calling thread, with parameters owned here.
-    unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(cpu, &mut set);
-        assert_eq!(
-            libc::sched_setaffinity(0, std::mem::size_of_val(&set), &set),
-            0
-        );
-        let param = libc::sched_param { sched_priority: 99 };
-        assert_eq!(libc::sched_setscheduler(0, libc::SCHED_FIFO, &param), 0);
-    }
-    let mut stalls = Vec::new();
-    let mut woke = monotonic_ns();
-    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
-        let (before, due) = (woke, woke + 10 * MS);
-        sleep_until_ns(due);
-        woke = monotonic_ns();
-        if woke > due + 2 * MS {
-            stalls.push((before, woke));
-        }
-    }
-    stalls
-}
-
 #[test]
 fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_the_policy() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     assert!(
         fifo_granted(),
         "this machine refuses SCHED_FIFO: the test's claims need the policy in force"
     );
     let _load = Load::one_per_core();
-    let stalls = Stalls::watch();
     let (dir, out) = run_into_tempdir(&["run", "--mode", "realtime"]);
-    let stalls = stalls.stop();
+    let seen = machine.stalls.seen();
     assert!(out.status.success(), "{}", stderr(&out));
     let s = summary(dir.path());
     assert_eq!(s["mode"], "realtime");
@@ -181,42 +78,21 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
     // outside every stall these watches saw, which see a stall shorter than 10 ms only by
     // chance. (Without the policy, beside the same load: 5 and 89 in two runs.)
     let events = common::events(dir.path());
-    let tick0_ns = events
-        .iter()
-        .find(|e| e["event"] == "clock_started")
-        .and_then(|e| e["tick0_monotonic_ns"].as_u64())
-        .expect("clock_started");
-    let dt_ns = 5_000_000;
-    let mut faults: Vec<(&str, u64)> = events
-        .iter()
-        .filter(|e| e["event"] == "record_gap")
-        .map(|e| ("tick without a command", e["tick"].as_u64().unwrap()))
-        .collect();
-    faults.extend(
-        events
-            .iter()
-            .filter(|e| e["event"] == "deadline_miss")
-            .map(|e| ("deadline miss", 10 * e["sample"].as_u64().unwrap())),
-    );
+    let mut faults = stalls::faults(&events);
     // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
     for row in common::csv(&dir.path().join("trajectory.csv")) {
         if row["mode"] == "brake" {
-            let tick = (common::num(&row, "t") * 1e9 / dt_ns as f64).round() as u64;
-            faults.push(("brake from silence", tick));
+            faults.push(stalls::Fault {
+                what: "brake from silence",
+                tick: (common::num(&row, "t") / 0.005).round() as u64,
+                detail: String::new(),
+            });
         }
     }
-    let unexplained: Vec<&(&str, u64)> = faults
-        .iter()
-        .filter(|(_, tick)| {
-            let at = tick0_ns + tick * dt_ns;
-            !stalls
-                .iter()
-                .any(|&(from, to)| from < at + dt_ns && to + 4 * dt_ns > at)
-        })
-        .collect();
+    let unexplained = seen.unexplained(&events, &faults);
     assert!(
         unexplained.is_empty(),
-        "not in a stall of the machine: {unexplained:?} (stalls {stalls:?}, tick 0 at {tick0_ns})"
+        "not in a stall of the machine: {unexplained:?} ({seen:?})"
     );
     eprintln!(
         "{} faults, each in a stall of the machine; {} plans flown shifted",

@@ -64,11 +64,11 @@ fn gaps_around_swap(ev: &[serde_json::Value], role: &str) -> Vec<u64> {
 }
 
 /// The swaps' claim: no deadline missed and no tick lost from a swap's start to a second
-/// after its switch. A tick lost elsewhere is the machine's (a stall of a shared CI VM,
-/// issue 47's subject) and allowed as in the project's other real-time tests.
+/// after its switch. A tick lost elsewhere is allowed where the machine itself stalled (a
+/// stall of a shared CI VM, issue 47's subject), as in the project's other real-time tests.
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let file = scenario_file(
         dir.path(),
@@ -87,7 +87,7 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
     );
     let (out_dir, s, ev) = run_realtime(dir.path(), &file);
     assert_eq!(s["deadline_misses"], 0);
-    common::assert_few_record_gaps(&s);
+    machine.assert_every_fault_in_a_stall(&ev);
     for role in ["estimator", "mpc"] {
         assert_eq!(gaps_around_swap(&ev, role), [] as [u64; 0], "{role} swap");
     }
@@ -147,7 +147,7 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
 
 #[test]
 fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let run_dir = dir.path().join("run");
     let mut child = spawn_run(&run_dir, &["--mode", "realtime", "--set", "duration_s=5"]);
@@ -184,7 +184,7 @@ fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() 
         |e| e["event"] == "swap_refused" && e["reason"].as_str().unwrap().contains("not found")
     ));
     assert_eq!(s["deadline_misses"], 0);
-    common::assert_few_record_gaps(&s);
+    machine.assert_every_fault_in_a_stall(&ev);
     assert_eq!(s["swaps"], 1);
     let ended = run(&["swap", "--run", dir_arg, "dfl"]);
     assert_eq!(ended.status.code(), Some(2));
@@ -317,7 +317,7 @@ fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
 #[test]
 fn a_replacement_that_exits_or_publishes_nothing_within_10_s_is_dropped_and_the_old_process_stays()
 {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let file = scenario_file(
         dir.path(),
@@ -358,6 +358,6 @@ command = ["true"]
     assert_eq!(s["swaps"], 0);
     assert_eq!(s["restarts"], 0);
     assert_eq!(s["deadline_misses"], 0);
-    common::assert_few_record_gaps(&s);
+    machine.assert_every_fault_in_a_stall(&ev);
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
 }
