@@ -124,6 +124,12 @@ impl Seen {
             tick0_ns(events),
             faults.len()
         );
+        if !faults.is_empty() {
+            eprintln!(
+                "{} faults, each in a stall of the machine: {faults:?}",
+                faults.len()
+            );
+        }
     }
 }
 
