@@ -23,6 +23,19 @@ pub struct Layout {
 }
 
 impl Layout {
+    /// The layout of `scenario`'s program, whose terminal set keeps `terminal_rows` rows.
+    pub fn of(scenario: &protocol::Scenario, terminal_rows: usize) -> Layout {
+        let c = &scenario.mpc;
+        Layout {
+            horizon: c.horizon,
+            terminal_rows,
+            obstacles: scenario.obstacles.len(),
+            linear_barrier: c.constraint == protocol::ConstraintKind::Euclidean || c.gamma >= 1.0,
+            condensed: c.qp_form.condensed(c.horizon),
+            terminal: TerminalBrake::of(scenario),
+        }
+    }
+
     /// Stage-wise index (the sparse formulation's variable) of component `c` of `z_i`.
     pub fn z(&self, i: usize, c: usize) -> usize {
         4 * i + c

@@ -8,7 +8,6 @@
 //! values are updated afterwards.
 
 use crate::assembly::{Assembly, Condensing};
-use crate::brake::TerminalBrake;
 use crate::discs::Prediction;
 use crate::error::MpcError;
 use crate::follow;
@@ -16,11 +15,11 @@ use crate::layout::{Layout, Rows};
 use crate::model::{self, q_matrix, r_matrix};
 use crate::program::{self, StaticData, StepData};
 use crate::reach::PositionReach;
-use crate::solver::{CancelSlot, ConicSolver};
+use crate::solver::{CancelSlot, ConicSolver, Outcome};
 use clarabel::algebra::CscMatrix;
 use nalgebra::{Matrix4, Vector4};
 use protocol::task::Cancel;
-use protocol::{ConstraintKind, Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario, Tracks};
+use protocol::{Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario, Tracks};
 use std::time::Instant;
 
 /// How far about the reference a disc must be out of reach to be deferred from a solve's
@@ -81,6 +80,9 @@ pub struct LinearMpc {
     assembly: Assembly,
     /// The step's constraint discs ([`crate::discs::constraint_discs`]).
     discs: Vec<Disc>,
+    /// How the tracked obstacles among `discs` are predicted: bounded, or at their
+    /// velocity in the escape program ([`LinearMpc::sweep_speed`]).
+    prediction: Prediction,
     /// Those of a solve's program: discs whose rows the input box does not imply and
     /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
     /// with all their rows, the others with their terminal rows only.
@@ -135,14 +137,7 @@ impl LinearMpc {
         let goal = scenario.robot.goal.position;
         let statics = StaticData::of(scenario, a, b, k);
         let route_speed = follow::route_speed(scenario, &statics.terminal_set);
-        let layout = Layout {
-            horizon: c.horizon,
-            terminal_rows: statics.terminal_set.len(),
-            obstacles: scenario.obstacles.len(),
-            linear_barrier: c.constraint == ConstraintKind::Euclidean || c.gamma >= 1.0,
-            condensed: c.qp_form.condensed(c.horizon),
-            terminal: TerminalBrake::of(scenario),
-        };
+        let layout = Layout::of(scenario, statics.terminal_set.len());
         let hessian =
             crate::assembly::stagewise_hessian(&layout, c.q_diag, c.r_diag, &terminal_weight);
         let (forced, free) = crate::reach::rollout(&layout, &a, &b);
@@ -189,6 +184,7 @@ impl LinearMpc {
             reach,
             assembly,
             discs: Vec::with_capacity(scenario.obstacles.len()),
+            prediction: Prediction::Bounded,
             kept: Vec::with_capacity(scenario.obstacles.len()),
             kept_whole: 0,
             deferred: Vec::with_capacity(scenario.obstacles.len()),
@@ -400,8 +396,9 @@ impl LinearMpc {
             uncertainty_sigmas: self.growth.uncertainty_sigmas,
         };
         let t_s = sample as f64 * self.ts_s;
+        self.prediction = Prediction::Bounded;
         self.world
-            .discs(growth, t_s, Prediction::Bounded, &mut self.discs);
+            .discs(growth, t_s, self.prediction, &mut self.discs);
 
         let warm = self.shifted_reference(sample);
         if !warm {
@@ -428,8 +425,9 @@ impl LinearMpc {
             // judges it against the bounded predictions, and flies it only when every
             // other choice (the brake, the robot at rest) would touch too: a person
             // coming at the robot, say (docs/safety.md, "Moving obstacles").
+            self.prediction = Prediction::ConstantVelocity;
             self.world
-                .discs(growth, t_s, Prediction::ConstantVelocity, &mut self.discs);
+                .discs(growth, t_s, self.prediction, &mut self.discs);
             self.braking_reference(z0);
             outcome = outcome.then(self.refine(z0));
         }
@@ -654,6 +652,13 @@ impl LinearMpc {
         admitted
     }
 
+    /// The speed whose stop the terminal rows sweep a moving disc over, m/s
+    /// ([`Prediction::sweep_speed`]).
+    fn sweep_speed(&self) -> f64 {
+        let reach = self.reach.max_terminal_speed();
+        self.prediction.sweep_speed(reach, self.reference_velocity)
+    }
+
     /// The step's data for the program on `discs`.
     fn step_data<'a>(&'a self, z0: [f64; 4], discs: &'a [Disc]) -> StepData<'a> {
         StepData {
@@ -663,6 +668,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
+            sweep_speed: self.sweep_speed(),
             stage_s: self.ts_s,
         }
     }
@@ -682,6 +688,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
+            sweep_speed: self.sweep_speed(),
             stage_s: self.ts_s,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
@@ -775,24 +782,6 @@ impl LinearMpc {
 /// `z = [x, xdot, y, ydot]` (absolute) relative to `goal`.
 fn goal_relative(z: [f64; 4], goal: [f64; 2]) -> [f64; 4] {
     [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
-}
-
-#[derive(Debug, Clone, Copy)]
-struct Outcome {
-    status: PlanStatus,
-    iterations: u32,
-    solves: u32,
-}
-
-impl Outcome {
-    /// The outcome of `retry`, tried after this one, with the work of both.
-    fn then(self, retry: Outcome) -> Outcome {
-        Outcome {
-            iterations: self.iterations + retry.iterations,
-            solves: self.solves + retry.solves,
-            ..retry
-        }
-    }
 }
 
 #[cfg(test)]

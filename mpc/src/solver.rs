@@ -9,6 +9,26 @@ use protocol::task::Cancel;
 use std::cell::RefCell;
 use std::rc::Rc;
 
+/// What the solves of a step came to: the status of the last, and the interior-point
+/// iterations and solves of all of them.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Outcome {
+    pub status: PlanStatus,
+    pub iterations: u32,
+    pub solves: u32,
+}
+
+impl Outcome {
+    /// The outcome of `retry`, tried after this one, with the work of both.
+    pub fn then(self, retry: Outcome) -> Outcome {
+        Outcome {
+            iterations: self.iterations + retry.iterations,
+            solves: self.solves + retry.solves,
+            ..retry
+        }
+    }
+}
+
 /// Where a warm-up's cancel check sits while the warm-up runs ([`CancelSlot::during`]):
 /// shared by every solver of an MPC and its step, it cuts their solves short between
 /// clarabel's interior-point iterations (the termination callback set at the build) and

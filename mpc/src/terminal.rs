@@ -109,6 +109,10 @@ pub struct TerminalRows<'a> {
     pub first_variable: usize,
     /// The largest `|w_N|` any input sequence in the box reaches, m/s.
     pub max_speed: f64,
+    /// The speed whose stop a moving disc is swept over ([`TerminalRows::discs`]), m/s:
+    /// `max_speed` in every plan's program, the reference's last speed in the escape
+    /// program's (`mpc::discs::Prediction::ConstantVelocity`, docs/safety.md).
+    pub sweep_speed: f64,
     /// `(1 - gamma)^N` (0 with a linear CBF): the share of a negative `H(p_0)` the decay
     /// floor keeps at the last stage ([`TerminalRows::radius`]).
     pub floor_share: f64,
@@ -129,11 +133,11 @@ struct SegmentRow {
 
 impl TerminalRows<'_> {
     /// The discs the stopping path must stay out of: each at stage `N`, and a moving one
-    /// swept over the longest stop from there (from `max_speed`, with a sample's hold),
-    /// so that the robot is stopped before the obstacle comes (passive safety,
-    /// docs/safety.md). A disc at rest is itself.
+    /// swept over the stop from there (from `sweep_speed`, with a sample's hold), so that
+    /// the robot is stopped before the obstacle comes (passive safety, docs/safety.md). A
+    /// disc at rest is itself.
     fn discs(&self) -> impl Iterator<Item = Disc> + '_ {
-        let stop_s = self.max_speed / self.model.decel + self.model.ts_s;
+        let stop_s = self.sweep_speed / self.model.decel + self.model.ts_s;
         self.discs
             .iter()
             .map(move |d| d.at(self.horizon_s).swept(stop_s))

@@ -76,7 +76,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
     cbf.mpc.gamma = 1.0;
     cbf.mpc.qp_form = QpForm::Sparse; // rows compared in stage-wise columns
     let mut euclidean = cbf.clone();
-    euclidean.mpc.constraint = ConstraintKind::Euclidean;
+    euclidean.mpc.constraint = protocol::ConstraintKind::Euclidean;
     euclidean.mpc.gamma = 0.3; // ignored by the Euclidean constraint
     let (a, b) = (
         LinearMpc::new(&cbf).unwrap(),
@@ -97,6 +97,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         reference: &reference,
         reference_velocity: [0.0; 2],
         max_terminal_speed: 0.0,
+        sweep_speed: 0.0,
         stage_s: 0.05,
     };
     let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
@@ -459,6 +460,7 @@ fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
         reference: &mpc.reference,
         reference_velocity: mpc.reference_velocity,
         max_terminal_speed: mpc.reach.max_terminal_speed(),
+        sweep_speed: mpc.reach.max_terminal_speed(),
         stage_s: 0.05,
     };
     let rows = Rows::all(&mpc.layout);
