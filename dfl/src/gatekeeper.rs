@@ -98,6 +98,12 @@ impl Gatekeeper {
     /// `grow` (m). Returns `None` when the trajectory stays outside them, else its deepest
     /// entry found (negative clearance, m).
     pub fn check(&self, plan: &Plan, now: Moment, z: [f64; 4], grow: f64) -> Option<f64> {
+        self.verdict(plan, now, z, grow).deepest()
+    }
+
+    /// [`Gatekeeper::check`], with its contacts told apart by whether the robot still
+    /// moves at them ([`Verdict`]).
+    pub fn verdict(&self, plan: &Plan, now: Moment, z: [f64; 4], grow: f64) -> Verdict {
         let start = [z[0], z[2]];
         let velocity = [z[1], z[3]];
         let first = crate::covering_element(plan, now.sample);
@@ -114,47 +120,55 @@ impl Gatekeeper {
                 })
             })
         };
-        let mut deepest = Deepest::default();
+        let mut found = Verdict::default();
         // Disc by disc, so that each disc's checked radius is computed once.
         for &Disc { center, radius, .. } in &self.discs {
             let radius = checked_radius(start, center, radius + grow);
             let (mut p, mut w) = (start, velocity);
             for (acc, duration) in stages() {
-                deepest.note(arc_clearance(p, w, acc, duration, center, radius));
+                let clearance = arc_clearance(p, w, acc, duration, center, radius);
+                found.note(clearance, at_rest(w, acc, duration));
                 advance(&mut p, &mut w, acc, duration);
             }
         }
         for disc in self.moving_discs(start, now, grow) {
             let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
             for (acc, duration) in stages() {
-                deepest.note(moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed)));
+                let clearance = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed));
+                found.note(clearance, at_rest(w, acc, duration));
                 advance(&mut p, &mut w, acc, duration);
                 elapsed += duration;
             }
-            deepest.note(self.moving_brake_clearance(p, w, &disc, elapsed));
+            found.add(self.moving_brake_verdict(p, w, &disc, elapsed));
         }
         let (mut p, mut w) = (start, velocity);
         for (acc, duration) in stages() {
             advance(&mut p, &mut w, acc, duration);
         }
         if let Some(clearance) = self.brake_clearance(p, w, grow, start) {
-            deepest.note(clearance);
+            found.note(clearance, false);
         }
-        deepest.0
+        found
     }
 
     /// Checks braking at once from the state `z = [x, xdot, y, ydot]` at `now` against
     /// every disc grown by `grow` (m), as [`Gatekeeper::check`] does.
     pub fn brake_check(&self, z: [f64; 4], now: Moment, grow: f64) -> Option<f64> {
+        self.brake_verdict(z, now, grow).deepest()
+    }
+
+    /// [`Gatekeeper::brake_check`], with its contacts told apart by whether the robot
+    /// still moves at them ([`Verdict`]).
+    pub fn brake_verdict(&self, z: [f64; 4], now: Moment, grow: f64) -> Verdict {
         let (p, w) = ([z[0], z[2]], [z[1], z[3]]);
-        let mut deepest = Deepest::default();
+        let mut found = Verdict::default();
         if let Some(clearance) = self.brake_clearance(p, w, grow, p) {
-            deepest.note(clearance);
+            found.note(clearance, false);
         }
         for disc in self.moving_discs(p, now, grow) {
-            deepest.note(self.moving_brake_clearance(p, w, &disc, 0.0));
+            found.add(self.moving_brake_verdict(p, w, &disc, 0.0));
         }
-        deepest.0
+        found
     }
 
     /// The discs the tracks predict at `now`, grown by the fixed part and `grow` (m), as
@@ -198,15 +212,21 @@ impl Gatekeeper {
             .reduce(f64::min)
     }
 
-    /// The clearance of braking, `elapsed_s` after now, from position `p` with velocity
-    /// `w` to a moving `disc` (as it is now), m; then of the robot at rest until
+    /// The contacts of braking, `elapsed_s` after now, from position `p` with velocity
+    /// `w` with a moving `disc` (as it is now), m; then of the robot at rest until
     /// [`Gatekeeper::horizon_s`] after now. (Against a disc at rest, resting adds nothing;
     /// against one coming at the robot it makes staying one choice among others, not a
     /// safe one: the DFL can then take a plan out of the obstacle's way.) The brake is
     /// taken as the arc of constant deceleration that stops in
     /// [`protocol::stopping_distance`] (the held inner-tick commands stop a little later
     /// than the continuous brake; the arc covers that distance, over a longer time).
-    fn moving_brake_clearance(&self, p: [f64; 2], w: [f64; 2], disc: &Disc, elapsed_s: f64) -> f64 {
+    fn moving_brake_verdict(
+        &self,
+        p: [f64; 2],
+        w: [f64; 2],
+        disc: &Disc,
+        elapsed_s: f64,
+    ) -> Verdict {
         let speed = w[0].hypot(w[1]);
         let stop = protocol::stopping_distance(speed, self.brake_decel, self.inner_tick_s);
         let (acc, duration) = if speed == 0.0 || stop == 0.0 {
@@ -218,10 +238,12 @@ impl Gatekeeper {
                 2.0 * stop / speed,
             )
         };
+        let mut found = Verdict::default();
         let braking = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed_s));
+        found.note(braking, at_rest(w, acc, duration));
         let rest_s = self.horizon_s - elapsed_s - duration;
         if rest_s <= 0.0 {
-            return braking;
+            return found;
         }
         let mut at_rest = p;
         advance(&mut at_rest, &mut w.clone(), acc, duration);
@@ -232,20 +254,69 @@ impl Gatekeeper {
             rest_s,
             &disc.at(elapsed_s + duration),
         );
-        braking.min(resting)
+        found.note(resting, true);
+        found
     }
 }
 
-/// The deepest entry into a disc found so far (negative clearance, m), if any.
-#[derive(Debug, Clone, Copy, Default)]
-struct Deepest(Option<f64>);
+/// What the check of a trajectory found: its deepest entry into a grown disc while the
+/// robot moves, and after it has come to rest (negative clearances, m), if any. A robot
+/// that enters no disc while it moves is at rest at its first contact, if any comes: a
+/// contact the obstacle makes, not the robot (passive safety, docs/safety.md).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Verdict {
+    pub moving: Option<f64>,
+    pub resting: Option<f64>,
+}
 
-impl Deepest {
-    fn note(&mut self, clearance: f64) {
-        if clearance < 0.0 {
-            self.0 = Some(self.0.map_or(clearance, |d| d.min(clearance)));
+impl Verdict {
+    /// The deepest entry of either kind, if any (negative clearance, m).
+    pub fn deepest(self) -> Option<f64> {
+        match (self.moving, self.resting) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
+
+    /// Whether the trajectory enters no grown disc at all.
+    pub fn clear(self) -> bool {
+        self.deepest().is_none()
+    }
+
+    /// Whether every contact found comes with the robot at rest (or none comes): the
+    /// robot has come to rest before its first predicted contact.
+    pub fn rests_before_contact(self) -> bool {
+        self.moving.is_none()
+    }
+
+    /// Notes a clearance found (m) with the robot moving or `resting`.
+    fn note(&mut self, clearance: f64, resting: bool) {
+        if clearance < 0.0 {
+            let kind = if resting {
+                &mut self.resting
+            } else {
+                &mut self.moving
+            };
+            *kind = Some(kind.map_or(clearance, |d| d.min(clearance)));
+        }
+    }
+
+    /// Notes what another part of the same trajectory found.
+    fn add(&mut self, other: Verdict) {
+        for (clearance, resting) in [(other.moving, false), (other.resting, true)] {
+            if let Some(clearance) = clearance {
+                self.note(clearance, resting);
+            }
+        }
+    }
+}
+
+/// Whether the robot is at rest over an arc from velocity `w` at constant acceleration
+/// `acc` for `duration` (s): slower than [`protocol::REST_SPEED_M_S`] at both ends (its
+/// speed is largest at an end).
+fn at_rest(w: [f64; 2], acc: [f64; 2], duration: f64) -> bool {
+    let end = [w[0] + acc[0] * duration, w[1] + acc[1] * duration];
+    w[0].hypot(w[1]) < protocol::REST_SPEED_M_S && end[0].hypot(end[1]) < protocol::REST_SPEED_M_S
 }
 
 /// Moves position `p` and velocity `w` on by `duration` (s) at constant acceleration `acc`.

@@ -11,10 +11,13 @@ use protocol::{
     Actuation, CommandMode, Estimate, Header, Intervention, Plan, Scenario, Timing, WheelGeometry,
 };
 
+mod choice;
 pub mod gatekeeper;
 pub mod task;
 
-pub use gatekeeper::{Gatekeeper, Moment};
+pub use choice::{Candidate, least_unsafe};
+use choice::{Choice, choose, touching};
+pub use gatekeeper::{Gatekeeper, Moment, Verdict};
 pub use task::{
     DeadlineMonitor, DflTask, PLAN_WAIT_FRACTION, PlanInbox, SILENT_TICKS, SilenceWatch,
 };
@@ -185,59 +188,6 @@ impl GoalHold {
     }
 }
 
-/// What the DFL flies when the new plan (if any) is not committed.
-#[derive(Debug, Clone, Copy)]
-enum Choice {
-    /// The committed trajectory, safe, goes on; or the robot brakes already.
-    Unchanged,
-    /// The brake: for the committed plan's sample, if one is given up; the brake's
-    /// clearance if it touches; the committed trajectory's.
-    Brake(Option<u64>, Option<f64>, f64),
-    /// The committed trajectory flown on though it touches (its sample and clearance):
-    /// the brake would go in deeper.
-    Fly(u64, f64),
-    /// Every other choice touches; the refused plan touches least (its clearance at the
-    /// re-check's growth, 0 if it clears that).
-    Refused(f64),
-}
-
-/// The choice of the least unsafe trajectory when the committed one (`flying`) is unsafe
-/// or there is none, and a new plan was `refused`, checked `at` (the moment, the state,
-/// the re-check's growth): the committed trajectory if it is safe; else the brake, unless
-/// braking from here would enter an obstacle deeper than the committed trajectory does (a
-/// plan turning away from it, say); and when that fallback touches too, the refused plan
-/// if it touches less.
-fn choose(
-    gatekeeper: &Gatekeeper,
-    at: (Moment, [f64; 4], f64),
-    flying: Option<&Plan>,
-    refused: Option<&Plan>,
-) -> Choice {
-    let (now, z, grow) = at;
-    let fly = flying.map(|plan| (plan.sample, gatekeeper.check(plan, now, z, grow)));
-    if matches!(fly, Some((_, None))) || (fly.is_none() && refused.is_none()) {
-        return Choice::Unchanged;
-    }
-    let brake = gatekeeper.brake_check(z, now, grow);
-    let fallback = match (fly, brake) {
-        (Some((plan_sample, Some(c))), Some(b)) if b < c => Choice::Fly(plan_sample, c),
-        (Some((plan_sample, Some(c))), b) => Choice::Brake(Some(plan_sample), b, c),
-        _ => Choice::Brake(None, brake, 0.0),
-    };
-    let touching = match fallback {
-        Choice::Brake(_, brake, _) => brake,
-        Choice::Fly(_, clearance) => Some(clearance),
-        _ => None,
-    };
-    if let (Some(plan), Some(touching)) = (refused, touching) {
-        let clearance = gatekeeper.check(plan, now, z, grow);
-        if clearance.is_none_or(|c| c > touching) {
-            return Choice::Refused(clearance.unwrap_or(0.0));
-        }
-    }
-    fallback
-}
-
 /// What the safety check did at one tick.
 #[derive(Debug, Clone, Copy, Default)]
 struct CheckOutcome {
@@ -246,6 +196,18 @@ struct CheckOutcome {
     clearance_m: f64,
     /// Interventions at this tick (a refused plan and an unsafe committed one: two).
     count: u32,
+}
+
+impl CheckOutcome {
+    /// Notes one intervention (the newest is the one reported).
+    fn note(&mut self, intervention: Intervention, plan_sample: u64, clearance_m: f64) {
+        *self = CheckOutcome {
+            intervention,
+            plan_sample,
+            clearance_m,
+            count: self.count + 1,
+        };
+    }
 }
 
 impl Dfl {
@@ -324,9 +286,8 @@ impl Dfl {
     /// The safety check of a tick: commits an offered plan whose trajectory (the plan, then
     /// the brake) is safe from `estimate`, and gives up the committed one when it is not.
     fn check(&mut self, estimate: &Estimate, tick: u64) -> CheckOutcome {
-        let mut outcome = CheckOutcome::default();
         let Some(gatekeeper) = &self.gatekeeper else {
-            return outcome;
+            return CheckOutcome::default();
         };
         let sample = self.timing.sample_of(tick);
         let now = Moment {
@@ -340,21 +301,13 @@ impl Dfl {
             gatekeeper.commit_growth(sigma),
             gatekeeper.keep_growth(sigma),
         );
-        let mut note = |intervention, plan_sample, clearance_m| {
-            outcome = CheckOutcome {
-                intervention,
-                plan_sample,
-                clearance_m,
-                count: outcome.count + 1,
-            };
-        };
         let mut refused = None;
         if let Some(plan) = self.offered.take() {
             match gatekeeper.check(&plan, now, z, commit_growth) {
                 None => {
                     self.active = Some(plan);
                     self.safety_braking = false;
-                    return outcome;
+                    return CheckOutcome::default();
                 }
                 Some(clearance) => refused = Some((plan, clearance)),
             }
@@ -370,37 +323,55 @@ impl Dfl {
             flying.as_ref(),
             refused.as_ref().map(|(plan, _)| plan),
         );
+        let outcome = self.take(choice, refused);
+        self.interventions += outcome.count;
+        outcome
+    }
+
+    /// Flies `choice`, made with the plan `refused` (and its clearance at the commit
+    /// check), if any; what it did.
+    fn take(&mut self, choice: Choice, refused: Option<(Plan, f64)>) -> CheckOutcome {
+        let mut outcome = CheckOutcome::default();
         match (choice, refused) {
-            (Choice::Refused(clearance), Some((plan, _))) => {
-                note(Intervention::LeastUnsafe, plan.sample, clearance);
+            (Choice::Refused(verdict, stages), Some((mut plan, _))) => {
+                let clearance = verdict.deepest().unwrap_or(0.0);
+                outcome.note(touching(verdict), plan.sample, clearance);
+                plan.horizon = stages;
                 self.active = Some(plan);
                 self.safety_braking = false;
                 self.flown_unsafe = Some(plan.sample);
             }
-            (_, Some((plan, clearance))) => note(Intervention::PlanRefused, plan.sample, clearance),
+            (_, Some((plan, clearance))) => {
+                outcome.note(Intervention::PlanRefused, plan.sample, clearance)
+            }
             _ => {}
         }
         match choice {
             Choice::Brake(Some(plan_sample), brake, clearance) => {
-                let every_touches = brake.is_some();
-                let intervention = if every_touches {
-                    Intervention::LeastUnsafe
-                } else {
+                let intervention = if brake.clear() {
                     Intervention::CommittedUnsafe
+                } else {
+                    touching(brake)
                 };
-                note(intervention, plan_sample, brake.unwrap_or(clearance));
+                let clearance = brake.deepest().unwrap_or(clearance);
+                outcome.note(intervention, plan_sample, clearance);
                 self.active = None;
                 self.safety_braking = true;
             }
-            Choice::Fly(plan_sample, clearance) if self.flown_unsafe != Some(plan_sample) => {
-                note(Intervention::LeastUnsafe, plan_sample, clearance);
-                self.flown_unsafe = Some(plan_sample);
+            Choice::Fly(plan_sample, verdict, stages) => {
+                if self.flown_unsafe != Some(plan_sample) {
+                    let clearance = verdict.deepest().unwrap_or(0.0);
+                    outcome.note(touching(verdict), plan_sample, clearance);
+                    self.flown_unsafe = Some(plan_sample);
+                }
+                if let Some(plan) = &mut self.active {
+                    plan.horizon = plan.horizon.min(stages);
+                }
             }
             // The committed trajectory goes on, or the robot brakes already; a refused
             // plan is reported above.
             _ => {}
         }
-        self.interventions += outcome.count;
         outcome
     }
 

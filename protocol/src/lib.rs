@@ -62,6 +62,12 @@ pub fn stopping_distance(speed_m_s: f64, decel: f64, hold_s: f64) -> f64 {
     s * s / (2.0 * decel) + (0.5 * s * hold_s).min(0.125 * decel * hold_s * hold_s)
 }
 
+/// A robot whose commanded forward speed (the DFL's zeta) is below this is at rest, m/s:
+/// a disturbance may still push it about, but it does not drive into anything. The judge
+/// counts a contact that starts below it as one at rest, and the DFL's safety check
+/// calls a contact predicted where the robot is this slow one at rest.
+pub const REST_SPEED_M_S: f64 = 1e-3;
+
 /// The DFL's safety check commits a trajectory only if it clears every obstacle, grown by
 /// the robot's radius, `mpc.safety_margin_m` and `kappa sigma`, by a further
 /// [`commit_margin_m`]; it gives a committed trajectory up only when, flown from the

@@ -104,9 +104,7 @@ pub const STALL_DISTANCE_M: f64 = 0.005;
 /// seconds to go by.
 pub const WAITING_WITHIN_M: f64 = 3.0;
 
-/// A robot whose commanded forward speed (the DFL's ζ) is below this is at rest, m/s: a
-/// disturbance may still push it about, but it does not drive into anything.
-pub const REST_SPEED_M_S: f64 = 1e-3;
+pub use protocol::REST_SPEED_M_S;
 
 /// A robot farther than this from the straight start-goal line has left it, m.
 pub const DEVIATION_M: f64 = 0.05;

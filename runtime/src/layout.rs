@@ -356,6 +356,7 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
                     Intervention::PlanRefused,
                     Intervention::CommittedUnsafe,
                     Intervention::LeastUnsafe,
+                    Intervention::MovingContact,
                 ],
                 Intervention::as_str,
                 |i| i as u32,

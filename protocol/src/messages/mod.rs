@@ -500,9 +500,14 @@ pub enum Intervention {
     CommittedUnsafe = 2,
     /// Every choice would enter an inflated obstacle (a moving one coming at the robot,
     /// say): the new plan, the committed trajectory and the brake, each flown from the
-    /// current estimate. The DFL takes the one that keeps the most clearance (the
-    /// command's mode says which); reported once per plan flown on.
+    /// current estimate. The DFL takes one that comes to rest before its first predicted
+    /// contact, the one that keeps the most clearance among those (the command's mode says
+    /// which); reported once per plan flown on.
     LeastUnsafe = 3,
+    /// As [`Intervention::LeastUnsafe`], but no choice comes to rest before its first
+    /// predicted contact: the DFL takes the one that keeps the most clearance, and the
+    /// robot is predicted to be still moving at the contact.
+    MovingContact = 4,
 }
 
 impl Intervention {
@@ -512,6 +517,7 @@ impl Intervention {
             1 => Intervention::PlanRefused,
             2 => Intervention::CommittedUnsafe,
             3 => Intervention::LeastUnsafe,
+            4 => Intervention::MovingContact,
             _ => return None,
         })
     }
@@ -521,6 +527,7 @@ impl Intervention {
             Intervention::PlanRefused => "plan_refused",
             Intervention::CommittedUnsafe => "committed_unsafe",
             Intervention::LeastUnsafe => "least_unsafe",
+            Intervention::MovingContact => "moving_contact",
         }
     }
 }
