@@ -60,6 +60,37 @@ fn crossing_is_reached_without_contact_in_process_and_identically_in_lockstep() 
 }
 
 #[test]
+fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identically_in_lockstep() {
+    // Issue 54: a person walked at a robot at rest beside an obstacle, every plan was
+    // refused or infeasible for a second, and the DFL, taking the choice that kept the
+    // most clearance, was touched reversing at 0.25 m/s.
+    let _machine = common::machine_shared();
+    let world =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz-seed-5-world-74.toml");
+    let world = world.to_str().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (inprocess, lockstep) = (dir.path().join("in-process"), dir.path().join("lockstep"));
+    let s = run_into(&inprocess, &[world, "--in-process"]);
+    assert_eq!(s["contacts_moving"], 0, "{s}");
+    let outcome = s["outcome"].as_str().unwrap();
+    let last = csv(&inprocess.join("trajectory.csv")).pop().unwrap();
+    assert!(
+        outcome == "reached" || (outcome != "collided" && num(&last, "zeta").abs() < 1e-3),
+        "reached or stopped: {s}, at the end {last:?}"
+    );
+    let s = run_into(&lockstep, &[world]);
+    assert_eq!(
+        (s["outcome"].as_str(), &s["contacts_moving"]),
+        (Some(outcome), &0.into()),
+        "{s}"
+    );
+    assert!(
+        read(&inprocess.join("trajectory.csv")) == read(&lockstep.join("trajectory.csv")),
+        "trajectory.csv differs between in process and lockstep"
+    );
+}
+
+#[test]
 fn the_dfls_check_on_the_tracks_alone_keeps_an_mpc_blind_to_obstacles_off_the_crossing_person() {
     // The same world with an MPC that ignores every obstacle and drives straight at the
     // goal (no planner, so it meets the person): the DFL's check refuses its plans into
