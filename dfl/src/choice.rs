@@ -51,10 +51,10 @@ pub(crate) enum Choice {
     /// The brake: for the committed plan's sample, if one is given up; what the check
     /// found of the brake; the committed trajectory's clearance.
     Brake(Option<u64>, Verdict, f64),
-    /// The committed trajectory flown on though it touches (its sample, what the check
-    /// found, the elements flown before the brake): every other choice is worse
-    /// ([`least_unsafe`]).
-    Fly(u64, Verdict, u32),
+    /// The committed trajectory flown on though it touches, or cut short (its sample, what
+    /// the check found, the elements flown before the brake, the whole trajectory's
+    /// clearance): every other choice is worse ([`least_unsafe`]).
+    Fly(u64, Verdict, u32, f64),
     /// Every other choice touches; the refused plan is the least unsafe (what the check
     /// found at the re-check's growth, nothing if it clears that; the elements flown
     /// before the brake).
@@ -135,16 +135,17 @@ pub(crate) fn choose(
             }
         }
     }
+    let whole_clearance = fly.and_then(|(_, v)| v.deepest()).unwrap_or(0.0);
     match least_unsafe(candidates.all()) {
         Some((Candidate::Committed { stages }, verdict)) => match fly {
-            Some((plan_sample, _)) => Choice::Fly(plan_sample, verdict, stages),
+            Some((plan_sample, _)) => Choice::Fly(plan_sample, verdict, stages, whole_clearance),
             None => Choice::Unchanged,
         },
         Some((Candidate::Refused { stages }, verdict)) => Choice::Refused(verdict, stages),
         _ => Choice::Brake(
             fly.map(|(plan_sample, _)| plan_sample),
             brake,
-            fly.and_then(|(_, v)| v.deepest()).unwrap_or(0.0),
+            whole_clearance,
         ),
     }
 }

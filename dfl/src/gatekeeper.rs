@@ -8,8 +8,9 @@
 //! [`protocol::commit_margin_m`]. Otherwise the trajectory already committed goes on, and
 //! its brake follows: today's shifted-plan fallback, but checked. On every tick the
 //! committed trajectory is checked again from the new estimate, against the same discs
-//! without that last margin; if it would enter one, the DFL brakes at once (unless braking
-//! from there would enter an obstacle deeper still: then the committed trajectory goes on).
+//! without that last margin; if it would enter one, the DFL brakes at once, unless braking
+//! touches too: then it takes the least unsafe choice (`dfl::least_unsafe`), for which the
+//! check tells contacts while the robot moves from those at rest ([`Verdict`]).
 //! A robot already inside a grown disc (its uncertainty grew, say) is checked against the
 //! disc through its position: it may move, but not deeper. The margin
 //! between the two checks keeps the estimate's jitter and the robot's small departures
@@ -43,7 +44,7 @@ pub struct Gatekeeper {
     ts_s: f64,
     inner_tick_s: f64,
     /// `N Ts`, s: how long from now every choice is checked against a moving disc, the
-    /// robot at rest after its brake included ([`Gatekeeper::moving_brake_clearance`]).
+    /// robot at rest after its brake included ([`Gatekeeper::moving_brake_verdict`]).
     horizon_s: f64,
 }
 
@@ -126,8 +127,9 @@ impl Gatekeeper {
             let radius = checked_radius(start, center, radius + grow);
             let (mut p, mut w) = (start, velocity);
             for (acc, duration) in stages() {
-                let clearance = arc_clearance(p, w, acc, duration, center, radius);
-                found.note(clearance, at_rest(w, acc, duration));
+                // An obstacle at rest never comes to the robot: a contact with it is one
+                // the robot makes, however slowly.
+                found.note(arc_clearance(p, w, acc, duration, center, radius), false);
                 advance(&mut p, &mut w, acc, duration);
             }
         }
@@ -284,7 +286,8 @@ impl Verdict {
     }
 
     /// Whether every contact found comes with the robot at rest (or none comes): the
-    /// robot has come to rest before its first predicted contact.
+    /// robot has come to rest before its first predicted contact and does not move into
+    /// one after it (a contact at rest followed by a move into another counts as moving).
     pub fn rests_before_contact(self) -> bool {
         self.moving.is_none()
     }

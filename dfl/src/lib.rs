@@ -121,8 +121,9 @@ pub struct Dfl {
     offered: Option<Plan>,
     /// Braking because the committed trajectory was found unsafe, until a plan passes.
     safety_braking: bool,
-    /// The committed plan found unsafe but flown on (braking would be worse), reported.
-    flown_unsafe: Option<u64>,
+    /// The plan flown on though it touches (every other choice is worse), and how that was
+    /// reported: once per plan, and again if it comes to touch while moving.
+    flown_unsafe: Option<(u64, Intervention)>,
     /// Sample of the newest plan taken (offered, committed or given up).
     newest: Option<u64>,
     interventions: u32,
@@ -335,11 +336,12 @@ impl Dfl {
         match (choice, refused) {
             (Choice::Refused(verdict, stages), Some((mut plan, _))) => {
                 let clearance = verdict.deepest().unwrap_or(0.0);
-                outcome.note(touching(verdict), plan.sample, clearance);
+                let intervention = touching(verdict);
+                outcome.note(intervention, plan.sample, clearance);
                 plan.horizon = stages;
                 self.active = Some(plan);
                 self.safety_braking = false;
-                self.flown_unsafe = Some(plan.sample);
+                self.flown_unsafe = Some((plan.sample, intervention));
             }
             (_, Some((plan, clearance))) => {
                 outcome.note(Intervention::PlanRefused, plan.sample, clearance)
@@ -358,11 +360,25 @@ impl Dfl {
                 self.active = None;
                 self.safety_braking = true;
             }
-            Choice::Fly(plan_sample, verdict, stages) => {
-                if self.flown_unsafe != Some(plan_sample) {
-                    let clearance = verdict.deepest().unwrap_or(0.0);
-                    outcome.note(touching(verdict), plan_sample, clearance);
-                    self.flown_unsafe = Some(plan_sample);
+            Choice::Brake(None, brake, _) if !brake.rests_before_contact() => {
+                let plan_sample = refused.map_or(0, |(plan, _)| plan.sample);
+                let clearance = brake.deepest().unwrap_or(0.0);
+                outcome.note(Intervention::MovingContact, plan_sample, clearance);
+            }
+            Choice::Fly(plan_sample, verdict, stages, whole_clearance) => {
+                // A cut of the committed plan that clears: the whole one is given up.
+                let (intervention, clearance) = match verdict.deepest() {
+                    None => (Intervention::CommittedUnsafe, whole_clearance),
+                    Some(clearance) => (touching(verdict), clearance),
+                };
+                let reported = self
+                    .flown_unsafe
+                    .filter(|(sample, _)| *sample == plan_sample);
+                let escalates = intervention == Intervention::MovingContact
+                    && reported.is_some_and(|(_, i)| i != Intervention::MovingContact);
+                if reported.is_none() || escalates {
+                    outcome.note(intervention, plan_sample, clearance);
+                    self.flown_unsafe = Some((plan_sample, intervention));
                 }
                 if let Some(plan) = &mut self.active {
                     plan.horizon = plan.horizon.min(stages);

@@ -645,7 +645,7 @@ fn among_the_same_kind_the_most_clearance_is_taken_and_a_tie_goes_to_the_first()
 }
 
 #[test]
-fn in_fuzz_world_74_the_robot_stays_rather_than_flee_into_the_person_while_it_moves() {
+fn in_fuzz_world_74_the_robot_does_not_flee_where_the_person_would_catch_it_moving() {
     // World 74 of `scmpc fuzz --seed 5` at 9.172 s (tick 1190): the robot nearly at rest
     // beside an obstacle at rest on its east; a person (0.306 m) walking at 1.36 m/s
     // coming at it from the west. The DFL flew the plan of that sample (its first input
@@ -703,10 +703,19 @@ fn in_fuzz_world_74_the_robot_stays_rather_than_flee_into_the_person_while_it_mo
         flight.deepest() > staying.deepest(),
         "by clearance alone the flight: {flight:?} against {staying:?}"
     );
+    let whole = Candidate::Refused { stages: 14 };
     assert_eq!(
-        least_unsafe(&[(Candidate::Brake, staying), (REFUSED, flight)]),
+        least_unsafe(&[(Candidate::Brake, staying), (whole, flight)]),
         Some((Candidate::Brake, staying))
     );
+    // With the flight cut short after each element too, what the DFL flies comes to rest
+    // before the person's disc reaches it.
+    let chosen = match choose(&gatekeeper, (now, z, grow), None, Some(&north)) {
+        Choice::Brake(None, verdict, _) => verdict,
+        Choice::Refused(verdict, stages) if stages < 14 => verdict,
+        other => panic!("{other:?}"),
+    };
+    assert!(chosen.rests_before_contact(), "{chosen:?}");
 }
 
 /// The tracks at `time_s` of one obstacle (0.3 m) at `center` moving at `velocity`, with
@@ -801,4 +810,33 @@ fn a_slow_robot_within_the_goal_tolerance_is_braked_to_rest_and_held_until_pushe
     let mut dfl = Dfl::new(&paper);
     dfl.offer(&along_x(0, 1.0));
     assert!(flown(dfl.step(&at(0.0), 0)));
+}
+
+#[test]
+fn a_plan_cut_short_is_flown_to_its_cut_and_then_the_robot_brakes() {
+    let mut dfl = Dfl::new(&Scenario::default());
+    let plan = along_x(1, 1.0);
+    let cut = Verdict {
+        moving: None,
+        resting: Some(-0.1),
+    };
+    // Elements 0, 1 and 2 of plan 1, then the brake.
+    let outcome = dfl.take(Choice::Refused(cut, 3), Some((plan, -0.2)));
+    assert_eq!(
+        (outcome.intervention, outcome.count),
+        (Intervention::LeastUnsafe, 1)
+    );
+    let estimate = Estimate {
+        state: [-5.0, 0.0, 0.0, 0.5],
+        ..Estimate::default()
+    };
+    let ticks = Scenario::default().timing.inner_steps as u64;
+    let flown = dfl.step(&estimate, 3 * ticks);
+    assert_ne!(flown.mode(), Some(CommandMode::Brake));
+    assert_eq!(flown.plan_sample, 1);
+    let braked = dfl.step(&estimate, 4 * ticks);
+    assert_eq!(
+        (braked.mode(), braked.plan_sample),
+        (Some(CommandMode::Brake), 0)
+    );
 }

@@ -117,7 +117,7 @@ pub struct TerminalRows<'a> {
     /// floor keeps at the last stage ([`TerminalRows::radius`]).
     pub floor_share: f64,
     /// Time of stage `N` after the discs' time, s: a moving disc is taken there, swept
-    /// over the longest stop ([`TerminalRows::discs`]).
+    /// over the stop from `sweep_speed` ([`TerminalRows::discs`]).
     pub horizon_s: f64,
 }
 
