@@ -336,6 +336,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["mpc.uncertainty_sigmas=-1"], "mpc.uncertainty_sigmas"),
         (&["mpc.max_solves=0"], "mpc.max_solves"),
         (&["mpc.refinement_tol_m=0"], "mpc.refinement_tol_m"),
+        (&["mpc.rest_lookahead_s=-0.5"], "mpc.rest_lookahead_s"),
         (&["mpc.terminal_safety=wall"], "mpc.terminal_safety"),
         (&["mpc.formulation=nonlinear"], "mpc.terminal_safety"),
         (&["dfl.zeta_threshold=-0.01"], "dfl.zeta_threshold"),

@@ -14,6 +14,14 @@ fn run_into(dir: &Path, args: &[&str]) -> serde_json::Value {
     summary(dir)
 }
 
+/// The path of `tests/fixtures/<name>`.
+fn fixture(name: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name);
+    path.to_str().unwrap().to_owned()
+}
+
 fn read(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -65,9 +73,7 @@ fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identicall
     // refused or infeasible for a second, and the DFL, taking the choice that kept the
     // most clearance, was touched reversing at 0.25 m/s.
     let _machine = common::machine_shared();
-    let world =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz-seed-5-world-74.toml");
-    let world = world.to_str().unwrap();
+    let world = &fixture("fuzz-seed-5-world-74.toml");
     let dir = tempfile::tempdir().unwrap();
     let (inprocess, lockstep) = (dir.path().join("in-process"), dir.path().join("lockstep"));
     let s = run_into(&inprocess, &[world, "--in-process"]);
@@ -87,6 +93,29 @@ fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identicall
     assert!(
         read(&inprocess.join("trajectory.csv")) == read(&lockstep.join("trajectory.csv")),
         "trajectory.csv differs between in process and lockstep"
+    );
+}
+
+#[test]
+fn fuzz_world_372_of_seed_1_stops_out_of_the_persons_way_and_without_the_rest_lookahead_in_it() {
+    // Issue 54: a person walks head-on at the robot; with passive safety alone its plans
+    // stop in the person's way and the person walks into it at rest. With the stop kept
+    // out of the person's way for `mpc.rest_lookahead_s` more, it is not touched.
+    let _machine = common::machine_shared();
+    let world = &fixture("fuzz-seed-1-world-372.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(&dir.path().join("lookahead"), &[world, "--in-process"]);
+    assert_eq!(
+        (&s["outcome"], &s["contacts_moving"], &s["contacts_at_rest"]),
+        (&"reached".into(), &0.into(), &0.into()),
+        "{s}"
+    );
+    let without = [world, "--in-process", "--set", "mpc.rest_lookahead_s=0"];
+    let s = run_into(&dir.path().join("passive"), &without);
+    assert_eq!(
+        (&s["contacts_moving"], &s["contacts_at_rest"]),
+        (&0.into(), &1.into()),
+        "{s}"
     );
 }
 

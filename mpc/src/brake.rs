@@ -21,6 +21,9 @@ pub struct TerminalBrake {
     pub decel: f64,
     pub ts_s: f64,
     pub form: BrakeForm,
+    /// How long the stop must stay out of a moving obstacle's way once the robot is at
+    /// rest, s (`mpc.rest_lookahead_s`, [`crate::terminal::TerminalRows`]).
+    pub rest_lookahead_s: f64,
 }
 
 impl TerminalBrake {
@@ -103,6 +106,7 @@ impl TerminalBrake {
             decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,
             form,
+            rest_lookahead_s: scenario.mpc.rest_lookahead_s,
         })
     }
 }
@@ -116,6 +120,7 @@ mod tests {
             decel: 3.0,
             ts_s: 0.05,
             form,
+            rest_lookahead_s: 0.0,
         }
     }
 

@@ -134,13 +134,17 @@ struct SegmentRow {
 impl TerminalRows<'_> {
     /// The discs the stopping path must stay out of: each at stage `N`, and a moving one
     /// swept over the stop from there (from `sweep_speed`, with a sample's hold), so that
-    /// the robot is stopped before the obstacle comes (passive safety, docs/safety.md). A
-    /// disc at rest is itself.
+    /// the robot is stopped before the obstacle comes (passive safety, docs/safety.md),
+    /// then carried on at its velocity for `rest_lookahead_s`, so that the robot does not
+    /// stop where the obstacle walking on would meet it at rest. A disc at rest is itself.
     fn discs(&self) -> impl Iterator<Item = Disc> + '_ {
         let stop_s = self.sweep_speed / self.model.decel + self.model.ts_s;
-        self.discs
-            .iter()
-            .map(move |d| d.at(self.horizon_s).swept(stop_s))
+        let rest_s = self.model.rest_lookahead_s;
+        self.discs.iter().map(move |d| {
+            d.at(self.horizon_s)
+                .swept(stop_s)
+                .carried_on(d.motion.velocity, rest_s)
+        })
     }
 
     /// The radius the stopping path must stay outside, m: the disc's, or, for a robot that

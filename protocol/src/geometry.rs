@@ -79,6 +79,17 @@ impl Disc {
         )
     }
 
+    /// A disc at rest that holds this one and this one moved on by `velocity` for
+    /// `duration_s` (the path its centre would take at that velocity, with its radius as
+    /// it is now): centred half way, its radius this one's plus half the way.
+    pub fn carried_on(&self, velocity: [f64; 2], duration_s: f64) -> Disc {
+        let way = [velocity[0] * duration_s, velocity[1] * duration_s];
+        Disc::still(
+            [self.center[0] + way[0] / 2.0, self.center[1] + way[1] / 2.0],
+            self.radius + way[0].hypot(way[1]) / 2.0,
+        )
+    }
+
     /// The barrier `H(p) = ||p - o||^2 - r^2` (paper eq. 100), m^2.
     pub fn barrier(&self, p: [f64; 2]) -> f64 {
         (p[0] - self.center[0]).powi(2) + (p[1] - self.center[1]).powi(2) - self.radius.powi(2)

@@ -523,6 +523,12 @@ pub struct MpcConfig {
     /// `none`: the paper's formulation exactly. The linear scheme only: with the nonlinear
     /// baseline (the paper's SCNMPC) it must be `none`.
     pub terminal_safety: TerminalSafety,
+    /// How long after the robot's stop the stop must stay out of a moving obstacle's way,
+    /// s: with terminal safety rows, a moving disc swept over the stop is carried on at its
+    /// velocity for this long more (without more growth), so that a plan does not stop
+    /// where a person walking on meets a robot at rest (docs/safety.md, "The stop and the
+    /// person's way"). 0 is passive safety alone.
+    pub rest_lookahead_s: f64,
 }
 
 /// The MPC's terminal safety rows (`mpc.terminal_safety`).
@@ -722,6 +728,7 @@ impl Default for MpcConfig {
             max_solves: 5,
             refinement_tol_m: 0.02,
             terminal_safety: TerminalSafety::Brake,
+            rest_lookahead_s: 0.5,
         }
     }
 }

@@ -149,6 +149,7 @@ impl Scenario {
         v.non_negative("mpc.uncertainty_sigmas", m.uncertainty_sigmas);
         v.in_range("mpc.max_solves", m.max_solves, 1, 100);
         v.positive("mpc.refinement_tol_m", m.refinement_tol_m);
+        v.non_negative("mpc.rest_lookahead_s", m.rest_lookahead_s);
 
         v.non_negative("dfl.zeta_threshold", self.dfl.zeta_threshold);
         if let AutoOr::Value(decel) = self.dfl.brake_decel {

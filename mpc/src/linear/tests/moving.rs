@@ -115,13 +115,30 @@ fn a_disc_at_rest_is_itself_at_every_stage_and_a_moving_one_moves_and_grows() {
         let d = moving.at(k as f64 * 0.1);
         assert!(protocol::distance(d.center, swept.center) + d.radius <= swept.radius + 1e-12);
     }
+    // Carried on at its velocity (the terminal rows' rest lookahead), the swept disc is
+    // held all along that way, no larger than it; a disc at rest carried at none is itself.
+    let velocity = moving.motion.velocity;
+    let carried = swept.carried_on(velocity, 0.5);
+    for k in 0..=10 {
+        let t = k as f64 * 0.05;
+        let on = [
+            swept.center[0] + velocity[0] * t,
+            swept.center[1] + velocity[1] * t,
+        ];
+        assert!(protocol::distance(on, carried.center) + swept.radius <= carried.radius + 1e-12);
+    }
+    assert!((carried.radius - (swept.radius + 0.25)).abs() < 1e-12);
+    assert_eq!(still.carried_on([0.0; 2], 0.5), still);
 }
 
 #[test]
 fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_escape() {
     // At rest at the origin, a person (0.3 m) 0.8 m away walking at it at 1 m/s: the
-    // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach.
+    // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach. Passive
+    // safety alone (`mpc.rest_lookahead_s = 0`): keeping the stop out of the person's way
+    // half a second more too leaves the escape program no solution this close.
     let mut s = Scenario::default();
+    s.mpc.rest_lookahead_s = 0.0;
     s.robot.start = [0.0, 0.0, 0.0];
     s.robot.goal.position = [0.0, 3.0];
     s.obstacles = vec![Obstacle {
