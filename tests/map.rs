@@ -122,10 +122,29 @@ fn the_crate_table_of_the_design_is_the_one_cargo_metadata_reports() {
     }
 }
 
+/// The transports `cargo tree -p name` resolves for a crate, with the features its
+/// dependencies turn on (protocol's iceoryx2 is the runtime's to ask for).
+fn linked_transports(name: &str) -> Vec<String> {
+    let tree = cargo(&[
+        "tree",
+        "-p",
+        name,
+        "-e",
+        "normal",
+        "--prefix",
+        "none",
+        "--offline",
+    ]);
+    tree.lines()
+        .filter(|l| TRANSPORTS.iter().any(|t| l.starts_with(&format!("{t} v"))))
+        .map(str::to_string)
+        .collect()
+}
+
 #[test]
 fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
     let declared = from_cargo();
-    for role in ["plant", "estimator", "mpc", "dfl", "planner"] {
+    for role in ["plant", "estimator", "mpc", "dfl", "planner", "tracker"] {
         let (crates, transports) = &declared[role];
         assert_eq!(
             crates.iter().collect::<Vec<_>>(),
@@ -133,24 +152,15 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
             "{role} depends on {crates:?}"
         );
         assert!(transports.is_empty(), "{role} declares {transports:?}");
-        // Resolved, with the features its dependencies turn on: protocol's iceoryx2 is
-        // the runtime's to ask for, never a role's.
-        let tree = cargo(&[
-            "tree",
-            "-p",
-            role,
-            "-e",
-            "normal",
-            "--prefix",
-            "none",
-            "--offline",
-        ]);
-        let linked: Vec<&str> = tree
-            .lines()
-            .filter(|l| TRANSPORTS.iter().any(|t| l.starts_with(&format!("{t} v"))))
-            .collect();
+        let linked = linked_transports(role);
         assert!(linked.is_empty(), "cargo tree -p {role} lists {linked:?}");
     }
+}
+
+#[test]
+fn the_record_links_no_transport() {
+    let linked = linked_transports("record");
+    assert!(linked.is_empty(), "cargo tree -p record lists {linked:?}");
 }
 
 /// Lines of code of a Rust source: neither blank nor comment lines, nor the inline test

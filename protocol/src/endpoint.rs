@@ -1,5 +1,6 @@
 //! Where a host's agent listens (docs/hosts.md): a Zenoh endpoint `tcp/ADDR:PORT` or
-//! `tls/ADDR:PORT`, and the names hosts are given.
+//! `tls/ADDR:PORT`, the names hosts are given, and what a link between hosts carried
+//! ([`LinkCounters`], kept by the `hosts` bridges and written by the record).
 
 use std::net::{IpAddr, ToSocketAddrs};
 
@@ -79,6 +80,37 @@ pub fn is_host_name(name: &str) -> bool {
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// What a bridge has carried and refused.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct LinkCounters {
+    /// Samples sent on the link.
+    pub sent: u64,
+    /// Samples received and published on this host.
+    pub received: u64,
+    /// Data samples dropped by `fault.link_loss`.
+    pub lost: u64,
+    /// Data samples dropped while `fault.link_down_s` cut the link.
+    pub down: u64,
+    /// Samples received whose tag did not verify (not from a bridge of the run).
+    pub refused_tag: u64,
+    /// Samples not sent: not from the publisher their producer is pinned to.
+    pub refused_origin: u64,
+}
+
+impl std::ops::Add for LinkCounters {
+    type Output = LinkCounters;
+    fn add(self, o: LinkCounters) -> LinkCounters {
+        LinkCounters {
+            sent: self.sent + o.sent,
+            received: self.received + o.received,
+            lost: self.lost + o.lost,
+            down: self.down + o.down,
+            refused_tag: self.refused_tag + o.refused_tag,
+            refused_origin: self.refused_origin + o.refused_origin,
+        }
+    }
 }
 
 #[cfg(test)]

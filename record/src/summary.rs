@@ -229,7 +229,7 @@ pub struct ProcessReport {
     pub links: BTreeMap<String, LinkReport>,
     /// What the orchestrator's own bridge carried and refused, over all its links.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub orchestrator_bridge: Option<hosts::LinkCounters>,
+    pub orchestrator_bridge: Option<protocol::endpoint::LinkCounters>,
 }
 
 /// How a process was scheduled, as `/proc` tells of its main thread.
@@ -272,7 +272,7 @@ pub struct LinkReport {
     pub clock_uncertainty_us: f64,
     /// What the host's bridge carried and refused (`null` when the host was lost: its
     /// agent could not say).
-    pub host_bridge: Option<hosts::LinkCounters>,
+    pub host_bridge: Option<protocol::endpoint::LinkCounters>,
     /// Whether the host's agent went away during the run.
     pub lost: bool,
 }
