@@ -144,7 +144,7 @@ fn linked_transports(name: &str) -> Vec<String> {
 #[test]
 fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
     let declared = from_cargo();
-    for role in ["plant", "estimator", "mpc", "dfl", "planner", "tracker"] {
+    for role in ROLE_CRATES {
         let (crates, transports) = &declared[role];
         assert_eq!(
             crates.iter().collect::<Vec<_>>(),
@@ -155,6 +155,46 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
         let linked = linked_transports(role);
         assert!(linked.is_empty(), "cargo tree -p {role} lists {linked:?}");
     }
+}
+
+/// The role crates: they depend on `protocol` alone, link no transport and read no clock
+/// (the `Task` contract). The robot, the plant role played by a ROS 2 robot, is not one
+/// yet: its ROS 2 link reads the machine's clock for its messages' stamps and its
+/// watchdog, and it depends on `plant` and `hosts` (issue 55).
+const ROLE_CRATES: [&str; 6] = ["plant", "estimator", "mpc", "dfl", "planner", "tracker"];
+
+/// The code lines of `text` that read a clock: `Instant::now` or `SystemTime`.
+fn clock_readings(text: &str) -> Vec<(usize, &str)> {
+    code_lines(text)
+        .into_iter()
+        .filter(|(_, l)| l.contains("Instant::now") || l.contains("SystemTime"))
+        .collect()
+}
+
+#[test]
+fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut readings = Vec::new();
+    for path in library_sources() {
+        let name = path.strip_prefix(root).unwrap().display().to_string();
+        if !ROLE_CRATES
+            .iter()
+            .any(|r| name.starts_with(&format!("{r}/src/")))
+        {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        for (line, code) in clock_readings(&text) {
+            readings.push(format!("{name}:{line}: {}", code.trim()));
+        }
+    }
+    assert!(readings.is_empty(), "clocks read:\n{}", readings.join("\n"));
+    // The search sees what it is meant to, and not in a test module.
+    let sample = "fn f() {\n    let t = std::time::Instant::now();\n}\n#[cfg(test)]\nmod tests {\n    fn t() { SystemTime::now(); }\n}\n";
+    assert_eq!(
+        clock_readings(sample),
+        [(2, "    let t = std::time::Instant::now();")]
+    );
 }
 
 #[test]

@@ -110,6 +110,13 @@ impl Mpc {
         }
     }
 
+    /// Notes how long the last step took, ns ([`LinearMpc::took`]).
+    pub fn took(&mut self, step_ns: u64) {
+        if let Mpc::Linear(m, approach) = self {
+            active(m, approach).took(step_ns);
+        }
+    }
+
     /// Forgets the previous plan: the next step starts cold.
     pub fn reset(&mut self) {
         match self {

@@ -20,7 +20,6 @@ use clarabel::algebra::CscMatrix;
 use nalgebra::{Matrix4, Vector4};
 use protocol::task::Cancel;
 use protocol::{Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario, Tracks};
-use std::time::Instant;
 
 /// How far about the reference a disc must be out of reach to be deferred from a solve's
 /// program ([`LinearMpc::solve_once`]): its rows must hold for every input within this
@@ -279,6 +278,13 @@ impl LinearMpc {
         slot.during(cancel, || self.dry_step(dry_step_max_ns));
     }
 
+    /// Notes how long the last step took, ns, as its caller timed it (the task, on its
+    /// context's clock: a role reads no clock of its own): the warm-up steps the next
+    /// sample dry only after a step that took at most its bound.
+    pub fn took(&mut self, step_ns: u64) {
+        self.last_step_ns = step_ns;
+    }
+
     /// The warm-up of [`LinearMpc::warm_up`], its cancel check in place.
     fn dry_step(&mut self, dry_step_max_ns: u64) {
         let (Some(sample), Some((x_bar, sigma_m)), true) = (
@@ -294,7 +300,6 @@ impl LinearMpc {
             [z1[0] + self.goal[0], z1[1], z1[2] + self.goal[1], z1[3]],
             x_bar[2],
         );
-        let last_step_ns = self.last_step_ns;
         self.saved_last_z.copy_from_slice(&self.last_z);
         self.saved_solution.copy_from_slice(&self.solution);
         self.step(sample + 1, predicted, sigma_m);
@@ -302,7 +307,6 @@ impl LinearMpc {
         self.solution.copy_from_slice(&self.saved_solution);
         self.last_sample = Some(sample);
         self.last_estimate = Some((x_bar, sigma_m));
-        self.last_step_ns = last_step_ns;
     }
 
     /// The states the next steps' cost drives to, stage by stage (absolute `z_i`,
@@ -383,7 +387,6 @@ impl LinearMpc {
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` and the standard deviation
     /// `position_sigma_m` of its position. The header is left for the caller to fill.
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
-        let started = Instant::now();
         self.last_estimate = Some((x_bar, position_sigma_m));
         let z = protocol::phi(x_bar);
         let z0 = goal_relative(z, self.goal);
@@ -447,8 +450,6 @@ impl LinearMpc {
         } else {
             self.last_sample = None;
         }
-        plan.solve_ns = started.elapsed().as_nanos() as u64;
-        self.last_step_ns = plan.solve_ns;
         plan
     }
 

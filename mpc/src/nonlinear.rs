@@ -27,7 +27,6 @@ use clarabel::solver::SupportedConeT;
 use protocol::Disc;
 use protocol::task::Cancel;
 use protocol::{ConstraintKind, Header, Plan, PlanStatus, Scenario};
-use std::time::Instant;
 
 /// Largest number of SQP iterations per sample.
 pub const MAX_ITERATIONS: usize = 15;
@@ -192,7 +191,6 @@ impl NonlinearMpc {
 
     /// plan(k) from the estimate `x_bar = [x, y, theta, zeta]` (zeta is the speed).
     pub fn step(&mut self, sample: u64, x_bar: [f64; 4], position_sigma_m: f64) -> Plan {
-        let started = Instant::now();
         let s0 = [
             x_bar[0] - self.goal[0],
             x_bar[1] - self.goal[1],
@@ -251,7 +249,6 @@ impl NonlinearMpc {
         } else {
             self.last_sample = None;
         }
-        plan.solve_ns = started.elapsed().as_nanos() as u64;
         plan
     }
 

@@ -159,9 +159,12 @@ impl Task for MpcTask {
         }
         self.samples.answered();
         let route = self.routes.iter().rev().find(|r| r.sample < sample);
+        let started_ns = context.monotonic_ns();
         let mut plan =
             self.mpc
                 .step_on_route(sample, estimate.state, estimate.position_sigma(), route);
+        plan.solve_ns = context.monotonic_ns().saturating_sub(started_ns);
+        self.mpc.took(plan.solve_ns);
         self.mpc.inject_faults(&mut plan, &self.faults);
         plan.header = Header {
             tick: estimate.header.tick,

@@ -229,7 +229,6 @@ impl Planner {
     /// clearance widened after stalls, or by the plain clearance, or by none, the first
     /// that leaves a route.
     fn plan(&mut self, sample: u64, position: [f64; 2], growth_m: f64, reason: ReplanReason) {
-        let started = std::time::Instant::now();
         // A robot outside the position box (it fled a moving obstacle across the box's
         // edge by a few millimetres) plans from the nearest point inside it.
         let position = [0, 1].map(|a| position[a].clamp(self.bounds[a][0], self.bounds[a][1]));
@@ -261,7 +260,15 @@ impl Planner {
         }
         route.planned_sample = sample;
         route.reason = reason as u32;
-        route.plan_ns = started.elapsed().as_nanos() as u64;
+    }
+
+    /// Notes how long the step of `sample` took, ns, as its caller timed it (the task, on
+    /// its context's clock): the route's `plan_ns` if that step planned the route.
+    pub fn took(&mut self, sample: u64, step_ns: u64) -> &Route {
+        if self.route.planned_sample == sample && self.route.plans > 0 {
+            self.route.plan_ns = step_ns;
+        }
+        &self.route
     }
 
     /// The obstacles grown by `growth_m`, each shrunk where it would hold the robot or
@@ -500,6 +507,17 @@ mod tests {
         }
         assert_eq!(stalled.reason, ReplanReason::Stall as u32);
         assert_eq!(stalled.plans, 3);
+    }
+
+    #[test]
+    fn a_steps_time_is_the_plan_time_of_the_route_it_planned_and_of_no_other() {
+        let s = scenario(vec![Obstacle::fixed(3.0, 3.5, 1.5)]);
+        let mut planner = Planner::new(&s);
+        planner.step(0, &estimate_at(7.0, 7.0));
+        assert_eq!(planner.took(0, 1234).plan_ns, 1234);
+        // The next sample keeps the route: its step's time is not the route's.
+        planner.step(1, &estimate_at(7.0, 7.0));
+        assert_eq!(planner.took(1, 99).plan_ns, 1234);
     }
 
     /// One obstacle on the line from the start (6, 0) to the goal; strays allowed.

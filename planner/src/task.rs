@@ -54,7 +54,11 @@ impl Task for PlannerTask {
     fn step(&mut self, context: &impl Context) -> Option<Publish<Route>> {
         let (sample, estimate, ()) = self.samples.oldest(context)?;
         self.samples.answered();
-        let mut route = self.planner.step(sample, &estimate);
+        let started_ns = context.monotonic_ns();
+        self.planner.step(sample, &estimate);
+        let mut route = *self
+            .planner
+            .took(sample, context.monotonic_ns().saturating_sub(started_ns));
         route.header = Header {
             tick: estimate.header.tick,
             time_s: estimate.header.time_s,

@@ -47,6 +47,22 @@ pub trait Context {
     fn clock_latency_ns(&self) -> u64 {
         0
     }
+
+    /// The executor's monotonic clock, ns since an origin of its own: the one clock a task
+    /// reads, to time its own computation (a plan's `solve_ns`, a route's `plan_ns`), in
+    /// every executor the machine's (a computation takes the time it takes, in lockstep
+    /// too: [`Context::arrival_after_ns`]).
+    fn monotonic_ns(&self) -> u64 {
+        monotonic_ns()
+    }
+}
+
+/// The machine's monotonic clock, ns since its first reading in this process
+/// ([`Context::monotonic_ns`]).
+pub fn monotonic_ns() -> u64 {
+    static ORIGIN: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    let origin = *ORIGIN.get_or_init(std::time::Instant::now);
+    u64::try_from(origin.elapsed().as_nanos()).unwrap_or(u64::MAX)
 }
 
 /// Simulated time standing at an inner tick: the lockstep clock's answers, and the

@@ -319,7 +319,7 @@ fn an_unavoidable_collision_is_reported_infeasible() {
     let mut mpc = LinearMpc::new(&s).unwrap();
     let plan = mpc.step(0, [1.3, 3.5, 0.0, 20.0], 0.0);
     assert_eq!(plan.status(), Some(PlanStatus::Infeasible));
-    assert!(plan.solves >= 1 && plan.solve_ns > 0);
+    assert!(plan.solves >= 1);
 }
 
 /// Over closed loops at `gamma` 0.1 and 0.5 of `s`, carries the sequential
