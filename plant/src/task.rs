@@ -3,11 +3,10 @@
 //! measurement of tick `j`.
 
 use crate::Plant;
-use protocol::task::{
-    Context, Due, Outputs, Publish, Task, TaskError, header_latency, keep_newest,
-};
+pub use protocol::task::PlantOutput;
+use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
 use protocol::topics::{ACTUATION, MEASUREMENT, TRUTH};
-use protocol::{Actuation, Data, GroundTruth, Header, Measurement, Role, Timing, Validated};
+use protocol::{Actuation, GroundTruth, Header, Measurement, Role, Timing, Validated};
 
 /// What the plant takes: the DFL's commands.
 #[derive(Debug, Clone, Copy)]
@@ -15,20 +14,6 @@ pub enum PlantInput {
     Actuation(Actuation),
 }
 protocol::task_input!(PlantInput: Actuation);
-
-/// What a plant step gives: the truth (for the record) and the measurement of one tick.
-#[derive(Debug, Clone, Copy)]
-pub struct PlantOutput {
-    pub truth: GroundTruth,
-    pub measurement: Measurement,
-}
-
-impl Outputs for PlantOutput {
-    fn each(self, mut publish: impl FnMut(Data)) {
-        publish(self.truth.into());
-        publish(self.measurement.into());
-    }
-}
 
 /// The plant, the actuation it holds, and the tick it makes next.
 pub struct PlantTask {

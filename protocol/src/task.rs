@@ -162,6 +162,21 @@ impl<M: Message + Into<Data>> Outputs for M {
     }
 }
 
+/// What a step of the plant role gives, whichever task plays it (the simulated plant, a
+/// ROS 2 robot): the truth (for the record) and the measurement of one tick.
+#[derive(Debug, Clone, Copy)]
+pub struct PlantOutput {
+    pub truth: crate::GroundTruth,
+    pub measurement: crate::Measurement,
+}
+
+impl Outputs for PlantOutput {
+    fn each(self, mut publish: impl FnMut(Data)) {
+        publish(self.truth.into());
+        publish(self.measurement.into());
+    }
+}
+
 /// Why a task could not be made.
 #[derive(Debug, thiserror::Error)]
 #[error("setting up the {role}: {reason}")]

@@ -6,7 +6,7 @@
 
 use crate::watchdog::{Verdict, Watchdog};
 use crate::{Heard, Link, RobotError};
-use plant::task::PlantOutput;
+use protocol::task::PlantOutput;
 use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
 use protocol::topics::{ACTUATION, MEASUREMENT, PLAN, ROUTE, TRACKS, TRUTH};
 use protocol::{
