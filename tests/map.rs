@@ -198,6 +198,16 @@ fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
 }
 
 #[test]
+fn the_robot_depends_on_neither_the_simulated_plant_nor_the_hosts() {
+    // What it shares with them is `protocol`'s (the plant role's output) and `net`'s (the
+    // Zenoh session).
+    let (crates, _) = &from_cargo()["robot"];
+    for other in ["plant", "hosts"] {
+        assert!(!crates.contains(other), "robot depends on {crates:?}");
+    }
+}
+
+#[test]
 fn the_record_links_no_transport() {
     let linked = linked_transports("record");
     assert!(linked.is_empty(), "cargo tree -p record lists {linked:?}");

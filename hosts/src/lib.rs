@@ -1,7 +1,7 @@
 //! The Zenoh side of a run whose roles run on several hosts (docs/hosts.md): the bridge
 //! of each host between its iceoryx2 topics and Zenoh ([`bridge`]), the clock across hosts
 //! ([`clock_sync`]), the key of the run that authenticates every bridged sample
-//! ([`auth`]), the network's security ([`net`]), its keys ([`keys`]) and what the
+//! ([`auth`]), the network's security (crate `net`, re-exported), its keys ([`keys`]) and what the
 //! orchestrator and an agent tell each other ([`messages`]). Role processes know none of
 //! it: on every host they see local iceoryx2 topics only.
 
@@ -10,7 +10,7 @@ pub mod bridge;
 pub mod clock_sync;
 pub mod keys;
 pub mod messages;
-pub mod net;
+pub use ::net;
 pub mod routes;
 
 /// What can go wrong on the Zenoh side.
@@ -18,6 +18,8 @@ pub mod routes;
 pub enum HostError {
     #[error("zenoh: {0}")]
     Zenoh(String),
+    #[error(transparent)]
+    Net(#[from] net::NetError),
     #[error(transparent)]
     Ipc(#[from] runtime::ipc::IpcError),
     #[error("bridge: {0}")]

@@ -265,7 +265,7 @@ fn goal_of(sample: &zenoh::sample::Sample) -> Option<protocol::Goal> {
 impl Link {
     /// Connects to the router of `config` with `security` and announces the node, its
     /// command publisher and its odometry and goal subscriptions.
-    pub fn open(config: &Ros2Config, security: &hosts::net::Security) -> Result<Link, RobotError> {
+    pub fn open(config: &Ros2Config, security: &net::Security) -> Result<Link, RobotError> {
         let names = Names::of(config)?;
         let router = |reason: String| RobotError::Router {
             endpoint: config.endpoint.clone(),
@@ -273,8 +273,8 @@ impl Link {
         };
         let endpoint = Endpoint::parse(&config.endpoint).map_err(router)?;
         let zenoh_config =
-            hosts::net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
-        let session = hosts::net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
+            net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
+        let session = net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
         let node = Node::new(
             config.domain_id,
             &session.zid().to_string(),
@@ -479,7 +479,7 @@ pub struct Start {
 /// published.
 pub fn first_contact(
     config: &Ros2Config,
-    security: &hosts::net::Security,
+    security: &net::Security,
     stop: &AtomicBool,
 ) -> Result<Start, RobotError> {
     let link = Link::open(config, security)?;

@@ -129,7 +129,7 @@ impl Task for RobotTask {
             role: "robot",
             reason: e.to_string(),
         };
-        let link = Link::open(&scenario.ros2, &hosts::net::Security::from_env()).map_err(error)?;
+        let link = Link::open(&scenario.ros2, &net::Security::from_env()).map_err(error)?;
         let newest = link
             .first_odometry(&AtomicBool::new(false))
             .map_err(error)?;

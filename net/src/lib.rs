@@ -1,12 +1,19 @@
 //! The Zenoh network of a run: peers that connect only where they are told (no multicast
 //! scouting, no gossip), over TCP on loopback, or over TLS with mutual authentication
 //! anywhere else. A non-loopback endpoint without TLS is refused unless the user says
-//! `--insecure`.
+//! `--insecure`. The hosts' bridges and agents and the ROS 2 robot's link share it; it
+//! knows neither iceoryx2 nor the roles.
 
-use crate::HostError;
 use protocol::endpoint::{Endpoint, Transport};
 use std::path::PathBuf;
 use zenoh::Wait;
+
+/// What can go wrong setting up or opening a Zenoh session.
+#[derive(Debug, thiserror::Error)]
+pub enum NetError {
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+}
 
 /// The files of TLS with mutual authentication: the CA both sides trust, and this side's
 /// certificate and private key (PEM).
@@ -70,12 +77,12 @@ pub fn config(
     listen: &[Endpoint],
     connect: &[Endpoint],
     security: &Security,
-) -> Result<zenoh::Config, HostError> {
+) -> Result<zenoh::Config, NetError> {
     let mut config = zenoh::Config::default();
     let mut set = |key: &str, value: serde_json::Value| {
         config
             .insert_json5(key, &value.to_string())
-            .map_err(|e| HostError::Zenoh(format!("config {key}: {e}")))
+            .map_err(|e| NetError::Zenoh(format!("config {key}: {e}")))
     };
     let zenoh_endpoints = |list: &[Endpoint]| {
         serde_json::Value::from(list.iter().map(Endpoint::zenoh).collect::<Vec<_>>())
@@ -112,11 +119,11 @@ pub fn config(
 
 /// The configuration of a client of the Zenoh router at `router` (a ROS 2 robot's
 /// `rmw_zenohd`, docs/ros2.md): it connects there alone and fails at once when it cannot.
-pub fn client_config(router: &Endpoint, security: &Security) -> Result<zenoh::Config, HostError> {
+pub fn client_config(router: &Endpoint, security: &Security) -> Result<zenoh::Config, NetError> {
     let mut config = config(&[], std::slice::from_ref(router), security)?;
     config
         .insert_json5("mode", "\"client\"")
-        .map_err(|e| HostError::Zenoh(format!("config mode: {e}")))?;
+        .map_err(|e| NetError::Zenoh(format!("config mode: {e}")))?;
     Ok(config)
 }
 
@@ -156,10 +163,10 @@ impl Security {
 }
 
 /// Opens a session with `config`.
-pub fn open(config: zenoh::Config) -> Result<zenoh::Session, HostError> {
+pub fn open(config: zenoh::Config) -> Result<zenoh::Session, NetError> {
     zenoh::open(config)
         .wait()
-        .map_err(|e| HostError::Zenoh(format!("opening a session: {e}")))
+        .map_err(|e| NetError::Zenoh(format!("opening a session: {e}")))
 }
 
 #[cfg(test)]
