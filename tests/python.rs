@@ -191,6 +191,16 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
     route_plans.dedup();
     assert_eq!(count("/planner/route"), route_plans.len());
     assert_eq!(count("/events"), events(&out_dir).len());
+    // The typed events: each line of events.jsonl as it is, valid under the channel's
+    // schema (record::EventLine) by a validator we did not write.
+    assert_eq!(
+        topics["/run/events"]["events"].as_array(),
+        Some(&events(&out_dir))
+    );
+    assert_eq!(
+        topics["/run/events"]["schema_errors"],
+        serde_json::json!([])
+    );
     assert_eq!(count("/world/obstacles"), 1);
     let obstacles = std::fs::read_to_string(out_dir.join("scenario.toml"))
         .unwrap()
@@ -207,6 +217,7 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
         ("/mpc/plan", "foxglove.PosesInFrame"),
         ("/world/obstacles", "foxglove.SceneUpdate"),
         ("/events", "foxglove.Log"),
+        ("/run/events", "scmpc.Event"),
         ("/dfl/command", "scmpc.Command"),
     ] {
         let t = &topics[topic];

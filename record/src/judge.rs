@@ -6,7 +6,9 @@ use serde::Serialize;
 use std::collections::VecDeque;
 
 /// How a run ended.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Outcome {
     /// Within the goal tolerance from `time_to_goal_s` to the end of the run.

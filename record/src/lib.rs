@@ -8,6 +8,7 @@
 //! the end, in whole lines ([`Lines`]), and a run that did not end in a summary says so:
 //! its directory keeps the [`INCOMPLETE`] file written when the run started.
 
+pub use crate::event::{Event, EventLine};
 use crate::judge::{Judge, Outcome, clearance_m};
 use lines::{FlushClock, Lines};
 use protocol::{
@@ -22,6 +23,7 @@ use std::path::{Path, PathBuf};
 /// or it died (its orchestrator's pid, in the file, is gone). Removed with the summary.
 pub const INCOMPLETE: &str = "INCOMPLETE";
 
+pub mod event;
 pub mod judge;
 pub mod run_dir;
 pub mod schema;
@@ -148,22 +150,20 @@ impl Recorder {
         Ok(())
     }
 
-    /// One line of `events.jsonl`: `{"wall_s", "t", "event", ...fields}`, where `t` is the
-    /// simulated time of the last recorded tick.
-    pub fn event(&mut self, event: &str, fields: serde_json::Value) -> std::io::Result<()> {
-        let mut line = serde_json::json!({
-            "wall_s": self.created.elapsed().as_secs_f64(),
-            "t": self.last_time_s,
-            "event": event,
-        });
-        if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
-            line.extend(fields);
-        }
-        if let Some(mcap) = &mut self.mcap {
-            mcap.event(self.last_time_s, event, &line);
-        }
+    /// One line of `events.jsonl` ([`EventLine`]), at the simulated time of the last
+    /// recorded tick.
+    pub fn event(&mut self, event: Event) -> std::io::Result<()> {
+        let line = EventLine {
+            wall_s: self.created.elapsed().as_secs_f64(),
+            t: self.last_time_s,
+            event,
+        };
+        let json = line.to_json().map_err(std::io::Error::other)?;
         // Events are rare: flush each, so a live run can be followed in the file.
-        writeln!(self.events, "{line}")?;
+        writeln!(self.events, "{json}")?;
+        if let Some(mcap) = &mut self.mcap {
+            mcap.event(line, json);
+        }
         self.events.flush()
     }
 
@@ -225,17 +225,14 @@ impl Recorder {
             .or_default();
         *count = (*count).max(act.safety_interventions);
         if let Some(reason) = act.intervention().filter(|i| *i != Intervention::None) {
-            self.event(
-                "safety_intervention",
-                serde_json::json!({
-                    "tick": truth.header.tick,
-                    "reason": reason.as_str(),
-                    "command": mode.as_str(),
-                    "plan_sample": act.intervention_plan,
-                    "clearance_m": act.intervention_clearance_m,
-                    "dfl_count": act.safety_interventions,
-                }),
-            )?;
+            self.event(Event::SafetyIntervention {
+                tick: truth.header.tick,
+                reason: reason.as_str().into(),
+                command: mode.as_str().into(),
+                plan_sample: act.intervention_plan,
+                clearance_m: act.intervention_clearance_m,
+                dfl_count: act.safety_interventions,
+            })?;
         }
         self.ticks += 1;
         self.last_time_s = t;
@@ -301,10 +298,10 @@ impl Recorder {
         let reason = ReplanReason::from_code(route.reason).map_or("unknown", ReplanReason::as_str);
         let switch = RouteSwitch::from_code(route.switch).map_or("unknown", RouteSwitch::as_str);
         if !route.is_ok() {
-            return self.event(
-                "no_route",
-                serde_json::json!({ "sample": route.planned_sample, "reason": reason }),
-            );
+            return self.event(Event::NoRoute {
+                sample: route.planned_sample,
+                reason: reason.into(),
+            });
         }
         if self.route_length_m.is_none() {
             self.route_length_m = Some(route.length_m);
@@ -409,16 +406,13 @@ impl Recorder {
             self.deadline_misses += 1;
             self.miss_streak += 1;
             self.longest_miss_streak = self.longest_miss_streak.max(self.miss_streak);
-            self.event(
-                "deadline_miss",
-                serde_json::json!({
-                    "sample": v.sample,
-                    "status": status,
-                    "production_us": (v.status != PLAN_MISSING).then(|| v.production_ns as f64 / 1e3),
-                    "arrival_ms": arrival_ms,
-                    "fallback": fallback,
-                }),
-            )?;
+            self.event(Event::DeadlineMiss {
+                sample: v.sample,
+                status: status.into(),
+                production_us: (v.status != PLAN_MISSING).then(|| v.production_ns as f64 / 1e3),
+                arrival_ms,
+                fallback: fallback.into(),
+            })?;
         }
         let plan = self.pending_plans.remove(&v.sample);
         self.plan_row(
@@ -479,10 +473,10 @@ impl Recorder {
         }
         self.flush_files()?;
         let interrupted_by = signal.filter(|_| outcome == Outcome::Interrupted);
-        self.event(
-            "end",
-            serde_json::json!({ "outcome": outcome.as_str(), "signal": interrupted_by }),
-        )?;
+        self.event(Event::End {
+            outcome,
+            signal: interrupted_by.map(String::from),
+        })?;
         self.events.flush()?;
         if let Some(mcap) = self.mcap.take() {
             mcap.finish()?;

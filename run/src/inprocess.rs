@@ -4,6 +4,7 @@
 use crate::closed_loop::{ClosedLoop, Ended, Tick};
 use anyhow::Context;
 use protocol::Validated;
+use record::event::{Event, Restart};
 use record::judge::{Judge, Outcome};
 use record::{Recorder, Summary};
 use std::path::Path;
@@ -49,20 +50,20 @@ pub fn run_observed(
             Ok(tick) => tick,
             Err(Ended::Aborted { role, topic }) => {
                 let reason = format!("{topic} refused, no restart left");
-                recorder.event(
-                    "aborted",
-                    serde_json::json!({ "role": role.as_str(), "reason": reason }),
-                )?;
+                recorder.event(Event::Aborted {
+                    role,
+                    reason: reason.to_string(),
+                })?;
                 outcome = Some(Outcome::Aborted);
                 break;
             }
             Err(stalled) => return Err(stalled.into()),
         };
         if let Some((role, topic)) = tick.restarted {
-            recorder.event(
-                "restarted",
-                serde_json::json!({ "role": role.as_str(), "reason": format!("{topic} refused") }),
-            )?;
+            recorder.event(Event::Restarted(Restart::InProcess {
+                role,
+                reason: format!("{topic} refused"),
+            }))?;
         }
         if let Some(plan) = &tick.plan {
             recorder.plan(plan)?;

@@ -8,12 +8,14 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 /// What the venv holds: iceoryx2's Python bindings, the version of the Rust side, the
-/// MCAP reader the recording is checked with, the ROS 2 CDR and type hashes the crate
+/// MCAP reader the recording is checked with, a JSON Schema validator for its schemas, the
+/// ROS 2 CDR and type hashes the crate
 /// `ros2` is checked with, and Zenoh for the simulated ROS 2 base (the version of the
 /// Rust side).
-const PYTHON_PACKAGES: [&str; 4] = [
+const PYTHON_PACKAGES: [&str; 5] = [
     "iceoryx2==0.10.0",
     "mcap==1.6.0",
+    "jsonschema==4.23.0",
     "rosbags==0.11.9",
     "eclipse-zenoh==1.10.2",
 ];

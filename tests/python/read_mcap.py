@@ -1,6 +1,7 @@
 """Reads a run.mcap with the `mcap` package (an independent reader) and prints, as JSON,
 per topic: its schema name and encodings, its message count, and for some topics what the
-messages hold (the estimates' ticks and epochs, the plans' pose counts).
+messages hold (the estimates' ticks and epochs, the plans' pose counts, the events with
+the errors `jsonschema` finds in them against their channel's schema).
 
 With `--scan` it reads the records in file order with the package's non-seeking reader,
 as one reads a file cut short (a killed run): every message up to the cut, and
@@ -10,6 +11,7 @@ footer."""
 import json
 import sys
 
+from jsonschema import Draft202012Validator
 from mcap.exceptions import EndOfFile
 from mcap.reader import NonSeekingReader, make_reader
 
@@ -56,6 +58,11 @@ def add(topics, schema, channel, message):
         t.setdefault("poses", []).append(len(body["poses"]))
     elif channel.topic in ("/world/obstacles", "/world/moving_obstacles", "/tracker/tracks"):
         t["entities"] = {e["id"]: len(e["cylinders"]) + len(e["spheres"]) for e in body["entities"]}
+    elif channel.topic == "/run/events":
+        validator = Draft202012Validator(json.loads(schema.data))
+        t.setdefault("events", []).append(body)
+        errors = t.setdefault("schema_errors", [])
+        errors.extend(e.message for e in validator.iter_errors(body))
     if channel.topic in ("/robot/truth", "/dfl/deadline"):
         t["log_time_ns"].append(message.log_time)
 

@@ -312,6 +312,7 @@ fn message_schema() -> serde_json::Value {
         "services": layout::services(),
         "types": layout::types(),
         "codes": layout::codes(),
+        "events": record::EventLine::schema(),
         "environment": {
             ENV_SCENARIO: "the run's scenario file (TOML, every key written out)",
             ENV_PREFIX: "the iceoryx2 prefix of the run's resources (config.global.prefix)",

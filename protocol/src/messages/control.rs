@@ -260,6 +260,21 @@ impl Role {
     }
 }
 
+/// A role is written by its name (`"mpc"`), as in `events.jsonl` and the command line.
+impl serde::Serialize for Role {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Role {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Role, D::Error> {
+        let name = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
+        Role::from_name(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("no role is named `{name}`")))
+    }
+}
+
 /// What a process reports to the orchestrator.
 #[repr(u32)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

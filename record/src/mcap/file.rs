@@ -80,7 +80,7 @@ impl McapFile {
                 )
             }
             Record::Verdict(v) => self.verdict(&v),
-            Record::Event(t, event, line) => self.event(t, &event, &line),
+            Record::Event(event) => self.event(&event.0, &event.1),
         }
     }
 
@@ -243,26 +243,17 @@ impl McapFile {
         self.write_serde("/dfl/deadline", v.header.time_s, &record)
     }
 
-    /// An event of `events.jsonl` (`line`: its whole JSON line) as a log message: warnings
-    /// for what went wrong, information otherwise.
-    pub(super) fn event(&mut self, t: f64, event: &str, line: &Value) -> std::io::Result<()> {
+    /// An event: as a log message (warnings for what went wrong, information otherwise)
+    /// on `/events`, and its line of `events.jsonl` (`line`) on `/run/events`.
+    pub(super) fn event(&mut self, event: &crate::EventLine, line: &Value) -> std::io::Result<()> {
         const INFO: u8 = 2;
         const WARNING: u8 = 3;
-        let warning = [
-            "deadline_miss",
-            "safety_intervention",
-            "died",
-            "restarted",
-            "rejected",
-            "input_lost",
-            "no_route",
-            "swap_refused",
-        ];
-        let level = if warning.iter().any(|w| event.starts_with(w)) {
+        let level = if event.event.is_warning() {
             WARNING
         } else {
             INFO
         };
+        let t = event.t;
         self.write_serde(
             "/events",
             t,
@@ -270,11 +261,12 @@ impl McapFile {
                 "timestamp": timestamp(t),
                 "level": level,
                 "message": line.to_string(),
-                "name": event,
+                "name": event.event.kind(),
                 "file": "events.jsonl",
                 "line": 0,
             }),
-        )
+        )?;
+        self.write_serde("/run/events", t, line)
     }
 
     pub(super) fn finish(mut self) -> std::io::Result<()> {

@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 type Channel = (&'static str, &'static str, fn() -> Value);
 
 /// Every channel of `run.mcap`.
-const CHANNELS: [Channel; 12] = [
+const CHANNELS: [Channel; 13] = [
     (
         "/world/obstacles",
         "foxglove.SceneUpdate",
@@ -72,6 +72,7 @@ const CHANNELS: [Channel; 12] = [
     ("/dfl/command", "scmpc.Command", command_schema),
     ("/dfl/deadline", "scmpc.DeadlineVerdict", deadline_schema),
     ("/events", "foxglove.Log", log_schema),
+    ("/run/events", "scmpc.Event", crate::EventLine::schema),
 ];
 
 /// The frame every pose is given in: the scenario's plane, z up.
@@ -88,7 +89,8 @@ enum Record {
     Route(Box<Route>),
     Tracks(Box<Tracks>),
     Verdict(DeadlineVerdict),
-    Event(f64, String, Value),
+    /// An event, and its line of `events.jsonl`.
+    Event(Box<(crate::EventLine, Value)>),
 }
 
 /// `run.mcap` being written by its thread.
@@ -179,8 +181,8 @@ impl McapLog {
         self.send(Record::Verdict(*v));
     }
 
-    pub fn event(&mut self, t: f64, event: &str, line: &Value) {
-        self.send(Record::Event(t, event.to_string(), line.clone()));
+    pub fn event(&mut self, event: crate::EventLine, line: Value) {
+        self.send(Record::Event(Box::new((event, line))));
     }
 
     /// Waits for the thread to write everything and close the file.

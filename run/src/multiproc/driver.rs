@@ -25,7 +25,7 @@ use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
 use protocol::{Role, Scenario};
 use record::judge::{Judge, Outcome};
-use record::{ProcessReport, Recorder};
+use record::{Event, ProcessReport, Recorder};
 use runtime::clock::monotonic_ns;
 use runtime::ipc;
 use runtime::wait::lockstep_poll;
@@ -149,10 +149,9 @@ impl<'a> Driver<'a> {
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.parts.session.start(start_ns)?;
-        self.parts.recorder.event(
-            "clock_started",
-            serde_json::json!({ "tick0_monotonic_ns": start_ns }),
-        )?;
+        self.parts.recorder.event(Event::ClockStarted {
+            tick0_monotonic_ns: start_ns,
+        })?;
         let end_ns = self.parts.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
         let mut aborting: Option<Instant> = None;
@@ -171,9 +170,7 @@ impl<'a> Driver<'a> {
                 if outcome != Outcome::Aborted || !self.can_brake_to_rest() {
                     return Ok(outcome);
                 }
-                self.parts
-                    .recorder
-                    .event("braking_to_rest", serde_json::json!({}))?;
+                self.parts.recorder.event(Event::BrakingToRest {})?;
                 aborting = Some(Instant::now());
             }
             if monotonic_ns() > give_up_ns {
@@ -313,10 +310,11 @@ impl<'a> Driver<'a> {
             Some((role, epoch)),
         )?;
         if proc.retire_by.is_some() {
-            self.parts.recorder.event(
-                "retired",
-                serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status }),
-            )?;
+            self.parts.recorder.event(Event::Retired {
+                role,
+                epoch,
+                status,
+            })?;
             return Ok(None);
         }
         if self
@@ -331,10 +329,12 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        self.parts.recorder.event(
-            "crashed",
-            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "nodes_cleaned": cleaned }),
-        )?;
+        self.parts.recorder.event(Event::Crashed {
+            role,
+            epoch,
+            status,
+            nodes_cleaned: cleaned,
+        })?;
         if self.swaps.promote(&mut self.parts, role)? {
             return Ok(None);
         }
@@ -356,10 +356,10 @@ impl<'a> Driver<'a> {
             .filter(|p| self.parts.session.schedule().current(p.role) == p.epoch)
             .map(|p| p.role)
             .collect();
-        self.parts.recorder.event(
-            "host_lost",
-            serde_json::json!({ "host": host, "roles": roles.iter().map(|r| r.as_str()).collect::<Vec<_>>() }),
-        )?;
+        self.parts.recorder.event(Event::HostLost {
+            host: host.to_string(),
+            roles: roles.clone(),
+        })?;
         for role in roles {
             let failed_over = self.supervisor.fail_over(
                 role,

@@ -7,7 +7,7 @@ use protocol::{
     Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing, Tracks,
 };
 use record::judge::{Judge, Outcome};
-use record::{Latencies, ProcessReport, Recorder};
+use record::{Event, Latencies, ProcessReport, Recorder};
 use runtime::clock::RunMode;
 use std::collections::BTreeMap;
 
@@ -203,10 +203,10 @@ impl Intake {
         let slot = self.take_slot(tick);
         if tick < self.ticks && !complete && !slot.commanded() {
             self.record_gaps += 1;
-            recorder.event(
-                "record_gap",
-                serde_json::json!({ "tick": tick, "missing": slot.missing() }),
-            )?;
+            recorder.event(Event::RecordGap {
+                tick,
+                missing: slot.missing().into_iter().map(String::from).collect(),
+            })?;
         }
         Ok(Some(slot))
     }

@@ -21,6 +21,7 @@ use driver::Driver;
 use hosts::net::Security;
 use protocol::endpoint::Endpoint;
 use protocol::{ControlCommand, Role, Scenario, Validated};
+use record::event::{Event, Ready};
 use record::judge::{Judge, Outcome};
 use record::{ProcessReport, Recorder, Summary};
 use runtime::clock::RunMode;
@@ -167,14 +168,14 @@ fn connect_hosts(
         session.control.publisher_id(),
     )?;
     for (name, link) in &remote.hosts {
-        recorder.event(
-            "host_joined",
-            serde_json::json!({
-                "host": name, "endpoint": link.endpoint, "agent_pid": link.agent_pid,
-                "prefix": link.prefix, "round_trip_us": link.clock.round_trip_ns as f64 / 1e3,
-                "clock_correction_ms": link.clock.correction_ns as f64 / 1e6,
-            }),
-        )?;
+        recorder.event(Event::HostJoined {
+            host: name.clone(),
+            endpoint: link.endpoint.clone(),
+            agent_pid: link.agent_pid,
+            prefix: link.prefix.clone(),
+            round_trip_us: link.clock.round_trip_ns as f64 / 1e3,
+            clock_correction_ms: link.clock.correction_ns as f64 / 1e6,
+        })?;
     }
     Ok(Some(remote))
 }
@@ -197,10 +198,11 @@ fn spawned_report(
         if let Some(host) = p.host() {
             report.hosts.insert(p.role.as_str().into(), host.into());
         }
-        recorder.event(
-            "spawned",
-            serde_json::json!({ "role": p.role.as_str(), "pid": p.pid(), "host": p.host() }),
-        )?;
+        recorder.event(Event::Spawned {
+            role: p.role,
+            pid: p.pid(),
+            host: p.host().map(String::from),
+        })?;
     }
 
     Ok(report)
@@ -258,7 +260,9 @@ fn drive(
     }
     let outcome =
         wait_until_ready(scenario, &session, &waitset, &mut children, stop).and_then(|()| {
-            recorder.event("ready", serde_json::json!({ "iceoryx2_prefix": prefix }))?;
+            recorder.event(Event::Ready(Ready::Run {
+                iceoryx2_prefix: prefix.to_string(),
+            }))?;
             if mode == RunMode::Realtime {
                 report.scheduling = scheduling_report(&children);
             }
@@ -274,10 +278,12 @@ fn drive(
     record_peak_rss(&children, &mut report);
     let _ = session.command(ControlCommand::Stop);
     for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
-        recorder.event(
-            "exited",
-            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "status": status, "killed": killed }),
-        )?;
+        recorder.event(Event::Exited {
+            role,
+            epoch,
+            status,
+            killed,
+        })?;
     }
     if let Some(remote) = &children.remote {
         let mut counters = remote.end();

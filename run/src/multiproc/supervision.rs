@@ -6,6 +6,7 @@ use super::{NODE_LISTING, NODE_SCAN};
 use crate::children::Children;
 use protocol::{ControlCommand, Rejection, RestartPolicy, Role, Status, StatusEvent, Supervision};
 use record::Recorder;
+use record::event::{Event, NewProcess, Ready, Restart};
 use runtime::ipc;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
@@ -110,23 +111,24 @@ impl Supervisor {
             }
             let reason = reason.map_or("unknown", |r| r.as_str());
             *self.rejected.entry(reason.to_string()).or_default() += count;
-            recorder.event(
-                "rejected",
-                serde_json::json!({ "consumer": consumer, "reason": reason, "count": count }),
-            )?;
+            recorder.event(Event::Rejected {
+                consumer: consumer.to_string(),
+                reason: reason.to_string(),
+                count,
+            })?;
         }
         for role in lost {
             let input = self.plant_input.as_ref().filter(|_| role == Role::Plant);
-            recorder.event(
-                "input_lost",
-                serde_json::json!({ "role": role.as_str(), "input": input }),
-            )?;
+            recorder.event(Event::InputLost {
+                role,
+                input: input.cloned(),
+            })?;
         }
         for (role, s) in joined {
             let epoch = s.header.epoch;
             self.joined.push((role, epoch));
             session.pin(role, epoch, children.pins(role, epoch, s.publishers))?;
-            recorder.event("ready", serde_json::json!({ "role": role.as_str() }))?;
+            recorder.event(Event::Ready(Ready::Role { role }))?;
             self.last_node_listing = None;
             session.tell_the_clock()?;
             session.command(ControlCommand::Replay)?;
@@ -170,10 +172,12 @@ impl Supervisor {
             } else if blame.since.elapsed() >= REFUSED_LIMIT {
                 self.blamed[role as usize] = None;
                 let pid = children.kill_running(role, blame.epoch);
-                recorder.event(
-                    "refused_too_long",
-                    serde_json::json!({ "role": role.as_str(), "epoch": blame.epoch, "pid": pid, "limit_s": REFUSED_LIMIT.as_secs_f64() }),
-                )?;
+                recorder.event(Event::RefusedTooLong {
+                    role,
+                    epoch: blame.epoch,
+                    pid,
+                    limit_s: REFUSED_LIMIT.as_secs_f64(),
+                })?;
             }
         }
         Ok(())
@@ -219,7 +223,7 @@ impl Supervisor {
         if self.policy.failover != protocol::Failover::Local {
             return Ok(false);
         }
-        start_new_epoch(role, "failed_over", session, children, recorder)?;
+        start_new_epoch(role, Event::FailedOver, session, children, recorder)?;
         Ok(true)
     }
 
@@ -240,7 +244,13 @@ impl Supervisor {
             return Ok(false);
         }
         self.restarts += 1;
-        start_new_epoch(role, "restarted", session, children, recorder)?;
+        start_new_epoch(
+            role,
+            |p| Event::Restarted(Restart::Process(p)),
+            session,
+            children,
+            recorder,
+        )?;
         Ok(true)
     }
 }
@@ -249,7 +259,7 @@ impl Supervisor {
 /// records `event` for it.
 fn start_new_epoch(
     role: Role,
-    event: &str,
+    event: fn(NewProcess) -> Event,
     session: &Session,
     children: &mut Children,
     recorder: &mut Recorder,
@@ -257,10 +267,12 @@ fn start_new_epoch(
     let epoch = children.take_epoch();
     session.reschedule(|s| s.activate(role, epoch))?;
     let pid = children.spawn_role(role, epoch, &[])?;
-    recorder.event(
-        event,
-        serde_json::json!({ "role": role.as_str(), "pid": pid, "epoch": epoch, "host": children.host_of(role) }),
-    )?;
+    recorder.event(event(NewProcess {
+        role,
+        pid,
+        epoch,
+        host: children.host_of(role).map(String::from),
+    }))?;
     Ok(())
 }
 
@@ -286,10 +298,12 @@ pub(super) fn clean_dead_nodes(
         let ours = children.pid(role, epoch).is_some();
         let killed = children.kill_running(role, epoch);
         if killed.is_some() || !ours {
-            recorder.event(
-                "dead_node",
-                serde_json::json!({ "node": name, "role": role.as_str(), "epoch": epoch, "child_killed": killed }),
-            )?;
+            recorder.event(Event::DeadNode {
+                node: name.to_string(),
+                role,
+                epoch,
+                child_killed: killed,
+            })?;
         }
     }
     Ok(names.len())

@@ -6,7 +6,7 @@ use super::session::Session;
 use super::{STOP_TIMEOUT, SWAP_TIMEOUT, SWAP_WARMUP_SAMPLES, SWITCH_LEAD_SAMPLES};
 use crate::children::Children;
 use protocol::{ControlCommand, Role, Scenario, SwapReply, Timing};
-use record::Recorder;
+use record::{Event, Recorder};
 use runtime::clock::RunMode;
 use std::time::Instant;
 
@@ -124,10 +124,11 @@ impl SwapServer {
                         swap.switch_tick = Some(tick);
                         let epoch = swap.epoch;
                         p.session.reschedule(|s| s.schedule_switch(role, tick))?;
-                        p.recorder.event(
-                            "swap_scheduled",
-                            serde_json::json!({ "role": role.as_str(), "epoch": epoch, "switch_tick": tick }),
-                        )?;
+                        p.recorder.event(Event::SwapScheduled {
+                            role,
+                            epoch,
+                            switch_tick: tick,
+                        })?;
                     } else if swap.started.elapsed() > SWAP_TIMEOUT {
                         let swap = self.swaps.remove(i);
                         fail(
@@ -178,10 +179,11 @@ impl SwapServer {
                     request: Some(asker),
                 }),
                 Err(why) => {
-                    p.recorder.event(
-                        "swap_refused",
-                        serde_json::json!({ "role": Role::from_code(r.role).map(Role::as_str), "command": command.join(" "), "reason": why }),
-                    )?;
+                    p.recorder.event(Event::SwapRefused {
+                        role: Role::from_code(r.role),
+                        command: command.join(" "),
+                        reason: why.clone(),
+                    })?;
                     reply(p.session, asker, None, &why)?;
                 }
             }
@@ -207,10 +209,14 @@ impl SwapServer {
         };
         match p.children.spawn_role(role, epoch, &command) {
             Ok(pid) => {
-                p.recorder.event(
-                    "swap_started",
-                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "replaces": replaces, "pid": pid, "command": shown, "host": p.children.host_of(role) }),
-                )?;
+                p.recorder.event(Event::SwapStarted {
+                    role,
+                    epoch,
+                    replaces,
+                    pid,
+                    command: shown.clone(),
+                    host: p.children.host_of(role).map(String::from),
+                })?;
                 self.swaps.push(Swap {
                     role,
                     epoch,
@@ -226,10 +232,12 @@ impl SwapServer {
             }
             Err(e) => {
                 p.session.reschedule(|s| s.unschedule(role))?;
-                p.recorder.event(
-                    "swap_failed",
-                    serde_json::json!({ "role": role.as_str(), "epoch": epoch, "command": shown, "reason": format!("{e:#}") }),
-                )?;
+                p.recorder.event(Event::SwapFailed {
+                    role,
+                    epoch,
+                    command: shown,
+                    reason: format!("{e:#}"),
+                })?;
                 match request {
                     Some(id) => reply(p.session, id, None, &format!("{e:#}")),
                     None => Ok(()),
@@ -303,14 +311,16 @@ impl SwapServer {
             }
         }
         self.done += 1;
-        p.recorder.event(
-            "swapped",
-            serde_json::json!({
-                "role": role.as_str(), "from_epoch": swap.replaces, "to_epoch": swap.epoch,
-                "old_pid": old_pid, "new_pid": swap.pid, "switch_tick": swap.switch_tick,
-                "how": how, "warmup_s": swap.started.elapsed().as_secs_f64(),
-            }),
-        )?;
+        p.recorder.event(Event::Swapped {
+            role,
+            from_epoch: swap.replaces,
+            to_epoch: swap.epoch,
+            old_pid,
+            new_pid: swap.pid,
+            switch_tick: swap.switch_tick,
+            how: how.to_string(),
+            warmup_s: swap.started.elapsed().as_secs_f64(),
+        })?;
         match swap.request {
             Some(id) => reply(p.session, id, Some(&swap), how),
             None => Ok(()),
@@ -328,10 +338,12 @@ fn fail(p: &mut Parts, swap: Swap, reason: &str) -> anyhow::Result<()> {
         // Samples of the old producer past the switch were skipped: have them again.
         p.session.command(ControlCommand::Replay)?;
     }
-    p.recorder.event(
-        "swap_failed",
-        serde_json::json!({ "role": role.as_str(), "epoch": swap.epoch, "command": swap.command, "reason": reason }),
-    )?;
+    p.recorder.event(Event::SwapFailed {
+        role,
+        epoch: swap.epoch,
+        command: swap.command.clone(),
+        reason: reason.to_string(),
+    })?;
     match swap.request {
         Some(id) => reply(p.session, id, None, reason),
         None => Ok(()),
