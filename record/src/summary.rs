@@ -40,6 +40,21 @@ pub struct ModeCounts {
     pub hold: u64,
 }
 
+impl ModeCounts {
+    /// One more tick commanded in `mode`.
+    pub fn count(&mut self, mode: protocol::CommandMode) {
+        use protocol::CommandMode::*;
+        *match mode {
+            Nominal => &mut self.nominal,
+            Shifted => &mut self.shifted,
+            Brake => &mut self.brake,
+            ZetaGuard => &mut self.zeta_guard,
+            SafetyBrake => &mut self.safety_brake,
+            Hold => &mut self.hold,
+        } += 1;
+    }
+}
+
 /// `summary.json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {

@@ -4,9 +4,9 @@
 use crate::closed_loop::{ClosedLoop, Ended, Tick};
 use anyhow::Context;
 use protocol::Validated;
+use record::Summary;
 use record::event::{Event, Restart};
-use record::judge::{Judge, Outcome};
-use record::{Recorder, Summary};
+use record::judge::Outcome;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -31,15 +31,8 @@ pub fn run_observed(
     mut observe: impl FnMut(&Tick),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    let mut recorder =
-        Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
-    if mcap {
-        recorder
-            .record_mcap(scenario)
-            .context("creating run.mcap")?;
-    }
+    let mut recorder = crate::sinks::recorder(scenario, out, mcap)?;
     let mut closed_loop = ClosedLoop::new(scenario).context("setting up the MPC")?;
-    let mut judge = Judge::new(scenario);
     let mut outcome = None;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {
@@ -49,10 +42,9 @@ pub fn run_observed(
         let tick = match closed_loop.step() {
             Ok(tick) => tick,
             Err(Ended::Aborted { role, topic }) => {
-                let reason = format!("{topic} refused, no restart left");
                 recorder.event(Event::Aborted {
                     role,
-                    reason: reason.to_string(),
+                    reason: format!("{topic} refused, no restart left"),
                 })?;
                 outcome = Some(Outcome::Aborted);
                 break;
@@ -73,30 +65,24 @@ pub fn run_observed(
         }
         let mut no_route = None;
         if let Some(route) = &tick.route {
-            recorder.route(route)?;
-            no_route = judge.route(route);
+            no_route = recorder.route(route)?;
         }
         if let Some(tracks) = &tick.tracks {
             recorder.tracks(tracks)?;
         }
-        recorder.tick(&tick.truth, &tick.estimate, &tick.actuation)?;
-        outcome = judge.tick(&tick.truth, &tick.actuation).or(no_route);
+        outcome = recorder
+            .tick(&tick.truth, None, &tick.estimate, &tick.actuation)?
+            .or(no_route);
         observe(&tick);
     }
     let outcome = match outcome {
         Some(o) => o,
-        None => {
-            let truth = closed_loop.final_truth();
-            if let Some(truth) = &truth {
-                recorder.final_truth(truth);
-            }
-            judge.end_of_run(truth.as_ref())
-        }
+        None => recorder.end_of_run(closed_loop.final_truth().as_ref()),
     };
     let summary = recorder.finish(
         scenario,
         "in-process",
-        (outcome, &judge),
+        outcome,
         started.elapsed().as_secs_f64(),
         None,
         crate::stop::received(),

@@ -116,7 +116,7 @@ impl McapLog {
         let thread = std::thread::Builder::new()
             .name("run.mcap".into())
             .spawn(move || {
-                let mut flush = super::FlushClock::new();
+                let mut flush = crate::lines::FlushClock::new();
                 loop {
                     match received.recv_timeout(super::FLUSH_PERIOD) {
                         Ok(batch) => {
@@ -161,28 +161,13 @@ impl McapLog {
         self.handed = Instant::now();
     }
 
-    pub fn tick(&mut self, truth: &GroundTruth, estimate: &Estimate, act: &Actuation) {
-        self.send(Record::Tick(Box::new((*truth, *estimate, *act))));
-    }
-
-    pub fn plan(&mut self, plan: &Plan) {
-        self.send(Record::Plan(Box::new(*plan)));
-    }
-
-    pub fn route(&mut self, route: &Route) {
-        self.send(Record::Route(Box::new(*route)));
-    }
-
-    pub fn tracks(&mut self, tracks: &Tracks) {
-        self.send(Record::Tracks(Box::new(*tracks)));
-    }
-
-    pub fn verdict(&mut self, v: &DeadlineVerdict) {
-        self.send(Record::Verdict(*v));
-    }
-
-    pub fn event(&mut self, event: crate::EventLine, line: Value) {
-        self.send(Record::Event(Box::new((event, line))));
+    /// The sink's opener: `run.mcap` when the run asks for it.
+    pub fn open(run: &crate::RunStart) -> std::io::Result<Option<Box<dyn crate::Sink>>> {
+        if !run.mcap {
+            return Ok(None);
+        }
+        let log = McapLog::create(&run.dir.join("run.mcap"), run.scenario)?;
+        Ok(Some(Box::new(log)))
     }
 
     /// Waits for the thread to write everything and close the file.
@@ -192,6 +177,31 @@ impl McapLog {
         self.thread
             .join()
             .map_err(|_| std::io::Error::other("run.mcap: the writer thread panicked"))?
+    }
+}
+
+impl crate::Sink for McapLog {
+    fn sample(&mut self, sample: &crate::Sample<'_>) -> std::io::Result<()> {
+        use crate::Sample;
+        let record = match *sample {
+            Sample::Tick(t) => Record::Tick(Box::new((*t.truth, *t.estimate, *t.actuation))),
+            Sample::Plan(plan) => Record::Plan(Box::new(*plan)),
+            Sample::Verdict(v) => Record::Verdict(*v),
+            Sample::Route(route) if route.is_ok() => Record::Route(Box::new(*route)),
+            Sample::Route(_) => return Ok(()),
+            Sample::Tracks(tracks) => Record::Tracks(Box::new(*tracks)),
+        };
+        self.send(record);
+        Ok(())
+    }
+
+    fn event(&mut self, line: &crate::EventLine, json: &Value) -> std::io::Result<()> {
+        self.send(Record::Event(Box::new((line.clone(), json.clone()))));
+        Ok(())
+    }
+
+    fn end(self: Box<Self>, _summary: &crate::Summary) -> std::io::Result<()> {
+        self.finish()
     }
 }
 

@@ -10,13 +10,12 @@
 //!
 //! Each part owns its state: [`Session`] the ports, the schedule and the clock;
 //! [`Children`] the processes; [`Intake`] what was received and not recorded yet;
-//! [`Recorder`] the files; [`Judge`] the outcome; [`Supervisor`] status reports, failed
-//! producers, dead nodes and restarts; [`SwapServer`] the swaps; [`StatusLine`] the line on
-//! the terminal.
+//! [`Recorder`] the record (its sinks: the files, the status line) and, with its judge, the
+//! outcome; [`Supervisor`] status reports, failed producers, dead nodes and restarts;
+//! [`SwapServer`] the swaps.
 
 use super::intake::Intake;
 use super::session::Session;
-use super::status_line::{Live, StatusLine};
 use super::supervision::{Supervisor, clean_dead_nodes};
 use super::swap_server::{Parts, SwapServer};
 use super::{POLL, START_LEAD, TICK_TIMEOUT};
@@ -24,7 +23,7 @@ use crate::children::Children;
 use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
 use protocol::{Role, Scenario};
-use record::judge::{Judge, Outcome};
+use record::judge::Outcome;
 use record::{Event, ProcessReport, Recorder};
 use runtime::clock::monotonic_ns;
 use runtime::ipc;
@@ -43,11 +42,9 @@ pub(super) struct Driver<'a> {
     scenario: &'a Scenario,
     /// The run's ports, processes and record, as the swap server works with them too.
     parts: Parts<'a>,
-    judge: Judge,
     intake: Intake,
     supervisor: Supervisor,
     swaps: SwapServer,
-    status_line: StatusLine,
     stop: &'a AtomicBool,
 }
 
@@ -66,7 +63,6 @@ impl<'a> Driver<'a> {
                 children,
                 recorder,
             },
-            judge: Judge::new(scenario),
             intake: Intake::new(scenario, session.clock().mode()),
             supervisor: Supervisor::new(
                 &scenario.supervision,
@@ -75,7 +71,6 @@ impl<'a> Driver<'a> {
                     .flatten(),
             ),
             swaps: SwapServer::new(scenario),
-            status_line: StatusLine::new(),
             stop,
         }
     }
@@ -117,7 +112,7 @@ impl<'a> Driver<'a> {
                 return Ok(outcome);
             }
         }
-        Ok(self.judge.end_of_run(None))
+        Ok(self.parts.recorder.end_of_run(None))
     }
 
     /// Lockstep: holds the clock while a replacement has not joined the run, so that a
@@ -180,9 +175,7 @@ impl<'a> Driver<'a> {
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.take(waitset)?;
-            let planned = self
-                .intake
-                .record_plans(self.parts.recorder, &mut self.judge)?;
+            let planned = self.intake.record_plans(self.parts.recorder)?;
             if aborting.is_none() {
                 if let Some(outcome) = planned {
                     return Ok(outcome);
@@ -216,9 +209,7 @@ impl<'a> Driver<'a> {
     /// after the last ends the run.
     fn record_tick(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
         let slot = self.intake.take_slot(tick);
-        let no_route = self
-            .intake
-            .record_plans(self.parts.recorder, &mut self.judge)?;
+        let no_route = self.intake.record_plans(self.parts.recorder)?;
         Ok(self.record_slot(tick, slot)?.or(no_route))
     }
 
@@ -228,13 +219,9 @@ impl<'a> Driver<'a> {
         slot: super::intake::TickSlot,
     ) -> anyhow::Result<Option<Outcome>> {
         if tick == self.scenario.tick_count() {
-            if let Some(truth) = &slot.truth {
-                self.parts.recorder.final_truth(truth);
-            }
-            return Ok(Some(self.judge.end_of_run(slot.truth.as_ref())));
+            return Ok(Some(self.parts.recorder.end_of_run(slot.truth.as_ref())));
         }
-        let truth = self.intake.record(slot, self.parts.recorder)?;
-        Ok(truth.and_then(|(truth, act)| self.judge.tick(&truth, &act)))
+        self.intake.record(slot, self.parts.recorder)
     }
 
     /// Takes everything received, without waiting.
@@ -250,9 +237,8 @@ impl<'a> Driver<'a> {
         self.take_now()
     }
 
-    /// Between ticks: the status line, and the swaps moved on.
+    /// Between ticks: the swaps moved on.
     fn serve_swaps(&mut self) -> anyhow::Result<()> {
-        self.show_status();
         let recorded = self.intake.cursor;
         let now_tick = self
             .parts
@@ -262,20 +248,6 @@ impl<'a> Driver<'a> {
             .unwrap_or(0)
             .max(recorded);
         self.swaps.serve(&mut self.parts, now_tick, recorded)
-    }
-
-    /// Redraws the status line on a terminal, when due.
-    fn show_status(&mut self) {
-        let (recorder, duration_s) = (&*self.parts.recorder, self.scenario.duration_s);
-        let latency = self.intake.last_sensor_to_actuator_ns;
-        self.status_line.update(|| Live {
-            t_s: recorder.simulated_s(),
-            duration_s,
-            deadline_misses: recorder.deadline_misses(),
-            sensor_to_actuator_us: latency.map(|ns| ns as f64 / 1e3),
-            clearance_m: recorder.last_clearance_m(),
-            mode: recorder.last_mode().map_or("-", |m| m.as_str()),
-        });
     }
 
     /// Ends the run on Ctrl-C; supervises; handles a process that exited: a retired one
@@ -375,24 +347,19 @@ impl<'a> Driver<'a> {
     }
 
     /// After the clock has stopped with `outcome`: records the plans still held, answers
-    /// every swap that did not happen, and fills `report` with the run's counts. Returns
-    /// the outcome and the judge.
+    /// every swap that did not happen, and fills `report` with the run's counts.
     pub fn finish(
         mut self,
         outcome: anyhow::Result<Outcome>,
         report: &mut ProcessReport,
-    ) -> anyhow::Result<(Outcome, Judge)> {
-        self.status_line.clear();
-        let outcome = outcome.and_then(|o| {
-            self.intake
-                .record_plans(self.parts.recorder, &mut self.judge)
-                .map(|_| o)
-        });
+    ) -> anyhow::Result<Outcome> {
+        let outcome =
+            outcome.and_then(|o| self.intake.record_plans(self.parts.recorder).map(|_| o));
         self.swaps.finish(&mut self.parts)?;
         self.intake.report(report);
         report.restarts = self.supervisor.restarts();
         report.swaps = self.swaps.done();
         report.rejected_samples = self.supervisor.take_rejected();
-        Ok((outcome?, self.judge))
+        outcome
     }
 }

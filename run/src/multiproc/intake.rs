@@ -6,7 +6,7 @@ use super::session::Session;
 use protocol::{
     Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing, Tracks,
 };
-use record::judge::{Judge, Outcome};
+use record::judge::Outcome;
 use record::{Event, Latencies, ProcessReport, Recorder};
 use runtime::clock::RunMode;
 use std::collections::BTreeMap;
@@ -217,13 +217,13 @@ impl Intake {
         self.slots.remove(&tick).unwrap_or_default()
     }
 
-    /// Records the tick of `slot` if the plant was commanded at it; returns its truth and
-    /// the DFL's command over it.
+    /// Records the tick of `slot` if the plant was commanded at it; returns the outcome
+    /// when the tick ends the run.
     pub fn record(
         &mut self,
         slot: TickSlot,
         recorder: &mut Recorder,
-    ) -> anyhow::Result<Option<(GroundTruth, Actuation)>> {
+    ) -> anyhow::Result<Option<Outcome>> {
         let (Some(truth), Some(measurement), Some((act, own_latency))) =
             (slot.truth, slot.measurement, slot.actuation)
         else {
@@ -262,22 +262,16 @@ impl Intake {
             l.sensor_to_actuator(ns);
             self.last_sensor_to_actuator_ns = Some(ns);
         }
-        recorder.tick(&truth, &estimate, &act)?;
-        Ok(Some((truth, act)))
+        Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?)
     }
 
     /// Records every route and plan received, then every deadline verdict (the DFL judges
-    /// sample k at the start of sample k + 1, after plan(k) was published); the judge sees
-    /// every route.
-    pub fn record_plans(
-        &mut self,
-        recorder: &mut Recorder,
-        judge: &mut Judge,
-    ) -> anyhow::Result<Option<Outcome>> {
+    /// sample k at the start of sample k + 1, after plan(k) was published). Returns the
+    /// outcome when a route ends the run.
+    pub fn record_plans(&mut self, recorder: &mut Recorder) -> anyhow::Result<Option<Outcome>> {
         let mut no_route = None;
         for route in std::mem::take(&mut self.routes) {
-            recorder.route(&route)?;
-            no_route = no_route.or(judge.route(&route));
+            no_route = no_route.or(recorder.route(&route)?);
         }
         for tracks in std::mem::take(&mut self.tracks) {
             recorder.tracks(&tracks)?;

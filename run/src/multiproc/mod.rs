@@ -10,7 +10,6 @@
 mod driver;
 mod intake;
 mod session;
-mod status_line;
 mod supervision;
 mod swap_server;
 
@@ -22,7 +21,7 @@ use hosts::net::Security;
 use protocol::endpoint::Endpoint;
 use protocol::{ControlCommand, Role, Scenario, Validated};
 use record::event::{Event, Ready};
-use record::judge::{Judge, Outcome};
+use record::judge::Outcome;
 use record::{ProcessReport, Recorder, Summary};
 use runtime::clock::RunMode;
 use runtime::ipc;
@@ -119,19 +118,13 @@ pub fn run(
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     remove_dead_runs();
-    let mut recorder =
-        Recorder::create(out, scenario).with_context(|| format!("creating {}", out.display()))?;
-    if mcap {
-        recorder
-            .record_mcap(scenario)
-            .context("creating run.mcap")?;
-    }
+    let mut recorder = crate::sinks::recorder(scenario, out, mcap)?;
     ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, hosts, stop, &mut recorder);
     if let Err(e) = ipc::remove_run(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
-    let (outcome, judge, mut report) = result?;
+    let (outcome, mut report) = result?;
     report.leftover_files = ipc::leftover_files(prefix)
         .iter()
         .map(|p| p.display().to_string())
@@ -139,7 +132,7 @@ pub fn run(
     Ok(recorder.finish(
         scenario,
         mode.as_str(),
-        (outcome, &judge),
+        outcome,
         started.elapsed().as_secs_f64(),
         Some(report),
         crate::stop::received(),
@@ -218,7 +211,7 @@ fn drive(
     hosts: &HostsSetup,
     stop: &AtomicBool,
     recorder: &mut Recorder,
-) -> anyhow::Result<(Outcome, Judge, ProcessReport)> {
+) -> anyhow::Result<(Outcome, ProcessReport)> {
     let session = Session::open(prefix, mode, scenario.timing.dt_s())?;
     RunInfo {
         iceoryx2_prefix: prefix.to_string(),
@@ -291,8 +284,7 @@ fn drive(
         report.links = link_reports(remote, counters);
     }
     drop(guards);
-    let (outcome, judge) = outcome?;
-    Ok((outcome, judge, report))
+    Ok((outcome?, report))
 }
 
 /// Each link to another host, with what its host's bridge carried (`counters`, by host).

@@ -1,0 +1,107 @@
+//! The live status line of a run on a terminal (docs/running.md), a [`Sink`]: one line on
+//! stdout, redrawn in place every [`REDRAW`] as ticks are recorded, wiped at the end. A
+//! run whose stdout is not a terminal has none.
+
+use protocol::{CommandMode, Timing};
+use record::{RunStart, Sample, Sink, Summary, TickSample};
+use std::io::{IsTerminal, Write};
+use std::time::{Duration, Instant};
+
+/// How often the line is redrawn: often enough to follow, rarely enough to cost nothing.
+const REDRAW: Duration = Duration::from_millis(250);
+
+/// What the line shows.
+#[derive(Debug, Default)]
+struct Live {
+    t_s: f64,
+    duration_s: f64,
+    deadline_misses: u64,
+    /// Sensor to actuator of the newest tick that has one, µs.
+    sensor_to_actuator_us: Option<f64>,
+    clearance_m: Option<f64>,
+    mode: &'static str,
+}
+
+impl Live {
+    fn line(&self) -> String {
+        let latency = self
+            .sensor_to_actuator_us
+            .map_or_else(|| "-".into(), |us| format!("{us:.0} µs"));
+        let clearance = self
+            .clearance_m
+            .map_or_else(|| "-".into(), |m| format!("{m:.3} m"));
+        format!(
+            "t {:5.1} / {:.1} s | deadline misses {} | sensor→actuator {latency} | clearance {clearance} | {}",
+            self.t_s, self.duration_s, self.deadline_misses, self.mode
+        )
+    }
+
+    /// What `tick` shows: sensor to actuator is measured on a tick within a sample (no
+    /// solve in between) whose measurement and estimate came.
+    fn tick(&mut self, tick: &TickSample<'_>, timing: &Timing) {
+        let (truth, act) = (tick.truth, tick.actuation);
+        self.t_s = truth.header.time_s;
+        self.clearance_m = Some(tick.clearance_m);
+        self.mode = act.mode().unwrap_or(CommandMode::Brake).as_str();
+        let within_sample = !timing.starts_sample(truth.header.tick);
+        if let (Some(m), true, false) = (
+            tick.measurement,
+            within_sample,
+            tick.estimate.state[0].is_nan(),
+        ) {
+            let ns = act.header.publish_ns.saturating_sub(m.header.publish_ns);
+            self.sensor_to_actuator_us = Some(ns as f64 / 1e3);
+        }
+    }
+}
+
+pub struct StatusLine {
+    live: Live,
+    timing: Timing,
+    drawn: Option<Instant>,
+}
+
+impl StatusLine {
+    /// The sink's opener: a line when stdout is a terminal.
+    pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
+        if !std::io::stdout().is_terminal() {
+            return Ok(None);
+        }
+        Ok(Some(Box::new(StatusLine {
+            live: Live {
+                duration_s: run.scenario.duration_s,
+                mode: "-",
+                ..Live::default()
+            },
+            timing: run.scenario.timing.clone(),
+            drawn: None,
+        })))
+    }
+}
+
+impl Sink for StatusLine {
+    fn sample(&mut self, sample: &Sample<'_>) -> std::io::Result<()> {
+        match sample {
+            Sample::Tick(tick) => self.live.tick(tick, &self.timing),
+            Sample::Verdict(v) => self.live.deadline_misses += u64::from(v.met == 0),
+            _ => return Ok(()),
+        }
+        if self.drawn.is_some_and(|at| at.elapsed() < REDRAW) {
+            return Ok(());
+        }
+        self.drawn = Some(Instant::now());
+        let mut out = std::io::stdout().lock();
+        write!(out, "\r\x1b[2K{}", self.live.line())?;
+        out.flush()
+    }
+
+    /// Wipes the line, so what follows starts on a clean one.
+    fn end(self: Box<Self>, _summary: &Summary) -> std::io::Result<()> {
+        if self.drawn.is_some() {
+            let mut out = std::io::stdout().lock();
+            write!(out, "\r\x1b[2K")?;
+            out.flush()?;
+        }
+        Ok(())
+    }
+}
