@@ -66,10 +66,7 @@ impl Task for MpcTask {
     type Output = Plan;
 
     fn new(scenario: &Validated, _epoch: u32) -> Result<MpcTask, TaskError> {
-        let mpc = Mpc::new(scenario).map_err(|e| TaskError {
-            role: Role::Mpc.as_str(),
-            reason: e.to_string(),
-        })?;
+        let mpc = Mpc::new(scenario).map_err(|e| TaskError::setup(Role::Mpc, e))?;
         Ok(MpcTask {
             mpc,
             faults: scenario.fault.clone(),

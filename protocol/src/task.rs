@@ -177,12 +177,45 @@ impl Outputs for PlantOutput {
     }
 }
 
-/// Why a task could not be made.
+/// A role's own error (an `MpcError`, a `RobotError`), kept with its type: a caller
+/// downcasts it, and the exit message prints it at the end of its chain.
+pub type RoleError = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Why a task could not be made, or could not go on: its role, and the role's own error as
+/// the source (no reason turned into text on the way to the exit message).
 #[derive(Debug, thiserror::Error)]
-#[error("setting up the {role}: {reason}")]
-pub struct TaskError {
-    pub role: &'static str,
-    pub reason: String,
+pub enum TaskError {
+    /// [`Task::new`] failed.
+    #[error("setting up the {}", .role.as_str())]
+    Setup {
+        role: Role,
+        #[source]
+        source: RoleError,
+    },
+    /// The task gave up ([`Task::gave_up`]): its input is as good as lost.
+    #[error("the {} gave up", .role.as_str())]
+    GaveUp {
+        role: Role,
+        #[source]
+        source: RoleError,
+    },
+}
+
+impl TaskError {
+    /// The task of `role` could not be made, for `source`.
+    pub fn setup(role: Role, source: impl Into<RoleError>) -> TaskError {
+        TaskError::Setup {
+            role,
+            source: source.into(),
+        }
+    }
+
+    /// The role whose task failed.
+    pub fn role(&self) -> Role {
+        match self {
+            TaskError::Setup { role, .. } | TaskError::GaveUp { role, .. } => *role,
+        }
+    }
 }
 
 /// A role: a value the executor hands inputs to and steps (module docs).
@@ -213,8 +246,9 @@ pub trait Task: Sized {
     fn next(&self) -> Due;
 
     /// Why the task cannot go on, once it cannot (a robot whose odometry stopped): the
-    /// process then reports its input lost and exits with this reason.
-    fn gave_up(&self) -> Option<String> {
+    /// process then reports its input lost and exits with this error
+    /// ([`TaskError::GaveUp`]).
+    fn gave_up(&self) -> Option<RoleError> {
         None
     }
 

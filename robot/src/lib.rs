@@ -32,4 +32,6 @@ pub enum RobotError {
     },
     #[error("stopped while waiting for the robot")]
     Stopped,
+    #[error("the odometry on `{key}` stopped: the robot was sent a zero twist")]
+    OdometryStopped { key: String },
 }

@@ -7,7 +7,9 @@
 use crate::watchdog::{Verdict, Watchdog};
 use crate::{Heard, Link, RobotError};
 use protocol::task::PlantOutput;
-use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
+use protocol::task::{
+    Context, Due, Publish, RoleError, Task, TaskError, header_latency, keep_newest,
+};
 use protocol::topics::{ACTUATION, MEASUREMENT, PLAN, ROUTE, TRACKS, TRUTH};
 use protocol::{
     Actuation, GroundTruth, Header, Measurement, Obstacle, Plan, Role, Route, Timing, Tracks,
@@ -125,10 +127,7 @@ impl Task for RobotTask {
 
     /// Connects to the robot and waits for its first odometry (nothing is sent before).
     fn new(scenario: &Validated, _epoch: u32) -> Result<RobotTask, TaskError> {
-        let error = |e: RobotError| TaskError {
-            role: "robot",
-            reason: e.to_string(),
-        };
+        let error = |e: RobotError| TaskError::setup(Role::Plant, e);
         let link = Link::open(&scenario.ros2, &net::Security::from_env()).map_err(error)?;
         let newest = link
             .first_odometry(&AtomicBool::new(false))
@@ -212,13 +211,12 @@ impl Task for RobotTask {
         }))
     }
 
-    fn gave_up(&self) -> Option<String> {
+    fn gave_up(&self) -> Option<RoleError> {
         let link = self.link.as_ref()?;
         (self.verdict == Verdict::GiveUp).then(|| {
-            format!(
-                "the odometry on `{}` stopped: the robot was sent a zero twist",
-                link.odometry_key()
-            )
+            RoleError::from(RobotError::OdometryStopped {
+                key: link.odometry_key().to_string(),
+            })
         })
     }
 }

@@ -2,7 +2,6 @@
 //! recorded.
 
 use crate::closed_loop::{ClosedLoop, Ended, Tick};
-use anyhow::Context;
 use protocol::Validated;
 use record::Summary;
 use record::event::{Event, Restart};
@@ -32,7 +31,7 @@ pub fn run_observed(
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     let mut recorder = crate::sinks::recorder(scenario, out, mcap)?;
-    let mut closed_loop = ClosedLoop::new(scenario).context("setting up the MPC")?;
+    let mut closed_loop = ClosedLoop::new(scenario)?;
     let mut outcome = None;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {

@@ -33,12 +33,7 @@ macro_rules! roles {
             epoch: u32,
         ) -> Result<Box<dyn Stepped>, TaskError> {
             if role == Role::Plant && scenario.plant.kind == protocol::PlantKind::Ros2 {
-                return Err(TaskError {
-                    role: "plant",
-                    reason: "plant.kind = \"ros2\": a robot is driven in real time only \
-                             (scmpc run --mode realtime)"
-                        .into(),
-                });
+                return Err(TaskError::setup(Role::Plant, RobotInProcess));
             }
             match role {
                 $(Role::$role => Ok(Box::new(<$task as Task>::new(scenario, epoch)?)),)*
@@ -47,6 +42,11 @@ macro_rules! roles {
     };
 }
 
+/// A ROS 2 robot asked of the in-process executor.
+#[derive(Debug, thiserror::Error)]
+#[error("plant.kind = \"ros2\": a robot is driven in real time only (scmpc run --mode realtime)")]
+pub struct RobotInProcess;
+
 roles! {
     Plant => plant::PlantTask,
     Estimator => estimator::EstimatorTask,
@@ -54,4 +54,27 @@ roles! {
     Mpc => mpc::MpcTask,
     Dfl => dfl::DflTask,
     Planner => planner::PlannerTask,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::closed_loop::ClosedLoop;
+
+    #[test]
+    fn a_task_that_cannot_be_made_keeps_its_roles_error_with_its_type_to_the_exit_message() {
+        let scenario = crate::scenarios::load(None, &["plant.kind=ros2".into()]).unwrap();
+        let Err(error) = ClosedLoop::new(&scenario) else {
+            panic!("a robot stepped in process");
+        };
+        let error = anyhow::Error::from(error);
+        let task = error.downcast_ref::<TaskError>().unwrap();
+        assert_eq!(task.role(), Role::Plant);
+        assert!(matches!(task, TaskError::Setup { .. }));
+        assert!(error.chain().any(|e| e.is::<RobotInProcess>()));
+        assert_eq!(
+            format!("{error:#}"),
+            format!("setting up the plant: {RobotInProcess}")
+        );
+    }
 }

@@ -79,12 +79,14 @@ pub enum ProcessError {
     Ipc(#[from] IpcError),
     #[error("no input for {0:?}: giving up")]
     InputLost(Duration),
-    #[error("setting up: {0}")]
-    Setup(String),
-    /// The task gave up ([`Task::gave_up`](protocol::task::Task::gave_up)): its input is
-    /// as good as lost.
-    #[error("{0}")]
-    GaveUp(String),
+    /// The task could not be made, or gave up
+    /// ([`Task::gave_up`](protocol::task::Task::gave_up)): its input is as good as lost.
+    #[error(transparent)]
+    Task(#[from] protocol::task::TaskError),
+    /// The task gave a message on a topic that is not among its outputs (a defect of the
+    /// task).
+    #[error("the task gave a message on `{topic}`, which is not among its outputs")]
+    Undeclared { topic: &'static str },
 }
 
 /// What the orchestrator has said so far, and what a step is told ([`Context`]).
@@ -530,7 +532,11 @@ impl Member {
         loop {
             self.sync(&mut followed, inputs)?;
             let next = step(&self.clock.state.get()).inspect_err(|e| {
-                if matches!(e, ProcessError::InputLost(_) | ProcessError::GaveUp(_)) {
+                if matches!(
+                    e,
+                    ProcessError::InputLost(_)
+                        | ProcessError::Task(protocol::task::TaskError::GaveUp { .. })
+                ) {
                     let _ = self.report(StatusEvent::InputLost);
                 }
             })?;

@@ -7,7 +7,7 @@ use crate::ipc::{
     Sender, TRACKS, TRUTH, producer_of,
 };
 use crate::process::{Member, Next, ProcessArgs, ProcessContext, ProcessError};
-use protocol::task::{Cancel, Due, Outputs, Task};
+use protocol::task::{Cancel, Due, Outputs, Task, TaskError};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Tracks,
 };
@@ -23,8 +23,7 @@ use std::rc::Rc;
 /// waits as [`Task::next`] says. A task that [warms up](Task::warm_up) is handed a
 /// cancel check that holds once its window is over or its periodic input has come.
 pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
-    let task =
-        T::new(&args.scenario, args.epoch).map_err(|e| ProcessError::Setup(e.to_string()))?;
+    let task = T::new(&args.scenario, args.epoch)?;
     let member = Member::open(args, T::ROLE)?;
     let inputs = task
         .inputs()
@@ -55,8 +54,12 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
             });
             sent?;
         }
-        if let Some(reason) = task.gave_up() {
-            return Err(ProcessError::GaveUp(reason));
+        if let Some(source) = task.gave_up() {
+            return Err(TaskError::GaveUp {
+                role: T::ROLE,
+                source,
+            }
+            .into());
         }
         Ok(match task.next() {
             Due::Wait(until_s) => Next::Wait(until_s),
@@ -95,10 +98,9 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
 fn send(outputs: &[OutPort], data: &Data) -> Result<(), ProcessError> {
     match outputs.iter().find(|o| o.topic() == data.topic()) {
         Some(output) => output.send(data).map_err(ProcessError::from),
-        None => Err(ProcessError::Setup(format!(
-            "the task gave a message on `{}`, which is not among its outputs",
-            data.topic()
-        ))),
+        None => Err(ProcessError::Undeclared {
+            topic: data.topic(),
+        }),
     }
 }
 

@@ -48,7 +48,7 @@ pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
     {
         let _ = runtime::ipc::remove_run(&args.prefix);
     }
-    result.map_err(|e| CliError::Failed(anyhow::Error::msg(e.to_string())))
+    result.map_err(|e| CliError::Failed(e.into()))
 }
 
 pub(super) fn run(args: RunArgs) -> CliResult {
