@@ -158,16 +158,29 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
 }
 
 /// The role crates: they depend on `protocol` alone, link no transport and read no clock
-/// (the `Task` contract). The robot, the plant role played by a ROS 2 robot, is not one
-/// yet: its ROS 2 link reads the machine's clock for its messages' stamps and its
-/// watchdog, and it depends on `plant` and `hosts` (issue 55).
+/// (the `Task` contract). The robot, the plant role played by a ROS 2 robot, links Zenoh
+/// for its ROS 2 link: its task code reads no clock ([`is_task_code`]), its link does.
 const ROLE_CRATES: [&str; 6] = ["plant", "estimator", "mpc", "dfl", "planner", "tracker"];
 
-/// The code lines of `text` that read a clock: `Instant::now` or `SystemTime`.
+/// The task code of every role: the role crates' sources, and the robot's but for its
+/// link (`robot/src/link.rs`), the resource it is handed, which may read a clock.
+fn is_task_code(name: &str) -> bool {
+    ROLE_CRATES
+        .iter()
+        .any(|r| name.starts_with(&format!("{r}/src/")))
+        || (name.starts_with("robot/src/") && name != "robot/src/link.rs")
+}
+
+/// The code lines of `text` that read a clock: `Instant::now`, `SystemTime`, or a clock
+/// function of the runtime's (`clock::monotonic_ns`) rather than the context's.
 fn clock_readings(text: &str) -> Vec<(usize, &str)> {
     code_lines(text)
         .into_iter()
-        .filter(|(_, l)| l.contains("Instant::now") || l.contains("SystemTime"))
+        .filter(|(_, l)| {
+            ["Instant::now", "SystemTime", "clock::monotonic_ns"]
+                .iter()
+                .any(|c| l.contains(c))
+        })
         .collect()
 }
 
@@ -177,10 +190,7 @@ fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
     let mut readings = Vec::new();
     for path in library_sources() {
         let name = path.strip_prefix(root).unwrap().display().to_string();
-        if !ROLE_CRATES
-            .iter()
-            .any(|r| name.starts_with(&format!("{r}/src/")))
-        {
+        if !is_task_code(&name) {
             continue;
         }
         let text = std::fs::read_to_string(&path).unwrap();
@@ -190,11 +200,16 @@ fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
     }
     assert!(readings.is_empty(), "clocks read:\n{}", readings.join("\n"));
     // The search sees what it is meant to, and not in a test module.
-    let sample = "fn f() {\n    let t = std::time::Instant::now();\n}\n#[cfg(test)]\nmod tests {\n    fn t() { SystemTime::now(); }\n}\n";
+    let sample = "fn f() {\n    let t = std::time::Instant::now();\n    runtime::clock::monotonic_ns();\n    context.monotonic_ns();\n}\n#[cfg(test)]\nmod tests {\n    fn t() { SystemTime::now(); }\n}\n";
     assert_eq!(
         clock_readings(sample),
-        [(2, "    let t = std::time::Instant::now();")]
+        [
+            (2, "    let t = std::time::Instant::now();"),
+            (3, "    runtime::clock::monotonic_ns();")
+        ]
     );
+    assert!(is_task_code("robot/src/task.rs") && is_task_code("tracker/src/lib.rs"));
+    assert!(!is_task_code("robot/src/link.rs") && !is_task_code("runtime/src/clock.rs"));
 }
 
 #[test]

@@ -253,8 +253,9 @@ impl Task for DflTask {
     const OUTPUTS: &'static [&'static str] = &[DEADLINE, ACTUATION];
     type Input = DflInput;
     type Output = DflOutput;
+    type Resources = ();
 
-    fn new(scenario: &Validated, _epoch: u32) -> Result<DflTask, TaskError> {
+    fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<DflTask, TaskError> {
         let ts_s = scenario.timing.ts_s;
         Ok(DflTask {
             dfl: Dfl::new(scenario),

@@ -37,10 +37,11 @@ impl Task for EstimatorTask {
     const OUTPUTS: &'static [&'static str] = &[ESTIMATE];
     type Input = EstimatorInput;
     type Output = Estimate;
+    type Resources = ();
 
     /// The task of the process with producer epoch `epoch` (the injected NaN fault is the
     /// first one's).
-    fn new(scenario: &Validated, epoch: u32) -> Result<EstimatorTask, TaskError> {
+    fn new(scenario: &Validated, epoch: u32, _resources: ()) -> Result<EstimatorTask, TaskError> {
         Ok(EstimatorTask {
             estimator: Estimator::new(scenario),
             dt_s: scenario.timing.dt_s(),

@@ -64,8 +64,9 @@ impl Task for MpcTask {
     const OUTPUTS: &'static [&'static str] = &[PLAN];
     type Input = MpcInput;
     type Output = Plan;
+    type Resources = ();
 
-    fn new(scenario: &Validated, _epoch: u32) -> Result<MpcTask, TaskError> {
+    fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<MpcTask, TaskError> {
         let mpc = Mpc::new(scenario).map_err(|e| TaskError::setup(Role::Mpc, e))?;
         Ok(MpcTask {
             mpc,

@@ -27,8 +27,9 @@ impl Task for PlannerTask {
     const OUTPUTS: &'static [&'static str] = &[ROUTE];
     type Input = PlannerInput;
     type Output = Route;
+    type Resources = ();
 
-    fn new(scenario: &Validated, _epoch: u32) -> Result<PlannerTask, TaskError> {
+    fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<PlannerTask, TaskError> {
         Ok(PlannerTask {
             planner: Planner::new(scenario),
             samples: SampleQueue::new(&scenario.timing),

@@ -30,8 +30,9 @@ impl Task for PlantTask {
     const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
     type Input = PlantInput;
     type Output = PlantOutput;
+    type Resources = ();
 
-    fn new(scenario: &Validated, _epoch: u32) -> Result<PlantTask, TaskError> {
+    fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<PlantTask, TaskError> {
         Ok(PlantTask {
             plant: Plant::new(scenario),
             timing: scenario.timing.clone(),

@@ -218,6 +218,20 @@ impl TaskError {
     }
 }
 
+/// What an executor opens and hands a task before making it: I/O outside the pipeline
+/// (the robot's ROS 2 link), which may do what a task may not (block, read a clock).
+/// `()` for a task that needs none.
+pub trait Resources: Sized {
+    /// The resources of a task of `scenario` (it may wait: the robot's first odometry).
+    fn open(scenario: &Validated) -> Result<Self, TaskError>;
+}
+
+impl Resources for () {
+    fn open(_scenario: &Validated) -> Result<(), TaskError> {
+        Ok(())
+    }
+}
+
 /// A role: a value the executor hands inputs to and steps (module docs).
 pub trait Task: Sized {
     /// The role the task plays.
@@ -228,9 +242,13 @@ pub trait Task: Sized {
     type Input: TryFrom<Data>;
     /// What one step gives.
     type Output: Outputs;
+    /// What the executor opens for it ([`Resources`]).
+    type Resources: Resources;
 
-    /// The task of `scenario` for the process of producer epoch `epoch` (0: the first).
-    fn new(scenario: &Validated, epoch: u32) -> Result<Self, TaskError>;
+    /// The task of `scenario` for the process of producer epoch `epoch` (0: the first),
+    /// with the `resources` the executor opened for it.
+    fn new(scenario: &Validated, epoch: u32, resources: Self::Resources)
+    -> Result<Self, TaskError>;
 
     /// The topics it takes, its periodic input (the one [`Due::Expect`] names) first.
     fn inputs(&self) -> &'static [&'static str];

@@ -29,6 +29,24 @@ const QOS: Qos = Qos {
 /// The frame a command is stamped in: the robot's body.
 const BASE_FRAME: &str = "base_link";
 
+/// The robot's link as its task's resource ([`protocol::task::Resources`]): opened, with
+/// the robot's first odometry heard, before the task is made.
+pub struct RobotLink {
+    pub link: Link,
+    pub first: Heard,
+}
+
+impl protocol::task::Resources for RobotLink {
+    fn open(scenario: &protocol::Validated) -> Result<RobotLink, protocol::task::TaskError> {
+        let error = |e: RobotError| protocol::task::TaskError::setup(protocol::Role::Plant, e);
+        let link = Link::open(&scenario.ros2, &net::Security::from_env()).map_err(error)?;
+        let first = link
+            .first_odometry(&AtomicBool::new(false))
+            .map_err(error)?;
+        Ok(RobotLink { link, first })
+    }
+}
+
 /// An odometry message as the pipeline heard it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Heard {

@@ -1,9 +1,11 @@
 //! The robot as the plant's task: tick `j` is due at `t_j`; it measures the robot by its
 //! newest odometry, and each command the DFL gives is sent to the robot as soon as it is
 //! heard. It shows the MPC's plans, the route and the obstacles to RViz as they come.
-//! Unlike every other task it does I/O and reads the clock: the robot is outside the
-//! pipeline's time.
+//! It is handed its link to the robot ([`RobotLink`], a resource: the I/O and the clock of
+//! the odometry's arrivals are the link's), and reads the time from its context as every
+//! task does.
 
+use crate::link::RobotLink;
 use crate::watchdog::{Verdict, Watchdog};
 use crate::{Heard, Link, RobotError};
 use protocol::task::PlantOutput;
@@ -15,7 +17,6 @@ use protocol::{
     Actuation, GroundTruth, Header, Measurement, Obstacle, Plan, Role, Route, Timing, Tracks,
     Validated,
 };
-use std::sync::atomic::AtomicBool;
 
 /// What the robot process takes: the DFL's commands, and what it shows (the plans, the
 /// route, the tracks).
@@ -124,14 +125,16 @@ impl Task for RobotTask {
     const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
     type Input = RobotInput;
     type Output = PlantOutput;
+    type Resources = RobotLink;
 
-    /// Connects to the robot and waits for its first odometry (nothing is sent before).
-    fn new(scenario: &Validated, _epoch: u32) -> Result<RobotTask, TaskError> {
-        let error = |e: RobotError| TaskError::setup(Role::Plant, e);
-        let link = Link::open(&scenario.ros2, &net::Security::from_env()).map_err(error)?;
-        let newest = link
-            .first_odometry(&AtomicBool::new(false))
-            .map_err(error)?;
+    /// The robot's task, with its link open and its first odometry heard (nothing is
+    /// sent before).
+    fn new(
+        scenario: &Validated,
+        _epoch: u32,
+        RobotLink { link, first }: RobotLink,
+    ) -> Result<RobotTask, TaskError> {
+        let newest = first;
         let runs = |role| scenario.roles().any(|r| r == role);
         let inputs: &'static [&'static str] = match (runs(Role::Planner), runs(Role::Tracker)) {
             (false, false) => &[ACTUATION, PLAN],
@@ -186,9 +189,7 @@ impl Task for RobotTask {
         if let Some(newest) = self.link.as_ref().and_then(Link::newest_odometry) {
             self.newest = newest;
         }
-        self.verdict = self
-            .watchdog
-            .check(runtime::clock::monotonic_ns(), &self.newest);
+        self.verdict = self.watchdog.check(context.monotonic_ns(), &self.newest);
         if self.verdict != Verdict::Drive {
             self.send(0.0, 0.0);
         }

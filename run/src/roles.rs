@@ -4,7 +4,7 @@
 //! then run it (docs/design.md, "Roles and tasks").
 
 use crate::closed_loop::Stepped;
-use protocol::task::{Task, TaskError};
+use protocol::task::{Resources, Task, TaskError};
 use protocol::{Role, Validated};
 use runtime::process::{ProcessArgs, ProcessError};
 
@@ -36,7 +36,10 @@ macro_rules! roles {
                 return Err(TaskError::setup(Role::Plant, RobotInProcess));
             }
             match role {
-                $(Role::$role => Ok(Box::new(<$task as Task>::new(scenario, epoch)?)),)*
+                $(Role::$role => {
+                    let resources = <$task as Task>::Resources::open(scenario)?;
+                    Ok(Box::new(<$task as Task>::new(scenario, epoch, resources)?))
+                })*
             }
         }
     };

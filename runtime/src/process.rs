@@ -89,6 +89,17 @@ pub enum ProcessError {
     Undeclared { topic: &'static str },
 }
 
+impl ProcessError {
+    /// Whether the process lost its input: none came in time, or its task gave up.
+    fn input_lost(&self) -> bool {
+        matches!(
+            self,
+            ProcessError::InputLost(_)
+                | ProcessError::Task(protocol::task::TaskError::GaveUp { .. })
+        )
+    }
+}
+
 /// What the orchestrator has said so far, and what a step is told ([`Context`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ProcessContext {
@@ -149,6 +160,13 @@ impl ProcessContext {
 }
 
 impl Context for ProcessContext {
+    /// The run's monotonic clock ([`crate::clock::monotonic_ns`]: this host's, with the
+    /// correction to the orchestrator's): what the resources of a task stamp their own
+    /// arrivals with (the robot's odometry).
+    fn monotonic_ns(&self) -> u64 {
+        crate::clock::monotonic_ns()
+    }
+
     fn has_reached(&self, t_s: f64) -> bool {
         self.clock.has_reached(t_s)
     }
@@ -532,11 +550,7 @@ impl Member {
         loop {
             self.sync(&mut followed, inputs)?;
             let next = step(&self.clock.state.get()).inspect_err(|e| {
-                if matches!(
-                    e,
-                    ProcessError::InputLost(_)
-                        | ProcessError::Task(protocol::task::TaskError::GaveUp { .. })
-                ) {
+                if e.input_lost() {
                     let _ = self.report(StatusEvent::InputLost);
                 }
             })?;

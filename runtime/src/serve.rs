@@ -7,7 +7,7 @@ use crate::ipc::{
     Sender, TRACKS, TRUTH, producer_of,
 };
 use crate::process::{Member, Next, ProcessArgs, ProcessContext, ProcessError};
-use protocol::task::{Cancel, Due, Outputs, Task, TaskError};
+use protocol::task::{Cancel, Due, Outputs, Resources, Task, TaskError};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Tracks,
 };
@@ -23,7 +23,8 @@ use std::rc::Rc;
 /// waits as [`Task::next`] says. A task that [warms up](Task::warm_up) is handed a
 /// cancel check that holds once its window is over or its periodic input has come.
 pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
-    let task = T::new(&args.scenario, args.epoch)?;
+    let resources = T::Resources::open(&args.scenario)?;
+    let task = T::new(&args.scenario, args.epoch, resources)?;
     let member = Member::open(args, T::ROLE)?;
     let inputs = task
         .inputs()

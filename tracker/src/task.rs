@@ -36,8 +36,9 @@ impl Task for TrackerTask {
     const OUTPUTS: &'static [&'static str] = &[TRACKS];
     type Input = TrackerInput;
     type Output = Tracks;
+    type Resources = ();
 
-    fn new(scenario: &Validated, _epoch: u32) -> Result<TrackerTask, TaskError> {
+    fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<TrackerTask, TaskError> {
         Ok(TrackerTask {
             tracker: Tracker::new(scenario),
             perception_ticks: scenario.perception_ticks(),
