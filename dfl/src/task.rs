@@ -4,7 +4,7 @@
 
 use crate::Dfl;
 use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
-use protocol::topics::{ACTUATION, DEADLINE, ESTIMATE, PLAN, TRACKS};
+use protocol::topics::TRACKS;
 use protocol::{
     Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
     PlanStatus, Role, Timing, Tracks, Validated, period_ns,
@@ -250,7 +250,6 @@ pub struct DflTask {
 
 impl Task for DflTask {
     const ROLE: Role = Role::Dfl;
-    const OUTPUTS: &'static [&'static str] = &[DEADLINE, ACTUATION];
     type Input = DflInput;
     type Output = DflOutput;
     type Resources = ();
@@ -270,12 +269,9 @@ impl Task for DflTask {
         })
     }
 
-    fn inputs(&self) -> &'static [&'static str] {
-        if self.tracks.is_some() {
-            &[ESTIMATE, PLAN, TRACKS]
-        } else {
-            &[ESTIMATE, PLAN]
-        }
+    /// The tracks only with the gatekeeper.
+    fn takes(&self, topic: &str) -> bool {
+        topic != TRACKS || self.tracks.is_some()
     }
 
     /// An estimate is queued with its receipt latency; a plan goes to the inbox and the

@@ -4,7 +4,6 @@
 
 use crate::Estimator;
 use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
-use protocol::topics::{ACTUATION, ESTIMATE, MEASUREMENT};
 use protocol::{Actuation, Estimate, FaultConfig, Header, Measurement, Role, Validated};
 use std::collections::VecDeque;
 
@@ -34,7 +33,6 @@ pub struct EstimatorTask {
 
 impl Task for EstimatorTask {
     const ROLE: Role = Role::Estimator;
-    const OUTPUTS: &'static [&'static str] = &[ESTIMATE];
     type Input = EstimatorInput;
     type Output = Estimate;
     type Resources = ();
@@ -52,10 +50,6 @@ impl Task for EstimatorTask {
             queue: VecDeque::with_capacity(16),
             last_tick: None,
         })
-    }
-
-    fn inputs(&self) -> &'static [&'static str] {
-        &[MEASUREMENT, ACTUATION]
     }
 
     /// A measurement is queued with its receipt latency; of the actuations the newest is

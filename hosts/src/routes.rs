@@ -4,7 +4,8 @@
 //! made on another host comes to it, and it forwards what a third host takes.
 
 use protocol::Role;
-use runtime::ipc::{CONTROL, DATA_FLOW, STATUS};
+use protocol::graph::Graph;
+use runtime::ipc::{CONTROL, STATUS};
 use std::collections::BTreeMap;
 
 /// The links of a run.
@@ -20,9 +21,8 @@ pub struct Routes {
     pub host_receives: BTreeMap<String, Vec<String>>,
 }
 
-/// The routes for the roles `running` of a run, `host_of` each (`None`: the
-/// orchestrator's host).
-pub fn plan<'a>(running: &[Role], host_of: impl Fn(Role) -> Option<&'a str>) -> Routes {
+/// The routes for the roles of `graph`, `host_of` each (`None`: the orchestrator's host).
+pub fn plan<'a>(graph: &Graph, host_of: impl Fn(Role) -> Option<&'a str>) -> Routes {
     let mut routes = Routes::default();
     let send_to = |routes: &mut Routes, topic: &str, to: &str| {
         let hosts = routes
@@ -37,10 +37,7 @@ pub fn plan<'a>(running: &[Role], host_of: impl Fn(Role) -> Option<&'a str>) -> 
             topic,
         );
     };
-    for (topic, producer, consumers) in DATA_FLOW {
-        if !running.contains(&producer) {
-            continue;
-        }
+    for (topic, producer) in graph.topics() {
         let made_at = host_of(producer);
         if let Some(host) = made_at {
             push_once(
@@ -49,13 +46,17 @@ pub fn plan<'a>(running: &[Role], host_of: impl Fn(Role) -> Option<&'a str>) -> 
             );
             push_once(&mut routes.orchestrator_receives, topic);
         }
-        for consumer in consumers.iter().filter(|c| running.contains(c)) {
-            if let Some(host) = host_of(*consumer).filter(|h| Some(*h) != made_at) {
+        for consumer in graph.consumers_of(topic) {
+            if let Some(host) = host_of(consumer).filter(|h| Some(*h) != made_at) {
                 send_to(&mut routes, topic, host);
             }
         }
     }
-    let mut hosts: Vec<&str> = running.iter().filter_map(|r| host_of(*r)).collect();
+    let mut hosts: Vec<&str> = protocol::Role::ALL
+        .into_iter()
+        .filter(|r| graph.runs(*r))
+        .filter_map(&host_of)
+        .collect();
     hosts.sort();
     hosts.dedup();
     for host in hosts {
@@ -83,8 +84,8 @@ mod tests {
     #[test]
     fn only_topics_crossing_a_host_boundary_cross_and_a_third_host_gets_them_through_the_orchestrator()
      {
-        let running = Role::ALL;
-        let routes = plan(&running, |r| match r {
+        let graph = Graph::of_roles(&Role::ALL, protocol::PlantKind::Sim);
+        let routes = plan(&graph, |r| match r {
             Role::Mpc => Some("compute"),
             Role::Planner => Some("planning"),
             _ => None,
@@ -104,7 +105,7 @@ mod tests {
             "the DFL is local"
         );
         assert_eq!(routes.orchestrator_receives, [PLAN, ROUTE, STATUS]);
-        let single = plan(&running, |_| None);
+        let single = plan(&graph, |_| None);
         assert_eq!(single, Routes::default(), "one host: nothing crosses");
     }
 }

@@ -18,7 +18,6 @@
 use crate::Mpc;
 use protocol::samples::SampleQueue;
 use protocol::task::{Cancel, Context, Due, Publish, Task, TaskError, header_latency};
-use protocol::topics::{ESTIMATE, PLAN, ROUTE, TRACKS};
 use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Tracks, Validated};
 use std::collections::VecDeque;
 
@@ -61,7 +60,6 @@ pub struct MpcTask {
 
 impl Task for MpcTask {
     const ROLE: Role = Role::Mpc;
-    const OUTPUTS: &'static [&'static str] = &[PLAN];
     type Input = MpcInput;
     type Output = Plan;
     type Resources = ();
@@ -82,17 +80,6 @@ impl Task for MpcTask {
             tracks_tick: None,
             tracks_grace_s: 0.5 * scenario.timing.dt_s(),
         })
-    }
-
-    /// Estimates, routes when a planner runs (`planner.kind = "route"`), tracks when a
-    /// tracker does.
-    fn inputs(&self) -> &'static [&'static str] {
-        match (self.follows_route, self.perception_ticks.is_some()) {
-            (false, false) => &[ESTIMATE],
-            (true, false) => &[ESTIMATE, ROUTE],
-            (false, true) => &[ESTIMATE, TRACKS],
-            (true, true) => &[ESTIMATE, ROUTE, TRACKS],
-        }
     }
 
     /// An estimate is kept if it starts a sample not solved yet (a replay repeats one that

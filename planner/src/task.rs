@@ -6,7 +6,6 @@
 use crate::Planner;
 use protocol::samples::SampleQueue;
 use protocol::task::{Context, Due, Publish, Task, TaskError};
-use protocol::topics::{ESTIMATE, ROUTE};
 use protocol::{Estimate, Header, Role, Route, Validated};
 
 /// What the planner takes: the estimator's estimates.
@@ -24,7 +23,6 @@ pub struct PlannerTask {
 
 impl Task for PlannerTask {
     const ROLE: Role = Role::Planner;
-    const OUTPUTS: &'static [&'static str] = &[ROUTE];
     type Input = PlannerInput;
     type Output = Route;
     type Resources = ();
@@ -34,10 +32,6 @@ impl Task for PlannerTask {
             planner: Planner::new(scenario),
             samples: SampleQueue::new(&scenario.timing),
         })
-    }
-
-    fn inputs(&self) -> &'static [&'static str] {
-        &[ESTIMATE]
     }
 
     /// An estimate heard: kept if it starts a sample not answered yet.

@@ -5,7 +5,6 @@
 use crate::Plant;
 pub use protocol::task::PlantOutput;
 use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
-use protocol::topics::{ACTUATION, MEASUREMENT, TRUTH};
 use protocol::{Actuation, GroundTruth, Header, Measurement, Role, Timing, Validated};
 
 /// What the plant takes: the DFL's commands.
@@ -27,7 +26,6 @@ pub struct PlantTask {
 
 impl Task for PlantTask {
     const ROLE: Role = Role::Plant;
-    const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
     type Input = PlantInput;
     type Output = PlantOutput;
     type Resources = ();
@@ -39,10 +37,6 @@ impl Task for PlantTask {
             held: None,
             tick: 0,
         })
-    }
-
-    fn inputs(&self) -> &'static [&'static str] {
-        &[ACTUATION]
     }
 
     /// An actuation heard; the newest is held until a newer one comes.

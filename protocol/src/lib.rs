@@ -7,6 +7,7 @@
 
 pub mod endpoint;
 pub mod geometry;
+pub mod graph;
 pub mod messages;
 pub mod prediction;
 pub mod samples;

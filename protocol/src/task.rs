@@ -138,7 +138,7 @@ pub enum Due {
     /// When an input or a control message comes, and at the latest at the time given
     /// (`None`: only then).
     Wait(Option<f64>),
-    /// The task's periodic input (the first of [`Task::inputs`]) is due at the time given
+    /// The task's periodic input (the first it takes, [`RoleDecl::inputs`](crate::graph::RoleDecl::inputs)) is due at the time given
     /// (`None`: not known yet); in real time the runtime polls for it around then.
     Expect(Option<f64>),
     /// The step is due at the time given: in real time the runtime sleeps until then; in
@@ -234,11 +234,10 @@ impl Resources for () {
 
 /// A role: a value the executor hands inputs to and steps (module docs).
 pub trait Task: Sized {
-    /// The role the task plays.
+    /// The role the task plays: its inputs and outputs are the role's declaration's
+    /// ([`crate::graph`]).
     const ROLE: Role;
-    /// The topics of its outputs, in the order a step publishes them.
-    const OUTPUTS: &'static [&'static str];
-    /// What it takes: one variant per input topic.
+    /// What it takes: one variant per input topic its role declares.
     type Input: TryFrom<Data>;
     /// What one step gives.
     type Output: Outputs;
@@ -250,8 +249,12 @@ pub trait Task: Sized {
     fn new(scenario: &Validated, epoch: u32, resources: Self::Resources)
     -> Result<Self, TaskError>;
 
-    /// The topics it takes, its periodic input (the one [`Due::Expect`] names) first.
-    fn inputs(&self) -> &'static [&'static str];
+    /// Whether it takes `topic`, one of its role's declared inputs whose producer runs
+    /// (all of them, unless a task leaves one out: the DFL the tracks without its
+    /// gatekeeper).
+    fn takes(&self, _topic: &str) -> bool {
+        true
+    }
 
     /// An input sample, received `latency_ns` after it was published.
     fn hear(&mut self, input: Self::Input, latency_ns: u64, context: &impl Context);

@@ -12,7 +12,6 @@ use protocol::task::PlantOutput;
 use protocol::task::{
     Context, Due, Publish, RoleError, Task, TaskError, header_latency, keep_newest,
 };
-use protocol::topics::{ACTUATION, MEASUREMENT, PLAN, ROUTE, TRACKS, TRUTH};
 use protocol::{
     Actuation, GroundTruth, Header, Measurement, Obstacle, Plan, Role, Route, Timing, Tracks,
     Validated,
@@ -42,8 +41,6 @@ pub struct RobotTask {
     tick: u64,
     /// The newest odometry, for the tick's measurement.
     newest: Heard,
-    /// The topics it takes.
-    inputs: &'static [&'static str],
     /// The obstacles, where they start; the tracked ones are shown where tracked.
     obstacles: Vec<Obstacle>,
     tracks: Option<Tracks>,
@@ -122,7 +119,6 @@ impl RobotTask {
 
 impl Task for RobotTask {
     const ROLE: Role = Role::Plant;
-    const OUTPUTS: &'static [&'static str] = &[TRUTH, MEASUREMENT];
     type Input = RobotInput;
     type Output = PlantOutput;
     type Resources = RobotLink;
@@ -135,13 +131,6 @@ impl Task for RobotTask {
         RobotLink { link, first }: RobotLink,
     ) -> Result<RobotTask, TaskError> {
         let newest = first;
-        let runs = |role| scenario.roles().any(|r| r == role);
-        let inputs: &'static [&'static str] = match (runs(Role::Planner), runs(Role::Tracker)) {
-            (false, false) => &[ACTUATION, PLAN],
-            (true, false) => &[ACTUATION, PLAN, ROUTE],
-            (false, true) => &[ACTUATION, PLAN, TRACKS],
-            (true, true) => &[ACTUATION, PLAN, ROUTE, TRACKS],
-        };
         Ok(RobotTask {
             link: Some(link),
             timing: scenario.timing.clone(),
@@ -150,15 +139,10 @@ impl Task for RobotTask {
             sent: None,
             tick: 0,
             newest,
-            inputs,
             obstacles: scenario.obstacles.clone(),
             tracks: None,
             route_plans: 0,
         })
-    }
-
-    fn inputs(&self) -> &'static [&'static str] {
-        self.inputs
     }
 
     /// A command goes to the robot at once; a plan, a new route and the obstacles go to
@@ -230,6 +214,23 @@ impl Drop for RobotTask {
             && let Err(e) = link.stop_and_close()
         {
             tracing::warn!("stopping the robot: {e}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_robot_takes_what_its_declaration_names_and_nothing_else() {
+        for data in protocol::Data::one_of_each() {
+            assert_eq!(
+                RobotInput::try_from(data).is_ok(),
+                protocol::graph::ROBOT.inputs.contains(&data.topic()),
+                "`{}`",
+                data.topic()
+            );
         }
     }
 }

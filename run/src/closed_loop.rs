@@ -6,7 +6,8 @@
 //!
 //! Per inner tick `j` (time `t_j = j Ts / M`), each running role in [`Role::ALL`] order is
 //! stepped until it has nothing more to give, and each message it gives is handed at once
-//! to every task that takes its topic ([`protocol::topics::DATA_FLOW`]). That order is the
+//! to every task that takes its topic ([`protocol::graph`]); a message on a topic its
+//! role does not declare as an output ends the run ([`Ended::Undeclared`]). That order is the
 //! order of the data within a tick: the plant's measurement of tick `j` (after integrating
 //! the command of tick `j - 1`), the estimate, on a sample boundary the MPC's plan(k), the
 //! DFL's command for `[t_j, t_j+1)` with its verdict on the previous sample, and the
@@ -23,6 +24,7 @@
 //! every injected fault gives the same run here as over iceoryx2 in lockstep.
 
 use crate::roles;
+use protocol::graph::Graph;
 use protocol::task::{Outputs, SimulatedTime, Task};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Plan, RestartPolicy, Role, Route,
@@ -59,13 +61,19 @@ pub enum Ended {
     /// executor: a defect).
     #[error("tick {tick} ended without a {topic}")]
     Stalled { tick: u64, topic: &'static str },
+    /// A task gave a message on a topic its role does not declare as an output (a defect
+    /// of the task or of the declaration).
+    #[error("the {} gave a message on `{topic}`, which its declaration does not name", role.as_str())]
+    Undeclared { role: Role, topic: &'static str },
 }
 
 /// A task as this executor steps it, whatever its role.
 pub trait Stepped {
     fn role(&self) -> Role;
-    /// Whether it takes messages of `topic`.
+    /// Whether it takes messages of `topic`, one of its role's inputs ([`Task::takes`]).
     fn takes(&self, topic: &str) -> bool;
+    /// Whether its input type has a variant for `data` (what it could hear at all).
+    fn accepts(&self, data: Data) -> bool;
     fn hear(&mut self, data: Data, time: &SimulatedTime);
     /// Steps the task once; what it gives is pushed to `given` (false: nothing).
     fn step(&mut self, time: &SimulatedTime, given: &mut Vec<Data>) -> bool;
@@ -77,7 +85,11 @@ impl<T: Task> Stepped for T {
     }
 
     fn takes(&self, topic: &str) -> bool {
-        self.inputs().contains(&topic)
+        Task::takes(self, topic)
+    }
+
+    fn accepts(&self, data: Data) -> bool {
+        T::Input::try_from(data).is_ok()
     }
 
     fn hear(&mut self, data: Data, time: &SimulatedTime) {
@@ -97,11 +109,31 @@ impl<T: Task> Stepped for T {
     }
 }
 
+/// What a task is wired to in a run: the topics it takes (its role's declared inputs whose
+/// producer runs, as the task takes them) and its role's outputs.
+struct Wiring {
+    inputs: Vec<&'static str>,
+    outputs: &'static [&'static str],
+}
+
+impl Wiring {
+    fn of(task: &dyn Stepped, graph: &Graph) -> Wiring {
+        let role = task.role();
+        Wiring {
+            inputs: graph.inputs_of(role).filter(|t| task.takes(t)).collect(),
+            outputs: graph.declaration(role).map_or(&[][..], |d| d.outputs),
+        }
+    }
+}
+
 /// The tasks of one scenario, stepped in lockstep.
 pub struct ClosedLoop {
     scenario: Validated,
     /// The running roles' tasks, in [`Role::ALL`] order.
     tasks: Vec<Box<dyn Stepped>>,
+    /// The topics each task takes in this run, and those its role publishes.
+    wiring: Vec<Wiring>,
+    graph: Graph,
     /// Restarts so far, by role (the producer epoch of the one running).
     restarts: [u32; Role::COUNT],
     /// The newest message of each data topic, which a restarted task hears again.
@@ -119,11 +151,18 @@ impl ClosedLoop {
             .roles()
             .map(|role| roles::in_process(role, scenario, 0))
             .collect::<Result<Vec<_>, _>>()?;
+        let graph = Graph::of(scenario);
+        let wiring = tasks
+            .iter()
+            .map(|t| Wiring::of(t.as_ref(), &graph))
+            .collect();
         Ok(Self {
             scenario: scenario.clone(),
             tasks,
+            wiring,
+            graph,
             restarts: [0; Role::COUNT],
-            newest: Vec::with_capacity(protocol::topics::DATA_FLOW.len()),
+            newest: Vec::with_capacity(protocol::graph::TOPICS.len()),
             given: Vec::with_capacity(16),
             tick: 0,
             ticks: scenario.tick_count(),
@@ -156,9 +195,9 @@ impl ClosedLoop {
         let mut restarted = None;
         for i in 0..self.tasks.len() {
             let role = self.tasks[i].role();
-            let mut refused = None;
+            let mut refused = Ok(None);
             around(role, &mut || refused = self.pass(i, &time));
-            while let Some(topic) = refused.take() {
+            while let Some(topic) = std::mem::replace(&mut refused, Ok(None))? {
                 self.restart(i, topic)?;
                 restarted = Some((role, topic));
                 around(role, &mut || refused = self.pass(i, &time));
@@ -184,17 +223,24 @@ impl ClosedLoop {
     /// Steps task `i` until it gives nothing more, handing each message to the tasks that
     /// take its topic; the topic of a message its consumers would refuse (dropped), if one
     /// came.
-    fn pass(&mut self, i: usize, time: &SimulatedTime) -> Option<&'static str> {
+    fn pass(&mut self, i: usize, time: &SimulatedTime) -> Result<Option<&'static str>, Ended> {
         loop {
             let from = self.given.len();
             if !self.tasks[i].step(time, &mut self.given) {
-                return None;
+                return Ok(None);
             }
             for k in from..self.given.len() {
                 let data = self.given[k];
+                if !self.wiring[i].outputs.contains(&data.topic()) {
+                    let role = self.tasks[i].role();
+                    return Err(Ended::Undeclared {
+                        role,
+                        topic: data.topic(),
+                    });
+                }
                 if data.content_rejection().is_some() {
                     self.given.truncate(k);
-                    return Some(data.topic());
+                    return Ok(Some(data.topic()));
                 }
                 self.hand_over(data, time);
             }
@@ -207,8 +253,10 @@ impl ClosedLoop {
             Some(newest) => *newest = data,
             None => self.newest.push(data),
         }
-        for task in self.tasks.iter_mut().filter(|t| t.takes(data.topic())) {
-            task.hear(data, time);
+        for (task, wiring) in self.tasks.iter_mut().zip(&self.wiring) {
+            if wiring.inputs.contains(&data.topic()) {
+                task.hear(data, time);
+            }
         }
     }
 
@@ -224,11 +272,12 @@ impl ClosedLoop {
         *restarts += 1;
         let task = roles::in_process(role, &self.scenario, *restarts)
             .map_err(|_| Ended::Aborted { role, topic })?;
+        self.wiring[i] = Wiring::of(task.as_ref(), &self.graph);
         self.tasks[i] = task;
         let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s());
         let task = &mut self.tasks[i];
         for data in &self.newest {
-            if task.takes(data.topic()) {
+            if self.wiring[i].inputs.contains(&data.topic()) {
                 task.hear(*data, &time);
             }
         }

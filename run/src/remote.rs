@@ -99,7 +99,7 @@ impl RemoteHosts {
             .map_err(|e| anyhow!("zenoh: subscribing to the hosts' tokens: {e}"))?;
         let running: Vec<Role> = scenario.roles().collect();
         let placement = scenario.hosts.clone();
-        let routes = routes::plan(&running, |r| placement.of(r));
+        let routes = routes::plan(&protocol::graph::Graph::of(scenario), |r| placement.of(r));
         let bridge = Bridge::start(
             &session,
             BridgeSpec {

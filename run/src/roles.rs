@@ -1,7 +1,7 @@
 //! Every role `scmpc` runs, and its task: the one place a role is registered. Adding a
-//! role is a crate with its [`Task`], a variant of [`Role`] with its topics in the data
-//! flow ([`protocol::topics::DATA_FLOW`]), and a line in [`roles!`] below; both executors
-//! then run it (docs/design.md, "Roles and tasks").
+//! role is a crate with its [`Task`], a variant of [`Role`] with its declaration
+//! ([`protocol::graph`]), and a line in [`roles!`] below; both executors then run it
+//! (docs/design.md, "Roles and tasks").
 
 use crate::closed_loop::Stepped;
 use protocol::task::{Resources, Task, TaskError};
@@ -63,6 +63,33 @@ roles! {
 mod tests {
     use super::*;
     use crate::closed_loop::ClosedLoop;
+
+    #[test]
+    fn every_task_takes_and_gives_only_the_topics_its_role_declares() {
+        use protocol::PlantKind;
+        use protocol::graph::declaration;
+        // The crossing runs every role of the simulated plant.
+        let scenario = crate::scenarios::load(Some("crossing"), &[]).unwrap();
+        assert_eq!(scenario.roles().count(), Role::COUNT);
+        for role in scenario.roles() {
+            let task = in_process(role, &scenario, 0).unwrap();
+            let inputs = declaration(role, PlantKind::Sim).inputs;
+            for data in protocol::Data::one_of_each() {
+                assert_eq!(
+                    task.accepts(data),
+                    inputs.contains(&data.topic()),
+                    "the {} and `{}`",
+                    role.as_str(),
+                    data.topic()
+                );
+            }
+        }
+        // What each gives: the loop ends a run on a message its role does not declare.
+        let mut closed_loop = ClosedLoop::new(&scenario).unwrap();
+        while !closed_loop.is_done() {
+            closed_loop.step().unwrap();
+        }
+    }
 
     #[test]
     fn a_task_that_cannot_be_made_keeps_its_roles_error_with_its_type_to_the_exit_message() {

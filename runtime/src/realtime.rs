@@ -17,50 +17,8 @@
 //! `SCHED_RESET_ON_FORK`, so the threads and processes it starts later begin at the normal
 //! policy (a robot's Zenoh threads, a swapped-in replacement).
 
-use protocol::{AUTO_TOP_PRIORITY, Priority, RealtimeConfig, Role, TIERS_BELOW_TOP};
-
-/// A process's place in the data path; the higher, the earlier it runs on a shared core.
-///
-/// The control loop shares one tier, as measured on an idle two-core machine (10 s paper
-/// runs, three against three without the policy; docs/performance.md, "Real time under
-/// load"): with the MPC one tier below the DFL, the DFL, woken by the estimate the MPC
-/// solves from, preempted the solve, and the MPC step p50 rose from 33-42 to 50-63 µs;
-/// with the estimator one tier below the plant, the plant's wake-up preempted the estimator
-/// polling for the measurement on the same core, and that hop's p50 rose from 7 to 11-21
-/// µs. In one tier, the kernel wakes each of them on a core that runs none of the others.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Tier {
-    /// The orchestrator's recording.
-    Recording,
-    /// The route planner.
-    Planning,
-    /// The tracker of moving obstacles.
-    Tracking,
-    /// The plant (or the ROS 2 robot), the estimator, the MPC and the DFL.
-    Control,
-}
-
-impl Tier {
-    /// The tier of `role`'s process.
-    pub fn of(role: Role) -> Tier {
-        match role {
-            Role::Plant | Role::Estimator | Role::Mpc | Role::Dfl => Tier::Control,
-            Role::Tracker => Tier::Tracking,
-            Role::Planner => Tier::Planning,
-        }
-    }
-
-    /// Its `SCHED_FIFO` priority when the top tier has `top`.
-    pub fn priority(self, top: u8) -> u8 {
-        let below = match self {
-            Tier::Control => 0,
-            Tier::Tracking => 1,
-            Tier::Planning => 2,
-            Tier::Recording => TIERS_BELOW_TOP,
-        };
-        top - below
-    }
-}
+pub use protocol::graph::Tier;
+use protocol::{AUTO_TOP_PRIORITY, Priority, RealtimeConfig, TIERS_BELOW_TOP};
 
 /// Linux's capability bits in `/proc/self/status`'s `CapEff`.
 const CAP_IPC_LOCK: u32 = 14;
@@ -422,7 +380,8 @@ pub fn allowed_cpus() -> std::io::Result<Vec<usize>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::topics::DATA_FLOW;
+    use protocol::Role;
+    use protocol::graph::{Graph, producer_of};
 
     fn root() -> Grant {
         Grant {
@@ -450,16 +409,15 @@ mod tests {
             (Role::Mpc, ESTIMATE),
             (Role::Planner, ESTIMATE),
         ] {
-            let (_, producer, consumers) = DATA_FLOW
-                .iter()
-                .find(|(t, _, _)| *t == topic)
-                .expect("a data topic");
-            assert!(
-                consumers.contains(&consumer),
-                "{consumer:?} takes `{topic}`"
+            let producer = producer_of(topic).expect("a data topic");
+            let graph = Graph::of_roles(&Role::ALL, protocol::PlantKind::Sim);
+            assert_eq!(
+                graph.inputs_of(consumer).next(),
+                Some(topic),
+                "{consumer:?} polls `{topic}`"
             );
             assert!(
-                Tier::of(*producer) >= Tier::of(consumer),
+                Tier::of(producer) >= Tier::of(consumer),
                 "{consumer:?} polls `{topic}` of {producer:?}"
             );
         }

@@ -1,12 +1,12 @@
-//! Any [`Task`] as a role process: its inputs and outputs opened by the data flow
-//! ([`protocol::topics::DATA_FLOW`]), and its step run by the one loop of
-//! [`Member`]. A role needs nothing of its own here: `scmpc mpc` is `serve::<MpcTask>`.
+//! Any [`Task`] as a role process: its inputs and outputs opened by its role's declaration
+//! ([`protocol::graph`]), and its step run by the one loop of [`Member`]. A role needs nothing of its own here: `scmpc mpc` is `serve::<MpcTask>`.
 
 use crate::ipc::{
     ACTUATION, DEADLINE, ESTIMATE, Input, IpcError, MEASUREMENT, Output, PLAN, ROUTE, Receiver,
     Sender, TRACKS, TRUTH, producer_of,
 };
 use crate::process::{Member, Next, ProcessArgs, ProcessContext, ProcessError};
+use protocol::graph::{Graph, declaration};
 use protocol::task::{Cancel, Due, Outputs, Resources, Task, TaskError};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Tracks,
@@ -26,12 +26,13 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
     let resources = T::Resources::open(&args.scenario)?;
     let task = T::new(&args.scenario, args.epoch, resources)?;
     let member = Member::open(args, T::ROLE)?;
-    let inputs = task
-        .inputs()
-        .iter()
-        .map(|&topic| InPort::open(&member, topic).map(Rc::new))
+    let inputs = Graph::of(&args.scenario)
+        .inputs_of(T::ROLE)
+        .filter(|topic| task.takes(topic))
+        .map(|topic| InPort::open(&member, topic).map(Rc::new))
         .collect::<Result<Vec<_>, _>>()?;
-    let outputs = T::OUTPUTS
+    let outputs = declaration(T::ROLE, args.scenario.plant.kind)
+        .outputs
         .iter()
         .map(|&topic| OutPort::open(&member, topic))
         .collect::<Result<Vec<_>, _>>()?;
@@ -108,7 +109,7 @@ fn send(outputs: &[OutPort], data: &Data) -> Result<(), ProcessError> {
 /// Declares the input and output ports of every data topic: one variant per topic, so a
 /// task's topics, named at run time, open typed iceoryx2 ports.
 macro_rules! data_ports {
-    ($($variant:ident($t:ty) = $topic:ident),* $(,)?) => {
+    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
         /// An input of one data topic.
         enum InPort {
             $($variant(Receiver<$t>),)*
@@ -177,13 +178,4 @@ macro_rules! data_ports {
     };
 }
 
-data_ports!(
-    Measurement(Measurement) = MEASUREMENT,
-    Truth(GroundTruth) = TRUTH,
-    Estimate(Estimate) = ESTIMATE,
-    Plan(Plan) = PLAN,
-    Actuation(Actuation) = ACTUATION,
-    Deadline(DeadlineVerdict) = DEADLINE,
-    Route(Route) = ROUTE,
-    Tracks(Tracks) = TRACKS,
-);
+protocol::data_topics!(data_ports);

@@ -5,7 +5,6 @@
 
 use crate::Tracker;
 use protocol::task::{Context, Due, Publish, Task, TaskError};
-use protocol::topics::{TRACKS, TRUTH};
 use protocol::{FaultConfig, GroundTruth, Header, Role, Tracks, Validated};
 use std::collections::VecDeque;
 
@@ -33,7 +32,6 @@ pub struct TrackerTask {
 
 impl Task for TrackerTask {
     const ROLE: Role = Role::Tracker;
-    const OUTPUTS: &'static [&'static str] = &[TRACKS];
     type Input = TrackerInput;
     type Output = Tracks;
     type Resources = ();
@@ -49,10 +47,6 @@ impl Task for TrackerTask {
             last_tick: None,
             dropped: 0,
         })
-    }
-
-    fn inputs(&self) -> &'static [&'static str] {
-        &[TRUTH]
     }
 
     /// A truth at a perception tick newer than the last is queued.

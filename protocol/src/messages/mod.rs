@@ -651,27 +651,20 @@ impl_message!(
 mod control;
 pub use control::*;
 
-/// Every data message of a run, one variant per data topic ([`crate::topics::DATA_FLOW`]):
-/// what executors hand from a task's outputs to the tasks that take them, whatever the
-/// roles ([`crate::task`]).
-///
-/// A plan is large (about 3 KiB) and carried by value, as over shared memory: boxing it
-/// would allocate per plan, and the steady state allocates nothing.
-#[allow(clippy::large_enum_variant)]
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Data {
-    Measurement(Measurement),
-    Truth(GroundTruth),
-    Estimate(Estimate),
-    Plan(Plan),
-    Actuation(Actuation),
-    Deadline(DeadlineVerdict),
-    Route(Route),
-    Tracks(Tracks),
-}
-
 macro_rules! data_variants {
-    ($($variant:ident($t:ty) => $topic:ident),* $(,)?) => {
+    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
+        /// Every data message of a run, one variant per data topic
+        /// ([`crate::data_topics!`]): what executors hand from a task's outputs to the
+        /// tasks that take them, whatever the roles ([`crate::task`]).
+        ///
+        /// A plan is large (about 3 KiB) and carried by value, as over shared memory:
+        /// boxing it would allocate per plan, and the steady state allocates nothing.
+        #[allow(clippy::large_enum_variant)]
+        #[derive(Debug, Clone, Copy, PartialEq)]
+        pub enum Data {
+            $($variant($t),)*
+        }
+
         impl Data {
             /// The topic the message is published on.
             pub fn topic(&self) -> &'static str {
@@ -694,6 +687,12 @@ macro_rules! data_variants {
                     $(Data::$variant(m) => m.header(),)*
                 }
             }
+
+            /// A message of every data topic, each its type's default (for tests of what a
+            /// task takes).
+            pub fn one_of_each() -> Vec<Data> {
+                vec![$(Data::$variant(<$t>::default()),)*]
+            }
         }
         $(
             impl From<$t> for Data {
@@ -705,16 +704,7 @@ macro_rules! data_variants {
     };
 }
 
-data_variants!(
-    Measurement(Measurement) => MEASUREMENT,
-    Truth(GroundTruth) => TRUTH,
-    Estimate(Estimate) => ESTIMATE,
-    Plan(Plan) => PLAN,
-    Actuation(Actuation) => ACTUATION,
-    Deadline(DeadlineVerdict) => DEADLINE,
-    Route(Route) => ROUTE,
-    Tracks(Tracks) => TRACKS,
-);
+crate::data_topics!(data_variants);
 
 #[cfg(test)]
 mod tests;

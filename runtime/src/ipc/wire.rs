@@ -106,39 +106,42 @@ impl<T: Wire> Topic<T> {
     }
 }
 
-/// The topics a bridge carries: every topic of a run but the live swap requests and their
-/// replies, which stay with the orchestrator.
-pub const BRIDGED_TOPICS: [&str; 10] = [
-    MEASUREMENT,
-    TRUTH,
-    ESTIMATE,
-    PLAN,
-    ACTUATION,
-    DEADLINE,
-    ROUTE,
-    TRACKS,
-    CONTROL,
-    STATUS,
-];
+/// The topics a bridge carries: every data topic ([`protocol::graph::TOPICS`]), the
+/// control topic and the status topic; the live swap requests and their replies stay with
+/// the orchestrator.
+pub fn bridged_topics() -> impl Iterator<Item = &'static str> {
+    protocol::graph::TOPICS
+        .iter()
+        .map(|t| t.name)
+        .chain([CONTROL, STATUS])
+}
 
-/// Calls `$f::<T>(args)` for the message type `T` of topic `$name`.
+/// `tap_of` and `relay_of` by a topic's name, for every data topic
+/// ([`protocol::data_topics!`]) and the control and status topics.
 macro_rules! by_topic {
-    ($name:expr, $f:ident($($arg:expr),*)) => {
-        match $name {
-            MEASUREMENT => $f::<Measurement>(MEASUREMENT, $($arg),*),
-            TRUTH => $f::<GroundTruth>(TRUTH, $($arg),*),
-            ESTIMATE => $f::<Estimate>(ESTIMATE, $($arg),*),
-            PLAN => $f::<Plan>(PLAN, $($arg),*),
-            ACTUATION => $f::<Actuation>(ACTUATION, $($arg),*),
-            DEADLINE => $f::<DeadlineVerdict>(DEADLINE, $($arg),*),
-            ROUTE => $f::<Route>(ROUTE, $($arg),*),
-            TRACKS => $f::<Tracks>(TRACKS, $($arg),*),
-            CONTROL => $f::<Control>(CONTROL, $($arg),*),
-            STATUS => $f::<Status>(STATUS, $($arg),*),
-            other => Err(IpcError(format!("no bridged topic `{other}`"))),
+    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
+        /// A tap on topic `name` (one of [`bridged_topics`]).
+        pub fn tap(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
+            match name {
+                $($topic => tap_of::<$t>($topic, node),)*
+                CONTROL => tap_of::<Control>(CONTROL, node),
+                STATUS => tap_of::<Status>(STATUS, node),
+                other => Err(IpcError(format!("no bridged topic `{other}`"))),
+            }
+        }
+
+        /// A relay onto topic `name` (one of [`bridged_topics`]).
+        pub fn relay(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
+            match name {
+                $($topic => relay_of::<$t>($topic, node),)*
+                CONTROL => relay_of::<Control>(CONTROL, node),
+                STATUS => relay_of::<Status>(STATUS, node),
+                other => Err(IpcError(format!("no bridged topic `{other}`"))),
+            }
         }
     };
 }
+protocol::data_topics!(by_topic);
 
 fn tap_of<T: Wire>(
     name: &'static str,
@@ -152,16 +155,6 @@ fn relay_of<T: Wire>(
     node: &Node<ipc::Service>,
 ) -> Result<Box<dyn WireRelay>, IpcError> {
     Ok(Box::new(open_topic::<T>(node, name)?.relay()?))
-}
-
-/// A tap on topic `name` (one of [`BRIDGED_TOPICS`]).
-pub fn tap(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
-    by_topic!(name, tap_of(node))
-}
-
-/// A relay onto topic `name` (one of [`BRIDGED_TOPICS`]).
-pub fn relay(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
-    by_topic!(name, relay_of(node))
 }
 
 /// The header of a sample's bytes, if they are long enough to hold one.
