@@ -27,6 +27,8 @@ NO_PRODUCER = 2**32 - 1
 PLAN_MISSING = 2**32 - 1
 
 # Codes of the enumerations (``scmpc schema``, "codes").
+# Header.robot of a run's one robot (a role instance is a role and a robot id).
+FIRST_ROBOT = 0
 ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5}
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
@@ -39,6 +41,7 @@ REJECTIONS = {
     "time_mismatch": 5,
     "unknown_publisher": 6,
     "malformed": 7,
+    "wrong_robot": 8,
 }
 PLAN_STATUSES = {"solved": 0, "infeasible": 1, "max_iterations": 2, "numerical_error": 3}
 COMMAND_MODES = {
@@ -112,7 +115,7 @@ class Header(Message):
         ("epoch", c_u32),
         ("input_latency_ns", c_u32),
         ("run_id", c_u32),
-        ("reserved", c_u32),
+        ("robot", c_u32),
     ]
 
 

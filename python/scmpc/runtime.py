@@ -180,6 +180,7 @@ class Sender:
     def send(self, message):
         message.header.epoch = self.epoch
         message.header.run_id = self.run_id
+        message.header.robot = m.FIRST_ROBOT
         message.header.publish_ns = monotonic_ns()
         self.last = message
         self.publisher.send_copy(message)
@@ -247,6 +248,8 @@ class Receiver:
         h = message.header
         if h.run_id != self.run_id:
             return "wrong_run"
+        if h.robot != m.FIRST_ROBOT:
+            return "wrong_robot"
         if self.pinned is not None and origin != self.pinned:
             return "unknown_publisher"
 

@@ -135,7 +135,7 @@ fn data_types() -> Vec<TypeLayout> {
             epoch: u32,
             input_latency_ns: u32,
             run_id: u32,
-            reserved: u32,
+            robot: u32,
         }),
         layout!(Measurement {
             header: Header,

@@ -318,10 +318,12 @@ pub enum Rejection {
     /// A code, count or length outside what the message type allows
     /// ([`Message::well_formed`]).
     Malformed = 7,
+    /// Of another robot than the consumer's ([`Header::robot`](crate::Header::robot)).
+    WrongRobot = 8,
 }
 
 impl Rejection {
-    pub const COUNT: usize = 8;
+    pub const COUNT: usize = 9;
     pub const ALL: [Rejection; Rejection::COUNT] = [
         Rejection::NonFinite,
         Rejection::TickBackwards,
@@ -331,6 +333,7 @@ impl Rejection {
         Rejection::TimeMismatch,
         Rejection::UnknownPublisher,
         Rejection::Malformed,
+        Rejection::WrongRobot,
     ];
     pub fn as_str(self) -> &'static str {
         match self {
@@ -342,6 +345,7 @@ impl Rejection {
             Rejection::TimeMismatch => "time_mismatch",
             Rejection::UnknownPublisher => "unknown_publisher",
             Rejection::Malformed => "malformed",
+            Rejection::WrongRobot => "wrong_robot",
         }
     }
 
@@ -351,7 +355,10 @@ impl Rejection {
     pub fn blames_producer(self) -> bool {
         !matches!(
             self,
-            Rejection::WrongRun | Rejection::WrongEpoch | Rejection::UnknownPublisher
+            Rejection::WrongRun
+                | Rejection::WrongRobot
+                | Rejection::WrongEpoch
+                | Rejection::UnknownPublisher
         )
     }
 }

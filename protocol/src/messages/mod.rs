@@ -29,8 +29,15 @@ pub struct Header {
     /// Identifies the run (a hash of its iceoryx2 prefix): a process left over from
     /// another run on the same prefix is rejected.
     pub run_id: u32,
-    pub reserved: u32,
+    /// The robot the sample is of: a role instance is a role and a robot id, and a
+    /// consumer refuses a sample of another robot ([`Rejection::WrongRobot`]). Every run
+    /// has one robot today, [`FIRST_ROBOT`].
+    pub robot: u32,
 }
+
+/// The robot id of a run's one robot ([`Header::robot`]): its samples, names and records
+/// are those of a run before robot ids were carried.
+pub const FIRST_ROBOT: u32 = 0;
 
 /// Noisy output `y = [x, y, theta] + noise` of the plant.
 #[repr(C)]

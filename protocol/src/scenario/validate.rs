@@ -318,12 +318,19 @@ impl Scenario {
     /// given in the scenario.
     fn check_hosts(&self, v: &mut Validator) {
         for role in crate::Role::ALL {
-            if let Some(host) = self.hosts.of(role)
-                && !crate::endpoint::is_host_name(host)
-            {
+            let Some(host) = self.hosts.of(role) else {
+                continue;
+            };
+            let key = format!("hosts.{}", role.as_str());
+            if !crate::endpoint::is_host_name(host) {
                 v.fail(
-                    &format!("hosts.{}", role.as_str()),
+                    &key,
                     format!("`{host}` is no host name (letters, digits, `-`, `_`)"),
+                );
+            } else if !crate::graph::declaration(role, self.plant.kind).remote {
+                v.fail(
+                    &key,
+                    "this role runs on the orchestrator's host only".into(),
                 );
             }
         }

@@ -128,6 +128,8 @@ pub(crate) type SubscribingPorts<T> = (Subscriber<ipc::Service, T, ()>, Listener
 pub struct Topic<T: Wire> {
     name: &'static str,
     run_id: u32,
+    /// The robot whose samples it carries ([`protocol::FIRST_ROBOT`] in every run today).
+    robot: u32,
     pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
     event: event::PortFactory<ipc::Service>,
 }
@@ -163,6 +165,7 @@ pub fn open_topic<T: Wire>(
     Ok(Topic {
         name,
         run_id,
+        robot: protocol::FIRST_ROBOT,
         pubsub,
         event,
     })
@@ -209,6 +212,7 @@ impl<T: Wire> Topic<T> {
             notifier,
             epoch,
             run_id: self.run_id,
+            robot: self.robot,
             last: Cell::new(None),
         })
     }
@@ -231,6 +235,7 @@ impl<T: Wire> Topic<T> {
             subscriber,
             listener,
             run_id: self.run_id,
+            robot: self.robot,
             producer,
             slot: producer.and_then(|role| output_slot(role, self.name)),
             pinned: Cell::new(None),
@@ -254,6 +259,7 @@ pub struct Sender<T: Wire> {
     notifier: Notifier<ipc::Service>,
     epoch: u32,
     run_id: u32,
+    robot: u32,
     /// The newest sample sent, for [`Sender::replay`].
     last: Cell<Option<T>>,
 }
@@ -264,6 +270,7 @@ impl<T: Wire> Sender<T> {
         let header = message.header_mut();
         header.epoch = self.epoch;
         header.run_id = self.run_id;
+        header.robot = self.robot;
         header.publish_ns = monotonic_ns();
         self.last.set(Some(message));
         self.publisher
@@ -293,6 +300,7 @@ pub struct Receiver<T: Wire> {
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
     run_id: u32,
+    robot: u32,
     /// Role whose producer epoch is checked (`None`: any epoch, no tick order).
     producer: Option<protocol::Role>,
     /// Which of the producer's outputs this topic is ([`output_slot`]).
@@ -390,6 +398,9 @@ impl<T: Wire> Receiver<T> {
         let h = message.header();
         if h.run_id != self.run_id {
             return Err(Rejection::WrongRun);
+        }
+        if h.robot != self.robot {
+            return Err(Rejection::WrongRobot);
         }
         if self.pinned.get().is_some_and(|id| id != origin) {
             return Err(Rejection::UnknownPublisher);

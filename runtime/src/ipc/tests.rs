@@ -144,6 +144,32 @@ fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
 }
 
 #[test]
+fn a_sample_of_another_robot_is_refused_at_the_border_and_not_blamed_on_the_producer() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let measurements = topic.receiver_from(Role::Plant).unwrap();
+        measurements.follow(EpochSchedule::default());
+        // A forged sample: this run's id and the active epoch, another robot's.
+        let other_robot = Topic {
+            robot: protocol::FIRST_ROBOT + 1,
+            ..open_topic::<Measurement>(node, MEASUREMENT).unwrap()
+        };
+        let (forger, plant) = (other_robot.sender(0).unwrap(), topic.sender(0).unwrap());
+        forger.send(measurement(1)).unwrap();
+        plant.send(measurement(2)).unwrap();
+        let (taken, _) = measurements.receive().unwrap().unwrap();
+        assert_eq!(
+            (taken.header.tick, taken.header.robot),
+            (2, protocol::FIRST_ROBOT)
+        );
+        assert!(measurements.receive().unwrap().is_none());
+        let refusals = measurements.take_rejections();
+        assert_eq!(refused(refusals, Rejection::WrongRobot), 1);
+        assert!(!Rejection::WrongRobot.blames_producer());
+    });
+}
+
+#[test]
 fn a_process_is_alive_until_it_exits_and_a_zombie_counts_as_dead() {
     assert!(process_alive(std::process::id()));
     let mut child = std::process::Command::new("true").spawn().unwrap();
