@@ -93,24 +93,17 @@ pub fn config(
     set("scouting/multicast/enabled", false.into())?;
     set("scouting/gossip/enabled", false.into())?;
     if let Some(tls) = &security.tls {
-        let path = |p: &PathBuf| serde_json::Value::from(p.display().to_string());
-        set("transport/link/tls/root_ca_certificate", path(&tls.ca))?;
-        set(
-            "transport/link/tls/listen_certificate",
-            path(&tls.certificate),
-        )?;
-        set(
-            "transport/link/tls/listen_private_key",
-            path(&tls.private_key),
-        )?;
-        set(
-            "transport/link/tls/connect_certificate",
-            path(&tls.certificate),
-        )?;
-        set(
-            "transport/link/tls/connect_private_key",
-            path(&tls.private_key),
-        )?;
+        // Each host both listens and connects with the same certificate and key.
+        for (key, path) in [
+            ("root_ca_certificate", &tls.ca),
+            ("listen_certificate", &tls.certificate),
+            ("listen_private_key", &tls.private_key),
+            ("connect_certificate", &tls.certificate),
+            ("connect_private_key", &tls.private_key),
+        ] {
+            let path = serde_json::Value::from(path.display().to_string());
+            set(&format!("transport/link/tls/{key}"), path)?;
+        }
         set("transport/link/tls/enable_mtls", true.into())?;
         set("transport/link/tls/verify_name_on_connect", false.into())?;
     }
