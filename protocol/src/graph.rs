@@ -24,8 +24,19 @@ pub enum Rate {
     Verdict,
 }
 
-/// A data topic: its name, the Rust type of its messages (`scmpc schema`'s `types`), its
-/// rate.
+impl Rate {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Rate::Tick => "tick",
+            Rate::Sample => "sample",
+            Rate::PerceptionTick => "perception_tick",
+            Rate::Verdict => "verdict",
+        }
+    }
+}
+
+/// A data topic: its name, the iceoryx2 type name of its messages (`scmpc schema`'s
+/// `services` and `types`), its rate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Topic {
     pub name: &'static str,
@@ -56,7 +67,11 @@ macro_rules! topic_table {
     ($($variant:ident($t:ident) = $topic:ident @ $rate:ident),* $(,)?) => {
         /// Every data topic ([`data_topics!`](crate::data_topics)).
         pub const TOPICS: &[Topic] = &[
-            $(Topic { name: $topic, message: stringify!($t), rate: Rate::$rate },)*
+            $(Topic {
+                name: $topic,
+                message: concat!("scmpc::", stringify!($t)),
+                rate: Rate::$rate,
+            },)*
         ];
     };
 }

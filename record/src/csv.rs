@@ -230,7 +230,7 @@ impl Sink for CsvFiles {
 
     /// Plans the run ended before the DFL could judge get their rows; everything is
     /// flushed.
-    fn end(mut self: Box<Self>, _summary: &Summary) -> std::io::Result<()> {
+    fn end(mut self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
         for (sample, plan) in std::mem::take(&mut self.pending_plans) {
             let status = plan.status().map_or("unknown", |s| s.as_str());
             self.plan_row(sample, Some(&plan), status, None, None, "")?;

@@ -230,6 +230,7 @@ impl Recorder {
             return Ok(());
         }
         self.last_judged = Some(v.sample);
+        self.hand_on(Sample::Verdict(v))?;
         if v.met != 0 {
             self.miss_streak = 0;
         } else {
@@ -245,12 +246,15 @@ impl Recorder {
                 fallback: csv::fallback(v).into(),
             })?;
         }
-        self.hand_on(Sample::Verdict(v))
+        Ok(())
     }
 
     /// Ends the run: the `end` event (with, for a run interrupted, the stop signal that
     /// ended it: `run::stop::received`), the summary with the judge's findings, and every
-    /// sink closed with it, the last one first.
+    /// sink closed with it, the last opened first. Every sink is closed whatever another
+    /// one's error; after one failed, the rest are told the record is not whole (the run
+    /// directory then keeps `INCOMPLETE` and writes no summary). The first error is
+    /// returned.
     pub fn finish(
         mut self,
         scenario: &Scenario,
@@ -266,10 +270,13 @@ impl Recorder {
             signal: interrupted_by.map(String::from),
         })?;
         let summary = self.summary(scenario, mode, outcome, wall_s, processes, interrupted_by);
+        let mut failed = None;
         while let Some(sink) = self.sinks.pop() {
-            sink.end(&summary)?;
+            if let Err(e) = sink.end(&summary, failed.is_none()) {
+                failed.get_or_insert(e);
+            }
         }
-        Ok(summary)
+        failed.map_or(Ok(summary), Err)
     }
 
     fn summary(

@@ -22,6 +22,8 @@ pub struct RunStart<'a> {
     pub scenario: &'a Scenario,
     /// Whether the run writes `run.mcap` (`--no-mcap` leaves it out).
     pub mcap: bool,
+    /// Whether the run shows a status line (`scmpc run` on a terminal).
+    pub status_line: bool,
 }
 
 /// A sink's opener: `None` when the sink has nothing to record in this run.
@@ -67,9 +69,10 @@ pub trait Sink {
         Ok(())
     }
 
-    /// The run ended with `summary`. Sinks are closed in the reverse order of their
-    /// opening, so the run directory's, opened first, closes last.
-    fn end(self: Box<Self>, _summary: &Summary) -> std::io::Result<()> {
+    /// The run ended with `summary`; `whole`: every sink closed before this one did so
+    /// without an error. Sinks are closed in the reverse order of their opening, so the
+    /// run directory's, opened first, closes last.
+    fn end(self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
         Ok(())
     }
 }
@@ -108,7 +111,11 @@ impl Sink for RunDirectory {
         Ok(())
     }
 
-    fn end(self: Box<Self>, summary: &Summary) -> std::io::Result<()> {
+    /// A record that is not whole keeps [`INCOMPLETE`] and gets no summary.
+    fn end(self: Box<Self>, summary: &Summary, whole: bool) -> std::io::Result<()> {
+        if !whole {
+            return Ok(());
+        }
         let json = serde_json::to_string_pretty(summary).map_err(std::io::Error::other)?;
         std::fs::write(self.dir.join("summary.json"), json + "\n")?;
         std::fs::remove_file(self.dir.join(INCOMPLETE))

@@ -33,7 +33,7 @@ impl Sink for Noting {
         Ok(())
     }
 
-    fn end(self: Box<Self>, summary: &Summary) -> std::io::Result<()> {
+    fn end(self: Box<Self>, summary: &Summary, _whole: bool) -> std::io::Result<()> {
         self.0.borrow_mut().ended_with = Some(summary.ticks);
         Ok(())
     }
@@ -52,6 +52,7 @@ fn recorder(dir: &Path, scenario: &Scenario) -> Recorder {
         dir,
         scenario,
         mcap: false,
+        status_line: false,
     };
     let sinks: [OpenSink; 4] = [
         sink::RunDirectory::open,
@@ -142,4 +143,40 @@ fn percentiles_use_nearest_rank() {
         }
     );
     assert_eq!(Percentiles::of(&[]), Percentiles::default());
+}
+
+/// A sink that cannot close.
+struct Failing;
+
+impl Sink for Failing {
+    fn sample(&mut self, _sample: &Sample<'_>) -> std::io::Result<()> {
+        Ok(())
+    }
+
+    fn end(self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
+        Err(std::io::Error::other("the disk is full"))
+    }
+}
+
+#[test]
+fn a_sink_that_cannot_close_leaves_the_run_incomplete_and_the_others_closed() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = Scenario::default();
+    let run = RunStart {
+        dir: dir.path(),
+        scenario: &scenario,
+        mcap: false,
+        status_line: false,
+    };
+    let failing: OpenSink = |_| Ok(Some(Box::new(Failing)));
+    let sinks = [sink::RunDirectory::open, csv::CsvFiles::open, failing];
+    let mut recorder = Recorder::create(&run, &sinks).unwrap();
+    // A plan the run ends before the DFL judges: its row is written as the CSV closes.
+    recorder.plan(&Plan::default()).unwrap();
+    let closed = recorder.finish(&scenario, "test", Outcome::Timeout, 0.0, None, None);
+    assert_eq!(closed.unwrap_err().to_string(), "the disk is full");
+    let plans = std::fs::read_to_string(dir.path().join("plans.csv")).unwrap();
+    assert_eq!(plans.lines().count(), 2, "the header and the unjudged plan");
+    assert!(dir.path().join(INCOMPLETE).exists());
+    assert!(!dir.path().join("summary.json").exists());
 }

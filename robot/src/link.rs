@@ -30,7 +30,10 @@ const QOS: Qos = Qos {
 const BASE_FRAME: &str = "base_link";
 
 /// The robot's link as its task's resource ([`protocol::task::Resources`]): opened, with
-/// the robot's first odometry heard, before the task is made.
+/// the robot's first odometry heard, before the task is made. It stamps each odometry's
+/// arrival on the runtime's clock (`runtime::clock::monotonic_ns`), the one a role
+/// process's context reads: the watchdog compares the two, so the robot runs in a role
+/// process only (the in-process executor refuses it).
 pub struct RobotLink {
     pub link: Link,
     pub first: Heard,

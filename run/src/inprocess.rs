@@ -2,6 +2,7 @@
 //! recorded.
 
 use crate::closed_loop::{ClosedLoop, Ended, Tick};
+use crate::sinks::Recording;
 use protocol::Validated;
 use record::Summary;
 use record::event::{Event, Restart};
@@ -10,27 +11,27 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-/// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out` (with
-/// `run.mcap` if `mcap`).
+/// Runs the scenario to its end (or an early outcome, or `stop`) and writes `out` (and
+/// what `recording` asks for).
 pub fn run(
     scenario: &Validated,
     out: &Path,
-    mcap: bool,
+    recording: Recording,
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
-    run_observed(scenario, out, mcap, stop, |_| {})
+    run_observed(scenario, out, recording, stop, |_| {})
 }
 
 /// [`run`], handing every tick to `observe` after it is recorded.
 pub fn run_observed(
     scenario: &Validated,
     out: &Path,
-    mcap: bool,
+    recording: Recording,
     stop: &AtomicBool,
     mut observe: impl FnMut(&Tick),
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
-    let mut recorder = crate::sinks::recorder(scenario, out, mcap)?;
+    let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
     let mut closed_loop = ClosedLoop::new(scenario)?;
     let mut outcome = None;
     while outcome.is_none() && !closed_loop.is_done() {

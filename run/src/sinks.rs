@@ -17,12 +17,37 @@ pub const SINKS: [OpenSink; 5] = [
     crate::status_line::StatusLine::open,
 ];
 
-/// The recorder of a run of `scenario` into `out` (with `run.mcap` if `mcap`).
-pub fn recorder(scenario: &protocol::Scenario, out: &Path, mcap: bool) -> anyhow::Result<Recorder> {
+/// What a run records beyond its files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Recording {
+    /// `run.mcap` (`--no-mcap` leaves it out).
+    pub mcap: bool,
+    /// The status line, when stdout is a terminal: `scmpc run`'s, not a study's (a sweep
+    /// runs many at once).
+    pub status_line: bool,
+}
+
+impl Recording {
+    /// The files, with `run.mcap` if `mcap`, and no status line (studies and benches).
+    pub fn files(mcap: bool) -> Recording {
+        Recording {
+            mcap,
+            status_line: false,
+        }
+    }
+}
+
+/// The recorder of a run of `scenario` into `out`.
+pub fn recorder(
+    scenario: &protocol::Scenario,
+    out: &Path,
+    recording: Recording,
+) -> anyhow::Result<Recorder> {
     let run = RunStart {
         dir: out,
         scenario,
-        mcap,
+        mcap: recording.mcap,
+        status_line: recording.status_line,
     };
     Recorder::create(&run, &SINKS)
         .with_context(|| format!("creating the record in {}", out.display()))

@@ -62,9 +62,9 @@ pub struct StatusLine {
 }
 
 impl StatusLine {
-    /// The sink's opener: a line when stdout is a terminal.
+    /// The sink's opener: a line when the run asks for one and stdout is a terminal.
     pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
-        if !std::io::stdout().is_terminal() {
+        if !run.status_line || !std::io::stdout().is_terminal() {
             return Ok(None);
         }
         Ok(Some(Box::new(StatusLine {
@@ -90,17 +90,19 @@ impl Sink for StatusLine {
             return Ok(());
         }
         self.drawn = Some(Instant::now());
+        // A line that cannot be drawn is no reason to stop the run.
         let mut out = std::io::stdout().lock();
-        write!(out, "\r\x1b[2K{}", self.live.line())?;
-        out.flush()
+        let _ = write!(out, "\r\x1b[2K{}", self.live.line());
+        let _ = out.flush();
+        Ok(())
     }
 
     /// Wipes the line, so what follows starts on a clean one.
-    fn end(self: Box<Self>, _summary: &Summary) -> std::io::Result<()> {
+    fn end(self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
         if self.drawn.is_some() {
             let mut out = std::io::stdout().lock();
-            write!(out, "\r\x1b[2K")?;
-            out.flush()?;
+            let _ = write!(out, "\r\x1b[2K");
+            let _ = out.flush();
         }
         Ok(())
     }

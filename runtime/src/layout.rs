@@ -270,16 +270,6 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         ("input_lost", StatusEvent::InputLost),
         ("rejected", StatusEvent::Rejected),
     ];
-    let slots = [
-        (ipc::TRUTH, Role::Plant),
-        (ipc::MEASUREMENT, Role::Plant),
-        (ipc::ESTIMATE, Role::Estimator),
-        (ipc::PLAN, Role::Mpc),
-        (ipc::ACTUATION, Role::Dfl),
-        (ipc::DEADLINE, Role::Dfl),
-        (ipc::ROUTE, Role::Planner),
-        (ipc::TRACKS, Role::Tracker),
-    ];
     let mut codes = message_codes();
     codes.extend([
         ("role", named(&Role::ALL, Role::as_str, |r| r as u32)),
@@ -297,9 +287,12 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         ),
         (
             "output_slot",
-            slots
+            protocol::graph::TOPICS
                 .iter()
-                .map(|&(topic, role)| (topic, ipc::output_slot(role, topic).unwrap_or(0) as u64))
+                .filter_map(|t| {
+                    let producer = ipc::producer_of(t.name)?;
+                    Some((t.name, ipc::output_slot(producer, t.name)? as u64))
+                })
                 .collect(),
         ),
         (
@@ -403,20 +396,16 @@ pub fn services() -> Vec<ServiceLayout> {
         history_size: 0,
         safe_overflow: true,
     };
-    vec![
-        topic(ipc::MEASUREMENT, "scmpc::Measurement"),
-        topic(ipc::TRUTH, "scmpc::GroundTruth"),
-        topic(ipc::ESTIMATE, "scmpc::Estimate"),
-        topic(ipc::PLAN, "scmpc::Plan"),
-        topic(ipc::ACTUATION, "scmpc::Actuation"),
-        topic(ipc::DEADLINE, "scmpc::DeadlineVerdict"),
-        topic(ipc::ROUTE, "scmpc::Route"),
-        topic(ipc::TRACKS, "scmpc::Tracks"),
+    let data = protocol::graph::TOPICS
+        .iter()
+        .map(|t| topic(t.name, t.message));
+    data.chain([
         topic(ipc::CONTROL, "scmpc::Control"),
         topic(ipc::STATUS, "scmpc::Status"),
         topic(ipc::SWAP, "scmpc::SwapRequest"),
         topic(ipc::SWAP_REPLY, "scmpc::SwapReply"),
-    ]
+    ])
+    .collect()
 }
 
 #[cfg(test)]

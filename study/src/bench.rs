@@ -28,6 +28,7 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as IpcService;
 use record::{Percentiles, Summary};
 use run::multiproc;
+use run::sinks::Recording;
 use runtime::clock::RunMode;
 use runtime::clock::{monotonic_ns, sleep_until_ns};
 use runtime::ipc;
@@ -366,7 +367,12 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     let realtime_run =
         |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);
     let realtime = realtime_run("realtime")?;
-    let hot = run::inprocess::run(&scenario, &out.join("in-process"), false, stop)?;
+    let hot = run::inprocess::run(
+        &scenario,
+        &out.join("in-process"),
+        Recording::files(false),
+        stop,
+    )?;
     run::stop::check(stop)?;
     let awake = {
         let _awake = run::awake::AwakeCores::start().context("keeping the cores awake")?;
@@ -463,7 +469,7 @@ fn local_run(
         mode,
         &ipc::new_prefix(),
         &multiproc::HostsSetup::default(),
-        mcap,
+        Recording::files(mcap),
         stop,
     )?;
     run::stop::check(stop)?;

@@ -5,6 +5,7 @@ use anyhow::Context;
 use protocol::{Formulation, Validated};
 use record::Percentiles;
 use run::inprocess;
+use run::sinks::Recording;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -75,7 +76,7 @@ fn closed_loop_states(
     stop: &AtomicBool,
 ) -> anyhow::Result<Vec<[f64; 4]>> {
     let mut states = Vec::new();
-    inprocess::run_observed(scenario, dir, false, stop, |tick| {
+    inprocess::run_observed(scenario, dir, Recording::files(false), stop, |tick| {
         if tick.plan.is_some() {
             states.push(tick.estimate.state);
         }

@@ -8,6 +8,7 @@ use protocol::{ScenarioError, ScenarioErrors, Validated};
 use record::Summary;
 use record::judge::Outcome;
 use run::inprocess;
+use run::sinks::Recording;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -137,7 +138,8 @@ pub fn run_all(
                 while !stop.load(Ordering::Relaxed) {
                     let i = next.fetch_add(1, Ordering::Relaxed);
                     let Some(spec) = runs.get(i) else { break };
-                    let result = inprocess::run(&spec.scenario, &spec.dir, mcap, stop);
+                    let result =
+                        inprocess::run(&spec.scenario, &spec.dir, Recording::files(mcap), stop);
                     if let Ok(mut r) = results.lock() {
                         r[i] = Some(result);
                     }

@@ -101,8 +101,12 @@ pub(super) fn run(args: RunArgs) -> CliResult {
         .then(run::awake::AwakeCores::start)
         .transpose()
         .context("keeping the cores awake")?;
+    let recording = run::sinks::Recording {
+        mcap: !args.no_mcap,
+        status_line: true,
+    };
     let summary = if args.in_process {
-        inprocess::run(&scenario, &out, !args.no_mcap, &stop)
+        inprocess::run(&scenario, &out, recording, &stop)
     } else {
         multiproc::run(
             &scenario,
@@ -110,7 +114,7 @@ pub(super) fn run(args: RunArgs) -> CliResult {
             args.mode.into(),
             &prefix,
             &hosts,
-            !args.no_mcap,
+            recording,
             &stop,
         )
     }

@@ -313,6 +313,7 @@ fn message_schema() -> serde_json::Value {
         "types": layout::types(),
         "codes": layout::codes(),
         "events": record::EventLine::schema(),
+        "graph": graph_schema(),
         "environment": {
             ENV_SCENARIO: "the run's scenario file (TOML, every key written out)",
             ENV_PREFIX: "the iceoryx2 prefix of the run's resources (config.global.prefix)",
@@ -326,6 +327,32 @@ fn message_schema() -> serde_json::Value {
             runtime::clock::ENV_CLOCK_OFFSET_MS: "a test's artificial offset of this process's clock, ms (docs/hosts.md)",
         },
     })
+}
+
+/// The declared graph as `scmpc schema` prints it: each data topic (type, rate, producer)
+/// and each role (inputs, outputs, tier, whether it may run on another host).
+fn graph_schema() -> serde_json::Value {
+    use protocol::graph::{ROBOT, ROLES, TOPICS, producer_of};
+    let topics: serde_json::Map<String, serde_json::Value> = TOPICS
+        .iter()
+        .map(|t| {
+            let producer = producer_of(t.name).map(protocol::Role::as_str);
+            let about = serde_json::json!({ "type": t.message, "rate": t.rate.as_str(), "producer": producer });
+            (t.name.to_string(), about)
+        })
+        .collect();
+    let role = |d: &protocol::graph::RoleDecl| {
+        serde_json::json!({
+            "inputs": d.inputs, "outputs": d.outputs,
+            "tier": format!("{:?}", d.tier).to_lowercase(), "remote": d.remote,
+        })
+    };
+    let mut roles: serde_json::Map<String, serde_json::Value> = ROLES
+        .iter()
+        .map(|d| (d.role.as_str().to_string(), role(d)))
+        .collect();
+    roles.insert("plant (ros2)".into(), role(&ROBOT));
+    serde_json::json!({ "topics": topics, "roles": roles })
 }
 
 fn init_logging() {

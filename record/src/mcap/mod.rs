@@ -200,7 +200,7 @@ impl crate::Sink for McapLog {
         Ok(())
     }
 
-    fn end(self: Box<Self>, _summary: &crate::Summary) -> std::io::Result<()> {
+    fn end(self: Box<Self>, _summary: &crate::Summary, _whole: bool) -> std::io::Result<()> {
         self.finish()
     }
 }

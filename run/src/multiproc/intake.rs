@@ -83,8 +83,6 @@ pub(super) struct Intake {
     latencies: Latencies,
     record_gaps: u64,
     ticks_without_estimate: u64,
-    /// Sensor to actuator of the newest tick recorded that has one, ns.
-    pub last_sensor_to_actuator_ns: Option<u64>,
 }
 
 impl Intake {
@@ -105,7 +103,6 @@ impl Intake {
             latencies: Latencies::default(),
             record_gaps: 0,
             ticks_without_estimate: 0,
-            last_sensor_to_actuator_ns: None,
         }
     }
 
@@ -260,7 +257,6 @@ impl Intake {
                 .publish_ns
                 .saturating_sub(measurement.header.publish_ns);
             l.sensor_to_actuator(ns);
-            self.last_sensor_to_actuator_ns = Some(ns);
         }
         Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?)
     }

@@ -113,12 +113,12 @@ pub fn run(
     mode: RunMode,
     prefix: &str,
     hosts: &HostsSetup,
-    mcap: bool,
+    recording: crate::sinks::Recording,
     stop: &AtomicBool,
 ) -> anyhow::Result<Summary> {
     let started = Instant::now();
     remove_dead_runs();
-    let mut recorder = crate::sinks::recorder(scenario, out, mcap)?;
+    let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
     ipc::register_run(prefix).context("registering the run")?;
     let result = drive(scenario, out, mode, prefix, hosts, stop, &mut recorder);
     if let Err(e) = ipc::remove_run(prefix) {

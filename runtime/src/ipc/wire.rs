@@ -106,21 +106,12 @@ impl<T: Wire> Topic<T> {
     }
 }
 
-/// The topics a bridge carries: every data topic ([`protocol::graph::TOPICS`]), the
-/// control topic and the status topic; the live swap requests and their replies stay with
-/// the orchestrator.
-pub fn bridged_topics() -> impl Iterator<Item = &'static str> {
-    protocol::graph::TOPICS
-        .iter()
-        .map(|t| t.name)
-        .chain([CONTROL, STATUS])
-}
-
-/// `tap_of` and `relay_of` by a topic's name, for every data topic
-/// ([`protocol::data_topics!`]) and the control and status topics.
+/// `tap_of` and `relay_of` by a topic's name: a bridge carries every data topic
+/// ([`protocol::data_topics!`]), the control topic and the status topic; the live swap
+/// requests and their replies stay with the orchestrator.
 macro_rules! by_topic {
     ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
-        /// A tap on topic `name` (one of [`bridged_topics`]).
+        /// A tap on topic `name` (a data topic, control or status).
         pub fn tap(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
             match name {
                 $($topic => tap_of::<$t>($topic, node),)*
@@ -130,7 +121,7 @@ macro_rules! by_topic {
             }
         }
 
-        /// A relay onto topic `name` (one of [`bridged_topics`]).
+        /// A relay onto topic `name` (a data topic, control or status).
         pub fn relay(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
             match name {
                 $($topic => relay_of::<$t>($topic, node),)*

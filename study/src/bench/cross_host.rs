@@ -14,6 +14,7 @@ use protocol::Validated;
 use protocol::endpoint::Endpoint;
 use record::Percentiles;
 use run::multiproc::{self, HostsSetup};
+use run::sinks::Recording;
 use runtime::clock::{RunMode, monotonic_ns, sleep_until_ns};
 use runtime::ipc;
 use serde::Serialize;
@@ -64,7 +65,7 @@ pub fn measure(out: &Path, scenario: &Validated, stop: &AtomicBool) -> anyhow::R
         RunMode::Realtime,
         &ipc::new_prefix(),
         &hosts,
-        false,
+        Recording::files(false),
         stop,
     )?;
     run::stop::check(stop)?;

@@ -11,6 +11,7 @@ use crate::figures::{Figure, Series};
 use anyhow::{Context, anyhow};
 use protocol::{Obstacle, PlannerKind, Scenario, Validated};
 use record::Percentiles;
+use run::sinks::Recording;
 use serde::Serialize;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -39,7 +40,7 @@ pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<Vec<ScalingPoint
         for horizon in HORIZONS {
             let scenario = field_scenario(&field, horizon)?;
             let dir = out.join(format!("n{horizon}-obstacles{obstacles}"));
-            let summary = run::inprocess::run(&scenario, &dir, false, stop)?;
+            let summary = run::inprocess::run(&scenario, &dir, Recording::files(false), stop)?;
             run::stop::check(stop)?;
             points.push(ScalingPoint {
                 horizon,
@@ -188,7 +189,7 @@ pub fn moving_cost(out: &Path, stop: &AtomicBool) -> anyhow::Result<MovingCost> 
         let s = s
             .validated("the moving-obstacle benchmark")
             .map_err(|e| anyhow!("{e}"))?;
-        let summary = run::inprocess::run(&s, &out.join(name), false, stop)?;
+        let summary = run::inprocess::run(&s, &out.join(name), Recording::files(false), stop)?;
         run::stop::check(stop)?;
         Ok(summary.solve_us)
     };
