@@ -7,7 +7,7 @@
 //! directory's files ([`sink::RunDirectory`], with `summary.json`), `events.jsonl`
 //! ([`sink::EventsFile`]), the CSV files ([`csv::CsvFiles`], columns in [`schema`]),
 //! `run.mcap` ([`McapLog`]), and whatever a run adds (its status line): the list is
-//! `run::sinks::SINKS`.
+//! `run::sinks::Recording::sinks`.
 //!
 //! Whatever ends the run, the records hold what happened up to [`FLUSH_PERIOD`] before
 //! the end, in whole lines ([`lines::Lines`]), and a run that did not end in a summary
@@ -73,7 +73,7 @@ pub struct Recorder {
 
 impl Recorder {
     /// Creates `dir` (and parents) and opens the sinks of `open` in order
-    /// (`run::sinks::SINKS`). A sink that cannot open undoes nothing the
+    /// (`run::sinks::Recording::sinks`). A sink that cannot open undoes nothing the
     /// others wrote: the directory keeps [`INCOMPLETE`].
     pub fn create(run: &RunStart, open: &[OpenSink]) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(run.dir)?;

@@ -2,7 +2,7 @@
 //! handed every sample the run records and every event, in the order they happen, and is
 //! closed with the run's summary. Both executors feed every sink through one path, the
 //! [`Recorder`](crate::Recorder); which sinks a run has is a list of [`OpenSink`]s
-//! (`run::sinks::SINKS`), so a new one (a live view) is one more entry there.
+//! (`run::sinks::Recording::sinks`), so a new one (a live view) is one more entry there.
 //!
 //! The run directory's own files ([`RunDirectory`]: `INCOMPLETE`, `scenario.toml`,
 //! `summary.json`) and `events.jsonl` ([`EventsFile`]) are sinks here; the CSV files are
@@ -20,10 +20,6 @@ pub struct RunStart<'a> {
     /// The run directory (it exists).
     pub dir: &'a Path,
     pub scenario: &'a Scenario,
-    /// Whether the run writes `run.mcap` (`--no-mcap` leaves it out).
-    pub mcap: bool,
-    /// Whether the run shows a status line (`scmpc run` on a terminal).
-    pub status_line: bool,
 }
 
 /// A sink's opener: `None` when the sink has nothing to record in this run.

@@ -48,12 +48,7 @@ fn open_noting(_run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
 }
 
 fn recorder(dir: &Path, scenario: &Scenario) -> Recorder {
-    let run = RunStart {
-        dir,
-        scenario,
-        mcap: false,
-        status_line: false,
-    };
+    let run = RunStart { dir, scenario };
     let sinks: [OpenSink; 4] = [
         sink::RunDirectory::open,
         sink::EventsFile::open,
@@ -165,8 +160,6 @@ fn a_sink_that_cannot_close_leaves_the_run_incomplete_and_the_others_closed() {
     let run = RunStart {
         dir: dir.path(),
         scenario: &scenario,
-        mcap: false,
-        status_line: false,
     };
     let failing: OpenSink = |_| Ok(Some(Box::new(Failing)));
     let sinks = [sink::RunDirectory::open, csv::CsvFiles::open, failing];

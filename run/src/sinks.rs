@@ -1,5 +1,5 @@
-//! The sinks of every run, both executors alike: the one list a new sink (a live view) is
-//! registered in ([`record::sink`]).
+//! The sinks of a run, both executors alike: the one place a new sink (a live view) is
+//! registered ([`record::sink`]).
 
 use anyhow::Context;
 use record::csv::CsvFiles;
@@ -7,15 +7,9 @@ use record::sink::{EventsFile, RunDirectory};
 use record::{McapLog, OpenSink, Recorder, RunStart};
 use std::path::Path;
 
-/// Every sink a run has, in the order they open (and the reverse of the order they close):
-/// the run directory's own files first, so that `summary.json` is written last.
-pub const SINKS: [OpenSink; 5] = [
-    RunDirectory::open,
-    EventsFile::open,
-    CsvFiles::open,
-    McapLog::open,
-    crate::status_line::StatusLine::open,
-];
+/// The sinks every run has, in the order they open (and the reverse of the order they
+/// close): the run directory's own files first, so that `summary.json` is written last.
+const FILES: [OpenSink; 3] = [RunDirectory::open, EventsFile::open, CsvFiles::open];
 
 /// What a run records beyond its files.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,6 +29,18 @@ impl Recording {
             status_line: false,
         }
     }
+
+    /// The sinks of a run that records this, in the order they open.
+    pub fn sinks(self) -> Vec<OpenSink> {
+        let mut sinks = FILES.to_vec();
+        if self.mcap {
+            sinks.push(McapLog::open);
+        }
+        if self.status_line {
+            sinks.push(crate::status_line::StatusLine::open);
+        }
+        sinks
+    }
 }
 
 /// The recorder of a run of `scenario` into `out`.
@@ -43,12 +49,7 @@ pub fn recorder(
     out: &Path,
     recording: Recording,
 ) -> anyhow::Result<Recorder> {
-    let run = RunStart {
-        dir: out,
-        scenario,
-        mcap: recording.mcap,
-        status_line: recording.status_line,
-    };
-    Recorder::create(&run, &SINKS)
+    let run = RunStart { dir: out, scenario };
+    Recorder::create(&run, &recording.sinks())
         .with_context(|| format!("creating the record in {}", out.display()))
 }

@@ -62,9 +62,9 @@ pub struct StatusLine {
 }
 
 impl StatusLine {
-    /// The sink's opener: a line when the run asks for one and stdout is a terminal.
+    /// The sink's opener: a line when stdout is a terminal.
     pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
-        if !run.status_line || !std::io::stdout().is_terminal() {
+        if !std::io::stdout().is_terminal() {
             return Ok(None);
         }
         Ok(Some(Box::new(StatusLine {

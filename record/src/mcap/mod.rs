@@ -161,11 +161,8 @@ impl McapLog {
         self.handed = Instant::now();
     }
 
-    /// The sink's opener: `run.mcap` when the run asks for it.
+    /// The sink's opener: `run.mcap` in the run directory.
     pub fn open(run: &crate::RunStart) -> std::io::Result<Option<Box<dyn crate::Sink>>> {
-        if !run.mcap {
-            return Ok(None);
-        }
         let log = McapLog::create(&run.dir.join("run.mcap"), run.scenario)?;
         Ok(Some(Box::new(log)))
     }
