@@ -275,7 +275,12 @@ fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot
             .insert_json5("scouting/multicast/enabled", "false")
             .unwrap();
         let session = zenoh::open(config).wait().unwrap();
-        let key = hosts::keys::to_host(&hosts::keys::run_of_prefix(&prefix), "compute", "estimate");
+        let key = hosts::keys::to_host(
+            &hosts::keys::run_of_prefix(&prefix),
+            "compute",
+            protocol::FIRST_ROBOT,
+            "estimate",
+        );
         let publisher = session.declare_publisher(key).wait().unwrap();
         // Once the host's bridge takes the key.
         assert!(wait_for(Duration::from_secs(10), || {

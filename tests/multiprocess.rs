@@ -190,7 +190,7 @@ fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
     let mut receiver = None;
     assert!(
         wait_for(Duration::from_secs(3), || {
-            receiver = open_topic::<Measurement>(&node, MEASUREMENT)
+            receiver = open_topic::<Measurement>(&node, protocol::FIRST_ROBOT, MEASUREMENT)
                 .ok()
                 .and_then(|t| t.receiver().ok());
             receiver.is_some()

@@ -426,7 +426,7 @@ fn orchestrator_killed(mode: &str, exit_within: Duration) {
         .map(|role| wait_for_pid(dir.path(), role))
         .collect();
     let node = create_node(&prefix, "tap", false).unwrap();
-    let tap = open_topic::<protocol::GroundTruth>(&node, TRUTH)
+    let tap = open_topic::<protocol::GroundTruth>(&node, protocol::FIRST_ROBOT, TRUTH)
         .unwrap()
         .receiver()
         .unwrap();

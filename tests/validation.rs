@@ -21,7 +21,7 @@ fn intrude<T: runtime::ipc::Wire>(
     let node = create_node(prefix, "intruder", false).unwrap();
     let mut topic = None;
     wait_for(Duration::from_secs(5), || {
-        topic = open_topic::<T>(&node, name).ok();
+        topic = open_topic::<T>(&node, protocol::FIRST_ROBOT, name).ok();
         topic.is_some() || done.load(Ordering::Relaxed)
     });
     let Some(topic) = topic else { return 0 };
@@ -145,8 +145,10 @@ fn a_forged_measurement_and_a_forged_stop_from_another_publisher_are_refused_and
     let node = create_node(&prefix, "forger", false).unwrap();
     let mut taps = None;
     assert!(wait_for(Duration::from_secs(5), || {
-        let measurement = open_topic::<Measurement>(&node, MEASUREMENT).and_then(|t| t.receiver());
-        let control = open_topic::<Control>(&node, CONTROL).and_then(|t| t.receiver());
+        let measurement = open_topic::<Measurement>(&node, protocol::FIRST_ROBOT, MEASUREMENT)
+            .and_then(|t| t.receiver());
+        let control =
+            open_topic::<Control>(&node, protocol::FIRST_ROBOT, CONTROL).and_then(|t| t.receiver());
         taps = measurement.ok().zip(control.ok());
         taps.is_some()
     }));
@@ -167,7 +169,7 @@ fn a_forged_measurement_and_a_forged_stop_from_another_publisher_are_refused_and
     let mut forged = real.unwrap();
     forged.header.tick += 1_000_000;
     forged.header.time_s = forged.header.tick as f64 * 0.005; // consistent with its tick
-    let forger = open_topic::<Measurement>(&node, MEASUREMENT)
+    let forger = open_topic::<Measurement>(&node, protocol::FIRST_ROBOT, MEASUREMENT)
         .unwrap()
         .sender(forged.header.epoch)
         .unwrap();
@@ -176,7 +178,7 @@ fn a_forged_measurement_and_a_forged_stop_from_another_publisher_are_refused_and
         command: ControlCommand::Stop as u32,
         ..real_control.unwrap()
     };
-    let control_forger = open_topic::<Control>(&node, CONTROL)
+    let control_forger = open_topic::<Control>(&node, protocol::FIRST_ROBOT, CONTROL)
         .unwrap()
         .sender(0)
         .unwrap();

@@ -70,6 +70,9 @@ pub struct BridgeSpec {
     pub host: String,
     /// This host's iceoryx2 prefix for the run.
     pub prefix: String,
+    /// The robot whose pipeline's topics it carries ([`protocol::FIRST_ROBOT`] in every
+    /// run today).
+    pub robot: u32,
     pub key: RunKey,
     /// Topics sent, each to the hosts named.
     pub send: BTreeMap<String, Vec<String>>,
@@ -202,10 +205,10 @@ fn receive(
         let node = ipc::create_node(&spec.prefix, &format!("bridge-in-{}", spec.host), false)?;
         let mut relays: HashMap<String, Box<dyn WireRelay>> = HashMap::new();
         for topic in &spec.receive {
-            relays.insert(topic.clone(), wire::relay(&node, topic)?);
+            relays.insert(topic.clone(), wire::relay(&node, spec.robot, topic)?);
         }
         let subscriber = session
-            .declare_subscriber(keys::to_host(&spec.run, &spec.host, "*"))
+            .declare_subscriber(keys::to_host(&spec.run, &spec.host, spec.robot, "*"))
             .wait()
             .map_err(|e| HostError::Zenoh(format!("subscribing: {e}")))?;
         Ok((node, relays, subscriber))
@@ -322,16 +325,16 @@ fn send_ports(session: &zenoh::Session, spec: &BridgeSpec) -> Result<SendPorts, 
     let node = ipc::create_node(&spec.prefix, &format!("bridge-out-{}", spec.host), false)?;
     let mut taps: Vec<(String, Box<dyn WireTap>)> = Vec::new();
     for topic in spec.send.keys() {
-        taps.push((topic.clone(), wire::tap(&node, topic)?));
+        taps.push((topic.clone(), wire::tap(&node, spec.robot, topic)?));
     }
     if !spec.send.contains_key(CONTROL) {
         // The schedule pins what goes out.
-        taps.push((CONTROL.to_string(), wire::tap(&node, CONTROL)?));
+        taps.push((CONTROL.to_string(), wire::tap(&node, spec.robot, CONTROL)?));
     }
     let mut publishers = HashMap::new();
     for (topic, hosts) in &spec.send {
         for host in hosts {
-            let key = keys::to_host(&spec.run, host, topic);
+            let key = keys::to_host(&spec.run, host, spec.robot, topic);
             let publisher = session
                 .declare_publisher(key.clone())
                 .congestion_control(CongestionControl::Block)
@@ -449,7 +452,7 @@ impl Outbox<'_> {
             return;
         }
         for host in destinations {
-            let key = keys::to_host(&self.spec.run, host, topic);
+            let key = keys::to_host(&self.spec.run, host, self.spec.robot, topic);
             if data && self.spec.faults.delay_ns > 0 {
                 self.held.push_back(Held {
                     due_ns: runtime::clock::monotonic_ns() + self.spec.faults.delay_ns,

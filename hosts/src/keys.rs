@@ -9,9 +9,9 @@ pub fn agent_join(host: &str) -> String {
     format!("scmpc/agent/{host}/join")
 }
 
-/// Samples of `topic` for `host` in `run` (`topic` may be `*`).
-pub fn to_host(run: &str, host: &str, topic: &str) -> String {
-    format!("scmpc/run/{run}/to/{host}/{topic}")
+/// Samples of robot `robot`'s `topic` for `host` in `run` (`topic` may be `*`).
+pub fn to_host(run: &str, host: &str, robot: u32, topic: &str) -> String {
+    format!("scmpc/run/{run}/to/{host}/robot{robot}/{topic}")
 }
 
 /// Where the agent of `host` takes the orchestrator's commands for `run`.

@@ -21,6 +21,8 @@ pub struct JoinRequest {
     pub host: String,
     /// `lockstep` or `realtime`.
     pub mode: String,
+    /// The robot whose pipeline the host's roles are part of.
+    pub robot: u32,
     /// The validated scenario, every key spelled out.
     pub scenario_toml: String,
     /// The roles placed on the host.

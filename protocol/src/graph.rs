@@ -9,7 +9,7 @@
 //! in-process executor's hand-over, the bridges' routes between hosts and the tiers.
 
 use crate::topics::*;
-use crate::{PlantKind, Role, Scenario, TIERS_BELOW_TOP};
+use crate::{PlantKind, Scenario, TIERS_BELOW_TOP};
 
 /// How often a data topic carries a sample.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,27 +44,37 @@ pub struct Topic {
     pub rate: Rate,
 }
 
-/// Calls `$m!` with every data topic: its [`crate::Data`] variant, its message type, its
-/// topic constant and its [`Rate`], in the order of [`TOPICS`]. The one list of the data
-/// topics' types: `Data`, the role processes' ports and the bridges' wire are made from it.
+/// Calls `$m!` with every data topic: its documentation, its [`crate::Data`] variant, its
+/// message type, its topic constant and name and its [`Rate`], in the order of [`TOPICS`].
+/// The one list of the data topics: their names ([`crate::topics`]), `Data`, the role
+/// processes' ports and the bridges' wire are made from it.
 #[macro_export]
 macro_rules! data_topics {
     ($m:ident) => {
         $m!(
-            Measurement(Measurement) = MEASUREMENT @ Tick,
-            Truth(GroundTruth) = TRUTH @ Tick,
-            Estimate(Estimate) = ESTIMATE @ Tick,
-            Plan(Plan) = PLAN @ Sample,
-            Actuation(Actuation) = ACTUATION @ Tick,
-            Deadline(DeadlineVerdict) = DEADLINE @ Verdict,
-            Route(Route) = ROUTE @ Sample,
-            Tracks(Tracks) = TRACKS @ PerceptionTick,
+            /// Noisy output of the plant.
+            Measurement(Measurement) = MEASUREMENT "measurement" @ Tick,
+            /// True state of the plant (the recorder's; the tracker measures the world at
+            /// its ticks).
+            Truth(GroundTruth) = TRUTH "truth" @ Tick,
+            /// The estimator's extended state.
+            Estimate(Estimate) = ESTIMATE "estimate" @ Tick,
+            /// The MPC's plan.
+            Plan(Plan) = PLAN "plan" @ Sample,
+            /// The DFL's command.
+            Actuation(Actuation) = ACTUATION "actuation" @ Tick,
+            /// The DFL's deadline verdict for every sample.
+            Deadline(DeadlineVerdict) = DEADLINE "deadline" @ Verdict,
+            /// The planner's route ([`Route`](crate::Route)).
+            Route(Route) = ROUTE "route" @ Sample,
+            /// The tracker's tracks of the obstacles ([`Tracks`](crate::Tracks)).
+            Tracks(Tracks) = TRACKS "tracks" @ PerceptionTick,
         );
     };
 }
 
 macro_rules! topic_table {
-    ($($variant:ident($t:ident) = $topic:ident @ $rate:ident),* $(,)?) => {
+    ($($(#[$doc:meta])* $variant:ident($t:ident) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
         /// Every data topic ([`data_topics!`](crate::data_topics)).
         pub const TOPICS: &[Topic] = &[
             $(Topic {
@@ -131,54 +141,135 @@ pub struct RoleDecl {
     pub tier: Tier,
     /// Whether the scenario may place it on another host (`[hosts]`, docs/hosts.md).
     pub remote: bool,
+    /// Whether it runs only when the scenario names it (`extra_roles`), as an example
+    /// role does; the others run whenever their world needs them
+    /// ([`Scenario::roles`]).
+    pub optional: bool,
 }
 
-/// Every role as the simulated plant's run has it, in [`Role::ALL`] order (the order of
-/// the data within a tick).
-pub const ROLES: [RoleDecl; Role::COUNT] = [
-    RoleDecl {
-        role: Role::Plant,
+/// Declares every role once, in data-flow order: its documentation, its code (its index
+/// in per-role arrays, [`Control`](crate::Control)'s), its name and its [`RoleDecl`].
+/// Makes [`Role`], [`Role::COUNT`], [`Role::ALL`], [`Role::as_str`] and [`ROLES`].
+macro_rules! declare_roles {
+    ($($(#[$doc:meta])* $role:ident = $code:literal $name:literal {
+        inputs: $inputs:expr,
+        outputs: $outputs:expr,
+        tier: $tier:ident,
+        remote: $remote:expr,
+        optional: $optional:expr $(,)?
+    }),* $(,)?) => {
+        /// The roles of a run ([`declare_roles!`]).
+        #[repr(u32)]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum Role {
+            $($(#[$doc])* $role = $code,)*
+        }
+
+        impl Role {
+            /// How many roles there are (the length of per-role arrays).
+            pub const COUNT: usize = [$($code),*].len();
+            /// In data-flow order: the in-process executor steps the roles of a tick in it.
+            pub const ALL: [Role; Role::COUNT] = [$(Role::$role),*];
+
+            /// Its name: on the command line, in `events.jsonl`, in `SCMPC_ROLE`.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    $(Role::$role => $name,)*
+                }
+            }
+        }
+
+        /// Every role as the simulated plant's run has it, in [`Role::ALL`] order (the
+        /// order of the data within a tick).
+        pub const ROLES: [RoleDecl; Role::COUNT] = [
+            $(RoleDecl {
+                role: Role::$role,
+                inputs: $inputs,
+                outputs: $outputs,
+                tier: Tier::$tier,
+                remote: $remote,
+                optional: $optional,
+            },)*
+        ];
+    };
+}
+
+declare_roles! {
+    /// The simulated robot: the unicycle and its output noise.
+    Plant = 0 "plant" {
         inputs: &[ACTUATION],
         outputs: &[TRUTH, MEASUREMENT],
-        tier: Tier::Control,
+        tier: Control,
         remote: true,
+        optional: false,
     },
-    RoleDecl {
-        role: Role::Estimator,
+    /// The state estimator: the extended state from the measurements.
+    Estimator = 1 "estimator" {
         inputs: &[MEASUREMENT, ACTUATION],
         outputs: &[ESTIMATE],
-        tier: Tier::Control,
+        tier: Control,
         remote: true,
+        optional: false,
     },
-    RoleDecl {
-        role: Role::Tracker,
+    /// The tracker of moving obstacles (docs/running.md, "Moving obstacles"): only in runs
+    /// that track an obstacle.
+    Tracker = 5 "tracker" {
         inputs: &[TRUTH],
         outputs: &[TRACKS],
-        tier: Tier::Tracking,
+        tier: Tracking,
         remote: true,
+        optional: false,
     },
-    RoleDecl {
-        role: Role::Mpc,
+    /// The safety-critical linear MPC (or the nonlinear baseline).
+    Mpc = 2 "mpc" {
         inputs: &[ESTIMATE, ROUTE, TRACKS],
         outputs: &[PLAN],
-        tier: Tier::Control,
+        tier: Control,
         remote: true,
+        optional: false,
     },
-    RoleDecl {
-        role: Role::Dfl,
+    /// The dynamic feedback linearization and its gatekeeper.
+    Dfl = 3 "dfl" {
         inputs: &[ESTIMATE, PLAN, TRACKS],
         outputs: &[ACTUATION, DEADLINE],
-        tier: Tier::Control,
+        tier: Control,
         remote: true,
+        optional: false,
     },
-    RoleDecl {
-        role: Role::Planner,
+    /// The route planner (docs/planner.md): only in runs that plan routes.
+    Planner = 4 "planner" {
         inputs: &[ESTIMATE],
         outputs: &[ROUTE],
-        tier: Tier::Planning,
+        tier: Planning,
         remote: true,
+        optional: false,
     },
-];
+}
+
+impl Role {
+    pub fn from_code(code: u32) -> Option<Role> {
+        Role::ALL.into_iter().find(|r| *r as u32 == code)
+    }
+
+    pub fn from_name(name: &str) -> Option<Role> {
+        Role::ALL.into_iter().find(|r| r.as_str() == name)
+    }
+}
+
+/// A role is written by its name (`"mpc"`), as in `events.jsonl` and the command line.
+impl serde::Serialize for Role {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Role {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Role, D::Error> {
+        let name = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
+        Role::from_name(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("no role is named `{name}`")))
+    }
+}
 
 /// The plant role played by a ROS 2 robot (`plant.kind = "ros2"`): it takes the commands,
 /// and shows the plans, the route and the tracks to RViz.
@@ -188,6 +279,7 @@ pub const ROBOT: RoleDecl = RoleDecl {
     outputs: &[TRUTH, MEASUREMENT],
     tier: Tier::Control,
     remote: true,
+    optional: false,
 };
 
 /// The declaration of `role` in a run whose plant is `plant`.
@@ -283,6 +375,17 @@ impl Graph {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn role_codes_index_per_role_arrays_once_each_and_names_are_distinct() {
+        let mut codes: Vec<usize> = Role::ALL.iter().map(|r| *r as usize).collect();
+        codes.sort_unstable();
+        assert_eq!(codes, (0..Role::COUNT).collect::<Vec<_>>());
+        for role in Role::ALL {
+            assert_eq!(Role::from_name(role.as_str()), Some(role));
+            assert_eq!(Role::from_code(role as u32), Some(role));
+        }
+    }
 
     #[test]
     fn every_topic_has_one_producer_and_every_declared_topic_is_a_data_topic() {

@@ -1,19 +1,13 @@
-//! The names of a run's topics. Which role produces each data topic and which take it is
+//! The names of a run's topics (the data topics' from [`crate::data_topics!`]). Which role produces each data topic and which take it is
 //! the declared graph's ([`crate::graph`]).
 
-/// Noisy output of the plant.
-pub const MEASUREMENT: &str = "measurement";
-/// True state of the plant (the recorder's; the tracker measures the world at its ticks).
-pub const TRUTH: &str = "truth";
-pub const ESTIMATE: &str = "estimate";
-pub const PLAN: &str = "plan";
-pub const ACTUATION: &str = "actuation";
-/// The DFL's deadline verdict for every sample.
-pub const DEADLINE: &str = "deadline";
-/// The planner's route ([`Route`](crate::Route)).
-pub const ROUTE: &str = "route";
-/// The tracker's tracks of the obstacles ([`Tracks`](crate::Tracks)).
-pub const TRACKS: &str = "tracks";
+macro_rules! topic_names {
+    ($($(#[$doc:meta])* $variant:ident($t:ident) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
+        $($(#[$doc])* pub const $topic: &str = $name;)*
+    };
+}
+crate::data_topics!(topic_names);
+
 /// Orchestrator to processes: clock grants, start, stop.
 pub const CONTROL: &str = "control";
 /// Processes to orchestrator: ready, input lost.
@@ -24,3 +18,23 @@ pub const SWAP: &str = "swap";
 pub const SWAP_REPLY: &str = "swap_reply";
 
 pub use crate::graph::{output_slot, output_topic, producer_of};
+
+/// The iceoryx2 service name of `topic` of robot `robot`: the robot's pipeline (its data
+/// topics, its control and its status) is under `robot<id>/`, so two robots' pipelines
+/// on one host never share a service (docs/design.md, "The graph, declared once").
+/// What is the run's and no robot's ([`SWAP`], [`SWAP_REPLY`]) keeps its bare name.
+pub fn service_name(robot: u32, topic: &str) -> String {
+    format!("robot{robot}/{topic}")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_robots_service_names_carry_its_id_and_differ_from_anothers() {
+        assert_eq!(super::service_name(0, super::PLAN), "robot0/plan");
+        assert_ne!(
+            super::service_name(0, super::CONTROL),
+            super::service_name(1, super::CONTROL)
+        );
+    }
+}

@@ -29,6 +29,13 @@ PLAN_MISSING = 2**32 - 1
 # Codes of the enumerations (``scmpc schema``, "codes").
 # Header.robot of a run's one robot (a role instance is a role and a robot id).
 FIRST_ROBOT = 0
+
+
+def service_name(robot, topic):
+    """The iceoryx2 service of ``topic`` of robot ``robot`` (a robot's pipeline is under
+    ``robot<id>/``; ``scmpc schema``, "services")."""
+    return f"robot{robot}/{topic}"
+
 ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5}
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}

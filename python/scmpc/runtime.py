@@ -99,6 +99,8 @@ class RoleArgs:
             raise SystemExit(f"scmpc role: SCMPC_MODE={self.mode}: lockstep or realtime")
         self.epoch = int(need("SCMPC_EPOCH"))
         self.role = need("SCMPC_ROLE")
+        # The robot whose pipeline this process is part of (its services, Header.robot).
+        self.robot = int(environ.get("SCMPC_ROBOT", "").strip() or m.FIRST_ROBOT)
         pid = environ.get("SCMPC_SUPERVISOR_PID")
         self.supervisor_pid = int(pid) if pid else None
         control = environ.get("SCMPC_CONTROL_PUBLISHER")
@@ -144,8 +146,8 @@ class ControlState:
         return None if self.start_ns is None else self.start_ns + int(offset_s * 1e9)
 
 
-def _open_topic(node, name, payload):
-    service_name = iox2.ServiceName.new(name)
+def _open_topic(node, robot, name, payload):
+    service_name = iox2.ServiceName.new(m.service_name(robot, name))
     pubsub = (
         node.service_builder(service_name)
         .publish_subscribe(payload)
@@ -163,14 +165,15 @@ def _open_topic(node, name, payload):
 class Sender:
     """Publishes one topic, stamping epoch, run id and publish time, and wakes its listeners."""
 
-    def __init__(self, node, name, epoch, run):
+    def __init__(self, node, name, epoch, run, robot):
         self.name = name
         self.payload = m.TOPICS[name]
-        pubsub, event = _open_topic(node, name, self.payload)
+        pubsub, event = _open_topic(node, robot, name, self.payload)
         self.publisher = pubsub.publisher_builder().create()
         self.notifier = event.notifier_builder().create()
         self.epoch = epoch
         self.run_id = run
+        self.robot = robot
         self.last = None
 
     @property
@@ -180,7 +183,7 @@ class Sender:
     def send(self, message):
         message.header.epoch = self.epoch
         message.header.run_id = self.run_id
-        message.header.robot = m.FIRST_ROBOT
+        message.header.robot = self.robot
         message.header.publish_ns = monotonic_ns()
         self.last = message
         self.publisher.send_copy(message)
@@ -195,13 +198,14 @@ class Sender:
 class Receiver:
     """Takes the samples of one topic that pass the border check (module docs)."""
 
-    def __init__(self, node, name, run, producer=None, clock=None):
+    def __init__(self, node, name, run, robot, producer=None, clock=None):
         self.name = name
         self.payload = m.TOPICS[name]
-        pubsub, event = _open_topic(node, name, self.payload)
+        pubsub, event = _open_topic(node, robot, name, self.payload)
         self.subscriber = pubsub.subscriber_builder().buffer_size(SUBSCRIBER_BUFFER).create()
         self.listener = event.listener_builder().create()
         self.run_id = run
+        self.robot = robot
         self.producer = None if producer is None else m.ROLES[producer]
         self.slot = m.OUTPUT_SLOTS.get(name) if producer is not None else None
         self.clock = clock
@@ -248,7 +252,7 @@ class Receiver:
         h = message.header
         if h.run_id != self.run_id:
             return "wrong_run"
-        if h.robot != m.FIRST_ROBOT:
+        if h.robot != self.robot:
             return "wrong_robot"
         if self.pinned is not None and origin != self.pinned:
             return "unknown_publisher"
@@ -345,17 +349,17 @@ class Link:
             .create(iox2.ServiceType.Ipc)
         )
         self.run_id = run_id(args.prefix)
-        control = Receiver(self.node, "control", self.run_id)
+        control = Receiver(self.node, "control", self.run_id, args.robot)
         control.pinned = args.control_publisher
         self.clock = RoleClock(control, args.mode, args.dt_s)
-        self.status = Sender(self.node, "status", args.epoch, self.run_id)
+        self.status = Sender(self.node, "status", args.epoch, self.run_id, args.robot)
 
     def input(self, name, producer):
         """Samples of topic ``name`` from the active process of role ``producer``."""
-        return Receiver(self.node, name, self.run_id, producer, self.clock)
+        return Receiver(self.node, name, self.run_id, self.args.robot, producer, self.clock)
 
     def output(self, name):
-        return Sender(self.node, name, self.args.epoch, self.run_id)
+        return Sender(self.node, name, self.args.epoch, self.run_id, self.args.robot)
 
     def _status(self, event, **fields):
         status = m.Status(role=m.ROLES[self.role], event=m.STATUS_EVENTS[event], pid=os.getpid())

@@ -24,6 +24,11 @@ pub struct CsvFiles {
     routes: Option<Lines>,
     /// `tracks.csv`, opened at the first tracks.
     tracks: Option<Lines>,
+    /// `<topic>.csv` of each topic recorded as [`Sample::Data`], opened at its first
+    /// message, with the values its type names after its time and tick.
+    data: BTreeMap<&'static str, Lines>,
+    /// Reused for a message's values.
+    values: Vec<f64>,
     /// Simulated time from which the next solved plan goes to `predictions.csv`, s.
     next_prediction_s: f64,
     /// Plans published but not judged yet, by sample.
@@ -49,6 +54,8 @@ impl CsvFiles {
             predictions: csv_file(&dir.join("predictions.csv"), &schema::PREDICTION_COLUMNS)?,
             routes: None,
             tracks: None,
+            data: BTreeMap::new(),
+            values: Vec::new(),
             next_prediction_s: 0.0,
             pending_plans: BTreeMap::new(),
             last_judged: None,
@@ -96,6 +103,9 @@ impl CsvFiles {
         self.plans.flush()?;
         self.predictions.flush()?;
         for file in [&mut self.routes, &mut self.tracks].into_iter().flatten() {
+            file.flush()?;
+        }
+        for file in self.data.values_mut() {
             file.flush()?;
         }
         Ok(())
@@ -217,6 +227,28 @@ impl CsvFiles {
     }
 }
 
+impl CsvFiles {
+    /// A `<topic>.csv` row: the message's time and tick, then the values its type names.
+    fn data(&mut self, data: &protocol::Data) -> std::io::Result<()> {
+        let topic = data.topic();
+        let file = match self.data.entry(topic) {
+            std::collections::btree_map::Entry::Occupied(file) => file.into_mut(),
+            std::collections::btree_map::Entry::Vacant(slot) => {
+                let columns = [&["t", "tick"], protocol::Data::recorded_names(topic)].concat();
+                slot.insert(csv_file(&self.dir.join(format!("{topic}.csv")), &columns)?)
+            }
+        };
+        self.values.clear();
+        data.recorded(&mut self.values);
+        let header = data.header();
+        write!(file, "{:.4},{}", header.time_s, header.tick)?;
+        for value in &self.values {
+            write!(file, ",{value}")?;
+        }
+        writeln!(file)
+    }
+}
+
 impl Sink for CsvFiles {
     fn sample(&mut self, sample: &Sample<'_>) -> std::io::Result<()> {
         match sample {
@@ -225,6 +257,7 @@ impl Sink for CsvFiles {
             Sample::Verdict(v) => self.verdict(v),
             Sample::Route(route) => self.route(route),
             Sample::Tracks(tracks) => self.tracks(tracks),
+            Sample::Data(data) => self.data(data),
         }
     }
 

@@ -213,6 +213,15 @@ impl Recorder {
         self.hand_on(Sample::Tracks(tracks))
     }
 
+    /// A message of a topic the record has no place of its own for ([`Sample::Data`]);
+    /// one whose type names nothing to record is left out.
+    pub fn data(&mut self, data: &protocol::Data) -> std::io::Result<()> {
+        if protocol::Data::recorded_names(data.topic()).is_empty() {
+            return Ok(());
+        }
+        self.hand_on(Sample::Data(data))
+    }
+
     /// A plan as it is published.
     pub fn plan(&mut self, plan: &Plan) -> std::io::Result<()> {
         if !plan.is_solved() {

@@ -53,6 +53,10 @@ pub enum Sample<'a> {
     /// on).
     Route(&'a Route),
     Tracks(&'a Tracks),
+    /// A message of a topic the record has no place of its own for, whose type names
+    /// what it is recorded with ([`protocol::Message::RECORDED`]): a role added as
+    /// docs/design.md says is recorded with no edit here.
+    Data(&'a protocol::Data),
 }
 
 /// A part of the record (module docs).

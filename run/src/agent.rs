@@ -175,6 +175,39 @@ impl HostRun {
         Ok((dir, scenario_file))
     }
 
+    /// The bridge of host `name`, on `prefix`, in the run of `r`, whose key is `key`, for
+    /// the roles on it.
+    fn bridge_spec(
+        name: &str,
+        r: &JoinRequest,
+        scenario: &Scenario,
+        mode: RunMode,
+        prefix: &str,
+        key: RunKey,
+        roles: Vec<Role>,
+    ) -> BridgeSpec {
+        BridgeSpec {
+            run: r.run.clone(),
+            host: name.to_string(),
+            prefix: prefix.to_string(),
+            robot: r.robot,
+            key,
+            send: r
+                .send
+                .iter()
+                .map(|t| (t.clone(), vec![ORCHESTRATOR.to_string()]))
+                .collect(),
+            receive: r.receive.clone(),
+            local_roles: Some(roles),
+            control_publisher: None,
+            faults: LinkFaults::of(
+                scenario,
+                scenario.seed ^ u64::from(ipc::run_id(name.as_bytes())),
+            ),
+            carrier_priority: crate::scheduling::bridge_priority(&scenario.realtime, mode),
+        }
+    }
+
     /// Joins the run of `r` as host `name`: the clock exchange, the run's directory, the
     /// bridge, the processes' environment, and the topics of commands, exits and liveliness.
     fn join(session: &zenoh::Session, name: &str, r: &JoinRequest) -> anyhow::Result<HostRun> {
@@ -183,34 +216,15 @@ impl HostRun {
         let prefix = ipc::new_prefix();
         ipc::register_run(&prefix).context("registering the run")?;
         let (dir, scenario_file) = Self::run_dir(name, r, &scenario)?;
-        let bridge = Bridge::start(
-            session,
-            BridgeSpec {
-                run: r.run.clone(),
-                host: name.to_string(),
-                prefix: prefix.clone(),
-                key,
-                send: r
-                    .send
-                    .iter()
-                    .map(|t| (t.clone(), vec![ORCHESTRATOR.to_string()]))
-                    .collect(),
-                receive: r.receive.clone(),
-                local_roles: Some(roles),
-                control_publisher: None,
-                faults: LinkFaults::of(
-                    &scenario,
-                    scenario.seed ^ u64::from(ipc::run_id(name.as_bytes())),
-                ),
-                carrier_priority: crate::scheduling::bridge_priority(&scenario.realtime, mode),
-            },
-        )?;
+        let spec = Self::bridge_spec(name, r, &scenario, mode, &prefix, key, roles);
+        let bridge = Bridge::start(session, spec)?;
         let control = bridge
             .relay_id(CONTROL)
             .ok_or_else(|| anyhow!("the run sends no control to this host"))?;
         let children = Children::new(
             &scenario_file,
             &prefix,
+            r.robot,
             mode,
             control,
             vec![

@@ -20,8 +20,11 @@ pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
 pub const ENV_MODE: &str = "SCMPC_MODE";
 /// The producer epoch the process must stamp on every sample.
 pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
-/// `plant`, `estimator`, `mpc`, `dfl` or `planner`.
+/// `plant`, `estimator`, `mpc`, `dfl`, `planner` or `tracker`.
 pub const ENV_ROLE: &str = "SCMPC_ROLE";
+/// The robot whose pipeline the process is part of (decimal; [`protocol::FIRST_ROBOT`]
+/// when unset).
+pub const ENV_ROBOT: &str = "SCMPC_ROBOT";
 /// The pid of the process supervising it (the orchestrator, or the agent of its host): a
 /// role process stops the robot and exits when it is gone.
 pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
@@ -75,6 +78,8 @@ pub struct Children {
     scenario_file: std::path::PathBuf,
     pub prefix: String,
     mode: &'static str,
+    /// The robot whose pipeline these processes are.
+    robot: u32,
     /// The publisher of control messages on this host, which the processes take control
     /// from.
     control_publisher: u128,
@@ -92,6 +97,7 @@ impl Children {
     pub fn new(
         scenario_file: &Path,
         prefix: &str,
+        robot: u32,
         mode: RunMode,
         control_publisher: u128,
         extra_env: Vec<(String, String)>,
@@ -102,6 +108,7 @@ impl Children {
             scenario_file: scenario_file.to_path_buf(),
             prefix: prefix.to_string(),
             mode: mode.as_str(),
+            robot,
             control_publisher,
             extra_env,
             list: Vec::new(),
@@ -170,6 +177,7 @@ impl Children {
             .env(ENV_MODE, self.mode)
             .env(ENV_EPOCH, epoch.to_string())
             .env(ENV_ROLE, role.as_str())
+            .env(ENV_ROBOT, self.robot.to_string())
             .env(ENV_SUPERVISOR, std::process::id().to_string())
             .env(
                 ENV_CONTROL_PUBLISHER,

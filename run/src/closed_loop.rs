@@ -49,6 +49,9 @@ pub struct Tick {
     pub actuation: Actuation,
     /// The role restarted at this tick, with the topic of its message that was refused.
     pub restarted: Option<(Role, &'static str)>,
+    /// The tick's messages of topics the record has no place of its own for and records
+    /// as [`Data`] ([`protocol::Message::RECORDED`]), in the order they were given.
+    pub recorded: Vec<Data>,
 }
 
 /// Why the loop ended before its last tick.
@@ -288,6 +291,7 @@ impl ClosedLoop {
     fn collect(&self, restarted: Option<(Role, &'static str)>) -> Result<Tick, Ended> {
         let (mut truth, mut estimate, mut actuation) = (None, None, None);
         let (mut plan, mut route, mut verdict, mut tracks) = (None, None, None, None);
+        let mut recorded = Vec::new();
         for data in &self.given {
             match *data {
                 Data::Truth(m) => truth = Some(m),
@@ -297,7 +301,8 @@ impl ClosedLoop {
                 Data::Route(m) => route = Some(m),
                 Data::Deadline(m) => verdict = Some(m),
                 Data::Tracks(m) => tracks = Some(m),
-                Data::Measurement(_) => {}
+                other if !Data::recorded_names(other.topic()).is_empty() => recorded.push(other),
+                _ => {}
             }
         }
         let tick = self.tick - 1;
@@ -311,6 +316,7 @@ impl ClosedLoop {
             tracks,
             verdict,
             restarted,
+            recorded,
         })
     }
 }

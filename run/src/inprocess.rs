@@ -70,6 +70,9 @@ pub fn run_observed(
         if let Some(tracks) = &tick.tracks {
             recorder.tracks(tracks)?;
         }
+        for data in &tick.recorded {
+            recorder.data(data)?;
+        }
         outcome = recorder
             .tick(&tick.truth, None, &tick.estimate, &tick.actuation)?
             .or(no_route);

@@ -57,12 +57,39 @@ pub struct RemoteHosts {
     /// Hosts that were lost.
     lost: RefCell<BTreeSet<String>>,
     bridge: Bridge,
-    exits: Subscriber<FifoChannelHandler<Sample>>,
-    alive: Subscriber<FifoChannelHandler<Sample>>,
+    exits: Subscribed,
+    alive: Subscribed,
     _clock: zenoh::query::Queryable<()>,
     _token: zenoh::liveliness::LivelinessToken,
     /// Declared last: closed after everything above.
     session: zenoh::Session,
+}
+
+/// A Zenoh subscriber whose samples queue until taken.
+type Subscribed = Subscriber<FifoChannelHandler<Sample>>;
+
+/// The orchestrator's liveliness token in `run`, and its subscribers to the hosts' exit
+/// reports and liveliness tokens.
+fn watch_hosts(
+    session: &zenoh::Session,
+    run: &str,
+) -> anyhow::Result<(zenoh::liveliness::LivelinessToken, Subscribed, Subscribed)> {
+    let token = session
+        .liveliness()
+        .declare_token(keys::alive(run, ORCHESTRATOR))
+        .wait()
+        .map_err(|e| anyhow!("zenoh: declaring the orchestrator's token: {e}"))?;
+    let exits = session
+        .declare_subscriber(keys::host_exits(run, "*"))
+        .wait()
+        .map_err(|e| anyhow!("zenoh: subscribing to exits: {e}"))?;
+    let alive = session
+        .liveliness()
+        .declare_subscriber(keys::alive_all(run))
+        .history(true)
+        .wait()
+        .map_err(|e| anyhow!("zenoh: subscribing to the hosts' tokens: {e}"))?;
+    Ok((token, exits, alive))
 }
 
 impl RemoteHosts {
@@ -72,6 +99,7 @@ impl RemoteHosts {
         scenario: &Validated,
         mode: RunMode,
         prefix: &str,
+        robot: u32,
         endpoints: &BTreeMap<String, Endpoint>,
         security: &Security,
         control_publisher: u128,
@@ -82,21 +110,7 @@ impl RemoteHosts {
         let connect: Vec<Endpoint> = names.iter().map(|n| endpoints[n].clone()).collect();
         let session = net::open(net::config(&[], &connect, security)?)?;
         let clock = hosts::clock_sync::serve(&session, &run)?;
-        let token = session
-            .liveliness()
-            .declare_token(keys::alive(&run, ORCHESTRATOR))
-            .wait()
-            .map_err(|e| anyhow!("zenoh: declaring the orchestrator's token: {e}"))?;
-        let exits = session
-            .declare_subscriber(keys::host_exits(&run, "*"))
-            .wait()
-            .map_err(|e| anyhow!("zenoh: subscribing to exits: {e}"))?;
-        let alive = session
-            .liveliness()
-            .declare_subscriber(keys::alive_all(&run))
-            .history(true)
-            .wait()
-            .map_err(|e| anyhow!("zenoh: subscribing to the hosts' tokens: {e}"))?;
+        let (token, exits, alive) = watch_hosts(&session, &run)?;
         let running: Vec<Role> = scenario.roles().collect();
         let placement = scenario.hosts.clone();
         let routes = routes::plan(&protocol::graph::Graph::of(scenario), |r| placement.of(r));
@@ -106,6 +120,7 @@ impl RemoteHosts {
                 run: run.clone(),
                 host: ORCHESTRATOR.to_string(),
                 prefix: prefix.to_string(),
+                robot,
                 key: key.clone(),
                 send: routes.orchestrator_sends.clone(),
                 receive: routes.orchestrator_receives.clone(),
@@ -123,6 +138,7 @@ impl RemoteHosts {
                 key: key.to_hex(),
                 host: name.clone(),
                 mode: mode.as_str().to_string(),
+                robot,
                 scenario_toml: scenario.to_toml(),
                 roles: running
                     .iter()

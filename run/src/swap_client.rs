@@ -4,7 +4,7 @@
 use crate::multiproc::RunInfo;
 use anyhow::{Context, bail};
 use protocol::{Role, SwapReply, SwapRequest};
-use runtime::ipc::{self, open_topic};
+use runtime::ipc::{self, open_run_topic};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -71,11 +71,11 @@ pub fn send(run_dir: &Path, request: &SwapRequest, stop: &AtomicBool) -> anyhow:
         false,
     )?;
     // Subscribe to the answers (the orchestrator's alone) before asking.
-    let replies = open_topic::<SwapReply>(&node, ipc::SWAP_REPLY)?.receiver()?;
+    let replies = open_run_topic::<SwapReply>(&node, ipc::SWAP_REPLY)?.receiver()?;
     let orchestrator = u128::from_str_radix(&info.swap_reply_publisher, 16)
         .with_context(|| format!("{shown}: swap_reply_publisher is not a hexadecimal id"))?;
     replies.pin_to(orchestrator);
-    let requests = open_topic::<SwapRequest>(&node, ipc::SWAP)?.sender(0)?;
+    let requests = open_run_topic::<SwapRequest>(&node, ipc::SWAP)?.sender(0)?;
     let waitset = ipc::waitset(false)?;
     let _guard = replies.attach(&waitset)?;
     requests.send(*request)?;

@@ -40,8 +40,15 @@ pub struct TypeLayout {
 /// name), the payload it carries and the settings every process opens it with.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct ServiceLayout {
-    /// The iceoryx2 service name, under the run's prefix ([`ipc::run_config`]).
-    pub service: &'static str,
+    /// The topic's name.
+    pub topic: &'static str,
+    /// Whether each robot has its own: a robot's topic is its service `robot<id>/<topic>`
+    /// ([`protocol::topics::service_name`]); the run's (swap requests and replies) is
+    /// `<topic>`.
+    pub per_robot: bool,
+    /// The iceoryx2 service name, under the run's prefix ([`ipc::run_config`]), of the
+    /// first robot's ([`protocol::FIRST_ROBOT`]) for a robot's topic.
+    pub service: String,
     pub type_name: &'static str,
     pub max_publishers: usize,
     pub max_subscribers: usize,
@@ -383,10 +390,16 @@ fn named<T: Copy>(
 
 /// Every topic, with the type it carries.
 pub fn services() -> Vec<ServiceLayout> {
-    let topic = |service: &'static str, type_name: &'static str| ServiceLayout {
-        service,
+    let topic = |topic: &'static str, type_name: &'static str| ServiceLayout {
+        topic,
+        per_robot: topic != ipc::SWAP && topic != ipc::SWAP_REPLY,
+        service: if topic == ipc::SWAP || topic == ipc::SWAP_REPLY {
+            topic.to_string()
+        } else {
+            ipc::service_name(protocol::FIRST_ROBOT, topic)
+        },
         type_name,
-        max_publishers: if service == ipc::STATUS {
+        max_publishers: if topic == ipc::STATUS {
             ipc::MAX_STATUS_PUBLISHERS
         } else {
             ipc::MAX_PUBLISHERS

@@ -58,6 +58,10 @@ pub struct ProcessArgs {
     pub prefix: String,
     pub mode: RunMode,
     pub epoch: u32,
+    /// The robot whose pipeline the process is part of: its topics' services and the
+    /// robot id stamped on and checked in every sample ([`protocol::FIRST_ROBOT`] in every
+    /// run today).
+    pub robot: u32,
     /// The orchestrator's pid, watched (docs/design.md, "Supervision"); `None`: not watched.
     pub supervisor_pid: Option<u32>,
     /// The iceoryx2 id of the orchestrator's control publisher: control messages from
@@ -342,6 +346,7 @@ struct SupervisorWatch {
 pub struct Member {
     role: Role,
     epoch: u32,
+    robot: u32,
     supervisor_pid: Option<u32>,
     /// Ticks before allocations are counted ([`ENV_COUNT_ALLOCATIONS`]): 20 samples.
     warm_up_ticks: u64,
@@ -361,7 +366,7 @@ impl Member {
             &format!("{}-{}", role.as_str(), args.epoch),
             true,
         )?;
-        let control = open_topic::<Control>(&node, CONTROL)?.receiver()?;
+        let control = open_topic::<Control>(&node, args.robot, CONTROL)?.receiver()?;
         if let Some(id) = args.control_publisher {
             control.pin_to(id);
         }
@@ -373,11 +378,12 @@ impl Member {
                 RunClock::new(args.mode, args.scenario.timing.dt_s()),
             )),
         });
-        let status = open_topic::<Status>(&node, STATUS)?.sender(args.epoch)?;
+        let status = open_topic::<Status>(&node, args.robot, STATUS)?.sender(args.epoch)?;
         Ok(Member {
             node,
             role,
             epoch: args.epoch,
+            robot: args.robot,
             supervisor_pid: args.supervisor_pid,
             warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
@@ -393,14 +399,14 @@ impl Member {
         name: &'static str,
         producer: Role,
     ) -> Result<Receiver<T>, IpcError> {
-        let input = open_topic::<T>(&self.node, name)?.receiver_from(producer)?;
+        let input = open_topic::<T>(&self.node, self.robot, name)?.receiver_from(producer)?;
         input.bound_by(self.clock.clone());
         Ok(input)
     }
 
     /// An output publishing on topic `name` with this process's epoch.
     pub fn output<T: Wire>(&self, name: &'static str) -> Result<Sender<T>, IpcError> {
-        open_topic::<T>(&self.node, name)?.sender(self.epoch)
+        open_topic::<T>(&self.node, self.robot, name)?.sender(self.epoch)
     }
 
     /// Tells the orchestrator about this process.

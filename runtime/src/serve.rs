@@ -109,7 +109,7 @@ fn send(outputs: &[OutPort], data: &Data) -> Result<(), ProcessError> {
 /// Declares the input and output ports of every data topic: one variant per topic, so a
 /// task's topics, named at run time, open typed iceoryx2 ports.
 macro_rules! data_ports {
-    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
+    ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
         /// An input of one data topic.
         enum InPort {
             $($variant(Receiver<$t>),)*

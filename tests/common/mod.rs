@@ -162,7 +162,7 @@ impl SimulatedClock {
     pub fn of(prefix: &str) -> SimulatedClock {
         use runtime::ipc::{TRUTH, create_node, open_topic};
         let node = create_node(prefix, "test-clock", false).expect("a node of the run");
-        let truth = open_topic::<protocol::GroundTruth>(&node, TRUTH)
+        let truth = open_topic::<protocol::GroundTruth>(&node, protocol::FIRST_ROBOT, TRUTH)
             .and_then(|t| t.receiver())
             .expect("the run's truth");
         SimulatedClock {

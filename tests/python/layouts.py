@@ -60,7 +60,11 @@ def main():
             problems.append(f"{name}: alignment {ctypes.alignment(py)} > Rust {rust['alignment']}")
         if mine["fields"] != rust["fields"]:
             problems.append(f"{name}: fields\n  Python {mine['fields']}\n  Rust   {rust['fields']}")
-    topics = {s["service"]: s["type_name"] for s in schema["services"]}
+    topics = {s["topic"]: s["type_name"] for s in schema["services"]}
+    for s in schema["services"]:
+        expected = messages.service_name(messages.FIRST_ROBOT, s["topic"]) if s["per_robot"] else s["topic"]
+        if s["service"] != expected:
+            problems.append(f"service of {s['topic']}: Rust {s['service']}")
     mirrored = {name: t.type_name() for name, t in messages.TOPICS.items()}
     if topics != mirrored:
         problems.append(f"services: Rust {topics}, Python {mirrored}")

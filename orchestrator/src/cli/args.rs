@@ -150,6 +150,10 @@ pub struct RoleArgs {
     /// The producer epoch stamped on every sample.
     #[arg(long, default_value_t = 0, env = run::children::ENV_EPOCH)]
     pub epoch: u32,
+    /// The robot whose pipeline the process is part of: its topics' services and the
+    /// robot id of every sample.
+    #[arg(long, default_value_t = protocol::FIRST_ROBOT, env = run::children::ENV_ROBOT)]
+    pub robot: u32,
     /// The orchestrator's pid: when it is gone, the robot is stopped and the process exits.
     #[arg(long, env = run::children::ENV_SUPERVISOR)]
     pub supervisor_pid: Option<u32>,

@@ -35,6 +35,7 @@ pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
         prefix: args.prefix.clone(),
         mode: args.mode.into(),
         epoch: args.epoch,
+        robot: args.robot,
         supervisor_pid: args.supervisor_pid,
         control_publisher: args.control_publisher,
     };

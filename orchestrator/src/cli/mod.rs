@@ -301,7 +301,7 @@ fn swap(args: SwapArgs) -> CliResult {
 /// What `scmpc schema` prints.
 fn message_schema() -> serde_json::Value {
     use run::children::{
-        ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROLE, ENV_SCENARIO,
+        ENV_CONTROL_PUBLISHER, ENV_EPOCH, ENV_MODE, ENV_PREFIX, ENV_ROBOT, ENV_ROLE, ENV_SCENARIO,
         ENV_SUPERVISOR,
     };
     use runtime::layout;
@@ -320,6 +320,7 @@ fn message_schema() -> serde_json::Value {
             ENV_MODE: "lockstep or realtime",
             ENV_EPOCH: "the producer epoch to stamp on every sample (Header.epoch)",
             ENV_ROLE: "the role to play",
+            ENV_ROBOT: "the robot whose pipeline the process is part of: its services are robot<id>/<topic>, and Header.robot of every sample (0 when unset)",
             ENV_SUPERVISOR: "the supervisor's pid (the orchestrator, or on another host its agent): brake and exit when it is gone",
             ENV_CONTROL_PUBLISHER: "the iceoryx2 id of the orchestrator's control publisher, hexadecimal",
             runtime::ipc::ENV_RUN_ID: "the run id every Header.run carries, decimal (set on other hosts, whose prefix differs from the orchestrator's; else derived from the prefix)",

@@ -3,6 +3,7 @@
 //! live swap request and its reply.
 
 use super::Header;
+pub use crate::graph::Role;
 #[cfg(feature = "iceoryx2")]
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -211,67 +212,6 @@ impl Control {
             4 => ControlCommand::Replay,
             _ => return None,
         })
-    }
-}
-
-/// The roles of a run: the paper's four and the route planner.
-#[repr(u32)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Role {
-    Plant = 0,
-    Estimator = 1,
-    Mpc = 2,
-    Dfl = 3,
-    /// The route planner (docs/planner.md): only in runs with `planner.kind =
-    /// "route"`.
-    Planner = 4,
-    /// The tracker of moving obstacles (docs/running.md, "Moving obstacles"): only in
-    /// runs that track an obstacle.
-    Tracker = 5,
-}
-
-impl Role {
-    /// How many roles there are (the length of per-role arrays).
-    pub const COUNT: usize = 6;
-    /// In data-flow order: the in-process executor steps the roles of a tick in it.
-    pub const ALL: [Role; Role::COUNT] = [
-        Role::Plant,
-        Role::Estimator,
-        Role::Tracker,
-        Role::Mpc,
-        Role::Dfl,
-        Role::Planner,
-    ];
-    pub fn from_code(code: u32) -> Option<Role> {
-        Role::ALL.into_iter().find(|r| *r as u32 == code)
-    }
-    pub fn from_name(name: &str) -> Option<Role> {
-        Role::ALL.into_iter().find(|r| r.as_str() == name)
-    }
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Role::Plant => "plant",
-            Role::Estimator => "estimator",
-            Role::Mpc => "mpc",
-            Role::Dfl => "dfl",
-            Role::Planner => "planner",
-            Role::Tracker => "tracker",
-        }
-    }
-}
-
-/// A role is written by its name (`"mpc"`), as in `events.jsonl` and the command line.
-impl serde::Serialize for Role {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serializer.serialize_str(self.as_str())
-    }
-}
-
-impl<'de> serde::Deserialize<'de> for Role {
-    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Role, D::Error> {
-        let name = <std::borrow::Cow<'de, str>>::deserialize(deserializer)?;
-        Role::from_name(&name)
-            .ok_or_else(|| serde::de::Error::custom(format!("no role is named `{name}`")))
     }
 }
 

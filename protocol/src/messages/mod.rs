@@ -580,6 +580,14 @@ pub trait Message: Copy + core::fmt::Debug + 'static {
     /// Whether every code, count and length is one the type allows.
     fn well_formed(&self) -> bool;
 
+    /// The names of the values a sample is recorded with when the record has no place of
+    /// its own for its topic (`<topic>.csv` and a `run.mcap` channel, after its time),
+    /// units in the names; empty (the default): the record has one, or records nothing.
+    const RECORDED: &'static [&'static str] = &[];
+
+    /// Appends the values [`Message::RECORDED`] names, in its order.
+    fn recorded(&self, _values: &mut Vec<f64>) {}
+
     /// What a consumer refuses in the message's content, if anything (the border check's
     /// content rule, applied by every executor).
     fn content_rejection(&self) -> Option<crate::Rejection> {
@@ -597,8 +605,11 @@ fn finite(values: &[f64]) -> bool {
     values.iter().all(|v| v.is_finite())
 }
 
+/// Implements [`Message`] for each type: `Type => |m| all finite, well formed`, and for a
+/// message the record has no place of its own for, `, record [names] => [values]`
+/// ([`Message::RECORDED`]).
 macro_rules! impl_message {
-    ($($t:ty => |$m:ident| $finite:expr, $formed:expr);* $(;)?) => {$(
+    ($($t:ty => |$m:ident| $finite:expr, $formed:expr $(, record $names:expr => $values:expr)?);* $(;)?) => {$(
         impl Message for $t {
             fn header(&self) -> &Header {
                 &self.header
@@ -616,6 +627,13 @@ macro_rules! impl_message {
                 let $m = self;
                 $formed
             }
+            $(
+                const RECORDED: &'static [&'static str] = &$names;
+                fn recorded(&self, values: &mut Vec<f64>) {
+                    let $m = self;
+                    values.extend($values);
+                }
+            )?
         }
     )*};
 }
@@ -659,7 +677,7 @@ mod control;
 pub use control::*;
 
 macro_rules! data_variants {
-    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
+    ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
         /// Every data message of a run, one variant per data topic
         /// ([`crate::data_topics!`]): what executors hand from a task's outputs to the
         /// tasks that take them, whatever the roles ([`crate::task`]).
@@ -692,6 +710,22 @@ macro_rules! data_variants {
             pub fn header(&self) -> &Header {
                 match self {
                     $(Data::$variant(m) => m.header(),)*
+                }
+            }
+
+            /// What the record writes of a sample of `topic` when it has no place of its
+            /// own for it ([`Message::RECORDED`]; empty: nothing).
+            pub fn recorded_names(topic: &str) -> &'static [&'static str] {
+                match topic {
+                    $($name => <$t as Message>::RECORDED,)*
+                    _ => &[],
+                }
+            }
+
+            /// The values [`Data::recorded_names`] names, appended to `values`.
+            pub fn recorded(&self, values: &mut Vec<f64>) {
+                match self {
+                    $(Data::$variant(m) => m.recorded(values),)*
                 }
             }
 

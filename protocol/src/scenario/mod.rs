@@ -59,6 +59,12 @@ pub struct Scenario {
     pub seed: u64,
     /// Simulated length of the run, seconds.
     pub duration_s: f64,
+    /// The optional roles this run runs, by name ([`RoleDecl::optional`]: a role added
+    /// as an example, such as `odometer`); none by default.
+    ///
+    /// [`RoleDecl::optional`]: crate::graph::RoleDecl::optional
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub extra_roles: Vec<String>,
     pub timing: Timing,
     pub robot: Robot,
     pub plant: PlantConfig,
@@ -105,12 +111,14 @@ impl HostsConfig {
     /// The host `role` runs on (`None`: the orchestrator's).
     pub fn of(&self, role: crate::Role) -> Option<&str> {
         let name = match role {
-            crate::Role::Plant => "",
             crate::Role::Estimator => &self.estimator,
             crate::Role::Mpc => &self.mpc,
             crate::Role::Dfl => &self.dfl,
             crate::Role::Planner => &self.planner,
             crate::Role::Tracker => &self.tracker,
+            // The plant, the simulated robot, always runs here; so does a role that may
+            // not run elsewhere (`RoleDecl::remote`).
+            _ => "",
         };
         (!name.is_empty()).then_some(name)
     }
@@ -640,6 +648,7 @@ impl Default for Scenario {
             name: "paper".into(),
             seed: 1,
             duration_s: 30.0,
+            extra_roles: Vec::new(),
             timing: Timing::default(),
             robot: Robot::default(),
             plant: PlantConfig::default(),
@@ -755,13 +764,17 @@ impl Scenario {
     }
 
     /// The role processes of a run: the four of the paper, the tracker when it tracks an
-    /// obstacle, and the planner when it is on.
+    /// obstacle, the planner when it is on, and the optional roles `extra_roles` names.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.plans_routes();
         let tracker = self.tracked().next().is_some();
+        let extra = self.extra_roles.clone();
         crate::Role::ALL.into_iter().filter(move |r| match r {
             crate::Role::Planner => planner,
             crate::Role::Tracker => tracker,
+            r if crate::graph::declaration(*r, PlantKind::Sim).optional => {
+                extra.iter().any(|name| name == r.as_str())
+            }
             _ => true,
         })
     }

@@ -47,6 +47,20 @@ impl Scenario {
     /// The run's length and clock, the robot, the plant and the estimator.
     fn check_basics(&self, v: &mut Validator) {
         v.positive("duration_s", self.duration_s);
+        for (i, name) in self.extra_roles.iter().enumerate() {
+            let optional = crate::Role::from_name(name)
+                .is_some_and(|r| crate::graph::declaration(r, crate::PlantKind::Sim).optional);
+            if !optional {
+                let roles: Vec<&str> = (crate::Role::ALL.iter())
+                    .filter(|r| crate::graph::declaration(**r, crate::PlantKind::Sim).optional)
+                    .map(|r| r.as_str())
+                    .collect();
+                v.fail(
+                    &format!("extra_roles[{i}]"),
+                    format!("`{name}` is no optional role (optional roles: {roles:?})"),
+                );
+            }
+        }
         v.positive("timing.ts_s", self.timing.ts_s);
         v.in_range(
             "timing.inner_steps",

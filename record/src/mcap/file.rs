@@ -6,7 +6,9 @@ use super::*;
 /// An open `run.mcap`.
 pub(super) struct McapFile {
     writer: mcap::Writer<BufWriter<File>>,
-    channels: BTreeMap<&'static str, u16>,
+    channels: BTreeMap<String, u16>,
+    /// Reused for a [`Record::Data`]'s values.
+    values: Vec<f64>,
     sequence: u32,
     timing: Timing,
     /// Reused for every message: its JSON, and a plan's or a route's poses.
@@ -16,6 +18,47 @@ pub(super) struct McapFile {
     moving: Vec<protocol::Obstacle>,
     /// How a track's predicted disc grows ([`foxglove::tracks`]).
     prediction: Prediction,
+}
+
+/// The channel of a topic the record has no place of its own for: `/<producer>/<topic>`.
+fn data_channel(topic: &str) -> String {
+    let producer = protocol::graph::producer_of(topic).map_or("unknown", |r| r.as_str());
+    format!("/{producer}/{topic}")
+}
+
+/// A channel for each topic of `scenario`'s graph that the record has no place of its
+/// own for and whose type names what to record ([`protocol::Message::RECORDED`]): its
+/// schema, `scmpc.<Type>`, an object of its time, its tick and those values.
+fn data_channels(scenario: &Scenario) -> Vec<(String, String, Value)> {
+    let graph = protocol::graph::Graph::of(scenario);
+    graph
+        .topics()
+        .filter_map(|(topic, _)| {
+            let names = protocol::Data::recorded_names(topic);
+            let declared = protocol::graph::TOPICS.iter().find(|t| t.name == topic)?;
+            (!names.is_empty()).then(|| {
+                let mut properties = serde_json::Map::new();
+                properties.insert(
+                    "t".into(),
+                    json!({ "type": "number", "description": "simulated time, s" }),
+                );
+                properties.insert("tick".into(), json!({ "type": "integer" }));
+                for name in names {
+                    properties.insert((*name).into(), json!({ "type": "number" }));
+                }
+                let schema = json!({
+                    "type": "object",
+                    "properties": properties,
+                    "required": properties.keys().collect::<Vec<_>>(),
+                });
+                (
+                    data_channel(topic),
+                    declared.message.replace("::", "."),
+                    schema,
+                )
+            })
+        })
+        .collect()
 }
 
 /// An error of the MCAP writer, as an I/O error (the recorder's).
@@ -37,19 +80,25 @@ impl McapFile {
             .create(file)
             .map_err(io)?;
         let mut channels = BTreeMap::new();
-        for (topic, schema_name, schema) in CHANNELS {
-            let schema = serde_json::to_vec(&schema()).map_err(std::io::Error::other)?;
+        let recorded = data_channels(scenario);
+        let all = CHANNELS
+            .iter()
+            .map(|(topic, name, schema)| (topic.to_string(), name.to_string(), schema()))
+            .chain(recorded);
+        for (topic, schema_name, schema) in all {
+            let schema = serde_json::to_vec(&schema).map_err(std::io::Error::other)?;
             let schema_id = writer
-                .add_schema(schema_name, "jsonschema", &schema)
+                .add_schema(&schema_name, "jsonschema", &schema)
                 .map_err(io)?;
             let channel = writer
-                .add_channel(schema_id, topic, "json", &BTreeMap::new())
+                .add_channel(schema_id, &topic, "json", &BTreeMap::new())
                 .map_err(io)?;
             channels.insert(topic, channel);
         }
         let mut log = McapFile {
             writer,
             channels,
+            values: Vec::new(),
             sequence: 0,
             timing: scenario.timing.clone(),
             json: Vec::with_capacity(4096),
@@ -81,7 +130,24 @@ impl McapFile {
             }
             Record::Verdict(v) => self.verdict(&v),
             Record::Event(event) => self.event(&event.0, &event.1),
+            Record::Data(data) => self.data(&data),
         }
+    }
+
+    /// A message of a topic the record has no place of its own for, on its channel
+    /// ([`data_channels`]): its time, its tick and the values its type names.
+    fn data(&mut self, data: &protocol::Data) -> std::io::Result<()> {
+        let header = data.header();
+        self.values.clear();
+        data.recorded(&mut self.values);
+        let mut message = serde_json::Map::new();
+        message.insert("t".into(), json!(header.time_s));
+        message.insert("tick".into(), json!(header.tick));
+        let names = protocol::Data::recorded_names(data.topic());
+        for (name, value) in names.iter().zip(&self.values) {
+            message.insert((*name).into(), json!(value));
+        }
+        self.write_serde(&data_channel(data.topic()), header.time_s, &message)
     }
 
     /// Closes the chunk being written and hands it to the file system: a reader that scans

@@ -91,6 +91,8 @@ enum Record {
     Verdict(DeadlineVerdict),
     /// An event, and its line of `events.jsonl`.
     Event(Box<(crate::EventLine, Value)>),
+    /// A message of a topic the record has no place of its own for.
+    Data(Box<protocol::Data>),
 }
 
 /// `run.mcap` being written by its thread.
@@ -187,6 +189,7 @@ impl crate::Sink for McapLog {
             Sample::Route(route) if route.is_ok() => Record::Route(Box::new(*route)),
             Sample::Route(_) => return Ok(()),
             Sample::Tracks(tracks) => Record::Tracks(Box::new(*tracks)),
+            Sample::Data(data) => Record::Data(Box::new(*data)),
         };
         self.send(record);
         Ok(())

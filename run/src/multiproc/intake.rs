@@ -3,8 +3,10 @@
 //! deadline verdicts in sample order, the routes.
 
 use super::session::Session;
+use protocol::graph::Rate;
 use protocol::{
-    Actuation, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing, Tracks,
+    Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing,
+    Tracks,
 };
 use record::judge::Outcome;
 use record::{Event, Latencies, ProcessReport, Recorder};
@@ -74,6 +76,12 @@ pub(super) struct Intake {
     routes: Vec<Route>,
     /// Tracks received and not recorded yet, in arrival order.
     tracks: Vec<Tracks>,
+    /// Messages of the topics recorded as [`Data`] ([`Session::recorded`]) received and
+    /// not recorded yet, in arrival order.
+    recorded: Vec<Data>,
+    /// Lockstep waits for those of them published every tick or every sample: each
+    /// one's topic, rate and newest tick received.
+    waited: Vec<(&'static str, Rate, Option<u64>)>,
     /// The newest tick whose truth has come.
     pub newest_truth: Option<u64>,
     /// Next tick to record (every earlier one is recorded).
@@ -97,6 +105,18 @@ impl Intake {
             verdicts: BTreeMap::new(),
             routes: Vec::new(),
             tracks: Vec::new(),
+            recorded: Vec::new(),
+            waited: protocol::graph::Graph::of(scenario)
+                .topics()
+                .filter(|(topic, _)| !Data::recorded_names(topic).is_empty())
+                .filter_map(|(topic, _)| {
+                    let rate = protocol::graph::TOPICS
+                        .iter()
+                        .find(|t| t.name == topic)?
+                        .rate;
+                    matches!(rate, Rate::Tick | Rate::Sample).then_some((topic, rate, None))
+                })
+                .collect(),
             newest_truth: None,
             cursor: 0,
             last_plan: None,
@@ -166,6 +186,18 @@ impl Intake {
                 verdicts.insert(v.sample, v);
             }
         })?;
+        for (topic, input) in &session.recorded {
+            let (recorded, waited) = (&mut self.recorded, &mut self.waited);
+            input.take_data(&mut |data, _| {
+                let tick = data.header().tick;
+                if tick < ticks {
+                    recorded.push(data);
+                }
+                for (_, _, newest) in waited.iter_mut().filter(|(t, _, _)| t == topic) {
+                    *newest = (*newest).max(Some(tick));
+                }
+            })?;
+        }
         Ok(())
     }
 
@@ -176,6 +208,11 @@ impl Intake {
         let plan_due = !last && self.timing.starts_sample(tick);
         self.slots.get(&tick).is_some_and(|s| s.complete(last))
             && (!plan_due || self.plans.contains_key(&self.timing.sample_of(tick)))
+            && (last
+                || self.waited.iter().all(|(_, rate, newest)| {
+                    let due = *rate == Rate::Tick || self.timing.starts_sample(tick);
+                    !due || newest.is_some_and(|n| n >= tick)
+                }))
     }
 
     /// How many samples (of any tick) are filed: it grows while the roles make progress.
@@ -271,6 +308,9 @@ impl Intake {
         }
         for tracks in std::mem::take(&mut self.tracks) {
             recorder.tracks(&tracks)?;
+        }
+        for data in std::mem::take(&mut self.recorded) {
+            recorder.data(&data)?;
         }
         while let Some((sample, plan)) = self.plans.pop_first() {
             // A replay repeats a plan already recorded.

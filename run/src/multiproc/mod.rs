@@ -156,6 +156,7 @@ fn connect_hosts(
         scenario,
         mode,
         prefix,
+        session.robot(),
         &hosts.endpoints,
         &hosts.security,
         session.control.publisher_id(),
@@ -212,7 +213,7 @@ fn drive(
     stop: &AtomicBool,
     recorder: &mut Recorder,
 ) -> anyhow::Result<(Outcome, ProcessReport)> {
-    let session = Session::open(prefix, mode, scenario.timing.dt_s())?;
+    let session = Session::open(prefix, scenario, mode)?;
     RunInfo {
         iceoryx2_prefix: prefix.to_string(),
         orchestrator_pid: std::process::id(),
@@ -224,6 +225,7 @@ fn drive(
     let mut children = Children::new(
         &out.join("scenario.toml"),
         prefix,
+        session.robot(),
         mode,
         session.control.publisher_id(),
         robot_env(scenario, &hosts.security),
@@ -250,6 +252,9 @@ fn drive(
         guards.push(session.actuation.attach(&waitset)?);
         guards.push(session.deadline.attach(&waitset)?);
         guards.push(session.route.attach(&waitset)?);
+        for (_, input) in &session.recorded {
+            guards.push(ipc::attach(&waitset, input.listener())?);
+        }
     }
     let outcome =
         wait_until_ready(scenario, &session, &waitset, &mut children, stop).and_then(|()| {

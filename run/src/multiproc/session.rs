@@ -1,12 +1,17 @@
 //! The orchestrator's ports on the run's iceoryx2 topics, the epoch schedule it announces
 //! and the run's clock, which it keeps and which bounds what its inputs accept.
 
+use protocol::graph::{Graph, declaration};
 use protocol::{
     Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
     Header, Measurement, Plan, Role, Route, Status, SwapReply, SwapRequest, Tracks,
 };
+use protocol::{Data, PlantKind, Scenario};
 use runtime::clock::{RunClock, RunMode};
-use runtime::ipc::{self, Input, IpcError, Receiver, Sender, TickLimit, open_topic};
+use runtime::ipc::wire::{self, DataInput};
+use runtime::ipc::{
+    self, Input, IpcError, Receiver, Sender, TickLimit, open_run_topic, open_topic,
+};
 use std::cell::Cell;
 use std::rc::Rc;
 
@@ -26,6 +31,9 @@ impl TickLimit for Clock {
     }
 }
 
+/// The robot a multi-process run drives: every run has one today.
+const ROBOT: u32 = protocol::FIRST_ROBOT;
+
 /// The orchestrator's ports.
 pub(super) struct Session {
     pub control: Sender<Control>,
@@ -38,6 +46,10 @@ pub(super) struct Session {
     pub deadline: Receiver<DeadlineVerdict>,
     pub route: Receiver<Route>,
     pub tracks: Receiver<Tracks>,
+    /// The topics of the run the record has no place of its own for, and that it records
+    /// as [`protocol::Data`] ([`protocol::Message::RECORDED`]): a role added as
+    /// docs/design.md says needs nothing here.
+    pub recorded: Vec<(&'static str, Box<dyn DataInput>)>,
     /// Live requests of `scmpc swap`, and the answers.
     pub swap_requests: Receiver<SwapRequest>,
     pub swap_replies: Sender<SwapReply>,
@@ -49,23 +61,34 @@ pub(super) struct Session {
 }
 
 impl Session {
-    pub fn open(prefix: &str, mode: RunMode, dt_s: f64) -> Result<Session, IpcError> {
+    pub fn open(prefix: &str, scenario: &Scenario, mode: RunMode) -> Result<Session, IpcError> {
         let node = ipc::create_node(prefix, "orchestrator", false)?;
+        let robot = ROBOT;
+        let mut recorded = Vec::new();
+        for (topic, producer) in Graph::of(scenario).topics() {
+            if !Data::recorded_names(topic).is_empty() {
+                recorded.push((topic, wire::data_input(&node, robot, topic, producer)?));
+            }
+        }
         let session = Session {
-            control: open_topic(&node, ipc::CONTROL)?.sender(0)?,
-            status: open_topic(&node, ipc::STATUS)?.receiver()?,
-            truth: open_topic(&node, ipc::TRUTH)?.receiver_from(Role::Plant)?,
-            measurement: open_topic(&node, ipc::MEASUREMENT)?.receiver_from(Role::Plant)?,
-            estimate: open_topic(&node, ipc::ESTIMATE)?.receiver_from(Role::Estimator)?,
-            plan: open_topic(&node, ipc::PLAN)?.receiver_from(Role::Mpc)?,
-            actuation: open_topic(&node, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
-            deadline: open_topic(&node, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
-            route: open_topic(&node, ipc::ROUTE)?.receiver_from(Role::Planner)?,
-            tracks: open_topic(&node, ipc::TRACKS)?.receiver_from(Role::Tracker)?,
-            swap_requests: open_topic(&node, ipc::SWAP)?.receiver()?,
-            swap_replies: open_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
+            control: open_topic(&node, robot, ipc::CONTROL)?.sender(0)?,
+            status: open_topic(&node, robot, ipc::STATUS)?.receiver()?,
+            truth: open_topic(&node, robot, ipc::TRUTH)?.receiver_from(Role::Plant)?,
+            measurement: open_topic(&node, robot, ipc::MEASUREMENT)?.receiver_from(Role::Plant)?,
+            estimate: open_topic(&node, robot, ipc::ESTIMATE)?.receiver_from(Role::Estimator)?,
+            plan: open_topic(&node, robot, ipc::PLAN)?.receiver_from(Role::Mpc)?,
+            actuation: open_topic(&node, robot, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
+            deadline: open_topic(&node, robot, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
+            route: open_topic(&node, robot, ipc::ROUTE)?.receiver_from(Role::Planner)?,
+            tracks: open_topic(&node, robot, ipc::TRACKS)?.receiver_from(Role::Tracker)?,
+            recorded,
+            swap_requests: open_run_topic(&node, ipc::SWAP)?.receiver()?,
+            swap_replies: open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: Cell::new(EpochSchedule::default()),
-            clock: Rc::new(Clock(Cell::new(RunClock::new(mode, dt_s)))),
+            clock: Rc::new(Clock(Cell::new(RunClock::new(
+                mode,
+                scenario.timing.dt_s(),
+            )))),
             _node: node,
         };
         for input in session.inputs() {
@@ -73,6 +96,11 @@ impl Session {
             input.follow(EpochSchedule::default());
         }
         Ok(session)
+    }
+
+    /// The robot whose pipeline the session runs.
+    pub fn robot(&self) -> u32 {
+        ROBOT
     }
 
     /// The run's clock.
@@ -129,8 +157,8 @@ impl Session {
     }
 
     /// The orchestrator's inputs, for housekeeping.
-    pub fn inputs(&self) -> [&dyn Input; 8] {
-        [
+    pub fn inputs(&self) -> impl Iterator<Item = &dyn Input> {
+        let typed: [&dyn Input; 8] = [
             &self.truth,
             &self.measurement,
             &self.estimate,
@@ -139,7 +167,9 @@ impl Session {
             &self.deadline,
             &self.route,
             &self.tracks,
-        ]
+        ];
+        let recorded = self.recorded.iter().map(|(_, i)| i.as_ref() as &dyn Input);
+        typed.into_iter().chain(recorded)
     }
 
     /// Changes the epoch schedule, for the orchestrator and every process.
@@ -166,15 +196,22 @@ impl Session {
 
     /// The orchestrator's input carrying the output of `role`: how it sees a replacement
     /// warm up.
-    pub fn output_of(&self, role: Role) -> &dyn Input {
-        match role {
-            Role::Plant => &self.truth,
-            Role::Estimator => &self.estimate,
-            Role::Mpc => &self.plan,
-            Role::Dfl => &self.actuation,
-            Role::Planner => &self.route,
-            Role::Tracker => &self.tracks,
-        }
+    pub fn output_of(&self, role: Role) -> Option<&dyn Input> {
+        let topic = *declaration(role, PlantKind::Sim).outputs.first()?;
+        let typed: Option<&dyn Input> = match topic {
+            ipc::TRUTH => Some(&self.truth),
+            ipc::ESTIMATE => Some(&self.estimate),
+            ipc::PLAN => Some(&self.plan),
+            ipc::ACTUATION => Some(&self.actuation),
+            ipc::ROUTE => Some(&self.route),
+            ipc::TRACKS => Some(&self.tracks),
+            _ => None,
+        };
+        typed.or_else(|| {
+            (self.recorded.iter())
+                .find(|(t, _)| *t == topic)
+                .map(|(_, i)| i.as_ref() as &dyn Input)
+        })
     }
 
     /// Samples the orchestrator itself refused since the last call: (producer, rejection

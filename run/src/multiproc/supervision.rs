@@ -145,7 +145,7 @@ impl Supervisor {
             *slot = Some(Blame {
                 since: Instant::now(),
                 epoch,
-                taken: session.output_of(role).taken(),
+                taken: session.output_of(role).map_or(0, |i| i.taken()),
             });
         }
     }
@@ -165,7 +165,7 @@ impl Supervisor {
             let Some(blame) = self.blamed[role as usize] else {
                 continue;
             };
-            let recovered = session.output_of(role).taken() > blame.taken;
+            let recovered = session.output_of(role).map_or(0, |i| i.taken()) > blame.taken;
             let replaced = session.schedule().current(role) != blame.epoch;
             if recovered || replaced {
                 self.blamed[role as usize] = None;

@@ -108,7 +108,11 @@ impl SwapServer {
             let role = swap.role;
             match swap.switch_tick {
                 None => {
-                    if let Some(t) = p.session.output_of(role).take_standby_newest() {
+                    if let Some(t) = p
+                        .session
+                        .output_of(role)
+                        .and_then(|i| i.take_standby_newest())
+                    {
                         let (first, _) = swap.heard.unwrap_or((t, t));
                         swap.heard = Some((first, t));
                     }
@@ -201,7 +205,10 @@ impl SwapServer {
         let epoch = p.children.take_epoch();
         let replaces = p.session.schedule().current(role);
         p.session.reschedule(|s| s.announce(role, epoch))?;
-        let _ = p.session.output_of(role).take_standby_newest();
+        let _ = p
+            .session
+            .output_of(role)
+            .and_then(|i| i.take_standby_newest());
         let shown = if command.is_empty() {
             format!("scmpc {}", role.as_str())
         } else {

@@ -128,20 +128,46 @@ pub(crate) type SubscribingPorts<T> = (Subscriber<ipc::Service, T, ()>, Listener
 pub struct Topic<T: Wire> {
     name: &'static str,
     run_id: u32,
-    /// The robot whose samples it carries ([`protocol::FIRST_ROBOT`] in every run today).
+    /// The robot whose samples it carries.
     robot: u32,
     pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
     event: event::PortFactory<ipc::Service>,
 }
 
-/// Opens (or creates) topic `name` carrying `T`.
+/// Opens (or creates) topic `name` of robot `robot`'s pipeline, carrying `T`: its service
+/// is [`protocol::topics::service_name`], and its samples are stamped with and checked for
+/// `robot` ([`Header::robot`](protocol::Header)).
 pub fn open_topic<T: Wire>(
+    node: &Node<ipc::Service>,
+    robot: u32,
+    name: &'static str,
+) -> Result<Topic<T>, IpcError> {
+    open_service(
+        node,
+        &protocol::topics::service_name(robot, name),
+        name,
+        robot,
+    )
+}
+
+/// Opens (or creates) topic `name` of the run itself (no robot's: [`SWAP`],
+/// [`SWAP_REPLY`]), carrying `T`.
+pub fn open_run_topic<T: Wire>(
     node: &Node<ipc::Service>,
     name: &'static str,
 ) -> Result<Topic<T>, IpcError> {
-    let service_name: ServiceName = name
+    open_service(node, name, name, protocol::FIRST_ROBOT)
+}
+
+fn open_service<T: Wire>(
+    node: &Node<ipc::Service>,
+    service: &str,
+    name: &'static str,
+    robot: u32,
+) -> Result<Topic<T>, IpcError> {
+    let service_name: ServiceName = service
         .try_into()
-        .map_err(ctx(format!("service name `{name}`")))?;
+        .map_err(ctx(format!("service name `{service}`")))?;
     let pubsub = node
         .service_builder(&service_name)
         .publish_subscribe::<T>()
@@ -155,17 +181,17 @@ pub fn open_topic<T: Wire>(
         .history_size(0)
         .enable_safe_overflow(true)
         .open_or_create()
-        .map_err(ctx(format!("opening service `{name}`")))?;
+        .map_err(ctx(format!("opening service `{service}`")))?;
     let event = node
         .service_builder(&service_name)
         .event()
         .open_or_create()
-        .map_err(ctx(format!("opening event service `{name}`")))?;
+        .map_err(ctx(format!("opening event service `{service}`")))?;
     let run_id = topic_run_id(node.config().global.prefix.as_str());
     Ok(Topic {
         name,
         run_id,
-        robot: protocol::FIRST_ROBOT,
+        robot,
         pubsub,
         event,
     })
@@ -494,9 +520,7 @@ impl<T: Wire> Receiver<T> {
         &'w self,
         waitset: &'w WaitSet<ipc::Service>,
     ) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
-        waitset
-            .attach_notification(&self.listener)
-            .map_err(ctx("attaching a listener"))
+        attach(waitset, &self.listener)
     }
 
     /// Every pending sample, after clearing the wake-ups (so none is missed).
@@ -513,6 +537,16 @@ impl<T: Wire> Receiver<T> {
         }
         Ok(())
     }
+}
+
+/// Attaches `listener` to `waitset`; keep the guard while waiting.
+pub fn attach<'w>(
+    waitset: &'w WaitSet<ipc::Service>,
+    listener: &'w Listener<ipc::Service>,
+) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
+    waitset
+        .attach_notification(listener)
+        .map_err(ctx("attaching a listener"))
 }
 
 /// Real time: how many ticks a sample may be ahead of the consumer's clock (the producer's

@@ -41,7 +41,7 @@ fn refused(counts: [u64; Rejection::COUNT], reason: Rejection) -> u64 {
 #[test]
 fn a_sample_ahead_of_the_clock_or_off_its_tick_time_is_refused_and_moves_nothing() {
     on_fresh_prefix(|node| {
-        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
         let plant = topic.sender(0).unwrap();
         let measurements = topic.receiver_from(Role::Plant).unwrap();
         measurements.follow(EpochSchedule::default());
@@ -64,7 +64,7 @@ fn a_sample_ahead_of_the_clock_or_off_its_tick_time_is_refused_and_moves_nothing
 #[test]
 fn a_sample_from_another_publisher_than_the_pinned_one_is_refused_whatever_its_header() {
     on_fresh_prefix(|node| {
-        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
         let plant = topic.sender(0).unwrap();
         let intruder = topic.sender(0).unwrap();
         let measurements = topic.receiver_from(Role::Plant).unwrap();
@@ -91,7 +91,7 @@ fn a_sample_from_another_publisher_than_the_pinned_one_is_refused_whatever_its_h
 #[test]
 fn control_is_taken_from_the_orchestrators_publisher_alone_and_only_when_well_formed() {
     on_fresh_prefix(|node| {
-        let topic = open_topic::<Control>(node, CONTROL).unwrap();
+        let topic = open_topic::<Control>(node, protocol::FIRST_ROBOT, CONTROL).unwrap();
         let orchestrator = topic.sender(0).unwrap();
         let rogue = topic.sender(0).unwrap();
         let control = topic.receiver().unwrap();
@@ -120,12 +120,12 @@ fn control_is_taken_from_the_orchestrators_publisher_alone_and_only_when_well_fo
 #[test]
 fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
     on_fresh_prefix(|node| {
-        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
         let measurements = topic.receiver_from(Role::Plant).unwrap();
         measurements.follow(EpochSchedule::default());
         let stranger = Topic {
             run_id: topic.run_id ^ 1,
-            ..open_topic::<Measurement>(node, MEASUREMENT).unwrap()
+            ..open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap()
         };
         let stranger = stranger.sender(0).unwrap();
         stranger.send(measurement(1)).unwrap();
@@ -135,7 +135,7 @@ fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
             1
         );
         // A payload of another type (and size) is not even let onto the topic.
-        let other = open_topic::<protocol::Estimate>(node, MEASUREMENT);
+        let other = open_topic::<protocol::Estimate>(node, protocol::FIRST_ROBOT, MEASUREMENT);
         assert!(
             other.is_err(),
             "an estimate type opened the measurement topic"
@@ -146,13 +146,13 @@ fn a_sample_of_another_run_is_refused_and_another_type_cannot_open_the_topic() {
 #[test]
 fn a_sample_of_another_robot_is_refused_at_the_border_and_not_blamed_on_the_producer() {
     on_fresh_prefix(|node| {
-        let topic = open_topic::<Measurement>(node, MEASUREMENT).unwrap();
+        let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
         let measurements = topic.receiver_from(Role::Plant).unwrap();
         measurements.follow(EpochSchedule::default());
         // A forged sample: this run's id and the active epoch, another robot's.
         let other_robot = Topic {
             robot: protocol::FIRST_ROBOT + 1,
-            ..open_topic::<Measurement>(node, MEASUREMENT).unwrap()
+            ..open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap()
         };
         let (forger, plant) = (other_robot.sender(0).unwrap(), topic.sender(0).unwrap());
         forger.send(measurement(1)).unwrap();
@@ -166,6 +166,29 @@ fn a_sample_of_another_robot_is_refused_at_the_border_and_not_blamed_on_the_prod
         let refusals = measurements.take_rejections();
         assert_eq!(refused(refusals, Rejection::WrongRobot), 1);
         assert!(!Rejection::WrongRobot.blames_producer());
+    });
+}
+
+#[test]
+fn two_robots_pipelines_on_one_prefix_have_services_of_their_own() {
+    on_fresh_prefix(|node| {
+        let robots = [protocol::FIRST_ROBOT, protocol::FIRST_ROBOT + 1];
+        let [first, second] = robots.map(|robot| {
+            let topic = open_topic::<Measurement>(node, robot, MEASUREMENT).unwrap();
+            let measurements = topic.receiver_from(Role::Plant).unwrap();
+            measurements.follow(EpochSchedule::default());
+            (topic.sender(0).unwrap(), measurements)
+        });
+        first.0.send(measurement(1)).unwrap();
+        second.0.send(measurement(2)).unwrap();
+        let taken = |(_, measurements): &(Sender<Measurement>, Receiver<Measurement>)| {
+            let (m, _) = measurements.receive().unwrap().unwrap();
+            assert!(measurements.receive().unwrap().is_none());
+            assert_eq!(measurements.take_rejections(), [0; Rejection::COUNT]);
+            (m.header.tick, m.header.robot)
+        };
+        assert_eq!(taken(&first), (1, robots[0]));
+        assert_eq!(taken(&second), (2, robots[1]));
     });
 }
 

@@ -110,23 +110,37 @@ impl<T: Wire> Topic<T> {
 /// ([`protocol::data_topics!`]), the control topic and the status topic; the live swap
 /// requests and their replies stay with the orchestrator.
 macro_rules! by_topic {
-    ($($variant:ident($t:ty) = $topic:ident @ $rate:ident),* $(,)?) => {
+    ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
         /// A tap on topic `name` (a data topic, control or status).
-        pub fn tap(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
+        pub fn tap(node: &Node<ipc::Service>, robot: u32, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
             match name {
-                $($topic => tap_of::<$t>($topic, node),)*
-                CONTROL => tap_of::<Control>(CONTROL, node),
-                STATUS => tap_of::<Status>(STATUS, node),
+                $($topic => tap_of::<$t>($topic, node, robot),)*
+                CONTROL => tap_of::<Control>(CONTROL, node, robot),
+                STATUS => tap_of::<Status>(STATUS, node, robot),
                 other => Err(IpcError(format!("no bridged topic `{other}`"))),
             }
         }
 
-        /// A relay onto topic `name` (a data topic, control or status).
-        pub fn relay(node: &Node<ipc::Service>, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
+        /// An input of data topic `name` of robot `robot`, taking samples from `producer`
+        /// as [`Data`] (the orchestrator's, for topics it records whatever their type).
+        pub fn data_input(
+            node: &Node<ipc::Service>,
+            robot: u32,
+            name: &str,
+            producer: protocol::Role,
+        ) -> Result<Box<dyn DataInput>, IpcError> {
             match name {
-                $($topic => relay_of::<$t>($topic, node),)*
-                CONTROL => relay_of::<Control>(CONTROL, node),
-                STATUS => relay_of::<Status>(STATUS, node),
+                $($topic => Ok(Box::new(open_topic::<$t>(node, robot, $topic)?.receiver_from(producer)?)),)*
+                other => Err(IpcError(format!("no data topic `{other}`"))),
+            }
+        }
+
+        /// A relay onto topic `name` (a data topic, control or status).
+        pub fn relay(node: &Node<ipc::Service>, robot: u32, name: &str) -> Result<Box<dyn WireRelay>, IpcError> {
+            match name {
+                $($topic => relay_of::<$t>($topic, node, robot),)*
+                CONTROL => relay_of::<Control>(CONTROL, node, robot),
+                STATUS => relay_of::<Status>(STATUS, node, robot),
                 other => Err(IpcError(format!("no bridged topic `{other}`"))),
             }
         }
@@ -137,15 +151,29 @@ protocol::data_topics!(by_topic);
 fn tap_of<T: Wire>(
     name: &'static str,
     node: &Node<ipc::Service>,
+    robot: u32,
 ) -> Result<Box<dyn WireTap>, IpcError> {
-    Ok(Box::new(open_topic::<T>(node, name)?.tap()?))
+    Ok(Box::new(open_topic::<T>(node, robot, name)?.tap()?))
 }
 
 fn relay_of<T: Wire>(
     name: &'static str,
     node: &Node<ipc::Service>,
+    robot: u32,
 ) -> Result<Box<dyn WireRelay>, IpcError> {
-    Ok(Box::new(open_topic::<T>(node, name)?.relay()?))
+    Ok(Box::new(open_topic::<T>(node, robot, name)?.relay()?))
+}
+
+/// An input whose samples are taken as [`Data`], whatever their type.
+pub trait DataInput: Input {
+    /// Every acceptable sample pending, oldest first, with its receipt latency, ns.
+    fn take_data(&self, each: &mut dyn FnMut(Data, u64)) -> Result<(), IpcError>;
+}
+
+impl<T: Wire + Into<Data>> DataInput for Receiver<T> {
+    fn take_data(&self, each: &mut dyn FnMut(Data, u64)) -> Result<(), IpcError> {
+        self.take(|message, latency| each(message.into(), latency))
+    }
 }
 
 /// The header of a sample's bytes, if they are long enough to hold one.
