@@ -8,6 +8,7 @@
 pub mod endpoint;
 pub mod geometry;
 pub mod graph;
+pub mod layout;
 pub mod messages;
 pub mod prediction;
 pub mod samples;

@@ -3,28 +3,18 @@
 //!
 //! Offsets come from the compiler (`offset_of!`), type names from iceoryx2's
 //! `ZeroCopySend`, so the description cannot drift from the types; what is written by hand
-//! is each field's name and type, and [`tests`] check that the fields cover every byte that
-//! is not alignment padding.
+//! is each field's name and type, beside its type ([`protocol::layouts!`]), and [`tests`]
+//! check that the fields cover every byte that is not alignment padding.
 
 use crate::ipc;
 use iceoryx2::prelude::ZeroCopySend;
+use protocol::layout::Layout;
 use protocol::messages::*;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::mem::{align_of, offset_of, size_of};
+use std::mem::{align_of, size_of};
 
-/// One field of a message type.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct Field {
-    pub name: &'static str,
-    /// Bytes from the start of the type.
-    pub offset: usize,
-    /// Rust spelling: `u32`, `f64`, `[f64; 3]`, `[[u128; 2]; 5]`, or another type's name
-    /// (`scmpc::Header`).
-    #[serde(rename = "type")]
-    pub ty: String,
-    pub size: usize,
-}
+pub use protocol::layout::Field;
 
 /// A `#[repr(C)]` type crossing a process boundary.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -57,209 +47,39 @@ pub struct ServiceLayout {
     pub safe_overflow: bool,
 }
 
-macro_rules! layout {
-    ($t:ty { $($field:ident: $ty:ty),* $(,)? }) => {
-        TypeLayout {
-            // SAFETY: `type_name` only returns the name given in `#[type_name(..)]`.
-            type_name: unsafe { <$t as ZeroCopySend>::type_name() },
-            size: size_of::<$t>(),
-            alignment: align_of::<$t>(),
-            fields: vec![$(Field {
-                name: stringify!($field),
-                offset: offset_of!($t, $field),
-                ty: type_label(stringify!($ty)),
-                size: size_of::<$ty>(),
-            }),*],
-        }
-    };
-}
-
-/// A field type as written in the layout: the message types by their iceoryx2 names, the
-/// array lengths as numbers.
-fn type_label(rust: &str) -> String {
-    let lengths = [
-        ("N1", N1),
-        ("N", N),
-        ("R", R),
-        ("W", W),
-        ("C", C),
-        ("B", B),
-        ("T", T),
-    ];
-    match rust {
-        "Header" => "scmpc::Header".into(),
-        "EpochSchedule" => "scmpc::EpochSchedule".into(),
-        _ => lengths.iter().fold(
-            rust.replace("[Track;", "[scmpc::Track;"),
-            |ty, (name, value)| ty.replace(&format!("; {name}]"), &format!("; {value}]")),
-        ),
+/// The layout of `T` from its fields ([`protocol::layouts!`]).
+fn described<T: Layout + ZeroCopySend>() -> TypeLayout {
+    TypeLayout {
+        // SAFETY: `type_name` only returns the name given in `#[type_name(..)]`.
+        type_name: unsafe { <T as ZeroCopySend>::type_name() },
+        size: size_of::<T>(),
+        alignment: align_of::<T>(),
+        fields: T::fields(),
     }
 }
 
-const N: usize = MAX_HORIZON;
-const N1: usize = MAX_HORIZON + 1;
-const R: usize = Role::COUNT;
-const W: usize = ROUTE_CAPACITY;
-const C: usize = MAX_COMMAND_BYTES;
-const B: usize = MAX_REPLY_BYTES;
-const T: usize = MAX_TRACKS;
+macro_rules! data_layouts {
+    ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
+        /// Every data message ([`protocol::data_topics!`]).
+        fn data_types() -> Vec<TypeLayout> {
+            vec![$(described::<$t>()),*]
+        }
+    };
+}
+protocol::data_topics!(data_layouts);
 
 /// Every type that crosses a process boundary, nested ones first.
 pub fn types() -> Vec<TypeLayout> {
-    let mut types = data_types();
-    types.extend(track_types());
-    types.extend(control_types());
+    let mut types = vec![described::<Header>(), described::<Track>()];
+    types.extend(data_types());
+    types.extend([
+        described::<EpochSchedule>(),
+        described::<Control>(),
+        described::<Status>(),
+        described::<SwapRequest>(),
+        described::<SwapReply>(),
+    ]);
     types
-}
-
-/// The tracker's message and the track it carries.
-fn track_types() -> Vec<TypeLayout> {
-    vec![
-        layout!(Track {
-            obstacle: u32,
-            reserved: u32,
-            radius_m: f64,
-            center: [f64; 2],
-            velocity: [f64; 2],
-            covariance: [f64; 6],
-        }),
-        layout!(Tracks {
-            header: Header,
-            count: u32,
-            dropped: u32,
-            tracks: [Track; T],
-        }),
-    ]
-}
-
-/// The header and every data message.
-fn data_types() -> Vec<TypeLayout> {
-    vec![
-        layout!(Header {
-            tick: u64,
-            time_s: f64,
-            publish_ns: u64,
-            epoch: u32,
-            input_latency_ns: u32,
-            run_id: u32,
-            robot: u32,
-        }),
-        layout!(Measurement {
-            header: Header,
-            y: [f64; 3]
-        }),
-        layout!(GroundTruth {
-            header: Header,
-            pose: [f64; 3]
-        }),
-        layout!(Estimate {
-            header: Header,
-            state: [f64; 4],
-            covariance: [f64; 9],
-        }),
-        layout!(Plan {
-            header: Header,
-            sample: u64,
-            status: u32,
-            horizon: u32,
-            solve_ns: u64,
-            iterations: u32,
-            solves: u32,
-            injected_delay_ns: u64,
-            v: [[f64; 2]; N],
-            z: [[f64; 4]; N1],
-        }),
-        layout!(Route {
-            header: Header,
-            sample: u64,
-            planned_sample: u64,
-            status: u32,
-            count: u32,
-            plans: u32,
-            reason: u32,
-            switch: u32,
-            reserved: u32,
-            length_m: f64,
-            plan_ns: u64,
-            waypoints: [[f64; 2]; W],
-        }),
-        layout!(Actuation {
-            header: Header,
-            u1: f64,
-            u2: f64,
-            wheels: [f64; 2],
-            linearizing_input: [f64; 2],
-            zeta: f64,
-            v: [f64; 2],
-            mode: u32,
-            deadline_misses: u32,
-            plan_sample: u64,
-            intervention: u32,
-            safety_interventions: u32,
-            intervention_plan: u64,
-            intervention_clearance_m: f64,
-        }),
-        layout!(DeadlineVerdict {
-            header: Header,
-            sample: u64,
-            met: u32,
-            status: u32,
-            production_ns: u64,
-            arrival_ns: u64,
-            fallback: u32,
-            misses_total: u32,
-        }),
-    ]
-}
-
-/// The messages between the orchestrator, the processes and `scmpc swap`, the epoch
-/// schedule (in every control message) first.
-fn control_types() -> Vec<TypeLayout> {
-    vec![
-        layout!(EpochSchedule {
-            active: [u32; R],
-            next: [u32; R],
-            switch_tick: [u64; R],
-            active_publishers: [[u128; 2]; R],
-            next_publishers: [[u128; 2]; R],
-        }),
-        layout!(Control {
-            header: Header,
-            command: u32,
-            reserved: u32,
-            start_ns: u64,
-            epochs: EpochSchedule,
-        }),
-        layout!(Status {
-            header: Header,
-            role: u32,
-            event: u32,
-            pid: u32,
-            detail: u32,
-            count: u64,
-            producer: u32,
-            reserved: u32,
-            publishers: [u128; 2],
-        }),
-        layout!(SwapRequest {
-            header: Header,
-            request_id: u64,
-            role: u32,
-            command_len: u32,
-            command: [u8; C],
-        }),
-        layout!(SwapReply {
-            header: Header,
-            request_id: u64,
-            done: u32,
-            epoch: u32,
-            switch_tick: u64,
-            requester: u128,
-            message_len: u32,
-            reserved: u32,
-            message: [u8; B],
-        }),
-    ]
 }
 
 /// The codes of every enumeration a message carries, and the constants a foreign role

@@ -467,3 +467,50 @@ impl SwapReply {
         String::from_utf8_lossy(&self.message[..len]).into_owned()
     }
 }
+
+// The fields of the control plane's messages (`scmpc schema`'s `types`).
+crate::layouts! {
+    EpochSchedule {
+        active: [u32; Role::COUNT],
+        next: [u32; Role::COUNT],
+        switch_tick: [u64; Role::COUNT],
+        active_publishers: [[u128; 2]; Role::COUNT],
+        next_publishers: [[u128; 2]; Role::COUNT],
+    }
+    Control {
+        header: Header,
+        command: u32,
+        reserved: u32,
+        start_ns: u64,
+        epochs: EpochSchedule,
+    }
+    Status {
+        header: Header,
+        role: u32,
+        event: u32,
+        pid: u32,
+        detail: u32,
+        count: u64,
+        producer: u32,
+        reserved: u32,
+        publishers: [u128; 2],
+    }
+    SwapRequest {
+        header: Header,
+        request_id: u64,
+        role: u32,
+        command_len: u32,
+        command: [u8; MAX_COMMAND_BYTES],
+    }
+    SwapReply {
+        header: Header,
+        request_id: u64,
+        done: u32,
+        epoch: u32,
+        switch_tick: u64,
+        requester: u128,
+        message_len: u32,
+        reserved: u32,
+        message: [u8; MAX_REPLY_BYTES],
+    }
+}

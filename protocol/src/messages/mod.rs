@@ -673,6 +673,98 @@ impl_message!(
     SwapReply => |m| true, m.done <= 1 && m.message_len as usize <= MAX_REPLY_BYTES;
 );
 
+// The fields of the header and of every data message (`scmpc schema`'s `types`).
+crate::layouts! {
+    Track {
+        obstacle: u32,
+        reserved: u32,
+        radius_m: f64,
+        center: [f64; 2],
+        velocity: [f64; 2],
+        covariance: [f64; 6],
+    }
+    Tracks {
+        header: Header,
+        count: u32,
+        dropped: u32,
+        tracks: [Track; MAX_TRACKS],
+    }
+    Header {
+        tick: u64,
+        time_s: f64,
+        publish_ns: u64,
+        epoch: u32,
+        input_latency_ns: u32,
+        run_id: u32,
+        robot: u32,
+    }
+    Measurement {
+        header: Header,
+        y: [f64; 3],
+    }
+    GroundTruth {
+        header: Header,
+        pose: [f64; 3],
+    }
+    Estimate {
+        header: Header,
+        state: [f64; 4],
+        covariance: [f64; 9],
+    }
+    Plan {
+        header: Header,
+        sample: u64,
+        status: u32,
+        horizon: u32,
+        solve_ns: u64,
+        iterations: u32,
+        solves: u32,
+        injected_delay_ns: u64,
+        v: [[f64; 2]; MAX_HORIZON],
+        z: [[f64; 4]; MAX_HORIZON + 1],
+    }
+    Route {
+        header: Header,
+        sample: u64,
+        planned_sample: u64,
+        status: u32,
+        count: u32,
+        plans: u32,
+        reason: u32,
+        switch: u32,
+        reserved: u32,
+        length_m: f64,
+        plan_ns: u64,
+        waypoints: [[f64; 2]; ROUTE_CAPACITY],
+    }
+    Actuation {
+        header: Header,
+        u1: f64,
+        u2: f64,
+        wheels: [f64; 2],
+        linearizing_input: [f64; 2],
+        zeta: f64,
+        v: [f64; 2],
+        mode: u32,
+        deadline_misses: u32,
+        plan_sample: u64,
+        intervention: u32,
+        safety_interventions: u32,
+        intervention_plan: u64,
+        intervention_clearance_m: f64,
+    }
+    DeadlineVerdict {
+        header: Header,
+        sample: u64,
+        met: u32,
+        status: u32,
+        production_ns: u64,
+        arrival_ns: u64,
+        fallback: u32,
+        misses_total: u32,
+    }
+}
+
 mod control;
 pub use control::*;
 
