@@ -231,6 +231,12 @@ fn a_duration_of_zero_or_less_is_refused() {
 }
 
 #[test]
+fn an_extra_role_that_is_no_optional_role_is_refused_naming_its_place() {
+    refused_set(r#"extra_roles=["mpc"]"#, "extra_roles[0]");
+    refused_set(r#"extra_roles=["nobody"]"#, "`nobody` is no optional role");
+}
+
+#[test]
 fn bad_planner_settings_are_refused() {
     refused_set("planner.kind=astar", "planner.kind");
     refused_set("planner.period_s=-1", "planner.period_s");

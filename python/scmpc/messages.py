@@ -18,7 +18,6 @@ c_f64 = ctypes.c_double
 
 MAX_HORIZON = 64
 ROUTE_CAPACITY = 64
-ROLE_COUNT = 6
 MAX_TRACKS = 32
 MAX_COMMAND_BYTES = 1024
 MAX_REPLY_BYTES = 256
@@ -26,17 +25,12 @@ SWITCH_UNSCHEDULED = 2**64 - 1
 NO_PRODUCER = 2**32 - 1
 PLAN_MISSING = 2**32 - 1
 
-# Codes of the enumerations (``scmpc schema``, "codes").
 # Header.robot of a run's one robot (a role instance is a role and a robot id).
 FIRST_ROBOT = 0
 
-
-def service_name(robot, topic):
-    """The iceoryx2 service of ``topic`` of robot ``robot`` (a robot's pipeline is under
-    ``robot<id>/``; ``scmpc schema``, "services")."""
-    return f"robot{robot}/{topic}"
-
+# Codes of the enumerations (``scmpc schema``, "codes").
 ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5}
+ROLE_COUNT = len(ROLES)
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
 REJECTIONS = {
@@ -74,6 +68,12 @@ OUTPUT_SLOTS = {
     "route": 0,
     "tracks": 0,
 }
+
+
+def service_name(robot, topic):
+    """The iceoryx2 service of ``topic`` of robot ``robot`` (a robot's pipeline is under
+    ``robot<id>/``; ``scmpc schema``, "services")."""
+    return f"robot{robot}/{topic}"
 
 
 class U128(ctypes.Structure):

@@ -1,7 +1,6 @@
 //! Every role `scmpc` runs, and its task: the one place a role is registered. Adding a
-//! role is a crate with its [`Task`], a variant of [`Role`] with its declaration
-//! ([`protocol::graph`]), and a line in [`roles!`] below; both executors then run it
-//! (docs/design.md, "Roles and tasks").
+//! role is a crate with its [`Task`], its declaration ([`protocol::graph`]), and a line in
+//! [`roles!`] below; both executors then run it (docs/design.md, "Roles and tasks").
 
 use crate::closed_loop::Stepped;
 use protocol::task::{Resources, Task, TaskError};
@@ -68,8 +67,13 @@ mod tests {
     fn every_task_takes_and_gives_only_the_topics_its_role_declares() {
         use protocol::PlantKind;
         use protocol::graph::declaration;
-        // The crossing runs every role of the simulated plant.
-        let scenario = crate::scenarios::load(Some("crossing"), &[]).unwrap();
+        // The crossing runs every role of the simulated plant, with the optional ones.
+        let optional: Vec<&str> = (Role::ALL.iter())
+            .filter(|r| declaration(**r, PlantKind::Sim).optional)
+            .map(|r| r.as_str())
+            .collect();
+        let extra = format!("extra_roles={optional:?}");
+        let scenario = crate::scenarios::load(Some("crossing"), &[extra]).unwrap();
         assert_eq!(scenario.roles().count(), Role::COUNT);
         for role in scenario.roles() {
             let task = in_process(role, &scenario, 0).unwrap();

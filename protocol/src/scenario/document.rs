@@ -74,6 +74,12 @@ impl Scenario {
                 message: e.to_string(),
             }])
         })?;
+        // Keys a document leaves out when they are empty can be set too.
+        if let toml::Value::Table(table) = &mut doc {
+            table
+                .entry("extra_roles")
+                .or_insert_with(|| toml::Value::Array(Vec::new()));
+        }
         let mut scenario = self.clone();
         for item in overrides {
             let err = |key: &str, message: String| {
