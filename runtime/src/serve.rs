@@ -1,16 +1,11 @@
 //! Any [`Task`] as a role process: its inputs and outputs opened by its role's declaration
 //! ([`protocol::graph`]), and its step run by the one loop of [`Member`]. A role needs nothing of its own here: `scmpc mpc` is `serve::<MpcTask>`.
 
-use crate::ipc::{
-    ACTUATION, DEADLINE, ESTIMATE, Input, IpcError, MEASUREMENT, Output, PLAN, ROUTE, Receiver,
-    Sender, TRACKS, TRUTH, producer_of,
-};
+use crate::ipc::{Input, IpcError, Output, Receiver, Sender, producer_of};
 use crate::process::{Member, Next, ProcessArgs, ProcessContext, ProcessError};
+use protocol::Data;
 use protocol::graph::{Graph, declaration};
 use protocol::task::{Cancel, Due, Outputs, Resources, Task, TaskError};
-use protocol::{
-    Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Tracks,
-};
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
@@ -109,10 +104,10 @@ fn send(outputs: &[OutPort], data: &Data) -> Result<(), ProcessError> {
 /// Declares the input and output ports of every data topic: one variant per topic, so a
 /// task's topics, named at run time, open typed iceoryx2 ports.
 macro_rules! data_ports {
-    ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
+    ($($(#[$doc:meta])* $variant:ident($t:ident) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
         /// An input of one data topic.
         enum InPort {
-            $($variant(Receiver<$t>),)*
+            $($variant(Receiver<protocol::$t>),)*
         }
 
         impl InPort {
@@ -121,7 +116,7 @@ macro_rules! data_ports {
                 let producer = producer_of(topic)
                     .ok_or_else(|| IpcError(format!("`{topic}` is not a data topic")))?;
                 Ok(match topic {
-                    $($topic => InPort::$variant(member.input::<$t>(topic, producer)?),)*
+                    $(protocol::topics::$topic => InPort::$variant(member.input::<protocol::$t>(topic, producer)?),)*
                     _ => return Err(IpcError(format!("`{topic}` is not a data topic"))),
                 })
             }
@@ -144,20 +139,20 @@ macro_rules! data_ports {
         /// the plan's is large; a role has one or two, made once.)
         #[allow(clippy::large_enum_variant)]
         enum OutPort {
-            $($variant(Sender<$t>),)*
+            $($variant(Sender<protocol::$t>),)*
         }
 
         impl OutPort {
             fn open(member: &Member, topic: &'static str) -> Result<OutPort, IpcError> {
                 Ok(match topic {
-                    $($topic => OutPort::$variant(member.output::<$t>(topic)?),)*
+                    $(protocol::topics::$topic => OutPort::$variant(member.output::<protocol::$t>(topic)?),)*
                     _ => return Err(IpcError(format!("`{topic}` is not a data topic"))),
                 })
             }
 
             fn topic(&self) -> &'static str {
                 match self {
-                    $(OutPort::$variant(_) => $topic,)*
+                    $(OutPort::$variant(_) => protocol::topics::$topic,)*
                 }
             }
 
