@@ -22,8 +22,8 @@ fn cargo(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
-/// The normal dependencies of every workspace crate, as `cargo metadata` declares them.
-fn from_cargo() -> Dependencies {
+/// `cargo metadata` of the workspace's crates.
+fn metadata() -> serde_json::Value {
     let out = cargo(&[
         "metadata",
         "--format-version",
@@ -31,7 +31,27 @@ fn from_cargo() -> Dependencies {
         "--no-deps",
         "--offline",
     ]);
-    let metadata: serde_json::Value = serde_json::from_str(&out).unwrap();
+    serde_json::from_str(&out).unwrap()
+}
+
+/// The roles added as examples to copy (`examples/roles/*`): role crates, which the crate
+/// table of docs/design.md leaves out.
+fn example_roles() -> Vec<String> {
+    let metadata = metadata();
+    let packages = metadata["packages"].as_array().unwrap();
+    packages
+        .iter()
+        .filter(|p| {
+            let manifest = p["manifest_path"].as_str().unwrap();
+            manifest.contains("/examples/roles/")
+        })
+        .map(|p| p["name"].as_str().unwrap().to_string())
+        .collect()
+}
+
+/// The normal dependencies of every workspace crate, as `cargo metadata` declares them.
+fn from_cargo() -> Dependencies {
+    let metadata = metadata();
     let packages = metadata["packages"].as_array().unwrap();
     let members: BTreeSet<&str> = packages
         .iter()
@@ -107,7 +127,12 @@ fn from_design() -> Dependencies {
 
 #[test]
 fn the_crate_table_of_the_design_is_the_one_cargo_metadata_reports() {
-    let (cargo, design) = (from_cargo(), from_design());
+    let (mut cargo, design) = (from_cargo(), from_design());
+    let examples = example_roles();
+    cargo.retain(|name, _| !examples.contains(name));
+    for (crates, _) in cargo.values_mut() {
+        crates.retain(|c| !examples.contains(c));
+    }
     assert_eq!(
         cargo.keys().collect::<Vec<_>>(),
         design.keys().collect::<Vec<_>>(),
@@ -144,7 +169,12 @@ fn linked_transports(name: &str) -> Vec<String> {
 #[test]
 fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
     let declared = from_cargo();
-    for role in ROLE_CRATES {
+    let examples = example_roles();
+    for role in ROLE_CRATES
+        .iter()
+        .copied()
+        .chain(examples.iter().map(String::as_str))
+    {
         let (crates, transports) = &declared[role];
         assert_eq!(
             crates.iter().collect::<Vec<_>>(),
@@ -157,17 +187,19 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
     }
 }
 
-/// The role crates: they depend on `protocol` alone, link no transport and read no clock
-/// (the `Task` contract). The robot, the plant role played by a ROS 2 robot, links Zenoh
+/// The role crates (with the example roles, [`example_roles`]): they depend on
+/// `protocol` alone, link no transport and read no clock (the `Task` contract). The robot, the plant role played by a ROS 2 robot, links Zenoh
 /// for its ROS 2 link: its task code reads no clock ([`is_task_code`]), its link does.
 const ROLE_CRATES: [&str; 6] = ["plant", "estimator", "mpc", "dfl", "planner", "tracker"];
 
-/// The task code of every role: the role crates' sources, and the robot's but for its
-/// link (`robot/src/link.rs`), the resource it is handed, which may read a clock.
+/// The task code of every role: the role crates' sources, the example roles', and the
+/// robot's but for its link (`robot/src/link.rs`), the resource it is handed, which may
+/// read a clock.
 fn is_task_code(name: &str) -> bool {
     ROLE_CRATES
         .iter()
         .any(|r| name.starts_with(&format!("{r}/src/")))
+        || name.starts_with("examples/roles/")
         || (name.starts_with("robot/src/") && name != "robot/src/link.rs")
 }
 
@@ -304,7 +336,8 @@ fn library_sources() -> Vec<std::path::PathBuf> {
             let path = entry.unwrap().path();
             let name = path.file_name().unwrap().to_string_lossy().to_string();
             if path.is_dir() {
-                let skipped = ["target", "tests", "benches", "examples", "python", ".git"];
+                // `examples/roles` is code of the house; `examples/python` is Python's.
+                let skipped = ["target", "tests", "benches", "python", ".git"];
                 if !skipped.contains(&name.as_str()) {
                     dirs.push(path);
                 }
