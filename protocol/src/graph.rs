@@ -69,6 +69,8 @@ macro_rules! data_topics {
             Route(Route) = ROUTE "route" @ Sample,
             /// The tracker's tracks of the obstacles ([`Tracks`](crate::Tracks)).
             Tracks(Tracks) = TRACKS "tracks" @ PerceptionTick,
+            /// The odometer's distance driven ([`Odometry`](crate::Odometry)).
+            Odometry(Odometry) = ODOMETRY "odometry" @ Sample,
         );
     };
 }
@@ -243,6 +245,15 @@ declare_roles! {
         tier: Planning,
         remote: true,
         optional: false,
+    },
+    /// The example role (examples/roles/odometer): the distance the estimate has driven,
+    /// every sample; only in runs whose `extra_roles` name it.
+    Odometer = 6 "odometer" {
+        inputs: &[ESTIMATE],
+        outputs: &[ODOMETRY],
+        tier: Planning,
+        remote: false,
+        optional: true,
     },
 }
 

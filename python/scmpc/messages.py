@@ -29,7 +29,7 @@ PLAN_MISSING = 2**32 - 1
 FIRST_ROBOT = 0
 
 # Codes of the enumerations (``scmpc schema``, "codes").
-ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5}
+ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5, "odometer": 6}
 ROLE_COUNT = len(ROLES)
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
@@ -67,6 +67,7 @@ OUTPUT_SLOTS = {
     "deadline": 1,
     "route": 0,
     "tracks": 0,
+    "odometry": 0,
 }
 
 
@@ -290,6 +291,16 @@ class Actuation(Message):
         return self.mode in COMMAND_MODES.values() and self.intervention in INTERVENTIONS.values()
 
 
+class Odometry(Message):
+    _fields_ = [
+        ("header", Header),
+        ("distance_m", c_f64),
+    ]
+
+    def floats(self):
+        return (self.distance_m,)
+
+
 class DeadlineVerdict(Message):
     _fields_ = [
         ("header", Header),
@@ -374,6 +385,7 @@ TOPICS = {
     "deadline": DeadlineVerdict,
     "route": Route,
     "tracks": Tracks,
+    "odometry": Odometry,
     "control": Control,
     "status": Status,
     "swap": SwapRequest,
@@ -393,6 +405,7 @@ TYPES = [
     DeadlineVerdict,
     Track,
     Tracks,
+    Odometry,
     Control,
     Status,
     SwapRequest,

@@ -56,6 +56,7 @@ roles! {
     Mpc => mpc::MpcTask,
     Dfl => dfl::DflTask,
     Planner => planner::PlannerTask,
+    Odometer => odometer::OdometerTask,
 }
 
 #[cfg(test)]

@@ -451,6 +451,7 @@ impl_message!(
     Tracks => |m| m.tracks().iter().all(|t| {
         finite(&t.center) && finite(&t.velocity) && finite(&t.covariance) && t.radius_m.is_finite()
     }), m.count as usize <= MAX_TRACKS;
+    Odometry => |m| m.distance_m.is_finite(), true, record ["distance_m"] => [m.distance_m];
     Control => |m| true, m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()
         && StatusEvent::from_code(m.event).is_some()
@@ -461,8 +462,26 @@ impl_message!(
     SwapReply => |m| true, m.done <= 1 && m.message_len as usize <= MAX_REPLY_BYTES;
 );
 
+/// The odometer's reading (the example role, examples/roles/odometer).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[cfg_attr(
+    feature = "iceoryx2",
+    derive(ZeroCopySend),
+    type_name("scmpc::Odometry")
+)]
+pub struct Odometry {
+    pub header: Header,
+    /// The length of the path the estimate has driven since the run started, m.
+    pub distance_m: f64,
+}
+
 // The fields of the header and of every data message (`scmpc schema`'s `types`).
 crate::layouts! {
+    Odometry {
+        header: Header,
+        distance_m: f64,
+    }
     Track {
         obstacle: u32,
         reserved: u32,
