@@ -1,6 +1,6 @@
 //! The Python side: the message layouts of `python/scmpc` against `scmpc schema`, the
 //! Python estimator of `examples/python` swapped into a real-time run, and `run.mcap` read
-//! back by the `mcap` package.
+//! back by the `mcap` package (with the example role of `examples/roles` recorded in it).
 //!
 //! These tests make their own venv under the target directory ([`common::python`]).
 
@@ -257,4 +257,62 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
     assert!(out.status.code().is_some(), "{}", stderr(&out));
     assert!(no_mcap.join("trajectory.csv").exists());
     assert!(!no_mcap.join("run.mcap").exists());
+}
+
+#[test]
+fn the_example_role_runs_alike_in_process_and_in_lockstep_and_its_samples_are_in_csv_and_run_mcap()
+{
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let mut files = Vec::new();
+    for (name, executor) in [("in_process", Some("--in-process")), ("lockstep", None)] {
+        let out_dir = dir.path().join(name);
+        let mut args = vec!["run", "--set", r#"extra_roles=["odometer"]"#, "--out"];
+        args.push(out_dir.to_str().unwrap());
+        args.extend(executor);
+        let out = run(&args);
+        assert_eq!(out.status.code(), Some(0), "{name}: {}", stderr(&out));
+
+        // A row per MPC sample: the length of the path the estimate drove up to it.
+        let odometry = Table::read(&out_dir.join("odometry.csv")).unwrap();
+        let (ticks, distances) = (
+            odometry.numbers("tick").unwrap(),
+            odometry.numbers("distance_m").unwrap(),
+        );
+        let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
+        let x = trajectory.numbers("x_hat").unwrap();
+        let y = trajectory.numbers("y_hat").unwrap();
+        assert_eq!(distances.len(), x.len().div_ceil(10), "{name}");
+        for (tick, distance) in ticks.iter().zip(&distances) {
+            let j = *tick as usize;
+            let path: f64 = (1..=j)
+                .map(|i| (x[i] - x[i - 1]).hypot(y[i] - y[i - 1]))
+                .sum();
+            assert!(
+                (distance - path).abs() < 1e-9,
+                "{name}: tick {tick}: {distance} m, path {path} m"
+            );
+        }
+        assert!(distances.last().unwrap() > &5.0, "{name}: the robot drove");
+
+        // The same samples on run.mcap's channel, each valid under its schema, read by a
+        // reader we did not write.
+        let topics = read_mcap(&out_dir, false);
+        let channel = &topics["/odometer/odometry"];
+        assert_eq!(channel["schema"], "scmpc.Odometry", "{name}");
+        assert_eq!(
+            channel["schema_errors"].as_array().map(Vec::len),
+            Some(0),
+            "{name}"
+        );
+        let logged: Vec<f64> = (channel["messages"].as_array().unwrap().iter())
+            .map(|m| m["distance_m"].as_f64().unwrap())
+            .collect();
+        assert_eq!(logged, distances, "{name}");
+        files.push(std::fs::read(out_dir.join("odometry.csv")).unwrap());
+    }
+    assert!(
+        files[0] == files[1],
+        "lockstep's odometry.csv differs from in process"
+    );
 }

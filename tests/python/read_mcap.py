@@ -51,6 +51,14 @@ def add(topics, schema, channel, message):
     )
     t["count"] += 1
     body = json.loads(message.data)
+    if "recorded" not in t:
+        # A topic the record has no place of its own for: its time, its tick and the
+        # values its message type names, each message valid under the channel's schema.
+        t["recorded"] = {"t", "tick"} <= set(json.loads(schema.data).get("required", []))
+    if t["recorded"]:
+        validator = Draft202012Validator(json.loads(schema.data))
+        t.setdefault("messages", []).append(body)
+        t.setdefault("schema_errors", []).extend(e.message for e in validator.iter_errors(body))
     if channel.topic == "/estimator/estimate":
         t.setdefault("ticks", []).append(body["tick"])
         t.setdefault("epochs", []).append(body["epoch"])
