@@ -202,6 +202,8 @@ fn a_lockstep_swap_of_every_swappable_role_keeps_the_run_whole() {
     let file = scenario_file(
         dir.path(),
         r#"
+extra_roles = ["odometer"]
+
 [[swap]]
 time_s = 3.0
 role = "dfl"
@@ -213,6 +215,10 @@ role = "estimator"
 [[swap]]
 time_s = 7.0
 role = "mpc"
+
+[[swap]]
+time_s = 9.0
+role = "odometer"
 "#,
     );
     let out_dir = dir.path().join("run");
@@ -220,11 +226,11 @@ role = "mpc"
     assert_eq!(out.status.code(), Some(0), "{}", common::stderr(&out));
     let s = summary(&out_dir);
     let ev = events(&out_dir);
-    for role in ["dfl", "estimator", "mpc"] {
+    for role in ["dfl", "estimator", "mpc", "odometer"] {
         swapped(&ev, role);
     }
     assert_eq!(s["outcome"], "reached");
-    assert_eq!(s["swaps"], 3);
+    assert_eq!(s["swaps"], 4);
     assert_eq!(s["deadline_misses"], 0);
     assert!(
         s["rejected_samples"].as_object().unwrap().is_empty(),
@@ -232,6 +238,15 @@ role = "mpc"
         s["rejected_samples"]
     );
     assert_every_tick_commanded(&out_dir, 6000);
+    // The example role's reading of every sample once, though each swap has every process
+    // publish its newest output again.
+    let odometry = record::schema::Table::read(&out_dir.join("odometry.csv")).unwrap();
+    let ticks = odometry.numbers("tick").unwrap();
+    assert_eq!(ticks.len(), 600);
+    assert!(
+        ticks.windows(2).all(|w| w[0] < w[1]),
+        "a tick recorded twice"
+    );
     // Fresh processes of the same code continue the same trajectory closely.
     let t = s["time_to_goal_s"].as_f64().unwrap();
     assert!((t - 24.105).abs() < 0.2, "time to goal {t}");

@@ -11,12 +11,15 @@
 use crate::topics::*;
 use crate::{PlantKind, Scenario, TIERS_BELOW_TOP};
 
-/// How often a data topic carries a sample.
+/// How often a data topic carries a sample. In lockstep the orchestrator waits for a
+/// topic it records from its message type ([`Graph::recorded`]) at a `Tick` or `Sample`
+/// rate, tick by tick, before it grants the next; at the other rates it records what
+/// comes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Rate {
     /// Every inner tick (`Ts / M`).
     Tick,
-    /// Every MPC sample (`Ts`).
+    /// Every MPC sample (`Ts`), stamped with the sample's first tick.
     Sample,
     /// Every perception tick (`perception.period_s`).
     PerceptionTick,
@@ -372,6 +375,15 @@ impl Graph {
             .iter()
             .filter(move |d| self.inputs_of(d.role).any(|t| t == topic))
             .map(|d| d.role)
+    }
+
+    /// The data topics of this run the record has no place of its own for and writes from
+    /// what their message type names ([`crate::Message::RECORDED`]).
+    pub fn recorded(&self) -> impl Iterator<Item = &'static Topic> + '_ {
+        TOPICS.iter().filter(|t| {
+            producer_of(t.name).is_some_and(|p| self.runs(p))
+                && !crate::Data::recorded_names(t.name).is_empty()
+        })
     }
 
     /// Every data topic a role of this run produces, with its producer.

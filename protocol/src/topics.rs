@@ -21,7 +21,7 @@ pub use crate::graph::{output_slot, output_topic, producer_of};
 
 /// The iceoryx2 service name of `topic` of robot `robot`: the robot's pipeline (its data
 /// topics, its control and its status) is under `robot<id>/`, so two robots' pipelines
-/// on one host never share a service (docs/design.md, "The graph, declared once").
+/// on one host never share a service (docs/design.md, "Roles and tasks", role instances).
 /// What is the run's and no robot's ([`SWAP`], [`SWAP_REPLY`]) keeps its bare name.
 pub fn service_name(robot: u32, topic: &str) -> String {
     format!("robot{robot}/{topic}")

@@ -20,7 +20,7 @@ pub const ENV_PREFIX: &str = "SCMPC_PREFIX";
 pub const ENV_MODE: &str = "SCMPC_MODE";
 /// The producer epoch the process must stamp on every sample.
 pub const ENV_EPOCH: &str = "SCMPC_EPOCH";
-/// `plant`, `estimator`, `mpc`, `dfl`, `planner` or `tracker`.
+/// The name of the role to play (`protocol::Role::as_str`).
 pub const ENV_ROLE: &str = "SCMPC_ROLE";
 /// The robot whose pipeline the process is part of (decimal; [`protocol::FIRST_ROBOT`]
 /// when unset).

@@ -210,24 +210,27 @@ fn named<T: Copy>(
 
 /// Every topic, with the type it carries.
 pub fn services() -> Vec<ServiceLayout> {
-    let topic = |topic: &'static str, type_name: &'static str| ServiceLayout {
-        topic,
-        per_robot: topic != ipc::SWAP && topic != ipc::SWAP_REPLY,
-        service: if topic == ipc::SWAP || topic == ipc::SWAP_REPLY {
-            topic.to_string()
-        } else {
-            ipc::service_name(protocol::FIRST_ROBOT, topic)
-        },
-        type_name,
-        max_publishers: if topic == ipc::STATUS {
-            ipc::MAX_STATUS_PUBLISHERS
-        } else {
-            ipc::MAX_PUBLISHERS
-        },
-        max_subscribers: ipc::MAX_SUBSCRIBERS,
-        subscriber_max_buffer_size: ipc::SUBSCRIBER_BUFFER,
-        history_size: 0,
-        safe_overflow: true,
+    let topic = |topic: &'static str, type_name: &'static str| {
+        let per_robot = topic != ipc::SWAP && topic != ipc::SWAP_REPLY;
+        ServiceLayout {
+            topic,
+            per_robot,
+            service: if per_robot {
+                ipc::service_name(protocol::FIRST_ROBOT, topic)
+            } else {
+                topic.to_string()
+            },
+            type_name,
+            max_publishers: if topic == ipc::STATUS {
+                ipc::MAX_STATUS_PUBLISHERS
+            } else {
+                ipc::MAX_PUBLISHERS
+            },
+            max_subscribers: ipc::MAX_SUBSCRIBERS,
+            subscriber_max_buffer_size: ipc::SUBSCRIBER_BUFFER,
+            history_size: 0,
+            safe_overflow: true,
+        }
     };
     let data = protocol::graph::TOPICS
         .iter()

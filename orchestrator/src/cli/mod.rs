@@ -346,6 +346,7 @@ fn graph_schema() -> serde_json::Value {
         serde_json::json!({
             "inputs": d.inputs, "outputs": d.outputs,
             "tier": format!("{:?}", d.tier).to_lowercase(), "remote": d.remote,
+            "optional": d.optional,
         })
     };
     let mut roles: serde_json::Map<String, serde_json::Value> = ROLES

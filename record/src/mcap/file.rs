@@ -32,31 +32,24 @@ fn data_channel(topic: &str) -> String {
 fn data_channels(scenario: &Scenario) -> Vec<(String, String, Value)> {
     let graph = protocol::graph::Graph::of(scenario);
     graph
-        .topics()
-        .filter_map(|(topic, _)| {
-            let names = protocol::Data::recorded_names(topic);
-            let declared = protocol::graph::TOPICS.iter().find(|t| t.name == topic)?;
-            (!names.is_empty()).then(|| {
-                let mut properties = serde_json::Map::new();
-                properties.insert(
-                    "t".into(),
-                    json!({ "type": "number", "description": "simulated time, s" }),
-                );
-                properties.insert("tick".into(), json!({ "type": "integer" }));
-                for name in names {
-                    properties.insert((*name).into(), json!({ "type": "number" }));
-                }
-                let schema = json!({
-                    "type": "object",
-                    "properties": properties,
-                    "required": properties.keys().collect::<Vec<_>>(),
-                });
-                (
-                    data_channel(topic),
-                    declared.message.replace("::", "."),
-                    schema,
-                )
-            })
+        .recorded()
+        .map(|topic| {
+            let mut properties = serde_json::Map::new();
+            properties.insert(
+                "t".into(),
+                json!({ "type": "number", "description": "simulated time, s" }),
+            );
+            properties.insert("tick".into(), json!({ "type": "integer" }));
+            for name in protocol::Data::recorded_names(topic.name) {
+                properties.insert((*name).into(), json!({ "type": "number" }));
+            }
+            let schema = json!({
+                "type": "object",
+                "properties": properties,
+                "required": properties.keys().collect::<Vec<_>>(),
+            });
+            let name = topic.message.replace("::", ".");
+            (data_channel(topic.name), name, schema)
         })
         .collect()
 }

@@ -3,7 +3,7 @@
 //! deadline verdicts in sample order, the routes.
 
 use super::session::Session;
-use protocol::graph::Rate;
+use protocol::graph::{Graph, Rate, Topic};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Measurement, Plan, Route, Timing,
     Tracks,
@@ -79,9 +79,10 @@ pub(super) struct Intake {
     /// Messages of the topics recorded as [`Data`] ([`Session::recorded`]) received and
     /// not recorded yet, in arrival order.
     recorded: Vec<Data>,
-    /// Lockstep waits for those of them published every tick or every sample: each
-    /// one's topic, rate and newest tick received.
-    waited: Vec<(&'static str, Rate, Option<u64>)>,
+    /// Each of those topics, with the newest tick received: an older or equal one is a
+    /// replay (not recorded again), and lockstep waits for those published every tick or
+    /// every sample ([`Rate`]).
+    newest_recorded: Vec<(&'static Topic, Option<u64>)>,
     /// The newest tick whose truth has come.
     pub newest_truth: Option<u64>,
     /// Next tick to record (every earlier one is recorded).
@@ -106,16 +107,8 @@ impl Intake {
             routes: Vec::new(),
             tracks: Vec::new(),
             recorded: Vec::new(),
-            waited: protocol::graph::Graph::of(scenario)
-                .topics()
-                .filter(|(topic, _)| !Data::recorded_names(topic).is_empty())
-                .filter_map(|(topic, _)| {
-                    let rate = protocol::graph::TOPICS
-                        .iter()
-                        .find(|t| t.name == topic)?
-                        .rate;
-                    matches!(rate, Rate::Tick | Rate::Sample).then_some((topic, rate, None))
-                })
+            newest_recorded: (Graph::of(scenario).recorded())
+                .map(|topic| (topic, None))
                 .collect(),
             newest_truth: None,
             cursor: 0,
@@ -138,67 +131,65 @@ impl Intake {
     /// [`Intake::take`] straight from shared memory, without a system call: the wake-ups
     /// stay, so the caller takes with [`Intake::take`] before it blocks.
     pub fn take_from_memory(&mut self, session: &Session) -> anyhow::Result<()> {
-        let (cursor, ticks) = (self.cursor, self.ticks);
-        let slots = &mut self.slots;
-        let newest = &mut self.newest_truth;
-        session.truth.take(|m, _| {
-            *newest = (*newest).max(Some(m.header.tick));
-            if let Some(s) = slot(slots, cursor, m.header.tick) {
-                s.truth = Some(m);
-            }
-        })?;
-        session.measurement.take(|m, _| {
-            if let Some(s) = slot(slots, cursor, m.header.tick) {
-                s.measurement = Some(m);
-            }
-        })?;
-        session.estimate.take(|m, _| {
-            if let Some(s) = slot(slots, cursor, m.header.tick) {
-                s.estimate = Some(m);
-            }
-        })?;
-        session.actuation.take(|m, l| {
-            if let Some(s) = slot(slots, cursor, m.header.tick) {
-                s.actuation = Some((m, l));
-            }
-        })?;
-        let plans = &mut self.plans;
-        session.plan.take(|p, _| {
-            if p.header.tick < ticks {
-                plans.insert(p.sample, p);
-            }
-        })?;
-        let routes = &mut self.routes;
-        session.route.take(|r, _| {
-            if r.header.tick < ticks {
-                routes.push(r);
-            }
-        })?;
-        let tracks = &mut self.tracks;
-        session.tracks.take(|t, _| {
-            if t.header.tick < ticks {
-                tracks.push(t);
-            }
-        })?;
-        let verdicts = &mut self.verdicts;
-        session.deadline.take(|v, _| {
-            if v.header.tick < ticks {
-                verdicts.insert(v.sample, v);
-            }
-        })?;
-        for (topic, input) in &session.recorded {
-            let (recorded, waited) = (&mut self.recorded, &mut self.waited);
-            input.take_data(&mut |data, _| {
-                let tick = data.header().tick;
-                if tick < ticks {
-                    recorded.push(data);
-                }
-                for (_, _, newest) in waited.iter_mut().filter(|(t, _, _)| t == topic) {
-                    *newest = (*newest).max(Some(tick));
-                }
-            })?;
+        for (_, input) in &session.data {
+            input.take_data(&mut |data, latency| self.file(data, latency))?;
         }
         Ok(())
+    }
+
+    /// Files a sample: a tick's by its tick (unless the tick is recorded already: a
+    /// replay), the others to be recorded (unless after the run's last tick: the roles'
+    /// answers to the last grant), `latency` with the command.
+    fn file(&mut self, data: Data, latency: u64) {
+        let tick = data.header().tick;
+        let cursor = self.cursor;
+        let in_run = tick < self.ticks;
+        match data {
+            Data::Truth(m) => {
+                self.newest_truth = self.newest_truth.max(Some(tick));
+                if let Some(s) = slot(&mut self.slots, cursor, tick) {
+                    s.truth = Some(m);
+                }
+            }
+            Data::Measurement(m) => {
+                if let Some(s) = slot(&mut self.slots, cursor, tick) {
+                    s.measurement = Some(m);
+                }
+            }
+            Data::Estimate(m) => {
+                if let Some(s) = slot(&mut self.slots, cursor, tick) {
+                    s.estimate = Some(m);
+                }
+            }
+            Data::Actuation(m) => {
+                if let Some(s) = slot(&mut self.slots, cursor, tick) {
+                    s.actuation = Some((m, latency));
+                }
+            }
+            Data::Plan(p) if in_run => {
+                self.plans.insert(p.sample, p);
+            }
+            Data::Deadline(v) if in_run => {
+                self.verdicts.insert(v.sample, v);
+            }
+            Data::Route(r) if in_run => self.routes.push(r),
+            Data::Tracks(t) if in_run => self.tracks.push(t),
+            other => {
+                let topic = other.topic();
+                let Some((_, newest)) =
+                    (self.newest_recorded.iter_mut()).find(|(t, _)| t.name == topic)
+                else {
+                    return;
+                };
+                if newest.is_some_and(|n| tick <= n) {
+                    return;
+                }
+                *newest = Some(tick);
+                if in_run {
+                    self.recorded.push(other);
+                }
+            }
+        }
     }
 
     /// Lockstep: whether tick `tick` is whole, with the plan of its sample when it starts
@@ -209,8 +200,12 @@ impl Intake {
         self.slots.get(&tick).is_some_and(|s| s.complete(last))
             && (!plan_due || self.plans.contains_key(&self.timing.sample_of(tick)))
             && (last
-                || self.waited.iter().all(|(_, rate, newest)| {
-                    let due = *rate == Rate::Tick || self.timing.starts_sample(tick);
+                || self.newest_recorded.iter().all(|(topic, newest)| {
+                    let due = match topic.rate {
+                        Rate::Tick => true,
+                        Rate::Sample => self.timing.starts_sample(tick),
+                        Rate::PerceptionTick | Rate::Verdict => false,
+                    };
                     !due || newest.is_some_and(|n| n >= tick)
                 }))
     }

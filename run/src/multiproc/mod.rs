@@ -245,14 +245,7 @@ fn drive(
     let waitset = ipc::waitset(false)?;
     let mut guards = vec![session.status.attach(&waitset)?];
     if mode == RunMode::Lockstep {
-        guards.push(session.truth.attach(&waitset)?);
-        guards.push(session.measurement.attach(&waitset)?);
-        guards.push(session.estimate.attach(&waitset)?);
-        guards.push(session.plan.attach(&waitset)?);
-        guards.push(session.actuation.attach(&waitset)?);
-        guards.push(session.deadline.attach(&waitset)?);
-        guards.push(session.route.attach(&waitset)?);
-        for (_, input) in &session.recorded {
+        for input in session.inputs() {
             guards.push(ipc::attach(&waitset, input.listener())?);
         }
     }

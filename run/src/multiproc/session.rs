@@ -3,10 +3,9 @@
 
 use protocol::graph::{Graph, declaration};
 use protocol::{
-    Actuation, Control, ControlCommand, DeadlineVerdict, EpochSchedule, Estimate, GroundTruth,
-    Header, Measurement, Plan, Role, Route, Status, SwapReply, SwapRequest, Tracks,
+    Control, ControlCommand, EpochSchedule, Header, PlantKind, Role, Scenario, Status, SwapReply,
+    SwapRequest,
 };
-use protocol::{Data, PlantKind, Scenario};
 use runtime::clock::{RunClock, RunMode};
 use runtime::ipc::wire::{self, DataInput};
 use runtime::ipc::{
@@ -38,18 +37,9 @@ const ROBOT: u32 = protocol::FIRST_ROBOT;
 pub(super) struct Session {
     pub control: Sender<Control>,
     pub status: Receiver<Status>,
-    pub truth: Receiver<GroundTruth>,
-    pub measurement: Receiver<Measurement>,
-    pub estimate: Receiver<Estimate>,
-    pub plan: Receiver<Plan>,
-    pub actuation: Receiver<Actuation>,
-    pub deadline: Receiver<DeadlineVerdict>,
-    pub route: Receiver<Route>,
-    pub tracks: Receiver<Tracks>,
-    /// The topics of the run the record has no place of its own for, and that it records
-    /// as [`protocol::Data`] ([`protocol::Message::RECORDED`]): a role added as
-    /// docs/design.md says needs nothing here.
-    pub recorded: Vec<(&'static str, Box<dyn DataInput>)>,
+    /// An input of every data topic of the run's graph, from its producer, taking its
+    /// samples as [`protocol::Data`]: the orchestrator records them all.
+    pub data: Vec<(&'static str, Box<dyn DataInput>)>,
     /// Live requests of `scmpc swap`, and the answers.
     pub swap_requests: Receiver<SwapRequest>,
     pub swap_replies: Sender<SwapReply>,
@@ -64,24 +54,14 @@ impl Session {
     pub fn open(prefix: &str, scenario: &Scenario, mode: RunMode) -> Result<Session, IpcError> {
         let node = ipc::create_node(prefix, "orchestrator", false)?;
         let robot = ROBOT;
-        let mut recorded = Vec::new();
+        let mut data = Vec::new();
         for (topic, producer) in Graph::of(scenario).topics() {
-            if !Data::recorded_names(topic).is_empty() {
-                recorded.push((topic, wire::data_input(&node, robot, topic, producer)?));
-            }
+            data.push((topic, wire::data_input(&node, robot, topic, producer)?));
         }
         let session = Session {
             control: open_topic(&node, robot, ipc::CONTROL)?.sender(0)?,
             status: open_topic(&node, robot, ipc::STATUS)?.receiver()?,
-            truth: open_topic(&node, robot, ipc::TRUTH)?.receiver_from(Role::Plant)?,
-            measurement: open_topic(&node, robot, ipc::MEASUREMENT)?.receiver_from(Role::Plant)?,
-            estimate: open_topic(&node, robot, ipc::ESTIMATE)?.receiver_from(Role::Estimator)?,
-            plan: open_topic(&node, robot, ipc::PLAN)?.receiver_from(Role::Mpc)?,
-            actuation: open_topic(&node, robot, ipc::ACTUATION)?.receiver_from(Role::Dfl)?,
-            deadline: open_topic(&node, robot, ipc::DEADLINE)?.receiver_from(Role::Dfl)?,
-            route: open_topic(&node, robot, ipc::ROUTE)?.receiver_from(Role::Planner)?,
-            tracks: open_topic(&node, robot, ipc::TRACKS)?.receiver_from(Role::Tracker)?,
-            recorded,
+            data,
             swap_requests: open_run_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: Cell::new(EpochSchedule::default()),
@@ -158,18 +138,9 @@ impl Session {
 
     /// The orchestrator's inputs, for housekeeping.
     pub fn inputs(&self) -> impl Iterator<Item = &dyn Input> {
-        let typed: [&dyn Input; 8] = [
-            &self.truth,
-            &self.measurement,
-            &self.estimate,
-            &self.plan,
-            &self.actuation,
-            &self.deadline,
-            &self.route,
-            &self.tracks,
-        ];
-        let recorded = self.recorded.iter().map(|(_, i)| i.as_ref() as &dyn Input);
-        typed.into_iter().chain(recorded)
+        self.data
+            .iter()
+            .map(|(_, input)| input.as_ref() as &dyn Input)
     }
 
     /// Changes the epoch schedule, for the orchestrator and every process.
@@ -198,20 +169,9 @@ impl Session {
     /// warm up.
     pub fn output_of(&self, role: Role) -> Option<&dyn Input> {
         let topic = *declaration(role, PlantKind::Sim).outputs.first()?;
-        let typed: Option<&dyn Input> = match topic {
-            ipc::TRUTH => Some(&self.truth),
-            ipc::ESTIMATE => Some(&self.estimate),
-            ipc::PLAN => Some(&self.plan),
-            ipc::ACTUATION => Some(&self.actuation),
-            ipc::ROUTE => Some(&self.route),
-            ipc::TRACKS => Some(&self.tracks),
-            _ => None,
-        };
-        typed.or_else(|| {
-            (self.recorded.iter())
-                .find(|(t, _)| *t == topic)
-                .map(|(_, i)| i.as_ref() as &dyn Input)
-        })
+        (self.data.iter())
+            .find(|(t, _)| *t == topic)
+            .map(|(_, input)| input.as_ref() as &dyn Input)
     }
 
     /// Samples the orchestrator itself refused since the last call: (producer, rejection

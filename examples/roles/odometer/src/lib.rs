@@ -1,12 +1,14 @@
 //! An example role, to copy when adding one (docs/design.md, "Adding a role"): the
 //! odometer takes every estimate of the robot's pose and publishes, at every MPC sample,
-//! the distance the estimate has driven since the run started ([`protocol::Odometry`]).
+//! the distance the estimate has driven since the process started ([`protocol::Odometry`]:
+//! a restarted or swapped-in odometer starts again from 0).
 //! It runs when a scenario names it (`extra_roles = ["odometer"]`), in process and as a
 //! process of its own (`scmpc odometer`), and the record writes its samples to
 //! `odometry.csv` and `run.mcap`'s `/odometer/odometry` with no code of its own.
 
 use protocol::task::{Context, Due, Publish, Task, TaskError};
 use protocol::{Estimate, Header, Odometry, Role, Validated};
+use std::collections::VecDeque;
 
 /// What the odometer takes: the estimator's estimates.
 #[derive(Debug, Clone, Copy)]
@@ -25,7 +27,8 @@ pub struct Odometer {
 
 impl Odometer {
     /// Adds the straight segment from the previous position to `position`; a position
-    /// that is not finite (an estimator that was silent) is left out.
+    /// that is not finite is left out (the border check refuses such an estimate before
+    /// a task hears it; the odometer does not count on it).
     pub fn add(&mut self, position: [f64; 2]) {
         if !position.iter().all(|p| p.is_finite()) {
             return;
@@ -44,8 +47,9 @@ pub struct OdometerTask {
     dt_s: f64,
     /// The newest tick heard.
     last_tick: Option<u64>,
-    /// A sample's first tick heard and not published yet, with its time, s.
-    due: Option<(u64, f64)>,
+    /// The readings at the first ticks of samples heard and not published yet, oldest
+    /// first (the estimates of several ticks may come before a step).
+    due: VecDeque<Odometry>,
 }
 
 impl Task for OdometerTask {
@@ -60,12 +64,12 @@ impl Task for OdometerTask {
             ticks_per_sample: scenario.timing.ticks_per_sample(),
             dt_s: scenario.timing.dt_s(),
             last_tick: None,
-            due: None,
+            due: VecDeque::with_capacity(4),
         })
     }
 
-    /// An estimate newer than the last is integrated (a replay is not); one at a
-    /// sample's first tick is due to be published.
+    /// An estimate newer than the last is integrated (a replay is not); at a sample's
+    /// first tick the distance so far is due to be published.
     fn hear(&mut self, input: OdometerInput, _latency_ns: u64, _context: &impl Context) {
         let OdometerInput::Estimate(estimate) = input;
         let tick = estimate.header.tick;
@@ -76,22 +80,21 @@ impl Task for OdometerTask {
         let [x, y, ..] = estimate.state;
         self.odometer.add([x, y]);
         if tick.is_multiple_of(self.ticks_per_sample) {
-            self.due = Some((tick, estimate.header.time_s));
-        }
-    }
-
-    /// The distance so far, at a sample's first tick.
-    fn step(&mut self, _context: &impl Context) -> Option<Publish<Odometry>> {
-        let (tick, time_s) = self.due.take()?;
-        Some(Publish {
-            output: Odometry {
+            self.due.push_back(Odometry {
                 header: Header {
                     tick,
-                    time_s,
+                    time_s: estimate.header.time_s,
                     ..Header::default()
                 },
                 distance_m: self.odometer.distance_m,
-            },
+            });
+        }
+    }
+
+    /// The oldest reading due.
+    fn step(&mut self, _context: &impl Context) -> Option<Publish<Odometry>> {
+        Some(Publish {
+            output: self.due.pop_front()?,
             hold_ns: 0,
         })
     }
