@@ -76,7 +76,7 @@ pub(super) struct Intake {
     routes: Vec<Route>,
     /// Tracks received and not recorded yet, in arrival order.
     tracks: Vec<Tracks>,
-    /// Messages of the topics recorded as [`Data`] ([`Session::recorded`]) received and
+    /// Messages of the topics recorded as [`Data`] ([`Graph::recorded`]) received and
     /// not recorded yet, in arrival order.
     recorded: Vec<Data>,
     /// Each of those topics, with the newest tick received: an older or equal one is a
