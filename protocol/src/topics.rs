@@ -16,6 +16,8 @@ pub const STATUS: &str = "status";
 pub const SWAP: &str = "swap";
 /// Orchestrator to `scmpc swap`: how a requested swap ended.
 pub const SWAP_REPLY: &str = "swap_reply";
+/// The topics of the run itself, no robot's: their services keep their bare names.
+pub const RUN_TOPICS: [&str; 2] = [SWAP, SWAP_REPLY];
 
 pub use crate::graph::{output_slot, output_topic, producer_of};
 

@@ -211,7 +211,7 @@ fn named<T: Copy>(
 /// Every topic, with the type it carries.
 pub fn services() -> Vec<ServiceLayout> {
     let topic = |topic: &'static str, type_name: &'static str| {
-        let per_robot = topic != ipc::SWAP && topic != ipc::SWAP_REPLY;
+        let per_robot = !ipc::RUN_TOPICS.contains(&topic);
         ServiceLayout {
             topic,
             per_robot,

@@ -150,8 +150,8 @@ pub fn open_topic<T: Wire>(
     )
 }
 
-/// Opens (or creates) topic `name` of the run itself (no robot's: [`SWAP`],
-/// [`SWAP_REPLY`]), carrying `T`.
+/// Opens (or creates) topic `name` of the run itself (one of [`RUN_TOPICS`]), carrying
+/// `T`.
 pub fn open_run_topic<T: Wire>(
     node: &Node<ipc::Service>,
     name: &'static str,
