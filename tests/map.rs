@@ -190,7 +190,15 @@ fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
 /// The role crates (with the example roles, [`example_roles`]): they depend on
 /// `protocol` alone, link no transport and read no clock (the `Task` contract). The robot, the plant role played by a ROS 2 robot, links Zenoh
 /// for its ROS 2 link: its task code reads no clock ([`is_task_code`]), its link does.
-const ROLE_CRATES: [&str; 6] = ["plant", "estimator", "mpc", "dfl", "planner", "tracker"];
+const ROLE_CRATES: [&str; 7] = [
+    "plant",
+    "estimator",
+    "mpc",
+    "dfl",
+    "planner",
+    "tracker",
+    "lidar",
+];
 
 /// The task code of every role: the role crates' sources, the example roles', and the
 /// robot's but for its link (`robot/src/link.rs`), the resource it is handed, which may

@@ -117,7 +117,7 @@ impl World {
     pub fn of(scenario: &protocol::Scenario) -> World {
         World {
             known: scenario.known_obstacles().cloned().collect(),
-            tracking: scenario.tracked().next().is_some(),
+            tracking: scenario.runs_tracker(),
             tracks: KeptTracks::of(scenario),
         }
     }

@@ -2,7 +2,6 @@
 //! Gaussian output noise, optional wheel-speed saturation and process disturbance.
 
 use protocol::{PlantConfig, Scenario, wrap_angle};
-pub mod lidar;
 pub mod task;
 pub use task::PlantTask;
 

@@ -70,6 +70,8 @@ macro_rules! data_topics {
             Deadline(DeadlineVerdict) = DEADLINE "deadline" @ Verdict,
             /// The planner's route ([`Route`](crate::Route)).
             Route(Route) = ROUTE "route" @ Sample,
+            /// The lidar's scans ([`Scan`](crate::Scan)), one every perception tick.
+            Scan(Scan) = SCAN "scan" @ PerceptionTick,
             /// The tracker's tracks of the obstacles ([`Tracks`](crate::Tracks)).
             Tracks(Tracks) = TRACKS "tracks" @ PerceptionTick,
             /// The odometer's distance driven ([`Odometry`](crate::Odometry)).
@@ -216,10 +218,19 @@ declare_roles! {
         remote: true,
         optional: false,
     },
-    /// The tracker of moving obstacles (docs/running.md, "Moving obstacles"): only in runs
-    /// that track an obstacle.
-    Tracker = 5 "tracker" {
+    /// The simulated lidar (docs/running.md, "A lidar"): only in runs with a `[lidar]`.
+    Lidar = 7 "lidar" {
         inputs: &[TRUTH],
+        outputs: &[SCAN],
+        tier: Tracking,
+        remote: true,
+        optional: false,
+    },
+    /// The tracker of the obstacles (docs/running.md, "Moving obstacles"): only in runs
+    /// that track an obstacle or see with a lidar. It takes the scans and the estimates
+    /// with a lidar, else the truth.
+    Tracker = 5 "tracker" {
+        inputs: &[SCAN, ESTIMATE, TRUTH],
         outputs: &[TRACKS],
         tier: Tracking,
         remote: true,

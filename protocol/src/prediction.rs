@@ -15,13 +15,17 @@ pub struct KeptTracks {
     uncertainty_sigmas: f64,
     /// `N Ts`, s: a track is judged by its disc at the end of the MPC's horizon.
     horizon_s: f64,
+    /// Whether the tracks are the lidar's: each message holds every track the tracker
+    /// has (an obstacle it lost is gone), so it replaces all kept.
+    whole: bool,
 }
 
 impl KeptTracks {
     /// No track yet, for the tracked obstacles of `scenario`.
     pub fn of(scenario: &Scenario) -> KeptTracks {
         KeptTracks {
-            tracks: Vec::with_capacity(scenario.tracked().count()),
+            tracks: Vec::with_capacity(crate::MAX_TRACKS),
+            whole: scenario.sees_with_lidar(),
             accel_max: scenario.perception.accel_max,
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
@@ -32,8 +36,16 @@ impl KeptTracks {
     /// unless that one, predicted on, still gives the smaller disc at the end of the
     /// horizon. So a restarted tracker, which knows nothing of the velocities yet, takes
     /// over once its tracks are better than the last ones of the process before it.
+    ///
+    /// The lidar's tracks replace every track kept: a track is a group of points seen,
+    /// not an obstacle of the scenario, and a restarted tracker's tracks are its own.
     pub fn take(&mut self, tracks: &Tracks) {
         let time_s = tracks.header.time_s;
+        if self.whole {
+            self.tracks.clear();
+            (self.tracks).extend(tracks.tracks().iter().map(|t| (*t, time_s)));
+            return;
+        }
         let judged_at = time_s + self.horizon_s;
         let (kappa, accel_max) = (self.uncertainty_sigmas, self.accel_max);
         let growth = |(track, time): &(Track, f64)| {

@@ -14,11 +14,13 @@ import math
 c_u8 = ctypes.c_uint8
 c_u32 = ctypes.c_uint32
 c_u64 = ctypes.c_uint64
+c_f32 = ctypes.c_float
 c_f64 = ctypes.c_double
 
 MAX_HORIZON = 64
 ROUTE_CAPACITY = 64
 MAX_TRACKS = 32
+MAX_BEAMS = 1440
 MAX_COMMAND_BYTES = 1024
 MAX_REPLY_BYTES = 256
 SWITCH_UNSCHEDULED = 2**64 - 1
@@ -29,7 +31,7 @@ PLAN_MISSING = 2**32 - 1
 FIRST_ROBOT = 0
 
 # Codes of the enumerations (``scmpc schema``, "codes").
-ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5, "odometer": 6}
+ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5, "odometer": 6, "lidar": 7}
 ROLE_COUNT = len(ROLES)
 CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
@@ -67,6 +69,7 @@ OUTPUT_SLOTS = {
     "deadline": 1,
     "route": 0,
     "tracks": 0,
+    "scan": 0,
     "odometry": 0,
 }
 
@@ -291,6 +294,33 @@ class Actuation(Message):
         return self.mode in COMMAND_MODES.values() and self.intervention in INTERVENTIONS.values()
 
 
+class Scan(Message):
+    _fields_ = [
+        ("header", Header),
+        ("beams", c_u32),
+        ("reserved", c_u32),
+        ("angle_min_rad", c_f64),
+        ("angle_increment_rad", c_f64),
+        ("range_min_m", c_f64),
+        ("range_max_m", c_f64),
+        ("offset", c_f64 * 3),
+        ("ranges_m", c_f32 * MAX_BEAMS),
+    ]
+
+    def floats(self):
+        # Ranges are REP 117's: +-inf and NaN are values, not faults.
+        return (
+            self.angle_min_rad,
+            self.angle_increment_rad,
+            self.range_min_m,
+            self.range_max_m,
+            *self.offset,
+        )
+
+    def well_formed(self):
+        return self.beams <= MAX_BEAMS
+
+
 class Odometry(Message):
     _fields_ = [
         ("header", Header),
@@ -385,6 +415,7 @@ TOPICS = {
     "deadline": DeadlineVerdict,
     "route": Route,
     "tracks": Tracks,
+    "scan": Scan,
     "odometry": Odometry,
     "control": Control,
     "status": Status,
@@ -405,6 +436,7 @@ TYPES = [
     DeadlineVerdict,
     Track,
     Tracks,
+    Scan,
     Odometry,
     Control,
     Status,

@@ -51,6 +51,7 @@ pub struct RobotInProcess;
 
 roles! {
     Plant => plant::PlantTask,
+    Lidar => lidar::LidarTask,
     Estimator => estimator::EstimatorTask,
     Tracker => tracker::TrackerTask,
     Mpc => mpc::MpcTask,

@@ -401,11 +401,12 @@ mod tests {
 
     #[test]
     fn every_poll_is_for_an_input_of_its_own_tier_or_a_higher_one_and_recording_is_lowest() {
-        use protocol::topics::{ESTIMATE, MEASUREMENT, TRUTH};
+        use protocol::topics::{ESTIMATE, MEASUREMENT, SCAN, TRUTH};
         // The roles that poll for their periodic input (their task's first), and that input.
         for (consumer, topic) in [
             (Role::Estimator, MEASUREMENT),
-            (Role::Tracker, TRUTH),
+            (Role::Lidar, TRUTH),
+            (Role::Tracker, SCAN),
             (Role::Mpc, ESTIMATE),
             (Role::Planner, ESTIMATE),
         ] {

@@ -215,6 +215,7 @@ fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way) -> Obstacle {
                 radius,
                 velocity: [0.0; 2],
                 path,
+                known: None,
             }
         }
     }

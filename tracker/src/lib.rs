@@ -7,6 +7,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
+mod lidar;
+pub use lidar::{Group, Perception};
 mod task;
 pub use task::{TrackerInput, TrackerTask};
 
@@ -133,25 +135,31 @@ impl Tracker {
     pub fn tracks(&self, tracks: &mut Tracks) {
         let mut count = 0;
         for ((index, obstacle), filter) in self.obstacles.iter().zip(&self.filters) {
-            let Some([x, y]) = filter else { continue };
-            tracks.tracks[count] = Track {
-                obstacle: *index as u32,
-                reserved: 0,
-                radius_m: obstacle.radius,
-                center: [x.state[0], y.state[0]],
-                velocity: [x.state[1], y.state[1]],
-                covariance: [
-                    x.covariance[0],
-                    x.covariance[1],
-                    x.covariance[2],
-                    y.covariance[0],
-                    y.covariance[1],
-                    y.covariance[2],
-                ],
-            };
+            let Some(axes) = filter else { continue };
+            tracks.tracks[count] = track(*index as u32, obstacle.radius, axes);
             count += 1;
         }
         tracks.count = count as u32;
+    }
+}
+
+/// The track `obstacle` of radius `radius_m` whose axes are filtered by `axes`.
+pub fn track(obstacle: u32, radius_m: f64, axes: &[AxisFilter; 2]) -> Track {
+    let [x, y] = axes;
+    Track {
+        obstacle,
+        reserved: 0,
+        radius_m,
+        center: [x.state[0], y.state[0]],
+        velocity: [x.state[1], y.state[1]],
+        covariance: [
+            x.covariance[0],
+            x.covariance[1],
+            x.covariance[2],
+            y.covariance[0],
+            y.covariance[1],
+            y.covariance[2],
+        ],
     }
 }
 

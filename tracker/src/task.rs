@@ -1,29 +1,55 @@
-//! The tracker role as a task ([`protocol::task`]): at every perception tick of the
-//! plant's truth (every `perception.period_s`) it measures the tracked obstacles at that
-//! tick's time and publishes its tracks. It takes every perception tick in order, so a
-//! run's tracks do not depend on when its truths arrive.
+//! The tracker role as a task ([`protocol::task`]). At every perception tick it publishes
+//! its tracks:
+//! - measuring the tracked obstacles from the plant's truth at that tick's time;
+//! - or, with a lidar, from the scan of that tick, put into the world with the estimate of
+//!   the same tick (waited for until a quarter of an inner tick after the scan's time; in
+//!   lockstep until it comes; once that is past, the newest estimate before it).
+//!
+//! It takes every perception tick in order, so a run's tracks do not depend on when its
+//! inputs arrive.
 
-use crate::Tracker;
+use crate::{Perception, Tracker};
 use protocol::task::{Context, Due, Publish, Task, TaskError};
-use protocol::{FaultConfig, GroundTruth, Header, Role, Tracks, Validated};
+use protocol::topics::{ESTIMATE, SCAN, TRUTH};
+use protocol::{Estimate, FaultConfig, GroundTruth, Header, Role, Scan, Tracks, Validated};
 use std::collections::VecDeque;
 
-/// What the tracker takes: the plant's truth, its clock (the obstacles' true positions
-/// are the scenario's motion at the truth's time).
+/// What the tracker takes: with a lidar its scans and the estimates, else the plant's
+/// truth, its clock (the obstacles' true positions are the scenario's motion at the
+/// truth's time).
 #[derive(Debug, Clone, Copy)]
+#[allow(clippy::large_enum_variant)] // handed over by value, like `Data`, which holds a scan
 pub enum TrackerInput {
+    Scan(Scan),
+    Estimate(Estimate),
     Truth(GroundTruth),
 }
-protocol::task_input!(TrackerInput: Truth);
+protocol::task_input!(TrackerInput: Scan, Estimate, Truth);
+
+/// How the tracker perceives the world.
+enum Sense {
+    /// It measures the tracked obstacles from the truth.
+    Truth(Tracker),
+    /// It sees with the lidar: its perception, the scans waiting, and the newest estimates
+    /// heard (`(tick, pose)`).
+    Lidar {
+        perception: Perception,
+        scans: VecDeque<Scan>,
+        poses: VecDeque<(u64, [f64; 3])>,
+    },
+}
+
+/// Estimates kept to place a scan with (more than a sample's inner ticks).
+const POSES_KEPT: usize = 64;
 
 /// The tracker with the perception ticks waiting for it.
 pub struct TrackerTask {
-    tracker: Tracker,
+    sense: Sense,
     perception_ticks: u64,
     ticks_per_sample: u64,
     dt_s: f64,
     faults: FaultConfig,
-    /// Perception ticks heard and not measured yet, with their times, s.
+    /// Perception ticks heard and not measured yet, with their times, s (of the truth).
     pending: VecDeque<(u64, f64)>,
     /// The newest perception tick heard.
     last_tick: Option<u64>,
@@ -37,8 +63,17 @@ impl Task for TrackerTask {
     type Resources = ();
 
     fn new(scenario: &Validated, _epoch: u32, _resources: ()) -> Result<TrackerTask, TaskError> {
+        let sense = if scenario.sees_with_lidar() {
+            Sense::Lidar {
+                perception: Perception::new(scenario),
+                scans: VecDeque::with_capacity(4),
+                poses: VecDeque::with_capacity(POSES_KEPT),
+            }
+        } else {
+            Sense::Truth(Tracker::new(scenario))
+        };
         Ok(TrackerTask {
-            tracker: Tracker::new(scenario),
+            sense,
             perception_ticks: scenario.perception_ticks(),
             ticks_per_sample: scenario.timing.inner_steps as u64,
             dt_s: scenario.timing.dt_s(),
@@ -49,17 +84,49 @@ impl Task for TrackerTask {
         })
     }
 
-    /// A truth at a perception tick newer than the last is queued.
-    fn hear(&mut self, input: TrackerInput, _latency_ns: u64, _context: &impl Context) {
-        let TrackerInput::Truth(truth) = input;
-        let tick = truth.header.tick;
-        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
-            self.last_tick = Some(tick);
-            self.pending.push_back((tick, truth.header.time_s));
+    /// The scans and the estimates with a lidar; else the truth.
+    fn takes(&self, topic: &str) -> bool {
+        match self.sense {
+            Sense::Truth(_) => topic == TRUTH,
+            Sense::Lidar { .. } => topic == SCAN || topic == ESTIMATE,
         }
     }
 
-    /// The next perception tick's truth is expected.
+    /// A truth or a scan at a perception tick newer than the last is queued; an estimate
+    /// is kept.
+    fn hear(&mut self, input: TrackerInput, _latency_ns: u64, _context: &impl Context) {
+        let header = match (&mut self.sense, input) {
+            (Sense::Truth(_), TrackerInput::Truth(truth)) => truth.header,
+            (Sense::Lidar { scans, .. }, TrackerInput::Scan(scan)) => {
+                if self.last_tick.is_some_and(|l| scan.header.tick <= l) {
+                    return;
+                }
+                if scans.len() == scans.capacity() {
+                    scans.pop_front();
+                }
+                scans.push_back(scan);
+                scan.header
+            }
+            (Sense::Lidar { poses, .. }, TrackerInput::Estimate(estimate)) => {
+                let [x, y, theta, _] = estimate.state;
+                if poses.back().is_none_or(|(t, _)| estimate.header.tick > *t) {
+                    if poses.len() == POSES_KEPT {
+                        poses.pop_front();
+                    }
+                    poses.push_back((estimate.header.tick, [x, y, theta]));
+                }
+                return;
+            }
+            _ => return,
+        };
+        let tick = header.tick;
+        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
+            self.last_tick = Some(tick);
+            self.pending.push_back((tick, header.time_s));
+        }
+    }
+
+    /// The next perception tick's truth or scan is expected.
     fn next(&self) -> Due {
         let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
         Due::Expect(Some(next as f64 * self.dt_s))
@@ -67,25 +134,48 @@ impl Task for TrackerTask {
 
     /// The tracks after the oldest perception tick waiting (measured, or predicted to it
     /// when its sample is in `fault.tracker_drop_samples`), held `fault.tracker_delay_ms`.
-    fn step(&mut self, _context: &impl Context) -> Option<Publish<Tracks>> {
-        let (tick, time_s) = self.pending.pop_front()?;
-        let sample = tick / self.ticks_per_sample;
-        if self.faults.tracker_drop_samples.contains(sample) {
-            self.tracker.predict_to(time_s);
-            self.dropped += 1;
-        } else {
-            self.tracker.measure(time_s);
-        }
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Tracks>> {
+        let &(tick, time_s) = self.pending.front()?;
+        let dropped = (self.faults.tracker_drop_samples).contains(tick / self.ticks_per_sample);
         let mut tracks = Tracks {
             header: Header {
                 tick,
                 time_s,
                 ..Header::default()
             },
-            dropped: self.dropped,
             ..Tracks::default()
         };
-        self.tracker.tracks(&mut tracks);
+        match &mut self.sense {
+            Sense::Truth(tracker) => {
+                if dropped {
+                    tracker.predict_to(time_s);
+                } else {
+                    tracker.measure(time_s);
+                }
+                tracker.tracks(&mut tracks);
+            }
+            Sense::Lidar {
+                perception,
+                scans,
+                poses,
+            } => {
+                let heard = poses.back().is_some_and(|(t, _)| *t >= tick);
+                if !heard && !context.is_past(time_s + 0.25 * self.dt_s) {
+                    return None; // the estimate of the scan's tick is on its way
+                }
+                let scan = scans.iter().position(|s| s.header.tick == tick);
+                let pose = poses.iter().rev().find(|(t, _)| *t <= tick);
+                match (scan, pose) {
+                    (Some(i), Some((_, pose))) if !dropped => perception.take(&scans[i], *pose),
+                    _ => perception.predict_to(time_s),
+                }
+                scans.retain(|s| s.header.tick > tick);
+                perception.tracks(&mut tracks);
+            }
+        }
+        self.pending.pop_front();
+        self.dropped += u32::from(dropped);
+        tracks.dropped = self.dropped;
         Some(Publish {
             output: tracks,
             hold_ns: (self.faults.tracker_delay_ms * 1e6) as u64,

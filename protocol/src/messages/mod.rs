@@ -451,6 +451,8 @@ impl_message!(
     Tracks => |m| m.tracks().iter().all(|t| {
         finite(&t.center) && finite(&t.velocity) && finite(&t.covariance) && t.radius_m.is_finite()
     }), m.count as usize <= MAX_TRACKS;
+    Scan => |m| finite(&[m.angle_min_rad, m.angle_increment_rad, m.range_min_m, m.range_max_m])
+        && finite(&m.offset), m.beams as usize <= crate::MAX_BEAMS;
     Odometry => |m| m.distance_m.is_finite(), true, record ["distance_m"] => [m.distance_m];
     Control => |m| true, m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()
@@ -574,8 +576,10 @@ crate::layouts! {
 
 mod codes;
 mod control;
+mod scan;
 pub use codes::*;
 pub use control::*;
+pub use scan::Scan;
 
 macro_rules! data_variants {
     ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {

@@ -74,6 +74,9 @@ pub struct Scenario {
     pub planner: PlannerConfig,
     /// The tracker of moving obstacles (docs/running.md, "Moving obstacles").
     pub perception: PerceptionConfig,
+    /// The robot's lidar (`[lidar]`; none by default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lidar: Option<LidarConfig>,
     /// Circular obstacles, at rest or moving; collisions are judged against these true
     /// radii and positions.
     pub obstacles: Vec<Obstacle>,
@@ -657,6 +660,7 @@ impl Default for Scenario {
             dfl: DflConfig::default(),
             planner: PlannerConfig::default(),
             perception: PerceptionConfig::default(),
+            lidar: None,
             obstacles: vec![Obstacle::fixed(3.0, 3.5, 1.5)],
             fault: FaultConfig::default(),
             supervision: Supervision::default(),
@@ -764,14 +768,17 @@ impl Scenario {
     }
 
     /// The role processes of a run: the four of the paper, the tracker when it tracks an
-    /// obstacle, the planner when it is on, and the optional roles `extra_roles` names.
+    /// obstacle or sees with a lidar, the lidar with one, the planner when it is on, and
+    /// the optional roles `extra_roles` names.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.plans_routes();
-        let tracker = self.tracked().next().is_some();
+        let tracker = self.runs_tracker();
+        let lidar = self.lidar.is_some() && self.plant.kind == PlantKind::Sim;
         let extra = self.extra_roles.clone();
         crate::Role::ALL.into_iter().filter(move |r| match r {
             crate::Role::Planner => planner,
             crate::Role::Tracker => tracker,
+            crate::Role::Lidar => lidar,
             r if crate::graph::declaration(*r, PlantKind::Sim).optional => {
                 extra.iter().any(|name| name == r.as_str())
             }
@@ -795,13 +802,34 @@ impl Scenario {
         }
     }
 
-    /// Whether the tracker tracks obstacle `obstacle`: every one with `perception.kind =
-    /// "track"`, the moving ones with `auto`. The MPC takes the others from the scenario.
-    pub fn is_tracked(&self, obstacle: &Obstacle) -> bool {
-        self.perception.kind == PerceptionKind::Track || obstacle.moves()
+    /// Whether the tracker sees the world in the lidar's scans (`perception.kind =
+    /// "lidar"`, or `auto` with a `[lidar]`).
+    pub fn sees_with_lidar(&self) -> bool {
+        match self.perception.kind {
+            PerceptionKind::Lidar => true,
+            PerceptionKind::Auto => self.lidar.is_some(),
+            PerceptionKind::Track => false,
+        }
     }
 
-    /// The obstacles the tracker tracks, with their indices in `obstacles`, in order.
+    /// Whether a tracker runs: it sees with a lidar, or it tracks an obstacle.
+    pub fn runs_tracker(&self) -> bool {
+        self.sees_with_lidar() || self.tracked().next().is_some()
+    }
+
+    /// Whether the tracker measures obstacle `obstacle` from the truth: every one with
+    /// `perception.kind = "track"`, the ones not `known` with `auto`, none with a lidar
+    /// (which sees them). The MPC takes the known ones from the scenario.
+    pub fn is_tracked(&self, obstacle: &Obstacle) -> bool {
+        match self.perception.kind {
+            _ if self.sees_with_lidar() => false,
+            PerceptionKind::Track => true,
+            _ => !obstacle.is_known(),
+        }
+    }
+
+    /// The obstacles the tracker measures from the truth, with their indices in
+    /// `obstacles`, in order.
     pub fn tracked(&self) -> impl Iterator<Item = (usize, &Obstacle)> {
         self.obstacles
             .iter()
@@ -809,17 +837,26 @@ impl Scenario {
             .filter(|(_, o)| self.is_tracked(o))
     }
 
-    /// The obstacles known from the scenario (not tracked), in order.
+    /// The obstacles the pipeline takes from the scenario (the map), in order: the ones
+    /// not tracked, and with a lidar the `known` ones.
     pub fn known_obstacles(&self) -> impl Iterator<Item = &Obstacle> {
-        self.obstacles.iter().filter(|o| !self.is_tracked(o))
+        let lidar = self.sees_with_lidar();
+        (self.obstacles.iter()).filter(move |o| {
+            if lidar {
+                o.is_known()
+            } else {
+                !self.is_tracked(o)
+            }
+        })
     }
 
-    /// Inner ticks between two measurements of the tracker (`perception.period_s`, at
-    /// least one).
+    /// Inner ticks between two perception ticks (the lidar's scans with a lidar, else
+    /// `perception.period_s`; at least one).
     pub fn perception_ticks(&self) -> u64 {
-        let period = match self.perception.period_s {
-            AutoOr::Auto(_) => self.timing.ts_s,
-            AutoOr::Value(p) => p,
+        let period = match (&self.lidar, self.perception.period_s) {
+            (Some(lidar), _) => 1.0 / lidar.rate_hz,
+            (None, AutoOr::Auto(_)) => self.timing.ts_s,
+            (None, AutoOr::Value(p)) => p,
         };
         ((period / self.timing.dt_s()).round() as u64).max(1)
     }
@@ -844,6 +881,9 @@ pub use ros2::*;
 
 mod realtime;
 pub use realtime::*;
+
+mod lidar;
+pub use lidar::*;
 
 mod validate;
 

@@ -34,6 +34,7 @@ impl Scenario {
             .problems()
             .into_iter()
             .chain(self.realtime.problems())
+            .chain(self.lidar.iter().flat_map(LidarConfig::problems))
         {
             v.fail(key, message);
         }
@@ -234,6 +235,52 @@ impl Scenario {
         }
         v.non_negative("perception.noise_std", c.noise_std);
         v.non_negative("perception.accel_max", c.accel_max);
+        self.check_lidar_perception(v);
+    }
+
+    /// The keys of perception with a lidar, and what a lidar needs.
+    fn check_lidar_perception(&self, v: &mut Validator) {
+        let c = &self.perception;
+        if c.kind == PerceptionKind::Lidar && self.lidar.is_none() {
+            v.fail(
+                "perception.kind",
+                "\"lidar\" sees with the robot's lidar: add a [lidar] table".into(),
+            );
+        }
+        if self.lidar.is_some() && c.period_s != AutoOr::Auto(Auto::Auto) {
+            v.fail(
+                "perception.period_s",
+                "with a [lidar] the perception ticks are its scans (lidar.rate_hz): leave \
+                 perception.period_s out"
+                    .into(),
+            );
+        }
+        if self.lidar.is_some() && self.plant.kind == PlantKind::Ros2 {
+            v.fail(
+                "lidar",
+                "a ROS 2 robot's own scans are not taken yet (docs/limitations.md); remove \
+                 [lidar] with plant.kind = \"ros2\""
+                    .into(),
+            );
+        }
+        if self.sees_with_lidar() && self.mpc.formulation == Formulation::Nonlinear {
+            v.fail(
+                "mpc.formulation",
+                "the nonlinear baseline knows obstacles at rest only; seeing with a lidar \
+                 needs mpc.formulation = \"linear\""
+                    .into(),
+            );
+        }
+        v.non_negative("perception.min_radius", c.min_radius);
+        if !(1..=CONFIRM_WINDOW).contains(&c.confirm) {
+            v.fail(
+                "perception.confirm",
+                format!("must be 1 to {CONFIRM_WINDOW} scans, got {}", c.confirm),
+            );
+        }
+        v.positive("perception.lost_s", c.lost_s);
+        v.positive("perception.gate", c.gate);
+        v.non_negative("perception.cluster_gap_m", c.cluster_gap_m);
     }
 
     /// The injected faults (those of the links only with a role on another host).
@@ -468,6 +515,12 @@ fn check_obstacle(v: &mut Validator, i: usize, o: &Obstacle) {
     let key = |name: &str| format!("obstacles.{i}.{name}");
     v.non_negative(&key("radius"), o.radius);
     v.finite_all(&key("velocity"), &o.velocity);
+    if o.known == Some(true) && o.moves() {
+        v.fail(
+            &key("known"),
+            "an obstacle that moves cannot be known: the map holds obstacles at rest".into(),
+        );
+    }
     if o.path.is_empty() {
         for (name, value) in [("x", o.x), ("y", o.y)] {
             if value.is_nan() {

@@ -10,8 +10,10 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PerceptionConfig {
-    /// `auto`: a tracker process tracks the moving obstacles when there is one (the
-    /// obstacles at rest are known, as in the paper); `track`: it tracks every obstacle.
+    /// `auto`: with a `[lidar]`, `lidar`; else a tracker process tracks the obstacles not
+    /// `known` when there is one (by default the moving ones; the obstacles at rest are
+    /// known, as in the paper); `track`: it tracks every obstacle; `lidar`: the tracker
+    /// sees the obstacles not `known` in the lidar's scans only.
     pub kind: PerceptionKind,
     /// Time between two measurements of the obstacles, s; `auto`: `timing.ts_s`. A whole
     /// number of inner ticks (rounded).
@@ -21,7 +23,24 @@ pub struct PerceptionConfig {
     /// Bound on an obstacle's acceleration, m/s^2: the filter's process noise, and the
     /// growth `accel_max t^2 / 2` of a disc predicted `t` ahead.
     pub accel_max: f64,
+    /// With a lidar: the smallest radius of a disc fitted to a group of points, m (a
+    /// group seen from one side only is narrower than its obstacle).
+    pub min_radius: f64,
+    /// With a lidar: a group is a track once seen in this many of the last
+    /// [`CONFIRM_WINDOW`] scans.
+    pub confirm: u32,
+    /// With a lidar: a track not seen for this long is dropped, s.
+    pub lost_s: f64,
+    /// With a lidar: the largest Mahalanobis distance of a group from a track it is
+    /// associated with.
+    pub gate: f64,
+    /// With a lidar: the gap between two neighbouring points of one group at range 0, m
+    /// (it grows with range as the beams spread).
+    pub cluster_gap_m: f64,
 }
+
+/// Scans a lidar track's confirmation looks back on (`perception.confirm` of them).
+pub const CONFIRM_WINDOW: u32 = 5;
 
 /// `perception.kind`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -29,6 +48,7 @@ pub struct PerceptionConfig {
 pub enum PerceptionKind {
     Auto,
     Track,
+    Lidar,
 }
 
 impl Default for PerceptionConfig {
@@ -38,6 +58,11 @@ impl Default for PerceptionConfig {
             period_s: AutoOr::Auto(Auto::Auto),
             noise_std: 0.02,
             accel_max: 0.5,
+            min_radius: 0.15,
+            confirm: 3,
+            lost_s: 1.0,
+            gate: 3.0,
+            cluster_gap_m: 0.1,
         }
     }
 }
@@ -61,6 +86,11 @@ pub struct Obstacle {
     /// between them, and is held at the first before it and at the last after it.
     #[serde(default)]
     pub path: Vec<[f64; 3]>,
+    /// Whether the pipeline knows it from the scenario (the map); default: one at rest
+    /// is, one that moves is not. One not known is the plant's and the judge's only: the
+    /// tracker finds it (measured from the truth, or seen by the lidar).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub known: Option<bool>,
 }
 
 /// A key left out of the document (refused by the validator where it is required).
@@ -77,7 +107,14 @@ impl Obstacle {
             radius,
             velocity: [0.0; 2],
             path: Vec::new(),
+            known: None,
         }
+    }
+
+    /// Whether the pipeline knows it from the scenario (`known`, by default whether it
+    /// stays at rest).
+    pub fn is_known(&self) -> bool {
+        self.known.unwrap_or(!self.moves())
     }
 
     /// Whether the obstacle ever moves.

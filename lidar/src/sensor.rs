@@ -1,7 +1,6 @@
-//! A simulated 2D lidar (issue 56, item 1; not wired into a run yet): every beam
-//! ray-cast exactly against the true discs of the world at the scan's time, so nearer
-//! discs hide farther ones, with range noise and dropouts drawn from the caller's
-//! generator. Ranges follow ROS's REP 117, as `sensor_msgs/msg/LaserScan` carries them:
+//! A simulated 2D lidar: every beam ray-cast exactly against the true discs of the world
+//! at the scan's time, so nearer discs hide farther ones, with range noise and dropouts
+//! drawn from the caller's generator. Ranges follow ROS's REP 117, as `sensor_msgs/msg/LaserScan` carries them:
 //! `+inf` when nothing is within `range_max_m`, `-inf` when something is nearer than
 //! `range_min_m`, NaN for a beam that returned nothing (a dropout).
 
@@ -29,6 +28,19 @@ pub struct Lidar {
 pub type Disc = ([f64; 2], f64);
 
 impl Lidar {
+    /// The sensor `[lidar]` describes.
+    pub fn of(config: &protocol::LidarConfig) -> Lidar {
+        Lidar {
+            beams: config.beams as usize,
+            fov_rad: config.fov_rad(),
+            range_min_m: config.range_min_m,
+            range_max_m: config.range_max_m,
+            noise_std_m: config.noise_std,
+            dropout: config.dropout,
+            offset: config.offset,
+        }
+    }
+
     /// The angle of beam 0 from the lidar's heading, rad, and the angle between beams:
     /// all around, the beams split the circle evenly; else the first and the last lie on
     /// the edges of the field of view.

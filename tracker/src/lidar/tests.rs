@@ -1,0 +1,153 @@
+use super::*;
+use lidar::Lidar;
+use protocol::{Header, LidarConfig, Obstacle, Scenario, Track};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// A scenario with a lidar (exact unless `noise_std` says) and `obstacles`.
+fn world(obstacles: Vec<Obstacle>, noise_std: f64) -> Validated {
+    let s = Scenario {
+        obstacles,
+        lidar: Some(LidarConfig {
+            noise_std,
+            ..LidarConfig::default()
+        }),
+        ..Scenario::default()
+    };
+    s.validated("test").expect("valid")
+}
+
+/// An obstacle not in the map, at rest.
+fn unknown(x: f64, y: f64, radius: f64) -> Obstacle {
+    Obstacle {
+        known: Some(false),
+        ..Obstacle::fixed(x, y, radius)
+    }
+}
+
+/// The scan of `scenario`'s world at scan `k` (time `k / rate_hz`) from `pose`.
+fn scan_at(scenario: &Validated, k: u64, pose: [f64; 3], rng: &mut ChaCha8Rng) -> Scan {
+    let config = scenario.lidar.clone().expect("a lidar");
+    let lidar = Lidar::of(&config);
+    let time_s = k as f64 / config.rate_hz;
+    let discs: Vec<_> = (scenario.obstacles.iter())
+        .map(|o| (o.center_at(time_s), o.radius))
+        .collect();
+    let (angle_min_rad, angle_increment_rad) = lidar.angles();
+    let mut scan = Scan {
+        header: Header {
+            tick: k,
+            time_s,
+            ..Header::default()
+        },
+        beams: config.beams,
+        angle_min_rad,
+        angle_increment_rad,
+        range_min_m: config.range_min_m,
+        range_max_m: config.range_max_m,
+        offset: config.offset,
+        ..Scan::default()
+    };
+    lidar.scan(pose, &discs, rng, &mut scan.ranges_m[..lidar.beams]);
+    scan
+}
+
+fn confirmed(perception: &Perception) -> Vec<Track> {
+    let mut tracks = Tracks::default();
+    perception.tracks(&mut tracks);
+    tracks.tracks().to_vec()
+}
+
+#[test]
+fn a_box_not_in_the_map_is_a_track_once_seen_in_confirm_scans_and_a_known_pillar_never_is() {
+    let s = world(
+        vec![Obstacle::fixed(0.0, 3.0, 1.0), unknown(3.0, 0.5, 0.4)],
+        0.01,
+    );
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for k in 0..u64::from(s.perception.confirm) {
+        assert!(
+            confirmed(&perception).is_empty(),
+            "confirmed before scan {k}"
+        );
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        assert_eq!(perception.groups().len(), 1, "only the box is a group");
+    }
+    let tracks = confirmed(&perception);
+    assert_eq!(tracks.len(), 1, "{tracks:?}");
+    let track = tracks[0];
+    // Its disc holds the face of the box the lidar sees.
+    let face = [3.0 - 0.4, 0.5];
+    let reach = geometry::distance(track.center, face);
+    assert!(reach <= track.radius_m, "{track:?}");
+    assert!(
+        geometry::distance(track.center, [3.0, 0.5]) < 0.4,
+        "{track:?}"
+    );
+    assert!(track.velocity.iter().all(|v| v.abs() < 0.2), "{track:?}");
+}
+
+#[test]
+fn a_walking_person_keeps_one_track_whose_velocity_is_learnt() {
+    let person = Obstacle {
+        velocity: [0.0, 1.0],
+        ..Obstacle::fixed(4.0, -3.0, 0.3)
+    };
+    let s = world(vec![person.clone()], 0.01);
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut ids = std::collections::BTreeSet::new();
+    for k in 0..40 {
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        ids.extend(confirmed(&perception).iter().map(|t| t.obstacle));
+    }
+    assert_eq!(ids.len(), 1, "one track all along: {ids:?}");
+    let track = confirmed(&perception)[0];
+    assert!((track.velocity[1] - 1.0).abs() < 0.2, "{track:?}");
+    assert!(track.velocity[0].abs() < 0.2, "{track:?}");
+    let truth = person.center_at(39.0 / 10.0);
+    assert!(
+        geometry::distance(track.center, truth) < 0.3,
+        "{track:?} vs {truth:?}"
+    );
+}
+
+#[test]
+fn a_person_behind_a_pillar_is_predicted_while_hidden_and_dropped_once_lost() {
+    // The person walks up behind a known pillar (from the lidar at the origin) and stays.
+    let person = Obstacle {
+        path: vec![[0.0, 5.0, -2.0], [2.0, 5.0, 0.0]],
+        ..unknown(f64::NAN, f64::NAN, 0.3)
+    };
+    let pillar = Obstacle::fixed(2.5, 0.0, 0.6);
+    let s = world(vec![pillar, person], 0.0);
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let hidden_from = (0..30)
+        .find(|&k| {
+            perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+            perception.groups().is_empty()
+        })
+        .expect("the pillar hides the person");
+    assert_eq!(confirmed(&perception).len(), 1, "kept while hidden");
+    let lost_scans = (s.perception.lost_s * 10.0).round() as u64;
+    for k in hidden_from + 1..=hidden_from + lost_scans + 1 {
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+    }
+    assert!(confirmed(&perception).is_empty(), "dropped once lost");
+}
+
+#[test]
+fn a_box_behind_the_robot_is_one_group_across_the_seam_of_a_scan_all_around() {
+    let s = world(vec![unknown(-2.0, 0.0, 0.5)], 0.0);
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3]);
+    assert_eq!(perception.groups().len(), 1, "{:?}", perception.groups());
+    let (centre, radius) = perception.groups()[0].disc;
+    assert!(
+        geometry::distance(centre, [-1.5, 0.0]) <= radius,
+        "{centre:?} {radius}"
+    );
+}
