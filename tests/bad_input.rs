@@ -365,6 +365,12 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["obstacles.0.x=nan"], "obstacles.0.x"),
         (&["obstacles.0.y=inf"], "obstacles.0.y"),
         (&["obstacles.0.radius=-1"], "obstacles.0.radius"),
+        (&["obstacles.0.known=\"maybe\""], "obstacles.0.known"),
+        (&["lidar.beams=0"], "lidar.beams"),
+        (&["lidar.dropout=1.5"], "lidar.dropout"),
+        (&["lidar.range_max_m=0.05"], "lidar.range_max_m"),
+        (&["perception.kind=\"lidar\""], "perception.kind"),
+        (&["perception.confirm=9"], "perception.confirm"),
         (&["fault.mpc_delay_ms=-5"], "fault.mpc_delay_ms"),
         (&["fault.estimator_delay_ms=-5"], "fault.estimator_delay_ms"),
         (

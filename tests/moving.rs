@@ -68,6 +68,52 @@ fn crossing_is_reached_without_contact_in_process_and_identically_in_lockstep() 
 }
 
 #[test]
+fn a_box_and_people_not_in_the_map_are_seen_and_kept_clear_of_alike_in_process_and_in_lockstep() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let (inprocess, lockstep) = (dir.path().join("in-process"), dir.path().join("lockstep"));
+    let s = run_into(&inprocess, &["unmapped", "--in-process"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(s["contacts_moving"], 0, "{s}");
+    assert_eq!(s["contacts_at_rest"], 0, "{s}");
+    // The box is on the straight way: the robot drove round what it saw of it.
+    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0, "{s}");
+    let rows = csv(&inprocess.join("tracks.csv"));
+    for (x, y) in [(0.5, f64::NAN), (2.0, 1.3), (-1.0, 0.2)] {
+        let seen = rows.iter().any(|r| {
+            let error = (num(r, "x") - num(r, "x_true")).hypot(num(r, "y") - num(r, "y_true"));
+            num(r, "x_true") == x && (y.is_nan() || num(r, "y_true") == y) && error < 0.5
+        });
+        assert!(seen, "no track within 0.5 m of the obstacle at x = {x}");
+    }
+
+    let s = run_into(&lockstep, &["unmapped"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert!(s["pids"]["lidar"].as_u64().is_some(), "{s}");
+    for file in ["trajectory.csv", "tracks.csv"] {
+        assert!(
+            read(&inprocess.join(file)) == read(&lockstep.join(file)),
+            "{file} differs between in process and lockstep"
+        );
+    }
+}
+
+#[test]
+fn a_lidar_that_sees_too_little_too_late_lets_the_robot_hit_the_box_nobody_mapped() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(
+        dir.path(),
+        &["unmapped", "--in-process", "--set", "lidar.range_max_m=0.3"],
+    );
+    assert_eq!(s["outcome"], "collided", "{s}");
+    // Where it ended: at the box (centre (-1, 0.2), radius 0.4), before the people.
+    let last = csv(&dir.path().join("trajectory.csv")).pop().unwrap();
+    let to_box = (num(&last, "x") + 1.0).hypot(num(&last, "y") - 0.2);
+    assert!(to_box <= 0.4, "ended {to_box} m from the box's centre");
+}
+
+#[test]
 fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identically_in_lockstep() {
     // Issue 54: a person walked at a robot at rest beside an obstacle, every plan was
     // refused or infeasible for a second, and the DFL, taking the choice that kept the

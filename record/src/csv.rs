@@ -41,6 +41,8 @@ pub struct CsvFiles {
     zeta: f64,
     /// The obstacles, for the true centre beside each track.
     obstacles: Vec<Obstacle>,
+    /// Whether the tracks are the lidar's (a track is then no obstacle's by index).
+    lidar_tracks: bool,
     flush: FlushClock,
 }
 
@@ -62,6 +64,7 @@ impl CsvFiles {
             route_plans: 0,
             zeta: run.scenario.robot.zeta0,
             obstacles: run.scenario.obstacles.clone(),
+            lidar_tracks: run.scenario.sees_with_lidar(),
             flush: FlushClock::new(),
         })))
     }
@@ -205,10 +208,12 @@ impl CsvFiles {
         )?;
         let t = tracks.header.time_s;
         for track in tracks.tracks() {
-            let truth = self
-                .obstacles
-                .get(track.obstacle as usize)
-                .map_or([f64::NAN; 2], |o| o.center_at(t));
+            let truth = if self.lidar_tracks {
+                nearest_unknown(&self.obstacles, track.center, t)
+            } else {
+                (self.obstacles.get(track.obstacle as usize))
+                    .map_or([f64::NAN; 2], |o| o.center_at(t))
+            };
             let (sigma_p, sigma_v) = track.sigmas();
             writeln!(
                 file,
@@ -288,6 +293,18 @@ pub(crate) fn fallback(v: &DeadlineVerdict) -> &'static str {
 /// When a verdict's plan arrived, ms after its sample (`None`: it never did).
 pub(crate) fn arrival_ms(v: &DeadlineVerdict) -> Option<f64> {
     (v.arrival_ns != u64::MAX).then(|| v.arrival_ns as f64 / 1e6)
+}
+
+/// The true centre at `t_s` of the obstacle not known to the pipeline nearest to
+/// `centre` (NaN when every obstacle is known): what a lidar track is judged against.
+fn nearest_unknown(obstacles: &[Obstacle], centre: [f64; 2], t_s: f64) -> [f64; 2] {
+    (obstacles.iter().filter(|o| !o.is_known()))
+        .map(|o| o.center_at(t_s))
+        .min_by(|a, b| {
+            let d = |p: &[f64; 2]| (p[0] - centre[0]).hypot(p[1] - centre[1]);
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap_or([f64::NAN; 2])
 }
 
 /// A new CSV file at `path` with the header line of `columns`, on disk at once.

@@ -69,13 +69,13 @@ mod tests {
     fn every_task_takes_and_gives_only_the_topics_its_role_declares() {
         use protocol::PlantKind;
         use protocol::graph::declaration;
-        // The crossing runs every role of the simulated plant, with the optional ones.
+        // The unmapped world runs every role of the simulated plant, with the optional ones.
         let optional: Vec<&str> = (Role::ALL.iter())
             .filter(|r| declaration(**r, PlantKind::Sim).optional)
             .map(|r| r.as_str())
             .collect();
         let extra = format!("extra_roles={optional:?}");
-        let scenario = crate::scenarios::load(Some("crossing"), &[extra]).unwrap();
+        let scenario = crate::scenarios::load(Some("unmapped"), &[extra]).unwrap();
         assert_eq!(scenario.roles().count(), Role::COUNT);
         for role in scenario.roles() {
             let task = in_process(role, &scenario, 0).unwrap();

@@ -12,6 +12,7 @@ pub const BUILT_IN: &[(&str, &str)] = &[
     ),
     ("field", include_str!("../../scenarios/field.toml")),
     ("crossing", include_str!("../../scenarios/crossing.toml")),
+    ("unmapped", include_str!("../../scenarios/unmapped.toml")),
 ];
 
 /// The text of a built-in scenario.

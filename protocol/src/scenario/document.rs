@@ -93,6 +93,7 @@ impl Scenario {
                 return Err(err(item, "expected KEY=VALUE".into()));
             };
             let key = key.trim();
+            make_room(&mut doc, key);
             let slot = lookup_mut(&mut doc, key).ok_or_else(|| err(key, "unknown key".into()))?;
             *slot = parse_value(raw.trim());
             scenario = doc.clone().try_into::<Scenario>().map_err(|e| {
@@ -103,6 +104,30 @@ impl Scenario {
             })?;
         }
         Ok(scenario)
+    }
+}
+
+/// Makes a place for `key` where the document leaves out what a scenario may lack: a key
+/// of `[lidar]` gives a scenario without one the default lidar, and an obstacle's `known`
+/// may be set where it was left to its default.
+fn make_room(doc: &mut toml::Value, key: &str) {
+    let toml::Value::Table(table) = doc else {
+        return;
+    };
+    if key.starts_with("lidar.") && !table.contains_key("lidar") {
+        if let Ok(lidar) = toml::Value::try_from(super::LidarConfig::default()) {
+            table.insert("lidar".into(), lidar);
+        }
+    }
+    let index = (key.strip_prefix("obstacles."))
+        .and_then(|rest| rest.strip_suffix(".known"))
+        .and_then(|i| i.parse::<usize>().ok());
+    if let Some(toml::Value::Array(obstacles)) = table.get_mut("obstacles")
+        && let Some(toml::Value::Table(obstacle)) = index.and_then(|i| obstacles.get_mut(i))
+    {
+        obstacle
+            .entry("known")
+            .or_insert(toml::Value::Boolean(true));
     }
 }
 

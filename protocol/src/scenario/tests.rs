@@ -278,3 +278,23 @@ fn a_tracker_runs_when_an_obstacle_moves_or_perception_tracks() {
         .unwrap_err();
     assert_eq!(e.0[0].key, "swap.0.role");
 }
+
+#[test]
+fn with_a_lidar_the_map_is_the_known_obstacles_and_the_tracker_sees_the_others() {
+    let roles = |s: &Validated| s.roles().map(|r| r.as_str()).collect::<Vec<_>>();
+    let unmapped = with_obstacle("x = -5.0\ny = 1.0\nradius = 0.3\nknown = false")
+        .unwrap()
+        .with_overrides(&["lidar.rate_hz=20".into()], "t")
+        .unwrap();
+    assert!(unmapped.sees_with_lidar());
+    assert!(roles(&unmapped).contains(&"lidar") && roles(&unmapped).contains(&"tracker"));
+    // The paper's obstacle is the map; the one not known is nobody's but the lidar's.
+    assert_eq!(unmapped.known_obstacles().count(), 1);
+    assert_eq!(unmapped.tracked().count(), 0);
+    // Its scans are the perception ticks: 20 Hz at the paper's 5 ms ticks.
+    assert_eq!(unmapped.perception_ticks(), 10);
+    // Without a lidar an obstacle at rest not known is measured from the truth.
+    let blind = with_obstacle("x = -5.0\ny = 1.0\nradius = 0.3\nknown = false").unwrap();
+    assert!(!blind.sees_with_lidar() && !roles(&blind).contains(&"lidar"));
+    assert_eq!(blind.tracked().map(|(i, _)| i).collect::<Vec<_>>(), [1]);
+}
