@@ -114,10 +114,11 @@ fn make_room(doc: &mut toml::Value, key: &str) {
     let toml::Value::Table(table) = doc else {
         return;
     };
-    if key.starts_with("lidar.") && !table.contains_key("lidar") {
-        if let Ok(lidar) = toml::Value::try_from(super::LidarConfig::default()) {
-            table.insert("lidar".into(), lidar);
-        }
+    if key.starts_with("lidar.")
+        && !table.contains_key("lidar")
+        && let Ok(lidar) = toml::Value::try_from(super::LidarConfig::default())
+    {
+        table.insert("lidar".into(), lidar);
     }
     let index = (key.strip_prefix("obstacles."))
         .and_then(|rest| rest.strip_suffix(".known"))
