@@ -14,6 +14,7 @@ SCALARS = {
     ctypes.c_uint8: "u8",
     ctypes.c_uint32: "u32",
     ctypes.c_uint64: "u64",
+    ctypes.c_float: "f32",
     ctypes.c_double: "f64",
 }
 
