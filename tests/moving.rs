@@ -114,6 +114,61 @@ fn a_lidar_that_sees_too_little_too_late_lets_the_robot_hit_the_box_nobody_mappe
 }
 
 #[test]
+fn the_phantoms_keep_the_robot_wide_of_a_pillar_a_person_steps_out_from_alike_in_process_and_in_lockstep()
+ {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let (inprocess, lockstep, blind) = (
+        dir.path().join("in-process"),
+        dir.path().join("lockstep"),
+        dir.path().join("without-phantoms"),
+    );
+    let s = run_into(&inprocess, &["occluded", "--in-process"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    assert_eq!(
+        (
+            s["contacts_moving"].as_u64(),
+            s["contacts_at_rest"].as_u64()
+        ),
+        (Some(0), Some(0)),
+        "{s}"
+    );
+    let wide = s["min_moving_clearance_m"].as_f64().unwrap();
+    // The phantoms were in the tracks the MPC and the DFL took.
+    let phantoms = csv(&inprocess.join("tracks.csv"))
+        .iter()
+        .filter(|r| num(r, "obstacle") >= f64::from(protocol::FIRST_PHANTOM))
+        .count();
+    assert!(phantoms > 0, "no phantom in tracks.csv");
+
+    let s = run_into(&lockstep, &["occluded"]);
+    assert_eq!(s["outcome"], "reached", "{s}");
+    for file in ["trajectory.csv", "tracks.csv"] {
+        assert!(
+            read(&inprocess.join(file)) == read(&lockstep.join(file)),
+            "{file} differs between in process and lockstep"
+        );
+    }
+
+    // Assuming the unseen empty, the robot drives by the shadow and the person comes out
+    // much nearer to it.
+    let s = run_into(
+        &blind,
+        &[
+            "occluded",
+            "--in-process",
+            "--set",
+            "perception.phantoms=false",
+        ],
+    );
+    let near = s["min_moving_clearance_m"].as_f64().unwrap();
+    assert!(
+        near + 0.5 < wide,
+        "{near} m without phantoms, {wide} m with"
+    );
+}
+
+#[test]
 fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identically_in_lockstep() {
     // Issue 54: a person walked at a robot at rest beside an obstacle, every plan was
     // refused or infeasible for a second, and the DFL, taking the choice that kept the

@@ -111,6 +111,8 @@ pub struct World {
     /// Whether any obstacle is tracked (none are with `fault.mpc_ignore_obstacles`).
     tracking: bool,
     tracks: KeptTracks,
+    /// With a lidar: the most tracks' discs a step keeps ([`protocol::MAX_SEEN_DISCS`]).
+    seen_most: Option<usize>,
 }
 
 impl World {
@@ -119,6 +121,9 @@ impl World {
             known: scenario.known_obstacles().cloned().collect(),
             tracking: scenario.runs_tracker(),
             tracks: KeptTracks::of(scenario),
+            seen_most: scenario
+                .sees_with_lidar()
+                .then_some(protocol::MAX_SEEN_DISCS),
         }
     }
 
@@ -139,10 +144,18 @@ impl World {
         !self.tracks.tracks().is_empty()
     }
 
-    /// Fills `discs` with the step's constraint discs at the sample's time `t_s`: the
-    /// known obstacles' ([`constraint_discs`]), then each track's predicted one
-    /// ([`predicted_disc`]) as `prediction` says.
-    pub fn discs(&self, g: StepGrowth, t_s: f64, prediction: Prediction, discs: &mut Vec<Disc>) {
+    /// Fills `discs` with the step's constraint discs at the sample's time `t_s` for the
+    /// robot at `position` (goal-relative, m): the known obstacles' ([`constraint_discs`]),
+    /// then each track's predicted one ([`predicted_disc`]) as `prediction` says (with a
+    /// lidar the nearest [`protocol::MAX_SEEN_DISCS`], [`keep_nearest`]).
+    pub fn discs(
+        &self,
+        g: StepGrowth,
+        t_s: f64,
+        prediction: Prediction,
+        position: [f64; 2],
+        discs: &mut Vec<Disc>,
+    ) {
         let accel_max = match prediction {
             Prediction::Bounded => self.tracks.accel_max(),
             Prediction::ConstantVelocity => 0.0,
@@ -163,7 +176,21 @@ impl World {
                 .iter()
                 .map(|(track, time_s)| predicted_disc(track, t_s - time_s, &g, chord, accel_max)),
         );
+        if let Some(most) = self.seen_most {
+            keep_nearest(discs, self.known.len(), position, most);
+        }
     }
+}
+
+/// Keeps of `discs[first..]` the `most` nearest to `position` (by the distance to their
+/// edge; all of them when they are no more), in that order.
+pub fn keep_nearest(discs: &mut Vec<Disc>, first: usize, position: [f64; 2], most: usize) {
+    if discs.len() <= first + most {
+        return;
+    }
+    let gap = |d: &Disc| (d.center[0] - position[0]).hypot(d.center[1] - position[1]) - d.radius;
+    discs[first..].sort_unstable_by(|a, b| gap(a).total_cmp(&gap(b)));
+    discs.truncate(first + most);
 }
 
 /// How a track's disc is predicted.

@@ -29,7 +29,7 @@ impl Layout {
         Layout {
             horizon: c.horizon,
             terminal_rows,
-            obstacles: scenario.obstacles.len(),
+            obstacles: scenario.max_obstacle_discs(),
             linear_barrier: c.constraint == protocol::ConstraintKind::Euclidean || c.gamma >= 1.0,
             condensed: c.qp_form.condensed(c.horizon),
             terminal: TerminalBrake::of(scenario),

@@ -182,11 +182,11 @@ impl LinearMpc {
             plan_reach: reach.clone(),
             reach,
             assembly,
-            discs: Vec::with_capacity(scenario.obstacles.len()),
+            discs: Vec::with_capacity(scenario.max_obstacle_discs()),
             prediction: Prediction::Bounded,
-            kept: Vec::with_capacity(scenario.obstacles.len()),
+            kept: Vec::with_capacity(scenario.max_obstacle_discs()),
             kept_whole: 0,
-            deferred: Vec::with_capacity(scenario.obstacles.len()),
+            deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
             defers_discs: true,
             deferral_share: DEFERRAL_SHARE,
             iterate: vec![0.0; layout_stagewise],
@@ -400,8 +400,13 @@ impl LinearMpc {
         };
         let t_s = sample as f64 * self.ts_s;
         self.prediction = Prediction::Bounded;
-        self.world
-            .discs(growth, t_s, self.prediction, &mut self.discs);
+        self.world.discs(
+            growth,
+            t_s,
+            self.prediction,
+            [z0[0], z0[2]],
+            &mut self.discs,
+        );
 
         let warm = self.shifted_reference(sample);
         if !warm {
@@ -429,8 +434,13 @@ impl LinearMpc {
             // other choice (the brake, the robot at rest) would touch too: a person
             // coming at the robot, say (docs/safety.md, "Moving obstacles").
             self.prediction = Prediction::ConstantVelocity;
-            self.world
-                .discs(growth, t_s, self.prediction, &mut self.discs);
+            self.world.discs(
+                growth,
+                t_s,
+                self.prediction,
+                [z0[0], z0[2]],
+                &mut self.discs,
+            );
             self.braking_reference(z0);
             outcome = outcome.then(self.refine(z0));
         }

@@ -208,7 +208,9 @@ impl CsvFiles {
         )?;
         let t = tracks.header.time_s;
         for track in tracks.tracks() {
-            let truth = if self.lidar_tracks {
+            let truth = if track.is_phantom() {
+                [f64::NAN; 2]
+            } else if self.lidar_tracks {
                 nearest_unknown(&self.obstacles, track.center, t)
             } else {
                 (self.obstacles.get(track.obstacle as usize))

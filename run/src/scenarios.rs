@@ -13,6 +13,7 @@ pub const BUILT_IN: &[(&str, &str)] = &[
     ("field", include_str!("../../scenarios/field.toml")),
     ("crossing", include_str!("../../scenarios/crossing.toml")),
     ("unmapped", include_str!("../../scenarios/unmapped.toml")),
+    ("occluded", include_str!("../../scenarios/occluded.toml")),
 ];
 
 /// The text of a built-in scenario.

@@ -214,12 +214,17 @@ impl Route {
 /// Most obstacles the tracker tracks.
 pub const MAX_TRACKS: usize = 32;
 
+/// The first [`Track::obstacle`] of a phantom: an obstacle assumed where the lidar cannot
+/// see (docs/safety.md, "What the lidar cannot see").
+pub const FIRST_PHANTOM: u32 = 1 << 31;
+
 /// One obstacle as the tracker sees it: its constant-velocity Kalman filter's state.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 #[cfg_attr(feature = "iceoryx2", derive(ZeroCopySend), type_name("scmpc::Track"))]
 pub struct Track {
-    /// Index of the obstacle in the scenario's `obstacles`.
+    /// Index of the obstacle in the scenario's `obstacles`; with a lidar the track's number,
+    /// from [`FIRST_PHANTOM`] on a phantom's.
     pub obstacle: u32,
     pub reserved: u32,
     /// Its true radius, m (the tracker measures centres only).
@@ -234,6 +239,11 @@ pub struct Track {
 }
 
 impl Track {
+    /// Whether it is a phantom ([`FIRST_PHANTOM`]).
+    pub fn is_phantom(&self) -> bool {
+        self.obstacle >= FIRST_PHANTOM
+    }
+
     /// Standard deviations of the position and of the velocity along the worse axis,
     /// m and m/s. The predicted position's `sigma(t) = sqrt(var p + 2 t cov + t^2 var v)`
     /// is at most `sigma_p + t sigma_v` (the covariance is at most `sigma_p sigma_v`).

@@ -49,6 +49,11 @@ impl Validated {
     }
 }
 
+/// The most discs of a lidar's tracks and phantoms the MPC keeps clear of at once: the
+/// nearest to the robot (its program is built for every number of discs up to its most;
+/// the DFL's check takes every track).
+pub const MAX_SEEN_DISCS: usize = 8;
+
 /// A whole run's configuration. Defaults reproduce the paper's scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -810,6 +815,24 @@ impl Scenario {
             PerceptionKind::Auto => self.lidar.is_some(),
             PerceptionKind::Track => false,
         }
+    }
+
+    /// Whether the tracker assumes phantoms where the lidar cannot see (with a lidar, and
+    /// `perception.phantoms`).
+    pub fn phantoms(&self) -> bool {
+        self.sees_with_lidar() && self.perception.phantoms
+    }
+
+    /// The most obstacle discs the MPC keeps clear of at once: the known obstacles and
+    /// one per track (with a lidar, whose tracks and phantoms are not the scenario's
+    /// obstacles, the [`MAX_SEEN_DISCS`] nearest).
+    pub fn max_obstacle_discs(&self) -> usize {
+        let tracks = if self.sees_with_lidar() {
+            MAX_SEEN_DISCS
+        } else {
+            self.tracked().count()
+        };
+        self.known_obstacles().count() + tracks
     }
 
     /// Whether a tracker runs: it sees with a lidar, or it tracks an obstacle.

@@ -281,6 +281,16 @@ impl Scenario {
         v.positive("perception.lost_s", c.lost_s);
         v.positive("perception.gate", c.gate);
         v.non_negative("perception.cluster_gap_m", c.cluster_gap_m);
+        v.positive("perception.phantom_radius", c.phantom_radius);
+        v.non_negative("perception.phantom_speed", c.phantom_speed);
+        if self.phantoms() && self.mpc.uncertainty_sigmas <= 0.0 {
+            v.fail(
+                "perception.phantoms",
+                "a phantom's disc grows at perception.phantom_speed through the predictions' \
+                 sigmas: it needs mpc.uncertainty_sigmas > 0 (or perception.phantoms = false)"
+                    .into(),
+            );
+        }
     }
 
     /// The injected faults (those of the links only with a role on another host).

@@ -37,6 +37,14 @@ pub struct PerceptionConfig {
     /// With a lidar: the gap between two neighbouring points of one group at range 0, m
     /// (it grows with range as the beams spread).
     pub cluster_gap_m: f64,
+    /// With a lidar: assume a phantom at every shadow edge within range, an obstacle that
+    /// may come out of what the lidar cannot see (docs/safety.md, "What the lidar cannot
+    /// see").
+    pub phantoms: bool,
+    /// A phantom's radius, m.
+    pub phantom_radius: f64,
+    /// The fastest a phantom comes out, m/s.
+    pub phantom_speed: f64,
 }
 
 /// Scans a lidar track's confirmation looks back on (`perception.confirm` of them).
@@ -63,6 +71,9 @@ impl Default for PerceptionConfig {
             lost_s: 1.0,
             gate: 3.0,
             cluster_gap_m: 0.1,
+            phantoms: true,
+            phantom_radius: 0.3,
+            phantom_speed: 1.5,
         }
     }
 }

@@ -6,10 +6,12 @@
 
 mod assignment;
 mod geometry;
+mod phantoms;
 
 use crate::AxisFilter;
 use assignment::Assignment;
 pub use geometry::{Circle, enclosing_circle};
+use phantoms::{Phantom, PhantomModel};
 use protocol::{MAX_BEAMS, MAX_TRACKS, Scan, Tracks, Validated};
 
 /// The most groups a scan is split into; beyond them the farthest are left out.
@@ -82,6 +84,10 @@ pub struct Perception {
     time_s: Option<f64>,
     /// The lidar in the world at the newest scan.
     origin: [f64; 2],
+    /// What a phantom is, when phantoms are assumed.
+    phantom: Option<PhantomModel>,
+    /// The phantoms of the newest scan.
+    phantoms: Vec<Phantom>,
 }
 
 impl Perception {
@@ -108,6 +114,11 @@ impl Perception {
             next_id: 0,
             time_s: None,
             origin: [0.0; 2],
+            phantom: scenario.phantoms().then(|| PhantomModel {
+                radius_m: p.phantom_radius,
+                velocity_sigma: p.phantom_speed / scenario.mpc.uncertainty_sigmas,
+            }),
+            phantoms: Vec::with_capacity(MAX_BEAMS),
         }
     }
 
@@ -127,11 +138,17 @@ impl Perception {
         &self.groups
     }
 
-    /// The confirmed tracks, into `tracks`.
+    /// The confirmed tracks, then the phantoms of the newest scan, into `tracks`.
     pub fn tracks(&self, tracks: &mut Tracks) {
+        let confirmed = (self.tracks.iter().filter(|t| t.confirmed))
+            .map(|t| crate::track(t.id, t.radius_m, &t.axes));
         let mut count = 0;
-        for track in self.tracks.iter().filter(|t| t.confirmed) {
-            tracks.tracks[count] = crate::track(track.id, track.radius_m, &track.axes);
+        for (slot, track) in tracks
+            .tracks
+            .iter_mut()
+            .zip(confirmed.chain(self.phantom_tracks()))
+        {
+            *slot = track;
             count += 1;
         }
         tracks.count = count as u32;
@@ -157,6 +174,7 @@ impl Perception {
         let origin = [x + c * dx - s * dy, y + s * dx + c * dy];
         self.origin = origin;
         let heading = theta + yaw;
+        self.shadow_edges(scan, origin, heading);
         self.points.clear();
         for (beam, &range) in scan.ranges().iter().enumerate() {
             let range_m = f64::from(range);

@@ -151,3 +151,37 @@ fn a_box_behind_the_robot_is_one_group_across_the_seam_of_a_scan_all_around() {
         "{centre:?} {radius}"
     );
 }
+
+#[test]
+fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
+    let mut s = world(vec![unknown(3.0, 0.0, 0.5)], 0.0).into_inner();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let scan = scan_at(&s.clone().validated("t").unwrap(), 0, [0.0; 3], &mut rng);
+    let phantoms_of = |s: &Scenario| {
+        let mut perception = Perception::new(&s.clone().validated("t").unwrap());
+        perception.take(&scan, [0.0; 3]);
+        let mut tracks = Tracks::default();
+        perception.tracks(&mut tracks);
+        (tracks.tracks().iter())
+            .filter(|t| t.is_phantom())
+            .copied()
+            .collect::<Vec<_>>()
+    };
+    let phantoms = phantoms_of(&s);
+    assert_eq!(phantoms.len(), 2, "{phantoms:?}");
+    // Either side of the box, just behind its silhouette, on the lidar's tangents.
+    let tangent = (0.5f64 / 3.0).asin();
+    for (phantom, side) in phantoms.iter().zip([-1.0, 1.0]) {
+        let bearing = phantom.center[1].atan2(phantom.center[0]);
+        assert!((bearing - side * tangent).abs() < 0.02, "{phantom:?}");
+        assert_eq!(phantom.radius_m, s.perception.phantom_radius);
+        let kappa = s.mpc.uncertainty_sigmas;
+        let growth = protocol::prediction_growth_m(phantom, 2.0, kappa, 0.0);
+        assert!(
+            (growth - 2.0 * s.perception.phantom_speed).abs() < 1e-9,
+            "{growth}"
+        );
+    }
+    s.perception.phantoms = false;
+    assert!(phantoms_of(&s).is_empty());
+}

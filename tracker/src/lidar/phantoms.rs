@@ -1,0 +1,92 @@
+//! Phantoms (docs/safety.md, "What the lidar cannot see"): at every shadow edge of a scan,
+//! where the range jumps from near to far by more than a phantom's width, an obstacle of
+//! `perception.phantom_radius` is assumed just behind the nearer surface, and it may come
+//! out at up to `perception.phantom_speed` in any direction. It goes out as a track whose
+//! centre is certain and whose velocity is zero with a standard deviation of
+//! `phantom_speed / kappa`, so every consumer grows its predicted disc by `phantom_speed t`
+//! (and the acceleration bound), the rule it already applies to every track.
+
+use super::Perception;
+use protocol::{FIRST_PHANTOM, Scan, Track};
+
+/// The most phantoms a scan gives: the nearest to the lidar.
+pub const MAX_PHANTOMS: usize = 8;
+
+/// What a phantom is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct PhantomModel {
+    pub radius_m: f64,
+    /// `phantom_speed / kappa`, m/s: its velocity's standard deviation.
+    pub velocity_sigma: f64,
+}
+
+/// A phantom of a scan: its centre, m, and the range of the edge it hides behind, m.
+pub(super) type Phantom = ([f64; 2], f64);
+
+impl Perception {
+    /// The phantoms of `scan`, taken from the lidar at `origin` heading `heading` (rad);
+    /// every return counts, those of known obstacles too (a person hides behind a wall of
+    /// the map as well as behind a box).
+    pub(super) fn shadow_edges(&mut self, scan: &Scan, origin: [f64; 2], heading: f64) {
+        self.phantoms.clear();
+        let Some(model) = self.phantom else {
+            return;
+        };
+        let ranges = scan.ranges();
+        // A dropout says nothing: the beams beside it are compared across it.
+        let range = |r: f32| match r {
+            r if r.is_nan() => None,
+            f32::INFINITY => Some(scan.range_max_m),
+            f32::NEG_INFINITY => Some(scan.range_min_m),
+            r => Some(f64::from(r)),
+        };
+        let around = super::full_circle(scan).is_some();
+        let mut previous = match around {
+            true => (ranges.iter().enumerate().rev()).find_map(|(i, r)| Some((i, range(*r)?))),
+            false => None,
+        };
+        let jump = 2.0 * model.radius_m;
+        for (i, r) in ranges.iter().enumerate() {
+            let Some(r) = range(*r) else { continue };
+            if let Some((j, q)) = previous {
+                // The nearer of the two beams is the edge of what hides the farther.
+                let edge = match r - q {
+                    d if d > jump => Some((j, q)),
+                    d if d < -jump => Some((i, r)),
+                    _ => None,
+                };
+                if let Some((beam, near)) = edge {
+                    let angle = heading + scan.angle_rad(beam);
+                    let reach = near + model.radius_m;
+                    let centre = [
+                        origin[0] + reach * angle.cos(),
+                        origin[1] + reach * angle.sin(),
+                    ];
+                    self.phantoms.push((centre, near));
+                }
+            }
+            previous = Some((i, r));
+        }
+        if self.phantoms.len() > MAX_PHANTOMS {
+            (self.phantoms).sort_unstable_by(|a, b| a.1.total_cmp(&b.1));
+            self.phantoms.truncate(MAX_PHANTOMS);
+        }
+    }
+
+    /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`].
+    pub(super) fn phantom_tracks(&self) -> impl Iterator<Item = Track> + '_ {
+        let model = self.phantom;
+        (self.phantoms.iter().enumerate()).filter_map(move |(k, (centre, _))| {
+            let model = model?;
+            let variance = model.velocity_sigma * model.velocity_sigma;
+            Some(Track {
+                obstacle: FIRST_PHANTOM + k as u32,
+                reserved: 0,
+                radius_m: model.radius_m,
+                center: *centre,
+                velocity: [0.0; 2],
+                covariance: [0.0, 0.0, variance, 0.0, 0.0, variance],
+            })
+        })
+    }
+}
