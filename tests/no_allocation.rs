@@ -20,18 +20,22 @@ fn allocations<T>(f: impl FnOnce() -> T) -> (T, u64) {
     (out, allocated() - before)
 }
 
+/// Roles counted apart, by their codes: plant, estimator, MPC, DFL, planner, tracker,
+/// odometer, lidar.
+const ROLES: usize = protocol::Role::COUNT;
+
 /// Steps `scenario` to its end in process, each role's pass under the allocation counter;
-/// returns the allocations after the first 20 samples by role (in `Role` order: plant,
-/// estimator, MPC, DFL, planner), and the command modes the DFL used after them.
-fn count_whole_run(scenario: &protocol::Validated) -> ([u64; 5], Vec<CommandMode>) {
+/// returns the allocations after the first 20 samples by role code ([`ROLES`]), and the
+/// command modes the DFL used after them.
+fn count_whole_run(scenario: &protocol::Validated) -> ([u64; ROLES], Vec<CommandMode>) {
     let mut closed_loop = ClosedLoop::new(scenario).unwrap();
     // Warm-up: the first samples size every buffer.
     let warm_up = scenario.timing.first_tick(20);
-    let mut counts = [0u64; 5];
+    let mut counts = [0u64; ROLES];
     let mut modes = Vec::new();
     while !closed_loop.is_done() {
         let counting = closed_loop.tick() >= warm_up;
-        let mut by_role = [0u64; 5];
+        let mut by_role = [0u64; ROLES];
         let tick = closed_loop
             .step_each(|role, pass| by_role[role as usize] += allocations(pass).1)
             .expect("no fault refuses a message here");
@@ -78,8 +82,8 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "plant.noise_variance=0.05",
         ]));
         assert_eq!(
-            counts, [0; 5],
-            "{formulation} {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
+            counts, [0; ROLES],
+            "{formulation} {qp_form}: allocations after warm-up by role code"
         );
     }
     // The route planner and the MPC following its route, through an obstacle field
@@ -89,8 +93,17 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             run::scenarios::load(Some("field"), &[format!("mpc.qp_form={qp_form}")]).unwrap();
         let (counts, _) = count_whole_run(&field);
         assert_eq!(
-            counts, [0; 5],
-            "field, {qp_form}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
+            counts, [0; ROLES],
+            "field, {qp_form}: allocations after warm-up by role code"
+        );
+    }
+    // Seeing with a lidar: the lidar's scans, the tracker's perception (groups, discs, the
+    // assignment, tracks, phantoms) and the MPC and the DFL keeping clear of what it sees.
+    for world in ["unmapped", "occluded"] {
+        let (counts, _) = count_whole_run(&run::scenarios::load(Some(world), &[]).unwrap());
+        assert_eq!(
+            counts, [0; ROLES],
+            "{world}: allocations after warm-up by role code"
         );
     }
     // The real-time MPC's warm-up before each sample (a dry step, then its state put
@@ -170,8 +183,8 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             );
         }
         assert_eq!(
-            counts, [0; 5],
-            "{overrides:?}: allocations after warm-up by plant, estimator, MPC, DFL, planner"
+            counts, [0; ROLES],
+            "{overrides:?}: allocations after warm-up by role code"
         );
     }
 }
