@@ -192,3 +192,73 @@ fn route_planning(bencher: divan::Bencher, n: usize) {
             .is_ok()
     });
 }
+
+/// One perception step per iteration ([`tracker::Perception::take`]): 360 beams all
+/// around, 10 obstacles not in the map (five people walking, five boxes) at 1 to 6 m, so
+/// about 10 groups and 10 tracks, with the phantoms of their shadows; 200 scans at 10 Hz,
+/// walked in order and from the start again.
+#[divan::bench(sample_count = 2000)]
+fn perception_step(bencher: divan::Bencher) {
+    use rand_chacha::rand_core::SeedableRng;
+    let mut s = Scenario::paper();
+    s.lidar = Some(protocol::LidarConfig::default());
+    s.obstacles = (0..10)
+        .map(|i| {
+            let bearing = f64::from(i) * std::f64::consts::TAU / 10.0;
+            let range = 1.0 + 0.5 * f64::from(i);
+            let velocity = if i % 2 == 0 {
+                [0.0, 0.0]
+            } else {
+                [-0.3 * bearing.sin(), 0.3 * bearing.cos()]
+            };
+            Obstacle {
+                velocity,
+                known: Some(false),
+                ..Obstacle::fixed(range * bearing.cos(), range * bearing.sin(), 0.3)
+            }
+        })
+        .collect();
+    let s = s.validated("bench").expect("valid scenario");
+    let config = s.lidar.clone().expect("a lidar");
+    let sensor = lidar::Lidar::of(&config);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    let (angle_min_rad, angle_increment_rad) = sensor.angles();
+    let scans: Vec<protocol::Scan> = (0..200u32)
+        .map(|k| {
+            let time_s = f64::from(k) / config.rate_hz;
+            let discs: Vec<lidar::Disc> = (s.obstacles.iter())
+                .map(|o| (o.center_at(time_s), o.radius))
+                .collect();
+            let mut scan = protocol::Scan {
+                header: Header {
+                    tick: k.into(),
+                    time_s,
+                    ..Header::default()
+                },
+                beams: config.beams,
+                angle_min_rad,
+                angle_increment_rad,
+                range_min_m: config.range_min_m,
+                range_max_m: config.range_max_m,
+                ..protocol::Scan::default()
+            };
+            sensor.scan(
+                [0.0; 3],
+                &discs,
+                &mut rng,
+                &mut scan.ranges_m[..sensor.beams],
+            );
+            scan
+        })
+        .collect();
+    let mut perception = tracker::Perception::new(&s);
+    let mut k = 0;
+    bencher.bench_local(|| {
+        if k == scans.len() {
+            k = 0;
+            perception = tracker::Perception::new(&s);
+        }
+        perception.take(&scans[k], [0.0; 3]);
+        k += 1;
+    });
+}
