@@ -52,10 +52,11 @@ fn scan_at(scenario: &Validated, k: u64, pose: [f64; 3], rng: &mut ChaCha8Rng) -
     scan
 }
 
+/// The confirmed tracks, phantoms left out.
 fn confirmed(perception: &Perception) -> Vec<Track> {
     let mut tracks = Tracks::default();
     perception.tracks(&mut tracks);
-    tracks.tracks().to_vec()
+    (tracks.tracks().iter()).filter(|t| !t.is_phantom()).copied().collect()
 }
 
 #[test]
