@@ -49,12 +49,19 @@ pub const CLEARANCE_RESET_M: f64 = 1.0;
 /// them, m.
 const FREE_END_M: f64 = 1e-6;
 
+/// A track whose speed plus its velocity's standard deviation is below this stands
+/// still, m/s: to the route planner an obstacle at rest.
+pub const STANDING_SPEED_M_S: f64 = 0.3;
+
 /// The planner's state across samples: the newest route and what decides the next plan.
 pub struct Planner {
     graph: TangentGraph,
     /// The obstacles at rest known from the scenario: the route goes round them; the
     /// tracked ones are the MPC's (docs/planner.md).
     obstacles: Vec<protocol::Obstacle>,
+    /// With a lidar: the tracks that stand still, obstacles at rest the map did not hold
+    /// (a box on the floor); the route goes round them too.
+    standing: Vec<protocol::Obstacle>,
     discs: Vec<Disc>,
     goal: [f64; 2],
     goal_tolerance_m: f64,
@@ -87,10 +94,12 @@ pub struct Planner {
 impl Planner {
     pub fn new(scenario: &Validated) -> Planner {
         let m = &scenario.mpc;
+        let most = scenario.obstacles.len() + protocol::MAX_TRACKS;
         Planner {
-            graph: TangentGraph::with_capacity(scenario.obstacles.len()),
+            graph: TangentGraph::with_capacity(most),
             obstacles: scenario.known_obstacles().cloned().collect(),
-            discs: Vec::with_capacity(scenario.obstacles.len()),
+            standing: Vec::with_capacity(protocol::MAX_TRACKS),
+            discs: Vec::with_capacity(most),
             goal: scenario.robot.goal.position,
             goal_tolerance_m: scenario.robot.goal_tolerance_m,
             bounds: [
@@ -110,6 +119,23 @@ impl Planner {
             clearance_steps: 0,
             stalled_at: [0.0; 2],
         }
+    }
+
+    /// Takes the lidar's newest tracks: those that stand still ([`STANDING_SPEED_M_S`]),
+    /// phantoms aside, are obstacles at rest to the routes planned from now on.
+    pub fn take_tracks(&mut self, tracks: &protocol::Tracks) {
+        self.standing.clear();
+        let stands = |t: &&protocol::Track| {
+            let speed = t.velocity[0].hypot(t.velocity[1]);
+            !t.is_phantom() && speed + t.sigmas().1 < STANDING_SPEED_M_S
+        };
+        (self.standing).extend(
+            tracks
+                .tracks()
+                .iter()
+                .filter(stands)
+                .map(|t| protocol::Obstacle::fixed(t.center[0], t.center[1], t.radius_m)),
+        );
     }
 
     /// The room added to `planner.clearance_m` after the stalls so far, m: a step of
@@ -275,7 +301,7 @@ impl Planner {
     /// the goal (a robot pinned at an obstacle's edge plans from where it is).
     fn grow_discs(&mut self, position: [f64; 2], growth_m: f64) {
         self.discs.clear();
-        for o in &self.obstacles {
+        for o in self.obstacles.iter().chain(&self.standing) {
             let Disc { center, radius, .. } = Disc::around(o, growth_m);
             let radius = radius
                 .min(distance(center, position) - FREE_END_M)
@@ -433,7 +459,7 @@ pub fn distance_to_route(route: &Route, position: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::{Header, Obstacle, PlannerKind, Scenario};
+    use protocol::{Header, Obstacle, PlannerKind, Scenario, Tracks};
 
     fn scenario(obstacles: Vec<Obstacle>) -> Validated {
         let mut s = Scenario::default();
@@ -518,6 +544,43 @@ mod tests {
         // The next sample keeps the route: its step's time is not the route's.
         planner.step(1, &estimate_at(7.0, 7.0));
         assert_eq!(planner.took(1, 99).plan_ns, 1234);
+    }
+
+    #[test]
+    fn a_track_that_stands_still_is_routed_round_and_a_moving_one_or_a_phantom_is_not() {
+        // The paper's world seen through a lidar, nothing in the map: the straight way.
+        let mut s = scenario(vec![]).into_inner();
+        s.lidar = Some(protocol::LidarConfig::default());
+        let s = s.validated("test").unwrap();
+        let crosses_the_box = |route: &Route| {
+            route.points().windows(2).any(|w| {
+                let ([ax, ay], [bx, by]) = (w[0], w[1]);
+                let (dx, dy) = (bx - ax, by - ay);
+                let t = (((3.5 - ax) * dx + (3.5 - ay) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+                distance([ax + t * dx, ay + t * dy], [3.5, 3.5]) < 0.5
+            })
+        };
+        let track = |velocity: [f64; 2], obstacle: u32| protocol::Track {
+            obstacle,
+            radius_m: 0.5,
+            center: [3.5, 3.5],
+            velocity,
+            covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
+            ..protocol::Track::default()
+        };
+        let route_with = |tracks: &[protocol::Track]| {
+            let mut planner = Planner::new(&s);
+            let mut message = Tracks::default();
+            message.tracks[..tracks.len()].copy_from_slice(tracks);
+            message.count = tracks.len() as u32;
+            planner.take_tracks(&message);
+            planner.step(0, &estimate_at(7.0, 7.0))
+        };
+        assert!(crosses_the_box(&route_with(&[])));
+        assert!(!crosses_the_box(&route_with(&[track([0.0; 2], 0)])));
+        assert!(crosses_the_box(&route_with(&[track([0.5, 0.0], 0)])));
+        let phantom = track([0.0; 2], protocol::FIRST_PHANTOM);
+        assert!(crosses_the_box(&route_with(&[phantom])));
     }
 
     /// One obstacle on the line from the start (6, 0) to the goal; strays allowed.

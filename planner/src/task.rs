@@ -2,24 +2,37 @@
 //! k's first tick (planned again when [`Planner::step`] says so, else the newest route).
 //! When it has fallen behind, a sample whose successor's time is past is not answered:
 //! only the newest is.
+//!
+//! With a lidar it also takes the tracks: route(k) goes round those of the newest
+//! perception tick before sample k's first that stand still (the tracks of an earlier tick
+//! are in its hands by then in every executor, so routes do not depend on timing).
 
 use crate::Planner;
 use protocol::samples::SampleQueue;
 use protocol::task::{Context, Due, Publish, Task, TaskError};
-use protocol::{Estimate, Header, Role, Route, Validated};
+use protocol::topics::TRACKS;
+use protocol::{Estimate, Header, Role, Route, Tracks, Validated};
+use std::collections::VecDeque;
 
-/// What the planner takes: the estimator's estimates.
+/// What the planner takes: the estimator's estimates, and with a lidar the tracks.
 #[derive(Debug, Clone, Copy)]
+#[allow(clippy::large_enum_variant)] // handed over by value, like `Data`
 pub enum PlannerInput {
     Estimate(Estimate),
+    Tracks(Tracks),
 }
-protocol::task_input!(PlannerInput: Estimate);
+protocol::task_input!(PlannerInput: Estimate, Tracks);
 
 /// The planner with the boundary estimates it has not answered yet.
 pub struct PlannerTask {
     planner: Planner,
     samples: SampleQueue<()>,
+    /// With a lidar: the newest tracks heard, oldest first (`None`: it takes none).
+    tracks: Option<VecDeque<Tracks>>,
 }
+
+/// Tracks kept for the samples to come.
+const TRACKS_KEPT: usize = 4;
 
 impl Task for PlannerTask {
     const ROLE: Role = Role::Planner;
@@ -31,13 +44,32 @@ impl Task for PlannerTask {
         Ok(PlannerTask {
             planner: Planner::new(scenario),
             samples: SampleQueue::new(&scenario.timing),
+            tracks: (scenario.sees_with_lidar()).then(|| VecDeque::with_capacity(TRACKS_KEPT)),
         })
     }
 
-    /// An estimate heard: kept if it starts a sample not answered yet.
+    /// The tracks with a lidar only.
+    fn takes(&self, topic: &str) -> bool {
+        topic != TRACKS || self.tracks.is_some()
+    }
+
+    /// An estimate heard: kept if it starts a sample not answered yet; tracks: kept.
     fn hear(&mut self, input: PlannerInput, _latency_ns: u64, _context: &impl Context) {
-        let PlannerInput::Estimate(estimate) = input;
-        self.samples.hear(estimate, ());
+        match (input, &mut self.tracks) {
+            (PlannerInput::Estimate(estimate), _) => self.samples.hear(estimate, ()),
+            (PlannerInput::Tracks(tracks), Some(kept)) => {
+                if kept
+                    .back()
+                    .is_none_or(|k| tracks.header.tick > k.header.tick)
+                {
+                    if kept.len() == TRACKS_KEPT {
+                        kept.pop_front();
+                    }
+                    kept.push_back(tracks);
+                }
+            }
+            (PlannerInput::Tracks(_), None) => {}
+        }
     }
 
     /// The estimate that starts the next sample is expected (not each one between).
@@ -49,6 +81,14 @@ impl Task for PlannerTask {
     fn step(&mut self, context: &impl Context) -> Option<Publish<Route>> {
         let (sample, estimate, ()) = self.samples.oldest(context)?;
         self.samples.answered();
+        let before = |t: &&Tracks| t.header.tick < estimate.header.tick;
+        if let Some(tracks) = self
+            .tracks
+            .as_ref()
+            .and_then(|k| k.iter().rev().find(before))
+        {
+            self.planner.take_tracks(tracks);
+        }
         let started_ns = context.monotonic_ns();
         self.planner.step(sample, &estimate);
         let mut route = *self

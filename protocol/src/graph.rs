@@ -254,7 +254,7 @@ declare_roles! {
     },
     /// The route planner (docs/planner.md): only in runs that plan routes.
     Planner = 4 "planner" {
-        inputs: &[ESTIMATE],
+        inputs: &[ESTIMATE, TRACKS],
         outputs: &[ROUTE],
         tier: Planning,
         remote: true,

@@ -24,6 +24,8 @@
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
 //! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
 //!
+//! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them |
+//!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
 //! invalid (a start inside a grown obstacle, say) is drawn again.
@@ -63,20 +65,60 @@ pub struct World {
 pub fn world(
     seed: u64,
     index: usize,
-    people: f64,
+    draws: Draws,
     overrides: &[String],
 ) -> Result<World, ScenarioErrors> {
-    let mut rng =
-        ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64);
+    let stream = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ index as u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(stream);
+    // Boxes not in the map from a stream of their own: the worlds are the same otherwise.
+    let mut boxes = ChaCha8Rng::seed_from_u64(stream ^ 0x6c_6964_6172);
     let mut last_error = None;
     for _ in 0..MAX_DRAWS {
-        let scenario = draw(&mut rng, index, people).with_overrides(overrides)?;
+        let mut scenario = draw(&mut rng, index, draws.people);
+        if draws.lidar {
+            seen_through_a_lidar(&mut scenario, &mut boxes);
+        }
+        let scenario = scenario.with_overrides(overrides)?;
         match scenario.validated(&format!("fuzz world {index}")) {
             Ok(scenario) => return Ok(World { index, scenario }),
             Err(e) => last_error = Some(e),
         }
     }
     Err(last_error.unwrap_or_else(|| ScenarioErrors(Vec::new())))
+}
+
+/// What a batch draws beyond the obstacles at rest: the share of its worlds with people
+/// on the way, and whether the robot sees through a lidar (`--perception lidar`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Draws {
+    pub people: f64,
+    pub lidar: bool,
+}
+
+impl Default for Draws {
+    fn default() -> Self {
+        Draws {
+            people: PEOPLE,
+            lidar: false,
+        }
+    }
+}
+
+/// The largest radius of a box not in the map, m: a larger obstacle at rest is a pillar
+/// or a wall, which a map holds.
+pub const BOX_RADIUS_M: f64 = 0.6;
+
+/// The world `s` seen through the default lidar (`--perception lidar`, module docs): each
+/// obstacle at rest of radius up to [`BOX_RADIUS_M`] is, in half the worlds' draws, a box
+/// not in the map; the larger ones stay in it and hide what is behind them.
+fn seen_through_a_lidar(s: &mut Scenario, rng: &mut ChaCha8Rng) {
+    s.lidar = Some(protocol::LidarConfig::default());
+    for obstacle in s.obstacles.iter_mut().filter(|o| !o.moves()) {
+        let unmapped = rng.random_bool(0.5);
+        if obstacle.radius <= BOX_RADIUS_M && unmapped {
+            obstacle.known = Some(false);
+        }
+    }
 }
 
 /// One draw from the distribution (before overrides).
@@ -255,13 +297,13 @@ fn step_in(distance_m: f64, speed_m_s: f64, leaves_s: f64) -> impl Iterator<Item
 /// wandered (Nav2's default goal tolerance), m.
 pub const WANDERED_BEYOND_M: f64 = 0.25;
 
-/// A batch of worlds: its seed (the same seed draws the same worlds), how many, and the
-/// share of them with people on the way.
+/// A batch of worlds: its seed (the same seed draws the same worlds), how many, and what
+/// they draw beyond the obstacles at rest ([`Draws`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Batch {
     pub seed: u64,
     pub count: usize,
-    pub people: f64,
+    pub draws: Draws,
 }
 
 /// The outcome of a batch.
@@ -424,11 +466,7 @@ impl Report {
 /// touched an obstacle on the way (at rest), and no run directories (such a world replays
 /// with `scmpc run FILE`).
 pub fn run(
-    Batch {
-        seed,
-        count,
-        people,
-    }: Batch,
+    Batch { seed, count, draws }: Batch,
     overrides: &[String],
     out: &Path,
     threads: usize,
@@ -436,7 +474,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Report> {
     let mut worlds = (0..count)
-        .map(|i| world(seed, i, people, overrides))
+        .map(|i| world(seed, i, draws, overrides))
         .collect::<Result<Vec<_>, _>>()?;
     let runs: Vec<RunSpec> = worlds
         .iter()
@@ -532,10 +570,40 @@ mod tests {
 
     #[test]
     fn a_batch_is_the_same_for_a_seed_and_differs_across_seeds() {
-        let a = world(7, 3, PEOPLE, &[]).unwrap().scenario;
-        assert_eq!(a, world(7, 3, PEOPLE, &[]).unwrap().scenario);
-        assert_ne!(a, world(8, 3, PEOPLE, &[]).unwrap().scenario);
-        assert_ne!(a, world(7, 4, PEOPLE, &[]).unwrap().scenario);
+        let a = world(7, 3, Draws::default(), &[]).unwrap().scenario;
+        assert_eq!(a, world(7, 3, Draws::default(), &[]).unwrap().scenario);
+        assert_ne!(a, world(8, 3, Draws::default(), &[]).unwrap().scenario);
+        assert_ne!(a, world(7, 4, Draws::default(), &[]).unwrap().scenario);
+    }
+
+    #[test]
+    fn a_lidar_batch_draws_the_same_worlds_with_a_lidar_and_small_obstacles_half_unmapped() {
+        let lidar = Draws {
+            lidar: true,
+            ..Draws::default()
+        };
+        let (mut unmapped, mut small) = (0, 0);
+        for i in 0..200 {
+            let seen = world(5, i, lidar, &[]).unwrap().scenario.into_inner();
+            let mut plain = world(5, i, Draws::default(), &[])
+                .unwrap()
+                .scenario
+                .into_inner();
+            assert_eq!(seen.lidar, Some(protocol::LidarConfig::default()));
+            for (a, b) in seen.obstacles.iter().zip(&mut plain.obstacles) {
+                assert!(a.known.is_none() || (a.radius <= BOX_RADIUS_M && !a.moves()));
+                small += usize::from(a.radius <= BOX_RADIUS_M && !a.moves());
+                unmapped += usize::from(a.known == Some(false));
+                b.known = a.known;
+            }
+            plain.lidar = seen.lidar.clone();
+            assert_eq!(seen, plain, "world {i} is the same world");
+        }
+        let share = unmapped as f64 / small as f64;
+        assert!(
+            (0.4..0.6).contains(&share),
+            "{unmapped} of {small} small obstacles unmapped"
+        );
     }
 
     #[test]
@@ -543,7 +611,7 @@ mod tests {
         let (mut far, mut moving, mut noisy, mut disturbed) = (0, 0, 0, 0);
         let mut with_people = 0;
         for i in 0..300 {
-            let s = world(1, i, PEOPLE, &[]).unwrap().scenario;
+            let s = world(1, i, Draws::default(), &[]).unwrap().scenario;
             let [x, y, heading] = s.robot.start;
             let goal = s.robot.goal.position;
             let span = distance([x, y], goal);
@@ -613,10 +681,10 @@ mod tests {
             "robot.radius_m=0.4".to_string(),
         ];
         for i in 0..50 {
-            let s = world(3, i, PEOPLE, &overrides).unwrap().scenario;
+            let s = world(3, i, Draws::default(), &overrides).unwrap().scenario;
             assert_eq!((s.mpc.gamma, s.robot.radius_m), (0.2, 0.4));
         }
-        let unknown = world(3, 0, PEOPLE, &["mpc.gama=0.2".to_string()]).unwrap_err();
+        let unknown = world(3, 0, Draws::default(), &["mpc.gama=0.2".to_string()]).unwrap_err();
         assert_eq!(unknown.0[0].key, "mpc.gama");
     }
 }

@@ -192,6 +192,13 @@ pub struct SweepArgs {
     pub mcap: bool,
 }
 
+/// `scmpc fuzz --perception`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FuzzPerception {
+    Track,
+    Lidar,
+}
+
 #[derive(Debug, clap::Args)]
 pub struct FuzzArgs {
     /// Number of worlds.
@@ -206,6 +213,11 @@ pub struct FuzzArgs {
     /// Share of the worlds with people on the way (moving obstacles), 0 to 1.
     #[arg(long, default_value_t = study::fuzz::PEOPLE)]
     pub people: f64,
+    /// How the robot perceives the obstacles: `track` (measured from the truth, the
+    /// obstacles at rest in the map) or `lidar` (a lidar in every world, small obstacles at
+    /// rest half the time not in the map).
+    #[arg(long, value_enum, default_value_t = FuzzPerception::Track)]
+    pub perception: FuzzPerception,
     /// Directory of fuzz.csv and the failed worlds [default: a fresh directory under runs/].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,

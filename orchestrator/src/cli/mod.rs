@@ -182,8 +182,11 @@ fn fuzz(args: FuzzArgs) -> CliResult {
             args.people
         )));
     }
-    let first =
-        study::fuzz::world(args.seed, 0, args.people, &args.overrides).map_err(bad_input)?;
+    let draws = study::fuzz::Draws {
+        people: args.people,
+        lidar: args.perception == args::FuzzPerception::Lidar,
+    };
+    let first = study::fuzz::world(args.seed, 0, draws, &args.overrides).map_err(bad_input)?;
     simulated(&first.scenario, "fuzz")?;
     let out = args
         .out
@@ -199,7 +202,7 @@ fn fuzz(args: FuzzArgs) -> CliResult {
     let batch = study::fuzz::Batch {
         seed: args.seed,
         count: args.count,
-        people: args.people,
+        draws,
     };
     let report =
         study::fuzz::run(batch, &args.overrides, &out, threads, true, &stop).map_err(|e| {

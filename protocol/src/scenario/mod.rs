@@ -794,7 +794,8 @@ impl Scenario {
     /// Whether a route planner runs: with `planner.kind = "route"`, and with `auto` (the
     /// default) in a world of more than one obstacle or of any moving one, where the
     /// straight way to the goal is likely to be blocked and a route around the obstacles
-    /// at rest leaves the moving ones to the MPC. A world of one obstacle at rest (the
+    /// at rest leaves the moving ones to the MPC, and with a lidar (what stands in the way
+    /// is seen on the way: the routes go round the tracks that stand still). A world of one obstacle at rest (the
     /// paper's) and the nonlinear baseline (which drives at the goal only) run none.
     pub fn plans_routes(&self) -> bool {
         match self.planner.kind {
@@ -802,7 +803,9 @@ impl Scenario {
             PlannerKind::None => false,
             PlannerKind::Auto => {
                 self.mpc.formulation == Formulation::Linear
-                    && (self.obstacles.len() > 1 || self.obstacles.iter().any(Obstacle::moves))
+                    && (self.obstacles.len() > 1
+                        || self.obstacles.iter().any(Obstacle::moves)
+                        || self.sees_with_lidar())
             }
         }
     }

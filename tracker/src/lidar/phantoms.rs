@@ -1,7 +1,8 @@
 //! Phantoms (docs/safety.md, "What the lidar cannot see"): at every shadow edge of a scan,
 //! where the range jumps from near to far by more than a phantom's width, an obstacle of
-//! `perception.phantom_radius` is assumed just behind the nearer surface, and it may come
-//! out at up to `perception.phantom_speed` in any direction. It goes out as a track whose
+//! `perception.phantom_radius` is assumed in the shadow, as near the edge as it can be
+//! unseen (touching the edge's beam from the shadow's side, level with the nearer return),
+//! and it may come out at up to `perception.phantom_speed` in any direction. It goes out as a track whose
 //! centre is certain and whose velocity is zero with a standard deviation of
 //! `phantom_speed / kappa`, so every consumer grows its predicted disc by `phantom_speed t`
 //! (and the acceleration bound), the rule it already applies to every track.
@@ -49,18 +50,22 @@ impl Perception {
         for (i, r) in ranges.iter().enumerate() {
             let Some(r) = range(*r) else { continue };
             if let Some((j, q)) = previous {
-                // The nearer of the two beams is the edge of what hides the farther.
+                // The nearer of the two beams is the edge of what hides the shadow; the
+                // farther one looks past it (`+1`: at the next beam's angle).
                 let edge = match r - q {
-                    d if d > jump => Some((j, q)),
-                    d if d < -jump => Some((i, r)),
+                    d if d > jump => Some((j, q, 1.0)),
+                    d if d < -jump => Some((i, r, -1.0)),
                     _ => None,
                 };
-                if let Some((beam, near)) = edge {
+                if let Some((beam, near, past)) = edge {
                     let angle = heading + scan.angle_rad(beam);
-                    let reach = near + model.radius_m;
+                    let (sin, cos) = angle.sin_cos();
+                    // Away from the side the farther beam saw clear.
+                    let into_shadow = -past * scan.angle_increment_rad.signum();
+                    let aside = into_shadow * model.radius_m;
                     let centre = [
-                        origin[0] + reach * angle.cos(),
-                        origin[1] + reach * angle.sin(),
+                        origin[0] + near * cos - aside * sin,
+                        origin[1] + near * sin + aside * cos,
                     ];
                     self.phantoms.push((centre, near));
                 }

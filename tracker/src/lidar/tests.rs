@@ -56,7 +56,10 @@ fn scan_at(scenario: &Validated, k: u64, pose: [f64; 3], rng: &mut ChaCha8Rng) -
 fn confirmed(perception: &Perception) -> Vec<Track> {
     let mut tracks = Tracks::default();
     perception.tracks(&mut tracks);
-    (tracks.tracks().iter()).filter(|t| !t.is_phantom()).copied().collect()
+    (tracks.tracks().iter())
+        .filter(|t| !t.is_phantom())
+        .copied()
+        .collect()
 }
 
 #[test]
@@ -156,6 +159,7 @@ fn a_box_behind_the_robot_is_one_group_across_the_seam_of_a_scan_all_around() {
 #[test]
 fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
     let mut s = world(vec![unknown(3.0, 0.0, 0.5)], 0.0).into_inner();
+    s.perception.phantoms = true;
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let scan = scan_at(&s.clone().validated("t").unwrap(), 0, [0.0; 3], &mut rng);
     let phantoms_of = |s: &Scenario| {
@@ -170,11 +174,20 @@ fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
     };
     let phantoms = phantoms_of(&s);
     assert_eq!(phantoms.len(), 2, "{phantoms:?}");
-    // Either side of the box, just behind its silhouette, on the lidar's tangents.
+    // Either side of the box, in its shadow: a phantom's radius off the lidar's tangent
+    // (within a beam's spacing), on the box's side of it, level with the last return on
+    // the box (a beam's spacing short of the silhouette: 0.17 m at this range).
     let tangent = (0.5f64 / 3.0).asin();
+    let silhouette = (3.0f64 * 3.0 - 0.5 * 0.5).sqrt();
     for (phantom, side) in phantoms.iter().zip([-1.0, 1.0]) {
-        let bearing = phantom.center[1].atan2(phantom.center[0]);
-        assert!((bearing - side * tangent).abs() < 0.02, "{phantom:?}");
+        let [x, y] = phantom.center;
+        let off_tangent = (x * (side * tangent).sin() - y * (side * tangent).cos()) * side;
+        assert!(
+            (off_tangent - 0.3).abs() < 0.06,
+            "{phantom:?}: {off_tangent}"
+        );
+        let along = x * tangent.cos() + y * (side * tangent).sin();
+        assert!((along - silhouette).abs() < 0.2, "{phantom:?}: {along}");
         assert_eq!(phantom.radius_m, s.perception.phantom_radius);
         let kappa = s.mpc.uncertainty_sigmas;
         let growth = protocol::prediction_growth_m(phantom, 2.0, kappa, 0.0);
