@@ -98,7 +98,10 @@ mod tests {
         );
         // The planner takes the tracks with a lidar (routes are the graph's, whatever a
         // task leaves out: without a lidar they cross unused, as to a DFL without its check).
-        assert_eq!(routes.host_receives["planning"], [ESTIMATE, TRACKS, CONTROL]);
+        assert_eq!(
+            routes.host_receives["planning"],
+            [ESTIMATE, TRACKS, CONTROL]
+        );
         assert_eq!(routes.orchestrator_sends[ROUTE], ["compute"]);
         assert_eq!(routes.orchestrator_sends[TRACKS], ["compute", "planning"]);
         assert!(!routes.orchestrator_sends.contains_key(MEASUREMENT));

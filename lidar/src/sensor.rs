@@ -43,23 +43,19 @@ impl Lidar {
 
     /// The angle of beam 0 from the lidar's heading, rad, and the angle between beams:
     /// all around, the beams split the circle evenly; else the first and the last lie on
-    /// the edges of the field of view.
+    /// the edges of the field of view. One beam looks along the heading.
     pub fn angles(&self) -> (f64, f64) {
+        if self.beams < 2 {
+            return (0.0, 0.0);
+        }
         let full = self.fov_rad >= std::f64::consts::TAU - 1e-9;
-        let gaps = if full || self.beams < 2 {
-            self.beams.max(1)
-        } else {
-            self.beams - 1
-        };
+        let gaps = if full { self.beams } else { self.beams - 1 };
         (-self.fov_rad / 2.0, self.fov_rad / gaps as f64)
     }
 
     /// The lidar's pose in the world when the robot is at `pose` (`[x, y, theta]`).
     pub fn pose_on(&self, pose: [f64; 3]) -> [f64; 3] {
-        let [x, y, theta] = pose;
-        let [dx, dy, yaw] = self.offset;
-        let (s, c) = theta.sin_cos();
-        [x + c * dx - s * dy, y + s * dx + c * dy, theta + yaw]
+        protocol::mounted(pose, self.offset)
     }
 
     /// The scan of the robot at `pose` among `discs`, one range per beam into `ranges`

@@ -4,8 +4,9 @@
 //! only the newest is.
 //!
 //! With a lidar it also takes the tracks: route(k) goes round those of the newest
-//! perception tick before sample k's first that stand still (the tracks of an earlier tick
-//! are in its hands by then in every executor, so routes do not depend on timing).
+//! perception tick before sample k's first that stand still. In process and in lockstep
+//! those are in its hands by then (the MPC took them before the clock moved on), so
+//! routes do not depend on timing there; in real time late tracks leave the ones before.
 
 use crate::Planner;
 use protocol::samples::SampleQueue;

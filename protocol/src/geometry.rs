@@ -174,6 +174,15 @@ pub fn disturbance_margin_m(scenario: &Scenario) -> f64 {
     scenario.mpc.uncertainty_sigmas * per_sample / (1.0 - decay * decay).sqrt()
 }
 
+/// The pose in the world of a sensor mounted at `offset` (`[x_m, y_m, yaw_rad]`, x
+/// forward) on a robot at `pose` (`[x, y, theta]`).
+pub fn mounted(pose: [f64; 3], offset: [f64; 3]) -> [f64; 3] {
+    let [x, y, theta] = pose;
+    let [dx, dy, yaw] = offset;
+    let (s, c) = theta.sin_cos();
+    [x + c * dx - s * dy, y + s * dx + c * dy, theta + yaw]
+}
+
 /// Distance between two points, m.
 pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]).hypot(a[1] - b[1])

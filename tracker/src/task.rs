@@ -5,8 +5,9 @@
 //!   the same tick (waited for until a quarter of an inner tick after the scan's time; in
 //!   lockstep until it comes; once that is past, the newest estimate before it).
 //!
-//! It takes every perception tick in order, so a run's tracks do not depend on when its
-//! inputs arrive.
+//! It takes every perception tick in order, so in process and in lockstep a run's tracks
+//! do not depend on when its inputs arrive (in real time a scan whose estimate is late is
+//! placed with the newest before it; estimates kept are the last [`POSES_KEPT`]).
 
 use crate::{Perception, Tracker};
 use protocol::task::{Context, Due, Publish, Task, TaskError};
@@ -42,6 +43,12 @@ enum Sense {
 /// Estimates kept to place a scan with (more than a sample's inner ticks).
 const POSES_KEPT: usize = 64;
 
+/// Scans kept waiting for their estimate (the oldest is dropped beyond).
+const SCANS_KEPT: usize = 4;
+
+/// How long after a scan's time its estimate is waited for, in inner ticks (real time).
+const POSE_GRACE_TICKS: f64 = 0.25;
+
 /// The tracker with the perception ticks waiting for it.
 pub struct TrackerTask {
     sense: Sense,
@@ -66,7 +73,7 @@ impl Task for TrackerTask {
         let sense = if scenario.sees_with_lidar() {
             Sense::Lidar {
                 perception: Perception::new(scenario),
-                scans: VecDeque::with_capacity(4),
+                scans: VecDeque::with_capacity(SCANS_KEPT),
                 poses: VecDeque::with_capacity(POSES_KEPT),
             }
         } else {
@@ -101,7 +108,7 @@ impl Task for TrackerTask {
                 if self.last_tick.is_some_and(|l| scan.header.tick <= l) {
                     return;
                 }
-                if scans.len() == scans.capacity() {
+                if scans.len() == SCANS_KEPT {
                     scans.pop_front();
                 }
                 scans.push_back(scan);
@@ -126,8 +133,12 @@ impl Task for TrackerTask {
         }
     }
 
-    /// The next perception tick's truth or scan is expected.
+    /// The next perception tick's truth or scan is expected; with a scan waiting for its
+    /// estimate, the step is due when the wait for it is over.
     fn next(&self) -> Due {
+        if let (Sense::Lidar { .. }, Some(&(_, time_s))) = (&self.sense, self.pending.front()) {
+            return Due::Wait(Some(time_s + POSE_GRACE_TICKS * self.dt_s));
+        }
         let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
         Due::Expect(Some(next as f64 * self.dt_s))
     }
@@ -160,7 +171,7 @@ impl Task for TrackerTask {
                 poses,
             } => {
                 let heard = poses.back().is_some_and(|(t, _)| *t >= tick);
-                if !heard && !context.is_past(time_s + 0.25 * self.dt_s) {
+                if !heard && !context.is_past(time_s + POSE_GRACE_TICKS * self.dt_s) {
                     return None; // the estimate of the scan's tick is on its way
                 }
                 let scan = scans.iter().position(|s| s.header.tick == tick);

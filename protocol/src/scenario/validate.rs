@@ -279,7 +279,15 @@ impl Scenario {
             );
         }
         v.positive("perception.lost_s", c.lost_s);
-        v.positive("perception.gate", c.gate);
+        if !(c.gate > 0.0 && c.gate <= MAX_GATE) {
+            v.fail(
+                "perception.gate",
+                format!(
+                    "must be in (0, {MAX_GATE}] standard deviations, got {}",
+                    c.gate
+                ),
+            );
+        }
         v.non_negative("perception.cluster_gap_m", c.cluster_gap_m);
         v.positive("perception.phantom_radius", c.phantom_radius);
         v.non_negative("perception.phantom_speed", c.phantom_speed);

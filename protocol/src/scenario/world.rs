@@ -47,6 +47,10 @@ pub struct PerceptionConfig {
     pub phantom_speed: f64,
 }
 
+/// The largest `perception.gate`, standard deviations (the assignment weighs a pair outside
+/// the gate as more than any sum of pairs within it).
+pub const MAX_GATE: f64 = 100.0;
+
 /// Scans a lidar track's confirmation looks back on (`perception.confirm` of them).
 pub const CONFIRM_WINDOW: u32 = 5;
 

@@ -1,18 +1,14 @@
 //! The disc of a group of points: the smallest circle enclosing them (Welzl's incremental
-//! algorithm, in a fixed scrambled order so it runs in expected linear time on points that
-//! come in scan order, and allocates nothing).
+//! algorithm, which allocates nothing, and runs in expected linear time on points in random
+//! order: the caller shuffles points that come in scan order).
 
 /// A centre, m, and a radius, m.
 pub type Circle = ([f64; 2], f64);
 
-/// A prime larger than any scan's beam count: stepping by it visits `0..n` in a scrambled
-/// order for every `n` it does not divide.
-const SCRAMBLE: usize = 7919;
-
 /// The smallest circle holding every point of `points` (none: a zero circle at the origin).
 pub fn enclosing_circle(points: &[[f64; 2]]) -> Circle {
     let n = points.len();
-    let at = |k: usize| points[(k * SCRAMBLE) % n];
+    let at = |k: usize| points[k];
     if n == 0 {
         return ([0.0; 2], 0.0);
     }

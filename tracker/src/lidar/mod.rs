@@ -138,10 +138,12 @@ impl Perception {
         &self.groups
     }
 
-    /// The confirmed tracks, then the phantoms of the newest scan, into `tracks`.
+    /// The confirmed tracks, then the phantoms of the newest scan, into `tracks` (the
+    /// phantoms have their places kept: the tracks take what they leave).
     pub fn tracks(&self, tracks: &mut Tracks) {
         let confirmed = (self.tracks.iter().filter(|t| t.confirmed))
-            .map(|t| crate::track(t.id, t.radius_m, &t.axes));
+            .map(|t| crate::track(t.id, t.radius_m, &t.axes))
+            .take(MAX_TRACKS - self.phantoms.len());
         let mut count = 0;
         for (slot, track) in tracks
             .tracks
@@ -168,12 +170,9 @@ impl Perception {
 
     /// The scan's returns in the world, but those on a known obstacle.
     fn points_of(&mut self, scan: &Scan, pose: [f64; 3]) {
-        let [x, y, theta] = pose;
-        let [dx, dy, yaw] = scan.offset;
-        let (s, c) = theta.sin_cos();
-        let origin = [x + c * dx - s * dy, y + s * dx + c * dy];
+        let [x, y, heading] = protocol::mounted(pose, scan.offset);
+        let origin = [x, y];
         self.origin = origin;
-        let heading = theta + yaw;
         self.shadow_edges(scan, origin, heading);
         self.points.clear();
         for (beam, &range) in scan.ranges().iter().enumerate() {
@@ -251,6 +250,7 @@ impl Perception {
             self.scratch.push(p.xy);
             nearest = nearest.min(p.range_m);
         }
+        shuffle(&mut self.scratch);
         let (mut centre, radius) = enclosing_circle(&self.scratch);
         let radius = radius + nearest * step_rad;
         if radius < self.min_radius_m {
@@ -265,6 +265,19 @@ impl Perception {
         }
         let disc = (centre, radius.max(self.min_radius_m));
         self.groups.push(Group { disc, points: len });
+    }
+}
+
+/// Puts `points` in an order that looks random and is the same for the same points
+/// (Fisher-Yates driven by a fixed xorshift): [`enclosing_circle`] runs in expected linear
+/// time on points in random order, in quadratic time or worse on an arc in scan order.
+fn shuffle(points: &mut [[f64; 2]]) {
+    let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+    for i in (1..points.len()).rev() {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        points.swap(i, (state % (i as u64 + 1)) as usize);
     }
 }
 

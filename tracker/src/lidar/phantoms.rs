@@ -39,7 +39,7 @@ impl Perception {
             r if r.is_nan() => None,
             f32::INFINITY => Some(scan.range_max_m),
             f32::NEG_INFINITY => Some(scan.range_min_m),
-            r => Some(f64::from(r)),
+            r => Some(f64::from(r).clamp(scan.range_min_m, scan.range_max_m)),
         };
         let around = super::full_circle(scan).is_some();
         let mut previous = match around {
@@ -80,18 +80,19 @@ impl Perception {
 
     /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`].
     pub(super) fn phantom_tracks(&self) -> impl Iterator<Item = Track> + '_ {
-        let model = self.phantom;
-        (self.phantoms.iter().enumerate()).filter_map(move |(k, (centre, _))| {
-            let model = model?;
-            let variance = model.velocity_sigma * model.velocity_sigma;
-            Some(Track {
-                obstacle: FIRST_PHANTOM + k as u32,
-                reserved: 0,
-                radius_m: model.radius_m,
-                center: *centre,
-                velocity: [0.0; 2],
-                covariance: [0.0, 0.0, variance, 0.0, 0.0, variance],
-            })
+        // There are phantoms only with a model.
+        let model = self.phantom.unwrap_or(PhantomModel {
+            radius_m: 0.0,
+            velocity_sigma: 0.0,
+        });
+        let variance = model.velocity_sigma * model.velocity_sigma;
+        (self.phantoms.iter().enumerate()).map(move |(k, (centre, _))| Track {
+            obstacle: FIRST_PHANTOM + k as u32,
+            reserved: 0,
+            radius_m: model.radius_m,
+            center: *centre,
+            velocity: [0.0; 2],
+            covariance: [0.0, 0.0, variance, 0.0, 0.0, variance],
         })
     }
 }

@@ -199,3 +199,30 @@ fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
     s.perception.phantoms = false;
     assert!(phantoms_of(&s).is_empty());
 }
+
+#[test]
+fn the_phantoms_keep_their_places_among_the_tracks_when_many_boxes_are_tracked() {
+    // 30 small boxes in a ring at 3 m: more tracks than the message holds with phantoms.
+    let boxes = (0..30)
+        .map(|i| {
+            let a = f64::from(i) * std::f64::consts::TAU / 30.0;
+            unknown(3.0 * a.cos(), 3.0 * a.sin(), 0.1)
+        })
+        .collect();
+    let mut s = world(boxes, 0.0).into_inner();
+    s.perception.phantoms = true;
+    let s = s.validated("t").unwrap();
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    for k in 0..5 {
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+    }
+    let mut tracks = Tracks::default();
+    perception.tracks(&mut tracks);
+    let phantoms = tracks.tracks().iter().filter(|t| t.is_phantom()).count();
+    assert_eq!(phantoms, phantoms::MAX_PHANTOMS);
+    assert_eq!(
+        tracks.count as usize, MAX_TRACKS,
+        "the tracks fill what the phantoms leave"
+    );
+}
