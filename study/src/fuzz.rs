@@ -23,7 +23,6 @@
 //! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
 //! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
-//!
 //! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
