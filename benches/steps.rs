@@ -222,33 +222,18 @@ fn perception_step(bencher: divan::Bencher) {
     let config = s.lidar.clone().expect("a lidar");
     let sensor = lidar::Lidar::of(&config);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-    let (angle_min_rad, angle_increment_rad) = sensor.angles();
     let scans: Vec<protocol::Scan> = (0..200u32)
         .map(|k| {
             let time_s = f64::from(k) / config.rate_hz;
             let discs: Vec<lidar::Disc> = (s.obstacles.iter())
                 .map(|o| (o.center_at(time_s), o.radius))
                 .collect();
-            let mut scan = protocol::Scan {
-                header: Header {
-                    tick: k.into(),
-                    time_s,
-                    ..Header::default()
-                },
-                beams: config.beams,
-                angle_min_rad,
-                angle_increment_rad,
-                range_min_m: config.range_min_m,
-                range_max_m: config.range_max_m,
-                ..protocol::Scan::default()
+            let header = Header {
+                tick: k.into(),
+                time_s,
+                ..Header::default()
             };
-            sensor.scan(
-                [0.0; 3],
-                &discs,
-                &mut rng,
-                &mut scan.ranges_m[..sensor.beams],
-            );
-            scan
+            sensor.scan_message(header, [0.0; 3], &discs, &mut rng)
         })
         .collect();
     let mut perception = tracker::Perception::new(&s);

@@ -91,24 +91,12 @@ impl LidarTask {
                 .iter()
                 .map(|o| (o.center_at(time_s), o.radius)),
         );
-        let (angle_min_rad, angle_increment_rad) = self.lidar.angles();
-        let mut scan = Scan {
-            header: Header {
-                tick: truth.header.tick,
-                time_s,
-                ..Header::default()
-            },
-            beams: self.lidar.beams as u32,
-            angle_min_rad,
-            angle_increment_rad,
-            range_min_m: self.lidar.range_min_m,
-            range_max_m: self.lidar.range_max_m,
-            offset: self.lidar.offset,
-            ..Scan::default()
+        let header = Header {
+            tick: truth.header.tick,
+            time_s,
+            ..Header::default()
         };
-        let ranges = &mut scan.ranges_m[..self.lidar.beams];
-        (self.lidar).scan(truth.pose, &self.discs, &mut self.rng, ranges);
-        scan
+        (self.lidar).scan_message(header, truth.pose, &self.discs, &mut self.rng)
     }
 }
 

@@ -58,6 +58,30 @@ impl Lidar {
         protocol::mounted(pose, self.offset)
     }
 
+    /// The scan message of the robot at `pose` among `discs`, with `header` ([`Lidar::scan`]
+    /// into its ranges; its angles, range and offset the sensor's).
+    pub fn scan_message(
+        &self,
+        header: protocol::Header,
+        pose: [f64; 3],
+        discs: &[Disc],
+        rng: &mut impl Rng,
+    ) -> protocol::Scan {
+        let (angle_min_rad, angle_increment_rad) = self.angles();
+        let mut scan = protocol::Scan {
+            header,
+            beams: self.beams as u32,
+            angle_min_rad,
+            angle_increment_rad,
+            range_min_m: self.range_min_m,
+            range_max_m: self.range_max_m,
+            offset: self.offset,
+            ..protocol::Scan::default()
+        };
+        self.scan(pose, discs, rng, &mut scan.ranges_m[..self.beams]);
+        scan
+    }
+
     /// The scan of the robot at `pose` among `discs`, one range per beam into `ranges`
     /// (its length is the number of beams written).
     pub fn scan(&self, pose: [f64; 3], discs: &[Disc], rng: &mut impl Rng, ranges: &mut [f32]) {

@@ -33,23 +33,12 @@ fn scan_at(scenario: &Validated, k: u64, pose: [f64; 3], rng: &mut ChaCha8Rng) -
     let discs: Vec<_> = (scenario.obstacles.iter())
         .map(|o| (o.center_at(time_s), o.radius))
         .collect();
-    let (angle_min_rad, angle_increment_rad) = lidar.angles();
-    let mut scan = Scan {
-        header: Header {
-            tick: k,
-            time_s,
-            ..Header::default()
-        },
-        beams: config.beams,
-        angle_min_rad,
-        angle_increment_rad,
-        range_min_m: config.range_min_m,
-        range_max_m: config.range_max_m,
-        offset: config.offset,
-        ..Scan::default()
+    let header = Header {
+        tick: k,
+        time_s,
+        ..Header::default()
     };
-    lidar.scan(pose, &discs, rng, &mut scan.ranges_m[..lidar.beams]);
-    scan
+    lidar.scan_message(header, pose, &discs, rng)
 }
 
 /// The confirmed tracks, phantoms left out.
