@@ -7,8 +7,8 @@ mod common;
 
 use common::python::{repo, run_python};
 use ros2::cdr::{
-    Header, Marker, MarkerArray, Message, Odometry, Path, Pose, PoseStamped, Time, Twist,
-    TwistStamped,
+    Header, LaserScan, Marker, MarkerArray, Message, Odometry, Path, Pose, PoseStamped, TfMessage,
+    Time, TransformStamped, Twist, TwistStamped,
 };
 use ros2::{Distro, MessageType};
 
@@ -75,6 +75,27 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
     let markers = MarkerArray {
         markers: vec![obstacle(0, ""), obstacle(7, "person")],
     };
+    let scan = LaserScan {
+        header: header("laser"),
+        angle_min: -3.125,
+        angle_max: 3.125,
+        angle_increment: 0.015625,
+        time_increment: 0.0,
+        scan_time: 0.1,
+        range_min: 0.1,
+        range_max: 8.0,
+        ranges: vec![1.5, 2.25, 8.5],
+        intensities: vec![100.0],
+    };
+    let mount = |child: &str, x| TransformStamped {
+        header: header("base_link"),
+        child_frame_id: child.into(),
+        translation: [x, -0.5, 0.25],
+        rotation: [0.0, 0.0, 0.38268343236508984, 0.9238795325112867],
+    };
+    let tf = TfMessage {
+        transforms: vec![mount("laser", 0.125), mount("camera", 0.0)],
+    };
     let hex = |bytes: Vec<u8>| bytes.iter().map(|b| format!("{b:02x}")).collect::<String>();
     let lines = [
         (MessageType::Twist, hex(twist.twist.to_cdr())),
@@ -83,6 +104,8 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
         (MessageType::PoseStamped, hex(stamped.to_cdr())),
         (MessageType::Path, hex(path.to_cdr())),
         (MessageType::MarkerArray, hex(markers.to_cdr())),
+        (MessageType::LaserScan, hex(scan.to_cdr())),
+        (MessageType::TfMessage, hex(tf.to_cdr())),
     ];
     let stdin: String = lines
         .iter()
@@ -112,7 +135,17 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
     for m in messages {
         assert_eq!(m["same_bytes"], true, "{m}");
     }
-    let [twist_only, twist, odometry, stamped, path, markers] = &messages[..] else {
+    let [
+        twist_only,
+        twist,
+        odometry,
+        stamped,
+        path,
+        markers,
+        scan,
+        tf,
+    ] = &messages[..]
+    else {
         panic!("{messages:?}")
     };
     assert_eq!(twist_only["message"]["angular"]["z"], 1.25);
@@ -139,4 +172,16 @@ fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
     assert_eq!(person["frame_locked"], true);
     assert_eq!(person["text"], "person");
     assert_eq!(person["mesh_file"]["filename"], "");
+    let s = &scan["message"];
+    assert_eq!(s["header"]["frame_id"], "laser");
+    assert_eq!(s["angle_increment"], 0.015625);
+    assert_eq!(s["range_max"], 8.0);
+    assert_eq!(s["ranges"], serde_json::json!([1.5, 2.25, 8.5]));
+    assert_eq!(s["intensities"], serde_json::json!([100.0]));
+    let mounts = tf["message"]["transforms"].as_array().unwrap();
+    assert_eq!(mounts.len(), 2);
+    assert_eq!(mounts[0]["child_frame_id"], "laser");
+    assert_eq!(mounts[0]["header"]["frame_id"], "base_link");
+    assert_eq!(mounts[0]["transform"]["translation"]["x"], 0.125);
+    assert_eq!(mounts[1]["transform"]["rotation"]["z"], 0.38268343236508984);
 }

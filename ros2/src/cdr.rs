@@ -364,6 +364,8 @@ impl Message for Path {
 
 mod markers;
 pub use markers::{Marker, MarkerArray};
+mod sensing;
+pub use sensing::{LaserScan, TfMessage, TransformStamped};
 
 #[cfg(test)]
 mod tests;

@@ -43,16 +43,20 @@ pub enum MessageType {
     PoseStamped,
     Path,
     MarkerArray,
+    LaserScan,
+    TfMessage,
 }
 
 impl MessageType {
-    pub const ALL: [MessageType; 6] = [
+    pub const ALL: [MessageType; 8] = [
         MessageType::Twist,
         MessageType::TwistStamped,
         MessageType::Odometry,
         MessageType::PoseStamped,
         MessageType::Path,
         MessageType::MarkerArray,
+        MessageType::LaserScan,
+        MessageType::TfMessage,
     ];
 
     /// The ROS name, `package/msg/Name`.
@@ -64,6 +68,8 @@ impl MessageType {
             MessageType::PoseStamped => "geometry_msgs/msg/PoseStamped",
             MessageType::Path => "nav_msgs/msg/Path",
             MessageType::MarkerArray => "visualization_msgs/msg/MarkerArray",
+            MessageType::LaserScan => "sensor_msgs/msg/LaserScan",
+            MessageType::TfMessage => "tf2_msgs/msg/TFMessage",
         }
     }
 
@@ -98,6 +104,12 @@ impl MessageType {
                 }
                 MessageType::MarkerArray => {
                     "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf"
+                }
+                MessageType::LaserScan => {
+                    "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828"
+                }
+                MessageType::TfMessage => {
+                    "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
                 }
             },
         }
