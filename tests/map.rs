@@ -201,14 +201,16 @@ const ROLE_CRATES: [&str; 7] = [
 ];
 
 /// The task code of every role: the role crates' sources, the example roles', and the
-/// robot's but for its link (`robot/src/link.rs`), the resource it is handed, which may
-/// read a clock.
+/// robot's but for its links (`robot/src/link.rs` and its modules), the resources its
+/// tasks are handed, which may read a clock.
 fn is_task_code(name: &str) -> bool {
     ROLE_CRATES
         .iter()
         .any(|r| name.starts_with(&format!("{r}/src/")))
         || name.starts_with("examples/roles/")
-        || (name.starts_with("robot/src/") && name != "robot/src/link.rs")
+        || (name.starts_with("robot/src/")
+            && name != "robot/src/link.rs"
+            && !name.starts_with("robot/src/link/"))
 }
 
 /// The code lines of `text` that read a clock: `Instant::now`, `SystemTime`, or a clock

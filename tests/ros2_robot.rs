@@ -34,6 +34,8 @@ const SHORT_DRIVE: [&str; 6] = [
 const ODOMETRY_NOISE_STD_M: f64 = 0.002;
 /// `ros2.odom_timeout_s`'s default and the inner tick of the paper, s.
 const ODOM_TIMEOUT_S: f64 = 0.2;
+/// `ros2.scan_timeout_s`'s default, s.
+const SCAN_TIMEOUT_S: f64 = 0.5;
 const TICK_S: f64 = 0.005;
 
 /// A Python process of tests/python/ros2_base.py, its stdout line by line.
@@ -547,4 +549,138 @@ fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
     let out = run_on(&endpoint, &[], &out_dir);
     assert_eq!(out.status.code(), Some(1));
     assert!(stderr(&out).contains(&endpoint), "{}", stderr(&out));
+}
+
+/// The base's world for the lidar: the unmapped scenario's person crossing the way
+/// (`--person X Y VX VY R`), the one standing beside it and the box on it, none of them
+/// in the pipeline's scenario (`obstacles = []`), the lidar 0.2 m ahead of the base's
+/// centre on `tf_static`.
+const UNMAPPED_WORLD: [&str; 21] = [
+    "--start",
+    "-4",
+    "0",
+    "0",
+    "--scan",
+    "--mount",
+    "0.2",
+    "0",
+    "0",
+    "--person",
+    "0.5",
+    "-5",
+    "0",
+    "1",
+    "0.3",
+    "--obstacle",
+    "2",
+    "1.3",
+    "0.3",
+    "--obstacle",
+    "-1",
+];
+
+/// The pipeline of `unmapped` with no obstacle of its own: it sees the base's world
+/// through the base's lidar alone.
+const SEEING: [&str; 5] = [
+    "unmapped",
+    "--set",
+    "obstacles=[]",
+    "--set",
+    "duration_s=20",
+];
+
+/// The base's truth rows in which it touched a disc of its world while it moved: `[t,
+/// x, y, yaw, v, w, clearance]`, clearance below 0 with |v| or |w| at least 0.01.
+fn moving_contacts(log: &Value) -> Vec<Value> {
+    let rows = log["truth"].as_array().expect("truth");
+    rows.iter()
+        .filter(|r| {
+            f64_of(&r[6]) < 0.0 && (f64_of(&r[4]).abs() >= 0.01 || f64_of(&r[5]).abs() >= 0.01)
+        })
+        .cloned()
+        .collect()
+}
+
+#[test]
+fn a_base_with_a_lidar_is_driven_round_people_and_a_box_the_pipeline_was_never_told_of() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let world = [&UNMAPPED_WORLD[..], &["0.2", "0.4"]].concat();
+    let robot = Robot::start(dir.path(), &world);
+    let out_dir = dir.path().join("run");
+    let out = run_on(&robot.endpoint, &SEEING, &out_dir);
+    let log = robot.finish();
+    let summary = summary(&out_dir);
+    let said = format!("{}{}", String::from_utf8_lossy(&out.stdout), stderr(&out));
+    assert_eq!(out.status.code(), Some(0), "{said}");
+    assert_eq!(summary["outcome"], "reached", "{summary}");
+    let contacts = moving_contacts(&log);
+    assert!(
+        contacts.is_empty(),
+        "the base touched its world while moving: {contacts:?}"
+    );
+    let passed = |x: f64| (log["truth"].as_array().unwrap().iter()).any(|r| f64_of(&r[1]) > x);
+    assert!(passed(2.0), "the base never passed the standing person");
+    // The lidar's mount came from tf_static (cached before the pipeline joined).
+    assert!(
+        !stderr(&out).contains("tf_static has no transform"),
+        "{}",
+        stderr(&out)
+    );
+    let lidar_node = |c: &&Value| c["parsed"]["node"] == "scmpc_lidar" && c["alive"] == true;
+    let seen: Vec<(String, String)> = (log["graph"].as_array().unwrap().iter())
+        .filter(lidar_node)
+        .map(|c| {
+            let p = &c["parsed"];
+            let text = |k: &str| p[k].as_str().unwrap_or_default().to_string();
+            (text("topic"), format!("{}", p["reliable"]))
+        })
+        .collect();
+    for wanted in [("/scan", "false"), ("/tf_static", "true")] {
+        let wanted = (wanted.0.to_string(), wanted.1.to_string());
+        assert!(seen.contains(&wanted), "{wanted:?} not among {seen:?}");
+    }
+}
+
+#[test]
+fn scans_that_stop_brake_the_robot_within_the_scan_timeout_and_abort_the_run() {
+    let _alone = machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let robot = Robot::start(dir.path(), &["--scan", "--scan-stop-after", "2"]);
+    let out_dir = dir.path().join("run");
+    let sets = [&SHORT_DRIVE[..], &["--set", "lidar.rate_hz=10"]].concat();
+    let out = run_on(&robot.endpoint, &sets, &out_dir);
+    let log = robot.finish();
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert_eq!(summary(&out_dir)["outcome"], "aborted");
+    let lost = events(&out_dir)
+        .into_iter()
+        .find(|e| e["event"] == "input_lost")
+        .expect("no input_lost event");
+    assert_eq!(lost["role"], "plant");
+    assert!(
+        lost["input"]
+            .as_str()
+            .is_some_and(|k| k.contains("/scan/sensor_msgs::msg::dds_::LaserScan_/")),
+        "{lost}"
+    );
+    let last_scan_ns = (log["scans_ns"].as_array().unwrap().iter())
+        .filter_map(Value::as_i64)
+        .max()
+        .expect("no scan went out");
+    let commands = log["commands"].as_array().unwrap();
+    let moving_after = commands
+        .iter()
+        .filter(|c| !is_zero(c))
+        .map(|c| (c["source_timestamp_ns"].as_i64().unwrap() - last_scan_ns) as f64 * 1e-9)
+        .fold(f64::NEG_INFINITY, f64::max);
+    // One tick for the check, one for the scan's way to the pipeline.
+    assert!(
+        moving_after <= SCAN_TIMEOUT_S + 2.0 * TICK_S,
+        "a command moved the robot {moving_after} s after the last scan"
+    );
+    assert!(
+        moving_after > 0.0,
+        "the robot never moved after its last scan"
+    );
 }

@@ -196,6 +196,8 @@ pub enum TaskError {
     #[error("the {} gave up", .role.as_str())]
     GaveUp {
         role: Role,
+        /// Which of its inputs from outside the pipeline ([`Task::lost_input`]).
+        input: u32,
         #[source]
         source: RoleError,
     },
@@ -271,6 +273,12 @@ pub trait Task: Sized {
     /// ([`TaskError::GaveUp`]).
     fn gave_up(&self) -> Option<RoleError> {
         None
+    }
+
+    /// Once it gave up: which of its inputs from outside the pipeline was lost, by index
+    /// (the robot: 0 its odometry, 1 its scans), for the orchestrator's `input_lost` event.
+    fn lost_input(&self) -> u32 {
+        0
     }
 
     /// Whether it warms up before its periodic input in real time ([`Task::warm_up`]).

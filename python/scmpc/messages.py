@@ -298,7 +298,7 @@ class Scan(Message):
     _fields_ = [
         ("header", Header),
         ("beams", c_u32),
-        ("reserved", c_u32),
+        ("age_ticks", c_u32),
         ("angle_min_rad", c_f64),
         ("angle_increment_rad", c_f64),
         ("range_min_m", c_f64),

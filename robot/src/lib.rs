@@ -6,10 +6,12 @@
 //! the start pose and, if asked, the goal.
 
 pub mod link;
+pub mod scan;
 pub mod task;
 pub mod watchdog;
 
-pub use link::{Heard, Link, first_contact, odometry_key};
+pub use link::{Heard, Link, first_contact, odometry_key, scan_key, watched_keys};
+pub use scan::ScanTask;
 pub use task::RobotTask;
 
 /// What can go wrong with the robot.
@@ -34,4 +36,6 @@ pub enum RobotError {
     Stopped,
     #[error("the odometry on `{key}` stopped: the robot was sent a zero twist")]
     OdometryStopped { key: String },
+    #[error("the scans on `{key}` stopped: the robot was sent a zero twist")]
+    ScanStopped { key: String },
 }

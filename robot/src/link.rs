@@ -7,12 +7,13 @@ use protocol::endpoint::Endpoint;
 use protocol::{Ros2Config, Ros2Wire};
 use ros2::cdr::{self, Message};
 use ros2::{Attachment, Distro, EntityKind, MessageType, Node, Qos};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
+pub mod scan;
 mod views;
 use views::Views;
 
@@ -25,6 +26,13 @@ const QOS: Qos = Qos {
     reliable: true,
     transient_local: false,
     depth: 10,
+};
+/// A scan subscription's QoS: best effort, as lidar drivers publish (the sensor data
+/// profile, keep-last 5).
+pub(crate) const SCAN_QOS: Qos = Qos {
+    reliable: false,
+    transient_local: false,
+    depth: 5,
 };
 /// The frame a command is stamped in: the robot's body.
 const BASE_FRAME: &str = "base_link";
@@ -42,7 +50,9 @@ pub struct RobotLink {
 impl protocol::task::Resources for RobotLink {
     fn open(scenario: &protocol::Validated) -> Result<RobotLink, protocol::task::TaskError> {
         let error = |e: RobotError| protocol::task::TaskError::setup(protocol::Role::Plant, e);
-        let link = Link::open(&scenario.ros2, &net::Security::from_env()).map_err(error)?;
+        let security = net::Security::from_env();
+        let link =
+            Link::open(&scenario.ros2, &security, scenario.sees_with_lidar()).map_err(error)?;
         let first = link
             .first_odometry(&AtomicBool::new(false))
             .map_err(error)?;
@@ -71,7 +81,7 @@ pub fn yaw(q: [f64; 4]) -> f64 {
 }
 
 /// The wall clock, ns since the UNIX epoch.
-fn wall_ns() -> i64 {
+pub(crate) fn wall_ns() -> i64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as i64)
@@ -108,10 +118,10 @@ fn hear_odometry(payload: &[u8], arrived_ns: u64, now_wall_ns: i64) -> Option<(H
 
 /// The robot's names, resolved: the node, its topics fully qualified, and their keys.
 #[derive(Debug, Clone)]
-struct Names {
-    domain_id: u32,
-    wire: Ros2Wire,
-    distro: Distro,
+pub(crate) struct Names {
+    pub(crate) domain_id: u32,
+    pub(crate) wire: Ros2Wire,
+    pub(crate) distro: Distro,
     cmd_vel: String,
     command_type: MessageType,
     odom: String,
@@ -119,11 +129,12 @@ struct Names {
     plan: String,
     route: String,
     obstacles: String,
+    pub(crate) scan: String,
 }
 
 impl Names {
     /// The key of `topic`'s samples of type `message` on the robot's wire.
-    fn key(&self, topic: &str, message: MessageType) -> String {
+    pub(crate) fn key(&self, topic: &str, message: MessageType) -> String {
         match self.wire {
             Ros2Wire::RmwZenoh => ros2::keys::data_key(self.domain_id, topic, message, self.distro),
             Ros2Wire::Bridge => ros2::keys::bridge_key(topic),
@@ -136,7 +147,7 @@ impl Names {
 pub const VIEW_TOPICS: [&str; 3] = ["scmpc/plan", "scmpc/route", "scmpc/obstacles"];
 
 impl Names {
-    fn of(config: &Ros2Config) -> Result<Names, RobotError> {
+    pub(crate) fn of(config: &Ros2Config) -> Result<Names, RobotError> {
         let invalid = |key: &str, e: ros2::NameError| RobotError::Key {
             key: key.into(),
             reason: e.to_string(),
@@ -164,6 +175,7 @@ impl Names {
             plan: topic("ros2", VIEW_TOPICS[0])?,
             route: topic("ros2", VIEW_TOPICS[1])?,
             obstacles: topic("ros2", VIEW_TOPICS[2])?,
+            scan: topic("ros2.scan", &config.scan)?,
         })
     }
 }
@@ -172,6 +184,54 @@ impl Names {
 pub fn odometry_key(config: &Ros2Config) -> Result<String, RobotError> {
     let names = Names::of(config)?;
     Ok(names.key(&names.odom, MessageType::Odometry))
+}
+
+/// The key the scans of `config` are taken from.
+pub fn scan_key(config: &Ros2Config) -> Result<String, RobotError> {
+    let names = Names::of(config)?;
+    Ok(names.key(&names.scan, MessageType::LaserScan))
+}
+
+/// The keys of what a run cannot drive a ROS 2 robot without, by
+/// [`protocol::task::Task::lost_input`]'s index: its odometry, and its scans with a lidar
+/// (none with the simulated plant).
+pub fn watched_keys(scenario: &protocol::Scenario) -> Vec<String> {
+    if scenario.plant.kind != protocol::PlantKind::Ros2 {
+        return Vec::new();
+    }
+    let scan = scenario.sees_with_lidar().then(|| scan_key(&scenario.ros2));
+    [Some(odometry_key(&scenario.ros2))]
+        .into_iter()
+        .chain([scan])
+        .flatten()
+        .filter_map(Result::ok)
+        .collect()
+}
+
+/// Whether a sample carries what rmw_zenoh requires of one (its attachment), when
+/// `attachment` is required (zenoh-bridge-ros2dds sends none).
+pub(crate) fn is_attached(sample: &zenoh::sample::Sample, attachment: bool) -> bool {
+    !attachment
+        || sample
+            .attachment()
+            .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok())
+}
+
+/// The robot's names, and a client session to its router.
+pub(crate) fn connect(
+    config: &Ros2Config,
+    security: &net::Security,
+) -> Result<(Names, zenoh::Session), RobotError> {
+    let names = Names::of(config)?;
+    let router = |reason: String| RobotError::Router {
+        endpoint: config.endpoint.clone(),
+        reason,
+    };
+    let endpoint = Endpoint::parse(&config.endpoint).map_err(router)?;
+    let zenoh_config =
+        net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
+    let session = net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
+    Ok((names, session))
 }
 
 /// A publisher as rmw_zenoh's: its samples carry its sequence number, the time and its
@@ -222,6 +282,9 @@ pub struct Link {
     /// The odometry's frame, the first odometry's.
     frame: Arc<OnceLock<String>>,
     newest_goal: Newest<protocol::Goal>,
+    /// With a lidar: the key of its scans, and when the newest arrived (monotonic ns;
+    /// before the first, when the link opened).
+    scan: Option<(String, Arc<AtomicU64>)>,
     views: Views,
     _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
     _tokens: Vec<zenoh::liveliness::LivelinessToken>,
@@ -249,14 +312,32 @@ fn keep_newest<T: Send + 'static>(
     Ok((subscriber, newest))
 }
 
+/// A subscriber to the scans on `key` that keeps when the newest arrived (monotonic ns;
+/// when it was declared, before the first).
+fn watch_scans(
+    session: &zenoh::Session,
+    key: String,
+    attachment: bool,
+) -> zenoh::Result<(zenoh::pubsub::Subscriber<()>, Arc<AtomicU64>)> {
+    let arrived = Arc::new(AtomicU64::new(runtime::clock::monotonic_ns()));
+    let stamp = arrived.clone();
+    let subscriber = session
+        .declare_subscriber(key)
+        .callback(move |sample| {
+            let scan = cdr::LaserScan::from_cdr(&sample.payload().to_bytes());
+            if scan.is_ok() && is_attached(&sample, attachment) {
+                stamp.store(runtime::clock::monotonic_ns(), Ordering::Relaxed);
+            }
+        })
+        .wait()?;
+    Ok((subscriber, arrived))
+}
+
 /// The odometry of a sample and its frame; rmw_zenoh drops a sample without its
 /// attachment, and so does the pipeline when `attachment` is required (zenoh-bridge-ros2dds
 /// sends none).
 fn odometry_of(sample: &zenoh::sample::Sample, attachment: bool) -> Option<(Heard, String)> {
-    let attached = !attachment
-        || sample
-            .attachment()
-            .is_some_and(|a| Attachment::from_bytes(&a.to_bytes()).is_ok());
+    let attached = is_attached(sample, attachment);
     let heard = hear_odometry(
         &sample.payload().to_bytes(),
         runtime::clock::monotonic_ns(),
@@ -285,17 +366,19 @@ fn goal_of(sample: &zenoh::sample::Sample) -> Option<protocol::Goal> {
 
 impl Link {
     /// Connects to the router of `config` with `security` and announces the node, its
-    /// command publisher and its odometry and goal subscriptions.
-    pub fn open(config: &Ros2Config, security: &net::Security) -> Result<Link, RobotError> {
-        let names = Names::of(config)?;
+    /// command publisher and its odometry and goal subscriptions; with `watch_scan`, also
+    /// when each scan arrives (the scans themselves are the lidar role's,
+    /// [`crate::ScanTask`]).
+    pub fn open(
+        config: &Ros2Config,
+        security: &net::Security,
+        watch_scan: bool,
+    ) -> Result<Link, RobotError> {
+        let (names, session) = connect(config, security)?;
         let router = |reason: String| RobotError::Router {
             endpoint: config.endpoint.clone(),
             reason,
         };
-        let endpoint = Endpoint::parse(&config.endpoint).map_err(router)?;
-        let zenoh_config =
-            net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
-        let session = net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
         let node = Node::new(
             config.domain_id,
             &session.zid().to_string(),
@@ -329,7 +412,17 @@ impl Link {
         };
         let goal_key = key(&names.goal, MessageType::PoseStamped);
         let (goal, newest_goal) = keep_newest(&session, goal_key, goal_of).map_err(zenoh_error)?;
-        let tokens = announce(&session, &node, &names).map_err(zenoh_error)?;
+        let mut subscribers = vec![odometry, goal];
+        let scan = if watch_scan {
+            let key = key(&names.scan, MessageType::LaserScan);
+            let (subscriber, arrived) =
+                watch_scans(&session, key.clone(), attached).map_err(zenoh_error)?;
+            subscribers.push(subscriber);
+            Some((key, arrived))
+        } else {
+            None
+        };
+        let tokens = announce(&session, &node, &names, watch_scan).map_err(zenoh_error)?;
         Ok(Link {
             session,
             endpoint: config.endpoint.clone(),
@@ -339,8 +432,9 @@ impl Link {
             newest_odometry,
             frame,
             newest_goal,
+            scan,
             views,
-            _subscribers: vec![odometry, goal],
+            _subscribers: subscribers,
             _tokens: tokens,
         })
     }
@@ -353,6 +447,13 @@ impl Link {
     /// The newest odometry heard.
     pub fn newest_odometry(&self) -> Option<Heard> {
         self.newest_odometry.lock().ok().and_then(|n| *n)
+    }
+
+    /// With a lidar: the key of its scans and when the newest arrived (monotonic ns; when
+    /// the link opened, before the first).
+    pub fn newest_scan(&self) -> Option<(&str, u64)> {
+        let (key, arrived) = self.scan.as_ref()?;
+        Some((key, arrived.load(Ordering::Relaxed)))
     }
 
     /// The newest goal heard on the goal topic.
@@ -447,6 +548,7 @@ fn announce(
     session: &zenoh::Session,
     node: &Node,
     names: &Names,
+    scan: bool,
 ) -> zenoh::Result<Vec<zenoh::liveliness::LivelinessToken>> {
     if names.wire == Ros2Wire::Bridge {
         return Ok(Vec::new());
@@ -470,6 +572,10 @@ fn announce(
     tokens.extend(entities.iter().map(|(id, kind, topic, message)| {
         node.endpoint_token(*id, *kind, topic, *message, names.distro, QOS)
     }));
+    if scan {
+        let (kind, message) = (EntityKind::Subscription, MessageType::LaserScan);
+        tokens.push(node.endpoint_token(4, kind, &names.scan, message, names.distro, SCAN_QOS));
+    }
     tokens
         .into_iter()
         .map(|token| session.liveliness().declare_token(token).wait())
@@ -503,7 +609,7 @@ pub fn first_contact(
     security: &net::Security,
     stop: &AtomicBool,
 ) -> Result<Start, RobotError> {
-    let link = Link::open(config, security)?;
+    let link = Link::open(config, security, false)?;
     let first = link.first_odometry(stop)?;
     let goal = if config.wait_for_goal {
         loop {

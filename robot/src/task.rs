@@ -34,7 +34,11 @@ pub struct RobotTask {
     link: Option<Link>,
     timing: Timing,
     watchdog: Watchdog,
+    /// With a lidar: the scans' watchdog.
+    scan_watchdog: Option<Watchdog>,
     verdict: Verdict,
+    /// The input whose watchdog gave the verdict, when it is not to drive.
+    stale: Stale,
     /// The tick of the newest actuation sent.
     sent: Option<u64>,
     /// The tick to measure next.
@@ -48,7 +52,46 @@ pub struct RobotTask {
     route_plans: u32,
 }
 
+/// An input the robot cannot drive without, gone stale ([`RobotTask::lost_input`] is its
+/// index).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stale {
+    Odometry = 0,
+    Scan = 1,
+}
+
+impl Stale {
+    fn name(self) -> &'static str {
+        match self {
+            Stale::Odometry => "odometry",
+            Stale::Scan => "scan",
+        }
+    }
+}
+
 impl RobotTask {
+    /// The verdict of the watchdogs at `now_ns` (the worse of the two), and the input it
+    /// is for.
+    fn check(&mut self, now_ns: u64) -> (Verdict, Stale) {
+        let odometry = self.watchdog.check(now_ns, &self.newest);
+        let scan_arrived = self.link.as_ref().and_then(Link::newest_scan);
+        let scan = match (&mut self.scan_watchdog, scan_arrived) {
+            (Some(watchdog), Some((_, arrived_ns))) => {
+                let newest = Heard {
+                    arrived_ns,
+                    ..self.newest
+                };
+                watchdog.check(now_ns, &newest)
+            }
+            _ => Verdict::Drive,
+        };
+        if scan > odometry {
+            (scan, Stale::Scan)
+        } else {
+            (odometry, Stale::Odometry)
+        }
+    }
+
     /// Sends a command; a failure is logged (the robot's own watchdog covers a lost one).
     fn send(&mut self, forward_m_s: f64, turn_rad_s: f64) {
         if let Some(link) = &mut self.link
@@ -131,11 +174,14 @@ impl Task for RobotTask {
         RobotLink { link, first }: RobotLink,
     ) -> Result<RobotTask, TaskError> {
         let newest = first;
+        let watches_scan = link.newest_scan().is_some();
         Ok(RobotTask {
             link: Some(link),
             timing: scenario.timing.clone(),
             watchdog: Watchdog::new(scenario.ros2.odom_timeout_s),
+            scan_watchdog: watches_scan.then(|| Watchdog::new(scenario.ros2.scan_timeout_s)),
             verdict: Verdict::Drive,
+            stale: Stale::Odometry,
             sent: None,
             tick: 0,
             newest,
@@ -173,7 +219,12 @@ impl Task for RobotTask {
         if let Some(newest) = self.link.as_ref().and_then(Link::newest_odometry) {
             self.newest = newest;
         }
-        self.verdict = self.watchdog.check(context.monotonic_ns(), &self.newest);
+        let (verdict, stale) = self.check(context.monotonic_ns());
+        if verdict != Verdict::Drive && self.verdict == Verdict::Drive {
+            tracing::warn!("the {} is stale: the robot brakes", stale.name());
+            self.stale = stale;
+        }
+        self.verdict = verdict;
         if self.verdict != Verdict::Drive {
             self.send(0.0, 0.0);
         }
@@ -198,11 +249,19 @@ impl Task for RobotTask {
 
     fn gave_up(&self) -> Option<RoleError> {
         let link = self.link.as_ref()?;
-        (self.verdict == Verdict::GiveUp).then(|| {
-            RoleError::from(RobotError::OdometryStopped {
+        (self.verdict == Verdict::GiveUp).then(|| match (self.stale, link.newest_scan()) {
+            (Stale::Scan, Some((key, _))) => RoleError::from(RobotError::ScanStopped {
+                key: key.to_string(),
+            }),
+            _ => RoleError::from(RobotError::OdometryStopped {
                 key: link.odometry_key().to_string(),
-            })
+            }),
         })
+    }
+
+    /// The odometry (0) or, with a lidar, the scans (1).
+    fn lost_input(&self) -> u32 {
+        self.stale as u32
     }
 }
 

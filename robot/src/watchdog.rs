@@ -1,14 +1,15 @@
-//! The odometry's watchdog (docs/ros2.md, "Safety at the edge"): odometry older than
-//! `ros2.odom_timeout_s` stops the robot, and the run ends once the robot is at rest or
-//! the odometry is twice that old.
+//! The watchdog of an input the robot cannot drive without (docs/ros2.md, "Safety at the
+//! edge"): odometry older than `ros2.odom_timeout_s` (with a lidar, a scan older than
+//! `ros2.scan_timeout_s`) stops the robot, and the run ends once the robot is at rest or
+//! the input is twice that old.
 
 use crate::Heard;
 
 /// Below these the robot is at rest: forward speed, m/s, and turn rate, rad/s.
 pub const AT_REST: [f64; 2] = [0.01, 0.01];
 
-/// What the robot is sent now.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What the robot is sent now (ordered: the worse of two verdicts is the greater).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Verdict {
     /// The pipeline's commands.
     Drive,
@@ -23,7 +24,7 @@ pub enum Verdict {
 #[derive(Debug, Clone, Copy)]
 pub struct Watchdog {
     timeout_ns: u64,
-    /// When the odometry was first found stale (monotonic ns).
+    /// When the input was first found stale (monotonic ns).
     braking_since_ns: Option<u64>,
 }
 
@@ -35,7 +36,9 @@ impl Watchdog {
         }
     }
 
-    /// The verdict at `now_ns` (monotonic) with `newest` the newest odometry.
+    /// The verdict at `now_ns` (monotonic) with `newest` the newest odometry (for a scan:
+    /// its arrival, with the newest odometry's twist, which says when the robot is at
+    /// rest).
     pub fn check(&mut self, now_ns: u64, newest: &Heard) -> Verdict {
         let age_ns = now_ns.saturating_sub(newest.arrived_ns);
         if age_ns > 2 * self.timeout_ns {

@@ -15,10 +15,15 @@ macro_rules! roles {
         pub const ALL: &[Role] = &[$(Role::$role),*];
 
         /// Runs a process of `role` until the orchestrator stops it ([`runtime::serve`]);
-        /// the plant of `plant.kind = "ros2"` is a ROS 2 robot ([`robot::RobotTask`]).
+        /// the plant of `plant.kind = "ros2"` is a ROS 2 robot ([`robot::RobotTask`]),
+        /// and its lidar the robot's ([`robot::ScanTask`]).
         pub fn serve(role: Role, args: &ProcessArgs) -> Result<(), ProcessError> {
-            if role == Role::Plant && args.scenario.plant.kind == protocol::PlantKind::Ros2 {
-                return runtime::serve::<robot::RobotTask>(args);
+            if args.scenario.plant.kind == protocol::PlantKind::Ros2 {
+                match role {
+                    Role::Plant => return runtime::serve::<robot::RobotTask>(args),
+                    Role::Lidar => return runtime::serve::<robot::ScanTask>(args),
+                    _ => {}
+                }
             }
             match role {
                 $(Role::$role => runtime::serve::<$task>(args),)*

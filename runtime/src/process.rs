@@ -94,13 +94,14 @@ pub enum ProcessError {
 }
 
 impl ProcessError {
-    /// Whether the process lost its input: none came in time, or its task gave up.
-    fn input_lost(&self) -> bool {
-        matches!(
-            self,
-            ProcessError::InputLost(_)
-                | ProcessError::Task(protocol::task::TaskError::GaveUp { .. })
-        )
+    /// Whether the process lost its input (none came in time, or its task gave up), and
+    /// which ([`protocol::task::Task::lost_input`]; 0 for a timeout).
+    fn input_lost(&self) -> Option<u32> {
+        match self {
+            ProcessError::InputLost(_) => Some(0),
+            ProcessError::Task(protocol::task::TaskError::GaveUp { input, .. }) => Some(*input),
+            _ => None,
+        }
     }
 }
 
@@ -556,8 +557,11 @@ impl Member {
         loop {
             self.sync(&mut followed, inputs)?;
             let next = step(&self.clock.state.get()).inspect_err(|e| {
-                if e.input_lost() {
-                    let _ = self.report(StatusEvent::InputLost);
+                if let Some(input) = e.input_lost() {
+                    let _ = self.status.send(Status {
+                        detail: input,
+                        ..self.status_of(StatusEvent::InputLost)
+                    });
                 }
             })?;
             each_pass();

@@ -54,6 +54,7 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
         if let Some(source) = task.gave_up() {
             return Err(TaskError::GaveUp {
                 role: T::ROLE,
+                input: task.lost_input(),
                 source,
             }
             .into());

@@ -14,7 +14,15 @@ SIGSTOP (SIGCONT), and every change of the ROS 2 graph
 (liveliness tokens appearing and going) as rmw_zenoh's graph cache would parse it, and
 what it saw of the pipeline's views for RViz (`scmpc/plan`, `scmpc/route`,
 `scmpc/obstacles`). With `--goal X Y` it publishes that goal on `goal_pose` as RViz's
-"2D Goal Pose" does, every 0.2 s until the first command comes. SIGSTOP pauses it, odometry and all."""
+"2D Goal Pose" does, every 0.2 s until the first command comes. SIGSTOP pauses it, odometry and all.
+
+With `--scan` it has a lidar: 360 beams all around at 10 Hz, ray-cast against its own
+world (`--obstacle X Y R` standing, `--person X Y VX VY R` walking from the first command
+on), published on `scan` as `sensor_msgs/msg/LaserScan` in frame `laser`, whose mount on
+`base_link` (`--mount X Y YAW`) goes on `tf_static` once, through an advanced publisher
+with a cache (transient local, as rmw_zenoh has done since 0.2.2). `--scan-stop-after S`:
+no scan after S s from the first command. Each truth row ends with the base's clearance
+from its world (the least distance from its centre to a disc's edge, m)."""
 
 import argparse
 import json
@@ -30,12 +38,18 @@ import traceback
 
 import numpy as np
 import zenoh
+import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
 STORES = {"jazzy": Stores.ROS2_JAZZY, "kilted": Stores.ROS2_KILTED}
 DT_S = 0.005
 ODOMETRY_EVERY = 4  # 200 Hz / 4 = 50 Hz
 QOS = "::,10:,:,:,,"
+SCAN_QOS = "2::,5:,:,:,,"
+TF_STATIC_QOS = "1:1:,1:,:,:,,"
+BEAMS = 360
+SCAN_EVERY = 20  # 200 Hz / 20 = 10 Hz
+RANGE_MIN_M, RANGE_MAX_M = 0.1, 8.0
 # `--wire bridge`: the keys of zenoh-bridge-ros2dds, no attachments.
 BRIDGE = False
 
@@ -111,6 +125,8 @@ class Base:
         self.refused = 0
         self.truth = []
         self.odometry_ns = []
+        self.scans_ns = []
+        self.first_command = None  # monotonic s
         self.rng = random.Random(args.seed)
 
     def on_command(self, sample):
@@ -128,6 +144,8 @@ class Base:
         with self.lock:
             self.wanted = [twist.linear.x, twist.angular.z]
             self.last_command = time.monotonic()
+            if self.first_command is None:
+                self.first_command = self.last_command
             self.commands.append(
                 dict(
                     attached,
@@ -150,7 +168,42 @@ class Base:
             v, w = self.speed
             x, y, yaw = self.pose
             self.pose = [x + DT_S * v * math.cos(yaw), y + DT_S * v * math.sin(yaw), yaw + DT_S * w]
-            self.truth.append([time.time_ns(), *self.pose, v, w])
+            self.truth.append([time.time_ns(), *self.pose, v, w, self.clearance(self.pose)])
+
+    def walked_s(self):
+        return 0.0 if self.first_command is None else time.monotonic() - self.first_command
+
+    def discs(self):
+        """The world's discs now: `[x, y, r]`."""
+        t = self.walked_s()
+        people = [[x + vx * t, y + vy * t, r] for x, y, vx, vy, r in self.args.person or []]
+        return [list(o) for o in self.args.obstacle or []] + people
+
+    def clearance(self, pose):
+        x, y = pose[0], pose[1]
+        return min((math.hypot(x - ox, y - oy) - r for ox, oy, r in self.discs()), default=1e9)
+
+    def ranges(self):
+        """One exact ray cast per beam from the lidar's place, with 1 cm of noise."""
+        with self.lock:
+            x, y, yaw = self.pose
+            discs = self.discs()
+        mx, my, myaw = self.args.mount
+        lx = x + math.cos(yaw) * mx - math.sin(yaw) * my
+        ly = y + math.sin(yaw) * mx + math.cos(yaw) * my
+        ranges = np.full(BEAMS, np.inf, dtype=np.float32)
+        for i in range(BEAMS):
+            heading = yaw + myaw - math.pi + 2 * math.pi * i / BEAMS
+            dx, dy = math.cos(heading), math.sin(heading)
+            for ox, oy, r in discs:
+                fx, fy = ox - lx, oy - ly
+                along = fx * dx + fy * dy
+                across2 = fx * fx + fy * fy - along * along
+                if along > 0 and across2 < r * r:
+                    hit = along - math.sqrt(r * r - across2)
+                    if RANGE_MIN_M <= hit <= RANGE_MAX_M:
+                        ranges[i] = min(ranges[i], hit + self.rng.gauss(0.0, 0.01))
+        return ranges
 
     def odometry(self):
         t = self.store.types
@@ -183,6 +236,46 @@ class Base:
                 covariance=covariance,
             ),
         )
+
+
+def laser_scan(store, ranges):
+    t = store.types
+    now = time.time_ns()
+    return t["sensor_msgs/msg/LaserScan"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=now // 10**9, nanosec=now % 10**9),
+            frame_id="laser",
+        ),
+        angle_min=-math.pi,
+        angle_max=math.pi - 2 * math.pi / BEAMS,
+        angle_increment=2 * math.pi / BEAMS,
+        time_increment=0.0,
+        scan_time=0.1,
+        range_min=RANGE_MIN_M,
+        range_max=RANGE_MAX_M,
+        ranges=ranges,
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+
+
+def mount(store, x, y, yaw):
+    t = store.types
+    return t["tf2_msgs/msg/TFMessage"](
+        transforms=[
+            t["geometry_msgs/msg/TransformStamped"](
+                header=t["std_msgs/msg/Header"](
+                    stamp=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="base_link"
+                ),
+                child_frame_id="laser",
+                transform=t["geometry_msgs/msg/Transform"](
+                    translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=0.2),
+                    rotation=t["geometry_msgs/msg/Quaternion"](
+                        x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)
+                    ),
+                ),
+            )
+        ]
+    )
 
 
 def goal_pose(store, x, y):
@@ -243,7 +336,10 @@ def base(args):
     done = wait_for_term()
     resumed_ns = []
     signal.signal(signal.SIGCONT, lambda *_: resumed_ns.append(time.time_ns()))
-    session = zenoh.open(config("peer", connect=[args.connect]))
+    conf = config("peer", connect=[args.connect])
+    # An advanced publisher's cache (tf_static) stamps its samples.
+    conf.insert_json5("timestamping/enabled", "true")
+    session = zenoh.open(conf)
     zid = str(session.zid())
     the_base = Base(args, store)
     cmd_key = data_key(args.domain, args.cmd_vel, args.command_type, store)
@@ -262,6 +358,30 @@ def base(args):
             f"{store.hash_rihs01(args.command_type)}/{QOS}"
         ),
     ]
+    scan_publisher = None
+    if args.scan:
+        scan_key = data_key(args.domain, "scan", "sensor_msgs/msg/LaserScan", store)
+        tf_key = data_key(args.domain, "tf_static", "tf2_msgs/msg/TFMessage", store)
+        scan_publisher = session.declare_publisher(scan_key)
+        tf_publisher = zenoh.ext.declare_advanced_publisher(
+            session, tf_key, cache=zenoh.ext.CacheConfig(max_samples=1)
+        )
+        tf_payload = bytes(store.serialize_cdr(mount(store, *args.mount), "tf2_msgs/msg/TFMessage"))
+        tf_publisher.put(tf_payload, attachment=attachment(1, bytes(16)))
+        tokens += [
+            session.liveliness().declare_token(
+                f"{node}/3/MP/%/%/base/%scan/{dds_name('sensor_msgs/msg/LaserScan')}/"
+                f"{store.hash_rihs01('sensor_msgs/msg/LaserScan')}/{SCAN_QOS}"
+            ),
+            session.liveliness().declare_token(
+                f"{node}/4/MP/%/%/base/%tf_static/{dds_name('tf2_msgs/msg/TFMessage')}/"
+                f"{store.hash_rihs01('tf2_msgs/msg/TFMessage')}/{TF_STATIC_QOS}"
+            ),
+        ]
+        the_base.scan_cdr = lambda: bytes(
+            store.serialize_cdr(laser_scan(store, the_base.ranges()), "sensor_msgs/msg/LaserScan")
+        )
+        the_base.scan_cdr()
     graph = []
 
     def on_token(sample):
@@ -339,6 +459,10 @@ def base(args):
                 attachment=None if BRIDGE else attachment(sequence, gid),
             )
             the_base.odometry_ns.append(time.time_ns())
+        stopped = args.scan_stop_after is not None and the_base.walked_s() > args.scan_stop_after
+        if scan_publisher is not None and steps % SCAN_EVERY == 0 and not stopped:
+            scan_publisher.put(the_base.scan_cdr(), attachment=attachment(steps, gid))
+            the_base.scans_ns.append(time.time_ns())
         next_s += DT_S
         time.sleep(max(0.0, next_s - time.monotonic()))
     # Commands sent while the base was paused are still queued in its socket when SIGCONT
@@ -356,6 +480,7 @@ def base(args):
             "commands": the_base.commands,
             "refused_commands": the_base.refused,
             "odometry_ns": the_base.odometry_ns,
+            "scans_ns": the_base.scans_ns,
             "resumed_ns": resumed_ns,
             "views": views,
             "graph": graph,
@@ -386,6 +511,11 @@ def main():
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--goal", type=float, nargs=2)
     parser.add_argument("--wire", choices=["rmw_zenoh", "bridge"], default="rmw_zenoh")
+    parser.add_argument("--scan", action="store_true")
+    parser.add_argument("--mount", type=float, nargs=3, default=[0.0, 0.0, 0.0])
+    parser.add_argument("--obstacle", type=float, nargs=3, action="append")
+    parser.add_argument("--person", type=float, nargs=5, action="append")
+    parser.add_argument("--scan-stop-after", type=float)
     args = parser.parse_args()
     global BRIDGE
     BRIDGE = args.wire == "bridge"

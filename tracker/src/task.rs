@@ -2,8 +2,9 @@
 //! its tracks:
 //! - measuring the tracked obstacles from the plant's truth at that tick's time;
 //! - or, with a lidar, from the scan of that tick, put into the world with the estimate of
-//!   the same tick (waited for until a quarter of an inner tick after the scan's time; in
-//!   lockstep until it comes; once that is past, the newest estimate before it).
+//!   the tick it was taken at (`age_ticks` before: a robot's scan; the same tick for the
+//!   simulated lidar), waited for until a quarter of an inner tick after the scan's time
+//!   (in lockstep until it comes; once that is past, the newest estimate before it).
 //!
 //! It takes every perception tick in order, so in process and in lockstep a run's tracks
 //! do not depend on when its inputs arrive (in real time a scan whose estimate is late is
@@ -175,7 +176,8 @@ impl Task for TrackerTask {
                     return None; // the estimate of the scan's tick is on its way
                 }
                 let scan = scans.iter().position(|s| s.header.tick == tick);
-                let pose = poses.iter().rev().find(|(t, _)| *t <= tick);
+                let taken = scan.map_or(tick, |i| tick.saturating_sub(scans[i].age_ticks.into()));
+                let pose = poses.iter().rev().find(|(t, _)| *t <= taken);
                 match (scan, pose) {
                     (Some(i), Some((_, pose))) if !dropped => perception.take(&scans[i], *pose),
                     _ => perception.predict_to(time_s),

@@ -17,7 +17,10 @@ pub struct Scan {
     pub header: Header,
     /// Beams in the scan: `ranges_m[..beams]`.
     pub beams: u32,
-    pub reserved: u32,
+    /// Inner ticks from the scan's taking to `header.tick` (a robot's scan arrives between
+    /// two perception ticks): its points are placed with the estimate of then. 0 for the
+    /// simulated lidar.
+    pub age_ticks: u32,
     /// Angle of beam 0 from the lidar's heading, rad.
     pub angle_min_rad: f64,
     /// Angle between two beams, counter-clockwise, rad.
@@ -36,7 +39,7 @@ impl Default for Scan {
         Scan {
             header: Header::default(),
             beams: 0,
-            reserved: 0,
+            age_ticks: 0,
             angle_min_rad: 0.0,
             angle_increment_rad: 0.0,
             range_min_m: 0.0,
@@ -63,7 +66,7 @@ crate::layouts! {
     Scan {
         header: Header,
         beams: u32,
-        reserved: u32,
+        age_ticks: u32,
         angle_min_rad: f64,
         angle_increment_rad: f64,
         range_min_m: f64,

@@ -778,7 +778,7 @@ impl Scenario {
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.plans_routes();
         let tracker = self.runs_tracker();
-        let lidar = self.lidar.is_some() && self.plant.kind == PlantKind::Sim;
+        let lidar = self.lidar.is_some();
         let extra = self.extra_roles.clone();
         crate::Role::ALL.into_iter().filter(move |r| match r {
             crate::Role::Planner => planner,

@@ -59,6 +59,12 @@ pub struct Ros2Config {
     /// Odometry older than this stops the robot (zero twist) and, once twice as old,
     /// ends the run `aborted`, s.
     pub odom_timeout_s: f64,
+    /// With a lidar: where its `sensor_msgs/msg/LaserScan` comes from (the lidar's pose
+    /// on the base from `tf_static`, else `lidar.offset`).
+    pub scan: String,
+    /// With a lidar: a scan older than this stops the robot (zero twist) and, once twice
+    /// as old, ends the run `aborted`, s.
+    pub scan_timeout_s: f64,
 }
 
 impl Default for Ros2Config {
@@ -76,6 +82,8 @@ impl Default for Ros2Config {
             goal_topic: "goal_pose".into(),
             wait_for_goal: false,
             odom_timeout_s: 0.2,
+            scan: "scan".into(),
+            scan_timeout_s: 0.5,
         }
     }
 }
@@ -115,16 +123,19 @@ impl Ros2Config {
             ("ros2.cmd_vel", &self.cmd_vel),
             ("ros2.odom", &self.odom),
             ("ros2.goal_topic", &self.goal_topic),
+            ("ros2.scan", &self.scan),
         ] {
             if let Err(e) = ros2::keys::qualified_topic(&namespace, topic) {
                 problems.push((key, e.to_string()));
             }
         }
-        if !(self.odom_timeout_s.is_finite() && self.odom_timeout_s > 0.0) {
-            problems.push((
-                "ros2.odom_timeout_s",
-                format!("{} is not a positive number", self.odom_timeout_s),
-            ));
+        for (key, timeout_s) in [
+            ("ros2.odom_timeout_s", self.odom_timeout_s),
+            ("ros2.scan_timeout_s", self.scan_timeout_s),
+        ] {
+            if !(timeout_s.is_finite() && timeout_s > 0.0) {
+                problems.push((key, format!("{timeout_s} is not a positive number")));
+            }
         }
         problems
     }

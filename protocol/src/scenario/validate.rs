@@ -255,14 +255,6 @@ impl Scenario {
                     .into(),
             );
         }
-        if self.lidar.is_some() && self.plant.kind == PlantKind::Ros2 {
-            v.fail(
-                "lidar",
-                "a ROS 2 robot's own scans are not taken yet (docs/limitations.md); remove \
-                 [lidar] with plant.kind = \"ros2\""
-                    .into(),
-            );
-        }
         if self.sees_with_lidar() && self.mpc.formulation == Formulation::Nonlinear {
             v.fail(
                 "mpc.formulation",

@@ -64,12 +64,7 @@ impl<'a> Driver<'a> {
                 recorder,
             },
             intake: Intake::new(scenario, session.clock().mode()),
-            supervisor: Supervisor::new(
-                &scenario.supervision,
-                (scenario.plant.kind == protocol::PlantKind::Ros2)
-                    .then(|| robot::odometry_key(&scenario.ros2).ok())
-                    .flatten(),
-            ),
+            supervisor: Supervisor::new(&scenario.supervision, robot::watched_keys(scenario)),
             swaps: SwapServer::new(scenario),
             stop,
         }

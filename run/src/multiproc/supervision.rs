@@ -39,16 +39,16 @@ pub(super) struct Supervisor {
     node_pids: Vec<u32>,
     /// The processes (role, epoch) that have reported ready since the run started.
     joined: Vec<(Role, u32)>,
-    /// What the plant takes, when a lost input of it is worth naming (the key of a ROS 2
-    /// robot's odometry).
-    plant_input: Option<String>,
+    /// What the plant takes, when a lost input of it is worth naming, by the index its
+    /// status gives (a ROS 2 robot's odometry key, and its scans' with a lidar).
+    plant_inputs: Vec<String>,
 }
 
 impl Supervisor {
-    pub fn new(policy: &Supervision, plant_input: Option<String>) -> Supervisor {
+    pub fn new(policy: &Supervision, plant_inputs: Vec<String>) -> Supervisor {
         Supervisor {
             policy: policy.clone(),
-            plant_input,
+            plant_inputs,
             restarts: 0,
             rejected: BTreeMap::new(),
             blamed: [None; Role::COUNT],
@@ -91,7 +91,7 @@ impl Supervisor {
             if let Some(ready) = ready_role(&s) {
                 joined.push(ready);
             } else if s.event == StatusEvent::InputLost as u32 {
-                lost.extend(Role::from_code(s.role));
+                lost.extend(Role::from_code(s.role).map(|role| (role, s.detail)));
             } else if s.event == StatusEvent::Rejected as u32 {
                 rejected.push((
                     Role::from_code(s.role).map_or("unknown", Role::as_str),
@@ -117,12 +117,11 @@ impl Supervisor {
                 count,
             })?;
         }
-        for role in lost {
-            let input = self.plant_input.as_ref().filter(|_| role == Role::Plant);
-            recorder.event(Event::InputLost {
-                role,
-                input: input.cloned(),
-            })?;
+        for (role, index) in lost {
+            let input = (role == Role::Plant)
+                .then(|| self.plant_inputs.get(index as usize).cloned())
+                .flatten();
+            recorder.event(Event::InputLost { role, input })?;
         }
         for (role, s) in joined {
             let epoch = s.header.epoch;

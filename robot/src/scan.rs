@@ -1,0 +1,105 @@
+//! The lidar role played by a ROS 2 robot's lidar (docs/ros2.md, "The robot's lidar"): at
+//! every perception tick of the robot's truth the newest scan its link heard
+//! ([`ScanLink`]) goes out as the pipeline's [`Scan`].
+//!
+//! Each scan is published once, at the first perception tick after it arrived, with its
+//! age then in inner ticks ([`Scan::age_ticks`]): the tracker places its points with the
+//! estimate of its arrival (its stamp is the robot's clock, not this host's). Its
+//! obstacles are measured as at the perception tick: a person's place lags by their
+//! speed times that age, under one scan period (docs/limitations.md).
+
+use crate::link::scan::{BASE_FRAME, ScanLink};
+use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::{GroundTruth, Role, Scan, Validated};
+
+/// What the robot's lidar takes: the robot's truth, the clock of its perception ticks.
+#[derive(Debug, Clone, Copy)]
+pub enum ScanInput {
+    Truth(GroundTruth),
+}
+protocol::task_input!(ScanInput: Truth);
+
+/// The robot's lidar as the lidar role's task.
+pub struct ScanTask {
+    link: ScanLink,
+    /// `lidar.offset`, where `tf_static` says nothing of the scan's frame.
+    offset: [f64; 3],
+    timeout_ns: u64,
+    perception_ticks: u64,
+    dt_s: f64,
+    /// The perception tick to publish the newest scan at.
+    pending: Option<GroundTruth>,
+    /// The scan published (kept to copy into without allocating).
+    scan: Box<Scan>,
+    /// When the scan published last arrived (monotonic ns): each is published once.
+    published_ns: u64,
+    last_tick: Option<u64>,
+    /// Whether the fallback to `lidar.offset` was said.
+    said_offset: bool,
+}
+
+impl Task for ScanTask {
+    const ROLE: Role = Role::Lidar;
+    type Input = ScanInput;
+    type Output = Scan;
+    type Resources = ScanLink;
+
+    fn new(scenario: &Validated, _epoch: u32, link: ScanLink) -> Result<ScanTask, TaskError> {
+        Ok(ScanTask {
+            link,
+            offset: scenario.lidar.clone().unwrap_or_default().offset,
+            timeout_ns: (scenario.ros2.scan_timeout_s * 1e9) as u64,
+            perception_ticks: scenario.perception_ticks(),
+            dt_s: scenario.timing.dt_s(),
+            pending: None,
+            scan: Box::default(),
+            published_ns: 0,
+            last_tick: None,
+            said_offset: false,
+        })
+    }
+
+    /// The truth of a perception tick newer than the last is the time to publish.
+    fn hear(&mut self, input: ScanInput, _latency_ns: u64, _context: &impl Context) {
+        let ScanInput::Truth(truth) = input;
+        let tick = truth.header.tick;
+        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
+            self.last_tick = Some(tick);
+            self.pending = Some(truth);
+        }
+    }
+
+    fn next(&self) -> Due {
+        let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
+        Due::Expect(Some(next as f64 * self.dt_s))
+    }
+
+    /// At the perception tick heard, the newest scan if it was not published yet and is
+    /// younger than `ros2.scan_timeout_s` (none: the tracker predicts its tracks, and the
+    /// robot's own watchdog brakes, [`crate::RobotTask`]), with its age in inner ticks.
+    fn step(&mut self, context: &impl Context) -> Option<Publish<Scan>> {
+        let truth = self.pending.take()?;
+        let now_ns = context.monotonic_ns();
+        let link = &self.link;
+        let after_ns = (now_ns.saturating_sub(self.timeout_ns)).max(self.published_ns);
+        let (arrived_ns, mount) = link.newest_after(after_ns, &mut self.scan)?;
+        self.published_ns = arrived_ns;
+        let age_ticks = (now_ns - arrived_ns.min(now_ns)) as f64 * 1e-9 / self.dt_s;
+        if mount.is_none() && !self.said_offset {
+            self.said_offset = true;
+            tracing::warn!(
+                "tf_static has no transform from {BASE_FRAME} to the scan's frame: the \
+                 lidar is taken at lidar.offset {:?}",
+                self.offset
+            );
+        }
+        self.scan.header = protocol::Header {
+            tick: truth.header.tick,
+            time_s: truth.header.time_s,
+            ..protocol::Header::default()
+        };
+        self.scan.offset = mount.unwrap_or(self.offset);
+        self.scan.age_ticks = (age_ticks.round() as u32).min(truth.header.tick as u32);
+        Some(Publish::now(*self.scan))
+    }
+}
