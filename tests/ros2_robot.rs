@@ -524,7 +524,7 @@ fn a_stopped_or_a_killed_orchestrator_leaves_the_robot_with_a_zero_twist() {
 }
 
 #[test]
-fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
+fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
     let _alone = machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let robot = Robot::start(dir.path(), &["--odom", "wheel_odom"]);
@@ -542,6 +542,21 @@ fn no_odometry_names_the_endpoint_the_key_and_the_tokens_seen() {
     }
     assert!(!out_dir.join("summary.json").exists(), "a run started");
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    drop(robot);
+
+    // A lidar that publishes nothing.
+    let robot = Robot::start(dir.path(), &[]);
+    let out = run_on(&robot.endpoint, &["--set", "lidar.rate_hz=10"], &out_dir);
+    let message = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{message}");
+    for wanted in [
+        "no scan within 5 s on `0/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_",
+        "remove [lidar]",
+        "/MP/%/%/base/%odom/nav_msgs::msg::dds_::Odometry_/",
+    ] {
+        assert!(message.contains(wanted), "no `{wanted}` in: {message}");
+    }
+    assert!(!out_dir.join("summary.json").exists(), "a run started");
     drop(robot);
 
     // No router there at all.

@@ -32,6 +32,17 @@ pub enum RobotError {
         domain_id: u32,
         graph: String,
     },
+    #[error(
+        "no scan within {waited_s} s on `{key}` through the router at {endpoint} (a robot \
+         without a lidar: remove [lidar]); the ROS 2 graph of domain {domain_id} has {graph}"
+    )]
+    NoScan {
+        waited_s: f64,
+        key: String,
+        endpoint: String,
+        domain_id: u32,
+        graph: String,
+    },
     #[error("stopped while waiting for the robot")]
     Stopped,
     #[error("the odometry on `{key}` stopped: the robot was sent a zero twist")]

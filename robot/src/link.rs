@@ -484,6 +484,33 @@ impl Link {
         })
     }
 
+    /// With a lidar: waits until a scan comes (at most [`FIRST_ODOMETRY`]) or `stop`.
+    pub fn first_scan(&self, stop: &AtomicBool) -> Result<(), RobotError> {
+        let Some((key, opened_ns)) = self.newest_scan() else {
+            return Ok(());
+        };
+        let since = Instant::now();
+        while self
+            .newest_scan()
+            .is_some_and(|(_, arrived)| arrived == opened_ns)
+        {
+            if stop.load(Ordering::Relaxed) {
+                return Err(RobotError::Stopped);
+            }
+            if since.elapsed() >= FIRST_ODOMETRY {
+                return Err(RobotError::NoScan {
+                    waited_s: FIRST_ODOMETRY.as_secs_f64(),
+                    key: key.to_string(),
+                    endpoint: self.endpoint.clone(),
+                    domain_id: self.names.domain_id,
+                    graph: graph_text(&self.graph()),
+                });
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        Ok(())
+    }
+
     /// Waits until the first odometry comes (at most [`FIRST_ODOMETRY`]) or `stop`.
     pub fn first_odometry(&self, stop: &AtomicBool) -> Result<Heard, RobotError> {
         let since = Instant::now();
@@ -601,16 +628,18 @@ pub struct Start {
     pub goal: Option<protocol::Goal>,
 }
 
-/// Connects to the robot of `config`, waits for its first odometry (and, with
-/// `ros2.wait_for_goal`, for a goal, as long as it takes) and disconnects. Nothing is
-/// published.
+/// Connects to the robot of `config`, waits for its first odometry (with `lidar`, and a
+/// scan; with `ros2.wait_for_goal`, for a goal, as long as it takes) and disconnects.
+/// Nothing is published.
 pub fn first_contact(
     config: &Ros2Config,
     security: &net::Security,
+    lidar: bool,
     stop: &AtomicBool,
 ) -> Result<Start, RobotError> {
-    let link = Link::open(config, security, false)?;
+    let link = Link::open(config, security, lidar)?;
     let first = link.first_odometry(stop)?;
+    link.first_scan(stop)?;
     let goal = if config.wait_for_goal {
         loop {
             if let Some(goal) = link.newest_goal() {
