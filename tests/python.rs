@@ -160,6 +160,39 @@ fn run_mcap_shows_the_moving_obstacles_every_tick_and_the_tracks_with_their_pred
 }
 
 #[test]
+fn run_mcap_shows_every_scan_from_where_the_lidar_was_and_scan_csv_counts_its_returns() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&["run", "unmapped", "--out", out_dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let topics = read_mcap(&out_dir, false);
+    let scans = &topics["/lidar/laser_scan"];
+    assert_eq!(scans["schema"], "foxglove.LaserScan");
+    assert_eq!(scans["schema_errors"], serde_json::json!([]));
+    let table = Table::read(&out_dir.join("scan.csv")).unwrap();
+    assert_eq!(scans["count"].as_u64(), Some(table.len() as u64));
+    let column = |name: &str| -> Vec<f64> {
+        (table.column(name).unwrap().iter())
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    let numbers = |key: &str| -> Vec<f64> {
+        (scans[key].as_array().unwrap().iter())
+            .map(|v| v.as_f64().unwrap())
+            .collect()
+    };
+    assert!(numbers("beams").iter().all(|&b| b == 360.0));
+    assert_eq!(numbers("returns"), column("returns"));
+    assert!(
+        column("returns").iter().all(|&r| r > 0.0),
+        "the box is always in sight"
+    );
+    // The first scan is taken where the robot starts, the lidar at its centre.
+    assert_eq!(scans["origins"][0], serde_json::json!([-4.0, 0.0]));
+}
+
+#[test]
 fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();

@@ -66,6 +66,13 @@ def add(topics, schema, channel, message):
         t.setdefault("poses", []).append(len(body["poses"]))
     elif channel.topic in ("/world/obstacles", "/world/moving_obstacles", "/tracker/tracks"):
         t["entities"] = {e["id"]: len(e["cylinders"]) + len(e["spheres"]) for e in body["entities"]}
+    elif channel.topic == "/lidar/laser_scan":
+        validator = Draft202012Validator(json.loads(schema.data))
+        errors = t.setdefault("schema_errors", [])
+        errors.extend(e.message for e in validator.iter_errors(body))
+        t.setdefault("beams", []).append(len(body["ranges"]))
+        t.setdefault("returns", []).append(sum(1 for r in body["ranges"] if r != 0))
+        t.setdefault("origins", []).append([body["pose"]["position"]["x"], body["pose"]["position"]["y"]])
     elif channel.topic == "/run/events":
         validator = Draft202012Validator(json.loads(schema.data))
         t.setdefault("events", []).append(body)

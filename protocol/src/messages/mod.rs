@@ -462,7 +462,8 @@ impl_message!(
         finite(&t.center) && finite(&t.velocity) && finite(&t.covariance) && t.radius_m.is_finite()
     }), m.count as usize <= MAX_TRACKS;
     Scan => |m| finite(&[m.angle_min_rad, m.angle_increment_rad, m.range_min_m, m.range_max_m])
-        && finite(&m.offset), m.beams as usize <= crate::MAX_BEAMS;
+        && finite(&m.offset), m.beams as usize <= crate::MAX_BEAMS,
+        record ["beams", "returns", "nearest_m"] => [m.beams.into(), m.returns() as f64, m.nearest_m()];
     Odometry => |m| m.distance_m.is_finite(), true, record ["distance_m"] => [m.distance_m];
     Control => |m| true, m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()

@@ -56,6 +56,18 @@ impl Scan {
         &self.ranges_m[..(self.beams as usize).min(MAX_BEAMS)]
     }
 
+    /// Beams that hit something in range (a finite range).
+    pub fn returns(&self) -> usize {
+        self.ranges().iter().filter(|r| r.is_finite()).count()
+    }
+
+    /// The least range that hit something, m; `range_max_m` when nothing is in range.
+    pub fn nearest_m(&self) -> f64 {
+        (self.ranges().iter())
+            .filter(|r| r.is_finite())
+            .fold(self.range_max_m, |least, &r| least.min(f64::from(r)))
+    }
+
     /// The angle of beam `i` from the lidar's heading, rad.
     pub fn angle_rad(&self, i: usize) -> f64 {
         self.angle_min_rad + self.angle_increment_rad * i as f64

@@ -18,7 +18,17 @@ pub(super) struct McapFile {
     moving: Vec<protocol::Obstacle>,
     /// How a track's predicted disc grows ([`foxglove::tracks`]).
     prediction: Prediction,
+    /// The robot's newest true poses by tick, to place a scan taken at one of them.
+    truths: std::collections::VecDeque<(u64, [f64; 3])>,
+    /// Reused for a scan's ranges.
+    ranges: Vec<f64>,
+    /// Scans whose robot pose is not recorded yet (a tick's samples come after the
+    /// scan of its perception tick).
+    scans: std::collections::VecDeque<Box<protocol::Scan>>,
 }
+
+/// True poses kept to place the scans: more than a scan's age ([`protocol::Scan::age_ticks`]).
+const TRUTHS_KEPT: usize = 128;
 
 /// The channel of a topic the record has no place of its own for: `/<producer>/<topic>`.
 fn data_channel(topic: &str) -> String {
@@ -103,6 +113,9 @@ impl McapFile {
                 .cloned()
                 .collect(),
             prediction: Prediction::of(scenario),
+            truths: std::collections::VecDeque::with_capacity(TRUTHS_KEPT),
+            ranges: Vec::with_capacity(protocol::MAX_BEAMS),
+            scans: std::collections::VecDeque::new(),
         };
         log.write_serde("/world/obstacles", 0.0, &world(scenario))?;
         Ok(log)
@@ -140,7 +153,59 @@ impl McapFile {
         for (name, value) in names.iter().zip(&self.values) {
             message.insert((*name).into(), json!(value));
         }
-        self.write_serde(&data_channel(data.topic()), header.time_s, &message)
+        self.write_serde(&data_channel(data.topic()), header.time_s, &message)?;
+        if let protocol::Data::Scan(scan) = data {
+            self.scans.push_back(Box::new(*scan));
+            self.placed_scans(false)?;
+        }
+        Ok(())
+    }
+
+    /// The scans waiting whose robot pose is recorded (`all`: every one, at the newest
+    /// pose recorded, at the end), as `foxglove.LaserScan`s.
+    fn placed_scans(&mut self, all: bool) -> std::io::Result<()> {
+        let newest = self.truths.back().map(|(tick, _)| *tick);
+        let taken = |s: &protocol::Scan| s.header.tick.saturating_sub(s.age_ticks.into());
+        while let Some(taken) = self.scans.front().map(|s| taken(s)) {
+            if !all && newest.is_none_or(|newest| newest < taken) {
+                break;
+            }
+            if let Some(scan) = self.scans.pop_front() {
+                self.scan(&scan, taken)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// A scan taken at tick `taken`, from where the robot truly was then (the newest true
+    /// pose recorded before, if that one is not); a beam with no return is written 0 m
+    /// (JSON has no infinity), a point at the lidar.
+    fn scan(&mut self, scan: &protocol::Scan, taken: u64) -> std::io::Result<()> {
+        let robot = (self.truths.iter().rev())
+            .find(|(tick, _)| *tick <= taken)
+            .or(self.truths.back())
+            .map_or([0.0; 3], |(_, pose)| *pose);
+        let [x, y, theta] = protocol::mounted(robot, scan.offset);
+        self.ranges.clear();
+        (self.ranges).extend(
+            scan.ranges()
+                .iter()
+                .map(|&r| if r.is_finite() { f64::from(r) } else { 0.0 }),
+        );
+        let t = scan.header.time_s;
+        let last = scan.beams.saturating_sub(1) as usize;
+        let message = LaserScan {
+            timestamp: timestamp(t),
+            frame_id: FRAME,
+            pose: pose(x, y, theta),
+            start_angle: scan.angle_min_rad,
+            end_angle: scan.angle_rad(last),
+            ranges: &self.ranges,
+            intensities: [],
+        };
+        self.json.clear();
+        serde_json::to_writer(&mut self.json, &message).map_err(std::io::Error::other)?;
+        self.write_encoded("/lidar/laser_scan", t)
     }
 
     /// Closes the chunk being written and hands it to the file system: a reader that scans
@@ -200,6 +265,11 @@ impl McapFile {
         let t = truth.header.time_s;
         let [x, y, theta] = truth.pose;
         self.write("/robot/truth", t, &PoseInFrame::new(t, pose(x, y, theta)))?;
+        if self.truths.len() == TRUTHS_KEPT {
+            self.truths.pop_front();
+        }
+        self.truths.push_back((truth.header.tick, truth.pose));
+        self.placed_scans(false)?;
         if !self.moving.is_empty() {
             self.write_serde(
                 "/world/moving_obstacles",
@@ -329,6 +399,7 @@ impl McapFile {
     }
 
     pub(super) fn finish(mut self) -> std::io::Result<()> {
+        self.placed_scans(true)?;
         self.writer.finish().map(|_| ()).map_err(io)
     }
 }

@@ -445,6 +445,32 @@ pub(super) fn pose_in_frame_schema() -> Value {
     }))
 }
 
+pub(super) fn laser_scan_schema() -> Value {
+    let numbers = json!({ "type": "array", "items": { "type": "number" } });
+    object(json!({
+        "timestamp": time_schema(),
+        "frame_id": { "type": "string" },
+        "pose": pose_schema(),
+        "start_angle": { "type": "number" },
+        "end_angle": { "type": "number" },
+        "ranges": numbers,
+        "intensities": numbers,
+    }))
+}
+
+/// `foxglove.LaserScan`: a scan from `pose` (the lidar's, in the world), its beams from
+/// `start_angle` to `end_angle` (rad, about the pose's z).
+#[derive(Serialize)]
+pub(super) struct LaserScan<'a> {
+    pub(super) timestamp: Time,
+    pub(super) frame_id: &'static str,
+    pub(super) pose: Pose,
+    pub(super) start_angle: f64,
+    pub(super) end_angle: f64,
+    pub(super) ranges: &'a [f64],
+    pub(super) intensities: [f64; 0],
+}
+
 pub(super) fn poses_in_frame_schema() -> Value {
     object(json!({
         "timestamp": time_schema(),

@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 type Channel = (&'static str, &'static str, fn() -> Value);
 
 /// Every channel of `run.mcap`.
-const CHANNELS: [Channel; 13] = [
+const CHANNELS: [Channel; 14] = [
     (
         "/world/obstacles",
         "foxglove.SceneUpdate",
@@ -52,6 +52,7 @@ const CHANNELS: [Channel; 13] = [
         scene_update_schema,
     ),
     ("/robot/truth", "foxglove.PoseInFrame", pose_in_frame_schema),
+    ("/lidar/laser_scan", "foxglove.LaserScan", laser_scan_schema),
     (
         "/robot/estimate",
         "foxglove.PoseInFrame",
