@@ -86,6 +86,14 @@ fn a_box_and_people_not_in_the_map_are_seen_and_kept_clear_of_alike_in_process_a
         });
         assert!(seen, "no track within 0.5 m of the obstacle at x = {x}");
     }
+    // Judged against the truth: every track on an obstacle, none of the three missed.
+    let p = &s["perception"];
+    assert!(p["tracks_born"].as_u64() >= Some(3), "{p}");
+    assert_eq!(
+        (&p["false_tracks"], &p["missed_obstacles"]),
+        (&0.into(), &0.into()),
+        "{p}"
+    );
 
     let s = run_into(&lockstep, &["unmapped"]);
     assert_eq!(s["outcome"], "reached", "{s}");
@@ -107,6 +115,11 @@ fn a_lidar_that_sees_too_little_too_late_lets_the_robot_hit_the_box_nobody_mappe
         &["unmapped", "--in-process", "--set", "lidar.range_max_m=0.3"],
     );
     assert_eq!(s["outcome"], "collided", "{s}");
+    // The people came near in plain sight and were never tracked.
+    assert!(
+        s["perception"]["missed_obstacles"].as_u64() >= Some(1),
+        "{s}"
+    );
     // Where it ended: at the box (centre (-1, 0.2), radius 0.4), before the people.
     let last = csv(&dir.path().join("trajectory.csv")).pop().unwrap();
     let to_box = (num(&last, "x") + 1.0).hypot(num(&last, "y") - 0.2);

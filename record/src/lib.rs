@@ -24,6 +24,7 @@ use std::collections::BTreeMap;
 pub mod csv;
 pub mod event;
 pub mod judge;
+pub mod perception;
 pub mod run_dir;
 pub mod schema;
 pub mod sink;
@@ -69,6 +70,8 @@ pub struct Recorder {
     last_time_s: f64,
     /// Since when the DFL has commanded the robot to stand (no forward speed, ζ = 0), s.
     commanded_rest_since_s: Option<f64>,
+    /// How well a run with a simulated lidar saw.
+    perception: Option<perception::PerceptionJudge>,
 }
 
 impl Recorder {
@@ -85,6 +88,7 @@ impl Recorder {
         Ok(Recorder {
             sinks,
             judge: Judge::new(scenario),
+            perception: perception::PerceptionJudge::of(scenario),
             created: std::time::Instant::now(),
             obstacles: scenario.obstacles.clone(),
             footprint: ObstacleGrowth::footprint(scenario),
@@ -165,6 +169,9 @@ impl Recorder {
         } else {
             self.commanded_rest_since_s = None;
         }
+        if let Some(perception) = &mut self.perception {
+            perception.robot_at(t, truth.pose);
+        }
         let [x, y, _] = truth.pose;
         self.hand_on(Sample::Tick(TickSample {
             truth,
@@ -210,6 +217,9 @@ impl Recorder {
 
     /// The tracker's tracks, as published after each measurement.
     pub fn tracks(&mut self, tracks: &protocol::Tracks) -> std::io::Result<()> {
+        if let Some(perception) = &mut self.perception {
+            perception.tracks(tracks);
+        }
         self.hand_on(Sample::Tracks(tracks))
     }
 
@@ -343,6 +353,7 @@ impl Recorder {
             replans: self.route_plans.saturating_sub(1),
             route_length_m: self.route_length_m,
             robot: summary::RobotReport::of(scenario),
+            perception: self.perception.as_ref().map(|p| p.report()),
             processes,
         }
     }

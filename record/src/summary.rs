@@ -114,6 +114,9 @@ pub struct Summary {
     /// The ROS 2 robot of `plant.kind = "ros2"` (docs/ros2.md).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub robot: Option<RobotReport>,
+    /// Tracks born, lost and false, and obstacles missed: runs of the simulated plant that
+    /// see with a lidar (`null` otherwise).
+    pub perception: Option<crate::perception::PerceptionReport>,
     /// Only for runs over iceoryx2 (not `--in-process`).
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub processes: Option<ProcessReport>,
@@ -437,6 +440,12 @@ impl Summary {
         }
         if let Some(robot) = &self.robot {
             table += &format!("  {:<16} {}\n", "robot", robot.row());
+        }
+        if let Some(p) = &self.perception {
+            table += &format!(
+                "  {:<16} tracks: {} born, {} lost, {} false; {} obstacles missed\n",
+                "perception", p.tracks_born, p.tracks_lost, p.false_tracks, p.missed_obstacles
+            );
         }
         for fault in &self.faults {
             table += &format!("  {:<16} {fault}\n", "injected fault");
