@@ -107,23 +107,42 @@ fn a_box_and_people_not_in_the_map_are_seen_and_kept_clear_of_alike_in_process_a
 }
 
 #[test]
-fn a_lidar_that_sees_too_little_too_late_lets_the_robot_hit_the_box_nobody_mapped() {
+fn a_lidar_that_sees_too_little_too_late_stops_the_robot_short_of_the_box_by_its_free_range_alone()
+{
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
-    let s = run_into(
-        dir.path(),
-        &["unmapped", "--in-process", "--set", "lidar.range_max_m=0.3"],
-    );
-    assert_eq!(s["outcome"], "collided", "{s}");
+    let (checked, unchecked) = (dir.path().join("checked"), dir.path().join("unchecked"));
+    let short_sight = ["unmapped", "--in-process", "--set", "lidar.range_max_m=0.3"];
+    // Where a run ended, from the box's centre ((-1, 0.2), radius 0.4), m.
+    let to_box = |dir: &Path| {
+        let last = csv(&dir.join("trajectory.csv")).pop().unwrap();
+        (num(&last, "x") + 1.0).hypot(num(&last, "y") - 0.2)
+    };
+    let s = run_into(&checked, &short_sight);
+    assert_eq!(s["contacts_moving"], 0, "{s}");
     // The people came near in plain sight and were never tracked.
     assert!(
         s["perception"]["missed_obstacles"].as_u64() >= Some(1),
         "{s}"
     );
-    // Where it ended: at the box (centre (-1, 0.2), radius 0.4), before the people.
-    let last = csv(&dir.path().join("trajectory.csv")).pop().unwrap();
-    let to_box = (num(&last, "x") + 1.0).hypot(num(&last, "y") - 0.2);
-    assert!(to_box <= 0.4, "ended {to_box} m from the box's centre");
+    let braked = (events(&checked).iter())
+        .any(|e| e["event"] == "safety_intervention" && e["reason"] == "free_range");
+    assert!(braked, "no free_range intervention");
+    assert!(
+        to_box(&checked) > 0.4,
+        "ended {} m from the box's centre",
+        to_box(&checked)
+    );
+
+    // Without the DFL's checks, the same lidar lets the robot into the box.
+    let unchecked_run = [&short_sight[..], &["--set", "dfl.gatekeeper=false"]].concat();
+    let s = run_into(&unchecked, &unchecked_run);
+    assert_eq!(s["outcome"], "collided", "{s}");
+    assert!(
+        to_box(&unchecked) <= 0.4,
+        "ended {} m from the box's centre",
+        to_box(&unchecked)
+    );
 }
 
 #[test]

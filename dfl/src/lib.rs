@@ -12,6 +12,7 @@ use protocol::{
 };
 
 mod choice;
+pub mod free_range;
 pub mod gatekeeper;
 pub mod task;
 
@@ -117,6 +118,8 @@ pub struct Dfl {
     active: Option<Plan>,
     /// The safety check (`dfl.gatekeeper`).
     gatekeeper: Option<Gatekeeper>,
+    /// With the safety check and a lidar: the free range of the newest scan.
+    free_range: Option<free_range::FreeRange>,
     /// A plan offered and not yet checked (the check needs the estimate of the tick).
     offered: Option<Plan>,
     /// Braking because the committed trajectory was found unsafe, until a plan passes.
@@ -226,6 +229,8 @@ impl Dfl {
             wheels: scenario.plant.clone(),
             active: None,
             gatekeeper: scenario.dfl.gatekeeper.then(|| Gatekeeper::new(scenario)),
+            free_range: (scenario.dfl.gatekeeper && scenario.sees_with_lidar())
+                .then(|| free_range::FreeRange::new(scenario)),
             offered: None,
             safety_braking: false,
             flown_unsafe: None,
@@ -264,6 +269,14 @@ impl Dfl {
     pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
         if let Some(gatekeeper) = &mut self.gatekeeper {
             gatekeeper.set_tracks(tracks);
+        }
+    }
+
+    /// Takes the newest scan, taken with the lidar at `lidar` (`[x_m, y_m, yaw_rad]` in the
+    /// world), into the free-range check (without one, nothing).
+    pub fn set_scan(&mut self, scan: &protocol::Scan, lidar: [f64; 3]) {
+        if let Some(free_range) = &mut self.free_range {
+            free_range.take(scan, lidar);
         }
     }
 
@@ -396,6 +409,7 @@ impl Dfl {
     /// caller's to fill.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let checked = self.check(estimate, tick);
+        let checked = self.check_free_range(estimate, checked);
         let sample = self.timing.sample_of(tick);
         let [x, y, theta, _] = estimate.state;
         if let Some(hold) = self.goal_hold {
@@ -446,6 +460,24 @@ impl Dfl {
         act.intervention_plan = checked.plan_sample;
         act.intervention_clearance_m = checked.clearance_m;
         act
+    }
+
+    /// The free-range check of a tick, after the safety check's `outcome`: a robot driving
+    /// faster than it can stop short of a point of the newest scan on its way brakes
+    /// ([`free_range::FreeRange::shortfall_m`]), until a plan passes the check again.
+    fn check_free_range(&mut self, estimate: &Estimate, mut outcome: CheckOutcome) -> CheckOutcome {
+        let Some(free_range) = self.free_range.as_ref().filter(|_| !self.safety_braking) else {
+            return outcome;
+        };
+        let [x, y, theta, _] = estimate.state;
+        if let Some(short_m) = free_range.shortfall_m([x, y, theta], self.zeta) {
+            let plan_sample = self.active.map_or(0, |plan| plan.sample);
+            outcome.note(Intervention::FreeRange, plan_sample, -short_m);
+            self.interventions += 1;
+            self.active = None;
+            self.safety_braking = true;
+        }
+        outcome
     }
 
     /// Whether the safety check finds that braking to rest from `estimate` at `tick` would

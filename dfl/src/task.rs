@@ -4,10 +4,10 @@
 
 use crate::Dfl;
 use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
-use protocol::topics::TRACKS;
+use protocol::topics::{SCAN, TRACKS};
 use protocol::{
     Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
-    PlanStatus, Role, Timing, Tracks, Validated, period_ns,
+    PlanStatus, Role, Scan, Timing, Tracks, Validated, period_ns,
 };
 use std::collections::VecDeque;
 
@@ -20,8 +20,9 @@ pub enum DflInput {
     Estimate(Estimate),
     Plan(Plan),
     Tracks(Tracks),
+    Scan(Scan),
 }
-protocol::task_input!(DflInput: Estimate, Plan, Tracks);
+protocol::task_input!(DflInput: Estimate, Plan, Tracks, Scan);
 
 /// What a DFL step gives: on the first tick of a sample the verdict on the previous
 /// sample's deadline (published first), and the command for the tick.
@@ -163,25 +164,32 @@ impl DeadlineMonitor {
     }
 }
 
-/// When tracks reach the DFL's check: those of the perception tick at or before a
-/// sample's start (the ones the sample's plan was made with, `mpc::MpcTask`) are waited
-/// for on its first tick, like its plan (in real time for [`PLAN_WAIT_FRACTION`] of the
-/// tick, in lockstep until they come), and taken from then on; later ones wait for the
-/// next sample. So the check sees the same tracks in process, in lockstep and in every
-/// order the topics are read in.
-pub struct TrackInbox {
+/// When tracks (or scans) reach the DFL's check: those of the perception tick at or
+/// before a sample's start (the ones the sample's plan was made with, `mpc::MpcTask`) are
+/// waited for on its first tick, like its plan (in real time for [`PLAN_WAIT_FRACTION`] of
+/// the tick, in lockstep until they come), and taken from then on; later ones wait for the
+/// next sample. So the check sees the same tracks and scans in process, in lockstep and in
+/// every order the topics are read in.
+pub struct PerceptionInbox<M> {
     /// Inner ticks between two measurements of the tracker.
     perception_ticks: u64,
     inner_steps: u64,
-    /// Tracks heard and not yet taken, oldest first.
-    pending: VecDeque<Tracks>,
-    /// Tick of the newest tracks heard.
+    /// Messages heard and not yet taken, oldest first.
+    pending: VecDeque<M>,
+    /// Tick of the newest heard.
     newest: Option<u64>,
 }
 
-impl TrackInbox {
-    pub fn new(scenario: &Validated) -> TrackInbox {
-        TrackInbox {
+/// The tracks' inbox.
+pub type TrackInbox = PerceptionInbox<Tracks>;
+
+/// Estimated poses kept to place a scan where it was taken (more than a scan's age,
+/// [`Scan::age_ticks`]).
+const POSES_KEPT: usize = 64;
+
+impl<M: protocol::Message> PerceptionInbox<M> {
+    pub fn new(scenario: &Validated) -> PerceptionInbox<M> {
+        PerceptionInbox {
             perception_ticks: scenario.perception_ticks(),
             inner_steps: scenario.timing.inner_steps as u64,
             pending: VecDeque::with_capacity(4),
@@ -189,16 +197,17 @@ impl TrackInbox {
         }
     }
 
-    /// Keeps `tracks` if they are newer than every tracks heard (the newest four).
-    pub fn receive(&mut self, tracks: &Tracks) {
-        if self.newest.is_some_and(|t| tracks.header.tick <= t) {
+    /// Keeps `message` if it is newer than every one heard (the newest four).
+    pub fn receive(&mut self, message: &M) {
+        let tick = message.header().tick;
+        if self.newest.is_some_and(|t| tick <= t) {
             return;
         }
-        self.newest = Some(tracks.header.tick);
+        self.newest = Some(tick);
         if self.pending.len() == self.pending.capacity() {
             self.pending.pop_front();
         }
-        self.pending.push_back(*tracks);
+        self.pending.push_back(*message);
     }
 
     /// The perception tick whose tracks the command for `tick` is checked with: the last
@@ -208,17 +217,17 @@ impl TrackInbox {
         start - start % self.perception_ticks
     }
 
-    /// Whether the tracks due for `tick` have not come yet.
+    /// Whether the message due for `tick` has not come yet.
     pub fn waits_for(&self, tick: u64) -> bool {
         self.newest.is_none_or(|t| t < self.due(tick))
     }
 
-    /// Hands `take` every tracks due by `tick`, oldest first.
-    pub fn release(&mut self, tick: u64, mut take: impl FnMut(&Tracks)) {
+    /// Hands `take` every message due by `tick`, oldest first.
+    pub fn release(&mut self, tick: u64, mut take: impl FnMut(&M)) {
         let due = self.due(tick);
-        while self.pending.front().is_some_and(|t| t.header.tick <= due) {
-            if let Some(tracks) = self.pending.pop_front() {
-                take(&tracks);
+        while self.pending.front().is_some_and(|m| m.header().tick <= due) {
+            if let Some(message) = self.pending.pop_front() {
+                take(&message);
             }
         }
     }
@@ -243,6 +252,9 @@ pub struct DflTask {
     queue: VecDeque<(Estimate, u64)>,
     /// The tracks, when the check runs and an obstacle is tracked.
     tracks: Option<TrackInbox>,
+    /// With the check and a lidar: the scans, and the estimated poses of the newest
+    /// ticks (`[x_m, y_m, theta_rad]`), to place a scan where it was taken.
+    scans: Option<(PerceptionInbox<Scan>, VecDeque<(u64, [f64; 3])>)>,
     /// Whether the plant takes this task's commands (not before the executor has said
     /// so, nor while it warms up as a replacement).
     commanding: bool,
@@ -265,13 +277,21 @@ impl Task for DflTask {
             queue: VecDeque::with_capacity(16),
             tracks: (scenario.dfl.gatekeeper && scenario.roles().any(|r| r == Role::Tracker))
                 .then(|| TrackInbox::new(scenario)),
+            scans: (scenario.dfl.gatekeeper && scenario.sees_with_lidar()).then(|| {
+                let poses = VecDeque::with_capacity(POSES_KEPT);
+                (PerceptionInbox::new(scenario), poses)
+            }),
             commanding: false,
         })
     }
 
-    /// The tracks only with the gatekeeper.
+    /// The tracks only with the gatekeeper, the scans only with it and a lidar.
     fn takes(&self, topic: &str) -> bool {
-        topic != TRACKS || self.tracks.is_some()
+        match topic {
+            TRACKS => self.tracks.is_some(),
+            SCAN => self.scans.is_some(),
+            _ => true,
+        }
     }
 
     /// An estimate is queued with its receipt latency; a plan goes to the inbox and the
@@ -293,6 +313,11 @@ impl Task for DflTask {
             DflInput::Tracks(tracks) => {
                 if let Some(inbox) = &mut self.tracks {
                     inbox.receive(&tracks);
+                }
+            }
+            DflInput::Scan(scan) => {
+                if let Some((inbox, _)) = &mut self.scans {
+                    inbox.receive(&scan);
                 }
             }
         }
@@ -366,13 +391,15 @@ impl DflTask {
         None
     }
 
-    /// Until when the command for `tick` waits for its sample's plan or tracks, s: on the
-    /// first tick of a sample whose plan ([`PlanInbox::waits_for`]) or tracks
-    /// ([`TrackInbox::waits_for`]) the DFL waits for.
+    /// Until when the command for `tick` waits for its sample's plan, tracks or scan, s: on
+    /// the first tick of a sample whose plan ([`PlanInbox::waits_for`]), tracks or scan
+    /// ([`PerceptionInbox::waits_for`]) the DFL waits for.
     fn wait_s(&self, tick: u64) -> Option<f64> {
         let sample = self.timing.sample_of(tick);
         let tracks_due = (self.tracks.as_ref()).is_some_and(|t| t.waits_for(tick));
-        (self.timing.starts_sample(tick) && (self.inbox.waits_for(sample) || tracks_due))
+        let scan_due = (self.scans.as_ref()).is_some_and(|(s, _)| s.waits_for(tick));
+        let perception_due = tracks_due || scan_due;
+        (self.timing.starts_sample(tick) && (self.inbox.waits_for(sample) || perception_due))
             .then(|| (tick as f64 + PLAN_WAIT_FRACTION) * self.timing.dt_s())
     }
 
@@ -396,6 +423,23 @@ impl DflTask {
         self.inbox.release(sample, &mut self.dfl);
         if let Some(tracks) = &mut self.tracks {
             tracks.release(tick, |t| self.dfl.set_tracks(t));
+        }
+        if let Some((scans, poses)) = &mut self.scans {
+            let [x, y, theta, _] = estimate.state;
+            if poses.len() == POSES_KEPT {
+                poses.pop_front();
+            }
+            poses.push_back((tick, [x, y, theta]));
+            scans.release(tick, |scan| {
+                // Where the robot was when the scan was taken (the oldest kept, if older).
+                let taken = scan.header.tick.saturating_sub(scan.age_ticks.into());
+                let pose = (poses.iter().rev())
+                    .find(|(t, _)| *t <= taken)
+                    .or(poses.front())
+                    .map_or([x, y, theta], |(_, pose)| *pose);
+                self.dfl
+                    .set_scan(scan, protocol::mounted(pose, scan.offset));
+            });
         }
         let mut actuation = self.dfl.step(estimate, tick);
         let verdict = match actuation.mode() {

@@ -246,7 +246,7 @@ declare_roles! {
     },
     /// The dynamic feedback linearization and its gatekeeper.
     Dfl = 3 "dfl" {
-        inputs: &[ESTIMATE, PLAN, TRACKS],
+        inputs: &[ESTIMATE, PLAN, TRACKS, SCAN],
         outputs: &[ACTUATION, DEADLINE],
         tier: Control,
         remote: true,

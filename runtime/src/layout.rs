@@ -177,6 +177,7 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
                     Intervention::CommittedUnsafe,
                     Intervention::LeastUnsafe,
                     Intervention::MovingContact,
+                    Intervention::FreeRange,
                 ],
                 Intervention::as_str,
                 |i| i as u32,

@@ -398,6 +398,15 @@ impl Report {
         if at_rest > 0 {
             out += &format!("  contacts at rest in {at_rest} worlds\n");
         }
+        let seen = (self.results.iter()).filter_map(|r| r.as_ref().ok()?.perception);
+        let (seeing, false_tracks, missed) = seen.fold((0, 0, 0), |(n, f, m), p| {
+            (n + 1, f + p.false_tracks, m + p.missed_obstacles)
+        });
+        if seeing > 0 {
+            out += &format!(
+                "  perception: {false_tracks} false tracks, {missed} obstacles missed in {seeing} worlds\n"
+            );
+        }
         if self.count(Outcome::NoRoute) > 0 {
             out += &format!(
                 "  reached {:.1} % of the worlds with a route\n",
@@ -506,7 +515,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,within_0_2_m_s,largest_distance_after_m,time_to_rest_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,file"
+        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,within_0_2_m_s,largest_distance_after_m,time_to_rest_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,false_tracks,missed_obstacles,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
@@ -539,7 +548,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{},{},{},{file}",
+                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.stall_reason.map_or("", |reason| reason.as_str()),
                 r.min_clearance_m,
@@ -552,10 +561,14 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
                 r.solver_failures,
                 r.deadline_misses,
                 r.contacts_at_rest,
+                r.perception
+                    .map_or(String::new(), |p| p.false_tracks.to_string()),
+                r.perception
+                    .map_or(String::new(), |p| p.missed_obstacles.to_string()),
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,,,,,,,{file}",
+                "{params},error: {},,,,,,,,,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }

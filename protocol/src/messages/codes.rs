@@ -190,6 +190,10 @@ pub enum Intervention {
     /// predicted contact: the DFL takes the one that keeps the most clearance, and the
     /// robot is predicted to be still moving at the contact.
     MovingContact = 4,
+    /// A return of the newest scan (off the map) lies on the robot's way ahead nearer than
+    /// it needs to stop (`dfl::free_range`): the DFL brakes, whatever perception made of
+    /// the scan.
+    FreeRange = 5,
 }
 
 impl Intervention {
@@ -200,6 +204,7 @@ impl Intervention {
             2 => Intervention::CommittedUnsafe,
             3 => Intervention::LeastUnsafe,
             4 => Intervention::MovingContact,
+            5 => Intervention::FreeRange,
             _ => return None,
         })
     }
@@ -210,6 +215,7 @@ impl Intervention {
             Intervention::CommittedUnsafe => "committed_unsafe",
             Intervention::LeastUnsafe => "least_unsafe",
             Intervention::MovingContact => "moving_contact",
+            Intervention::FreeRange => "free_range",
         }
     }
 }
