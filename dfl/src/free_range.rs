@@ -85,7 +85,7 @@ impl FreeRange {
                 (along > 0.0 && across <= self.half_width_m).then_some(along)
             })
             .fold(f64::INFINITY, f64::min);
-        (nearest < needed).then(|| needed - nearest)
+        (nearest < needed).then_some(needed - nearest)
     }
 }
 

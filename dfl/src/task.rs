@@ -183,6 +183,9 @@ pub struct PerceptionInbox<M> {
 /// The tracks' inbox.
 pub type TrackInbox = PerceptionInbox<Tracks>;
 
+/// Estimated poses by tick, `[x_m, y_m, theta_rad]`, oldest first.
+type Poses = VecDeque<(u64, [f64; 3])>;
+
 /// Estimated poses kept to place a scan where it was taken (more than a scan's age,
 /// [`Scan::age_ticks`]).
 const POSES_KEPT: usize = 64;
@@ -253,8 +256,8 @@ pub struct DflTask {
     /// The tracks, when the check runs and an obstacle is tracked.
     tracks: Option<TrackInbox>,
     /// With the check and a lidar: the scans, and the estimated poses of the newest
-    /// ticks (`[x_m, y_m, theta_rad]`), to place a scan where it was taken.
-    scans: Option<(PerceptionInbox<Scan>, VecDeque<(u64, [f64; 3])>)>,
+    /// ticks, to place a scan where it was taken.
+    scans: Option<(PerceptionInbox<Scan>, Poses)>,
     /// Whether the plant takes this task's commands (not before the executor has said
     /// so, nor while it warms up as a replacement).
     commanding: bool,
