@@ -133,8 +133,10 @@ mod tests {
     fn before_any_scan_every_forward_speed_is_too_fast_and_mapped_points_do_not_count() {
         let free = free_range(0.0);
         assert!(free.shortfall_m([0.0; 3], 0.5).is_some());
-        let mut scenario = Scenario::default();
-        scenario.obstacles = vec![protocol::Obstacle::fixed(1.0, 0.0, 0.5)];
+        let scenario = Scenario {
+            obstacles: vec![protocol::Obstacle::fixed(1.0, 0.0, 0.5)],
+            ..Scenario::default()
+        };
         let mut mapped = FreeRange::new(&scenario);
         // The return ahead is on the mapped obstacle's edge (0.5 m from the lidar).
         mapped.take(&scan_of(&[f32::INFINITY, 0.5, f32::INFINITY]), [0.0; 3]);
