@@ -42,8 +42,12 @@ impl FreeRange {
         }
     }
 
-    /// Takes `scan`, taken with the lidar at `lidar` (`[x_m, y_m, yaw_rad]` in the world).
+    /// Takes `scan`, taken with the lidar at `lidar` (`[x_m, y_m, yaw_rad]` in the world);
+    /// a scan of no beams (none new) leaves the points as they are.
     pub fn take(&mut self, scan: &Scan, lidar: [f64; 3]) {
+        if scan.beams == 0 {
+            return;
+        }
         let [lx, ly, yaw] = lidar;
         self.seen = true;
         self.points.clear();

@@ -186,9 +186,9 @@ pub type TrackInbox = PerceptionInbox<Tracks>;
 /// Estimated poses by tick, `[x_m, y_m, theta_rad]`, oldest first.
 type Poses = VecDeque<(u64, [f64; 3])>;
 
-/// Estimated poses kept to place a scan where it was taken (more than a scan's age,
-/// [`Scan::age_ticks`]).
-const POSES_KEPT: usize = 64;
+/// Estimated poses kept to place a scan where it was taken: 0.64 s at the paper's tick,
+/// more than a scan's age ([`Scan::age_ticks`], under one scan period).
+const POSES_KEPT: usize = 128;
 
 impl<M: protocol::Message> PerceptionInbox<M> {
     pub fn new(scenario: &Validated) -> PerceptionInbox<M> {
@@ -435,7 +435,7 @@ impl DflTask {
             poses.push_back((tick, [x, y, theta]));
             scans.release(tick, |scan| {
                 // Where the robot was when the scan was taken (the oldest kept, if older).
-                let taken = scan.header.tick.saturating_sub(scan.age_ticks.into());
+                let taken = scan.taken_tick();
                 let pose = (poses.iter().rev())
                     .find(|(t, _)| *t <= taken)
                     .or(poses.front())

@@ -52,7 +52,7 @@ impl protocol::task::Resources for RobotLink {
         let error = |e: RobotError| protocol::task::TaskError::setup(protocol::Role::Plant, e);
         let security = net::Security::from_env();
         let link =
-            Link::open(&scenario.ros2, &security, scenario.sees_with_lidar()).map_err(error)?;
+            Link::open(&scenario.ros2, &security, scenario.lidar.is_some()).map_err(error)?;
         let first = link
             .first_odometry(&AtomicBool::new(false))
             .map_err(error)?;
@@ -199,7 +199,7 @@ pub fn watched_keys(scenario: &protocol::Scenario) -> Vec<String> {
     if scenario.plant.kind != protocol::PlantKind::Ros2 {
         return Vec::new();
     }
-    let scan = scenario.sees_with_lidar().then(|| scan_key(&scenario.ros2));
+    let scan = scenario.lidar.is_some().then(|| scan_key(&scenario.ros2));
     [Some(odometry_key(&scenario.ros2))]
         .into_iter()
         .chain([scan])

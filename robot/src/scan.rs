@@ -75,14 +75,25 @@ impl Task for ScanTask {
     }
 
     /// At the perception tick heard, the newest scan if it was not published yet and is
-    /// younger than `ros2.scan_timeout_s` (none: the tracker predicts its tracks, and the
-    /// robot's own watchdog brakes, [`crate::RobotTask`]), with its age in inner ticks.
+    /// younger than `ros2.scan_timeout_s`, with its age in inner ticks; else a scan of no
+    /// beams, so that the tick goes on without waiting (the tracker predicts its tracks;
+    /// scans that stop brake the robot by its own watchdog, [`crate::RobotTask`]).
     fn step(&mut self, context: &impl Context) -> Option<Publish<Scan>> {
         let truth = self.pending.take()?;
+        let header = protocol::Header {
+            tick: truth.header.tick,
+            time_s: truth.header.time_s,
+            ..protocol::Header::default()
+        };
         let now_ns = context.monotonic_ns();
-        let link = &self.link;
         let after_ns = (now_ns.saturating_sub(self.timeout_ns)).max(self.published_ns);
-        let (arrived_ns, mount) = link.newest_after(after_ns, &mut self.scan)?;
+        let Some((arrived_ns, mount)) = self.link.newest_after(after_ns, &mut self.scan) else {
+            // No new scan: the tick goes on without one.
+            return Some(Publish::now(Scan {
+                header,
+                ..Scan::default()
+            }));
+        };
         self.published_ns = arrived_ns;
         let age_ticks = (now_ns - arrived_ns.min(now_ns)) as f64 * 1e-9 / self.dt_s;
         if mount.is_none() && !self.said_offset {
@@ -93,11 +104,7 @@ impl Task for ScanTask {
                 self.offset
             );
         }
-        self.scan.header = protocol::Header {
-            tick: truth.header.tick,
-            time_s: truth.header.time_s,
-            ..protocol::Header::default()
-        };
+        self.scan.header = header;
         self.scan.offset = mount.unwrap_or(self.offset);
         self.scan.age_ticks = (age_ticks.round() as u32).min(truth.header.tick as u32);
         Some(Publish::now(*self.scan))

@@ -73,15 +73,11 @@ impl RobotTask {
     /// The verdict of the watchdogs at `now_ns` (the worse of the two), and the input it
     /// is for.
     fn check(&mut self, now_ns: u64) -> (Verdict, Stale) {
-        let odometry = self.watchdog.check(now_ns, &self.newest);
+        let odometry = (self.watchdog).check(now_ns, self.newest.arrived_ns, &self.newest);
         let scan_arrived = self.link.as_ref().and_then(Link::newest_scan);
         let scan = match (&mut self.scan_watchdog, scan_arrived) {
             (Some(watchdog), Some((_, arrived_ns))) => {
-                let newest = Heard {
-                    arrived_ns,
-                    ..self.newest
-                };
-                watchdog.check(now_ns, &newest)
+                watchdog.check(now_ns, arrived_ns, &self.newest)
             }
             _ => Verdict::Drive,
         };
@@ -220,9 +216,12 @@ impl Task for RobotTask {
             self.newest = newest;
         }
         let (verdict, stale) = self.check(context.monotonic_ns());
-        if verdict != Verdict::Drive && self.verdict == Verdict::Drive {
-            tracing::warn!("the {} is stale: the robot brakes", stale.name());
+        if verdict > self.verdict {
+            // The input that made it worse is the one the run says was lost.
             self.stale = stale;
+            if self.verdict == Verdict::Drive {
+                tracing::warn!("the {} is stale: the robot brakes", stale.name());
+            }
         }
         self.verdict = verdict;
         if self.verdict != Verdict::Drive {

@@ -36,19 +36,19 @@ impl Watchdog {
         }
     }
 
-    /// The verdict at `now_ns` (monotonic) with `newest` the newest odometry (for a scan:
-    /// its arrival, with the newest odometry's twist, which says when the robot is at
-    /// rest).
-    pub fn check(&mut self, now_ns: u64, newest: &Heard) -> Verdict {
-        let age_ns = now_ns.saturating_sub(newest.arrived_ns);
-        if age_ns > 2 * self.timeout_ns {
+    /// The verdict at `now_ns` (monotonic) for an input whose newest message arrived at
+    /// `arrived_ns`, with `odometry` the newest odometry (which says when the robot is at
+    /// rest: a fresh one after the brake began, with a twist below [`AT_REST`]).
+    pub fn check(&mut self, now_ns: u64, arrived_ns: u64, odometry: &Heard) -> Verdict {
+        let age_ns = now_ns.saturating_sub(arrived_ns);
+        if age_ns > self.timeout_ns.saturating_mul(2) {
             return Verdict::GiveUp;
         }
         match self.braking_since_ns {
             Some(since) => {
-                let at_rest = newest.arrived_ns > since
-                    && newest.twist[0].abs() < AT_REST[0]
-                    && newest.twist[1].abs() < AT_REST[1];
+                let at_rest = odometry.arrived_ns > since
+                    && odometry.twist[0].abs() < AT_REST[0]
+                    && odometry.twist[1].abs() < AT_REST[1];
                 if at_rest {
                     Verdict::GiveUp
                 } else {
@@ -83,27 +83,58 @@ mod tests {
     fn fresh_odometry_drives_stale_brakes_and_twice_stale_gives_up() {
         let mut watchdog = Watchdog::new(0.2);
         let moving = heard(1000 * MS, [0.5, 0.0]);
-        assert_eq!(watchdog.check(1100 * MS, &moving), Verdict::Drive);
-        assert_eq!(watchdog.check(1200 * MS, &moving), Verdict::Drive);
-        assert_eq!(watchdog.check(1201 * MS, &moving), Verdict::Brake);
-        assert_eq!(watchdog.check(1400 * MS, &moving), Verdict::Brake);
-        assert_eq!(watchdog.check(1401 * MS, &moving), Verdict::GiveUp);
+        assert_eq!(
+            watchdog.check(1100 * MS, moving.arrived_ns, &moving),
+            Verdict::Drive
+        );
+        assert_eq!(
+            watchdog.check(1200 * MS, moving.arrived_ns, &moving),
+            Verdict::Drive
+        );
+        assert_eq!(
+            watchdog.check(1201 * MS, moving.arrived_ns, &moving),
+            Verdict::Brake
+        );
+        assert_eq!(
+            watchdog.check(1400 * MS, moving.arrived_ns, &moving),
+            Verdict::Brake
+        );
+        assert_eq!(
+            watchdog.check(1401 * MS, moving.arrived_ns, &moving),
+            Verdict::GiveUp
+        );
     }
 
     #[test]
     fn once_braked_it_brakes_until_the_robot_reports_rest() {
         let mut watchdog = Watchdog::new(0.2);
         assert_eq!(
-            watchdog.check(1300 * MS, &heard(1000 * MS, [0.5, 0.0])),
+            watchdog.check(1300 * MS, 1000 * MS, &heard(1000 * MS, [0.5, 0.0])),
             Verdict::Brake
         );
         // Odometry again, the robot still moving: fresh, but the brake holds.
         assert_eq!(
-            watchdog.check(1310 * MS, &heard(1305 * MS, [0.2, 0.0])),
+            watchdog.check(1310 * MS, 1305 * MS, &heard(1305 * MS, [0.2, 0.0])),
             Verdict::Brake
         );
         assert_eq!(
-            watchdog.check(1320 * MS, &heard(1315 * MS, [0.0, 0.005])),
+            watchdog.check(1320 * MS, 1315 * MS, &heard(1315 * MS, [0.0, 0.005])),
+            Verdict::GiveUp
+        );
+    }
+
+    #[test]
+    fn a_stale_scan_gives_up_once_the_odometry_says_the_robot_is_at_rest() {
+        let mut watchdog = Watchdog::new(0.5);
+        let last_scan_ns = 1000 * MS;
+        let moving = heard(1600 * MS, [0.4, 0.0]);
+        assert_eq!(
+            watchdog.check(1600 * MS, last_scan_ns, &moving),
+            Verdict::Brake
+        );
+        let resting = heard(1700 * MS, [0.0, 0.0]);
+        assert_eq!(
+            watchdog.check(1700 * MS, last_scan_ns, &resting),
             Verdict::GiveUp
         );
     }

@@ -176,10 +176,12 @@ impl Task for TrackerTask {
                     return None; // the estimate of the scan's tick is on its way
                 }
                 let scan = scans.iter().position(|s| s.header.tick == tick);
-                let taken = scan.map_or(tick, |i| tick.saturating_sub(scans[i].age_ticks.into()));
+                let taken = scan.map_or(tick, |i| scans[i].taken_tick());
                 let pose = poses.iter().rev().find(|(t, _)| *t <= taken);
                 match (scan, pose) {
-                    (Some(i), Some((_, pose))) if !dropped => perception.take(&scans[i], *pose),
+                    (Some(i), Some((_, pose))) if !dropped && scans[i].beams > 0 => {
+                        perception.take(&scans[i], *pose)
+                    }
                     _ => perception.predict_to(time_s),
                 }
                 scans.retain(|s| s.header.tick > tick);

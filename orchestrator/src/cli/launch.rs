@@ -146,7 +146,7 @@ fn from_the_robot(
             scenario.ros2.goal_topic
         );
     }
-    let lidar = scenario.sees_with_lidar();
+    let lidar = scenario.lidar.is_some();
     let start = robot::first_contact(&scenario.ros2, security, lidar, stop)
         .context("the ROS 2 robot (plant.kind = \"ros2\")")?;
     let mut moved = scenario.into_inner();

@@ -15,7 +15,9 @@ use crate::MAX_BEAMS;
 pub struct Scan {
     /// The tick of the truth the scan was taken at (its time).
     pub header: Header,
-    /// Beams in the scan: `ranges_m[..beams]`.
+    /// Beams in the scan: `ranges_m[..beams]`. 0: no new scan at this perception tick (a
+    /// robot's lidar slower than `lidar.rate_hz`, or late): the tracker predicts its
+    /// tracks, the DFL keeps the points it has.
     pub beams: u32,
     /// Inner ticks from the scan's taking to `header.tick` (a robot's scan arrives between
     /// two perception ticks): its points are placed with the estimate of then. 0 for the
@@ -54,6 +56,11 @@ impl Scan {
     /// The ranges of the scan's beams, m.
     pub fn ranges(&self) -> &[f32] {
         &self.ranges_m[..(self.beams as usize).min(MAX_BEAMS)]
+    }
+
+    /// The tick the scan was taken at: [`Scan::age_ticks`] before its header's.
+    pub fn taken_tick(&self) -> u64 {
+        self.header.tick.saturating_sub(self.age_ticks.into())
     }
 
     /// Beams that hit something in range (a finite range).

@@ -165,8 +165,7 @@ impl McapFile {
     /// pose recorded, at the end), as `foxglove.LaserScan`s.
     fn placed_scans(&mut self, all: bool) -> std::io::Result<()> {
         let newest = self.truths.back().map(|(tick, _)| *tick);
-        let taken = |s: &protocol::Scan| s.header.tick.saturating_sub(s.age_ticks.into());
-        while let Some(taken) = self.scans.front().map(|s| taken(s)) {
+        while let Some(taken) = self.scans.front().map(|s| s.taken_tick()) {
             if !all && newest.is_none_or(|newest| newest < taken) {
                 break;
             }

@@ -12,7 +12,7 @@ use ros2::{EntityKind, MessageType, Node, Qos};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use zenoh::Wait;
-use zenoh::query::ReplyKeyExpr;
+use zenoh::query::{ConsolidationMode, QueryTarget, ReplyKeyExpr};
 
 mod frames;
 pub use frames::{Mount, mount_of};
@@ -48,8 +48,9 @@ pub struct ScanLink {
     _tokens: Vec<zenoh::liveliness::LivelinessToken>,
 }
 
-/// The pipeline's scan of `ros`: at most [`MAX_BEAMS`] beams (every k-th of a denser
-/// scan), REP 117's ranges kept, a finite range outside `[range_min, range_max]` (which
+/// The pipeline's scan of `ros`: at most [`MAX_BEAMS`] beams (a denser scan's beams taken
+/// k at a time, each group its nearest return, so a thin pole between kept beams is not
+/// lost), REP 117's ranges kept, a finite range outside `[range_min, range_max]` (which
 /// `sensor_msgs` says to discard) a NaN; `None` for a scan without beams or with angles
 /// that are not numbers.
 pub fn scan_of(ros: &cdr::LaserScan) -> Option<Scan> {
@@ -68,16 +69,17 @@ pub fn scan_of(ros: &cdr::LaserScan) -> Option<Scan> {
         range_max_m: f64::from(max),
         ..Scan::default()
     };
-    for (kept, &r) in scan
-        .ranges_m
-        .iter_mut()
-        .zip(ros.ranges.iter().step_by(stride))
-    {
-        *kept = if r.is_finite() && !(min..=max).contains(&r) {
+    let valid = |r: f32| {
+        if r.is_finite() && !(min..=max).contains(&r) {
             f32::NAN
         } else {
             r
-        };
+        }
+    };
+    for (kept, group) in scan.ranges_m.iter_mut().zip(ros.ranges.chunks(stride)) {
+        // The nearest return, else +inf (nothing in range) before NaN (no return).
+        let nearest = group.iter().map(|&r| valid(r)).filter(|r| !r.is_nan());
+        *kept = nearest.fold(f32::NAN, |a, r| if a.is_nan() { r } else { a.min(r) });
     }
     Some(scan)
 }
@@ -142,8 +144,12 @@ impl ScanLink {
             .map_err(zenoh_error)?;
         for selector in [tf_key.clone(), format!("{tf_key}/@adv/pub/**")] {
             let cached = keep(&mounts);
+            // Every publisher's cache (robot_state_publisher's and a
+            // static_transform_publisher's share the key), every reply.
             session
                 .get(selector)
+                .target(QueryTarget::All)
+                .consolidation(ConsolidationMode::None)
                 .accept_replies(ReplyKeyExpr::Any)
                 .callback(move |reply| {
                     if let Ok(sample) = reply.result() {

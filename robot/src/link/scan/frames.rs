@@ -26,17 +26,6 @@ impl Mount {
     }
 }
 
-/// `inner` (a pose in frame B) in frame A, with `outer` B's pose in A.
-fn compose(outer: [f64; 3], inner: [f64; 3]) -> [f64; 3] {
-    let [x, y, yaw] = outer;
-    let (sin, cos) = yaw.sin_cos();
-    [
-        x + cos * inner[0] - sin * inner[1],
-        y + sin * inner[0] + cos * inner[1],
-        yaw + inner[2],
-    ]
-}
-
 /// The pose of `frame` in `base`, following each frame's mount on its parent; `None`
 /// when the chain does not reach `base`.
 pub fn mount_of(mounts: &BTreeMap<String, Mount>, frame: &str, base: &str) -> Option<[f64; 3]> {
@@ -47,7 +36,7 @@ pub fn mount_of(mounts: &BTreeMap<String, Mount>, frame: &str, base: &str) -> Op
             return Some(pose);
         }
         let mount = mounts.get(at)?;
-        pose = compose(mount.pose, pose);
+        pose = protocol::mounted(mount.pose, pose);
         at = &mount.parent;
     }
     None

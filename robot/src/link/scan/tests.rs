@@ -61,9 +61,12 @@ fn a_laser_scan_becomes_a_scan_with_rep_117_ranges_and_at_most_max_beams() {
         ..ros.clone()
     };
     let scan = scan_of(&dense).unwrap();
-    // Every second beam of 2000: 1000 beams twice as far apart.
+    // 2000 beams two at a time: 1000 beams twice as far apart, each the nearer of two.
     assert_eq!(scan.beams, 1000);
     assert!((scan.angle_increment_rad - 0.02).abs() < 1e-9);
     assert_eq!(scan.ranges()[1], 1.002);
+    let mut pole = dense.clone();
+    pole.ranges[3] = 0.5; // seen by one beam only: the second of the second pair
+    assert_eq!(scan_of(&pole).unwrap().ranges()[1], 0.5);
     assert!(scan_of(&LaserScan::default()).is_none());
 }
