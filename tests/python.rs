@@ -160,7 +160,7 @@ fn run_mcap_shows_the_moving_obstacles_every_tick_and_the_tracks_with_their_pred
 }
 
 #[test]
-fn run_mcap_shows_every_scan_from_where_the_lidar_was_and_scan_csv_counts_its_returns() {
+fn every_scan_is_in_run_mcap_from_where_the_lidar_was_and_in_scan_csv_and_path_png_shows_some() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("run");
@@ -190,6 +190,16 @@ fn run_mcap_shows_every_scan_from_where_the_lidar_was_and_scan_csv_counts_its_re
     );
     // The first scan is taken where the robot starts, the lidar at its centre.
     assert_eq!(scans["origins"][0], serde_json::json!([-4.0, 0.0]));
+    // The path figure shows what the lidar saw every 2 s, as dots.
+    let path = std::fs::read_to_string(out_dir.join("path.svg")).unwrap();
+    assert!(
+        path.contains("lidar returns, every 2 s"),
+        "path.svg has no returns"
+    );
+    assert!(
+        path.matches("<circle").count() > 100,
+        "path.svg has too few dots"
+    );
 }
 
 #[test]

@@ -8,6 +8,8 @@ use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
+use protocol::PlantKind;
+use rand::SeedableRng;
 use record::schema::Table;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -44,6 +46,8 @@ pub struct Series {
     pub dashed: bool,
     /// Palette index.
     pub color: usize,
+    /// Drawn as dots, not joined (a lidar's returns).
+    pub dots: bool,
 }
 
 /// A labelled point, drawn as a filled circle (the start, the goal).
@@ -240,7 +244,17 @@ impl Figure {
                 .iter()
                 .filter(|p| p.0.is_finite() && p.1.is_finite())
                 .map(|&(x, y)| (x, self.y(y)));
-            let drawn = if s.dashed {
+            let drawn = if s.dots {
+                let dot = color.filled();
+                let dots = points.map(|p| Circle::new(p, 2, dot));
+                let drawn = chart.draw_series(dots)?;
+                if !s.label.is_empty() {
+                    drawn
+                        .label(s.label.as_str())
+                        .legend(move |(x, y)| Circle::new((x + 12, y), 3, dot));
+                }
+                continue;
+            } else if s.dashed {
                 chart.draw_series(DashedLineSeries::new(points, 8, 6, style))?
             } else {
                 chart.draw_series(LineSeries::new(points, style))?
@@ -442,6 +456,48 @@ fn moving_traces(scenario: &protocol::Scenario, robot: &Trajectory) -> (Vec<Seri
     (traces, markers)
 }
 
+/// With a simulated lidar, every [`TRACE_LABEL_S`], its returns from where the robot
+/// truly was (`robot`: the trajectory), ray-cast again against the true world without
+/// noise or dropouts: what it could see then (the run's own scans are in `scan.csv` and
+/// `run.mcap`). Nothing without one, or for a robot's own lidar.
+fn scan_dots(scenario: &protocol::Scenario, robot: &Trajectory) -> Option<Series> {
+    let config = (scenario.lidar.as_ref()).filter(|_| scenario.plant.kind == PlantKind::Sim)?;
+    let sensor = lidar::Lidar {
+        noise_std_m: 0.0,
+        dropout: 0.0,
+        ..lidar::Lidar::of(config)
+    };
+    let (first, step) = sensor.angles();
+    let end_s = robot.t.last().copied().unwrap_or(0.0);
+    let mut ranges = vec![0.0_f32; sensor.beams];
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    let mut points = Vec::new();
+    for i in 0..=(end_s / TRACE_LABEL_S) as usize {
+        let t = i as f64 * TRACE_LABEL_S;
+        let Some(k) = robot.t.iter().position(|&rt| rt >= t - 1e-9) else {
+            continue;
+        };
+        let pose = [robot.x[k], robot.y[k], robot.theta[k]];
+        let discs: Vec<lidar::Disc> = (scenario.obstacles.iter())
+            .map(|o| (o.center_at(t), o.radius))
+            .collect();
+        sensor.scan(pose, &discs, &mut rng, &mut ranges);
+        let [lx, ly, heading] = sensor.pose_on(pose);
+        for (beam, &r) in ranges.iter().enumerate().filter(|(_, r)| r.is_finite()) {
+            let angle = heading + first + step * beam as f64;
+            let r = f64::from(r);
+            points.push((lx + r * angle.cos(), ly + r * angle.sin()));
+        }
+    }
+    Some(Series {
+        label: format!("lidar returns, every {TRACE_LABEL_S:.0} s"),
+        points,
+        dots: true,
+        color: 6,
+        ..Series::default()
+    })
+}
+
 /// `path` and `clearance` of the run in `dir` (written by `scmpc run`).
 pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()> {
     let t = Trajectory::read(dir)?;
@@ -485,6 +541,7 @@ pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()
     let [gx, gy] = scenario.robot.goal.position;
     let (traces, times) = moving_traces(scenario, &t);
     path.extend(traces);
+    path.extend(scan_dots(scenario, &t));
     let mut markers = vec![
         Marker {
             label: "start".into(),

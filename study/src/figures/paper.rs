@@ -144,8 +144,8 @@ fn series(label: String, points: Vec<(f64, f64)>, color: usize, faint: bool) -> 
         label,
         points,
         faint,
-        dashed: false,
         color,
+        ..Series::default()
     }
 }
 
@@ -271,8 +271,8 @@ fn solve_time_figure(solve_times: &[crate::solve_times::SolveTimes], ts_s: f64) 
                 .map(|s| (s.horizon as f64, f(s) / 1e3))
                 .collect(),
             faint,
-            dashed: false,
             color,
+            ..Series::default()
         };
     Figure {
         stem: "solve_time".into(),
