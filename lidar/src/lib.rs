@@ -6,7 +6,7 @@
 pub mod sensor;
 pub use sensor::{Disc, Lidar};
 
-use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
 use protocol::{GroundTruth, Header, Obstacle, Role, Scan, Validated};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -27,12 +27,9 @@ pub struct LidarTask {
     discs: Vec<Disc>,
     /// Its own stream: the plant's noise stays what it was without a lidar.
     rng: ChaCha8Rng,
-    perception_ticks: u64,
-    dt_s: f64,
+    perception: PerceptionTicks,
     /// Truths of perception ticks heard and not scanned yet.
     pending: VecDeque<GroundTruth>,
-    /// The newest perception tick heard.
-    last_tick: Option<u64>,
 }
 
 /// The lidar's seed beside the scenario's (`"lidar"` in ASCII).
@@ -51,27 +48,22 @@ impl Task for LidarTask {
             obstacles: scenario.obstacles.clone(),
             discs: Vec::with_capacity(scenario.obstacles.len()),
             rng: ChaCha8Rng::seed_from_u64(scenario.seed ^ SEED_STREAM),
-            perception_ticks: scenario.perception_ticks(),
-            dt_s: scenario.timing.dt_s(),
+            perception: PerceptionTicks::of(scenario),
             pending: VecDeque::with_capacity(8),
-            last_tick: None,
         })
     }
 
     /// A truth at a perception tick newer than the last is queued.
     fn hear(&mut self, input: LidarInput, _latency_ns: u64, _context: &impl Context) {
         let LidarInput::Truth(truth) = input;
-        let tick = truth.header.tick;
-        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
-            self.last_tick = Some(tick);
+        if self.perception.take(truth.header.tick) {
             self.pending.push_back(truth);
         }
     }
 
     /// The next perception tick's truth is expected.
     fn next(&self) -> Due {
-        let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
-        Due::Expect(Some(next as f64 * self.dt_s))
+        Due::Expect(Some(self.perception.next_s()))
     }
 
     /// The scan of the oldest perception tick waiting.

@@ -293,6 +293,45 @@ pub trait Task: Sized {
     fn warm_up(&mut self, _cancel: &Cancel) {}
 }
 
+/// The perception ticks a task takes (the lidar's scans, the tracker's measurements):
+/// every [`crate::Scenario::perception_ticks`]-th inner tick, each once and in order.
+#[derive(Debug, Clone, Copy)]
+pub struct PerceptionTicks {
+    every: u64,
+    dt_s: f64,
+    /// The newest taken.
+    last: Option<u64>,
+}
+
+impl PerceptionTicks {
+    pub fn of(scenario: &crate::Scenario) -> PerceptionTicks {
+        PerceptionTicks {
+            every: scenario.perception_ticks(),
+            dt_s: scenario.timing.dt_s(),
+            last: None,
+        }
+    }
+
+    /// Whether `tick` is a perception tick newer than every one taken: it is taken then.
+    pub fn take(&mut self, tick: u64) -> bool {
+        let new = tick.is_multiple_of(self.every) && !self.is_past(tick);
+        if new {
+            self.last = Some(tick);
+        }
+        new
+    }
+
+    /// Whether `tick` is no newer than the last taken.
+    pub fn is_past(&self, tick: u64) -> bool {
+        self.last.is_some_and(|last| tick <= last)
+    }
+
+    /// When the next perception tick is, s.
+    pub fn next_s(&self) -> f64 {
+        self.last.map_or(0, |last| last + self.every) as f64 * self.dt_s
+    }
+}
+
 /// Keeps in `newest` the sample with the highest tick offered so far (a replay or a late
 /// sample of an older tick does not replace a newer one).
 pub fn keep_newest<T: Message>(newest: &mut Option<T>, sample: T) {

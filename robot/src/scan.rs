@@ -9,7 +9,7 @@
 //! speed times that age, under one scan period (docs/limitations.md).
 
 use crate::link::scan::{BASE_FRAME, ScanLink};
-use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
 use protocol::{GroundTruth, Role, Scan, Validated};
 
 /// What the robot's lidar takes: the robot's truth, the clock of its perception ticks.
@@ -25,7 +25,8 @@ pub struct ScanTask {
     /// `lidar.offset`, where `tf_static` says nothing of the scan's frame.
     offset: [f64; 3],
     timeout_ns: u64,
-    perception_ticks: u64,
+    perception: PerceptionTicks,
+    /// The inner tick, s.
     dt_s: f64,
     /// The perception tick to publish the newest scan at.
     pending: Option<GroundTruth>,
@@ -33,7 +34,6 @@ pub struct ScanTask {
     scan: Box<Scan>,
     /// When the scan published last arrived (monotonic ns): each is published once.
     published_ns: u64,
-    last_tick: Option<u64>,
     /// Whether the fallback to `lidar.offset` was said.
     said_offset: bool,
 }
@@ -49,12 +49,11 @@ impl Task for ScanTask {
             link,
             offset: scenario.lidar.clone().unwrap_or_default().offset,
             timeout_ns: (scenario.ros2.scan_timeout_s * 1e9) as u64,
-            perception_ticks: scenario.perception_ticks(),
+            perception: PerceptionTicks::of(scenario),
             dt_s: scenario.timing.dt_s(),
             pending: None,
             scan: Box::default(),
             published_ns: 0,
-            last_tick: None,
             said_offset: false,
         })
     }
@@ -62,16 +61,13 @@ impl Task for ScanTask {
     /// The truth of a perception tick newer than the last is the time to publish.
     fn hear(&mut self, input: ScanInput, _latency_ns: u64, _context: &impl Context) {
         let ScanInput::Truth(truth) = input;
-        let tick = truth.header.tick;
-        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
-            self.last_tick = Some(tick);
+        if self.perception.take(truth.header.tick) {
             self.pending = Some(truth);
         }
     }
 
     fn next(&self) -> Due {
-        let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
-        Due::Expect(Some(next as f64 * self.dt_s))
+        Due::Expect(Some(self.perception.next_s()))
     }
 
     /// At the perception tick heard, the newest scan if it was not published yet and is

@@ -11,7 +11,7 @@
 //! placed with the newest before it; estimates kept are the last [`POSES_KEPT`]).
 
 use crate::{Perception, Tracker};
-use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
 use protocol::topics::{ESTIMATE, SCAN, TRUTH};
 use protocol::{Estimate, FaultConfig, GroundTruth, Header, Role, Scan, Tracks, Validated};
 use std::collections::VecDeque;
@@ -53,14 +53,12 @@ const POSE_GRACE_TICKS: f64 = 0.25;
 /// The tracker with the perception ticks waiting for it.
 pub struct TrackerTask {
     sense: Sense,
-    perception_ticks: u64,
+    perception: PerceptionTicks,
     ticks_per_sample: u64,
     dt_s: f64,
     faults: FaultConfig,
     /// Perception ticks heard and not measured yet, with their times, s (of the truth).
     pending: VecDeque<(u64, f64)>,
-    /// The newest perception tick heard.
-    last_tick: Option<u64>,
     dropped: u32,
 }
 
@@ -82,12 +80,11 @@ impl Task for TrackerTask {
         };
         Ok(TrackerTask {
             sense,
-            perception_ticks: scenario.perception_ticks(),
+            perception: PerceptionTicks::of(scenario),
             ticks_per_sample: scenario.timing.inner_steps as u64,
             dt_s: scenario.timing.dt_s(),
             faults: scenario.fault.clone(),
             pending: VecDeque::with_capacity(8),
-            last_tick: None,
             dropped: 0,
         })
     }
@@ -106,7 +103,7 @@ impl Task for TrackerTask {
         let header = match (&mut self.sense, input) {
             (Sense::Truth(_), TrackerInput::Truth(truth)) => truth.header,
             (Sense::Lidar { scans, .. }, TrackerInput::Scan(scan)) => {
-                if self.last_tick.is_some_and(|l| scan.header.tick <= l) {
+                if self.perception.is_past(scan.header.tick) {
                     return;
                 }
                 if scans.len() == SCANS_KEPT {
@@ -127,10 +124,8 @@ impl Task for TrackerTask {
             }
             _ => return,
         };
-        let tick = header.tick;
-        if tick.is_multiple_of(self.perception_ticks) && self.last_tick.is_none_or(|l| tick > l) {
-            self.last_tick = Some(tick);
-            self.pending.push_back((tick, header.time_s));
+        if self.perception.take(header.tick) {
+            self.pending.push_back((header.tick, header.time_s));
         }
     }
 
@@ -140,8 +135,7 @@ impl Task for TrackerTask {
         if let (Sense::Lidar { .. }, Some(&(_, time_s))) = (&self.sense, self.pending.front()) {
             return Due::Wait(Some(time_s + POSE_GRACE_TICKS * self.dt_s));
         }
-        let next = self.last_tick.map_or(0, |l| l + self.perception_ticks);
-        Due::Expect(Some(next as f64 * self.dt_s))
+        Due::Expect(Some(self.perception.next_s()))
     }
 
     /// The tracks after the oldest perception tick waiting (measured, or predicted to it
