@@ -133,15 +133,32 @@ impl Gatekeeper {
                 advance(&mut p, &mut w, acc, duration);
             }
         }
+        let phantoms_stand_s = self.phantoms_stand_for_s(now);
         for disc in self.moving_discs(start, now, grow) {
             let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
+            // A phantom's disc: the stop is checked from where the robot is when the next
+            // scan's phantoms come (what came out of a shadow before then is seen by then),
+            // or from the plan's end if that is sooner.
+            let mut stop_checked = false;
             for (acc, duration) in stages() {
-                let clearance = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed));
-                found.note(clearance, at_rest(w, acc, duration));
+                let stands = elapsed + duration < phantoms_stand_s;
+                if disc.motion.hidden && !stop_checked && !stands {
+                    let (mut q, mut u) = (p, w);
+                    advance(&mut q, &mut u, acc, phantoms_stand_s - elapsed);
+                    found.add(self.moving_brake_verdict(q, u, &disc, phantoms_stand_s));
+                    stop_checked = true;
+                }
+                let clearance = moving_arc_clearance(p, w, acc, duration, &disc.staged(elapsed));
+                // A phantom's disc is passed as one at rest: a contact with it is the
+                // robot's, however slowly.
+                let resting = !disc.motion.hidden && at_rest(w, acc, duration);
+                found.note(clearance, resting);
                 advance(&mut p, &mut w, acc, duration);
                 elapsed += duration;
             }
-            found.add(self.moving_brake_verdict(p, w, &disc, elapsed));
+            if !stop_checked {
+                found.add(self.moving_brake_verdict(p, w, &disc, elapsed));
+            }
         }
         let (mut p, mut w) = (start, velocity);
         for (acc, duration) in stages() {
@@ -171,6 +188,14 @@ impl Gatekeeper {
             found.add(self.moving_brake_verdict(p, w, &disc, 0.0));
         }
         found
+    }
+
+    /// How long from `now` the phantoms kept stand, s ([`KeptTracks::phantoms_stand_for_s`]).
+    fn phantoms_stand_for_s(&self, now: Moment) -> f64 {
+        let now_s = now.sample as f64 * self.ts_s + now.into_sample_s;
+        self.tracks
+            .as_ref()
+            .map_or(0.0, |kept| kept.phantoms_stand_for_s(now_s))
     }
 
     /// The discs the tracks predict at `now`, grown by the fixed part and `grow` (m), as
@@ -218,7 +243,9 @@ impl Gatekeeper {
     /// `w` with a moving `disc` (as it is now), m; then of the robot at rest until
     /// [`Gatekeeper::horizon_s`] after now. (Against a disc at rest, resting adds nothing;
     /// against one coming at the robot it makes staying one choice among others, not a
-    /// safe one: the DFL can then take a plan out of the obstacle's way.) The brake is
+    /// safe one: the DFL can then take a plan out of the obstacle's way. A phantom's
+    /// disc grows round every robot near a shadow's edge: where something hidden could be,
+    /// not where anything goes, so only the brake is checked against it.) The brake is
     /// taken as the arc of constant deceleration that stops in
     /// [`protocol::stopping_distance`] (the held inner-tick commands stop a little later
     /// than the continuous brake; the arc covers that distance, over a longer time).
@@ -244,7 +271,7 @@ impl Gatekeeper {
         let braking = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed_s));
         found.note(braking, at_rest(w, acc, duration));
         let rest_s = self.horizon_s - elapsed_s - duration;
-        if rest_s <= 0.0 {
+        if rest_s <= 0.0 || disc.motion.hidden {
             return found;
         }
         let mut at_rest = p;
@@ -608,6 +635,7 @@ mod tests {
                     velocity: [2.0 * next(), 2.0 * next()],
                     radius_rate: next().abs(),
                     radius_accel: 0.25 * next().abs(),
+                    hidden: false,
                 },
             };
             let found = moving_arc_clearance(p, w, acc, duration, &disc);
@@ -669,6 +697,75 @@ mod tests {
         // Tracked 2 s later, past the way and walking on, it leaves the coasting clear.
         g.set_tracks(&crate::tests::one_track(2.0, [0.0, 0.5], [0.0, 1.0]));
         assert_eq!(g.check(&plan(40, 20, [0.0; 2]), at(40, 0.0), z, 0.0), None);
+    }
+
+    /// The gatekeeper of a robot with a lidar of `rate_hz` and phantoms that has been
+    /// given one phantom (0.3 m, coming out at up to 1.5 m/s) at `center`, at `time_s`.
+    fn seeing_a_phantom(center: [f64; 2], time_s: f64, rate_hz: f64) -> Gatekeeper {
+        let sets = [
+            format!("lidar.rate_hz={rate_hz}"),
+            "perception.phantoms=true".to_string(),
+        ];
+        let scenario = Scenario::default().with_overrides(&sets).unwrap();
+        let mut g = Gatekeeper::new(&scenario);
+        let mut tracks = crate::tests::one_track(time_s, center, [0.0; 2]);
+        let sigma_v = scenario.perception.phantom_speed / scenario.mpc.uncertainty_sigmas;
+        tracks.tracks[0].obstacle = protocol::FIRST_PHANTOM;
+        tracks.tracks[0].covariance = [0.0, 0.0, sigma_v.powi(2), 0.0, 0.0, sigma_v.powi(2)];
+        g.set_tracks(&tracks);
+        g
+    }
+
+    #[test]
+    fn a_phantom_is_passed_slowly_enough_to_stop_before_anything_hidden_could_reach_the_robot() {
+        // The way along x, 1 m from a shadow's edge whose phantom is at (0, 1); the robot
+        // coasts for the plan's 0.4 s, then brakes at 3 m/s^2.
+        let coasting = |g: &Gatekeeper, speed: f64| {
+            let z = [-1.0, speed, 0.0, 0.0];
+            g.verdict(&plan(0, 8, [0.0; 2]), at(0, 0.0), z, 0.0)
+        };
+        let g = seeing_a_phantom([0.0, 1.0], 0.0, 10.0);
+        // At 1 m/s: a person stepping out now is seen by the next scan's phantoms, 0.15 s
+        // on; braking from there, the robot is at rest 1.21 m from the phantom's place
+        // when the person could be 1.05 m out.
+        assert!(coasting(&g, 1.0).clear(), "{:?}", coasting(&g, 1.0));
+        // At 3 m/s the stop takes a second, by when that person could be on the way.
+        let fast = coasting(&g, 3.0);
+        assert!(fast.moving.is_some(), "{fast:?}");
+        // With a lidar at 1 Hz the phantoms stand for 1.05 s, longer than the plan: the
+        // stop is checked from the plan's end, 0.4 m further on, and fails.
+        let slow_lidar = seeing_a_phantom([0.0, 1.0], 0.0, 1.0);
+        let late = coasting(&slow_lidar, 1.0);
+        assert!(late.moving.is_some(), "{late:?}");
+    }
+
+    #[test]
+    fn a_plan_keeps_clear_of_where_a_phantom_is_and_a_robot_at_rest_is_never_touched_by_one() {
+        // Driving slowly through the phantom's place is a contact the robot makes.
+        let g = seeing_a_phantom([0.0, 0.0], 0.0, 10.0);
+        let z = [-0.6, 0.3, 0.0, 0.0];
+        let through = g.verdict(&plan(0, 8, [0.0; 2]), at(0, 0.0), z, 0.0);
+        assert!(through.moving.is_some(), "{through:?}");
+        // A robot at rest 0.5 m from a phantom a second old, whose disc has grown over
+        // it: something hidden could reach it there, but only by walking into it.
+        let old = seeing_a_phantom([0.0, 0.5], -1.0, 10.0);
+        let rest = [0.0, 0.0, 0.0, 0.0];
+        assert!(
+            old.verdict(&plan(20, 8, [0.0; 2]), at(20, 0.0), rest, 0.0)
+                .clear()
+        );
+        assert!(old.brake_verdict(rest, at(20, 0.0), 0.0).clear());
+        // A tracked person standing there is another matter: the robot at rest is judged
+        // touched.
+        let mut person = seeing_a_phantom([0.0, 0.5], -1.0, 10.0);
+        let mut tracks = crate::tests::one_track(-1.0, [0.0, 0.5], [0.0; 2]);
+        tracks.tracks[0].covariance = [0.0, 0.0, 0.25, 0.0, 0.0, 0.25];
+        person.set_tracks(&tracks);
+        let judged = person.verdict(&plan(20, 8, [0.0; 2]), at(20, 0.0), rest, 0.0);
+        assert!(
+            judged.resting.is_some() && judged.moving.is_none(),
+            "{judged:?}"
+        );
     }
 
     fn scenario_with_obstacle(x: f64, y: f64, radius: f64) -> Scenario {

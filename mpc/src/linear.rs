@@ -82,6 +82,9 @@ pub struct LinearMpc {
     /// How the tracked obstacles among `discs` are predicted: bounded, or at their
     /// velocity in the escape program ([`LinearMpc::sweep_speed`]).
     prediction: Prediction,
+    /// How long from the step's time the phantoms among `discs` stand, s
+    /// ([`protocol::KeptTracks::phantoms_stand_for_s`]).
+    phantoms_stand_s: f64,
     /// Those of a solve's program: discs whose rows the input box does not imply and
     /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
     /// with all their rows, the others with their terminal rows only.
@@ -182,8 +185,10 @@ impl LinearMpc {
             plan_reach: reach.clone(),
             reach,
             assembly,
-            discs: Vec::with_capacity(scenario.max_obstacle_discs()),
+            // Every track's disc before the nearest are kept (`World::discs`).
+            discs: Vec::with_capacity(scenario.max_obstacle_discs() + protocol::MAX_TRACKS),
             prediction: Prediction::Bounded,
+            phantoms_stand_s: 0.0,
             kept: Vec::with_capacity(scenario.max_obstacle_discs()),
             kept_whole: 0,
             deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
@@ -399,6 +404,7 @@ impl LinearMpc {
             uncertainty_sigmas: self.growth.uncertainty_sigmas,
         };
         let t_s = sample as f64 * self.ts_s;
+        self.phantoms_stand_s = self.world.phantoms_stand_for_s(t_s);
         self.prediction = Prediction::Bounded;
         self.world.discs(
             growth,
@@ -680,6 +686,7 @@ impl LinearMpc {
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
             sweep_speed: self.sweep_speed(),
+            phantoms_stand_s: self.phantoms_stand_s,
             stage_s: self.ts_s,
         }
     }
@@ -700,6 +707,7 @@ impl LinearMpc {
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
             sweep_speed: self.sweep_speed(),
+            phantoms_stand_s: self.phantoms_stand_s,
             stage_s: self.ts_s,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);

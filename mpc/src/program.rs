@@ -205,6 +205,9 @@ pub struct StepData<'a> {
     /// The speed whose stop a moving disc is swept over at stage `N`
     /// ([`TerminalRows::sweep_speed`]), m/s.
     pub sweep_speed: f64,
+    /// How long from the step's time the phantoms stand, s
+    /// ([`TerminalRows::phantoms_stand_s`]).
+    pub phantoms_stand_s: f64,
     /// Time between two stages, s: a moving disc is taken at each stage's time
     /// ([`Disc::at`]).
     pub stage_s: f64,
@@ -248,6 +251,7 @@ impl<'a> StepData<'a> {
                         (1.0 - s.gamma).powi(n as i32)
                     },
                     horizon_s: n as f64 * self.stage_s,
+                    phantoms_stand_s: self.phantoms_stand_s,
                 }
             }),
         }
@@ -407,9 +411,10 @@ pub struct Barrier<'a> {
 
 impl Barrier<'_> {
     /// `disc` at stage `i`'s time: a moving obstacle's predicted disc (eq. 54 with `H`
-    /// of the disc at each stage), a disc at rest itself.
+    /// of the disc at each stage), a disc at rest or a phantom's itself
+    /// ([`Disc::staged`]).
     fn at(&self, disc: &Disc, i: usize) -> Disc {
-        disc.at(i as f64 * self.stage_s)
+        disc.staged(i as f64 * self.stage_s)
     }
 
     /// Stage 0's row `(1 - gamma) H_0(p_0) <= L_1(p_1)` (`p_0` being data) as

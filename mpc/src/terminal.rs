@@ -119,6 +119,10 @@ pub struct TerminalRows<'a> {
     /// Time of stage `N` after the discs' time, s: a moving disc is taken there, swept
     /// over the stop from `sweep_speed` ([`TerminalRows::discs`]).
     pub horizon_s: f64,
+    /// How long after the discs' time the phantoms stand, s
+    /// ([`protocol::KeptTracks::phantoms_stand_for_s`]): a phantom's disc is taken then
+    /// (or at stage `N`, if sooner).
+    pub phantoms_stand_s: f64,
 }
 
 /// The data of one disc's segment row: the normal, and the majorant of `alpha+ |w|`
@@ -137,13 +141,27 @@ impl TerminalRows<'_> {
     /// the robot is stopped before the obstacle comes (passive safety, docs/safety.md),
     /// then carried on at its velocity for `rest_lookahead_s`, so that the robot does not
     /// stop where the obstacle walking on would meet it at rest. A disc at rest is itself.
+    ///
+    /// A phantom's disc (`motion.hidden`) is taken when the phantoms stop standing
+    /// (`phantoms_stand_s`: what comes out of a shadow before then is seen by then) and
+    /// swept over the stop from the reference's last speed: nothing comes at the robot
+    /// from it, so the robot need only be at rest before where something hidden could be
+    /// by then reaches it, and the stop from the fastest speed would sweep the phantom of
+    /// every corner passed over the way. This is a heuristic of the DFL's exact check,
+    /// which brakes from where the robot is at `phantoms_stand_s`: the rows stay at stage
+    /// `N`, built at the reference, refined at each solve.
     fn discs(&self) -> impl Iterator<Item = Disc> + '_ {
-        let stop_s = self.sweep_speed / self.model.decel + self.model.ts_s;
+        let stop_s = |speed: f64| speed / self.model.decel + self.model.ts_s;
+        let [_, wx, _, wy] = self.reference;
+        let (sweep_s, hidden_sweep_s) = (stop_s(self.sweep_speed), stop_s(wx.hypot(wy)));
+        let hidden_s = self.phantoms_stand_s.min(self.horizon_s);
         let rest_s = self.model.rest_lookahead_s;
-        self.discs.iter().map(move |d| {
-            d.at(self.horizon_s)
-                .swept(stop_s)
-                .carried_on(d.motion.velocity, rest_s)
+        self.discs.iter().map(move |d| match d.motion.hidden {
+            true => d.at(hidden_s).swept(hidden_sweep_s),
+            false => d
+                .at(self.horizon_s)
+                .swept(sweep_s)
+                .carried_on(d.motion.velocity, rest_s),
         })
     }
 

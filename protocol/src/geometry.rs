@@ -23,6 +23,11 @@ pub struct DiscMotion {
     pub radius_rate: f64,
     /// m/s^2.
     pub radius_accel: f64,
+    /// A phantom's disc (docs/safety.md, "What the lidar cannot see"): what grows is where
+    /// an obstacle hidden at the shadow's edge *could* be if it came out, not where one
+    /// is. A plan passes by it as by a disc at rest ([`Disc::staged`]); only the robot's
+    /// stop must end before the grown disc could reach it.
+    pub hidden: bool,
 }
 
 impl Disc {
@@ -61,6 +66,15 @@ impl Disc {
                 radius_rate: m.radius_rate + 2.0 * m.radius_accel * t_s,
                 ..*m
             },
+        }
+    }
+
+    /// The disc as a plan's stage `t_s` after its time keeps clear of it: [`Disc::at`], but
+    /// a phantom's (`motion.hidden`) where it is now, as it stays hidden until it is seen.
+    pub fn staged(&self, t_s: f64) -> Disc {
+        match self.motion.hidden {
+            true => Disc::still(self.center, self.radius),
+            false => self.at(t_s),
         }
     }
 

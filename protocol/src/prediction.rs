@@ -18,6 +18,8 @@ pub struct KeptTracks {
     /// Whether the tracks are the lidar's: each message holds every track the tracker
     /// has (an obstacle it lost is gone), so it replaces all kept.
     whole: bool,
+    /// How long after its scan a phantom stands, s ([`phantom_refresh_s`]).
+    phantom_refresh_s: f64,
 }
 
 impl KeptTracks {
@@ -29,6 +31,7 @@ impl KeptTracks {
             accel_max: scenario.perception.accel_max,
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
+            phantom_refresh_s: phantom_refresh_s(scenario),
         }
     }
 
@@ -71,6 +74,19 @@ impl KeptTracks {
         &self.tracks
     }
 
+    /// How long from `t_s` (absolute) the phantoms kept stand for what the lidar cannot
+    /// see, s: until the next scan's replace them ([`phantom_refresh_s`] after
+    /// their time); 0 when those are overdue or there is no phantom. A plan's stop from
+    /// then on must end before anything hidden could reach it.
+    pub fn phantoms_stand_for_s(&self, t_s: f64) -> f64 {
+        self.tracks
+            .iter()
+            .find(|(track, _)| track.is_phantom())
+            .map_or(0.0, |(_, time_s)| {
+                (time_s + self.phantom_refresh_s - t_s).max(0.0)
+            })
+    }
+
     /// `perception.accel_max`, m/s^2.
     pub fn accel_max(&self) -> f64 {
         self.accel_max
@@ -102,13 +118,34 @@ impl KeptTracks {
     }
 }
 
+/// How long after its scan a phantom stands for what the lidar cannot see, s: until the
+/// next scan's phantoms replace it, a scan period (`1 / lidar.rate_hz`, the perception
+/// ticks') and a sample (the MPC and the DFL take tracks at sample starts). Something that
+/// comes out of a shadow now is seen by then, so the robot's stop need only be clear of
+/// where it could be from there on (docs/safety.md).
+pub fn phantom_refresh_s(scenario: &Scenario) -> f64 {
+    let period = scenario.lidar.as_ref().map_or(0.0, |l| 1.0 / l.rate_hz);
+    period + scenario.timing.ts_s
+}
+
 /// What `track`'s disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
 /// `kappa (sigma_p + t sigma_v)` ([`Track::sigmas`]), and `accel_max t^2 / 2` (an obstacle
-/// that changes its velocity by at most `accel_max`).
+/// that changes its velocity by at most `accel_max`). A phantom's `kappa sigma_v` is
+/// `perception.phantom_speed`, the fastest it comes out, so it grows by that alone.
 pub fn prediction_growth_m(track: &Track, age_s: f64, kappa: f64, accel_max: f64) -> f64 {
     let age = age_s.max(0.0);
     let (sigma_p, sigma_v) = track.sigmas();
+    let accel_max = bounded_accel(track, accel_max);
     kappa * (sigma_p + age * sigma_v) + 0.5 * accel_max * age * age
+}
+
+/// The acceleration bound of `track`'s prediction, m/s^2: `accel_max`, none for a phantom
+/// (whose speed is bounded instead, [`prediction_growth_m`]).
+fn bounded_accel(track: &Track, accel_max: f64) -> f64 {
+    match track.is_phantom() {
+        true => 0.0,
+        false => accel_max,
+    }
 }
 
 /// The disc `track` predicts `age_s` after its time (absolute): centred where the track's
@@ -125,6 +162,7 @@ pub fn predicted_disc(
     let age = age_s.max(0.0);
     let (_, sigma_v) = track.sigmas();
     let [vx, vy] = track.velocity;
+    let accel_max = bounded_accel(track, accel_max);
     Disc {
         center: [track.center[0] + vx * age_s, track.center[1] + vy * age_s],
         radius: track.radius_m + growth_m + prediction_growth_m(track, age, kappa, accel_max),
@@ -132,6 +170,7 @@ pub fn predicted_disc(
             velocity: track.velocity,
             radius_rate: kappa * sigma_v + accel_max * age,
             radius_accel: 0.5 * accel_max,
+            hidden: track.is_phantom(),
         },
     }
 }
@@ -172,6 +211,44 @@ mod tests {
             kept.tracks(),
             &[(track(0, 1e-4), 0.2), (track(3, 1.0), 0.2)]
         );
+    }
+
+    #[test]
+    fn a_phantom_grows_at_its_speed_alone_is_passed_where_it_is_and_stands_until_the_next_scan() {
+        let scenario = Scenario::default()
+            .with_overrides(&["lidar.rate_hz=10".into(), "perception.phantoms=true".into()])
+            .unwrap();
+        let (kappa, speed): (f64, f64) = (3.0, 1.5);
+        let phantom = Track {
+            obstacle: crate::FIRST_PHANTOM,
+            covariance: [
+                0.0,
+                0.0,
+                (speed / kappa).powi(2),
+                0.0,
+                0.0,
+                (speed / kappa).powi(2),
+            ],
+            velocity: [0.0; 2],
+            ..track(0, 0.0)
+        };
+        // No acceleration term: `phantom_speed` bounds its speed.
+        let disc = predicted_disc(&phantom, 0.4, 0.1, kappa, 2.0);
+        assert!((disc.radius - (0.3 + 0.1 + speed * 0.4)).abs() < 1e-12);
+        assert!(disc.motion.hidden);
+        assert!((disc.at(1.0).radius - disc.radius - speed).abs() < 1e-12);
+        // A plan's stages pass it where it is; a tracked obstacle's disc grows.
+        assert_eq!(disc.staged(1.0), Disc::still(disc.center, disc.radius));
+        let person = predicted_disc(&track(0, 0.01), 0.4, 0.1, kappa, 2.0);
+        assert_eq!(person.staged(1.0), person.at(1.0));
+        // It stands a scan period and a sample after its scan's tracks.
+        let mut kept = KeptTracks::of(&scenario);
+        assert_eq!(kept.phantoms_stand_for_s(0.0), 0.0, "no phantom");
+        kept.take(&tracks(2.0, &[track(0, 0.01), phantom]));
+        let refresh = 0.1 + scenario.timing.ts_s;
+        assert!((kept.phantoms_stand_for_s(2.0) - refresh).abs() < 1e-12);
+        assert!((kept.phantoms_stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
+        assert_eq!(kept.phantoms_stand_for_s(3.0), 0.0, "overdue");
     }
 
     #[test]

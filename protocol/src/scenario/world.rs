@@ -39,7 +39,7 @@ pub struct PerceptionConfig {
     pub cluster_gap_m: f64,
     /// With a lidar: assume a phantom at every shadow edge within range, an obstacle that
     /// may come out of what the lidar cannot see (docs/safety.md, "What the lidar cannot
-    /// see"). Off by default: as the MPC takes them now they stall most worlds.
+    /// see"). On by default; it needs `mpc.uncertainty_sigmas > 0`.
     pub phantoms: bool,
     /// A phantom's radius, m.
     pub phantom_radius: f64,
@@ -75,7 +75,7 @@ impl Default for PerceptionConfig {
             lost_s: 1.0,
             gate: 3.0,
             cluster_gap_m: 0.1,
-            phantoms: false,
+            phantoms: true,
             phantom_radius: 0.3,
             phantom_speed: 1.5,
         }

@@ -29,6 +29,7 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             reference_velocity: mpc.reference_velocity,
             max_terminal_speed: 0.0,
             sweep_speed: 0.0,
+            phantoms_stand_s: 0.0,
             stage_s: 0.05,
         };
         let without_barrier = Rows {
@@ -73,6 +74,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
                 sweep_speed: mpc.reach.max_terminal_speed(),
+                phantoms_stand_s: 0.0,
                 stage_s: 0.05,
             };
             if !data
