@@ -2,8 +2,9 @@
 //! see"): whatever perception made of the newest scan, the robot does not drive faster
 //! than it can stop short of its raw points. The scan's returns, put in the world where
 //! the lidar was when it was taken and less the ones on the obstacles the scenario maps,
-//! are points; the way ahead is the robot's straight path along its heading, as wide as
-//! the robot; the DFL brakes when a point lies on that way nearer than the robot's
+//! are points; the way ahead is the robot's straight path along its heading (behind it
+//! when it reverses: the brake's path, along its velocity), as wide as the robot; the DFL
+//! brakes when a point lies on that way nearer than the robot's
 //! stopping distance ([`protocol::stopping_distance`]) and [`AHEAD_MARGIN_M`].
 
 use protocol::{Disc, Scan, Scenario};
@@ -65,15 +66,17 @@ impl FreeRange {
         }
     }
 
-    /// How far the nearest point on the way ahead of a robot at `pose` moving forward at
-    /// `speed_m_s` is short of what it needs to stop (its stopping distance and
-    /// [`AHEAD_MARGIN_M`]), m; `None` when the way is free that far (or the robot is not
-    /// moving forward). Before the first scan nothing is seen: every speed is too fast.
+    /// How far the nearest point on the way ahead of a robot at `pose` moving at
+    /// `speed_m_s` (its forward speed `zeta`: behind it when negative) is short of what it
+    /// needs to stop (its stopping distance and [`AHEAD_MARGIN_M`]), m; `None` when the way
+    /// is free that far (or the robot is at rest). Before the first scan nothing is seen:
+    /// every speed is too fast.
     pub fn shortfall_m(&self, pose: [f64; 3], speed_m_s: f64) -> Option<f64> {
-        if speed_m_s <= protocol::REST_SPEED_M_S {
+        let speed = speed_m_s.abs();
+        if speed <= protocol::REST_SPEED_M_S {
             return None;
         }
-        let needed = protocol::stopping_distance(speed_m_s, self.brake_decel, 0.0)
+        let needed = protocol::stopping_distance(speed, self.brake_decel, 0.0)
             + self.half_width_m
             + AHEAD_MARGIN_M;
         if !self.seen {
@@ -81,6 +84,7 @@ impl FreeRange {
         }
         let [x, y, theta] = pose;
         let (sin, cos) = theta.sin_cos();
+        let (sin, cos) = (sin * speed_m_s.signum(), cos * speed_m_s.signum());
         let nearest = (self.points.iter())
             .filter_map(|&[px, py]| {
                 let (dx, dy) = (px - x, py - y);
@@ -116,7 +120,8 @@ mod tests {
     }
 
     #[test]
-    fn a_point_ahead_within_the_stopping_distance_is_short_and_one_aside_or_farther_is_not() {
+    fn a_point_on_the_way_within_the_stopping_distance_is_short_ahead_or_behind_a_reversing_robot_and_one_aside_or_farther_is_not()
+     {
         let mut free = free_range(0.2);
         let decel = free.brake_decel;
         let speed = 1.0;
@@ -129,6 +134,12 @@ mod tests {
         assert_eq!(free.shortfall_m([0.0; 3], 0.0), None);
         assert_eq!(free.shortfall_m([0.0; 3], 0.3), None);
         assert_eq!(free.shortfall_m([0.0, 0.0, 3.0], speed), None);
+        // Reversing towards it, facing away, is the same as driving at it.
+        let reversing = free
+            .shortfall_m([0.0, 0.0, std::f64::consts::PI], -speed)
+            .unwrap();
+        assert!((reversing - 0.1).abs() < 1e-6, "{reversing}");
+        assert_eq!(free.shortfall_m([0.0; 3], -speed), None, "it is behind");
         free.take(&scan_of(&[1.0, f32::INFINITY, 0.3]), [0.0; 3]);
         assert_eq!(free.shortfall_m([0.0; 3], speed), None);
     }

@@ -23,7 +23,7 @@
 //! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
 //! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
-//! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them |
+//! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them. In half the worlds, from the same stream, two obstacles more: a pillar in the map at 30–70 % of the way, radius 0.5–1 m, its edge 0.3–1 m (and the robot's radius) to either side, and a person of radius 0.2–0.35 m standing just behind it (0.1 m further along the way, as far aside), who steps out across the way to 1 m past it, speeding up and slowing down at 0.5 m/s² to 0.8–1.5 m/s, and stands there; they leave so as to reach the way about when a robot at 0.4–1.2 m/s reaches the pillar ([`occluders`]) |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
@@ -41,6 +41,8 @@ use std::f64::consts::PI;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
+
+mod occluders;
 
 /// Start and goal are drawn at least this far inside the position box's edges, m (a robot
 /// at an edge, already moving outwards, may have no way to stay in the box).
@@ -109,7 +111,8 @@ pub const BOX_RADIUS_M: f64 = 0.6;
 
 /// The world `s` seen through the default lidar (`--perception lidar`, module docs): each
 /// obstacle at rest of radius up to [`BOX_RADIUS_M`] is, in half the worlds' draws, a box
-/// not in the map; the larger ones stay in it and hide what is behind them.
+/// not in the map; the larger ones stay in it and hide what is behind them; in half the
+/// worlds a pillar hides a person who steps out ([`occluders::pillar_and_person`]).
 fn seen_through_a_lidar(s: &mut Scenario, rng: &mut ChaCha8Rng) {
     s.lidar = Some(protocol::LidarConfig::default());
     for obstacle in s.obstacles.iter_mut().filter(|o| !o.moves()) {
@@ -117,6 +120,11 @@ fn seen_through_a_lidar(s: &mut Scenario, rng: &mut ChaCha8Rng) {
         if obstacle.radius <= BOX_RADIUS_M && unmapped {
             obstacle.known = Some(false);
         }
+    }
+    let [x, y, _] = s.robot.start;
+    let way = Way::between([x, y], s.robot.goal.position);
+    if let Some(occluded) = occluders::pillar_and_person(rng, &way, s.robot.radius_m) {
+        s.obstacles.extend(occluded);
     }
 }
 
@@ -164,8 +172,8 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
         0.0
     };
     let count = rng.random_range(1..=6);
-    let along_line = [(goal[0] - start[0]) / span, (goal[1] - start[1]) / span];
-    let normal = [-along_line[1], along_line[0]];
+    let way = Way::between(start, goal);
+    let (along_line, normal) = (way.along, way.normal);
     let footprint = s.robot.radius_m;
     s.obstacles = (0..count)
         .map(|_| {
@@ -184,12 +192,6 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
         .collect();
     let mut moving = ChaCha8Rng::seed_from_u64(rng.random::<u64>() ^ 0x6d6f_7669_6e67);
     if moving.random_bool(people.clamp(0.0, 1.0)) {
-        let way = Way {
-            start,
-            along: along_line,
-            normal,
-            span,
-        };
         let count = moving.random_range(1..=2);
         s.obstacles
             .extend((0..count).map(|_| moving_obstacle(&mut moving, &way)));
@@ -208,6 +210,18 @@ struct Way {
 }
 
 impl Way {
+    /// The way from `start` to `goal` (m), at least 1 m apart.
+    fn between(start: [f64; 2], goal: [f64; 2]) -> Way {
+        let span = distance(start, goal);
+        let along = [(goal[0] - start[0]) / span, (goal[1] - start[1]) / span];
+        Way {
+            start,
+            along,
+            normal: [-along[1], along[0]],
+            span,
+        }
+    }
+
     /// The point `along_m` along the way and `aside_m` to its left.
     fn at(&self, along_m: f64, aside_m: f64) -> [f64; 2] {
         [0, 1].map(|a| self.start[a] + along_m * self.along[a] + aside_m * self.normal[a])
@@ -594,14 +608,23 @@ mod tests {
             lidar: true,
             ..Draws::default()
         };
-        let (mut unmapped, mut small) = (0, 0);
+        let (mut unmapped, mut small, mut with_occluder) = (0, 0, 0);
         for i in 0..200 {
-            let seen = world(5, i, lidar, &[]).unwrap().scenario.into_inner();
+            let mut seen = world(5, i, lidar, &[]).unwrap().scenario.into_inner();
             let mut plain = world(5, i, Draws::default(), &[])
                 .unwrap()
                 .scenario
                 .into_inner();
             assert_eq!(seen.lidar, Some(protocol::LidarConfig::default()));
+            // Then the occluder and its person, in some worlds.
+            let drawn = plain.obstacles.len();
+            let occluded = &seen.obstacles[drawn..];
+            assert!(occluded.is_empty() || occluded.len() == 2, "{occluded:?}");
+            if let [pillar, person] = occluded {
+                assert!(pillar.known.is_none() && !pillar.moves() && person.moves());
+                with_occluder += 1;
+            }
+            seen.obstacles.truncate(drawn);
             for (a, b) in seen.obstacles.iter().zip(&mut plain.obstacles) {
                 assert!(a.known.is_none() || (a.radius <= BOX_RADIUS_M && !a.moves()));
                 small += usize::from(a.radius <= BOX_RADIUS_M && !a.moves());
@@ -615,6 +638,10 @@ mod tests {
         assert!(
             (0.4..0.6).contains(&share),
             "{unmapped} of {small} small obstacles unmapped"
+        );
+        assert!(
+            (60..140).contains(&with_occluder),
+            "{with_occluder} of 200 occluded"
         );
     }
 
