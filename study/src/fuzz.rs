@@ -264,15 +264,20 @@ fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way) -> Obstacle {
                     [t, x, y]
                 })
                 .collect();
-            Obstacle {
-                x: f64::NAN,
-                y: f64::NAN,
-                radius,
-                velocity: [0.0; 2],
-                path,
-                known: None,
-            }
+            walking(radius, path)
         }
+    }
+}
+
+/// A person of `radius` (m) who walks `path` (`[t, x, y]` points, s and m).
+fn walking(radius: f64, path: Vec<[f64; 3]>) -> Obstacle {
+    Obstacle {
+        x: f64::NAN,
+        y: f64::NAN,
+        radius,
+        velocity: [0.0; 2],
+        path,
+        known: None,
     }
 }
 

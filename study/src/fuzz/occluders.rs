@@ -3,7 +3,7 @@
 //! where the robot comes, who steps out across the way about when the robot comes by.
 //! The case phantoms are for (docs/safety.md, "What the lidar cannot see").
 
-use super::{STEP_IN_ACCEL, Way, step_in};
+use super::{STEP_IN_ACCEL, Way, step_in, walking};
 use protocol::{Obstacle, distance};
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
@@ -54,15 +54,7 @@ pub(super) fn pillar_and_person(
             [t, px, py]
         })
         .collect();
-    let person = Obstacle {
-        x: f64::NAN,
-        y: f64::NAN,
-        radius,
-        velocity: [0.0; 2],
-        path,
-        known: None,
-    };
-    Some([Obstacle::fixed(x, y, pillar_radius), person])
+    Some([Obstacle::fixed(x, y, pillar_radius), walking(radius, path)])
 }
 
 #[cfg(test)]
