@@ -228,6 +228,7 @@ impl<'a> StepData<'a> {
             gamma: s.gamma,
             discs: &self.discs[..rows.discs],
             stage_s: self.stage_s,
+            phantoms_stand_s: self.phantoms_stand_s,
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
             decay_slacks: (l.slacks(rows) > 0).then(|| l.decay_slack(0, 0)),
@@ -398,6 +399,8 @@ pub struct Barrier<'a> {
     pub discs: &'a [Disc],
     /// Time between two stages, s.
     pub stage_s: f64,
+    /// How long from the step's time the phantoms stand, s ([`Disc::staged`]).
+    pub phantoms_stand_s: f64,
     /// Linearization points of the positions of stages `1..=N` (index 0 unused).
     pub reference: &'a [[f64; 2]],
     /// Position of stage 0 (data).
@@ -411,10 +414,10 @@ pub struct Barrier<'a> {
 
 impl Barrier<'_> {
     /// `disc` at stage `i`'s time: a moving obstacle's predicted disc (eq. 54 with `H`
-    /// of the disc at each stage), a disc at rest or a phantom's itself
-    /// ([`Disc::staged`]).
+    /// of the disc at each stage), a disc at rest itself, a phantom's as it grows while
+    /// its phantoms stand and held after ([`Disc::staged`]).
     fn at(&self, disc: &Disc, i: usize) -> Disc {
-        disc.staged(i as f64 * self.stage_s)
+        disc.staged(i as f64 * self.stage_s, self.phantoms_stand_s)
     }
 
     /// Stage 0's row `(1 - gamma) H_0(p_0) <= L_1(p_1)` (`p_0` being data) as

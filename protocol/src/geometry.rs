@@ -25,8 +25,9 @@ pub struct DiscMotion {
     pub radius_accel: f64,
     /// A phantom's disc (docs/safety.md, "What the lidar cannot see"): what grows is where
     /// an obstacle hidden at the shadow's edge *could* be if it came out, not where one
-    /// is. A plan passes by it as by a disc at rest ([`Disc::staged`]); only the robot's
-    /// stop must end before the grown disc could reach it.
+    /// is. Once the next scan would show it, a plan passes by it as by a disc at rest
+    /// ([`Disc::staged`]); the robot's stop from there must end before the grown disc
+    /// could reach it.
     pub hidden: bool,
 }
 
@@ -69,10 +70,12 @@ impl Disc {
         }
     }
 
-    /// The disc as a plan's stage `t_s` after its time keeps clear of it: [`Disc::at`], but
-    /// a phantom's (`motion.hidden`) where it is now, as it stays hidden until it is seen.
-    pub fn staged(&self, t_s: f64) -> Disc {
-        match self.motion.hidden {
+    /// The disc as a plan's stage `t_s` after its time keeps clear of it: [`Disc::at`],
+    /// but a phantom's (`motion.hidden`) held as it is at its time once its phantoms no
+    /// longer stand (`stand_s` after its time): by then what came out is seen, and the
+    /// next scan's phantoms take over.
+    pub fn staged(&self, t_s: f64, stand_s: f64) -> Disc {
+        match self.motion.hidden && t_s >= stand_s {
             true => Disc::still(self.center, self.radius),
             false => self.at(t_s),
         }

@@ -237,10 +237,15 @@ mod tests {
         assert!((disc.radius - (0.3 + 0.1 + speed * 0.4)).abs() < 1e-12);
         assert!(disc.motion.hidden);
         assert!((disc.at(1.0).radius - disc.radius - speed).abs() < 1e-12);
-        // A plan's stages pass it where it is; a tracked obstacle's disc grows.
-        assert_eq!(disc.staged(1.0), Disc::still(disc.center, disc.radius));
+        // A plan's stages pass it as it grows while it stands, where it is after; a
+        // tracked obstacle's disc grows.
+        assert_eq!(disc.staged(0.1, 0.15), disc.at(0.1));
+        assert_eq!(
+            disc.staged(1.0, 0.15),
+            Disc::still(disc.center, disc.radius)
+        );
         let person = predicted_disc(&track(0, 0.01), 0.4, 0.1, kappa, 2.0);
-        assert_eq!(person.staged(1.0), person.at(1.0));
+        assert_eq!(person.staged(1.0, 0.15), person.at(1.0));
         // It stands a scan period and a sample after its scan's tracks.
         let mut kept = KeptTracks::of(&scenario);
         assert_eq!(kept.phantoms_stand_for_s(0.0), 0.0, "no phantom");

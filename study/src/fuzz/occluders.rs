@@ -20,11 +20,12 @@ pub const BEHIND_M: f64 = 0.1;
 
 /// With probability [`OCCLUDED`]: a pillar at 30–70 % of the way, its edge 0.3–1 m (and
 /// the robot's radius `footprint_m`) to either side of it, and a person just behind it
-/// (further along the way by [`BEHIND_M`], as far aside as its centre). The person steps
-/// out across the way to 1 m past it, speeding up and slowing down at [`STEP_IN_ACCEL`]
-/// (the tracker's bound, whether they are seen or not) to 0.8–1.5 m/s, and stands there.
-/// They leave so as to reach the way about when a robot at 0.4–1.2 m/s reaches the
-/// pillar. None when the pillar would be within 0.3 m of the start or the goal.
+/// ([`BEHIND_M`] from its edge) as seen from where a robot at 0.4–1.2 m/s on the way would
+/// be when they leave, so hidden then. They leave so as to reach the way about when that
+/// robot reaches the pillar, step out across the way to 1 m past it, speeding up and
+/// slowing down at [`STEP_IN_ACCEL`] (the tracker's bound, whether they are seen or not)
+/// to at most 0.8–1.5 m/s, and stand there. None when the pillar would be within 0.3 m of
+/// the start or the goal, or the person beyond the goal.
 pub(super) fn pillar_and_person(
     rng: &mut ChaCha8Rng,
     way: &Way,
@@ -45,12 +46,21 @@ pub(super) fn pillar_and_person(
     if !(clear(way.start) && clear(way.at(way.span, 0.0))) {
         return None;
     }
-    let behind = along + pillar_radius + BEHIND_M + radius;
     let to_the_way_s = aside / speed + speed / (2.0 * STEP_IN_ACCEL);
     let leaves_s = (along / robot_speed - to_the_way_s).max(0.5);
-    let path = step_in(aside + 1.0, speed, leaves_s)
+    // Behind the pillar on the line from where the robot is then (short of the pillar).
+    let seen_from = (robot_speed * leaves_s)
+        .min(along - pillar_radius - 0.5)
+        .max(0.0);
+    let (run, rise) = (along - seen_from, aside);
+    let reach = (pillar_radius + BEHIND_M + radius) / run.hypot(rise);
+    let (behind, person_aside) = (along + run * reach, aside + rise * reach);
+    if behind > way.span - 0.5 {
+        return None;
+    }
+    let path = step_in(person_aside + 1.0, speed, leaves_s)
         .map(|(t, walked)| {
-            let [px, py] = way.at(behind, side * (aside - walked));
+            let [px, py] = way.at(behind, side * (person_aside - walked));
             [t, px, py]
         })
         .collect();
@@ -63,7 +73,7 @@ mod tests {
     use rand::SeedableRng;
 
     #[test]
-    fn the_person_stands_behind_the_pillar_then_crosses_the_way_within_the_trackers_acceleration_bound()
+    fn the_person_stands_in_the_pillars_shadow_then_crosses_the_way_within_the_trackers_acceleration_bound()
      {
         let way = Way {
             start: [0.0, 0.0],
@@ -81,10 +91,15 @@ mod tests {
             assert!(PILLAR_RADIUS_M.contains(&pillar.radius));
             assert!(PERSON_RADIUS_M.contains(&person.radius));
             let (first, last) = (person.path[0], person.path[person.path.len() - 1]);
-            // Behind the pillar along the way, as far aside.
-            let gap = first[1] - pillar.x - pillar.radius - person.radius;
+            // Behind the pillar, [`BEHIND_M`] from its edge, as seen from a point of the
+            // way short of it: in its shadow from there (the person is the smaller).
+            let gap = distance([first[1], first[2]], [pillar.x, pillar.y])
+                - pillar.radius
+                - person.radius;
             assert!((gap - BEHIND_M).abs() < 1e-9, "{gap}");
-            assert!((first[2] - pillar.y).abs() < 1e-9);
+            let slope = (first[1] - pillar.x) / (first[2] - pillar.y);
+            let seen_from = pillar.x - slope * pillar.y;
+            assert!((0.0..=pillar.x - pillar.radius - 0.5 + 1e-9).contains(&seen_from));
             assert_eq!([first[1], first[2]], [person.path[1][1], person.path[1][2]]);
             // Across the way to 1 m past it, within the tracker's acceleration bound.
             assert!(first[2] * pillar.y > 0.0 && (last[2] + pillar.y.signum()).abs() < 1e-9);
