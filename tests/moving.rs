@@ -199,6 +199,23 @@ fn the_phantoms_slow_the_robot_by_a_pillar_a_person_steps_out_from_as_its_lidar_
 }
 
 #[test]
+fn a_person_stepping_out_from_behind_a_pillar_touches_the_moving_robot_only_without_phantoms() {
+    // Issue 56: the lidar fuzz's world 748 of seed 1, drawn without phantoms, where the
+    // person comes out of the pillar's shadow into a robot at 0.89 m/s.
+    let _machine = common::machine_shared();
+    let world = &fixture("fuzz-lidar-seed-1-world-748.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let contacts = |phantoms: bool| {
+        let out = dir.path().join(format!("phantoms-{phantoms}"));
+        let set = format!("perception.phantoms={phantoms}");
+        let s = run_into(&out, &[world, "--in-process", "--set", &set]);
+        s["contacts_moving"].as_u64().unwrap()
+    };
+    assert_eq!(contacts(false), 1, "without phantoms");
+    assert_eq!(contacts(true), 0, "with phantoms");
+}
+
+#[test]
 fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identically_in_lockstep() {
     // Issue 54: a person walked at a robot at rest beside an obstacle, every plan was
     // refused or infeasible for a second, and the DFL, taking the choice that kept the
