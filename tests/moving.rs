@@ -216,6 +216,24 @@ fn a_person_stepping_out_from_behind_a_pillar_touches_the_moving_robot_only_with
 }
 
 #[test]
+fn a_box_the_lidar_sees_is_passed_not_circled_at_the_distance_of_the_fastest_stop() {
+    // Issue 56: the lidar fuzz's world 5 of seed 1. The box's track stands still; swept
+    // over the fastest stop the input box reaches its disc held the robot 4 m off.
+    let _machine = common::machine_shared();
+    let world = &fixture("fuzz-lidar-seed-1-world-5.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let s = run_into(dir.path(), &[world, "--in-process"]);
+    assert_eq!(
+        (s["outcome"].as_str(), &s["contacts_moving"]),
+        (Some("reached"), &0.into()),
+        "{s}"
+    );
+    // The box, the world's one obstacle not in the map, was seen: a track on it.
+    let tracks = csv(&dir.path().join("tracks.csv"));
+    assert!(tracks.iter().any(|t| num(t, "x_true").is_finite()));
+}
+
+#[test]
 fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identically_in_lockstep() {
     // Issue 54: a person walked at a robot at rest beside an obstacle, every plan was
     // refused or infeasible for a second, and the DFL, taking the choice that kept the
@@ -245,24 +263,19 @@ fn fuzz_world_74_of_seed_5_ends_untouched_while_moving_in_process_and_identicall
 }
 
 #[test]
-fn fuzz_world_372_of_seed_1_stops_out_of_the_persons_way_and_without_the_rest_lookahead_in_it() {
+fn fuzz_world_372_of_seed_1_stops_out_of_the_persons_way() {
     // Issue 54: a person walks head-on at the robot; with passive safety alone its plans
-    // stop in the person's way and the person walks into it at rest. With the stop kept
-    // out of the person's way for `mpc.rest_lookahead_s` more, it is not touched.
+    // stopped in the person's way and the person walked into it at rest. With the stop
+    // kept out of the person's way for `mpc.rest_lookahead_s` more, it is not touched.
+    // (Since the escape plan's rows sweep the person over the plan's own stop exactly,
+    // 2026-11-30, passive safety alone is not walked into here either: docs/safety.md.)
     let _machine = common::machine_shared();
     let world = &fixture("fuzz-seed-1-world-372.toml");
     let dir = tempfile::tempdir().unwrap();
-    let s = run_into(&dir.path().join("lookahead"), &[world, "--in-process"]);
+    let s = run_into(dir.path(), &[world, "--in-process"]);
     assert_eq!(
         (&s["outcome"], &s["contacts_moving"], &s["contacts_at_rest"]),
         (&"reached".into(), &0.into(), &0.into()),
-        "{s}"
-    );
-    let without = [world, "--in-process", "--set", "mpc.rest_lookahead_s=0"];
-    let s = run_into(&dir.path().join("passive"), &without);
-    assert_eq!(
-        (&s["contacts_moving"], &s["contacts_at_rest"]),
-        (&0.into(), &1.into()),
         "{s}"
     );
 }

@@ -674,6 +674,7 @@ mod tests {
                     radius_rate: next().abs(),
                     radius_accel: 0.25 * next().abs(),
                     hidden: false,
+                    standing: false,
                 },
             };
             let found = moving_arc_clearance(p, w, acc, duration, &disc);

@@ -24,6 +24,11 @@ pub struct TerminalBrake {
     /// How long the stop must stay out of a moving obstacle's way once the robot is at
     /// rest, s (`mpc.rest_lookahead_s`, [`crate::terminal::TerminalRows`]).
     pub rest_lookahead_s: f64,
+    /// Whether the rows sweep moving discs over the stop from the plan's own last speed:
+    /// two more variables, `tau >= |w_N|` and `sigma >= (Ts + tau / a)^2`, each with an
+    /// SOC(3) ([`crate::terminal`]). Only a scenario that tracks obstacles has discs that
+    /// move.
+    pub sweeps: bool,
 }
 
 impl TerminalBrake {
@@ -60,12 +65,14 @@ impl TerminalBrake {
         ]
     }
 
-    /// Variables of the rows for `discs` discs: `tau` (ball), one `e` per disc (segment).
+    /// Variables of the rows for `discs` discs: `tau` (ball), one `e` per disc (segment),
+    /// then with [`TerminalBrake::sweeps`] `sigma` (and `tau` for the segment form).
     pub fn variables(&self, discs: usize) -> usize {
+        let sweep = usize::from(self.sweeps);
         match (discs, self.form) {
             (0, _) => 0,
-            (_, BrakeForm::Ball) => 1,
-            (_, BrakeForm::Segment) => discs,
+            (_, BrakeForm::Ball) => 1 + sweep,
+            (_, BrakeForm::Segment) => discs + 2 * sweep,
         }
     }
 
@@ -82,7 +89,9 @@ impl TerminalBrake {
         if discs == 0 {
             return;
         }
-        if self.form == BrakeForm::Ball {
+        let tau = self.form == BrakeForm::Ball || self.sweeps;
+        let sigma = self.sweeps;
+        for _ in 0..usize::from(tau) + usize::from(sigma) {
             cones.push(SupportedConeT::SecondOrderConeT(3));
         }
         let size = match self.form {
@@ -107,6 +116,7 @@ impl TerminalBrake {
             ts_s: scenario.timing.ts_s,
             form,
             rest_lookahead_s: scenario.mpc.rest_lookahead_s,
+            sweeps: scenario.runs_tracker(),
         })
     }
 }
@@ -121,6 +131,7 @@ mod tests {
             ts_s: 0.05,
             form,
             rest_lookahead_s: 0.0,
+            sweeps: false,
         }
     }
 

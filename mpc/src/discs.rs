@@ -209,26 +209,6 @@ pub enum Prediction {
     ConstantVelocity,
 }
 
-impl Prediction {
-    /// The speed whose stop the terminal rows sweep a moving disc over, m/s
-    /// ([`crate::terminal::TerminalRows::sweep_speed`]), for a step whose input box
-    /// reaches `max_terminal_speed` at stage `N` and whose reference ends at
-    /// `reference_velocity`. Bounded: the largest speed, so that whatever a plan's last
-    /// speed the robot stops before an obstacle moving as fast as it may comes. At
-    /// constant velocity (the escape plan): the reference's last speed, refined towards the
-    /// plan's own (a solve's rows are built at the iterate before it, so the plan may end
-    /// a little faster than its rows assumed), since the DFL never flies an escape plan on
-    /// the strength of its own rows (it judges it against the bounded predictions), and
-    /// the longest stop swept a person near the robot over every place the robot could
-    /// reach: no plan at all (docs/safety.md, "When every choice touches").
-    pub fn sweep_speed(self, max_terminal_speed: f64, reference_velocity: [f64; 2]) -> f64 {
-        match self {
-            Prediction::Bounded => max_terminal_speed,
-            Prediction::ConstantVelocity => reference_velocity[0].hypot(reference_velocity[1]),
-        }
-    }
-}
-
 /// The disc `track` predicts `age_s` after the track's time, as a constraint
 /// (docs/safety.md, "Moving obstacles"): [`protocol::predicted_disc`] grown by the step's
 /// margin, in goal-relative coordinates, and grown by the inter-sample chord of the robot

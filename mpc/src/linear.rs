@@ -80,7 +80,7 @@ pub struct LinearMpc {
     /// The step's constraint discs ([`crate::discs::constraint_discs`]).
     discs: Vec<Disc>,
     /// How the tracked obstacles among `discs` are predicted: bounded, or at their
-    /// velocity in the escape program ([`LinearMpc::sweep_speed`]).
+    /// velocity in the escape program ([`Prediction`]).
     prediction: Prediction,
     /// How long from the step's time the phantoms among `discs` stand, s
     /// ([`protocol::KeptTracks::phantoms_stand_for_s`]).
@@ -669,13 +669,6 @@ impl LinearMpc {
         admitted
     }
 
-    /// The speed whose stop the terminal rows sweep a moving disc over, m/s
-    /// ([`Prediction::sweep_speed`]).
-    fn sweep_speed(&self) -> f64 {
-        let reach = self.reach.max_terminal_speed();
-        self.prediction.sweep_speed(reach, self.reference_velocity)
-    }
-
     /// The step's data for the program on `discs`.
     fn step_data<'a>(&'a self, z0: [f64; 4], discs: &'a [Disc]) -> StepData<'a> {
         StepData {
@@ -685,8 +678,8 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
-            sweep_speed: self.sweep_speed(),
             phantoms_stand_s: self.phantoms_stand_s,
+            prediction: self.prediction,
             stage_s: self.ts_s,
         }
     }
@@ -706,8 +699,8 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
-            sweep_speed: self.sweep_speed(),
             phantoms_stand_s: self.phantoms_stand_s,
+            prediction: self.prediction,
             stage_s: self.ts_s,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);

@@ -202,12 +202,11 @@ pub struct StepData<'a> {
     /// The largest `|w_N|` any input sequence in the box reaches from `z0`
     /// ([`PositionReach::max_terminal_speed`]), m/s.
     pub max_terminal_speed: f64,
-    /// The speed whose stop a moving disc is swept over at stage `N`
-    /// ([`TerminalRows::sweep_speed`]), m/s.
-    pub sweep_speed: f64,
     /// How long from the step's time the phantoms stand, s
     /// ([`TerminalRows::phantoms_stand_s`]).
     pub phantoms_stand_s: f64,
+    /// How the tracks among `discs` are predicted ([`TerminalRows::prediction`]).
+    pub prediction: crate::discs::Prediction,
     /// Time between two stages, s: a moving disc is taken at each stage's time
     /// ([`Disc::at`]).
     pub stage_s: f64,
@@ -245,7 +244,6 @@ impl<'a> StepData<'a> {
                     velocity: [l.z(n, 1), l.z(n, 3)],
                     first_variable: l.terminal_variable(rows),
                     max_speed: self.max_terminal_speed,
-                    sweep_speed: self.sweep_speed,
                     floor_share: if l.linear_barrier {
                         0.0
                     } else {
@@ -253,6 +251,7 @@ impl<'a> StepData<'a> {
                     },
                     horizon_s: n as f64 * self.stage_s,
                     phantoms_stand_s: self.phantoms_stand_s,
+                    prediction: self.prediction,
                 }
             }),
         }

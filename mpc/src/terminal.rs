@@ -28,6 +28,14 @@
 //!   `tau >= |w_N|`. One shared variable `tau` with an SOC(3), then one SOC(4) per disc. It
 //!   keeps a standoff of `S` whatever the direction of travel.
 //!
+//! A moving disc is swept over the robot's stop ([`TerminalRows::stop_discs`]). Over the
+//! plan's own stop (`d = Ts + |w_N| / a`: an obstacle that stands still, a phantom, the
+//! escape plan) its support `n'o + R` grows by `k d + alpha d^2` with `k, alpha >= 0`, so
+//! with two shared variables, `tau >= |w_N|` (an SOC(3); the ball's own) and
+//! `sigma >= (Ts + tau / a)^2` (an SOC(3): `(sigma + 1, sigma - 1, 2 (Ts + tau / a))`),
+//! `R` is affine in them and every row stays convex; a larger `tau` or `sigma` only asks
+//! more. Over the fastest stop (a walking obstacle in every other plan) it is data.
+//!
 //! # Recursive feasibility
 //!
 //! Assumptions: (a) no noise and the model holds, so the state at sample `k + 1` is the
@@ -63,7 +71,11 @@
 //!   majorant equals `alpha+ |w|` at the reference, but for a reference approaching at
 //!   less than `1 / MAX_C` of its speed, where it exceeds the stopping distance by at most
 //!   `|w|^2 / (4 a MAX_C)`, 75 µm at 3 m/s), so they hold. (The ball shrinks by at least the
-//!   distance moved: `|p_N+ - o| >= |p_N - o| - d >= R + S(s+)`.)
+//!   distance moved: `|p_N+ - o| >= |p_N - o| - d >= R + S(s+)`.) A moving disc swept
+//!   over the plan's own stop: the candidate's stop, one sample later from a speed
+//!   `a Ts` lower, ends when the old one did, so its swept disc lies in the old one (for
+//!   `s >= a Ts`; from slower, the candidate is at rest and its stop ends up to `Ts`
+//!   later: not covered, like (c)).
 //! - Terminal set (eqs. 45, 47): *not* guaranteed. It is invariant under the LQR step, not
 //!   under braking: this is assumption (e), and where it fails the MPC starts cold from the
 //!   braking rollout (feasible whenever braking from `z_0` is safe), and failing that the
@@ -84,6 +96,7 @@
 
 use crate::assembly::Assembly;
 use crate::brake::{BrakeForm, TerminalBrake};
+use crate::discs::Prediction;
 use crate::reach::{PositionReach, below};
 use protocol::Disc;
 
@@ -109,60 +122,139 @@ pub struct TerminalRows<'a> {
     pub first_variable: usize,
     /// The largest `|w_N|` any input sequence in the box reaches, m/s.
     pub max_speed: f64,
-    /// The speed whose stop a moving disc is swept over ([`TerminalRows::discs`]), m/s:
-    /// `max_speed` in every plan's program, the reference's last speed in the escape
-    /// program's (`mpc::discs::Prediction::ConstantVelocity`, docs/safety.md).
-    pub sweep_speed: f64,
     /// `(1 - gamma)^N` (0 with a linear CBF): the share of a negative `H(p_0)` the decay
     /// floor keeps at the last stage ([`TerminalRows::radius`]).
     pub floor_share: f64,
-    /// Time of stage `N` after the discs' time, s: a moving disc is taken there, swept
-    /// over the stop from `sweep_speed` ([`TerminalRows::discs`]).
+    /// Time of stage `N` after the discs' time, s: a moving disc is taken there
+    /// ([`TerminalRows::stop_discs`]).
     pub horizon_s: f64,
     /// How long after the discs' time the phantoms stand, s
     /// ([`protocol::KeptTracks::phantoms_stand_for_s`]): a phantom's disc is taken then
     /// (or at stage `N`, if sooner).
     pub phantoms_stand_s: f64,
+    /// How the tracks are predicted: bounded, a walking obstacle's disc is swept over the
+    /// fastest stop ([`TerminalRows::stop_discs`]); at constant velocity (the escape
+    /// plan), over the plan's own.
+    pub prediction: Prediction,
 }
 
-/// The data of one disc's segment row: the normal, and the majorant of `alpha+ |w|`
-/// (module docs), `beta e + q (c e^2 + |w|^2 / c) / 2` with `q` 0 or 1.
+/// A disc as the stopping path must stay out of it, over a stop that lasts `d` seconds:
+/// centre `center + drift d`, radius `radius + rate d + accel d^2`. That is the disc at
+/// the stop's start swept over the stop ([`Disc::swept`]) and carried on for the rest
+/// lookahead ([`Disc::carried_on`]); at rest, the disc itself whatever `d`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct SegmentRow {
+struct StopDisc {
+    /// Whether the stop is the plan's own (`d = Ts + |w_N| / a`), or the fastest one
+    /// the input box reaches.
+    own_stop: bool,
+    center: [f64; 2],
+    radius: f64,
+    /// m/s.
+    drift: [f64; 2],
+    /// m/s.
+    rate: f64,
+    /// m/s^2.
+    accel: f64,
+}
+
+impl StopDisc {
+    /// `start` swept over the stop, then carried on at its velocity for `rest_s`.
+    fn of(start: &Disc, rest_s: f64, own_stop: bool) -> StopDisc {
+        let m = &start.motion;
+        let [vx, vy] = m.velocity;
+        let speed = vx.hypot(vy);
+        StopDisc {
+            own_stop,
+            center: [
+                start.center[0] + vx * rest_s / 2.0,
+                start.center[1] + vy * rest_s / 2.0,
+            ],
+            radius: start.radius + speed * rest_s / 2.0,
+            drift: [vx / 2.0, vy / 2.0],
+            rate: m.radius_rate + speed / 2.0,
+            accel: m.radius_accel,
+        }
+    }
+
+    /// The disc over a stop of `duration_s`.
+    fn at(&self, duration_s: f64) -> Disc {
+        let d = duration_s;
+        Disc::still(
+            [
+                self.center[0] + self.drift[0] * d,
+                self.center[1] + self.drift[1] * d,
+            ],
+            self.radius + self.rate * d + self.accel * d * d,
+        )
+    }
+
+    /// How fast the disc's support `n'o + R` in direction `n` grows with the stop's
+    /// duration, m/s: `n'drift + rate`, never negative since `|drift| <= rate`.
+    fn support_rate(&self, n: [f64; 2]) -> f64 {
+        (n[0] * self.drift[0] + n[1] * self.drift[1] + self.rate).max(0.0)
+    }
+}
+
+/// The data of one disc's row: the normal, the support `n'o + R` of the disc over a stop
+/// of `Ts` (its radius lowered to the decay floor's), its growth per second of stop and
+/// per second squared, and the majorant of `alpha+ |w|` (module docs),
+/// `beta e + q (c e^2 + |w|^2 / c) / 2` with `q` 0 or 1 (segment form).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct DiscRow {
     normal: [f64; 2],
+    support: f64,
+    support_rate: f64,
+    support_accel: f64,
     beta: f64,
     quadratic: f64,
     c: f64,
 }
 
+impl DiscRow {
+    /// The support over a stop from `speed`, m.
+    fn support_at(&self, speed: f64, model: &TerminalBrake) -> f64 {
+        let extra_s = speed / model.decel;
+        let d = model.ts_s + extra_s;
+        self.support
+            + self.support_rate * extra_s
+            + self.support_accel * (d * d - model.ts_s * model.ts_s)
+    }
+}
+
 impl TerminalRows<'_> {
-    /// The discs the stopping path must stay out of: each at stage `N`, and a moving one
-    /// swept over the stop from there (from `sweep_speed`, with a sample's hold), so that
-    /// the robot is stopped before the obstacle comes (passive safety, docs/safety.md),
-    /// then carried on at its velocity for `rest_lookahead_s`, so that the robot does not
-    /// stop where the obstacle walking on would meet it at rest. A disc at rest is itself.
+    /// The discs the stopping path must stay out of, as functions of the stop's duration:
+    /// each at stage `N`, a moving one swept over the stop, so that the robot is stopped
+    /// before the obstacle comes (passive safety, docs/safety.md), then carried on at its
+    /// velocity for `rest_lookahead_s`, so that the robot does not stop where the obstacle
+    /// walking on would meet it at rest. A disc at rest is itself.
+    ///
+    /// The stop is the plan's own (`Ts + |w_N| / a`, with a sample's hold: the variables
+    /// `tau` and `sigma`) for an obstacle that stands still
+    /// ([`protocol::Track::stands_still`]) and in the escape program. A walking one's, in
+    /// every other plan, is the fastest stop the input box reaches: a robot that keeps
+    /// that far from the people who walk is not walked into where it stops (docs/safety.md,
+    /// "The stop and the person's way"). Swept over the fastest stop, a box the lidar sees
+    /// held a robot 4 m off, and it circled the box until its time ran out.
     ///
     /// A phantom's disc (`motion.hidden`) is taken when the phantoms stop standing
-    /// (`phantoms_stand_s`: what comes out of a shadow before then is seen by then) and
-    /// swept over the stop from the reference's last speed: nothing comes at the robot
-    /// from it, so the robot need only be at rest before where something hidden could be
-    /// by then reaches it, and the stop from the fastest speed would sweep the phantom of
-    /// every corner passed over the way. This is a heuristic of the DFL's exact check,
-    /// which brakes from where the robot is at `phantoms_stand_s`: the rows stay at stage
-    /// `N`, built at the reference, refined at each solve.
-    fn discs(&self) -> impl Iterator<Item = Disc> + '_ {
-        let stop_s = |speed: f64| speed / self.model.decel + self.model.ts_s;
-        let [_, wx, _, wy] = self.reference;
-        let (sweep_s, hidden_sweep_s) = (stop_s(self.sweep_speed), stop_s(wx.hypot(wy)));
+    /// (`phantoms_stand_s`: what comes out of a shadow before then is seen by then), or at
+    /// stage `N` if sooner, and swept over the stop alone: nothing comes at the robot from
+    /// it, so the robot need only be at rest before where something hidden could be by
+    /// then reaches it. This is a heuristic of the DFL's exact check, which brakes from
+    /// where the robot is at `phantoms_stand_s`: the rows stay at stage `N`.
+    fn stop_discs(&self) -> impl Iterator<Item = StopDisc> + '_ {
         let hidden_s = self.phantoms_stand_s.min(self.horizon_s);
         let rest_s = self.model.rest_lookahead_s;
+        let escape = self.prediction == Prediction::ConstantVelocity;
         self.discs.iter().map(move |d| match d.motion.hidden {
-            true => d.at(hidden_s).swept(hidden_sweep_s),
-            false => d
-                .at(self.horizon_s)
-                .swept(sweep_s)
-                .carried_on(d.motion.velocity, rest_s),
+            true => StopDisc::of(&d.at(hidden_s), 0.0, true),
+            false => StopDisc::of(&d.at(self.horizon_s), rest_s, escape || d.motion.standing),
         })
+    }
+
+    /// The stop's duration from `speed`, s: `Ts + speed / a`.
+    fn stop_s(&self, speed: f64) -> f64 {
+        self.model.ts_s + speed / self.model.decel
     }
 
     /// The radius the stopping path must stay outside, m: the disc's, or, for a robot that
@@ -195,51 +287,89 @@ impl TerminalRows<'_> {
         [self.reference[1], self.reference[3]]
     }
 
-    /// The segment row of `disc` at the reference.
-    fn segment_row(&self, disc: &Disc) -> SegmentRow {
+    /// The row of `stop` built at the reference: the normal of the disc over the
+    /// reference's stop, pointing (segment) at the closest point of the reference's
+    /// stopping segment or (ball) at its start.
+    fn disc_row(&self, stop: &StopDisc) -> DiscRow {
         let (p, w) = (self.reference_position(), self.reference_velocity());
         let speed = w[0].hypot(w[1]);
-        let end = if speed > 0.0 {
-            let stop = self.model.stop_distance_bound(speed) / speed;
-            [p[0] + w[0] * stop, p[1] + w[1] * stop]
-        } else {
-            p
+        let disc = stop.at(self.stop_s(match stop.own_stop {
+            true => speed,
+            false => self.max_speed,
+        }));
+        let (normal, beta, quadratic, c) = match self.model.form {
+            BrakeForm::Ball => (self.unit_from_center(&disc, p), 0.0, 0.0, 1.0),
+            BrakeForm::Segment => {
+                let end = if speed > 0.0 {
+                    let stop = self.model.stop_distance_bound(speed) / speed;
+                    [p[0] + w[0] * stop, p[1] + w[1] * stop]
+                } else {
+                    p
+                };
+                let closest = protocol::closest_point_on_segment(p, end, disc.center);
+                let normal = self.unit_from_center(&disc, closest);
+                let approach = -(normal[0] * w[0] + normal[1] * w[1]);
+                match approach > 0.0 {
+                    true => (normal, 0.0, 1.0, (speed / approach).min(MAX_C)),
+                    false => (normal, self.max_speed, 0.0, 1.0),
+                }
+            }
         };
-        let closest = protocol::closest_point_on_segment(p, end, disc.center);
-        let normal = self.unit_from_center(disc, closest);
-        let approach = -(normal[0] * w[0] + normal[1] * w[1]);
-        if approach > 0.0 {
-            SegmentRow {
-                normal,
-                beta: 0.0,
-                quadratic: 1.0,
-                c: (speed / approach).min(MAX_C),
-            }
-        } else {
-            SegmentRow {
-                normal,
-                beta: self.max_speed,
-                quadratic: 0.0,
-                c: 1.0,
-            }
+        // Over the shortest stop, `Ts`, growing with the stop when it is the plan's own; the
+        // decay floor's radius (a disc at rest is itself, exactly).
+        let (shortest, support_rate, support_accel) = match stop.own_stop {
+            true => (
+                stop.at(self.model.ts_s),
+                stop.support_rate(normal),
+                stop.accel,
+            ),
+            false => (stop.at(self.stop_s(self.max_speed)), 0.0, 0.0),
+        };
+        DiscRow {
+            normal,
+            support: normal[0] * shortest.center[0]
+                + normal[1] * shortest.center[1]
+                + self.radius(&shortest),
+            support_rate,
+            support_accel,
+            beta,
+            quadratic,
+            c,
         }
     }
 
-    /// The best values of the rows' variables for a last velocity `w_N`: `tau = |w_N|`
-    /// (ball), `e = alpha+ = max(0, -n'w_N)` per disc (segment). At the reference the rows
-    /// are exact with them.
-    pub fn variables_at(&self, w: [f64; 2]) -> impl Iterator<Item = f64> + '_ {
-        let (ball, segment) = match self.model.form {
-            BrakeForm::Ball => (Some(w[0].hypot(w[1])), None),
-            BrakeForm::Segment => (
-                None,
-                Some(self.discs().map(move |disc| {
-                    let n = self.segment_row(&disc).normal;
-                    (-(n[0] * w[0] + n[1] * w[1])).max(0.0)
-                })),
+    /// Columns of `tau` and `sigma`, when the rows sweep (`tau` is the ball's own).
+    fn sweep_variables(&self) -> (Option<usize>, Option<usize>) {
+        let after_e = self.first_variable + self.discs.len();
+        match (self.model.form, self.model.sweeps) {
+            (BrakeForm::Ball, sweeps) => (
+                Some(self.first_variable),
+                sweeps.then_some(self.first_variable + 1),
             ),
-        };
-        ball.into_iter().chain(segment.into_iter().flatten())
+            (BrakeForm::Segment, true) => (Some(after_e), Some(after_e + 1)),
+            (BrakeForm::Segment, false) => (None, None),
+        }
+    }
+
+    /// The best values of the rows' variables for a last velocity `w_N`, in column order:
+    /// `e = alpha+ = max(0, -n'w_N)` per disc (segment), `tau = |w_N|` (ball, or
+    /// sweeping), `sigma = (Ts + tau / a)^2` (sweeping). At the reference the rows are
+    /// exact with them.
+    pub fn variables_at(&self, w: [f64; 2]) -> impl Iterator<Item = f64> + '_ {
+        let speed = w[0].hypot(w[1]);
+        let segment = (self.model.form == BrakeForm::Segment).then(|| {
+            self.stop_discs().map(move |stop| {
+                let n = self.disc_row(&stop).normal;
+                (-(n[0] * w[0] + n[1] * w[1])).max(0.0)
+            })
+        });
+        let (tau, sigma) = self.sweep_variables();
+        let stop_s = self.stop_s(speed);
+        segment
+            .into_iter()
+            .flatten()
+            .chain(tau.map(|_| speed))
+            .chain(sigma.map(|_| stop_s * stop_s))
     }
 
     /// Writes the rows of the nonnegative cone (segment: `e >= -n'w_N`, `e >= 0`).
@@ -248,52 +378,65 @@ impl TerminalRows<'_> {
             return;
         }
         let [vx, vy] = self.velocity;
-        for (j, disc) in self.discs().enumerate() {
-            let n = self.segment_row(&disc).normal;
+        for (j, stop) in self.stop_discs().enumerate() {
+            let n = self.disc_row(&stop).normal;
             let e = self.first_variable + j;
             asm.row([(e, -1.0), (vx, -n[0]), (vy, -n[1])], 0.0);
             asm.row([(e, -1.0)], 0.0);
         }
     }
 
-    /// Writes the cones (module docs for each form).
+    /// Writes the cones (module docs for each form): `tau >= |w_N|` and
+    /// `sigma >= (Ts + tau / a)^2` first, then one cone per disc, in which the disc's
+    /// support grows with `tau` and `sigma` (the stop swept from the plan's own speed).
     pub fn write_cones(&self, asm: &mut Assembly) {
         let ([px, py], [vx, vy]) = (self.position, self.velocity);
         let (a, ts) = (self.model.decel, self.model.ts_s);
-        // The distance's under-estimate scaled by 2a: 2a n'(p - o) - 2a R.
-        let offset = |n: [f64; 2], disc: &Disc| {
-            2.0 * a * (n[0] * disc.center[0] + n[1] * disc.center[1] + self.radius(disc))
-        };
-        match self.model.form {
-            BrakeForm::Ball => {
-                // tau >= |w_N|, then (t + 1, t - 1, 2 w_N) with
-                // t = 2a (n'(p_N - o) - R) - a Ts tau.
-                let tau = self.first_variable;
-                asm.row([(tau, -1.0)], 0.0);
-                asm.row([(vx, -1.0)], 0.0);
-                asm.row([(vy, -1.0)], 0.0);
-                for disc in self.discs() {
-                    let n = self.unit_from_center(&disc, self.reference_position());
-                    let t = [(px, -2.0 * a * n[0]), (py, -2.0 * a * n[1]), (tau, a * ts)];
-                    asm.row(t, 1.0 - offset(n, &disc));
-                    asm.row(t, -1.0 - offset(n, &disc));
+        let (tau, sigma) = self.sweep_variables();
+        if let Some(tau) = tau {
+            asm.row([(tau, -1.0)], 0.0);
+            asm.row([(vx, -1.0)], 0.0);
+            asm.row([(vy, -1.0)], 0.0);
+        }
+        if let (Some(tau), Some(sigma)) = (tau, sigma) {
+            // (sigma + 1, sigma - 1, 2 (Ts + tau / a)).
+            asm.row([(sigma, -1.0)], 1.0);
+            asm.row([(sigma, -1.0)], -1.0);
+            asm.row([(tau, -2.0 / a)], 2.0 * ts);
+        }
+        for (j, stop) in self.stop_discs().enumerate() {
+            let row = self.disc_row(&stop);
+            let n = row.normal;
+            // t = 2a (n'p_N - support) - ..., the support growing by `rate tau / a` and
+            // `accel (sigma - Ts^2)` when the rows sweep.
+            let mut t = Terms::new([(px, -2.0 * a * n[0]), (py, -2.0 * a * n[1])]);
+            let mut offset = 2.0 * a * row.support;
+            let mut ball_tau = a * ts;
+            if let (Some(tau), Some(sigma)) = (tau, sigma) {
+                let tau_coefficient = 2.0 * row.support_rate;
+                match self.model.form {
+                    BrakeForm::Ball => ball_tau += tau_coefficient,
+                    BrakeForm::Segment => t.push(tau, tau_coefficient),
+                }
+                t.push(sigma, 2.0 * a * row.support_accel);
+                offset -= 2.0 * a * row.support_accel * ts * ts;
+            }
+            match self.model.form {
+                BrakeForm::Ball => {
+                    // (t + 1, t - 1, 2 w_N), t = 2a (n'p_N - support) - a Ts tau.
+                    t.push(tau.expect("the ball has tau"), ball_tau);
+                    asm.row(t.iter(), 1.0 - offset);
+                    asm.row(t.iter(), -1.0 - offset);
                     asm.row([(vx, -2.0)], 0.0);
                     asm.row([(vy, -2.0)], 0.0);
                 }
-            }
-            BrakeForm::Segment => {
-                // (t + 1, t - 1, q sqrt(2c) e, q sqrt(2/c) w_N) with
-                // t = 2a (n'(p_N - o) - R) - (a Ts + beta) e.
-                for (j, disc) in self.discs().enumerate() {
-                    let row = self.segment_row(&disc);
-                    let (n, e) = (row.normal, self.first_variable + j);
-                    let t = [
-                        (px, -2.0 * a * n[0]),
-                        (py, -2.0 * a * n[1]),
-                        (e, a * ts + row.beta),
-                    ];
-                    asm.row(t, 1.0 - offset(n, &disc));
-                    asm.row(t, -1.0 - offset(n, &disc));
+                BrakeForm::Segment => {
+                    // (t + 1, t - 1, q sqrt(2c) e, q sqrt(2/c) w_N) with
+                    // t = 2a (n'p_N - support) - (a Ts + beta) e.
+                    let e = self.first_variable + j;
+                    t.push(e, a * ts + row.beta);
+                    asm.row(t.iter(), 1.0 - offset);
+                    asm.row(t.iter(), -1.0 - offset);
                     asm.row([(e, -row.quadratic * (2.0 * row.c).sqrt())], 0.0);
                     let scale = row.quadratic * (2.0 / row.c).sqrt();
                     asm.row([(vx, -scale)], 0.0);
@@ -304,32 +447,152 @@ impl TerminalRows<'_> {
     }
 
     /// Whether every row holds, with a margin, for every input sequence in `reach` (the
-    /// input box, or about a plan): the smallest `n'(p_N - o) - R` against the largest
-    /// right-hand side, with the speed `|w_N|` (and the approach speed) at their largest.
+    /// input box, or about a plan): the smallest `n'p_N` against the largest right-hand
+    /// side, with the speed `|w_N|` (and the approach speed, and the stop the discs are
+    /// swept over) at their largest.
     pub fn implied(&self, reach: &PositionReach) -> bool {
         let speed = reach.max_terminal_speed();
         let horizon = reach.horizon();
         let a = self.model.decel;
-        self.discs().all(|disc| {
-            let disc = &disc;
-            let (n, largest) = match self.model.form {
-                BrakeForm::Ball => (
-                    self.unit_from_center(disc, self.reference_position()),
-                    self.model.stop_distance_bound(speed),
-                ),
+        self.stop_discs().all(|stop| {
+            let row = self.disc_row(&stop);
+            let largest = match self.model.form {
+                BrakeForm::Ball => self.model.stop_distance_bound(speed),
                 BrakeForm::Segment => {
                     // With e = alpha+ <= |w_N| <= speed.
-                    let row = self.segment_row(disc);
                     let quadratic = row.quadratic * (row.c + 1.0 / row.c) / 2.0;
                     let majorant = (row.beta + quadratic * speed) * speed;
-                    (
-                        row.normal,
-                        majorant / (2.0 * a) + 0.5 * self.model.ts_s * speed,
-                    )
+                    majorant / (2.0 * a) + 0.5 * self.model.ts_s * speed
                 }
             };
-            let offset = n[0] * disc.center[0] + n[1] * disc.center[1] + self.radius(disc);
-            below(largest, reach.min_linear(horizon, n) - offset)
+            let support = row.support_at(speed, &self.model);
+            below(largest, reach.min_linear(horizon, row.normal) - support)
         })
+    }
+}
+
+/// The terms of one row, without allocating: at most `p_N`, `tau`, `sigma` and `e`.
+struct Terms {
+    items: [(usize, f64); 5],
+    len: usize,
+}
+
+impl Terms {
+    fn new(first: [(usize, f64); 2]) -> Terms {
+        let mut items = [(0, 0.0); 5];
+        items[..2].copy_from_slice(&first);
+        Terms { items, len: 2 }
+    }
+
+    fn push(&mut self, column: usize, value: f64) {
+        self.items[self.len] = (column, value);
+        self.len += 1;
+    }
+
+    fn iter(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.items[..self.len].iter().copied()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A person 3 m ahead walking across, bounded: the disc grows by `kappa sigma_v` and
+    /// `accel_max t^2 / 2`.
+    fn person() -> Disc {
+        Disc {
+            motion: protocol::DiscMotion {
+                velocity: [0.2, -0.5],
+                radius_rate: 0.3,
+                radius_accel: 0.25,
+                hidden: false,
+                standing: false,
+            },
+            ..Disc::still([3.0, 0.5], 0.6)
+        }
+    }
+
+    #[test]
+    fn a_disc_is_swept_over_the_plans_own_stop_if_it_stands_still_or_escaping_else_the_fastest() {
+        let (a, ts, max_speed) = (2.0, 0.1, 5.0);
+        let cases = [
+            (Prediction::ConstantVelocity, false, true),
+            (Prediction::Bounded, true, true),
+            (Prediction::Bounded, false, false),
+        ];
+        for (prediction, standing, own_stop) in cases {
+            let mut person = person();
+            person.motion.standing = standing;
+            let discs = [person];
+            for form in [BrakeForm::Segment, BrakeForm::Ball] {
+                let rows = TerminalRows {
+                    model: TerminalBrake {
+                        decel: a,
+                        ts_s: ts,
+                        form,
+                        rest_lookahead_s: 0.5,
+                        sweeps: true,
+                    },
+                    discs: &discs,
+                    reference: [0.5, 1.0, 0.1, 0.2],
+                    p0: [-1.0, 0.0],
+                    position: [0, 2],
+                    velocity: [1, 3],
+                    first_variable: 4,
+                    max_speed,
+                    floor_share: 0.0,
+                    horizon_s: 1.0,
+                    phantoms_stand_s: 0.2,
+                    prediction,
+                };
+                let mut asm = Assembly::default();
+                rows.write_cones(&mut asm);
+                for (p, w) in [
+                    ([0.4, 0.1], [0.0, 0.0]),
+                    ([0.6, 0.2], [1.2, 0.3]),
+                    ([1.0, -0.5], [2.5, -1.0]),
+                ] {
+                    let mut x = vec![p[0], w[0], p[1], w[1]];
+                    x.extend(rows.variables_at(w));
+                    let slack = |r: usize| {
+                        let on_x: f64 = asm
+                            .entries
+                            .iter()
+                            .filter(|e| e.0 == r)
+                            .map(|e| e.2 * x[e.1])
+                            .sum();
+                        asm.b[r] - on_x
+                    };
+                    // sigma's cone is tight at sigma = (Ts + |w| / a)^2:
+                    // (sigma + 1, sigma - 1, 2 stop).
+                    let own_stop_s = ts + w[0].hypot(w[1]) / a;
+                    let (s3, s4, s5) = (slack(3), slack(4), slack(5));
+                    assert!((s5 - 2.0 * own_stop_s).abs() < 1e-12);
+                    assert!((s3 * s3 - s4 * s4 - s5 * s5).abs() < 1e-9);
+                    // The disc at stage N swept over the stop and carried on for the rest
+                    // lookahead.
+                    let stop_s = match own_stop {
+                        true => own_stop_s,
+                        false => ts + max_speed / a,
+                    };
+                    let swept = person.at(1.0).swept(stop_s).carried_on([0.2, -0.5], 0.5);
+                    let row = rows.disc_row(&rows.stop_discs().next().unwrap());
+                    let n = row.normal;
+                    let support = n[0] * swept.center[0] + n[1] * swept.center[1] + swept.radius;
+                    let distance = n[0] * p[0] + n[1] * p[1] - support;
+                    let t = slack(6) - 1.0;
+                    let expected = match form {
+                        BrakeForm::Ball => 2.0 * a * distance - a * ts * x[4],
+                        BrakeForm::Segment => 2.0 * a * distance - (a * ts + row.beta) * x[4],
+                    };
+                    assert!(
+                        (t - expected).abs() < 1e-9,
+                        "{prediction:?}, standing {standing}, {form:?}, w {w:?}: t {t}, \
+                         expected {expected}"
+                    );
+                }
+            }
+        }
     }
 }

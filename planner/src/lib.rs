@@ -49,10 +49,6 @@ pub const CLEARANCE_RESET_M: f64 = 1.0;
 /// them, m.
 const FREE_END_M: f64 = 1e-6;
 
-/// A track whose speed plus its velocity's standard deviation is below this stands
-/// still, m/s: to the route planner an obstacle at rest.
-pub const STANDING_SPEED_M_S: f64 = 0.3;
-
 /// The planner's state across samples: the newest route and what decides the next plan.
 pub struct Planner {
     graph: TangentGraph,
@@ -121,19 +117,16 @@ impl Planner {
         }
     }
 
-    /// Takes the lidar's newest tracks: those that stand still ([`STANDING_SPEED_M_S`]),
-    /// phantoms aside, are obstacles at rest to the routes planned from now on.
+    /// Takes the lidar's newest tracks: those that stand still
+    /// ([`protocol::Track::stands_still`]) are obstacles at rest to the routes planned
+    /// from now on.
     pub fn take_tracks(&mut self, tracks: &protocol::Tracks) {
         self.standing.clear();
-        let stands = |t: &&protocol::Track| {
-            let speed = t.velocity[0].hypot(t.velocity[1]);
-            !t.is_phantom() && speed + t.sigmas().1 < STANDING_SPEED_M_S
-        };
         (self.standing).extend(
             tracks
                 .tracks()
                 .iter()
-                .filter(stands)
+                .filter(|t| t.stands_still())
                 .map(|t| protocol::Obstacle::fixed(t.center[0], t.center[1], t.radius_m)),
         );
     }

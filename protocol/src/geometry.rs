@@ -29,6 +29,10 @@ pub struct DiscMotion {
     /// ([`Disc::staged`]); the robot's stop from there must end before the grown disc
     /// could reach it.
     pub hidden: bool,
+    /// A tracked obstacle that stands still ([`crate::Track::stands_still`]): its disc
+    /// grows as any track's, but a stop need only end before it could reach the robot
+    /// from the plan's own last speed, not from the fastest.
+    pub standing: bool,
 }
 
 impl Disc {

@@ -171,6 +171,7 @@ pub fn predicted_disc(
             radius_rate: kappa * sigma_v + accel_max * age,
             radius_accel: 0.5 * accel_max,
             hidden: track.is_phantom(),
+            standing: track.stands_still(),
         },
     }
 }

@@ -238,7 +238,20 @@ pub struct Track {
     pub covariance: [f64; 6],
 }
 
+/// A track whose speed plus its velocity's standard deviation is below this stands
+/// still, m/s ([`Track::stands_still`]).
+pub const STANDING_SPEED_M_S: f64 = 0.3;
+
 impl Track {
+    /// Whether it stands still: not a phantom, its speed plus its velocity's standard
+    /// deviation below [`STANDING_SPEED_M_S`]. To the route planner it is an obstacle at
+    /// rest; the MPC's terminal rows sweep its disc over the plan's own stop rather than
+    /// the fastest one (`mpc::terminal`): a box or a person waiting.
+    pub fn stands_still(&self) -> bool {
+        let speed = self.velocity[0].hypot(self.velocity[1]);
+        !self.is_phantom() && speed + self.sigmas().1 < STANDING_SPEED_M_S
+    }
+
     /// Whether it is a phantom ([`FIRST_PHANTOM`]).
     pub fn is_phantom(&self) -> bool {
         self.obstacle >= FIRST_PHANTOM

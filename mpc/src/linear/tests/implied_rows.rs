@@ -28,8 +28,8 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             reference: &mpc.reference,
             reference_velocity: mpc.reference_velocity,
             max_terminal_speed: 0.0,
-            sweep_speed: 0.0,
             phantoms_stand_s: 0.0,
+            prediction: crate::discs::Prediction::Bounded,
             stage_s: 0.05,
         };
         let without_barrier = Rows {
@@ -48,12 +48,38 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
 
 #[test]
 fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
-    for gamma in [0.1, 1.0] {
+    // A disc at rest, a tracked obstacle's walking, bounded (swept over the fastest
+    // stop), and one standing (swept over the plan's own stop: `tau`, `sigma`).
+    let moving = Disc {
+        motion: protocol::DiscMotion {
+            velocity: [-0.4, 0.3],
+            radius_rate: 0.3,
+            radius_accel: 0.25,
+            hidden: false,
+            standing: false,
+        },
+        ..Disc::still([3.0, 3.5], 1.0)
+    };
+    let mut standing = moving;
+    standing.motion.velocity = [0.05, 0.0];
+    standing.motion.standing = true;
+    for (gamma, disc) in [
+        (0.1, Disc::still([3.0, 3.5], 1.5)),
+        (1.0, Disc::still([3.0, 3.5], 1.5)),
+        (0.1, moving),
+        (0.1, standing),
+    ] {
         let mut s = Scenario::default();
         s.mpc.gamma = gamma;
         s.mpc.qp_form = QpForm::Sparse; // rows checked in stage-wise columns
+        if disc.moves() {
+            let mut person = protocol::Obstacle::fixed(-5.0, 5.0, 0.3);
+            person.velocity = [0.5, 0.0];
+            s.obstacles.push(person);
+        }
         let mut mpc = LinearMpc::new(&s).unwrap();
-        mpc.discs = vec![Disc::still([3.0, 3.5], 1.5)];
+        assert_eq!(mpc.layout.terminal.unwrap().sweeps, disc.moves());
+        mpc.discs = vec![disc];
         let mut next = logistic(0.7);
         let (mut left_out, mut kept) = (0, 0);
         for _ in 0..1_000 {
@@ -73,8 +99,8 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
-                sweep_speed: mpc.reach.max_terminal_speed(),
                 phantoms_stand_s: 0.0,
+                prediction: crate::discs::Prediction::Bounded,
                 stage_s: 0.05,
             };
             if !data
