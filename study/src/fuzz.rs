@@ -22,8 +22,8 @@
 //! | output noise | `plant.noise_variance` 0–0.01 (`--set plant.noise_variance=...` forces one) |
 //! | `plant.disturbance_std` | none in half the worlds, else 0–0.02 |
 //! | `duration_s` | 40 s, plus 4 s per metre of start–goal distance beyond 9 m; `seed` (noise) the world's index |
-//! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own |
-//! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them. In half the worlds, from the same stream, two obstacles more: a pillar in the map at 30–70 % of the way, radius 0.5–1 m, its edge 0.3–1 m (and the robot's radius) to either side, and a person of radius 0.2–0.35 m standing 0.1 m behind it as seen from where a robot at 0.4–1.2 m/s would be when they leave; they leave so as to reach the way about when that robot reaches the pillar, step out across the way to 1 m past it, speeding up and slowing down at 0.5 m/s² to at most 0.8–1.5 m/s, and stand there ([`occluders`]) |
+//! | moving obstacles | in a share of the worlds (`--people`, [`PEOPLE`] by default) 1–2 more, radius 0.2–0.4 m (people), each one of: *crossing* the line at 0.5–1.5 m/s, level with it at 30–70 % of the way at 2 s + 1 s per metre of the way; *oncoming* along the line from 80–120 % of the way at 0.3–1 m/s, up to 0.5 m aside; *stepping into the way* from 1.5–3 m aside at 1–6 s, at up to 0.5–1.2 m/s (speeding up and slowing down at 0.5 m/s², a path point every 0.1 s), and standing there; `perception.noise_std` 0.02 m in half of those worlds, else 0. Drawn last, from a stream of their own; obstacles at rest are solid to them: one who would walk through one stops short of it, braking at 0.5 m/s² (one stepping in steps only as far as they can, and one without room stands where they are, an obstacle at rest), or is left out when they cannot ([`solid`]) |
+//! | `--perception lidar` | the default `[lidar]` (360 beams, 8 m, 10 Hz) in every world; each obstacle at rest of radius up to 0.6 m a box not in the map (`known = false`) with probability one half (from a stream of its own: the worlds are otherwise the same); the larger ones stay in the map, and hide what is behind them. In half the worlds, from the same stream, two obstacles more: a pillar in the map at 30–70 % of the way, radius 0.5–1 m, its edge 0.3–1 m (and the robot's radius) to either side, and a person of radius 0.2–0.35 m standing behind it, hidden from where a robot at 0.4–1.2 m/s would be when they leave, and far enough along the way to step out past it with 0.1 m to spare; they leave so as to reach the way about when that robot reaches the pillar, step out across the way to 1 m past it, speeding up and slowing down at 0.5 m/s² to at most 0.8–1.5 m/s, and stand there ([`occluders`]); the pillar is solid to the people too ([`solid`]) |
 //!
 //! Every other key is the paper's. The `--set` overrides are applied on top of every world
 //! (a user fuzzes their own tuning), and the world is validated: one the overrides make
@@ -43,6 +43,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 mod occluders;
+mod solid;
 
 /// Start and goal are drawn at least this far inside the position box's edges, m (a robot
 /// at an edge, already moving outwards, may have no way to stay in the box).
@@ -126,6 +127,7 @@ fn seen_through_a_lidar(s: &mut Scenario, rng: &mut ChaCha8Rng) {
     if let Some(occluded) = occluders::pillar_and_person(rng, &way, s.robot.radius_m) {
         s.obstacles.extend(occluded);
     }
+    solid::keep_people_out(s);
 }
 
 /// One draw from the distribution (before overrides).
@@ -193,9 +195,11 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
     let mut moving = ChaCha8Rng::seed_from_u64(rng.random::<u64>() ^ 0x6d6f_7669_6e67);
     if moving.random_bool(people.clamp(0.0, 1.0)) {
         let count = moving.random_range(1..=2);
+        let at_rest = s.obstacles.clone();
         s.obstacles
-            .extend((0..count).map(|_| moving_obstacle(&mut moving, &way)));
+            .extend((0..count).map(|_| moving_obstacle(&mut moving, &way, &at_rest)));
         s.perception.noise_std = if moving.random_bool(0.5) { 0.02 } else { 0.0 };
+        solid::keep_people_out(&mut s);
     }
     s
 }
@@ -228,9 +232,9 @@ impl Way {
     }
 }
 
-/// A person on the way (module docs): crossing it, coming along it, or stepping into it and
-/// standing.
-fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way) -> Obstacle {
+/// A person on the way (module docs): crossing it, coming along it, or stepping into it
+/// (as far as the obstacles `at_rest` let them, [`solid::room_m`]) and standing.
+fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way, at_rest: &[Obstacle]) -> Obstacle {
     let radius = rng.random_range(0.2..0.4);
     let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
     match rng.random_range(0..3) {
@@ -258,7 +262,15 @@ fn moving_obstacle(rng: &mut ChaCha8Rng, way: &Way) -> Obstacle {
             let aside = side * rng.random_range(1.5..3.0);
             let leaves_s = rng.random_range(1.0..6.0);
             let speed = rng.random_range(0.5..1.2);
-            let path = step_in(aside.abs(), speed, leaves_s)
+            let from = way.at(along, aside);
+            let towards = way.normal.map(|n| -side * n);
+            let room = solid::room_m(from, towards, radius, at_rest).min(aside.abs());
+            if room < STEP_IN_LEAST_M {
+                // Never moving, an obstacle at rest like any other (in the map unless a
+                // lidar world draws it out of it).
+                return walking(radius, vec![[0.0, from[0], from[1]]]);
+            }
+            let path = step_in(room, speed, leaves_s)
                 .map(|(t, d)| {
                     let [x, y] = way.at(along, side * (aside.abs() - d));
                     [t, x, y]
@@ -280,6 +292,9 @@ fn walking(radius: f64, path: Vec<[f64; 3]>) -> Obstacle {
         known: None,
     }
 }
+
+/// A person with less room than this to step into the way stands where they are, m.
+const STEP_IN_LEAST_M: f64 = 0.1;
 
 /// Acceleration of a person stepping into the way, m/s^2: within the tracker's default
 /// bound (`perception.accel_max`), the assumption of passive safety (docs/safety.md).
@@ -615,26 +630,41 @@ mod tests {
         };
         let (mut unmapped, mut small, mut with_occluder) = (0, 0, 0);
         for i in 0..200 {
-            let mut seen = world(5, i, lidar, &[]).unwrap().scenario.into_inner();
+            let seen = world(5, i, lidar, &[]).unwrap().scenario.into_inner();
             let mut plain = world(5, i, Draws::default(), &[])
                 .unwrap()
                 .scenario
                 .into_inner();
             assert_eq!(seen.lidar, Some(protocol::LidarConfig::default()));
-            // Then the occluder and its person, in some worlds.
-            let drawn = plain.obstacles.len();
-            let occluded = &seen.obstacles[drawn..];
-            assert!(occluded.is_empty() || occluded.len() == 2, "{occluded:?}");
-            if let [pillar, person] = occluded {
-                assert!(pillar.known.is_none() && !pillar.moves() && person.moves());
-                with_occluder += 1;
-            }
-            seen.obstacles.truncate(drawn);
-            for (a, b) in seen.obstacles.iter().zip(&mut plain.obstacles) {
+            // The obstacles at rest first, as drawn, some unmapped.
+            let at_rest = plain.obstacles.iter().filter(|o| !o.moves()).count();
+            for (a, b) in seen
+                .obstacles
+                .iter()
+                .zip(&mut plain.obstacles)
+                .take(at_rest)
+            {
                 assert!(a.known.is_none() || (a.radius <= BOX_RADIUS_M && !a.moves()));
                 small += usize::from(a.radius <= BOX_RADIUS_M && !a.moves());
                 unmapped += usize::from(a.known == Some(false));
                 b.known = a.known;
+            }
+            // Then the people, and in some worlds the occluder and its person after them:
+            // the same world, its people kept out of the pillar too.
+            let occluder = seen.obstacles.iter().skip(at_rest).position(|o| !o.moves());
+            if let Some(k) = occluder {
+                let occluded = &seen.obstacles[at_rest + k..];
+                assert!(occluded.len() <= 2, "{occluded:?}");
+                assert!(occluded[0].known.is_none() && occluded.iter().skip(1).all(|o| o.moves()));
+                plain.obstacles.extend_from_slice(occluded);
+                solid::keep_people_out(&mut plain);
+                for o in &mut plain.obstacles {
+                    // As a world's file has them: a path's obstacle where its path starts.
+                    if let Some(&[_, x, y]) = o.path.first() {
+                        (o.x, o.y) = (x, y);
+                    }
+                }
+                with_occluder += 1;
             }
             plain.lidar = seen.lidar.clone();
             assert_eq!(seen, plain, "world {i} is the same world");

@@ -15,14 +15,17 @@ pub const OCCLUDED: f64 = 0.5;
 pub const PILLAR_RADIUS_M: std::ops::Range<f64> = 0.5..1.0;
 pub const PERSON_RADIUS_M: std::ops::Range<f64> = 0.2..0.35;
 
-/// Between the pillar and the person behind it, along the way, m.
+/// Between the pillar and the person stepping out past it, m.
 pub const BEHIND_M: f64 = 0.1;
 
 /// With probability [`OCCLUDED`]: a pillar at 30–70 % of the way, its edge 0.3–1 m (and
-/// the robot's radius `footprint_m`) to either side of it, and a person just behind it
-/// ([`BEHIND_M`] from its edge) as seen from where a robot at 0.4–1.2 m/s on the way would
-/// be when they leave, so hidden then. They leave so as to reach the way about when that
-/// robot reaches the pillar, step out across the way to 1 m past it, speeding up and
+/// the robot's radius `footprint_m`) to either side of it, and a person behind it, on the
+/// line through its centre from where a robot at 0.4–1.2 m/s on the way would be when
+/// they leave, so hidden then, and far enough along the way to step out past the pillar
+/// with [`BEHIND_M`] to spare (a person does not walk through a pillar: [`super::solid`]).
+/// They leave so as to reach the way about when that robot reaches the pillar (their
+/// place and their leaving found together, in two rounds), step out across the way to
+/// 1 m past it, speeding up and
 /// slowing down at [`STEP_IN_ACCEL`] (the tracker's bound, whether they are seen or not)
 /// to at most 0.8–1.5 m/s, and stand there. None when the pillar would be within 0.3 m of
 /// the start or the goal, or the person beyond the goal.
@@ -46,15 +49,19 @@ pub(super) fn pillar_and_person(
     if !(clear(way.start) && clear(way.at(way.span, 0.0))) {
         return None;
     }
-    let to_the_way_s = aside / speed + speed / (2.0 * STEP_IN_ACCEL);
-    let leaves_s = (along / robot_speed - to_the_way_s).max(0.5);
-    // Behind the pillar on the line from where the robot is then (short of the pillar).
-    let seen_from = (robot_speed * leaves_s)
-        .min(along - pillar_radius - 0.5)
-        .max(0.0);
-    let (run, rise) = (along - seen_from, aside);
-    let reach = (pillar_radius + BEHIND_M + radius) / run.hypot(rise);
-    let (behind, person_aside) = (along + run * reach, aside + rise * reach);
+    let to_the_way_s = |aside: f64| aside / speed + speed / (2.0 * STEP_IN_ACCEL);
+    let (mut leaves_s, mut behind, mut person_aside) = (0.0, along, aside);
+    for _ in 0..2 {
+        leaves_s = (along / robot_speed - to_the_way_s(person_aside)).max(0.5);
+        // Behind the pillar on the line from where the robot is then (short of the
+        // pillar), past it along the way by the two radii and `BEHIND_M`.
+        let seen_from = (robot_speed * leaves_s)
+            .min(along - pillar_radius - 0.5)
+            .max(0.0);
+        let (run, rise) = (along - seen_from, aside);
+        let past = (pillar_radius + BEHIND_M + radius) / run;
+        (behind, person_aside) = (along + run * past, aside + rise * past);
+    }
     if behind > way.span - 0.5 {
         return None;
     }
@@ -91,12 +98,16 @@ mod tests {
             assert!(PILLAR_RADIUS_M.contains(&pillar.radius));
             assert!(PERSON_RADIUS_M.contains(&person.radius));
             let (first, last) = (person.path[0], person.path[person.path.len() - 1]);
-            // Behind the pillar, [`BEHIND_M`] from its edge, as seen from a point of the
-            // way short of it: in its shadow from there (the person is the smaller).
-            let gap = distance([first[1], first[2]], [pillar.x, pillar.y])
-                - pillar.radius
-                - person.radius;
-            assert!((gap - BEHIND_M).abs() < 1e-9, "{gap}");
+            // Behind the pillar as seen from a point of the way short of it, on the line
+            // through its centre: in its shadow from there (the person is the smaller);
+            // past it along the way, so that the walk keeps `BEHIND_M` from it.
+            let past = first[1] - pillar.x - pillar.radius - person.radius;
+            assert!((past - BEHIND_M).abs() < 1e-9, "{past}");
+            for p in &person.path {
+                let gap =
+                    distance([p[1], p[2]], [pillar.x, pillar.y]) - pillar.radius - person.radius;
+                assert!(gap >= BEHIND_M - 1e-9, "{gap}");
+            }
             let slope = (first[1] - pillar.x) / (first[2] - pillar.y);
             let seen_from = pillar.x - slope * pillar.y;
             assert!((0.0..=pillar.x - pillar.radius - 0.5 + 1e-9).contains(&seen_from));
