@@ -24,10 +24,10 @@ pub struct TerminalBrake {
     /// How long the stop must stay out of a moving obstacle's way once the robot is at
     /// rest, s (`mpc.rest_lookahead_s`, [`crate::terminal::TerminalRows`]).
     pub rest_lookahead_s: f64,
-    /// Whether the rows sweep moving discs over the stop from the plan's own last speed:
-    /// two more variables, `tau >= |w_N|` and `sigma >= (Ts + tau / a)^2`, each with an
-    /// SOC(3) ([`crate::terminal`]). Only a scenario that tracks obstacles has discs that
-    /// move.
+    /// Whether the rows can sweep a moving disc over the plan's own stop (one that stands
+    /// still, a phantom, every disc of the escape plan; [`crate::terminal`]): two more
+    /// variables, `tau >= |w_N|` and `sigma >= (Ts + tau / a)^2`, each with an SOC(3).
+    /// Only a scenario that tracks obstacles has discs that move.
     pub sweeps: bool,
 }
 
@@ -65,8 +65,9 @@ impl TerminalBrake {
         ]
     }
 
-    /// Variables of the rows for `discs` discs: `tau` (ball), one `e` per disc (segment),
-    /// then with [`TerminalBrake::sweeps`] `sigma` (and `tau` for the segment form).
+    /// Variables of the rows for `discs` discs, in column order: ball `tau`, then `sigma`
+    /// with [`TerminalBrake::sweeps`]; segment one `e` per disc, then `tau` and `sigma`
+    /// with [`TerminalBrake::sweeps`].
     pub fn variables(&self, discs: usize) -> usize {
         let sweep = usize::from(self.sweeps);
         match (discs, self.form) {

@@ -111,7 +111,7 @@ impl Layout {
             .map_or(0, |t| t.nonnegative_rows(terminal_discs));
         let inequalities =
             4 * n + box_and_terminal + linear_barrier_rows + 2 * self.slacks(rows) + terminal_rows;
-        let mut cones = Vec::with_capacity(3 + cone_barriers + terminal_discs);
+        let mut cones = Vec::with_capacity(5 + cone_barriers + terminal_discs);
         if !self.condensed {
             cones.push(SupportedConeT::ZeroConeT(4 + 4 * n));
         }

@@ -15,7 +15,7 @@
 //! | 2 per obstacle and stage | nonneg | bounds of the decay slacks (relaxed programs, below) |
 //! | 0 or 2 per obstacle | nonneg | the terminal rows' linear part ([`crate::terminal`]) |
 //! | 4 per obstacle and stage | SOC(4) | CBF rows that are cones |
-//! | 5 per obstacle, or 3 and then 4 per obstacle | SOC | braking-safe terminal state: segment, or ball ([`crate::terminal`]) |
+//! | 3 (ball), then 3 more, then 5 (segment) or 4 (ball) per obstacle | SOC | braking-safe terminal state: the ball's `tau >= \|w_N\|`; with a tracker, `tau` (segment) and `sigma` of the sweep over the plan's own stop; one cone per disc ([`crate::terminal`]) |
 //!
 //! The CBF `H(p_{i+1}) >= (1 - gamma) H(p_i)` (eq. 54) is convexified by replacing
 //! `H(p_{i+1})` with its linearization `L` at a reference `p_bar` (`L <= H` everywhere, so

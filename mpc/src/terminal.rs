@@ -30,11 +30,13 @@
 //!
 //! A moving disc is swept over the robot's stop ([`TerminalRows::stop_discs`]). Over the
 //! plan's own stop (`d = Ts + |w_N| / a`: an obstacle that stands still, a phantom, the
-//! escape plan) its support `n'o + R` grows by `k d + alpha d^2` with `k, alpha >= 0`, so
-//! with two shared variables, `tau >= |w_N|` (an SOC(3); the ball's own) and
-//! `sigma >= (Ts + tau / a)^2` (an SOC(3): `(sigma + 1, sigma - 1, 2 (Ts + tau / a))`),
-//! `R` is affine in them and every row stays convex; a larger `tau` or `sigma` only asks
-//! more. Over the fastest stop (a walking obstacle in every other plan) it is data.
+//! escape plan) its support `n'o + R` grows by `k d + q d^2` with `k, q >= 0`, so with two
+//! shared variables, `tau >= |w_N|` (an SOC(3); the ball's own) and
+//! `sigma >= (Ts + tau / a)^2` (an SOC(3): `(sigma + 1, sigma - 1, 2 (Ts + tau / a))`;
+//! not the decay slacks `sigma_i`), the support is affine in them and every row stays
+//! convex; a larger `tau` or `sigma` only asks more. Over the fastest stop (a walking
+//! obstacle in every other plan) it is data, and the recursive feasibility below does not
+//! cover it (nor a track that starts or stops standing between two samples).
 //!
 //! # Recursive feasibility
 //!
@@ -195,9 +197,10 @@ impl StopDisc {
     }
 }
 
-/// The data of one disc's row: the normal, the support `n'o + R` of the disc over a stop
-/// of `Ts` (its radius lowered to the decay floor's), its growth per second of stop and
-/// per second squared, and the majorant of `alpha+ |w|` (module docs),
+/// The data of one disc's row: the normal, the support `n'o + R` of the disc over the
+/// shortest stop, `Ts`, or over the fastest one when it is not the plan's own (its radius
+/// lowered to the decay floor's), its growth per second of stop and per second squared
+/// (zero over the fastest stop), and the majorant of `alpha+ |w|` (module docs),
 /// `beta e + q (c e^2 + |w|^2 / c) / 2` with `q` 0 or 1 (segment form).
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct DiscRow {
@@ -246,6 +249,9 @@ impl TerminalRows<'_> {
         let hidden_s = self.phantoms_stand_s.min(self.horizon_s);
         let rest_s = self.model.rest_lookahead_s;
         let escape = self.prediction == Prediction::ConstantVelocity;
+        // Only a scenario that tracks obstacles has moving discs, and only it has the
+        // variables of the plan's own stop.
+        debug_assert!(self.model.sweeps || self.discs.iter().all(|d| !d.moves()));
         self.discs.iter().map(move |d| match d.motion.hidden {
             true => StopDisc::of(&d.at(hidden_s), 0.0, true),
             false => StopDisc::of(&d.at(self.horizon_s), rest_s, escape || d.motion.standing),
@@ -321,7 +327,7 @@ impl TerminalRows<'_> {
             true => (
                 stop.at(self.model.ts_s),
                 stop.support_rate(normal),
-                stop.accel,
+                stop.accel.max(0.0),
             ),
             false => (stop.at(self.stop_s(self.max_speed)), 0.0, 0.0),
         };
