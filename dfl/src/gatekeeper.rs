@@ -133,12 +133,10 @@ impl Gatekeeper {
                 advance(&mut p, &mut w, acc, duration);
             }
         }
-        let phantoms_stand_s = self.phantoms_stand_for_s(now);
+        let stand_s = self.stand_for_s(now);
         for disc in self.moving_discs(start, now, grow) {
-            if disc.motion.hidden {
-                let phantom =
-                    self.phantom_verdict(&disc, stages(), start, velocity, phantoms_stand_s);
-                found.add(phantom);
+            if disc.motion.held_when_refreshed() {
+                found.add(self.held_verdict(&disc, stages(), start, velocity, stand_s));
                 continue;
             }
             let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
@@ -176,8 +174,9 @@ impl Gatekeeper {
         }
         for disc in self.moving_discs(p, now, grow) {
             let mut verdict = self.moving_brake_verdict(p, w, &disc, 0.0);
-            if disc.motion.hidden {
-                // At rest, a phantom touches the robot only by walking into it.
+            if disc.motion.held_when_refreshed() {
+                // At rest, a phantom or an obstacle that stands still touches the robot
+                // only by walking into it.
                 verdict.resting = None;
             }
             found.add(verdict);
@@ -186,16 +185,17 @@ impl Gatekeeper {
     }
 
     /// The check of a trajectory from `start` with `velocity`, flown over `stages`
-    /// (acceleration, duration), against a phantom's `disc` whose phantoms stand for
-    /// `stand_s` from now (docs/safety.md, "What the lidar cannot see"). Until then
-    /// something may have come out of the shadow unseen: every stage keeps clear of the
-    /// disc as it grows. Then it is seen: the stop from where the robot is then (from the
-    /// plan's end, if sooner) must end before the growing disc reaches the robot, and the
-    /// later stages keep clear of the disc held as it is now (the next scan's phantoms
-    /// judge them), as the MPC's CBF rows do ([`Disc::staged`]). Only contacts while the
-    /// robot moves count: a robot at rest is touched by a phantom only if something walks
-    /// into it.
-    fn phantom_verdict(
+    /// (acceleration, duration), against a phantom's or a standing track's `disc`
+    /// ([`protocol::DiscMotion::held_when_refreshed`]) that stands for `stand_s` from now
+    /// (docs/safety.md, "What the lidar cannot see"). Until then something may have come
+    /// out of the shadow, or set off, unseen: every stage keeps clear of the disc as it
+    /// grows. Then it is seen: the stop from where the robot is then (from the plan's end,
+    /// if sooner) must end before the growing disc reaches the robot, and the later
+    /// stages keep clear of the disc held as it is now (the next tracks judge them), as
+    /// the MPC's CBF rows do ([`Disc::staged`]). Only contacts while the robot moves
+    /// count: a robot at rest is touched by a phantom, or by an obstacle that stands
+    /// still, only if something walks into it.
+    fn held_verdict(
         &self,
         disc: &Disc,
         stages: impl Iterator<Item = ([f64; 2], f64)>,
@@ -230,12 +230,13 @@ impl Gatekeeper {
         }
     }
 
-    /// How long from `now` the phantoms kept stand, s ([`KeptTracks::phantoms_stand_for_s`]).
-    fn phantoms_stand_for_s(&self, now: Moment) -> f64 {
+    /// How long from `now` the phantoms and standing tracks kept stand, s
+    /// ([`KeptTracks::stand_for_s`]).
+    fn stand_for_s(&self, now: Moment) -> f64 {
         let now_s = now.sample as f64 * self.ts_s + now.into_sample_s;
         self.tracks
             .as_ref()
-            .map_or(0.0, |kept| kept.phantoms_stand_for_s(now_s))
+            .map_or(0.0, |kept| kept.stand_for_s(now_s))
     }
 
     /// The discs the tracks predict at `now`, grown by the fixed part and `grow` (m), as
@@ -776,6 +777,49 @@ mod tests {
         let slow_lidar = seeing_a_phantom([0.0, 1.0], 0.0, 1.0);
         let late = coasting(&slow_lidar, 1.0);
         assert!(late.moving.is_some(), "{late:?}");
+    }
+
+    #[test]
+    fn a_track_that_stands_still_may_be_crept_up_to_but_not_braked_at_late() {
+        // A box (0.3 m) seen standing still at (1, 0), on the robot's way along x, its
+        // velocity known to 0.1 m/s: until the next scan, 0.15 s on, it may set off at
+        // 0.5 m/s^2 from a velocity within 3 sigma; the next scan shows it if it does.
+        let sets = [
+            "lidar.rate_hz=10".to_string(),
+            "perception.phantoms=false".to_string(),
+        ];
+        let mut g = Gatekeeper::new(&Scenario::default().with_overrides(&sets).unwrap());
+        let mut tracks = crate::tests::one_track(0.0, [1.0, 0.0], [0.0; 2]);
+        tracks.tracks[0].covariance = [1e-4, 0.0, 1e-2, 1e-4, 0.0, 1e-2];
+        assert!(tracks.tracks[0].stands_still());
+        g.set_tracks(&tracks);
+        // Creeping at 0.1 m/s for a plan of 1 s, to 0.5 m from the box's centre: at rest
+        // before anything that set off could reach it.
+        let (x, speed, end_s) = (0.4, 0.1, 20.0 * g.ts_s);
+        let creeping = g.verdict(
+            &plan(0, 20, [0.0; 2]),
+            at(0, 0.0),
+            [x, speed, 0.0, 0.0],
+            0.0,
+        );
+        assert!(creeping.moving.is_none(), "{creeping:?}");
+        // Grown over the whole plan, as a walking track's is, the disc would have met the
+        // robot while it still moves, at the plan's end.
+        let grown = g
+            .moving_discs([x, 0.0], at(0, 0.0), 0.0)
+            .next()
+            .unwrap()
+            .at(end_s);
+        assert!(1.0 - grown.radius < x + speed * end_s, "{grown:?}");
+        // Braking from 3 m/s at 3 m/s^2 to rest at the same place: what set off could
+        // reach the robot before it is at rest.
+        let braking = g.verdict(
+            &plan(0, 20, [-3.0, 0.0]),
+            at(0, 0.0),
+            [-1.0, 3.0, 0.0, 0.0],
+            0.0,
+        );
+        assert!(braking.moving.is_some(), "{braking:?}");
     }
 
     #[test]

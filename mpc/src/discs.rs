@@ -139,10 +139,10 @@ impl World {
         }
     }
 
-    /// How long from `t_s` the phantoms kept stand, s
-    /// ([`KeptTracks::phantoms_stand_for_s`]).
-    pub fn phantoms_stand_for_s(&self, t_s: f64) -> f64 {
-        self.tracks.phantoms_stand_for_s(t_s)
+    /// How long from `t_s` the phantoms and standing tracks kept stand, s
+    /// ([`KeptTracks::stand_for_s`]).
+    pub fn stand_for_s(&self, t_s: f64) -> f64 {
+        self.tracks.stand_for_s(t_s)
     }
 
     /// Whether any track is kept (the step's discs move).

@@ -82,9 +82,9 @@ pub struct LinearMpc {
     /// How the tracked obstacles among `discs` are predicted: bounded, or at their
     /// velocity in the escape program ([`Prediction`]).
     prediction: Prediction,
-    /// How long from the step's time the phantoms among `discs` stand, s
-    /// ([`protocol::KeptTracks::phantoms_stand_for_s`]).
-    phantoms_stand_s: f64,
+    /// How long from the step's time the phantoms and standing tracks among `discs`
+    /// stand, s ([`protocol::KeptTracks::stand_for_s`]).
+    stand_s: f64,
     /// Those of a solve's program: discs whose rows the input box does not imply and
     /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
     /// with all their rows, the others with their terminal rows only.
@@ -188,7 +188,7 @@ impl LinearMpc {
             // Every track's disc before the nearest are kept (`World::discs`).
             discs: Vec::with_capacity(scenario.max_obstacle_discs() + protocol::MAX_TRACKS),
             prediction: Prediction::Bounded,
-            phantoms_stand_s: 0.0,
+            stand_s: 0.0,
             kept: Vec::with_capacity(scenario.max_obstacle_discs()),
             kept_whole: 0,
             deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
@@ -404,7 +404,7 @@ impl LinearMpc {
             uncertainty_sigmas: self.growth.uncertainty_sigmas,
         };
         let t_s = sample as f64 * self.ts_s;
-        self.phantoms_stand_s = self.world.phantoms_stand_for_s(t_s);
+        self.stand_s = self.world.stand_for_s(t_s);
         self.prediction = Prediction::Bounded;
         self.world.discs(
             growth,
@@ -678,7 +678,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
-            phantoms_stand_s: self.phantoms_stand_s,
+            stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
         }
@@ -699,7 +699,7 @@ impl LinearMpc {
             reference: &self.reference,
             reference_velocity: self.reference_velocity,
             max_terminal_speed: self.reach.max_terminal_speed(),
-            phantoms_stand_s: self.phantoms_stand_s,
+            stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
         };

@@ -397,7 +397,7 @@ impl NonlinearMpc {
             // The baseline knows obstacles at rest only (the validator refuses it with a
             // tracked one): every stage's disc is the same.
             stage_s: 0.0,
-            phantoms_stand_s: 0.0,
+            stand_s: 0.0,
             reference: &self.reference,
             p0: [s0[0], s0[1]],
             decay_slacks: None,

@@ -202,9 +202,9 @@ pub struct StepData<'a> {
     /// The largest `|w_N|` any input sequence in the box reaches from `z0`
     /// ([`PositionReach::max_terminal_speed`]), m/s.
     pub max_terminal_speed: f64,
-    /// How long from the step's time the phantoms stand, s
-    /// ([`TerminalRows::phantoms_stand_s`]).
-    pub phantoms_stand_s: f64,
+    /// How long from the step's time the phantoms and standing tracks stand, s
+    /// ([`TerminalRows::stand_s`]).
+    pub stand_s: f64,
     /// How the tracks among `discs` are predicted ([`TerminalRows::prediction`]).
     pub prediction: crate::discs::Prediction,
     /// Time between two stages, s: a moving disc is taken at each stage's time
@@ -227,7 +227,7 @@ impl<'a> StepData<'a> {
             gamma: s.gamma,
             discs: &self.discs[..rows.discs],
             stage_s: self.stage_s,
-            phantoms_stand_s: self.phantoms_stand_s,
+            stand_s: self.stand_s,
             reference: self.reference,
             p0: [self.z0[0], self.z0[2]],
             decay_slacks: (l.slacks(rows) > 0).then(|| l.decay_slack(0, 0)),
@@ -250,7 +250,7 @@ impl<'a> StepData<'a> {
                         (1.0 - s.gamma).powi(n as i32)
                     },
                     horizon_s: n as f64 * self.stage_s,
-                    phantoms_stand_s: self.phantoms_stand_s,
+                    stand_s: self.stand_s,
                     prediction: self.prediction,
                 }
             }),
@@ -398,8 +398,9 @@ pub struct Barrier<'a> {
     pub discs: &'a [Disc],
     /// Time between two stages, s.
     pub stage_s: f64,
-    /// How long from the step's time the phantoms stand, s ([`Disc::staged`]).
-    pub phantoms_stand_s: f64,
+    /// How long from the step's time the phantoms and standing tracks stand, s
+    /// ([`Disc::staged`]).
+    pub stand_s: f64,
     /// Linearization points of the positions of stages `1..=N` (index 0 unused).
     pub reference: &'a [[f64; 2]],
     /// Position of stage 0 (data).
@@ -413,10 +414,11 @@ pub struct Barrier<'a> {
 
 impl Barrier<'_> {
     /// `disc` at stage `i`'s time: a moving obstacle's predicted disc (eq. 54 with `H`
-    /// of the disc at each stage), a disc at rest itself, a phantom's as it grows while
-    /// its phantoms stand and held after ([`Disc::staged`]).
+    /// of the disc at each stage), a disc at rest itself, a phantom's or a standing
+    /// track's as it grows until the next tracks are due and held after
+    /// ([`Disc::staged`]).
     fn at(&self, disc: &Disc, i: usize) -> Disc {
-        disc.staged(i as f64 * self.stage_s, self.phantoms_stand_s)
+        disc.staged(i as f64 * self.stage_s, self.stand_s)
     }
 
     /// Stage 0's row `(1 - gamma) H_0(p_0) <= L_1(p_1)` (`p_0` being data) as

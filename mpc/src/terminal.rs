@@ -130,10 +130,10 @@ pub struct TerminalRows<'a> {
     /// Time of stage `N` after the discs' time, s: a moving disc is taken there
     /// ([`TerminalRows::stop_discs`]).
     pub horizon_s: f64,
-    /// How long after the discs' time the phantoms stand, s
-    /// ([`protocol::KeptTracks::phantoms_stand_for_s`]): a phantom's disc is taken then
-    /// (or at stage `N`, if sooner).
-    pub phantoms_stand_s: f64,
+    /// How long after the discs' time the phantoms and the tracks that stand still stand,
+    /// s ([`protocol::KeptTracks::stand_for_s`]): their discs are taken then (or at stage
+    /// `N`, if sooner).
+    pub stand_s: f64,
     /// How the tracks are predicted: bounded, a walking obstacle's disc is swept over the
     /// fastest stop ([`TerminalRows::stop_discs`]); at constant velocity (the escape
     /// plan), over the plan's own.
@@ -239,22 +239,30 @@ impl TerminalRows<'_> {
     /// "The stop and the person's way"). Swept over the fastest stop, a box the lidar sees
     /// held a robot 4 m off, and it circled the box until its time ran out.
     ///
-    /// A phantom's disc (`motion.hidden`) is taken when the phantoms stop standing
-    /// (`phantoms_stand_s`: what comes out of a shadow before then is seen by then), or at
-    /// stage `N` if sooner, and swept over the stop alone: nothing comes at the robot from
-    /// it, so the robot need only be at rest before where something hidden could be by
-    /// then reaches it. This is a heuristic of the DFL's exact check, which brakes from
-    /// where the robot is at `phantoms_stand_s`: the rows stay at stage `N`.
+    /// A phantom's disc (`motion.hidden`) and a standing track's are taken when the next
+    /// tracks are due (`stand_s`: what comes out of a shadow, or sets off, before then is
+    /// seen by then), or at stage `N` if sooner; a phantom's is swept over the stop alone
+    /// (nothing comes at the robot from it), a standing track's is carried on as any
+    /// track's. So the robot need only be at rest before where the obstacle could be by
+    /// then reaches it: grown over the whole horizon, a box the lidar sees within about
+    /// 0.7 m of the goal kept the robot turning on the spot short of it (docs/safety.md).
+    /// This is a heuristic of the DFL's exact check, which brakes from where the robot is
+    /// at `stand_s`: the rows stay at stage `N`.
     fn stop_discs(&self) -> impl Iterator<Item = StopDisc> + '_ {
-        let hidden_s = self.phantoms_stand_s.min(self.horizon_s);
+        let held_s = self.stand_s.min(self.horizon_s);
         let rest_s = self.model.rest_lookahead_s;
         let escape = self.prediction == Prediction::ConstantVelocity;
         // Only a scenario that tracks obstacles has moving discs, and only it has the
         // variables of the plan's own stop.
         debug_assert!(self.model.sweeps || self.discs.iter().all(|d| !d.moves()));
-        self.discs.iter().map(move |d| match d.motion.hidden {
-            true => StopDisc::of(&d.at(hidden_s), 0.0, true),
-            false => StopDisc::of(&d.at(self.horizon_s), rest_s, escape || d.motion.standing),
+        self.discs.iter().map(move |d| {
+            if d.motion.hidden {
+                StopDisc::of(&d.at(held_s), 0.0, true)
+            } else if d.motion.standing {
+                StopDisc::of(&d.at(held_s), rest_s, true)
+            } else {
+                StopDisc::of(&d.at(self.horizon_s), rest_s, escape)
+            }
         })
     }
 
@@ -520,14 +528,17 @@ mod tests {
     }
 
     #[test]
-    fn a_disc_is_swept_over_the_plans_own_stop_if_it_stands_still_or_escaping_else_the_fastest() {
+    fn a_disc_is_swept_over_the_plans_own_stop_if_it_stands_still_or_escaping_else_the_fastest_and_a_standing_one_from_the_next_tracks()
+     {
         let (a, ts, max_speed) = (2.0, 0.1, 5.0);
+        // (prediction, standing, own stop, the disc's time taken: stage N's, 1 s, or the
+        // next tracks', 0.2 s).
         let cases = [
-            (Prediction::ConstantVelocity, false, true),
-            (Prediction::Bounded, true, true),
-            (Prediction::Bounded, false, false),
+            (Prediction::ConstantVelocity, false, true, 1.0),
+            (Prediction::Bounded, true, true, 0.2),
+            (Prediction::Bounded, false, false, 1.0),
         ];
-        for (prediction, standing, own_stop) in cases {
+        for (prediction, standing, own_stop, taken_s) in cases {
             let mut person = person();
             person.motion.standing = standing;
             let discs = [person];
@@ -549,7 +560,7 @@ mod tests {
                     max_speed,
                     floor_share: 0.0,
                     horizon_s: 1.0,
-                    phantoms_stand_s: 0.2,
+                    stand_s: 0.2,
                     prediction,
                 };
                 let mut asm = Assembly::default();
@@ -576,13 +587,16 @@ mod tests {
                     let (s3, s4, s5) = (slack(3), slack(4), slack(5));
                     assert!((s5 - 2.0 * own_stop_s).abs() < 1e-12);
                     assert!((s3 * s3 - s4 * s4 - s5 * s5).abs() < 1e-9);
-                    // The disc at stage N swept over the stop and carried on for the rest
-                    // lookahead.
+                    // The disc at stage N (or when the next tracks are due) swept over the
+                    // stop and carried on for the rest lookahead.
                     let stop_s = match own_stop {
                         true => own_stop_s,
                         false => ts + max_speed / a,
                     };
-                    let swept = person.at(1.0).swept(stop_s).carried_on([0.2, -0.5], 0.5);
+                    let swept = person
+                        .at(taken_s)
+                        .swept(stop_s)
+                        .carried_on([0.2, -0.5], 0.5);
                     let row = rows.disc_row(&rows.stop_discs().next().unwrap());
                     let n = row.normal;
                     let support = n[0] * swept.center[0] + n[1] * swept.center[1] + swept.radius;

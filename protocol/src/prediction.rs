@@ -18,8 +18,8 @@ pub struct KeptTracks {
     /// Whether the tracks are the lidar's: each message holds every track the tracker
     /// has (an obstacle it lost is gone), so it replaces all kept.
     whole: bool,
-    /// How long after its scan a phantom stands, s ([`phantom_refresh_s`]).
-    phantom_refresh_s: f64,
+    /// How long after their time the tracks stand, s ([`tracks_refresh_s`]).
+    tracks_refresh_s: f64,
 }
 
 impl KeptTracks {
@@ -31,7 +31,7 @@ impl KeptTracks {
             accel_max: scenario.perception.accel_max,
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
-            phantom_refresh_s: phantom_refresh_s(scenario),
+            tracks_refresh_s: tracks_refresh_s(scenario),
         }
     }
 
@@ -74,17 +74,18 @@ impl KeptTracks {
         &self.tracks
     }
 
-    /// How long from `t_s` (absolute) the phantoms kept stand for what the lidar cannot
-    /// see, s: until the next scan's replace them ([`phantom_refresh_s`] after
-    /// their time); 0 when those are overdue or there is no phantom. A plan's stop from
-    /// then on must end before anything hidden could reach it.
-    pub fn phantoms_stand_for_s(&self, t_s: f64) -> f64 {
+    /// How long from `t_s` (absolute) the phantoms and the tracks that stand still kept
+    /// stand for what they predict, s: until the next tracks replace them
+    /// ([`tracks_refresh_s`] after their time; the soonest of them); 0 when those are
+    /// overdue or there is none. A plan's stop from then on must end before anything
+    /// hidden, or standing, could reach it ([`crate::DiscMotion::held_when_refreshed`]).
+    pub fn stand_for_s(&self, t_s: f64) -> f64 {
         self.tracks
             .iter()
-            .find(|(track, _)| track.is_phantom())
-            .map_or(0.0, |(_, time_s)| {
-                (time_s + self.phantom_refresh_s - t_s).max(0.0)
-            })
+            .filter(|(track, _)| track.is_phantom() || track.stands_still())
+            .map(|(_, time_s)| (time_s + self.tracks_refresh_s - t_s).max(0.0))
+            .reduce(f64::min)
+            .unwrap_or(0.0)
     }
 
     /// `perception.accel_max`, m/s^2.
@@ -118,13 +119,17 @@ impl KeptTracks {
     }
 }
 
-/// How long after its scan a phantom stands for what the lidar cannot see, s: until the
-/// next scan's phantoms replace it, a scan period (`1 / lidar.rate_hz`, the perception
-/// ticks') and a sample (the MPC and the DFL take tracks at sample starts). Something that
-/// comes out of a shadow now is seen by then, so the robot's stop need only be clear of
-/// where it could be from there on (docs/safety.md).
-pub fn phantom_refresh_s(scenario: &Scenario) -> f64 {
-    let period = scenario.lidar.as_ref().map_or(0.0, |l| 1.0 / l.rate_hz);
+/// How long after their time tracks stand for what they predict, s: until the next
+/// tracks replace them, a perception period (`1 / lidar.rate_hz` with a lidar, else the
+/// perception ticks') and a sample (the MPC and the DFL take tracks at sample starts).
+/// Something that comes out of a shadow now, or an obstacle standing still that sets off
+/// now, is seen by then, so the robot's stop need only be clear of where it could be
+/// from there on (docs/safety.md).
+pub fn tracks_refresh_s(scenario: &Scenario) -> f64 {
+    let period = match &scenario.lidar {
+        Some(lidar) => 1.0 / lidar.rate_hz,
+        None => scenario.perception_ticks() as f64 * scenario.timing.dt_s(),
+    };
     period + scenario.timing.ts_s
 }
 
@@ -249,12 +254,50 @@ mod tests {
         assert_eq!(person.staged(1.0, 0.15), person.at(1.0));
         // It stands a scan period and a sample after its scan's tracks.
         let mut kept = KeptTracks::of(&scenario);
-        assert_eq!(kept.phantoms_stand_for_s(0.0), 0.0, "no phantom");
+        assert_eq!(kept.stand_for_s(0.0), 0.0, "no phantom");
         kept.take(&tracks(2.0, &[track(0, 0.01), phantom]));
         let refresh = 0.1 + scenario.timing.ts_s;
-        assert!((kept.phantoms_stand_for_s(2.0) - refresh).abs() < 1e-12);
-        assert!((kept.phantoms_stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
-        assert_eq!(kept.phantoms_stand_for_s(3.0), 0.0, "overdue");
+        assert!((kept.stand_for_s(2.0) - refresh).abs() < 1e-12);
+        assert!((kept.stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
+        assert_eq!(kept.stand_for_s(3.0), 0.0, "overdue");
+    }
+
+    #[test]
+    fn a_track_that_stands_still_grows_until_the_next_tracks_and_is_held_after() {
+        let scenario = Scenario::default()
+            .with_overrides(&["perception.period_s=0.2".into(), "timing.ts_s=0.05".into()])
+            .unwrap();
+        let standing = Track {
+            velocity: [0.05, 0.0],
+            ..track(0, 1e-4)
+        };
+        assert!(standing.stands_still() && !track(1, 1e-4).stands_still());
+        let disc = predicted_disc(&standing, 0.0, 0.1, 3.0, 0.5);
+        assert!(disc.motion.standing && disc.motion.held_when_refreshed());
+        // It grows and drifts as any track's until the next tracks are due, where it is
+        // after (the next tracks take over).
+        assert_eq!(disc.staged(0.1, 0.25), disc.at(0.1));
+        assert!(disc.at(0.1).radius > disc.radius);
+        assert_eq!(
+            disc.staged(1.0, 0.25),
+            Disc::still(disc.center, disc.radius)
+        );
+        // Without a lidar the next tracks are a perception period and a sample away; the
+        // soonest of the held tracks sets how long they stand; a walking one holds none.
+        let refresh = 0.2 + 0.05;
+        assert!((tracks_refresh_s(&scenario) - refresh).abs() < 1e-12);
+        let mut kept = KeptTracks::of(&scenario);
+        kept.take(&tracks(2.0, &[track(1, 1e-4)]));
+        assert_eq!(kept.stand_for_s(2.0), 0.0, "a walking track only");
+        kept.take(&tracks(2.0, &[standing]));
+        kept.take(&tracks(
+            2.1,
+            &[Track {
+                obstacle: 2,
+                ..standing
+            }],
+        ));
+        assert!((kept.stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
     }
 
     #[test]

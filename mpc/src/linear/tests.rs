@@ -97,7 +97,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         reference: &reference,
         reference_velocity: [0.0; 2],
         max_terminal_speed: 0.0,
-        phantoms_stand_s: 0.0,
+        stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
     };
@@ -461,7 +461,7 @@ fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
         reference: &mpc.reference,
         reference_velocity: mpc.reference_velocity,
         max_terminal_speed: mpc.reach.max_terminal_speed(),
-        phantoms_stand_s: 0.0,
+        stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
     };

@@ -28,7 +28,7 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             reference: &mpc.reference,
             reference_velocity: mpc.reference_velocity,
             max_terminal_speed: 0.0,
-            phantoms_stand_s: 0.0,
+            stand_s: 0.0,
             prediction: crate::discs::Prediction::Bounded,
             stage_s: 0.05,
         };
@@ -99,7 +99,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
-                phantoms_stand_s: 0.0,
+                stand_s: 0.0,
                 prediction: crate::discs::Prediction::Bounded,
                 stage_s: 0.05,
             };

@@ -137,7 +137,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
                 reference: &mpc.reference,
                 reference_velocity: mpc.reference_velocity,
                 max_terminal_speed: mpc.reach.max_terminal_speed(),
-                phantoms_stand_s: 0.0,
+                stand_s: 0.0,
                 prediction: crate::discs::Prediction::Bounded,
                 stage_s: 0.05,
             };
