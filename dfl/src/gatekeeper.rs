@@ -135,7 +135,7 @@ impl Gatekeeper {
         }
         let stand_s = self.stand_for_s(now);
         for disc in self.moving_discs(start, now, grow) {
-            if disc.motion.held_when_refreshed() {
+            if disc.motion.held {
                 found.add(self.held_verdict(&disc, stages(), start, velocity, stand_s));
                 continue;
             }
@@ -174,7 +174,7 @@ impl Gatekeeper {
         }
         for disc in self.moving_discs(p, now, grow) {
             let mut verdict = self.moving_brake_verdict(p, w, &disc, 0.0);
-            if disc.motion.held_when_refreshed() {
+            if disc.motion.held {
                 // At rest, a phantom or an obstacle that stands still touches the robot
                 // only by walking into it.
                 verdict.resting = None;
@@ -186,7 +186,7 @@ impl Gatekeeper {
 
     /// The check of a trajectory from `start` with `velocity`, flown over `stages`
     /// (acceleration, duration), against a phantom's or a standing track's `disc`
-    /// ([`protocol::DiscMotion::held_when_refreshed`]) that stands for `stand_s` from now
+    /// ([`protocol::DiscMotion::held`]) that stands for `stand_s` from now
     /// (docs/safety.md, "What the lidar cannot see"). Until then something may have come
     /// out of the shadow, or set off, unseen: every stage keeps clear of the disc as it
     /// grows. Then it is seen: the stop from where the robot is then (from the plan's end,
@@ -676,6 +676,7 @@ mod tests {
                     radius_accel: 0.25 * next().abs(),
                     hidden: false,
                     standing: false,
+                    held: false,
                 },
             };
             let found = moving_arc_clearance(p, w, acc, duration, &disc);
@@ -780,10 +781,10 @@ mod tests {
     }
 
     #[test]
-    fn a_track_that_stands_still_may_be_crept_up_to_but_not_braked_at_late() {
-        // A box (0.3 m) seen standing still at (1, 0), on the robot's way along x, its
-        // velocity known to 0.1 m/s: until the next scan, 0.15 s on, it may set off at
-        // 0.5 m/s^2 from a velocity within 3 sigma; the next scan shows it if it does.
+    fn a_track_that_stands_still_may_be_crept_up_to_but_not_braked_at_late_nor_once_overdue() {
+        // A box (0.3 m) seen standing still at (1, 0) at t = 0, on the robot's way along
+        // x, its velocity known to 0.1 m/s: until the next scan, 0.15 s on, it may set off
+        // at 0.5 m/s^2 from a velocity within 3 sigma; the next scan shows it if it does.
         let sets = [
             "lidar.rate_hz=10".to_string(),
             "perception.phantoms=false".to_string(),
@@ -793,16 +794,25 @@ mod tests {
         tracks.tracks[0].covariance = [1e-4, 0.0, 1e-2, 1e-4, 0.0, 1e-2];
         assert!(tracks.tracks[0].stands_still());
         g.set_tracks(&tracks);
-        // Creeping at 0.1 m/s for a plan of 1 s, to 0.5 m from the box's centre: at rest
-        // before anything that set off could reach it.
+        // Creeping at 0.1 m/s for a plan of 1 s, to 0.5 m from the box's centre, checked
+        // at the track's time and 0.07 s after it: at rest before anything that set off
+        // could reach it.
         let (x, speed, end_s) = (0.4, 0.1, 20.0 * g.ts_s);
-        let creeping = g.verdict(
-            &plan(0, 20, [0.0; 2]),
-            at(0, 0.0),
-            [x, speed, 0.0, 0.0],
-            0.0,
-        );
-        assert!(creeping.moving.is_none(), "{creeping:?}");
+        let creeping = |now: Moment| {
+            g.verdict(
+                &plan(now.sample, 20, [0.0; 2]),
+                now,
+                [x, speed, 0.0, 0.0],
+                0.0,
+            )
+        };
+        for now in [at(0, 0.0), at(1, 0.02)] {
+            assert!(
+                creeping(now).moving.is_none(),
+                "{now:?}: {:?}",
+                creeping(now)
+            );
+        }
         // Grown over the whole plan, as a walking track's is, the disc would have met the
         // robot while it still moves, at the plan's end.
         let grown = g
@@ -811,6 +821,10 @@ mod tests {
             .unwrap()
             .at(end_s);
         assert!(1.0 - grown.radius < x + speed * end_s, "{grown:?}");
+        // So it is once the track is overdue (0.2 s old, no next scan came): nothing shows
+        // whether it set off.
+        let overdue = creeping(at(4, 0.0));
+        assert!(overdue.moving.is_some(), "{overdue:?}");
         // Braking from 3 m/s at 3 m/s^2 to rest at the same place: what set off could
         // reach the robot before it is at rest.
         let braking = g.verdict(
@@ -839,8 +853,9 @@ mod tests {
             assert!(staying.clear(), "{time_s}: {staying:?}");
             assert!(g.brake_verdict(rest, at(20, 0.0), 0.0).clear(), "{time_s}");
         }
-        // A tracked person standing there is another matter: the robot at rest is judged
-        // touched.
+        // A tracked person there whose velocity is uncertain to 0.5 m/s (not standing
+        // still: they may walk at the robot) is another matter: the robot at rest is
+        // judged touched.
         let mut person = seeing_a_phantom([0.0, 0.5], -1.0, 10.0);
         let mut tracks = crate::tests::one_track(-1.0, [0.0, 0.5], [0.0; 2]);
         tracks.tracks[0].covariance = [0.0, 0.0, 0.25, 0.0, 0.0, 0.25];

@@ -176,12 +176,10 @@ impl World {
             g.accel_max,
             discs,
         );
-        discs.extend(
-            self.tracks
-                .tracks()
-                .iter()
-                .map(|(track, time_s)| predicted_disc(track, t_s - time_s, &g, chord, accel_max)),
-        );
+        discs.extend(self.tracks.tracks().iter().map(|(track, time_s)| {
+            let age_s = t_s - time_s;
+            predicted_disc(track, age_s, &g, chord, accel_max, self.tracks.refresh_s())
+        }));
         if let Some(most) = self.seen_most {
             keep_nearest(discs, self.known.len(), position, most);
         }
@@ -219,8 +217,10 @@ fn predicted_disc(
     g: &StepGrowth,
     chord: f64,
     accel_max: f64,
+    refresh_s: f64,
 ) -> Disc {
-    let disc = protocol::predicted_disc(track, age_s, g.margin_m, g.uncertainty_sigmas, accel_max);
+    let kappa = g.uncertainty_sigmas;
+    let disc = protocol::predicted_disc(track, age_s, g.margin_m, kappa, accel_max, refresh_s);
     let [vx, vy] = track.velocity;
     let chord = chord + vx.hypot(vy) * g.ts_s + 0.5 * accel_max * g.ts_s * g.ts_s;
     Disc {

@@ -239,11 +239,11 @@ impl TerminalRows<'_> {
     /// "The stop and the person's way"). Swept over the fastest stop, a box the lidar sees
     /// held a robot 4 m off, and it circled the box until its time ran out.
     ///
-    /// A phantom's disc (`motion.hidden`) and a standing track's are taken when the next
-    /// tracks are due (`stand_s`: what comes out of a shadow, or sets off, before then is
-    /// seen by then), or at stage `N` if sooner; a phantom's is swept over the stop alone
-    /// (nothing comes at the robot from it), a standing track's is carried on as any
-    /// track's. So the robot need only be at rest before where the obstacle could be by
+    /// A held disc (`motion.held`: a phantom's, a standing track's not overdue) is taken
+    /// when the next tracks are due (`stand_s`: what comes out of a shadow, or sets off,
+    /// before then is seen by then), or at stage `N` if sooner, in the escape program too;
+    /// a phantom's is swept over the stop alone (nothing comes at the robot from it), a
+    /// standing track's is carried on as any track's. So the robot need only be at rest before where the obstacle could be by
     /// then reaches it: grown over the whole horizon, a box the lidar sees within about
     /// 0.7 m of the goal kept the robot turning on the spot short of it (docs/safety.md).
     /// This is a heuristic of the DFL's exact check, which brakes from where the robot is
@@ -256,13 +256,10 @@ impl TerminalRows<'_> {
         // variables of the plan's own stop.
         debug_assert!(self.model.sweeps || self.discs.iter().all(|d| !d.moves()));
         self.discs.iter().map(move |d| {
-            if d.motion.hidden {
-                StopDisc::of(&d.at(held_s), 0.0, true)
-            } else if d.motion.standing {
-                StopDisc::of(&d.at(held_s), rest_s, true)
-            } else {
-                StopDisc::of(&d.at(self.horizon_s), rest_s, escape)
-            }
+            let m = &d.motion;
+            let taken_s = if m.held { held_s } else { self.horizon_s };
+            let rest_s = if m.hidden { 0.0 } else { rest_s };
+            StopDisc::of(&d.at(taken_s), rest_s, escape || m.standing || m.hidden)
         })
     }
 
@@ -522,6 +519,7 @@ mod tests {
                 radius_accel: 0.25,
                 hidden: false,
                 standing: false,
+                held: false,
             },
             ..Disc::still([3.0, 0.5], 0.6)
         }
@@ -541,6 +539,7 @@ mod tests {
         for (prediction, standing, own_stop, taken_s) in cases {
             let mut person = person();
             person.motion.standing = standing;
+            person.motion.held = standing;
             let discs = [person];
             for form in [BrakeForm::Segment, BrakeForm::Ball] {
                 let rows = TerminalRows {

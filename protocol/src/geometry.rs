@@ -29,20 +29,14 @@ pub struct DiscMotion {
     /// ([`Disc::staged`]); the robot's stop from there must end before the grown disc
     /// could reach it.
     pub hidden: bool,
-    /// A tracked obstacle that stands still ([`crate::Track::stands_still`]): its disc
-    /// grows as any track's until the next tracks are due, and is held after, like a
-    /// phantom's ([`Disc::staged`]: if it sets off, the next tracks show it); a stop need
+    /// A tracked obstacle that stands still ([`crate::Track::stands_still`]): a stop need
     /// only end before it could reach the robot from the plan's own last speed, not from
     /// the fastest.
     pub standing: bool,
-}
-
-impl DiscMotion {
     /// Whether a plan passes the disc as grown only until the next tracks are due, and
-    /// held after ([`Disc::staged`]): a phantom's, or a track's that stands still.
-    pub fn held_when_refreshed(&self) -> bool {
-        self.hidden || self.standing
-    }
+    /// held after ([`Disc::staged`]): a phantom's, and the disc of a track that stands
+    /// still and is not overdue (if it sets off, the next tracks show it).
+    pub held: bool,
 }
 
 impl Disc {
@@ -85,11 +79,11 @@ impl Disc {
     }
 
     /// The disc as a plan's stage `t_s` after its time keeps clear of it: [`Disc::at`],
-    /// but a phantom's or a standing track's ([`DiscMotion::held_when_refreshed`]) held as
-    /// it is at its time once the next tracks are due (`stand_s` after its time): by then
-    /// what came out of a shadow, or set off, is seen, and the next tracks take over.
+    /// but a held one's (a phantom's, a standing track's: [`DiscMotion::held`]) as it is
+    /// at its time once the next tracks are due (`stand_s` after its time): by then what
+    /// came out of a shadow, or set off, is seen, and the next tracks take over.
     pub fn staged(&self, t_s: f64, stand_s: f64) -> Disc {
-        match self.motion.held_when_refreshed() && t_s >= stand_s {
+        match self.motion.held && t_s >= stand_s {
             true => Disc::still(self.center, self.radius),
             false => self.at(t_s),
         }

@@ -74,18 +74,25 @@ impl KeptTracks {
         &self.tracks
     }
 
-    /// How long from `t_s` (absolute) the phantoms and the tracks that stand still kept
-    /// stand for what they predict, s: until the next tracks replace them
-    /// ([`tracks_refresh_s`] after their time; the soonest of them); 0 when those are
-    /// overdue or there is none. A plan's stop from then on must end before anything
-    /// hidden, or standing, could reach it ([`crate::DiscMotion::held_when_refreshed`]).
+    /// How long from `t_s` (absolute) the held discs ([`crate::DiscMotion::held`]: the
+    /// phantoms, the tracks that stand still and are not overdue) stand for what they
+    /// predict, s: until the next tracks replace them ([`tracks_refresh_s`] after their
+    /// time; the soonest of them, as the tracks of one message share their time); 0 when
+    /// the phantoms are overdue or there is none. A plan's stop from then on must end
+    /// before anything hidden, or standing, could reach it.
     pub fn stand_for_s(&self, t_s: f64) -> f64 {
+        let refresh = self.tracks_refresh_s;
         self.tracks
             .iter()
-            .filter(|(track, _)| track.is_phantom() || track.stands_still())
-            .map(|(_, time_s)| (time_s + self.tracks_refresh_s - t_s).max(0.0))
+            .filter(|(track, time_s)| held(track, t_s - time_s, refresh))
+            .map(|(_, time_s)| (time_s + refresh - t_s).max(0.0))
             .reduce(f64::min)
             .unwrap_or(0.0)
+    }
+
+    /// How long after their time the tracks stand, s ([`tracks_refresh_s`]).
+    pub fn refresh_s(&self) -> f64 {
+        self.tracks_refresh_s
     }
 
     /// `perception.accel_max`, m/s^2.
@@ -114,9 +121,19 @@ impl KeptTracks {
                 growth_m,
                 self.uncertainty_sigmas,
                 self.accel_max,
+                self.tracks_refresh_s,
             )
         })
     }
+}
+
+/// Whether `track`'s disc, `age_s` after its time, is held once the next tracks are due
+/// ([`crate::DiscMotion::held`]): a phantom's always (an overdue one is held from now, and
+/// the scan watchdog stops the robot), a standing track's until it is overdue (`refresh_s`
+/// after its time: then nothing shows whether it set off, and it grows as a walking
+/// one's).
+fn held(track: &Track, age_s: f64, refresh_s: f64) -> bool {
+    track.is_phantom() || (track.stands_still() && age_s < refresh_s)
 }
 
 /// How long after their time tracks stand for what they predict, s: until the next
@@ -156,13 +173,15 @@ fn bounded_accel(track: &Track, accel_max: f64) -> f64 {
 /// The disc `track` predicts `age_s` after its time (absolute): centred where the track's
 /// velocity takes it, its radius the obstacle's grown by `growth_m` and by
 /// [`prediction_growth_m`]. It moves on at the track's velocity and grows at the same rule
-/// ([`Disc::at`]).
+/// ([`Disc::at`]); held once the next tracks are due (`refresh_s` after the track's time,
+/// [`held`]).
 pub fn predicted_disc(
     track: &Track,
     age_s: f64,
     growth_m: f64,
     kappa: f64,
     accel_max: f64,
+    refresh_s: f64,
 ) -> Disc {
     let age = age_s.max(0.0);
     let (_, sigma_v) = track.sigmas();
@@ -177,6 +196,7 @@ pub fn predicted_disc(
             radius_accel: 0.5 * accel_max,
             hidden: track.is_phantom(),
             standing: track.stands_still(),
+            held: held(track, age, refresh_s),
         },
     }
 }
@@ -239,7 +259,7 @@ mod tests {
             ..track(0, 0.0)
         };
         // No acceleration term: `phantom_speed` bounds its speed.
-        let disc = predicted_disc(&phantom, 0.4, 0.1, kappa, 2.0);
+        let disc = predicted_disc(&phantom, 0.4, 0.1, kappa, 2.0, 0.15);
         assert!((disc.radius - (0.3 + 0.1 + speed * 0.4)).abs() < 1e-12);
         assert!(disc.motion.hidden);
         assert!((disc.at(1.0).radius - disc.radius - speed).abs() < 1e-12);
@@ -250,7 +270,7 @@ mod tests {
             disc.staged(1.0, 0.15),
             Disc::still(disc.center, disc.radius)
         );
-        let person = predicted_disc(&track(0, 0.01), 0.4, 0.1, kappa, 2.0);
+        let person = predicted_disc(&track(0, 0.01), 0.4, 0.1, kappa, 2.0, 0.15);
         assert_eq!(person.staged(1.0, 0.15), person.at(1.0));
         // It stands a scan period and a sample after its scan's tracks.
         let mut kept = KeptTracks::of(&scenario);
@@ -263,7 +283,7 @@ mod tests {
     }
 
     #[test]
-    fn a_track_that_stands_still_grows_until_the_next_tracks_and_is_held_after() {
+    fn a_track_that_stands_still_grows_until_the_next_tracks_and_is_held_after_unless_overdue() {
         let scenario = Scenario::default()
             .with_overrides(&["perception.period_s=0.2".into(), "timing.ts_s=0.05".into()])
             .unwrap();
@@ -272,8 +292,8 @@ mod tests {
             ..track(0, 1e-4)
         };
         assert!(standing.stands_still() && !track(1, 1e-4).stands_still());
-        let disc = predicted_disc(&standing, 0.0, 0.1, 3.0, 0.5);
-        assert!(disc.motion.standing && disc.motion.held_when_refreshed());
+        let disc = predicted_disc(&standing, 0.0, 0.1, 3.0, 0.5, 0.25);
+        assert!(disc.motion.standing && disc.motion.held);
         // It grows and drifts as any track's until the next tracks are due, where it is
         // after (the next tracks take over).
         assert_eq!(disc.staged(0.1, 0.25), disc.at(0.1));
@@ -298,13 +318,21 @@ mod tests {
             }],
         ));
         assert!((kept.stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
+        // Once overdue (no next tracks came) nothing shows whether it set off: it grows as
+        // a walking track's, and the other one's time decides.
+        assert!(
+            !predicted_disc(&standing, refresh, 0.1, 3.0, 0.5, refresh)
+                .motion
+                .held
+        );
+        assert!((kept.stand_for_s(2.3) - (2.1 + refresh - 2.3)).abs() < 1e-12);
     }
 
     #[test]
     fn a_predicted_disc_moves_with_the_track_and_grows_as_its_motion_says() {
         let t = track(0, 0.01);
         let (kappa, accel_max) = (2.0, 0.5);
-        let at = |age: f64| predicted_disc(&t, age, 0.1, kappa, accel_max);
+        let at = |age: f64| predicted_disc(&t, age, 0.1, kappa, accel_max, 0.15);
         assert_eq!(at(0.0).radius, 0.3 + 0.1 + kappa * (0.1 + 0.0));
         for (from, by) in [(0.0, 1.0), (0.5, 0.25), (1.0, 2.0)] {
             let stepped = at(from).at(by);

@@ -244,9 +244,11 @@ pub const STANDING_SPEED_M_S: f64 = 0.3;
 
 impl Track {
     /// Whether it stands still: not a phantom, its speed plus its velocity's standard
-    /// deviation below [`STANDING_SPEED_M_S`]. To the route planner it is an obstacle at
-    /// rest; the MPC's terminal rows sweep its disc over the plan's own stop rather than
-    /// the fastest one (`mpc::terminal`): a box or a person waiting.
+    /// deviation below [`STANDING_SPEED_M_S`]: a box or a person waiting. To the route
+    /// planner it is an obstacle at rest; the MPC's terminal rows sweep its disc over the
+    /// plan's own stop rather than the fastest one (`mpc::terminal`); until it is overdue
+    /// its disc grows only until the next tracks are due, and is held after
+    /// ([`crate::DiscMotion::held`]).
     pub fn stands_still(&self) -> bool {
         let speed = self.velocity[0].hypot(self.velocity[1]);
         !self.is_phantom() && speed + self.sigmas().1 < STANDING_SPEED_M_S

@@ -57,12 +57,14 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             radius_accel: 0.25,
             hidden: false,
             standing: false,
+            held: false,
         },
         ..Disc::still([3.0, 3.5], 1.0)
     };
     let mut standing = moving;
     standing.motion.velocity = [0.05, 0.0];
     standing.motion.standing = true;
+    standing.motion.held = true;
     for (gamma, disc) in [
         (0.1, Disc::still([3.0, 3.5], 1.5)),
         (1.0, Disc::still([3.0, 3.5], 1.5)),

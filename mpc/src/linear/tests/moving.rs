@@ -102,6 +102,7 @@ fn a_disc_at_rest_is_itself_at_every_stage_and_a_moving_one_moves_and_grows() {
             radius_accel: 0.25,
             hidden: false,
             standing: false,
+            held: false,
         },
         ..still
     };
