@@ -243,11 +243,12 @@ impl TerminalRows<'_> {
     /// when the next tracks are due (`stand_s`: what comes out of a shadow, or sets off,
     /// before then is seen by then), or at stage `N` if sooner, in the escape program too;
     /// a phantom's is swept over the stop alone (nothing comes at the robot from it), a
-    /// standing track's is carried on as any track's. So the robot need only be at rest before where the obstacle could be by
-    /// then reaches it: grown over the whole horizon, a box the lidar sees within about
-    /// 0.7 m of the goal kept the robot turning on the spot short of it (docs/safety.md).
-    /// This is a heuristic of the DFL's exact check, which brakes from where the robot is
-    /// at `stand_s`: the rows stay at stage `N`.
+    /// standing track's is carried on as any track's. So the robot need only be at rest
+    /// before where the obstacle could be by then reaches it: grown over the whole
+    /// horizon, a box the lidar sees within about 0.7 m of the goal kept the robot turning
+    /// on the spot short of it (docs/safety.md). This is a heuristic of the DFL's exact
+    /// check, which brakes from where the robot is at `stand_s`: the rows stay at stage
+    /// `N`.
     fn stop_discs(&self) -> impl Iterator<Item = StopDisc> + '_ {
         let held_s = self.stand_s.min(self.horizon_s);
         let rest_s = self.model.rest_lookahead_s;
@@ -526,8 +527,7 @@ mod tests {
     }
 
     #[test]
-    fn a_disc_is_swept_over_the_plans_own_stop_if_it_stands_still_or_escaping_else_the_fastest_and_a_standing_one_from_the_next_tracks()
-     {
+    fn discs_are_swept_over_the_own_or_fastest_stop_and_taken_at_the_next_tracks_or_stage_n() {
         let (a, ts, max_speed) = (2.0, 0.1, 5.0);
         // (prediction, standing, own stop, the disc's time taken: stage N's, 1 s, or the
         // next tracks', 0.2 s).
