@@ -85,6 +85,11 @@ pub struct Planner {
     /// Where the last stall replan was; the robot [`CLEARANCE_RESET_M`] from it has made
     /// way and the clearance is the configured one again.
     stalled_at: [f64; 2],
+    /// The route the robot last stalled on, until it is [`CLEARANCE_RESET_M`] nearer the
+    /// goal than where it stalled: a periodic replan does not go back to that way round
+    /// the obstacles ([`Planner::switch`]). (Going round the other way may lead it away
+    /// from the goal first, where the way it stalled on is the shorter again.)
+    stalled_on: Option<Route>,
 }
 
 impl Planner {
@@ -114,6 +119,7 @@ impl Planner {
             moved: None,
             clearance_steps: 0,
             stalled_at: [0.0; 2],
+            stalled_on: None,
         }
     }
 
@@ -145,10 +151,21 @@ impl Planner {
         let position = [estimate.state[0], estimate.state[1]];
         if let Some(reason) = self.replan_reason(sample, position) {
             if reason == ReplanReason::Stall {
+                // Stalls in one place after the first are the robot stuck on the first's
+                // way, not on the routes replanned since.
+                if self.clearance_steps == 0 || self.stalled_on.is_none() {
+                    self.stalled_on = Some(self.route);
+                }
                 self.clearance_steps = (self.clearance_steps + 1).min(MAX_CLEARANCE_STEPS);
                 self.stalled_at = position;
-            } else if distance(position, self.stalled_at) > CLEARANCE_RESET_M {
-                self.clearance_steps = 0;
+            } else {
+                if distance(position, self.stalled_at) > CLEARANCE_RESET_M {
+                    self.clearance_steps = 0;
+                }
+                let nearer_m = distance(self.stalled_at, self.goal) - distance(position, self.goal);
+                if nearer_m > CLEARANCE_RESET_M {
+                    self.stalled_on = None;
+                }
             }
             let growth = self.growth.total_m(estimate.position_sigma());
             self.plan(sample, position, growth, reason);
@@ -170,7 +187,9 @@ impl Planner {
     /// [`SWITCH_GAIN_M`] shorter than what is left of it, or by one that goes another way
     /// and is `planner.switch_margin` of that shorter (and never less than
     /// [`SWITCH_GAIN_M`]): two ways of about the same length are not swapped replan after
-    /// replan, near the goal either.
+    /// replan, near the goal either. Until the robot has come nearer the goal than where it
+    /// last stalled, a periodic replan never goes back to the way it stalled on (a gap its
+    /// grown discs close is shorter than the way round, and would be taken again and again).
     fn switch(
         &mut self,
         reason: ReplanReason,
@@ -185,11 +204,17 @@ impl Planner {
         if self.blocked(position, growth_m) {
             return Some(RouteSwitch::Blocked);
         }
+        let obstacles = || self.obstacles.iter().chain(&self.standing);
+        if (self.stalled_on.as_ref())
+            .is_some_and(|stalled| same_way(stalled, &self.candidate, position, obstacles()))
+        {
+            return None;
+        }
         // What is left of the current route as it would be planned now: a route planned
         // under more uncertainty (the start's) is not compared by its wider detours.
         let left_m = taut_remaining_length(&self.route, position, &self.discs);
         let new_m = self.candidate.length_m;
-        if same_way(&self.route, &self.candidate, position, &self.obstacles) {
+        if same_way(&self.route, &self.candidate, position, obstacles()) {
             (new_m < left_m - SWITCH_GAIN_M).then_some(RouteSwitch::SameWay)
         } else {
             let gain_m = SWITCH_GAIN_M.max(left_m * self.switch_margin);
@@ -399,11 +424,11 @@ pub fn taut_remaining_length(route: &Route, position: [f64; 2], discs: &[Disc]) 
 /// is left of `old` from there: the loop out along `new` to the goal and back along `old`
 /// winds round no obstacle's centre. (Both keep out of every obstacle, so the loop
 /// passes no centre.)
-pub fn same_way(
+pub fn same_way<'a>(
     old: &Route,
     new: &Route,
     position: [f64; 2],
-    obstacles: &[protocol::Obstacle],
+    obstacles: impl IntoIterator<Item = &'a protocol::Obstacle>,
 ) -> bool {
     let old_points = old.points();
     if old_points.len() < 2 {
@@ -417,9 +442,7 @@ pub fn same_way(
             .chain(old_points[segment + 1..].iter().rev().copied())
             .chain(std::iter::once(at))
     };
-    obstacles
-        .iter()
-        .all(|o| winding_number(ring(), o.center_at(0.0)) == 0)
+    (obstacles.into_iter()).all(|o| winding_number(ring(), o.center_at(0.0)) == 0)
 }
 
 /// How many times the closed polygon through `ring` winds round `p` (counterclockwise
@@ -645,6 +668,59 @@ mod tests {
             (route.plans, route.switch),
             (2, RouteSwitch::Shorter as u32)
         );
+    }
+
+    #[test]
+    fn a_periodic_plan_does_not_return_to_a_stalled_way_until_nearer_the_goal() {
+        // A gap of 0.6 m between the obstacle and the top of the position box: the way over
+        // it is the shorter, but the robot stalls in it.
+        let mut s = one_obstacle_ahead().into_inner();
+        s.mpc.position_max = [10.0, 1.6];
+        let s = s.validated("test").unwrap();
+        let mut planner = Planner::new(&s);
+        // Over or under the obstacle: at its waypoint nearest the obstacle's centre line.
+        let over = |route: &Route| {
+            let points = route.points().iter();
+            let nearest = points.min_by(|a, b| (a[0] - 3.0).abs().total_cmp(&(b[0] - 3.0).abs()));
+            nearest.is_some_and(|p| p[1] > 0.0)
+        };
+        let first = planner.step(0, &estimate_at(6.0, 0.3));
+        assert!(over(&first));
+        // Standing in the gap until a stall replan, with its widened clearance, goes under.
+        let mut sample = 0;
+        let mut route = first;
+        while over(&route) {
+            sample += 1;
+            route = planner.step(sample, &estimate_at(4.2, 1.3));
+            assert!(sample < 100, "never went under");
+        }
+        assert_eq!(route.reason, ReplanReason::Stall as u32);
+        // Backing away from the gap, farther from the goal, then the period's plan: over is
+        // shorter by the margin (the clearance is the configured one again), and not taken.
+        let backed = [5.5, 1.0];
+        let period = (s.planner.period_s / s.timing.ts_s).round() as u64;
+        for _ in 0..period {
+            sample += 1;
+            route = planner.step(sample, &estimate_at(backed[0], backed[1]));
+        }
+        let periodic = (planner.candidate.planned_sample, planner.candidate.reason);
+        assert_eq!(periodic, (sample, ReplanReason::Period as u32));
+        let left_m = taut_remaining_length(&route, backed, &planner.discs);
+        let candidate = planner.candidate;
+        assert!(over(&candidate), "planned over");
+        assert!(
+            candidate.length_m < left_m - SWITCH_GAIN_M.max(left_m * s.planner.switch_margin),
+            "{} m against {left_m} m left",
+            candidate.length_m
+        );
+        assert!(!over(&route), "went back to the way it stalled on");
+        // Round the obstacle, nearer the goal, the period's plan forgets the stall.
+        for _ in 0..period {
+            sample += 1;
+            planner.step(sample, &estimate_at(1.5, -1.6));
+        }
+        assert_eq!(planner.candidate.planned_sample, sample);
+        assert!(planner.stalled_on.is_none());
     }
 
     /// A route from `points`.
