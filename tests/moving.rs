@@ -176,13 +176,14 @@ fn the_phantoms_slow_the_robot_by_a_pillar_a_person_steps_out_from_as_its_lidar_
         );
     }
 
-    // A lidar at 2 Hz: its phantoms stand for 0.55 s, and the robot must be able to stop
+    // A lidar at 1 Hz: its phantoms stand for 1.05 s, and the robot must be able to stop
     // from where it will be by then before anything stepping out now could reach it, so
-    // it passes the pillar slower than with the unseen assumed empty.
+    // it passes the pillar slower than with the unseen assumed empty. (At 2 Hz the
+    // phantoms, behind the pillar of the map, not in it, hardly bind.)
     let fastest_by_the_pillar = |phantoms: bool| {
-        let out = dir.path().join(format!("2-hz-{phantoms}"));
+        let out = dir.path().join(format!("1-hz-{phantoms}"));
         let set = format!("perception.phantoms={phantoms}");
-        let sets = ["--set", "lidar.rate_hz=2", "--set", &set];
+        let sets = ["--set", "lidar.rate_hz=1", "--set", &set];
         let s = run_into(&out, &[&["occluded", "--in-process"][..], &sets].concat());
         assert_eq!(s["contacts_moving"], 0, "{s}");
         csv(&out.join("trajectory.csv"))

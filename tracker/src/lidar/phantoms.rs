@@ -1,7 +1,8 @@
 //! Phantoms (docs/safety.md, "What the lidar cannot see"): at every shadow edge of a scan,
 //! where the range jumps from near to far by more than a phantom's width, an obstacle of
 //! `perception.phantom_radius` is assumed in the shadow, as near the edge as it can be
-//! unseen (touching the edge's beam from the shadow's side, level with the nearer return),
+//! unseen (touching the edge's beam from the shadow's side, level with the nearer return,
+//! or, behind an obstacle of the map, as near as it can be without standing in it),
 //! and it may come out at up to `perception.phantom_speed` in any direction. It goes out as a track whose
 //! centre is certain and whose velocity is zero with a standard deviation of
 //! `phantom_speed / kappa`, so every consumer grows its predicted disc by `phantom_speed t`
@@ -67,6 +68,8 @@ impl Perception {
                         origin[0] + near * cos - aside * sin,
                         origin[1] + near * sin + aside * cos,
                     ];
+                    let edge = [origin[0] + near * cos, origin[1] + near * sin];
+                    let centre = self.out_of_known(centre, [cos, sin], edge, near, model.radius_m);
                     self.phantoms.push((centre, near));
                 }
             }
@@ -76,6 +79,37 @@ impl Perception {
             (self.phantoms).sort_unstable_by(|a, b| a.1.total_cmp(&b.1));
             self.phantoms.truncate(MAX_PHANTOMS);
         }
+    }
+
+    /// A phantom at `centre` beside the `edge` (at range `range_m`) of a shadow, moved along
+    /// the edge's beam (`along`, a unit vector away from the lidar) out of the known obstacle
+    /// the edge is on, if it is on one: nobody hides inside a pillar of the map, only behind
+    /// it. The phantom is kept clear of the obstacle's edge less the margin within which a
+    /// return is taken as the obstacle's (what stands that near it is not seen apart).
+    fn out_of_known(
+        &self,
+        centre: [f64; 2],
+        along: [f64; 2],
+        edge: [f64; 2],
+        range_m: f64,
+        radius_m: f64,
+    ) -> [f64; 2] {
+        let margin = super::KNOWN_MARGIN_M + super::KNOWN_MARGIN_PER_M * range_m;
+        let known =
+            (self.known.iter()).find(|(k, r)| super::geometry::distance(*k, edge) <= r + margin);
+        let Some(&(k, r)) = known else {
+            return centre;
+        };
+        // The farther root `s` of `|centre + s along - k| = r + radius - margin`.
+        let keep = (r + radius_m - margin).max(0.0);
+        let w = [centre[0] - k[0], centre[1] - k[1]];
+        let b = w[0] * along[0] + w[1] * along[1];
+        let c = w[0] * w[0] + w[1] * w[1] - keep * keep;
+        if c >= 0.0 {
+            return centre;
+        }
+        let s = -b + (b * b - c).sqrt();
+        [centre[0] + s * along[0], centre[1] + s * along[1]]
     }
 
     /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`].

@@ -190,6 +190,45 @@ fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
 }
 
 #[test]
+fn a_pillar_of_the_map_casts_its_phantoms_behind_it_not_in_it() {
+    // The box of the test above, but known: the phantoms touch the same tangents, pushed
+    // along them until they clear the pillar (less the margin of its returns, 0.16 m at
+    // 3 m), 0.6 m past its silhouette.
+    let mut s = world(vec![Obstacle::fixed(3.0, 0.0, 0.5)], 0.0).into_inner();
+    s.perception.phantoms = true;
+    let s = s.validated("t").unwrap();
+    let mut perception = Perception::new(&s);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3]);
+    let mut tracks = Tracks::default();
+    perception.tracks(&mut tracks);
+    let phantoms: Vec<_> = (tracks.tracks().iter())
+        .filter(|t| t.is_phantom())
+        .collect();
+    assert_eq!(phantoms.len(), 2, "{phantoms:?}");
+    let tangent = (0.5f64 / 3.0).asin();
+    let silhouette = (3.0f64 * 3.0 - 0.5 * 0.5).sqrt();
+    let keep = 0.5 + s.perception.phantom_radius - (KNOWN_MARGIN_M + 3.0 * KNOWN_MARGIN_PER_M);
+    for (phantom, side) in phantoms.iter().zip([-1.0, 1.0]) {
+        let [x, y] = phantom.center;
+        assert!(
+            geometry::distance(phantom.center, [3.0, 0.0]) >= keep - 1e-9,
+            "{phantom:?}"
+        );
+        let off_tangent = (x * (side * tangent).sin() - y * (side * tangent).cos()) * side;
+        assert!(
+            (off_tangent - 0.3).abs() < 0.06,
+            "{phantom:?}: {off_tangent}"
+        );
+        let along = x * tangent.cos() + y * (side * tangent).sin();
+        assert!(
+            (along - silhouette - 0.6).abs() < 0.2,
+            "{phantom:?}: {along}"
+        );
+    }
+}
+
+#[test]
 fn the_phantoms_keep_their_places_among_the_tracks_when_many_boxes_are_tracked() {
     // 30 small boxes in a ring at 3 m: more tracks than the message holds with phantoms.
     let boxes = (0..30)
