@@ -85,9 +85,9 @@ pub struct Planner {
     /// Where the last stall replan was; the robot [`CLEARANCE_RESET_M`] from it has made
     /// way and the clearance is the configured one again.
     stalled_at: [f64; 2],
-    /// The route the robot last stalled on, until it is [`CLEARANCE_RESET_M`] nearer the
-    /// goal than where it stalled: a periodic replan does not go back to that way round
-    /// the obstacles ([`Planner::switch`]). (Going round the other way may lead it away
+    /// The route the robot last stalled on, until it is [`CLEARANCE_RESET_M`] (or half the
+    /// way, if that is less) nearer the goal than where it stalled last: a periodic replan
+    /// does not go back to that way round the obstacles ([`Planner::switch`]). (Going round the other way may lead it away
     /// from the goal first, where the way it stalled on is the shorter again.)
     stalled_on: Option<Route>,
 }
@@ -162,8 +162,10 @@ impl Planner {
                 if distance(position, self.stalled_at) > CLEARANCE_RESET_M {
                     self.clearance_steps = 0;
                 }
-                let nearer_m = distance(self.stalled_at, self.goal) - distance(position, self.goal);
-                if nearer_m > CLEARANCE_RESET_M {
+                // (Half the way to the goal for a stall within 2 m of it.)
+                let stalled_m = distance(self.stalled_at, self.goal);
+                let nearer_m = stalled_m - distance(position, self.goal);
+                if nearer_m > CLEARANCE_RESET_M.min(stalled_m / 2.0) {
                     self.stalled_on = None;
                 }
             }
@@ -188,8 +190,10 @@ impl Planner {
     /// and is `planner.switch_margin` of that shorter (and never less than
     /// [`SWITCH_GAIN_M`]): two ways of about the same length are not swapped replan after
     /// replan, near the goal either. Until the robot has come nearer the goal than where it
-    /// last stalled, a periodic replan never goes back to the way it stalled on (a gap its
-    /// grown discs close is shorter than the way round, and would be taken again and again).
+    /// last stalled, a periodic replan never goes another way that is the way it stalled on
+    /// (a gap its grown discs close is shorter than the way round, and would be taken again
+    /// and again). (The way it stalled on is compared from where the robot is now: from far
+    /// off it, which way that is may be told wrongly; a stall replan is taken whatever.)
     fn switch(
         &mut self,
         reason: ReplanReason,
@@ -204,18 +208,17 @@ impl Planner {
         if self.blocked(position, growth_m) {
             return Some(RouteSwitch::Blocked);
         }
-        let obstacles = || self.obstacles.iter().chain(&self.standing);
-        if (self.stalled_on.as_ref())
-            .is_some_and(|stalled| same_way(stalled, &self.candidate, position, obstacles()))
-        {
-            return None;
-        }
         // What is left of the current route as it would be planned now: a route planned
         // under more uncertainty (the start's) is not compared by its wider detours.
         let left_m = taut_remaining_length(&self.route, position, &self.discs);
         let new_m = self.candidate.length_m;
+        let obstacles = || self.obstacles.iter().chain(&self.standing);
         if same_way(&self.route, &self.candidate, position, obstacles()) {
             (new_m < left_m - SWITCH_GAIN_M).then_some(RouteSwitch::SameWay)
+        } else if (self.stalled_on.as_ref())
+            .is_some_and(|stalled| same_way(stalled, &self.candidate, position, obstacles()))
+        {
+            None
         } else {
             let gain_m = SWITCH_GAIN_M.max(left_m * self.switch_margin);
             (new_m < left_m - gain_m).then_some(RouteSwitch::Shorter)
@@ -678,11 +681,10 @@ mod tests {
         s.mpc.position_max = [10.0, 1.6];
         let s = s.validated("test").unwrap();
         let mut planner = Planner::new(&s);
-        // Over or under the obstacle: at its waypoint nearest the obstacle's centre line.
+        // Over the obstacle: every waypoint within 1 m of its centre line above it.
         let over = |route: &Route| {
-            let points = route.points().iter();
-            let nearest = points.min_by(|a, b| (a[0] - 3.0).abs().total_cmp(&(b[0] - 3.0).abs()));
-            nearest.is_some_and(|p| p[1] > 0.0)
+            let beside = route.points().iter().filter(|p| (p[0] - 3.0).abs() <= 1.0);
+            beside.fold(f64::INFINITY, |y, p| y.min(p[1])) > 0.0
         };
         let first = planner.step(0, &estimate_at(6.0, 0.3));
         assert!(over(&first));
@@ -714,13 +716,14 @@ mod tests {
             candidate.length_m
         );
         assert!(!over(&route), "went back to the way it stalled on");
-        // Round the obstacle, nearer the goal, the period's plan forgets the stall.
+        // Over the obstacle, 1 m nearer the goal than where it stalled: the period's plan
+        // goes over again.
         for _ in 0..period {
             sample += 1;
-            planner.step(sample, &estimate_at(1.5, -1.6));
+            route = planner.step(sample, &estimate_at(2.9, 1.5));
         }
         assert_eq!(planner.candidate.planned_sample, sample);
-        assert!(planner.stalled_on.is_none());
+        assert!(over(&route), "{:?}", route.points());
     }
 
     /// A route from `points`.

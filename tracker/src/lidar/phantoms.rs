@@ -25,6 +25,17 @@ pub(super) struct PhantomModel {
 /// A phantom of a scan: its centre, m, and the range of the edge it hides behind, m.
 pub(super) type Phantom = ([f64; 2], f64);
 
+/// A shadow edge of a scan: where the nearer beam's return is, the nearer beam's direction
+/// away from the lidar (a unit vector), the two beams' ranges, m, and the arc left unseen
+/// between them at the nearer range, m.
+struct ShadowEdge {
+    at: [f64; 2],
+    along: [f64; 2],
+    near_m: f64,
+    far_m: f64,
+    gap_m: f64,
+}
+
 impl Perception {
     /// The phantoms of `scan`, taken from the lidar at `origin` heading `heading` (rad);
     /// every return counts, those of known obstacles too (a person hides behind a wall of
@@ -59,6 +70,7 @@ impl Perception {
                     _ => None,
                 };
                 if let Some((beam, near, past)) = edge {
+                    let apart = (i + ranges.len() - j) % ranges.len();
                     let angle = heading + scan.angle_rad(beam);
                     let (sin, cos) = angle.sin_cos();
                     // Away from the side the farther beam saw clear.
@@ -68,8 +80,14 @@ impl Perception {
                         origin[0] + near * cos - aside * sin,
                         origin[1] + near * sin + aside * cos,
                     ];
-                    let edge = [origin[0] + near * cos, origin[1] + near * sin];
-                    let centre = self.out_of_known(centre, [cos, sin], edge, near, model.radius_m);
+                    let edge = ShadowEdge {
+                        at: [origin[0] + near * cos, origin[1] + near * sin],
+                        along: [cos, sin],
+                        near_m: near,
+                        far_m: r.max(q),
+                        gap_m: near * scan.angle_increment_rad.abs() * apart as f64,
+                    };
+                    let centre = self.out_of_known(centre, &edge, model.radius_m);
                     self.phantoms.push((centre, near));
                 }
             }
@@ -81,35 +99,30 @@ impl Perception {
         }
     }
 
-    /// A phantom at `centre` beside the `edge` (at range `range_m`) of a shadow, moved along
-    /// the edge's beam (`along`, a unit vector away from the lidar) out of the known obstacle
-    /// the edge is on, if it is on one: nobody hides inside a pillar of the map, only behind
-    /// it. The phantom is kept clear of the obstacle's edge less the margin within which a
-    /// return is taken as the obstacle's (what stands that near it is not seen apart).
-    fn out_of_known(
-        &self,
-        centre: [f64; 2],
-        along: [f64; 2],
-        edge: [f64; 2],
-        range_m: f64,
-        radius_m: f64,
-    ) -> [f64; 2] {
-        let margin = super::KNOWN_MARGIN_M + super::KNOWN_MARGIN_PER_M * range_m;
-        let known =
-            (self.known.iter()).find(|(k, r)| super::geometry::distance(*k, edge) <= r + margin);
-        let Some(&(k, r)) = known else {
+    /// A phantom at `centre` beside `edge`, moved along the edge's beam out of the known
+    /// obstacle the edge is on, if it is on one: nobody hides inside a pillar of the map,
+    /// only behind it. The phantom is kept clear of the obstacle's edge less the margin
+    /// within which a return is taken as the obstacle's (what stands that near it is not
+    /// seen apart; it also holds the estimate's error of the lidar's pose) and less the gap
+    /// the two beams leave unseen between them; it goes no farther than the farther beam
+    /// saw. This assumes that what hides is no smaller than a phantom: a smaller thing
+    /// could stand nearer the silhouette (docs/safety.md, "What the lidar cannot see").
+    fn out_of_known(&self, centre: [f64; 2], edge: &ShadowEdge, radius_m: f64) -> [f64; 2] {
+        let margin = super::KNOWN_MARGIN_M + super::KNOWN_MARGIN_PER_M * edge.near_m;
+        let on = |(k, r): &&super::Circle| super::geometry::distance(*k, edge.at) <= r + margin;
+        let Some(&(k, r)) = self.known.iter().find(on) else {
             return centre;
         };
-        // The farther root `s` of `|centre + s along - k| = r + radius - margin`.
-        let keep = (r + radius_m - margin).max(0.0);
+        // The farther root `s` of `|centre + s along - k| = keep`.
+        let keep = (r + radius_m - margin - edge.gap_m).max(0.0);
         let w = [centre[0] - k[0], centre[1] - k[1]];
-        let b = w[0] * along[0] + w[1] * along[1];
+        let b = w[0] * edge.along[0] + w[1] * edge.along[1];
         let c = w[0] * w[0] + w[1] * w[1] - keep * keep;
         if c >= 0.0 {
             return centre;
         }
-        let s = -b + (b * b - c).sqrt();
-        [centre[0] + s * along[0], centre[1] + s * along[1]]
+        let s = (-b + (b * b - c).sqrt()).min(edge.far_m - edge.near_m);
+        [centre[0] + s * edge.along[0], centre[1] + s * edge.along[1]]
     }
 
     /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`].
