@@ -87,8 +87,9 @@ pub struct Planner {
     stalled_at: [f64; 2],
     /// The route the robot last stalled on, until it is [`CLEARANCE_RESET_M`] (or half the
     /// way, if that is less) nearer the goal than where it stalled last: a periodic replan
-    /// does not go back to that way round the obstacles ([`Planner::switch`]). (Going round the other way may lead it away
-    /// from the goal first, where the way it stalled on is the shorter again.)
+    /// does not go back to that way round the obstacles ([`Planner::switch`]). (Going
+    /// round the other way may lead it away from the goal first, where the way it stalled
+    /// on is the shorter again.)
     stalled_on: Option<Route>,
 }
 

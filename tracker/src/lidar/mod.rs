@@ -23,6 +23,12 @@ pub const MAX_GROUPS: usize = 64;
 const KNOWN_MARGIN_M: f64 = 0.1;
 const KNOWN_MARGIN_PER_M: f64 = 0.02;
 
+/// How far beyond a known obstacle's edge a return at range `range_m` is still that
+/// obstacle's, m.
+fn known_margin_m(range_m: f64) -> f64 {
+    KNOWN_MARGIN_M + KNOWN_MARGIN_PER_M * range_m
+}
+
 /// `1 / sin(10 deg)`: two neighbouring points belong to one group while their gap is at
 /// most this many times the arc between their beams (the adaptive breakpoint detector:
 /// a surface seen at 10 deg from its beams or steeper stays one group), plus
@@ -185,13 +191,18 @@ impl Perception {
                 origin[0] + range_m * angle.cos(),
                 origin[1] + range_m * angle.sin(),
             ];
-            let margin = KNOWN_MARGIN_M + KNOWN_MARGIN_PER_M * range_m;
-            let on_known = (self.known.iter())
-                .any(|(centre, radius)| geometry::distance(*centre, xy) <= radius + margin);
-            if !on_known {
+            if self.known_at(xy, range_m).is_none() {
                 self.points.push(Point { xy, range_m, beam });
             }
         }
+    }
+
+    /// The known obstacle a return at `xy`, seen at range `range_m`, is taken as (within
+    /// [`known_margin_m`] of its edge), if any.
+    fn known_at(&self, xy: [f64; 2], range_m: f64) -> Option<Circle> {
+        let margin = known_margin_m(range_m);
+        (self.known.iter().copied())
+            .find(|(centre, radius)| geometry::distance(*centre, xy) <= radius + margin)
     }
 
     /// Whether neighbouring points `a` and `b` (`b` after `a`) are of one group.

@@ -108,12 +108,11 @@ impl Perception {
     /// saw. This assumes that what hides is no smaller than a phantom: a smaller thing
     /// could stand nearer the silhouette (docs/safety.md, "What the lidar cannot see").
     fn out_of_known(&self, centre: [f64; 2], edge: &ShadowEdge, radius_m: f64) -> [f64; 2] {
-        let margin = super::KNOWN_MARGIN_M + super::KNOWN_MARGIN_PER_M * edge.near_m;
-        let on = |(k, r): &&super::Circle| super::geometry::distance(*k, edge.at) <= r + margin;
-        let Some(&(k, r)) = self.known.iter().find(on) else {
+        let Some((k, r)) = self.known_at(edge.at, edge.near_m) else {
             return centre;
         };
         // The farther root `s` of `|centre + s along - k| = keep`.
+        let margin = super::known_margin_m(edge.near_m);
         let keep = (r + radius_m - margin - edge.gap_m).max(0.0);
         let w = [centre[0] - k[0], centre[1] - k[1]];
         let b = w[0] * edge.along[0] + w[1] * edge.along[1];

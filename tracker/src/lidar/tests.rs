@@ -212,9 +212,8 @@ fn a_pillar_of_the_map_casts_its_phantoms_behind_it_not_in_it() {
     let spacing = lidar.fov_deg.to_radians() / f64::from(lidar.beams);
     // (Taken at the silhouette's range: the last beam on the pillar is up to 0.17 m nearer,
     // its margin and spacing 6 mm less.)
-    let keep = 0.5 + s.perception.phantom_radius
-        - (KNOWN_MARGIN_M + silhouette * KNOWN_MARGIN_PER_M)
-        - silhouette * spacing;
+    let keep =
+        0.5 + s.perception.phantom_radius - known_margin_m(silhouette) - silhouette * spacing;
     for (phantom, side) in phantoms.iter().zip([-1.0, 1.0]) {
         let [x, y] = phantom.center;
         let clear = geometry::distance(phantom.center, [3.0, 0.0]);
