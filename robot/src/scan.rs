@@ -4,9 +4,8 @@
 //!
 //! Each scan is published once, at the first perception tick after it arrived, with its
 //! age then in inner ticks ([`Scan::age_ticks`]): the tracker places its points with the
-//! estimate of its arrival (its stamp is the robot's clock, not this host's). Its
-//! obstacles are measured as at the perception tick: a person's place lags by their
-//! speed times that age, under one scan period (docs/limitations.md).
+//! estimate of its arrival (its stamp is the robot's clock, not this host's) and measures
+//! its obstacles as at its arrival, predicting them on to the tick (docs/ros2.md).
 
 use crate::link::scan::{BASE_FRAME, ScanLink};
 use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};

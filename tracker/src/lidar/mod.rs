@@ -94,6 +94,10 @@ pub struct Perception {
     phantom: Option<PhantomModel>,
     /// The phantoms of the newest scan.
     phantoms: Vec<Phantom>,
+    /// The inner tick, s: the unit of a scan's age ([`Scan::age_ticks`]).
+    inner_tick_s: f64,
+    /// When the newest scan was taken, s.
+    scan_taken_s: f64,
 }
 
 impl Perception {
@@ -122,21 +126,29 @@ impl Perception {
             origin: [0.0; 2],
             phantom: scenario.phantoms().then(|| PhantomModel {
                 radius_m: p.phantom_radius,
+                speed_m_s: p.phantom_speed,
                 velocity_sigma: p.phantom_speed / scenario.mpc.uncertainty_sigmas,
             }),
             phantoms: Vec::with_capacity(MAX_BEAMS),
+            inner_tick_s: scenario.timing.dt_s(),
+            scan_taken_s: 0.0,
         }
     }
 
     /// Takes in `scan`, taken with the robot at `pose` (`[x, y, theta]`, the estimate at
-    /// the scan's time).
+    /// the scan's time). A scan that arrived before its perception tick (a robot's:
+    /// [`Scan::age_ticks`]) measures the obstacles where they were when it was taken: the
+    /// tracks are updated then and predicted on to the tick.
     pub fn take(&mut self, scan: &Scan, pose: [f64; 3]) {
         let time_s = scan.header.time_s;
-        self.predict_to(time_s);
+        let taken_s = time_s - f64::from(scan.age_ticks) * self.inner_tick_s;
+        self.predict_to(taken_s);
         self.points_of(scan, pose);
         self.group(scan.angle_increment_rad.abs(), full_circle(scan));
         self.associate();
-        self.update(time_s);
+        self.update(taken_s);
+        self.predict_to(time_s);
+        self.scan_taken_s = taken_s;
     }
 
     /// The groups of the newest scan.
@@ -171,7 +183,8 @@ impl Perception {
                 axis.predict(dt, self.accel_max);
             }
         }
-        self.time_s = Some(time_s);
+        // Never back: a scan taken before the tracks' time is taken in as of then.
+        self.time_s = Some(self.time_s.map_or(time_s, |last| last.max(time_s)));
     }
 
     /// The scan's returns in the world, but those on a known obstacle.

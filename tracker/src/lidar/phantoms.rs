@@ -18,6 +18,8 @@ pub const MAX_PHANTOMS: usize = 8;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct PhantomModel {
     pub radius_m: f64,
+    /// `perception.phantom_speed`, m/s.
+    pub speed_m_s: f64,
     /// `phantom_speed / kappa`, m/s: its velocity's standard deviation.
     pub velocity_sigma: f64,
 }
@@ -124,18 +126,25 @@ impl Perception {
         [centre[0] + s * edge.along[0], centre[1] + s * edge.along[1]]
     }
 
-    /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`].
+    /// The phantoms of the newest scan as tracks, numbered from [`FIRST_PHANTOM`], each
+    /// grown by how far it may have come out since the scan was taken (a robot's scan
+    /// arrives after it is taken; a tick without a new scan keeps the last one's).
     pub(super) fn phantom_tracks(&self) -> impl Iterator<Item = Track> + '_ {
         // There are phantoms only with a model.
         let model = self.phantom.unwrap_or(PhantomModel {
             radius_m: 0.0,
+            speed_m_s: 0.0,
             velocity_sigma: 0.0,
         });
         let variance = model.velocity_sigma * model.velocity_sigma;
+        let age_s = self
+            .time_s
+            .map_or(0.0, |now| (now - self.scan_taken_s).max(0.0));
+        let radius_m = model.radius_m + model.speed_m_s * age_s;
         (self.phantoms.iter().enumerate()).map(move |(k, (centre, _))| Track {
             obstacle: FIRST_PHANTOM + k as u32,
             reserved: 0,
-            radius_m: model.radius_m,
+            radius_m,
             center: *centre,
             velocity: [0.0; 2],
             covariance: [0.0, 0.0, variance, 0.0, 0.0, variance],

@@ -260,3 +260,47 @@ fn the_phantoms_keep_their_places_among_the_tracks_when_many_boxes_are_tracked()
         "the tracks fill what the phantoms leave"
     );
 }
+
+#[test]
+fn a_scan_that_arrives_late_places_a_walker_where_they_are_at_its_tick_and_grows_its_phantoms() {
+    // A robot's scan reaches the tracker most of a scan period after it was taken
+    // (`age_ticks`); the person walks across the line of sight at 1.5 m/s, crossing it
+    // at the last scan.
+    let person = Obstacle {
+        velocity: [0.0, 1.5],
+        ..unknown(4.0, -5.85, 0.3)
+    };
+    let mut s = world(vec![person.clone()], 0.0).into_inner();
+    s.perception.phantoms = true;
+    let s = s.validated("t").unwrap();
+    let period_s = 1.0 / s.lidar.as_ref().expect("a lidar").rate_hz;
+    let age_ticks = (0.9 * period_s / s.timing.dt_s()).round() as u32;
+    let age_s = f64::from(age_ticks) * s.timing.dt_s();
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let mut perception = Perception::new(&s);
+    let mut scan = Scan::default();
+    for k in 0..40 {
+        scan = scan_at(&s, k, [0.0; 3], &mut rng);
+        scan.age_ticks = age_ticks;
+        scan.header.tick += u64::from(age_ticks);
+        scan.header.time_s += age_s;
+        perception.take(&scan, [0.0; 3]);
+    }
+    let track = confirmed(&perception)[0];
+    let truth = person.center_at(scan.header.time_s);
+    // Along its walk (across the beams, where a one-sided fit has no bias) the track is
+    // where the person is at the tick, not where they were `age_s` before.
+    let behind = truth[1] - track.center[1];
+    assert!(
+        behind.abs() < 0.25 * 1.5 * age_s,
+        "{behind} m behind, the scan {age_s} s old"
+    );
+    let mut tracks = Tracks::default();
+    perception.tracks(&mut tracks);
+    let phantoms: Vec<_> = tracks.tracks().iter().filter(|t| t.is_phantom()).collect();
+    assert!(!phantoms.is_empty());
+    for phantom in phantoms {
+        let grown = s.perception.phantom_radius + s.perception.phantom_speed * age_s;
+        assert!((phantom.radius_m - grown).abs() < 1e-9, "{phantom:?}");
+    }
+}
