@@ -36,6 +36,64 @@ pub fn enclosing_circle(points: &[[f64; 2]]) -> Circle {
     circle
 }
 
+/// `circle`, which holds `points` (the returns of one group, seen from `viewer`), moved
+/// straight away from the viewer and grown to hold them still, until its near side is no
+/// more than `tolerance_m` nearer the viewer than the nearest point, or its radius is
+/// `most_radius_m`. For an arc of a circle that is the arc's own circle, where the smallest
+/// circle of the arc sits on its chord and reaches out in front of the face seen; a flat
+/// face, or an arc too short to tell its circle, moves until the radius is at the cap. The
+/// circle moves continuously with the points, so a track fed with it does not jump as
+/// less or more of its obstacle is seen.
+///
+/// Closed form, one pass per bound: with the centre at `c + s u` (`u` away from the
+/// viewer, `q = p - c` for each point `p`), the near side `|c - viewer| + s - |q - s u|`
+/// clears `nearest - tolerance_m` (call its shortfall at `s = 0` `k`) for point `p` once
+/// `s >= (|q|^2 - k^2) / (2 (k + q.u))`, and `|q - s u| <= most_radius_m` while `s <= q.u
+/// + sqrt(most_radius_m^2 - |q|^2 + (q.u)^2)`.
+pub fn behind_the_face(
+    points: &[[f64; 2]],
+    circle: Circle,
+    viewer: [f64; 2],
+    most_radius_m: f64,
+    tolerance_m: f64,
+) -> Circle {
+    let (centre, radius) = circle;
+    let range = distance(centre, viewer);
+    let Some(nearest) = points.iter().map(|&p| distance(p, viewer)).reduce(f64::min) else {
+        return circle;
+    };
+    let k = range - (nearest - tolerance_m);
+    if range < 1e-9 || most_radius_m <= radius {
+        return circle;
+    }
+    let u = [
+        (centre[0] - viewer[0]) / range,
+        (centre[1] - viewer[1]) / range,
+    ];
+    // The bound below squares `|q - s u| <= s + k`, which needs `s + k >= 0`.
+    let (mut face, mut cap) = ((-k).max(0.0), f64::INFINITY);
+    for p in points {
+        let q = [p[0] - centre[0], p[1] - centre[1]];
+        let (along, q2) = (q[0] * u[0] + q[1] * u[1], q[0] * q[0] + q[1] * q[1]);
+        // No point is farther than `radius < most_radius_m` at `s = 0`: a positive root.
+        cap = cap.min(along + (most_radius_m * most_radius_m - q2 + along * along).sqrt());
+        face = match k + along {
+            // Never clear of this point: only the cap stops the circle.
+            gain if gain <= 0.0 => f64::INFINITY,
+            gain => face.max((q2 - k * k) / (2.0 * gain)),
+        };
+    }
+    let s = face.min(cap);
+    if s <= 0.0 {
+        return circle;
+    }
+    let moved = [centre[0] + s * u[0], centre[1] + s * u[1]];
+    let reach = points
+        .iter()
+        .fold(0.0, |r: f64, &p| r.max(distance(moved, p)));
+    (moved, reach)
+}
+
 /// Whether `circle` holds `p` (to a nanometre).
 fn holds(circle: &Circle, p: [f64; 2]) -> bool {
     distance(circle.0, p) <= circle.1 + 1e-9
@@ -99,6 +157,35 @@ mod tests {
                 .iter()
                 .all(|p| distance(centre, *p) <= radius + 1e-9)
         );
+    }
+
+    #[test]
+    fn an_arc_seen_from_one_side_gets_its_own_circle_back_and_a_flat_face_keeps_its_enclosing_one()
+    {
+        // A box of radius 0.5 at (3, 0) seen from the origin over 120 degrees of its face.
+        let arc: Vec<[f64; 2]> = (0..=40)
+            .map(|i| {
+                let a = std::f64::consts::PI * (1.0 + (f64::from(i) - 20.0) / 60.0);
+                [3.0 + 0.5 * a.cos(), 0.5 * a.sin()]
+            })
+            .collect();
+        let enclosing = enclosing_circle(&arc);
+        // On the chord, reaching 0.25 m out in front of the face (the face is at 2.5 m).
+        assert!(enclosing.0[0] - enclosing.1 < 2.35, "{enclosing:?}");
+        let (centre, radius) = behind_the_face(&arc, enclosing, [0.0; 2], 1.5 * enclosing.1, 1e-3);
+        assert!(distance(centre, [3.0, 0.0]) < 2e-3, "{centre:?}");
+        assert!((radius - 0.5).abs() < 2e-3, "{radius}");
+        assert!(arc.iter().all(|p| distance(centre, *p) <= radius + 1e-9));
+        // A flat face 1 m wide, across the view: the circle goes back until its radius is
+        // at the cap, and still holds the face.
+        let face: Vec<[f64; 2]> = (0..=20).map(|i| [3.0, f64::from(i) / 20.0 - 0.5]).collect();
+        let enclosing = enclosing_circle(&face);
+        let (centre, radius) = behind_the_face(&face, enclosing, [0.0; 2], 0.75, 0.0);
+        assert!((radius - 0.75).abs() < 1e-6, "{radius}");
+        // Its ends are at the cap: the centre is sqrt(0.75^2 - 0.5^2) behind the face.
+        let behind = (0.75f64 * 0.75 - 0.5 * 0.5).sqrt();
+        assert!((centre[0] - 3.0 - behind).abs() < 1e-6, "{centre:?}");
+        assert!(face.iter().all(|p| distance(centre, *p) <= radius + 1e-9));
     }
 
     #[test]

@@ -10,7 +10,7 @@ mod phantoms;
 
 use crate::AxisFilter;
 use assignment::Assignment;
-pub use geometry::{Circle, enclosing_circle};
+pub use geometry::{Circle, behind_the_face, enclosing_circle};
 use phantoms::{Phantom, PhantomModel};
 use protocol::{MAX_BEAMS, MAX_TRACKS, Scan, Tracks, Validated};
 
@@ -38,6 +38,15 @@ const BREAK_FACTOR: f64 = 5.76;
 /// The least standard deviation of a fitted centre, m: the centre of a group's circle
 /// moves as the robot sees another side of its obstacle.
 const CENTRE_STD_M: f64 = 0.05;
+
+/// How much larger than the smallest circle of a group seen from one side its obstacle's
+/// circle may be found ([`behind_the_face`]): arcs of 84 degrees or more (`2 asin(1 /
+/// 1.5)`) give back their own circle.
+const ARC_RADIUS_FACTOR: f64 = 1.5;
+
+/// How far a group's disc may reach out in front of its nearest return, m: the default
+/// lidar's noise (`lidar.noise_std`, 0.01 m).
+const FACE_TOLERANCE_M: f64 = 0.01;
 
 /// A point of the scan in the world.
 #[derive(Debug, Clone, Copy)]
@@ -263,8 +272,10 @@ impl Perception {
         }
     }
 
-    /// The group of `len` points from `first` (cyclically): its disc, grown by the beam
-    /// spacing at its range and to `perception.min_radius` away from the lidar.
+    /// The group of `len` points from `first` (cyclically): its disc (the smallest circle
+    /// of its points, or behind it the circle of the arc they make: [`behind_the_face`]),
+    /// grown by the beam spacing at its range and to `perception.min_radius` away from the
+    /// lidar.
     fn close_group(&mut self, first: usize, len: usize, step_rad: f64) {
         let n = self.points.len();
         self.scratch.clear();
@@ -275,8 +286,15 @@ impl Perception {
             nearest = nearest.min(p.range_m);
         }
         shuffle(&mut self.scratch);
-        let (mut centre, radius) = enclosing_circle(&self.scratch);
-        let radius = radius + nearest * step_rad;
+        let enclosing = enclosing_circle(&self.scratch);
+        let circle = behind_the_face(
+            &self.scratch,
+            enclosing,
+            self.origin,
+            ARC_RADIUS_FACTOR * enclosing.1,
+            FACE_TOLERANCE_M,
+        );
+        let (mut centre, radius) = (circle.0, circle.1 + nearest * step_rad);
         if radius < self.min_radius_m {
             // Seen from one side: the disc keeps its near edge and reaches back.
             let away = [centre[0] - self.origin[0], centre[1] - self.origin[1]];
