@@ -202,14 +202,24 @@ fn the_phantoms_slow_the_robot_by_a_pillar_a_person_steps_out_from_as_its_lidar_
 #[test]
 fn a_person_stepping_out_from_behind_a_pillar_touches_the_moving_robot_only_without_phantoms() {
     // Issue 56: the lidar fuzz's world 748 of seed 1, drawn without phantoms, where the
-    // person comes out of the pillar's shadow into a robot at 0.89 m/s.
+    // person comes out of the pillar's shadow into a robot at 0.89 m/s. Since the tracker
+    // fits a face's circle behind it (da9e1f7) the person is seen in time at 5 Hz and up
+    // without phantoms; with a 4 Hz lidar only the phantoms save the robot.
     let _machine = common::machine_shared();
     let world = &fixture("fuzz-lidar-seed-1-world-748.toml");
     let dir = tempfile::tempdir().unwrap();
     let contacts = |phantoms: bool| {
         let out = dir.path().join(format!("phantoms-{phantoms}"));
         let set = format!("perception.phantoms={phantoms}");
-        let s = run_into(&out, &[world, "--in-process", "--set", &set]);
+        let args = [
+            world,
+            "--in-process",
+            "--set",
+            &set,
+            "--set",
+            "lidar.rate_hz=4",
+        ];
+        let s = run_into(&out, &args);
         s["contacts_moving"].as_u64().unwrap()
     };
     assert_eq!(contacts(false), 1, "without phantoms");
