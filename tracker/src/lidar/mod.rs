@@ -44,10 +44,6 @@ const CENTRE_STD_M: f64 = 0.05;
 /// 1.5)`) give back their own circle.
 const ARC_RADIUS_FACTOR: f64 = 1.5;
 
-/// How far a group's disc may reach out in front of its nearest return, m: the default
-/// lidar's noise (`lidar.noise_std`, 0.01 m).
-const FACE_TOLERANCE_M: f64 = 0.01;
-
 /// A point of the scan in the world.
 #[derive(Debug, Clone, Copy)]
 struct Point {
@@ -107,6 +103,9 @@ pub struct Perception {
     inner_tick_s: f64,
     /// When the newest scan was taken, s.
     scan_taken_s: f64,
+    /// How far a group's disc may reach out in front of its nearest return, m: the lidar's
+    /// noise (`lidar.noise_std`; [`behind_the_face`]).
+    face_tolerance_m: f64,
 }
 
 impl Perception {
@@ -141,6 +140,7 @@ impl Perception {
             phantoms: Vec::with_capacity(MAX_BEAMS),
             inner_tick_s: scenario.timing.dt_s(),
             scan_taken_s: 0.0,
+            face_tolerance_m: scenario.lidar.as_ref().map_or(0.01, |l| l.noise_std),
         }
     }
 
@@ -292,7 +292,7 @@ impl Perception {
             enclosing,
             self.origin,
             ARC_RADIUS_FACTOR * enclosing.1,
-            FACE_TOLERANCE_M,
+            self.face_tolerance_m,
         );
         let (mut centre, radius) = (circle.0, circle.1 + nearest * step_rad);
         if radius < self.min_radius_m {
