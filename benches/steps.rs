@@ -141,6 +141,51 @@ fn dfl_step_without_safety_check(bencher: divan::Bencher) {
     bench_dfl(bencher, &paper_formulation());
 }
 
+/// The DFL's tick that searches every evasion and finds none (docs/safety.md, "Stepping
+/// out of the way"), its most costly: a robot at rest at the origin on its way along x, a
+/// person 0.5 m behind it walking at it at 1 m/s (along its heading, so no evasion gets
+/// away), and 9 more tracks 4 m away; every candidate is looked ahead 1 s.
+#[divan::bench]
+fn dfl_step_searching_evasions(bencher: divan::Bencher) {
+    let mut s = Scenario {
+        obstacles: vec![Obstacle {
+            velocity: [1.0, 0.0],
+            ..Obstacle::fixed(-0.8, 0.0, 0.3)
+        }],
+        ..Scenario::default()
+    };
+    s.robot.goal.position = [5.0, 0.0];
+    let mut tracks = protocol::Tracks {
+        count: 10,
+        ..protocol::Tracks::default()
+    };
+    for (i, track) in tracks.tracks[..10].iter_mut().enumerate() {
+        let angle = i as f64 * 0.6;
+        *track = protocol::Track {
+            obstacle: i as u32,
+            radius_m: 0.3,
+            center: if i == 0 {
+                [-0.8, 0.0]
+            } else {
+                [4.0 * angle.cos(), 4.0 * angle.sin()]
+            },
+            velocity: if i == 0 { [1.0, 0.0] } else { [0.0, 0.0] },
+            covariance: [1e-4, 0.0, 1e-4, 1e-4, 0.0, 1e-4],
+            ..protocol::Track::default()
+        };
+    }
+    let mut dfl = Dfl::new(&s);
+    dfl.set_tracks(&tracks);
+    let at_rest = Estimate::default();
+    let first = dfl.step(&at_rest, 0);
+    assert_eq!(
+        first.mode(),
+        Some(protocol::CommandMode::Brake),
+        "an evasion was found"
+    );
+    bencher.bench_local(|| dfl.step(&at_rest, 0));
+}
+
 #[divan::bench]
 fn ekf_step(bencher: divan::Bencher) {
     let s = Scenario::paper()

@@ -453,3 +453,38 @@ fn realtime_crossing_survives_a_kill_of_the_tracker_and_a_live_swap_of_it() {
     );
     assert!(s["leftover_files"].as_array().unwrap().is_empty());
 }
+
+#[test]
+fn a_robot_braked_where_a_person_walks_into_it_steps_out_of_the_way_only_with_evasion() {
+    // Issue 56: the lidar fuzz's world 372 of seed 1. Every plan fails as the person
+    // walks at the robot, which brakes to rest in their way; stepping out of it along its
+    // heading (dfl.evasion), it is never touched.
+    let _machine = common::machine_shared();
+    let world = &fixture("fuzz-lidar-seed-1-world-372.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let run = |evasion: bool| {
+        let out = dir.path().join(format!("evasion-{evasion}"));
+        let set = format!("dfl.evasion={evasion}");
+        run_into(&out, &[world, "--in-process", "--set", &set])
+    };
+    let staying = run(false);
+    assert_eq!(
+        (
+            &staying["contacts_at_rest"],
+            &staying["commands"]["evasion"]
+        ),
+        (&1.into(), &0.into()),
+        "{staying}"
+    );
+    let evading = run(true);
+    assert_eq!(
+        (&evading["contacts_at_rest"], &evading["contacts_moving"]),
+        (&0.into(), &0.into()),
+        "{evading}"
+    );
+    assert!(
+        evading["commands"]["evasion"].as_u64() > Some(0),
+        "{evading}"
+    );
+    assert_eq!(evading["outcome"], "reached");
+}

@@ -48,6 +48,17 @@ pub struct Gatekeeper {
     horizon_s: f64,
 }
 
+/// How far ahead, and how, a check foresees the tracked obstacles.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Foresight {
+    /// How long from now a moving disc is checked against the robot, its brake and its
+    /// rest after it included, s (at least to the end of the trajectory's brake).
+    pub window_s: f64,
+    /// How much each obstacle may change its velocity, m/s^2: `perception.accel_max` for
+    /// the safety check, 0 for what the obstacles do if they go on as they go.
+    pub accel_max_m_s2: f64,
+}
+
 /// When a check starts: `into_sample_s` into sample `sample`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Moment {
@@ -81,6 +92,16 @@ impl Gatekeeper {
         }
     }
 
+    /// How the safety check foresees the tracked obstacles: each checked against the
+    /// robot until `N Ts` from now, changing its velocity by up to
+    /// `perception.accel_max`.
+    pub fn foresight(&self) -> Foresight {
+        Foresight {
+            window_s: self.horizon_s,
+            accel_max_m_s2: self.tracks.as_ref().map_or(0.0, KeptTracks::accel_max),
+        }
+    }
+
     /// How much the re-check of a committed trajectory grows every disc beyond the robot's
     /// radius and the safety margin, for an estimate with position standard deviation
     /// `sigma_m`: `kappa sigma`, m.
@@ -105,6 +126,20 @@ impl Gatekeeper {
     /// [`Gatekeeper::check`], with its contacts told apart by whether the robot still
     /// moves at them ([`Verdict`]).
     pub fn verdict(&self, plan: &Plan, now: Moment, z: [f64; 4], grow: f64) -> Verdict {
+        self.verdict_within(plan, now, z, grow, self.foresight())
+    }
+
+    /// [`Gatekeeper::verdict`] with the tracked obstacles foreseen as `foresight` says
+    /// rather than as the safety check does ([`Gatekeeper::foresight`]).
+    pub fn verdict_within(
+        &self,
+        plan: &Plan,
+        now: Moment,
+        z: [f64; 4],
+        grow: f64,
+        foresight: Foresight,
+    ) -> Verdict {
+        let window_s = foresight.window_s;
         let start = [z[0], z[2]];
         let velocity = [z[1], z[3]];
         let first = crate::covering_element(plan, now.sample);
@@ -134,9 +169,10 @@ impl Gatekeeper {
             }
         }
         let stand_s = self.stand_for_s(now);
-        for disc in self.moving_discs(start, now, grow) {
+        for disc in self.moving_discs(start, now, grow, foresight.accel_max_m_s2) {
             if disc.motion.held {
-                found.add(self.held_verdict(&disc, stages(), start, velocity, stand_s));
+                let held = self.held_verdict(&disc, stages(), (start, velocity), stand_s, window_s);
+                found.add(held);
                 continue;
             }
             let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
@@ -146,7 +182,7 @@ impl Gatekeeper {
                 advance(&mut p, &mut w, acc, duration);
                 elapsed += duration;
             }
-            found.add(self.moving_brake_verdict(p, w, &disc, elapsed));
+            found.add(self.moving_brake_verdict(p, w, &disc, elapsed, window_s));
         }
         let (mut p, mut w) = (start, velocity);
         for (acc, duration) in stages() {
@@ -167,13 +203,26 @@ impl Gatekeeper {
     /// [`Gatekeeper::brake_check`], with its contacts told apart by whether the robot
     /// still moves at them ([`Verdict`]).
     pub fn brake_verdict(&self, z: [f64; 4], now: Moment, grow: f64) -> Verdict {
+        self.brake_verdict_within(z, now, grow, self.foresight())
+    }
+
+    /// [`Gatekeeper::brake_verdict`] with the tracked obstacles foreseen as `foresight`
+    /// says ([`Gatekeeper::verdict_within`]).
+    pub fn brake_verdict_within(
+        &self,
+        z: [f64; 4],
+        now: Moment,
+        grow: f64,
+        foresight: Foresight,
+    ) -> Verdict {
+        let window_s = foresight.window_s;
         let (p, w) = ([z[0], z[2]], [z[1], z[3]]);
         let mut found = Verdict::default();
         if let Some(clearance) = self.brake_clearance(p, w, grow, p) {
             found.note(clearance, false);
         }
-        for disc in self.moving_discs(p, now, grow) {
-            let mut verdict = self.moving_brake_verdict(p, w, &disc, 0.0);
+        for disc in self.moving_discs(p, now, grow, foresight.accel_max_m_s2) {
+            let mut verdict = self.moving_brake_verdict(p, w, &disc, 0.0, window_s);
             if disc.motion.held {
                 // At rest, a phantom or an obstacle that stands still touches the robot
                 // only by walking into it.
@@ -199,9 +248,9 @@ impl Gatekeeper {
         &self,
         disc: &Disc,
         stages: impl Iterator<Item = ([f64; 2], f64)>,
-        start: [f64; 2],
-        velocity: [f64; 2],
+        (start, velocity): ([f64; 2], [f64; 2]),
         stand_s: f64,
+        window_s: f64,
     ) -> Verdict {
         let (mut p, mut w, mut elapsed) = (start, velocity, 0.0);
         let mut found = Verdict::default();
@@ -210,7 +259,7 @@ impl Gatekeeper {
             if !stop_checked && elapsed + duration >= stand_s {
                 let (mut q, mut u) = (p, w);
                 advance(&mut q, &mut u, acc, stand_s - elapsed);
-                found.add(self.moving_brake_verdict(q, u, disc, stand_s));
+                found.add(self.moving_brake_verdict(q, u, disc, stand_s, window_s));
                 stop_checked = true;
             }
             let staged = disc.staged(elapsed, stand_s);
@@ -222,7 +271,7 @@ impl Gatekeeper {
             elapsed += duration;
         }
         if !stop_checked {
-            found.add(self.moving_brake_verdict(p, w, disc, elapsed));
+            found.add(self.moving_brake_verdict(p, w, disc, elapsed, window_s));
         }
         Verdict {
             moving: found.moving,
@@ -239,20 +288,21 @@ impl Gatekeeper {
             .map_or(0.0, |kept| kept.stand_for_s(now_s))
     }
 
-    /// The discs the tracks predict at `now`, grown by the fixed part and `grow` (m), as
-    /// a trajectory from `start` is checked against them ([`checked_radius`]): none
-    /// before the first track.
+    /// The discs the tracks predict at `now`, each obstacle changing its velocity by up to
+    /// `accel_max` (m/s^2), grown by the fixed part and `grow` (m), as a trajectory from
+    /// `start` is checked against them ([`checked_radius`]): none before the first track.
     fn moving_discs(
         &self,
         start: [f64; 2],
         now: Moment,
         grow: f64,
+        accel_max: f64,
     ) -> impl Iterator<Item = Disc> + '_ {
         let now_s = now.sample as f64 * self.ts_s + now.into_sample_s;
         let growth = self.growth.fixed_m + grow;
         self.tracks
             .iter()
-            .flat_map(move |kept| kept.discs_at(now_s, growth))
+            .flat_map(move |kept| kept.discs_at_bounded(now_s, growth, accel_max))
             .map(move |disc| Disc {
                 radius: checked_radius(start, disc.center, disc.radius),
                 ..disc
@@ -282,7 +332,7 @@ impl Gatekeeper {
 
     /// The contacts of braking, `elapsed_s` after now, from position `p` with velocity
     /// `w` with a moving `disc` (as it is now), m; then of the robot at rest until
-    /// [`Gatekeeper::horizon_s`] after now. (Against a disc at rest, resting adds nothing;
+    /// `window_s` after now. (Against a disc at rest, resting adds nothing;
     /// against one coming at the robot it makes staying one choice among others, not a
     /// safe one: the DFL can then take a plan out of the obstacle's way.) The brake is
     /// taken as the arc of constant deceleration that stops in
@@ -294,6 +344,7 @@ impl Gatekeeper {
         w: [f64; 2],
         disc: &Disc,
         elapsed_s: f64,
+        window_s: f64,
     ) -> Verdict {
         let speed = w[0].hypot(w[1]);
         let stop = protocol::stopping_distance(speed, self.brake_decel, self.inner_tick_s);
@@ -309,7 +360,7 @@ impl Gatekeeper {
         let mut found = Verdict::default();
         let braking = moving_arc_clearance(p, w, acc, duration, &disc.at(elapsed_s));
         found.note(braking, at_rest(w, acc, duration));
-        let rest_s = self.horizon_s - elapsed_s - duration;
+        let rest_s = window_s - elapsed_s - duration;
         if rest_s <= 0.0 {
             return found;
         }
@@ -816,7 +867,7 @@ mod tests {
         // Grown over the whole plan, as a walking track's is, the disc would have met the
         // robot while it still moves, at the plan's end.
         let grown = g
-            .moving_discs([x, 0.0], at(0, 0.0), 0.0)
+            .moving_discs([x, 0.0], at(0, 0.0), 0.0, g.foresight().accel_max_m_s2)
             .next()
             .unwrap()
             .at(end_s);

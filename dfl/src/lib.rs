@@ -12,13 +12,14 @@ use protocol::{
 };
 
 mod choice;
+pub mod evasion;
 pub mod free_range;
 pub mod gatekeeper;
 pub mod task;
 
 pub use choice::{Candidate, least_unsafe};
 use choice::{Choice, choose, touching};
-pub use gatekeeper::{Gatekeeper, Moment, Verdict};
+pub use gatekeeper::{Foresight, Gatekeeper, Moment, Verdict};
 pub use task::{
     DeadlineMonitor, DflTask, PLAN_WAIT_FRACTION, PlanInbox, SILENT_TICKS, SilenceWatch,
 };
@@ -111,6 +112,8 @@ pub struct Dfl {
     timing: Timing,
     /// The inner tick, s.
     dt_s: f64,
+    /// The MPC's horizon `N`, samples.
+    horizon: u32,
     geometry: WheelGeometry,
     /// The wheels' limits (`plant.max_wheel_speed_rad_s`): the robot knows its actuators.
     wheels: protocol::PlantConfig,
@@ -124,6 +127,10 @@ pub struct Dfl {
     offered: Option<Plan>,
     /// Braking because the committed trajectory was found unsafe, until a plan passes.
     safety_braking: bool,
+    /// Whether the robot steps out of the way (`dfl.evasion`, [`evasion`]).
+    evades: bool,
+    /// The plan flown is an evasion ([`evasion`]), not one of the MPC's.
+    evading: bool,
     /// The plan flown on though it touches (every other choice is worse), and how that was
     /// reported: once per plan, and again if it comes to touch while moving.
     flown_unsafe: Option<(u64, Intervention)>,
@@ -222,6 +229,7 @@ impl Dfl {
             brake_decel: scenario.brake_decel(),
             timing: scenario.timing.clone(),
             dt_s: scenario.timing.dt_s(),
+            horizon: scenario.mpc.horizon as u32,
             geometry: WheelGeometry {
                 wheel_radius_m: scenario.plant.wheel_radius_m,
                 wheel_base_m: scenario.plant.wheel_base_m,
@@ -233,6 +241,8 @@ impl Dfl {
                 .then(|| free_range::FreeRange::new(scenario)),
             offered: None,
             safety_braking: false,
+            evades: scenario.dfl.evasion,
+            evading: false,
             flown_unsafe: None,
             newest: None,
             interventions: 0,
@@ -303,13 +313,7 @@ impl Dfl {
         let Some(gatekeeper) = &self.gatekeeper else {
             return CheckOutcome::default();
         };
-        let sample = self.timing.sample_of(tick);
-        let now = Moment {
-            sample,
-            into_sample_s: self.timing.time_into_sample_s(tick),
-        };
-        let [x, y, theta, _] = estimate.state;
-        let z = protocol::phi([x, y, theta, self.zeta]);
+        let (now, z) = self.checked_at(estimate, tick);
         let sigma = estimate.position_sigma();
         let (commit_growth, keep_growth) = (
             gatekeeper.commit_growth(sigma),
@@ -321,6 +325,7 @@ impl Dfl {
                 None => {
                     self.active = Some(plan);
                     self.safety_braking = false;
+                    self.evading = false;
                     return CheckOutcome::default();
                 }
                 Some(clearance) => refused = Some((plan, clearance)),
@@ -330,7 +335,7 @@ impl Dfl {
         // exhausted and the DFL brakes anyway).
         let flying = self
             .active
-            .filter(|plan| covering_element(plan, sample).is_some());
+            .filter(|plan| covering_element(plan, now.sample).is_some());
         let choice = choose(
             gatekeeper,
             (now, z, keep_growth),
@@ -354,6 +359,7 @@ impl Dfl {
                 plan.horizon = stages;
                 self.active = Some(plan);
                 self.safety_braking = false;
+                self.evading = false;
                 self.flown_unsafe = Some((plan.sample, intervention));
             }
             (_, Some((plan, clearance))) => {
@@ -372,6 +378,7 @@ impl Dfl {
                 outcome.note(intervention, plan_sample, clearance);
                 self.active = None;
                 self.safety_braking = true;
+                self.evading = false;
             }
             Choice::Brake(None, brake, _) if !brake.rests_before_contact() => {
                 let plan_sample = refused.map_or(0, |(plan, _)| plan.sample);
@@ -418,6 +425,11 @@ impl Dfl {
                 && !self.active.as_ref().is_some_and(|plan| hold.leaves(plan))
                 && !self.staying_touches(estimate, tick);
         }
+        let checked = if self.holding {
+            checked
+        } else {
+            self.evade(estimate, tick, checked)
+        };
         let chosen = self
             .active
             .as_ref()
@@ -437,7 +449,9 @@ impl Dfl {
                 } else {
                     linearizing_input(theta, self.zeta, v, self.zeta_threshold)
                 };
-                let mode = if plan_sample != sample {
+                let mode = if self.evading {
+                    CommandMode::Evasion
+                } else if plan_sample != sample {
                     CommandMode::Shifted
                 } else if guarded {
                     CommandMode::ZetaGuard
@@ -476,6 +490,63 @@ impl Dfl {
             self.interventions += 1;
             self.active = None;
             self.safety_braking = true;
+            self.evading = false;
+        }
+        outcome
+    }
+
+    /// Steps out of the way ([`evasion`]) when the DFL would brake, or rest, at `tick`
+    /// without a plan and the brake is predicted to be run into within
+    /// [`evasion::EVASION_WINDOW_S`]: flies the shortest evasion the commit check finds
+    /// clear, if any, as its committed trajectory.
+    fn evade(&mut self, estimate: &Estimate, tick: u64, mut outcome: CheckOutcome) -> CheckOutcome {
+        let Some(gatekeeper) = self.gatekeeper.as_ref().filter(|_| self.evades) else {
+            return outcome;
+        };
+        let (now, z) = self.checked_at(estimate, tick);
+        if (self.active.as_ref()).is_some_and(|plan| covering_element(plan, now.sample).is_some()) {
+            return outcome;
+        }
+        let [x, y, theta, _] = estimate.state;
+        let sigma = estimate.position_sigma();
+        let keep_growth_m = gatekeeper.keep_growth(sigma);
+        let ahead = evasion::look_ahead(gatekeeper);
+        let brake = gatekeeper.brake_verdict_within(z, now, keep_growth_m, ahead);
+        let Some(clearance) = brake.deepest() else {
+            return outcome;
+        };
+        let start = evasion::Start {
+            now,
+            z,
+            heading_rad: theta,
+            zeta_m_s: self.zeta,
+        };
+        let limits = evasion::Limits {
+            accel_m_s2: self.brake_decel,
+            most_speed_m_s: evasion::most_forward_speed_m_s(&self.wheels),
+            ts_s: self.timing.ts_s,
+        };
+        // The way an evasion drives, to its stop, is twice the stopping distance of its
+        // peak speed (it accelerates and brakes at the same rate): the free range must hold
+        // the stop from sqrt(2) times that speed.
+        let free_range = self.free_range.as_ref();
+        let may_reach = |peak: f64| {
+            free_range.is_none_or(|f| {
+                f.shortfall_m([x, y, theta], peak * std::f64::consts::SQRT_2)
+                    .is_none()
+            })
+        };
+        let checks = evasion::Checks {
+            keep_growth_m,
+            commit_growth_m: gatekeeper.commit_growth(sigma),
+            horizon: self.horizon,
+        };
+        if let Some(plan) = evasion::evasion(gatekeeper, start, checks, limits, may_reach) {
+            outcome.note(Intervention::Evasion, plan.sample, clearance);
+            self.interventions += 1;
+            self.active = Some(plan);
+            self.safety_braking = false;
+            self.evading = true;
         }
         outcome
     }
@@ -486,14 +557,20 @@ impl Dfl {
         let Some(gatekeeper) = &self.gatekeeper else {
             return false;
         };
+        let (now, z) = self.checked_at(estimate, tick);
+        let grow = gatekeeper.keep_growth(estimate.position_sigma());
+        gatekeeper.brake_check(z, now, grow).is_some()
+    }
+
+    /// When and from what the safety check of `tick` checks: the moment, and the state
+    /// `z = Phi(x_bar)` of `estimate` with the DFL's zeta.
+    fn checked_at(&self, estimate: &Estimate, tick: u64) -> (Moment, [f64; 4]) {
         let now = Moment {
             sample: self.timing.sample_of(tick),
             into_sample_s: self.timing.time_into_sample_s(tick),
         };
         let [x, y, theta, _] = estimate.state;
-        let z = protocol::phi([x, y, theta, self.zeta]);
-        let grow = gatekeeper.keep_growth(estimate.position_sigma());
-        gatekeeper.brake_check(z, now, grow).is_some()
+        (now, protocol::phi([x, y, theta, self.zeta]))
     }
 
     /// A braking command for `tick` without an estimate (the estimator is silent): braking

@@ -840,3 +840,102 @@ fn a_plan_cut_short_is_flown_to_its_cut_and_then_the_robot_brakes() {
         (Some(CommandMode::Brake), 0)
     );
 }
+
+/// A robot at rest at the origin, heading along x on its way to a goal 5 m ahead, and a
+/// person (0.3 m) at `(x, -1)` walking along y at 1 m/s: across its way, at it when `x`
+/// is 0.
+fn crossing_at(x: f64, evasion: bool) -> Dfl {
+    let mut s = Scenario {
+        obstacles: vec![protocol::Obstacle {
+            velocity: [0.0, 1.0],
+            ..protocol::Obstacle::fixed(x, -1.0, 0.3)
+        }],
+        ..Scenario::default()
+    };
+    s.robot.goal.position = [5.0, 0.0];
+    s.dfl.evasion = evasion;
+    let mut dfl = Dfl::new(&s);
+    dfl.set_tracks(&one_track(0.0, [x, -1.0], [0.0, 1.0]));
+    dfl
+}
+
+#[test]
+fn a_robot_at_rest_that_a_person_would_walk_into_steps_out_of_the_way_along_its_heading() {
+    let at_rest = Estimate::default();
+    let mut dfl = crossing_at(0.0, true);
+    let a = dfl.step(&at_rest, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Evasion), Some(Intervention::Evasion))
+    );
+    assert!(
+        a.v[0] != 0.0 && a.v[1] == 0.0,
+        "not along the heading: {:?}",
+        a.v
+    );
+    assert!(
+        a.intervention_clearance_m < 0.0,
+        "staying would not be run into"
+    );
+    // The evasion is flown on, checked as a committed trajectory, without a new one.
+    let b = dfl.step(&at_rest, 1);
+    assert_eq!(
+        (b.mode(), b.intervention(), b.v),
+        (Some(CommandMode::Evasion), Some(Intervention::None), a.v)
+    );
+    assert_eq!(dfl.interventions(), 1);
+
+    let mut staying = crossing_at(0.0, false);
+    let a = staying.step(&at_rest, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Brake), Some(Intervention::None)),
+        "dfl.evasion = false"
+    );
+    let mut passing = crossing_at(2.0, true);
+    let a = passing.step(&at_rest, 0);
+    assert_eq!(
+        (a.mode(), a.intervention()),
+        (Some(CommandMode::Brake), Some(Intervention::None)),
+        "a person who passes 2 m ahead"
+    );
+}
+
+#[test]
+fn an_evasion_drives_straight_along_the_heading_and_its_states_follow_its_inputs() {
+    let start = evasion::Start {
+        now: Moment {
+            sample: 7,
+            into_sample_s: 0.02,
+        },
+        z: protocol::phi([1.0, 2.0, 0.5, 0.4]),
+        heading_rad: 0.5,
+        zeta_m_s: 0.4,
+    };
+    let limits = evasion::Limits {
+        accel_m_s2: 2.0,
+        most_speed_m_s: f64::INFINITY,
+        ts_s: 0.05,
+    };
+    let plan = evasion::evasion_plan(start, -1.0, 6, limits);
+    assert_eq!((plan.sample, plan.horizon), (7, 6));
+    // Braking from 0.4 m/s, then reversing: for 0.03 s, then five samples of 0.05 s.
+    let duration = 0.03 + 5.0 * 0.05;
+    let speed = 0.4 - 2.0 * duration;
+    let along = 0.4 * duration - 0.5 * 2.0 * duration * duration;
+    let end = protocol::phi([
+        1.0 + along * 0.5f64.cos(),
+        2.0 + along * 0.5f64.sin(),
+        0.5,
+        speed,
+    ]);
+    for (got, wanted) in plan.z[6].iter().zip(end) {
+        assert!(
+            (got - wanted).abs() < 1e-12,
+            "{:?} against {end:?}",
+            plan.z[6]
+        );
+    }
+    let peak = evasion::peak_speed_m_s(start, -1.0, 6, limits);
+    assert!((peak - speed).abs() < 1e-12);
+}

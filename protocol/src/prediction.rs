@@ -114,13 +114,24 @@ impl KeptTracks {
     /// The disc of every track kept at time `t_s` (absolute), each obstacle's radius grown
     /// by `growth_m` and by its prediction ([`predicted_disc`]).
     pub fn discs_at(&self, t_s: f64, growth_m: f64) -> impl Iterator<Item = Disc> + '_ {
+        self.discs_at_bounded(t_s, growth_m, self.accel_max)
+    }
+
+    /// [`KeptTracks::discs_at`], each obstacle taken to change its velocity by at most
+    /// `accel_max` (m/s^2) rather than `perception.accel_max`: 0 predicts each as it goes.
+    pub fn discs_at_bounded(
+        &self,
+        t_s: f64,
+        growth_m: f64,
+        accel_max: f64,
+    ) -> impl Iterator<Item = Disc> + '_ {
         self.tracks.iter().map(move |(track, time_s)| {
             predicted_disc(
                 track,
                 t_s - time_s,
                 growth_m,
                 self.uncertainty_sigmas,
-                self.accel_max,
+                accel_max,
                 self.tracks_refresh_s,
             )
         })

@@ -54,8 +54,9 @@ COMMAND_MODES = {
     "zeta_guard": 3,
     "safety_brake": 4,
     "hold": 5,
+    "evasion": 6,
 }
-INTERVENTIONS = {"none": 0, "plan_refused": 1, "committed_unsafe": 2, "least_unsafe": 3, "moving_contact": 4, "free_range": 5}
+INTERVENTIONS = {"none": 0, "plan_refused": 1, "committed_unsafe": 2, "least_unsafe": 3, "moving_contact": 4, "free_range": 5, "evasion": 6}
 ROUTE_STATUSES = {"ok": 0, "no_route": 1}
 REPLAN_REASONS = {"start": 0, "period": 1, "stall": 2, "stray": 3}
 ROUTE_SWITCHES = {"replanned": 0, "same_way": 1, "shorter": 2, "blocked": 3}

@@ -38,6 +38,7 @@ pub struct ModeCounts {
     pub zeta_guard: u64,
     pub safety_brake: u64,
     pub hold: u64,
+    pub evasion: u64,
 }
 
 impl ModeCounts {
@@ -51,6 +52,7 @@ impl ModeCounts {
             ZetaGuard => &mut self.zeta_guard,
             SafetyBrake => &mut self.safety_brake,
             Hold => &mut self.hold,
+            Evasion => &mut self.evasion,
         } += 1;
     }
 }

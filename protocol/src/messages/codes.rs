@@ -140,6 +140,9 @@ pub enum CommandMode {
     /// Held at the goal (`robot.final_approach = "settle"`, docs/reach.md): `U2 = 0`, `U1`
     /// brakes zeta to zero and the robot stays at rest; plans are checked, not flown.
     Hold = 5,
+    /// Stepping out of the way of an obstacle coming at the robot (`dfl::evasion`): along
+    /// the heading, then braking, until a plan passes the check.
+    Evasion = 6,
 }
 
 impl CommandMode {
@@ -151,6 +154,7 @@ impl CommandMode {
             3 => CommandMode::ZetaGuard,
             4 => CommandMode::SafetyBrake,
             5 => CommandMode::Hold,
+            6 => CommandMode::Evasion,
             _ => return None,
         })
     }
@@ -162,6 +166,7 @@ impl CommandMode {
             CommandMode::ZetaGuard => "zeta_guard",
             CommandMode::SafetyBrake => "safety_brake",
             CommandMode::Hold => "hold",
+            CommandMode::Evasion => "evasion",
         }
     }
 }
@@ -194,6 +199,10 @@ pub enum Intervention {
     /// it needs to stop (`dfl::free_range`): the DFL brakes, whatever perception made of
     /// the scan.
     FreeRange = 5,
+    /// The DFL would brake without a plan, or rest, where an obstacle coming at the robot
+    /// is predicted to run into it (`dfl::evasion`): it drives along its heading out of
+    /// the way instead, on an evasion the check finds clear.
+    Evasion = 6,
 }
 
 impl Intervention {
@@ -205,6 +214,7 @@ impl Intervention {
             3 => Intervention::LeastUnsafe,
             4 => Intervention::MovingContact,
             5 => Intervention::FreeRange,
+            6 => Intervention::Evasion,
             _ => return None,
         })
     }
@@ -216,6 +226,7 @@ impl Intervention {
             Intervention::LeastUnsafe => "least_unsafe",
             Intervention::MovingContact => "moving_contact",
             Intervention::FreeRange => "free_range",
+            Intervention::Evasion => "evasion",
         }
     }
 }

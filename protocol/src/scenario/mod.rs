@@ -575,6 +575,10 @@ pub struct DflConfig {
     /// followed by the brake, it has checked against every obstacle, and brakes at once
     /// when the estimate shows the trajectory it flies is no longer safe.
     pub gatekeeper: bool,
+    /// With the safety check: a robot that would brake without a plan, or rest, where an
+    /// obstacle coming at it is predicted to run into it steps out of its way along its
+    /// heading, when the check finds a way clear (`dfl::evasion`, docs/safety.md).
+    pub evasion: bool,
 }
 
 /// The route planner (docs/planner.md).
@@ -757,6 +761,7 @@ impl Default for DflConfig {
             zeta_threshold: 0.01,
             brake_decel: AutoOr::Auto(Auto::Auto),
             gatekeeper: true,
+            evasion: true,
         }
     }
 }
