@@ -106,6 +106,18 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "{world}: allocations after warm-up by role code"
         );
     }
+    // Stepping out of a person's way (`dfl::evasion`): the lidar fuzz's world 372 of seed
+    // 1, where the robot, braked without a plan, searches its evasions and flies one.
+    let world = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/fuzz-lidar-seed-1-world-372.toml"
+    );
+    let (counts, modes) = count_whole_run(&run::scenarios::load(Some(world), &[]).unwrap());
+    assert!(modes.contains(&CommandMode::Evasion), "{modes:?}");
+    assert_eq!(
+        counts, [0; ROLES],
+        "world 372: allocations after warm-up by role code"
+    );
     // The real-time MPC's warm-up before each sample (a dry step, then its state put
     // back), in both programs: the robot follows each plan's first state, off by a drift.
     // Whole, and cut short as the estimate's arrival cuts it (the cancel check holds from

@@ -11,7 +11,9 @@
 //! turns in place before it goes sideways; under the linearizing law the path is then a
 //! straight line, exactly the arc the check models). Evasions accelerate at the brake's
 //! deceleration for [`EVASION_STAGES`] samples (no faster than the wheels turn, nor than
-//! the robot can stop short of the newest scan's points) and brake; the shortest one that
+//! the robot can stop short of the newest scan's points the way it evades; a robot that
+//! evades against its motion first brakes along the way it had, as the brake would) and
+//! brake; the shortest one that
 //! the check finds clear of every disc (moving ones until the window's end, phantoms and
 //! the map as for any plan) is flown, as a committed trajectory: checked again on every
 //! tick, and replaced by the first plan of the MPC's that passes.
@@ -90,9 +92,10 @@ pub fn evasion_plan(start: Start, sign: f64, stages: u32, limits: Limits) -> Pla
     plan
 }
 
-/// The fastest forward speed (signed, m/s) an evasion along `sign` reaches: the speed it
-/// has after its acceleration.
-pub fn peak_speed_m_s(start: Start, sign: f64, stages: u32, limits: Limits) -> f64 {
+/// The forward speed (signed, m/s) an evasion along `sign` has at the end of its
+/// acceleration: its fastest the way it evades (against the robot's motion, it first
+/// brakes, from a speed the free range already holds).
+pub fn end_speed_m_s(start: Start, sign: f64, stages: u32, limits: Limits) -> f64 {
     let duration = stages as f64 * limits.ts_s - start.now.into_sample_s;
     start.zeta_m_s + sign * limits.accel_m_s2 * duration.max(0.0)
 }
@@ -107,34 +110,37 @@ pub struct Checks {
     pub horizon: u32,
 }
 
-/// How an evasion looks ahead: [`EVASION_WINDOW_S`] (at least the safety check's window),
-/// each tracked obstacle going on as it goes.
-pub fn look_ahead(gatekeeper: &Gatekeeper) -> Foresight {
+/// How an evasion, and the brake it replaces, look ahead: [`EVASION_WINDOW_S`] (at least
+/// the safety check's window), each tracked obstacle going on as it goes.
+fn look_ahead(gatekeeper: &Gatekeeper) -> Foresight {
     Foresight {
         window_s: EVASION_WINDOW_S.max(gatekeeper.foresight().window_s),
         accel_max_m_s2: 0.0,
     }
 }
 
-/// The evasion to fly from `start`, if one gets out of the way: the shortest (forwards
-/// before backwards) that, looked ahead ([`look_ahead`]) to its stop and rest, enters no
-/// disc, among those whose peak speed is within the limits and `may_reach(peak_speed_m_s)`
-/// allows; flown for its first `N` samples at most (then, if it is still needed, the
-/// next evasion goes on from there), which the commit check must find clear as it finds
-/// an MPC plan.
+/// The evasion to fly from `start`, if braking there is run into looked ahead
+/// ([`look_ahead`]), with the brake's deepest contact so looked ahead (negative, m): the
+/// shortest evasion (forwards before backwards) that, looked ahead to its stop and rest,
+/// enters no disc, among those whose end speed is within the limits and
+/// `may_reach(end_speed_m_s)` allows; flown for its first `N` samples at most (then, if
+/// it is still needed, the next evasion goes on from there), which the commit check must
+/// find clear as it finds an MPC plan.
 pub fn evasion(
     gatekeeper: &Gatekeeper,
     start: Start,
     checks: Checks,
     limits: Limits,
     may_reach: impl Fn(f64) -> bool,
-) -> Option<Plan> {
+) -> Option<(Plan, f64)> {
     let ahead = look_ahead(gatekeeper);
+    let brake = gatekeeper.brake_verdict_within(start.z, start.now, checks.keep_growth_m, ahead);
+    let run_into = brake.deepest()?;
     let longest = protocol::MAX_HORIZON.min((ahead.window_s / limits.ts_s) as usize) as u32;
     for stages in EVASION_STAGES.into_iter().filter(|&k| k <= longest) {
         for sign in [1.0, -1.0] {
-            let peak = peak_speed_m_s(start, sign, stages, limits);
-            if peak.abs() > limits.most_speed_m_s || !may_reach(peak) {
+            let end = end_speed_m_s(start, sign, stages, limits);
+            if end.abs() > limits.most_speed_m_s || !may_reach(end) {
                 continue;
             }
             let (now, z) = (start.now, start.z);
@@ -148,7 +154,7 @@ pub fn evasion(
                 .check(&plan, now, z, checks.commit_growth_m)
                 .is_none()
             {
-                return Some(plan);
+                return Some((plan, run_into));
             }
         }
     }

@@ -51,8 +51,8 @@ pub struct Gatekeeper {
 /// How far ahead, and how, a check foresees the tracked obstacles.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Foresight {
-    /// How long from now a moving disc is checked against the robot, its brake and its
-    /// rest after it included, s (at least to the end of the trajectory's brake).
+    /// How long from now a moving disc is checked against the robot at rest after the
+    /// trajectory's brake, s (the trajectory and its brake are checked whole).
     pub window_s: f64,
     /// How much each obstacle may change its velocity, m/s^2: `perception.accel_max` for
     /// the safety check, 0 for what the obstacles do if they go on as they go.

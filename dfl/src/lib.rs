@@ -103,6 +103,13 @@ pub fn covering_element(plan: &Plan, current_sample: u64) -> Option<usize> {
     (age < u64::from(plan.horizon)).then_some(age as usize)
 }
 
+/// Whether `plan` (an evasion: one acceleration along the heading) slows a robot heading
+/// `theta_rad` that moves at `zeta` (m/s).
+fn braking_along(plan: &Plan, theta_rad: f64, zeta: f64) -> bool {
+    let (sin, cos) = theta_rad.sin_cos();
+    (plan.v[0][0] * cos + plan.v[0][1] * sin) * zeta < 0.0
+}
+
 /// The DFL role: owns zeta and the newest usable plan (with the safety check on, the
 /// committed one).
 pub struct Dfl {
@@ -421,7 +428,8 @@ impl Dfl {
         let [x, y, theta, _] = estimate.state;
         if let Some(hold) = self.goal_hold {
             // Checked in order of cost, and only near the goal.
-            self.holding = hold.holds(self.holding, [x, y], self.zeta)
+            self.holding = !self.evading
+                && hold.holds(self.holding, [x, y], self.zeta)
                 && !self.active.as_ref().is_some_and(|plan| hold.leaves(plan))
                 && !self.staying_touches(estimate, tick);
         }
@@ -484,6 +492,15 @@ impl Dfl {
             return outcome;
         };
         let [x, y, theta, _] = estimate.state;
+        if self.evading
+            && self
+                .active
+                .is_some_and(|plan| braking_along(&plan, theta, self.zeta))
+        {
+            // An evasion against the robot's motion brakes as the brake would, and the
+            // free range held its way back when it was taken (`dfl::evasion`).
+            return outcome;
+        }
         if let Some(short_m) = free_range.shortfall_m([x, y, theta], self.zeta) {
             let plan_sample = self.active.map_or(0, |plan| plan.sample);
             outcome.note(Intervention::FreeRange, plan_sample, -short_m);
@@ -509,12 +526,6 @@ impl Dfl {
         }
         let [x, y, theta, _] = estimate.state;
         let sigma = estimate.position_sigma();
-        let keep_growth_m = gatekeeper.keep_growth(sigma);
-        let ahead = evasion::look_ahead(gatekeeper);
-        let brake = gatekeeper.brake_verdict_within(z, now, keep_growth_m, ahead);
-        let Some(clearance) = brake.deepest() else {
-            return outcome;
-        };
         let start = evasion::Start {
             now,
             z,
@@ -526,23 +537,25 @@ impl Dfl {
             most_speed_m_s: evasion::most_forward_speed_m_s(&self.wheels),
             ts_s: self.timing.ts_s,
         };
-        // The way an evasion drives, to its stop, is twice the stopping distance of its
-        // peak speed (it accelerates and brakes at the same rate): the free range must hold
-        // the stop from sqrt(2) times that speed.
+        // The way an evasion drives the way it evades, to its stop, is at most twice the
+        // stopping distance of its end speed (it accelerates and brakes at one rate): the
+        // free range must hold the stop from sqrt(2) times that speed.
         let free_range = self.free_range.as_ref();
-        let may_reach = |peak: f64| {
+        let may_reach = |end: f64| {
             free_range.is_none_or(|f| {
-                f.shortfall_m([x, y, theta], peak * std::f64::consts::SQRT_2)
+                f.shortfall_m([x, y, theta], end * std::f64::consts::SQRT_2)
                     .is_none()
             })
         };
         let checks = evasion::Checks {
-            keep_growth_m,
+            keep_growth_m: gatekeeper.keep_growth(sigma),
             commit_growth_m: gatekeeper.commit_growth(sigma),
             horizon: self.horizon,
         };
-        if let Some(plan) = evasion::evasion(gatekeeper, start, checks, limits, may_reach) {
-            outcome.note(Intervention::Evasion, plan.sample, clearance);
+        if let Some((plan, run_into)) =
+            evasion::evasion(gatekeeper, start, checks, limits, may_reach)
+        {
+            outcome.note(Intervention::Evasion, plan.sample, run_into);
             self.interventions += 1;
             self.active = Some(plan);
             self.safety_braking = false;

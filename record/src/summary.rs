@@ -389,13 +389,14 @@ impl Summary {
             (
                 "commands",
                 format!(
-                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}, hold {}",
+                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}, hold {}, evasion {}",
                     self.commands.nominal,
                     self.commands.shifted,
                     self.commands.brake,
                     self.commands.zeta_guard,
                     self.commands.safety_brake,
-                    self.commands.hold
+                    self.commands.hold,
+                    self.commands.evasion
                 ),
             ),
             (
