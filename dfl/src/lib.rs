@@ -136,7 +136,8 @@ pub struct Dfl {
     safety_braking: bool,
     /// Whether the robot steps out of the way (`dfl.evasion`, [`evasion`]).
     evades: bool,
-    /// The plan flown is an evasion ([`evasion`]), not one of the MPC's.
+    /// The plan flown is an evasion ([`evasion`]), not one of the MPC's (until the first
+    /// tick it no longer covers).
     evading: bool,
     /// The plan flown on though it touches (every other choice is worse), and how that was
     /// reported: once per plan, and again if it comes to touch while moving.
@@ -517,13 +518,15 @@ impl Dfl {
     /// [`evasion::EVASION_WINDOW_S`]: flies the shortest evasion the commit check finds
     /// clear, if any, as its committed trajectory.
     fn evade(&mut self, estimate: &Estimate, tick: u64, mut outcome: CheckOutcome) -> CheckOutcome {
-        let Some(gatekeeper) = self.gatekeeper.as_ref().filter(|_| self.evades) else {
-            return outcome;
-        };
         let (now, z) = self.checked_at(estimate, tick);
         if (self.active.as_ref()).is_some_and(|plan| covering_element(plan, now.sample).is_some()) {
             return outcome;
         }
+        // An evasion that no longer covers the tick is over: the robot brakes.
+        self.evading = false;
+        let Some(gatekeeper) = self.gatekeeper.as_ref().filter(|_| self.evades) else {
+            return outcome;
+        };
         let [x, y, theta, _] = estimate.state;
         let sigma = estimate.position_sigma();
         let start = evasion::Start {
