@@ -71,6 +71,11 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             number(&["moving_obstacles", "ratio_p50"]),
             2.0,
         ),
+        (
+            "hop with a live client / without (p99)",
+            number(&["live_hop_us", "p99"]) / number(&["pipeline_hop_us", "p99"]),
+            1.2,
+        ),
     ] {
         let t = judged(name);
         assert!(
@@ -115,4 +120,7 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
     }
     assert!(table.contains("cores kept awake"), "{table}");
     assert!(number(&["lockstep_recording_share"]).is_finite());
+    // The run again, served live to a client that read every channel.
+    assert!(number(&["live_messages"]) > 0.0);
+    assert!(table.contains("hop, live client"), "{table}");
 }

@@ -218,6 +218,7 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
         "/robot/estimate",
         "/estimator/estimate",
         "/dfl/command",
+        "/robot/clearance",
     ] {
         assert_eq!(count(topic), ticks, "{topic}");
     }

@@ -6,7 +6,7 @@
 //! intervention, no route), and hands everything on to the run's [`Sink`]s: the run
 //! directory's files ([`sink::RunDirectory`], with `summary.json`), `events.jsonl`
 //! ([`sink::EventsFile`]), the CSV files ([`csv::CsvFiles`], columns in [`schema`]),
-//! `run.mcap` ([`McapLog`]), and whatever a run adds (its status line): the list is
+//! `run.mcap` ([`Encoded::open_mcap`]), and whatever a run adds (its status line): the list is
 //! `run::sinks::Recording::sinks`.
 //!
 //! Whatever ends the run, the records hold what happened up to [`FLUSH_PERIOD`] before
@@ -31,10 +31,10 @@ pub mod sink;
 
 mod json;
 mod lines;
-mod mcap;
+pub mod mcap;
 mod summary;
 pub use lines::FLUSH_PERIOD;
-pub use mcap::McapLog;
+pub use mcap::{Channels, Encoded};
 pub use sink::{INCOMPLETE, OpenSink, RunStart, Sample, Sink, TickSample};
 pub use summary::{
     ArrivalReport, Latencies, LinkReport, ModeCounts, Percentiles, ProcessReport, Scheduling,

@@ -6,7 +6,7 @@
 //!
 //! The run directory's own files ([`RunDirectory`]: `INCOMPLETE`, `scenario.toml`,
 //! `summary.json`) and `events.jsonl` ([`EventsFile`]) are sinks here; the CSV files are
-//! [`crate::csv::CsvFiles`], `run.mcap` is [`crate::McapLog`].
+//! [`crate::csv::CsvFiles`], `run.mcap` is [`crate::Encoded::open_mcap`].
 
 use crate::lines::Lines;
 use crate::{EventLine, Summary};

@@ -34,10 +34,16 @@ pub fn run_observed(
     let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
     let mut closed_loop = ClosedLoop::new(scenario)?;
     let mut outcome = None;
+    let mut pace = crate::pace::Pace::of(scenario);
+    let mut ticks = 0;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {
             outcome = Some(Outcome::Interrupted);
             break;
+        }
+        if let Some(pace) = &mut pace {
+            pace.wait(ticks);
+            ticks += 1;
         }
         let tick = match closed_loop.step() {
             Ok(tick) => tick,

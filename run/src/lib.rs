@@ -10,6 +10,7 @@ pub mod children;
 pub mod closed_loop;
 pub mod inprocess;
 pub mod multiproc;
+pub mod pace;
 pub mod remote;
 pub mod roles;
 pub mod scenarios;

@@ -4,7 +4,7 @@
 use anyhow::Context;
 use record::csv::CsvFiles;
 use record::sink::{EventsFile, RunDirectory};
-use record::{McapLog, OpenSink, Recorder, RunStart};
+use record::{Encoded, OpenSink, Recorder, RunStart};
 use std::path::Path;
 
 /// The sinks every run has, in the order they open (and the reverse of the order they
@@ -19,6 +19,8 @@ pub struct Recording {
     /// The status line, when stdout is a terminal: `scmpc run`'s, not a study's (a sweep
     /// runs many at once).
     pub status_line: bool,
+    /// The live view, when the scenario has `[live]` (`scmpc run`'s, not a study's).
+    pub live: bool,
 }
 
 impl Recording {
@@ -27,6 +29,7 @@ impl Recording {
         Recording {
             mcap,
             status_line: false,
+            live: false,
         }
     }
 
@@ -34,10 +37,13 @@ impl Recording {
     pub fn sinks(self) -> Vec<OpenSink> {
         let mut sinks = FILES.to_vec();
         if self.mcap {
-            sinks.push(McapLog::open);
+            sinks.push(Encoded::open_mcap);
         }
         if self.status_line {
             sinks.push(crate::status_line::StatusLine::open);
+        }
+        if self.live {
+            sinks.push(live::open);
         }
         sinks
     }

@@ -19,6 +19,7 @@
 //! - Scaling ([`scaling`]): the MPC step against the horizon and the obstacle count.
 
 pub mod cross_host;
+pub mod live;
 pub mod load;
 pub mod scaling;
 pub mod targets;
@@ -105,6 +106,9 @@ pub struct BenchReport {
     pub scaling: Vec<scaling::ScalingPoint>,
     /// The MPC step with five moving obstacles and with the five frozen.
     pub moving_obstacles: scaling::MovingCost,
+    /// The real-time run served live to a client ([`live`]).
+    #[serde(flatten)]
+    pub live: live::LiveCost,
     /// The targets of docs/performance.md against the numbers above ([`targets::judge`]).
     pub targets: Vec<targets::Target>,
 }
@@ -367,6 +371,12 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     let realtime_run =
         |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);
     let realtime = realtime_run("realtime")?;
+    let realtime_hops = realtime
+        .processes
+        .as_ref()
+        .ok_or_else(|| anyhow!("the real-time run reported no processes"))?
+        .hop_latency_us;
+    let live = live::measure(&out.join("live"), &scenario, &realtime_hops, stop)?;
     let hot = run::inprocess::run(
         &scenario,
         &out.join("in-process"),
@@ -426,6 +436,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         cross_host,
         scaling,
         moving_obstacles,
+        live,
         targets: Vec::new(),
     };
     report.targets = targets::judge(&report);
@@ -574,6 +585,13 @@ impl BenchReport {
                 self.moving_obstacles.moving_step_us.p50,
                 self.moving_obstacles.frozen_step_us.p50,
                 self.moving_obstacles.ratio_p50
+            )
+            + &format!(
+                "  hop, live client     {} ({:.2}× without at p99; {} messages read, {} deadline misses)\n",
+                p(&self.live.live_hop_us),
+                self.live.live_hop_ratio_p99,
+                self.live.live_messages,
+                self.live.live_deadline_misses
             )
             + &targets::table(&self.targets)
     }

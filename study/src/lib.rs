@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod figures;
+pub mod foxglove_client;
 pub mod fuzz;
 pub mod solve_times;
 pub mod sweep;

@@ -309,6 +309,13 @@ pub struct RunArgs {
     /// Do not write `run.mcap` (docs/foxglove.md).
     #[arg(long)]
     pub no_mcap: bool,
+    /// Serve the run to Foxglove while it drives, on IP:PORT [default: 127.0.0.1:8765]
+    /// (`live.address`; docs/foxglove.md, "Live").
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = protocol::DEFAULT_LIVE_ADDRESS)]
+    pub live: Option<String>,
+    /// Lockstep with a live view: hold the clock to real time (`live.pace`).
+    #[arg(long)]
+    pub live_pace: bool,
     /// Real time: keep every core busy at idle priority for the run, so that no core
     /// halts between samples (faster wake-ups and steps on a virtual machine, at the cost
     /// of all idle CPU; docs/performance.md, "Idle cores").

@@ -53,7 +53,15 @@ pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
 }
 
 pub(super) fn run(args: RunArgs) -> CliResult {
-    let scenario = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    let overrides: Vec<String> = (args.overrides.iter().cloned())
+        .chain(
+            args.live
+                .iter()
+                .map(|address| format!("live.address={address}")),
+        )
+        .chain(args.live_pace.then(|| "live.pace=true".to_string()))
+        .collect();
+    let scenario = scenarios::load(args.scenario.as_deref(), &overrides).map_err(bad_input)?;
     scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
     let out = args
         .out
@@ -105,6 +113,7 @@ pub(super) fn run(args: RunArgs) -> CliResult {
     let recording = run::sinks::Recording {
         mcap: !args.no_mcap,
         status_line: true,
+        live: scenario.live.is_some(),
     };
     let summary = if args.in_process {
         inprocess::run(&scenario, &out, recording, &stop)

@@ -362,7 +362,7 @@ fn graph_schema() -> serde_json::Value {
 
 fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG")
-        .unwrap_or_else(|_| "warn,zenoh=error".into());
+        .unwrap_or_else(|_| "warn,zenoh=error,foxglove=off".into());
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

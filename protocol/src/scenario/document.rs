@@ -74,11 +74,15 @@ impl Scenario {
                 message: e.to_string(),
             }])
         })?;
-        // Keys a document leaves out when they are empty can be set too.
+        // Keys a document leaves out when they are empty can be set too, and `[live]`,
+        // which a document never holds.
         if let toml::Value::Table(table) = &mut doc {
             table
                 .entry("extra_roles")
                 .or_insert_with(|| toml::Value::Array(Vec::new()));
+            if let Some(live) = (self.live.as_ref()).and_then(|l| toml::Value::try_from(l).ok()) {
+                table.insert("live".into(), live);
+            }
         }
         let mut scenario = self.clone();
         for item in overrides {
@@ -108,7 +112,8 @@ impl Scenario {
 }
 
 /// Makes a place for `key` where the document leaves out what a scenario may lack: a key
-/// of `[lidar]` gives a scenario without one the default lidar, and an obstacle's `known`
+/// of `[lidar]` gives a scenario without one the default lidar (of `[live]`, the default
+/// live view), and an obstacle's `known`
 /// may be set where it was left to its default.
 fn make_room(doc: &mut toml::Value, key: &str) {
     let toml::Value::Table(table) = doc else {
@@ -119,6 +124,12 @@ fn make_room(doc: &mut toml::Value, key: &str) {
         && let Ok(lidar) = toml::Value::try_from(super::LidarConfig::default())
     {
         table.insert("lidar".into(), lidar);
+    }
+    if key.starts_with("live.")
+        && !table.contains_key("live")
+        && let Ok(live) = toml::Value::try_from(super::LiveConfig::default())
+    {
+        table.insert("live".into(), live);
     }
     let index = (key.strip_prefix("obstacles."))
         .and_then(|rest| rest.strip_suffix(".known"))

@@ -97,6 +97,10 @@ pub struct Scenario {
     /// How a real-time run's processes are scheduled (docs/running.md, "Real-time
     /// scheduling").
     pub realtime: RealtimeConfig,
+    /// The live view (`[live]`, `scmpc run --live`; docs/foxglove.md): never written out
+    /// ([`live`]).
+    #[serde(default, skip_serializing)]
+    pub live: Option<LiveConfig>,
 }
 
 /// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
@@ -677,6 +681,7 @@ impl Default for Scenario {
             hosts: HostsConfig::default(),
             ros2: Ros2Config::default(),
             realtime: RealtimeConfig::default(),
+            live: None,
         }
     }
 }
@@ -915,6 +920,9 @@ pub use realtime::*;
 
 mod lidar;
 pub use lidar::*;
+
+mod live;
+pub use live::*;
 
 mod validate;
 

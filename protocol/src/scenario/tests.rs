@@ -298,3 +298,43 @@ fn with_a_lidar_the_map_is_the_known_obstacles_and_the_tracker_sees_the_others()
     assert!(!blind.sees_with_lidar() && !roles(&blind).contains(&"lidar"));
     assert_eq!(blind.tracked().map(|(i, _)| i).collect::<Vec<_>>(), [1]);
 }
+
+#[test]
+fn a_live_view_is_set_like_any_key_checked_and_never_written_out() {
+    let token = "0123456789abcdef-_.~";
+    let s = Scenario::default()
+        .with_overrides(&[
+            "live.address=0.0.0.0:8765".into(),
+            format!("live.token={token}"),
+        ])
+        .unwrap();
+    s.validate("t").unwrap();
+    let live = s.live.as_ref().unwrap();
+    assert_eq!(
+        (live.address.as_str(), live.token.as_str()),
+        ("0.0.0.0:8765", token)
+    );
+    // Neither the run directory's scenario.toml nor a role process sees the token.
+    assert!(!s.to_toml().contains("live") && !s.to_toml().contains(token));
+    // A later override keeps the section.
+    let paced = s.with_overrides(&["live.pace=true".into()]).unwrap();
+    assert_eq!(paced.live.as_ref().unwrap().token, token);
+    let problem = |overrides: &[&str]| {
+        let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+        let e = (Scenario::default().with_overrides(&overrides).unwrap())
+            .validate("t")
+            .unwrap_err();
+        e.0.iter().map(|e| e.key.clone()).collect::<Vec<_>>()
+    };
+    assert_eq!(problem(&["live.address=0.0.0.0:8765"]), ["live.token"]);
+    assert_eq!(problem(&["live.address=robot:8765"]), ["live.address"]);
+    assert_eq!(problem(&["live.token=short"]), ["live.token"]);
+    assert_eq!(
+        problem(&["live.token=0123456789abcdef&x=1"]),
+        ["live.token"]
+    );
+    let loopback = Scenario::default()
+        .with_overrides(&["live.address=127.0.0.1:0".into()])
+        .unwrap();
+    loopback.validate("t").unwrap();
+}

@@ -35,6 +35,7 @@ impl Scenario {
             .into_iter()
             .chain(self.realtime.problems())
             .chain(self.lidar.iter().flat_map(LidarConfig::problems))
+            .chain(self.live.iter().flat_map(LiveConfig::problems))
         {
             v.fail(key, message);
         }

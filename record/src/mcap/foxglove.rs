@@ -104,6 +104,14 @@ pub(super) struct CommandRecord {
     pub(super) deadline_misses: u32,
 }
 
+/// `scmpc.Clearance`: the robot's clearance at a tick.
+#[derive(Serialize)]
+pub(super) struct ClearanceRecord {
+    pub(super) tick: u64,
+    /// From the robot's edge to the nearest obstacle's surface, m.
+    pub(super) clearance_m: f64,
+}
+
 /// `scmpc.DeadlineVerdict`: the DFL's verdict on a sample.
 #[derive(Serialize)]
 pub(super) struct DeadlineRecord {
@@ -161,6 +169,7 @@ json_object!(EstimateRecord {
     covariance,
     position_sigma
 });
+json_object!(ClearanceRecord { tick, clearance_m });
 json_object!(CommandRecord {
     tick,
     epoch,
@@ -550,6 +559,16 @@ pub(super) fn command_schema() -> Value {
     ]);
     p.insert("mode".into(), json!({ "type": "string" }));
     object(Value::Object(p))
+}
+
+pub(super) fn clearance_schema() -> Value {
+    object(json!({
+        "tick": { "type": "integer" },
+        "clearance_m": {
+            "type": "number",
+            "description": "from the robot's edge to the nearest obstacle's surface, m"
+        },
+    }))
 }
 
 pub(super) fn deadline_schema() -> Value {

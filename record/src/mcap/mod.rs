@@ -7,16 +7,20 @@
 //! message is logged at its simulated time, so the timeline is the run's clock.
 //!
 //! The writer lives in the orchestrator, on a thread of its own: the recorder hands it
-//! copies of the messages ([`McapLog`]), and the thread encodes and writes them, so the
+//! copies of the messages ([`Encoded`]), and the thread encodes and writes them, so the
 //! recording costs the orchestrator's loop a copy per message. The messages of every tick
 //! and plan are encoded by hand ([`super::json`]), the rest by serde_json, to the same
-//! bytes. The encoder is in [`file`], Foxglove's types and the schemas in [`foxglove`].
+//! bytes. The encoder is in [`encoder`], the file in [`file`], Foxglove's types and the
+//! schemas in [`foxglove`]. A live view (the `live` crate) is the same encoder on channels
+//! of its own ([`Channels`]).
 
+mod encoder;
 mod file;
 mod foxglove;
 
 use super::json::{Json, json_object};
-use file::McapFile;
+use encoder::Encoder;
+pub use file::McapFile;
 use foxglove::*;
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
@@ -24,10 +28,6 @@ use protocol::{
 };
 use serde::Serialize;
 use serde_json::{Value, json};
-use std::collections::BTreeMap;
-use std::fs::File;
-use std::io::BufWriter;
-use std::path::Path;
 use std::sync::mpsc::RecvTimeoutError;
 use std::time::{Duration, Instant};
 
@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 type Channel = (&'static str, &'static str, fn() -> Value);
 
 /// Every channel of `run.mcap`.
-const CHANNELS: [Channel; 14] = [
+const CHANNELS: [Channel; 15] = [
     (
         "/world/obstacles",
         "foxglove.SceneUpdate",
@@ -71,10 +71,30 @@ const CHANNELS: [Channel; 14] = [
     ),
     ("/estimator/estimate", "scmpc.Estimate", estimate_schema),
     ("/dfl/command", "scmpc.Command", command_schema),
+    ("/robot/clearance", "scmpc.Clearance", clearance_schema),
     ("/dfl/deadline", "scmpc.DeadlineVerdict", deadline_schema),
     ("/events", "foxglove.Log", log_schema),
     ("/run/events", "scmpc.Event", crate::EventLine::schema),
 ];
+
+/// The topic of every channel `run.mcap` and the live view may have (a run's are those its
+/// world carries), but for the topics the record has no place of its own for.
+pub fn topics() -> impl Iterator<Item = &'static str> {
+    CHANNELS.iter().map(|(topic, ..)| *topic)
+}
+
+/// Whether `topic`'s channel carries messages in a run of `scenario`: a live client is
+/// offered no channel that would stay silent.
+fn carries(topic: &str, scenario: &Scenario) -> bool {
+    let runs = |role| scenario.roles().any(|r| r == role);
+    match topic {
+        "/world/moving_obstacles" => scenario.obstacles.iter().any(|o| o.moves()),
+        "/tracker/tracks" => runs(protocol::Role::Tracker),
+        "/lidar/laser_scan" => scenario.lidar.is_some(),
+        "/planner/route" => runs(protocol::Role::Planner),
+        _ => true,
+    }
+}
 
 /// The frame every pose is given in: the scenario's plane, z up.
 const FRAME: &str = "world";
@@ -85,7 +105,8 @@ const COVARIANCE_SIGMAS: f64 = 3.0;
 
 /// What the recorder hands the writer thread.
 enum Record {
-    Tick(Box<(GroundTruth, Estimate, Actuation)>),
+    /// A tick, and the robot's clearance at it, m.
+    Tick(Box<(GroundTruth, Estimate, Actuation, f64)>),
     Plan(Box<Plan>),
     Route(Box<Route>),
     Tracks(Box<Tracks>),
@@ -96,13 +117,33 @@ enum Record {
     Data(Box<protocol::Data>),
 }
 
-/// `run.mcap` being written by its thread.
-pub struct McapLog {
+/// Where the encoder's messages go: `run.mcap` ([`McapFile`]), or a live view (the `live`
+/// crate). Called on the encoder's thread only.
+pub trait Channels: Send + 'static {
+    /// Declares a channel: its topic, and its schema (a JSON Schema named `schema_name`).
+    /// Every channel is added before the first message.
+    fn add_channel(&mut self, topic: &str, schema_name: &str, schema: &[u8])
+    -> std::io::Result<()>;
+    /// A message on `topic`'s channel at simulated time `time_ns`: JSON.
+    fn message(&mut self, topic: &str, time_ns: u64, json: &[u8]) -> std::io::Result<()>;
+    /// Called every [`super::FLUSH_PERIOD`] at most.
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+    /// The run is over: every message has been handed over.
+    fn finish(self) -> std::io::Result<()>;
+}
+
+/// A run's messages being encoded and written to their [`Channels`] by a thread of their
+/// own: `run.mcap` ([`Encoded::open_mcap`]), or a live view.
+pub struct Encoded {
     records: std::sync::mpsc::Sender<Vec<Record>>,
     /// Records not handed over yet: the thread gets them in batches, so it wakes once per
     /// batch rather than once per message (in lockstep, thousands of times a second).
     batch: Vec<Record>,
     handed: Instant,
+    /// What the thread is called, in its errors.
+    name: &'static str,
     thread: std::thread::JoinHandle<std::io::Result<()>>,
 }
 
@@ -110,21 +151,25 @@ pub struct McapLog {
 const BATCH: usize = 64;
 const BATCH_WAIT: Duration = Duration::from_millis(100);
 
-impl McapLog {
-    /// Creates `path` with every channel and the world at time 0, and starts the thread
-    /// that writes the rest.
-    pub fn create(path: &Path, scenario: &Scenario) -> std::io::Result<McapLog> {
-        let mut file = McapFile::create(path, scenario)?;
+impl Encoded {
+    /// Adds every channel of `scenario`'s run to `out`, logs the world at time 0, and starts
+    /// the thread, named `name`, that encodes the rest into `out`.
+    pub fn start<C: Channels>(
+        name: &'static str,
+        out: C,
+        scenario: &Scenario,
+    ) -> std::io::Result<Encoded> {
+        let mut encoder = Encoder::new(out, scenario)?;
         let (records, received) = std::sync::mpsc::channel();
         let thread = std::thread::Builder::new()
-            .name("run.mcap".into())
+            .name(name.into())
             .spawn(move || {
                 let mut flush = crate::lines::FlushClock::new();
                 loop {
                     match received.recv_timeout(super::FLUSH_PERIOD) {
                         Ok(batch) => {
                             for record in batch {
-                                file.record(record)?;
+                                encoder.record(record)?;
                                 // In lockstep every core runs a role polling for its
                                 // input (yielding between polls): give the core back after
                                 // each record, so that the role whose input came runs at
@@ -133,24 +178,25 @@ impl McapLog {
                             }
                         }
                         Err(RecvTimeoutError::Timeout) => {}
-                        Err(RecvTimeoutError::Disconnected) => return file.finish(),
+                        Err(RecvTimeoutError::Disconnected) => return encoder.finish(),
                     }
                     if flush.due() {
-                        file.flush()?;
+                        encoder.flush()?;
                     }
                 }
             })?;
-        Ok(McapLog {
+        Ok(Encoded {
             records,
             batch: Vec::with_capacity(BATCH),
             handed: Instant::now(),
+            name,
             thread,
         })
     }
 
     /// Adds `record` to the batch, and hands the batch to the thread when it is full or
     /// its first record has waited [`BATCH_WAIT`]; a thread that stopped on an error says
-    /// so at [`McapLog::finish`].
+    /// so at [`Encoded::finish`].
     fn send(&mut self, record: Record) {
         self.batch.push(record);
         if self.batch.len() >= BATCH || self.handed.elapsed() >= BATCH_WAIT {
@@ -164,27 +210,37 @@ impl McapLog {
         self.handed = Instant::now();
     }
 
-    /// The sink's opener: `run.mcap` in the run directory.
-    pub fn open(run: &crate::RunStart) -> std::io::Result<Option<Box<dyn crate::Sink>>> {
-        let log = McapLog::create(&run.dir.join("run.mcap"), run.scenario)?;
-        Ok(Some(Box::new(log)))
+    /// The sink's opener of `run.mcap` in the run directory.
+    pub fn open_mcap(run: &crate::RunStart) -> std::io::Result<Option<Box<dyn crate::Sink>>> {
+        let file = McapFile::create(&run.dir.join("run.mcap"))?;
+        Ok(Some(Box::new(Encoded::start(
+            "run.mcap",
+            file,
+            run.scenario,
+        )?)))
     }
 
-    /// Waits for the thread to write everything and close the file.
+    /// Waits for the thread to write everything and close its channels.
     pub fn finish(mut self) -> std::io::Result<()> {
         self.hand_over();
         drop(self.records);
+        let name = self.name;
         self.thread
             .join()
-            .map_err(|_| std::io::Error::other("run.mcap: the writer thread panicked"))?
+            .map_err(|_| std::io::Error::other(format!("{name}: the writer thread panicked")))?
     }
 }
 
-impl crate::Sink for McapLog {
+impl crate::Sink for Encoded {
     fn sample(&mut self, sample: &crate::Sample<'_>) -> std::io::Result<()> {
         use crate::Sample;
         let record = match *sample {
-            Sample::Tick(t) => Record::Tick(Box::new((*t.truth, *t.estimate, *t.actuation))),
+            Sample::Tick(t) => Record::Tick(Box::new((
+                *t.truth,
+                *t.estimate,
+                *t.actuation,
+                t.clearance_m,
+            ))),
             Sample::Plan(plan) => Record::Plan(Box::new(*plan)),
             Sample::Verdict(v) => Record::Verdict(*v),
             Sample::Route(route) if route.is_ok() => Record::Route(Box::new(*route)),
@@ -290,6 +346,10 @@ mod tests {
                 both(&PosesInFrame::new(t, &[])),
                 both(&estimate),
                 both(&command),
+                both(&ClearanceRecord {
+                    tick: i as u64,
+                    clearance_m: a,
+                }),
             ] {
                 assert_eq!(by_hand, by_serde);
             }

@@ -73,7 +73,11 @@ impl<'a> Driver<'a> {
     /// Lockstep: every tick granted, whole, recorded and judged before the next.
     pub fn lockstep(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let ticks = self.scenario.tick_count();
+        let mut pace = crate::pace::Pace::of(self.scenario);
         for tick in 0..=ticks {
+            if let Some(pace) = &mut pace {
+                pace.wait(tick);
+            }
             self.parts.session.grant(tick)?;
             self.take_now()?;
             if let Some(outcome) = self.check()? {

@@ -44,6 +44,8 @@ pub const LOCKSTEP_SPEEDUP: f64 = 20.0;
 pub const RECORDING_SHARE: f64 = 0.05;
 /// The MPC step with five moving obstacles over the same step with the five frozen (p50).
 pub const MOVING_STEP_RATIO: f64 = 2.0;
+/// The pipeline's hop with a live client reading over the same without a live view (p99).
+pub const LIVE_HOP_RATIO: f64 = 1.2;
 
 /// The targets of docs/performance.md as `report` measured them.
 pub fn judge(report: &BenchReport) -> Vec<Target> {
@@ -77,6 +79,12 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             report.moving_obstacles.ratio_p50,
             true,
             MOVING_STEP_RATIO,
+        ),
+        Target::new(
+            "hop with a live client / without (p99)",
+            report.live.live_hop_ratio_p99,
+            true,
+            LIVE_HOP_RATIO,
         ),
     ];
     // Judged where memory is not locked: locked, every process holds the whole executable

@@ -1,0 +1,202 @@
+//! The live view (docs/foxglove.md, "Live"): `scmpc run --live` serves the run over
+//! Foxglove's WebSocket protocol while it drives, as one more sink of the run
+//! ([`open`]).
+//!
+//! The channels and their messages are `run.mcap`'s, made by the same encoder
+//! ([`record::Encoded`]) on a thread of its own, which hands each message to Foxglove's
+//! server ([`foxglove::WebSocketServer`], the SDK's). Nothing here runs in the control
+//! tier or can block the orchestrator: the recorder hands the encoder a copy per message
+//! and goes on; a client's queue holds [`CLIENT_BACKLOG`] messages and drops its oldest
+//! for a client that reads too slowly; the server's threads run at the normal policy.
+//!
+//! Clients reach the server through a gate ([`gate`]): it refuses a client without the
+//! run's token (`live.token`) and the client after [`MAX_CLIENTS`] before it sees a
+//! channel, and hands every other connection to the server, which listens on loopback
+//! only. A client that subscribes late gets each channel's newest message at once
+//! ([`Latch`]): the obstacles, logged once at time 0, and the newest scene.
+
+mod gate;
+
+use foxglove::websocket::{Capability, ChannelView, Client, ServerListener};
+use foxglove::{
+    ChannelBuilder, ChannelId, Context, PartialMetadata, RawChannel, Schema, WebSocketServer,
+    WebSocketServerHandle,
+};
+use protocol::LiveConfig;
+use record::{Channels, Encoded, RunStart, Sink};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, PoisonError};
+
+/// Messages a client's queue holds; a client that reads slower than the run publishes
+/// loses the oldest. About a fifth of a second of the paper scenario's messages.
+pub const CLIENT_BACKLOG: usize = 256;
+/// Clients connected at once; the gate refuses the next (HTTP 503).
+pub const MAX_CLIENTS: usize = 16;
+/// How long the end of a run waits for the clients to be closed.
+const CLOSE_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
+/// The topic whose messages set the view's clock (Foxglove's `time`).
+const CLOCK_TOPIC: &str = "/robot/truth";
+
+/// The sink's opener (`run::sinks`): the live view of a scenario with `[live]`.
+pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
+    let Some(config) = &run.scenario.live else {
+        return Ok(None);
+    };
+    let channels = LiveChannels::serve(config)?;
+    println!(
+        "live view: ws://{} (Foxglove: Open connection, Foxglove WebSocket{})",
+        channels.address,
+        if config.token.is_empty() {
+            ""
+        } else {
+            ", with ?token=… in the URL"
+        }
+    );
+    Ok(Some(Box::new(Encoded::start(
+        "live view",
+        channels,
+        run.scenario,
+    )?)))
+}
+
+/// The newest message of each channel, for a client that subscribes later.
+#[derive(Default)]
+struct Latch(Mutex<HashMap<ChannelId, Latched>>);
+
+struct Latched {
+    channel: Arc<RawChannel>,
+    json: Vec<u8>,
+    time_ns: u64,
+}
+
+impl Latch {
+    fn keep(&self, channel: &Arc<RawChannel>, time_ns: u64, json: &[u8]) {
+        let mut latched = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        let newest = latched.entry(channel.id()).or_insert_with(|| Latched {
+            channel: channel.clone(),
+            json: Vec::new(),
+            time_ns,
+        });
+        newest.json.clear();
+        newest.json.extend_from_slice(json);
+        newest.time_ns = time_ns;
+    }
+}
+
+impl ServerListener for Latch {
+    /// A client subscribing gets the channel's newest message at once (the server has
+    /// registered the subscription before it calls this).
+    fn on_subscribe(&self, client: Client, channel: ChannelView) {
+        let latched = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        if let (Some(newest), Some(sink)) = (latched.get(&channel.id()), client.sink_id()) {
+            newest.channel.log_with_meta_to_sink(
+                &newest.json,
+                PartialMetadata {
+                    log_time: Some(newest.time_ns),
+                },
+                Some(sink),
+            );
+        }
+    }
+}
+
+/// The run's channels on Foxglove's server, behind the gate.
+struct LiveChannels {
+    /// Where clients connect (the gate's address).
+    address: std::net::SocketAddr,
+    runtime: tokio::runtime::Runtime,
+    context: Arc<Context>,
+    server: WebSocketServerHandle,
+    channels: HashMap<String, Arc<RawChannel>>,
+    latch: Arc<Latch>,
+}
+
+impl LiveChannels {
+    /// Starts the server on loopback and the gate on `config.address`.
+    fn serve(config: &LiveConfig) -> std::io::Result<LiveChannels> {
+        let named = |e: String| std::io::Error::other(format!("live view: {e}"));
+        let address = config.socket_address().map_err(named)?;
+        // The server's threads run at the normal policy: they start before the
+        // orchestrator's real-time tier is put in force, on its thread only.
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("live view")
+            .enable_io()
+            .enable_time()
+            .build()?;
+        let context = Context::new();
+        let latch = Arc::new(Latch::default());
+        let server = WebSocketServer::new()
+            .name("scmpc")
+            .context(&context)
+            .bind("127.0.0.1", 0)
+            .capabilities([Capability::Time])
+            .message_backlog_size(CLIENT_BACKLOG)
+            .listener(latch.clone())
+            .tokio_runtime(runtime.handle())
+            .start_blocking()
+            .map_err(|e| named(e.to_string()))?;
+        let inner = std::net::SocketAddr::from(([127, 0, 0, 1], server.port()));
+        let token = (!config.token.is_empty()).then(|| config.token.clone());
+        let listener = runtime
+            .block_on(tokio::net::TcpListener::bind(address))
+            .map_err(|e| named(format!("{address}: {e}")))?;
+        let address = listener.local_addr()?;
+        runtime.spawn(gate::serve(listener, inner, token));
+        Ok(LiveChannels {
+            address,
+            runtime,
+            context,
+            server,
+            channels: HashMap::new(),
+            latch,
+        })
+    }
+}
+
+impl Channels for LiveChannels {
+    fn add_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &[u8],
+    ) -> std::io::Result<()> {
+        let channel = ChannelBuilder::new(topic)
+            .context(&self.context)
+            .message_encoding("json")
+            .schema(Schema::new(schema_name, "jsonschema", schema.to_vec()))
+            .build_raw()
+            .map_err(|e| std::io::Error::other(format!("live view: {topic}: {e}")))?;
+        self.channels.insert(topic.to_string(), channel);
+        Ok(())
+    }
+
+    fn message(&mut self, topic: &str, time_ns: u64, json: &[u8]) -> std::io::Result<()> {
+        let channel = (self.channels.get(topic)).ok_or_else(|| {
+            std::io::Error::other(format!(
+                "live view: a message on {topic}, which has no channel"
+            ))
+        })?;
+        channel.log_with_meta(
+            json,
+            PartialMetadata {
+                log_time: Some(time_ns),
+            },
+        );
+        self.latch.keep(channel, time_ns, json);
+        if topic == CLOCK_TOPIC {
+            self.server.broadcast_time(time_ns);
+        }
+        Ok(())
+    }
+
+    /// Closes every client's connection and stops the server; a client that does not
+    /// read its close is cut off after [`CLOSE_WAIT`].
+    fn finish(self) -> std::io::Result<()> {
+        let stopped = self.server.stop();
+        let closed = async { tokio::time::timeout(CLOSE_WAIT, stopped.wait()).await };
+        let _ = self.runtime.block_on(closed);
+        self.runtime.shutdown_timeout(CLOSE_WAIT);
+        Ok(())
+    }
+}

@@ -1,0 +1,288 @@
+//! The live view (`scmpc run --live`, docs/foxglove.md, "Live"), watched by a client
+//! written from the protocol's public specification (`common::foxglove`), while the run
+//! drives in real time beside clients that misbehave.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::process::Stdio;
+use std::sync::mpsc::Receiver;
+use std::time::{Duration, Instant};
+use study::foxglove_client::{Client, Frame};
+use tungstenite::Message;
+
+/// A run started with `args` (and `--out dir`), its stdout read for the live view's
+/// address: the child and the URL.
+fn start(dir: &std::path::Path, args: &[&str]) -> (std::process::Child, String, Receiver<String>) {
+    let mut child = common::scmpc()
+        .arg("run")
+        .args(args)
+        .arg("--out")
+        .arg(dir)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("cannot start scmpc");
+    let lines = common::lines_of(child.stdout.take().unwrap());
+    let url = loop {
+        let line = lines
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the run never printed its live view's address");
+        if let Some(rest) = line.strip_prefix("live view: ") {
+            break rest.split(' ').next().unwrap().to_string();
+        }
+    };
+    (child, url, lines)
+}
+
+/// A client subscribed to everything, reading until the server closes: the messages it
+/// received per topic, and the last one on `/robot/truth`.
+fn watch(
+    url: &str,
+) -> (
+    BTreeMap<String, usize>,
+    Vec<String>,
+    Option<serde_json::Value>,
+) {
+    let mut client = Client::connect(url, true).expect("the watcher connects");
+    let mut counts = BTreeMap::new();
+    let mut last_pose = None;
+    while let Ok(frame) = client.read() {
+        if let Frame::Data { topic, payload, .. } = frame {
+            if topic == "/robot/truth" {
+                last_pose = Some(serde_json::from_slice(&payload).unwrap());
+            }
+            *counts.entry(topic).or_insert(0) += 1;
+        }
+    }
+    let advertised = client.channels.values().cloned().collect();
+    (counts, advertised, last_pose)
+}
+
+/// Time from starting to connect to the first message on `/world/obstacles` (logged once,
+/// at time 0) and on `/robot/truth`.
+fn late_client(url: &str) -> Duration {
+    let started = Instant::now();
+    let mut client = Client::connect(url, true).expect("the late client connects");
+    for topic in ["/world/obstacles", "/robot/truth"] {
+        let frame = client.first_on(topic, Duration::from_secs(2));
+        assert!(frame.is_some(), "the late client got nothing on {topic}");
+    }
+    started.elapsed()
+}
+
+/// Clients that misbehave while the run drives: one that subscribes and never reads, one
+/// that sends frames the protocol does not know and bytes that are no WebSocket, one that
+/// connects and says nothing, ten at once, one that drops and reconnects. Each returns
+/// what it holds open until the run ends.
+fn misbehave(url: &str) -> Vec<Box<dyn Send>> {
+    let address = url.trim_start_matches("ws://").to_string();
+    let mut held: Vec<Box<dyn Send>> = Vec::new();
+    held.push(Box::new(
+        Client::connect(url, true).expect("a client that never reads"),
+    ));
+    let mut rude = Client::connect(url, false).expect("a client that sends garbage");
+    for message in [
+        Message::text("this is not JSON"),
+        Message::text(r#"{"op":"subscribe","subscriptions":"all of them"}"#),
+        Message::text(r#"{"op":"advertise","channels":[{"id":1,"topic":"/goal"}]}"#),
+        Message::binary(vec![1, 1, 0, 0, 0, b'{', b'}']),
+        Message::binary(vec![0xff; 64]),
+    ] {
+        let _ = rude.send(message);
+    }
+    held.push(Box::new(rude));
+    let mut raw = TcpStream::connect(&address).unwrap();
+    raw.write_all(b"\x16\x03\x01\x00\xff not http at all\r\n\r\n")
+        .unwrap();
+    let mut answer = String::new();
+    let _ = raw.read_to_string(&mut answer);
+    assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
+    held.push(Box::new(TcpStream::connect(&address).unwrap()));
+    let ten: Vec<Client> = (0..10)
+        .map(|_| Client::connect(url, true).expect("one of ten clients"))
+        .collect();
+    for mut client in ten {
+        assert!(
+            client
+                .first_on("/robot/truth", Duration::from_secs(5))
+                .is_some()
+        );
+    }
+    let dropped = Client::connect(url, true).expect("a client that will drop");
+    drop(dropped);
+    let mut again = Client::connect(url, true).expect("the client reconnecting");
+    assert!(
+        again
+            .first_on("/robot/truth", Duration::from_secs(5))
+            .is_some()
+    );
+    held
+}
+
+#[test]
+fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_clients_do() {
+    let machine = common::machine_alone();
+    let dir = tempfile::tempdir().unwrap();
+    let (mut run, url, lines) = start(dir.path(), &["--mode", "realtime", "--live", "127.0.0.1:0"]);
+    let watcher = {
+        let url = url.clone();
+        std::thread::spawn(move || watch(&url))
+    };
+    let held = misbehave(&url);
+    // At 10 s of the run (its first line of output says when it started): a client that
+    // comes late gets the scene at once.
+    let mut clock = Client::connect(&url, false).expect("a clock");
+    let at_10_s = loop {
+        match clock.read() {
+            Ok(Frame::Time(ns)) if ns >= 10_000_000_000 => break ns,
+            Ok(_) => {}
+            Err(e) => panic!("the clock stopped before 10 s: {e}"),
+        }
+    };
+    drop(clock);
+    let late = late_client(&url);
+    let status = run.wait().unwrap();
+    drop(held);
+    let (counts, advertised, last_pose) = watcher.join().unwrap();
+    let _ = lines;
+    assert!(status.success(), "the run failed: {status}");
+    assert!(at_10_s >= 10_000_000_000);
+    assert!(
+        late < Duration::from_millis(200),
+        "a client connecting at 10 s got the scene after {late:?}"
+    );
+    for topic in &advertised {
+        assert!(
+            counts.get(topic).is_some_and(|&n| n > 0),
+            "nothing on {topic}: {counts:?}"
+        );
+    }
+    for topic in [
+        "/world/obstacles",
+        "/robot/truth",
+        "/mpc/plan",
+        "/dfl/deadline",
+        "/dfl/command",
+    ] {
+        assert!(
+            advertised.iter().any(|t| t == topic),
+            "{topic} not advertised"
+        );
+    }
+    let last_pose = last_pose.expect("no pose");
+    let trajectory = common::csv(&dir.path().join("trajectory.csv"));
+    let last_row = trajectory.last().unwrap();
+    let position = &last_pose["pose"]["position"];
+    let dx = position["x"].as_f64().unwrap() - common::num(last_row, "x");
+    let dy = position["y"].as_f64().unwrap() - common::num(last_row, "y");
+    assert!(
+        dx.hypot(dy) < 0.01,
+        "the last pose is {dx:.4}, {dy:.4} m off the record's"
+    );
+    let s = common::summary(dir.path());
+    assert_eq!(s["outcome"], "reached");
+    assert_eq!(s["deadline_misses"], 0);
+    assert_eq!(s["record_gaps"], 0);
+    machine.assert_every_fault_in_a_stall(&common::events(dir.path()));
+    // Whatever its clients do, the orchestrator stays within its bound (docs/foxglove.md):
+    // every client's queue is bounded.
+    let rss_kib = s["peak_rss_kib"]["orchestrator"].as_u64().unwrap();
+    assert!(
+        rss_kib < 64 * 1024,
+        "the orchestrator peaked at {rss_kib} KiB"
+    );
+    eprintln!(
+        "late client: {late:?}; orchestrator peak RSS {} KiB; {} topics",
+        s["peak_rss_kib"]["orchestrator"],
+        counts.len()
+    );
+}
+
+#[test]
+fn off_loopback_a_client_without_the_token_is_refused_before_it_sees_a_channel() {
+    let _machine = common::machine_shared();
+    let token = "a-test-token-of-32-characters-00";
+    let out = common::run(&[
+        "run",
+        "--live",
+        "0.0.0.0:0",
+        "--set",
+        "duration_s=1",
+        "--no-mcap",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        common::stderr(&out).contains("live.token"),
+        "{}",
+        common::stderr(&out)
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let (mut run, url, _lines) = start(
+        dir.path(),
+        &[
+            "--live",
+            "0.0.0.0:0",
+            "--live-pace",
+            "--set",
+            &format!("live.token={token}"),
+            "--set",
+            "duration_s=3",
+            "--no-mcap",
+        ],
+    );
+    let url = url.replace("0.0.0.0", "127.0.0.1");
+    match Client::connect(&url, false) {
+        Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 401),
+        Err(e) => panic!("refused, but not as unauthorized: {e}"),
+        Ok(client) => panic!("admitted without a token, to {:?}", client.channels),
+    }
+    match Client::connect(
+        &format!("{url}/?token=not-the-token-of-32-characters-0"),
+        false,
+    ) {
+        Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 401),
+        other => panic!("a wrong token: {:?}", other.err()),
+    }
+    let client = Client::connect(&format!("{url}/?token={token}"), false).expect("with the token");
+    assert!(client.channels.values().any(|t| t == "/robot/truth"));
+    // 3 s are too short to reach the goal: the run ends, recorded, not reached.
+    run.wait().unwrap();
+    assert_eq!(common::summary(dir.path())["outcome"], "timeout");
+}
+
+#[test]
+fn the_foxglove_layout_shows_only_channels_a_run_has() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json");
+    let layout: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let panels = layout["configById"].as_object().unwrap();
+    let mut named = Vec::new();
+    for panel in panels.values() {
+        named.extend(
+            panel["topics"]
+                .as_object()
+                .into_iter()
+                .flat_map(|t| t.keys().cloned()),
+        );
+        for path in panel["paths"].as_array().into_iter().flatten() {
+            let value = path["value"].as_str().unwrap();
+            named.push(value.split('.').next().unwrap().to_string());
+        }
+        named.extend(panel["topicToRender"].as_str().map(String::from));
+    }
+    assert!(named.len() > 10, "{named:?}");
+    let channels: Vec<&str> = record::mcap::topics().collect();
+    for topic in &named {
+        assert!(
+            channels.contains(&topic.as_str()),
+            "{topic} is no channel of run.mcap"
+        );
+    }
+    // Every panel the layout places is configured, and every configured one is placed.
+    let placed = layout["layout"].to_string();
+    for id in panels.keys() {
+        assert!(placed.contains(&format!("\"{id}\"")), "{id} is not placed");
+    }
+}
