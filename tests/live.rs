@@ -60,6 +60,30 @@ fn watch(
     (counts, advertised, last_pose)
 }
 
+/// A `geometry_msgs/PoseStamped` at `(x, y)`, heading along x, as Foxglove's publish
+/// panel sends it.
+fn pose_stamped(x: f64, y: f64) -> serde_json::Value {
+    serde_json::json!({
+        "header": { "stamp": { "sec": 0, "nsec": 0 }, "frame_id": "world" },
+        "pose": {
+            "position": { "x": x, "y": y, "z": 0.0 },
+            "orientation": { "x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0 },
+        },
+    })
+}
+
+/// Sends a goal at `(x, y)` as a new client: the status the run answers with.
+fn send_goal(url: &str, x: f64, y: f64) -> (u64, String) {
+    let mut client = Client::connect(url, false).expect("a client with a goal");
+    let channel = client
+        .advertise("/goal", "geometry_msgs/PoseStamped")
+        .unwrap();
+    client.publish(channel, &pose_stamped(x, y)).unwrap();
+    client
+        .status(Duration::from_secs(5))
+        .expect("no answer to the goal")
+}
+
 /// Time from starting to connect to the first message on `/world/obstacles` (logged once,
 /// at time 0) and on `/robot/truth`.
 fn late_client(url: &str) -> Duration {
@@ -125,12 +149,26 @@ fn misbehave(url: &str) -> Vec<Box<dyn Send>> {
 fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_clients_do() {
     let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
-    let (mut run, url, lines) = start(dir.path(), &["--mode", "realtime", "--live", "127.0.0.1:0"]);
+    let (mut run, url, lines) = start(
+        dir.path(),
+        &[
+            "--mode",
+            "realtime",
+            "--live",
+            "127.0.0.1:0",
+            "--set",
+            "live.accept_goals=true",
+        ],
+    );
     let watcher = {
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
     let held = misbehave(&url);
+    // A goal inside the paper's obstacle (radius 1.5 m at (3, 3.5)) is refused, and why.
+    let (level, refusal) = send_goal(&url, 3.0, 3.5);
+    assert_eq!(level, 2, "{refusal}");
+    assert!(refusal.contains("inside obstacle 0"), "{refusal}");
     // At 10 s of the run (its first line of output says when it started): a client that
     // comes late gets the scene at once.
     let mut clock = Client::connect(&url, false).expect("a clock");
@@ -183,6 +221,13 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
     );
     let s = common::summary(dir.path());
     assert_eq!(s["outcome"], "reached");
+    // ... and the run went on to its own goal.
+    assert!(
+        !common::events(dir.path())
+            .iter()
+            .any(|e| e["event"] == "goal")
+    );
+    assert!(s["final_distance_to_goal_m"].as_f64().unwrap() < 0.1);
     assert_eq!(s["deadline_misses"], 0);
     assert_eq!(s["record_gaps"], 0);
     machine.assert_every_fault_in_a_stall(&common::events(dir.path()));
@@ -247,9 +292,68 @@ fn off_loopback_a_client_without_the_token_is_refused_before_it_sees_a_channel()
     }
     let client = Client::connect(&format!("{url}/?token={token}"), false).expect("with the token");
     assert!(client.channels.values().any(|t| t == "/robot/truth"));
+    // Watching is not steering: without live.accept_goals, a goal is refused.
+    let (level, refusal) = send_goal(&format!("{url}/?token={token}"), 5.0, 5.0);
+    assert_eq!(level, 2, "{refusal}");
+    assert!(refusal.contains("live.accept_goals = false"), "{refusal}");
     // 3 s are too short to reach the goal: the run ends, recorded, not reached.
     run.wait().unwrap();
     assert_eq!(common::summary(dir.path())["outcome"], "timeout");
+}
+
+#[test]
+fn a_goal_sent_from_the_viewer_mid_run_is_set_for_every_process_and_reached() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let (mut run, url, _lines) = start(
+        dir.path(),
+        &[
+            "--live",
+            "127.0.0.1:0",
+            "--live-pace",
+            "--set",
+            "live.accept_goals=true",
+            "--set",
+            "robot.final_approach=settle",
+            "--set",
+            "duration_s=20",
+            "--no-mcap",
+        ],
+    );
+    // (Settling, the run ends once the robot is held at its goal.) At 1 s of the run, from (7, 7) on its way to (0, 0): go to (5.5, 4.5) instead.
+    let mut clock = Client::connect(&url, false).expect("a clock");
+    while !matches!(clock.read(), Ok(Frame::Time(ns)) if ns >= 1_000_000_000) {}
+    let (level, answer) = send_goal(&url, 5.5, 4.5);
+    assert_eq!(level, 0, "{answer}");
+    assert!(answer.contains("goal accepted"), "{answer}");
+    let started = Instant::now();
+    assert!(
+        run.wait().unwrap().success(),
+        "the new goal was not reached"
+    );
+    eprintln!(
+        "the run ended {:?} after the goal was sent",
+        started.elapsed()
+    );
+    let s = common::summary(dir.path());
+    assert_eq!(s["outcome"], "reached");
+    let events = common::events(dir.path());
+    let goal = events
+        .iter()
+        .find(|e| e["event"] == "goal")
+        .expect("a goal event");
+    assert_eq!(
+        (goal["x"].as_f64(), goal["y"].as_f64()),
+        (Some(5.5), Some(4.5))
+    );
+    let last = common::csv(&dir.path().join("trajectory.csv"))
+        .pop()
+        .unwrap();
+    let off = (common::num(&last, "x") - 5.5).hypot(common::num(&last, "y") - 4.5);
+    assert!(
+        off < 0.1,
+        "the robot ended {off:.3} m from the goal it was sent"
+    );
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! the watch on a silent estimator.
 
 use crate::Dfl;
-use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
+use protocol::task::{Context, Due, GoalChange, Outputs, Publish, Task, TaskError, header_latency};
 use protocol::topics::{SCAN, TRACKS};
 use protocol::{
     Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
@@ -261,6 +261,8 @@ pub struct DflTask {
     /// Whether the plant takes this task's commands (not before the executor has said
     /// so, nor while it warms up as a replacement).
     commanding: bool,
+    /// The serial of the goal set while the run drives that the DFL holds at (0: none).
+    goal_serial: u32,
 }
 
 impl Task for DflTask {
@@ -285,6 +287,7 @@ impl Task for DflTask {
                 (PerceptionInbox::new(scenario), poses)
             }),
             commanding: false,
+            goal_serial: 0,
         })
     }
 
@@ -381,6 +384,10 @@ impl DflTask {
                 self.dfl.adopt_zeta(estimate.state[3]);
             }
             self.commanding = context.is_active(tick);
+            if let Some(change) = GoalChange::due(context.goal(), tick, self.goal_serial) {
+                self.goal_serial = change.serial;
+                self.dfl.set_goal(change.goal);
+            }
             // Orphaned (the supervisor is gone): brake to rest.
             let (mut actuation, verdict) = if context.orphaned() {
                 (self.brake(tick), None)

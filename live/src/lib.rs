@@ -13,11 +13,13 @@
 //! run's token (`live.token`) and the client after [`MAX_CLIENTS`] before it sees a
 //! channel, and hands every other connection to the server, which listens on loopback
 //! only. A client that subscribes late gets each channel's newest message at once
-//! ([`Latch`]): the obstacles, logged once at time 0, and the newest scene.
+//! ([`Latch`]): the obstacles, logged once at time 0, and the newest scene. A client may
+//! send the robot a goal ([`goals`]).
 
 mod gate;
+mod goals;
 
-use foxglove::websocket::{Capability, ChannelView, Client, ServerListener};
+use foxglove::websocket::{Capability, ChannelView, Client, ClientChannel, ServerListener};
 use foxglove::{
     ChannelBuilder, ChannelId, Context, PartialMetadata, RawChannel, Schema, WebSocketServer,
     WebSocketServerHandle,
@@ -42,7 +44,8 @@ pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
     let Some(config) = &run.scenario.live else {
         return Ok(None);
     };
-    let channels = LiveChannels::serve(config)?;
+    let desk = goals::GoalDesk::new(run.scenario, run.goals.clone());
+    let channels = LiveChannels::serve(config, desk)?;
     println!(
         "live view: ws://{} (Foxglove: Open connection, Foxglove WebSocket{})",
         channels.address,
@@ -57,6 +60,12 @@ pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
         channels,
         run.scenario,
     )?)))
+}
+
+/// What the server calls back: the latch, and the goal desk.
+struct Listener {
+    latch: Arc<Latch>,
+    goals: goals::GoalDesk,
 }
 
 /// The newest message of each channel, for a client that subscribes later.
@@ -83,11 +92,11 @@ impl Latch {
     }
 }
 
-impl ServerListener for Latch {
+impl ServerListener for Listener {
     /// A client subscribing gets the channel's newest message at once (the server has
     /// registered the subscription before it calls this).
     fn on_subscribe(&self, client: Client, channel: ChannelView) {
-        let latched = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        let latched = (self.latch.0.lock()).unwrap_or_else(PoisonError::into_inner);
         if let (Some(newest), Some(sink)) = (latched.get(&channel.id()), client.sink_id()) {
             newest.channel.log_with_meta_to_sink(
                 &newest.json,
@@ -97,6 +106,14 @@ impl ServerListener for Latch {
                 Some(sink),
             );
         }
+    }
+
+    fn on_client_advertise(&self, client: Client, channel: &ClientChannel) {
+        self.goals.advertised(&client, channel);
+    }
+
+    fn on_message_data(&self, client: Client, channel: &ClientChannel, payload: &[u8]) {
+        self.goals.published(&client, channel, payload);
     }
 }
 
@@ -113,7 +130,7 @@ struct LiveChannels {
 
 impl LiveChannels {
     /// Starts the server on loopback and the gate on `config.address`.
-    fn serve(config: &LiveConfig) -> std::io::Result<LiveChannels> {
+    fn serve(config: &LiveConfig, goals: goals::GoalDesk) -> std::io::Result<LiveChannels> {
         let named = |e: String| std::io::Error::other(format!("live view: {e}"));
         let address = config.socket_address().map_err(named)?;
         // The server's threads run at the normal policy: they start before the
@@ -130,9 +147,13 @@ impl LiveChannels {
             .name("scmpc")
             .context(&context)
             .bind("127.0.0.1", 0)
-            .capabilities([Capability::Time])
+            .capabilities([Capability::Time, Capability::ClientPublish])
+            .supported_encodings(["json"])
             .message_backlog_size(CLIENT_BACKLOG)
-            .listener(latch.clone())
+            .listener(Arc::new(Listener {
+                latch: latch.clone(),
+                goals,
+            }))
             .tokio_runtime(runtime.handle())
             .start_blocking()
             .map_err(|e| named(e.to_string()))?;

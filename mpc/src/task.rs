@@ -17,7 +17,7 @@
 
 use crate::Mpc;
 use protocol::samples::SampleQueue;
-use protocol::task::{Cancel, Context, Due, Publish, Task, TaskError, header_latency};
+use protocol::task::{Cancel, Context, Due, GoalChange, Publish, Task, TaskError, header_latency};
 use protocol::{Estimate, FaultConfig, Header, Plan, Role, Route, Tracks, Validated};
 use std::collections::VecDeque;
 
@@ -56,6 +56,15 @@ pub struct MpcTask {
     tracks_tick: Option<u64>,
     /// Half an inner tick, s: how long after a sample's time its tracks are waited for.
     tracks_grace_s: f64,
+    /// The run's scenario, to build the MPC anew for a goal set while the run drives.
+    scenario: Validated,
+    /// The serial of that goal (0: none, `robot.goal`).
+    goal_serial: u32,
+    /// The newest tracks heard, for an MPC built anew.
+    newest_tracks: Option<Tracks>,
+    /// The first sample whose route leads to the goal (routes planned before it lead to
+    /// an old one).
+    first_route_sample: u64,
 }
 
 impl Task for MpcTask {
@@ -79,6 +88,10 @@ impl Task for MpcTask {
                 .then(|| scenario.perception_ticks()),
             tracks_tick: None,
             tracks_grace_s: 0.5 * scenario.timing.dt_s(),
+            scenario: scenario.clone(),
+            goal_serial: 0,
+            newest_tracks: None,
+            first_route_sample: 0,
         })
     }
 
@@ -97,6 +110,7 @@ impl Task for MpcTask {
                 if self.tracks_tick.is_none_or(|t| tracks.header.tick > t) {
                     self.tracks_tick = Some(tracks.header.tick);
                     self.mpc.set_tracks(&tracks);
+                    self.newest_tracks = Some(tracks);
                 }
             }
         }
@@ -143,7 +157,14 @@ impl Task for MpcTask {
             }
         }
         self.samples.answered();
-        let route = self.routes.iter().rev().find(|r| r.sample < sample);
+        if let Some(change) =
+            GoalChange::due(context.goal(), estimate.header.tick, self.goal_serial)
+        {
+            self.retarget(change, sample);
+        }
+        let first_route = self.first_route_sample;
+        let route =
+            (self.routes.iter().rev()).find(|r| r.sample < sample && r.sample >= first_route);
         let started_ns = context.monotonic_ns();
         let mut plan =
             self.mpc
@@ -161,5 +182,24 @@ impl Task for MpcTask {
             output: plan,
             hold_ns: plan.injected_delay_ns,
         })
+    }
+}
+
+impl MpcTask {
+    /// Drives to the goal of `change` from `sample` on: the MPC built anew for it (its
+    /// program is relative to the goal, [`crate::linear`]), with the newest tracks; the
+    /// routes planned before lead to the old goal and are not followed. (A scenario valid
+    /// with one goal builds with another its checks accepted: should it not, the robot
+    /// goes on to the old goal.)
+    fn retarget(&mut self, change: GoalChange, sample: u64) {
+        self.goal_serial = change.serial;
+        self.first_route_sample = sample;
+        self.scenario = self.scenario.with_goal(change.goal);
+        if let Ok(mut mpc) = Mpc::new(&self.scenario) {
+            if let Some(tracks) = &self.newest_tracks {
+                mpc.set_tracks(tracks);
+            }
+            self.mpc = mpc;
+        }
     }
 }

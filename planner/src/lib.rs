@@ -91,6 +91,8 @@ pub struct Planner {
     /// round the other way may lead it away from the goal first, where the way it stalled
     /// on is the shorter again.)
     stalled_on: Option<Route>,
+    /// The goal changed since the last step: the next one plans anew.
+    retargeted: bool,
 }
 
 impl Planner {
@@ -121,7 +123,17 @@ impl Planner {
             clearance_steps: 0,
             stalled_at: [0.0; 2],
             stalled_on: None,
+            retargeted: false,
         }
+    }
+
+    /// Plans to `goal` from the next step on (a goal set while the run drives): a new
+    /// route, as at the start, and no memory of the stalls on the way to the old goal.
+    pub fn retarget(&mut self, goal: [f64; 2]) {
+        self.goal = goal;
+        self.retargeted = true;
+        self.stalled_on = None;
+        self.clearance_steps = 0;
     }
 
     /// Takes the lidar's newest tracks: those that stand still
@@ -241,7 +253,7 @@ impl Planner {
 
     /// Why the route must be planned again at `sample`, if it must.
     fn replan_reason(&mut self, sample: u64, position: [f64; 2]) -> Option<ReplanReason> {
-        if self.route.plans == 0 {
+        if self.route.plans == 0 || std::mem::take(&mut self.retargeted) {
             self.moved = Some((sample, position));
             return Some(ReplanReason::Start);
         }

@@ -10,7 +10,7 @@
 
 use crate::Planner;
 use protocol::samples::SampleQueue;
-use protocol::task::{Context, Due, Publish, Task, TaskError};
+use protocol::task::{Context, Due, GoalChange, Publish, Task, TaskError};
 use protocol::topics::TRACKS;
 use protocol::{Estimate, Header, Role, Route, Tracks, Validated};
 use std::collections::VecDeque;
@@ -30,6 +30,8 @@ pub struct PlannerTask {
     samples: SampleQueue<()>,
     /// With a lidar: the newest tracks heard, oldest first (`None`: it takes none).
     tracks: Option<VecDeque<Tracks>>,
+    /// The serial of the goal set while the run drives that it plans to (0: none).
+    goal_serial: u32,
 }
 
 /// Tracks kept for the samples to come.
@@ -46,6 +48,7 @@ impl Task for PlannerTask {
             planner: Planner::new(scenario),
             samples: SampleQueue::new(&scenario.timing),
             tracks: (scenario.sees_with_lidar()).then(|| VecDeque::with_capacity(TRACKS_KEPT)),
+            goal_serial: 0,
         })
     }
 
@@ -82,6 +85,11 @@ impl Task for PlannerTask {
     fn step(&mut self, context: &impl Context) -> Option<Publish<Route>> {
         let (sample, estimate, ()) = self.samples.oldest(context)?;
         self.samples.answered();
+        let tick = estimate.header.tick;
+        if let Some(change) = GoalChange::due(context.goal(), tick, self.goal_serial) {
+            self.goal_serial = change.serial;
+            self.planner.retarget(change.goal.position);
+        }
         let before = |t: &&Tracks| t.header.tick < estimate.header.tick;
         if let Some(tracks) = self
             .tracks

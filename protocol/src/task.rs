@@ -55,6 +55,42 @@ pub trait Context {
     fn monotonic_ns(&self) -> u64 {
         monotonic_ns()
     }
+
+    /// The newest goal the executor set while the run drives (a live view's client's,
+    /// docs/foxglove.md), `None`: `robot.goal`.
+    fn goal(&self) -> Option<GoalChange> {
+        None
+    }
+}
+
+/// A goal set while the run drives: it replaces the goal from inner tick `from_tick` on (a
+/// sample's first tick, after every process has heard of it). `serial` counts the goals
+/// set, from 1.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GoalChange {
+    pub serial: u32,
+    pub from_tick: u64,
+    pub goal: crate::Goal,
+}
+
+impl GoalChange {
+    /// The `serial`th goal set while the run drives, set at inner tick `now_tick`: in force
+    /// from the first tick of the sample after the next (of `inner_steps` ticks), when every
+    /// role has heard of it.
+    pub fn set_at(serial: u32, goal: crate::Goal, now_tick: u64, inner_steps: usize) -> GoalChange {
+        let m = inner_steps.max(1) as u64;
+        GoalChange {
+            serial,
+            from_tick: (now_tick / m + 2) * m,
+            goal,
+        }
+    }
+
+    /// The goal in force at `tick`, if it is this one and not the one `seen` last (a
+    /// task's serial of the goal it drives to): what a task retargets to, once.
+    pub fn due(change: Option<GoalChange>, tick: u64, seen: u32) -> Option<GoalChange> {
+        change.filter(|c| c.serial != seen && tick >= c.from_tick)
+    }
 }
 
 /// The machine's monotonic clock, ns since its first reading in this process
@@ -74,12 +110,22 @@ pub fn monotonic_ns() -> u64 {
 pub struct SimulatedTime {
     tick: u64,
     dt_s: f64,
+    goal: Option<GoalChange>,
 }
 
 impl SimulatedTime {
     /// The time of inner tick `tick` of `dt_s` seconds.
     pub fn at(tick: u64, dt_s: f64) -> SimulatedTime {
-        SimulatedTime { tick, dt_s }
+        SimulatedTime {
+            tick,
+            dt_s,
+            goal: None,
+        }
+    }
+
+    /// The same time, telling of `goal` ([`Context::goal`]).
+    pub fn with_goal(self, goal: Option<GoalChange>) -> SimulatedTime {
+        SimulatedTime { goal, ..self }
     }
 
     fn now_s(&self) -> f64 {
@@ -111,6 +157,10 @@ impl Context for SimulatedTime {
             (production_s / period_s).ceil() as u64
         };
         late_periods * crate::period_ns(period_s)
+    }
+
+    fn goal(&self) -> Option<GoalChange> {
+        self.goal
     }
 }
 

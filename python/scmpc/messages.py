@@ -33,7 +33,7 @@ FIRST_ROBOT = 0
 # Codes of the enumerations (``scmpc schema``, "codes").
 ROLES = {"plant": 0, "estimator": 1, "mpc": 2, "dfl": 3, "planner": 4, "tracker": 5, "odometer": 6, "lidar": 7}
 ROLE_COUNT = len(ROLES)
-CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4}
+CONTROL_COMMANDS = {"grant": 0, "start": 1, "stop": 2, "epochs": 3, "replay": 4, "goal": 5}
 STATUS_EVENTS = {"ready": 0, "input_lost": 1, "rejected": 2}
 REJECTIONS = {
     "non_finite": 0,
@@ -360,6 +360,10 @@ class Control(Message):
         ("start_ns", c_u64),
         ("_pad", c_u8 * 8),
         ("epochs", EpochSchedule),
+        ("goal", c_f64 * 3),
+        ("goal_from_tick", c_u64),
+        ("goal_serial", c_u32),
+        ("reserved_goal", c_u32 * 3),
     ]
 
     def well_formed(self):

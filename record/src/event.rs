@@ -172,6 +172,18 @@ pub enum Event {
     },
     /// The planner found no route from the sample it planned from.
     NoRoute { sample: u64, reason: String },
+    /// A new goal, set while the run drives (a live view's client; docs/foxglove.md): in
+    /// force from inner tick `from_tick`.
+    Goal {
+        serial: u32,
+        from_tick: u64,
+        x: f64,
+        y: f64,
+        /// The heading to turn to at the goal, rad (none: any).
+        heading: Option<f64>,
+        /// Who set it: `live`.
+        from: String,
+    },
     /// A role process exited at the end of the run (`killed`: it had to be).
     Exited {
         #[schemars(with = "String")]
@@ -252,6 +264,7 @@ impl Event {
             Event::Retired { .. } => "retired",
             Event::SafetyIntervention { .. } => "safety_intervention",
             Event::NoRoute { .. } => "no_route",
+            Event::Goal { .. } => "goal",
             Event::Exited { .. } => "exited",
             Event::End { .. } => "end",
         }

@@ -338,6 +338,17 @@ impl Judge {
         self.observe(truth.header.time_s, truth.pose[0], truth.pose[1])
     }
 
+    /// The run goes to `goal` from now on: its arrival, its stay within the tolerance and
+    /// its stall window start again, from where the robot is.
+    pub fn retarget(&mut self, goal: protocol::Goal) {
+        self.goal = goal.position;
+        self.goal_yaw_rad = goal.yaw_rad;
+        self.inside_goal_since_s = None;
+        self.arrival = Arrival::new(self.goal_tolerance_m);
+        self.window.clear();
+        self.start = self.last_position;
+    }
+
     /// Observes the true position at time `t_s`; returns an outcome that ends the run now
     /// (a collision, a stall, or the robot held at its goal, within the goal tolerance
     /// and, with a goal heading, the yaw tolerance).

@@ -72,20 +72,32 @@ pub struct Recorder {
     commanded_rest_since_s: Option<f64>,
     /// How well a run with a simulated lidar saw.
     perception: Option<perception::PerceptionJudge>,
+    /// Goals a sink took from outside (a live view's client), not set yet.
+    goals: std::sync::mpsc::Receiver<protocol::Goal>,
 }
 
 impl Recorder {
     /// Creates `dir` (and parents) and opens the sinks of `open` in order
     /// (`run::sinks::Recording::sinks`). A sink that cannot open undoes nothing the
     /// others wrote: the directory keeps [`INCOMPLETE`].
-    pub fn create(run: &RunStart, open: &[OpenSink]) -> std::io::Result<Recorder> {
-        std::fs::create_dir_all(run.dir)?;
+    pub fn create(
+        dir: &std::path::Path,
+        scenario: &protocol::Scenario,
+        open: &[OpenSink],
+    ) -> std::io::Result<Recorder> {
+        std::fs::create_dir_all(dir)?;
+        let (sent, goals) = std::sync::mpsc::channel();
+        let run = RunStart {
+            dir,
+            scenario,
+            goals: sent,
+        };
         let mut sinks = Vec::with_capacity(open.len());
         for open in open {
-            sinks.extend(open(run)?);
+            sinks.extend(open(&run)?);
         }
-        let scenario = run.scenario;
         Ok(Recorder {
+            goals,
             sinks,
             judge: Judge::new(scenario),
             perception: perception::PerceptionJudge::of(scenario),
@@ -107,6 +119,26 @@ impl Recorder {
             ticks: 0,
             last_time_s: 0.0,
             commanded_rest_since_s: None,
+        })
+    }
+
+    /// The goal a sink took from outside since the last call, the newest if several.
+    pub fn requested_goal(&self) -> Option<protocol::Goal> {
+        self.goals.try_iter().last()
+    }
+
+    /// `change` is set (the executor told every role): the judge measures the run against
+    /// it from now on (two samples at most before the roles do), and it is an event.
+    pub fn goal_set(&mut self, change: &protocol::task::GoalChange) -> std::io::Result<()> {
+        self.judge.retarget(change.goal);
+        let [x, y] = change.goal.position;
+        self.event(Event::Goal {
+            serial: change.serial,
+            from_tick: change.from_tick,
+            x,
+            y,
+            heading: change.goal.yaw_rad,
+            from: "live".into(),
         })
     }
 

@@ -20,6 +20,10 @@ pub struct RunStart<'a> {
     /// The run directory (it exists).
     pub dir: &'a Path,
     pub scenario: &'a Scenario,
+    /// Where a sink that takes goals from outside (a live view's client) hands them to the
+    /// run, checked ([`Scenario::live_goal_refusal`]); the executor sets them
+    /// ([`crate::Recorder::requested_goal`]).
+    pub goals: std::sync::mpsc::Sender<protocol::Goal>,
 }
 
 /// A sink's opener: `None` when the sink has nothing to record in this run.

@@ -48,14 +48,13 @@ fn open_noting(_run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
 }
 
 fn recorder(dir: &Path, scenario: &Scenario) -> Recorder {
-    let run = RunStart { dir, scenario };
     let sinks: [OpenSink; 4] = [
         sink::RunDirectory::open,
         sink::EventsFile::open,
         csv::CsvFiles::open,
         open_noting,
     ];
-    Recorder::create(&run, &sinks).unwrap()
+    Recorder::create(dir, scenario, &sinks).unwrap()
 }
 
 #[test]
@@ -157,13 +156,9 @@ impl Sink for Failing {
 fn a_sink_that_cannot_close_leaves_the_run_incomplete_and_the_others_closed() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = Scenario::default();
-    let run = RunStart {
-        dir: dir.path(),
-        scenario: &scenario,
-    };
     let failing: OpenSink = |_| Ok(Some(Box::new(Failing)));
     let sinks = [sink::RunDirectory::open, csv::CsvFiles::open, failing];
-    let mut recorder = Recorder::create(&run, &sinks).unwrap();
+    let mut recorder = Recorder::create(dir.path(), &scenario, &sinks).unwrap();
     // A plan the run ends before the DFL judges: its row is written as the CSV closes.
     recorder.plan(&Plan::default()).unwrap();
     let closed = recorder.finish(&scenario, "test", Outcome::Timeout, 0.0, None, None);

@@ -25,7 +25,7 @@
 
 use crate::roles;
 use protocol::graph::Graph;
-use protocol::task::{Outputs, SimulatedTime, Task};
+use protocol::task::{GoalChange, Outputs, SimulatedTime, Task};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Plan, RestartPolicy, Role, Route,
     Tracks, Validated,
@@ -145,6 +145,8 @@ pub struct ClosedLoop {
     given: Vec<Data>,
     tick: u64,
     ticks: u64,
+    /// The newest goal set while the run drives ([`protocol::task::Context::goal`]).
+    goal: Option<GoalChange>,
 }
 
 impl ClosedLoop {
@@ -169,7 +171,18 @@ impl ClosedLoop {
             given: Vec::with_capacity(16),
             tick: 0,
             ticks: scenario.tick_count(),
+            goal: None,
         })
+    }
+
+    /// Inner ticks per sample.
+    pub fn inner_steps(&self) -> usize {
+        self.scenario.timing.inner_steps
+    }
+
+    /// Tells every task of `change` from the next tick on.
+    pub fn set_goal(&mut self, change: GoalChange) {
+        self.goal = Some(change);
     }
 
     /// The tick the next [`step`](Self::step) runs.
@@ -193,7 +206,7 @@ impl ClosedLoop {
         &mut self,
         mut around: impl FnMut(Role, &mut dyn FnMut()),
     ) -> Result<Tick, Ended> {
-        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s());
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s()).with_goal(self.goal);
         self.given.clear();
         let mut restarted = None;
         for i in 0..self.tasks.len() {

@@ -4,6 +4,7 @@
 use crate::closed_loop::{ClosedLoop, Ended, Tick};
 use crate::sinks::Recording;
 use protocol::Validated;
+use protocol::task::GoalChange;
 use record::Summary;
 use record::event::{Event, Restart};
 use record::judge::Outcome;
@@ -22,6 +23,23 @@ pub fn run(
     run_observed(scenario, out, recording, stop, |_| {})
 }
 
+/// A goal a sink took from outside (a live view's client), the `goals_set`th, set for every
+/// task and the record ([`GoalChange::set_at`]).
+fn set_requested_goal(
+    recorder: &mut record::Recorder,
+    closed_loop: &mut ClosedLoop,
+    goals_set: &mut u32,
+) -> std::io::Result<()> {
+    if let Some(goal) = recorder.requested_goal() {
+        *goals_set += 1;
+        let inner_steps = closed_loop.inner_steps();
+        let change = GoalChange::set_at(*goals_set, goal, closed_loop.tick(), inner_steps);
+        closed_loop.set_goal(change);
+        recorder.goal_set(&change)?;
+    }
+    Ok(())
+}
+
 /// [`run`], handing every tick to `observe` after it is recorded.
 pub fn run_observed(
     scenario: &Validated,
@@ -35,16 +53,16 @@ pub fn run_observed(
     let mut closed_loop = ClosedLoop::new(scenario)?;
     let mut outcome = None;
     let mut pace = crate::pace::Pace::of(scenario);
-    let mut ticks = 0;
+    let mut goals_set = 0;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {
             outcome = Some(Outcome::Interrupted);
             break;
         }
         if let Some(pace) = &mut pace {
-            pace.wait(ticks);
-            ticks += 1;
+            pace.wait(closed_loop.tick());
         }
+        set_requested_goal(&mut recorder, &mut closed_loop, &mut goals_set)?;
         let tick = match closed_loop.step() {
             Ok(tick) => tick,
             Err(Ended::Aborted { role, topic }) => {

@@ -4,7 +4,7 @@
 use anyhow::Context;
 use record::csv::CsvFiles;
 use record::sink::{EventsFile, RunDirectory};
-use record::{Encoded, OpenSink, Recorder, RunStart};
+use record::{Encoded, OpenSink, Recorder};
 use std::path::Path;
 
 /// The sinks every run has, in the order they open (and the reverse of the order they
@@ -55,7 +55,6 @@ pub fn recorder(
     out: &Path,
     recording: Recording,
 ) -> anyhow::Result<Recorder> {
-    let run = RunStart { dir: out, scenario };
-    Recorder::create(&run, &recording.sinks())
+    Recorder::create(out, scenario, &recording.sinks())
         .with_context(|| format!("creating the record in {}", out.display()))
 }

@@ -91,6 +91,7 @@ pub fn codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
         ("stop", ControlCommand::Stop),
         ("epochs", ControlCommand::Epochs),
         ("replay", ControlCommand::Replay),
+        ("goal", ControlCommand::Goal),
     ];
     let events = [
         ("ready", StatusEvent::Ready),
@@ -292,6 +293,7 @@ mod tests {
             .iter()
             .find(|t| t.type_name == "scmpc::Control")
             .unwrap();
-        assert_eq!(control.fields.last().unwrap().ty, "scmpc::EpochSchedule");
+        let epochs = control.fields.iter().find(|f| f.name == "epochs").unwrap();
+        assert_eq!(epochs.ty, "scmpc::EpochSchedule");
     }
 }

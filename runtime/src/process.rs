@@ -125,6 +125,8 @@ pub struct ProcessContext {
     /// The orchestrator is gone: the DFL brakes, and the process exits after
     /// [`ORPHAN_GRACE`].
     pub orphaned: bool,
+    /// The newest goal set while the run drives ([`Context::goal`]).
+    pub goal: Option<protocol::task::GoalChange>,
 }
 
 impl ProcessContext {
@@ -139,12 +141,14 @@ impl ProcessContext {
             replay: false,
             schedule: None,
             orphaned: false,
+            goal: None,
         }
     }
 
     /// Takes one control message.
     fn apply(&mut self, c: &Control, latency_ns: u64) {
         self.schedule = Some(c.epochs);
+        self.goal = c.goal_change().or(self.goal);
         self.heard_tick = self.heard_tick.max(Some(c.header.tick));
         match c.command() {
             Some(ControlCommand::Grant) => {
@@ -154,7 +158,7 @@ impl ProcessContext {
             Some(ControlCommand::Start) => self.clock.start(c.start_ns),
             Some(ControlCommand::Stop) => self.stopped = true,
             Some(ControlCommand::Replay) => self.replay = true,
-            Some(ControlCommand::Epochs) | None => {}
+            Some(ControlCommand::Epochs | ControlCommand::Goal) | None => {}
         }
     }
 
@@ -170,6 +174,10 @@ impl Context for ProcessContext {
     /// arrivals with (the robot's odometry).
     fn monotonic_ns(&self) -> u64 {
         crate::clock::monotonic_ns()
+    }
+
+    fn goal(&self) -> Option<protocol::task::GoalChange> {
+        self.goal
     }
 
     fn has_reached(&self, t_s: f64) -> bool {

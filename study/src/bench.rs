@@ -371,12 +371,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     let realtime_run =
         |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);
     let realtime = realtime_run("realtime")?;
-    let realtime_hops = realtime
-        .processes
-        .as_ref()
-        .ok_or_else(|| anyhow!("the real-time run reported no processes"))?
-        .hop_latency_us;
-    let live = live::measure(&out.join("live"), &scenario, &realtime_hops, stop)?;
+    let live = live::measure(&out.join("live"), &scenario, &realtime, stop)?;
     let hot = run::inprocess::run(
         &scenario,
         &out.join("in-process"),

@@ -159,6 +159,50 @@ impl Client {
         None
     }
 
+    /// Advertises a channel of this client's on `topic` (JSON), as Foxglove's publish panel
+    /// does; returns its id.
+    pub fn advertise(&mut self, topic: &str, schema_name: &str) -> Result<u32, tungstenite::Error> {
+        let id = self.next_subscription + 1000;
+        self.next_subscription += 1;
+        let text = serde_json::json!({
+            "op": "advertise",
+            "channels": [{ "id": id, "topic": topic, "encoding": "json", "schemaName": schema_name }],
+        });
+        self.socket.send(Message::text(text.to_string()))?;
+        Ok(id)
+    }
+
+    /// Publishes `message` on this client's channel `id` (binary opcode 1).
+    pub fn publish(
+        &mut self,
+        id: u32,
+        message: &serde_json::Value,
+    ) -> Result<(), tungstenite::Error> {
+        let mut frame = vec![1];
+        frame.extend_from_slice(&id.to_le_bytes());
+        frame.extend_from_slice(message.to_string().as_bytes());
+        self.socket.send(Message::binary(frame))
+    }
+
+    /// The next status message within `timeout`: its level (0 info, 1 warning, 2 error) and
+    /// text.
+    pub fn status(&mut self, timeout: Duration) -> Option<(u64, String)> {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            let left = deadline.saturating_duration_since(Instant::now());
+            self.set_timeout(Some(left.max(Duration::from_millis(1))));
+            match self.read() {
+                Ok(Frame::Json(json)) if json["op"] == "status" => {
+                    let level = json["level"].as_u64().unwrap_or(0);
+                    return Some((level, json["message"].as_str().unwrap_or("").to_string()));
+                }
+                Ok(_) => {}
+                Err(_) => return None,
+            }
+        }
+        None
+    }
+
     /// Sends raw frames the protocol does not know.
     pub fn send(&mut self, message: Message) -> Result<(), tungstenite::Error> {
         self.socket.send(message)

@@ -329,6 +329,18 @@ pub struct RunArgs {
     pub security: SecurityArgs,
 }
 
+impl RunArgs {
+    /// The `--set` overrides, then those `--live` and `--live-pace` stand for.
+    pub fn all_overrides(&self) -> Vec<String> {
+        let live = (self.live.iter()).map(|address| format!("live.address={address}"));
+        let pace = self.live_pace.then(|| "live.pace=true".to_string());
+        (self.overrides.iter().cloned())
+            .chain(live)
+            .chain(pace)
+            .collect()
+    }
+}
+
 /// An iceoryx2 port id as printed by iceoryx2 (hexadecimal).
 fn parse_hex_id(text: &str) -> Result<u128, String> {
     u128::from_str_radix(text, 16).map_err(|e| format!("`{text}` is not a hexadecimal id: {e}"))

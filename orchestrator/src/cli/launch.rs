@@ -52,20 +52,9 @@ pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
     result.map_err(|e| CliError::Failed(e.into()))
 }
 
-pub(super) fn run(args: RunArgs) -> CliResult {
-    let overrides: Vec<String> = (args.overrides.iter().cloned())
-        .chain(
-            args.live
-                .iter()
-                .map(|address| format!("live.address={address}")),
-        )
-        .chain(args.live_pace.then(|| "live.pace=true".to_string()))
-        .collect();
-    let scenario = scenarios::load(args.scenario.as_deref(), &overrides).map_err(bad_input)?;
-    scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
-    let out = args
-        .out
-        .unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
+/// Whether `args` ask for a clock the run can have: a ROS 2 robot (`robot`) is driven in
+/// real time only, in-process runs are lockstep.
+fn check_modes(args: &RunArgs, robot: bool) -> CliResult {
     if args.in_process && args.mode == Mode::Realtime {
         return Err(bad_input(
             "--in-process runs in lockstep only; drop --mode realtime or --in-process",
@@ -76,13 +65,24 @@ pub(super) fn run(args: RunArgs) -> CliResult {
             "--keep-cores-awake is for --mode realtime (lockstep keeps its cores busy already)",
         ));
     }
-    let robot = scenario.plant.kind == protocol::PlantKind::Ros2;
     if robot && (args.in_process || args.mode != Mode::Realtime) {
         return Err(bad_input(
             "plant.kind = \"ros2\": a robot is driven in real time only \
              (give --mode realtime, without --in-process)",
         ));
     }
+    Ok(())
+}
+
+pub(super) fn run(args: RunArgs) -> CliResult {
+    let scenario =
+        scenarios::load(args.scenario.as_deref(), &args.all_overrides()).map_err(bad_input)?;
+    scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
+    let robot = scenario.plant.kind == protocol::PlantKind::Ros2;
+    check_modes(&args, robot)?;
+    let out = args
+        .out
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
     if args.mode == Mode::Realtime {
         run::scheduling::check(&scenario.realtime).map_err(bad_input)?;
     }

@@ -23,6 +23,8 @@ pub enum ControlCommand {
     /// joined a running loop (a restart, a replacement) gets what it missed; consumers
     /// skip ticks they have already handled.
     Replay = 4,
+    /// A new goal (`goal*`; every control message carries the newest).
+    Goal = 5,
 }
 
 /// The orchestrator's clock and commands.
@@ -42,6 +44,12 @@ pub struct Control {
     pub start_ns: u64,
     /// Which producer of each role consumers take, tick by tick.
     pub epochs: EpochSchedule,
+    /// The newest goal set while the run drives (`goal_serial` 0: none, `robot.goal`):
+    /// `[x, y, heading]` (m, m, rad; heading NaN: none), in force from `goal_from_tick`.
+    pub goal: [f64; 3],
+    pub goal_from_tick: u64,
+    pub goal_serial: u32,
+    pub reserved_goal: [u32; 3],
 }
 
 /// Which producer epoch of each [`Role`] (indexed by its code) consumers take, tick by
@@ -210,8 +218,32 @@ impl Control {
             2 => ControlCommand::Stop,
             3 => ControlCommand::Epochs,
             4 => ControlCommand::Replay,
+            5 => ControlCommand::Goal,
             _ => return None,
         })
+    }
+
+    /// The newest goal set while the run drives, if any.
+    pub fn goal_change(&self) -> Option<crate::task::GoalChange> {
+        let [x, y, yaw] = self.goal;
+        (self.goal_serial > 0).then_some(crate::task::GoalChange {
+            serial: self.goal_serial,
+            from_tick: self.goal_from_tick,
+            goal: crate::Goal {
+                position: [x, y],
+                yaw_rad: (!yaw.is_nan()).then_some(yaw),
+            },
+        })
+    }
+
+    /// Carries `change` (`None`: no goal set).
+    pub fn set_goal(&mut self, change: Option<crate::task::GoalChange>) {
+        if let Some(c) = change {
+            let [x, y] = c.goal.position;
+            self.goal = [x, y, c.goal.yaw_rad.unwrap_or(f64::NAN)];
+            self.goal_from_tick = c.from_tick;
+            self.goal_serial = c.serial;
+        }
     }
 }
 
@@ -483,6 +515,10 @@ crate::layouts! {
         reserved: u32,
         start_ns: u64,
         epochs: EpochSchedule,
+        goal: [f64; 3],
+        goal_from_tick: u64,
+        goal_serial: u32,
+        reserved_goal: [u32; 3],
     }
     Status {
         header: Header,

@@ -98,7 +98,7 @@ fn codes_counts_and_lengths_outside_their_type_are_malformed() {
     assert!(!Status { event: 7, ..status }.well_formed());
     assert!(
         !Control {
-            command: 5,
+            command: 6,
             ..Control::default()
         }
         .well_formed()

@@ -4,6 +4,7 @@
 //! ([`Scenario::to_toml`](crate::Scenario::to_toml) leaves it out), so no role process,
 //! no other host and no run directory ever holds the token.
 
+use super::{Goal, Scenario, Validated};
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 
@@ -21,6 +22,8 @@ pub struct LiveConfig {
     /// The shared secret a client gives as `?token=` in its URL or as `Authorization:
     /// Bearer`; required on any address but loopback. Empty: none.
     pub token: String,
+    /// Whether a client may send the robot a goal on `/goal` (else every goal is refused).
+    pub accept_goals: bool,
     /// Lockstep: hold the clock to real time, so that the view shows the run at the pace
     /// it would drive (`false`: as fast as the run goes).
     pub pace: bool,
@@ -31,6 +34,7 @@ impl Default for LiveConfig {
         LiveConfig {
             address: DEFAULT_LIVE_ADDRESS.into(),
             token: String::new(),
+            accept_goals: false,
             pace: false,
         }
     }
@@ -78,6 +82,56 @@ impl LiveConfig {
             ));
         }
         problems
+    }
+}
+
+impl Scenario {
+    /// A goal sent while the run drives, checked as RViz's "2D Goal Pose" would be (the
+    /// robot can reach it as far as anyone knows): finite, inside the position box and off
+    /// every known obstacle, grown by the robot's footprint. Its heading is kept only for a
+    /// robot that settles at its goal (as a ROS 2 goal's is). `Err`: why it is refused.
+    pub fn live_goal(&self, goal: Goal) -> Result<Goal, String> {
+        let [x, y] = goal.position;
+        if !(x.is_finite() && y.is_finite() && goal.yaw_rad.is_none_or(f64::is_finite)) {
+            return Err(format!("({x}, {y}) is not a finite position and heading"));
+        }
+        let (lo, hi) = (self.mpc.position_min, self.mpc.position_max);
+        if x < lo[0] || x > hi[0] || y < lo[1] || y > hi[1] {
+            return Err(format!(
+                "({x}, {y}) is outside the position box [{}, {}] x [{}, {}] (mpc.position_min, \
+                 mpc.position_max): no plan can reach it",
+                lo[0], hi[0], lo[1], hi[1]
+            ));
+        }
+        let radius = crate::ObstacleGrowth::footprint(self).fixed_m;
+        let known: Vec<&crate::Obstacle> = self.known_obstacles().collect();
+        for (i, o) in self.obstacles.iter().enumerate() {
+            let inside = o
+                .rest()
+                .is_some_and(|rest| crate::distance(rest, [x, y]) <= o.radius + radius);
+            if inside && known.iter().any(|k| std::ptr::eq(*k, o)) {
+                return Err(format!(
+                    "({x}, {y}) is inside obstacle {i} (radius {} m at ({}, {})), grown by the \
+                     robot's radius {radius} m",
+                    o.radius, o.x, o.y
+                ));
+            }
+        }
+        let settles = self.robot.final_approach == crate::FinalApproach::Settle;
+        Ok(Goal {
+            yaw_rad: goal.yaw_rad.filter(|_| settles),
+            ..goal
+        })
+    }
+}
+
+impl Validated {
+    /// The same scenario going to `goal` instead, a goal [`Scenario::live_goal`] gave: what
+    /// a role retargets to while the run drives.
+    pub fn with_goal(&self, goal: Goal) -> Validated {
+        let mut scenario = self.0.clone();
+        scenario.robot.goal = goal;
+        Validated(scenario)
     }
 }
 

@@ -139,6 +139,14 @@ fn one_of_each() -> Vec<Event> {
             sample: 0,
             reason: "first".into(),
         },
+        Event::Goal {
+            serial: 1,
+            from_tick: 40,
+            x: 5.5,
+            y: -4.5,
+            heading: Some(1.5),
+            from: "live".into(),
+        },
         Event::Exited {
             role: Role::Tracker,
             epoch: 0,

@@ -22,6 +22,7 @@ use super::{POLL, START_LEAD, TICK_TIMEOUT};
 use crate::children::Children;
 use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
+use protocol::task::GoalChange;
 use protocol::{Role, Scenario};
 use record::judge::Outcome;
 use record::{Event, ProcessReport, Recorder};
@@ -46,6 +47,8 @@ pub(super) struct Driver<'a> {
     supervisor: Supervisor,
     swaps: SwapServer,
     stop: &'a AtomicBool,
+    /// Goals set while the run drives.
+    goals_set: u32,
 }
 
 impl<'a> Driver<'a> {
@@ -67,6 +70,7 @@ impl<'a> Driver<'a> {
             supervisor: Supervisor::new(&scenario.supervision, robot::watched_keys(scenario)),
             swaps: SwapServer::new(scenario),
             stop,
+            goals_set: 0,
         }
     }
 
@@ -78,6 +82,7 @@ impl<'a> Driver<'a> {
             if let Some(pace) = &mut pace {
                 pace.wait(tick);
             }
+            self.set_requested_goal(tick)?;
             self.parts.session.grant(tick)?;
             self.take_now()?;
             if let Some(outcome) = self.check()? {
@@ -180,6 +185,8 @@ impl<'a> Driver<'a> {
                     return Ok(outcome);
                 }
                 self.serve_swaps()?;
+                let now = self.parts.session.clock().now_tick().unwrap_or(0);
+                self.set_requested_goal(now)?;
             }
             while let Some(slot) = self.intake.next_due(self.parts.recorder)? {
                 let tick = self.intake.cursor - 1;
@@ -234,6 +241,20 @@ impl<'a> Driver<'a> {
     fn take(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<()> {
         ipc::wait(waitset, POLL)?;
         self.take_now()
+    }
+
+    /// A goal a sink took from outside (a live view's client), set for every process and
+    /// the record ([`GoalChange::set_at`]) at tick `now_tick`.
+    fn set_requested_goal(&mut self, now_tick: u64) -> anyhow::Result<()> {
+        let Some(goal) = self.parts.recorder.requested_goal() else {
+            return Ok(());
+        };
+        self.goals_set += 1;
+        let inner_steps = self.scenario.timing.inner_steps;
+        let change = GoalChange::set_at(self.goals_set, goal, now_tick, inner_steps);
+        self.parts.session.set_goal(change)?;
+        self.parts.recorder.goal_set(&change)?;
+        Ok(())
     }
 
     /// Between ticks: the swaps moved on.

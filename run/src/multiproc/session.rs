@@ -2,6 +2,7 @@
 //! and the run's clock, which it keeps and which bounds what its inputs accept.
 
 use protocol::graph::{Graph, declaration};
+use protocol::task::GoalChange;
 use protocol::{
     Control, ControlCommand, EpochSchedule, Header, PlantKind, Role, Scenario, Status, SwapReply,
     SwapRequest,
@@ -45,6 +46,8 @@ pub(super) struct Session {
     pub swap_replies: Sender<SwapReply>,
     /// Which producer of each role is taken, announced with every control message.
     schedule: Cell<EpochSchedule>,
+    /// The newest goal set while the run drives, announced with every control message.
+    goal: Cell<Option<GoalChange>>,
     clock: Rc<Clock>,
     /// The node of the ports above; declared last, so it is dropped after them.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
@@ -65,6 +68,7 @@ impl Session {
             swap_requests: open_run_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: Cell::new(EpochSchedule::default()),
+            goal: Cell::new(None),
             clock: Rc::new(Clock(Cell::new(RunClock::new(
                 mode,
                 scenario.timing.dt_s(),
@@ -117,11 +121,17 @@ impl Session {
         }
     }
 
-    /// Sends `command` with the schedule, the start time of the clock and, in its header,
-    /// the tick granted last (a process's clock in lockstep).
+    /// Sets a new goal, for every process ([`Control::goal`]).
+    pub fn set_goal(&self, change: GoalChange) -> Result<(), IpcError> {
+        self.goal.set(Some(change));
+        self.command(ControlCommand::Goal)
+    }
+
+    /// Sends `command` with the schedule, the start time of the clock, the newest goal set
+    /// and, in its header, the tick granted last (a process's clock in lockstep).
     pub fn command(&self, command: ControlCommand) -> Result<(), IpcError> {
         let clock = self.clock();
-        self.control.send(Control {
+        let mut control = Control {
             header: Header {
                 tick: clock
                     .now_tick()
@@ -133,7 +143,9 @@ impl Session {
             start_ns: clock.at_ns(0.0).unwrap_or(0),
             epochs: self.schedule.get(),
             ..Control::default()
-        })
+        };
+        control.set_goal(self.goal.get());
+        self.control.send(control)
     }
 
     /// The orchestrator's inputs, for housekeeping.

@@ -5,7 +5,7 @@
 use crate::foxglove_client::{Client, Frame};
 use anyhow::{Context, anyhow};
 use protocol::Validated;
-use record::Percentiles;
+use record::{Percentiles, Summary};
 use run::multiproc;
 use run::sinks::Recording;
 use runtime::clock::RunMode;
@@ -31,13 +31,19 @@ pub struct LiveCost {
 }
 
 /// Runs `scenario` in real time with a live view and a client into `out`; `without` is the
-/// hop of the same run without one.
+/// same run without one.
 pub fn measure(
     out: &Path,
     scenario: &Validated,
-    without: &Percentiles,
+    without: &Summary,
     stop: &AtomicBool,
 ) -> anyhow::Result<LiveCost> {
+    let hops = |run: &Summary| {
+        (run.processes.as_ref())
+            .map(|p| p.hop_latency_us)
+            .ok_or_else(|| anyhow!("a real-time run reported no processes"))
+    };
+    let without = hops(without)?;
     let address = free_loopback_address()?;
     let served = scenario.with_overrides(&[format!("live.address={address}")], "the bench")?;
     let url = format!("ws://{address}");
@@ -57,13 +63,10 @@ pub fn measure(
     let live_messages = (client.join())
         .map_err(|_| anyhow!("the live client panicked"))?
         .context("the live client")?;
-    let hops = run
-        .processes
-        .as_ref()
-        .ok_or_else(|| anyhow!("the live run reported no processes"))?;
+    let live_hop_us = hops(&run)?;
     Ok(LiveCost {
-        live_hop_us: hops.hop_latency_us,
-        live_hop_ratio_p99: hops.hop_latency_us.p99 / without.p99.max(1e-9),
+        live_hop_us,
+        live_hop_ratio_p99: live_hop_us.p99 / without.p99.max(1e-9),
         live_messages,
         live_deadline_misses: run.deadline_misses,
     })

@@ -1,0 +1,47 @@
+//! `[hosts]`: where the roles run (docs/hosts.md).
+
+use serde::{Deserialize, Serialize};
+
+/// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
+/// orchestrator's host (the plant, the simulated robot, always runs there), and where each
+/// named host's agent listens.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HostsConfig {
+    pub estimator: String,
+    pub mpc: String,
+    pub dfl: String,
+    pub planner: String,
+    pub tracker: String,
+    /// Host name to the Zenoh endpoint its agent listens on (`tcp/ADDR:PORT` or
+    /// `tls/ADDR:PORT`); `scmpc run --host NAME=ENDPOINT` adds to it.
+    pub endpoints: std::collections::BTreeMap<String, String>,
+}
+
+impl HostsConfig {
+    /// The host `role` runs on (`None`: the orchestrator's).
+    pub fn of(&self, role: crate::Role) -> Option<&str> {
+        let name = match role {
+            crate::Role::Estimator => &self.estimator,
+            crate::Role::Mpc => &self.mpc,
+            crate::Role::Dfl => &self.dfl,
+            crate::Role::Planner => &self.planner,
+            crate::Role::Tracker => &self.tracker,
+            // The plant, the simulated robot, always runs here; so does a role that may
+            // not run elsewhere (`RoleDecl::remote`).
+            _ => "",
+        };
+        (!name.is_empty()).then_some(name)
+    }
+
+    /// The names of the hosts roles are placed on, each once, in order.
+    pub fn names(&self) -> Vec<String> {
+        let mut names: Vec<String> = crate::Role::ALL
+            .iter()
+            .filter_map(|r| self.of(*r).map(str::to_string))
+            .collect();
+        names.sort();
+        names.dedup();
+        names
+    }
+}
