@@ -13,6 +13,9 @@ use std::time::{Duration, Instant};
 use study::foxglove_client::{Client, Frame};
 use tungstenite::Message;
 
+/// The token of the runs that take goals (a goal needs one, even on loopback).
+const TOKEN: &str = "a-test-token-of-32-characters-00";
+
 /// A run started with `args` (and `--out dir`), its stdout read for the live view's
 /// address: the child and the URL.
 fn start(dir: &std::path::Path, args: &[&str]) -> (std::process::Child, String, Receiver<String>) {
@@ -96,12 +99,11 @@ fn late_client(url: &str) -> Duration {
     started.elapsed()
 }
 
-/// Clients that misbehave while the run drives: one that subscribes and never reads, one
-/// that sends frames the protocol does not know and bytes that are no WebSocket, one that
-/// connects and says nothing, ten at once, one that drops and reconnects. Each returns
-/// what it holds open until the run ends.
-fn misbehave(url: &str) -> Vec<Box<dyn Send>> {
-    let address = url.trim_start_matches("ws://").to_string();
+/// Clients of `url` (at `address`) that misbehave while the run drives: one that subscribes
+/// and never reads, one that sends frames the protocol does not know and bytes that are no
+/// WebSocket, one that connects and says nothing, ten at once, one that drops and
+/// reconnects. Each returns what it holds open until the run ends.
+fn misbehave(url: &str, address: &str) -> Vec<Box<dyn Send>> {
     let mut held: Vec<Box<dyn Send>> = Vec::new();
     held.push(Box::new(
         Client::connect(url, true).expect("a client that never reads"),
@@ -117,13 +119,13 @@ fn misbehave(url: &str) -> Vec<Box<dyn Send>> {
         let _ = rude.send(message);
     }
     held.push(Box::new(rude));
-    let mut raw = TcpStream::connect(&address).unwrap();
+    let mut raw = TcpStream::connect(address).unwrap();
     raw.write_all(b"\x16\x03\x01\x00\xff not http at all\r\n\r\n")
         .unwrap();
     let mut answer = String::new();
     let _ = raw.read_to_string(&mut answer);
     assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
-    held.push(Box::new(TcpStream::connect(&address).unwrap()));
+    held.push(Box::new(TcpStream::connect(address).unwrap()));
     let ten: Vec<Client> = (0..10)
         .map(|_| Client::connect(url, true).expect("one of ten clients"))
         .collect();
@@ -149,7 +151,9 @@ fn misbehave(url: &str) -> Vec<Box<dyn Send>> {
 fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_clients_do() {
     let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
-    let (mut run, url, lines) = start(
+    // The paper scenario, ending once the robot is held at its goal (about 17 s, not 30).
+    let token = format!("live.token={TOKEN}");
+    let (mut run, base, lines) = start(
         dir.path(),
         &[
             "--mode",
@@ -158,13 +162,18 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
             "127.0.0.1:0",
             "--set",
             "live.accept_goals=true",
+            "--set",
+            &token,
+            "--set",
+            "robot.final_approach=settle",
         ],
     );
+    let url = format!("{base}/?token={TOKEN}");
     let watcher = {
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
-    let held = misbehave(&url);
+    let held = misbehave(&url, base.trim_start_matches("ws://"));
     // A goal inside the paper's obstacle (radius 1.5 m at (3, 3.5)) is refused, and why.
     let (level, refusal) = send_goal(&url, 3.0, 3.5);
     assert_eq!(level, 2, "{refusal}");
@@ -248,7 +257,7 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
 #[test]
 fn off_loopback_a_client_without_the_token_is_refused_before_it_sees_a_channel() {
     let _machine = common::machine_shared();
-    let token = "a-test-token-of-32-characters-00";
+    let token = TOKEN;
     let out = common::run(&[
         "run",
         "--live",
@@ -305,7 +314,8 @@ fn off_loopback_a_client_without_the_token_is_refused_before_it_sees_a_channel()
 fn a_goal_sent_from_the_viewer_mid_run_is_set_for_every_process_and_reached() {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
-    let (mut run, url, _lines) = start(
+    let token = format!("live.token={TOKEN}");
+    let (mut run, base, _lines) = start(
         dir.path(),
         &[
             "--live",
@@ -314,12 +324,17 @@ fn a_goal_sent_from_the_viewer_mid_run_is_set_for_every_process_and_reached() {
             "--set",
             "live.accept_goals=true",
             "--set",
+            &token,
+            "--set",
+            "planner.kind=route",
+            "--set",
             "robot.final_approach=settle",
             "--set",
             "duration_s=20",
             "--no-mcap",
         ],
     );
+    let url = format!("{base}/?token={TOKEN}");
     // (Settling, the run ends once the robot is held at its goal.) At 1 s of the run, from (7, 7) on its way to (0, 0): go to (5.5, 4.5) instead.
     let mut clock = Client::connect(&url, false).expect("a clock");
     while !matches!(clock.read(), Ok(Frame::Time(ns)) if ns >= 1_000_000_000) {}
@@ -357,7 +372,7 @@ fn a_goal_sent_from_the_viewer_mid_run_is_set_for_every_process_and_reached() {
 }
 
 #[test]
-fn the_foxglove_layout_shows_only_channels_a_run_has() {
+fn the_foxglove_layout_names_only_channels_of_the_record() {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json");
     let layout: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();

@@ -219,6 +219,7 @@ fn run_mcap_holds_every_tick_plan_verdict_route_and_event_of_the_run() {
         "/estimator/estimate",
         "/dfl/command",
         "/robot/clearance",
+        "/pipeline/latency",
     ] {
         assert_eq!(count(topic), ticks, "{topic}");
     }

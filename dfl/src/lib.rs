@@ -419,9 +419,6 @@ impl Dfl {
         outcome
     }
 
-    /// One inner tick: the command for `[t_j, t_j + Ts/M)` from `estimate` and the active
-    /// plan; integrates zeta over the tick. The header's publish time and epoch are the
-    /// caller's to fill.
     /// Holds the robot at `goal` from now on (a goal set while the run drives): a robot
     /// held at the old one is let go, to the plans that lead to the new one.
     pub fn set_goal(&mut self, goal: protocol::Goal) {
@@ -431,6 +428,9 @@ impl Dfl {
         self.holding = false;
     }
 
+    /// One inner tick: the command for `[t_j, t_j + Ts/M)` from `estimate` and the active
+    /// plan; integrates zeta over the tick. The header's publish time and epoch are the
+    /// caller's to fill.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let checked = self.check(estimate, tick);
         let checked = self.check_free_range(estimate, checked);

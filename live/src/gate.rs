@@ -2,7 +2,10 @@
 //! read here first, and a client without the run's token, or one more than
 //! [`MAX_CLIENTS`](crate::MAX_CLIENTS), is answered with an HTTP error and closed before
 //! it sees a channel. An admitted connection is handed, request and all, to the server on
-//! loopback, and its bytes are copied both ways until either side closes.
+//! loopback, and its bytes are copied both ways until either side closes. A connection
+//! takes its seat as it is accepted, before its request comes, so connections that say
+//! nothing hold at most [`MAX_CLIENTS`](crate::MAX_CLIENTS) sockets, each for at most
+//! [`HEAD_TIMEOUT`].
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -14,7 +17,9 @@ use tokio::net::{TcpListener, TcpStream};
 /// The longest request head read (a browser's is well under 2 KiB).
 const MAX_HEAD_BYTES: usize = 8192;
 /// How long a client may take to send its request.
-const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
+const HEAD_TIMEOUT: Duration = Duration::from_secs(2);
+/// How long the gate waits after failing to accept (out of file descriptors, say).
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(50);
 
 /// Why a client is refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -51,12 +56,17 @@ pub(crate) async fn serve(listener: TcpListener, server: SocketAddr, token: Opti
     let token: Arc<Option<String>> = Arc::new(token);
     let clients = Arc::new(AtomicUsize::new(0));
     loop {
-        let Ok((client, peer)) = listener.accept().await else {
+        let Ok((mut client, peer)) = listener.accept().await else {
+            tokio::time::sleep(ACCEPT_BACKOFF).await;
             continue;
         };
         let (token, clients) = (token.clone(), clients.clone());
         tokio::spawn(async move {
-            if let Err(e) = connection(client, server, &token, &clients).await {
+            let Some(_seat) = Seat::take(&clients) else {
+                let _ = client.write_all(Refusal::Full.response().as_bytes()).await;
+                return;
+            };
+            if let Err(e) = connection(client, server, &token).await {
                 tracing::debug!("live view: client {peer}: {e}");
             }
         });
@@ -80,20 +90,18 @@ impl Drop for Seat<'_> {
     }
 }
 
+/// A client with a seat: its request read and judged, and if admitted, its connection
+/// handed to the server.
 async fn connection(
     mut client: TcpStream,
     server: SocketAddr,
     token: &Option<String>,
-    clients: &AtomicUsize,
 ) -> std::io::Result<()> {
     let head = match tokio::time::timeout(HEAD_TIMEOUT, read_head(&mut client)).await {
         Ok(head) => head?,
         Err(_) => return Ok(()),
     };
-    let seat = Seat::take(clients);
-    let admitted =
-        admit(&head, token.as_deref()).and(seat.is_some().then_some(()).ok_or(Refusal::Full));
-    if let Err(refusal) = admitted {
+    if let Err(refusal) = admit(&head, token.as_deref()) {
         client.write_all(refusal.response().as_bytes()).await?;
         return client.shutdown().await;
     }
@@ -144,7 +152,10 @@ pub(crate) fn admit(head: &[u8], token: Option<&str>) -> Result<(), Refusal> {
         .take_while(|line| !line.is_empty())
         .filter_map(|line| line.split_once(':'))
         .filter(|(name, _)| name.trim().eq_ignore_ascii_case("authorization"))
-        .filter_map(|(_, value)| value.trim().strip_prefix("Bearer "));
+        .filter_map(|(_, value)| {
+            let (scheme, credentials) = value.trim().split_once(' ')?;
+            scheme.eq_ignore_ascii_case("bearer").then_some(credentials)
+        });
     let mut given = in_url.chain(in_header);
     if given.any(|g| same(g.trim().as_bytes(), token.as_bytes())) {
         Ok(())
@@ -181,6 +192,8 @@ mod tests {
         );
         let bearer = format!("Authorization: Bearer {TOKEN}\r\n");
         assert_eq!(admit(&head("/", &bearer), Some(TOKEN)), Ok(()));
+        let lower = format!("authorization: bearer {TOKEN}\r\n");
+        assert_eq!(admit(&head("/", &lower), Some(TOKEN)), Ok(()));
         assert_eq!(admit(&head("/", ""), Some(TOKEN)), Err(Refusal::NoToken));
         assert_eq!(
             admit(&head("/?token=0123456789abcdeF", ""), Some(TOKEN)),
@@ -195,6 +208,18 @@ mod tests {
             Err(Refusal::BadRequest)
         );
         assert_eq!(admit(b"GET /\r\n\r\n", None), Err(Refusal::BadRequest));
+    }
+
+    #[test]
+    fn a_seat_is_taken_by_at_most_max_clients_at_once_and_freed_when_dropped() {
+        let clients = AtomicUsize::new(0);
+        let seats: Vec<Seat> = (0..crate::MAX_CLIENTS)
+            .map(|_| Seat::take(&clients).expect("a free seat"))
+            .collect();
+        assert!(Seat::take(&clients).is_none());
+        drop(seats);
+        assert_eq!(clients.load(Ordering::Acquire), 0);
+        assert!(Seat::take(&clients).is_some());
     }
 
     #[test]

@@ -41,8 +41,8 @@ impl GoalDesk {
 
     /// A message on a client's channel: a goal on `/goal`, taken or refused.
     pub(crate) fn published(&self, client: &Client, channel: &ClientChannel, payload: &[u8]) {
-        if channel.topic != GOAL_TOPIC {
-            return;
+        if channel.topic != GOAL_TOPIC || channel.encoding != "json" {
+            return; // told at its advertisement that it is ignored
         }
         let status = match self.take(payload) {
             Ok(goal) => Status::info(format!(

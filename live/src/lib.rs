@@ -6,8 +6,9 @@
 //! ([`record::Encoded`]) on a thread of its own, which hands each message to Foxglove's
 //! server ([`foxglove::WebSocketServer`], the SDK's). Nothing here runs in the control
 //! tier or can block the orchestrator: the recorder hands the encoder a copy per message
-//! and goes on; a client's queue holds [`CLIENT_BACKLOG`] messages and drops its oldest
-//! for a client that reads too slowly; the server's threads run at the normal policy.
+//! and goes on, dropping them while [`QUEUED_BATCHES`] batches wait; a client's queue
+//! holds [`CLIENT_BACKLOG`] messages and drops its oldest for a client that reads too
+//! slowly; the server's threads run at the normal policy.
 //!
 //! Clients reach the server through a gate ([`gate`]): it refuses a client without the
 //! run's token (`live.token`) and the client after [`MAX_CLIENTS`] before it sees a
@@ -32,6 +33,9 @@ use std::sync::{Arc, Mutex, PoisonError};
 /// Messages a client's queue holds; a client that reads slower than the run publishes
 /// loses the oldest. About a fifth of a second of the paper scenario's messages.
 pub const CLIENT_BACKLOG: usize = 256;
+/// Batches of messages (64 each) waiting for the live view's encoder; the recorder drops
+/// the next while they are all waiting.
+const QUEUED_BATCHES: usize = 16;
 /// Clients connected at once; the gate refuses the next (HTTP 503).
 pub const MAX_CLIENTS: usize = 16;
 /// How long the end of a run waits for the clients to be closed.
@@ -55,10 +59,11 @@ pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
             ", with ?token=… in the URL"
         }
     );
-    Ok(Some(Box::new(Encoded::start(
+    Ok(Some(Box::new(Encoded::start_lossy(
         "live view",
         channels,
         run.scenario,
+        QUEUED_BATCHES,
     )?)))
 }
 

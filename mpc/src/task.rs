@@ -157,15 +157,16 @@ impl Task for MpcTask {
             }
         }
         self.samples.answered();
+        // (A step that builds the MPC anew counts the build in its time.)
+        let started_ns = context.monotonic_ns();
         if let Some(change) =
             GoalChange::due(context.goal(), estimate.header.tick, self.goal_serial)
         {
-            self.retarget(change, sample);
+            self.retarget(change);
         }
         let first_route = self.first_route_sample;
         let route =
             (self.routes.iter().rev()).find(|r| r.sample < sample && r.sample >= first_route);
-        let started_ns = context.monotonic_ns();
         let mut plan =
             self.mpc
                 .step_on_route(sample, estimate.state, estimate.position_sigma(), route);
@@ -186,14 +187,14 @@ impl Task for MpcTask {
 }
 
 impl MpcTask {
-    /// Drives to the goal of `change` from `sample` on: the MPC built anew for it (its
-    /// program is relative to the goal, [`crate::linear`]), with the newest tracks; the
-    /// routes planned before lead to the old goal and are not followed. (A scenario valid
-    /// with one goal builds with another its checks accepted: should it not, the robot
-    /// goes on to the old goal.)
-    fn retarget(&mut self, change: GoalChange, sample: u64) {
+    /// Drives to the goal of `change`: the MPC built anew for it (its program is relative
+    /// to the goal, [`crate::linear`]), with the newest tracks; routes of samples before
+    /// the goal's first (which the planner planned to the old goal) are not followed.
+    /// (A scenario valid with one goal builds with another its checks accepted: should it
+    /// not, the MPC goes on to the old goal.)
+    fn retarget(&mut self, change: GoalChange) {
         self.goal_serial = change.serial;
-        self.first_route_sample = sample;
+        self.first_route_sample = self.scenario.timing.sample_of(change.from_tick);
         self.scenario = self.scenario.with_goal(change.goal);
         if let Ok(mut mpc) = Mpc::new(&self.scenario) {
             if let Some(tracks) = &self.newest_tracks {

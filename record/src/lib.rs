@@ -74,7 +74,18 @@ pub struct Recorder {
     perception: Option<perception::PerceptionJudge>,
     /// Goals a sink took from outside (a live view's client), not set yet.
     goals: std::sync::mpsc::Receiver<protocol::Goal>,
+    /// The newest of those, waiting for [`Recorder::goal_interval_s`] to pass.
+    pending_goal: Option<protocol::Goal>,
+    /// When the last goal was set, s.
+    goal_set_at_s: Option<f64>,
+    /// The shortest time between two goals set: [`MIN_GOAL_INTERVAL_S`], or two samples if
+    /// longer (a goal waits up to two samples for its first tick).
+    goal_interval_s: f64,
 }
+
+/// The shortest time between two goals set while the run drives, s: each one has the MPC
+/// build its program anew.
+pub const MIN_GOAL_INTERVAL_S: f64 = 1.0;
 
 impl Recorder {
     /// Creates `dir` (and parents) and opens the sinks of `open` in order
@@ -98,6 +109,9 @@ impl Recorder {
         }
         Ok(Recorder {
             goals,
+            pending_goal: None,
+            goal_set_at_s: None,
+            goal_interval_s: MIN_GOAL_INTERVAL_S.max(2.0 * scenario.timing.ts_s),
             sinks,
             judge: Judge::new(scenario),
             perception: perception::PerceptionJudge::of(scenario),
@@ -122,14 +136,21 @@ impl Recorder {
         })
     }
 
-    /// The goal a sink took from outside since the last call, the newest if several.
-    pub fn requested_goal(&self) -> Option<protocol::Goal> {
-        self.goals.try_iter().last()
+    /// The newest goal a sink took from outside that is not set yet, once the last one
+    /// set is [`MIN_GOAL_INTERVAL_S`] old (the ones between are passed over).
+    pub fn requested_goal(&mut self) -> Option<protocol::Goal> {
+        if let Some(newest) = self.goals.try_iter().last() {
+            self.pending_goal = Some(newest);
+        }
+        let due =
+            (self.goal_set_at_s).is_none_or(|at| self.last_time_s - at >= self.goal_interval_s);
+        if due { self.pending_goal.take() } else { None }
     }
 
     /// `change` is set (the executor told every role): the judge measures the run against
-    /// it from now on (two samples at most before the roles do), and it is an event.
+    /// it from the newest tick recorded on, and it is an event.
     pub fn goal_set(&mut self, change: &protocol::task::GoalChange) -> std::io::Result<()> {
+        self.goal_set_at_s = Some(self.last_time_s);
         self.judge.retarget(change.goal);
         let [x, y] = change.goal.position;
         self.event(Event::Goal {

@@ -21,7 +21,7 @@ pub struct RunStart<'a> {
     pub dir: &'a Path,
     pub scenario: &'a Scenario,
     /// Where a sink that takes goals from outside (a live view's client) hands them to the
-    /// run, checked ([`Scenario::live_goal_refusal`]); the executor sets them
+    /// run, checked ([`Scenario::live_goal`]); the executor sets them
     /// ([`crate::Recorder::requested_goal`]).
     pub goals: std::sync::mpsc::Sender<protocol::Goal>,
 }

@@ -52,7 +52,7 @@ pub fn run_observed(
     let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
     let mut closed_loop = ClosedLoop::new(scenario)?;
     let mut outcome = None;
-    let mut pace = crate::pace::Pace::of(scenario);
+    let mut pace = crate::pace::Pace::of(scenario, recording);
     let mut goals_set = 0;
     while outcome.is_none() && !closed_loop.is_done() {
         if stop.load(Ordering::Relaxed) {

@@ -1,6 +1,7 @@
 //! Lockstep held to real time (`live.pace`, docs/foxglove.md): for a live view of a
 //! lockstep run that moves as the robot would.
 
+use crate::sinks::Recording;
 use protocol::Scenario;
 use std::time::{Duration, Instant};
 
@@ -11,9 +12,11 @@ pub struct Pace {
 }
 
 impl Pace {
-    /// The pace of `scenario`'s lockstep run, if its live view asks for one.
-    pub fn of(scenario: &Scenario) -> Option<Pace> {
-        scenario.live.as_ref().filter(|l| l.pace).map(|_| Pace {
+    /// The pace of `scenario`'s lockstep run, if it is served live (`recording`: never a
+    /// study's) and its live view asks for one.
+    pub fn of(scenario: &Scenario, recording: Recording) -> Option<Pace> {
+        let live = scenario.live.as_ref().filter(|_| recording.live);
+        live.filter(|l| l.pace).map(|_| Pace {
             first: None,
             period_s: scenario.timing.dt_s(),
         })

@@ -22,7 +22,8 @@ pub struct LiveConfig {
     /// The shared secret a client gives as `?token=` in its URL or as `Authorization:
     /// Bearer`; required on any address but loopback. Empty: none.
     pub token: String,
-    /// Whether a client may send the robot a goal on `/goal` (else every goal is refused).
+    /// Whether a client may send the robot a goal on `/goal` (else every goal is refused);
+    /// needs a token.
     pub accept_goals: bool,
     /// Lockstep: hold the clock to real time, so that the view shows the run at the pace
     /// it would drive (`false`: as fast as the run goes).
@@ -66,6 +67,14 @@ impl LiveConfig {
                 ),
             )),
             Ok(_) => {}
+        }
+        if self.accept_goals && self.token.is_empty() {
+            problems.push((
+                "live.token",
+                "`live.accept_goals = true`: steering needs a token, even on loopback (any \
+                 web page open on this machine may reach a loopback server)"
+                    .into(),
+            ));
         }
         if !self.token.is_empty() && self.token.chars().count() < MIN_TOKEN_CHARS {
             problems.push((

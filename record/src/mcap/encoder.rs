@@ -99,7 +99,7 @@ impl<C: Channels> Encoder<C> {
 
     pub(super) fn record(&mut self, record: Record) -> std::io::Result<()> {
         match record {
-            Record::Tick(tick) => self.tick(&tick.0, &tick.1, &tick.2, tick.3),
+            Record::Tick(tick) => self.tick(&tick),
             Record::Plan(plan) => self.plan(&plan),
             Record::Route(route) => self.route(&route),
             Record::Tracks(tracks) => {
@@ -217,15 +217,11 @@ impl<C: Channels> Encoder<C> {
         self.out.message(topic, time_ns, &self.json)
     }
 
-    /// One inner tick: the true and estimated poses, the estimate, the command applied and
-    /// the clearance; at every sample's first tick, the estimate's covariance ellipse.
-    pub(super) fn tick(
-        &mut self,
-        truth: &GroundTruth,
-        estimate: &Estimate,
-        act: &Actuation,
-        clearance_m: f64,
-    ) -> std::io::Result<()> {
+    /// One inner tick: the true and estimated poses, the estimate, the command applied, the
+    /// clearance and the hops' latencies; at every sample's first tick, the estimate's
+    /// covariance ellipse.
+    pub(super) fn tick(&mut self, tick: &TickRecord) -> std::io::Result<()> {
+        let (truth, estimate, act) = (&tick.truth, &tick.estimate, &tick.actuation);
         let t = truth.header.time_s;
         let [x, y, theta] = truth.pose;
         self.write("/robot/truth", t, &PoseInFrame::new(t, pose(x, y, theta)))?;
@@ -284,9 +280,17 @@ impl<C: Channels> Encoder<C> {
         self.write("/dfl/command", t, &command)?;
         let clearance = ClearanceRecord {
             tick: truth.header.tick,
-            clearance_m,
+            clearance_m: tick.clearance_m,
         };
-        self.write("/robot/clearance", t, &clearance)
+        self.write("/robot/clearance", t, &clearance)?;
+        let us = |ns: u32| f64::from(ns) / 1e3;
+        let latency = LatencyRecord {
+            tick: truth.header.tick,
+            control_to_plant_us: us(tick.plant_input_latency_ns),
+            measurement_to_estimator_us: us(estimate.header.input_latency_ns),
+            estimate_to_dfl_us: us(act.header.input_latency_ns),
+        };
+        self.write("/pipeline/latency", t, &latency)
     }
 
     /// A plan as published: its predicted positions, each headed along its velocity.

@@ -112,6 +112,16 @@ pub(super) struct ClearanceRecord {
     pub(super) clearance_m: f64,
 }
 
+/// `scmpc.Latency`: the publish-to-receipt latency of the hops into a tick's command, µs
+/// (0: not measured, as in process).
+#[derive(Serialize)]
+pub(super) struct LatencyRecord {
+    pub(super) tick: u64,
+    pub(super) control_to_plant_us: f64,
+    pub(super) measurement_to_estimator_us: f64,
+    pub(super) estimate_to_dfl_us: f64,
+}
+
 /// `scmpc.DeadlineVerdict`: the DFL's verdict on a sample.
 #[derive(Serialize)]
 pub(super) struct DeadlineRecord {
@@ -170,6 +180,12 @@ json_object!(EstimateRecord {
     position_sigma
 });
 json_object!(ClearanceRecord { tick, clearance_m });
+json_object!(LatencyRecord {
+    tick,
+    control_to_plant_us,
+    measurement_to_estimator_us,
+    estimate_to_dfl_us
+});
 json_object!(CommandRecord {
     tick,
     epoch,
@@ -569,6 +585,16 @@ pub(super) fn clearance_schema() -> Value {
             "description": "from the robot's edge to the nearest obstacle's surface, m"
         },
     }))
+}
+
+pub(super) fn latency_schema() -> Value {
+    let mut properties = numbers(&[
+        "control_to_plant_us",
+        "measurement_to_estimator_us",
+        "estimate_to_dfl_us",
+    ]);
+    properties.insert("tick".into(), json!({ "type": "integer" }));
+    object(Value::Object(properties))
 }
 
 pub(super) fn deadline_schema() -> Value {

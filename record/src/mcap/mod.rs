@@ -35,7 +35,7 @@ use std::time::{Duration, Instant};
 type Channel = (&'static str, &'static str, fn() -> Value);
 
 /// Every channel of `run.mcap`.
-const CHANNELS: [Channel; 15] = [
+const CHANNELS: [Channel; 16] = [
     (
         "/world/obstacles",
         "foxglove.SceneUpdate",
@@ -72,6 +72,7 @@ const CHANNELS: [Channel; 15] = [
     ("/estimator/estimate", "scmpc.Estimate", estimate_schema),
     ("/dfl/command", "scmpc.Command", command_schema),
     ("/robot/clearance", "scmpc.Clearance", clearance_schema),
+    ("/pipeline/latency", "scmpc.Latency", latency_schema),
     ("/dfl/deadline", "scmpc.DeadlineVerdict", deadline_schema),
     ("/events", "foxglove.Log", log_schema),
     ("/run/events", "scmpc.Event", crate::EventLine::schema),
@@ -103,10 +104,21 @@ const OBSTACLE_HEIGHT_M: f64 = 0.3;
 /// The covariance ellipse spans this many standard deviations each way.
 const COVARIANCE_SIGMAS: f64 = 3.0;
 
+/// A tick as the recorder hands it over.
+struct TickRecord {
+    truth: GroundTruth,
+    estimate: Estimate,
+    actuation: Actuation,
+    /// The robot's clearance, m.
+    clearance_m: f64,
+    /// The plant's input latency (the grant's, or a ROS 2 robot's odometry age), ns; 0 in
+    /// process.
+    plant_input_latency_ns: u32,
+}
+
 /// What the recorder hands the writer thread.
 enum Record {
-    /// A tick, and the robot's clearance at it, m.
-    Tick(Box<(GroundTruth, Estimate, Actuation, f64)>),
+    Tick(Box<TickRecord>),
     Plan(Box<Plan>),
     Route(Box<Route>),
     Tracks(Box<Tracks>),
@@ -134,10 +146,19 @@ pub trait Channels: Send + 'static {
     fn finish(self) -> std::io::Result<()>;
 }
 
+/// How records reach the encoder's thread.
+enum Handover {
+    /// Every one (`run.mcap`).
+    Lossless(std::sync::mpsc::Sender<Vec<Record>>),
+    /// At most a bound's worth waiting; a batch that finds the queue full is dropped (a
+    /// live view: what matters is the newest).
+    Lossy(std::sync::mpsc::SyncSender<Vec<Record>>),
+}
+
 /// A run's messages being encoded and written to their [`Channels`] by a thread of their
-/// own: `run.mcap` ([`Encoded::open_mcap`]), or a live view.
+/// own: `run.mcap` ([`Encoded::open_mcap`]), or a live view ([`Encoded::start_lossy`]).
 pub struct Encoded {
-    records: std::sync::mpsc::Sender<Vec<Record>>,
+    records: Handover,
     /// Records not handed over yet: the thread gets them in batches, so it wakes once per
     /// batch rather than once per message (in lockstep, thousands of times a second).
     batch: Vec<Record>,
@@ -153,14 +174,37 @@ const BATCH_WAIT: Duration = Duration::from_millis(100);
 
 impl Encoded {
     /// Adds every channel of `scenario`'s run to `out`, logs the world at time 0, and starts
-    /// the thread, named `name`, that encodes the rest into `out`.
+    /// the thread, named `name`, that encodes the rest into `out`, every one.
     pub fn start<C: Channels>(
         name: &'static str,
         out: C,
         scenario: &Scenario,
     ) -> std::io::Result<Encoded> {
-        let mut encoder = Encoder::new(out, scenario)?;
         let (records, received) = std::sync::mpsc::channel();
+        Encoded::spawn(name, out, scenario, Handover::Lossless(records), received)
+    }
+
+    /// [`Encoded::start`], with at most `batches` batches of records waiting for the thread:
+    /// one that finds them all waiting is dropped, so a thread that falls behind costs no
+    /// more memory.
+    pub fn start_lossy<C: Channels>(
+        name: &'static str,
+        out: C,
+        scenario: &Scenario,
+        batches: usize,
+    ) -> std::io::Result<Encoded> {
+        let (records, received) = std::sync::mpsc::sync_channel(batches);
+        Encoded::spawn(name, out, scenario, Handover::Lossy(records), received)
+    }
+
+    fn spawn<C: Channels>(
+        name: &'static str,
+        out: C,
+        scenario: &Scenario,
+        records: Handover,
+        received: std::sync::mpsc::Receiver<Vec<Record>>,
+    ) -> std::io::Result<Encoded> {
+        let mut encoder = Encoder::new(out, scenario)?;
         let thread = std::thread::Builder::new()
             .name(name.into())
             .spawn(move || {
@@ -206,7 +250,12 @@ impl Encoded {
 
     fn hand_over(&mut self) {
         let batch = std::mem::replace(&mut self.batch, Vec::with_capacity(BATCH));
-        let _ = self.records.send(batch);
+        // (A thread that stopped on an error says so at `finish`; a batch a lossy one has
+        // no room for is dropped.)
+        match &self.records {
+            Handover::Lossless(records) => drop(records.send(batch)),
+            Handover::Lossy(records) => drop(records.try_send(batch)),
+        }
         self.handed = Instant::now();
     }
 
@@ -235,12 +284,13 @@ impl crate::Sink for Encoded {
     fn sample(&mut self, sample: &crate::Sample<'_>) -> std::io::Result<()> {
         use crate::Sample;
         let record = match *sample {
-            Sample::Tick(t) => Record::Tick(Box::new((
-                *t.truth,
-                *t.estimate,
-                *t.actuation,
-                t.clearance_m,
-            ))),
+            Sample::Tick(t) => Record::Tick(Box::new(TickRecord {
+                truth: *t.truth,
+                estimate: *t.estimate,
+                actuation: *t.actuation,
+                clearance_m: t.clearance_m,
+                plant_input_latency_ns: t.measurement.map_or(0, |m| m.header.input_latency_ns),
+            })),
             Sample::Plan(plan) => Record::Plan(Box::new(*plan)),
             Sample::Verdict(v) => Record::Verdict(*v),
             Sample::Route(route) if route.is_ok() => Record::Route(Box::new(*route)),
@@ -349,6 +399,12 @@ mod tests {
                 both(&ClearanceRecord {
                     tick: i as u64,
                     clearance_m: a,
+                }),
+                both(&LatencyRecord {
+                    tick: i as u64,
+                    control_to_plant_us: c,
+                    measurement_to_estimator_us: a,
+                    estimate_to_dfl_us: b,
                 }),
             ] {
                 assert_eq!(by_hand, by_serde);

@@ -49,6 +49,8 @@ pub(super) struct Driver<'a> {
     stop: &'a AtomicBool,
     /// Goals set while the run drives.
     goals_set: u32,
+    /// Lockstep held to real time (a live view's `live.pace`).
+    pub pace: Option<crate::pace::Pace>,
 }
 
 impl<'a> Driver<'a> {
@@ -71,15 +73,15 @@ impl<'a> Driver<'a> {
             swaps: SwapServer::new(scenario),
             stop,
             goals_set: 0,
+            pace: None,
         }
     }
 
     /// Lockstep: every tick granted, whole, recorded and judged before the next.
     pub fn lockstep(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let ticks = self.scenario.tick_count();
-        let mut pace = crate::pace::Pace::of(self.scenario);
         for tick in 0..=ticks {
-            if let Some(pace) = &mut pace {
+            if let Some(pace) = &mut self.pace {
                 pace.wait(tick);
             }
             self.set_requested_goal(tick)?;

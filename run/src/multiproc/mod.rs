@@ -120,7 +120,11 @@ pub fn run(
     remove_dead_runs();
     let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
     ipc::register_run(prefix).context("registering the run")?;
-    let result = drive(scenario, out, mode, prefix, hosts, stop, &mut recorder);
+    let clock = Clocking {
+        mode,
+        pace: crate::pace::Pace::of(scenario, recording),
+    };
+    let result = drive(scenario, out, clock, prefix, hosts, stop, &mut recorder);
     if let Err(e) = ipc::remove_run(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
@@ -202,17 +206,25 @@ fn spawned_report(
     Ok(report)
 }
 
+/// How a run is clocked: lockstep or real time, and lockstep held to real time for a live
+/// view (`live.pace`).
+struct Clocking {
+    mode: RunMode,
+    pace: Option<crate::pace::Pace>,
+}
+
 /// Launches the processes, clocks and records the run, and stops the processes. Every
 /// iceoryx2 port of the orchestrator is gone when this returns.
 fn drive(
     scenario: &Validated,
     out: &Path,
-    mode: RunMode,
+    clock: Clocking,
     prefix: &str,
     hosts: &HostsSetup,
     stop: &AtomicBool,
     recorder: &mut Recorder,
 ) -> anyhow::Result<(Outcome, ProcessReport)> {
+    let Clocking { mode, pace } = clock;
     let session = Session::open(prefix, scenario, mode)?;
     RunInfo {
         iceoryx2_prefix: prefix.to_string(),
@@ -258,6 +270,7 @@ fn drive(
                 report.scheduling = scheduling_report(&children);
             }
             let mut driver = Driver::new(scenario, &session, &mut children, recorder, stop);
+            driver.pace = pace;
             let outcome = match mode {
                 RunMode::Lockstep => driver.lockstep(&waitset),
                 RunMode::Realtime => driver.realtime(&waitset),
