@@ -96,3 +96,23 @@ fn scenario_command_prints_a_scenario_that_runs_as_is() {
     );
     assert_eq!(summary(&run_dir)["scenario"], "paper");
 }
+
+#[test]
+fn a_scenario_file_without_a_name_is_called_after_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("my_robot.toml");
+    std::fs::write(&file, "duration_s = 0.5\n").unwrap();
+    let run_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        file.to_str().unwrap(),
+        "--in-process",
+        "--no-mcap",
+        "--out",
+        run_dir.to_str().unwrap(),
+    ]);
+    assert_ne!(out.status.code(), Some(2), "{}", common::stderr(&out));
+    assert_eq!(summary(&run_dir)["scenario"], "my_robot");
+    let recorded = std::fs::read_to_string(run_dir.join("scenario.toml")).unwrap();
+    assert!(recorded.contains("name = \"my_robot\""), "{recorded}");
+}

@@ -72,7 +72,13 @@ pub fn load(source: Option<&str>, overrides: &[String]) -> Result<Validated, Sce
         })?;
         (source.to_string(), text)
     };
-    let scenario = Scenario::from_toml(&text, &origin)?.with_overrides(overrides)?;
+    let mut scenario = Scenario::from_toml(&text, &origin)?;
+    // A file without a `name` is called after itself (not `paper`, the default's name).
+    let named = (text.parse::<toml::Table>()).map_or(true, |t| t.contains_key("name"));
+    if !named && let Some(stem) = Path::new(source).file_stem() {
+        scenario.name = stem.to_string_lossy().into_owned();
+    }
+    let scenario = scenario.with_overrides(overrides)?;
     let origin = if overrides.is_empty() {
         origin
     } else {
