@@ -3,7 +3,7 @@
 //! the watch on a silent estimator.
 
 use crate::Dfl;
-use protocol::task::{Context, Due, GoalChange, Outputs, Publish, Task, TaskError, header_latency};
+use protocol::task::{Context, Due, Outputs, Publish, Task, TaskError, header_latency};
 use protocol::topics::{SCAN, TRACKS};
 use protocol::{
     Actuation, CommandMode, Data, DeadlineVerdict, Estimate, Header, PLAN_MISSING, Plan,
@@ -384,7 +384,7 @@ impl DflTask {
                 self.dfl.adopt_zeta(estimate.state[3]);
             }
             self.commanding = context.is_active(tick);
-            if let Some(change) = GoalChange::due(context.goal(), tick, self.goal_serial) {
+            if let Some(change) = context.goals().due(tick, self.goal_serial) {
                 self.goal_serial = change.serial;
                 self.dfl.set_goal(change.goal);
             }

@@ -159,9 +159,7 @@ impl Task for MpcTask {
         self.samples.answered();
         // (A step that builds the MPC anew counts the build in its time.)
         let started_ns = context.monotonic_ns();
-        if let Some(change) =
-            GoalChange::due(context.goal(), estimate.header.tick, self.goal_serial)
-        {
+        if let Some(change) = context.goals().due(estimate.header.tick, self.goal_serial) {
             self.retarget(change);
         }
         let first_route = self.first_route_sample;

@@ -10,7 +10,7 @@
 
 use crate::Planner;
 use protocol::samples::SampleQueue;
-use protocol::task::{Context, Due, GoalChange, Publish, Task, TaskError};
+use protocol::task::{Context, Due, Publish, Task, TaskError};
 use protocol::topics::TRACKS;
 use protocol::{Estimate, Header, Role, Route, Tracks, Validated};
 use std::collections::VecDeque;
@@ -86,7 +86,7 @@ impl Task for PlannerTask {
         let (sample, estimate, ()) = self.samples.oldest(context)?;
         self.samples.answered();
         let tick = estimate.header.tick;
-        if let Some(change) = GoalChange::due(context.goal(), tick, self.goal_serial) {
+        if let Some(change) = context.goals().due(tick, self.goal_serial) {
             self.goal_serial = change.serial;
             self.planner.retarget(change.goal.position);
         }

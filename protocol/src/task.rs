@@ -56,10 +56,41 @@ pub trait Context {
         monotonic_ns()
     }
 
-    /// The newest goal the executor set while the run drives (a live view's client's,
-    /// docs/foxglove.md), `None`: `robot.goal`.
-    fn goal(&self) -> Option<GoalChange> {
-        None
+    /// The goals the executor set while the run drives (a live view's client's,
+    /// docs/foxglove.md): [`Goals::at`] a tick, the one in force (`None`: `robot.goal`).
+    fn goals(&self) -> Goals {
+        Goals::default()
+    }
+}
+
+/// The newest goal set while the run drives and the one before it: since goals are set
+/// at least two samples apart, the one in force at any tick is one of them, even for a
+/// process that joins while the newest waits for its first tick.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Goals {
+    pub prior: Option<GoalChange>,
+    pub newest: Option<GoalChange>,
+}
+
+impl Goals {
+    /// `change` set: the newest before it becomes the prior.
+    pub fn set(&mut self, change: GoalChange) {
+        self.prior = self.newest;
+        self.newest = Some(change);
+    }
+
+    /// The goal in force at `tick` (`None`: the scenario's).
+    pub fn at(&self, tick: u64) -> Option<GoalChange> {
+        [self.newest, self.prior]
+            .into_iter()
+            .flatten()
+            .find(|c| tick >= c.from_tick)
+    }
+
+    /// The goal in force at `tick`, if it is not the one `seen` (a task's serial of the
+    /// goal it drives to, 0 for the scenario's): what a task retargets to, once.
+    pub fn due(&self, tick: u64, seen: u32) -> Option<GoalChange> {
+        self.at(tick).filter(|c| c.serial != seen)
     }
 }
 
@@ -85,12 +116,6 @@ impl GoalChange {
             goal,
         }
     }
-
-    /// The goal in force at `tick`, if it is this one and not the one `seen` last (a
-    /// task's serial of the goal it drives to): what a task retargets to, once.
-    pub fn due(change: Option<GoalChange>, tick: u64, seen: u32) -> Option<GoalChange> {
-        change.filter(|c| c.serial != seen && tick >= c.from_tick)
-    }
 }
 
 /// The machine's monotonic clock, ns since its first reading in this process
@@ -110,7 +135,7 @@ pub fn monotonic_ns() -> u64 {
 pub struct SimulatedTime {
     tick: u64,
     dt_s: f64,
-    goal: Option<GoalChange>,
+    goals: Goals,
 }
 
 impl SimulatedTime {
@@ -119,13 +144,13 @@ impl SimulatedTime {
         SimulatedTime {
             tick,
             dt_s,
-            goal: None,
+            goals: Goals::default(),
         }
     }
 
-    /// The same time, telling of `goal` ([`Context::goal`]).
-    pub fn with_goal(self, goal: Option<GoalChange>) -> SimulatedTime {
-        SimulatedTime { goal, ..self }
+    /// The same time, telling of `goals` ([`Context::goals`]).
+    pub fn with_goals(self, goals: Goals) -> SimulatedTime {
+        SimulatedTime { goals, ..self }
     }
 
     fn now_s(&self) -> f64 {
@@ -159,8 +184,8 @@ impl Context for SimulatedTime {
         late_periods * crate::period_ns(period_s)
     }
 
-    fn goal(&self) -> Option<GoalChange> {
-        self.goal
+    fn goals(&self) -> Goals {
+        self.goals
     }
 }
 
@@ -410,4 +435,26 @@ macro_rules! task_input {
             }
         }
     };
+}
+
+#[cfg(test)]
+mod goal_tests {
+    use super::*;
+
+    #[test]
+    fn the_goal_in_force_is_the_newest_whose_first_tick_has_come_and_a_task_takes_it_once() {
+        let at = |x: f64| crate::Goal::at([x, 0.0]);
+        let mut goals = Goals::default();
+        assert_eq!(goals.at(100), None);
+        goals.set(GoalChange::set_at(1, at(1.0), 15, 10));
+        assert_eq!(goals.newest.unwrap().from_tick, 30);
+        assert_eq!(goals.at(29), None);
+        assert_eq!(goals.at(30).unwrap().serial, 1);
+        goals.set(GoalChange::set_at(2, at(2.0), 45, 10));
+        // A process that joins while goal 2 waits drives to goal 1 until goal 2's tick.
+        assert_eq!(goals.due(50, 0).unwrap().serial, 1);
+        assert_eq!(goals.due(59, 1), None);
+        assert_eq!(goals.due(60, 1).unwrap().goal, at(2.0));
+        assert_eq!(goals.due(61, 2), None);
+    }
 }

@@ -363,7 +363,10 @@ class Control(Message):
         ("goal", c_f64 * 3),
         ("goal_from_tick", c_u64),
         ("goal_serial", c_u32),
-        ("reserved_goal", c_u32 * 3),
+        ("prior_goal_serial", c_u32),
+        ("prior_goal", c_f64 * 3),
+        ("prior_goal_from_tick", c_u64),
+        ("reserved_goal", c_u32 * 2),
     ]
 
     def well_formed(self):

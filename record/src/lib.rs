@@ -78,8 +78,9 @@ pub struct Recorder {
     pending_goal: Option<protocol::Goal>,
     /// When the last goal was set, s.
     goal_set_at_s: Option<f64>,
-    /// The shortest time between two goals set: [`MIN_GOAL_INTERVAL_S`], or two samples if
-    /// longer (a goal waits up to two samples for its first tick).
+    /// The shortest time between two goals set: [`MIN_GOAL_INTERVAL_S`], or four samples if
+    /// longer (a goal waits up to two samples for its first tick, and the control messages
+    /// carry two goals: the one in force and the newest).
     goal_interval_s: f64,
 }
 
@@ -111,7 +112,7 @@ impl Recorder {
             goals,
             pending_goal: None,
             goal_set_at_s: None,
-            goal_interval_s: MIN_GOAL_INTERVAL_S.max(2.0 * scenario.timing.ts_s),
+            goal_interval_s: MIN_GOAL_INTERVAL_S.max(4.0 * scenario.timing.ts_s),
             sinks,
             judge: Judge::new(scenario),
             perception: perception::PerceptionJudge::of(scenario),

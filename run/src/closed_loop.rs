@@ -25,7 +25,7 @@
 
 use crate::roles;
 use protocol::graph::Graph;
-use protocol::task::{GoalChange, Outputs, SimulatedTime, Task};
+use protocol::task::{GoalChange, Goals, Outputs, SimulatedTime, Task};
 use protocol::{
     Actuation, Data, DeadlineVerdict, Estimate, GroundTruth, Plan, RestartPolicy, Role, Route,
     Tracks, Validated,
@@ -145,8 +145,8 @@ pub struct ClosedLoop {
     given: Vec<Data>,
     tick: u64,
     ticks: u64,
-    /// The newest goal set while the run drives ([`protocol::task::Context::goal`]).
-    goal: Option<GoalChange>,
+    /// The goals set while the run drives ([`protocol::task::Context::goals`]).
+    goals: Goals,
 }
 
 impl ClosedLoop {
@@ -171,7 +171,7 @@ impl ClosedLoop {
             given: Vec::with_capacity(16),
             tick: 0,
             ticks: scenario.tick_count(),
-            goal: None,
+            goals: Goals::default(),
         })
     }
 
@@ -182,7 +182,7 @@ impl ClosedLoop {
 
     /// Tells every task of `change` from the next tick on.
     pub fn set_goal(&mut self, change: GoalChange) {
-        self.goal = Some(change);
+        self.goals.set(change);
     }
 
     /// The tick the next [`step`](Self::step) runs.
@@ -206,7 +206,7 @@ impl ClosedLoop {
         &mut self,
         mut around: impl FnMut(Role, &mut dyn FnMut()),
     ) -> Result<Tick, Ended> {
-        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s()).with_goal(self.goal);
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s()).with_goals(self.goals);
         self.given.clear();
         let mut restarted = None;
         for i in 0..self.tasks.len() {

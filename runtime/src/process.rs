@@ -125,8 +125,8 @@ pub struct ProcessContext {
     /// The orchestrator is gone: the DFL brakes, and the process exits after
     /// [`ORPHAN_GRACE`].
     pub orphaned: bool,
-    /// The newest goal set while the run drives ([`Context::goal`]).
-    pub goal: Option<protocol::task::GoalChange>,
+    /// The goals set while the run drives ([`Context::goals`]).
+    pub goals: protocol::task::Goals,
 }
 
 impl ProcessContext {
@@ -141,14 +141,14 @@ impl ProcessContext {
             replay: false,
             schedule: None,
             orphaned: false,
-            goal: None,
+            goals: protocol::task::Goals::default(),
         }
     }
 
     /// Takes one control message.
     fn apply(&mut self, c: &Control, latency_ns: u64) {
         self.schedule = Some(c.epochs);
-        self.goal = c.goal_change().or(self.goal);
+        self.goals = c.goals();
         self.heard_tick = self.heard_tick.max(Some(c.header.tick));
         match c.command() {
             Some(ControlCommand::Grant) => {
@@ -176,8 +176,8 @@ impl Context for ProcessContext {
         crate::clock::monotonic_ns()
     }
 
-    fn goal(&self) -> Option<protocol::task::GoalChange> {
-        self.goal
+    fn goals(&self) -> protocol::task::Goals {
+        self.goals
     }
 
     fn has_reached(&self, t_s: f64) -> bool {

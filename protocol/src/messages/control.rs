@@ -45,11 +45,15 @@ pub struct Control {
     /// Which producer of each role consumers take, tick by tick.
     pub epochs: EpochSchedule,
     /// The newest goal set while the run drives (`goal_serial` 0: none, `robot.goal`):
-    /// `[x, y, heading]` (m, m, rad; heading NaN: none), in force from `goal_from_tick`.
+    /// `[x, y, heading]` (m, m, rad; heading NaN: none), in force from `goal_from_tick`;
+    /// and the one set before it, `prior_goal*` ([`crate::task::Goals`]).
     pub goal: [f64; 3],
     pub goal_from_tick: u64,
     pub goal_serial: u32,
-    pub reserved_goal: [u32; 3],
+    pub prior_goal_serial: u32,
+    pub prior_goal: [f64; 3],
+    pub prior_goal_from_tick: u64,
+    pub reserved_goal: [u32; 2],
 }
 
 /// Which producer epoch of each [`Role`] (indexed by its code) consumers take, tick by
@@ -223,26 +227,47 @@ impl Control {
         })
     }
 
-    /// The newest goal set while the run drives, if any.
-    pub fn goal_change(&self) -> Option<crate::task::GoalChange> {
-        let [x, y, yaw] = self.goal;
-        (self.goal_serial > 0).then_some(crate::task::GoalChange {
-            serial: self.goal_serial,
-            from_tick: self.goal_from_tick,
-            goal: crate::Goal {
-                position: [x, y],
-                yaw_rad: (!yaw.is_nan()).then_some(yaw),
-            },
-        })
+    /// The goals set while the run drives that it carries.
+    pub fn goals(&self) -> crate::task::Goals {
+        let change = |serial: u32, from_tick: u64, [x, y, yaw]: [f64; 3]| {
+            (serial > 0).then_some(crate::task::GoalChange {
+                serial,
+                from_tick,
+                goal: crate::Goal {
+                    position: [x, y],
+                    yaw_rad: (!yaw.is_nan()).then_some(yaw),
+                },
+            })
+        };
+        crate::task::Goals {
+            prior: change(
+                self.prior_goal_serial,
+                self.prior_goal_from_tick,
+                self.prior_goal,
+            ),
+            newest: change(self.goal_serial, self.goal_from_tick, self.goal),
+        }
     }
 
-    /// Carries `change` (`None`: no goal set).
-    pub fn set_goal(&mut self, change: Option<crate::task::GoalChange>) {
-        if let Some(c) = change {
+    /// Carries `goals`.
+    pub fn set_goals(&mut self, goals: crate::task::Goals) {
+        let fields = |c: crate::task::GoalChange| {
             let [x, y] = c.goal.position;
-            self.goal = [x, y, c.goal.yaw_rad.unwrap_or(f64::NAN)];
-            self.goal_from_tick = c.from_tick;
-            self.goal_serial = c.serial;
+            (
+                c.serial,
+                c.from_tick,
+                [x, y, c.goal.yaw_rad.unwrap_or(f64::NAN)],
+            )
+        };
+        if let Some((serial, from_tick, goal)) = goals.newest.map(fields) {
+            (self.goal_serial, self.goal_from_tick, self.goal) = (serial, from_tick, goal);
+        }
+        if let Some((serial, from_tick, goal)) = goals.prior.map(fields) {
+            (
+                self.prior_goal_serial,
+                self.prior_goal_from_tick,
+                self.prior_goal,
+            ) = (serial, from_tick, goal);
         }
     }
 }
@@ -518,7 +543,10 @@ crate::layouts! {
         goal: [f64; 3],
         goal_from_tick: u64,
         goal_serial: u32,
-        reserved_goal: [u32; 3],
+        prior_goal_serial: u32,
+        prior_goal: [f64; 3],
+        prior_goal_from_tick: u64,
+        reserved_goal: [u32; 2],
     }
     Status {
         header: Header,

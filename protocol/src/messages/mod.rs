@@ -480,7 +480,8 @@ impl_message!(
         && finite(&m.offset), m.beams as usize <= crate::MAX_BEAMS,
         record ["beams", "returns", "nearest_m"] => [m.beams.into(), m.returns() as f64, m.nearest_m()];
     Odometry => |m| m.distance_m.is_finite(), true, record ["distance_m"] => [m.distance_m];
-    Control => |m| m.goal_serial == 0 || finite(&m.goal[..2]), m.command().is_some();
+    Control => |m| (m.goal_serial == 0 || finite(&m.goal[..2]))
+        && (m.prior_goal_serial == 0 || finite(&m.prior_goal[..2])), m.command().is_some();
     Status => |m| true, Role::from_code(m.role).is_some()
         && StatusEvent::from_code(m.event).is_some()
         && (m.event != StatusEvent::Rejected as u32

@@ -2,7 +2,7 @@
 //! and the run's clock, which it keeps and which bounds what its inputs accept.
 
 use protocol::graph::{Graph, declaration};
-use protocol::task::GoalChange;
+use protocol::task::{GoalChange, Goals};
 use protocol::{
     Control, ControlCommand, EpochSchedule, Header, PlantKind, Role, Scenario, Status, SwapReply,
     SwapRequest,
@@ -46,8 +46,8 @@ pub(super) struct Session {
     pub swap_replies: Sender<SwapReply>,
     /// Which producer of each role is taken, announced with every control message.
     schedule: Cell<EpochSchedule>,
-    /// The newest goal set while the run drives, announced with every control message.
-    goal: Cell<Option<GoalChange>>,
+    /// The goals set while the run drives, announced with every control message.
+    goals: Cell<Goals>,
     clock: Rc<Clock>,
     /// The node of the ports above; declared last, so it is dropped after them.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
@@ -68,7 +68,7 @@ impl Session {
             swap_requests: open_run_topic(&node, ipc::SWAP)?.receiver()?,
             swap_replies: open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
             schedule: Cell::new(EpochSchedule::default()),
-            goal: Cell::new(None),
+            goals: Cell::new(Goals::default()),
             clock: Rc::new(Clock(Cell::new(RunClock::new(
                 mode,
                 scenario.timing.dt_s(),
@@ -123,7 +123,9 @@ impl Session {
 
     /// Sets a new goal, for every process ([`Control::goal`]).
     pub fn set_goal(&self, change: GoalChange) -> Result<(), IpcError> {
-        self.goal.set(Some(change));
+        let mut goals = self.goals.get();
+        goals.set(change);
+        self.goals.set(goals);
         self.command(ControlCommand::Goal)
     }
 
@@ -144,7 +146,7 @@ impl Session {
             epochs: self.schedule.get(),
             ..Control::default()
         };
-        control.set_goal(self.goal.get());
+        control.set_goals(self.goals.get());
         self.control.send(control)
     }
 
