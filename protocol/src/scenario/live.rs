@@ -104,12 +104,10 @@ impl Scenario {
         if !(x.is_finite() && y.is_finite() && goal.yaw_rad.is_none_or(f64::is_finite)) {
             return Err(format!("({x}, {y}) is not a finite position and heading"));
         }
-        let (lo, hi) = (self.mpc.position_min, self.mpc.position_max);
-        if x < lo[0] || x > hi[0] || y < lo[1] || y > hi[1] {
+        if self.outside_position_box([x, y]) {
             return Err(format!(
-                "({x}, {y}) is outside the position box [{}, {}] x [{}, {}] (mpc.position_min, \
-                 mpc.position_max): no plan can reach it",
-                lo[0], hi[0], lo[1], hi[1]
+                "({x}, {y}) is outside {}: no plan can reach it",
+                self.position_box()
             ));
         }
         let radius = crate::ObstacleGrowth::footprint(self).fixed_m;

@@ -500,23 +500,33 @@ impl Scenario {
                 );
             }
         }
-        let m = &self.mpc;
-        let outside =
-            |p: [f64; 2]| (0..2).any(|a| p[a] < m.position_min[a] || p[a] > m.position_max[a]);
-        let [lo, hi] = [m.position_min, m.position_max];
-        let the_box = format!(
-            "the position box [{}, {}] x [{}, {}] (mpc.position_min, mpc.position_max)",
-            lo[0], hi[0], lo[1], hi[1]
-        );
-        if outside([sx, sy]) {
+        let the_box = self.position_box();
+        if self.outside_position_box([sx, sy]) {
             v.fail("robot.start", format!("({sx}, {sy}) is outside {the_box}"));
         }
-        if outside([gx, gy]) {
+        if self.outside_position_box([gx, gy]) {
             v.fail(
                 "robot.goal",
                 format!("({gx}, {gy}) is outside {the_box}: no plan can reach it"),
             );
         }
+    }
+}
+
+impl Scenario {
+    /// Whether `p` is outside the MPC's position box.
+    pub(crate) fn outside_position_box(&self, p: [f64; 2]) -> bool {
+        let m = &self.mpc;
+        (0..2).any(|a| p[a] < m.position_min[a] || p[a] > m.position_max[a])
+    }
+
+    /// The position box, as an error message names it.
+    pub(crate) fn position_box(&self) -> String {
+        let [lo, hi] = [self.mpc.position_min, self.mpc.position_max];
+        format!(
+            "the position box [{}, {}] x [{}, {}] (mpc.position_min, mpc.position_max)",
+            lo[0], hi[0], lo[1], hi[1]
+        )
     }
 }
 
