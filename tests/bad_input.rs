@@ -628,3 +628,235 @@ fn a_file_or_directory_named_like_a_built_in_does_not_shadow_it_and_a_name_of_ne
         "{msg}"
     );
 }
+
+/// A user's mistakes in `--set`, each told what to do: the key meant, how many entries a
+/// list has, what a key takes in words; one error per bad value, all of them at once.
+#[test]
+fn each_bad_override_is_one_error_that_says_what_to_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        "--in-process",
+        "--set",
+        "mpc.horizn=3",
+        "--set",
+        "obstacles.5.radius=1",
+        "--set",
+        "mpc.gamma=abc",
+        "--set",
+        "plant.noise_variance=-0.1",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let msg = stderr(&out);
+    let lines: Vec<&str> = msg.lines().skip(1).collect();
+    assert_eq!(
+        lines,
+        [
+            "  --set: `mpc.horizn`: unknown key; did you mean `mpc.horizon`?",
+            "  --set: `obstacles.5.radius`: `obstacles` has 1 entry, `obstacles.0`",
+            "  --set: `mpc.gamma`: bad value `abc`: expected a number",
+        ],
+        "{msg}"
+    );
+    assert!(!out_dir.exists());
+    // A value the validator refuses is one error, however many axes it stands for.
+    let out = run(&["run", "--in-process", "--set", "plant.noise_variance=-0.1"]);
+    assert_eq!(
+        stderr(&out).matches("must not be negative").count(),
+        1,
+        "{}",
+        stderr(&out)
+    );
+}
+
+/// A mistyped key in a file gets the same suggestion, with its line; an unknown word the
+/// key's choices.
+#[test]
+fn a_mistyped_key_or_word_in_a_file_is_told_the_key_or_words_meant() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("robot.toml");
+    std::fs::write(&file, "[mpc]\nhorizon = 8\nconstrant = \"cbf\"\n").unwrap();
+    let out = run(&["run", "--in-process", file.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out)
+            .contains("`mpc.constrant`: unknown key; did you mean `mpc.constraint`? (line 3)"),
+        "{}",
+        stderr(&out)
+    );
+    std::fs::write(&file, "[estimator]\nkind = \"ukf\"\n").unwrap();
+    let out = run(&["run", "--in-process", file.to_str().unwrap()]);
+    assert!(
+        stderr(&out).contains(r#"`estimator.kind`: expected one of "ekf", "passthrough" (line 2)"#),
+        "{}",
+        stderr(&out)
+    );
+}
+
+/// `sweep --grid` errors are labelled with the grid value, not `--set`.
+#[test]
+fn a_bad_grid_value_is_labelled_with_its_grid() {
+    let out = run(&["sweep", "--grid", "mpc.gamma=0.1,abc"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    let msg = stderr(&out);
+    assert!(
+        msg.contains("--grid mpc.gamma=abc: `mpc.gamma`: bad value `abc`: expected a number"),
+        "{msg}"
+    );
+    assert!(!msg.contains("--set"), "{msg}");
+}
+
+/// `run --help` and `sweep --help` name every built-in scenario.
+#[test]
+fn the_help_of_run_and_sweep_names_every_built_in_scenario() {
+    let scenarios = run(&["scenario", "--help"]);
+    for command in ["run", "sweep"] {
+        let help = String::from_utf8_lossy(&run(&[command, "--help"]).stdout).into_owned();
+        for name in run::scenarios::BUILT_IN.iter().map(|(n, _)| *n) {
+            assert!(
+                help.contains(name),
+                "`{command} --help` lacks `{name}`: {help}"
+            );
+            assert!(String::from_utf8_lossy(&scenarios.stdout).contains(name));
+        }
+    }
+}
+
+/// `scmpc keys` lists every key a finished run's `scenario.toml` holds, and no key that no
+/// scenario can hold; `scmpc keys TEXT` filters.
+#[test]
+fn scmpc_keys_lists_every_key_of_a_finished_runs_scenario() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    // A lidar's world, so that the optional `[lidar]` is written out too.
+    let out = run(&[
+        "run",
+        "occluded",
+        "--in-process",
+        "--set",
+        "duration_s=0.2",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(out_dir.join("scenario.toml").exists(), "{}", stderr(&out));
+    let written: toml::Table = std::fs::read_to_string(out_dir.join("scenario.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let mut in_file = std::collections::BTreeSet::new();
+    dotted_keys(&toml::Value::Table(written), "", &mut in_file);
+    let listing = run(&["keys"]);
+    assert_eq!(listing.status.code(), Some(0));
+    let listed: std::collections::BTreeSet<String> = String::from_utf8_lossy(&listing.stdout)
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .collect();
+    // (An empty list of tables, `swap = []`, is written as a key of its own.)
+    let list_of_tables = |key: &str| listed.iter().any(|l| l.starts_with(&format!("{key}.<i>.")));
+    let missing: Vec<&String> = (in_file.difference(&listed))
+        .filter(|k| !list_of_tables(k))
+        .collect();
+    assert!(missing.is_empty(), "not listed: {missing:?}");
+    // What the file lacks: keys a document leaves out while empty or unset, and `[live]`,
+    // which is never written.
+    let absent_by_design = |key: &str| {
+        key.starts_with("live.")
+            || key.starts_with("swap.<i>.")
+            || [
+                "extra_roles",
+                "obstacles.<i>.known",
+                "hosts.endpoints.<name>",
+            ]
+            .contains(&key)
+    };
+    let extra: Vec<&String> = (listed.difference(&in_file))
+        .filter(|k| !absent_by_design(k))
+        .collect();
+    assert!(
+        extra.is_empty(),
+        "listed, not in a run's scenario.toml: {extra:?}"
+    );
+    let ros2 = String::from_utf8_lossy(&run(&["keys", "ros2"]).stdout).into_owned();
+    let rows: Vec<&str> = ros2.lines().skip(1).collect();
+    assert!(
+        rows.len() > 10 && rows.iter().all(|l| l.starts_with("ros2.")),
+        "{ros2}"
+    );
+    assert!(
+        ros2.contains("ros2.domain_id") && ros2.contains("a whole number ≥ 0"),
+        "{ros2}"
+    );
+}
+
+/// The dotted keys of a TOML document, list elements as `<i>` and names as `<name>`.
+fn dotted_keys(value: &toml::Value, prefix: &str, keys: &mut std::collections::BTreeSet<String>) {
+    let join = |name: &str| {
+        if prefix.is_empty() {
+            name.to_string()
+        } else {
+            format!("{prefix}.{name}")
+        }
+    };
+    match value {
+        toml::Value::Table(table) if prefix == "hosts.endpoints" => {
+            if !table.is_empty() {
+                keys.insert(join("<name>"));
+            }
+        }
+        toml::Value::Table(table) => {
+            for (name, value) in table {
+                dotted_keys(value, &join(name), keys);
+            }
+        }
+        toml::Value::Array(items) if items.first().is_some_and(toml::Value::is_table) => {
+            for item in items {
+                dotted_keys(item, &join("<i>"), keys);
+            }
+        }
+        _ => {
+            keys.insert(prefix.to_string());
+        }
+    }
+}
+
+/// docs/running.md's table of scenario keys names every key `scmpc keys` lists: by its
+/// dotted name, as a key of a row of its `[section]` (`[[obstacles]]` `radius`), or as
+/// `section.*`.
+#[test]
+fn the_key_table_of_the_docs_names_every_key() {
+    let docs =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/running.md")).unwrap();
+    let table = docs
+        .split("## Scenario keys")
+        .nth(1)
+        .and_then(|rest| rest.split("\n## ").next())
+        .expect("docs/running.md has a section \"Scenario keys\"");
+    let first_cells: Vec<&str> = (table.lines())
+        .filter_map(|l| l.strip_prefix("| ")?.split(" |").next())
+        .collect();
+    let named = |key: &str| {
+        let parts: Vec<&str> = key.split('.').filter(|p| !p.starts_with('<')).collect();
+        let (section, leaf) = (parts[..parts.len() - 1].join("."), parts[parts.len() - 1]);
+        first_cells.iter().any(|cell| {
+            let in_section =
+                cell.contains(&format!("[{section}]")) || cell.contains(&format!("[[{section}]]"));
+            cell.contains(&format!("`{key}`"))
+                || cell.contains(&format!("`{}`", parts.join(".")))
+                || cell.contains(&format!("`{section}.*`"))
+                || cell.contains(&format!("[{}]", parts.join(".")))
+                || (in_section && (cell.contains(&format!("`{leaf}`")) || key.ends_with("<name>")))
+        })
+    };
+    let unnamed: Vec<String> = (protocol::scenario::keys::catalogue().into_iter())
+        .map(|k| k.key)
+        .filter(|k| !named(k))
+        .collect();
+    assert!(
+        unnamed.is_empty(),
+        "docs/running.md's key table lacks {unnamed:?}"
+    );
+}

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{csv, num, run, scmpc, stderr};
+use common::{csv, num, scmpc, stderr};
 use record::schema::Table;
 use std::path::Path;
 
@@ -25,11 +25,25 @@ fn png_content(path: &Path) -> (u32, u32, usize, f64) {
     )
 }
 
+/// Also: without `--out` the figures go into a fresh directory under `runs/` of the
+/// working directory (never over the checkout's `docs/figures`), and `scmpc figures` says
+/// where.
 #[test]
 fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_solves_are_faster() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = run(&["figures", "--out", dir.path().to_str().unwrap()]);
+    let cwd = tempfile::tempdir().unwrap();
+    let out = scmpc()
+        .arg("figures")
+        .current_dir(cwd.path())
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let said = (stdout.lines())
+        .find_map(|l| l.strip_prefix("figures directory: "))
+        .unwrap_or_else(|| panic!("no `figures directory:` line in {stdout}"));
+    assert!(said.starts_with("runs/figures-"), "{said}");
+    assert!(!cwd.path().join("docs").exists());
+    let dir = cwd.path().join(said);
     let expected: [(&str, &[&str]); 8] = [
         (
             "paths_gamma",
@@ -63,7 +77,7 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
         ),
     ];
     for (stem, labels) in expected {
-        let svg = std::fs::read_to_string(dir.path().join(format!("{stem}.svg"))).unwrap();
+        let svg = std::fs::read_to_string(dir.as_path().join(format!("{stem}.svg"))).unwrap();
         for label in labels {
             assert!(svg.contains(label), "{stem}.svg lacks `{label}`");
         }
@@ -80,7 +94,7 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
                 "{stem}.svg: axis units"
             );
         }
-        let (w, h, colours, ink) = png_content(&dir.path().join(format!("{stem}.png")));
+        let (w, h, colours, ink) = png_content(&dir.as_path().join(format!("{stem}.png")));
         assert!(w >= 600 && h >= 400, "{stem}.png is {w}x{h}");
         assert!(colours > 8, "{stem}.png has {colours} colours");
         assert!(
@@ -93,7 +107,7 @@ fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_s
     // scheme at every N. (The medians are about equal: from the shifted plan the
     // nonlinear SQP mostly converges in one subproblem, as the linear scheme needs one
     // solve; docs/study.md.)
-    let times = csv(&dir.path().join("solve_times.csv"));
+    let times = csv(&dir.as_path().join("solve_times.csv"));
     assert_eq!(times.len(), 5);
     for row in &times {
         let (linear, nonlinear) = (num(row, "linear_p99_us"), num(row, "nonlinear_p99_us"));

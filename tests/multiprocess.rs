@@ -401,7 +401,7 @@ fn a_run_shows_a_live_status_line_on_a_terminal_and_nothing_extra_otherwise() {
         "{seen:?}"
     );
     // The line is wiped before what the run prints at its end.
-    let end = seen.find("run directory:").unwrap();
+    let end = seen.rfind("run directory:").unwrap();
     assert!(seen[..end].ends_with(erase), "{seen:?}");
     let piped = common::run(&[
         "run",
@@ -414,5 +414,78 @@ fn a_run_shows_a_live_status_line_on_a_terminal_and_nothing_extra_otherwise() {
     assert!(
         !stdout.contains('\r') && !stdout.contains('\x1b'),
         "{stdout:?}"
+    );
+}
+
+/// Each role's stderr goes to `logs/<role>.log` of the run directory, a replacement's
+/// after it; a scheduled swap whose command fails is in the end table and `summary.json`;
+/// `-v` (or `RUST_LOG=info`) says which process started where its stderr goes, `-q`
+/// silences that.
+#[test]
+fn role_logs_a_failed_swap_and_verbosity_are_where_a_user_looks() {
+    let _machine = common::machine_shared();
+    let (dir, out) = run_into_tempdir(&[
+        "run",
+        "-v",
+        "--set",
+        "duration_s=1",
+        "--set",
+        r#"swap=[{time_s=0.2, role="mpc", command=["sh", "-c", "echo the-replacement-speaks >&2; exit 3"]}]"#,
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.starts_with("run directory: "), "{stdout}");
+    let row = (stdout.lines())
+        .find(|l| l.trim_start().starts_with("failed swap"))
+        .unwrap_or_else(|| panic!("no failed swap in the end table: {stdout}"));
+    assert!(
+        row.contains("mpc epoch 1") && row.contains("exit status: 3"),
+        "{row}"
+    );
+    let failed = &summary(dir.path())["failed_swaps"];
+    assert_eq!(failed.as_array().map(Vec::len), Some(1), "{failed}");
+    let mpc_log = std::fs::read_to_string(dir.path().join("logs/mpc.log")).unwrap();
+    assert!(
+        mpc_log.contains("=== mpc epoch 0")
+            && mpc_log.contains("=== mpc epoch 1: sh -c")
+            && mpc_log.contains("the-replacement-speaks"),
+        "{mpc_log}"
+    );
+    for role in ["plant", "estimator", "dfl"] {
+        assert!(
+            dir.path().join(format!("logs/{role}.log")).exists(),
+            "{role}"
+        );
+    }
+    assert!(
+        !stderr(&out).contains("the-replacement-speaks"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(
+        stderr(&out).contains("started the mpc process"),
+        "{}",
+        stderr(&out)
+    );
+    let quiet = scmpc()
+        .args(["run", "-q", "--set", "duration_s=0.2", "--out"])
+        .arg(dir.path().join("quiet"))
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(
+        !stderr(&quiet).contains("started the"),
+        "{}",
+        stderr(&quiet)
+    );
+    let told = scmpc()
+        .args(["run", "--set", "duration_s=0.2", "--out"])
+        .arg(dir.path().join("told"))
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(
+        stderr(&told).contains("started the mpc process"),
+        "{}",
+        stderr(&told)
     );
 }

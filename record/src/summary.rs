@@ -236,6 +236,9 @@ pub struct ProcessReport {
     pub restarts: u32,
     /// Swap-in replacements that took over (details in events.jsonl).
     pub swaps: u32,
+    /// Swaps that started and did not take over, one line each: the role, the epoch, the
+    /// command and why (the old process stayed the producer).
+    pub failed_swaps: Vec<String>,
     /// Samples refused by the consumers (non-finite, tick backwards, wrong run, wrong
     /// epoch), by reason; never applied.
     pub rejected_samples: BTreeMap<String, u64>,
@@ -504,6 +507,9 @@ impl ProcessReport {
                     if l.lost { ", lost during the run" } else { "" }
                 ))
             );
+        }
+        for failed in &self.failed_swaps {
+            table += &format!("  {:<16} {failed}\n", "failed swap");
         }
         if self.record_gaps > 0 {
             table += &format!(

@@ -32,6 +32,10 @@ pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
 /// process takes control messages from it alone.
 pub const ENV_CONTROL_PUBLISHER: &str = "SCMPC_CONTROL_PUBLISHER";
 
+/// The directory of the role processes' logs, beside the run's scenario file: each role's
+/// stderr, every epoch's (restarts, replacements) appended to `<role>.log`.
+pub const LOG_DIR: &str = "logs";
+
 /// How a process is reached.
 pub enum Handle {
     /// Started here.
@@ -186,6 +190,7 @@ impl Children {
             .envs(self.extra_env.iter().map(|(k, v)| (k, v)))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
+            .stderr(self.log_file(role, epoch, program, args)?)
             .spawn()
             .with_context(|| {
                 format!(
@@ -195,6 +200,11 @@ impl Children {
                 )
             })?;
         let pid = child.id();
+        tracing::info!(
+            "started the {} process, epoch {epoch}, pid {pid} (its stderr: {})",
+            role.as_str(),
+            self.log_path(role).display()
+        );
         self.list.push(Proc {
             role,
             epoch,
@@ -202,6 +212,41 @@ impl Children {
             retire_by: None,
         });
         Ok(pid)
+    }
+
+    /// The log of `role` (`logs/<role>.log` beside the scenario file: in a run directory,
+    /// or an agent's), opened to append the stderr of the process of `epoch` after a line
+    /// that says which process it is.
+    fn log_file(
+        &self,
+        role: Role,
+        epoch: u32,
+        program: &std::ffi::OsStr,
+        args: &[String],
+    ) -> anyhow::Result<std::fs::File> {
+        use std::io::Write;
+        let path = self.log_path(role);
+        let opened = (path.parent().map_or(Ok(()), std::fs::create_dir_all)).and_then(|()| {
+            let mut file = std::fs::File::options()
+                .create(true)
+                .append(true)
+                .open(&path)?;
+            let command = std::iter::once(program.to_string_lossy().into_owned())
+                .chain(args.iter().cloned())
+                .collect::<Vec<_>>()
+                .join(" ");
+            writeln!(file, "=== {} epoch {epoch}: {command}", role.as_str())?;
+            Ok(file)
+        });
+        opened.with_context(|| format!("opening the log {}", path.display()))
+    }
+
+    /// `logs/<role>.log` beside the scenario file.
+    fn log_path(&self, role: Role) -> std::path::PathBuf {
+        (self.scenario_file.parent())
+            .unwrap_or(Path::new("."))
+            .join(LOG_DIR)
+            .join(format!("{}.log", role.as_str()))
     }
 
     /// The publishers the outputs of the process of `role` and `epoch` are pinned to on

@@ -16,8 +16,8 @@ const FILES: [OpenSink; 3] = [RunDirectory::open, EventsFile::open, CsvFiles::op
 pub struct Recording {
     /// `run.mcap` (`--no-mcap` leaves it out).
     pub mcap: bool,
-    /// The status line, when stdout is a terminal: `scmpc run`'s, not a study's (a sweep
-    /// runs many at once).
+    /// The status line (on a terminal) or progress lines (elsewhere): `scmpc run`'s
+    /// without `-q`, not a study's (a sweep runs many at once).
     pub status_line: bool,
     /// The live view, when the scenario has `[live]` (`scmpc run`'s, not a study's).
     pub live: bool,

@@ -1,6 +1,7 @@
-//! The live status line of a run on a terminal (docs/running.md), a [`Sink`]: one line on
-//! stdout, redrawn in place every [`REDRAW`] as ticks are recorded, wiped at the end. A
-//! run whose stdout is not a terminal has none.
+//! The live status line of a run (docs/running.md), a [`Sink`]: on a terminal one line on
+//! stdout, redrawn in place every [`REDRAW`] as ticks are recorded, wiped at the end;
+//! elsewhere (a pipe, a file, CI's log) the same line printed anew every
+//! [`PROGRESS_EVERY`] of wall time.
 
 use protocol::{CommandMode, Timing};
 use record::{RunStart, Sample, Sink, Summary, TickSample};
@@ -9,6 +10,8 @@ use std::time::{Duration, Instant};
 
 /// How often the line is redrawn: often enough to follow, rarely enough to cost nothing.
 const REDRAW: Duration = Duration::from_millis(250);
+/// How often a run whose stdout is no terminal prints its progress line.
+pub const PROGRESS_EVERY: Duration = Duration::from_secs(5);
 
 /// What the line shows.
 #[derive(Debug, Default)]
@@ -58,23 +61,26 @@ impl Live {
 pub struct StatusLine {
     live: Live,
     timing: Timing,
+    /// On a terminal: the line is redrawn in place.
+    redraw: bool,
+    /// When the line was last drawn (printed), or the run started.
     drawn: Option<Instant>,
 }
 
 impl StatusLine {
-    /// The sink's opener: a line when stdout is a terminal.
+    /// The sink's opener.
     pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
-        if !std::io::stdout().is_terminal() {
-            return Ok(None);
-        }
+        let redraw = std::io::stdout().is_terminal();
         Ok(Some(Box::new(StatusLine {
+            redraw,
+            // Progress lines: the first after PROGRESS_EVERY.
+            drawn: (!redraw).then(Instant::now),
             live: Live {
                 duration_s: run.scenario.duration_s,
                 mode: "-",
                 ..Live::default()
             },
             timing: run.scenario.timing.clone(),
-            drawn: None,
         })))
     }
 }
@@ -86,20 +92,25 @@ impl Sink for StatusLine {
             Sample::Verdict(v) => self.live.deadline_misses += u64::from(v.met == 0),
             _ => return Ok(()),
         }
-        if self.drawn.is_some_and(|at| at.elapsed() < REDRAW) {
+        let every = if self.redraw { REDRAW } else { PROGRESS_EVERY };
+        if self.drawn.is_some_and(|at| at.elapsed() < every) {
             return Ok(());
         }
         self.drawn = Some(Instant::now());
         // A line that cannot be drawn is no reason to stop the run.
         let mut out = std::io::stdout().lock();
-        let _ = write!(out, "\r\x1b[2K{}", self.live.line());
+        let _ = if self.redraw {
+            write!(out, "\r\x1b[2K{}", self.live.line())
+        } else {
+            writeln!(out, "{}", self.live.line())
+        };
         let _ = out.flush();
         Ok(())
     }
 
-    /// Wipes the line, so what follows starts on a clean one.
+    /// Wipes the line on a terminal, so what follows starts on a clean one.
     fn end(self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
-        if self.drawn.is_some() {
+        if self.redraw && self.drawn.is_some() {
             let mut out = std::io::stdout().lock();
             let _ = write!(out, "\r\x1b[2K");
             let _ = out.flush();

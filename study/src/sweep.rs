@@ -9,7 +9,7 @@ use record::Summary;
 use record::judge::Outcome;
 use run::inprocess;
 use run::sinks::Recording;
-use std::io::Write;
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -109,8 +109,10 @@ pub fn plan_runs(
     Ok(runs)
 }
 
-/// Runs every spec in process on `threads` threads; results in spec order. Shows a
-/// progress bar on stderr when `progress`; writes each run's `run.mcap` when `mcap`.
+/// Runs every spec in process on `threads` threads; results in spec order. Shows progress
+/// on stderr when `progress`: a bar on a terminal, else a line every
+/// [`PROGRESS_EVERY`](run::status_line::PROGRESS_EVERY) (the count, the time taken and the
+/// time left). Writes each run's `run.mcap` when `mcap`.
 /// Once `stop` is set no run starts (those going on end `interrupted`): the results are
 /// then those of the first specs only, as many as had started.
 pub fn run_all(
@@ -129,6 +131,10 @@ pub fn run_all(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} (eta {eta})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    let lines = Progress {
+        shown: progress && !std::io::stderr().is_terminal(),
+        printed: Mutex::new(std::time::Instant::now()),
+    };
     let next = AtomicUsize::new(0);
     let results: Mutex<Vec<Option<anyhow::Result<Summary>>>> =
         Mutex::new((0..runs.len()).map(|_| None).collect());
@@ -144,6 +150,7 @@ pub fn run_all(
                         r[i] = Some(result);
                     }
                     bar.inc(1);
+                    lines.tick(&bar);
                 }
             });
         }
@@ -157,6 +164,32 @@ pub fn run_all(
         .into_iter()
         .map_while(|r| r)
         .collect()
+}
+
+/// Progress lines where the bar cannot be drawn (stderr no terminal).
+struct Progress {
+    shown: bool,
+    printed: Mutex<std::time::Instant>,
+}
+
+impl Progress {
+    /// A line with the bar's count, time taken and time left, if one is due.
+    fn tick(&self, bar: &indicatif::ProgressBar) {
+        let Ok(mut printed) = self.printed.lock() else {
+            return;
+        };
+        if !self.shown || printed.elapsed() < run::status_line::PROGRESS_EVERY {
+            return;
+        }
+        *printed = std::time::Instant::now();
+        eprintln!(
+            "{}/{} runs, {:.0} s, about {:.0} s left",
+            bar.position(),
+            bar.length().unwrap_or(0),
+            bar.elapsed().as_secs_f64(),
+            bar.eta().as_secs_f64()
+        );
+    }
 }
 
 /// Writes `sweep.csv`: one row per run, the grid values then the summary's numbers.

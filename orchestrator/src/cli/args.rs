@@ -14,6 +14,24 @@ use std::path::PathBuf;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// More log output: `-v` informs, `-vv` debugs (the same as `RUST_LOG=info`,
+    /// `RUST_LOG=debug`; `RUST_LOG` takes any `tracing` filter).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count, conflicts_with = "quiet")]
+    pub verbose: u8,
+    /// Less output: errors only, and no status or progress lines (the end table stays).
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+}
+
+/// The help of a command's scenario argument: `lead`, then the built-in scenarios' names.
+fn scenario_help(lead: &str) -> String {
+    let names: Vec<&str> = run::scenarios::BUILT_IN.iter().map(|(n, _)| *n).collect();
+    format!("{lead}: {}", names.join(", "))
+}
+
+/// Runs and sweeps: a file or a built-in scenario, the paper's by default.
+fn file_or_built_in_help() -> String {
+    scenario_help("Scenario file, or the name of a built-in scenario") + " [default: paper]"
 }
 
 #[derive(Debug, Subcommand)]
@@ -46,9 +64,9 @@ pub enum Command {
     Fuzz(FuzzArgs),
     /// Draw the paper's figure set from scratch (SVG and PNG) into a directory.
     Figures {
-        /// Directory of the figures [default: docs/figures].
-        #[arg(long, value_name = "DIR", default_value = "docs/figures")]
-        out: PathBuf,
+        /// Directory of the figures [default: a fresh directory under runs/].
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
     },
     /// Benchmark the pipeline end to end against a raw iceoryx2 ping-pong; prints a table
     /// and writes bench.json.
@@ -88,11 +106,20 @@ pub enum Command {
     /// alignment and fields (name, offset, type), the codes of every enumeration, and the
     /// environment a role process is started with (docs/python.md).
     Schema,
-    /// Print a built-in scenario (paper, paper-noisy, field, crossing) as TOML, to copy and edit.
+    /// Print a built-in scenario as TOML, to copy and edit (`scmpc keys` lists every key).
     Scenario {
         /// Name of the built-in scenario.
-        #[arg(default_value = "paper")]
+        #[arg(default_value = "paper", help = scenario_help("A built-in scenario"))]
         name: String,
+    },
+    /// List every scenario key: its type, unit, default and meaning.
+    ///
+    /// Read from the schema the scenario files and `--set` are parsed with, so the list is
+    /// the whole set (a finished run's `scenario.toml` holds the same keys). `<i>` is an
+    /// index of a list of tables (`obstacles.0.radius`), `<name>` a name of your choice.
+    Keys {
+        /// Only the keys that contain this text, e.g. `ros2` or `timeout`.
+        filter: Option<String>,
     },
     /// The agent of a host: runs the roles a scenario places on this host, run after run
     /// (docs/hosts.md).
@@ -169,7 +196,7 @@ pub struct RoleArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct SweepArgs {
-    /// Scenario file, or the name of a built-in scenario [default: paper].
+    #[arg(help = file_or_built_in_help())]
     pub scenario: Option<String>,
     /// An axis of the grid: a dotted key and its values, e.g. `mpc.gamma=0.1,0.3,0.5`
     /// (repeatable; every combination runs).
@@ -289,7 +316,7 @@ pub struct HostArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// Scenario file, or the name of a built-in scenario [default: paper].
+    #[arg(help = file_or_built_in_help())]
     pub scenario: Option<String>,
     /// Step every role's task in this process (deterministic; the reference for the other modes).
     #[arg(long)]

@@ -74,7 +74,8 @@ fn check_modes(args: &RunArgs, robot: bool) -> CliResult {
     Ok(())
 }
 
-pub(super) fn run(args: RunArgs) -> CliResult {
+/// `scmpc run`; `quiet` (`-q`): no status or progress lines.
+pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
     let scenario =
         scenarios::load(args.scenario.as_deref(), &args.all_overrides()).map_err(bad_input)?;
     scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
@@ -110,9 +111,10 @@ pub(super) fn run(args: RunArgs) -> CliResult {
         .then(run::awake::AwakeCores::start)
         .transpose()
         .context("keeping the cores awake")?;
+    println!("run directory: {}", out.display());
     let recording = run::sinks::Recording {
         mcap: !args.no_mcap,
-        status_line: true,
+        status_line: !quiet,
         live: scenario.live.is_some(),
     };
     let summary = if args.in_process {

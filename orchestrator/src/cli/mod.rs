@@ -48,12 +48,15 @@ type CliResult = Result<(), CliError>;
 
 /// Parses the command line and runs it.
 pub fn main() -> ExitCode {
-    init_logging();
     iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     let matches = args::with_roles(Cli::command()).get_matches();
-    let role = matches
-        .subcommand()
-        .and_then(|(name, sub)| Some((Role::from_name(name)?, sub)));
+    let sub = matches.subcommand();
+    let verbosity = Verbosity {
+        verbose: sub.map_or(0, |(_, sub)| sub.get_count("verbose")),
+        quiet: sub.is_some_and(|(_, sub)| sub.get_flag("quiet")),
+    };
+    init_logging(verbosity);
+    let role = sub.and_then(|(name, sub)| Some((Role::from_name(name)?, sub)));
     let result = match role {
         Some((role, sub)) => {
             let args = RoleArgs::from_arg_matches(sub).unwrap_or_else(|e| e.exit());
@@ -63,6 +66,7 @@ pub fn main() -> ExitCode {
             Cli::from_arg_matches(&matches)
                 .unwrap_or_else(|e| e.exit())
                 .command,
+            verbosity,
         ),
     };
     match result {
@@ -83,19 +87,30 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// `-v` (counted) and `-q`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Verbosity {
+    verbose: u8,
+    quiet: bool,
+}
+
 /// Runs `command` (every command but a role process's).
-fn dispatch(command: Command) -> CliResult {
+fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
     match command {
         Command::Schema => {
             println!("{:#}", message_schema());
             Ok(())
         }
         Command::Scenario { name } => scenario(&name),
-        Command::Run(args) => launch::run(args),
+        Command::Run(args) => launch::run(args, verbosity.quiet),
         Command::Swap(args) => swap(args),
-        Command::Sweep(args) => sweep(args),
-        Command::Fuzz(args) => fuzz(args),
-        Command::Figures { out } => figures(&out),
+        Command::Sweep(args) => sweep(args, !verbosity.quiet),
+        Command::Fuzz(args) => fuzz(args, !verbosity.quiet),
+        Command::Figures { out } => figures(out),
+        Command::Keys { filter } => {
+            keys(filter.as_deref());
+            Ok(())
+        }
         Command::Bench {
             out,
             realtime_s,
@@ -135,7 +150,8 @@ fn simulated(scenario: &protocol::Validated, command: &str) -> CliResult {
     }
 }
 
-fn sweep(args: SweepArgs) -> CliResult {
+/// `scmpc sweep`; `progress`: a progress bar (or lines).
+fn sweep(args: SweepArgs, progress: bool) -> CliResult {
     use study::sweep;
     let base = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
     simulated(&base, "sweep")?;
@@ -153,7 +169,7 @@ fn sweep(args: SweepArgs) -> CliResult {
         runs.len(),
         out.display()
     );
-    let results = sweep::run_all(&runs, threads, true, args.mcap, &stop);
+    let results = sweep::run_all(&runs, threads, progress, args.mcap, &stop);
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     sweep::write_sweep_csv(&out.join("sweep.csv"), &axes, &runs, &results)?;
     let stats = sweep::seed_stats(&runs, &results);
@@ -174,7 +190,8 @@ fn sweep(args: SweepArgs) -> CliResult {
     }
 }
 
-fn fuzz(args: FuzzArgs) -> CliResult {
+/// `scmpc fuzz`; `progress`: a progress bar (or lines).
+fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
     // Every world is drawn and validated before anything runs.
     if !(0.0..=1.0).contains(&args.people) {
         return Err(bad_input(format!(
@@ -205,7 +222,7 @@ fn fuzz(args: FuzzArgs) -> CliResult {
         draws,
     };
     let report =
-        study::fuzz::run(batch, &args.overrides, &out, threads, true, &stop).map_err(|e| {
+        study::fuzz::run(batch, &args.overrides, &out, threads, progress, &stop).map_err(|e| {
             match e.downcast_ref::<protocol::ScenarioErrors>() {
                 Some(bad) => bad_input(bad),
                 None => CliError::Failed(e),
@@ -221,9 +238,36 @@ fn fuzz(args: FuzzArgs) -> CliResult {
     }
 }
 
-fn figures(out: &std::path::Path) -> CliResult {
+/// `scmpc keys`: every scenario key with `filter` in it, as a table.
+fn keys(filter: Option<&str>) {
+    let keys: Vec<_> = (protocol::scenario::keys::catalogue().into_iter())
+        .filter(|k| filter.is_none_or(|f| k.key.contains(f)))
+        .collect();
+    let width = |column: fn(&protocol::scenario::keys::KeyDoc) -> &str| {
+        keys.iter()
+            .map(|k| column(k).chars().count())
+            .max()
+            .unwrap_or(0)
+    };
+    let (key_w, type_w, unit_w) = (width(|k| &k.key), width(|k| &k.kind), width(|k| k.unit));
+    let default_w = width(|k| &k.default).min(24);
+    println!(
+        "{:key_w$}  {:type_w$}  {:unit_w$}  {:default_w$}  meaning",
+        "key", "type", "unit", "default"
+    );
+    for k in &keys {
+        println!(
+            "{:key_w$}  {:type_w$}  {:unit_w$}  {:default_w$}  {}",
+            k.key, k.kind, k.unit, k.default, k.meaning
+        );
+    }
+}
+
+fn figures(out: Option<PathBuf>) -> CliResult {
+    let out = out.unwrap_or_else(|| record::run_dir::default_run_dir("figures"));
+    eprintln!("drawing the paper's figures into {}", out.display());
     let stop = run::stop::on_signals();
-    let set = study::figures::paper_set(out, cores(), &stop)?;
+    let set = study::figures::paper_set(&out, cores(), &stop)?;
     println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
     for s in &set.solve_times {
         println!(
@@ -234,6 +278,7 @@ fn figures(out: &std::path::Path) -> CliResult {
     for f in &set.files {
         println!("{}", f.display());
     }
+    println!("figures directory: {}", out.display());
     Ok(())
 }
 
@@ -360,11 +405,25 @@ fn graph_schema() -> serde_json::Value {
     serde_json::json!({ "topics": topics, "roles": roles })
 }
 
-fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_env("SCMPC_LOG")
-        .unwrap_or_else(|_| "warn,zenoh=error,foxglove=off".into());
+/// The log's filter: `-v`/`-q` if given, else `RUST_LOG` (or `SCMPC_LOG`, its older name),
+/// else warnings (the libraries' own chatter off).
+fn init_logging(verbosity: Verbosity) {
+    use tracing_subscriber::EnvFilter;
+    let flags = match (verbosity.quiet, verbosity.verbose) {
+        (true, _) => Some("error,zenoh=error,foxglove=off"),
+        (false, 0) => None,
+        (false, 1) => Some("info,zenoh=warn,foxglove=warn"),
+        (false, _) => Some("debug"),
+    };
+    let filter = match flags {
+        Some(flags) => EnvFilter::new(flags),
+        None => (EnvFilter::try_from_env("RUST_LOG"))
+            .or_else(|_| EnvFilter::try_from_env("SCMPC_LOG"))
+            .unwrap_or_else(|_| "warn,zenoh=error,foxglove=off".into()),
+    };
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
 }

@@ -43,7 +43,7 @@ impl Scenario {
         toml::from_str::<Scenario>(text).map_err(|e| {
             let at = e.span().map(|span| span.start);
             let (key, line) = at.map_or((String::new(), 0), |offset| key_at(text, offset));
-            let message = e.message().trim().to_string();
+            let message = in_words(&key, None, e.message().trim());
             let message = if line > 0 {
                 format!("{message} (line {line})")
             } else {
@@ -62,18 +62,28 @@ impl Scenario {
         toml::to_string(self).unwrap_or_else(|e| format!("# cannot render scenario: {e}\n"))
     }
 
+    /// [`Scenario::with_overrides_from`] `--set`.
+    pub fn with_overrides(&self, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
+        self.with_overrides_from(overrides, "--set")
+    }
+
     /// Applies `KEY=VALUE` overrides in order. `KEY` is a dotted path that must already
     /// exist (array elements by index: `obstacles.0.radius`); `VALUE` is a TOML value, or
     /// a bare word taken as a string (`mpc.constraint=euclidean`). Nothing is applied
-    /// unless every override is valid.
-    pub fn with_overrides(&self, overrides: &[String]) -> Result<Scenario, ScenarioErrors> {
-        let mut doc = toml::Value::try_from(self).map_err(|e| {
-            ScenarioErrors(vec![ScenarioError {
-                origin: "--set".into(),
-                key: String::new(),
-                message: e.to_string(),
-            }])
-        })?;
+    /// unless every override is valid; each one that is not is one error, labelled with
+    /// `origin` (the option it came from: `--set`, `--grid ...`).
+    pub fn with_overrides_from(
+        &self,
+        overrides: &[String],
+        origin: &str,
+    ) -> Result<Scenario, ScenarioErrors> {
+        let error = |key: &str, message: String| ScenarioError {
+            origin: origin.to_string(),
+            key: key.to_string(),
+            message,
+        };
+        let mut doc = toml::Value::try_from(self)
+            .map_err(|e| ScenarioErrors(vec![error("", e.to_string())]))?;
         // Keys a document leaves out when they are empty can be set too, and `[live]`,
         // which a document never holds.
         if let toml::Value::Table(table) = &mut doc {
@@ -85,29 +95,112 @@ impl Scenario {
             }
         }
         let mut scenario = self.clone();
+        let mut errors = Vec::new();
         for item in overrides {
-            let err = |key: &str, message: String| {
-                ScenarioErrors(vec![ScenarioError {
-                    origin: "--set".into(),
-                    key: key.to_string(),
-                    message,
-                }])
-            };
             let Some((key, raw)) = item.split_once('=') else {
-                return Err(err(item, "expected KEY=VALUE".into()));
+                errors.push(error(item, "expected KEY=VALUE".into()));
+                continue;
             };
-            let key = key.trim();
+            let (key, raw) = (key.trim(), raw.trim());
             make_room(&mut doc, key);
-            let slot = lookup_mut(&mut doc, key).ok_or_else(|| err(key, "unknown key".into()))?;
-            *slot = parse_value(raw.trim());
-            scenario = doc.clone().try_into::<Scenario>().map_err(|e| {
-                err(
-                    key,
-                    format!("bad value `{}`: {}", raw.trim(), e.message().trim()),
-                )
-            })?;
+            let Some(slot) = lookup_mut(&mut doc, key) else {
+                errors.push(error(key, missing_key(&doc, key)));
+                continue;
+            };
+            let before = std::mem::replace(slot, parse_value(raw));
+            match doc.clone().try_into::<Scenario>() {
+                Ok(changed) => scenario = changed,
+                Err(e) => {
+                    errors.push(error(key, in_words(key, Some(raw), e.message().trim())));
+                    if let Some(slot) = lookup_mut(&mut doc, key) {
+                        *slot = before;
+                    }
+                }
+            }
         }
-        Ok(scenario)
+        if errors.is_empty() {
+            Ok(scenario)
+        } else {
+            Err(ScenarioErrors(errors))
+        }
+    }
+}
+
+/// Why `key` is not in `doc`: an index past the end of its list (how many there are), or
+/// a key no scenario has (with the keys nearest to it).
+fn missing_key(doc: &toml::Value, key: &str) -> String {
+    let parts: Vec<&str> = key.split('.').collect();
+    for end in 1..parts.len() {
+        let mut prefix_doc = doc.clone();
+        let prefix = parts[..end].join(".");
+        if let (Some(toml::Value::Array(list)), Ok(index)) = (
+            lookup_mut(&mut prefix_doc, &prefix),
+            parts[end].parse::<usize>(),
+        ) && index >= list.len()
+        {
+            return match list.len() {
+                0 => format!(
+                    "`{prefix}` is empty in this scenario (a file adds one as `[[{prefix}]]`)"
+                ),
+                1 => format!("`{prefix}` has 1 entry, `{prefix}.0`"),
+                n => format!(
+                    "`{prefix}` has {n} entries, `{prefix}.0` to `{prefix}.{}`",
+                    n - 1
+                ),
+            };
+        }
+    }
+    unknown_key(key)
+}
+
+/// `unknown key`, with the keys nearest to it.
+fn unknown_key(key: &str) -> String {
+    let near = keys::nearest(&keys::catalogue(), key);
+    match &near[..] {
+        [] => "unknown key (`scmpc keys` lists every key)".into(),
+        [only] => format!("unknown key; did you mean `{only}`?"),
+        [first @ .., last] => {
+            let first: Vec<String> = first.iter().map(|k| format!("`{k}`")).collect();
+            format!(
+                "unknown key; did you mean {} or `{last}`?",
+                first.join(", ")
+            )
+        }
+    }
+}
+
+/// A parser's message about `key` (set to `value`, where known) in words: an unknown key
+/// with the keys nearest to it; a value of the wrong type or an unknown word with what
+/// the key takes ([`keys::KeyDoc::kind`]). A message of the scenario's own types (a goal's
+/// length, a priority's words) is already in words and kept.
+fn in_words(key: &str, value: Option<&str>, message: &str) -> String {
+    if message.starts_with("unknown field") {
+        return unknown_key(key);
+    }
+    const SERDE_WORDING: [&str; 5] = [
+        "invalid type",
+        "invalid value",
+        "invalid length",
+        "unknown variant",
+        "data did not match",
+    ];
+    let catalogue = keys::catalogue();
+    let doc = keys::find(&catalogue, key).map(|i| &catalogue[i]);
+    match doc {
+        Some(doc) if SERDE_WORDING.iter().any(|w| message.starts_with(w)) => {
+            let unit = match doc.unit {
+                "" => String::new(),
+                unit => format!(" ({unit})"),
+            };
+            match value {
+                Some(value) => format!("bad value `{value}`: expected {}{unit}", doc.kind),
+                None => format!("expected {}{unit}", doc.kind),
+            }
+        }
+        _ => match value {
+            Some(value) => format!("bad value `{value}`: {message}"),
+            None => message.to_string(),
+        },
     }
 }
 

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 /// Samples chosen by a list (`[100, 101]`) or an inclusive range (`"100..=104"`, also
 /// `"100..105"`).
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum SampleSet {
     List(Vec<u64>),
@@ -59,7 +59,7 @@ impl SampleSet {
 }
 
 /// Faults injected into a run (what they exercise: docs/design.md, "Deadlines and fallback").
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct FaultConfig {
     /// Delay added before the MPC publishes a plan, ms. In real time the MPC sleeps it; in

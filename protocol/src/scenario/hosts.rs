@@ -5,13 +5,18 @@ use serde::{Deserialize, Serialize};
 /// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
 /// orchestrator's host (the plant, the simulated robot, always runs there), and where each
 /// named host's agent listens.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HostsConfig {
+    /// The host the estimator runs on (empty: the orchestrator's).
     pub estimator: String,
+    /// The host the MPC runs on (empty: the orchestrator's).
     pub mpc: String,
+    /// The host the DFL runs on (empty: the orchestrator's).
     pub dfl: String,
+    /// The host the route planner runs on (empty: the orchestrator's).
     pub planner: String,
+    /// The host the tracker runs on (empty: the orchestrator's).
     pub tracker: String,
     /// Host name to the Zenoh endpoint its agent listens on (`tcp/ADDR:PORT` or
     /// `tls/ADDR:PORT`); `scmpc run --host NAME=ENDPOINT` adds to it.

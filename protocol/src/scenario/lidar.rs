@@ -8,7 +8,7 @@ pub const MAX_BEAMS: usize = 1440;
 
 /// `[lidar]`: the sensor. Its scans are the perception ticks' (`perception.period_s` is
 /// `1 / rate_hz` with a lidar).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LidarConfig {
     /// Beams per scan, 1 to [`MAX_BEAMS`].

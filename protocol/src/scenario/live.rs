@@ -14,7 +14,7 @@ pub const DEFAULT_LIVE_ADDRESS: &str = "127.0.0.1:8765";
 pub const MIN_TOKEN_CHARS: usize = 16;
 
 /// `[live]`: serve the run over Foxglove's WebSocket protocol.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LiveConfig {
     /// `IP:PORT` to listen on (port 0: any free port, printed when the run starts).

@@ -40,7 +40,9 @@ impl Validated {
         overrides: &[String],
         origin: &str,
     ) -> Result<Validated, ScenarioErrors> {
-        self.0.with_overrides(overrides)?.validated(origin)
+        self.0
+            .with_overrides_from(overrides, origin)?
+            .validated(origin)
     }
 
     /// The scenario, to change it (it must be validated again to run).
@@ -55,7 +57,7 @@ impl Validated {
 pub const MAX_SEEN_DISCS: usize = 8;
 
 /// A whole run's configuration. Defaults reproduce the paper's scenario.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Scenario {
     /// Free-form name, copied into the summary.
@@ -104,7 +106,7 @@ pub struct Scenario {
 }
 
 /// One scheduled replacement of a role process, make-before-break (docs/design.md, "Supervision").
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SwapConfig {
     /// Simulated time the replacement is started at, s; it takes over at a later sample
@@ -126,7 +128,7 @@ impl SwapConfig {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum RestartPolicy {
     Always,
@@ -134,7 +136,7 @@ pub enum RestartPolicy {
 }
 
 /// What the orchestrator does when a role process dies (a dead plant always ends the run).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Supervision {
     /// Restart a dead estimator, MPC or DFL (a dead plant always ends the run).
@@ -146,7 +148,7 @@ pub struct Supervision {
     pub failover: Failover,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Failover {
     None,
@@ -163,7 +165,7 @@ impl Default for Supervision {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Timing {
     /// MPC sample period `Ts`, seconds.
@@ -219,7 +221,7 @@ impl Timing {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Robot {
     /// Initial pose `[x_m, y_m, theta_rad]`.
@@ -228,6 +230,7 @@ pub struct Robot {
     pub zeta0: f64,
     /// The goal, `[x_m, y_m]` or `[x_m, y_m, theta_rad]`: the MPC regulates `z` to its
     /// position at rest; a robot held there turns in place to its heading, if it has one.
+    #[schemars(with = "Vec<f64>")]
     pub goal: Goal,
     /// The robot has reached the goal while its centre stays within this distance, m.
     pub goal_tolerance_m: f64,
@@ -292,7 +295,7 @@ impl<'de> Deserialize<'de> for Goal {
 }
 
 /// How the robot ends its run at the goal (`robot.final_approach`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum FinalApproach {
     /// Within [`APPROACH_RADIUS_M`] of the goal (along the route, with a planner) the MPC
@@ -315,7 +318,7 @@ pub const APPROACH_LEFT_BEYOND_M: f64 = 1.5;
 /// The DFL holds a robot within the goal tolerance once its speed is below this, m/s.
 pub const HOLD_SPEED_M_S: f64 = 0.02;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlantConfig {
     /// `sim`: the simulated robot below; `ros2`: a ROS 2 robot driven over rmw_zenoh
@@ -363,7 +366,7 @@ impl PlantConfig {
 }
 
 /// Output-noise variance, either shared by the three axes or per axis.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum NoiseVariance {
     Uniform(f64),
@@ -380,7 +383,7 @@ impl NoiseVariance {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum EstimatorKind {
     /// Extended Kalman filter on the unicycle (the default).
@@ -389,9 +392,11 @@ pub enum EstimatorKind {
     Passthrough,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct EstimatorConfig {
+    /// `ekf`: an extended Kalman filter on the unicycle; `passthrough`: the raw
+    /// measurement, as in the paper's noisy-feedback experiment.
     pub kind: EstimatorKind,
     /// EKF process-noise intensity on `[x, y, theta]`, variance per second.
     pub process_noise: [f64; 3],
@@ -399,7 +404,7 @@ pub struct EstimatorConfig {
     pub initial_variance: [f64; 3],
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ConstraintKind {
     /// Discrete control barrier function `H(z_{i+1}) >= (1 - gamma) H(z_i)` (eq. 54).
@@ -409,7 +414,7 @@ pub enum ConstraintKind {
 }
 
 /// Which MPC drives the DFL.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Formulation {
     /// The paper's scheme: linear MPC on the DFL-linearized model (problem of eqs. 51 to 47).
@@ -420,7 +425,7 @@ pub enum Formulation {
 }
 
 /// How the linear scheme's conic program is written (the same program either way).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum QpForm {
     /// The one measured faster for the horizon: condensed up to
@@ -448,7 +453,7 @@ impl QpForm {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MpcConfig {
     /// `linear` (the paper's scheme) or `nonlinear` (the SCNMPC baseline).
@@ -461,6 +466,8 @@ pub struct MpcConfig {
     pub constraint_horizon: usize,
     /// CBF decay rate `gamma` in (0, 1].
     pub gamma: f64,
+    /// `cbf`: the discrete CBF of eq. 54 per stage; `euclidean`: the paper's benchmark,
+    /// `H >= 0` per stage.
     pub constraint: ConstraintKind,
     /// Diagonal of the state weight `Q` on `z = [x, xdot, y, ydot]`.
     pub q_diag: [f64; 4],
@@ -508,7 +515,7 @@ pub struct MpcConfig {
 }
 
 /// The MPC's terminal safety rows (`mpc.terminal_safety`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TerminalSafety {
     /// The plan's last state must stop under the DFL's brake with its straight stopping
@@ -521,7 +528,7 @@ pub enum TerminalSafety {
     None,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DflConfig {
     /// `zeta_th`: below this `|zeta|` the steering input `U2` is zero, m/s.
@@ -542,7 +549,7 @@ pub struct DflConfig {
 }
 
 /// The route planner (docs/planner.md).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlannerConfig {
     /// `none` (the paper: the MPC drives at the goal), `route` (a planner process, and
@@ -566,7 +573,7 @@ pub struct PlannerConfig {
 }
 
 /// `planner.kind`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PlannerKind {
     None,
@@ -589,7 +596,7 @@ impl Default for PlannerConfig {
 
 /// `"auto"` (a value derived from the rest of the scenario) or a number: `dfl.brake_decel`
 /// (m/s^2), `planner.speed_m_s` (m/s).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum AutoOr {
     Auto(Auto),
@@ -597,7 +604,7 @@ pub enum AutoOr {
 }
 
 /// The word `auto`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Auto {
     Auto,
@@ -882,6 +889,8 @@ pub use live::*;
 
 mod hosts;
 pub use hosts::*;
+
+pub mod keys;
 
 mod validate;
 

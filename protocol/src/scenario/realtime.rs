@@ -5,7 +5,7 @@
 use serde::{Deserialize, Serialize};
 
 /// `realtime.priority`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(try_from = "PriorityText", into = "PriorityText")]
 pub enum Priority {
     /// `"auto"`: [`AUTO_TOP_PRIORITY`] (or the highest the machine grants, if lower), where
@@ -29,7 +29,7 @@ pub const TIERS_BELOW_TOP: u8 = 3;
 pub const MAX_FIFO_PRIORITY: u8 = 99;
 
 /// `realtime.priority` as written: a word or a number.
-#[derive(Serialize, Deserialize)]
+#[derive(Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 enum PriorityText {
     Word(String),
@@ -65,9 +65,11 @@ impl From<Priority> for PriorityText {
 /// `[realtime]`: the scheduling of a real-time run's processes on their host. Lockstep
 /// and in-process runs ignore it (lockstep polls its peers with yields, which a
 /// `SCHED_FIFO` poller would starve, and needs no deadline to be met).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct RealtimeConfig {
+    /// `SCHED_FIFO` priority of the top tier (the DFL and the plant; the tiers below get
+    /// one less each): `auto`, `off` or a number.
     pub priority: Priority,
     /// The CPUs every process of the run is pinned to (empty: wherever the machine lets
     /// it run).

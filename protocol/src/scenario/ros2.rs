@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 /// `plant.kind`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PlantKind {
     /// The simulated unicycle (crate `plant`).
@@ -14,7 +14,7 @@ pub enum PlantKind {
 }
 
 /// `ros2.wire`: how the robot's topics are laid on Zenoh.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Ros2Wire {
     /// rmw_zenoh's keys, attachments and liveliness tokens: a robot whose nodes run
@@ -27,7 +27,7 @@ pub enum Ros2Wire {
 
 /// The robot of `plant.kind = "ros2"`: the pipeline is a ROS 2 node on its graph that
 /// publishes the commands and takes the odometry.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Ros2Config {
     /// The robot's Zenoh router (`ros2 run rmw_zenoh_cpp rmw_zenohd`): `tcp/ADDR:PORT`

@@ -36,6 +36,76 @@ fn set_refuses_unknown_keys_and_bad_types_naming_the_key() {
     assert_eq!(e.0[0].key, "mpc.horizon");
 }
 
+#[test]
+fn an_unknown_key_names_the_key_meant_in_a_file_and_in_set() {
+    let e = Scenario::default()
+        .with_overrides(&["mpc.horizn=3".into()])
+        .unwrap_err();
+    assert_eq!(e.0[0].message, "unknown key; did you mean `mpc.horizon`?");
+    let e = Scenario::from_toml("[mpc]\nhorizn = 3\n", "my.toml").unwrap_err();
+    assert_eq!(e.0[0].key, "mpc.horizn");
+    assert_eq!(
+        e.0[0].message,
+        "unknown key; did you mean `mpc.horizon`? (line 2)"
+    );
+}
+
+#[test]
+fn an_index_past_the_list_says_how_many_there_are() {
+    let e = Scenario::default()
+        .with_overrides(&["obstacles.5.radius=1".into(), "swap.0.role=mpc".into()])
+        .unwrap_err();
+    assert_eq!(e.0[0].message, "`obstacles` has 1 entry, `obstacles.0`");
+    assert!(e.0[1].message.contains("`[[swap]]`"), "{}", e.0[1].message);
+}
+
+#[test]
+fn a_value_of_the_wrong_type_is_told_what_the_key_takes_in_words() {
+    let e = Scenario::default()
+        .with_overrides(&["mpc.horizon=abc".into(), "dfl.brake_decel=fast".into()])
+        .unwrap_err();
+    assert_eq!(
+        e.0[0].message,
+        "bad value `abc`: expected a whole number ≥ 0"
+    );
+    assert_eq!(
+        e.0[1].message,
+        "bad value `fast`: expected \"auto\" or a number"
+    );
+    let e = Scenario::from_toml("[timing]\nts_s = \"x\"\n", "my.toml").unwrap_err();
+    assert_eq!(e.0[0].message, "expected a number (s) (line 2)");
+    let e = Scenario::from_toml("[estimator]\nkind = \"ukf\"\n", "my.toml").unwrap_err();
+    assert!(
+        e.0[0]
+            .message
+            .starts_with(r#"expected one of "ekf", "passthrough""#)
+    );
+}
+
+#[test]
+fn each_bad_value_is_one_error_labelled_with_its_option() {
+    let e = Scenario::default()
+        .with_overrides_from(
+            &[
+                "mpc.gamma=abc".into(),
+                "mpc.gamma=0.2".into(),
+                "seed=x".into(),
+            ],
+            "--grid mpc.gamma=abc",
+        )
+        .unwrap_err();
+    let keys: Vec<&str> = e.0.iter().map(|e| e.key.as_str()).collect();
+    assert_eq!(keys, ["mpc.gamma", "seed"]);
+    assert!(e.0.iter().all(|e| e.origin == "--grid mpc.gamma=abc"));
+    let e = Scenario::default()
+        .with_overrides(&["plant.noise_variance=-0.1".into()])
+        .unwrap()
+        .validate("t")
+        .unwrap_err();
+    assert_eq!(e.0.len(), 1, "{e}");
+    assert_eq!(e.0[0].key, "plant.noise_variance");
+}
+
 /// The keys the validator names for `s`, which it must refuse.
 fn refused_keys(s: &Scenario) -> Vec<String> {
     s.validate("t")
@@ -60,7 +130,7 @@ fn validation_names_every_bad_key() {
         "mpc.horizon",
         "mpc.gamma",
         "obstacles.0.radius",
-        "plant.noise_variance.0",
+        "plant.noise_variance",
     ] {
         assert!(keys.iter().any(|x| x == k), "{k} not reported in {keys:?}");
     }

@@ -101,10 +101,12 @@ impl Scenario {
             "plant.max_wheel_speed_rad_s",
             self.plant.max_wheel_speed_rad_s,
         );
-        v.non_negative_all(
-            "plant.noise_variance",
-            &self.plant.noise_variance.per_axis(),
-        );
+        match self.plant.noise_variance {
+            NoiseVariance::Uniform(variance) => v.non_negative("plant.noise_variance", variance),
+            NoiseVariance::PerAxis(variances) => {
+                v.non_negative_all("plant.noise_variance", &variances)
+            }
+        }
         v.non_negative("plant.disturbance_std", self.plant.disturbance_std);
         v.in_range(
             "plant.rk4_substeps",

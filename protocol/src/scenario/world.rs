@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 /// The tracker (docs/running.md, "Moving obstacles"): it measures the obstacles it
 /// tracks with noise and filters each with a constant-velocity Kalman filter; the MPC
 /// keeps clear of the discs its tracks predict.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PerceptionConfig {
     /// `auto`: with a `[lidar]`, `lidar`; else a tracker process tracks the obstacles not
@@ -55,7 +55,7 @@ pub const MAX_GATE: f64 = 100.0;
 pub const CONFIRM_WINDOW: u32 = 5;
 
 /// `perception.kind`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PerceptionKind {
     Auto,
@@ -84,15 +84,17 @@ impl Default for PerceptionConfig {
 
 /// A circular obstacle (docs/running.md, "Moving obstacles"): at rest at `(x, y)`, moving
 /// at a constant `velocity` from `(x, y)` at t = 0, or along a timed `path`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Obstacle {
     /// Centre at t = 0, m. With a `path` it may be left out (it is the path's position at
     /// t = 0); without one it is required.
     #[serde(default = "unset")]
     pub x: f64,
+    /// Centre at t = 0, m (see `x`).
     #[serde(default = "unset")]
     pub y: f64,
+    /// The true radius the judge measures clearance to, m.
     pub radius: f64,
     /// Constant velocity from t = 0, m/s; `[0, 0]`: at rest.
     #[serde(default)]

@@ -381,6 +381,7 @@ impl<'a> Driver<'a> {
         self.intake.report(report);
         report.restarts = self.supervisor.restarts();
         report.swaps = self.swaps.done();
+        report.failed_swaps = self.swaps.failed();
         report.rejected_samples = self.supervisor.take_rejected();
         outcome
     }

@@ -54,6 +54,8 @@ pub(super) struct SwapServer {
     scheduled: Vec<PendingSwap>,
     swaps: Vec<Swap>,
     done: u32,
+    /// Swaps that started and did not take over: `role epoch N (command): reason`.
+    failed: Vec<String>,
 }
 
 /// The run's ports, processes and record: what the driver holds and the swap server works
@@ -72,12 +74,18 @@ impl SwapServer {
             scheduled: scheduled_swaps(scenario),
             swaps: Vec::new(),
             done: 0,
+            failed: Vec::new(),
         }
     }
 
     /// Swaps completed.
     pub fn done(&self) -> u32 {
         self.done
+    }
+
+    /// The swaps that started and did not take over, one line each.
+    pub fn failed(&self) -> Vec<String> {
+        self.failed.clone()
     }
 
     /// Whether a replacement under way has not joined the run yet (`joined`: whether the
@@ -135,7 +143,7 @@ impl SwapServer {
                         })?;
                     } else if swap.started.elapsed() > SWAP_TIMEOUT {
                         let swap = self.swaps.remove(i);
-                        fail(
+                        self.fail(
                             p,
                             swap,
                             &format!(
@@ -239,6 +247,8 @@ impl SwapServer {
             }
             Err(e) => {
                 p.session.reschedule(|s| s.unschedule(role))?;
+                self.failed
+                    .push(failure(role, epoch, &shown, &format!("{e:#}")));
                 p.recorder.event(Event::SwapFailed {
                     role,
                     epoch,
@@ -270,7 +280,7 @@ impl SwapServer {
             return Ok(false);
         };
         let swap = self.swaps.remove(i);
-        fail(p, swap, &format!("the replacement exited ({status})"))?;
+        self.fail(p, swap, &format!("the replacement exited ({status})"))?;
         Ok(true)
     }
 
@@ -288,7 +298,7 @@ impl SwapServer {
     /// The run has ended: every swap that did not happen is answered.
     pub fn finish(&mut self, p: &mut Parts) -> anyhow::Result<()> {
         for swap in std::mem::take(&mut self.swaps) {
-            fail(p, swap, "the run ended before the switch")?;
+            self.fail(p, swap, "the run ended before the switch")?;
         }
         for pending in std::mem::take(&mut self.scheduled) {
             if let Some(asker) = pending.request {
@@ -335,26 +345,35 @@ impl SwapServer {
     }
 }
 
-/// Drops a replacement: the old process stays the producer; the replacement is retired if
-/// it still runs.
-fn fail(p: &mut Parts, swap: Swap, reason: &str) -> anyhow::Result<()> {
-    let role = swap.role;
-    p.session.reschedule(|s| s.unschedule(role))?;
-    p.children.retire(role, swap.epoch, STOP_TIMEOUT);
-    if p.session.clock().mode() == RunMode::Lockstep && swap.switch_tick.is_some() {
-        // Samples of the old producer past the switch were skipped: have them again.
-        p.session.command(ControlCommand::Replay)?;
+impl SwapServer {
+    /// Drops a replacement: the old process stays the producer; the replacement is retired if
+    /// it still runs.
+    fn fail(&mut self, p: &mut Parts, swap: Swap, reason: &str) -> anyhow::Result<()> {
+        let role = swap.role;
+        self.failed
+            .push(failure(role, swap.epoch, &swap.command, reason));
+        p.session.reschedule(|s| s.unschedule(role))?;
+        p.children.retire(role, swap.epoch, STOP_TIMEOUT);
+        if p.session.clock().mode() == RunMode::Lockstep && swap.switch_tick.is_some() {
+            // Samples of the old producer past the switch were skipped: have them again.
+            p.session.command(ControlCommand::Replay)?;
+        }
+        p.recorder.event(Event::SwapFailed {
+            role,
+            epoch: swap.epoch,
+            command: swap.command.clone(),
+            reason: reason.to_string(),
+        })?;
+        match swap.request {
+            Some(id) => reply(p.session, id, None, reason),
+            None => Ok(()),
+        }
     }
-    p.recorder.event(Event::SwapFailed {
-        role,
-        epoch: swap.epoch,
-        command: swap.command.clone(),
-        reason: reason.to_string(),
-    })?;
-    match swap.request {
-        Some(id) => reply(p.session, id, None, reason),
-        None => Ok(()),
-    }
+}
+
+/// A failed swap's line of the end table.
+fn failure(role: Role, epoch: u32, command: &str, reason: &str) -> String {
+    format!("{} epoch {epoch} (`{command}`): {reason}", role.as_str())
 }
 
 /// Answers a `scmpc swap` request: done with `swap`, or failed.
