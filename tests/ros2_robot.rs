@@ -533,10 +533,13 @@ fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
     for wanted in [
         robot.endpoint.as_str(),
         "`0/odom/nav_msgs::msg::dds_::Odometry_/RIHS01_",
+        "the robot publishes its `nav_msgs/msg/Odometry` on `/wheel_odom`: set `ros2.odom = \"wheel_odom\"`",
+        "domain 0 (this run's):",
         "/MP/%/%/base/%wheel_odom/nav_msgs::msg::dds_::Odometry_/",
     ] {
         assert!(message.contains(wanted), "no `{wanted}` in: {message}");
     }
+    assert_tokens_are_the_robots_each_once(&message);
     assert!(!out_dir.join("summary.json").exists(), "a run started");
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
     drop(robot);
@@ -556,11 +559,45 @@ fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
     assert!(!out_dir.join("summary.json").exists(), "a run started");
     drop(robot);
 
-    // No router there at all.
+    // The base on another domain: the error says which, and what to set.
+    let robot = Robot::start(dir.path(), &["--domain", "5"]);
+    let out = run_on(&robot.endpoint, &[], &out_dir);
+    let message = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{message}");
+    for wanted in [
+        "a robot publishes `/odom` on domain 5: set `ros2.domain_id = 5`",
+        "domain 5:",
+        "@ros2_lv/5/",
+    ] {
+        assert!(message.contains(wanted), "no `{wanted}` in: {message}");
+    }
+    assert_tokens_are_the_robots_each_once(&message);
+    drop(robot);
+
+    // No router there at all: where, and how to start one; no path of the build machine.
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let out = run_on(&endpoint, &[], &out_dir);
+    let message = stderr(&out);
     assert_eq!(out.status.code(), Some(1));
-    assert!(stderr(&out).contains(&endpoint), "{}", stderr(&out));
+    for wanted in [
+        &endpoint,
+        "nothing answers there",
+        "ros2 run rmw_zenoh_cpp rmw_zenohd",
+    ] {
+        assert!(message.contains(wanted), "no `{wanted}` in: {message}");
+    }
+    assert!(!message.contains(".rs:"), "{message}");
+}
+
+/// The tokens an error lists are the robot's, each once: never the pipeline's own node.
+fn assert_tokens_are_the_robots_each_once(message: &str) {
+    let tokens: Vec<&str> = (message.lines().map(str::trim))
+        .filter(|l| l.starts_with("@ros2_lv/"))
+        .collect();
+    assert!(!tokens.is_empty(), "{message}");
+    assert!(!tokens.iter().any(|t| t.contains("/%/scmpc")), "{message}");
+    let once: std::collections::BTreeSet<&&str> = tokens.iter().collect();
+    assert_eq!(once.len(), tokens.len(), "{message}");
 }
 
 /// The base's world for the lidar: the unmapped scenario's person crossing the way

@@ -13,6 +13,9 @@ use zenoh::Wait;
 pub enum NetError {
     #[error("zenoh: {0}")]
     Zenoh(String),
+    /// Nothing answers at the endpoint (Zenoh's words follow).
+    #[error("nothing answers there ({0})")]
+    Unreachable(String),
 }
 
 /// The files of TLS with mutual authentication: the CA both sides trust, and this side's
@@ -157,14 +160,39 @@ impl Security {
 
 /// Opens a session with `config`.
 pub fn open(config: zenoh::Config) -> Result<zenoh::Session, NetError> {
-    zenoh::open(config)
-        .wait()
-        .map_err(|e| NetError::Zenoh(format!("opening a session: {e}")))
+    zenoh::open(config).wait().map_err(|e| {
+        let said = without_location(&e.to_string());
+        if said.starts_with("Unable to connect") {
+            NetError::Unreachable(said)
+        } else {
+            NetError::Zenoh(format!("opening a session: {said}"))
+        }
+    })
+}
+
+/// A Zenoh error's text without the source file it was raised in (` at /…/file.rs:447.`):
+/// a path of the machine that built the executable says nothing to its user.
+fn without_location(text: &str) -> String {
+    match text.rfind(" at /") {
+        Some(at) if text[at..].contains(".rs:") => text[..at].trim_end().to_string(),
+        _ => text.to_string(),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_zenoh_error_loses_the_source_path_of_the_build_machine() {
+        let said = "Unable to connect to any of [Single(tcp/127.0.0.1:7447)]! at \
+                    /root/.cargo/registry/src/x/zenoh-1.10.2/src/net/runtime/orchestrator.rs:447.";
+        assert_eq!(
+            without_location(said),
+            "Unable to connect to any of [Single(tcp/127.0.0.1:7447)]!"
+        );
+        assert_eq!(without_location("no path here"), "no path here");
+    }
 
     #[test]
     fn plain_tcp_off_loopback_needs_tls_or_insecure() {

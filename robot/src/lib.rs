@@ -21,26 +21,21 @@ pub enum RobotError {
     Router { endpoint: String, reason: String },
     #[error("`{key}`: {reason}")]
     Key { key: String, reason: String },
-    #[error(
-        "no odometry within {waited_s} s on `{key}` through the router at {endpoint}; \
-         the ROS 2 graph of domain {domain_id} has {graph}"
-    )]
+    #[error("no odometry within {waited_s} s on `{key}` through the router at {endpoint}; {graph}")]
     NoOdometry {
         waited_s: f64,
         key: String,
         endpoint: String,
-        domain_id: u32,
         graph: String,
     },
     #[error(
         "no scan within {waited_s} s on `{key}` through the router at {endpoint} (a robot \
-         without a lidar: remove [lidar]); the ROS 2 graph of domain {domain_id} has {graph}"
+         without a lidar: remove [lidar]); {graph}"
     )]
     NoScan {
         waited_s: f64,
         key: String,
         endpoint: String,
-        domain_id: u32,
         graph: String,
     },
     #[error("stopped while waiting for the robot")]

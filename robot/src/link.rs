@@ -230,7 +230,13 @@ pub(crate) fn connect(
     let endpoint = Endpoint::parse(&config.endpoint).map_err(router)?;
     let zenoh_config =
         net::client_config(&endpoint, security).map_err(|e| router(e.to_string()))?;
-    let session = net::open(zenoh_config).map_err(|e| router(e.to_string()))?;
+    let session = net::open(zenoh_config).map_err(|e| match e {
+        net::NetError::Unreachable(_) => router(format!(
+            "{e}: start the robot's router there (`ros2 run rmw_zenoh_cpp rmw_zenohd`, which \
+             listens on tcp/[::]:7447), or set `ros2.endpoint` to where it listens"
+        )),
+        _ => router(e.to_string()),
+    })?;
     Ok((names, session))
 }
 
@@ -498,12 +504,16 @@ impl Link {
                 return Err(RobotError::Stopped);
             }
             if since.elapsed() >= FIRST_ODOMETRY {
+                let awaited = Awaited {
+                    topic: &self.names.scan,
+                    message: MessageType::LaserScan,
+                    key: "ros2.scan",
+                };
                 return Err(RobotError::NoScan {
                     waited_s: FIRST_ODOMETRY.as_secs_f64(),
                     key: key.to_string(),
                     endpoint: self.endpoint.clone(),
-                    domain_id: self.names.domain_id,
-                    graph: graph_text(&self.graph()),
+                    graph: graph_text(&self.graph(), self.names.domain_id, &awaited),
                 });
             }
             std::thread::sleep(Duration::from_millis(5));
@@ -522,38 +532,45 @@ impl Link {
                 return Err(RobotError::Stopped);
             }
             if since.elapsed() >= FIRST_ODOMETRY {
+                let awaited = Awaited {
+                    topic: &self.names.odom,
+                    message: MessageType::Odometry,
+                    key: "ros2.odom",
+                };
                 return Err(RobotError::NoOdometry {
                     waited_s: FIRST_ODOMETRY.as_secs_f64(),
                     key: self.odometry_key.clone(),
                     endpoint: self.endpoint.clone(),
-                    domain_id: self.names.domain_id,
-                    graph: graph_text(&self.graph()),
+                    graph: graph_text(&self.graph(), self.names.domain_id, &awaited),
                 });
             }
             std::thread::sleep(Duration::from_millis(5));
         }
     }
 
-    /// The liveliness tokens of the robot's domain (every node, publisher and
-    /// subscription its graph knows), sorted.
+    /// The liveliness tokens the router knows of, on every domain (behind a bridge: the
+    /// bridges'), without this session's own, each once, sorted.
     pub fn graph(&self) -> Vec<String> {
         let Ok(replies) = self
             .session
             .liveliness()
             .get(match self.names.wire {
-                Ros2Wire::RmwZenoh => format!("@ros2_lv/{}/**", self.names.domain_id),
+                Ros2Wire::RmwZenoh => "@ros2_lv/**",
                 // The bridges' own tokens: `@/<zid>/@ros2_lv/<kind>/<key>/<type>...`.
-                Ros2Wire::Bridge => "@/*/@ros2_lv/**".into(),
+                Ros2Wire::Bridge => "@/*/@ros2_lv/**",
             })
             .timeout(GRAPH_QUERY)
             .wait()
         else {
             return Vec::new();
         };
+        let own = format!("/{}/", self.session.zid());
         let mut tokens: Vec<String> = std::iter::from_fn(|| replies.recv().ok())
             .filter_map(|reply| reply.result().ok().map(|s| s.key_expr().to_string()))
+            .filter(|token| !token.contains(&own))
             .collect();
         tokens.sort();
+        tokens.dedup();
         tokens
     }
 
@@ -609,13 +626,77 @@ fn announce(
         .collect()
 }
 
-/// The tokens of a graph as the error of a missing odometry lists them.
-fn graph_text(tokens: &[String]) -> String {
+/// What the pipeline waited for in vain: the topic (fully qualified), its DDS type and
+/// the key that names the topic.
+pub(crate) struct Awaited<'a> {
+    pub topic: &'a str,
+    pub message: MessageType,
+    pub key: &'static str,
+}
+
+/// The graph as the error of a missing odometry or scan gives it: what to change, when a
+/// publisher of the type awaited is on another domain or topic, then the tokens by domain
+/// (`domain_id`, the run's, marked).
+fn graph_text(tokens: &[String], domain_id: u32, awaited: &Awaited) -> String {
     if tokens.is_empty() {
-        "no liveliness token at all (is the robot on this domain, and its router there?)".into()
-    } else {
-        format!("these liveliness tokens:\n  {}", tokens.join("\n  "))
+        return "the router knows of no ROS 2 node on any domain (is this the router the \
+                robot's rmw_zenoh uses?)"
+            .into();
     }
+    let mut text = graph_hint(tokens, domain_id, awaited).map_or(String::new(), |h| h + "; ");
+    text += "the router knows of these liveliness tokens:";
+    let mut domain = None;
+    for token in tokens {
+        let this = token.split('/').nth(1);
+        if this != domain {
+            domain = this;
+            let run = if this == Some(&domain_id.to_string()) {
+                " (this run's)"
+            } else {
+                ""
+            };
+            text += &format!("\n  domain {}{run}:", this.unwrap_or("?"));
+        }
+        text += &format!("\n    {token}");
+    }
+    text
+}
+
+/// What to set, when a publisher of the awaited type is on another domain, or on another
+/// topic of the run's domain (rmw_zenoh's tokens: `@ros2_lv/<domain>/<session>/<node
+/// id>/<entity id>/MP/<enclave>/<namespace>/<node>/<topic>/<type>/...`).
+fn graph_hint(tokens: &[String], domain_id: u32, awaited: &Awaited) -> Option<String> {
+    let publishers: Vec<(u32, String)> = (tokens.iter())
+        .filter_map(|token| {
+            let parts: Vec<&str> = token.split('/').collect();
+            let (domain, kind, topic, message) =
+                (parts.get(1)?, parts.get(5)?, parts.get(9)?, parts.get(10)?);
+            (*kind == "MP" && *message == awaited.message.dds_name())
+                .then(|| Some((domain.parse().ok()?, topic.replace('%', "/"))))?
+        })
+        .collect();
+    let found = |on: &dyn Fn(&(u32, String)) -> bool| publishers.iter().find(|p| on(p));
+    if let Some((domain, _)) = found(&|(d, t)| *d != domain_id && t == awaited.topic) {
+        return Some(format!(
+            "a robot publishes `{}` on domain {domain}: set `ros2.domain_id = {domain}`",
+            awaited.topic
+        ));
+    }
+    if let Some((_, topic)) = found(&|(d, _)| *d == domain_id) {
+        return Some(format!(
+            "the robot publishes its `{}` on `{topic}`: set `{} = \"{}\"`",
+            awaited.message.name(),
+            awaited.key,
+            topic.trim_start_matches('/')
+        ));
+    }
+    let (domain, topic) = found(&|_| true)?;
+    Some(format!(
+        "a robot publishes `{}` on `{topic}` on domain {domain}: set `ros2.domain_id = \
+         {domain}` and `{}`",
+        awaited.message.name(),
+        awaited.key
+    ))
 }
 
 /// What the orchestrator learns before a run starts: where the robot is, and where it is
