@@ -63,6 +63,66 @@ fn watch(
     (counts, advertised, last_pose)
 }
 
+/// `scmpc echo estimate` on the run recording into `dir`, once the run has said where it
+/// is reached (`run.json`), read as it prints: its output once it ends.
+fn attach_echo(dir: &std::path::Path) -> std::thread::JoinHandle<std::process::Output> {
+    let info = dir.join("run.json");
+    assert!(
+        common::wait_for(Duration::from_secs(30), || info.exists()),
+        "no run.json"
+    );
+    let echo = common::scmpc()
+        .args(["echo", "estimate", "--run"])
+        .arg(dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("cannot start scmpc echo");
+    std::thread::spawn(move || echo.wait_with_output().expect("echo's output"))
+}
+
+/// What `scmpc echo` printed: estimates as JSON lines, tick after tick, for the run's
+/// length (it ended with the run).
+fn assert_echoed_estimates(echoed: &std::process::Output) {
+    let text = String::from_utf8_lossy(&echoed.stdout);
+    let stderr = String::from_utf8_lossy(&echoed.stderr);
+    assert!(echoed.status.success(), "echo: {stderr}");
+    let ticks: Vec<u64> = (text.lines())
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("a JSON line"))
+        .map(|v| {
+            assert_eq!(v["topic"], "estimate");
+            assert_eq!(v["state"].as_array().map(Vec::len), Some(4), "{v}");
+            v["header"]["tick"].as_u64().expect("a tick")
+        })
+        .collect();
+    assert!(ticks.len() > 1000, "echo printed {} estimates", ticks.len());
+    assert!(ticks.windows(2).all(|w| w[0] < w[1]), "ticks out of order");
+}
+
+/// `scmpc ps` lists the run in `dir`, and `scmpc topics` its estimates at the tick rate.
+fn listed_by_ps_and_topics(dir: &std::path::Path) -> Result<(), String> {
+    let ps = common::run(&["ps"]);
+    let ps = String::from_utf8_lossy(&ps.stdout).into_owned();
+    let shown = std::path::absolute(dir).unwrap();
+    if !ps
+        .lines()
+        .any(|l| l.contains("realtime") && l.ends_with(&*shown.to_string_lossy()))
+    {
+        return Err(format!("`scmpc ps` lacks the run: {ps}"));
+    }
+    let topics = common::run(&["topics", "--run", dir.to_str().unwrap()]);
+    let topics = String::from_utf8_lossy(&topics.stdout).into_owned();
+    let rate = (topics.lines())
+        .find(|l| l.starts_with("estimate "))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok());
+    match rate {
+        Some(hz) if (150.0..=250.0).contains(&hz) => Ok(()),
+        _ => Err(format!(
+            "`scmpc topics`: no estimate at about 200 Hz: {topics}"
+        )),
+    }
+}
+
 /// A `geometry_msgs/PoseStamped` at `(x, y)`, heading along x, as Foxglove's publish
 /// panel sends it.
 fn pose_stamped(x: f64, y: f64) -> serde_json::Value {
@@ -173,6 +233,8 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
+    // `scmpc echo` attached for the whole run, as a ROS user would `ros2 topic echo`.
+    let echo = attach_echo(dir.path());
     let held = misbehave(&url, base.trim_start_matches("ws://"));
     // A goal inside the paper's obstacle (radius 1.5 m at (3, 3.5)) is refused, and why.
     let (level, refusal) = send_goal(&url, 3.0, 3.5);
@@ -190,10 +252,12 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
     };
     drop(clock);
     let late = late_client(&url);
+    let listed = listed_by_ps_and_topics(dir.path());
     let status = run.wait().unwrap();
     drop(held);
     let (counts, advertised, last_pose) = watcher.join().unwrap();
-    let _ = lines;
+    let echoed = echo.join().expect("echo ended");
+    let stdout: Vec<String> = lines.try_iter().collect();
     assert!(status.success(), "the run failed: {status}");
     assert!(at_10_s >= 10_000_000_000);
     assert!(
@@ -240,6 +304,16 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
     assert_eq!(s["deadline_misses"], 0);
     assert_eq!(s["record_gaps"], 0);
     machine.assert_every_fault_in_a_stall(&common::events(dir.path()));
+    assert_echoed_estimates(&echoed);
+    assert!(listed.is_ok(), "{listed:?}");
+    // Without a terminal, a progress line every 5 s of the run (about 17 s).
+    let progress = (stdout.iter())
+        .filter(|l| l.starts_with("t ") && l.contains("| deadline misses 0 |"))
+        .count();
+    assert!(
+        (2..=4).contains(&progress),
+        "{progress} progress lines: {stdout:?}"
+    );
     // Whatever its clients do, the orchestrator stays within its bound (docs/foxglove.md):
     // every client's queue is bounded.
     let rss_kib = s["peak_rss_kib"]["orchestrator"].as_u64().unwrap();

@@ -214,8 +214,8 @@ impl HostRun {
         let (scenario, mode, roles, key) = Self::checked(name, r)?;
         let clock = hosts::clock_sync::estimate(session, &r.run)?;
         let prefix = ipc::new_prefix();
-        ipc::register_run(&prefix).context("registering the run")?;
         let (dir, scenario_file) = Self::run_dir(name, r, &scenario)?;
+        ipc::register_run(&prefix, &dir).context("registering the run")?;
         let spec = Self::bridge_spec(name, r, &scenario, mode, &prefix, key, roles);
         let bridge = Bridge::start(session, spec)?;
         let control = bridge

@@ -19,3 +19,4 @@ pub mod sinks;
 pub mod status_line;
 pub mod stop;
 pub mod swap_client;
+pub mod watch;

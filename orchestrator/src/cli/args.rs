@@ -112,6 +112,34 @@ pub enum Command {
         #[arg(default_value = "paper", help = scenario_help("A built-in scenario"))]
         name: String,
     },
+    /// List the runs going on on this machine: pid, clock, scenario, run directory.
+    Ps,
+    /// List the data topics of a running run with their rates (as `ros2 topic list`).
+    ///
+    /// Watches the run for a second (`--for`) without disturbing it: it only subscribes.
+    Topics {
+        /// Directory of the running run (`scmpc ps` lists them).
+        #[arg(long = "run", value_name = "DIR")]
+        run_dir: PathBuf,
+        /// How long to count samples, s.
+        #[arg(long = "for", value_name = "SECONDS", default_value_t = 1.0)]
+        seconds: f64,
+    },
+    /// Print the samples of a topic of a running run as JSON lines (as `ros2 topic echo`).
+    ///
+    /// Read-only: it subscribes and never publishes, and its queue drops its oldest samples
+    /// rather than hold up the run. Ends with the run, after `--count` samples, or on
+    /// Ctrl-C. The fields are those of `scmpc schema`.
+    Echo {
+        /// The topic, e.g. `estimate` (`scmpc topics` lists them).
+        topic: String,
+        /// Directory of the running run (`scmpc ps` lists them).
+        #[arg(long = "run", value_name = "DIR")]
+        run_dir: PathBuf,
+        /// Stop after this many samples.
+        #[arg(long, value_name = "N")]
+        count: Option<u64>,
+    },
     /// List every scenario key: its type, unit, default and meaning.
     ///
     /// Read from the schema the scenario files and `--set` are parsed with, so the list is

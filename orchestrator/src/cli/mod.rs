@@ -107,6 +107,21 @@ fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
         Command::Sweep(args) => sweep(args, !verbosity.quiet),
         Command::Fuzz(args) => fuzz(args, !verbosity.quiet),
         Command::Figures { out } => figures(out),
+        Command::Ps => {
+            ps();
+            Ok(())
+        }
+        Command::Topics { run_dir, seconds } => topics(&run_dir, seconds),
+        Command::Echo {
+            topic,
+            run_dir,
+            count,
+        } => {
+            let stop = run::stop::on_signals();
+            let mut out = std::io::stdout().lock();
+            run::watch::echo(&run_dir, &topic, count, &stop, &mut out).map_err(bad_input)?;
+            Ok(())
+        }
         Command::Keys { filter } => {
             keys(filter.as_deref());
             Ok(())
@@ -236,6 +251,46 @@ fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
     } else {
         Ok(())
     }
+}
+
+/// `scmpc ps`: the runs going on on this machine.
+fn ps() {
+    let runs = run::watch::running();
+    if runs.is_empty() {
+        println!("no run is going on on this machine");
+        return;
+    }
+    println!("{:>8}  {:9}  {:16}  directory", "pid", "clock", "scenario");
+    for r in runs {
+        println!(
+            "{:>8}  {:9}  {:16}  {}",
+            r.pid,
+            r.mode,
+            r.scenario,
+            r.dir.display()
+        );
+    }
+}
+
+/// `scmpc topics`: the data topics of the run in `dir`, with their rates over `seconds`.
+fn topics(dir: &std::path::Path, seconds: f64) -> CliResult {
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return Err(bad_input(format!("--for must be positive, got {seconds}")));
+    }
+    let stop = run::stop::on_signals();
+    let over = std::time::Duration::from_secs_f64(seconds);
+    let topics = run::watch::topic_rates(dir, over, &stop).map_err(bad_input)?;
+    println!(
+        "{:14}  {:>9}  {:10}  type",
+        "topic", "rate (Hz)", "producer"
+    );
+    for t in topics {
+        println!(
+            "{:14}  {:>9.1}  {:10}  {}",
+            t.topic, t.rate_hz, t.producer, t.message
+        );
+    }
+    Ok(())
 }
 
 /// `scmpc keys`: every scenario key with `filter` in it, as a table.

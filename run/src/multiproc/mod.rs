@@ -119,7 +119,7 @@ pub fn run(
     let started = Instant::now();
     remove_dead_runs();
     let mut recorder = crate::sinks::recorder(scenario, out, recording)?;
-    ipc::register_run(prefix).context("registering the run")?;
+    ipc::register_run(prefix, out).context("registering the run")?;
     let clock = Clocking {
         mode,
         pace: crate::pace::Pace::of(scenario, recording),

@@ -147,6 +147,23 @@ pub fn open_topic<T: Wire>(
         &protocol::topics::service_name(robot, name),
         name,
         robot,
+        true,
+    )
+}
+
+/// Opens topic `name` of robot `robot`'s pipeline if the run has it, never creating it:
+/// a tool watching a run (`scmpc echo`) leaves nothing behind.
+pub fn open_existing_topic<T: Wire>(
+    node: &Node<ipc::Service>,
+    robot: u32,
+    name: &'static str,
+) -> Result<Topic<T>, IpcError> {
+    open_service(
+        node,
+        &protocol::topics::service_name(robot, name),
+        name,
+        robot,
+        false,
     )
 }
 
@@ -156,14 +173,17 @@ pub fn open_run_topic<T: Wire>(
     node: &Node<ipc::Service>,
     name: &'static str,
 ) -> Result<Topic<T>, IpcError> {
-    open_service(node, name, name, protocol::FIRST_ROBOT)
+    open_service(node, name, name, protocol::FIRST_ROBOT, true)
 }
 
+/// The topic's services, opened with the settings every process uses; created too when
+/// `create`.
 fn open_service<T: Wire>(
     node: &Node<ipc::Service>,
     service: &str,
     name: &'static str,
     robot: u32,
+    create: bool,
 ) -> Result<Topic<T>, IpcError> {
     let service_name: ServiceName = service
         .try_into()
@@ -179,14 +199,20 @@ fn open_service<T: Wire>(
         .max_subscribers(MAX_SUBSCRIBERS)
         .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
         .history_size(0)
-        .enable_safe_overflow(true)
-        .open_or_create()
-        .map_err(ctx(format!("opening service `{service}`")))?;
-    let event = node
-        .service_builder(&service_name)
-        .event()
-        .open_or_create()
-        .map_err(ctx(format!("opening event service `{service}`")))?;
+        .enable_safe_overflow(true);
+    let pubsub = if create {
+        pubsub.open_or_create().map_err(|e| e.to_string())
+    } else {
+        pubsub.open().map_err(|e| e.to_string())
+    }
+    .map_err(|e| IpcError(format!("opening service `{service}`: {e}")))?;
+    let event = node.service_builder(&service_name).event();
+    let event = if create {
+        event.open_or_create().map_err(|e| e.to_string())
+    } else {
+        event.open().map_err(|e| e.to_string())
+    }
+    .map_err(|e| IpcError(format!("opening event service `{service}`: {e}")))?;
     let run_id = topic_run_id(node.config().global.prefix.as_str());
     Ok(Topic {
         name,

@@ -94,10 +94,50 @@ fn run_registry() -> std::path::PathBuf {
     std::env::temp_dir().join("scmpc-runs")
 }
 
-/// Registers run `prefix` as this process's, until [`unregister_run`].
-pub fn register_run(prefix: &str) -> std::io::Result<()> {
+/// Registers run `prefix`, recorded into `dir`, as this process's, until
+/// [`unregister_run`]: the file holds the pid, then the directory.
+pub fn register_run(prefix: &str, dir: &std::path::Path) -> std::io::Result<()> {
     std::fs::create_dir_all(run_registry())?;
-    std::fs::write(run_registry().join(prefix), std::process::id().to_string())
+    let dir = std::path::absolute(dir)?;
+    let entry = format!("{}\n{}\n", std::process::id(), dir.display());
+    std::fs::write(run_registry().join(prefix), entry)
+}
+
+/// A run registered on this machine ([`register_run`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RegisteredRun {
+    pub prefix: String,
+    /// Its orchestrator's (or a host's agent's) pid.
+    pub pid: u32,
+    /// Its run directory (an agent's: where it keeps the run's scenario and logs).
+    pub dir: std::path::PathBuf,
+}
+
+/// Every registered run, alive or not, by prefix.
+fn registered_runs() -> Vec<RegisteredRun> {
+    let mut runs: Vec<RegisteredRun> = std::fs::read_dir(run_registry())
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|entry| {
+            let text = std::fs::read_to_string(entry.path()).ok()?;
+            let mut lines = text.lines();
+            Some(RegisteredRun {
+                prefix: entry.file_name().to_string_lossy().into_owned(),
+                pid: lines.next()?.trim().parse().ok()?,
+                dir: lines.next().unwrap_or("").into(),
+            })
+        })
+        .collect();
+    runs.sort_by(|a, b| a.prefix.cmp(&b.prefix));
+    runs
+}
+
+/// The runs going on on this machine (their process is alive), by prefix.
+pub fn running_runs() -> Vec<RegisteredRun> {
+    let mut runs = registered_runs();
+    runs.retain(|run| process_alive(run.pid));
+    runs
 }
 
 /// Removes the registration of run `prefix` (once its resources are gone).
@@ -110,18 +150,9 @@ pub fn unregister_run(prefix: &str) {
 /// run ([`register_run`]) whose pid is dead, or files whose prefix names a dead pid
 /// (`scmpc<pid>x…_`, the default prefix).
 pub fn stale_run_prefixes() -> Vec<String> {
-    let registered = std::fs::read_dir(run_registry())
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter_map(|entry| {
-            let pid: u32 = std::fs::read_to_string(entry.path())
-                .ok()?
-                .trim()
-                .parse()
-                .ok()?;
-            (!process_alive(pid)).then(|| entry.file_name().to_string_lossy().into_owned())
-        });
+    let registered = (registered_runs().into_iter())
+        .filter(|run| !process_alive(run.pid))
+        .map(|run| run.prefix);
     let mut prefixes: Vec<String> = leftover_files(PREFIX_STEM)
         .iter()
         .filter_map(|path| {

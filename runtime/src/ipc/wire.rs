@@ -111,6 +111,15 @@ impl<T: Wire> Topic<T> {
 /// requests and their replies stay with the orchestrator.
 macro_rules! by_topic {
     ($($(#[$doc:meta])* $variant:ident($t:ty) = $topic:ident $name:literal @ $rate:ident),* $(,)?) => {
+        /// A tap on data topic `name` of a running run that has it, never created: what a
+        /// tool watching the run reads (`scmpc echo`).
+        pub fn watch(node: &Node<ipc::Service>, robot: u32, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
+            match name {
+                $($topic => Ok(Box::new(open_existing_topic::<$t>(node, robot, $topic)?.tap()?)),)*
+                other => Err(IpcError(format!("no data topic `{other}`"))),
+            }
+        }
+
         /// A tap on topic `name` (a data topic, control or status).
         pub fn tap(node: &Node<ipc::Service>, robot: u32, name: &str) -> Result<Box<dyn WireTap>, IpcError> {
             match name {
