@@ -219,3 +219,94 @@ fn ctrl_c_stops_scmpc_figures_during_its_solve_time_comparison_and_names_the_sig
     );
     assert!(!dir.path().join("solve_times.csv").exists());
 }
+
+/// The run in process of `args` into a fresh directory: its `path.svg` and
+/// `clearance.svg`.
+fn run_plots(args: &[&str]) -> (String, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = scmpc()
+        .args(["run", "--in-process", "-q", "--out"])
+        .arg(dir.path())
+        .args(args)
+        .output()
+        .unwrap();
+    let read = |name: &str| {
+        std::fs::read_to_string(dir.path().join(name))
+            .unwrap_or_else(|e| panic!("{args:?}: {name}: {e}: {}", stderr(&out)))
+    };
+    (read("path.svg"), read("clearance.svg"))
+}
+
+/// How often `text` is a whole text element of an SVG (plotters writes each on a line of
+/// its own, `'` as `&apos;`).
+fn texts(svg: &str, text: &str) -> usize {
+    let text = text.replace('\'', "&apos;");
+    svg.lines().filter(|l| l.trim() == text).count()
+}
+
+/// The plots of a run say what they show (checked by their text, not their pixels): the
+/// clearance named for a point robot or from a footprint's edge, to the obstacle or the
+/// nearest of several, with the contact and margin lines and the contacts marked; the
+/// path with the obstacles grown by footprint and margin and, with a person crossing,
+/// each time written once beside the robot and once beside the person, one legend entry
+/// per kind of thing.
+#[test]
+fn the_plots_of_a_run_name_what_they_show() {
+    let (path, clearance) = run_plots(&["--set", "duration_s=6"]);
+    assert_eq!(texts(&clearance, "paper: clearance to the obstacle"), 1);
+    assert_eq!(
+        texts(&clearance, "robot (a point) to the obstacle's surface"),
+        1
+    );
+    assert_eq!(texts(&clearance, "contact (0 m)"), 1);
+    assert!(!clearance.contains("margin the MPC keeps") && !clearance.contains("in contact"));
+    assert!(!path.contains("grown by") && texts(&path, "goal") == 1 && texts(&path, "start") == 1);
+
+    let (path, clearance) = run_plots(&[
+        "field",
+        "--set",
+        "duration_s=6",
+        "--set",
+        "robot.radius_m=0.3",
+        "--set",
+        "mpc.safety_margin_m=0.1",
+    ]);
+    let edge = "robot's edge (footprint 0.30 m) to the nearest obstacle's surface";
+    assert_eq!(texts(&clearance, edge), 1);
+    assert_eq!(
+        texts(
+            &clearance,
+            "field: clearance to the nearest of 13 obstacles"
+        ),
+        1
+    );
+    assert_eq!(texts(&clearance, "margin the MPC keeps (0.10 m)"), 1);
+    assert_eq!(texts(&path, "grown by footprint and margin (0.40 m)"), 1);
+
+    let (path, _) = run_plots(&["crossing"]);
+    assert_eq!(texts(&path, "robot (footprint) at the times written"), 1);
+    assert_eq!(texts(&path, "moving obstacle at the same times"), 1);
+    for time in ["0 s", "4 s", "8 s"] {
+        assert_eq!(
+            texts(&path, time),
+            2,
+            "`{time}` beside the robot and the person"
+        );
+    }
+
+    // A faulty MPC without the safety check drives into the obstacle: marked.
+    let (_, clearance) = run_plots(&[
+        "--set",
+        "duration_s=10",
+        "--set",
+        "fault.mpc_ignore_obstacles=true",
+        "--set",
+        "dfl.gatekeeper=false",
+    ]);
+    assert!(
+        clearance
+            .lines()
+            .any(|l| l.trim().starts_with("in contact (")),
+        "no contact marked"
+    );
+}

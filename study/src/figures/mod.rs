@@ -8,15 +8,15 @@ use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
-use protocol::PlantKind;
-use rand::SeedableRng;
 use record::schema::Table;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 mod paper;
+mod run;
 
 pub use paper::{FigureSet, GAMMA_HORIZON_PAIRS, GAMMAS, HORIZONS, paper_set};
+pub use run::run_plots;
 
 /// Width and height of every figure, px.
 const SIZE: (u32, u32) = (900, 700);
@@ -59,6 +59,22 @@ pub struct Marker {
     pub color: usize,
 }
 
+/// A circle to scale, drawn as its outline (a footprint, a grown boundary) or filled
+/// faintly (a moving obstacle where it was), with a text beside it.
+#[derive(Debug, Clone, Default)]
+pub struct Ring {
+    pub at: (f64, f64),
+    pub radius: f64,
+    /// Palette index.
+    pub color: usize,
+    pub dashed: bool,
+    pub filled: bool,
+    /// Its legend entry; empty: none (one entry stands for a whole set of rings).
+    pub label: String,
+    /// Written beside it, upper right (a time).
+    pub text: String,
+}
+
 /// A figure: curves, obstacles to scale, horizontal reference lines.
 #[derive(Debug, Clone, Default)]
 pub struct Figure {
@@ -70,15 +86,20 @@ pub struct Figure {
     pub series: Vec<Series>,
     /// Circles `(x, y, radius)` in data units, drawn filled.
     pub discs: Vec<(f64, f64, f64)>,
-    /// Horizontal lines `(y, label)`.
+    /// Horizontal lines `(y, label)`: the first red, the others orange.
     pub levels: Vec<(f64, String)>,
     pub markers: Vec<Marker>,
+    /// Circles drawn over the series and under the markers.
+    pub rings: Vec<Ring>,
     /// Same scale on both axes (paths in the plane).
     pub equal_axes: bool,
     /// Logarithmic y axis.
     pub log_y: bool,
     /// The legend in the upper left corner (else the upper right).
     pub legend_left: bool,
+    /// The legend in the corner where it covers the fewest points, markers and rings
+    /// (instead of `legend_left`'s).
+    pub legend_auto: bool,
 }
 
 impl Figure {
@@ -122,7 +143,8 @@ impl Figure {
             xs.push(m.at.0);
             ys.push(self.y(m.at.1));
         }
-        for &(x, y, r) in &self.discs {
+        let rings = self.rings.iter().map(|r| (r.at.0, r.at.1, r.radius));
+        for (x, y, r) in self.discs.iter().copied().chain(rings) {
             xs.extend([x - r, x + r]);
             ys.extend([y - r, y + r]);
         }
@@ -201,9 +223,9 @@ impl Figure {
             )))?;
             chart.draw_series(std::iter::once(PathElement::new(outline, BLACK)))?;
         }
-        for (y, label) in &self.levels {
+        for (i, (y, label)) in self.levels.iter().enumerate() {
             let y = self.y(*y);
-            let style = RED.stroke_width(2);
+            let style = if i == 0 { RED } else { PALETTE[3] }.stroke_width(2);
             chart
                 .draw_series(std::iter::once(PathElement::new(
                     vec![(x0, y), (x1, y)],
@@ -215,15 +237,105 @@ impl Figure {
         self.draw_lines_and_markers(&mut chart)?;
         chart
             .configure_series_labels()
-            .position(if self.legend_left {
-                SeriesLabelPosition::UpperLeft
-            } else {
-                SeriesLabelPosition::UpperRight
-            })
+            .position(self.legend_position(((x0, x1), (y0, y1))))
             .label_font(("sans-serif", 15))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
+        Ok(())
+    }
+
+    /// Where the legend goes: `legend_auto`, the corner of the plot whose box of the
+    /// legend's likely size (40 % wide, a line per entry) holds the fewest points,
+    /// markers (weighing ten) and ring centres; else `legend_left`'s.
+    fn legend_position(
+        &self,
+        ((x0, x1), (y0, y1)): ((f64, f64), (f64, f64)),
+    ) -> SeriesLabelPosition {
+        use SeriesLabelPosition::*;
+        if !self.legend_auto {
+            return if self.legend_left {
+                UpperLeft
+            } else {
+                UpperRight
+            };
+        }
+        let entries = (self.series.iter().filter(|s| !s.label.is_empty()).count())
+            + self.markers.len()
+            + self.levels.len()
+            + self.rings.iter().filter(|r| !r.label.is_empty()).count();
+        let (w, h) = ((x1 - x0) * 0.4, (y1 - y0) * (0.03 + 0.035 * entries as f64));
+        let points = (self
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|&p| (p, 1))))
+        .chain(self.markers.iter().map(|m| (m.at, 10)))
+        .chain(self.discs.iter().map(|&(x, y, _)| ((x, y), 3)))
+        .chain(self.rings.iter().map(|r| (r.at, 1)));
+        let covered = |left: bool, upper: bool| -> usize {
+            let xs = if left { (x0, x0 + w) } else { (x1 - w, x1) };
+            let ys = if upper { (y1 - h, y1) } else { (y0, y0 + h) };
+            (points.clone())
+                .filter(|((x, y), _)| {
+                    (xs.0..=xs.1).contains(x) && (ys.0..=ys.1).contains(&self.y(*y))
+                })
+                .map(|(_, weight)| weight)
+                .sum()
+        };
+        [
+            (UpperLeft, true, true),
+            (UpperRight, false, true),
+            (LowerLeft, true, false),
+            (LowerRight, false, false),
+        ]
+        .into_iter()
+        .min_by_key(|(_, left, upper)| covered(*left, *upper))
+        .map_or(UpperLeft, |(corner, _, _)| corner)
+    }
+
+    /// The rings: outlines (dashed or solid) or faint discs, each text beside its ring,
+    /// and a legend entry for each ring with a label.
+    fn draw_rings<DB: DrawingBackend>(
+        &self,
+        chart: &mut ChartContext<'_, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        for ring in &self.rings {
+            let color = PALETTE[ring.color % PALETTE.len()];
+            let style = color.stroke_width(2);
+            let (cx, cy, r) = (ring.at.0, ring.at.1, ring.radius);
+            let outline: Vec<(f64, f64)> = (0..=90)
+                .map(|i| i as f64 / 90.0 * std::f64::consts::TAU)
+                .map(|a| (cx + r * a.cos(), cy + r * a.sin()))
+                .collect();
+            if ring.filled {
+                chart.draw_series(std::iter::once(Polygon::new(
+                    outline.clone(),
+                    color.mix(0.25).filled(),
+                )))?;
+            }
+            let drawn = if ring.dashed {
+                chart.draw_series(DashedLineSeries::new(outline, 6, 5, color.stroke_width(1)))?
+            } else {
+                chart.draw_series(LineSeries::new(outline, style))?
+            };
+            if !ring.label.is_empty() {
+                drawn
+                    .label(ring.label.as_str())
+                    .legend(move |(x, y)| Circle::new((x + 12, y), 5, style));
+            }
+            if !ring.text.is_empty() {
+                // A filled ring's (an obstacle's) upper right, an outline's lower right.
+                let at = (
+                    cx + r * 0.8,
+                    cy + if ring.filled { r * 0.8 } else { -r * 0.8 },
+                );
+                chart.draw_series(std::iter::once(Text::new(
+                    ring.text.clone(),
+                    at,
+                    ("sans-serif", 13).into_font().color(&color),
+                )))?;
+            }
+        }
         Ok(())
     }
 
@@ -265,6 +377,7 @@ impl Figure {
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], style));
             }
         }
+        self.draw_rings(chart)?;
         for m in &self.markers {
             let style = PALETTE[m.color % PALETTE.len()].filled();
             chart
@@ -372,31 +485,6 @@ impl Trajectory {
     }
 }
 
-/// The waypoints of every route of the run in `dir`, in the order planned (`route.csv`;
-/// none when the run had no planner or no route).
-/// The polylines of `file` in `dir`: rows of `x` and `y`, one polyline per run of equal
-/// `key` values (none if the file does not exist).
-fn polylines(dir: &Path, file: &str, key: &str) -> anyhow::Result<Vec<Vec<(f64, f64)>>> {
-    let file = dir.join(file);
-    if !file.exists() {
-        return Ok(Vec::new());
-    }
-    let table = Table::read(&file)?;
-    let (plan, x, y) = (
-        table.numbers(key)?,
-        table.numbers("x")?,
-        table.numbers("y")?,
-    );
-    let mut routes: Vec<(f64, Vec<(f64, f64)>)> = Vec::new();
-    for (p, point) in plan.into_iter().zip(x.into_iter().zip(y)) {
-        match routes.last_mut() {
-            Some((last, points)) if *last == p => points.push(point),
-            _ => routes.push((p, vec![point])),
-        }
-    }
-    Ok(routes.into_iter().map(|(_, points)| points).collect())
-}
-
 /// The obstacles of a scenario as discs `(x, y, radius)`, where they are at t = 0.
 pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
     scenario
@@ -404,180 +492,6 @@ pub fn obstacle_discs(scenario: &protocol::Scenario) -> Vec<(f64, f64, f64)> {
         .iter()
         .map(|o| (o.x, o.y, o.radius))
         .collect()
-}
-
-/// Seconds between two time labels on the path of a run with moving obstacles.
-const TRACE_LABEL_S: f64 = 2.0;
-
-/// The moving obstacles' traces over the run (their centres), and beside them, every
-/// [`TRACE_LABEL_S`], where each obstacle and the robot (`robot`: the trajectory) were,
-/// labelled with the time: who was where when. Nothing without a moving obstacle.
-fn moving_traces(scenario: &protocol::Scenario, robot: &Trajectory) -> (Vec<Series>, Vec<Marker>) {
-    let end_s = robot.t.last().copied().unwrap_or(0.0);
-    let labels = (0..=(end_s / TRACE_LABEL_S) as usize).map(|i| i as f64 * TRACE_LABEL_S);
-    let (mut traces, mut markers) = (Vec::new(), Vec::new());
-    for (i, o) in scenario
-        .obstacles
-        .iter()
-        .enumerate()
-        .filter(|(_, o)| o.moves())
-    {
-        let steps = (end_s / 0.1).ceil() as usize;
-        let points = (0..=steps)
-            .map(|k| o.center_at(k as f64 * 0.1))
-            .map(|[x, y]| (x, y))
-            .collect();
-        traces.push(Series {
-            label: format!("obstacle {i} (moving)"),
-            points,
-            dashed: true,
-            color: 5,
-            ..Series::default()
-        });
-        markers.extend(labels.clone().map(|t| {
-            let [x, y] = o.center_at(t);
-            Marker {
-                label: format!("{t:.0} s"),
-                at: (x, y),
-                color: 5,
-            }
-        }));
-    }
-    if !traces.is_empty() {
-        markers.extend(labels.filter_map(|t| {
-            let k = robot.t.iter().position(|&rt| rt >= t - 1e-9)?;
-            Some(Marker {
-                label: format!("{t:.0} s"),
-                at: (robot.x[k], robot.y[k]),
-                color: 0,
-            })
-        }));
-    }
-    (traces, markers)
-}
-
-/// With a simulated lidar, every [`TRACE_LABEL_S`], its returns from where the robot
-/// truly was (`robot`: the trajectory), ray-cast again against the true world without
-/// noise or dropouts: what it could see then (the run's own scans are in `scan.csv` and
-/// `run.mcap`). Nothing without one, or for a robot's own lidar.
-fn scan_dots(scenario: &protocol::Scenario, robot: &Trajectory) -> Option<Series> {
-    let config = (scenario.lidar.as_ref()).filter(|_| scenario.plant.kind == PlantKind::Sim)?;
-    let sensor = lidar::Lidar {
-        noise_std_m: 0.0,
-        dropout: 0.0,
-        ..lidar::Lidar::of(config)
-    };
-    let (first, step) = sensor.angles();
-    let end_s = robot.t.last().copied().unwrap_or(0.0);
-    let mut ranges = vec![0.0_f32; sensor.beams];
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-    let mut points = Vec::new();
-    for i in 0..=(end_s / TRACE_LABEL_S) as usize {
-        let t = i as f64 * TRACE_LABEL_S;
-        let Some(k) = robot.t.iter().position(|&rt| rt >= t - 1e-9) else {
-            continue;
-        };
-        let pose = [robot.x[k], robot.y[k], robot.theta[k]];
-        let discs: Vec<lidar::Disc> = (scenario.obstacles.iter())
-            .map(|o| (o.center_at(t), o.radius))
-            .collect();
-        sensor.scan(pose, &discs, &mut rng, &mut ranges);
-        let [lx, ly, heading] = sensor.pose_on(pose);
-        for (beam, &r) in ranges.iter().enumerate().filter(|(_, r)| r.is_finite()) {
-            let angle = heading + first + step * beam as f64;
-            let r = f64::from(r);
-            points.push((lx + r * angle.cos(), ly + r * angle.sin()));
-        }
-    }
-    Some(Series {
-        label: format!("lidar returns, every {TRACE_LABEL_S:.0} s"),
-        points,
-        dots: true,
-        color: 6,
-        ..Series::default()
-    })
-}
-
-/// `path` and `clearance` of the run in `dir` (written by `scmpc run`).
-pub fn run_plots(dir: &Path, scenario: &protocol::Scenario) -> anyhow::Result<()> {
-    let t = Trajectory::read(dir)?;
-    let series = |label: &str, points| Series {
-        label: label.to_string(),
-        points,
-        ..Series::default()
-    };
-    let mut path = vec![series("robot", t.path())];
-    // The MPC's prediction every second (N Ts ahead of the robot), under the routes.
-    for (i, predicted) in polylines(dir, "predictions.csv", "sample")?
-        .into_iter()
-        .enumerate()
-    {
-        let label = if i == 0 {
-            "MPC prediction, every 1 s"
-        } else {
-            ""
-        };
-        path.push(Series {
-            color: 7,
-            ..series(label, predicted)
-        });
-    }
-    let routes = polylines(dir, "route.csv", "plan")?;
-    // The first route, then the later plans faint (one legend entry for them all).
-    for (i, route) in routes.into_iter().enumerate() {
-        let label = match i {
-            0 => "route (first plan)",
-            1 => "later routes",
-            _ => "",
-        };
-        path.push(Series {
-            dashed: true,
-            faint: i > 0,
-            color: if i == 0 { 2 } else { 4 },
-            ..series(label, route)
-        });
-    }
-    let [sx, sy, _] = scenario.robot.start;
-    let [gx, gy] = scenario.robot.goal.position;
-    let (traces, times) = moving_traces(scenario, &t);
-    path.extend(traces);
-    path.extend(scan_dots(scenario, &t));
-    let mut markers = vec![
-        Marker {
-            label: "start".into(),
-            at: (sx, sy),
-            color: 3,
-        },
-        Marker {
-            label: "goal".into(),
-            at: (gx, gy),
-            color: 1,
-        },
-    ];
-    markers.extend(times);
-    Figure {
-        stem: "path".into(),
-        title: format!("{}: path", scenario.name),
-        x_label: "x (m)".into(),
-        y_label: "y (m)".into(),
-        series: path,
-        discs: obstacle_discs(scenario),
-        markers,
-        equal_axes: true,
-        legend_left: true,
-        ..Figure::default()
-    }
-    .write(dir)?;
-    Figure {
-        stem: "clearance".into(),
-        title: format!("{}: distance to the obstacle", scenario.name),
-        x_label: "t (s)".into(),
-        y_label: "clearance (m)".into(),
-        series: vec![series("robot centre to obstacle surface", t.clearance())],
-        ..Figure::default()
-    }
-    .write(dir)?;
-    Ok(())
 }
 
 /// A y-axis tick label: the value to two decimals, or on a log axis (`v` = log10 of the
