@@ -13,6 +13,16 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
     let _machine = common::machine_alone();
     let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    // It said what it was doing as it went, and how long was left.
+    let phases: Vec<String> = (stderr(&out).lines())
+        .filter(|l| l.starts_with("bench ["))
+        .map(String::from)
+        .collect();
+    assert_eq!(phases.len(), 9, "{phases:?}");
+    assert!(
+        phases[8].starts_with("bench [9/9]") && phases[8].contains("s left)"),
+        "{phases:?}"
+    );
     let table = String::from_utf8_lossy(&out.stdout);
     assert!(
         table.contains("raw iceoryx2 hop") && table.contains("lockstep"),

@@ -24,8 +24,22 @@ fn fuzz(
         args.extend(["--set", set]);
     }
     args.extend(["--out", dir.path().to_str().unwrap()]);
-    let out = run(&args);
+    // Progress lines (its stderr is no terminal) every 0.2 s instead of 5.
+    let started = std::time::Instant::now();
+    let out = common::scmpc()
+        .args(&args)
+        .env("SCMPC_PROGRESS_S", "0.2")
+        .output()
+        .expect("cannot start scmpc");
     let rows = csv(&dir.path().join("fuzz.csv"));
+    let progress = (stderr(&out).lines())
+        .filter(|l| l.contains(&format!("/{count} runs, ")) && l.ends_with(" s left"))
+        .count();
+    assert!(
+        progress > 0 || started.elapsed().as_secs_f64() < 0.5,
+        "no progress line: {}",
+        stderr(&out)
+    );
     assert_eq!(
         rows.len(),
         count.parse::<usize>().unwrap(),

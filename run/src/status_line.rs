@@ -1,7 +1,7 @@
 //! The live status line of a run (docs/running.md), a [`Sink`]: on a terminal one line on
 //! stdout, redrawn in place every [`REDRAW`] as ticks are recorded, wiped at the end;
 //! elsewhere (a pipe, a file, CI's log) the same line printed anew every
-//! [`PROGRESS_EVERY`] of wall time.
+//! [`progress_every`] of wall time.
 
 use protocol::{CommandMode, Timing};
 use record::{RunStart, Sample, Sink, Summary, TickSample};
@@ -10,8 +10,20 @@ use std::time::{Duration, Instant};
 
 /// How often the line is redrawn: often enough to follow, rarely enough to cost nothing.
 const REDRAW: Duration = Duration::from_millis(250);
-/// How often a run whose stdout is no terminal prints its progress line.
+/// How often a command whose output is no terminal prints its progress line, by default.
 pub const PROGRESS_EVERY: Duration = Duration::from_secs(5);
+/// Seconds between two progress lines instead of [`PROGRESS_EVERY`]'s 5 (a positive
+/// number; anything else is ignored).
+pub const ENV_PROGRESS_S: &str = "SCMPC_PROGRESS_S";
+
+/// How often a command whose output is no terminal prints its progress line:
+/// [`ENV_PROGRESS_S`], else [`PROGRESS_EVERY`].
+pub fn progress_every() -> Duration {
+    (std::env::var(ENV_PROGRESS_S).ok())
+        .and_then(|s| s.trim().parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .map_or(PROGRESS_EVERY, Duration::from_secs_f64)
+}
 
 /// What the line shows.
 #[derive(Debug, Default)]
@@ -63,6 +75,8 @@ pub struct StatusLine {
     timing: Timing,
     /// On a terminal: the line is redrawn in place.
     redraw: bool,
+    /// Elsewhere: the time between two lines.
+    every: Duration,
     /// When the line was last drawn (printed), or the run started.
     drawn: Option<Instant>,
 }
@@ -73,7 +87,8 @@ impl StatusLine {
         let redraw = std::io::stdout().is_terminal();
         Ok(Some(Box::new(StatusLine {
             redraw,
-            // Progress lines: the first after PROGRESS_EVERY.
+            every: progress_every(),
+            // Progress lines: the first one interval in.
             drawn: (!redraw).then(Instant::now),
             live: Live {
                 duration_s: run.scenario.duration_s,
@@ -92,7 +107,7 @@ impl Sink for StatusLine {
             Sample::Verdict(v) => self.live.deadline_misses += u64::from(v.met == 0),
             _ => return Ok(()),
         }
-        let every = if self.redraw { REDRAW } else { PROGRESS_EVERY };
+        let every = if self.redraw { REDRAW } else { self.every };
         if self.drawn.is_some_and(|at| at.elapsed() < every) {
             return Ok(());
         }

@@ -363,15 +363,25 @@ fn machine() -> String {
 }
 
 /// Runs the whole benchmark into `out` (run directories and `bench.json`).
-pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<BenchReport> {
+pub fn run(
+    out: &Path,
+    realtime_s: f64,
+    progress: bool,
+    stop: &AtomicBool,
+) -> anyhow::Result<BenchReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let phase = Phases::new(9, progress);
+    phase.begin("the raw iceoryx2 ping-pong");
     let raw = raw_ping_pong(stop)?;
     let paper = protocol::Scenario::paper().validated("the paper scenario")?;
     let scenario = paper.with_overrides(&[format!("duration_s={realtime_s}")], "--realtime-s")?;
     let realtime_run =
         |name: &str| local_run(&scenario, &out.join(name), RunMode::Realtime, false, stop);
+    phase.begin("the paper in real time");
     let realtime = realtime_run("realtime")?;
+    phase.begin("the paper in real time with a live client");
     let live = live::measure(&out.join("live"), &scenario, &realtime, stop)?;
+    phase.begin("the paper in process");
     let hot = run::inprocess::run(
         &scenario,
         &out.join("in-process"),
@@ -379,6 +389,7 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
         stop,
     )?;
     run::stop::check(stop)?;
+    phase.begin("the paper in real time, the cores kept awake");
     let awake = {
         let _awake = run::awake::AwakeCores::start().context("keeping the cores awake")?;
         let raw = raw_ping_pong(stop)?;
@@ -397,10 +408,14 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
             realtime_deadline_misses: run.deadline_misses,
         }
     };
+    phase.begin("the paper in lockstep, with run.mcap and without");
     let lockstep = lockstep_pairs(&paper, &out.join("lockstep"), stop)?;
+    phase.begin("the cross-host hop against raw Zenoh");
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     run::stop::check(stop)?;
+    phase.begin("the MPC step by horizon and obstacle count");
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
+    phase.begin("the cost of moving obstacles");
     let moving_obstacles = scaling::moving_cost(&out.join("moving"), stop)?;
     let processes = realtime
         .processes
@@ -439,6 +454,47 @@ pub fn run(out: &Path, realtime_s: f64, stop: &AtomicBool) -> anyhow::Result<Ben
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(report)
+}
+
+/// The bench's progress on stderr: a line as each phase begins, with the time taken and,
+/// from the phases done, an estimate of the time left.
+struct Phases {
+    count: usize,
+    shown: bool,
+    begun: std::cell::Cell<usize>,
+    started: std::time::Instant,
+}
+
+impl Phases {
+    fn new(count: usize, shown: bool) -> Phases {
+        Phases {
+            count,
+            shown,
+            begun: std::cell::Cell::new(0),
+            started: std::time::Instant::now(),
+        }
+    }
+
+    fn begin(&self, what: &str) {
+        let done = self.begun.get();
+        self.begun.set(done + 1);
+        if !self.shown {
+            return;
+        }
+        let taken = self.started.elapsed().as_secs_f64();
+        let left = match done {
+            0 => String::new(),
+            done => format!(
+                ", about {:.0} s left",
+                taken / done as f64 * (self.count - done) as f64
+            ),
+        };
+        eprintln!(
+            "bench [{}/{}] {what} ({taken:.0} s so far{left})",
+            done + 1,
+            self.count
+        );
+    }
 }
 
 /// The raw iceoryx2 ping-pong ([`ping_pong`]) on fresh resources, removed after it.

@@ -111,7 +111,7 @@ pub fn plan_runs(
 
 /// Runs every spec in process on `threads` threads; results in spec order. Shows progress
 /// on stderr when `progress`: a bar on a terminal, else a line every
-/// [`PROGRESS_EVERY`](run::status_line::PROGRESS_EVERY) (the count, the time taken and the
+/// [`progress_every`](run::status_line::progress_every) (the count, the time taken and the
 /// time left). Writes each run's `run.mcap` when `mcap`.
 /// Once `stop` is set no run starts (those going on end `interrupted`): the results are
 /// then those of the first specs only, as many as had started.
@@ -133,6 +133,7 @@ pub fn run_all(
     );
     let lines = Progress {
         shown: progress && !std::io::stderr().is_terminal(),
+        every: run::status_line::progress_every(),
         printed: Mutex::new(std::time::Instant::now()),
     };
     let next = AtomicUsize::new(0);
@@ -169,6 +170,7 @@ pub fn run_all(
 /// Progress lines where the bar cannot be drawn (stderr no terminal).
 struct Progress {
     shown: bool,
+    every: std::time::Duration,
     printed: Mutex<std::time::Instant>,
 }
 
@@ -178,7 +180,7 @@ impl Progress {
         let Ok(mut printed) = self.printed.lock() else {
             return;
         };
-        if !self.shown || printed.elapsed() < run::status_line::PROGRESS_EVERY {
+        if !self.shown || printed.elapsed() < self.every {
             return;
         }
         *printed = std::time::Instant::now();

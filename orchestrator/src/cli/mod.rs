@@ -131,7 +131,7 @@ fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
             realtime_s,
             load,
             runs,
-        } => bench(out, realtime_s, load, runs),
+        } => bench(out, realtime_s, load, runs, !verbosity.quiet),
         Command::BenchBurn => study::bench::load::burn(),
         Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
         Command::Host(args) => launch::host(args),
@@ -348,7 +348,14 @@ fn bench_pong(prefix: Option<String>, zenoh: Option<String>) -> CliResult {
     }
 }
 
-fn bench(out: Option<PathBuf>, realtime_s: f64, load: Option<usize>, runs: usize) -> CliResult {
+/// `scmpc bench`; `progress`: a line as each phase begins.
+fn bench(
+    out: Option<PathBuf>,
+    realtime_s: f64,
+    load: Option<usize>,
+    runs: usize,
+    progress: bool,
+) -> CliResult {
     if !(realtime_s.is_finite() && realtime_s > 0.0) {
         return Err(bad_input(format!(
             "--realtime-s must be positive, got {realtime_s}"
@@ -366,7 +373,7 @@ fn bench(out: Option<PathBuf>, realtime_s: f64, load: Option<usize>, runs: usize
         println!("bench directory: {}", out.display());
         return Ok(());
     }
-    let report = study::bench::run(&out, realtime_s, &stop)?;
+    let report = study::bench::run(&out, realtime_s, progress, &stop)?;
     print!("{}", report.table());
     println!("bench directory: {}", out.display());
     Ok(())
