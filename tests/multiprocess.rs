@@ -401,7 +401,8 @@ fn a_run_shows_a_live_status_line_on_a_terminal_and_nothing_extra_otherwise() {
         "{seen:?}"
     );
     // The line is wiped before what the run prints at its end.
-    let end = seen.rfind("run directory:").unwrap();
+    assert!(seen.starts_with("run directory: "), "{seen:?}");
+    let end = seen.find("  scenario ").unwrap();
     assert!(seen[..end].ends_with(erase), "{seen:?}");
     let piped = common::run(&[
         "run",

@@ -135,7 +135,6 @@ pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
     if let Err(e) = study::figures::run_plots(&out, &scenario) {
         eprintln!("warning: no plots for the run: {e:#}");
     }
-    println!("run directory: {}", out.display());
     print!("{}", summary.table());
     if summary.outcome == record::judge::Outcome::Reached {
         Ok(())
