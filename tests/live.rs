@@ -305,6 +305,8 @@ fn a_live_view_serves_every_channel_of_a_real_time_run_to_the_end_whatever_its_c
     assert_eq!(s["record_gaps"], 0);
     machine.assert_every_fault_in_a_stall(&common::events(dir.path()));
     assert_echoed_estimates(&echoed);
+    // `scmpc echo` left as the run ended, so nothing of the run is left behind.
+    assert_eq!(s["leftover_files"], serde_json::json!([]), "{s}");
     assert!(listed.is_ok(), "{listed:?}");
     // Without a terminal, a progress line every 5 s of the run (about 17 s).
     let progress = (stdout.iter())

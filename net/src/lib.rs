@@ -14,7 +14,7 @@ pub enum NetError {
     #[error("zenoh: {0}")]
     Zenoh(String),
     /// Nothing answers at the endpoint (Zenoh's words follow).
-    #[error("nothing answers there ({0})")]
+    #[error("nothing answers at the endpoint ({0})")]
     Unreachable(String),
 }
 

@@ -32,8 +32,8 @@ pub const ENV_SUPERVISOR: &str = "SCMPC_SUPERVISOR_PID";
 /// process takes control messages from it alone.
 pub const ENV_CONTROL_PUBLISHER: &str = "SCMPC_CONTROL_PUBLISHER";
 
-/// The directory of the role processes' logs, beside the run's scenario file: each role's
-/// stderr, every epoch's (restarts, replacements) appended to `<role>.log`.
+/// The directory of the role processes' logs in a run directory: each role's stderr,
+/// every epoch's (restarts, replacements) appended to `<role>.log`.
 pub const LOG_DIR: &str = "logs";
 
 /// How a process is reached.
@@ -89,6 +89,9 @@ pub struct Children {
     control_publisher: u128,
     /// More environment for every process (an agent's: the run id, the clock correction).
     extra_env: Vec<(String, String)>,
+    /// Where each role's stderr goes ([`Children::with_logs`]); `None`: this process's
+    /// stderr (an agent's, whose run directory goes when the run ends).
+    log_dir: Option<std::path::PathBuf>,
     pub list: Vec<Proc>,
     /// The epoch the process started last has (each start takes the next).
     epoch: u32,
@@ -115,10 +118,18 @@ impl Children {
             robot,
             control_publisher,
             extra_env,
+            log_dir: None,
             list: Vec::new(),
             epoch: 0,
             remote,
         })
+    }
+
+    /// Each role's stderr to `<dir>/<role>.log`, every epoch's appended after a line that
+    /// names it (the orchestrator's: `logs/` of the run directory).
+    pub fn with_logs(mut self, dir: &Path) -> Children {
+        self.log_dir = Some(dir.to_path_buf());
+        self
     }
 
     /// Starts a process (epoch 0) for each of `roles`.
@@ -190,7 +201,7 @@ impl Children {
             .envs(self.extra_env.iter().map(|(k, v)| (k, v)))
             .stdin(Stdio::null())
             .stdout(Stdio::null())
-            .stderr(self.log_file(role, epoch, program, args)?)
+            .stderr(self.stderr_of(role, epoch, program, args)?)
             .spawn()
             .with_context(|| {
                 format!(
@@ -200,10 +211,12 @@ impl Children {
                 )
             })?;
         let pid = child.id();
+        let log = self.log_path(role);
         tracing::info!(
             "started the {} process, epoch {epoch}, pid {pid} (its stderr: {})",
             role.as_str(),
-            self.log_path(role).display()
+            log.as_ref()
+                .map_or("this one's".into(), |p| p.display().to_string())
         );
         self.list.push(Proc {
             role,
@@ -214,18 +227,19 @@ impl Children {
         Ok(pid)
     }
 
-    /// The log of `role` (`logs/<role>.log` beside the scenario file: in a run directory,
-    /// or an agent's), opened to append the stderr of the process of `epoch` after a line
-    /// that says which process it is.
-    fn log_file(
+    /// Where the stderr of the process of `role` and `epoch` goes: its log, opened to
+    /// append after a line that says which process it is, or this process's stderr.
+    fn stderr_of(
         &self,
         role: Role,
         epoch: u32,
         program: &std::ffi::OsStr,
         args: &[String],
-    ) -> anyhow::Result<std::fs::File> {
+    ) -> anyhow::Result<Stdio> {
         use std::io::Write;
-        let path = self.log_path(role);
+        let Some(path) = self.log_path(role) else {
+            return Ok(Stdio::inherit());
+        };
         let opened = (path.parent().map_or(Ok(()), std::fs::create_dir_all)).and_then(|()| {
             let mut file = std::fs::File::options()
                 .create(true)
@@ -236,17 +250,15 @@ impl Children {
                 .collect::<Vec<_>>()
                 .join(" ");
             writeln!(file, "=== {} epoch {epoch}: {command}", role.as_str())?;
-            Ok(file)
+            Ok(Stdio::from(file))
         });
         opened.with_context(|| format!("opening the log {}", path.display()))
     }
 
-    /// `logs/<role>.log` beside the scenario file.
-    fn log_path(&self, role: Role) -> std::path::PathBuf {
-        (self.scenario_file.parent())
-            .unwrap_or(Path::new("."))
-            .join(LOG_DIR)
-            .join(format!("{}.log", role.as_str()))
+    /// The log of `role`, with logs.
+    pub fn log_path(&self, role: Role) -> Option<std::path::PathBuf> {
+        let dir = self.log_dir.as_ref()?;
+        Some(dir.join(format!("{}.log", role.as_str())))
     }
 
     /// The publishers the outputs of the process of `role` and `epoch` are pinned to on

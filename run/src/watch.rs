@@ -98,7 +98,10 @@ pub fn topic_rates(
         .collect();
     let mut counts = vec![0u64; taps.len()];
     let started = Instant::now();
-    while started.elapsed() < over && !stop.load(Ordering::Relaxed) {
+    while started.elapsed() < over
+        && !stop.load(Ordering::Relaxed)
+        && ipc::is_registered(&info.iceoryx2_prefix)
+    {
         for ((_, tap), count) in taps.iter().zip(&mut counts) {
             tap.take(&mut |_, _| *count += 1)?;
         }
@@ -144,7 +147,8 @@ pub fn echo(
             if failed.is_some() || count.is_some_and(|n| printed >= n) {
                 return;
             }
-            let mut line = decode(&types, declared.message, bytes).unwrap_or(Value::Null);
+            let mut line = (decode(&types, declared.message, bytes))
+                .unwrap_or_else(|| json!({ "undecoded_bytes": bytes.len() }));
             if let Value::Object(fields) = &mut line {
                 fields.insert("topic".into(), json!(topic));
             }
@@ -161,7 +165,9 @@ pub fn echo(
             };
         }
         tap.clear_wakeups();
-        if !ipc::process_alive(info.orchestrator_pid) {
+        // The run unregisters as it ends, and waits for its watchers to leave.
+        if !ipc::is_registered(&info.iceoryx2_prefix) || !ipc::process_alive(info.orchestrator_pid)
+        {
             break;
         }
         ipc::wait(&waitset, Duration::from_millis(100))?;

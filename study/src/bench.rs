@@ -27,6 +27,7 @@ pub mod targets;
 use anyhow::{Context, anyhow};
 use iceoryx2::prelude::*;
 use iceoryx2::service::ipc::Service as IpcService;
+use protocol::Validated;
 use record::{Percentiles, Summary};
 use run::multiproc;
 use run::sinks::Recording;
@@ -390,24 +391,7 @@ pub fn run(
     )?;
     run::stop::check(stop)?;
     phase.begin("the paper in real time, the cores kept awake");
-    let awake = {
-        let _awake = run::awake::AwakeCores::start().context("keeping the cores awake")?;
-        let raw = raw_ping_pong(stop)?;
-        let run = realtime_run("realtime-awake")?;
-        let hops = run
-            .processes
-            .as_ref()
-            .ok_or_else(|| anyhow!("the real-time run reported no processes"))?;
-        AwakeReport {
-            raw_iceoryx2_one_way_us: raw,
-            pipeline_hop_us: hops.hop_latency_us,
-            hop_ratio_p50: hops.hop_latency_us.p50 / raw.p50.max(1e-9),
-            sensor_to_actuator_us: hops.loop_latency_us,
-            solve_us: run.solve_us,
-            realtime_step_ratio_p50: run.solve_us.p50 / hot.solve_us.p50.max(1e-9),
-            realtime_deadline_misses: run.deadline_misses,
-        }
-    };
+    let awake = awake_cores(&scenario, &out.join("realtime-awake"), &hot, stop)?;
     phase.begin("the paper in lockstep, with run.mcap and without");
     let lockstep = lockstep_pairs(&paper, &out.join("lockstep"), stop)?;
     phase.begin("the cross-host hop against raw Zenoh");
@@ -454,6 +438,32 @@ pub fn run(
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(report)
+}
+
+/// The real-time paper run of `scenario` into `dir` and the raw ping-pong with every core
+/// kept awake, against the in-process run `hot`.
+fn awake_cores(
+    scenario: &Validated,
+    dir: &Path,
+    hot: &Summary,
+    stop: &AtomicBool,
+) -> anyhow::Result<AwakeReport> {
+    let _awake = run::awake::AwakeCores::start().context("keeping the cores awake")?;
+    let raw = raw_ping_pong(stop)?;
+    let run = local_run(scenario, dir, RunMode::Realtime, false, stop)?;
+    let hops = run
+        .processes
+        .as_ref()
+        .ok_or_else(|| anyhow!("the real-time run reported no processes"))?;
+    Ok(AwakeReport {
+        raw_iceoryx2_one_way_us: raw,
+        pipeline_hop_us: hops.hop_latency_us,
+        hop_ratio_p50: hops.hop_latency_us.p50 / raw.p50.max(1e-9),
+        sensor_to_actuator_us: hops.loop_latency_us,
+        solve_us: run.solve_us,
+        realtime_step_ratio_p50: run.solve_us.p50 / hot.solve_us.p50.max(1e-9),
+        realtime_deadline_misses: run.deadline_misses,
+    })
 }
 
 /// The bench's progress on stderr: a line as each phase begins, with the time taken and,

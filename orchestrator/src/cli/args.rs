@@ -112,7 +112,8 @@ pub enum Command {
         #[arg(default_value = "paper", help = scenario_help("A built-in scenario"))]
         name: String,
     },
-    /// List the runs going on on this machine: pid, clock, scenario, run directory.
+    /// List the multi-process runs going on on this machine: pid, clock, scenario, run
+    /// directory.
     Ps,
     /// List the data topics of a running run with their rates (as `ros2 topic list`).
     ///

@@ -122,10 +122,7 @@ fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
             run::watch::echo(&run_dir, &topic, count, &stop, &mut out).map_err(bad_input)?;
             Ok(())
         }
-        Command::Keys { filter } => {
-            keys(filter.as_deref());
-            Ok(())
-        }
+        Command::Keys { filter } => keys(filter.as_deref()),
         Command::Bench {
             out,
             realtime_s,
@@ -294,10 +291,16 @@ fn topics(dir: &std::path::Path, seconds: f64) -> CliResult {
 }
 
 /// `scmpc keys`: every scenario key with `filter` in it, as a table.
-fn keys(filter: Option<&str>) {
+fn keys(filter: Option<&str>) -> CliResult {
     let keys: Vec<_> = (protocol::scenario::keys::catalogue().into_iter())
         .filter(|k| filter.is_none_or(|f| k.key.contains(f)))
         .collect();
+    if keys.is_empty() {
+        return Err(bad_input(format!(
+            "no scenario key contains `{}` (`scmpc keys` lists them all)",
+            filter.unwrap_or_default()
+        )));
+    }
     let width = |column: fn(&protocol::scenario::keys::KeyDoc) -> &str| {
         keys.iter()
             .map(|k| column(k).chars().count())
@@ -316,12 +319,13 @@ fn keys(filter: Option<&str>) {
             k.key, k.kind, k.unit, k.default, k.meaning
         );
     }
+    Ok(())
 }
 
 fn figures(out: Option<PathBuf>) -> CliResult {
     let out = out.unwrap_or_else(|| record::run_dir::default_run_dir("figures"));
-    eprintln!("drawing the paper's figures into {}", out.display());
     let stop = run::stop::on_signals();
+    eprintln!("drawing the paper's figures into {}", out.display());
     let set = study::figures::paper_set(&out, cores(), &stop)?;
     println!("horizon  linear p50 / p99 (µs)   nonlinear p50 / p99 (µs)");
     for s in &set.solve_times {
@@ -467,8 +471,8 @@ fn graph_schema() -> serde_json::Value {
     serde_json::json!({ "topics": topics, "roles": roles })
 }
 
-/// The log's filter: `-v`/`-q` if given, else `RUST_LOG` (or `SCMPC_LOG`, its older name),
-/// else warnings (the libraries' own chatter off).
+/// The log's filter: `-v`/`-q` if given, else `SCMPC_LOG`, else `RUST_LOG`, else warnings
+/// (the libraries' own chatter off).
 fn init_logging(verbosity: Verbosity) {
     use tracing_subscriber::EnvFilter;
     let flags = match (verbosity.quiet, verbosity.verbose) {
@@ -479,8 +483,8 @@ fn init_logging(verbosity: Verbosity) {
     };
     let filter = match flags {
         Some(flags) => EnvFilter::new(flags),
-        None => (EnvFilter::try_from_env("RUST_LOG"))
-            .or_else(|_| EnvFilter::try_from_env("SCMPC_LOG"))
+        None => (EnvFilter::try_from_env("SCMPC_LOG"))
+            .or_else(|_| EnvFilter::try_from_env("RUST_LOG"))
             .unwrap_or_else(|_| "warn,zenoh=error,foxglove=off".into()),
     };
     let _ = tracing_subscriber::fmt()

@@ -131,17 +131,20 @@ impl Scenario {
 fn missing_key(doc: &toml::Value, key: &str) -> String {
     let parts: Vec<&str> = key.split('.').collect();
     for end in 1..parts.len() {
-        let mut prefix_doc = doc.clone();
         let prefix = parts[..end].join(".");
-        if let (Some(toml::Value::Array(list)), Ok(index)) = (
-            lookup_mut(&mut prefix_doc, &prefix),
-            parts[end].parse::<usize>(),
-        ) && index >= list.len()
+        if let (Some(toml::Value::Array(list)), Ok(index)) =
+            (lookup(doc, &prefix), parts[end].parse::<usize>())
+            && index >= list.len()
         {
+            let of_tables =
+                (keys::catalogue().iter()).any(|k| k.key.starts_with(&format!("{prefix}.<i>.")));
             return match list.len() {
-                0 => format!(
+                0 if of_tables => format!(
                     "`{prefix}` is empty in this scenario (a file adds one as `[[{prefix}]]`)"
                 ),
+                0 => {
+                    format!("`{prefix}` is empty in this scenario (set it whole: `{prefix}=[...]`)")
+                }
                 1 => format!("`{prefix}` has 1 entry, `{prefix}.0`"),
                 n => format!(
                     "`{prefix}` has {n} entries, `{prefix}.0` to `{prefix}.{}`",
@@ -174,8 +177,18 @@ fn unknown_key(key: &str) -> String {
 /// the key takes ([`keys::KeyDoc::kind`]). A message of the scenario's own types (a goal's
 /// length, a priority's words) is already in words and kept.
 fn in_words(key: &str, value: Option<&str>, message: &str) -> String {
-    if message.starts_with("unknown field") {
-        return unknown_key(key);
+    // `unknown field `radus`, expected one of ...`: the field may be inside `key` (an
+    // inline table, a list of them).
+    if let Some(field) = (message.strip_prefix("unknown field `")).and_then(|r| r.split('`').next())
+    {
+        return match key {
+            key if key == field || key.ends_with(&format!(".{field}")) => unknown_key(key),
+            "" => format!("`{field}`: {}", unknown_key(field)),
+            key => format!(
+                "`{field}` in it: {}",
+                unknown_key(&format!("{key}.{field}"))
+            ),
+        };
     }
     const SERDE_WORDING: [&str; 5] = [
         "invalid type",
@@ -242,7 +255,8 @@ fn key_at(text: &str, offset: usize) -> (String, usize) {
     let line_no = text[..offset.min(text.len())].matches('\n').count();
     let mut table = String::new();
     let mut array_counts: Vec<(String, usize)> = Vec::new();
-    for line in text.lines().take(line_no) {
+    // The line itself too: a table header names its own table.
+    for line in text.lines().take(line_no + 1) {
         let l = line.trim();
         if let Some(name) = l.strip_prefix("[[").and_then(|r| r.split("]]").next()) {
             let name = name.trim().to_string();
@@ -272,6 +286,15 @@ fn key_at(text: &str, offset: usize) -> (String, usize) {
 }
 
 /// The value at a dotted path (`a.b.0.c`), if it exists.
+fn lookup<'v>(doc: &'v toml::Value, key: &str) -> Option<&'v toml::Value> {
+    key.split('.').try_fold(doc, |node, part| match node {
+        toml::Value::Table(t) => t.get(part),
+        toml::Value::Array(a) => part.parse::<usize>().ok().and_then(|i| a.get(i)),
+        _ => None,
+    })
+}
+
+/// The value at a dotted path (`a.b.0.c`), if it exists, to change it.
 fn lookup_mut<'v>(doc: &'v mut toml::Value, key: &str) -> Option<&'v mut toml::Value> {
     key.split('.').try_fold(doc, |node, part| match node {
         toml::Value::Table(t) => t.get_mut(part),

@@ -42,21 +42,42 @@ pub fn find(catalogue: &[KeyDoc], key: &str) -> Option<usize> {
         .position(|doc| matches_pattern(&doc.key, key))
 }
 
-/// Up to three keys nearest to the unknown `key` (indices kept as written), nearest first.
+/// Up to three keys nearest to the unknown `key`, nearest first: keys and sections
+/// (`mpc`) spelled alike (list indices aside), and keys of the same name in another
+/// section. A key with an index keeps it (`obstacles.2.radius`).
 pub fn nearest(catalogue: &[KeyDoc], key: &str) -> Vec<String> {
     let parts: Vec<&str> = key.split('.').collect();
-    let last = parts.last().copied().unwrap_or("");
-    let mut scored: Vec<(f64, String)> = catalogue
-        .iter()
-        .filter_map(|doc| {
-            let same_name = doc.key.rsplit('.').next() == Some(last);
-            let candidate = instantiate(&doc.key, &parts);
-            let score = strsim::normalized_levenshtein(&candidate, key);
-            (same_name || score >= 0.7).then_some((if same_name { 1.0 } else { score }, candidate))
+    let typed = without_indices(key);
+    let last = typed.rsplit('.').next().unwrap_or("");
+    let mut sections: Vec<&str> = (catalogue.iter())
+        .filter_map(|doc| doc.key.split_once('.').map(|(section, _)| section))
+        .collect();
+    sections.dedup();
+    let candidates = (catalogue.iter().map(|doc| doc.key.as_str())).chain(sections);
+    let mut scored: Vec<(f64, String)> = candidates
+        .filter_map(|pattern| {
+            let plain = without_indices(pattern);
+            let same_name = plain.contains('.') && plain.rsplit('.').next() == Some(last);
+            let score = strsim::normalized_levenshtein(&plain, &typed);
+            let shown = if pattern.split('.').count() == parts.len() {
+                instantiate(pattern, &parts)
+            } else {
+                pattern.to_string()
+            };
+            (same_name || score >= 0.7).then_some((if same_name { 1.0 } else { score }, shown))
         })
         .collect();
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    scored.dedup_by(|a, b| a.1 == b.1);
     scored.into_iter().take(3).map(|(_, key)| key).collect()
+}
+
+/// A key without its list indices and name placeholders (`obstacles.radius`).
+fn without_indices(key: &str) -> String {
+    (key.split('.'))
+        .filter(|p| p.parse::<usize>().is_err() && !p.starts_with('<'))
+        .collect::<Vec<_>>()
+        .join(".")
 }
 
 /// The unit a key's name ends in.
@@ -336,6 +357,8 @@ mod tests {
         assert_eq!(nearest(&keys, "obstacles.2.radus")[0], "obstacles.2.radius");
         assert!(nearest(&keys, "mpc.zeta_threshold").contains(&"dfl.zeta_threshold".into()));
         assert!(nearest(&keys, "completely.different").is_empty());
+        assert_eq!(nearest(&keys, "mpcc")[0], "mpc");
+        assert_eq!(nearest(&keys, "obstacles.radus")[0], "obstacles.<i>.radius");
     }
 
     #[test]

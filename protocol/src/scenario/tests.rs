@@ -51,6 +51,30 @@ fn an_unknown_key_names_the_key_meant_in_a_file_and_in_set() {
 }
 
 #[test]
+fn an_unknown_section_or_a_field_inside_a_value_is_named_with_the_key_meant() {
+    let e =
+        Scenario::from_toml("[mpc]\nhorizon = 8\n[mpcc]\ngamma = 0.2\n", "my.toml").unwrap_err();
+    assert_eq!(e.0[0].key, "mpcc");
+    assert!(
+        e.0[0]
+            .message
+            .starts_with("unknown key; did you mean `mpc`"),
+        "{}",
+        e.0[0].message
+    );
+    let e = Scenario::default()
+        .with_overrides(&["obstacles=[{x=1, y=2, radus=1}]".into()])
+        .unwrap_err();
+    assert!(
+        e.0[0]
+            .message
+            .contains("`radus` in it: unknown key; did you mean `obstacles.<i>.radius`"),
+        "{}",
+        e.0[0].message
+    );
+}
+
+#[test]
 fn an_index_past_the_list_says_how_many_there_are() {
     let e = Scenario::default()
         .with_overrides(&["obstacles.5.radius=1".into(), "swap.0.role=mpc".into()])

@@ -25,8 +25,11 @@ pub(super) fn graph_text(tokens: &[String], domain_id: u32, awaited: &Awaited) -
     text += "the router knows of these liveliness tokens:";
     let mut domain = None;
     for token in tokens {
-        let this = token.split('/').nth(1);
-        if this != domain {
+        // rmw_zenoh's tokens by domain; a bridge's (`@/<zid>/@ros2_lv/...`) as they come.
+        let this = token
+            .strip_prefix("@ros2_lv/")
+            .and_then(|t| t.split('/').next());
+        if this.is_some() && this != domain {
             domain = this;
             let run = if this == Some(&domain_id.to_string()) {
                 " (this run's)"
@@ -60,12 +63,19 @@ fn graph_hint(tokens: &[String], domain_id: u32, awaited: &Awaited) -> Option<St
             awaited.topic
         ));
     }
+    if found(&|(d, t)| *d == domain_id && t == awaited.topic).is_some() {
+        return Some(format!(
+            "a robot announces `{}` on `{}`, but nothing it sent arrived: its type hash \
+             differs (is `ros2.distro` the robot's?)",
+            awaited.message.name(),
+            awaited.topic
+        ));
+    }
     if let Some((_, topic)) = found(&|(d, _)| *d == domain_id) {
         return Some(format!(
-            "the robot publishes its `{}` on `{topic}`: set `{} = \"{}\"`",
+            "the robot publishes its `{}` on `{topic}`: set `{} = \"{topic}\"`",
             awaited.message.name(),
             awaited.key,
-            topic.trim_start_matches('/')
         ));
     }
     let (domain, topic) = found(&|_| true)?;

@@ -323,6 +323,15 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
+        let log = self.parts.children.log_path(role);
+        tracing::warn!(
+            "the {} process (epoch {epoch}) died: {status}{}",
+            role.as_str(),
+            log.map_or(String::new(), |p| format!(
+                "; its stderr is in {}",
+                p.display()
+            ))
+        );
         self.parts.recorder.event(Event::Crashed {
             role,
             epoch,

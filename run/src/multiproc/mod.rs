@@ -242,7 +242,8 @@ fn drive(
         session.control.publisher_id(),
         robot_env(scenario, &hosts.security),
         remote,
-    )?;
+    )?
+    .with_logs(&out.join(crate::children::LOG_DIR));
     children.spawn_all(scenario.roles())?;
     let mut report = spawned_report(prefix, &children, recorder)?;
     // Real time: the orchestrator's recording at its tier, below every role, for as long as

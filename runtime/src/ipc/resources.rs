@@ -54,12 +54,35 @@ pub fn role_of_node(name: &str) -> Option<(protocol::Role, u32)> {
     Some((protocol::Role::from_name(role)?, epoch.parse().ok()?))
 }
 
-/// Removes a finished run: its resources ([`remove_run_resources`]) and then its entry in
-/// the registry of running runs.
+/// How long a finished run waits for the nodes of tools watching it (`scmpc echo`) to
+/// leave before its resources are removed: they look every 100 ms.
+const WATCHERS_GRACE: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Removes a finished run: its entry in the registry of running runs first (a tool
+/// watching the run sees it end and leaves, [`is_registered`]), then, once every node has
+/// left (at most [`WATCHERS_GRACE`]), its resources ([`remove_run_resources`]). If they
+/// cannot be removed the entry is put back, for the next run to clean up.
 pub fn remove_run(prefix: &str) -> Result<(), IpcError> {
-    remove_run_resources(prefix)?;
+    let entry = std::fs::read(run_registry().join(prefix)).ok();
     unregister_run(prefix);
-    Ok(())
+    let deadline = std::time::Instant::now() + WATCHERS_GRACE;
+    while node_pids(prefix).is_ok_and(|pids| !pids.is_empty())
+        && std::time::Instant::now() < deadline
+    {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let removed = remove_run_resources(prefix);
+    if removed.is_err()
+        && let Some(entry) = entry
+    {
+        let _ = std::fs::write(run_registry().join(prefix), entry);
+    }
+    removed
+}
+
+/// Whether run `prefix` is registered: going on, or ended without its resources removed.
+pub fn is_registered(prefix: &str) -> bool {
+    run_registry().join(prefix).exists()
 }
 
 /// Removes every resource of a finished run: dead nodes' leftovers and, once no node of

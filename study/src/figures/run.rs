@@ -254,6 +254,10 @@ fn scan_dots(scenario: &Scenario, robot: &Trajectory) -> Option<Series> {
 fn clearance_figure(scenario: &Scenario, t: &Trajectory) -> Figure {
     let n = scenario.obstacles.len();
     let (nearest, title) = match n {
+        0 => (
+            "any obstacle".to_string(),
+            "clearance (no obstacle)".to_string(),
+        ),
         1 => (
             "the obstacle's surface".to_string(),
             "clearance to the obstacle".to_string(),
