@@ -125,7 +125,7 @@ pub fn run(
         pace: crate::pace::Pace::of(scenario, recording),
     };
     let result = drive(scenario, out, clock, prefix, hosts, stop, &mut recorder);
-    if let Err(e) = ipc::remove_run(prefix) {
+    if let Err(e) = ipc::end_run(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
     let (outcome, mut report) = result?;

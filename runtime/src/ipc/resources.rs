@@ -58,11 +58,19 @@ pub fn role_of_node(name: &str) -> Option<(protocol::Role, u32)> {
 /// leave before its resources are removed: they look every 100 ms.
 const WATCHERS_GRACE: std::time::Duration = std::time::Duration::from_secs(1);
 
-/// Removes a finished run: its entry in the registry of running runs first (a tool
-/// watching the run sees it end and leaves, [`is_registered`]), then, once every node has
-/// left (at most [`WATCHERS_GRACE`]), its resources ([`remove_run_resources`]). If they
-/// cannot be removed the entry is put back, for the next run to clean up.
+/// Removes a finished run: its resources ([`remove_run_resources`]) and then its entry in
+/// the registry of running runs.
 pub fn remove_run(prefix: &str) -> Result<(), IpcError> {
+    remove_run_resources(prefix)?;
+    unregister_run(prefix);
+    Ok(())
+}
+
+/// Ends the run its orchestrator ran: its entry in the registry of running runs first (a
+/// tool watching the run sees it end and leaves, [`is_registered`]), then, once every
+/// node has left (at most [`WATCHERS_GRACE`]), its resources ([`remove_run_resources`]).
+/// If they cannot be removed the entry is put back, for the next run to clean up.
+pub fn end_run(prefix: &str) -> Result<(), IpcError> {
     let entry = std::fs::read(run_registry().join(prefix)).ok();
     unregister_run(prefix);
     let deadline = std::time::Instant::now() + WATCHERS_GRACE;
