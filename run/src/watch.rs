@@ -206,17 +206,12 @@ fn value_of(types: &[TypeLayout], ty: &str, bytes: &[u8]) -> Option<Value> {
             .collect::<Option<Vec<Value>>>()
             .map(Value::Array);
     }
-    let number = |n: usize| -> Option<[u8; 16]> {
-        let mut raw = [0u8; 16];
-        raw.get_mut(..n)?.copy_from_slice(bytes.get(..n)?);
-        Some(raw)
-    };
     Some(match ty {
-        "f64" => json!(f64::from_ne_bytes(number(8)?[..8].try_into().ok()?)),
-        "f32" => json!(f32::from_ne_bytes(number(4)?[..4].try_into().ok()?)),
-        "u64" => json!(u64::from_ne_bytes(number(8)?[..8].try_into().ok()?)),
-        "u32" => json!(u32::from_ne_bytes(number(4)?[..4].try_into().ok()?)),
-        "u128" => json!(u128::from_ne_bytes(number(16)?).to_string()),
+        "f64" => json!(f64::from_ne_bytes(bytes.try_into().ok()?)),
+        "f32" => json!(f32::from_ne_bytes(bytes.try_into().ok()?)),
+        "u64" => json!(u64::from_ne_bytes(bytes.try_into().ok()?)),
+        "u32" => json!(u32::from_ne_bytes(bytes.try_into().ok()?)),
+        "u128" => json!(u128::from_ne_bytes(bytes.try_into().ok()?).to_string()),
         nested => decode(types, nested, bytes)?,
     })
 }

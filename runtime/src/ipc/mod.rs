@@ -142,13 +142,8 @@ pub fn open_topic<T: Wire>(
     robot: u32,
     name: &'static str,
 ) -> Result<Topic<T>, IpcError> {
-    open_service(
-        node,
-        &protocol::topics::service_name(robot, name),
-        name,
-        robot,
-        true,
-    )
+    let service = protocol::topics::service_name(robot, name);
+    open_service(node, &service, name, robot, true)
 }
 
 /// Opens topic `name` of robot `robot`'s pipeline if the run has it, never creating it:
@@ -158,13 +153,8 @@ pub fn open_existing_topic<T: Wire>(
     robot: u32,
     name: &'static str,
 ) -> Result<Topic<T>, IpcError> {
-    open_service(
-        node,
-        &protocol::topics::service_name(robot, name),
-        name,
-        robot,
-        false,
-    )
+    let service = protocol::topics::service_name(robot, name);
+    open_service(node, &service, name, robot, false)
 }
 
 /// Opens (or creates) topic `name` of the run itself (one of [`RUN_TOPICS`]), carrying
