@@ -74,11 +74,12 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
         assert_eq!(sched["memory_locked"], true, "{process}");
     }
     // Every tick without a command, brake from silence or deadline miss falls in a stall of
-    // the machine itself (one within the tick or the 4 before it: the DFL's silence of 3
-    // ticks and one more), or the policy failed. Plans flown shifted (a successor late by
-    // 4 ms) are counted, not judged: with the policy, a fresh-clone CI run at aaf19bc had two
-    // outside every stall these watches saw, which see a stall shorter than 10 ms only by
-    // chance. (Without the policy, beside the same load: 5 and 89 in two runs.)
+    // the machine itself seen on a CPU the run was on (or the two ticks after it), and those
+    // are at most 1 % of the run's ticks, or the policy failed. A brake from silence is
+    // judged at the first of the 3 silent ticks before it. Plans flown shifted (a successor
+    // late by 4 ms) are counted, not judged: with the policy, a fresh-clone CI run at
+    // aaf19bc had two outside every stall these watches saw, which see a stall shorter than
+    // 10 ms only by chance. (Without the policy, beside the same load: 5 and 89 in two runs.)
     let events = common::events(dir.path());
     let mut faults = stalls::faults(&events);
     // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
@@ -86,16 +87,12 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
         if row["mode"] == "brake" {
             faults.push(stalls::Fault {
                 what: "brake from silence",
-                tick: (common::num(&row, "t") / 0.005).round() as u64,
+                tick: ((common::num(&row, "t") / 0.005).round() as u64).saturating_sub(3),
                 detail: String::new(),
             });
         }
     }
-    let unexplained = seen.unexplained(&events, &faults);
-    assert!(
-        unexplained.is_empty(),
-        "not in a stall of the machine: {unexplained:?} ({seen:?})"
-    );
+    seen.assert_judged(&events, &faults);
     eprintln!(
         "{} faults, each in a stall of the machine; {} plans flown shifted",
         faults.len(),
@@ -251,4 +248,88 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
         "flagged samples differ from the delayed ones"
     );
     assert_eq!(summary(dir.path())["deadline_misses"], 20);
+}
+
+/// The judge of a real-time run's faults ([`stalls::Seen::judge`]) on a run of 2000 ticks
+/// whose tick 0 was at 1 s, with CPU 0 the run's only CPU throughout.
+mod judge {
+    use super::stalls::{Fault, Seen, Stall};
+
+    const TICK0_NS: u64 = 1_000_000_000;
+    const DT_NS: u64 = 5_000_000;
+
+    fn events() -> Vec<serde_json::Value> {
+        vec![
+            serde_json::json!({"event": "clock_started", "tick0_monotonic_ns": TICK0_NS}),
+            serde_json::json!({"event": "end", "t": 10.0, "outcome": "timeout"}),
+        ]
+    }
+
+    fn gap(tick: u64) -> Fault {
+        Fault {
+            what: "tick without a command",
+            tick,
+            detail: String::new(),
+        }
+    }
+
+    /// Stalls on `cpu` over the ticks `from..to`, with the run on CPU 0 at every 20 ms.
+    fn seen(stalls: &[(usize, u64, u64)]) -> Seen {
+        Seen {
+            stalls: stalls
+                .iter()
+                .map(|&(cpu, from, to)| Stall {
+                    cpu,
+                    from: TICK0_NS + from * DT_NS,
+                    to: TICK0_NS + to * DT_NS,
+                })
+                .collect(),
+            run_cpus: (0..600).map(|i| (i * 20_000_000, 1)).collect(),
+        }
+    }
+
+    #[test]
+    fn a_run_without_faults_excuses_no_tick() {
+        let excused = seen(&[(0, 100, 104)]).judge(&events(), &[]).unwrap();
+        assert_eq!((excused.ticks, excused.excused_ticks), (2000, 0));
+        assert_eq!(excused.stalls, 1);
+    }
+
+    #[test]
+    fn a_fault_inside_a_stall_or_the_two_ticks_after_it_is_excused() {
+        let faults = [gap(100), gap(103), gap(104)];
+        let excused = seen(&[(0, 100, 103)]).judge(&events(), &faults).unwrap();
+        assert_eq!(excused.excused_ticks, 3);
+    }
+
+    #[test]
+    fn a_fault_outside_every_stall_fails_naming_its_tick() {
+        let why = seen(&[(0, 100, 103)])
+            .judge(&events(), &[gap(101), gap(106)])
+            .unwrap_err();
+        assert!(why.contains("1 of 2 faults"), "{why}");
+        assert!(why.contains("tick: 106"), "{why}");
+        assert!(!why.contains("tick: 101"), "{why}");
+    }
+
+    #[test]
+    fn a_stall_on_a_cpu_the_run_was_not_on_excuses_nothing() {
+        let why = seen(&[(1, 100, 103)])
+            .judge(&events(), &[gap(101)])
+            .unwrap_err();
+        assert!(why.contains("tick: 101"), "{why}");
+        assert_eq!(seen(&[(1, 100, 103)]).on_the_runs_cpus(), Vec::new());
+    }
+
+    #[test]
+    fn excusing_more_than_one_percent_of_the_ticks_fails_as_too_busy_to_judge() {
+        let within: Vec<Fault> = (100..120).map(gap).collect();
+        assert!(seen(&[(0, 100, 130)]).judge(&events(), &within).is_ok());
+        let beyond: Vec<Fault> = (100..121).map(gap).collect();
+        let why = seen(&[(0, 100, 130)])
+            .judge(&events(), &beyond)
+            .unwrap_err();
+        assert!(why.contains("too busy to judge"), "{why}");
+        assert!(why.contains("21 of its 2000 ticks (1.05 %)"), "{why}");
+    }
 }
