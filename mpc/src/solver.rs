@@ -3,7 +3,7 @@
 
 use crate::assembly::{Assembly, csc_with_positions};
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{SolverStatus, SupportedConeT};
+use clarabel::solver::{DefaultInfo, SolverStatus, SupportedConeT};
 use protocol::PlanStatus;
 use protocol::task::Cancel;
 use std::cell::RefCell;
@@ -219,10 +219,14 @@ impl ConicSolver {
             );
             solver.ok().map(|mut solver| {
                 use clarabel::solver::IPSolver;
-                let cancel = OnTheSolvingThread(self.cancel.clone());
-                solver.set_termination_callback(move |_| cancel.cancelled());
+                // One iteration runs every part of a solve (and allocates what it
+                // needs): the build's solve stops there, a program of the MPC's dozens
+                // built at setup costs a factorization, not a whole solve.
+                solver.set_termination_callback(|info: &DefaultInfo<f64>| info.iterations >= 1);
                 solver.timers = Some(timers_kept_between_solves());
                 solver.solve();
+                let cancel = OnTheSolvingThread(self.cancel.clone());
+                solver.set_termination_callback(move |_| cancel.cancelled());
                 solver
             })
         };
