@@ -336,6 +336,8 @@ impl Task for DflTask {
     /// clock when the estimator has been silent for [`SILENT_TICKS`] ticks (then every
     /// tick until estimates come again): the plant must not hold the last command. Never
     /// in lockstep, where time waits for the estimates.
+    // Never inlined: tests/instructions.rs counts this step's instructions by its name.
+    #[inline(never)]
     fn step(&mut self, context: &impl Context) -> Option<Publish<DflOutput>> {
         let (actuation, verdict) = match self.command_next(context) {
             Some(command) => command,

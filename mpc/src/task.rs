@@ -135,6 +135,8 @@ impl Task for MpcTask {
 
     /// The next plan, if a boundary estimate is waiting and what it needs has come; the
     /// plan's `injected_delay_ns` (`fault.mpc_delay_*`) is how long it is held.
+    // Never inlined: tests/instructions.rs counts this step's instructions by its name.
+    #[inline(never)]
     fn step(&mut self, context: &impl Context) -> Option<Publish<Plan>> {
         let (sample, estimate, latency_ns) = self.samples.oldest(context)?;
         let route_due = self.follows_route

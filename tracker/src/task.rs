@@ -140,6 +140,8 @@ impl Task for TrackerTask {
 
     /// The tracks after the oldest perception tick waiting (measured, or predicted to it
     /// when its sample is in `fault.tracker_drop_samples`), held `fault.tracker_delay_ms`.
+    // Never inlined: tests/instructions.rs counts this step's instructions by its name.
+    #[inline(never)]
     fn step(&mut self, context: &impl Context) -> Option<Publish<Tracks>> {
         let &(tick, time_s) = self.pending.front()?;
         let dropped = (self.faults.tracker_drop_samples).contains(tick / self.ticks_per_sample);
