@@ -82,30 +82,30 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             2.0,
         ),
         (
+            "recording share of lockstep",
+            number(&["lockstep_recording_share"]),
+            0.05,
+        ),
+        (
             "hop with a live client / without (p99)",
             number(&["live_hop_us", "p99"]) / number(&["pipeline_hop_us", "p99"]),
             1.2,
         ),
     ] {
+        // Each target judges the number it names (the verdict's formula is
+        // `study::bench::targets`'s, tested there).
         let t = judged(name);
         assert!(
             (t["measured"].as_f64().unwrap() - measured).abs() < 1e-9,
             "{t}"
         );
         assert_eq!(t["bound"].as_f64(), Some(bound), "{t}");
-        let at_most = t["at_most"].as_bool().unwrap();
-        let met = if at_most {
-            measured <= bound
-        } else {
-            measured >= bound
-        };
-        assert_eq!(t["met"].as_bool(), Some(met), "{t}");
+        assert!(t["met"].is_boolean(), "{t}");
     }
     assert!(judged("peak RSS of the mpc, unlocked (MiB)")["met"].is_boolean());
     assert!(table.contains("targets (docs/performance.md)"), "{table}");
-    // The lockstep runs alternate with and without run.mcap; target: the recording at most
-    // 5 % of the wall time, measured 4 to 9 % (docs/performance.md), so asserted where a
-    // recording that got ten times dearer fails.
+    // The lockstep runs alternate with and without run.mcap (the recording's share of the
+    // wall time is a target of the report).
     let lockstep = dir.path().join("lockstep");
     assert!(lockstep.join("with-mcap-0/run.mcap").is_file());
     assert!(!lockstep.join("without-mcap-0/run.mcap").exists());

@@ -65,12 +65,29 @@ fn a_hundred_random_worlds_without_noise_and_a_hundred_with_never_collide_while_
         let (_dir, code, rows) = fuzz(100, seed, &[noise]);
         assert_eq!(collisions(&rows), Vec::<&str>::new(), "{noise}");
         assert_eq!(code, Some(0), "{noise}");
-        // A robot never touches an obstacle while it moves; a person walking into a robot
-        // at rest (half the worlds have people on the way) is counted apart, and a world
-        // without such a contact keeps clear throughout.
-        for row in rows.iter().filter(|r| num(r, "contacts_at_rest") == 0.0) {
-            assert!(num(row, "min_clearance_m") > 0.0, "{noise}: {row:?}");
+        // Every world is judged: the robot never touches an obstacle while it moves (no
+        // `collided`, above), keeps clear of every obstacle at rest, and a person walking
+        // into it at rest (half the worlds have people on the way) is counted apart, in
+        // at most 1 % of the worlds (issue 59).
+        for row in &rows {
+            let clearance = &row["min_static_clearance_m"];
+            assert!(
+                clearance.is_empty() || num(row, "min_static_clearance_m") > 0.0,
+                "{noise}: {row:?}"
+            );
+            if num(row, "contacts_at_rest") == 0.0 {
+                assert!(num(row, "min_clearance_m") > 0.0, "{noise}: {row:?}");
+            }
         }
+        let at_rest = rows
+            .iter()
+            .filter(|r| num(r, "contacts_at_rest") > 0.0)
+            .count();
+        assert!(
+            at_rest <= rows.len() / 100,
+            "{noise}: {at_rest} of {} worlds with a contact at rest",
+            rows.len()
+        );
         let moving = rows.iter().filter(|r| num(r, "moving") > 0.0).count();
         assert!(
             (30..=70).contains(&moving),

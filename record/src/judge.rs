@@ -179,6 +179,9 @@ pub struct Judge {
     pub min_clearance_m: f64,
     /// Least clearance to an obstacle that moves at some time, m (infinite without one).
     pub min_moving_clearance_m: f64,
+    /// Least clearance to an obstacle that never moves, m (infinite without one): no
+    /// person walking into a robot at rest lowers it.
+    pub min_static_clearance_m: f64,
     /// Contacts the robot made while it moved (the run ends at the first: `collided`).
     pub contacts_moving: u64,
     /// Contacts a moving obstacle made with the robot at rest (the run goes on).
@@ -225,6 +228,7 @@ impl Judge {
             window: VecDeque::new(),
             min_clearance_m: f64::INFINITY,
             min_moving_clearance_m: f64::INFINITY,
+            min_static_clearance_m: f64::INFINITY,
             contacts_moving: 0,
             contacts_at_rest: 0,
             contact: None,
@@ -355,11 +359,18 @@ impl Judge {
     pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
         let clearance = self.clearance(t_s, x, y);
         self.min_clearance_m = self.min_clearance_m.min(clearance);
-        let moving = self.obstacles.iter().filter(|o| o.moves());
-        let moving_clearance = moving
-            .map(|o| clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]))
-            .fold(f64::INFINITY, f64::min);
+        let (mut moving_clearance, mut static_clearance) = (f64::INFINITY, f64::INFINITY);
+        for o in &self.obstacles {
+            let c = clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]);
+            let least = if o.moves() {
+                &mut moving_clearance
+            } else {
+                &mut static_clearance
+            };
+            *least = least.min(c);
+        }
         self.min_moving_clearance_m = self.min_moving_clearance_m.min(moving_clearance);
+        self.min_static_clearance_m = self.min_static_clearance_m.min(static_clearance);
         self.last_time_s = t_s;
         if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
             self.deviation_time_s = Some(t_s);
@@ -669,8 +680,10 @@ mod tests {
 
     #[test]
     fn a_moving_obstacle_is_judged_where_it_is_and_a_contact_at_rest_is_counted_apart() {
-        // A person of radius 0.3 m walking along y = 5 at 1 m/s from x = -3.
+        // A person of radius 0.3 m walking along y = 5 at 1 m/s from x = -3, and a box at
+        // rest 2 m from the robot's edge.
         let mut s = Scenario::default();
+        s.obstacles.push(Obstacle::fixed(0.0, 7.5, 0.5));
         s.obstacles.push(Obstacle {
             velocity: [1.0, 0.0],
             ..Obstacle::fixed(-3.0, 5.0, 0.3)
@@ -691,6 +704,13 @@ mod tests {
         }
         assert_eq!((m.contacts_at_rest, m.contacts_moving), (1, 0));
         assert!(m.min_moving_clearance_m < -0.2 && m.min_clearance_m < -0.2);
+        // The box at rest was never touched: its clearance is the box's alone.
+        let mut only_the_box = Scenario::default();
+        only_the_box.obstacles.push(s.obstacles[0].clone());
+        let mut b = Judge::new(&only_the_box);
+        assert_eq!(b.observe(2.0, 0.0, 5.0), None);
+        assert!(b.min_clearance_m > 1.5);
+        assert_eq!(m.min_static_clearance_m, b.min_clearance_m);
         // A robot driving into the same person: a collision.
         let mut m = Judge::new(&s);
         assert_eq!(m.tick(&truth(2.8, 0.1), &moving(-0.5)), None);

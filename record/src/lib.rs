@@ -377,6 +377,10 @@ impl Recorder {
                 .min_moving_clearance_m
                 .is_finite()
                 .then_some(m.min_moving_clearance_m),
+            min_static_clearance_m: m
+                .min_static_clearance_m
+                .is_finite()
+                .then_some(m.min_static_clearance_m),
             contacts_moving: m.contacts_moving,
             contacts_at_rest: m.contacts_at_rest,
             deviation_time_s: m.deviation_time_s,

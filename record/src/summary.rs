@@ -74,6 +74,8 @@ pub struct Summary {
     pub min_clearance_m: f64,
     /// Smallest distance to an obstacle that moves, m (`null` without one).
     pub min_moving_clearance_m: Option<f64>,
+    /// Smallest distance to an obstacle that never moves, m (`null` without one).
+    pub min_static_clearance_m: Option<f64>,
     /// Contacts the robot made while it moved (a run ends `collided` at the first).
     pub contacts_moving: u64,
     /// Contacts a moving obstacle made with the robot at rest (the run goes on).

@@ -549,7 +549,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fuzz.csv"))?);
     writeln!(
         f,
-        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,final_distance_m,time_to_goal_s,within_0_2_m_s,largest_distance_after_m,time_to_rest_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,false_tracks,missed_obstacles,file"
+        "world,obstacles,moving,ts_s,horizon,gamma,v_max,noise_variance,disturbance_std,max_wheel_speed_rad_s,robot_radius_m,zeta0,start_distance_m,outcome,stall_reason,min_clearance_m,min_static_clearance_m,final_distance_m,time_to_goal_s,within_0_2_m_s,largest_distance_after_m,time_to_rest_s,safety_interventions,solver_failures,deadline_misses,contacts_at_rest,false_tracks,missed_obstacles,file"
     )?;
     for (world, result) in report.worlds.iter().zip(&report.results) {
         let s = &world.scenario;
@@ -582,10 +582,12 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
         match result {
             Ok(r) => writeln!(
                 f,
-                "{params},{},{},{:.6},{:.3},{},{},{},{},{},{},{},{},{},{},{file}",
+                "{params},{},{},{:.6},{},{:.3},{},{},{},{},{},{},{},{},{},{},{file}",
                 r.outcome.as_str(),
                 r.stall_reason.map_or("", |reason| reason.as_str()),
                 r.min_clearance_m,
+                r.min_static_clearance_m
+                    .map_or(String::new(), |v| format!("{v:.6}")),
                 r.final_distance_to_goal_m,
                 opt(r.time_to_goal_s),
                 opt(r.arrival.map(|a| a.within_0_2_m_s)),
@@ -602,7 +604,7 @@ fn write_csv(report: &Report, out: &Path) -> anyhow::Result<()> {
             )?,
             Err(e) => writeln!(
                 f,
-                "{params},error: {},,,,,,,,,,,,,,{file}",
+                "{params},error: {},,,,,,,,,,,,,,,{file}",
                 format!("{e:#}").replace(',', ";")
             )?,
         }
