@@ -120,54 +120,33 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
     );
     // The real-time MPC's warm-up before each sample (a dry step, then its state put
     // back), in both programs: the robot follows each plan's first state, off by a drift.
-    // Whole, and cut short as the estimate's arrival cuts it (the cancel check holds from
-    // its `k % 9`-th call on: anywhere in the rehearsal, or at once).
-    for (qp_form, cut_short) in [
-        ("sparse", false),
-        ("condensed", false),
-        ("sparse", true),
-        ("condensed", true),
-    ] {
-        use std::cell::Cell;
-        use std::rc::Rc;
+    // Whole, then cut short as the estimate's arrival cuts it: the cancel check holds from
+    // its `k % fewest`-th call on, `fewest` the fewest checks a whole rehearsal made, so
+    // that every cut falls inside its rehearsal (anywhere, or at once).
+    for qp_form in ["sparse", "condensed"] {
         let scenario = scenario(&[&format!("mpc.qp_form={qp_form}")]);
-        let mut mpc = mpc::Mpc::new(&scenario).unwrap();
-        let [x, y, theta] = scenario.robot.start;
-        let mut x_bar = [x, y, theta, scenario.robot.zeta0];
-        let mut counted = 0;
-        let (checks, cut_at) = (Rc::new(Cell::new(0u64)), Rc::new(Cell::new(u64::MAX)));
-        let cancel: protocol::task::Cancel = {
-            let (checks, cut_at) = (checks.clone(), cut_at.clone());
-            Rc::new(move || {
-                checks.set(checks.get() + 1);
-                checks.get() > cut_at.get()
-            })
-        };
-        let mut most_checks = 0;
-        for k in 0..300 {
-            checks.set(0);
-            cut_at.set(if cut_short { k % 9 } else { u64::MAX });
-            let (plan, a) = allocations(|| {
-                mpc.warm_up(u64::MAX, &cancel);
-                mpc.step(k, x_bar, 0.01)
-            });
-            if k >= 20 {
-                counted += a;
-            }
-            most_checks = most_checks.max(checks.get());
-            let drift = 0.003 * (k as f64).sin();
-            x_bar = protocol::phi_inverse(plan.z[1], x_bar[2]);
-            x_bar[0] += drift;
-        }
-        assert_eq!(
-            counted, 0,
-            "{qp_form} (cut short: {cut_short}): allocations in warm-ups and steps after 20"
-        );
-        // A whole rehearsal asks at least 9 times: every cut falls inside one.
+        let whole = rehearse(&scenario, |_| u64::MAX);
+        assert_eq!(whole.allocations, 0, "{qp_form}: whole warm-ups and steps");
+        let fewest = *whole.checks.iter().min().unwrap();
         assert!(
-            cut_short || most_checks >= 9,
-            "{qp_form}: {most_checks} checks"
+            fewest >= 2,
+            "{qp_form}: a whole rehearsal asked {fewest} times"
         );
+        let cut = rehearse(&scenario, |k| k % fewest);
+        assert_eq!(
+            cut.allocations, 0,
+            "{qp_form}: warm-ups cut short and steps"
+        );
+        // Each rehearsal was cut where it says: asked once past its cut (the answer that
+        // cut it) and stopped, asking at most twice more (the solver's callback, the
+        // refinement's check) before the step.
+        for (k, &checks) in (20..).zip(&cut.checks) {
+            let cut_at = k % fewest;
+            assert!(
+                (cut_at + 1..=cut_at + 3).contains(&checks),
+                "{qp_form}: sample {k} cut at check {cut_at} asked {checks} times"
+            );
+        }
     }
     // Every fallback: failed solves (the cold retry, then the shifted plan and braking),
     // late plans, and the gatekeeper refusing the plans of an MPC that ignores obstacles
@@ -199,4 +178,51 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "{overrides:?}: allocations after warm-up by role code"
         );
     }
+}
+
+/// What [`rehearse`] saw after the first 20 samples.
+struct Rehearsals {
+    /// Allocations in the warm-ups and steps.
+    allocations: u64,
+    /// How often each warm-up and step asked whether to stop.
+    checks: Vec<u64>,
+}
+
+/// Steps the MPC of `scenario` 300 times, each step after a warm-up (`Mpc::warm_up`)
+/// whose cancel check holds from its `cut_at(k)`-th call on; the robot follows each plan's
+/// first state, off by a drift.
+fn rehearse(scenario: &protocol::Validated, cut_at: impl Fn(u64) -> u64) -> Rehearsals {
+    use std::cell::Cell;
+    use std::rc::Rc;
+    let mut mpc = mpc::Mpc::new(scenario).unwrap();
+    let [x, y, theta] = scenario.robot.start;
+    let mut x_bar = [x, y, theta, scenario.robot.zeta0];
+    let (checks, cut) = (Rc::new(Cell::new(0u64)), Rc::new(Cell::new(u64::MAX)));
+    let cancel: protocol::task::Cancel = {
+        let (checks, cut) = (checks.clone(), cut.clone());
+        Rc::new(move || {
+            checks.set(checks.get() + 1);
+            checks.get() > cut.get()
+        })
+    };
+    let mut seen = Rehearsals {
+        allocations: 0,
+        checks: Vec::new(),
+    };
+    for k in 0..300 {
+        checks.set(0);
+        cut.set(cut_at(k));
+        let (plan, a) = allocations(|| {
+            mpc.warm_up(u64::MAX, &cancel);
+            mpc.step(k, x_bar, 0.01)
+        });
+        if k >= 20 {
+            seen.allocations += a;
+            seen.checks.push(checks.get());
+        }
+        let drift = 0.003 * (k as f64).sin();
+        x_bar = protocol::phi_inverse(plan.z[1], x_bar[2]);
+        x_bar[0] += drift;
+    }
+    seen
 }
