@@ -134,3 +134,52 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
     assert!(number(&["live_messages"]) > 0.0);
     assert!(table.contains("hop, live client"), "{table}");
 }
+
+#[test]
+fn scmpc_bench_load_runs_each_condition_beside_its_load_and_gives_the_verdict() {
+    let _machine = common::machine_alone();
+    let (dir, out) =
+        run_into_tempdir(&["bench", "--load", "2", "--runs", "1", "--realtime-s", "2"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let text = std::fs::read_to_string(dir.path().join("bench.json")).unwrap();
+    let bench: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(bench["load"], 2, "{text}");
+    let runs = bench["runs"].as_array().unwrap();
+    let conditions: Vec<(&str, u64, &str)> = runs
+        .iter()
+        .map(|r| {
+            let field = |k: &str| r[k].as_str().unwrap();
+            (
+                field("condition"),
+                r["load"].as_u64().unwrap(),
+                field("priority"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        conditions,
+        [
+            ("idle", 0, "off"),
+            ("loaded", 2, "off"),
+            ("loaded, policy", 2, "auto")
+        ],
+        "{text}"
+    );
+    for r in runs {
+        assert!(r["hop_us"]["p99"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(
+            r["sensor_to_actuator_us"]["p50"].as_f64().unwrap() > 0.0,
+            "{r}"
+        );
+    }
+    assert!(bench["idle_hop_p99_us"].as_f64().unwrap() > 0.0);
+    assert!(bench["policy_holds"].is_boolean(), "{text}");
+    // No load process outlives the bench.
+    let burners = std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|p| std::fs::read(p.path().join("cmdline")).ok())
+        .filter(|c| c.split(|&b| b == 0).any(|arg| arg == b"bench-burn"))
+        .count();
+    assert_eq!(burners, 0, "bench-burn processes left running");
+}

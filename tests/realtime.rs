@@ -250,6 +250,41 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
     assert_eq!(summary(dir.path())["deadline_misses"], 20);
 }
 
+#[test]
+fn a_run_pinned_with_realtime_cpus_runs_every_process_on_that_cpu_and_misses_no_tick() {
+    let machine = common::machine_alone();
+    let cpu = *runtime::realtime::allowed_cpus().unwrap().last().unwrap();
+    let pin = format!("realtime.cpus=[{cpu}]");
+    let (dir, out) = run_into_tempdir(&[
+        "run",
+        "--mode",
+        "realtime",
+        "--no-mcap",
+        "--set",
+        "duration_s=3",
+        "--set",
+        &pin,
+    ]);
+    let seen = machine.stalls.seen();
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    let s = summary(dir.path());
+    assert_eq!(s["ticks"], 600, "{s}");
+    let processes = s["scheduling"].as_object().unwrap();
+    assert_eq!(processes.len(), 5, "{s}");
+    for (process, sched) in processes {
+        assert_eq!(sched["cpus"], cpu.to_string(), "{process}: {sched}");
+    }
+    // The watcher saw the run on that CPU (stalls of another count for nothing), and
+    // every fault falls in a stall there.
+    assert!(
+        seen.run_cpus
+            .iter()
+            .any(|&(_, cpus)| cpus & (1 << cpu) != 0)
+    );
+    let events = common::events(dir.path());
+    seen.assert_judged(&events, &stalls::faults(&events));
+}
+
 /// The judge of a real-time run's faults ([`stalls::Seen::judge`]) on a run of 2000 ticks
 /// whose tick 0 was at 1 s, with CPU 0 the run's only CPU throughout.
 mod judge {

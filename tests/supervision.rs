@@ -732,7 +732,7 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
 
 #[test]
 fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick_brakes_to_rest() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let run = |delay_ms: &str| {
         let dir = tempfile::tempdir().unwrap();
         let delay = format!("fault.estimator_delay_ms={delay_ms}");
@@ -748,25 +748,37 @@ fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick
             dir.path().to_str().unwrap(),
         ]);
         assert!(out.status.code().is_some());
-        summary(dir.path())
+        let s = summary(dir.path());
+        (dir, s)
     };
-    // 2 ms of a 5 ms tick: every command 2 ms later, none missing but for the odd tick a
-    // virtual machine's late wake-up costs (CI, 2026-11-26, a slow hour: 2 ticks of 600
-    // without an estimate), at most 1 % of the ticks. 6 ms must go without in more than
-    // ten times that many (512 of 600 in a direct run).
-    let hiccups = 6;
-    let s = run("2");
+    // 2 ms of a 5 ms tick: every command 2 ms later, and no tick without an estimate,
+    // record gap or deadline miss but in a stall of the machine the watcher saw (at most
+    // 1 % of the ticks: `stalls::Seen::judge`). (Before issue 59 up to 6 of each were
+    // allowed unwatched: CI, 2026-11-26, a slow hour, had 2 ticks of 600 without an
+    // estimate.) 6 ms must go without in more than 10 % of the ticks (512 of 600 in a
+    // direct run).
+    let (dir, s) = run("2");
     let loop_us = s["loop_latency_us"]["p50"].as_f64().unwrap();
     assert!(
         (2000.0..5000.0).contains(&loop_us),
         "sensor to actuator {loop_us} us"
     );
-    for count in ["ticks_without_estimate", "record_gaps", "deadline_misses"] {
-        let n = s[count].as_u64().unwrap();
-        assert!(n <= hiccups, "{count}: {n}");
+    let events = common::events(dir.path());
+    let mut faults = common::stalls::faults(&events);
+    // (A tick commanded without an estimate is recorded with an estimate of NaN.)
+    for row in common::csv(&dir.path().join("trajectory.csv")) {
+        if row["x_hat"] == "NaN" {
+            faults.push(common::stalls::Fault {
+                what: "tick without an estimate",
+                tick: (common::num(&row, "t") / 0.005).round() as u64,
+                detail: String::new(),
+            });
+        }
     }
+    machine.stalls.seen().assert_judged(&events, &faults);
+    let hiccups = s["ticks"].as_u64().unwrap() / 100;
     // 6 ms: the estimates fall behind the clock, and the DFL brakes on its own clock.
-    let s = run("6");
+    let (_dir, s) = run("6");
     let without = s["ticks_without_estimate"].as_u64().unwrap();
     assert!(
         without > 10 * hiccups,
