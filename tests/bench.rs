@@ -82,6 +82,21 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             2.0,
         ),
         (
+            "MPC step growth N = 8 → 30, 12 obstacles (p50)",
+            number(&["scaling_growth_p50", "12"]),
+            5.0,
+        ),
+        (
+            "MPC step growth N = 8 → 30, 20 obstacles (p50)",
+            number(&["scaling_growth_p50", "20"]),
+            5.0,
+        ),
+        (
+            "MPC step of field, N = 30 (p99, µs)",
+            number(&["field_n30_step_us", "p99"]),
+            1000.0,
+        ),
+        (
             "recording share of lockstep",
             number(&["lockstep_recording_share"]),
             0.05,

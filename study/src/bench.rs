@@ -105,6 +105,10 @@ pub struct BenchReport {
     pub cross_host: cross_host::CrossHost,
     /// The MPC step for every horizon and obstacle count of [`scaling`].
     pub scaling: Vec<scaling::ScalingPoint>,
+    /// Its p50's growth from `N` = 8 to 30 by obstacle count ([`scaling::growth`]).
+    pub scaling_growth_p50: std::collections::BTreeMap<usize, f64>,
+    /// The MPC step of the built-in `field` at `N` = 30, µs ([`scaling::field_n30`]).
+    pub field_n30_step_us: Percentiles,
     /// The MPC step with five moving obstacles and with the five frozen.
     pub moving_obstacles: scaling::MovingCost,
     /// The real-time run served live to a client ([`live`]).
@@ -397,8 +401,9 @@ pub fn run(
     phase.begin("the cross-host hop against raw Zenoh");
     let cross_host = cross_host::measure(&out.join("cross_host"), &scenario, stop)?;
     run::stop::check(stop)?;
-    phase.begin("the MPC step by horizon and obstacle count");
+    phase.begin("the MPC step by horizon and obstacle count, and field at N = 30");
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
+    let field_n30_step_us = scaling::field_n30(&out.join("field-n30"), stop)?;
     phase.begin("the cost of moving obstacles");
     let moving_obstacles = scaling::moving_cost(&out.join("moving"), stop)?;
     let processes = realtime
@@ -428,6 +433,10 @@ pub fn run(
             .map(|n| (n, route_planning_us(n, PLANNING_FIELDS)))
             .collect(),
         cross_host,
+        scaling_growth_p50: (scaling::OBSTACLES.iter())
+            .filter_map(|&n| Some((n, scaling::growth(&scaling, n)?)))
+            .collect(),
+        field_n30_step_us,
         scaling,
         moving_obstacles,
         live,
@@ -641,6 +650,12 @@ impl BenchReport {
             c.link_round_trip_us,
             c.cross_host_deadline_misses
         ) + &scaling::table(&self.scaling)
+            + &format!(
+                "  field, N = 30        p50 {:.0}, p99 {:.0}, max {:.0} µs\n",
+                self.field_n30_step_us.p50,
+                self.field_n30_step_us.p99,
+                self.field_n30_step_us.max
+            )
             + &format!(
                 "  MPC step, 5 moving / 5 frozen  p50 {:.0} / {:.0} µs ({:.2}×)\n",
                 self.moving_obstacles.moving_step_us.p50,

@@ -127,13 +127,35 @@ fn figure(points: &[ScalingPoint]) -> Figure {
     }
 }
 
-/// The table as `scmpc bench` prints it.
+/// How many times the step's p50 grows from the shortest horizon of [`HORIZONS`] to the
+/// longest with `obstacles` obstacles (linear in `N` would be 30 / 8 = 3.75).
+pub fn growth(points: &[ScalingPoint], obstacles: usize) -> Option<f64> {
+    let p50 = |horizon| {
+        points
+            .iter()
+            .find(|p| p.horizon == horizon && p.obstacles == obstacles)
+            .map(|p| p.step_us.p50)
+    };
+    Some(p50(HORIZONS[HORIZONS.len() - 1])? / p50(HORIZONS[0])?.max(1e-9))
+}
+
+/// The step of the built-in `field` (13 discs along a planned route) at `N` = 30, in
+/// process, the whole run.
+pub fn field_n30(out: &Path, stop: &AtomicBool) -> anyhow::Result<Percentiles> {
+    let field = run::scenarios::load(Some("field"), &["mpc.horizon=30".to_owned()])
+        .map_err(|e| anyhow!("{e}"))?;
+    let summary = run::inprocess::run(&field, out, Recording::files(false), stop)?;
+    run::stop::check(stop)?;
+    Ok(summary.solve_us)
+}
+
+/// The table as `scmpc bench` prints it, with each obstacle count's [`growth`].
 pub fn table(points: &[ScalingPoint]) -> String {
     let mut out = String::from("  MPC step p50 / p99 (µs)");
     for n in HORIZONS {
         out += &format!("{:>20}", format!("N = {n}"));
     }
-    out.push('\n');
+    out += "   growth of p50\n";
     for obstacles in OBSTACLES {
         out += &format!("  {obstacles:>2} obstacles            ");
         for horizon in HORIZONS {
@@ -145,7 +167,8 @@ pub fn table(points: &[ScalingPoint]) -> String {
                 });
             out += &format!("{cell:>20}");
         }
-        out.push('\n');
+        let grown = growth(points, obstacles).map_or(String::from("-"), |g| format!("{g:.1}×"));
+        out += &format!("{grown:>18}\n");
     }
     out
 }

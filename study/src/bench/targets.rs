@@ -46,6 +46,11 @@ pub const RECORDING_SHARE: f64 = 0.05;
 pub const MOVING_STEP_RATIO: f64 = 2.0;
 /// The pipeline's hop with a live client reading over the same without a live view (p99).
 pub const LIVE_HOP_RATIO: f64 = 1.2;
+/// The MPC step's p50 growth from `N` = 8 to 30 with 12 and with 20 obstacles (linear in
+/// `N`: 3.75).
+pub const STEP_GROWTH: f64 = 5.0;
+/// The MPC step's p99 at `N` = 30 with 12 obstacles, and `field`'s at `N` = 30, µs.
+pub const STEP_N30_P99_US: f64 = 1000.0;
 
 /// The targets of docs/performance.md as `report` measured them.
 pub fn judge(report: &BenchReport) -> Vec<Target> {
@@ -87,6 +92,27 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             LIVE_HOP_RATIO,
         ),
     ];
+    for obstacles in [12, 20] {
+        targets.push(Target::new(
+            format!("MPC step growth N = 8 → 30, {obstacles} obstacles (p50)"),
+            report.scaling_growth_p50.get(&obstacles).copied().unwrap_or(f64::NAN),
+            true,
+            STEP_GROWTH,
+        ));
+    }
+    let n30 = (report.scaling.iter()).find(|p| p.horizon == 30 && p.obstacles == 12);
+    targets.push(Target::new(
+        "MPC step N = 30, 12 obstacles (p99, µs)",
+        n30.map_or(f64::NAN, |p| p.step_us.p99),
+        true,
+        STEP_N30_P99_US,
+    ));
+    targets.push(Target::new(
+        "MPC step of field, N = 30 (p99, µs)",
+        report.field_n30_step_us.p99,
+        true,
+        STEP_N30_P99_US,
+    ));
     // Judged where memory is not locked: locked, every process holds the whole executable
     // resident (docs/performance.md, "Real time under load").
     // The orchestrator is not a role process: it holds the whole record of the run.
