@@ -357,8 +357,6 @@ impl Judge {
     /// (a collision, a stall, or the robot held at its goal, within the goal tolerance
     /// and, with a goal heading, the yaw tolerance).
     pub fn observe(&mut self, t_s: f64, x: f64, y: f64) -> Option<Outcome> {
-        let clearance = self.clearance(t_s, x, y);
-        self.min_clearance_m = self.min_clearance_m.min(clearance);
         let (mut moving_clearance, mut static_clearance) = (f64::INFINITY, f64::INFINITY);
         for o in &self.obstacles {
             let c = clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]);
@@ -371,6 +369,8 @@ impl Judge {
         }
         self.min_moving_clearance_m = self.min_moving_clearance_m.min(moving_clearance);
         self.min_static_clearance_m = self.min_static_clearance_m.min(static_clearance);
+        let clearance = moving_clearance.min(static_clearance);
+        self.min_clearance_m = self.min_clearance_m.min(clearance);
         self.last_time_s = t_s;
         if self.deviation_time_s.is_none() && self.off_line(x, y) > DEVIATION_M {
             self.deviation_time_s = Some(t_s);
