@@ -652,9 +652,7 @@ impl BenchReport {
         ) + &scaling::table(&self.scaling)
             + &format!(
                 "  field, N = 30        p50 {:.0}, p99 {:.0}, max {:.0} µs\n",
-                self.field_n30_step_us.p50,
-                self.field_n30_step_us.p99,
-                self.field_n30_step_us.max
+                self.field_n30_step_us.p50, self.field_n30_step_us.p99, self.field_n30_step_us.max
             )
             + &format!(
                 "  MPC step, 5 moving / 5 frozen  p50 {:.0} / {:.0} µs ({:.2}×)\n",

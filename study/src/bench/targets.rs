@@ -95,7 +95,11 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
     for obstacles in [12, 20] {
         targets.push(Target::new(
             format!("MPC step growth N = 8 → 30, {obstacles} obstacles (p50)"),
-            report.scaling_growth_p50.get(&obstacles).copied().unwrap_or(f64::NAN),
+            report
+                .scaling_growth_p50
+                .get(&obstacles)
+                .copied()
+                .unwrap_or(f64::NAN),
             true,
             STEP_GROWTH,
         ));
