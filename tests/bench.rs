@@ -194,7 +194,7 @@ fn scmpc_bench_load_runs_each_condition_beside_its_load_and_gives_the_verdict() 
         .unwrap()
         .flatten()
         .filter_map(|p| std::fs::read(p.path().join("cmdline")).ok())
-        .filter(|c| c.split(|&b| b == 0).any(|arg| arg == b"bench-burn"))
+        .filter(|c| common::stalls::is_load(c))
         .count();
     assert_eq!(burners, 0, "bench-burn processes left running");
 }

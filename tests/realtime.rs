@@ -85,11 +85,12 @@ fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_t
     // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
     for row in common::csv(&dir.path().join("trajectory.csv")) {
         if row["mode"] == "brake" {
-            faults.push(stalls::Fault {
-                what: "brake from silence",
-                tick: ((common::num(&row, "t") / 0.005).round() as u64).saturating_sub(3),
-                detail: String::new(),
-            });
+            let tick = (common::num(&row, "t") / 0.005).round() as u64;
+            faults.push(stalls::Fault::at(
+                "brake from silence",
+                tick.saturating_sub(3),
+                String::new(),
+            ));
         }
     }
     seen.assert_judged(&events, &faults);
@@ -274,14 +275,17 @@ fn a_run_pinned_with_realtime_cpus_runs_every_process_on_that_cpu_and_misses_no_
     for (process, sched) in processes {
         assert_eq!(sched["cpus"], cpu.to_string(), "{process}: {sched}");
     }
-    // The watcher saw the run on that CPU (stalls of another count for nothing), and
-    // every fault falls in a stall there.
-    assert!(
-        seen.run_cpus
-            .iter()
-            .any(|&(_, cpus)| cpus & (1 << cpu) != 0)
-    );
+    // The watcher saw the run on that CPU alone while it ran (stalls of another count for
+    // nothing), and every fault falls in a stall there.
     let events = common::events(dir.path());
+    let tick0_ns = stalls::tick0_ns(&events);
+    let end_ns = tick0_ns + stalls::run_ticks(&events) * 5_000_000;
+    let running: Vec<u64> = (seen.run_cpus.iter())
+        .filter(|&&(at, cpus)| (tick0_ns..end_ns).contains(&at) && cpus != 0)
+        .map(|&(_, cpus)| cpus)
+        .collect();
+    assert!(!running.is_empty(), "the run was never seen");
+    assert!(running.iter().all(|&cpus| cpus == 1 << cpu), "{running:?}");
     seen.assert_judged(&events, &stalls::faults(&events));
 }
 
@@ -301,11 +305,7 @@ mod judge {
     }
 
     fn gap(tick: u64) -> Fault {
-        Fault {
-            what: "tick without a command",
-            tick,
-            detail: String::new(),
-        }
+        Fault::at("tick without a command", tick, String::new())
     }
 
     /// Stalls on `cpu` over the ticks `from..to`, with the run on CPU 0 at every 20 ms.
@@ -345,6 +345,29 @@ mod judge {
         assert!(why.contains("1 of 2 faults"), "{why}");
         assert!(why.contains("tick: 106"), "{why}");
         assert!(!why.contains("tick: 101"), "{why}");
+        // The edges: the tick before the stall, and the third tick after it.
+        for tick in [99, 105] {
+            let why = seen(&[(0, 100, 103)])
+                .judge(&events(), &[gap(tick)])
+                .unwrap_err();
+            assert!(why.contains(&format!("tick: {tick}")), "{why}");
+        }
+    }
+
+    #[test]
+    fn a_deadline_miss_is_excused_by_a_stall_anywhere_in_its_sample() {
+        let miss = |sample: u64| Fault {
+            what: "deadline miss",
+            tick: 10 * sample,
+            ticks: 10,
+            detail: String::new(),
+        };
+        assert!(seen(&[(0, 107, 108)]).judge(&events(), &[miss(10)]).is_ok());
+        assert!(
+            seen(&[(0, 111, 112)])
+                .judge(&events(), &[miss(10)])
+                .is_err()
+        );
     }
 
     #[test]

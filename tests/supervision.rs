@@ -768,11 +768,12 @@ fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick
     // (A tick commanded without an estimate is recorded with an estimate of NaN.)
     for row in common::csv(&dir.path().join("trajectory.csv")) {
         if row["x_hat"] == "NaN" {
-            faults.push(common::stalls::Fault {
-                what: "tick without an estimate",
-                tick: (common::num(&row, "t") / 0.005).round() as u64,
-                detail: String::new(),
-            });
+            let tick = (common::num(&row, "t") / 0.005).round() as u64;
+            faults.push(common::stalls::Fault::at(
+                "tick without an estimate",
+                tick,
+                String::new(),
+            ));
         }
     }
     machine.stalls.seen().assert_judged(&events, &faults);

@@ -186,9 +186,9 @@ impl ConicSolver {
     }
 
     /// Builds the solver (and its careful twin) for the pattern of `assembly` (kept
-    /// from then on) and solves once, so that clarabel's bookkeeping is in place before
-    /// the next solve ([`timers_kept_between_solves`]). False if clarabel refuses the
-    /// data.
+    /// from then on) and runs one interior-point iteration of a solve, so that clarabel's
+    /// bookkeeping is in place before the next solve ([`timers_kept_between_solves`]).
+    /// False if clarabel refuses the data.
     pub fn build(
         &mut self,
         assembly: &Assembly,
@@ -221,7 +221,8 @@ impl ConicSolver {
                 use clarabel::solver::IPSolver;
                 // One iteration runs every part of a solve (and allocates what it
                 // needs): the build's solve stops there, a program of the MPC's dozens
-                // built at setup costs a factorization, not a whole solve.
+                // built at setup costs two factorizations (the starting point's and the
+                // iteration's), not a whole solve's.
                 solver.set_termination_callback(|info: &DefaultInfo<f64>| info.iterations >= 1);
                 solver.timers = Some(timers_kept_between_solves());
                 solver.solve();

@@ -5,10 +5,11 @@
 //! and no priority in the guest beats that (docs/limitations.md). A real-time test watches
 //! for such stalls while its run lasts ([`Stalls::watch`]) and excuses a fault of the run
 //! (a tick without a command, a deadline miss) only inside one it saw on a CPU the run was
-//! on, and only up to [`MAX_EXCUSED_SHARE`] of the run's ticks ([`Seen::judge`]). What each
-//! test excused is appended to [`excuses_file`], whose summary `.ci/run` prints.
+//! on or the two ticks after it, and only up to [`MAX_EXCUSED_SHARE`] of the run's ticks
+//! ([`Seen::judge`]). What each test excused is appended to [`excuses_file`], whose summary
+//! `.ci/run` prints.
 
-use std::collections::HashMap;
+use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -98,12 +99,26 @@ impl Drop for Stalls {
     }
 }
 
-/// A fault of a real-time run: what it was and its tick, with what the record says of it.
+/// A fault of a real-time run: what it was, the ticks it may have arisen in (`ticks` from
+/// `tick` on), and what the record says of it.
 #[derive(Debug)]
 pub struct Fault {
     pub what: &'static str,
     pub tick: u64,
+    pub ticks: u64,
     pub detail: String,
+}
+
+impl Fault {
+    /// A fault of one tick.
+    pub fn at(what: &'static str, tick: u64, detail: String) -> Fault {
+        Fault {
+            what,
+            tick,
+            ticks: 1,
+            detail,
+        }
+    }
 }
 
 /// What a test excused of its run.
@@ -133,17 +148,18 @@ impl Seen {
             .iter()
             .filter(|s| {
                 self.run_cpus.iter().any(|&(at, cpus)| {
-                    at + POLL_NS >= s.from && at <= s.to + POLL_NS && cpus & (1 << s.cpu) != 0
+                    at + POLL_NS >= s.from && at <= s.to + POLL_NS && cpus & cpu_bit(s.cpu) != 0
                 })
             })
             .copied()
             .collect()
     }
 
-    /// Whether a fault at the tick due at `at` (monotonic ns) falls inside `stall` or the
-    /// two ticks after it.
-    fn excuses(stall: &Stall, at: u64) -> bool {
-        stall.from < at + DT_NS && at < stall.to + 2 * DT_NS
+    /// Whether `fault` of a run whose tick 0 was at `tick0_ns` (monotonic) falls inside
+    /// `stall` or the two ticks after it: its ticks overlap them.
+    fn excuses(stall: &Stall, tick0_ns: u64, fault: &Fault) -> bool {
+        let at = tick0_ns + fault.tick * DT_NS;
+        stall.from < at + fault.ticks * DT_NS && at < stall.to + 2 * DT_NS
     }
 
     /// Judges the `faults` of the run of `events` (real time, from its `clock_started`
@@ -156,10 +172,7 @@ impl Seen {
         let stalls = self.on_the_runs_cpus();
         let outside: Vec<&Fault> = faults
             .iter()
-            .filter(|f| {
-                let at = tick0_ns + f.tick * DT_NS;
-                !stalls.iter().any(|s| Self::excuses(s, at))
-            })
+            .filter(|f| !stalls.iter().any(|s| Self::excuses(s, tick0_ns, f)))
             .collect();
         let mut excused_ticks: Vec<u64> = faults.iter().map(|f| f.tick).collect();
         excused_ticks.sort_unstable();
@@ -171,6 +184,13 @@ impl Seen {
             stalls: stalls.len(),
             stalls_elsewhere: self.stalls.len() - stalls.len(),
         };
+        if !outside.is_empty() && self.run_cpus.iter().all(|&(_, cpus)| cpus == 0) {
+            return Err(format!(
+                "{} faults, and the run was never seen on a CPU (no process descended from \
+                 the test's, or no /proc/PID/task/TID/children): {outside:?}",
+                faults.len()
+            ));
+        }
         if !outside.is_empty() {
             return Err(format!(
                 "{} of {} faults not in a stall of the machine on the run's CPUs: {outside:?} \
@@ -260,20 +280,22 @@ pub fn run_ticks(events: &[serde_json::Value]) -> u64 {
 }
 
 /// The record gaps (ticks without a command, with the topics whose sample never came) and
-/// deadline misses (at their sample's first tick) of the run of `events`.
+/// deadline misses (over their sample's 10 ticks: a stall anywhere in the sample makes its
+/// plan late) of the run of `events`.
 pub fn faults(events: &[serde_json::Value]) -> Vec<Fault> {
     let tick = |e: &serde_json::Value, key: &str| e[key].as_u64().expect("a tick");
     events
         .iter()
         .filter_map(|e| match e["event"].as_str() {
-            Some("record_gap") => Some(Fault {
-                what: "tick without a command",
-                tick: tick(e, "tick"),
-                detail: format!("missing {}", e["missing"]),
-            }),
+            Some("record_gap") => Some(Fault::at(
+                "tick without a command",
+                tick(e, "tick"),
+                format!("missing {}", e["missing"]),
+            )),
             Some("deadline_miss") => Some(Fault {
                 what: "deadline miss",
                 tick: 10 * tick(e, "sample"),
+                ticks: 10,
                 detail: e.to_string(),
             }),
             _ => None,
@@ -289,14 +311,14 @@ fn lock(seen: &Mutex<Seen>) -> std::sync::MutexGuard<'_, Seen> {
 /// the CPUs the run's threads were last on.
 fn watch_steal_and_run(stop: &AtomicBool, seen: &Mutex<Seen>) {
     let mut before = steal_jiffies();
-    let mut is_run = HashMap::new();
+    let mut loads = HashSet::new();
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(std::time::Duration::from_nanos(POLL_NS));
         let now = steal_jiffies();
         let at = runtime::clock::monotonic_ns();
-        let cpus = run_cpus(&mut is_run);
+        let cpus = run_cpus(&mut loads);
         let mut seen = lock(seen);
-        for (cpu, (was, is)) in before.iter().zip(&now).enumerate() {
+        for (&(cpu, was), &(_, is)) in before.iter().zip(&now) {
             if was != is {
                 seen.stalls.push(Stall {
                     cpu,
@@ -310,34 +332,46 @@ fn watch_steal_and_run(stop: &AtomicBool, seen: &Mutex<Seen>) {
     }
 }
 
-/// Each CPU's steal time so far, jiffies (the 8th value of its `cpuN` line).
-fn steal_jiffies() -> Vec<u64> {
+/// Each CPU's steal time so far, jiffies (the 8th value of its `cpuN` line), by `N`.
+fn steal_jiffies() -> Vec<(usize, u64)> {
     std::fs::read_to_string("/proc/stat")
         .expect("/proc/stat")
         .lines()
-        .filter(|l| l.starts_with("cpu") && !l.starts_with("cpu "))
-        .map(|l| {
-            l.split_whitespace()
-                .nth(8)
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(0)
+        .filter_map(|l| {
+            let mut fields = l.split_whitespace();
+            let cpu = fields.next()?.strip_prefix("cpu")?.parse().ok()?;
+            Some((cpu, fields.nth(7).and_then(|v| v.parse().ok()).unwrap_or(0)))
         })
         .collect()
 }
 
+/// The bit of `cpu` in a mask of CPUs (none past 63).
+fn cpu_bit(cpu: usize) -> u64 {
+    1u64.checked_shl(cpu as u32).unwrap_or(0)
+}
+
+/// Whether a command line (`/proc/PID/cmdline`) is a `bench-burn` load's.
+pub fn is_load(cmdline: &[u8]) -> bool {
+    cmdline.split(|&b| b == 0).any(|arg| arg == b"bench-burn")
+}
+
 /// The CPUs (a bit mask) every thread of the run's processes was last on: the processes
-/// descended from this one, but a `bench-burn` load (`is_run` remembers each pid's answer).
-fn run_cpus(is_run: &mut HashMap<u32, bool>) -> u64 {
+/// descended from this one, but a `bench-burn` load (`loads` remembers the pids found to be
+/// one; any other is asked again, since a child between fork and exec still shows its
+/// parent's command line).
+fn run_cpus(loads: &mut HashSet<u32>) -> u64 {
     let mut mask = 0;
     let mut parents = vec![std::process::id()];
     while let Some(parent) = parents.pop() {
         for child in children(parent) {
             parents.push(child);
-            let run = *is_run.entry(child).or_insert_with(|| {
-                let cmdline = std::fs::read(format!("/proc/{child}/cmdline")).unwrap_or_default();
-                !cmdline.split(|&b| b == 0).any(|arg| arg == b"bench-burn")
-            });
-            if run {
+            if loads.contains(&child) {
+                continue;
+            }
+            let cmdline = std::fs::read(format!("/proc/{child}/cmdline")).unwrap_or_default();
+            if is_load(&cmdline) {
+                loads.insert(child);
+            } else {
                 mask |= threads_cpus(child);
             }
         }
@@ -374,7 +408,7 @@ fn threads_cpus(pid: u32) -> u64 {
             let after = &stat[stat.rfind(')')? + 1..];
             after.split_whitespace().nth(36)?.parse::<u32>().ok()
         })
-        .fold(0, |mask, cpu| mask | 1u64.checked_shl(cpu).unwrap_or(0))
+        .fold(0, |mask, cpu| mask | cpu_bit(cpu as usize))
 }
 
 /// Wake-ups of a `SCHED_FIFO` 99 thread on `cpu` more than 2 ms late: each a stall within
