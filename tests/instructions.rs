@@ -5,14 +5,13 @@
 //! commit as the change that made it faster (`SCMPC_UPDATE_INSTRUCTIONS=1 cargo test
 //! --release --test instructions` rewrites the file from this machine's counts).
 //!
-//! Instruction counts of a deterministic run repeat exactly from run to run (in process,
-//! every workload but the lockstep orchestrator's: its waits and its polls for input vary
-//! with its processes' timing, by a third when they share the CPUs with another workload,
-//! and are left out, leaving its own work per tick (recording, commanding, supervising);
-//! time on a shared two-core machine varies by tens of percent. Counts are of the release
-//! build: a debug build is refused.
-//! Without valgrind the test fails: it never skips (`.ci/run` installs valgrind where it
-//! is missing).
+//! Instruction counts of a deterministic run repeat exactly from run to run; time on a
+//! shared two-core machine varies by tens of percent. Every workload runs in process but
+//! the lockstep orchestrator's, whose waits and polls for input vary with its processes'
+//! timing (by a third when they share the CPUs with another workload): those are left out,
+//! leaving its own work per tick (recording, commanding, supervising). Counts are of the
+//! release build: a debug build is refused. Without valgrind the test fails: it never
+//! skips (`.ci/run` installs valgrind where it is missing).
 
 mod common;
 

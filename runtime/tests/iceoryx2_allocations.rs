@@ -1,6 +1,6 @@
 //! The heap allocations iceoryx2 0.10 itself makes in a loop like a role process's, each
-//! counted apart, as a minimal reproduction (docs/performance.md, "Allocations in the role
-//! processes"): a publish and a WaitSet wake-up, iceoryx2's API alone, after warm-up.
+//! counted apart, as a minimal reproduction (docs/performance.md, "Timing that tests
+//! check"): a publish and a WaitSet wake-up, iceoryx2's API alone, after warm-up.
 //!
 //! - every loan of a sample (`Publisher::loan_uninit`, and `send_copy`, which loans) boxes
 //!   the sample's reference-counted shared state (`ChunkMutSharedState::new`): 1 per send,
@@ -19,8 +19,8 @@ use std::time::Duration;
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-/// Allocations `f` made, over `times` calls, per call; `u64::MAX` when not the same number
-/// in every call. (This binary's one test runs alone: no other thread allocates.)
+/// Allocations `f` made, over `times` calls, per call; `u64::MAX` when the total is not a
+/// whole number per call. (This binary's one test runs alone: no other thread allocates.)
 fn per_call(times: u64, mut f: impl FnMut()) -> u64 {
     let before = allocations();
     for _ in 0..times {
