@@ -7,11 +7,12 @@
 //!
 //! Instruction counts of a deterministic run repeat exactly from run to run; time on a
 //! shared two-core machine varies by tens of percent. Every workload runs in process but
-//! the lockstep orchestrator's, whose waits and polls for input vary with its processes'
-//! timing (by a third when they share the CPUs with another workload): those are left out,
-//! leaving its own work per tick (recording, commanding, supervising). Counts are of the
-//! release build: a debug build is refused. Without valgrind the test fails: it never
-//! skips (`.ci/run` installs valgrind where it is missing).
+//! the lockstep orchestrator's. Of its loop, only the recording of each tick is counted
+//! (`Intake::record`: the judge, the tables, the sinks): its waits, its polls for input,
+//! its commands and checks run as often as its processes' timing makes them, and varied
+//! by up to a third in CI, where its processes shared the CPUs with another workload under
+//! callgrind. Counts are of the release build: a debug build is refused. Without valgrind
+//! the test fails: it never skips (`.ci/run` installs valgrind where it is missing).
 
 mod common;
 
@@ -25,12 +26,8 @@ const TOLERANCE: f64 = 0.10;
 struct HotPath {
     /// Its key in the baselines file.
     key: &'static str,
-    /// The function (callgrind's demangled name), counted with what it calls but
-    /// `left_out`.
+    /// The function (callgrind's demangled name), counted with what it calls.
     function: &'static str,
-    /// Callees left out: waiting and polling for input, whose counts vary with the other
-    /// processes' timing (a loop that finds nothing yet spins again).
-    left_out: &'static [&'static str],
     /// Divided by what it did.
     per: Per,
 }
@@ -52,12 +49,7 @@ const PLANS: Per = Per::CallOf("mpc::Mpc::step_on_route");
 
 /// A fixed workload (`scmpc` arguments) and the hot paths counted in it.
 fn workloads() -> Vec<(&'static str, Vec<&'static str>, Vec<HotPath>)> {
-    let path = |key, function, per| HotPath {
-        key,
-        function,
-        left_out: &[],
-        per,
-    };
+    let path = |key, function, per| HotPath { key, function, per };
     let field = |n: &'static str, key| {
         (
             key,
@@ -107,28 +99,21 @@ fn workloads() -> Vec<(&'static str, Vec<&'static str>, Vec<HotPath>)> {
         (
             "lockstep",
             vec!["run", "--mode", "lockstep", "--set", "duration_s=5"],
-            vec![HotPath {
-                key: "orchestrator_lockstep_tick_paper_5s",
-                function: "run::multiproc::driver::Driver::lockstep",
-                left_out: &[
-                    "runtime::wait::lockstep_poll",
-                    "<runtime::ipc::Receiver<T> as runtime::ipc::wire::DataInput>::take_data",
-                    "<runtime::ipc::Receiver<T> as runtime::ipc::Input>::clear_wakeups",
-                ],
-                per: Per::Tick,
-            }],
+            vec![path(
+                "orchestrator_record_tick_paper_5s",
+                "run::multiproc::intake::Intake::record",
+                Per::CallOf("run::multiproc::intake::Intake::record"),
+            )],
         ),
     ]
 }
 
 /// What callgrind counted of each function: instructions with what it calls (inclusive),
 /// and its calls.
-#[derive(Debug, Default, Clone)]
+#[derive(Debug, Default, Clone, Copy)]
 struct Counted {
     inclusive: u64,
     calls: u64,
-    /// The inclusive instructions of its calls, by callee.
-    callees: BTreeMap<String, u64>,
 }
 
 /// Reads a callgrind output file written with `--compress-strings=no --compress-pos=no`:
@@ -157,11 +142,7 @@ fn read_callgrind(text: &str) -> BTreeMap<String, Counted> {
         } else if line.starts_with(|c: char| c.is_ascii_digit() || c == '+' || c == '-') {
             // A cost line: own, or the inclusive cost of the call just named.
             if let Some(ir) = last_number(line) {
-                let f = counted.entry(function.clone()).or_default();
-                f.inclusive += ir;
-                if call_cost_next {
-                    *f.callees.entry(callee.clone()).or_default() += ir;
-                }
+                counted.entry(function.clone()).or_default().inclusive += ir;
             }
             call_cost_next = false;
         } else if call_cost_next {
@@ -236,13 +217,7 @@ fn measure() -> BTreeMap<String, u64> {
                 Per::Tick => summary["ticks"].as_u64().expect("ticks"),
             };
             assert!(per > 0, "{}: `{}` never ran", path.key, path.function);
-            let waited: u64 = (path.left_out.iter())
-                .map(|w| match c.callees.get(*w) {
-                    Some(&ir) => ir,
-                    None => panic!("{}: `{}` never called `{w}`", path.key, path.function),
-                })
-                .sum();
-            per_call.insert(path.key.to_owned(), (c.inclusive - waited) / per);
+            per_call.insert(path.key.to_owned(), c.inclusive / per);
         }
     }
     per_call
@@ -384,7 +359,6 @@ fn callgrinds_output_is_read_as_inclusive_counts_and_calls() {
                 fe=y.rs\nfn=inner\n0 300\nfn=outer\n0 1\n";
     let counted = read_callgrind(text);
     assert_eq!(counted["outer"].inclusive, 316);
-    assert_eq!(counted["outer"].callees["inner"], 300);
     assert_eq!(counted["inner"].calls, 3);
     assert_eq!(counted["inner"].inclusive, 300);
 }
