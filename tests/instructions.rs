@@ -65,6 +65,15 @@ fn workloads() -> Vec<(&'static str, Vec<&'static str>, Vec<HotPath>)> {
             vec![path(key, MPC_STEP, PLANS)],
         )
     };
+    // The tracker's step in `world`, per tracks published (`published` is called once for
+    // each: with the truth, or with a lidar).
+    let tracker = |world, duration, key, published| {
+        (
+            world,
+            vec!["run", world, "--in-process", "--set", duration],
+            vec![path(key, TRACKER_STEP, Per::CallOf(published))],
+        )
+    };
     // The longest first (measure runs them two at a time).
     vec![
         field("mpc.horizon=30", "mpc_step_field_n30_3s"),
@@ -78,23 +87,17 @@ fn workloads() -> Vec<(&'static str, Vec<&'static str>, Vec<HotPath>)> {
                 path("dfl_step_paper_10s", DFL_STEP, Per::Tick),
             ],
         ),
-        (
+        tracker(
             "crossing",
-            vec!["run", "crossing", "--in-process", "--set", "duration_s=10"],
-            vec![path(
-                "tracker_step_crossing_10s",
-                TRACKER_STEP,
-                Per::CallOf("tracker::Tracker::tracks"),
-            )],
+            "duration_s=10",
+            "tracker_step_crossing_10s",
+            "tracker::Tracker::tracks",
         ),
-        (
+        tracker(
             "occluded",
-            vec!["run", "occluded", "--in-process", "--set", "duration_s=4"],
-            vec![path(
-                "perception_step_occluded_4s",
-                TRACKER_STEP,
-                Per::CallOf("tracker::lidar::Perception::tracks"),
-            )],
+            "duration_s=4",
+            "perception_step_occluded_4s",
+            "tracker::lidar::Perception::tracks",
         ),
         (
             "lockstep",
