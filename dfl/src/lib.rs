@@ -7,6 +7,7 @@
 //! the current time, falls back to braking when none does, and integrates zeta. With
 //! `dfl.gatekeeper` it flies only plans its safety check has passed ([`gatekeeper`]).
 
+use protocol::actuator::BaseModel;
 use protocol::{
     Actuation, CommandMode, Estimate, Header, Intervention, Plan, Scenario, Timing, WheelGeometry,
 };
@@ -149,6 +150,9 @@ pub struct Dfl {
     goal_hold: Option<GoalHold>,
     /// Holding the robot at its goal ([`GoalHold`]).
     holding: bool,
+    /// A base with a lag or a delay (`robot.actuator_lag_s`, `robot.command_delay_s`): its
+    /// commands in flight and its speeds ([`Dfl::step`]).
+    base: Option<BaseModel>,
 }
 
 /// Holding the robot at its goal (`robot.final_approach = "settle"`, docs/reach.md): a
@@ -261,6 +265,13 @@ impl Dfl {
                     yaw_tolerance_rad: scenario.robot.goal_yaw_tolerance_rad,
                 }),
             holding: false,
+            base: (!scenario.actuator().is_ideal()).then(|| {
+                BaseModel::new(
+                    scenario.actuator(),
+                    scenario.timing.dt_s(),
+                    [scenario.robot.zeta0, 0.0],
+                )
+            }),
         }
     }
 
@@ -431,7 +442,35 @@ impl Dfl {
     /// One inner tick: the command for `[t_j, t_j + Ts/M)` from `estimate` and the active
     /// plan; integrates zeta over the tick. The header's publish time and epoch are the
     /// caller's to fill.
+    ///
+    /// With a command delay the command sent now takes effect `q` whole ticks later
+    /// (`q = floor(delay / dt)`; the rest of the delay, under a tick, is not compensated):
+    /// the DFL decides for that tick, from the pose the commands already in flight take
+    /// the robot to (a Smith predictor over the model of the base, [`BaseModel::predict`]).
+    /// Its plan element, its safety check, its hold and its evasion all see that tick and
+    /// that pose; the plan's timeline is the one on which commands take effect, so the MPC
+    /// plans as it does without a delay.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
+        let Some(base) = &self.base else {
+            return self.step_for(estimate, tick, tick);
+        };
+        let ahead = base.ticks_decided();
+        let [x, y, theta, zeta] = estimate.state;
+        let mut pose = [x, y, theta];
+        base.predict(ahead, |duration_s, speeds| {
+            pose = protocol::actuator::arc(pose, speeds, duration_s)
+        });
+        let predicted = Estimate {
+            state: [pose[0], pose[1], pose[2], zeta],
+            ..*estimate
+        };
+        self.step_for(&predicted, tick + ahead as u64, tick)
+    }
+
+    /// [`Dfl::step`] for the tick `effect` at which the command of `tick` takes effect,
+    /// from `estimate` predicted to it.
+    fn step_for(&mut self, estimate: &Estimate, effect: u64, tick: u64) -> Actuation {
+        let (tick, sent) = (effect, tick);
         let checked = self.check(estimate, tick);
         let checked = self.check_free_range(estimate, checked);
         let sample = self.timing.sample_of(tick);
@@ -469,7 +508,7 @@ impl Dfl {
                 };
                 let mode = if self.evading {
                     CommandMode::Evasion
-                } else if plan_sample != sample {
+                } else if plan_sample < self.timing.sample_of(sent) {
                     CommandMode::Shifted
                 } else if guarded {
                     CommandMode::ZetaGuard
@@ -487,7 +526,7 @@ impl Dfl {
                 ([u1, turn.unwrap_or(0.0)], [0.0; 2], braking, 0)
             }
         };
-        let mut act = self.command(tick, u, v, mode, plan_sample);
+        let mut act = self.command(sent, u, v, mode, plan_sample);
         act.intervention = checked.intervention as u32;
         act.intervention_plan = checked.plan_sample;
         act.intervention_clearance_m = checked.clearance_m;
@@ -616,17 +655,37 @@ impl Dfl {
         // zeta is linear over the tick; its mean is the forward speed held by the plant.
         let zeta_start = self.zeta;
         self.zeta += u[0] * self.dt_s;
-        let u1 = 0.5 * (zeta_start + self.zeta);
-        let u2 = u[1];
-        // Anti-windup: where the wheels saturate, zeta is held at the forward speed they
-        // realize, so the estimate (which carries zeta), the MPC's `z_0` and the brake
-        // start from the speed the robot has, not from one it was asked for and never
-        // reached (a robot believed 0.7 m/s faster brakes that much later). Without a
-        // wheel limit the realized inputs are the commanded ones and nothing changes.
-        let realized = self.wheels.realized_inputs([u1, u2])[0];
-        if realized.abs() < u1.abs() {
-            self.zeta = realized;
-        }
+        let [u1, u2] = match &mut self.base {
+            None => {
+                let u1 = 0.5 * (zeta_start + self.zeta);
+                // Anti-windup: where the wheels saturate, zeta is held at the forward speed
+                // they realize, so the estimate (which carries zeta), the MPC's `z_0` and
+                // the brake start from the speed the robot has, not from one it was asked
+                // for and never reached (a robot believed 0.7 m/s faster brakes that much
+                // later). Without a wheel limit the realized inputs are the commanded ones
+                // and nothing changes.
+                let realized = self.wheels.realized_inputs([u1, u[1]])[0];
+                if realized.abs() < u1.abs() {
+                    self.zeta = realized;
+                }
+                [u1, u[1]]
+            }
+            Some(base) => {
+                // The command that brings the base, when it takes effect, to zeta and the
+                // turn rate U2 by the end of its tick: the lag inverted over one tick
+                // (`Actuator::command_reaching`). Anti-windup as above, on the speed the
+                // wheels' limit lets the base reach.
+                let actuator = base.actuator();
+                let speeds = base.predict(base.ticks_decided(), |_, _| {});
+                let command = actuator.command_reaching(speeds, [self.zeta, u[1]], self.dt_s);
+                let realized = self.wheels.realized_inputs(command);
+                if realized[0].abs() < command[0].abs() {
+                    self.zeta = actuator.follow(speeds, realized, self.dt_s).end[0];
+                }
+                base.advance(realized, |_, _| {});
+                command
+            }
+        };
         Actuation {
             header: Header {
                 tick,

@@ -5,6 +5,7 @@
 //! as reported on the actuation service, and the covariance of `[x, y, theta]`.
 
 use nalgebra::{Matrix3, Vector3};
+use protocol::actuator::BaseModel;
 use protocol::{Estimate, EstimatorKind, Header, Scenario, wrap_angle};
 
 pub mod task;
@@ -14,31 +15,20 @@ pub use task::EstimatorTask;
 /// feedback (to ~1e-8 relative) without a singular innovation covariance.
 pub const MIN_MEASUREMENT_VARIANCE: f64 = 1e-12;
 
-/// Unicycle motion over `dt_s` with `(u1, u2)` held: exact circular arc, written as a
-/// chord of length `u1 dt sinc(u2 dt / 2)` along the mid-tick heading.
-/// Returns the new pose and the Jacobian of the new pose with respect to the old one.
+/// Unicycle motion over `dt_s` with `(u1, u2)` held: exact circular arc
+/// ([`protocol::actuator::chord`]). Returns the new pose and the Jacobian of the new pose
+/// with respect to the old one (only the heading moves the chord).
 pub fn predict_pose(
     pose: &Vector3<f64>,
     u1: f64,
     u2: f64,
     dt_s: f64,
 ) -> (Vector3<f64>, Matrix3<f64>) {
-    let half_turn = 0.5 * u2 * dt_s;
-    let sinc = if half_turn.abs() < 1e-9 {
-        1.0
-    } else {
-        half_turn.sin() / half_turn
-    };
-    let chord = u1 * dt_s * sinc;
-    let (s, c) = (pose[2] + half_turn).sin_cos();
-    let next = Vector3::new(
-        pose[0] + chord * c,
-        pose[1] + chord * s,
-        pose[2] + u2 * dt_s,
-    );
+    let [dx, dy] = protocol::actuator::chord(pose[2], [u1, u2], dt_s);
+    let next = Vector3::new(pose[0] + dx, pose[1] + dy, pose[2] + u2 * dt_s);
     let mut jacobian = Matrix3::identity();
-    jacobian[(0, 2)] = -chord * s;
-    jacobian[(1, 2)] = chord * c;
+    jacobian[(0, 2)] = -dy;
+    jacobian[(1, 2)] = dx;
     (next, jacobian)
 }
 
@@ -104,14 +94,26 @@ pub struct Estimator {
     kind: EstimatorKind,
     ekf: Option<Ekf>,
     scenario: Scenario,
+    /// The base's commands in flight and its speeds, for a base with a lag or a delay
+    /// (`robot.actuator_lag_s`, `robot.command_delay_s`): the EKF predicts with the speeds
+    /// the base has, not with the command it was just sent.
+    base: Option<BaseModel>,
 }
 
 impl Estimator {
     pub fn new(scenario: &Scenario) -> Estimator {
+        let actuator = scenario.actuator();
         Estimator {
             kind: scenario.estimator.kind,
             ekf: None,
             scenario: scenario.clone(),
+            base: (!actuator.is_ideal()).then(|| {
+                BaseModel::new(
+                    actuator,
+                    scenario.timing.dt_s(),
+                    [scenario.robot.zeta0, 0.0],
+                )
+            }),
         }
     }
 
@@ -136,10 +138,19 @@ impl Estimator {
             EstimatorKind::Ekf => {
                 let ekf = match self.ekf.as_mut() {
                     Some(ekf) => {
-                        if let Some(command) = applied {
-                            // The wheels' speed limit is the robot's own, known to it.
-                            let [u1, u2] = self.scenario.plant.realized_inputs(command);
-                            ekf.predict(u1, u2, dt_s);
+                        // The wheels' speed limit is the robot's own, known to it.
+                        let realized = |c| self.scenario.plant.realized_inputs(c);
+                        match (&mut self.base, applied) {
+                            (Some(base), applied) => {
+                                // Without a command heard the base was sent none.
+                                let command = realized(applied.unwrap_or([0.0; 2]));
+                                base.advance(command, |s, [u1, u2]| ekf.predict(u1, u2, s));
+                            }
+                            (None, Some(command)) => {
+                                let [u1, u2] = realized(command);
+                                ekf.predict(u1, u2, dt_s);
+                            }
+                            (None, None) => {}
                         }
                         ekf.update(y);
                         ekf

@@ -1,6 +1,8 @@
 //! The plant: a unicycle (differential-drive robot) integrated with RK4, with seeded
-//! Gaussian output noise, optional wheel-speed saturation and process disturbance.
+//! Gaussian output noise, optional wheel-speed saturation, process disturbance, and a base
+//! that follows its commands with a lag after a delay ([`protocol::actuator`]).
 
+use protocol::actuator::{Actuator, CommandLine};
 use protocol::{PlantConfig, Scenario, wrap_angle};
 pub mod task;
 pub use task::PlantTask;
@@ -40,6 +42,12 @@ pub struct Plant {
     noise: [Option<Normal<f64>>; 3],
     disturbance: Option<Normal<f64>>,
     rng: ChaCha8Rng,
+    /// The base's lag and delay (`plant.actuator_lag_s`, `plant.command_delay_s`).
+    actuator: Actuator,
+    /// The commands in flight.
+    line: CommandLine,
+    /// The base's speeds `[u1 (m/s), u2 (rad/s)]`: with a lag, state of the plant.
+    speeds: [f64; 2],
 }
 
 impl Plant {
@@ -52,6 +60,8 @@ impl Plant {
                 .and_then(Result::ok)
         };
         let var = p.noise_variance.per_axis();
+        let actuator = scenario.simulated_actuator();
+        let speeds = [scenario.robot.zeta0, 0.0];
         Plant {
             pose: scenario.robot.start,
             config: p.clone(),
@@ -59,6 +69,9 @@ impl Plant {
             noise: var.map(|v| gaussian(v.sqrt())),
             disturbance: gaussian(p.disturbance_std),
             rng: ChaCha8Rng::seed_from_u64(scenario.seed),
+            actuator,
+            line: CommandLine::new(actuator.delay_s, scenario.timing.dt_s(), speeds),
+            speeds,
         }
     }
 
@@ -85,9 +98,16 @@ impl Plant {
         self.config.realized_inputs([u1, u2])
     }
 
-    /// Holds `(u1, u2)` (after saturation) for `dt_s` and integrates; returns what was applied.
+    /// The base's speeds `[u1 (m/s), u2 (rad/s)]` now.
+    pub fn speeds(&self) -> [f64; 2] {
+        self.speeds
+    }
+
+    /// Takes the command `(u1, u2)` (after saturation) for the coming `dt_s` and integrates
+    /// over it: the base realizes it at once, or ([`protocol::actuator`]) after the delay
+    /// and with the lag. Returns the command after saturation.
     pub fn step(&mut self, u1: f64, u2: f64, dt_s: f64) -> [f64; 2] {
-        let [u1, u2] = self.saturate(u1, u2);
+        let command = self.saturate(u1, u2);
         let d = match self.disturbance {
             Some(n) => [
                 n.sample(&mut self.rng),
@@ -96,6 +116,21 @@ impl Plant {
             ],
             None => [0.0; 3],
         };
+        if self.actuator.is_ideal() {
+            self.integrate(command, d, dt_s);
+            self.speeds = command;
+        } else {
+            for (duration_s, in_effect) in self.line.send(command) {
+                if duration_s > 0.0 {
+                    self.integrate_lagged(in_effect, d, duration_s);
+                }
+            }
+        }
+        command
+    }
+
+    /// The pose over `dt_s` with the speeds `u` held.
+    fn integrate(&mut self, [u1, u2]: [f64; 2], d: [f64; 3], dt_s: f64) {
         let h = dt_s / self.substeps as f64;
         for _ in 0..self.substeps {
             self.pose = rk4_step(&self.pose, h, |x| {
@@ -103,7 +138,33 @@ impl Plant {
                 [f[0] + d[0], f[1] + d[1], f[2] + d[2]]
             });
         }
-        [u1, u2]
+    }
+
+    /// The pose and the speeds over `duration_s` with `command` in effect: the speeds
+    /// follow it with the lag (exactly), the pose is integrated with RK4 in between.
+    fn integrate_lagged(&mut self, command: [f64; 2], d: [f64; 3], duration_s: f64) {
+        let h = duration_s / self.substeps as f64;
+        for _ in 0..self.substeps {
+            let start = self.speeds;
+            let speeds_at = |t: f64| self.actuator.follow(start, command, t).end;
+            // Without lag the speeds jump to the command at once.
+            let [now, mid, end] = [speeds_at(0.0), speeds_at(0.5 * h), speeds_at(h)];
+            // RK4 of the pose with its speeds given in time: start, middle (twice), end.
+            let f = |x: &Pose, [u1, u2]: [f64; 2]| {
+                let f = unicycle(x, u1, u2);
+                [f[0] + d[0], f[1] + d[1], f[2] + d[2]]
+            };
+            let add = |a: &Pose, b: &Pose, s: f64| std::array::from_fn(|i| a[i] + s * b[i]);
+            let x = self.pose;
+            let k1 = f(&x, now);
+            let k2 = f(&add(&x, &k1, 0.5 * h), mid);
+            let k3 = f(&add(&x, &k2, 0.5 * h), mid);
+            let k4 = f(&add(&x, &k3, h), end);
+            self.pose = std::array::from_fn(|i| {
+                x[i] + h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            });
+            self.speeds = end;
+        }
     }
 }
 
@@ -140,6 +201,30 @@ mod tests {
             (3.8..4.3).contains(&order),
             "observed order {order} (errors {e1:e}, {e2:e})"
         );
+    }
+
+    #[test]
+    fn a_lagged_delayed_base_starts_moving_after_the_delay_and_follows_the_lag() {
+        let mut s = Scenario::default();
+        s.robot.start = [0.0, 0.0, 0.0];
+        s.plant.actuator_lag_s = protocol::AutoOr::Value(0.05);
+        s.plant.command_delay_s = protocol::AutoOr::Value(0.02);
+        let mut p = Plant::new(&s);
+        let dt = s.timing.dt_s();
+        let mut x_at = Vec::new();
+        for _ in 0..200 {
+            p.step(1.0, 0.0, dt);
+            x_at.push(p.pose()[0]);
+        }
+        // Nothing moves within the delay (4 ticks of 5 ms).
+        assert_eq!(x_at[3], 0.0);
+        assert!(x_at[4] > 0.0);
+        // After the delay, x(t) = t - lag (1 - exp(-t / lag)) of a unit step.
+        let t = 200.0 * dt - 0.02;
+        let exact = t - 0.05 * (1.0 - (-t / 0.05f64).exp());
+        // RK4 at one substep of 5 ms: a few nanometres.
+        assert!((x_at[199] - exact).abs() < 1e-8, "{} vs {exact}", x_at[199]);
+        assert!((p.speeds()[0] - (1.0 - (-t / 0.05f64).exp())).abs() < 1e-12);
     }
 
     #[test]

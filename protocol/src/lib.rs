@@ -5,6 +5,7 @@
 //! iceoryx2 (it turns on this crate's feature `iceoryx2`, which makes every message
 //! iceoryx2's `ZeroCopySend`); the role crates build without it.
 
+pub mod actuator;
 pub mod endpoint;
 pub mod geometry;
 pub mod graph;

@@ -17,6 +17,11 @@ pub const MAX_CONSTRAINT_HORIZON: usize = 200;
 pub const MAX_INNER_STEPS: usize = 1000;
 /// Largest number of RK4 substeps per inner tick.
 pub const MAX_RK4_SUBSTEPS: usize = 1000;
+/// Largest actuator lag accepted, s: a base slower than this is no base the DFL can
+/// shape commands for at its tick.
+pub const MAX_ACTUATOR_LAG_S: f64 = 1.0;
+/// Largest command delay accepted, s.
+pub const MAX_COMMAND_DELAY_S: f64 = 0.5;
 
 /// A scenario [`Scenario::validate`] has accepted: the only kind a run, a sweep, a figure,
 /// a role process or the in-process loop takes, so validation cannot be skipped. It reads
@@ -246,6 +251,14 @@ pub struct Robot {
     /// With `final_approach = "settle"`: the robot held at its goal keeps holding until
     /// `duration_s` instead of ending the run there.
     pub hold_at_goal: bool,
+    /// Time constant of the first-order lag with which the base's speeds follow their
+    /// commands, s (0: at once). The estimator predicts with it and the DFL shapes its
+    /// commands for it ([`crate::actuator`]); `scmpc identify` measures it.
+    pub actuator_lag_s: f64,
+    /// Time from a command's publication to its effect on the base, s (0: at once). The
+    /// estimator predicts with it; the DFL commands for the state the robot will be in
+    /// when its command takes effect ([`crate::actuator`]).
+    pub command_delay_s: f64,
 }
 
 /// The goal of a run (`robot.goal`): a position and, if given, a heading. In a file,
@@ -339,6 +352,12 @@ pub struct PlantConfig {
     pub disturbance_std: f64,
     /// RK4 substeps per inner tick.
     pub rk4_substeps: usize,
+    /// The simulated base's lag, s: `auto` is the one the controller is told
+    /// (`robot.actuator_lag_s`); a number simulates a base that differs from its model.
+    pub actuator_lag_s: AutoOr,
+    /// The simulated base's command delay, s: `auto` is the one the controller is told
+    /// (`robot.command_delay_s`); a number simulates a base that differs from its model.
+    pub command_delay_s: AutoOr,
 }
 
 impl PlantConfig {
@@ -595,7 +614,8 @@ impl Default for PlannerConfig {
 }
 
 /// `"auto"` (a value derived from the rest of the scenario) or a number: `dfl.brake_decel`
-/// (m/s^2), `planner.speed_m_s` (m/s).
+/// (m/s^2), `planner.speed_m_s` (m/s), `plant.actuator_lag_s` and `plant.command_delay_s`
+/// (s).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(untagged)]
 pub enum AutoOr {
@@ -669,6 +689,8 @@ impl Default for Robot {
             radius_m: 0.0,
             final_approach: FinalApproach::Settle,
             hold_at_goal: false,
+            actuator_lag_s: 0.0,
+            command_delay_s: 0.0,
         }
     }
 }
@@ -683,6 +705,8 @@ impl Default for PlantConfig {
             noise_variance: NoiseVariance::Uniform(0.0),
             disturbance_std: 0.0,
             rk4_substeps: 1,
+            actuator_lag_s: AutoOr::Auto(Auto::Auto),
+            command_delay_s: AutoOr::Auto(Auto::Auto),
         }
     }
 }
@@ -742,6 +766,29 @@ impl Scenario {
         match self.dfl.brake_decel {
             AutoOr::Auto(_) => self.mpc.v_max,
             AutoOr::Value(decel) => decel,
+        }
+    }
+
+    /// The base as the controller models it (`robot.actuator_lag_s`,
+    /// `robot.command_delay_s`).
+    pub fn actuator(&self) -> crate::actuator::Actuator {
+        crate::actuator::Actuator {
+            lag_s: self.robot.actuator_lag_s,
+            delay_s: self.robot.command_delay_s,
+        }
+    }
+
+    /// The base the simulated plant is: `plant.actuator_lag_s` and
+    /// `plant.command_delay_s` where set, else the model's.
+    pub fn simulated_actuator(&self) -> crate::actuator::Actuator {
+        let model = self.actuator();
+        let or_model = |value: AutoOr, model: f64| match value {
+            AutoOr::Auto(_) => model,
+            AutoOr::Value(value) => value,
+        };
+        crate::actuator::Actuator {
+            lag_s: or_model(self.plant.actuator_lag_s, model.lag_s),
+            delay_s: or_model(self.plant.command_delay_s, model.delay_s),
         }
     }
 

@@ -1,0 +1,286 @@
+//! The base's response to its commands (`robot.actuator_lag_s`, `robot.command_delay_s`,
+//! docs/robot.md): a speed command `[u1 (m/s), u2 (rad/s)]` published at `t` takes effect
+//! at `t + delay`, and the base's speeds follow the command in effect with a first-order
+//! lag, `s' = (u - s) / lag`, on each channel. With both zero the base realizes each
+//! command at once (the paper's unicycle). The plant simulates this model, the estimator
+//! predicts with it and the DFL inverts it; `scmpc identify` fits it to a robot.
+
+use std::collections::VecDeque;
+
+/// How a base follows its speed commands.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Actuator {
+    /// Time constant of the first-order lag of the base's speed loop, s.
+    pub lag_s: f64,
+    /// Time from a command's publication to its effect, s.
+    pub delay_s: f64,
+}
+
+impl Actuator {
+    /// A base that realizes every command at once.
+    pub fn is_ideal(&self) -> bool {
+        self.lag_s == 0.0 && self.delay_s == 0.0
+    }
+
+    /// The share of a speed step still to come after `duration_s`: `exp(-duration / lag)`
+    /// (0 without lag).
+    pub fn remaining(&self, duration_s: f64) -> f64 {
+        if self.lag_s > 0.0 {
+            (-duration_s / self.lag_s).exp()
+        } else {
+            0.0
+        }
+    }
+
+    /// The speeds after `duration_s` of `command` from `speeds`, and their mean over that
+    /// time (the exact solution of the lag: each channel approaches the command
+    /// exponentially).
+    pub fn follow(&self, speeds: [f64; 2], command: [f64; 2], duration_s: f64) -> Followed {
+        let left = self.remaining(duration_s);
+        // Mean of exp(-t / lag) over [0, duration]; 0 without lag (a jump at t = 0).
+        let mean_left = if self.lag_s > 0.0 && duration_s > 0.0 {
+            self.lag_s / duration_s * (1.0 - left)
+        } else {
+            0.0
+        };
+        Followed {
+            end: std::array::from_fn(|i| command[i] + (speeds[i] - command[i]) * left),
+            mean: std::array::from_fn(|i| command[i] + (speeds[i] - command[i]) * mean_left),
+        }
+    }
+
+    /// The command that brings the base from `speeds` to `target` in `dt_s` (held over
+    /// `dt_s`, the inverse of [`Actuator::follow`]'s `end`): `s + (target - s) / (1 -
+    /// exp(-dt / lag))`; the target itself without lag.
+    pub fn command_reaching(&self, speeds: [f64; 2], target: [f64; 2], dt_s: f64) -> [f64; 2] {
+        let gain = 1.0 / (1.0 - self.remaining(dt_s));
+        std::array::from_fn(|i| speeds[i] + (target[i] - speeds[i]) * gain)
+    }
+}
+
+/// The speeds at the end of a stretch of the lag, and their mean over it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Followed {
+    pub end: [f64; 2],
+    pub mean: [f64; 2],
+}
+
+/// The pose `[x_m, y_m, theta_rad]` after `duration_s` at the speeds `[u1, u2]`: the exact
+/// circular arc ([`chord`]).
+pub fn arc(pose: [f64; 3], speeds: [f64; 2], duration_s: f64) -> [f64; 3] {
+    let [dx, dy] = chord(pose[2], speeds, duration_s);
+    [pose[0] + dx, pose[1] + dy, pose[2] + speeds[1] * duration_s]
+}
+
+/// The displacement `[dx_m, dy_m]` over `duration_s` at the speeds `[u1, u2]` from heading
+/// `theta_rad`: the chord of the circular arc, of length `u1 dt sinc(u2 dt / 2)`, along
+/// the mid heading.
+pub fn chord(theta_rad: f64, [u1, u2]: [f64; 2], duration_s: f64) -> [f64; 2] {
+    let half_turn = 0.5 * u2 * duration_s;
+    let sinc = if half_turn.abs() < 1e-9 {
+        1.0
+    } else {
+        half_turn.sin() / half_turn
+    };
+    let length = u1 * duration_s * sinc;
+    let (sin, cos) = (theta_rad + half_turn).sin_cos();
+    [length * cos, length * sin]
+}
+
+/// A stretch of an inner tick with one command in effect: how long, s, and which.
+pub type Piece = (f64, [f64; 2]);
+
+/// The commands sent and not yet all in effect (the delay): with `delay = q dt + r`
+/// (`0 <= r < dt`), during tick `j` (`[t_j, t_j + dt)`) the command of tick `j - q - 1` is
+/// in effect for `r`, then that of tick `j - q`. Holds the last `q + 1` commands; it never
+/// allocates after [`CommandLine::new`].
+#[derive(Debug, Clone)]
+pub struct CommandLine {
+    dt_s: f64,
+    /// `r`, s.
+    rest_s: f64,
+    /// Commands of ticks `j - q - 1 ..= j - 1`, oldest first, before tick `j` is sent.
+    sent: VecDeque<[f64; 2]>,
+}
+
+impl CommandLine {
+    /// The line of a base with `delay_s` driven every `dt_s`, which held `held` before the
+    /// first command (the speeds it started with).
+    pub fn new(delay_s: f64, dt_s: f64, held: [f64; 2]) -> CommandLine {
+        let whole = Self::whole_ticks(delay_s, dt_s);
+        let rest_s = (delay_s - whole as f64 * dt_s).clamp(0.0, dt_s);
+        let mut sent = VecDeque::with_capacity(whole + 2);
+        sent.extend(std::iter::repeat_n(held, whole + 1));
+        CommandLine { dt_s, rest_s, sent }
+    }
+
+    /// The whole ticks `q` of a delay, rounded down (a delay within a nanosecond of a whole
+    /// number of ticks counts as that number).
+    pub fn whole_ticks(delay_s: f64, dt_s: f64) -> usize {
+        if delay_s > 0.0 && dt_s > 0.0 {
+            (delay_s / dt_s + 1e-9).floor() as usize
+        } else {
+            0
+        }
+    }
+
+    /// How many ticks ahead the commands already sent decide (`q`).
+    pub fn ticks_decided(&self) -> usize {
+        self.sent.len() - 1
+    }
+
+    /// The pieces of tick `j + ahead` (`ahead < q`) from the commands already sent, before
+    /// tick `j`'s.
+    pub fn pieces_ahead(&self, ahead: usize) -> [Piece; 2] {
+        [
+            (self.rest_s, self.sent[ahead]),
+            (self.dt_s - self.rest_s, self.sent[ahead + 1]),
+        ]
+    }
+
+    /// Sends the command of the tick that starts now; returns the pieces of this tick.
+    pub fn send(&mut self, command: [f64; 2]) -> [Piece; 2] {
+        self.sent.push_back(command);
+        let pieces = self.pieces_ahead(0);
+        self.sent.pop_front();
+        pieces
+    }
+}
+
+/// A model of a base: its commands in flight and its speeds, advanced one inner tick at a
+/// time. The estimator and the DFL each keep one, driven by the commands.
+#[derive(Debug, Clone)]
+pub struct BaseModel {
+    actuator: Actuator,
+    line: CommandLine,
+    /// The base's speeds at the start of the coming tick.
+    speeds: [f64; 2],
+}
+
+impl BaseModel {
+    /// A base moving at `speeds` that was commanded them until now.
+    pub fn new(actuator: Actuator, dt_s: f64, speeds: [f64; 2]) -> BaseModel {
+        BaseModel {
+            actuator,
+            line: CommandLine::new(actuator.delay_s, dt_s, speeds),
+            speeds,
+        }
+    }
+
+    /// The lag and the delay modelled.
+    pub fn actuator(&self) -> Actuator {
+        self.actuator
+    }
+
+    /// The base's speeds at the start of the coming tick.
+    pub fn speeds(&self) -> [f64; 2] {
+        self.speeds
+    }
+
+    /// How many ticks ahead the commands in flight decide.
+    pub fn ticks_decided(&self) -> usize {
+        self.line.ticks_decided()
+    }
+
+    /// Sends the command of the coming tick and advances over it; calls `each` with the
+    /// duration and the mean speeds of each stretch of the tick.
+    pub fn advance(&mut self, command: [f64; 2], mut each: impl FnMut(f64, [f64; 2])) {
+        for (duration_s, command) in self.line.send(command) {
+            self.speeds = self.follow(duration_s, command, &mut each);
+        }
+    }
+
+    /// The speeds `ahead` whole ticks from now (at most [`BaseModel::ticks_decided`]) under
+    /// the commands already sent, calling `each` as [`BaseModel::advance`] does.
+    pub fn predict(&self, ahead: usize, mut each: impl FnMut(f64, [f64; 2])) -> [f64; 2] {
+        let mut speeds = self.speeds;
+        for tick in 0..ahead.min(self.ticks_decided()) {
+            for (duration_s, command) in self.line.pieces_ahead(tick) {
+                let followed = self.actuator.follow(speeds, command, duration_s);
+                if duration_s > 0.0 {
+                    each(duration_s, followed.mean);
+                }
+                speeds = followed.end;
+            }
+        }
+        speeds
+    }
+
+    fn follow(
+        &self,
+        duration_s: f64,
+        command: [f64; 2],
+        each: &mut impl FnMut(f64, [f64; 2]),
+    ) -> [f64; 2] {
+        let followed = self.actuator.follow(self.speeds, command, duration_s);
+        if duration_s > 0.0 {
+            each(duration_s, followed.mean);
+        }
+        followed.end
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_command_takes_effect_after_the_delay_split_within_its_tick() {
+        // 12 ms at 5 ms ticks: two whole ticks and 2 ms.
+        let mut line = CommandLine::new(0.012, 0.005, [0.0; 2]);
+        assert_eq!(line.ticks_decided(), 2);
+        let mut effects = Vec::new();
+        for j in 1..=5 {
+            effects.push(line.send([j as f64, 0.0]));
+        }
+        // Tick 3 (the third sent): command 0 for 2 ms (rest), then command 1.
+        let [(first_s, first), (second_s, second)] = effects[2];
+        assert!((first_s - 0.002).abs() < 1e-12 && (second_s - 0.003).abs() < 1e-12);
+        assert_eq!((first[0], second[0]), (0.0, 1.0));
+        assert_eq!((effects[4][0].1[0], effects[4][1].1[0]), (2.0, 3.0));
+    }
+
+    #[test]
+    fn the_lag_follows_its_exact_solution_and_its_inverse_reaches_the_target() {
+        let base = Actuator {
+            lag_s: 0.05,
+            delay_s: 0.0,
+        };
+        let followed = base.follow([0.0, 1.0], [1.0, 0.0], 0.05);
+        let e = (-1.0f64).exp();
+        assert!((followed.end[0] - (1.0 - e)).abs() < 1e-12);
+        assert!((followed.end[1] - e).abs() < 1e-12);
+        // The mean of 1 - exp(-t / lag) over one lag.
+        assert!((followed.mean[0] - e).abs() < 1e-12, "{followed:?}");
+        let command = base.command_reaching([0.2, -0.1], [0.5, 0.3], 0.005);
+        let reached = base.follow([0.2, -0.1], command, 0.005).end;
+        assert!((reached[0] - 0.5).abs() < 1e-12 && (reached[1] - 0.3).abs() < 1e-12);
+        let ideal = Actuator::default();
+        assert_eq!(
+            ideal.command_reaching([0.2, 0.0], [0.5, 0.3], 0.005),
+            [0.5, 0.3]
+        );
+        assert_eq!(ideal.follow([0.2, 0.0], [0.5, 0.3], 0.005).mean, [0.5, 0.3]);
+    }
+
+    #[test]
+    fn prediction_over_the_commands_in_flight_is_what_advancing_would_do() {
+        let actuator = Actuator {
+            lag_s: 0.03,
+            delay_s: 0.02,
+        };
+        let mut base = BaseModel::new(actuator, 0.005, [0.0; 2]);
+        for j in 0..6 {
+            base.advance([0.1 * j as f64, -0.2], |_, _| {});
+        }
+        let mut predicted_distance = 0.0;
+        let predicted = base.predict(4, |s, mean| predicted_distance += s * mean[0]);
+        let mut advanced_distance = 0.0;
+        for _ in 0..4 {
+            // Commands sent now take effect only after the 4 ticks predicted.
+            base.advance([9.0, 9.0], |s, mean| advanced_distance += s * mean[0]);
+        }
+        assert!((predicted[0] - base.speeds()[0]).abs() < 1e-12);
+        assert!((predicted_distance - advanced_distance).abs() < 1e-12);
+    }
+}
