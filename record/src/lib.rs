@@ -19,7 +19,7 @@ use protocol::{
     CommandMode, DeadlineVerdict, GroundTruth, Intervention, Obstacle, ObstacleGrowth, Plan,
     ReplanReason, Route, Scenario,
 };
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
 pub mod csv;
 pub mod event;
@@ -52,6 +52,14 @@ pub struct Recorder {
     footprint: ObstacleGrowth,
     solve_us: Vec<f64>,
     iterations: Vec<f64>,
+    /// Each solved plan's position one sample on, `(t_s, [x_m, y_m])`, waiting for the
+    /// tick at that time ([`Summary::plan_following_mm`]), oldest first.
+    planned_next: VecDeque<(f64, [f64; 2])>,
+    /// How far the robot was from it, mm, plan by plan.
+    plan_following_mm: Vec<f64>,
+    /// `Ts` and the inner tick, s.
+    ts_s: f64,
+    dt_s: f64,
     deadline_misses: u64,
     miss_streak: u64,
     longest_miss_streak: u64,
@@ -121,6 +129,10 @@ impl Recorder {
             footprint: ObstacleGrowth::footprint(scenario),
             solve_us: Vec::new(),
             iterations: Vec::new(),
+            planned_next: VecDeque::new(),
+            plan_following_mm: Vec::new(),
+            ts_s: scenario.timing.ts_s,
+            dt_s: scenario.timing.dt_s(),
             deadline_misses: 0,
             miss_streak: 0,
             longest_miss_streak: 0,
@@ -227,6 +239,14 @@ impl Recorder {
             perception.robot_at(t, truth.pose);
         }
         let [x, y, _] = truth.pose;
+        while let Some(&(due_s, [px, py])) = self.planned_next.front()
+            && t >= due_s - 0.5 * self.dt_s
+        {
+            self.planned_next.pop_front();
+            if t <= due_s + 0.5 * self.dt_s {
+                self.plan_following_mm.push(1e3 * (x - px).hypot(y - py));
+            }
+        }
         self.hand_on(Sample::Tick(TickSample {
             truth,
             measurement,
@@ -292,6 +312,11 @@ impl Recorder {
         }
         self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
+        if plan.is_solved() && plan.horizon > 0 {
+            let [x, _, y, _] = plan.z[1];
+            self.planned_next
+                .push_back(((plan.sample + 1) as f64 * self.ts_s, [x, y]));
+        }
         self.hand_on(Sample::Plan(plan))
     }
 
@@ -407,6 +432,7 @@ impl Recorder {
             wall_s,
             solve_us: Percentiles::of(&self.solve_us),
             iterations: Percentiles::of(&self.iterations),
+            plan_following_mm: Percentiles::of(&self.plan_following_mm),
             commands: self.commands,
             replans: self.route_plans.saturating_sub(1),
             route_length_m: self.route_length_m,

@@ -110,6 +110,10 @@ pub struct Summary {
     pub solve_us: Percentiles,
     /// Interior-point iterations per MPC step.
     pub iterations: Percentiles,
+    /// How far the robot was, one sample after each solved plan, from where that plan put
+    /// it, mm: how well the model the MPC and the DFL fly holds for the robot (a base's lag
+    /// and delay, `robot.actuator_lag_s`, `robot.command_delay_s`, docs/robot.md).
+    pub plan_following_mm: Percentiles,
     pub commands: ModeCounts,
     /// Plans of the route planner after the first (`planner.kind = "route"`).
     pub replans: u64,
