@@ -6,5 +6,6 @@ pub mod bench;
 pub mod figures;
 pub mod foxglove_client;
 pub mod fuzz;
+pub mod identify;
 pub mod solve_times;
 pub mod sweep;

@@ -62,6 +62,17 @@ pub enum Command {
     /// (`scmpc run FILE` replays it).
     /// Exit 1 if any world collided, 2 on bad input.
     Fuzz(FuzzArgs),
+    /// Measure the base's lag and command delay: drive a short excitation (steps and a
+    /// chirp in forward speed and turn rate) from the robot's start, fit both per
+    /// channel to the poses measured, and print them as scenario keys to paste
+    /// (docs/robot.md).
+    ///
+    /// Drives the simulated plant (its `plant.actuator_lag_s`, `plant.command_delay_s`,
+    /// noise and wheels) from `robot.start`, or the ROS 2 robot of `plant.kind = "ros2"`
+    /// from where its odometry puts it, in real time (about 16 s). Refuses to start where
+    /// the excitation would leave the position box or come near a known obstacle. Exit 2
+    /// on bad input.
+    Identify(IdentifyArgs),
     /// Draw the paper's figure set from scratch (SVG and PNG) into a directory.
     Figures {
         /// Directory of the figures [default: a fresh directory under runs/].
@@ -221,6 +232,24 @@ pub struct RoleArgs {
     /// `mpc.horizon=10` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct IdentifyArgs {
+    #[arg(help = file_or_built_in_help())]
+    pub scenario: Option<String>,
+    /// Override a scenario value (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Forward speed of the excitation's steps and chirp, m/s.
+    #[arg(long, default_value_t = 0.3)]
+    pub speed: f64,
+    /// Turn rate of the excitation's steps and chirp, rad/s.
+    #[arg(long, default_value_t = 1.0)]
+    pub turn: f64,
+    /// The farthest the excitation may take the robot from its start, m.
+    #[arg(long, default_value_t = 1.0)]
+    pub within: f64,
 }
 
 #[derive(Debug, clap::Args)]

@@ -16,7 +16,7 @@ pub const EXIT_BAD_INPUT: u8 = 2;
 mod args;
 mod launch;
 
-use args::{Cli, Command, FuzzArgs, RoleArgs, SwapArgs, SweepArgs};
+use args::{Cli, Command, FuzzArgs, IdentifyArgs, RoleArgs, SwapArgs, SweepArgs};
 use clap::{CommandFactory, FromArgMatches};
 
 /// Why a command did not succeed. [`main`] prints it and maps it to the exit code, the
@@ -106,6 +106,7 @@ fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
         Command::Swap(args) => swap(args),
         Command::Sweep(args) => sweep(args, !verbosity.quiet),
         Command::Fuzz(args) => fuzz(args, !verbosity.quiet),
+        Command::Identify(args) => identify(args),
         Command::Figures { out } => figures(out),
         Command::Ps => {
             ps();
@@ -350,6 +351,44 @@ fn bench_pong(prefix: Option<String>, zenoh: Option<String>) -> CliResult {
         (Some(prefix), None) => study::bench::pong(&prefix).map_err(CliError::Failed),
         (None, None) => Err(bad_input("--prefix or --zenoh is required")),
     }
+}
+
+/// `scmpc identify`: the excitation checked for room, driven (the simulated plant, or the
+/// ROS 2 robot of `plant.kind = "ros2"`), fitted and printed.
+fn identify(args: IdentifyArgs) -> CliResult {
+    use study::identify::{Excitation, check_room, identify_ros2, identify_simulated};
+    let scenario = scenarios::load(args.scenario.as_deref(), &args.overrides).map_err(bad_input)?;
+    for (option, value) in [
+        ("--speed", args.speed),
+        ("--turn", args.turn),
+        ("--within", args.within),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(bad_input(format!("{option} must be positive, got {value}")));
+        }
+    }
+    let excitation = Excitation {
+        speed_m_s: args.speed,
+        turn_rad_s: args.turn,
+    };
+    let identified = match scenario.plant.kind {
+        protocol::PlantKind::Sim => {
+            let reach_m = excitation.reach_m(scenario.timing.dt_s());
+            check_room(&scenario, reach_m, args.within).map_err(bad_input)?;
+            identify_simulated(&scenario, excitation)
+        }
+        protocol::PlantKind::Ros2 => {
+            let stop = run::stop::on_signals();
+            identify_ros2(&scenario, excitation, args.within, &stop).map_err(|e| {
+                match e.downcast_ref::<study::identify::RoomError>() {
+                    Some(_) => bad_input(format!("{e:#}")),
+                    None => e.into(),
+                }
+            })?
+        }
+    };
+    print!("{}", identified.as_toml());
+    Ok(())
 }
 
 /// `scmpc bench`; `progress`: a line as each phase begins.
