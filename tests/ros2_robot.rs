@@ -5,20 +5,15 @@
 
 mod common;
 
-use common::python::{python, repo};
+use common::ros2::{Robot, free_port, run_on, spawn_on};
 use common::{
-    SimulatedClock, assert_threads_at_the_control_tier, events, leftovers, machine_alone, run,
-    spawn_run, stderr, summary, unique_prefix, wait_for, wait_for_pid,
+    SimulatedClock, assert_threads_at_the_control_tier, events, leftovers, machine_alone, stderr,
+    summary, unique_prefix, wait_for, wait_for_pid,
 };
 use runtime::ipc::process_alive;
 use serde_json::Value;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc::Receiver;
 use std::time::Duration;
 
-/// The paper's start, where the base starts (the run takes it from the first odometry).
-const PAPER_START: [&str; 3] = ["7", "7", "-2.356194490192345"];
 /// The paper's obstacle: centre and radius, m.
 const OBSTACLE: [f64; 3] = [3.0, 3.5, 1.5];
 /// A short drive from the paper's start, clear of its obstacle: reached in about 6 s.
@@ -37,167 +32,6 @@ const ODOM_TIMEOUT_S: f64 = 0.2;
 /// `ros2.scan_timeout_s`'s default, s.
 const SCAN_TIMEOUT_S: f64 = 0.5;
 const TICK_S: f64 = 0.005;
-
-/// A Python process of tests/python/ros2_base.py, its stdout line by line.
-struct Python {
-    child: Child,
-    lines: Receiver<String>,
-}
-
-impl Python {
-    fn start(args: &[&str]) -> Python {
-        let mut child = Command::new(python())
-            .arg(repo().join("tests/python/ros2_base.py"))
-            .args(args)
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("cannot start tests/python/ros2_base.py");
-        let lines = common::lines_of(child.stdout.take().expect("stdout piped"));
-        let python = Python { child, lines };
-        let ready = python.lines.recv_timeout(Duration::from_secs(60));
-        assert!(
-            ready.as_deref().is_ok_and(|l| l.ends_with("ready")),
-            "{args:?} never said it was ready: {ready:?}"
-        );
-        python
-    }
-
-    fn signal(&self, signal: i32) {
-        // SAFETY: a signal to a process this test started and has not reaped.
-        unsafe { libc::kill(self.child.id() as i32, signal) };
-    }
-
-    /// SIGTERM, then its exit (30 s at most).
-    fn stop(&mut self) {
-        self.signal(libc::SIGTERM);
-        let exited = wait_for(Duration::from_secs(30), || {
-            self.child.try_wait().ok().flatten().is_some()
-        });
-        assert!(exited, "the Python process did not exit on SIGTERM");
-    }
-}
-
-impl Drop for Python {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// A robot: its Zenoh router on a free loopback port and the simulated base on it.
-struct Robot {
-    base: Python,
-    router: Python,
-    endpoint: String,
-    log: PathBuf,
-    /// Zenoh's shared-memory files in /dev/shm before the robot started.
-    shm_before: Vec<PathBuf>,
-}
-
-/// Zenoh's shared-memory files in /dev/shm (the Python package makes them unless told
-/// not to).
-fn zenoh_shm_files() -> Vec<PathBuf> {
-    let Ok(entries) = std::fs::read_dir("/dev/shm") else {
-        return Vec::new();
-    };
-    entries
-        .filter_map(|e| Some(e.ok()?.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "zenoh"))
-        .collect()
-}
-
-/// A free port on loopback.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("no free port")
-        .port()
-}
-
-impl Robot {
-    fn start(dir: &Path, base_args: &[&str]) -> Robot {
-        Robot::start_with(dir, base_args, None)
-    }
-
-    /// A robot whose router also listens on TLS with mutual authentication by the CA of
-    /// `tls` (`[ca, cert, key]`); the pipeline is to take [`Robot::endpoint`], now that one.
-    fn start_with(dir: &Path, base_args: &[&str], tls: Option<&[String; 3]>) -> Robot {
-        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-        let shm_before = zenoh_shm_files();
-        let tls_endpoint = format!("tls/127.0.0.1:{}", free_port());
-        let mut router_args = vec!["--router", &endpoint];
-        if let Some(files) = tls {
-            router_args.extend([tls_endpoint.as_str(), "--tls"]);
-            router_args.extend(files.iter().map(String::as_str));
-        }
-        let router = Python::start(&router_args);
-        let log = dir.join("base.json");
-        let base = Python::start(
-            &[
-                &["--connect", &endpoint, "--log", log.to_str().unwrap()][..],
-                &["--start"],
-                &PAPER_START,
-                base_args,
-            ]
-            .concat(),
-        );
-        Robot {
-            base,
-            router,
-            endpoint: if tls.is_some() {
-                tls_endpoint
-            } else {
-                endpoint
-            },
-            log,
-            shm_before,
-        }
-    }
-
-    /// Stops the base and the router, which leave no shared-memory file; the base's log.
-    fn finish(mut self) -> Value {
-        self.base.stop();
-        self.router.stop();
-        let left: Vec<PathBuf> = (zenoh_shm_files().into_iter())
-            .filter(|f| !self.shm_before.contains(f))
-            .collect();
-        assert!(left.is_empty(), "the robot left {left:?}");
-        let text = std::fs::read_to_string(&self.log).expect("the base wrote no log");
-        serde_json::from_str(&text).expect("the base's log is not JSON")
-    }
-}
-
-/// `scmpc run` on the robot whose router is at `endpoint` (real time, no MCAP), with more
-/// `args`, into `out_dir`.
-fn run_on(endpoint: &str, args: &[&str], out_dir: &Path) -> std::process::Output {
-    let drive = drive_args(endpoint);
-    let out = ["--out", out_dir.to_str().unwrap()];
-    let drive: Vec<&str> = drive.iter().map(String::as_str).collect();
-    run(&[&["run"][..], &drive, args, &out].concat())
-}
-
-/// [`run_on`] in the background, on iceoryx2 prefix `prefix`.
-fn spawn_on(endpoint: &str, prefix: &str, out_dir: &Path) -> Child {
-    let args = [drive_args(endpoint), vec!["--prefix".into(), prefix.into()]].concat();
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    spawn_run(out_dir, &args)
-}
-
-/// The arguments of `scmpc run` that drive the robot whose router is at `endpoint`.
-fn drive_args(endpoint: &str) -> Vec<String> {
-    [
-        "--mode",
-        "realtime",
-        "--no-mcap",
-        "--set",
-        "plant.kind=ros2",
-        "--set",
-    ]
-    .map(String::from)
-    .into_iter()
-    .chain([format!("ros2.endpoint={endpoint}")])
-    .collect()
-}
 
 fn f64_of(value: &Value) -> f64 {
     value.as_f64().expect("a number")

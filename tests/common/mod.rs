@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod python;
+pub mod ros2;
 pub mod stalls;
 
 use std::path::Path;
