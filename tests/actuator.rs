@@ -63,9 +63,9 @@ fn a_lagged_delayed_base_that_is_modelled_arrives_settles_and_follows_its_plans_
         assert!(following(&ideal, "p99") < 0.01, "{scenario}: {ideal}");
         for q in ["p50", "p99"] {
             assert!(
-                following(&told_zero, q) > 2.0 * following(&modelled, q),
-                "{scenario}: a model of the lag and the delay should at least halve the \
-                 plan-following error's {q}: modelled {modelled}, told zero {told_zero}"
+                following(&told_zero, q) > 10.0 * following(&modelled, q),
+                "{scenario}: a model of the lag and the delay should cut the \
+                 plan-following error's {q} tenfold: modelled {modelled}, told zero {told_zero}"
             );
         }
         let arrival = &modelled["arrival"];
@@ -81,6 +81,35 @@ fn a_lagged_delayed_base_that_is_modelled_arrives_settles_and_follows_its_plans_
             "{scenario}: {arrival}"
         );
     }
+}
+
+/// Random worlds (`scmpc fuzz`, people on the way in half of them) on the lagged, delayed
+/// base that is modelled: none collides, and people walk into a robot at rest in few.
+#[test]
+fn in_random_worlds_a_lagged_delayed_base_that_is_modelled_never_collides() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("fuzz");
+    let mut args = vec!["fuzz", "--count", "100", "--out", out_dir.to_str().unwrap()];
+    let sets = base("robot");
+    args.extend(sets.iter().flat_map(|s| ["--set", s.as_str()]));
+    let out = common::run(&args);
+    let rows = common::csv(&out_dir.join("fuzz.csv"));
+    assert_eq!(rows.len(), 100, "{}", stderr(&out));
+    let collided: Vec<&str> = (rows.iter())
+        .filter(|r| r["outcome"] == "collided")
+        .map(|r| r["world"].as_str())
+        .collect();
+    assert!(collided.is_empty(), "worlds {collided:?} collided");
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let at_rest = rows
+        .iter()
+        .filter(|r| common::num(r, "contacts_at_rest") > 0.0)
+        .count();
+    assert!(
+        at_rest <= 3,
+        "people walked into the robot at rest in {at_rest} worlds"
+    );
 }
 
 /// The lag and the delay `scmpc identify` prints (`[robot]` keys) for `sets`, from the

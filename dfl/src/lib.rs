@@ -443,34 +443,28 @@ impl Dfl {
     /// plan; integrates zeta over the tick. The header's publish time and epoch are the
     /// caller's to fill.
     ///
-    /// With a command delay the command sent now takes effect `q` whole ticks later
-    /// (`q = floor(delay / dt)`; the rest of the delay, under a tick, is not compensated):
-    /// the DFL decides for that tick, from the pose the commands already in flight take
-    /// the robot to (a Smith predictor over the model of the base, [`BaseModel::predict`]).
-    /// Its plan element, its safety check, its hold and its evasion all see that tick and
-    /// that pose; the plan's timeline is the one on which commands take effect, so the MPC
-    /// plans as it does without a delay.
+    /// With a command delay the command sent at tick `j` takes effect `q` whole ticks later
+    /// (`q = floor(delay / dt)`; the rest of the delay, under a tick, is not compensated).
+    /// A plan's timeline then runs `q` ticks behind the clock: the MPC plans sample `k` from
+    /// the state it predicts for `t_k + q dt` ([`protocol::Scenario::command_lead_s`]), so
+    /// the DFL flies the element of tick `j` from the pose the commands already in flight
+    /// take the robot to by `t_j + q dt`: the estimator's prediction over its model of the
+    /// base ([`Estimate::ahead`], a Smith predictor); the safety check, the hold and the
+    /// evasion see that pose.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
-        let Some(base) = &self.base else {
-            return self.step_for(estimate, tick, tick);
-        };
-        let ahead = base.ticks_decided();
-        let [x, y, theta, zeta] = estimate.state;
-        let mut pose = [x, y, theta];
-        base.predict(ahead, |duration_s, speeds| {
-            pose = protocol::actuator::arc(pose, speeds, duration_s)
-        });
+        if self.base.is_none() {
+            return self.step_from(estimate, tick);
+        }
+        let [x, y, theta, _] = estimate.ahead;
         let predicted = Estimate {
-            state: [pose[0], pose[1], pose[2], zeta],
+            state: [x, y, theta, estimate.state[3]],
             ..*estimate
         };
-        self.step_for(&predicted, tick + ahead as u64, tick)
+        self.step_from(&predicted, tick)
     }
 
-    /// [`Dfl::step`] for the tick `effect` at which the command of `tick` takes effect,
-    /// from `estimate` predicted to it.
-    fn step_for(&mut self, estimate: &Estimate, effect: u64, tick: u64) -> Actuation {
-        let (tick, sent) = (effect, tick);
+    /// [`Dfl::step`] from `estimate`, predicted over the delay.
+    fn step_from(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let checked = self.check(estimate, tick);
         let checked = self.check_free_range(estimate, checked);
         let sample = self.timing.sample_of(tick);
@@ -508,7 +502,7 @@ impl Dfl {
                 };
                 let mode = if self.evading {
                     CommandMode::Evasion
-                } else if plan_sample < self.timing.sample_of(sent) {
+                } else if plan_sample != sample {
                     CommandMode::Shifted
                 } else if guarded {
                     CommandMode::ZetaGuard
@@ -526,7 +520,7 @@ impl Dfl {
                 ([u1, turn.unwrap_or(0.0)], [0.0; 2], braking, 0)
             }
         };
-        let mut act = self.command(sent, u, v, mode, plan_sample);
+        let mut act = self.command(tick, u, v, mode, plan_sample);
         act.intervention = checked.intervention as u32;
         act.intervention_plan = checked.plan_sample;
         act.intervention_clearance_m = checked.clearance_m;

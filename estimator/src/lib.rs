@@ -98,6 +98,8 @@ pub struct Estimator {
     /// (`robot.actuator_lag_s`, `robot.command_delay_s`): the EKF predicts with the speeds
     /// the base has, not with the command it was just sent.
     base: Option<BaseModel>,
+    /// Whether a measurement has been taken (the first starts the filter).
+    started: bool,
 }
 
 impl Estimator {
@@ -114,12 +116,14 @@ impl Estimator {
                     [scenario.robot.zeta0, 0.0],
                 )
             }),
+            started: false,
         }
     }
 
     /// One inner tick: `applied` are the inputs `(u1, u2)` heard on the actuation service
     /// for the previous tick (held for `dt_s`), `y` the measurement of this tick, `zeta`
-    /// the DFL's zeta at this tick. The first call initializes the filter at `y`.
+    /// the DFL's zeta at this tick (with a lag or a delay, the base's modelled forward
+    /// speed is published instead). The first call initializes the filter at `y`.
     pub fn step(
         &mut self,
         applied: Option<[f64; 2]>,
@@ -130,6 +134,10 @@ impl Estimator {
     ) -> Estimate {
         let (pose, covariance) = match self.kind {
             EstimatorKind::Passthrough => {
+                if let (Some(base), true) = (&mut self.base, self.started) {
+                    let command = applied.unwrap_or([0.0; 2]);
+                    base.advance(self.scenario.plant.realized_inputs(command), |_, _| {});
+                }
                 let var = self.scenario.plant.noise_variance.per_axis();
                 let mut cov = [0.0; 9];
                 (cov[0], cov[4], cov[8]) = (var[0], var[1], var[2]);
@@ -160,9 +168,25 @@ impl Estimator {
                 (ekf.pose(), ekf.covariance())
             }
         };
+        let state = [pose[0], pose[1], pose[2], zeta];
+        let (state, ahead) = match &self.base {
+            None => (state, state),
+            Some(base) => {
+                // The DFL's zeta is the speed the base will have when its newest command
+                // acts; the state now has the speed the base has now.
+                let mut ahead = [pose[0], pose[1], pose[2]];
+                let [forward, _] = base.predict(base.ticks_decided(), |duration_s, speeds| {
+                    ahead = protocol::actuator::arc(ahead, speeds, duration_s)
+                });
+                let now = [pose[0], pose[1], pose[2], base.speeds()[0]];
+                (now, [ahead[0], ahead[1], ahead[2], forward])
+            }
+        };
+        self.started = true;
         Estimate {
             header,
-            state: [pose[0], pose[1], pose[2], zeta],
+            state,
+            ahead,
             covariance,
         }
     }

@@ -116,6 +116,7 @@ impl EstimatorTask {
         let mut estimate = self.estimator.step(applied, self.dt_s, m.y, zeta, header);
         if self.epoch == 0 && m.header.time_s >= self.faults.estimator_nan_from_s {
             estimate.state[0] = f64::NAN;
+            estimate.ahead[0] = f64::NAN;
         }
         estimate
     }

@@ -162,6 +162,9 @@ def main():
             estimate.header.input_latency_ns = min(latency, 2**32 - 1)
             estimate.state[:] = [*ekf.mean, zeta]
             estimate.covariance[:] = [c for row in ekf.covariance for c in row]
+            # The state once the commands in flight act: the same without a command delay
+            # (this estimator models none; robot.command_delay_s needs the built-in one).
+            estimate.ahead[:] = estimate.state
             estimates.send(estimate)
         return None
 

@@ -46,6 +46,7 @@ pub use linear::LinearMpc;
 pub use task::MpcTask;
 
 pub use error::MpcError;
+
 use protocol::{Formulation, Plan, PlanStatus, Scenario};
 
 /// The MPC role: the paper's linear scheme (with the MPC of its final approach,

@@ -65,6 +65,11 @@ pub struct MpcTask {
     /// The first sample whose route leads to the goal (routes planned before it lead to
     /// an old one).
     first_route_sample: u64,
+    /// Whether the plans' timeline runs behind the clock
+    /// ([`protocol::Scenario::command_lead_s`]): then each sample is planned from its
+    /// estimate predicted to when the commands in flight have taken effect
+    /// ([`protocol::Estimate::ahead`]).
+    plans_ahead: bool,
 }
 
 impl Task for MpcTask {
@@ -92,6 +97,7 @@ impl Task for MpcTask {
             goal_serial: 0,
             newest_tracks: None,
             first_route_sample: 0,
+            plans_ahead: scenario.command_lead_s() > 0.0,
         })
     }
 
@@ -167,9 +173,12 @@ impl Task for MpcTask {
         let first_route = self.first_route_sample;
         let route =
             (self.routes.iter().rev()).find(|r| r.sample < sample && r.sample >= first_route);
-        let mut plan =
-            self.mpc
-                .step_on_route(sample, estimate.state, estimate.position_sigma(), route);
+        let x_bar = if self.plans_ahead {
+            estimate.ahead
+        } else {
+            estimate.state
+        };
+        let mut plan = (self.mpc).step_on_route(sample, x_bar, estimate.position_sigma(), route);
         plan.solve_ns = context.monotonic_ns().saturating_sub(started_ns);
         self.mpc.took(plan.solve_ns);
         self.mpc.inject_faults(&mut plan, &self.faults);

@@ -20,6 +20,10 @@ pub struct KeptTracks {
     whole: bool,
     /// How long after their time the tracks stand, s ([`tracks_refresh_s`]).
     tracks_refresh_s: f64,
+    /// How far the plans' timeline runs behind the clock, s
+    /// ([`Scenario::command_lead_s`]): a track measured at `t` is kept as of `t - lead`,
+    /// so that the disc it predicts at a plan's time is the one at the clock's.
+    lead_s: f64,
 }
 
 impl KeptTracks {
@@ -32,6 +36,7 @@ impl KeptTracks {
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
             tracks_refresh_s: tracks_refresh_s(scenario),
+            lead_s: scenario.command_lead_s(),
         }
     }
 
@@ -43,7 +48,7 @@ impl KeptTracks {
     /// The lidar's tracks replace every track kept: a track is a group of points seen,
     /// not an obstacle of the scenario, and a restarted tracker's tracks are its own.
     pub fn take(&mut self, tracks: &Tracks) {
-        let time_s = tracks.header.time_s;
+        let time_s = tracks.header.time_s - self.lead_s;
         if self.whole {
             self.tracks.clear();
             (self.tracks).extend(tracks.tracks().iter().map(|t| (*t, time_s)));

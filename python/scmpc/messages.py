@@ -181,10 +181,15 @@ class GroundTruth(Message):
 
 
 class Estimate(Message):
-    _fields_ = [("header", Header), ("state", c_f64 * 4), ("covariance", c_f64 * 9)]
+    _fields_ = [
+        ("header", Header),
+        ("state", c_f64 * 4),
+        ("covariance", c_f64 * 9),
+        ("ahead", c_f64 * 4),
+    ]
 
     def floats(self):
-        return (*self.state, *self.covariance)
+        return (*self.state, *self.covariance, *self.ahead)
 
 
 class Plan(Message):

@@ -1,6 +1,7 @@
 //! The judge: decides how a run ends from what was recorded (the true pose tick by tick,
 //! and the routes): collision, stall, goal, no route, and at the end reached or timed out.
 
+use protocol::actuator::BaseModel;
 use protocol::{Actuation, CommandMode, GroundTruth, Obstacle, ObstacleGrowth, Route, Scenario};
 use serde::Serialize;
 use std::collections::VecDeque;
@@ -190,6 +191,12 @@ pub struct Judge {
     contact: Option<bool>,
     /// The robot's commanded forward speed at the newest tick, m/s ([`Judge::tick`]).
     commanded_speed_m_s: f64,
+    /// A base with a lag or a command delay (`plant.actuator_lag_s`,
+    /// `plant.command_delay_s`) goes on moving after its commanded speed is zero: its
+    /// speeds, as the simulated plant has them, from the commands it was sent.
+    base: Option<(BaseModel, protocol::PlantConfig)>,
+    /// Whether that base moves at the newest tick (faster than [`REST_SPEED_M_S`]).
+    base_moving: bool,
     /// The DFL holds the robot at its goal at the newest tick, at rest (not turning to the
     /// goal heading; [`Judge::tick`]).
     holding: bool,
@@ -233,6 +240,15 @@ impl Judge {
             contacts_at_rest: 0,
             contact: None,
             commanded_speed_m_s: 0.0,
+            base: {
+                let actuator = scenario.simulated_actuator();
+                let speeds = [scenario.robot.zeta0, 0.0];
+                (!actuator.is_ideal()).then(|| {
+                    let base = BaseModel::new(actuator, scenario.timing.dt_s(), speeds);
+                    (base, scenario.plant.clone())
+                })
+            },
+            base_moving: false,
             holding: false,
             ends_at_hold: scenario.robot.final_approach == protocol::FinalApproach::Settle
                 && !scenario.robot.hold_at_goal,
@@ -316,6 +332,11 @@ impl Judge {
     /// tolerance).
     pub fn tick(&mut self, truth: &GroundTruth, act: &Actuation) -> Option<Outcome> {
         self.commanded_speed_m_s = act.zeta;
+        self.base_moving = self.base.as_mut().is_some_and(|(base, wheels)| {
+            let moving = base.speeds()[0].abs() >= REST_SPEED_M_S;
+            base.advance(wheels.realized_inputs([act.u1, act.u2]), |_, _| {});
+            moving
+        });
         // Held, and done turning to the goal heading.
         self.holding = act.mode() == Some(CommandMode::Hold) && act.u2 == 0.0;
         self.observe_pose(truth)
@@ -384,7 +405,7 @@ impl Judge {
             self.inside_goal_since_s = None;
         }
         self.arrival.observe(t_s, distance);
-        let at_rest = self.commanded_speed_m_s.abs() < REST_SPEED_M_S;
+        let at_rest = self.commanded_speed_m_s.abs() < REST_SPEED_M_S && !self.base_moving;
         // A contact is judged when it starts, and stays what it was until it ends (the
         // obstacle may stop in the robot, the robot may drive out of its way). It starts
         // at rest only against an obstacle moving then: a robot at rest cannot enter one

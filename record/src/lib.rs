@@ -57,9 +57,11 @@ pub struct Recorder {
     planned_next: VecDeque<(f64, [f64; 2])>,
     /// How far the robot was from it, mm, plan by plan.
     plan_following_mm: Vec<f64>,
-    /// `Ts` and the inner tick, s.
+    /// `Ts`, the inner tick and how far the plans' timeline runs behind the clock
+    /// ([`protocol::Scenario::command_lead_s`]), s.
     ts_s: f64,
     dt_s: f64,
+    lead_s: f64,
     deadline_misses: u64,
     miss_streak: u64,
     longest_miss_streak: u64,
@@ -133,6 +135,7 @@ impl Recorder {
             plan_following_mm: Vec::new(),
             ts_s: scenario.timing.ts_s,
             dt_s: scenario.timing.dt_s(),
+            lead_s: scenario.command_lead_s(),
             deadline_misses: 0,
             miss_streak: 0,
             longest_miss_streak: 0,
@@ -314,8 +317,8 @@ impl Recorder {
         self.iterations.push(f64::from(plan.iterations));
         if plan.is_solved() && plan.horizon > 0 {
             let [x, _, y, _] = plan.z[1];
-            self.planned_next
-                .push_back(((plan.sample + 1) as f64 * self.ts_s, [x, y]));
+            let due_s = (plan.sample + 1) as f64 * self.ts_s + self.lead_s;
+            self.planned_next.push_back((due_s, [x, y]));
         }
         self.hand_on(Sample::Plan(plan))
     }

@@ -81,6 +81,11 @@ pub struct Estimate {
     pub state: [f64; 4],
     /// Covariance of `[x, y, theta]`, row-major 3x3.
     pub covariance: [f64; 9],
+    /// `x_bar` predicted to when the commands already sent have all taken effect, `t +
+    /// command_lead_s` (`robot.command_delay_s`, docs/robot.md), zeta being the base's
+    /// forward speed then: what the MPC plans from and the DFL commands for. Without a
+    /// command delay, `state`.
+    pub ahead: [f64; 4],
 }
 
 impl Estimate {
@@ -454,7 +459,7 @@ macro_rules! impl_message {
 impl_message!(
     Measurement => |m| finite(&m.y), true;
     GroundTruth => |m| finite(&m.pose), true;
-    Estimate => |m| finite(&m.state) && finite(&m.covariance), true;
+    Estimate => |m| finite(&m.state) && finite(&m.covariance) && finite(&m.ahead), true;
     Plan => |m| {
         let n = (m.horizon as usize).min(MAX_HORIZON);
         m.v[..n].iter().all(|v| finite(v)) && m.z[..=n].iter().all(|z| finite(z))
@@ -546,6 +551,7 @@ crate::layouts! {
         header: Header,
         state: [f64; 4],
         covariance: [f64; 9],
+        ahead: [f64; 4],
     }
     Plan {
         header: Header,

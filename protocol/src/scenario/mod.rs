@@ -778,6 +778,16 @@ impl Scenario {
         }
     }
 
+    /// How far a plan's timeline runs behind the clock, s: the whole inner ticks of the
+    /// modelled command delay. Plan(k) is made from the state predicted for `t_k +
+    /// command_lead_s`, and the DFL flies its element `i` with the commands that take effect
+    /// from `t_k + i Ts + command_lead_s` on (docs/robot.md); the discs tracks predict are
+    /// shifted likewise.
+    pub fn command_lead_s(&self) -> f64 {
+        let dt_s = self.timing.dt_s();
+        crate::actuator::CommandLine::whole_ticks(self.robot.command_delay_s, dt_s) as f64 * dt_s
+    }
+
     /// The base the simulated plant is: `plant.actuator_lag_s` and
     /// `plant.command_delay_s` where set, else the model's.
     pub fn simulated_actuator(&self) -> crate::actuator::Actuator {
