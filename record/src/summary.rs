@@ -413,6 +413,15 @@ impl Summary {
                 format!("{} interventions", self.safety_interventions),
             ),
             (
+                "plan following",
+                format!(
+                    "p50 {:.3} mm, p99 {:.3} mm, max {:.3} mm off each plan one sample on",
+                    self.plan_following_mm.p50,
+                    self.plan_following_mm.p99,
+                    self.plan_following_mm.max
+                ),
+            ),
+            (
                 "solve time",
                 format!(
                     "p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs",
