@@ -97,6 +97,21 @@ fn every_role_step_runs_without_heap_allocation_over_whole_runs_fallbacks_includ
             "field, {qp_form}: allocations after warm-up by role code"
         );
     }
+    // A base with a lag and a command delay: the plant's line of commands, the estimator's
+    // and the DFL's models of the base, and people on the way (tracks shifted by the lead).
+    let lagged = run::scenarios::load(
+        Some("crossing"),
+        &[
+            "robot.actuator_lag_s=0.05".into(),
+            "robot.command_delay_s=0.02".into(),
+        ],
+    )
+    .unwrap();
+    let (counts, _) = count_whole_run(&lagged);
+    assert_eq!(
+        counts, [0; ROLES],
+        "a lagged, delayed base: allocations after warm-up by role code"
+    );
     // Seeing with a lidar: the lidar's scans, the tracker's perception (groups, discs, the
     // assignment, tracks, phantoms) and the MPC and the DFL keeping clear of what it sees.
     for world in ["unmapped", "occluded"] {
