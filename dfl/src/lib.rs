@@ -294,6 +294,24 @@ impl Dfl {
         }
     }
 
+    /// [`Dfl::adopt_zeta`] from `estimate`: with a model of the base, the speed it will
+    /// have when the DFL's command acts ([`Estimate::ahead`]).
+    pub fn adopt_zeta_of(&mut self, estimate: &Estimate) {
+        self.adopt_zeta(self.as_flown(estimate).state[3]);
+    }
+
+    /// The estimate the DFL flies from: with a model of the base, its `ahead`, the state
+    /// the commands in flight lead to ([`Dfl::step`]).
+    fn as_flown(&self, estimate: &Estimate) -> Estimate {
+        match self.base {
+            None => *estimate,
+            Some(_) => Estimate {
+                state: estimate.ahead,
+                ..*estimate
+            },
+        }
+    }
+
     /// Takes the tracker's tracks into the safety check (without one, nothing).
     pub fn set_tracks(&mut self, tracks: &protocol::Tracks) {
         if let Some(gatekeeper) = &mut self.gatekeeper {
@@ -452,15 +470,8 @@ impl Dfl {
     /// base ([`Estimate::ahead`], a Smith predictor); the safety check, the hold and the
     /// evasion see that pose.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
-        if self.base.is_none() {
-            return self.step_from(estimate, tick);
-        }
-        let [x, y, theta, _] = estimate.ahead;
-        let predicted = Estimate {
-            state: [x, y, theta, estimate.state[3]],
-            ..*estimate
-        };
-        self.step_from(&predicted, tick)
+        let flown = self.as_flown(estimate);
+        self.step_from(&flown, tick)
     }
 
     /// [`Dfl::step`] from `estimate`, predicted over the delay.
@@ -671,7 +682,10 @@ impl Dfl {
                 // wheels' limit lets the base reach.
                 let actuator = base.actuator();
                 let speeds = base.predict(base.ticks_decided(), |_, _| {});
-                let command = actuator.command_reaching(speeds, [self.zeta, u[1]], self.dt_s);
+                // Rounding leaves a base the inversion brought to rest a speed of 1e-17 m/s
+                // or so: a command that small is none (a robot braked to rest is sent 0).
+                let command = (actuator.command_reaching(speeds, [self.zeta, u[1]], self.dt_s))
+                    .map(|c| if c.abs() < 1e-12 { 0.0 } else { c });
                 let realized = self.wheels.realized_inputs(command);
                 if realized[0].abs() < command[0].abs() {
                     self.zeta = actuator.follow(speeds, realized, self.dt_s).end[0];

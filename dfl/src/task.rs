@@ -383,7 +383,7 @@ impl DflTask {
             self.queue.pop_front();
             if !self.commanding {
                 // Not (yet) driving the plant: follow the zeta it is driven with.
-                self.dfl.adopt_zeta(estimate.state[3]);
+                self.dfl.adopt_zeta_of(&estimate);
             }
             self.commanding = context.is_active(tick);
             if let Some(change) = context.goals().due(tick, self.goal_serial) {

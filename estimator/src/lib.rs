@@ -89,6 +89,14 @@ impl Ekf {
     }
 }
 
+/// How the robot moved over the last tick, as the estimator models it: up to two stretches
+/// (duration, s; speeds `[u1, u2]` held or, with a lag, their mean over it).
+#[derive(Debug, Clone, Copy, Default)]
+struct Moved {
+    stretches: [(f64, [f64; 2]); 2],
+    count: usize,
+}
+
 /// The estimator role: EKF or passthrough, as the scenario says.
 pub struct Estimator {
     kind: EstimatorKind,
@@ -103,6 +111,30 @@ pub struct Estimator {
 }
 
 impl Estimator {
+    /// How the robot moved over the last `dt_s` under the command `applied` (as the
+    /// wheels' speed limit, the robot's own, realizes it): held without a model of the
+    /// base (nothing without a command), else as the base's model follows its commands
+    /// (none heard: the base was sent none).
+    fn moved(&mut self, applied: Option<[f64; 2]>, dt_s: f64) -> Moved {
+        let realized = |c| self.scenario.plant.realized_inputs(c);
+        let mut moved = Moved::default();
+        match (&mut self.base, applied) {
+            (Some(base), applied) => base.advance(
+                realized(applied.unwrap_or([0.0; 2])),
+                |duration_s, speeds| {
+                    moved.stretches[moved.count] = (duration_s, speeds);
+                    moved.count += 1;
+                },
+            ),
+            (None, Some(command)) => {
+                moved.stretches[0] = (dt_s, realized(command));
+                moved.count = 1;
+            }
+            (None, None) => {}
+        }
+        moved
+    }
+
     pub fn new(scenario: &Scenario) -> Estimator {
         let actuator = scenario.actuator();
         Estimator {
@@ -121,9 +153,10 @@ impl Estimator {
     }
 
     /// One inner tick: `applied` are the inputs `(u1, u2)` heard on the actuation service
-    /// for the previous tick (held for `dt_s`), `y` the measurement of this tick, `zeta`
-    /// the DFL's zeta at this tick (with a lag or a delay, the base's modelled forward
-    /// speed is published instead). The first call initializes the filter at `y`.
+    /// for the previous tick (held for `dt_s`, the scenario's inner tick), `y` the
+    /// measurement of this tick, `zeta` the DFL's zeta at this tick (with a lag or a
+    /// delay, the base's modelled forward speed is published instead). The first call
+    /// initializes the filter at `y`.
     pub fn step(
         &mut self,
         applied: Option<[f64; 2]>,
@@ -132,12 +165,13 @@ impl Estimator {
         zeta: f64,
         header: Header,
     ) -> Estimate {
+        let moved = if self.started {
+            self.moved(applied, dt_s)
+        } else {
+            Moved::default()
+        };
         let (pose, covariance) = match self.kind {
             EstimatorKind::Passthrough => {
-                if let (Some(base), true) = (&mut self.base, self.started) {
-                    let command = applied.unwrap_or([0.0; 2]);
-                    base.advance(self.scenario.plant.realized_inputs(command), |_, _| {});
-                }
                 let var = self.scenario.plant.noise_variance.per_axis();
                 let mut cov = [0.0; 9];
                 (cov[0], cov[4], cov[8]) = (var[0], var[1], var[2]);
@@ -146,19 +180,8 @@ impl Estimator {
             EstimatorKind::Ekf => {
                 let ekf = match self.ekf.as_mut() {
                     Some(ekf) => {
-                        // The wheels' speed limit is the robot's own, known to it.
-                        let realized = |c| self.scenario.plant.realized_inputs(c);
-                        match (&mut self.base, applied) {
-                            (Some(base), applied) => {
-                                // Without a command heard the base was sent none.
-                                let command = realized(applied.unwrap_or([0.0; 2]));
-                                base.advance(command, |s, [u1, u2]| ekf.predict(u1, u2, s));
-                            }
-                            (None, Some(command)) => {
-                                let [u1, u2] = realized(command);
-                                ekf.predict(u1, u2, dt_s);
-                            }
-                            (None, None) => {}
+                        for &(duration_s, [u1, u2]) in &moved.stretches[..moved.count] {
+                            ekf.predict(u1, u2, duration_s);
                         }
                         ekf.update(y);
                         ekf

@@ -5,7 +5,83 @@
 //! command at once (the paper's unicycle). The plant simulates this model, the estimator
 //! predicts with it and the DFL inverts it; `scmpc identify` fits it to a robot.
 
+use crate::{AutoOr, Scenario};
 use std::collections::VecDeque;
+
+/// Largest actuator lag accepted, s: a base slower than this is no base the DFL can
+/// shape commands for at its tick.
+pub const MAX_ACTUATOR_LAG_S: f64 = 1.0;
+/// Largest command delay accepted, s.
+pub const MAX_COMMAND_DELAY_S: f64 = 0.5;
+
+impl Scenario {
+    /// The base as the controller models it (`robot.actuator_lag_s`,
+    /// `robot.command_delay_s`).
+    pub fn actuator(&self) -> Actuator {
+        Actuator {
+            lag_s: self.robot.actuator_lag_s,
+            delay_s: self.robot.command_delay_s,
+        }
+    }
+
+    /// How far a plan's timeline runs behind the clock, s: the whole inner ticks of the
+    /// modelled command delay. Plan(k) is made from the state predicted for `t_k +
+    /// command_lead_s`, and the DFL flies its element `i` with the commands that take effect
+    /// from `t_k + i Ts + command_lead_s` on (docs/robot.md); the discs tracks predict are
+    /// shifted likewise.
+    pub fn command_lead_s(&self) -> f64 {
+        let dt_s = self.timing.dt_s();
+        CommandLine::whole_ticks(self.robot.command_delay_s, dt_s) as f64 * dt_s
+    }
+
+    /// The base the simulated plant is: `plant.actuator_lag_s` and
+    /// `plant.command_delay_s` where set, else the model's.
+    pub fn simulated_actuator(&self) -> Actuator {
+        let model = self.actuator();
+        let or_model = |value: AutoOr, model: f64| match value {
+            AutoOr::Auto(_) => model,
+            AutoOr::Value(value) => value,
+        };
+        Actuator {
+            lag_s: or_model(self.plant.actuator_lag_s, model.lag_s),
+            delay_s: or_model(self.plant.command_delay_s, model.delay_s),
+        }
+    }
+
+    /// What is wrong with the lag and delay keys, each with its key: each in `[0, most]`.
+    pub fn actuator_problems(&self) -> Vec<(&'static str, String)> {
+        let simulated = |value: AutoOr| match value {
+            AutoOr::Value(value) => Some(value),
+            AutoOr::Auto(_) => None,
+        };
+        let (lag, delay) = (MAX_ACTUATOR_LAG_S, MAX_COMMAND_DELAY_S);
+        let keys = [
+            ("robot.actuator_lag_s", Some(self.robot.actuator_lag_s), lag),
+            (
+                "robot.command_delay_s",
+                Some(self.robot.command_delay_s),
+                delay,
+            ),
+            (
+                "plant.actuator_lag_s",
+                simulated(self.plant.actuator_lag_s),
+                lag,
+            ),
+            (
+                "plant.command_delay_s",
+                simulated(self.plant.command_delay_s),
+                delay,
+            ),
+        ];
+        (keys.into_iter())
+            .filter_map(|(key, value, most)| {
+                let value = value?;
+                let within = value.is_finite() && (0.0..=most).contains(&value);
+                (!within).then(|| (key, format!("must be in [0, {most}] s, got {value}")))
+            })
+            .collect()
+    }
+}
 
 /// How a base follows its speed commands.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -186,7 +262,7 @@ impl BaseModel {
     /// duration and the mean speeds of each stretch of the tick.
     pub fn advance(&mut self, command: [f64; 2], mut each: impl FnMut(f64, [f64; 2])) {
         for (duration_s, command) in self.line.send(command) {
-            self.speeds = self.follow(duration_s, command, &mut each);
+            self.speeds = self.stretch(self.speeds, (duration_s, command), &mut each);
         }
     }
 
@@ -195,24 +271,22 @@ impl BaseModel {
     pub fn predict(&self, ahead: usize, mut each: impl FnMut(f64, [f64; 2])) -> [f64; 2] {
         let mut speeds = self.speeds;
         for tick in 0..ahead.min(self.ticks_decided()) {
-            for (duration_s, command) in self.line.pieces_ahead(tick) {
-                let followed = self.actuator.follow(speeds, command, duration_s);
-                if duration_s > 0.0 {
-                    each(duration_s, followed.mean);
-                }
-                speeds = followed.end;
+            for piece in self.line.pieces_ahead(tick) {
+                speeds = self.stretch(speeds, piece, &mut each);
             }
         }
         speeds
     }
 
-    fn follow(
+    /// The speeds after `piece` from `speeds`; `each` is called with its duration and mean
+    /// speeds, unless it lasts no time.
+    fn stretch(
         &self,
-        duration_s: f64,
-        command: [f64; 2],
+        speeds: [f64; 2],
+        (duration_s, command): Piece,
         each: &mut impl FnMut(f64, [f64; 2]),
     ) -> [f64; 2] {
-        let followed = self.actuator.follow(self.speeds, command, duration_s);
+        let followed = self.actuator.follow(speeds, command, duration_s);
         if duration_s > 0.0 {
             each(duration_s, followed.mean);
         }

@@ -412,6 +412,16 @@ impl Summary {
                 "safety checks",
                 format!("{} interventions", self.safety_interventions),
             ),
+        ];
+        let table: String = (rows.iter().chain(&self.timing_rows()))
+            .map(|(k, v)| format!("  {k:<16} {v}\n"))
+            .collect();
+        table + &self.rows_of_what_ran()
+    }
+
+    /// The end table's rows of how the robot followed its plans and how long it took.
+    fn timing_rows(&self) -> [(&'static str, String); 3] {
+        [
             (
                 "plan following",
                 format!(
@@ -435,12 +445,7 @@ impl Summary {
                     self.wall_s, self.simulated_s
                 ),
             ),
-        ];
-        let table: String = rows
-            .iter()
-            .map(|(k, v)| format!("  {k:<16} {v}\n"))
-            .collect();
-        table + &self.rows_of_what_ran()
+        ]
     }
 
     /// The end table's rows of what only some runs have: moving obstacles, a route, a

@@ -71,6 +71,11 @@ impl Excitation {
         commands
     }
 
+    /// How long the excitation lasts, s.
+    pub fn duration_s(&self, dt_s: f64) -> f64 {
+        self.commands(dt_s).len() as f64 * dt_s
+    }
+
     /// The farthest an ideal base driven by [`Excitation::commands`] gets from where it
     /// starts, m.
     pub fn reach_m(&self, dt_s: f64) -> f64 {
@@ -113,9 +118,15 @@ pub enum RoomError {
 }
 
 /// Whether the robot of `scenario` at its start has room for an excitation that reaches
-/// `reach_m` (and [`ROOM_MARGIN_M`]) within `within_m`: inside the position box, clear of
-/// every known obstacle (grown by the robot's radius) where it is at the start.
-pub fn check_room(scenario: &Scenario, reach_m: f64, within_m: f64) -> Result<(), RoomError> {
+/// `reach_m` (no farther than `within_m`) and lasts `duration_s`: with [`ROOM_MARGIN_M`]
+/// more, inside the position box and clear of every known obstacle (grown by the robot's
+/// radius) wherever it is meanwhile.
+pub fn check_room(
+    scenario: &Scenario,
+    reach_m: f64,
+    within_m: f64,
+    duration_s: f64,
+) -> Result<(), RoomError> {
     if reach_m > within_m {
         return Err(RoomError::TooFar { reach_m, within_m });
     }
@@ -133,9 +144,11 @@ pub fn check_room(scenario: &Scenario, reach_m: f64, within_m: f64) -> Result<()
         if !obstacle.is_known() {
             continue;
         }
-        let center = obstacle.center_at(0.0);
-        let clearance_m =
-            protocol::distance(center, start) - obstacle.radius - scenario.robot.radius_m;
+        // Every 0.1 s of the excitation, for one that moves.
+        let times = (0..=(duration_s / 0.1).ceil() as usize).map(|i| i as f64 * 0.1);
+        let nearest_m = (times.map(|t| protocol::distance(obstacle.center_at(t), start)))
+            .fold(f64::INFINITY, f64::min);
+        let clearance_m = nearest_m - obstacle.radius - scenario.robot.radius_m;
         if clearance_m < needed_m {
             return Err(RoomError::NearObstacle {
                 index,
@@ -146,6 +159,29 @@ pub fn check_room(scenario: &Scenario, reach_m: f64, within_m: f64) -> Result<()
     }
     Ok(())
 }
+
+/// Why what was measured gives no lag and delay.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FitError {
+    #[error(
+        "{poses} poses in {seconds:.1} s of excitation, fewer than one each {MOST_POSE_GAP_S} s: \
+         the odometry stopped or came too slowly"
+    )]
+    TooFewPoses { poses: usize, seconds: f64 },
+    #[error(
+        "the {channel} did not follow the excitation (lag {lag_s:.3} s, delay {delay_s:.3} s, \
+         at or beyond what is searched: {MOST_LAG_S} s, {MOST_DELAY_S} s): is the robot \
+         driven by these commands, and free to move?"
+    )]
+    NoResponse {
+        channel: &'static str,
+        lag_s: f64,
+        delay_s: f64,
+    },
+}
+
+/// The longest a fit takes between two poses on average, s.
+pub const MOST_POSE_GAP_S: f64 = 0.1;
 
 /// One channel's lag and delay as fitted.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -376,11 +412,16 @@ fn confidence(
 
 /// Drives the excitation on the simulated plant of `scenario` (its lag and delay:
 /// `plant.actuator_lag_s`, `plant.command_delay_s`, its noise and its wheels), from its
-/// start, and fits what it measured at every tick.
-pub fn identify_simulated(scenario: &Validated, excitation: Excitation) -> Identified {
+/// start at rest, and fits what it measured at every tick.
+pub fn identify_simulated(
+    scenario: &Validated,
+    excitation: Excitation,
+) -> Result<Identified, FitError> {
     let dt_s = scenario.timing.dt_s();
     let commands = excitation.commands(dt_s);
-    let mut plant = plant::Plant::new(scenario);
+    let mut at_rest = (**scenario).clone();
+    at_rest.robot.zeta0 = 0.0;
+    let mut plant = plant::Plant::new(&at_rest);
     let mut poses = Vec::with_capacity(commands.len() + 1);
     poses.push(plant.measure());
     let mut applied = Vec::with_capacity(commands.len());
@@ -392,14 +433,29 @@ pub fn identify_simulated(scenario: &Validated, excitation: Excitation) -> Ident
     fitted(&applied, dt_s, &Measured::of(times, &poses))
 }
 
-/// Both channels fitted.
-fn fitted(commands: &[[f64; 2]], dt_s: f64, measured: &Measured) -> Identified {
+/// Both channels fitted, or why they say nothing: too few poses, or a fit at the edge of
+/// the search (a robot that did not move).
+fn fitted(commands: &[[f64; 2]], dt_s: f64, measured: &Measured) -> Result<Identified, FitError> {
+    let (poses, seconds) = (measured.times.len(), commands.len() as f64 * dt_s);
+    if (poses as f64) < seconds / MOST_POSE_GAP_S {
+        return Err(FitError::TooFewPoses { poses, seconds });
+    }
     let [forward, turn] = fit(commands, dt_s, measured);
-    Identified {
+    for (channel, c) in [("forward speed", forward), ("turn rate", turn)] {
+        let inside = c.lag_s < MOST_LAG_S && c.delay_s < MOST_DELAY_S;
+        if !(inside && c.lag_sigma_s.is_finite() && c.delay_sigma_s.is_finite()) {
+            return Err(FitError::NoResponse {
+                channel,
+                lag_s: c.lag_s,
+                delay_s: c.delay_s,
+            });
+        }
+    }
+    Ok(Identified {
         forward,
         turn,
-        poses: measured.times.len(),
-    }
+        poses,
+    })
 }
 
 /// How long the robot's odometry is watched at rest after the excitation, s: the lag and
@@ -423,13 +479,14 @@ pub fn identify_ros2(
     let mut from_there = (**scenario).clone();
     from_there.robot.start = first.pose;
     let dt_s = scenario.timing.dt_s();
-    let driven = check_room(&from_there, excitation.reach_m(dt_s), within_m)
+    let (reach_m, duration_s) = (excitation.reach_m(dt_s), excitation.duration_s(dt_s));
+    let driven = check_room(&from_there, reach_m, within_m, duration_s)
         .context("the robot's first odometry")
         .and_then(|()| excite(&mut link, excitation, dt_s, stop));
     let stopped = link.stop_and_close();
     let (commands, measured) = driven?;
     stopped?;
-    Ok(fitted(&commands, dt_s, &measured))
+    Ok(fitted(&commands, dt_s, &measured)?)
 }
 
 /// Sends the excitation's commands through `link` every `dt_s` and keeps each new
@@ -494,26 +551,50 @@ mod tests {
     }
 
     #[test]
+    fn a_robot_that_does_not_move_or_whose_odometry_stops_gives_no_fit() {
+        let dt = 0.005;
+        let commands = Excitation::default().commands(dt);
+        let times: Vec<f64> = (0..=commands.len()).map(|j| j as f64 * dt).collect();
+        let n = times.len();
+        let still = Measured {
+            times: times.clone(),
+            travelled: [vec![0.0; n], vec![0.0; n]],
+        };
+        assert!(matches!(
+            fitted(&commands, dt, &still),
+            Err(FitError::NoResponse { .. })
+        ));
+        let few = Measured {
+            times: times[..10].to_vec(),
+            travelled: [vec![0.0; 10], vec![0.0; 10]],
+        };
+        assert!(matches!(
+            fitted(&commands, dt, &few),
+            Err(FitError::TooFewPoses { poses: 10, .. })
+        ));
+    }
+
+    #[test]
     fn the_excitation_is_refused_where_it_would_leave_the_box_or_come_near_an_obstacle() {
         let mut s = Scenario::default();
         let reach = Excitation::default().reach_m(s.timing.dt_s());
         assert!(reach > 0.1 && reach < 1.0, "reach {reach}");
         s.robot.start = [0.0, 0.0, 0.0];
         s.obstacles.clear();
-        assert_eq!(check_room(&s, reach, 1.0), Ok(()));
+        assert_eq!(check_room(&s, reach, 1.0, 15.0), Ok(()));
         assert!(matches!(
-            check_room(&s, reach, 0.05),
+            check_room(&s, reach, 0.05, 15.0),
             Err(RoomError::TooFar { .. })
         ));
         s.robot.start = [9.8, 0.0, 0.0];
         assert!(matches!(
-            check_room(&s, reach, 1.0),
+            check_room(&s, reach, 1.0, 15.0),
             Err(RoomError::OutOfTheBox { .. })
         ));
         s.robot.start = [0.0, 0.0, 0.0];
         s.obstacles = vec![protocol::Obstacle::fixed(0.8, 0.0, 0.5)];
         assert!(matches!(
-            check_room(&s, reach, 1.0),
+            check_room(&s, reach, 1.0, 15.0),
             Err(RoomError::NearObstacle { index: 0, .. })
         ));
     }

@@ -69,7 +69,7 @@ pub enum Command {
     ///
     /// Drives the simulated plant (its `plant.actuator_lag_s`, `plant.command_delay_s`,
     /// noise and wheels) from `robot.start`, or the ROS 2 robot of `plant.kind = "ros2"`
-    /// from where its odometry puts it, in real time (about 16 s). Refuses to start where
+    /// from where its odometry puts it, in real time (about 15 s). Refuses to start where
     /// the excitation would leave the position box or come near a known obstacle. Exit 2
     /// on bad input.
     Identify(IdentifyArgs),

@@ -373,9 +373,10 @@ fn identify(args: IdentifyArgs) -> CliResult {
     };
     let identified = match scenario.plant.kind {
         protocol::PlantKind::Sim => {
-            let reach_m = excitation.reach_m(scenario.timing.dt_s());
-            check_room(&scenario, reach_m, args.within).map_err(bad_input)?;
-            identify_simulated(&scenario, excitation)
+            let dt_s = scenario.timing.dt_s();
+            let (reach_m, duration_s) = (excitation.reach_m(dt_s), excitation.duration_s(dt_s));
+            check_room(&scenario, reach_m, args.within, duration_s).map_err(bad_input)?;
+            identify_simulated(&scenario, excitation).map_err(anyhow::Error::from)?
         }
         protocol::PlantKind::Ros2 => {
             let stop = run::stop::on_signals();

@@ -17,11 +17,6 @@ pub const MAX_CONSTRAINT_HORIZON: usize = 200;
 pub const MAX_INNER_STEPS: usize = 1000;
 /// Largest number of RK4 substeps per inner tick.
 pub const MAX_RK4_SUBSTEPS: usize = 1000;
-/// Largest actuator lag accepted, s: a base slower than this is no base the DFL can
-/// shape commands for at its tick.
-pub const MAX_ACTUATOR_LAG_S: f64 = 1.0;
-/// Largest command delay accepted, s.
-pub const MAX_COMMAND_DELAY_S: f64 = 0.5;
 
 /// A scenario [`Scenario::validate`] has accepted: the only kind a run, a sweep, a figure,
 /// a role process or the in-process loop takes, so validation cannot be skipped. It reads
@@ -766,39 +761,6 @@ impl Scenario {
         match self.dfl.brake_decel {
             AutoOr::Auto(_) => self.mpc.v_max,
             AutoOr::Value(decel) => decel,
-        }
-    }
-
-    /// The base as the controller models it (`robot.actuator_lag_s`,
-    /// `robot.command_delay_s`).
-    pub fn actuator(&self) -> crate::actuator::Actuator {
-        crate::actuator::Actuator {
-            lag_s: self.robot.actuator_lag_s,
-            delay_s: self.robot.command_delay_s,
-        }
-    }
-
-    /// How far a plan's timeline runs behind the clock, s: the whole inner ticks of the
-    /// modelled command delay. Plan(k) is made from the state predicted for `t_k +
-    /// command_lead_s`, and the DFL flies its element `i` with the commands that take effect
-    /// from `t_k + i Ts + command_lead_s` on (docs/robot.md); the discs tracks predict are
-    /// shifted likewise.
-    pub fn command_lead_s(&self) -> f64 {
-        let dt_s = self.timing.dt_s();
-        crate::actuator::CommandLine::whole_ticks(self.robot.command_delay_s, dt_s) as f64 * dt_s
-    }
-
-    /// The base the simulated plant is: `plant.actuator_lag_s` and
-    /// `plant.command_delay_s` where set, else the model's.
-    pub fn simulated_actuator(&self) -> crate::actuator::Actuator {
-        let model = self.actuator();
-        let or_model = |value: AutoOr, model: f64| match value {
-            AutoOr::Auto(_) => model,
-            AutoOr::Value(value) => value,
-        };
-        crate::actuator::Actuator {
-            lag_s: or_model(self.plant.actuator_lag_s, model.lag_s),
-            delay_s: or_model(self.plant.command_delay_s, model.delay_s),
         }
     }
 
