@@ -463,12 +463,12 @@ impl Dfl {
     ///
     /// With a command delay the command sent at tick `j` takes effect `q` whole ticks later
     /// (`q = floor(delay / dt)`; the rest of the delay, under a tick, is not compensated).
-    /// A plan's timeline then runs `q` ticks behind the clock: the MPC plans sample `k` from
-    /// the state it predicts for `t_k + q dt` ([`protocol::Scenario::command_lead_s`]), so
-    /// the DFL flies the element of tick `j` from the pose the commands already in flight
-    /// take the robot to by `t_j + q dt`: the estimator's prediction over its model of the
-    /// base ([`Estimate::ahead`], a Smith predictor); the safety check, the hold and the
-    /// evasion see that pose.
+    /// A plan's timeline then runs `q` ticks behind the clock
+    /// ([`protocol::Scenario::command_lead_s`]): the estimator predicts, over its model of
+    /// the base, the state the commands already in flight take the robot to by `t_j + q dt`
+    /// ([`Estimate::ahead`], a Smith predictor); the MPC plans sample `k` from that of
+    /// `t_k`, and the DFL flies the element of tick `j` from that of `t_j`. Its safety
+    /// check, the hold and the evasion see that state too.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
         let flown = self.as_flown(estimate);
         self.step_from(&flown, tick)
