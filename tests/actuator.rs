@@ -167,16 +167,7 @@ fn arrival_of_truth(log: &serde_json::Value) -> (f64, Option<f64>) {
         .iter()
         .map(|r| (at(r, 0) / 1e9, at(r, 1).hypot(at(r, 2))))
         .collect();
-    let first = path
-        .iter()
-        .position(|&(_, d)| d <= 0.2)
-        .expect("never within 0.2 m");
-    let farthest = path[first..].iter().map(|&(_, d)| d).fold(0.0, f64::max);
-    let resting_from = path
-        .iter()
-        .rposition(|&(_, d)| d > 0.05)
-        .map_or(0, |i| i + 1);
-    let to_rest = (resting_from < path.len()).then(|| path[resting_from].0 - path[first].0);
+    let (_, farthest, to_rest) = common::arrival_of(&path, 0.05).expect("never within 0.2 m");
     (farthest, to_rest)
 }
 

@@ -24,16 +24,7 @@ fn arrival_of_trajectory(
             (num(r, "t"), (x - goal[0]).hypot(y - goal[1]))
         })
         .collect();
-    let first = path.iter().position(|&(_, d)| d <= 0.2)?;
-    let farthest = path[first..].iter().map(|&(_, d)| d).fold(0.0, f64::max);
-    // The final stay within the rest radius: after the last tick outside it.
-    let resting_from = match path.iter().rposition(|&(_, d)| d > rest_m) {
-        None => Some(0),
-        Some(last) if last + 1 < path.len() => Some(last + 1),
-        Some(_) => None,
-    };
-    let to_rest = resting_from.map(|i| path[i].0 - path[first].0);
-    Some((path[first].0, farthest, to_rest))
+    common::arrival_of(&path, rest_m)
 }
 
 #[test]

@@ -265,13 +265,7 @@ impl Dfl {
                     yaw_tolerance_rad: scenario.robot.goal_yaw_tolerance_rad,
                 }),
             holding: false,
-            base: (!scenario.actuator().is_ideal()).then(|| {
-                BaseModel::new(
-                    scenario.actuator(),
-                    scenario.timing.dt_s(),
-                    [scenario.robot.zeta0, 0.0],
-                )
-            }),
+            base: BaseModel::of(scenario.actuator(), scenario),
         }
     }
 
@@ -297,19 +291,12 @@ impl Dfl {
     /// [`Dfl::adopt_zeta`] from `estimate`: with a model of the base, the speed it will
     /// have when the DFL's command acts ([`Estimate::ahead`]).
     pub fn adopt_zeta_of(&mut self, estimate: &Estimate) {
-        self.adopt_zeta(self.as_flown(estimate).state[3]);
-    }
-
-    /// The estimate the DFL flies from: with a model of the base, its `ahead`, the state
-    /// the commands in flight lead to ([`Dfl::step`]).
-    fn as_flown(&self, estimate: &Estimate) -> Estimate {
-        match self.base {
-            None => *estimate,
-            Some(_) => Estimate {
-                state: estimate.ahead,
-                ..*estimate
-            },
-        }
+        let x_bar = if self.base.is_some() {
+            estimate.ahead
+        } else {
+            estimate.state
+        };
+        self.adopt_zeta(x_bar[3]);
     }
 
     /// Takes the tracker's tracks into the safety check (without one, nothing).
@@ -470,8 +457,14 @@ impl Dfl {
     /// `t_k`, and the DFL flies the element of tick `j` from that of `t_j`. Its safety
     /// check, the hold and the evasion see that state too.
     pub fn step(&mut self, estimate: &Estimate, tick: u64) -> Actuation {
-        let flown = self.as_flown(estimate);
-        self.step_from(&flown, tick)
+        if self.base.is_none() {
+            return self.step_from(estimate, tick);
+        }
+        let ahead = Estimate {
+            state: estimate.ahead,
+            ..*estimate
+        };
+        self.step_from(&ahead, tick)
     }
 
     /// [`Dfl::step`] from `estimate`, predicted over the delay.

@@ -136,18 +136,11 @@ impl Estimator {
     }
 
     pub fn new(scenario: &Scenario) -> Estimator {
-        let actuator = scenario.actuator();
         Estimator {
             kind: scenario.estimator.kind,
             ekf: None,
             scenario: scenario.clone(),
-            base: (!actuator.is_ideal()).then(|| {
-                BaseModel::new(
-                    actuator,
-                    scenario.timing.dt_s(),
-                    [scenario.robot.zeta0, 0.0],
-                )
-            }),
+            base: BaseModel::of(scenario.actuator(), scenario),
             started: false,
         }
     }

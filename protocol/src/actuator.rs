@@ -112,6 +112,11 @@ impl Actuator {
     /// time (the exact solution of the lag: each channel approaches the command
     /// exponentially).
     pub fn follow(&self, speeds: [f64; 2], command: [f64; 2], duration_s: f64) -> Followed {
+        self.decay(duration_s).follow(speeds, command)
+    }
+
+    /// How much of a speed step the lag leaves after `duration_s`, and on average over it.
+    pub fn decay(&self, duration_s: f64) -> Decay {
         let left = self.remaining(duration_s);
         // Mean of exp(-t / lag) over [0, duration]; 0 without lag (a jump at t = 0).
         let mean_left = if self.lag_s > 0.0 && duration_s > 0.0 {
@@ -119,10 +124,7 @@ impl Actuator {
         } else {
             0.0
         };
-        Followed {
-            end: std::array::from_fn(|i| command[i] + (speeds[i] - command[i]) * left),
-            mean: std::array::from_fn(|i| command[i] + (speeds[i] - command[i]) * mean_left),
-        }
+        Decay { left, mean_left }
     }
 
     /// The command that brings the base from `speeds` to `target` in `dt_s` (held over
@@ -131,6 +133,27 @@ impl Actuator {
     pub fn command_reaching(&self, speeds: [f64; 2], target: [f64; 2], dt_s: f64) -> [f64; 2] {
         let gain = 1.0 / (1.0 - self.remaining(dt_s));
         std::array::from_fn(|i| speeds[i] + (target[i] - speeds[i]) * gain)
+    }
+}
+
+/// How much of a speed step the lag leaves after a stretch of time (`exp(-t / lag)`), and
+/// on average over it ([`Actuator::decay`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Decay {
+    left: f64,
+    mean_left: f64,
+}
+
+impl Decay {
+    /// The speeds at the end of the stretch with `command` in effect from `speeds`, and
+    /// their mean over it.
+    pub fn follow(&self, speeds: [f64; 2], command: [f64; 2]) -> Followed {
+        let towards =
+            |share: f64| std::array::from_fn(|i| command[i] + (speeds[i] - command[i]) * share);
+        Followed {
+            end: towards(self.left),
+            mean: towards(self.mean_left),
+        }
     }
 }
 
@@ -205,13 +228,16 @@ impl CommandLine {
         self.sent.len() - 1
     }
 
+    /// How long each of the two pieces of a tick lasts, s: `r`, then `dt - r`.
+    pub fn durations(&self) -> [f64; 2] {
+        [self.rest_s, self.dt_s - self.rest_s]
+    }
+
     /// The pieces of tick `j + ahead` (`ahead < q`) from the commands already sent, before
     /// tick `j`'s.
     pub fn pieces_ahead(&self, ahead: usize) -> [Piece; 2] {
-        [
-            (self.rest_s, self.sent[ahead]),
-            (self.dt_s - self.rest_s, self.sent[ahead + 1]),
-        ]
+        let [rest, after] = self.durations();
+        [(rest, self.sent[ahead]), (after, self.sent[ahead + 1])]
     }
 
     /// Sends the command of the tick that starts now; returns the pieces of this tick.
@@ -229,6 +255,9 @@ impl CommandLine {
 pub struct BaseModel {
     actuator: Actuator,
     line: CommandLine,
+    /// The lag's decay over each of the two pieces of a tick ([`CommandLine::durations`]),
+    /// computed once: every tick predicts over `q` ticks.
+    decays: [Decay; 2],
     /// The base's speeds at the start of the coming tick.
     speeds: [f64; 2],
 }
@@ -236,11 +265,22 @@ pub struct BaseModel {
 impl BaseModel {
     /// A base moving at `speeds` that was commanded them until now.
     pub fn new(actuator: Actuator, dt_s: f64, speeds: [f64; 2]) -> BaseModel {
+        let line = CommandLine::new(actuator.delay_s, dt_s, speeds);
         BaseModel {
             actuator,
-            line: CommandLine::new(actuator.delay_s, dt_s, speeds),
+            decays: line
+                .durations()
+                .map(|duration_s| actuator.decay(duration_s)),
+            line,
             speeds,
         }
+    }
+
+    /// The model of `actuator` for `scenario`'s robot, from its start (`robot.zeta0`,
+    /// ticks of `timing.dt_s()`); `None` for a base that realizes each command at once.
+    pub fn of(actuator: Actuator, scenario: &Scenario) -> Option<BaseModel> {
+        let speeds = [scenario.robot.zeta0, 0.0];
+        (!actuator.is_ideal()).then(|| BaseModel::new(actuator, scenario.timing.dt_s(), speeds))
     }
 
     /// The lag and the delay modelled.
@@ -261,36 +301,34 @@ impl BaseModel {
     /// Sends the command of the coming tick and advances over it; calls `each` with the
     /// duration and the mean speeds of each stretch of the tick.
     pub fn advance(&mut self, command: [f64; 2], mut each: impl FnMut(f64, [f64; 2])) {
-        for (duration_s, command) in self.line.send(command) {
-            self.speeds = self.stretch(self.speeds, (duration_s, command), &mut each);
-        }
+        let pieces = self.line.send(command);
+        self.speeds = self.through(self.speeds, pieces, &mut each);
     }
 
     /// The speeds `ahead` whole ticks from now (at most [`BaseModel::ticks_decided`]) under
     /// the commands already sent, calling `each` as [`BaseModel::advance`] does.
     pub fn predict(&self, ahead: usize, mut each: impl FnMut(f64, [f64; 2])) -> [f64; 2] {
-        let mut speeds = self.speeds;
-        for tick in 0..ahead.min(self.ticks_decided()) {
-            for piece in self.line.pieces_ahead(tick) {
-                speeds = self.stretch(speeds, piece, &mut each);
-            }
-        }
-        speeds
+        (0..ahead.min(self.ticks_decided())).fold(self.speeds, |speeds, tick| {
+            self.through(speeds, self.line.pieces_ahead(tick), &mut each)
+        })
     }
 
-    /// The speeds after `piece` from `speeds`; `each` is called with its duration and mean
-    /// speeds, unless it lasts no time.
-    fn stretch(
+    /// The speeds after the two `pieces` of a tick from `speeds`; `each` is called with
+    /// each piece's duration and mean speeds, unless it lasts no time.
+    fn through(
         &self,
-        speeds: [f64; 2],
-        (duration_s, command): Piece,
+        mut speeds: [f64; 2],
+        pieces: [Piece; 2],
         each: &mut impl FnMut(f64, [f64; 2]),
     ) -> [f64; 2] {
-        let followed = self.actuator.follow(speeds, command, duration_s);
-        if duration_s > 0.0 {
-            each(duration_s, followed.mean);
+        for ((duration_s, command), decay) in pieces.into_iter().zip(&self.decays) {
+            let followed = decay.follow(speeds, command);
+            if duration_s > 0.0 {
+                each(duration_s, followed.mean);
+            }
+            speeds = followed.end;
         }
-        followed.end
+        speeds
     }
 }
 

@@ -240,14 +240,8 @@ impl Judge {
             contacts_at_rest: 0,
             contact: None,
             commanded_speed_m_s: 0.0,
-            base: {
-                let actuator = scenario.simulated_actuator();
-                let speeds = [scenario.robot.zeta0, 0.0];
-                (!actuator.is_ideal()).then(|| {
-                    let base = BaseModel::new(actuator, scenario.timing.dt_s(), speeds);
-                    (base, scenario.plant.clone())
-                })
-            },
+            base: BaseModel::of(scenario.simulated_actuator(), scenario)
+                .map(|base| (base, scenario.plant.clone())),
             base_moving: false,
             holding: false,
             ends_at_hold: scenario.robot.final_approach == protocol::FinalApproach::Settle

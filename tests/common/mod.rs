@@ -389,3 +389,20 @@ pub fn assert_threads_at_the_control_tier(pid: u32, names: &[&str]) {
         );
     }
 }
+
+/// The arrival of a robot along `path` (`(t_s, distance to the goal, m)` in time order):
+/// the first time within 0.2 m of its goal, the largest distance after that, and the time
+/// from then to the stay within `rest_m` that lasts to the end (`None` if it never came
+/// within 0.2 m).
+pub fn arrival_of(path: &[(f64, f64)], rest_m: f64) -> Option<(f64, f64, Option<f64>)> {
+    let first = path.iter().position(|&(_, d)| d <= 0.2)?;
+    let farthest = path[first..].iter().map(|&(_, d)| d).fold(0.0, f64::max);
+    // The final stay within the rest radius: after the last point outside it.
+    let resting_from = match path.iter().rposition(|&(_, d)| d > rest_m) {
+        None => Some(0),
+        Some(last) if last + 1 < path.len() => Some(last + 1),
+        Some(_) => None,
+    };
+    let to_rest = resting_from.map(|i| path[i].0 - path[first].0);
+    Some((path[first].0, farthest, to_rest))
+}
