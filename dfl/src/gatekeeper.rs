@@ -76,7 +76,7 @@ impl Gatekeeper {
                 .known_obstacles()
                 .map(|o| Disc::around(o, growth.fixed_m))
                 .collect(),
-            tracks: scenario.runs_tracker().then(|| KeptTracks::of(scenario)),
+            tracks: scenario.takes_tracks().then(|| KeptTracks::of(scenario)),
             growth,
             brake_decel: scenario.brake_decel(),
             ts_s: scenario.timing.ts_s,

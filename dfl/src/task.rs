@@ -280,7 +280,7 @@ impl Task for DflTask {
             watch: SilenceWatch::default(),
             timing: scenario.timing.clone(),
             queue: VecDeque::with_capacity(16),
-            tracks: (scenario.dfl.gatekeeper && scenario.roles().any(|r| r == Role::Tracker))
+            tracks: (scenario.dfl.gatekeeper && scenario.takes_tracks())
                 .then(|| TrackInbox::new(scenario)),
             scans: (scenario.dfl.gatekeeper && scenario.sees_with_lidar()).then(|| {
                 let poses = VecDeque::with_capacity(POSES_KEPT);

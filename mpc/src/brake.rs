@@ -117,7 +117,7 @@ impl TerminalBrake {
             ts_s: scenario.timing.ts_s,
             form,
             rest_lookahead_s: scenario.mpc.rest_lookahead_s,
-            sweeps: scenario.runs_tracker(),
+            sweeps: scenario.takes_tracks(),
         })
     }
 }

@@ -119,7 +119,7 @@ impl World {
     pub fn of(scenario: &protocol::Scenario) -> World {
         World {
             known: scenario.known_obstacles().cloned().collect(),
-            tracking: scenario.runs_tracker(),
+            tracking: scenario.takes_tracks(),
             tracks: KeptTracks::of(scenario),
             seen_most: scenario
                 .sees_with_lidar()
@@ -178,6 +178,7 @@ impl World {
         );
         discs.extend(self.tracks.tracks().iter().map(|(track, time_s)| {
             let age_s = t_s - time_s;
+            let accel_max = self.tracks.accel_for(track, accel_max);
             predicted_disc(track, age_s, &g, chord, accel_max, self.tracks.refresh_s())
         }));
         if let Some(most) = self.seen_most {

@@ -31,6 +31,7 @@ pub mod brake;
 pub mod discs;
 pub mod error;
 pub mod follow;
+pub mod give_way;
 pub mod layout;
 pub mod linear;
 pub mod model;

@@ -70,6 +70,8 @@ pub struct MpcTask {
     /// estimate predicted to when the commands in flight have taken effect
     /// ([`protocol::Estimate::ahead`]).
     plans_ahead: bool,
+    /// In a fleet, the rule that breaks deadlocks ([`crate::give_way`]).
+    give_way: Option<crate::give_way::GiveWay>,
 }
 
 impl Task for MpcTask {
@@ -98,6 +100,7 @@ impl Task for MpcTask {
             newest_tracks: None,
             first_route_sample: 0,
             plans_ahead: scenario.command_lead_s() > 0.0,
+            give_way: crate::give_way::GiveWay::of(scenario),
         })
     }
 
@@ -178,7 +181,15 @@ impl Task for MpcTask {
         } else {
             estimate.state
         };
+        let detour = self.give_way.as_mut().and_then(|rule| {
+            let position = [x_bar[0], x_bar[1]];
+            let goal = self.scenario.robot.goal.position;
+            let tracks = self.newest_tracks.as_ref();
+            rule.detour(estimate.header.time_s, position, x_bar[3], goal, tracks)
+        });
+        let route = detour.as_ref().map(|(r, _)| r).or(route);
         let mut plan = (self.mpc).step_on_route(sample, x_bar, estimate.position_sigma(), route);
+        plan.gives_way = detour.map_or(0, |(_, peer)| peer + 1);
         plan.solve_ns = context.monotonic_ns().saturating_sub(started_ns);
         self.mpc.took(plan.solve_ns);
         self.mpc.inject_faults(&mut plan, &self.faults);

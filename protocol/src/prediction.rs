@@ -2,7 +2,7 @@
 //! every consumer of the tracker (the MPC's constraints, the DFL's check) keeps the
 //! newest track of each obstacle and grows its disc with the time since the track.
 
-use crate::{Disc, DiscMotion, Scenario, Track, Tracks};
+use crate::{Disc, DiscMotion, Plan, Scenario, Track, Tracks};
 
 /// The track kept of each tracked obstacle heard of, with its time (s), and how its
 /// predictions grow.
@@ -11,6 +11,8 @@ pub struct KeptTracks {
     tracks: Vec<(Track, f64)>,
     /// `perception.accel_max`, m/s^2.
     accel_max: f64,
+    /// The bound on another robot's acceleration, m/s^2 ([`Scenario::peer_accel_max`]).
+    peer_accel_max: f64,
     /// `kappa`: standard deviations of a predicted position.
     uncertainty_sigmas: f64,
     /// `N Ts`, s: a track is judged by its disc at the end of the MPC's horizon.
@@ -33,6 +35,7 @@ impl KeptTracks {
             tracks: Vec::with_capacity(crate::MAX_TRACKS),
             whole: scenario.sees_with_lidar(),
             accel_max: scenario.perception.accel_max,
+            peer_accel_max: scenario.peer_accel_max(),
             uncertainty_sigmas: scenario.mpc.uncertainty_sigmas,
             horizon_s: scenario.mpc.horizon as f64 * scenario.timing.ts_s,
             tracks_refresh_s: tracks_refresh_s(scenario),
@@ -55,8 +58,10 @@ impl KeptTracks {
             return;
         }
         let judged_at = time_s + self.horizon_s;
-        let (kappa, accel_max) = (self.uncertainty_sigmas, self.accel_max);
+        let (kappa, accel_max, peer) =
+            (self.uncertainty_sigmas, self.accel_max, self.peer_accel_max);
         let growth = |(track, time): &(Track, f64)| {
+            let accel_max = accel_of(track, accel_max, peer);
             prediction_growth_m(track, judged_at - time, kappa, accel_max)
         };
         for track in tracks.tracks() {
@@ -105,6 +110,13 @@ impl KeptTracks {
         self.accel_max
     }
 
+    /// The acceleration bound of `track`'s prediction when an obstacle's is `accel_max`
+    /// (m/s^2; 0 predicts each track as it goes): another robot's
+    /// ([`Scenario::peer_accel_max`]) for a robot's track, unless it is 0.
+    pub fn accel_for(&self, track: &Track, accel_max: f64) -> f64 {
+        accel_of(track, accel_max, self.peer_accel_max)
+    }
+
     /// `kappa`.
     pub fn uncertainty_sigmas(&self) -> f64 {
         self.uncertainty_sigmas
@@ -113,7 +125,8 @@ impl KeptTracks {
     /// What a track's disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
     /// `kappa (sigma_p + t sigma_v)` ([`Track::sigmas`]), and `accel_max t^2 / 2`.
     pub fn growth_m(&self, track: &Track, age_s: f64) -> f64 {
-        prediction_growth_m(track, age_s, self.uncertainty_sigmas, self.accel_max)
+        let accel_max = self.accel_for(track, self.accel_max);
+        prediction_growth_m(track, age_s, self.uncertainty_sigmas, accel_max)
     }
 
     /// The disc of every track kept at time `t_s` (absolute), each obstacle's radius grown
@@ -136,10 +149,96 @@ impl KeptTracks {
                 t_s - time_s,
                 growth_m,
                 self.uncertainty_sigmas,
-                accel_max,
+                self.accel_for(track, accel_max),
                 self.tracks_refresh_s,
             )
         })
+    }
+}
+
+/// How a fleet's robots predict each other from their plans (docs/fleet.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PeerPrediction {
+    /// `Ts`, s: a plan's stages are this far apart.
+    pub ts_s: f64,
+    /// The bound on a robot's acceleration, m/s^2 ([`Scenario::peer_accel_max`]).
+    pub accel_max: f64,
+    /// `kappa`: standard deviations of a predicted position (`mpc.uncertainty_sigmas`,
+    /// positive in a fleet).
+    pub kappa: f64,
+}
+
+impl PeerPrediction {
+    pub fn of(scenario: &Scenario) -> PeerPrediction {
+        PeerPrediction {
+            ts_s: scenario.timing.ts_s,
+            accel_max: scenario.peer_accel_max(),
+            kappa: scenario.mpc.uncertainty_sigmas,
+        }
+    }
+
+    /// Robot `robot` as a track to the others at time `t_s`: where its newest solved
+    /// `plan` puts it then, at the plan's velocity there ([`plan_state_at`]), its footprint
+    /// `radius_m`. The plan is certain only at its own time: the robot was where its
+    /// estimate put it (`position_variance`, the larger of the estimate's two, m^2), and
+    /// since then it may have left the plan (braked, or flown another) accelerating up to
+    /// `accel_max` against the plan's own `accel_max`. So after `d = t_s - plan time` its
+    /// position may be off by `accel_max d^2` and its velocity by `2 accel_max d`, which
+    /// the track carries as `kappa` standard deviations; its disc then grows at
+    /// `accel_max` ([`prediction_growth_m`]). Whatever the robot does within its input box,
+    /// it stays in the disc.
+    pub fn track(
+        &self,
+        robot: usize,
+        radius_m: f64,
+        plan: &Plan,
+        position_variance: f64,
+        t_s: f64,
+    ) -> Track {
+        let since_s = (t_s - plan.sample as f64 * self.ts_s).max(0.0);
+        let (center, velocity) = plan_state_at(plan, since_s, self.ts_s);
+        let kappa = self.kappa.max(f64::MIN_POSITIVE);
+        let sigma_p =
+            position_variance.max(0.0).sqrt() + self.accel_max * since_s * since_s / kappa;
+        let sigma_v = 2.0 * self.accel_max * since_s / kappa;
+        let (var_p, var_v) = (sigma_p * sigma_p, sigma_v * sigma_v);
+        Track {
+            obstacle: crate::FIRST_PEER + robot as u32,
+            reserved: 0,
+            radius_m,
+            center,
+            velocity,
+            covariance: [var_p, 0.0, var_v, var_p, 0.0, var_v],
+        }
+    }
+}
+
+/// Where `plan` puts the robot `since_s` after the plan's time, and its velocity there,
+/// m and m/s: on stage `i`'s constant acceleration between two stages (the DFL's linear
+/// model, eq. 30), on at the last stage's velocity beyond the horizon.
+pub fn plan_state_at(plan: &Plan, since_s: f64, ts_s: f64) -> ([f64; 2], [f64; 2]) {
+    let horizon = (plan.horizon as usize).min(crate::MAX_HORIZON);
+    let stage = ((since_s / ts_s).floor().max(0.0) as usize).min(horizon);
+    let tau = since_s - stage as f64 * ts_s;
+    let z = plan.z[stage];
+    let a = match stage < horizon {
+        true => plan.v[stage],
+        false => [0.0; 2],
+    };
+    (
+        [
+            z[0] + z[1] * tau + 0.5 * a[0] * tau * tau,
+            z[2] + z[3] * tau + 0.5 * a[1] * tau * tau,
+        ],
+        [z[1] + a[0] * tau, z[3] + a[1] * tau],
+    )
+}
+
+/// [`KeptTracks::accel_for`].
+fn accel_of(track: &Track, accel_max: f64, peer_accel_max: f64) -> f64 {
+    match track.is_peer() && accel_max > 0.0 {
+        true => peer_accel_max,
+        false => accel_max,
     }
 }
 

@@ -201,6 +201,8 @@ class Plan(Message):
         ("solve_ns", c_u64),
         ("iterations", c_u32),
         ("solves", c_u32),
+        ("gives_way", c_u32),
+        ("reserved", c_u32),
         ("injected_delay_ns", c_u64),
         ("v", (c_f64 * 2) * MAX_HORIZON),
         ("z", (c_f64 * 4) * (MAX_HORIZON + 1)),

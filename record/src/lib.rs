@@ -23,6 +23,7 @@ use std::collections::{BTreeMap, VecDeque};
 
 pub mod csv;
 pub mod event;
+pub mod fleet;
 pub mod judge;
 pub mod perception;
 pub mod run_dir;

@@ -185,6 +185,15 @@ impl ClosedLoop {
         self.goals.set(change);
     }
 
+    /// Hands `data`, a message from outside the robot's pipeline (another robot's, in a
+    /// fleet: `crate::fleet`), to every task that can hear it, before the next tick.
+    pub fn hear_from_outside(&mut self, data: Data) {
+        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s()).with_goals(self.goals);
+        for task in self.tasks.iter_mut().filter(|t| t.accepts(data)) {
+            task.hear(data, &time);
+        }
+    }
+
     /// The tick the next [`step`](Self::step) runs.
     pub fn tick(&self) -> u64 {
         self.tick

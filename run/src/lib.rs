@@ -8,6 +8,7 @@ pub mod agent;
 pub mod awake;
 pub mod children;
 pub mod closed_loop;
+pub mod fleet;
 pub mod inprocess;
 pub mod multiproc;
 pub mod pace;

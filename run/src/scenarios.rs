@@ -14,6 +14,9 @@ pub const BUILT_IN: &[(&str, &str)] = &[
     ("crossing", include_str!("../../scenarios/crossing.toml")),
     ("unmapped", include_str!("../../scenarios/unmapped.toml")),
     ("occluded", include_str!("../../scenarios/occluded.toml")),
+    ("swap4", include_str!("../../scenarios/swap4.toml")),
+    ("swap8", include_str!("../../scenarios/swap8.toml")),
+    ("warehouse", include_str!("../../scenarios/warehouse.toml")),
 ];
 
 /// The text of a built-in scenario.

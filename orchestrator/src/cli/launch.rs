@@ -81,6 +81,9 @@ pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
     scenarios::check_swap_programs(&scenario).map_err(bad_input)?;
     let robot = scenario.plant.kind == protocol::PlantKind::Ros2;
     check_modes(&args, robot)?;
+    if scenario.is_fleet() {
+        return run_fleet(scenario, args, quiet);
+    }
     let out = args
         .out
         .unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
@@ -140,6 +143,34 @@ pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
         Ok(())
     } else {
         Err(CliError::NotReached)
+    }
+}
+
+/// `scmpc run` of a fleet (`[[robots]]`, docs/fleet.md): in process only so far.
+fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliResult {
+    if !args.in_process {
+        return Err(bad_input(
+            "a fleet (`[[robots]]`) runs in process only so far: give --in-process \
+             (docs/fleet.md, \"Left out\")",
+        ));
+    }
+    let out =
+        (args.out.clone()).unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
+    let stop = run::stop::on_signals();
+    println!("run directory: {}", out.display());
+    let recording = run::sinks::Recording {
+        mcap: !args.no_mcap,
+        status_line: false,
+        live: false,
+    };
+    let summary = run::fleet::run(&scenario, &out, recording, &stop)
+        .with_context(|| format!("run of the fleet `{}`", scenario.name))?;
+    if !quiet {
+        print!("{}", summary.table());
+    }
+    match summary.all_reached() {
+        true => Ok(()),
+        false => Err(CliError::NotReached),
     }
 }
 

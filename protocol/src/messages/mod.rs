@@ -114,6 +114,10 @@ pub struct Plan {
     pub iterations: u32,
     /// Convex solves of this step (1 + refinements).
     pub solves: u32,
+    /// In a fleet: `1 +` the id of the robot this plan gives way to, breaking a deadlock
+    /// (docs/fleet.md, "Deadlocks"); 0 when it gives way to none.
+    pub gives_way: u32,
+    pub reserved: u32,
     /// Delay injected before publishing (fault injection), ns; in lockstep it counts as
     /// production time like `solve_ns`.
     pub injected_delay_ns: u64,
@@ -133,6 +137,8 @@ impl Default for Plan {
             solve_ns: 0,
             iterations: 0,
             solves: 0,
+            gives_way: 0,
+            reserved: 0,
             injected_delay_ns: 0,
             v: [[0.0; 2]; MAX_HORIZON],
             z: [[0.0; 4]; MAX_HORIZON + 1],
@@ -257,6 +263,12 @@ impl Track {
     pub fn stands_still(&self) -> bool {
         let speed = self.velocity[0].hypot(self.velocity[1]);
         !self.is_phantom() && speed + self.sigmas().1 < STANDING_SPEED_M_S
+    }
+
+    /// Whether it is another robot of a fleet ([`crate::FIRST_PEER`]), predicted from the
+    /// plans it publishes ([`crate::peer_track`]).
+    pub fn is_peer(&self) -> bool {
+        (crate::FIRST_PEER..FIRST_PHANTOM).contains(&self.obstacle)
     }
 
     /// Whether it is a phantom ([`FIRST_PHANTOM`]).
@@ -561,6 +573,8 @@ crate::layouts! {
         solve_ns: u64,
         iterations: u32,
         solves: u32,
+        gives_way: u32,
+        reserved: u32,
         injected_delay_ns: u64,
         v: [[f64; 2]; MAX_HORIZON],
         z: [[f64; 4]; MAX_HORIZON + 1],

@@ -99,6 +99,9 @@ pub struct Scenario {
     /// How a real-time run's processes are scheduled (docs/running.md, "Real-time
     /// scheduling").
     pub realtime: RealtimeConfig,
+    /// The robots of a fleet (`[[robots]]`, docs/fleet.md); none: the one robot `robot`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub robots: Vec<FleetRobot>,
     /// The live view (`[live]`, `scmpc run --live`; docs/foxglove.md): never written out
     /// ([`live`]).
     #[serde(default, skip_serializing)]
@@ -659,6 +662,7 @@ impl Default for Scenario {
             hosts: HostsConfig::default(),
             ros2: Ros2Config::default(),
             realtime: RealtimeConfig::default(),
+            robots: Vec::new(),
             live: None,
         }
     }
@@ -822,12 +826,20 @@ impl Scenario {
     /// one per track (with a lidar, whose tracks and phantoms are not the scenario's
     /// obstacles, the [`MAX_SEEN_DISCS`] nearest).
     pub fn max_obstacle_discs(&self) -> usize {
-        let tracks = if self.sees_with_lidar() {
-            MAX_SEEN_DISCS
-        } else {
-            self.tracked().count()
-        };
+        let peers = self.robot_count() - 1;
+        let tracks = peers
+            + if self.sees_with_lidar() {
+                MAX_SEEN_DISCS
+            } else {
+                self.tracked().count()
+            };
         self.known_obstacles().count() + tracks
+    }
+
+    /// Whether the MPC and the DFL take tracks: a tracker runs, or the other robots of a
+    /// fleet are tracks to them ([`crate::peer_track`]).
+    pub fn takes_tracks(&self) -> bool {
+        self.runs_tracker() || self.robot_count() > 1
     }
 
     /// Whether a tracker runs: it sees with a lidar, or it tracks an obstacle.
@@ -908,6 +920,9 @@ pub use live::*;
 
 mod hosts;
 pub use hosts::*;
+
+mod fleet;
+pub use fleet::*;
 
 pub mod keys;
 

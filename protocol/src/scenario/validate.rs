@@ -29,6 +29,7 @@ impl Scenario {
         self.check_faults(&mut v);
         self.check_hosts(&mut v);
         self.check_swaps(&mut v);
+        self.check_fleet(&mut v);
         for (key, message) in self
             .ros2
             .problems()
@@ -448,7 +449,7 @@ impl Scenario {
     /// The start must be clear of every obstacle by the robot's radius, and so must the
     /// robot's path when it brakes from its initial speed; the start must be inside the
     /// position box, and the goal outside every obstacle and inside the position box.
-    fn check_geometry(&self, v: &mut Validator) {
+    pub(super) fn check_geometry(&self, v: &mut Validator) {
         let [sx, sy, heading] = self.robot.start;
         let footprint = crate::ObstacleGrowth::footprint(self);
         let radius = footprint.fixed_m;
@@ -597,36 +598,36 @@ fn check_obstacle(v: &mut Validator, i: usize, o: &Obstacle) {
     }
 }
 
-struct Validator<'a> {
-    origin: &'a str,
-    errors: Vec<ScenarioError>,
+pub(super) struct Validator<'a> {
+    pub(super) origin: &'a str,
+    pub(super) errors: Vec<ScenarioError>,
 }
 
 impl Validator<'_> {
-    fn fail(&mut self, key: &str, message: String) {
+    pub(super) fn fail(&mut self, key: &str, message: String) {
         self.errors.push(ScenarioError {
             origin: self.origin.to_string(),
             key: key.to_string(),
             message,
         });
     }
-    fn finite(&mut self, key: &str, x: f64) -> bool {
+    pub(super) fn finite(&mut self, key: &str, x: f64) -> bool {
         if !x.is_finite() {
             self.fail(key, format!("must be a finite number, got {x}"));
         }
         x.is_finite()
     }
-    fn finite_all(&mut self, key: &str, xs: &[f64]) {
+    pub(super) fn finite_all(&mut self, key: &str, xs: &[f64]) {
         for (i, x) in xs.iter().enumerate() {
             self.finite(&format!("{key}.{i}"), *x);
         }
     }
-    fn positive(&mut self, key: &str, x: f64) {
+    pub(super) fn positive(&mut self, key: &str, x: f64) {
         if self.finite(key, x) && x <= 0.0 {
             self.fail(key, format!("must be positive, got {x}"));
         }
     }
-    fn non_negative(&mut self, key: &str, x: f64) {
+    pub(super) fn non_negative(&mut self, key: &str, x: f64) {
         if self.finite(key, x) && x < 0.0 {
             self.fail(key, format!("must not be negative, got {x}"));
         }

@@ -1,0 +1,198 @@
+//! Breaking a fleet's deadlocks (docs/fleet.md, "Deadlocks"): robots that keep clear of
+//! each other can hold each other up for good, two face to face or eight meeting at a
+//! circle's centre, each waiting for the others to move. Every robot applies one rule,
+//! the same for all and decided from what each knows alone (its own state and the tracks
+//! of the others), so the symmetry breaks the same way on every side: a robot held still
+//! away from its goal with another robot close by **gives way to its right**, following a
+//! detour that passes the nearest such robot on its right-hand side (every robot moving
+//! right, two that face each other pass left side to left side; a ring of them turns
+//! like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
+//! safety row changes.
+
+use protocol::{Route, RouteStatus, Track, Tracks, distance};
+
+/// A robot slower than this holds still, m/s.
+pub const STILL_SPEED_M_S: f64 = 0.05;
+/// Held still this long, a robot gives way, s.
+pub const STILL_S: f64 = 1.0;
+/// Another robot holds a robot up when their footprints are within this of each other, m.
+pub const HOLD_UP_M: f64 = 1.0;
+/// A detour passes the other robot's footprint this far off, m.
+pub const PASSING_M: f64 = 0.4;
+/// A detour ends when its waypoint is this near, m, or after [`DETOUR_S`].
+pub const WAYPOINT_REACHED_M: f64 = 0.3;
+pub const DETOUR_S: f64 = 4.0;
+
+/// One robot's rule: whether it holds still, and the detour it follows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GiveWay {
+    radius_m: f64,
+    /// Nearer the goal than this, a robot holding still is arriving, not held up, m.
+    arriving_m: f64,
+    still_since_s: Option<f64>,
+    detour: Option<Detour>,
+}
+
+/// A detour round another robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Detour {
+    /// The robot given way to.
+    peer: u32,
+    waypoint: [f64; 2],
+    until_s: f64,
+}
+
+impl GiveWay {
+    /// The rule of a fleet's robot (none for a robot alone).
+    pub fn of(scenario: &protocol::Scenario) -> Option<GiveWay> {
+        scenario.is_fleet().then_some(GiveWay {
+            radius_m: scenario.robot.radius_m,
+            arriving_m: 2.0 * scenario.robot.goal_tolerance_m,
+            still_since_s: None,
+            detour: None,
+        })
+    }
+
+    /// At time `t_s` for a robot at `position` going at `speed_m_s` to `goal`, with the
+    /// other robots among `tracks`: the detour to follow, with the id of the robot given
+    /// way to, if it gives way.
+    pub fn detour(
+        &mut self,
+        t_s: f64,
+        position: [f64; 2],
+        speed_m_s: f64,
+        goal: [f64; 2],
+        tracks: Option<&Tracks>,
+    ) -> Option<(Route, u32)> {
+        if let Some(d) = self.detour
+            && (t_s >= d.until_s || distance(position, d.waypoint) < WAYPOINT_REACHED_M)
+        {
+            self.detour = None;
+            self.still_since_s = None;
+        }
+        let holds_still =
+            speed_m_s.abs() < STILL_SPEED_M_S && distance(position, goal) > self.arriving_m;
+        self.still_since_s = match holds_still {
+            true => Some(self.still_since_s.unwrap_or(t_s)),
+            false => None,
+        };
+        let held_up = self
+            .still_since_s
+            .is_some_and(|s| t_s - s >= STILL_S - 1e-9);
+        if self.detour.is_none()
+            && held_up
+            && let Some(peer) = self.holding_up(position, tracks)
+        {
+            self.detour = Some(Detour {
+                peer: peer.obstacle - protocol::FIRST_PEER,
+                waypoint: self.passing_right(position, goal, peer),
+                until_s: t_s + DETOUR_S,
+            });
+        }
+        let d = self.detour?;
+        Some((route_via(position, d.waypoint, goal), d.peer))
+    }
+
+    /// The nearest other robot within [`HOLD_UP_M`] of the robot's footprint.
+    fn holding_up<'a>(&self, position: [f64; 2], tracks: Option<&'a Tracks>) -> Option<&'a Track> {
+        let gap = |t: &Track| distance(position, t.center) - t.radius_m - self.radius_m;
+        tracks?
+            .tracks()
+            .iter()
+            .filter(|t| t.is_peer() && gap(t) < HOLD_UP_M)
+            .min_by(|a, b| gap(a).total_cmp(&gap(b)))
+    }
+
+    /// The point [`PASSING_M`] beyond both footprints to the right of `peer`, as the robot
+    /// at `position` faces `goal`.
+    fn passing_right(&self, position: [f64; 2], goal: [f64; 2], peer: &Track) -> [f64; 2] {
+        let way = [goal[0] - position[0], goal[1] - position[1]];
+        let length = way[0].hypot(way[1]).max(f64::MIN_POSITIVE);
+        let right = [way[1] / length, -way[0] / length];
+        let off = peer.radius_m + self.radius_m + PASSING_M;
+        [
+            peer.center[0] + right[0] * off,
+            peer.center[1] + right[1] * off,
+        ]
+    }
+}
+
+/// The route from `position` through `waypoint` to `goal`.
+fn route_via(position: [f64; 2], waypoint: [f64; 2], goal: [f64; 2]) -> Route {
+    let mut route = Route {
+        status: RouteStatus::Ok as u32,
+        count: 3,
+        ..Route::default()
+    };
+    route.waypoints[..3].copy_from_slice(&[position, waypoint, goal]);
+    route
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fleet() -> protocol::Scenario {
+        protocol::Scenario::from_toml(include_str!("../../scenarios/swap4.toml"), "swap4").unwrap()
+    }
+
+    fn peer(id: u32, center: [f64; 2]) -> Tracks {
+        let mut tracks = Tracks::default();
+        tracks.tracks[0] = Track {
+            obstacle: protocol::FIRST_PEER + id,
+            radius_m: 0.3,
+            center,
+            ..Track::default()
+        };
+        tracks.count = 1;
+        tracks
+    }
+
+    #[test]
+    fn two_robots_face_to_face_each_give_way_to_its_right_and_pass_each_other() {
+        let scenario = fleet();
+        let (mut a, mut b) = (
+            GiveWay::of(&scenario).unwrap(),
+            GiveWay::of(&scenario).unwrap(),
+        );
+        let (pa, pb) = ([-0.7, 0.0], [0.7, 0.0]);
+        let (ga, gb) = ([3.0, 0.0], [-3.0, 0.0]);
+        let (ta, tb) = (peer(1, pb), peer(0, pa));
+        for k in 0..20 {
+            let t = k as f64 * 0.05;
+            assert!(
+                a.detour(t, pa, 0.0, ga, Some(&ta)).is_none(),
+                "not yet at {t} s"
+            );
+            assert!(b.detour(t, pb, 0.0, gb, Some(&tb)).is_none());
+        }
+        let (route_a, given_a) = a.detour(1.0, pa, 0.0, ga, Some(&ta)).expect("a gives way");
+        let (route_b, given_b) = b.detour(1.0, pb, 0.0, gb, Some(&tb)).expect("b gives way");
+        assert_eq!((given_a, given_b), (1, 0));
+        // Going +x, a's right is -y; going -x, b's is +y: they do not meet.
+        assert!(route_a.points()[1][1] < -0.9 && route_b.points()[1][1] > 0.9);
+        assert_eq!(route_a.points()[2], ga);
+    }
+
+    #[test]
+    fn a_robot_arriving_or_alone_does_not_give_way() {
+        let scenario = fleet();
+        let mut rule = GiveWay::of(&scenario).unwrap();
+        let tracks = peer(1, [0.5, 0.0]);
+        for k in 0..40 {
+            let t = k as f64 * 0.05;
+            // At its goal, held still beside another robot.
+            assert!(
+                rule.detour(t, [0.0, 0.0], 0.0, [0.05, 0.0], Some(&tracks))
+                    .is_none()
+            );
+            // Far from the others.
+            let far = peer(1, [5.0, 0.0]);
+            assert!(
+                rule.detour(t, [0.0, 0.0], 0.0, [-3.0, 0.0], Some(&far))
+                    .is_none()
+            );
+        }
+        assert!(GiveWay::of(&protocol::Scenario::default()).is_none());
+    }
+}

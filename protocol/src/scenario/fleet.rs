@@ -1,0 +1,166 @@
+//! A fleet (`[[robots]]`, docs/fleet.md): several robots in one world, each driven by a
+//! pipeline of its own. Every robot is the scenario's `robot` with its own start, goal
+//! and radius ([`Scenario::member`]); the other robots are moving discs to it, predicted
+//! from the plans they publish ([`crate::peer_track`]).
+
+use super::validate::Validator;
+use super::{Goal, Scenario};
+use serde::{Deserialize, Serialize};
+
+/// One robot of a fleet; what it does not set is the scenario's `robot`'s.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FleetRobot {
+    /// Initial pose `[x_m, y_m, theta_rad]`.
+    pub start: [f64; 3],
+    /// The goal, `[x_m, y_m]` or `[x_m, y_m, theta_rad]`.
+    #[schemars(with = "Vec<f64>")]
+    pub goal: Goal,
+    /// Radius of its footprint, m; default `robot.radius_m`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_m: Option<f64>,
+}
+
+/// The most robots of a fleet: each robot's MPC keeps one disc per other robot, and its
+/// tracks message holds [`crate::MAX_TRACKS`].
+pub const MAX_ROBOTS: usize = 16;
+
+/// The [`crate::Track::obstacle`] of robot `robot`'s disc in another robot's tracks: far
+/// from the scenario's obstacle indices and below the phantoms'
+/// ([`crate::FIRST_PHANTOM`]).
+pub const FIRST_PEER: u32 = 1 << 30;
+
+impl Scenario {
+    /// The robots of the run: one without `[[robots]]`, else one per entry.
+    pub fn robot_count(&self) -> usize {
+        self.robots.len().max(1)
+    }
+
+    /// Whether the run is a fleet's (`[[robots]]`): its robots keep clear of each other.
+    pub fn is_fleet(&self) -> bool {
+        !self.robots.is_empty()
+    }
+
+    /// The scenario of robot `id` of a fleet: the scenario's `robot` with that robot's
+    /// start, goal and radius, and its own seed (`seed + id`), so that no two robots share
+    /// their noise. The fleet stays in it: its MPC and DFL keep clear of the others.
+    /// Without `[[robots]]`, robot 0 is the scenario itself.
+    pub fn member(&self, id: usize) -> Scenario {
+        let mut member = self.clone();
+        if let Some(robot) = self.robots.get(id) {
+            member.robot.start = robot.start;
+            member.robot.goal = robot.goal;
+            member.robot.radius_m = robot.radius_m.unwrap_or(self.robot.radius_m);
+            member.seed = self.seed.wrapping_add(id as u64);
+        }
+        member
+    }
+
+    /// The radius of robot `id`'s footprint, m.
+    pub fn radius_of(&self, id: usize) -> f64 {
+        (self.robots.get(id))
+            .and_then(|r| r.radius_m)
+            .unwrap_or(self.robot.radius_m)
+    }
+
+    /// The bound on another robot's acceleration, m/s^2: its input box `mpc.v_max` along
+    /// both axes (its flat outputs' acceleration, which the DFL realizes), `sqrt(2) v_max`.
+    pub fn peer_accel_max(&self) -> f64 {
+        std::f64::consts::SQRT_2 * self.mpc.v_max
+    }
+
+    /// `[[robots]]`: each robot's values, the room between them, each robot in the world
+    /// as the scenario's `robot` is checked, and what a fleet does not run with yet.
+    pub(super) fn check_fleet(&self, v: &mut Validator) {
+        if self.robots.is_empty() {
+            return;
+        }
+        if self.robots.len() > MAX_ROBOTS {
+            v.fail(
+                "robots",
+                format!(
+                    "{} robots; a fleet has at most {MAX_ROBOTS}",
+                    self.robots.len()
+                ),
+            );
+        }
+        for (i, robot) in self.robots.iter().enumerate() {
+            v.finite_all(&format!("robots.{i}.start"), &robot.start);
+            v.finite_all(&format!("robots.{i}.goal"), &robot.goal.position);
+            if let Some(radius) = robot.radius_m {
+                v.non_negative(&format!("robots.{i}.radius_m"), radius);
+            }
+            let mut member = Validator {
+                origin: v.origin,
+                errors: Vec::new(),
+            };
+            self.member(i).check_geometry(&mut member);
+            for mut error in member.errors {
+                error.key = error.key.replacen("robot.", &format!("robots.{i}."), 1);
+                v.errors.push(error);
+            }
+        }
+        self.check_room_between_robots(v);
+        if self.mpc.uncertainty_sigmas <= 0.0 {
+            v.fail(
+                "mpc.uncertainty_sigmas",
+                "a fleet's robots carry how far another may be off its plan as standard \
+                 deviations: it needs mpc.uncertainty_sigmas > 0"
+                    .into(),
+            );
+        }
+        let unsupported = [
+            ("lidar", self.lidar.is_some()),
+            ("plant.kind", self.plant.kind != crate::PlantKind::Sim),
+            ("swap", !self.swap.is_empty()),
+            ("live", self.live.is_some()),
+            (
+                "hosts",
+                crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
+            ),
+            ("obstacles", self.obstacles.iter().any(|o| !o.is_known())),
+        ];
+        for (key, used) in unsupported {
+            if used {
+                v.fail(
+                    key,
+                    "a fleet (`[[robots]]`) runs simulated robots among known obstacles at \
+                     rest, without a lidar, swaps, hosts or a live view (docs/fleet.md, \
+                     \"Left out\")"
+                        .into(),
+                );
+            }
+        }
+    }
+
+    /// No two robots start, or end, within their two radii of each other.
+    fn check_room_between_robots(&self, v: &mut Validator) {
+        for i in 0..self.robots.len() {
+            for j in 0..i {
+                let room = self.radius_of(i) + self.radius_of(j);
+                let (a, b) = (&self.robots[i], &self.robots[j]);
+                let apart = |p: [f64; 2], q: [f64; 2]| crate::distance(p, q);
+                let starts = apart([a.start[0], a.start[1]], [b.start[0], b.start[1]]);
+                if starts <= room {
+                    v.fail(
+                        &format!("robots.{i}.start"),
+                        format!(
+                            "{starts:.3} m from robot {j}'s start; two robots need {room:.3} m"
+                        ),
+                    );
+                }
+                let goals = apart(a.goal.position, b.goal.position);
+                if goals <= room + self.robot.goal_tolerance_m {
+                    v.fail(
+                        &format!("robots.{i}.goal"),
+                        format!(
+                            "{goals:.3} m from robot {j}'s goal; two robots resting there need \
+                             their radii and robot.goal_tolerance_m, {:.3} m",
+                            room + self.robot.goal_tolerance_m
+                        ),
+                    );
+                }
+            }
+        }
+    }
+}
