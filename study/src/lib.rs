@@ -4,6 +4,7 @@
 
 pub mod bench;
 pub mod figures;
+pub mod fleet_fuzz;
 pub mod foxglove_client;
 pub mod fuzz;
 pub mod identify;

@@ -303,6 +303,10 @@ pub struct FuzzArgs {
     /// rest half the time not in the map).
     #[arg(long, value_enum, default_value_t = FuzzPerception::Track)]
     pub perception: FuzzPerception,
+    /// Fleets of this many robots, `A..B` or `N` (docs/fleet.md, "Fuzz"): each world draws
+    /// its number of robots from the range.
+    #[arg(long, value_name = "A..B")]
+    pub robots: Option<String>,
     /// Directory of fuzz.csv and the failed worlds [default: a fresh directory under runs/].
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,

@@ -205,6 +205,9 @@ fn sweep(args: SweepArgs, progress: bool) -> CliResult {
 
 /// `scmpc fuzz`; `progress`: a progress bar (or lines).
 fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
+    if let Some(robots) = &args.robots {
+        return fleet_fuzz(&args, robots);
+    }
     // Every world is drawn and validated before anything runs.
     if !(0.0..=1.0).contains(&args.people) {
         return Err(bad_input(format!(
@@ -532,4 +535,50 @@ fn init_logging(verbosity: Verbosity) {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
+}
+
+/// `scmpc fuzz --robots A..B` (docs/fleet.md, "Fuzz"): exit 1 when two robots touched
+/// while one moved, or a world failed to run.
+fn fleet_fuzz(args: &FuzzArgs, robots: &str) -> CliResult {
+    let range = robot_range(robots).map_err(bad_input)?;
+    study::fleet_fuzz::world(args.seed, 0, &range, &args.overrides).map_err(bad_input)?;
+    let out = (args.out.clone())
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fleet-fuzz-{}", args.seed)));
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} fleets of {robots} robots (seed {}) on {threads} threads into {}",
+        args.count,
+        args.seed,
+        out.display()
+    );
+    let stop = run::stop::on_signals();
+    let batch = (args.seed, args.count);
+    let report = study::fleet_fuzz::run(batch, range, &args.overrides, &out, threads, &stop)
+        .map_err(CliError::Failed)?;
+    print!("{}", report.table());
+    println!("fuzz directory: {}", out.display());
+    run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
+    match report.contacts_moving() > 0 || report.errors() > 0 {
+        true => Err(CliError::Failed(anyhow::anyhow!(
+            "robots touched while moving, or a world did not run: see {}",
+            out.join("fleet_fuzz.csv").display()
+        ))),
+        false => Ok(()),
+    }
+}
+
+/// `A..B` or `N` robots, each from 1 to [`protocol::MAX_ROBOTS`].
+fn robot_range(text: &str) -> Result<std::ops::RangeInclusive<usize>, String> {
+    let parse = |t: &str| t.trim().parse::<usize>().ok();
+    let (low, high) = match text.split_once("..") {
+        Some((a, b)) => (parse(a), parse(b.trim_start_matches('='))),
+        None => (parse(text), parse(text)),
+    };
+    match (low, high) {
+        (Some(a), Some(b)) if 1 <= a && a <= b && b <= protocol::MAX_ROBOTS => Ok(a..=b),
+        _ => Err(format!(
+            "--robots {text}: not `A..B` or `N` with 1 <= A <= B <= {}",
+            protocol::MAX_ROBOTS
+        )),
+    }
 }

@@ -1,0 +1,267 @@
+//! `scmpc fuzz --robots A..B`: random fleets (docs/fleet.md, "Fuzz"). Each world draws
+//! `A` to `B` robots with their starts, goals and radii in the middle of the position box (two
+//! robots' starts, and two goals, at least their radii and half a metre apart), up to four
+//! obstacles at rest clear of them all, the noise and the input box; the fleet runs in
+//! process, and the batch reports every robot's outcome, contacts between robots (moving
+//! and at rest) and the deadlocks broken.
+
+use anyhow::Context as _;
+use protocol::{FleetRobot, Goal, NoiseVariance, Obstacle, Scenario, Validated, distance};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use record::fleet::FleetSummary;
+use record::judge::Outcome;
+use std::f64::consts::PI;
+use std::io::Write;
+use std::ops::RangeInclusive;
+use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+/// Room kept between two robots' starts (or goals) beyond their radii, and between an
+/// obstacle and any start or goal beyond the footprint, m.
+pub const ROOM_M: f64 = 0.5;
+/// Draws of one world before the batch gives up on it.
+const MAX_DRAWS: usize = 100;
+
+/// World `index` of batch `seed` with `robots` robots at most and at least, `overrides`
+/// applied: the first draw the validator accepts.
+pub fn world(
+    seed: u64,
+    index: usize,
+    robots: &RangeInclusive<usize>,
+    overrides: &[String],
+) -> anyhow::Result<Validated> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9e37_79b9) ^ index as u64);
+    let mut last = None;
+    for _ in 0..MAX_DRAWS {
+        let scenario = draw(&mut rng, index, robots).with_overrides(overrides)?;
+        match scenario.validated(&format!("fleet world {index}")) {
+            Ok(valid) => return Ok(valid),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(anyhow::anyhow!(
+        "fleet world {index}: no valid draw in {MAX_DRAWS}: {}",
+        last.map_or(String::new(), |e| e.to_string())
+    ))
+}
+
+fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> Scenario {
+    let mut s = Scenario {
+        name: format!("fleet-fuzz-{index:04}"),
+        seed: index as u64 + 1,
+        duration_s: 60.0,
+        ..Scenario::default()
+    };
+    let (lo, hi) = (s.mpc.position_min, s.mpc.position_max);
+    let edge = crate::fuzz::EDGE_M;
+    // The middle 60 % of the box: the robots meet more often than across all of it.
+    let anywhere =
+        |rng: &mut ChaCha8Rng| [0, 1].map(|a| rng.random_range(lo[a] + edge..hi[a] - edge) * 0.6);
+    let count = rng.random_range(robots.clone());
+    let mut fleet: Vec<FleetRobot> = Vec::with_capacity(count);
+    while fleet.len() < count {
+        let radius = rng.random_range(0.1..0.4);
+        let (start, goal) = (anywhere(rng), anywhere(rng));
+        let apart = |p: [f64; 2], q: [f64; 2], r: Option<f64>| {
+            distance(p, q) > radius + r.unwrap_or(0.0) + ROOM_M
+        };
+        let clear = fleet.iter().all(|o| {
+            apart(start, [o.start[0], o.start[1]], o.radius_m)
+                && apart(goal, o.goal.position, o.radius_m)
+        });
+        if clear && distance(start, goal) >= 1.0 {
+            fleet.push(FleetRobot {
+                start: [start[0], start[1], rng.random_range(-PI..PI)],
+                goal: Goal::at(goal),
+                radius_m: Some(radius),
+            });
+        }
+    }
+    let obstacles = rng.random_range(0..=4);
+    s.obstacles = (0..obstacles)
+        .map(|_| {
+            let (center, radius) = (anywhere(rng), rng.random_range(0.2..1.0));
+            let clear = |p: [f64; 2], r: Option<f64>| {
+                distance(p, center) > radius + r.unwrap_or(0.0) + ROOM_M
+            };
+            let free = fleet.iter().all(|o| {
+                clear([o.start[0], o.start[1]], o.radius_m) && clear(o.goal.position, o.radius_m)
+            });
+            free.then(|| Obstacle::fixed(center[0], center[1], radius))
+        })
+        .flatten()
+        .collect();
+    s.robots = fleet;
+    s.mpc.v_max = rng.random_range(0.5..2.0);
+    s.plant.noise_variance = NoiseVariance::Uniform(rng.random_range(0.0..0.01));
+    s
+}
+
+/// A fleet world's outcome.
+pub struct FleetWorld {
+    pub index: usize,
+    pub scenario: Validated,
+    pub summary: anyhow::Result<FleetSummary>,
+}
+
+/// The outcome of a batch.
+pub struct FleetReport {
+    pub worlds: Vec<FleetWorld>,
+}
+
+impl FleetReport {
+    /// Every robot's line of every world that ran.
+    fn robots(&self) -> impl Iterator<Item = &record::fleet::FleetMember> {
+        (self.worlds.iter())
+            .filter_map(|w| w.summary.as_ref().ok())
+            .flat_map(|s| &s.robots)
+    }
+
+    /// Robots that moved into another robot.
+    pub fn contacts_moving(&self) -> u64 {
+        self.robots().map(|r| r.robot_contacts_moving).sum()
+    }
+
+    /// Robots that reached their goal, and all robots.
+    pub fn reached(&self) -> (usize, usize) {
+        let reached = self.robots().filter(|r| r.outcome == Outcome::Reached).count();
+        (reached, self.robots().count())
+    }
+
+    /// Worlds whose run failed (an error, not an outcome).
+    pub fn errors(&self) -> usize {
+        self.worlds.iter().filter(|w| w.summary.is_err()).count()
+    }
+
+    pub fn table(&self) -> String {
+        let (reached, robots) = self.reached();
+        let mut by_outcome = std::collections::BTreeMap::<String, usize>::new();
+        for r in self.robots().filter(|r| r.outcome != Outcome::Reached) {
+            let reason = r.stall_reason.map_or(String::new(), |s| format!(" ({s:?})"));
+            *by_outcome
+                .entry(format!("{}{reason}", r.outcome.as_str()))
+                .or_default() += 1;
+        }
+        let mut out = format!(
+            "fleet fuzz: {} worlds, {robots} robots: {reached} reached ({:.1} %)\n",
+            self.worlds.len(),
+            100.0 * reached as f64 / robots.max(1) as f64
+        );
+        for (what, n) in by_outcome {
+            out += &format!("  {what}: {n}\n");
+        }
+        let at_rest: u64 = self.robots().map(|r| r.robot_contacts_at_rest).sum();
+        let deadlocks: u64 = self.robots().map(|r| r.deadlocks_broken).sum();
+        out += &format!(
+            "  contacts between robots: {} moving, {at_rest} at rest; deadlocks broken: {deadlocks}; errors: {}\n",
+            self.contacts_moving(),
+            self.errors()
+        );
+        out
+    }
+}
+
+/// Runs `count` fleet worlds of batch `seed` on `threads` threads into `out`:
+/// `fleet_fuzz.csv`, and under `out/failed/` the scenario of every world in which a robot
+/// did not reach its goal or two robots touched (`scmpc run FILE --in-process` replays it).
+pub fn run(
+    (seed, count): (u64, usize),
+    robots: RangeInclusive<usize>,
+    overrides: &[String],
+    out: &Path,
+    threads: usize,
+    stop: &AtomicBool,
+) -> anyhow::Result<FleetReport> {
+    let scenarios = (0..count)
+        .map(|i| world(seed, i, &robots, overrides))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let next = AtomicUsize::new(0);
+    let results = Mutex::new(Vec::with_capacity(count));
+    std::thread::scope(|scope| {
+        for _ in 0..threads.max(1) {
+            scope.spawn(|| {
+                while !stop.load(Ordering::Relaxed) {
+                    let index = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(scenario) = scenarios.get(index) else {
+                        break;
+                    };
+                    let summary = run_one(scenario, &out.join("runs").join(format!("{index:04}")), stop);
+                    if let Ok(mut results) = results.lock() {
+                        results.push((index, summary));
+                    }
+                }
+            });
+        }
+    });
+    let mut results = results.into_inner().unwrap_or_default();
+    results.sort_by_key(|(index, _)| *index);
+    let worlds = results
+        .into_iter()
+        .map(|(index, summary)| FleetWorld {
+            index,
+            scenario: scenarios[index].clone(),
+            summary,
+        })
+        .collect();
+    let report = FleetReport { worlds };
+    let _ = std::fs::remove_dir_all(out.join("runs"));
+    write_csv(&report, out).with_context(|| format!("writing {}", out.display()))?;
+    Ok(report)
+}
+
+fn run_one(scenario: &Validated, dir: &Path, stop: &AtomicBool) -> anyhow::Result<FleetSummary> {
+    let recording = run::sinks::Recording {
+        mcap: false,
+        status_line: false,
+        live: false,
+    };
+    let summary = run::fleet::run(scenario, dir, recording, stop);
+    let _ = std::fs::remove_dir_all(dir);
+    summary
+}
+
+fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(out.join("failed"))?;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fleet_fuzz.csv"))?);
+    writeln!(
+        f,
+        "world,robot,robots,obstacles,v_max,radius_m,outcome,stall_reason,time_to_goal_s,robot_contacts_moving,robot_contacts_at_rest,deadlocks_broken,min_robot_clearance_m,file"
+    )?;
+    for world in &report.worlds {
+        let s = &world.scenario;
+        let Ok(summary) = &world.summary else {
+            continue;
+        };
+        let failed = !summary.all_reached();
+        let file = match failed {
+            true => {
+                let path = out.join("failed").join(format!("{:04}.toml", world.index));
+                std::fs::write(&path, s.to_toml())?;
+                path.display().to_string()
+            }
+            false => String::new(),
+        };
+        for r in &summary.robots {
+            writeln!(
+                f,
+                "{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{:.4},{file}",
+                world.index,
+                r.id,
+                summary.robots.len(),
+                s.obstacles.len(),
+                s.mpc.v_max,
+                s.radius_of(r.id),
+                r.outcome.as_str(),
+                r.stall_reason.map_or(String::new(), |s| format!("{s:?}")),
+                r.time_to_goal_s.map_or(String::new(), |t| format!("{t:.2}")),
+                r.robot_contacts_moving,
+                r.robot_contacts_at_rest,
+                r.deadlocks_broken,
+                summary.min_robot_clearance_m,
+            )?;
+        }
+    }
+    Ok(())
+}
