@@ -766,6 +766,7 @@ fn scmpc_keys_lists_every_key_of_a_finished_runs_scenario() {
     let absent_by_design = |key: &str| {
         key.starts_with("live.")
             || key.starts_with("swap.<i>.")
+            || key.starts_with("robots.<i>.")
             || [
                 "extra_roles",
                 "obstacles.<i>.known",

@@ -457,4 +457,53 @@ mod tests {
             assert_eq!(stepped.center[1], direct.center[1]);
         }
     }
+
+    #[test]
+    fn a_robot_that_leaves_its_plan_within_its_input_box_stays_in_the_disc_the_others_keep_clear_of()
+     {
+        let mut scenario = Scenario::default();
+        scenario.mpc.v_max = 1.0;
+        let peers = PeerPrediction::of(&scenario);
+        let kept = KeptTracks::of(&scenario);
+        let ts = scenario.timing.ts_s;
+        // A plan of sample 10 straight along x at 1 m/s, accelerating at 0.5 m/s^2.
+        let mut plan = Plan {
+            sample: 10,
+            horizon: 8,
+            ..Plan::default()
+        };
+        for i in 0..=8 {
+            let t = i as f64 * ts;
+            plan.z[i] = [t + 0.25 * t * t, 1.0 + 0.5 * t, 2.0, 0.0];
+        }
+        for v in plan.v.iter_mut().take(8) {
+            *v = [0.5, 0.0];
+        }
+        let plan_s = 10.0 * ts;
+        // The robot flew it for `flown` s, then accelerated at the box's corner against it.
+        for flown in [0.0, 0.02, ts] {
+            let corner = [-1.0, 1.0];
+            let truth = |t: f64| {
+                let (p, v) = plan_state_at(&plan, flown, ts);
+                let s = t - flown;
+                [0, 1].map(|a| p[a] + v[a] * s + 0.5 * corner[a] * s * s)
+            };
+            for told_after in [ts, 2.0 * ts] {
+                let track = peers.track(3, 0.3, &plan, 0.0, plan_s + told_after);
+                assert!(track.is_peer());
+                for k in 0..=40 {
+                    let after = k as f64 * 0.02;
+                    let t = told_after.max(flown) + after;
+                    let age = t - told_after;
+                    let center = [0, 1].map(|a| track.center[a] + track.velocity[a] * age);
+                    let radius = kept.growth_m(&track, age) + 1e-12;
+                    let off = crate::distance(truth(t), center);
+                    assert!(
+                        off <= radius,
+                        "told {told_after} s after, flown {flown} s: {off} m off at {t} s, disc {radius} m"
+                    );
+                }
+            }
+        }
+    }
 }

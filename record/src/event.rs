@@ -73,6 +73,9 @@ pub enum Event {
         /// The pid of the process killed with it (a wrapper's child), if any.
         child_killed: Option<u32>,
     },
+    /// A robot of a fleet held up by another gave way to it, breaking a deadlock
+    /// (docs/fleet.md, "Deadlocks"): from this plan's sample on it follows a detour.
+    GaveWay { sample: u64, to_robot: u32 },
     /// A role was started anew after a failure.
     Restarted(Restart),
     /// A role whose host was lost was started on this host.
@@ -250,6 +253,7 @@ impl Event {
             Event::RecordGap { .. } => "record_gap",
             Event::Crashed { .. } => "crashed",
             Event::DeadNode { .. } => "dead_node",
+            Event::GaveWay { .. } => "gave_way",
             Event::Restarted(_) => "restarted",
             Event::FailedOver(_) => "failed_over",
             Event::Aborted { .. } => "aborted",

@@ -31,9 +31,10 @@ struct Member {
     plan: Option<(Plan, f64)>,
     position: [f64; 2],
     radius_m: f64,
-    /// Deadlocks it broke ([`Plan::gives_way`] turned on).
+    /// Deadlocks it broke: the detours it set out on ([`Plan::gives_way`]), and the one
+    /// of its last plan.
     deadlocks_broken: u64,
-    gave_way: bool,
+    gives_way: u32,
 }
 
 /// Runs the fleet to its end (every robot's outcome, the duration, or `stop`) and writes
@@ -134,7 +135,7 @@ impl Member {
             plan: None,
             position: [x, y],
             deadlocks_broken: 0,
-            gave_way: false,
+            gives_way: 0,
         })
     }
 
@@ -160,11 +161,16 @@ impl Member {
                 let c = &tick.estimate.covariance;
                 self.plan = Some((*plan, c[0].max(c[4])));
             }
-            let gives_way = plan.gives_way != 0;
-            if gives_way && !self.gave_way {
+            if plan.gives_way != 0 && plan.gives_way != self.gives_way {
                 self.deadlocks_broken += 1;
+                if let Some(recorder) = &mut self.recorder {
+                    recorder.event(Event::GaveWay {
+                        sample: plan.sample,
+                        to_robot: plan.gives_way - 1,
+                    })?;
+                }
             }
-            self.gave_way = gives_way;
+            self.gives_way = plan.gives_way;
         }
         let Some(recorder) = &mut self.recorder else {
             return Ok(());

@@ -126,7 +126,10 @@ impl FleetReport {
 
     /// Robots that reached their goal, and all robots.
     pub fn reached(&self) -> (usize, usize) {
-        let reached = self.robots().filter(|r| r.outcome == Outcome::Reached).count();
+        let reached = self
+            .robots()
+            .filter(|r| r.outcome == Outcome::Reached)
+            .count();
         (reached, self.robots().count())
     }
 
@@ -139,7 +142,9 @@ impl FleetReport {
         let (reached, robots) = self.reached();
         let mut by_outcome = std::collections::BTreeMap::<String, usize>::new();
         for r in self.robots().filter(|r| r.outcome != Outcome::Reached) {
-            let reason = r.stall_reason.map_or(String::new(), |s| format!(" ({s:?})"));
+            let reason = r
+                .stall_reason
+                .map_or(String::new(), |s| format!(" ({s:?})"));
             *by_outcome
                 .entry(format!("{}{reason}", r.outcome.as_str()))
                 .or_default() += 1;
@@ -187,7 +192,11 @@ pub fn run(
                     let Some(scenario) = scenarios.get(index) else {
                         break;
                     };
-                    let summary = run_one(scenario, &out.join("runs").join(format!("{index:04}")), stop);
+                    let summary = run_one(
+                        scenario,
+                        &out.join("runs").join(format!("{index:04}")),
+                        stop,
+                    );
                     if let Ok(mut results) = results.lock() {
                         results.push((index, summary));
                     }
@@ -255,7 +264,8 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
                 s.radius_of(r.id),
                 r.outcome.as_str(),
                 r.stall_reason.map_or(String::new(), |s| format!("{s:?}")),
-                r.time_to_goal_s.map_or(String::new(), |t| format!("{t:.2}")),
+                r.time_to_goal_s
+                    .map_or(String::new(), |t| format!("{t:.2}")),
                 r.robot_contacts_moving,
                 r.robot_contacts_at_rest,
                 r.deadlocks_broken,
