@@ -81,7 +81,7 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> S
     }
     let obstacles = rng.random_range(0..=4);
     s.obstacles = (0..obstacles)
-        .map(|_| {
+        .filter_map(|_| {
             let (center, radius) = (anywhere(rng), rng.random_range(0.2..1.0));
             let clear = |p: [f64; 2], r: Option<f64>| {
                 distance(p, center) > radius + r.unwrap_or(0.0) + ROOM_M
@@ -91,7 +91,6 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> S
             });
             free.then(|| Obstacle::fixed(center[0], center[1], radius))
         })
-        .flatten()
         .collect();
     s.robots = fleet;
     s.mpc.v_max = rng.random_range(0.5..2.0);
