@@ -91,6 +91,8 @@ pub struct FleetMember {
     /// Deadlocks it broke by giving way (docs/fleet.md, "Deadlocks").
     pub deadlocks_broken: u64,
     pub deadline_misses: u64,
+    /// Its MPC step, µs.
+    pub solve_us: crate::Percentiles,
 }
 
 /// A fleet's `summary.json`: each robot's line, and the fleet's.
@@ -132,6 +134,7 @@ impl FleetSummary {
                 robot_contacts_at_rest: judge.contacts_at_rest[id],
                 deadlocks_broken: deadlocks[id],
                 deadline_misses: s.deadline_misses,
+                solve_us: s.solve_us,
             })
             .collect();
         let reached = (robots.iter())

@@ -19,6 +19,7 @@
 //! - Scaling ([`scaling`]): the MPC step against the horizon and the obstacle count.
 
 pub mod cross_host;
+pub mod fleet;
 pub mod live;
 pub mod load;
 pub mod scaling;
@@ -111,6 +112,8 @@ pub struct BenchReport {
     pub field_n30_step_us: Percentiles,
     /// The MPC step with five moving obstacles and with the five frozen.
     pub moving_obstacles: scaling::MovingCost,
+    /// The MPC step with seven robots' plans and with seven discs at rest, and `swap8`.
+    pub fleet: fleet::FleetCost,
     /// The real-time run served live to a client ([`live`]).
     #[serde(flatten)]
     pub live: live::LiveCost,
@@ -375,7 +378,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<BenchReport> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let phase = Phases::new(9, progress);
+    let phase = Phases::new(10, progress);
     phase.begin("the raw iceoryx2 ping-pong");
     let raw = raw_ping_pong(stop)?;
     let paper = protocol::Scenario::paper().validated("the paper scenario")?;
@@ -406,6 +409,8 @@ pub fn run(
     let field_n30_step_us = scaling::field_n30(&out.join("field-n30"), stop)?;
     phase.begin("the cost of moving obstacles");
     let moving_obstacles = scaling::moving_cost(&out.join("moving"), stop)?;
+    phase.begin("the cost of a fleet");
+    let fleet = fleet::measure(&out.join("fleet"), stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -439,6 +444,7 @@ pub fn run(
         field_n30_step_us,
         scaling,
         moving_obstacles,
+        fleet,
         live,
         targets: Vec::new(),
     };
@@ -659,6 +665,18 @@ impl BenchReport {
                 self.moving_obstacles.moving_step_us.p50,
                 self.moving_obstacles.frozen_step_us.p50,
                 self.moving_obstacles.ratio_p50
+            )
+            + &format!(
+                "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n",
+                self.fleet.plans_step_us.p50, self.fleet.static_step_us.p50, self.fleet.ratio_p50
+            )
+            + &format!(
+                "  swap8 in process     {:.1} s in {:.1} s ({:.1}× real time; {} of 8 reached, {} contacts)\n",
+                self.fleet.swap8_simulated_s,
+                self.fleet.swap8_wall_s,
+                self.fleet.swap8_speedup,
+                self.fleet.swap8_reached,
+                self.fleet.swap8_contacts
             )
             + &format!(
                 "  hop, live client     {} ({:.2}× without at p99; {} messages read, {} deadline misses)\n",

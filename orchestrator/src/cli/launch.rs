@@ -165,6 +165,9 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
     };
     let summary = run::fleet::run(&scenario, &out, recording, &stop)
         .with_context(|| format!("run of the fleet `{}`", scenario.name))?;
+    if let Err(e) = study::figures::fleet_plots(&out, &scenario) {
+        eprintln!("warning: no plots for the run: {e:#}");
+    }
     if !quiet {
         print!("{}", summary.table());
     }

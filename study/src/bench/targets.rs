@@ -44,6 +44,12 @@ pub const LOCKSTEP_SPEEDUP: f64 = 20.0;
 pub const RECORDING_SHARE: f64 = 0.05;
 /// The MPC step with five moving obstacles over the same step with the five frozen (p50).
 pub const MOVING_STEP_RATIO: f64 = 2.0;
+/// The MPC step with seven other robots' plans over the same step with seven discs at
+/// rest (p50).
+pub const FLEET_STEP_RATIO: f64 = 2.0;
+/// Simulated seconds per wall second of `swap8` (in process: a fleet runs in process only
+/// so far, docs/fleet.md).
+pub const SWAP8_SPEEDUP: f64 = 5.0;
 /// The pipeline's hop with a live client reading over the same without a live view (p99).
 pub const LIVE_HOP_RATIO: f64 = 1.2;
 /// The MPC step's p50 growth from `N` = 8 to 30 with 12 and with 20 obstacles (linear in
@@ -84,6 +90,18 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             report.moving_obstacles.ratio_p50,
             true,
             MOVING_STEP_RATIO,
+        ),
+        Target::new(
+            "MPC step, 7 robots' plans / 7 discs (p50)",
+            report.fleet.ratio_p50,
+            true,
+            FLEET_STEP_RATIO,
+        ),
+        Target::new(
+            "swap8 in process (× real time)",
+            report.fleet.swap8_speedup,
+            false,
+            SWAP8_SPEEDUP,
         ),
         Target::new(
             "hop with a live client / without (p99)",

@@ -12,9 +12,11 @@ use record::schema::Table;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+mod fleet;
 mod paper;
 mod run;
 
+pub use fleet::fleet_plots;
 pub use paper::{FigureSet, GAMMA_HORIZON_PAIRS, GAMMAS, HORIZONS, paper_set};
 pub use run::run_plots;
 

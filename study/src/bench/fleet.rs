@@ -1,0 +1,114 @@
+//! What a fleet costs (docs/fleet.md, docs/performance.md): the MPC step of a robot
+//! keeping clear of seven other robots, each a track predicted from its plans, against
+//! the same step with seven discs at rest in their places, and how fast `swap8` runs in
+//! process.
+
+use anyhow::{Context, anyhow};
+use protocol::{FleetRobot, Goal, Obstacle, Scenario};
+use record::Percentiles;
+use run::sinks::Recording;
+use serde::Serialize;
+use std::f64::consts::FRAC_PI_2;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+/// The other robots of [`FleetCost`]: `(x, y)` where each stands at its goal (m), radius
+/// 0.3 m, either side of the way of robot 0 from (-4, 0) to (9, 0), so that robot 0 passes
+/// each within 0.6 m of its footprint. Parked rather than driving, they leave the world the
+/// same in both runs: what differs is only how robot 0 sees them.
+pub const PARKED: [(f64, f64); 7] = [
+    (-1.5, -1.2),
+    (0.0, 1.2),
+    (1.5, -1.2),
+    (3.0, 1.2),
+    (4.5, -1.2),
+    (6.0, 1.2),
+    (7.5, -1.2),
+];
+
+/// The fleet's costs.
+#[derive(Debug, Clone, Serialize)]
+pub struct FleetCost {
+    /// Robot 0's MPC step with the [`PARKED`] robots, each its own pipeline publishing its
+    /// plans, in process, µs.
+    pub plans_step_us: Percentiles,
+    /// The same robot's step with seven discs at rest in their places, µs.
+    pub static_step_us: Percentiles,
+    /// `plans_step_us.p50 / static_step_us.p50`.
+    pub ratio_p50: f64,
+    /// `swap8` in process: simulated and wall seconds, and their ratio.
+    pub swap8_simulated_s: f64,
+    pub swap8_wall_s: f64,
+    pub swap8_speedup: f64,
+    /// Robots of `swap8` that reached their goal, and contacts between robots.
+    pub swap8_reached: usize,
+    pub swap8_contacts: u64,
+}
+
+/// Runs the worlds of [`FleetCost`] into `out`.
+pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<FleetCost> {
+    let valid = |s: Scenario| {
+        s.validated("the fleet benchmark")
+            .map_err(|e| anyhow!("{e}"))
+    };
+    let fleet = valid(parked(true))?;
+    let plans = run::fleet::run(&fleet, &out.join("plans"), Recording::files(false), stop)?;
+    run::stop::check(stop)?;
+    let plans_step_us = (plans.robots.first())
+        .context("the fleet benchmark's robot 0")?
+        .solve_us;
+    let alone = valid(parked(false))?;
+    let static_step_us =
+        run::inprocess::run(&alone, &out.join("static"), Recording::files(false), stop)?.solve_us;
+    run::stop::check(stop)?;
+    let swap8 = run::scenarios::load(Some("swap8"), &[]).map_err(|e| anyhow!("{e}"))?;
+    let swapped = run::fleet::run(&swap8, &out.join("swap8"), Recording::files(false), stop)?;
+    run::stop::check(stop)?;
+    Ok(FleetCost {
+        ratio_p50: plans_step_us.p50 / static_step_us.p50.max(1e-9),
+        plans_step_us,
+        static_step_us,
+        swap8_simulated_s: swapped.simulated_s,
+        swap8_wall_s: swapped.wall_s,
+        swap8_speedup: swapped.simulated_s / swapped.wall_s.max(1e-9),
+        swap8_reached: swapped.reached,
+        swap8_contacts: swapped.robot_contacts_moving + swapped.robot_contacts_at_rest,
+    })
+}
+
+/// Robot 0 from (-4, 0) to (9, 0) past the [`PARKED`] robots (`fleet`), or past discs at
+/// rest in their places; both without the route planner, which sees discs at rest only.
+fn parked(fleet: bool) -> Scenario {
+    let mut s = Scenario {
+        name: format!("fleet-{}", if fleet { "plans" } else { "static" }),
+        duration_s: 30.0,
+        obstacles: Vec::new(),
+        ..Scenario::paper()
+    };
+    s.robot.radius_m = 0.3;
+    s.mpc.v_max = 1.0;
+    s.robot.start = [-4.0, 0.0, 0.0];
+    s.robot.goal = Goal::at([9.0, 0.0]);
+    s.planner.kind = protocol::PlannerKind::None;
+    match fleet {
+        true => {
+            s.robots = std::iter::once(FleetRobot {
+                start: s.robot.start,
+                goal: s.robot.goal,
+                radius_m: None,
+            })
+            .chain(PARKED.iter().map(|&(x, y)| FleetRobot {
+                start: [x, y, FRAC_PI_2],
+                goal: Goal::at([x, y]),
+                radius_m: None,
+            }))
+            .collect();
+        }
+        false => {
+            s.obstacles = (PARKED.iter())
+                .map(|&(x, y)| Obstacle::fixed(x, y, 0.3))
+                .collect();
+        }
+    }
+    s
+}
