@@ -213,6 +213,32 @@ impl PeerPrediction {
     }
 }
 
+impl PeerPrediction {
+    /// Robot `robot` as a track to the others before it has a solved plan: where its
+    /// estimate `state` (`[x, y, theta, zeta]`) puts it, at its speed along its heading,
+    /// its position as uncertain as the estimate's (`position_variance`, m^2). From the
+    /// start of the run to its first plan (the first sample's) it is predicted as any
+    /// track is, at bounded acceleration.
+    pub fn track_of_estimate(
+        &self,
+        robot: usize,
+        radius_m: f64,
+        state: [f64; 4],
+        position_variance: f64,
+    ) -> Track {
+        let [x, y, theta, zeta] = state;
+        let var_p = position_variance.max(0.0);
+        Track {
+            obstacle: crate::FIRST_PEER + robot as u32,
+            reserved: 0,
+            radius_m,
+            center: [x, y],
+            velocity: [zeta * theta.cos(), zeta * theta.sin()],
+            covariance: [var_p, 0.0, 0.0, var_p, 0.0, 0.0],
+        }
+    }
+}
+
 /// Where `plan` puts the robot `since_s` after the plan's time, and its velocity there,
 /// m and m/s: on stage `i`'s constant acceleration between two stages (the DFL's linear
 /// model, eq. 30), on at the last stage's velocity beyond the horizon.

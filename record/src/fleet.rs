@@ -179,14 +179,18 @@ impl FleetSummary {
             self.mode,
             self.robots.len()
         );
-        out += "  robot  outcome     to goal    clearance  contacts (moving/at rest)  deadlocks broken\n";
+        out += "  robot  outcome     to goal    obstacles  contacts (moving/at rest)  deadlocks broken\n";
         for r in &self.robots {
+            let clearance = match r.min_clearance_m.is_finite() {
+                true => format!("{:.3} m", r.min_clearance_m),
+                false => "none".into(),
+            };
             out += &format!(
-                "  {:>5}  {:<10}  {:>8}  {:>8.3} m  {:>12}/{:<12}  {:>6}\n",
+                "  {:>5}  {:<10}  {:>8}  {:>10}  {:>12}/{:<12}  {:>6}\n",
                 r.id,
                 r.outcome.as_str(),
                 secs(r.time_to_goal_s),
-                r.min_clearance_m,
+                clearance,
                 r.robot_contacts_moving,
                 r.robot_contacts_at_rest,
                 r.deadlocks_broken

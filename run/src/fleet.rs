@@ -29,12 +29,17 @@ struct Member {
     summary: Option<record::Summary>,
     /// Its newest solved plan, and the larger variance of its estimate's position then.
     plan: Option<(Plan, f64)>,
+    /// Its newest estimate's state and the larger variance of its position (at first its
+    /// start), which the others go by until it has a plan.
+    estimate: ([f64; 4], f64),
     position: [f64; 2],
     radius_m: f64,
     /// Deadlocks it broke: the detours it set out on ([`Plan::gives_way`]), and the one
     /// of its last plan.
     deadlocks_broken: u64,
     gives_way: u32,
+    /// When its record began, for its summary's wall time.
+    started: Instant,
 }
 
 /// Runs the fleet to its end (every robot's outcome, the duration, or `stop`) and writes
@@ -73,7 +78,7 @@ pub fn run(
     let wall_s = started.elapsed().as_secs_f64();
     let mut summaries = Vec::with_capacity(members.len());
     for member in &mut members {
-        summaries.push(member.finish(interrupted, wall_s)?);
+        summaries.push(member.finish(interrupted)?);
     }
     let deadlocks: Vec<u64> = members.iter().map(|m| m.deadlocks_broken).collect();
     let simulated_s = timing.tick_time_s(tick);
@@ -85,13 +90,14 @@ pub fn run(
 }
 
 /// At the sample starting at `tick`: each robot hears every other as a track predicted
-/// from its newest solved plan.
+/// from its newest solved plan (from its estimate before its first).
 fn hear_each_other(members: &mut [Member], peers: &PeerPrediction, tick: u64, t_s: f64) {
     let tracks: Vec<_> = (members.iter().enumerate())
-        .filter_map(|(id, m)| {
-            let (plan, variance) = m.plan.as_ref()?;
-            Some((id, peers.track(id, m.radius_m, plan, *variance, t_s)))
+        .map(|(id, m)| match &m.plan {
+            Some((plan, variance)) => peers.track(id, m.radius_m, plan, *variance, t_s),
+            None => peers.track_of_estimate(id, m.radius_m, m.estimate.0, m.estimate.1),
         })
+        .enumerate()
         .collect();
     for (id, member) in members.iter_mut().enumerate() {
         let mut heard = Tracks {
@@ -125,8 +131,9 @@ impl Member {
         let dir = out.join(format!("robot{id}"));
         let recorder = crate::sinks::recorder(&scenario, &dir, recording)?;
         let closed_loop = ClosedLoop::new(&scenario)?;
-        let [x, y, _] = scenario.robot.start;
+        let [x, y, theta] = scenario.robot.start;
         Ok(Member {
+            estimate: ([x, y, theta, scenario.robot.zeta0], 0.0),
             radius_m: scenario.robot.radius_m,
             scenario,
             closed_loop,
@@ -136,6 +143,7 @@ impl Member {
             position: [x, y],
             deadlocks_broken: 0,
             gives_way: 0,
+            started: Instant::now(),
         })
     }
 
@@ -156,10 +164,11 @@ impl Member {
         };
         let [x, y, _] = tick.truth.pose;
         self.position = [x, y];
+        let c = &tick.estimate.covariance;
+        self.estimate = (tick.estimate.state, c[0].max(c[4]));
         if let Some(plan) = &tick.plan {
             if plan.is_solved() {
-                let c = &tick.estimate.covariance;
-                self.plan = Some((*plan, c[0].max(c[4])));
+                self.plan = Some((*plan, self.estimate.1));
             }
             if plan.gives_way != 0 && plan.gives_way != self.gives_way {
                 self.deadlocks_broken += 1;
@@ -193,13 +202,14 @@ impl Member {
     }
 
     /// Its summary: the one recorded at its outcome, or now at the end of the run.
-    fn finish(&mut self, interrupted: bool, wall_s: f64) -> anyhow::Result<record::Summary> {
+    fn finish(&mut self, interrupted: bool) -> anyhow::Result<record::Summary> {
         if let Some(mut recorder) = self.recorder.take() {
             let outcome = match interrupted {
                 true => Outcome::Interrupted,
                 false => recorder.end_of_run(self.closed_loop.final_truth().as_ref()),
             };
             let signal = crate::stop::received();
+            let wall_s = self.started.elapsed().as_secs_f64();
             let summary =
                 recorder.finish(&self.scenario, "in-process", outcome, wall_s, None, signal)?;
             self.summary = Some(summary);

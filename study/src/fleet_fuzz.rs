@@ -143,7 +143,7 @@ impl FleetReport {
         for r in self.robots().filter(|r| r.outcome != Outcome::Reached) {
             let reason = r
                 .stall_reason
-                .map_or(String::new(), |s| format!(" ({s:?})"));
+                .map_or(String::new(), |s| format!(" ({})", s.as_str()));
             *by_outcome
                 .entry(format!("{}{reason}", r.outcome.as_str()))
                 .or_default() += 1;
@@ -262,7 +262,7 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
                 s.mpc.v_max,
                 s.radius_of(r.id),
                 r.outcome.as_str(),
-                r.stall_reason.map_or(String::new(), |s| format!("{s:?}")),
+                r.stall_reason.map_or("", |s| s.as_str()),
                 r.time_to_goal_s
                     .map_or(String::new(), |t| format!("{t:.2}")),
                 r.robot_contacts_moving,
