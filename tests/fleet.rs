@@ -94,3 +94,36 @@ fn a_fleets_bad_input_names_the_robots_key() {
     refused(&["run", "swap4"], "--in-process");
     refused(&["fuzz", "--robots", "3..2"], "--robots");
 }
+
+/// A robot whose plans stop (its MPC fails from 3 s on, `[robots.fault]`): its DFL brakes
+/// it to rest, the others go by where they see it and reach their goals past it, and no
+/// robot touches another.
+#[test]
+fn a_robot_whose_plans_stop_brakes_to_rest_and_the_others_pass_it() {
+    let (dir, out) = run_into_tempdir(&[
+        "run",
+        "swap4",
+        "--in-process",
+        "--no-mcap",
+        "--set",
+        "robots.1.fault.mpc_fail_samples=\"60..=2000\"",
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    assert_eq!(fleet["robot_contacts_at_rest"], 0, "{fleet}");
+    for id in [0, 2, 3] {
+        assert_eq!(fleet["robots"][id]["outcome"], "reached", "{fleet}");
+    }
+    assert_ne!(fleet["robots"][1]["outcome"], "reached", "{fleet}");
+    let silent = std::fs::read_to_string(dir.path().join("robot1/trajectory.csv")).unwrap();
+    let header: Vec<&str> = silent.lines().next().unwrap().split(',').collect();
+    let last: Vec<&str> = silent.lines().last().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    assert_eq!(last[column("mode")], "brake", "{last:?}");
+    assert_eq!(
+        last[column("zeta")].parse::<f64>().unwrap(),
+        0.0,
+        "at rest: {last:?}"
+    );
+}

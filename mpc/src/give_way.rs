@@ -3,8 +3,8 @@
 //! circle's centre, each waiting for the others to move. Every robot applies one rule,
 //! the same for all and decided from what each knows alone (its own state and the tracks
 //! of the others), so the symmetry breaks the same way on every side: a robot held still
-//! away from its goal with another robot close by **gives way to its right**, following a
-//! detour that passes the nearest such robot on its right-hand side (every robot moving
+//! away from its goal with another robot close by ahead **gives way to its right**,
+//! following a detour that passes the nearest such robot on its right-hand side (every robot moving
 //! right, two that face each other pass left side to left side; a ring of them turns
 //! like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
 //! safety row changes.
@@ -64,14 +64,14 @@ impl GiveWay {
         goal: [f64; 2],
         tracks: Option<&Tracks>,
     ) -> Option<(Route, u32)> {
+        let arriving = distance(position, goal) <= self.arriving_m;
         if let Some(d) = self.detour
-            && (t_s >= d.until_s || distance(position, d.waypoint) < WAYPOINT_REACHED_M)
+            && (t_s >= d.until_s || distance(position, d.waypoint) < WAYPOINT_REACHED_M || arriving)
         {
             self.detour = None;
             self.still_since_s = None;
         }
-        let holds_still =
-            speed_m_s.abs() < STILL_SPEED_M_S && distance(position, goal) > self.arriving_m;
+        let holds_still = speed_m_s.abs() < STILL_SPEED_M_S && !arriving;
         self.still_since_s = match holds_still {
             true => Some(self.still_since_s.unwrap_or(t_s)),
             false => None,
@@ -81,7 +81,7 @@ impl GiveWay {
             .is_some_and(|s| t_s - s >= STILL_S - 1e-9);
         if self.detour.is_none()
             && held_up
-            && let Some(peer) = self.holding_up(position, tracks)
+            && let Some(peer) = self.holding_up(position, goal, tracks)
         {
             self.detour = Some(Detour {
                 peer: peer.obstacle - protocol::FIRST_PEER,
@@ -93,13 +93,26 @@ impl GiveWay {
         Some((route_via(position, d.waypoint, goal), d.peer))
     }
 
-    /// The nearest other robot within [`HOLD_UP_M`] of the robot's footprint.
-    fn holding_up<'a>(&self, position: [f64; 2], tracks: Option<&'a Tracks>) -> Option<&'a Track> {
+    /// The nearest other robot ahead (towards `goal`) within [`HOLD_UP_M`] of the robot's
+    /// footprint.
+    fn holding_up<'a>(
+        &self,
+        position: [f64; 2],
+        goal: [f64; 2],
+        tracks: Option<&'a Tracks>,
+    ) -> Option<&'a Track> {
         let gap = |t: &Track| distance(position, t.center) - t.radius_m - self.radius_m;
+        let ahead = |t: &Track| {
+            let (way, to) = (
+                [0, 1].map(|a| goal[a] - position[a]),
+                [0, 1].map(|a| t.center[a] - position[a]),
+            );
+            way[0] * to[0] + way[1] * to[1] > 0.0
+        };
         tracks?
             .tracks()
             .iter()
-            .filter(|t| t.is_peer() && gap(t) < HOLD_UP_M)
+            .filter(|t| t.is_peer() && gap(t) < HOLD_UP_M && ahead(t))
             .min_by(|a, b| gap(a).total_cmp(&gap(b)))
     }
 
@@ -107,7 +120,8 @@ impl GiveWay {
     /// at `position` faces `goal`.
     fn passing_right(&self, position: [f64; 2], goal: [f64; 2], peer: &Track) -> [f64; 2] {
         let way = [goal[0] - position[0], goal[1] - position[1]];
-        let length = way[0].hypot(way[1]).max(f64::MIN_POSITIVE);
+        // Not 0: a robot this near its goal arrives, and gives way to none.
+        let length = way[0].hypot(way[1]);
         let right = [way[1] / length, -way[0] / length];
         let off = peer.radius_m + self.radius_m + PASSING_M;
         [

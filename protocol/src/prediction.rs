@@ -58,10 +58,12 @@ impl KeptTracks {
             return;
         }
         let judged_at = time_s + self.horizon_s;
-        let (kappa, accel_max, peer) =
-            (self.uncertainty_sigmas, self.accel_max, self.peer_accel_max);
+        let (kappa, bounds) = (
+            self.uncertainty_sigmas,
+            (self.accel_max, self.peer_accel_max),
+        );
         let growth = |(track, time): &(Track, f64)| {
-            let accel_max = accel_of(track, accel_max, peer);
+            let accel_max = accel_of(track, bounds.0, bounds);
             prediction_growth_m(track, judged_at - time, kappa, accel_max)
         };
         for track in tracks.tracks() {
@@ -111,10 +113,11 @@ impl KeptTracks {
     }
 
     /// The acceleration bound of `track`'s prediction when an obstacle's is `accel_max`
-    /// (m/s^2; 0 predicts each track as it goes): another robot's
-    /// ([`Scenario::peer_accel_max`]) for a robot's track, unless it is 0.
+    /// (m/s^2): another robot's ([`Scenario::peer_accel_max`]) for a robot's track, unless
+    /// `accel_max` is 0 where `perception.accel_max` is not (a prediction of each track as
+    /// it goes, [`KeptTracks::discs_at_bounded`]).
     pub fn accel_for(&self, track: &Track, accel_max: f64) -> f64 {
-        accel_of(track, accel_max, self.peer_accel_max)
+        accel_of(track, accel_max, (self.accel_max, self.peer_accel_max))
     }
 
     /// `kappa`.
@@ -177,30 +180,32 @@ impl PeerPrediction {
         }
     }
 
-    /// Robot `robot` as a track to the others at time `t_s`: where its newest solved
-    /// `plan` puts it then, at the plan's velocity there ([`plan_state_at`]), its footprint
-    /// `radius_m`. The plan is certain only at its own time: the robot was where its
-    /// estimate put it (`position_variance`, the larger of the estimate's two, m^2), and
-    /// since then it may have left the plan (braked, or flown another) accelerating up to
-    /// `accel_max` against the plan's own `accel_max`. So after `d = t_s - plan time` its
-    /// position may be off by `accel_max d^2` and its velocity by `2 accel_max d`, which
-    /// the track carries as `kappa` standard deviations; its disc then grows at
-    /// `accel_max` ([`prediction_growth_m`]). Whatever the robot does within its input box,
-    /// it stays in the disc.
+    /// Robot `robot` as a track to the others at time `t_s` (on the plans' timeline):
+    /// where its newest solved `plan` puts it then, at the plan's velocity there
+    /// ([`plan_state_at`]), its footprint `radius_m`. The plan is certain only at its own
+    /// time, and only as its estimate was: `estimate_sigmas` are the standard deviations
+    /// of the estimate's position (m) and of its velocity (m/s: the speed times the
+    /// heading's). Since then the robot may have left the plan (braked, or flown another)
+    /// accelerating up to `accel_max` against the plan's own `accel_max`. So after `d =
+    /// t_s - plan time` its position may be off by `accel_max d^2` more and its velocity
+    /// by `2 accel_max d`, which the track carries as `kappa` standard deviations; its disc
+    /// then grows at `accel_max` ([`prediction_growth_m`]). Whatever the robot does within
+    /// its input box, and short of `kappa` standard deviations off its estimate, it stays
+    /// in the disc.
     pub fn track(
         &self,
         robot: usize,
         radius_m: f64,
         plan: &Plan,
-        position_variance: f64,
+        estimate_sigmas: [f64; 2],
         t_s: f64,
     ) -> Track {
         let since_s = (t_s - plan.sample as f64 * self.ts_s).max(0.0);
         let (center, velocity) = plan_state_at(plan, since_s, self.ts_s);
         let kappa = self.kappa.max(f64::MIN_POSITIVE);
-        let sigma_p =
-            position_variance.max(0.0).sqrt() + self.accel_max * since_s * since_s / kappa;
-        let sigma_v = 2.0 * self.accel_max * since_s / kappa;
+        let [estimate_p, estimate_v] = estimate_sigmas.map(|s| s.max(0.0));
+        let sigma_p = estimate_p + self.accel_max * since_s * since_s / kappa;
+        let sigma_v = estimate_v + 2.0 * self.accel_max * since_s / kappa;
         let (var_p, var_v) = (sigma_p * sigma_p, sigma_v * sigma_v);
         Track {
             obstacle: crate::FIRST_PEER + robot as u32,
@@ -211,30 +216,27 @@ impl PeerPrediction {
             covariance: [var_p, 0.0, var_v, var_p, 0.0, var_v],
         }
     }
-}
 
-impl PeerPrediction {
-    /// Robot `robot` as a track to the others before it has a solved plan: where its
-    /// estimate `state` (`[x, y, theta, zeta]`) puts it, at its speed along its heading,
-    /// its position as uncertain as the estimate's (`position_variance`, m^2). From the
-    /// start of the run to its first plan (the first sample's) it is predicted as any
-    /// track is, at bounded acceleration.
-    pub fn track_of_estimate(
+    /// Robot `robot` as a track where it is seen rather than planned: at `center` with
+    /// `velocity`, both as uncertain as `sigmas` (`[position m, velocity m/s]`), its
+    /// footprint `radius_m`; its disc grows from now at `accel_max`. The others go by its
+    /// estimate until its first plan, and by what the world shows of it once its plans stop
+    /// (`run::fleet`).
+    pub fn track_seen(
         &self,
         robot: usize,
         radius_m: f64,
-        state: [f64; 4],
-        position_variance: f64,
+        (center, velocity): ([f64; 2], [f64; 2]),
+        sigmas: [f64; 2],
     ) -> Track {
-        let [x, y, theta, zeta] = state;
-        let var_p = position_variance.max(0.0);
+        let [var_p, var_v] = sigmas.map(|s| s * s);
         Track {
             obstacle: crate::FIRST_PEER + robot as u32,
             reserved: 0,
             radius_m,
-            center: [x, y],
-            velocity: [zeta * theta.cos(), zeta * theta.sin()],
-            covariance: [var_p, 0.0, 0.0, var_p, 0.0, 0.0],
+            center,
+            velocity,
+            covariance: [var_p, 0.0, var_v, var_p, 0.0, var_v],
         }
     }
 }
@@ -260,10 +262,11 @@ pub fn plan_state_at(plan: &Plan, since_s: f64, ts_s: f64) -> ([f64; 2], [f64; 2
     )
 }
 
-/// [`KeptTracks::accel_for`].
-fn accel_of(track: &Track, accel_max: f64, peer_accel_max: f64) -> f64 {
-    match track.is_peer() && accel_max > 0.0 {
-        true => peer_accel_max,
+/// [`KeptTracks::accel_for`], with `(perception.accel_max, the robots' bound)`.
+fn accel_of(track: &Track, accel_max: f64, (obstacles, peers): (f64, f64)) -> f64 {
+    let as_it_goes = accel_max == 0.0 && obstacles > 0.0;
+    match track.is_peer() && !as_it_goes {
+        true => peers,
         false => accel_max,
     }
 }
@@ -492,7 +495,9 @@ mod tests {
         let peers = PeerPrediction::of(&scenario);
         let kept = KeptTracks::of(&scenario);
         let ts = scenario.timing.ts_s;
-        // A plan of sample 10 straight along x at 1 m/s, accelerating at 0.5 m/s^2.
+        // A plan of sample 10 from 1 m/s along x, accelerating at one corner of the input
+        // box, (1, 1) m/s^2; the robot leaves it for the opposite corner: the largest
+        // difference there is.
         let mut plan = Plan {
             sample: 10,
             horizon: 8,
@@ -500,22 +505,22 @@ mod tests {
         };
         for i in 0..=8 {
             let t = i as f64 * ts;
-            plan.z[i] = [t + 0.25 * t * t, 1.0 + 0.5 * t, 2.0, 0.0];
+            plan.z[i] = [t + 0.5 * t * t, 1.0 + t, 2.0 + 0.5 * t * t, t];
         }
         for v in plan.v.iter_mut().take(8) {
-            *v = [0.5, 0.0];
+            *v = [1.0, 1.0];
         }
         let plan_s = 10.0 * ts;
         // The robot flew it for `flown` s, then accelerated at the box's corner against it.
         for flown in [0.0, 0.02, ts] {
-            let corner = [-1.0, 1.0];
+            let corner = [-1.0, -1.0];
             let truth = |t: f64| {
                 let (p, v) = plan_state_at(&plan, flown, ts);
                 let s = t - flown;
                 [0, 1].map(|a| p[a] + v[a] * s + 0.5 * corner[a] * s * s)
             };
             for told_after in [ts, 2.0 * ts] {
-                let track = peers.track(3, 0.3, &plan, 0.0, plan_s + told_after);
+                let track = peers.track(3, 0.3, &plan, [0.0; 2], plan_s + told_after);
                 assert!(track.is_peer());
                 for k in 0..=40 {
                     let after = k as f64 * 0.02;

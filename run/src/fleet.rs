@@ -1,16 +1,20 @@
 //! A fleet in process (`[[robots]]`, docs/fleet.md): one [`ClosedLoop`] per robot, each
 //! the pipeline of the scenario's member for that robot ([`protocol::Scenario::member`]),
 //! stepped tick by tick in one world. At every sample boundary each robot's MPC and DFL
-//! hear the other robots as tracks predicted from their newest solved plans
-//! ([`PeerPrediction::track`]), all made from the plans of the sample before, so that no
-//! robot's plan depends on the order the robots are stepped in. Each robot has its own
-//! record (`robot<id>/`, as a run of one robot); the fleet's judge measures the robots
-//! against each other, and `summary.json` holds the fleet's line and each robot's.
+//! hear the other robots as tracks ([`Member::track`]), all made from what the robots
+//! published up to the tick before, so that no robot's plan depends on the order the
+//! robots are stepped in. Each robot has its own record (`robot<id>/`, as a run of one
+//! robot); the fleet's judge measures the robots against each other, and `summary.json`
+//! holds the fleet's line and each robot's.
+//!
+//! Across processes a robot's tracker would take this part (docs/fleet.md, "Left out");
+//! in process the executor plays it, as it plays the world.
 
-use crate::closed_loop::{ClosedLoop, Ended, Tick};
+use crate::closed_loop::{ClosedLoop, Ended};
+use crate::inprocess::record_tick;
 use crate::sinks::Recording;
 use anyhow::Context as _;
-use protocol::{Data, Header, PeerPrediction, Plan, Tracks, Validated};
+use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
 use record::Recorder;
 use record::event::Event;
 use record::fleet::{FleetJudge, FleetSummary};
@@ -19,23 +23,53 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+/// A robot whose newest solved plan is older than this many samples has stopped
+/// publishing plans: the others go by what the world shows of it ([`Member::track`]).
+pub const SILENT_SAMPLES: u64 = 4;
+
+/// What a robot's estimate tells the others: its state `[x, y, theta, zeta]` and the
+/// standard deviations of its position (m) and of its velocity (m/s, the speed times the
+/// heading's).
+#[derive(Debug, Clone, Copy)]
+struct Estimated {
+    state: [f64; 4],
+    sigmas: [f64; 2],
+}
+
+impl Estimated {
+    fn of(estimate: &Estimate) -> Estimated {
+        let theta_sigma = estimate.covariance[8].max(0.0).sqrt();
+        Estimated {
+            state: estimate.state,
+            sigmas: [
+                estimate.position_sigma(),
+                estimate.state[3].abs() * theta_sigma,
+            ],
+        }
+    }
+}
+
 /// One robot of the fleet: its pipeline, its record until its outcome, and what the others
 /// know of it.
 struct Member {
     scenario: Validated,
-    closed_loop: ClosedLoop,
+    /// `None` once the pipeline ended (a role refused with no restart left): the robot
+    /// stays where it is, a disc to the others.
+    closed_loop: Option<ClosedLoop>,
     /// `None` once its outcome is recorded (it goes on driving, a disc to the others).
     recorder: Option<Recorder>,
     summary: Option<record::Summary>,
-    /// Its newest solved plan, and the larger variance of its estimate's position then.
-    plan: Option<(Plan, f64)>,
-    /// Its newest estimate's state and the larger variance of its position (at first its
-    /// start), which the others go by until it has a plan.
-    estimate: ([f64; 4], f64),
+    /// Its newest solved plan, with its estimate then.
+    plan: Option<(Plan, Estimated)>,
+    /// Its newest estimate (at first its start), which the others go by before its first
+    /// plan.
+    estimate: Estimated,
+    /// Its true position now, and at the last sample's start.
     position: [f64; 2],
+    sampled_at: [f64; 2],
     radius_m: f64,
-    /// Deadlocks it broke: the detours it set out on ([`Plan::gives_way`]), and the one
-    /// of its last plan.
+    /// The detours it set out on while its record ran (each a `gave_way` event), and
+    /// the one of its last plan ([`Plan::gives_way`]).
     deadlocks_broken: u64,
     gives_way: u32,
     /// When its record began, for its summary's wall time.
@@ -66,7 +100,8 @@ pub fn run(
             break;
         }
         if timing.starts_sample(tick) {
-            hear_each_other(&mut members, &peers, tick, timing.tick_time_s(tick));
+            let t_s = timing.tick_time_s(tick);
+            hear_each_other(&mut members, &peers, (tick, timing.sample_of(tick)), t_s);
         }
         for member in &mut members {
             member.step()?;
@@ -83,37 +118,43 @@ pub fn run(
     let deadlocks: Vec<u64> = members.iter().map(|m| m.deadlocks_broken).collect();
     let simulated_s = timing.tick_time_s(tick);
     let summary = FleetSummary::of(&summaries, &judge, &deadlocks, simulated_s, wall_s);
-    let json = serde_json::to_string_pretty(&summary)?;
-    std::fs::write(out.join("summary.json"), json + "\n")
-        .with_context(|| format!("writing {}", out.join("summary.json").display()))?;
+    let path = out.join("summary.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
     Ok(summary)
 }
 
-/// At the sample starting at `tick`: each robot hears every other as a track predicted
-/// from its newest solved plan (from its estimate before its first).
-fn hear_each_other(members: &mut [Member], peers: &PeerPrediction, tick: u64, t_s: f64) {
-    let tracks: Vec<_> = (members.iter().enumerate())
-        .map(|(id, m)| match &m.plan {
-            Some((plan, variance)) => peers.track(id, m.radius_m, plan, *variance, t_s),
-            None => peers.track_of_estimate(id, m.radius_m, m.estimate.0, m.estimate.1),
-        })
-        .enumerate()
+/// At the start of sample `sample` (inner tick `tick`, time `t_s`): each robot hears
+/// every other as a track ([`Member::track`]). The tracks are stamped `command_lead_s`
+/// later, the time on the clock that a plan's stage of `t_s` stands for
+/// ([`protocol::KeptTracks::take`]).
+fn hear_each_other(
+    members: &mut [Member],
+    peers: &PeerPrediction,
+    (tick, sample): (u64, u64),
+    t_s: f64,
+) {
+    let tracks: Vec<Track> = (members.iter().enumerate())
+        .map(|(id, m)| m.track(id, peers, sample, t_s))
         .collect();
     for (id, member) in members.iter_mut().enumerate() {
+        member.sampled_at = member.position;
         let mut heard = Tracks {
             header: Header {
                 tick,
-                time_s: t_s,
+                time_s: t_s + member.scenario.command_lead_s(),
                 robot: id as u32,
                 ..Header::default()
             },
             ..Tracks::default()
         };
-        for (_, track) in tracks.iter().filter(|(other, _)| *other != id) {
+        for (_, track) in tracks.iter().enumerate().filter(|(other, _)| *other != id) {
             heard.tracks[heard.count as usize] = *track;
             heard.count += 1;
         }
-        member.closed_loop.hear_from_outside(Data::Tracks(heard));
+        if let Some(closed_loop) = &mut member.closed_loop {
+            closed_loop.hear_from_outside(Data::Tracks(heard));
+        }
     }
 }
 
@@ -128,30 +169,69 @@ impl Member {
             live: false,
             ..recording
         };
-        let dir = out.join(format!("robot{id}"));
-        let recorder = crate::sinks::recorder(&scenario, &dir, recording)?;
+        let recorder =
+            crate::sinks::recorder(&scenario, &out.join(format!("robot{id}")), recording)?;
         let closed_loop = ClosedLoop::new(&scenario)?;
         let [x, y, theta] = scenario.robot.start;
         Ok(Member {
-            estimate: ([x, y, theta, scenario.robot.zeta0], 0.0),
+            estimate: Estimated {
+                state: [x, y, theta, scenario.robot.zeta0],
+                sigmas: [0.0; 2],
+            },
+            position: [x, y],
+            sampled_at: [x, y],
             radius_m: scenario.robot.radius_m,
             scenario,
-            closed_loop,
+            closed_loop: Some(closed_loop),
             recorder: Some(recorder),
             summary: None,
             plan: None,
-            position: [x, y],
             deadlocks_broken: 0,
             gives_way: 0,
             started: Instant::now(),
         })
     }
 
+    /// It as a track to the others at sample `sample`, time `t_s`:
+    /// - predicted from its newest solved plan ([`PeerPrediction::track`]);
+    /// - before its first, where its estimate (at first its start) puts it;
+    /// - once its plans have stopped for [`SILENT_SAMPLES`] (its MPC fails, or its
+    ///   pipeline ended), where the world shows it, as a tracker measuring it would: its
+    ///   true position, at the velocity of its last sample, uncertain by
+    ///   `perception.noise_std` and by the half sample of acceleration that velocity is
+    ///   behind by.
+    fn track(&self, id: usize, peers: &PeerPrediction, sample: u64, t_s: f64) -> Track {
+        match &self.plan {
+            Some((plan, estimated)) if plan.sample + SILENT_SAMPLES >= sample => {
+                peers.track(id, self.radius_m, plan, estimated.sigmas, t_s)
+            }
+            Some(_) => {
+                let ts = peers.ts_s;
+                let velocity = [0, 1].map(|a| (self.position[a] - self.sampled_at[a]) / ts);
+                let kappa = peers.kappa.max(f64::MIN_POSITIVE);
+                let sigmas = [
+                    self.scenario.perception.noise_std,
+                    0.5 * peers.accel_max * ts / kappa,
+                ];
+                peers.track_seen(id, self.radius_m, (self.position, velocity), sigmas)
+            }
+            None => {
+                let [x, y, theta, zeta] = self.estimate.state;
+                let seen = ([x, y], [zeta * theta.cos(), zeta * theta.sin()]);
+                peers.track_seen(id, self.radius_m, seen, self.estimate.sigmas)
+            }
+        }
+    }
+
     /// One tick of its pipeline, recorded until its outcome.
     fn step(&mut self) -> anyhow::Result<()> {
-        let tick = match self.closed_loop.step() {
+        let Some(closed_loop) = &mut self.closed_loop else {
+            return Ok(());
+        };
+        let tick = match closed_loop.step() {
             Ok(tick) => tick,
             Err(Ended::Aborted { role, topic }) => {
+                self.closed_loop = None;
                 if let Some(recorder) = &mut self.recorder {
                     recorder.event(Event::Aborted {
                         role,
@@ -164,26 +244,25 @@ impl Member {
         };
         let [x, y, _] = tick.truth.pose;
         self.position = [x, y];
-        let c = &tick.estimate.covariance;
-        self.estimate = (tick.estimate.state, c[0].max(c[4]));
-        if let Some(plan) = &tick.plan {
-            if plan.is_solved() {
-                self.plan = Some((*plan, self.estimate.1));
-            }
-            if plan.gives_way != 0 && plan.gives_way != self.gives_way {
-                self.deadlocks_broken += 1;
-                if let Some(recorder) = &mut self.recorder {
-                    recorder.event(Event::GaveWay {
-                        sample: plan.sample,
-                        to_robot: plan.gives_way - 1,
-                    })?;
-                }
-            }
-            self.gives_way = plan.gives_way;
+        self.estimate = Estimated::of(&tick.estimate);
+        if let Some(plan) = tick.plan.filter(Plan::is_solved) {
+            self.plan = Some((plan, self.estimate));
         }
         let Some(recorder) = &mut self.recorder else {
             return Ok(());
         };
+        if let Some(plan) = &tick.plan
+            && plan.gives_way != self.gives_way
+        {
+            self.gives_way = plan.gives_way;
+            if plan.gives_way != 0 {
+                self.deadlocks_broken += 1;
+                recorder.event(Event::GaveWay {
+                    sample: plan.sample,
+                    to_robot: plan.gives_way - 1,
+                })?;
+            }
+        }
         if let Some(outcome) = record_tick(recorder, &tick)? {
             self.end(outcome)?;
         }
@@ -193,7 +272,7 @@ impl Member {
     /// Ends its record with `outcome`; its pipeline drives on.
     fn end(&mut self, outcome: Outcome) -> anyhow::Result<()> {
         if let Some(recorder) = self.recorder.take() {
-            let wall_s = 0.0;
+            let wall_s = self.started.elapsed().as_secs_f64();
             let summary =
                 recorder.finish(&self.scenario, "in-process", outcome, wall_s, None, None)?;
             self.summary = Some(summary);
@@ -204,9 +283,10 @@ impl Member {
     /// Its summary: the one recorded at its outcome, or now at the end of the run.
     fn finish(&mut self, interrupted: bool) -> anyhow::Result<record::Summary> {
         if let Some(mut recorder) = self.recorder.take() {
+            let final_truth = (self.closed_loop.as_mut()).and_then(ClosedLoop::final_truth);
             let outcome = match interrupted {
                 true => Outcome::Interrupted,
-                false => recorder.end_of_run(self.closed_loop.final_truth().as_ref()),
+                false => recorder.end_of_run(final_truth.as_ref()),
             };
             let signal = crate::stop::received();
             let wall_s = self.started.elapsed().as_secs_f64();
@@ -218,23 +298,4 @@ impl Member {
             .clone()
             .context("a robot of the fleet without a summary")
     }
-}
-
-/// Records one tick of a robot's pipeline: its outcome, if the tick ends its run.
-fn record_tick(recorder: &mut Recorder, tick: &Tick) -> anyhow::Result<Option<Outcome>> {
-    if let Some(plan) = &tick.plan {
-        recorder.plan(plan)?;
-    }
-    if let Some(verdict) = &tick.verdict {
-        recorder.verdict(verdict)?;
-    }
-    let mut no_route = None;
-    if let Some(route) = &tick.route {
-        no_route = recorder.route(route)?;
-    }
-    for data in &tick.recorded {
-        recorder.data(data)?;
-    }
-    let outcome = recorder.tick(&tick.truth, None, &tick.estimate, &tick.actuation)?;
-    Ok(outcome.or(no_route))
 }

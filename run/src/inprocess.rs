@@ -40,6 +40,37 @@ fn set_requested_goal(
     Ok(())
 }
 
+/// Records one tick of the closed loop: the outcome, if the tick ends the run.
+pub(crate) fn record_tick(
+    recorder: &mut record::Recorder,
+    tick: &Tick,
+) -> std::io::Result<Option<Outcome>> {
+    if let Some((role, topic)) = tick.restarted {
+        recorder.event(Event::Restarted(Restart::InProcess {
+            role,
+            reason: format!("{topic} refused"),
+        }))?;
+    }
+    if let Some(plan) = &tick.plan {
+        recorder.plan(plan)?;
+    }
+    if let Some(verdict) = &tick.verdict {
+        recorder.verdict(verdict)?;
+    }
+    let mut no_route = None;
+    if let Some(route) = &tick.route {
+        no_route = recorder.route(route)?;
+    }
+    if let Some(tracks) = &tick.tracks {
+        recorder.tracks(tracks)?;
+    }
+    for data in &tick.recorded {
+        recorder.data(data)?;
+    }
+    let outcome = recorder.tick(&tick.truth, None, &tick.estimate, &tick.actuation)?;
+    Ok(outcome.or(no_route))
+}
+
 /// [`run`], handing every tick to `observe` after it is recorded.
 pub fn run_observed(
     scenario: &Validated,
@@ -75,31 +106,7 @@ pub fn run_observed(
             }
             Err(stalled) => return Err(stalled.into()),
         };
-        if let Some((role, topic)) = tick.restarted {
-            recorder.event(Event::Restarted(Restart::InProcess {
-                role,
-                reason: format!("{topic} refused"),
-            }))?;
-        }
-        if let Some(plan) = &tick.plan {
-            recorder.plan(plan)?;
-        }
-        if let Some(verdict) = &tick.verdict {
-            recorder.verdict(verdict)?;
-        }
-        let mut no_route = None;
-        if let Some(route) = &tick.route {
-            no_route = recorder.route(route)?;
-        }
-        if let Some(tracks) = &tick.tracks {
-            recorder.tracks(tracks)?;
-        }
-        for data in &tick.recorded {
-            recorder.data(data)?;
-        }
-        outcome = recorder
-            .tick(&tick.truth, None, &tick.estimate, &tick.actuation)?
-            .or(no_route);
+        outcome = record_tick(&mut recorder, &tick)?;
         observe(&tick);
     }
     let outcome = match outcome {

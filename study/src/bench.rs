@@ -407,10 +407,7 @@ pub fn run(
     phase.begin("the MPC step by horizon and obstacle count, and field at N = 30");
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
     let field_n30_step_us = scaling::field_n30(&out.join("field-n30"), stop)?;
-    phase.begin("the cost of moving obstacles");
-    let moving_obstacles = scaling::moving_cost(&out.join("moving"), stop)?;
-    phase.begin("the cost of a fleet");
-    let fleet = fleet::measure(&out.join("fleet"), stop)?;
+    let (moving_obstacles, fleet) = moving_and_fleet(out, &phase, stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -453,6 +450,19 @@ pub fn run(
     std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(report)
+}
+
+/// The costs of moving obstacles and of a fleet ([`scaling::moving_cost`],
+/// [`fleet::measure`]).
+fn moving_and_fleet(
+    out: &Path,
+    phase: &Phases,
+    stop: &AtomicBool,
+) -> anyhow::Result<(scaling::MovingCost, fleet::FleetCost)> {
+    phase.begin("the cost of moving obstacles");
+    let moving = scaling::moving_cost(&out.join("moving"), stop)?;
+    phase.begin("the cost of a fleet");
+    Ok((moving, fleet::measure(&out.join("fleet"), stop)?))
 }
 
 /// The real-time paper run of `scenario` into `dir` and the raw ping-pong with every core
@@ -666,18 +676,7 @@ impl BenchReport {
                 self.moving_obstacles.frozen_step_us.p50,
                 self.moving_obstacles.ratio_p50
             )
-            + &format!(
-                "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n",
-                self.fleet.plans_step_us.p50, self.fleet.static_step_us.p50, self.fleet.ratio_p50
-            )
-            + &format!(
-                "  swap8 in process     {:.1} s in {:.1} s ({:.1}× real time; {} of 8 reached, {} contacts)\n",
-                self.fleet.swap8_simulated_s,
-                self.fleet.swap8_wall_s,
-                self.fleet.swap8_speedup,
-                self.fleet.swap8_reached,
-                self.fleet.swap8_contacts
-            )
+            + &self.fleet.table()
             + &format!(
                 "  hop, live client     {} ({:.2}× without at p99; {} messages read, {} deadline misses)\n",
                 p(&self.live.live_hop_us),

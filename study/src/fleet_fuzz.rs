@@ -37,7 +37,8 @@ pub fn world(
     for _ in 0..MAX_DRAWS {
         let scenario = draw(&mut rng, index, robots).with_overrides(overrides)?;
         match scenario.validated(&format!("fleet world {index}")) {
-            Ok(valid) => return Ok(valid),
+            Ok(valid) if robots.contains(&valid.robots.len()) => return Ok(valid),
+            Ok(_) => {}
             Err(e) => last = Some(e),
         }
     }
@@ -61,7 +62,12 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> S
         |rng: &mut ChaCha8Rng| [0, 1].map(|a| rng.random_range(lo[a] + edge..hi[a] - edge) * 0.6);
     let count = rng.random_range(robots.clone());
     let mut fleet: Vec<FleetRobot> = Vec::with_capacity(count);
-    while fleet.len() < count {
+    // A box the overrides shrank may hold fewer robots: the world then has fewer than
+    // `count`, and [`world`] draws again.
+    for _ in 0..MAX_DRAWS * count {
+        if fleet.len() == count {
+            break;
+        }
         let radius = rng.random_range(0.1..0.4);
         let (start, goal) = (anywhere(rng), anywhere(rng));
         let apart = |p: [f64; 2], q: [f64; 2], r: Option<f64>| {
@@ -73,9 +79,11 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> S
         });
         if clear && distance(start, goal) >= 1.0 {
             fleet.push(FleetRobot {
-                start: [start[0], start[1], rng.random_range(-PI..PI)],
-                goal: Goal::at(goal),
                 radius_m: Some(radius),
+                ..FleetRobot::between(
+                    [start[0], start[1], rng.random_range(-PI..PI)],
+                    Goal::at(goal),
+                )
             });
         }
     }

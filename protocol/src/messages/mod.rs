@@ -266,7 +266,7 @@ impl Track {
     }
 
     /// Whether it is another robot of a fleet ([`crate::FIRST_PEER`]), predicted from the
-    /// plans it publishes ([`crate::peer_track`]).
+    /// plans it publishes ([`crate::PeerPrediction`]).
     pub fn is_peer(&self) -> bool {
         (crate::FIRST_PEER..FIRST_PHANTOM).contains(&self.obstacle)
     }

@@ -219,8 +219,9 @@ fn in_words(key: &str, value: Option<&str>, message: &str) -> String {
 
 /// Makes a place for `key` where the document leaves out what a scenario may lack: a key
 /// of `[lidar]` gives a scenario without one the default lidar (of `[live]`, the default
-/// live view), and an obstacle's `known`
-/// may be set where it was left to its default.
+/// live view), a key of a fleet's robot's `fault` gives that robot the scenario's
+/// `[fault]` to change, and an obstacle's `known` may be set where it was left to its
+/// default.
 fn make_room(doc: &mut toml::Value, key: &str) {
     let toml::Value::Table(table) = doc else {
         return;
@@ -236,6 +237,16 @@ fn make_room(doc: &mut toml::Value, key: &str) {
         && let Ok(live) = toml::Value::try_from(super::LiveConfig::default())
     {
         table.insert("live".into(), live);
+    }
+    let robot = (key.strip_prefix("robots."))
+        .and_then(|rest| rest.split_once(".fault."))
+        .and_then(|(i, _)| i.parse::<usize>().ok());
+    let fault = table.get("fault").cloned();
+    if let Some(toml::Value::Array(robots)) = table.get_mut("robots")
+        && let Some(toml::Value::Table(entry)) = robot.and_then(|i| robots.get_mut(i))
+        && let Some(fault) = fault
+    {
+        entry.entry("fault").or_insert(fault);
     }
     let index = (key.strip_prefix("obstacles."))
         .and_then(|rest| rest.strip_suffix(".known"))

@@ -19,6 +19,23 @@ pub struct FleetRobot {
     /// Radius of its footprint, m; default `robot.radius_m`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radius_m: Option<f64>,
+    /// Faults injected into its pipeline alone (`[robots.fault]`, the keys of `[fault]`);
+    /// default: the scenario's `[fault]`, as every robot's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fault: Option<super::FaultConfig>,
+}
+
+impl FleetRobot {
+    /// A robot from `start` (`[x_m, y_m, theta_rad]`) to `goal`, with the scenario's
+    /// radius and faults.
+    pub fn between(start: [f64; 3], goal: Goal) -> FleetRobot {
+        FleetRobot {
+            start,
+            goal,
+            radius_m: None,
+            fault: None,
+        }
+    }
 }
 
 /// The most robots of a fleet: each robot's MPC keeps one disc per other robot, and its
@@ -50,8 +67,11 @@ impl Scenario {
         if let Some(robot) = self.robots.get(id) {
             member.robot.start = robot.start;
             member.robot.goal = robot.goal;
-            member.robot.radius_m = robot.radius_m.unwrap_or(self.robot.radius_m);
+            member.robot.radius_m = self.radius_of(id);
             member.seed = self.seed.wrapping_add(id as u64);
+            if let Some(fault) = &robot.fault {
+                member.fault = fault.clone();
+            }
         }
         member
     }
@@ -94,10 +114,21 @@ impl Scenario {
                 origin: v.origin,
                 errors: Vec::new(),
             };
-            self.member(i).check_geometry(&mut member);
+            let scenario = self.member(i);
+            scenario.check_geometry(&mut member);
+            if robot.fault.is_some() {
+                scenario.check_faults(&mut member);
+            }
+            // What is the robot's own, under its entry (the rest, the world's, the
+            // scenario's own check reports once).
             for mut error in member.errors {
-                error.key = error.key.replacen("robot.", &format!("robots.{i}."), 1);
-                v.errors.push(error);
+                let own = (error.key.strip_prefix("robot."))
+                    .map(String::from)
+                    .or_else(|| error.key.starts_with("fault.").then(|| error.key.clone()));
+                if let Some(key) = own {
+                    error.key = format!("robots.{i}.{key}");
+                    v.errors.push(error);
+                }
             }
         }
         self.check_room_between_robots(v);
@@ -119,14 +150,18 @@ impl Scenario {
                 crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
             ),
             ("obstacles", self.obstacles.iter().any(|o| !o.is_known())),
+            ("perception.kind", self.runs_tracker()),
+            // A disturbance pushes a robot beyond its input box, which bounds how far the
+            // others take it to leave its plan.
+            ("plant.disturbance_std", self.plant.disturbance_std > 0.0),
         ];
         for (key, used) in unsupported {
             if used {
                 v.fail(
                     key,
-                    "a fleet (`[[robots]]`) runs simulated robots among known obstacles at \
-                     rest, without a lidar, swaps, hosts or a live view (docs/fleet.md, \
-                     \"Left out\")"
+                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance among \
+                     known obstacles at rest, without a lidar, a tracker, swaps, hosts or a \
+                     live view (docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }

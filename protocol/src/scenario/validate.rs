@@ -25,7 +25,11 @@ impl Scenario {
         self.check_basics(&mut v);
         self.check_mpc_and_dfl(&mut v);
         self.check_planner_and_obstacles(&mut v);
-        self.check_geometry(&mut v);
+        // A fleet's robots are each checked where they are (`check_fleet`); its `[robot]`
+        // is their template, not a robot in the world.
+        if !self.is_fleet() {
+            self.check_geometry(&mut v);
+        }
         self.check_faults(&mut v);
         self.check_hosts(&mut v);
         self.check_swaps(&mut v);
@@ -299,7 +303,7 @@ impl Scenario {
     }
 
     /// The injected faults (those of the links only with a role on another host).
-    fn check_faults(&self, v: &mut Validator) {
+    pub(super) fn check_faults(&self, v: &mut Validator) {
         let f = &self.fault;
         v.non_negative("fault.mpc_delay_ms", f.mpc_delay_ms);
         v.non_negative("fault.estimator_delay_ms", f.estimator_delay_ms);

@@ -53,6 +53,10 @@ fn one_of_each() -> Vec<Event> {
             epoch: 1,
             child_killed: Some(12),
         },
+        Event::GaveWay {
+            sample: 181,
+            to_robot: 3,
+        },
         Event::Restarted(Restart::Process(NewProcess {
             role: Role::Mpc,
             pid: 88,

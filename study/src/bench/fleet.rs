@@ -45,6 +45,24 @@ pub struct FleetCost {
     pub swap8_contacts: u64,
 }
 
+impl FleetCost {
+    /// Its lines of the bench table.
+    pub fn table(&self) -> String {
+        format!(
+            "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n  \
+             swap8 in process     {:.1} s in {:.1} s ({:.1}× real time; {} of 8 reached, {} contacts)\n",
+            self.plans_step_us.p50,
+            self.static_step_us.p50,
+            self.ratio_p50,
+            self.swap8_simulated_s,
+            self.swap8_wall_s,
+            self.swap8_speedup,
+            self.swap8_reached,
+            self.swap8_contacts
+        )
+    }
+}
+
 /// Runs the worlds of [`FleetCost`] into `out`.
 pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<FleetCost> {
     let valid = |s: Scenario| {
@@ -92,17 +110,13 @@ fn parked(fleet: bool) -> Scenario {
     s.planner.kind = protocol::PlannerKind::None;
     match fleet {
         true => {
-            s.robots = std::iter::once(FleetRobot {
-                start: s.robot.start,
-                goal: s.robot.goal,
-                radius_m: None,
-            })
-            .chain(PARKED.iter().map(|&(x, y)| FleetRobot {
-                start: [x, y, FRAC_PI_2],
-                goal: Goal::at([x, y]),
-                radius_m: None,
-            }))
-            .collect();
+            s.robots = std::iter::once(FleetRobot::between(s.robot.start, s.robot.goal))
+                .chain(
+                    PARKED
+                        .iter()
+                        .map(|&(x, y)| FleetRobot::between([x, y, FRAC_PI_2], Goal::at([x, y]))),
+                )
+                .collect();
         }
         false => {
             s.obstacles = (PARKED.iter())

@@ -92,24 +92,13 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
             MOVING_STEP_RATIO,
         ),
         Target::new(
-            "MPC step, 7 robots' plans / 7 discs (p50)",
-            report.fleet.ratio_p50,
-            true,
-            FLEET_STEP_RATIO,
-        ),
-        Target::new(
-            "swap8 in process (× real time)",
-            report.fleet.swap8_speedup,
-            false,
-            SWAP8_SPEEDUP,
-        ),
-        Target::new(
             "hop with a live client / without (p99)",
             report.live.live_hop_ratio_p99,
             true,
             LIVE_HOP_RATIO,
         ),
     ];
+    targets.extend(fleet_targets(&report.fleet));
     for obstacles in [12, 20] {
         targets.push(Target::new(
             format!("MPC step growth N = 8 → 30, {obstacles} obstacles (p50)"),
@@ -151,6 +140,24 @@ pub fn judge(report: &BenchReport) -> Vec<Target> {
         )
     }));
     targets
+}
+
+/// The targets of a fleet ([`super::fleet`]).
+fn fleet_targets(fleet: &super::fleet::FleetCost) -> [Target; 2] {
+    [
+        Target::new(
+            "MPC step, 7 robots' plans / 7 discs (p50)",
+            fleet.ratio_p50,
+            true,
+            FLEET_STEP_RATIO,
+        ),
+        Target::new(
+            "swap8 in process (× real time)",
+            fleet.swap8_speedup,
+            false,
+            SWAP8_SPEEDUP,
+        ),
+    ]
 }
 
 /// The targets as lines of the bench table.
