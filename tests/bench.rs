@@ -18,9 +18,9 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
         .filter(|l| l.starts_with("bench ["))
         .map(String::from)
         .collect();
-    assert_eq!(phases.len(), 9, "{phases:?}");
+    assert_eq!(phases.len(), 10, "{phases:?}");
     assert!(
-        phases[8].starts_with("bench [9/9]") && phases[8].contains("s left)"),
+        phases[9].starts_with("bench [10/10]") && phases[9].contains("s left)"),
         "{phases:?}"
     );
     let table = String::from_utf8_lossy(&out.stdout);
@@ -106,6 +106,17 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             number(&["live_hop_us", "p99"]) / number(&["pipeline_hop_us", "p99"]),
             1.2,
         ),
+        (
+            "MPC step, 7 robots' plans / 7 discs (p50)",
+            number(&["fleet", "plans_step_us", "p50"])
+                / number(&["fleet", "static_step_us", "p50"]),
+            2.0,
+        ),
+        (
+            "swap8 in process (× real time)",
+            number(&["fleet", "swap8_simulated_s"]) / number(&["fleet", "swap8_wall_s"]),
+            5.0,
+        ),
     ] {
         // Each target judges the number it names (the verdict's formula is
         // `study::bench::targets`'s, tested there).
@@ -118,6 +129,10 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
         assert!(t["met"].is_boolean(), "{t}");
     }
     assert!(judged("peak RSS of the mpc, unlocked (MiB)")["met"].is_boolean());
+    // The fleet's `swap8` ran whole: every robot at its goal, none touching another.
+    assert_eq!(number(&["fleet", "swap8_reached"]), 8.0);
+    assert_eq!(number(&["fleet", "swap8_contacts"]), 0.0);
+    assert!(table.contains("swap8 in process"), "{table}");
     assert!(table.contains("targets (docs/performance.md)"), "{table}");
     // The lockstep runs alternate with and without run.mcap (the recording's share of the
     // wall time is a target of the report).

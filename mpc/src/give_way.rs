@@ -4,9 +4,9 @@
 //! the same for all and decided from what each knows alone (its own state and the tracks
 //! of the others), so the symmetry breaks the same way on every side: a robot held still
 //! away from its goal with another robot close by ahead **gives way to its right**,
-//! following a detour that passes the nearest such robot on its right-hand side (every robot moving
-//! right, two that face each other pass left side to left side; a ring of them turns
-//! like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
+//! following a detour that passes the nearest such robot on its right-hand side (every
+//! robot moving right, two that face each other pass left side to left side; a ring of
+//! them turns like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
 //! safety row changes.
 
 use protocol::{Route, RouteStatus, Track, Tracks, distance};
@@ -21,6 +21,7 @@ pub const HOLD_UP_M: f64 = 1.0;
 pub const PASSING_M: f64 = 0.4;
 /// A detour ends when its waypoint is this near, m, or after [`DETOUR_S`].
 pub const WAYPOINT_REACHED_M: f64 = 0.3;
+/// The longest a detour lasts, s.
 pub const DETOUR_S: f64 = 4.0;
 
 /// One robot's rule: whether it holds still, and the detour it follows.

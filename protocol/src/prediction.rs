@@ -206,15 +206,7 @@ impl PeerPrediction {
         let [estimate_p, estimate_v] = estimate_sigmas.map(|s| s.max(0.0));
         let sigma_p = estimate_p + self.accel_max * since_s * since_s / kappa;
         let sigma_v = estimate_v + 2.0 * self.accel_max * since_s / kappa;
-        let (var_p, var_v) = (sigma_p * sigma_p, sigma_v * sigma_v);
-        Track {
-            obstacle: crate::FIRST_PEER + robot as u32,
-            reserved: 0,
-            radius_m,
-            center,
-            velocity,
-            covariance: [var_p, 0.0, var_v, var_p, 0.0, var_v],
-        }
+        self.track_seen(robot, radius_m, (center, velocity), [sigma_p, sigma_v])
     }
 
     /// Robot `robot` as a track where it is seen rather than planned: at `center` with

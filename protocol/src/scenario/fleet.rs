@@ -1,7 +1,7 @@
 //! A fleet (`[[robots]]`, docs/fleet.md): several robots in one world, each driven by a
 //! pipeline of its own. Every robot is the scenario's `robot` with its own start, goal
 //! and radius ([`Scenario::member`]); the other robots are moving discs to it, predicted
-//! from the plans they publish ([`crate::peer_track`]).
+//! from the plans they publish ([`crate::PeerPrediction`]).
 
 use super::validate::Validator;
 use super::{Goal, Scenario};
@@ -174,8 +174,7 @@ impl Scenario {
             for j in 0..i {
                 let room = self.radius_of(i) + self.radius_of(j);
                 let (a, b) = (&self.robots[i], &self.robots[j]);
-                let apart = |p: [f64; 2], q: [f64; 2]| crate::distance(p, q);
-                let starts = apart([a.start[0], a.start[1]], [b.start[0], b.start[1]]);
+                let starts = crate::distance([a.start[0], a.start[1]], [b.start[0], b.start[1]]);
                 if starts <= room {
                     v.fail(
                         &format!("robots.{i}.start"),
@@ -184,7 +183,7 @@ impl Scenario {
                         ),
                     );
                 }
-                let goals = apart(a.goal.position, b.goal.position);
+                let goals = crate::distance(a.goal.position, b.goal.position);
                 if goals <= room + self.robot.goal_tolerance_m {
                     v.fail(
                         &format!("robots.{i}.goal"),

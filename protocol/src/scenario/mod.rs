@@ -837,7 +837,7 @@ impl Scenario {
     }
 
     /// Whether the MPC and the DFL take tracks: a tracker runs, or the other robots of a
-    /// fleet are tracks to them ([`crate::peer_track`]).
+    /// fleet are tracks to them ([`crate::PeerPrediction`]).
     pub fn takes_tracks(&self) -> bool {
         self.runs_tracker() || self.robot_count() > 1
     }
