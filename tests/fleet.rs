@@ -73,8 +73,8 @@ fn random_fleets_have_no_contact_while_moving() {
 }
 
 /// A fleet's bad input is refused before anything runs, naming the robot's key: two
-/// robots on one spot, a robot inside an obstacle, what a fleet does not run with, and a
-/// fleet outside `--in-process`.
+/// robots on one spot, a robot inside an obstacle, a robot's own fault, what a fleet does
+/// not run with, and a fleet outside `--in-process`.
 #[test]
 fn a_fleets_bad_input_names_the_robots_key() {
     let refused = |args: &[&str], key: &str| {
@@ -91,6 +91,22 @@ fn a_fleets_bad_input_names_the_robots_key() {
     );
     swap4("mpc.uncertainty_sigmas=0", "mpc.uncertainty_sigmas");
     swap4("lidar.rate_hz=10", "lidar");
+    swap4("plant.disturbance_std=0.01", "plant.disturbance_std");
+    swap4("robot.command_delay_s=0.02", "robot.command_delay_s");
+    swap4(
+        "robots.1.fault.mpc_delay_ms=-1",
+        "robots.1.fault.mpc_delay_ms",
+    );
+    refused(
+        &[
+            "run",
+            "warehouse",
+            "--in-process",
+            "--set",
+            "perception.kind=track",
+        ],
+        "perception.kind",
+    );
     refused(&["run", "swap4"], "--in-process");
     refused(&["fuzz", "--robots", "3..2"], "--robots");
 }

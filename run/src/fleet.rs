@@ -125,9 +125,8 @@ pub fn run(
 }
 
 /// At the start of sample `sample` (inner tick `tick`, time `t_s`): each robot hears
-/// every other as a track ([`Member::track`]). The tracks are stamped `command_lead_s`
-/// later, the time on the clock that a plan's stage of `t_s` stands for
-/// ([`protocol::KeptTracks::take`]).
+/// every other as a track ([`Member::track`]). (A fleet has no command delay, so the
+/// plans' timeline is the clock's.)
 fn hear_each_other(
     members: &mut [Member],
     peers: &PeerPrediction,
@@ -142,7 +141,7 @@ fn hear_each_other(
         let mut heard = Tracks {
             header: Header {
                 tick,
-                time_s: t_s + member.scenario.command_lead_s(),
+                time_s: t_s,
                 robot: id as u32,
                 ..Header::default()
             },
@@ -195,12 +194,16 @@ impl Member {
     /// It as a track to the others at sample `sample`, time `t_s`:
     /// - predicted from its newest solved plan ([`PeerPrediction::track`]);
     /// - before its first, where its estimate (at first its start) puts it;
-    /// - once its plans have stopped for [`SILENT_SAMPLES`] (its MPC fails, or its
-    ///   pipeline ended), where the world shows it, as a tracker measuring it would: its
-    ///   true position, at the velocity of its last sample, uncertain by
-    ///   `perception.noise_std` and by the half sample of acceleration that velocity is
-    ///   behind by.
+    /// - once its plans have stopped for [`SILENT_SAMPLES`] (its MPC fails), where the
+    ///   world shows it, as a tracker measuring it would: its true position, at the
+    ///   velocity of its last sample, uncertain by `perception.noise_std` and by the half
+    ///   sample of acceleration that velocity is behind by;
+    /// - once its pipeline ended, at rest where it stopped.
     fn track(&self, id: usize, peers: &PeerPrediction, sample: u64, t_s: f64) -> Track {
+        if self.closed_loop.is_none() {
+            let sigmas = [self.scenario.perception.noise_std, 0.0];
+            return peers.track_seen(id, self.radius_m, (self.position, [0.0; 2]), sigmas);
+        }
         match &self.plan {
             Some((plan, estimated)) if plan.sample + SILENT_SAMPLES >= sample => {
                 peers.track(id, self.radius_m, plan, estimated.sigmas, t_s)

@@ -38,13 +38,15 @@ pub fn world(
         let scenario = draw(&mut rng, index, robots).with_overrides(overrides)?;
         match scenario.validated(&format!("fleet world {index}")) {
             Ok(valid) if robots.contains(&valid.robots.len()) => return Ok(valid),
-            Ok(_) => {}
-            Err(e) => last = Some(e),
+            Ok(valid) => {
+                last = Some(format!("{} robots placed", valid.robots.len()));
+            }
+            Err(e) => last = Some(e.to_string()),
         }
     }
     Err(anyhow::anyhow!(
         "fleet world {index}: no valid draw in {MAX_DRAWS}: {}",
-        last.map_or(String::new(), |e| e.to_string())
+        last.unwrap_or_default()
     ))
 }
 
@@ -62,8 +64,8 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> S
         |rng: &mut ChaCha8Rng| [0, 1].map(|a| rng.random_range(lo[a] + edge..hi[a] - edge) * 0.6);
     let count = rng.random_range(robots.clone());
     let mut fleet: Vec<FleetRobot> = Vec::with_capacity(count);
-    // A box the overrides shrank may hold fewer robots: the world then has fewer than
-    // `count`, and [`world`] draws again.
+    // Robots packed too close to place one more in many tries: the world has fewer, and
+    // [`world`] draws again if they are fewer than the range asks.
     for _ in 0..MAX_DRAWS * count {
         if fleet.len() == count {
             break;

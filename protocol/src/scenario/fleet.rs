@@ -154,14 +154,17 @@ impl Scenario {
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
             ("plant.disturbance_std", self.plant.disturbance_std > 0.0),
+            // The others' tracks are where a robot is on the clock; a delay's plans run
+            // behind it.
+            ("robot.command_delay_s", self.command_lead_s() > 0.0),
         ];
         for (key, used) in unsupported {
             if used {
                 v.fail(
                     key,
-                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance among \
-                     known obstacles at rest, without a lidar, a tracker, swaps, hosts or a \
-                     live view (docs/fleet.md, \"Left out\")"
+                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
+                     command delay among known obstacles at rest, without a lidar, a \
+                     tracker, swaps, hosts or a live view (docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }
