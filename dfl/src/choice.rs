@@ -16,7 +16,7 @@ pub enum Candidate {
     /// brake.
     Committed { stages: u32 },
     /// The new plan that the commit check refused (the MPC's escape plan among them:
-    /// `mpc::discs::Prediction::ConstantVelocity`): its elements before `stages`, then
+    /// `protocol::Prediction::ConstantVelocity`): its elements before `stages`, then
     /// the brake.
     Refused { stages: u32 },
 }

@@ -115,7 +115,7 @@ pub struct Checks {
 fn look_ahead(gatekeeper: &Gatekeeper) -> Foresight {
     Foresight {
         window_s: EVASION_WINDOW_S.max(gatekeeper.foresight().window_s),
-        accel_max_m_s2: 0.0,
+        prediction: protocol::Prediction::ConstantVelocity,
     }
 }
 

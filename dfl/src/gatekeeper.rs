@@ -27,7 +27,7 @@
 //! cheap lower bound (the chord's distance less the arc's largest departure from it,
 //! `|v| T^2 / 8`) settles almost every arc; only arcs close to a disc solve the cubic.
 
-use protocol::{Disc, KeptTracks, ObstacleGrowth, Plan, Scenario, Tracks};
+use protocol::{Disc, KeptTracks, ObstacleGrowth, Plan, Prediction, Scenario, Tracks};
 
 /// The checks of one DFL: the obstacles, the braking model, the clock.
 #[derive(Debug, Clone)]
@@ -54,9 +54,9 @@ pub struct Foresight {
     /// How long from now a moving disc is checked against the robot at rest after the
     /// trajectory's brake, s (the trajectory and its brake are checked whole).
     pub window_s: f64,
-    /// How much each obstacle may change its velocity, m/s^2: `perception.accel_max` for
-    /// the safety check, 0 for what the obstacles do if they go on as they go.
-    pub accel_max_m_s2: f64,
+    /// How each tracked obstacle is foreseen: changing its velocity by up to its bound for
+    /// the safety check, going on as it goes for an evasion's look ahead.
+    pub prediction: Prediction,
 }
 
 /// When a check starts: `into_sample_s` into sample `sample`.
@@ -93,12 +93,12 @@ impl Gatekeeper {
     }
 
     /// How the safety check foresees the tracked obstacles: each checked against the
-    /// robot until `N Ts` from now, changing its velocity by up to
-    /// `perception.accel_max`.
+    /// robot until `N Ts` from now, changing its velocity by up to its bound
+    /// ([`Prediction::Bounded`]).
     pub fn foresight(&self) -> Foresight {
         Foresight {
             window_s: self.horizon_s,
-            accel_max_m_s2: self.tracks.as_ref().map_or(0.0, KeptTracks::accel_max),
+            prediction: Prediction::Bounded,
         }
     }
 
@@ -169,7 +169,7 @@ impl Gatekeeper {
             }
         }
         let stand_s = self.stand_for_s(now);
-        for disc in self.moving_discs(start, now, grow, foresight.accel_max_m_s2) {
+        for disc in self.moving_discs(start, now, grow, foresight.prediction) {
             if disc.motion.held {
                 let held = self.held_verdict(&disc, stages(), (start, velocity), stand_s, window_s);
                 found.add(held);
@@ -221,7 +221,7 @@ impl Gatekeeper {
         if let Some(clearance) = self.brake_clearance(p, w, grow, p) {
             found.note(clearance, false);
         }
-        for disc in self.moving_discs(p, now, grow, foresight.accel_max_m_s2) {
+        for disc in self.moving_discs(p, now, grow, foresight.prediction) {
             let mut verdict = self.moving_brake_verdict(p, w, &disc, 0.0, window_s);
             if disc.motion.held {
                 // At rest, a phantom or an obstacle that stands still touches the robot
@@ -288,21 +288,21 @@ impl Gatekeeper {
             .map_or(0.0, |kept| kept.stand_for_s(now_s))
     }
 
-    /// The discs the tracks predict at `now`, each obstacle changing its velocity by up to
-    /// `accel_max` (m/s^2), grown by the fixed part and `grow` (m), as a trajectory from
-    /// `start` is checked against them ([`checked_radius`]): none before the first track.
+    /// The discs the tracks predict at `now` as `prediction` says, grown by the fixed part
+    /// and `grow` (m), as a trajectory from `start` is checked against them
+    /// ([`checked_radius`]): none before the first track.
     fn moving_discs(
         &self,
         start: [f64; 2],
         now: Moment,
         grow: f64,
-        accel_max: f64,
+        prediction: Prediction,
     ) -> impl Iterator<Item = Disc> + '_ {
         let now_s = now.sample as f64 * self.ts_s + now.into_sample_s;
         let growth = self.growth.fixed_m + grow;
         self.tracks
             .iter()
-            .flat_map(move |kept| kept.discs_at_bounded(now_s, growth, accel_max))
+            .flat_map(move |kept| kept.discs_predicted(now_s, growth, prediction))
             .map(move |disc| Disc {
                 radius: checked_radius(start, disc.center, disc.radius),
                 ..disc
@@ -867,7 +867,7 @@ mod tests {
         // Grown over the whole plan, as a walking track's is, the disc would have met the
         // robot while it still moves, at the plan's end.
         let grown = g
-            .moving_discs([x, 0.0], at(0, 0.0), 0.0, g.foresight().accel_max_m_s2)
+            .moving_discs([x, 0.0], at(0, 0.0), 0.0, g.foresight().prediction)
             .next()
             .unwrap()
             .at(end_s);

@@ -2,6 +2,7 @@
 //! uses ([`protocol::ObstacleGrowth`]), by what the MPC keeps for what follows the solver
 //! ([`PlanMargin`]) and by the inter-sample chord, in goal-relative coordinates.
 
+pub use protocol::Prediction;
 use protocol::{Disc, KeptTracks, ObstacleGrowth, Plan};
 
 /// What the MPC keeps clear beyond the obstacles grown by the robot's radius, `m` and
@@ -162,10 +163,6 @@ impl World {
         position: [f64; 2],
         discs: &mut Vec<Disc>,
     ) {
-        let accel_max = match prediction {
-            Prediction::Bounded => self.tracks.accel_max(),
-            Prediction::ConstantVelocity => 0.0,
-        };
         let chord = chord_m(g.speed_m_s, g.ts_s, g.accel_max);
         constraint_discs(
             &self.known,
@@ -178,7 +175,7 @@ impl World {
         );
         discs.extend(self.tracks.tracks().iter().map(|(track, time_s)| {
             let age_s = t_s - time_s;
-            let accel_max = self.tracks.accel_for(track, accel_max);
+            let accel_max = self.tracks.accel_for(track, prediction);
             predicted_disc(track, age_s, &g, chord, accel_max, self.tracks.refresh_s())
         }));
         if let Some(most) = self.seen_most {
@@ -196,16 +193,6 @@ pub fn keep_nearest(discs: &mut Vec<Disc>, first: usize, position: [f64; 2], mos
     let gap = |d: &Disc| (d.center[0] - position[0]).hypot(d.center[1] - position[1]) - d.radius;
     discs[first..].sort_unstable_by(|a, b| gap(a).total_cmp(&gap(b)));
     discs.truncate(first + most);
-}
-
-/// How a track's disc is predicted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Prediction {
-    /// Grown by `perception.accel_max t^2 / 2` (docs/safety.md): every plan.
-    Bounded,
-    /// At the track's velocity, grown by its uncertainty alone: the escape plan of a step
-    /// whose program with bounded predictions has no solution (`LinearMpc::step`).
-    ConstantVelocity,
 }
 
 /// The disc `track` predicts `age_s` after the track's time, as a constraint

@@ -4,6 +4,19 @@
 
 use crate::{Disc, DiscMotion, Plan, Scenario, Track, Tracks};
 
+/// How a track's disc is predicted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Prediction {
+    /// Grown by `accel_max t^2 / 2` (docs/safety.md): `perception.accel_max` for an
+    /// obstacle, [`Scenario::peer_accel_max`] for another robot. Every plan and the DFL's
+    /// safety check.
+    Bounded,
+    /// At the track's velocity, grown by its uncertainty alone: the MPC's escape plan when
+    /// no plan keeps clear of the bounded predictions (`mpc::linear`), and how an evasion
+    /// looks ahead (`dfl::evasion`).
+    ConstantVelocity,
+}
+
 /// The track kept of each tracked obstacle heard of, with its time (s), and how its
 /// predictions grow.
 #[derive(Debug, Clone)]
@@ -63,7 +76,7 @@ impl KeptTracks {
             (self.accel_max, self.peer_accel_max),
         );
         let growth = |(track, time): &(Track, f64)| {
-            let accel_max = accel_of(track, bounds.0, bounds);
+            let accel_max = accel_of(track, Prediction::Bounded, bounds);
             prediction_growth_m(track, judged_at - time, kappa, accel_max)
         };
         for track in tracks.tracks() {
@@ -107,17 +120,9 @@ impl KeptTracks {
         self.tracks_refresh_s
     }
 
-    /// `perception.accel_max`, m/s^2.
-    pub fn accel_max(&self) -> f64 {
-        self.accel_max
-    }
-
-    /// The acceleration bound of `track`'s prediction when an obstacle's is `accel_max`
-    /// (m/s^2): another robot's ([`Scenario::peer_accel_max`]) for a robot's track, unless
-    /// `accel_max` is 0 where `perception.accel_max` is not (a prediction of each track as
-    /// it goes, [`KeptTracks::discs_at_bounded`]).
-    pub fn accel_for(&self, track: &Track, accel_max: f64) -> f64 {
-        accel_of(track, accel_max, (self.accel_max, self.peer_accel_max))
+    /// The acceleration bound of `track`'s disc as `prediction` predicts it, m/s^2.
+    pub fn accel_for(&self, track: &Track, prediction: Prediction) -> f64 {
+        accel_of(track, prediction, (self.accel_max, self.peer_accel_max))
     }
 
     /// `kappa`.
@@ -128,23 +133,22 @@ impl KeptTracks {
     /// What a track's disc grows by `age_s` after its time, m: `kappa sigma(t)`, at most
     /// `kappa (sigma_p + t sigma_v)` ([`Track::sigmas`]), and `accel_max t^2 / 2`.
     pub fn growth_m(&self, track: &Track, age_s: f64) -> f64 {
-        let accel_max = self.accel_for(track, self.accel_max);
+        let accel_max = self.accel_for(track, Prediction::Bounded);
         prediction_growth_m(track, age_s, self.uncertainty_sigmas, accel_max)
     }
 
     /// The disc of every track kept at time `t_s` (absolute), each obstacle's radius grown
     /// by `growth_m` and by its prediction ([`predicted_disc`]).
     pub fn discs_at(&self, t_s: f64, growth_m: f64) -> impl Iterator<Item = Disc> + '_ {
-        self.discs_at_bounded(t_s, growth_m, self.accel_max)
+        self.discs_predicted(t_s, growth_m, Prediction::Bounded)
     }
 
-    /// [`KeptTracks::discs_at`], each obstacle taken to change its velocity by at most
-    /// `accel_max` (m/s^2) rather than `perception.accel_max`: 0 predicts each as it goes.
-    pub fn discs_at_bounded(
+    /// [`KeptTracks::discs_at`], each track predicted as `prediction` says.
+    pub fn discs_predicted(
         &self,
         t_s: f64,
         growth_m: f64,
-        accel_max: f64,
+        prediction: Prediction,
     ) -> impl Iterator<Item = Disc> + '_ {
         self.tracks.iter().map(move |(track, time_s)| {
             predicted_disc(
@@ -152,7 +156,7 @@ impl KeptTracks {
                 t_s - time_s,
                 growth_m,
                 self.uncertainty_sigmas,
-                self.accel_for(track, accel_max),
+                self.accel_for(track, prediction),
                 self.tracks_refresh_s,
             )
         })
@@ -255,11 +259,11 @@ pub fn plan_state_at(plan: &Plan, since_s: f64, ts_s: f64) -> ([f64; 2], [f64; 2
 }
 
 /// [`KeptTracks::accel_for`], with `(perception.accel_max, the robots' bound)`.
-fn accel_of(track: &Track, accel_max: f64, (obstacles, peers): (f64, f64)) -> f64 {
-    let as_it_goes = accel_max == 0.0 && obstacles > 0.0;
-    match track.is_peer() && !as_it_goes {
-        true => peers,
-        false => accel_max,
+fn accel_of(track: &Track, prediction: Prediction, (obstacles, peers): (f64, f64)) -> f64 {
+    match (prediction, track.is_peer()) {
+        (Prediction::ConstantVelocity, _) => 0.0,
+        (Prediction::Bounded, true) => peers,
+        (Prediction::Bounded, false) => obstacles,
     }
 }
 

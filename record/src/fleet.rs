@@ -17,6 +17,8 @@ pub struct FleetJudge {
     radii: Vec<f64>,
     /// Each robot's position at the last tick, m.
     last: Vec<Option<[f64; 2]>>,
+    /// Whether each robot moved over this tick (kept to spare a tick's allocation).
+    moving: Vec<bool>,
     /// Whether each pair `(i, j)`, `j < i`, touches now (`i (i - 1) / 2 + j`).
     touching: Vec<bool>,
     /// The smallest clearance between two robots' footprints so far, m.
@@ -33,6 +35,7 @@ impl FleetJudge {
         FleetJudge {
             radii,
             last: vec![None; n],
+            moving: vec![false; n],
             touching: vec![false; n * n.saturating_sub(1) / 2],
             min_clearance_m: f64::INFINITY,
             contacts_moving: vec![0; n],
@@ -43,11 +46,9 @@ impl FleetJudge {
     /// The robots' true positions at one tick, `dt_s` after the last: the contacts that
     /// start at it, as `(i, j)` pairs.
     pub fn tick(&mut self, positions: &[[f64; 2]], dt_s: f64) -> Vec<(usize, usize)> {
-        let moving: Vec<bool> = (positions.iter().zip(&self.last))
-            .map(|(p, last)| {
-                last.is_some_and(|q| protocol::distance(*p, q) > MOVING_SPEED_M_S * dt_s)
-            })
-            .collect();
+        for ((moving, p), last) in self.moving.iter_mut().zip(positions).zip(&self.last) {
+            *moving = last.is_some_and(|q| protocol::distance(*p, q) > MOVING_SPEED_M_S * dt_s);
+        }
         let mut started = Vec::new();
         for i in 0..positions.len() {
             for j in 0..i {
@@ -59,7 +60,7 @@ impl FleetJudge {
                 if touches && !self.touching[pair] {
                     started.push((i, j));
                     for k in [i, j] {
-                        match moving[k] {
+                        match self.moving[k] {
                             true => self.contacts_moving[k] += 1,
                             false => self.contacts_at_rest[k] += 1,
                         }

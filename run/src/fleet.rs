@@ -94,6 +94,7 @@ pub fn run(
     let peers = PeerPrediction::of(scenario);
     let mut tick = 0;
     let mut interrupted = false;
+    let mut positions = Vec::with_capacity(members.len());
     while members.iter().any(|m| m.recorder.is_some()) && tick < scenario.tick_count() {
         if stop.load(Ordering::Relaxed) {
             interrupted = true;
@@ -106,7 +107,8 @@ pub fn run(
         for member in &mut members {
             member.step()?;
         }
-        let positions: Vec<[f64; 2]> = members.iter().map(|m| m.position).collect();
+        positions.clear();
+        positions.extend(members.iter().map(|m| m.position));
         judge.tick(&positions, timing.dt_s());
         tick += 1;
     }

@@ -221,16 +221,7 @@ fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
     };
     let first = study::fuzz::world(args.seed, 0, draws, &args.overrides).map_err(bad_input)?;
     simulated(&first.scenario, "fuzz")?;
-    let out = args
-        .out
-        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fuzz-{}", args.seed)));
-    let threads = args.threads.unwrap_or_else(cores);
-    eprintln!(
-        "{} worlds (seed {}) on {threads} threads into {}",
-        args.count,
-        args.seed,
-        out.display()
-    );
+    let (out, threads) = fuzz_batch(&args, "fuzz", "worlds");
     let stop = run::stop::on_signals();
     let batch = study::fuzz::Batch {
         seed: args.seed,
@@ -537,20 +528,27 @@ fn init_logging(verbosity: Verbosity) {
         .try_init();
 }
 
+/// Where a fuzz batch of `what` goes (`--out`, else a fresh run directory named after
+/// `name` and the seed) and on how many threads, said on stderr.
+fn fuzz_batch(args: &FuzzArgs, name: &str, what: &str) -> (std::path::PathBuf, usize) {
+    let out = (args.out.clone())
+        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("{name}-{}", args.seed)));
+    let threads = args.threads.unwrap_or_else(cores);
+    eprintln!(
+        "{} {what} (seed {}) on {threads} threads into {}",
+        args.count,
+        args.seed,
+        out.display()
+    );
+    (out, threads)
+}
+
 /// `scmpc fuzz --robots A..B` (docs/fleet.md, "Fuzz"): exit 1 when two robots touched
 /// while one moved, or a world failed to run.
 fn fleet_fuzz(args: &FuzzArgs, robots: &str) -> CliResult {
     let range = robot_range(robots).map_err(bad_input)?;
     study::fleet_fuzz::world(args.seed, 0, &range, &args.overrides).map_err(bad_input)?;
-    let out = (args.out.clone())
-        .unwrap_or_else(|| record::run_dir::default_run_dir(&format!("fleet-fuzz-{}", args.seed)));
-    let threads = args.threads.unwrap_or_else(cores);
-    eprintln!(
-        "{} fleets of {robots} robots (seed {}) on {threads} threads into {}",
-        args.count,
-        args.seed,
-        out.display()
-    );
+    let (out, threads) = fuzz_batch(args, "fleet-fuzz", &format!("fleets of {robots} robots"));
     let stop = run::stop::on_signals();
     let batch = (args.seed, args.count);
     let report = study::fleet_fuzz::run(batch, range, &args.overrides, &out, threads, &stop)
