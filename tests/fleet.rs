@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{events, run, run_into_tempdir, stderr, summary};
+use common::{events, leftovers, run, run_into_tempdir, stderr, summary, unique_prefix};
 
 /// `swap4`: four robots exchange places through the circle's centre. Every robot reaches
 /// its goal, none touches another, and the symmetric encounter is broken by robots giving
@@ -29,26 +29,52 @@ fn swap4_every_robot_reaches_its_goal_without_contact_after_giving_way() {
     assert_eq!(gave_way, broken, "an event for every deadlock broken");
 }
 
-/// A fleet in process is deterministic: the same scenario gives every robot the same
-/// trajectory, byte for byte.
+/// In lockstep across processes (a plant, an estimator, a tracker, an MPC and a DFL per
+/// robot, each robot's services under its id) a fleet drives every robot as the fleet in
+/// process does, byte for byte: each robot's tracker hears the others over iceoryx2 from
+/// before its tick only. Every process is stopped and nothing of the run is left in
+/// shared memory.
 #[test]
-fn a_fleet_runs_the_same_twice() {
-    let args = [
-        "run",
-        "swap4",
-        "--in-process",
-        "--no-mcap",
-        "--set",
-        "duration_s=8",
-    ];
-    let (first, _) = run_into_tempdir(&args);
-    let (second, _) = run_into_tempdir(&args);
+fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
+    let short = ["--no-mcap", "--set", "duration_s=8"];
+    let (in_process, _) =
+        run_into_tempdir(&[&["run", "swap4", "--in-process"][..], &short].concat());
+    let prefix = unique_prefix("fleet");
+    let lockstep_args = [&["run", "swap4", "--prefix", &prefix][..], &short].concat();
+    let (lockstep, out) = run_into_tempdir(&lockstep_args);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "not reached in 8 s: {}",
+        stderr(&out)
+    );
+    assert_eq!(summary(lockstep.path())["mode"], "lockstep");
+    let mut pids = std::collections::BTreeSet::new();
     for id in 0..4 {
-        let read = |dir: &tempfile::TempDir| {
-            std::fs::read(dir.path().join(format!("robot{id}/trajectory.csv"))).unwrap()
-        };
-        assert!(read(&first) == read(&second), "robot {id} drove otherwise");
+        let robot = |dir: &tempfile::TempDir| dir.path().join(format!("robot{id}"));
+        for file in ["trajectory.csv", "tracks.csv"] {
+            let read = |dir| std::fs::read(robot(dir).join(file)).unwrap();
+            assert!(
+                read(&in_process) == read(&lockstep),
+                "robot {id}'s {file} differs"
+            );
+        }
+        let spawned: Vec<_> = (events(&robot(&lockstep)).into_iter())
+            .filter(|e| e["event"] == "spawned")
+            .collect();
+        let roles: Vec<&str> = spawned
+            .iter()
+            .map(|e| e["role"].as_str().unwrap())
+            .collect();
+        assert_eq!(
+            roles,
+            ["plant", "estimator", "tracker", "mpc", "dfl"],
+            "robot {id}"
+        );
+        pids.extend(spawned.iter().map(|e| e["pid"].as_u64().unwrap()));
     }
+    assert_eq!(pids.len(), 20, "a process per role and robot");
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
 /// Random fleets of two to four robots: no robot moves into another, and the report
@@ -74,7 +100,7 @@ fn random_fleets_have_no_contact_while_moving() {
 
 /// A fleet's bad input is refused before anything runs, naming the robot's key: two
 /// robots on one spot, a robot inside an obstacle, a robot's own fault, what a fleet does
-/// not run with, and a fleet outside `--in-process`.
+/// not run with, and a fleet in real time.
 #[test]
 fn a_fleets_bad_input_names_the_robots_key() {
     let refused = |args: &[&str], key: &str| {
@@ -107,7 +133,7 @@ fn a_fleets_bad_input_names_the_robots_key() {
         ],
         "perception.kind",
     );
-    refused(&["run", "swap4"], "--in-process");
+    refused(&["run", "swap4", "--mode", "realtime"], "--mode realtime");
     refused(&["fuzz", "--robots", "3..2"], "--robots");
 }
 

@@ -336,6 +336,16 @@ pub trait Task: Sized {
     /// An input sample, received `latency_ns` after it was published.
     fn hear(&mut self, input: Self::Input, latency_ns: u64, context: &impl Context);
 
+    /// The topics it takes from the other robots of a fleet (docs/fleet.md): the executor
+    /// hands their samples to [`Task::hear_peer`], each stamped with its robot's id
+    /// ([`crate::Header::robot`]). None but the tracker's.
+    fn peer_topics(&self) -> &'static [&'static str] {
+        &[]
+    }
+
+    /// A sample of another robot of the fleet, of one of [`Task::peer_topics`].
+    fn hear_peer(&mut self, _data: &crate::Data) {}
+
     /// The next output, once the task has what it needs; `None`: nothing to do now. The
     /// executor steps the task again until it says `None`.
     fn step(&mut self, context: &impl Context) -> Option<Publish<Self::Output>>;

@@ -73,6 +73,10 @@ pub struct Recorder {
     /// its own count, which a tick with two interventions raises by two.
     safety_interventions: BTreeMap<u32, u32>,
     commands: ModeCounts,
+    /// In a fleet: whom the newest plan gives way to ([`Plan::gives_way`]), and how many
+    /// detours began (each a `gave_way` event).
+    gives_way: u32,
+    deadlocks_broken: u64,
     /// The newest route plan recorded: the planner's epoch and its plan count.
     last_route_plan: Option<(u32, u32)>,
     route_plans: u64,
@@ -144,6 +148,8 @@ impl Recorder {
             solver_failures: 0,
             safety_interventions: BTreeMap::new(),
             commands: ModeCounts::default(),
+            gives_way: 0,
+            deadlocks_broken: 0,
             last_route_plan: None,
             route_plans: 0,
             route_length_m: None,
@@ -314,6 +320,16 @@ impl Recorder {
         if !plan.is_solved() {
             self.solver_failures += 1;
         }
+        if plan.gives_way != self.gives_way {
+            self.gives_way = plan.gives_way;
+            if plan.gives_way != 0 {
+                self.deadlocks_broken += 1;
+                self.event(Event::GaveWay {
+                    sample: plan.sample,
+                    to_robot: plan.gives_way - 1,
+                })?;
+            }
+        }
         self.solve_us.push(plan.solve_ns as f64 / 1e3);
         self.iterations.push(f64::from(plan.iterations));
         if plan.is_solved() && plan.horizon > 0 {
@@ -322,6 +338,12 @@ impl Recorder {
             self.planned_next.push_back((due_s, [x, y]));
         }
         self.hand_on(Sample::Plan(plan))
+    }
+
+    /// The deadlocks this robot broke so far, setting out on a detour round another robot
+    /// of its fleet (each a `gave_way` event).
+    pub fn deadlocks_broken(&self) -> u64 {
+        self.deadlocks_broken
     }
 
     /// The DFL's deadline verdict on a sample (a replay is dropped): a miss is counted

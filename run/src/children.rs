@@ -125,6 +125,11 @@ impl Children {
         })
     }
 
+    /// The robot whose pipeline these processes are.
+    pub fn robot(&self) -> u32 {
+        self.robot
+    }
+
     /// Each role's stderr to `<dir>/<role>.log`, every epoch's appended after a line that
     /// names it (the orchestrator's: `logs/` of the run directory).
     pub fn with_logs(mut self, dir: &Path) -> Children {

@@ -78,6 +78,9 @@ pub trait Stepped {
     /// Whether its input type has a variant for `data` (what it could hear at all).
     fn accepts(&self, data: Data) -> bool;
     fn hear(&mut self, data: Data, time: &SimulatedTime);
+    /// Hands it another robot's sample if it takes that topic from the others
+    /// ([`Task::peer_topics`]).
+    fn hear_peer(&mut self, data: &Data);
     /// Steps the task once; what it gives is pushed to `given` (false: nothing).
     fn step(&mut self, time: &SimulatedTime, given: &mut Vec<Data>) -> bool;
 }
@@ -98,6 +101,12 @@ impl<T: Task> Stepped for T {
     fn hear(&mut self, data: Data, time: &SimulatedTime) {
         if let Ok(input) = T::Input::try_from(data) {
             Task::hear(self, input, 0, time);
+        }
+    }
+
+    fn hear_peer(&mut self, data: &Data) {
+        if self.peer_topics().contains(&data.topic()) {
+            Task::hear_peer(self, data);
         }
     }
 
@@ -185,12 +194,12 @@ impl ClosedLoop {
         self.goals.set(change);
     }
 
-    /// Hands `data`, a message from outside the robot's pipeline (another robot's, in a
-    /// fleet: `crate::fleet`), to every task that can hear it, before the next tick.
-    pub fn hear_from_outside(&mut self, data: Data) {
-        let time = SimulatedTime::at(self.tick, self.scenario.timing.dt_s()).with_goals(self.goals);
-        for task in self.tasks.iter_mut().filter(|t| t.accepts(data)) {
-            task.hear(data, &time);
+    /// Hands `data`, a sample of another robot of a fleet (stamped with its id,
+    /// [`protocol::Header::robot`]), to every task that takes it from the others
+    /// ([`protocol::task::Task::peer_topics`]), before the next tick.
+    pub fn hear_peer(&mut self, data: &Data) {
+        for task in &mut self.tasks {
+            task.hear_peer(data);
         }
     }
 

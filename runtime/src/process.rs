@@ -364,15 +364,18 @@ pub struct Member {
     /// Real time: the scheduling put in force once the process is set up (`None` in
     /// lockstep).
     policy: Option<Policy>,
+    /// Lockstep: whether it polls shared memory before it blocks ([`Member::poll`]).
+    polls: bool,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
 
 impl Member {
     pub fn open(args: &ProcessArgs, role: Role) -> Result<Member, IpcError> {
+        crate::ipc::admit_robots(args.scenario.robot_count());
         let node = create_node(
             &args.prefix,
-            &format!("{}-{}", role.as_str(), args.epoch),
+            &crate::ipc::node_name(args.robot, role, args.epoch),
             true,
         )?;
         let control = open_topic::<Control>(&node, args.robot, CONTROL)?.receiver()?;
@@ -397,6 +400,7 @@ impl Member {
             warm_up_ticks: args.scenario.timing.first_tick(20),
             clock,
             status,
+            polls: args.scenario.robot_count() == 1,
             policy: (args.mode == RunMode::Realtime)
                 .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
         })
@@ -409,6 +413,20 @@ impl Member {
         producer: Role,
     ) -> Result<Receiver<T>, IpcError> {
         let input = open_topic::<T>(&self.node, self.robot, name)?.receiver_from(producer)?;
+        input.bound_by(self.clock.clone());
+        Ok(input)
+    }
+
+    /// An input taking samples of topic `name` of another robot `robot` of a fleet, from
+    /// whichever process publishes them: the sample's run, robot and content are checked
+    /// (its producer's epochs are that robot's orchestrator session's to announce, which
+    /// this process does not hear).
+    pub fn peer_input<T: Wire>(
+        &self,
+        robot: u32,
+        name: &'static str,
+    ) -> Result<Receiver<T>, IpcError> {
+        let input = open_topic::<T>(&self.node, robot, name)?.receiver()?;
         input.bound_by(self.clock.clone());
         Ok(input)
     }
@@ -689,7 +707,10 @@ impl Member {
     /// Lockstep: whether a control message or an input came while polling shared memory
     /// for one ([`lockstep_poll`]).
     fn poll(&self, inputs: &[&dyn Input]) -> bool {
-        lockstep_poll(|| self.clock.control.has_samples() || inputs.iter().any(|i| i.has_samples()))
+        self.polls
+            && lockstep_poll(|| {
+                self.clock.control.has_samples() || inputs.iter().any(|i| i.has_samples())
+            })
     }
 
     /// Whether to replay every output now (once per request).

@@ -26,6 +26,12 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
         .filter(|topic| task.takes(topic))
         .map(|topic| InPort::open(&member, topic).map(Rc::new))
         .collect::<Result<Vec<_>, _>>()?;
+    // In a fleet, the other robots' topics the task takes from them, after its own.
+    let peers = (0..args.scenario.robot_count() as u32).filter(|&robot| robot != args.robot);
+    let peer_inputs = peers
+        .flat_map(|robot| task.peer_topics().iter().map(move |&topic| (robot, topic)))
+        .map(|(robot, topic)| InPort::open_peer(&member, robot, topic))
+        .collect::<Result<Vec<_>, _>>()?;
     let outputs = declaration(T::ROLE, args.scenario.plant.kind)
         .outputs
         .iter()
@@ -40,6 +46,9 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
                     task.hear(input, latency_ns, context);
                 }
             })?;
+        }
+        for input in &peer_inputs {
+            input.take(|data, _| task.hear_peer(&data))?;
         }
         while let Some(publish) = task.step(context) {
             context.clock.hold(publish.hold_ns);
@@ -68,6 +77,8 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
             },
         })
     };
+    // The others' samples do not wake the process: they are taken at each step, which
+    // its own periodic input brings (in lockstep after every robot's tick before).
     let input_refs: Vec<&dyn Input> = inputs.iter().map(|i| i.input()).collect();
     let output_refs: Vec<&dyn Output> = outputs.iter().map(|o| o.output()).collect();
     let warms_up = task.borrow().warms_up();
@@ -118,6 +129,14 @@ macro_rules! data_ports {
                     .ok_or_else(|| IpcError(format!("`{topic}` is not a data topic")))?;
                 Ok(match topic {
                     $(protocol::topics::$topic => InPort::$variant(member.input::<protocol::$t>(topic, producer)?),)*
+                    _ => return Err(IpcError(format!("`{topic}` is not a data topic"))),
+                })
+            }
+
+            /// The input of `topic` of another robot `robot` of a fleet ([`Member::peer_input`]).
+            fn open_peer(member: &Member, robot: u32, topic: &'static str) -> Result<InPort, IpcError> {
+                Ok(match topic {
+                    $(protocol::topics::$topic => InPort::$variant(member.peer_input::<protocol::$t>(robot, topic)?),)*
                     _ => return Err(IpcError(format!("`{topic}` is not a data topic"))),
                 })
             }

@@ -9,6 +9,8 @@ use rand_distr::{Distribution, Normal};
 
 mod lidar;
 pub use lidar::{Group, Perception};
+mod peers;
+pub use peers::{Peers, SILENT_SAMPLES};
 mod task;
 pub use task::{TrackerInput, TrackerTask};
 

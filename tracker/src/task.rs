@@ -9,11 +9,14 @@
 //! It takes every perception tick in order, so in process and in lockstep a run's tracks
 //! do not depend on when its inputs arrive (in real time a scan whose estimate is late is
 //! placed with the newest before it; estimates kept are the last [`POSES_KEPT`]).
+//!
+//! In a fleet it adds the other robots to every perception tick's tracks, from their
+//! truths, estimates and plans ([`Peers`]).
 
-use crate::{Perception, Tracker};
+use crate::{Peers, Perception, Tracker};
 use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
-use protocol::topics::{ESTIMATE, SCAN, TRUTH};
-use protocol::{Estimate, FaultConfig, GroundTruth, Header, Role, Scan, Tracks, Validated};
+use protocol::topics::{ESTIMATE, PLAN, SCAN, TRUTH};
+use protocol::{Data, Estimate, FaultConfig, GroundTruth, Header, Role, Scan, Tracks, Validated};
 use std::collections::VecDeque;
 
 /// What the tracker takes: with a lidar its scans and the estimates, else the plant's
@@ -60,6 +63,8 @@ pub struct TrackerTask {
     /// Perception ticks heard and not measured yet, with their times, s (of the truth).
     pending: VecDeque<(u64, f64)>,
     dropped: u32,
+    /// The other robots of a fleet.
+    peers: Option<Peers>,
 }
 
 impl Task for TrackerTask {
@@ -86,6 +91,7 @@ impl Task for TrackerTask {
             faults: scenario.fault.clone(),
             pending: VecDeque::with_capacity(8),
             dropped: 0,
+            peers: Peers::of(scenario),
         })
     }
 
@@ -94,6 +100,20 @@ impl Task for TrackerTask {
         match self.sense {
             Sense::Truth(_) => topic == TRUTH,
             Sense::Lidar { .. } => topic == SCAN || topic == ESTIMATE,
+        }
+    }
+
+    /// In a fleet, the other robots' truths, estimates and plans.
+    fn peer_topics(&self) -> &'static [&'static str] {
+        match self.peers {
+            Some(_) => &[TRUTH, ESTIMATE, PLAN],
+            None => &[],
+        }
+    }
+
+    fn hear_peer(&mut self, data: &Data) {
+        if let Some(peers) = &mut self.peers {
+            peers.hear(data);
         }
     }
 
@@ -183,6 +203,9 @@ impl Task for TrackerTask {
                 scans.retain(|s| s.header.tick > tick);
                 perception.tracks(&mut tracks);
             }
+        }
+        if let Some(peers) = &mut self.peers {
+            peers.tracks(tick, time_s, &mut tracks);
         }
         self.pending.pop_front();
         self.dropped += u32::from(dropped);

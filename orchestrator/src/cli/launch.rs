@@ -30,6 +30,13 @@ pub(super) fn role(args: RoleArgs, this: Role) -> CliResult {
     {
         return Err(bad_input("--set: `timing.*` must match the run's scenario"));
     }
+    // A fleet's processes read the fleet's scenario and drive their robot's member.
+    let scenario = match scenario.is_fleet() {
+        true => (scenario.member(args.robot as usize))
+            .validated(&format!("robot {} of the fleet", args.robot))
+            .map_err(|e| bad_input(e.to_string()))?,
+        false => scenario,
+    };
     let process_args = ProcessArgs {
         scenario,
         prefix: args.prefix.clone(),
@@ -146,14 +153,17 @@ pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
     }
 }
 
-/// `scmpc run` of a fleet (`[[robots]]`, docs/fleet.md): in process only so far.
+/// `scmpc run` of a fleet (`[[robots]]`, docs/fleet.md): in process, or as role processes
+/// in lockstep (not yet in real time).
 fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliResult {
-    if !args.in_process {
+    if args.mode == Mode::Realtime {
         return Err(bad_input(
-            "a fleet (`[[robots]]`) runs in process only so far: give --in-process \
+            "a fleet (`[[robots]]`) runs in lockstep so far: drop --mode realtime \
              (docs/fleet.md, \"Left out\")",
         ));
     }
+    let prefix = (args.prefix.clone()).unwrap_or_else(runtime::ipc::new_prefix);
+    runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let out =
         (args.out.clone()).unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
     let stop = run::stop::on_signals();
@@ -163,8 +173,11 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
         status_line: false,
         live: false,
     };
-    let summary = run::fleet::run(&scenario, &out, recording, &stop)
-        .with_context(|| format!("run of the fleet `{}`", scenario.name))?;
+    let summary = match args.in_process {
+        true => run::fleet::run(&scenario, &out, recording, &stop),
+        false => multiproc::fleet::run(&scenario, &out, &prefix, recording, &stop),
+    }
+    .with_context(|| format!("run of the fleet `{}`", scenario.name))?;
     if let Err(e) = study::figures::fleet_plots(&out, &scenario) {
         eprintln!("warning: no plots for the run: {e:#}");
     }

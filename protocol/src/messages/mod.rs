@@ -665,6 +665,12 @@ macro_rules! data_variants {
                 }
             }
 
+            pub fn header_mut(&mut self) -> &mut Header {
+                match self {
+                    $(Data::$variant(m) => m.header_mut(),)*
+                }
+            }
+
             /// What the record writes of a sample of `topic` when it has no place of its
             /// own for it ([`Message::RECORDED`]; empty: nothing).
             pub fn recorded_names(topic: &str) -> &'static [&'static str] {

@@ -69,6 +69,7 @@ impl Scenario {
             member.robot.goal = robot.goal;
             member.robot.radius_m = self.radius_of(id);
             member.seed = self.seed.wrapping_add(id as u64);
+            member.fleet_id = Some(id);
             if let Some(fault) = &robot.fault {
                 member.fault = fault.clone();
             }
@@ -150,7 +151,7 @@ impl Scenario {
                 crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
             ),
             ("obstacles", self.obstacles.iter().any(|o| !o.is_known())),
-            ("perception.kind", self.runs_tracker()),
+            ("perception.kind", self.tracked().next().is_some()),
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
             ("plant.disturbance_std", self.plant.disturbance_std > 0.0),

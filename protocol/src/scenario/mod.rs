@@ -106,6 +106,12 @@ pub struct Scenario {
     /// ([`live`]).
     #[serde(default, skip_serializing)]
     pub live: Option<LiveConfig>,
+    /// Which of `robots` this scenario drives, when it is a fleet's member
+    /// ([`Scenario::member`]); never a key of a file: each process of a fleet's run reads
+    /// the fleet's scenario and takes its member by its robot id.
+    #[serde(skip)]
+    #[schemars(skip)]
+    pub fleet_id: Option<usize>,
 }
 
 /// One scheduled replacement of a role process, make-before-break (docs/design.md, "Supervision").
@@ -664,6 +670,7 @@ impl Default for Scenario {
             realtime: RealtimeConfig::default(),
             robots: Vec::new(),
             live: None,
+            fleet_id: None,
         }
     }
 }
@@ -768,8 +775,8 @@ impl Scenario {
         }
     }
 
-    /// The role processes of a run: the four of the paper, the tracker when it tracks an
-    /// obstacle or sees with a lidar, the lidar with one, the planner when it is on, and
+    /// The role processes of a run: the four of the paper, the tracker when it runs
+    /// ([`Scenario::runs_tracker`]), the lidar with one, the planner when it is on, and
     /// the optional roles `extra_roles` names.
     pub fn roles(&self) -> impl Iterator<Item = crate::Role> + use<> {
         let planner = self.plans_routes();
@@ -836,15 +843,15 @@ impl Scenario {
         self.known_obstacles().count() + tracks
     }
 
-    /// Whether the MPC and the DFL take tracks: a tracker runs, or the other robots of a
-    /// fleet are tracks to them ([`crate::PeerPrediction`]).
+    /// Whether the MPC and the DFL take tracks: whenever a tracker runs.
     pub fn takes_tracks(&self) -> bool {
-        self.runs_tracker() || self.robot_count() > 1
+        self.runs_tracker()
     }
 
-    /// Whether a tracker runs: it sees with a lidar, or it tracks an obstacle.
+    /// Whether a tracker runs: it sees with a lidar, it tracks an obstacle, or the robot is
+    /// one of a fleet, whose tracker tells it of the others ([`crate::PeerPrediction`]).
     pub fn runs_tracker(&self) -> bool {
-        self.sees_with_lidar() || self.tracked().next().is_some()
+        self.sees_with_lidar() || self.tracked().next().is_some() || self.is_fleet()
     }
 
     /// Whether the tracker measures obstacle `obstacle` from the truth: every one with

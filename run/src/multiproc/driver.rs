@@ -121,6 +121,48 @@ impl<'a> Driver<'a> {
         Ok(self.parts.recorder.end_of_run(None))
     }
 
+    /// Lockstep, a fleet's ([`super::fleet`]): grants tick `tick` and takes what came;
+    /// an outcome when the run must end.
+    pub fn grant(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
+        self.parts.session.grant(tick)?;
+        self.take_now()?;
+        self.check()
+    }
+
+    /// Lockstep, a fleet's: whether tick `tick` is whole, taken from shared memory alone
+    /// (`clear`: after clearing the wake-ups, as before blocking) without the checks of
+    /// [`Driver::check_now`].
+    pub fn poll_whole(&mut self, tick: u64, clear: bool) -> anyhow::Result<bool> {
+        match clear {
+            true => self.take_now()?,
+            false => self.intake.take_from_memory(self.parts.session)?,
+        }
+        Ok(self.intake.has_whole(tick))
+    }
+
+    /// Lockstep, a fleet's: the checks between ticks ([`Driver::check`]); an outcome when
+    /// the run must end.
+    pub fn check_now(&mut self) -> anyhow::Result<Option<Outcome>> {
+        self.check()
+    }
+
+    /// Lockstep, a fleet's: the true position at whole tick `tick`, which is recorded and
+    /// judged when `recording` (an outcome: the robot's record ends), else dropped.
+    pub fn take_tick(
+        &mut self,
+        tick: u64,
+        recording: bool,
+    ) -> anyhow::Result<(Option<[f64; 2]>, Option<Outcome>)> {
+        let slot = self.intake.take_slot(tick);
+        let position = slot.truth.map(|t| [t.pose[0], t.pose[1]]);
+        if !recording {
+            self.intake.drop_plans();
+            return Ok((position, None));
+        }
+        let no_route = self.intake.record_plans(self.parts.recorder)?;
+        Ok((position, self.record_slot(tick, slot)?.or(no_route)))
+    }
+
     /// Lockstep: holds the clock while a replacement has not joined the run, so that a
     /// swap comes at the same simulated time however long its process takes to start (on
     /// another host, longer than the rest of a short run takes in lockstep). A replacement

@@ -323,6 +323,16 @@ impl Intake {
         Ok(no_route)
     }
 
+    /// Drops every route, plan and verdict received (a fleet's robot whose record has
+    /// ended drives on unrecorded).
+    pub fn drop_plans(&mut self) {
+        self.routes.clear();
+        self.tracks.clear();
+        self.recorded.clear();
+        self.plans.clear();
+        self.verdicts.clear();
+    }
+
     /// The counts of what was received, for the summary.
     pub fn report(&self, report: &mut ProcessReport) {
         self.latencies.report(report);

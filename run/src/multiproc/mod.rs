@@ -8,6 +8,7 @@
 //! records ticks as they complete, counting every tick it never receives whole.
 
 mod driver;
+pub mod fleet;
 mod intake;
 mod session;
 mod supervision;
@@ -282,14 +283,7 @@ fn drive(
     // happened, then release the orchestrator's own ports.
     record_peak_rss(&children, &mut report);
     let _ = session.command(ControlCommand::Stop);
-    for (role, epoch, status, killed) in children.shut_down(STOP_TIMEOUT) {
-        recorder.event(Event::Exited {
-            role,
-            epoch,
-            status,
-            killed,
-        })?;
-    }
+    record_exits(recorder, children.shut_down(STOP_TIMEOUT))?;
     if let Some(remote) = &children.remote {
         let mut counters = remote.end();
         report.orchestrator_bridge = counters.remove(hosts::keys::ORCHESTRATOR);
@@ -297,6 +291,22 @@ fn drive(
     }
     drop(guards);
     Ok((outcome?, report))
+}
+
+/// Each process's exit ([`Children::shut_down`]), as an `exited` event.
+fn record_exits(
+    recorder: &mut Recorder,
+    exits: Vec<(Role, u32, String, bool)>,
+) -> anyhow::Result<()> {
+    for (role, epoch, status, killed) in exits {
+        recorder.event(Event::Exited {
+            role,
+            epoch,
+            status,
+            killed,
+        })?;
+    }
+    Ok(())
 }
 
 /// Each link to another host, with what its host's bridge carried (`counters`, by host).

@@ -31,9 +31,6 @@ impl TickLimit for Clock {
     }
 }
 
-/// The robot a multi-process run drives: every run has one today.
-const ROBOT: u32 = protocol::FIRST_ROBOT;
-
 /// The orchestrator's ports.
 pub(super) struct Session {
     pub control: Sender<Control>,
@@ -49,14 +46,36 @@ pub(super) struct Session {
     /// The goals set while the run drives, announced with every control message.
     goals: Cell<Goals>,
     clock: Rc<Clock>,
+    robot: u32,
     /// The node of the ports above; declared last, so it is dropped after them.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
 }
 
 impl Session {
     pub fn open(prefix: &str, scenario: &Scenario, mode: RunMode) -> Result<Session, IpcError> {
+        Session::open_for(prefix, scenario, mode, protocol::FIRST_ROBOT)
+    }
+
+    /// The ports of robot `robot`'s pipeline (a fleet's: [`super::fleet`]). Only the first
+    /// robot's session takes `scmpc swap`'s requests on the run's topics; the others' swap
+    /// ports are their robot's own, which no tool uses (a fleet refuses swaps).
+    pub fn open_for(
+        prefix: &str,
+        scenario: &Scenario,
+        mode: RunMode,
+        robot: u32,
+    ) -> Result<Session, IpcError> {
         let node = ipc::create_node(prefix, "orchestrator", false)?;
-        let robot = ROBOT;
+        let (swap_requests, swap_replies) = match robot {
+            protocol::FIRST_ROBOT => (
+                open_run_topic(&node, ipc::SWAP)?.receiver()?,
+                open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
+            ),
+            _ => (
+                open_topic(&node, robot, ipc::SWAP)?.receiver()?,
+                open_topic(&node, robot, ipc::SWAP_REPLY)?.sender(0)?,
+            ),
+        };
         let mut data = Vec::new();
         for (topic, producer) in Graph::of(scenario).topics() {
             data.push((topic, wire::data_input(&node, robot, topic, producer)?));
@@ -65,14 +84,15 @@ impl Session {
             control: open_topic(&node, robot, ipc::CONTROL)?.sender(0)?,
             status: open_topic(&node, robot, ipc::STATUS)?.receiver()?,
             data,
-            swap_requests: open_run_topic(&node, ipc::SWAP)?.receiver()?,
-            swap_replies: open_run_topic(&node, ipc::SWAP_REPLY)?.sender(0)?,
+            swap_requests,
+            swap_replies,
             schedule: Cell::new(EpochSchedule::default()),
             goals: Cell::new(Goals::default()),
             clock: Rc::new(Clock(Cell::new(RunClock::new(
                 mode,
                 scenario.timing.dt_s(),
             )))),
+            robot,
             _node: node,
         };
         for input in session.inputs() {
@@ -84,7 +104,7 @@ impl Session {
 
     /// The robot whose pipeline the session runs.
     pub fn robot(&self) -> u32 {
-        ROBOT
+        self.robot
     }
 
     /// The run's clock.

@@ -288,9 +288,12 @@ pub(super) fn clean_dead_nodes(
 ) -> anyhow::Result<usize> {
     let names = ipc::cleanup_dead_nodes(&children.prefix).unwrap_or_default();
     for name in &names {
-        let Some((role, epoch)) = ipc::role_of_node(name) else {
+        let Some((robot, role, epoch)) = ipc::role_of_node(name) else {
             continue;
         };
+        if robot != children.robot() {
+            continue; // another robot's of a fleet: its own supervisor's
+        }
         if exited == Some((role, epoch)) {
             continue;
         }

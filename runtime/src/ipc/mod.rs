@@ -35,7 +35,24 @@ pub const MAX_PUBLISHERS: usize = 4;
 /// Publishers of the status topic: a process of each role, a replacement per swappable
 /// role, and a retiring one.
 pub const MAX_STATUS_PUBLISHERS: usize = 8;
+/// Subscribers a topic admits in a run of one robot. In a fleet every other robot's
+/// tracker takes a robot's truth, estimate and plan too ([`admit_robots`]).
 pub const MAX_SUBSCRIBERS: usize = 8;
+
+/// The robots of the run this process takes part in ([`admit_robots`]).
+static ROBOTS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(1);
+
+/// Makes the topics this process opens from now on admit the subscribers of a run of
+/// `robots` robots: [`MAX_SUBSCRIBERS`] and one for each other robot. Every process of a
+/// fleet's run calls it before it opens a topic, so whichever creates a topic makes room
+/// for all (a process that does not, such as `scmpc echo`, asks for less, which opens).
+pub fn admit_robots(robots: usize) {
+    ROBOTS.store(robots.max(1), std::sync::atomic::Ordering::Relaxed);
+}
+
+fn max_subscribers() -> usize {
+    MAX_SUBSCRIBERS + ROBOTS.load(std::sync::atomic::Ordering::Relaxed) - 1
+}
 /// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
 pub const SUBSCRIBER_BUFFER: usize = 64;
 /// Every run's resource prefix starts with this.
@@ -186,7 +203,7 @@ fn open_service<T: Wire>(
         } else {
             MAX_PUBLISHERS
         })
-        .max_subscribers(MAX_SUBSCRIBERS)
+        .max_subscribers(max_subscribers())
         .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
         .history_size(0)
         .enable_safe_overflow(true);

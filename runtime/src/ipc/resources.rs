@@ -48,10 +48,23 @@ pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
     Ok(pids)
 }
 
-/// The role and epoch of a role process's node, from its name (`<role>-<epoch>`).
-pub fn role_of_node(name: &str) -> Option<(protocol::Role, u32)> {
-    let (role, epoch) = name.rsplit_once('-')?;
-    Some((protocol::Role::from_name(role)?, epoch.parse().ok()?))
+/// The name of the node of robot `robot`'s process of `role` and `epoch`: `<role>-<epoch>`
+/// for the first robot, `robot<id>-<role>-<epoch>` for the others of a fleet.
+pub fn node_name(robot: u32, role: protocol::Role, epoch: u32) -> String {
+    match robot {
+        protocol::FIRST_ROBOT => format!("{}-{epoch}", role.as_str()),
+        _ => format!("robot{robot}-{}-{epoch}", role.as_str()),
+    }
+}
+
+/// The robot, role and epoch of a role process's node, from its name ([`node_name`]).
+pub fn role_of_node(name: &str) -> Option<(u32, protocol::Role, u32)> {
+    let (rest, epoch) = name.rsplit_once('-')?;
+    let (robot, role) = match rest.split_once('-') {
+        Some((robot, role)) => (robot.strip_prefix("robot")?.parse().ok()?, role),
+        None => (protocol::FIRST_ROBOT, rest),
+    };
+    Some((robot, protocol::Role::from_name(role)?, epoch.parse().ok()?))
 }
 
 /// How long a finished run waits for the nodes of tools watching it (`scmpc echo`) to

@@ -1,0 +1,324 @@
+//! A fleet across processes, in lockstep (docs/fleet.md): one set of role processes per
+//! robot, each with its robot's id (its services under `robot<id>/`), all reading the
+//! fleet's `scenario.toml` and driving their robot's member. One driver per robot
+//! ([`Driver`]) keeps its session, children and record; this loop grants tick `j` to
+//! every robot, waits until every robot's tick is whole, records it and judges the robots
+//! against each other, and only then grants `j + 1`. Each robot's tracker takes the
+//! others' truths, estimates and plans itself, from before its tick only
+//! ([`tracker::Peers`]), so the run gives the bytes of the fleet in process.
+//!
+//! A robot whose record has ended (it reached its goal) drives on unrecorded, a track to
+//! the others, until every robot's record has ended.
+
+use super::driver::Driver;
+use super::session::Session;
+use super::{POLL, STOP_TIMEOUT, TICK_TIMEOUT, remove_dead_runs, wait_until_ready};
+use crate::children::{Children, LOG_DIR};
+use crate::sinks::Recording;
+use anyhow::{Context, bail};
+use protocol::{ControlCommand, Validated};
+use record::event::{Event, Ready};
+use record::fleet::{FleetJudge, FleetSummary};
+use record::judge::Outcome;
+use record::{ProcessReport, Recorder};
+use runtime::clock::RunMode;
+use runtime::ipc;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+/// Each robot's part of the run, by robot id: its member's scenario, its session, its
+/// processes and its record.
+#[derive(Default)]
+struct Robots {
+    scenarios: Vec<Validated>,
+    sessions: Vec<Session>,
+    children: Vec<Children>,
+    recorders: Vec<Recorder>,
+}
+
+/// Runs the fleet `scenario` in lockstep as role processes on iceoryx2 resources named
+/// with `prefix`, and writes `out`: the fleet's `scenario.toml` and `summary.json`, and
+/// `robot<id>/` for each robot. Whatever happens, every process is stopped and the run's
+/// resources are removed before this returns.
+pub fn run(
+    scenario: &Validated,
+    out: &Path,
+    prefix: &str,
+    recording: Recording,
+    stop: &AtomicBool,
+) -> anyhow::Result<FleetSummary> {
+    let started = Instant::now();
+    remove_dead_runs();
+    ipc::admit_robots(scenario.robot_count());
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let scenario_file = out.join("scenario.toml");
+    std::fs::write(&scenario_file, scenario.to_toml())
+        .with_context(|| format!("writing {}", scenario_file.display()))?;
+    ipc::register_run(prefix, out).context("registering the run")?;
+    let result = drive(scenario, out, prefix, recording, stop, started);
+    if let Err(e) = ipc::end_run(prefix) {
+        tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
+    }
+    let summary = result?;
+    let path = out.join("summary.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(summary)
+}
+
+/// Each robot's part opened and its processes started, one robot after the other.
+fn open_robots(
+    scenario: &Validated,
+    out: &Path,
+    prefix: &str,
+    recording: Recording,
+    robots: &mut Robots,
+) -> anyhow::Result<()> {
+    let recording = Recording {
+        status_line: false,
+        live: false,
+        ..recording
+    };
+    for id in 0..scenario.robot_count() {
+        let member = (scenario.member(id))
+            .validated(&format!("robot {id} of the fleet"))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let dir = out.join(format!("robot{id}"));
+        let mut recorder = crate::sinks::recorder(&member, &dir, recording)?;
+        let session = Session::open_for(prefix, &member, RunMode::Lockstep, id as u32)?;
+        let control = session.control.publisher_id();
+        let children = Children::new(
+            &out.join("scenario.toml"),
+            prefix,
+            id as u32,
+            RunMode::Lockstep,
+            control,
+            Vec::new(),
+            None,
+        )?;
+        let mut children = children.with_logs(&dir.join(LOG_DIR));
+        // Pushed before its processes start, so that they are stopped whatever follows.
+        let spawned = children.spawn_all(member.roles());
+        for p in &children.list {
+            recorder.event(Event::Spawned {
+                role: p.role,
+                pid: p.pid(),
+                host: None,
+            })?;
+        }
+        robots.scenarios.push(member);
+        robots.sessions.push(session);
+        robots.children.push(children);
+        robots.recorders.push(recorder);
+        spawned?;
+    }
+    Ok(())
+}
+
+/// Starts every robot's processes, drives the fleet and stops them all.
+fn drive(
+    scenario: &Validated,
+    out: &Path,
+    prefix: &str,
+    recording: Recording,
+    stop: &AtomicBool,
+    started: Instant,
+) -> anyhow::Result<FleetSummary> {
+    let mut robots = Robots::default();
+    let opened = open_robots(scenario, out, prefix, recording, &mut robots);
+    let driven = opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, stop));
+    for session in &robots.sessions {
+        let _ = session.command(ControlCommand::Stop);
+    }
+    let Robots {
+        scenarios,
+        children,
+        recorders,
+        ..
+    } = robots;
+    let exits: Vec<_> = (children.into_iter())
+        .map(|mut c| c.shut_down(STOP_TIMEOUT))
+        .collect();
+    let ended = scenarios.into_iter().zip(exits).zip(recorders);
+    let (outcomes, judge, reports, simulated_s) = driven?;
+    let wall_s = started.elapsed().as_secs_f64();
+    let mut summaries = Vec::with_capacity(outcomes.len());
+    let mut deadlocks = Vec::with_capacity(outcomes.len());
+    let signal = crate::stop::received();
+    for ((((scenario, exits), mut recorder), outcome), report) in ended.zip(outcomes).zip(reports) {
+        super::record_exits(&mut recorder, exits)?;
+        deadlocks.push(recorder.deadlocks_broken());
+        let summary =
+            recorder.finish(&scenario, "lockstep", outcome, wall_s, Some(report), signal)?;
+        summaries.push(summary);
+    }
+    Ok(FleetSummary::of(
+        &summaries,
+        &judge,
+        &deadlocks,
+        simulated_s,
+        wall_s,
+    ))
+}
+
+type Driven = (Vec<Outcome>, FleetJudge, Vec<ProcessReport>, f64);
+
+/// Waits until every robot's processes are ready, then grants, waits for, records and
+/// judges every tick of every robot until every robot's record has ended.
+fn drive_opened(
+    scenario: &Validated,
+    prefix: &str,
+    robots: &mut Robots,
+    stop: &AtomicBool,
+) -> anyhow::Result<Driven> {
+    let Robots {
+        scenarios,
+        sessions,
+        children,
+        recorders,
+    } = robots;
+    let waitset = ipc::waitset(false)?;
+    let mut guards = Vec::new();
+    for session in sessions.iter() {
+        guards.push(session.status.attach(&waitset)?);
+        for input in session.inputs() {
+            guards.push(ipc::attach(&waitset, input.listener())?);
+        }
+    }
+    for id in 0..sessions.len() {
+        wait_until_ready(
+            &scenarios[id],
+            &sessions[id],
+            &waitset,
+            &mut children[id],
+            stop,
+        )?;
+        recorders[id].event(Event::Ready(Ready::Run {
+            iceoryx2_prefix: prefix.to_string(),
+        }))?;
+    }
+    let parts = scenarios
+        .iter()
+        .zip(sessions.iter())
+        .zip(children.iter_mut());
+    let mut drivers: Vec<Driver> = (parts.zip(recorders.iter_mut()))
+        .map(|(((s, session), c), r)| Driver::new(s, session, c, r, stop))
+        .collect();
+    let radii = (0..scenario.robot_count())
+        .map(|id| scenario.radius_of(id))
+        .collect();
+    let mut judge = FleetJudge::new(radii);
+    let mut outcomes: Vec<Option<Outcome>> = vec![None; drivers.len()];
+    let mut positions = vec![[0.0; 2]; drivers.len()];
+    let dt_s = scenario.timing.dt_s();
+    let ticks = scenario.tick_count();
+    let mut tick = 0;
+    let driven = loop {
+        match lockstep_tick(&mut drivers, &mut outcomes, &mut positions, &waitset, tick) {
+            Ok(true) => {}
+            Ok(false) => break Ok(()),
+            Err(e) => break Err(e),
+        }
+        if tick < ticks {
+            judge.tick(&positions, dt_s);
+        }
+        if outcomes.iter().all(Option::is_some) || tick == ticks {
+            break Ok(());
+        }
+        tick += 1;
+    };
+    let mut reports = Vec::with_capacity(drivers.len());
+    let mut ended = Vec::with_capacity(drivers.len());
+    for (driver, outcome) in drivers.into_iter().zip(&outcomes) {
+        let mut report = ProcessReport {
+            iceoryx2_prefix: prefix.to_string(),
+            ..ProcessReport::default()
+        };
+        let outcome = driven
+            .as_ref()
+            .map(|()| outcome.unwrap_or(Outcome::Interrupted))
+            .map_err(|e| anyhow::anyhow!("{e:#}"));
+        ended.push(driver.finish(outcome, &mut report)?);
+        reports.push(report);
+    }
+    driven?;
+    drop(guards);
+    Ok((ended, judge, reports, (tick + 1).min(ticks) as f64 * dt_s))
+}
+
+/// Ends robot `id`'s record with `outcome`. False: the fleet's run must end, as the robot's
+/// pipeline cannot go on (aborted) or the run was interrupted; the others' records end
+/// interrupted.
+fn end(outcomes: &mut [Option<Outcome>], id: usize, outcome: Outcome) -> bool {
+    if outcomes[id].is_none() || outcome == Outcome::Interrupted {
+        outcomes[id] = Some(outcome);
+    }
+    if outcome == Outcome::Interrupted || outcome == Outcome::Aborted {
+        for o in outcomes.iter_mut().filter(|o| o.is_none()) {
+            *o = Some(Outcome::Interrupted);
+        }
+        return false;
+    }
+    true
+}
+
+/// Tick `tick` of every robot: granted, waited for until whole, and recorded for each
+/// robot whose record runs (`outcomes`: `None`), its outcome set when its record ends;
+/// `positions` each robot's true position then. False: the run must end (interrupted, or
+/// a robot's process lost with no restart left: the outcomes say).
+fn lockstep_tick(
+    drivers: &mut [Driver],
+    outcomes: &mut [Option<Outcome>],
+    positions: &mut [[f64; 2]],
+    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    tick: u64,
+) -> anyhow::Result<bool> {
+    for (id, driver) in drivers.iter_mut().enumerate() {
+        if let Some(outcome) = driver.grant(tick)?
+            && !end(outcomes, id, outcome)
+        {
+            return Ok(false);
+        }
+    }
+    // Shared memory first; a robot not whole yet has its wake-ups cleared before the
+    // block, and the processes are checked only when a wait makes no progress.
+    let mut whole = vec![false; drivers.len()];
+    let mut last_progress = Instant::now();
+    let mut clear = false;
+    loop {
+        for (id, driver) in drivers.iter_mut().enumerate() {
+            if !whole[id] {
+                whole[id] = driver.poll_whole(tick, clear)?;
+            }
+        }
+        if whole.iter().all(|w| *w) {
+            break;
+        }
+        if clear && ipc::wait(waitset, POLL)? == ipc::Wake::Timeout {
+            for (id, driver) in drivers.iter_mut().enumerate() {
+                if let Some(outcome) = driver.check_now()?
+                    && !end(outcomes, id, outcome)
+                {
+                    return Ok(false);
+                }
+            }
+            if last_progress.elapsed() > TICK_TIMEOUT {
+                bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+            }
+        } else {
+            last_progress = Instant::now();
+        }
+        clear = true;
+    }
+    for (id, driver) in drivers.iter_mut().enumerate() {
+        let (position, outcome) = driver.take_tick(tick, outcomes[id].is_none())?;
+        if let Some(position) = position {
+            positions[id] = position;
+        }
+        if let Some(outcome) = outcome {
+            end(outcomes, id, outcome);
+        }
+    }
+    Ok(true)
+}

@@ -1,0 +1,276 @@
+//! The other robots of a fleet as tracks (docs/fleet.md): a robot's tracker takes every
+//! other robot's truth, estimate and plan, and at each perception tick `j` tells its MPC
+//! and DFL where each of them may be, from what they published before `j` only. So in
+//! process and in lockstep its tracks do not depend on whether another robot's process
+//! has already stepped tick `j` (lockstep grants `j` only once every robot's `j - 1` is
+//! whole, so that much has always come).
+
+use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
+
+/// A robot whose newest solved plan is older than this many samples has stopped
+/// publishing plans: the others go by what the world shows of it ([`Peers::tracks`]).
+pub const SILENT_SAMPLES: u64 = 4;
+
+/// The newest two samples of one kind heard from a robot, with their ticks. Two are
+/// enough: the tracker looks for the newest before its tick, and another robot's process
+/// is never more than that tick ahead.
+#[derive(Debug, Clone, Copy)]
+struct Recent<T> {
+    slots: [Option<(u64, T)>; 2],
+}
+
+impl<T: Copy> Recent<T> {
+    fn new() -> Recent<T> {
+        Recent { slots: [None; 2] }
+    }
+
+    /// Keeps `value` of tick `tick` if it is newer than every one kept.
+    fn push(&mut self, tick: u64, value: T) {
+        if self.slots[1].is_none_or(|(newest, _)| tick > newest) {
+            self.slots = [self.slots[1], Some((tick, value))];
+        }
+    }
+
+    /// The newest kept of a tick before `tick`.
+    fn newest_before(&self, tick: u64) -> Option<(u64, T)> {
+        self.slots
+            .iter()
+            .rev()
+            .flatten()
+            .find(|(t, _)| *t < tick)
+            .copied()
+    }
+}
+
+/// What a robot's estimate tells the others: its state `[x, y, theta, zeta]` and the
+/// standard deviations of its position (m) and of its velocity (m/s: the speed times the
+/// heading's).
+#[derive(Debug, Clone, Copy)]
+struct Estimated {
+    state: [f64; 4],
+    sigmas: [f64; 2],
+}
+
+impl Estimated {
+    fn of(estimate: &Estimate) -> Estimated {
+        let theta_sigma = estimate.covariance[8].max(0.0).sqrt();
+        Estimated {
+            state: estimate.state,
+            sigmas: [
+                estimate.position_sigma(),
+                estimate.state[3].abs() * theta_sigma,
+            ],
+        }
+    }
+}
+
+/// Another robot as heard.
+#[derive(Debug, Clone)]
+struct Peer {
+    id: usize,
+    radius_m: f64,
+    /// Where it starts: what the others go by before its first estimate.
+    start: Estimated,
+    truths: Recent<[f64; 2]>,
+    estimates: Recent<Estimated>,
+    /// Its solved plans.
+    plans: Recent<Plan>,
+    /// Its true position at the last perception tick (the tick of that truth, and it).
+    seen_at: Option<(u64, [f64; 2])>,
+}
+
+/// Every other robot of the fleet, and how they are predicted.
+#[derive(Debug, Clone)]
+pub struct Peers {
+    prediction: PeerPrediction,
+    peers: Vec<Peer>,
+    noise_std: f64,
+    ticks_per_sample: u64,
+    dt_s: f64,
+}
+
+impl Peers {
+    /// The other robots of `scenario`'s fleet, seen by its member ([`Scenario::member`]);
+    /// `None` for a robot alone.
+    ///
+    /// [`Scenario::member`]: protocol::Scenario::member
+    pub fn of(scenario: &Validated) -> Option<Peers> {
+        let own = scenario.fleet_id?;
+        let peers = (0..scenario.robots.len())
+            .filter(|&id| id != own)
+            .map(|id| {
+                let [x, y, theta] = scenario.robots[id].start;
+                Peer {
+                    id,
+                    radius_m: scenario.radius_of(id),
+                    start: Estimated {
+                        state: [x, y, theta, scenario.robot.zeta0],
+                        sigmas: [0.0; 2],
+                    },
+                    truths: Recent::new(),
+                    estimates: Recent::new(),
+                    plans: Recent::new(),
+                    seen_at: None,
+                }
+            })
+            .collect();
+        Some(Peers {
+            prediction: PeerPrediction::of(scenario),
+            peers,
+            noise_std: scenario.perception.noise_std,
+            ticks_per_sample: scenario.timing.inner_steps as u64,
+            dt_s: scenario.timing.dt_s(),
+        })
+    }
+
+    /// A sample of robot `data.header().robot`: its truth, its estimate, or its plan (kept
+    /// when solved). Samples of robots not in the fleet are ignored.
+    pub fn hear(&mut self, data: &Data) {
+        let header: &Header = data.header();
+        let Some(peer) = self
+            .peers
+            .iter_mut()
+            .find(|p| p.id == header.robot as usize)
+        else {
+            return;
+        };
+        match data {
+            Data::Truth(truth) => {
+                let [x, y, _] = truth.pose;
+                peer.truths.push(header.tick, [x, y]);
+            }
+            Data::Estimate(estimate) => peer.estimates.push(header.tick, Estimated::of(estimate)),
+            Data::Plan(plan) if plan.is_solved() => peer.plans.push(header.tick, *plan),
+            _ => {}
+        }
+    }
+
+    /// Appends every other robot to `tracks`, as it may be at perception tick `tick`
+    /// (time `t_s`), from what it published before `tick`:
+    /// - predicted from its newest solved plan ([`PeerPrediction::track`]), uncertain by
+    ///   its newest estimate's error;
+    /// - before its first, where its newest estimate (at first its start) puts it;
+    /// - once its plans have stopped for [`SILENT_SAMPLES`] (its MPC fails or is gone), where
+    ///   the world shows it, as a tracker measuring it would: its true position, at the
+    ///   velocity it had since the last perception tick, uncertain by
+    ///   `perception.noise_std` and by the half sample of acceleration that velocity is
+    ///   behind by.
+    pub fn tracks(&mut self, tick: u64, t_s: f64, tracks: &mut Tracks) {
+        let sample = tick / self.ticks_per_sample;
+        for peer in &mut self.peers {
+            let estimate = (peer.estimates.newest_before(tick)).map_or(peer.start, |(_, e)| e);
+            let seen = peer.truths.newest_before(tick);
+            let track = match peer.plans.newest_before(tick) {
+                Some((_, plan)) if plan.sample + SILENT_SAMPLES >= sample => {
+                    let sigmas = estimate.sigmas;
+                    self.prediction
+                        .track(peer.id, peer.radius_m, &plan, sigmas, t_s)
+                }
+                Some(_) => {
+                    let (now, position) =
+                        seen.unwrap_or((tick, [estimate.state[0], estimate.state[1]]));
+                    let velocity = match peer.seen_at {
+                        Some((then, before)) if now > then => {
+                            let elapsed_s = (now - then) as f64 * self.dt_s;
+                            [0, 1].map(|a| (position[a] - before[a]) / elapsed_s)
+                        }
+                        _ => [0.0; 2],
+                    };
+                    let prediction = &self.prediction;
+                    let kappa = prediction.kappa.max(f64::MIN_POSITIVE);
+                    let sigmas = [
+                        self.noise_std,
+                        0.5 * prediction.accel_max * prediction.ts_s / kappa,
+                    ];
+                    prediction.track_seen(peer.id, peer.radius_m, (position, velocity), sigmas)
+                }
+                None => {
+                    let [x, y, theta, zeta] = estimate.state;
+                    let seen = ([x, y], [zeta * theta.cos(), zeta * theta.sin()]);
+                    (self.prediction).track_seen(peer.id, peer.radius_m, seen, estimate.sigmas)
+                }
+            };
+            if seen.is_some() {
+                peer.seen_at = seen;
+            }
+            push(tracks, track);
+        }
+    }
+}
+
+/// Appends `track` to `tracks` if there is room ([`protocol::MAX_TRACKS`] is above a
+/// fleet's robots and its tracked obstacles together: `check_fleet`).
+fn push(tracks: &mut Tracks, track: Track) {
+    if let Some(slot) = tracks.tracks.get_mut(tracks.count as usize) {
+        *slot = track;
+        tracks.count += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::GroundTruth;
+
+    fn truth(robot: u32, tick: u64, x: f64) -> Data {
+        Data::Truth(GroundTruth {
+            header: Header {
+                robot,
+                tick,
+                ..Header::default()
+            },
+            pose: [x, 0.0, 0.0],
+        })
+    }
+
+    #[test]
+    fn recent_gives_the_newest_before_a_tick_and_keeps_one_ahead() {
+        let mut recent = Recent::new();
+        for tick in [3, 4, 5] {
+            recent.push(tick, tick);
+        }
+        recent.push(4, 40); // older than the newest: ignored
+        assert_eq!(recent.newest_before(5), Some((4, 4)));
+        assert_eq!(recent.newest_before(6), Some((5, 5)));
+        assert_eq!(recent.newest_before(4), None);
+    }
+
+    #[test]
+    fn a_robot_that_never_planned_is_where_it_was_seen_and_one_silent_moves_as_it_was_seen() {
+        let toml = include_str!("../../scenarios/swap4.toml");
+        let fleet = protocol::Scenario::from_toml(toml, "swap4").unwrap();
+        let member = fleet.member(0).validated("robot 0").unwrap();
+        let mut peers = Peers::of(&member).unwrap();
+        let mut tracks = Tracks::default();
+        peers.tracks(0, 0.0, &mut tracks);
+        assert_eq!(tracks.count, 3, "every other robot, from its start");
+        let start = member.robots[1].start;
+        assert_eq!(tracks.tracks[0].center, [start[0], start[1]]);
+
+        // Robot 1 planned at sample 0, then fell silent; the world shows it moving +x at
+        // 1 m/s (truths 10 ticks = one sample apart).
+        let plan = Plan {
+            header: Header {
+                robot: 1,
+                ..Header::default()
+            },
+            status: protocol::PlanStatus::Solved as u32,
+            ..Plan::default()
+        };
+        peers.hear(&Data::Plan(plan));
+        let dt = member.timing.dt_s();
+        let ticks = member.timing.inner_steps as u64;
+        let late = (SILENT_SAMPLES + 2) * ticks;
+        peers.hear(&truth(1, late - ticks - 1, 0.0));
+        peers.hear(&truth(9, late - ticks - 1, 5.0)); // no such robot: ignored
+        let mut tracks = Tracks::default();
+        peers.tracks(late - ticks, (late - ticks) as f64 * dt, &mut tracks);
+        peers.hear(&truth(1, late - 1, ticks as f64 * dt));
+        peers.hear(&truth(1, late, 99.0)); // of the tick being tracked: not yet
+        let mut tracks = Tracks::default();
+        peers.tracks(late, late as f64 * dt, &mut tracks);
+        let seen = tracks.tracks[0];
+        assert_eq!(seen.center, [ticks as f64 * dt, 0.0]);
+        assert!((seen.velocity[0] - 1.0).abs() < 1e-9, "{:?}", seen.velocity);
+    }
+}
