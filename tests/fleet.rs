@@ -9,6 +9,7 @@ use common::{events, leftovers, run, run_into_tempdir, stderr, summary, unique_p
 /// way, each a `gave_way` event in its record.
 #[test]
 fn swap4_every_robot_reaches_its_goal_without_contact_after_giving_way() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&["run", "swap4", "--in-process", "--no-mcap"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let fleet = summary(dir.path());
@@ -36,6 +37,7 @@ fn swap4_every_robot_reaches_its_goal_without_contact_after_giving_way() {
 /// shared memory.
 #[test]
 fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
+    let _machine = common::machine_shared();
     let short = ["--no-mcap", "--set", "duration_s=8"];
     let (in_process, _) =
         run_into_tempdir(&[&["run", "swap4", "--in-process"][..], &short].concat());
@@ -81,6 +83,7 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
 /// counts every robot.
 #[test]
 fn random_fleets_have_no_contact_while_moving() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&["fuzz", "--robots", "2..4", "--count", "6", "--seed", "3"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let csv = std::fs::read_to_string(dir.path().join("fleet_fuzz.csv")).unwrap();
@@ -100,9 +103,10 @@ fn random_fleets_have_no_contact_while_moving() {
 
 /// A fleet's bad input is refused before anything runs, naming the robot's key: two
 /// robots on one spot, a robot inside an obstacle, a robot's own fault, what a fleet does
-/// not run with, and a fleet in real time.
+/// not run with.
 #[test]
 fn a_fleets_bad_input_names_the_robots_key() {
+    let _machine = common::machine_shared();
     let refused = |args: &[&str], key: &str| {
         let out = run(args);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr(&out));
@@ -133,7 +137,6 @@ fn a_fleets_bad_input_names_the_robots_key() {
         ],
         "perception.kind",
     );
-    refused(&["run", "swap4", "--mode", "realtime"], "--mode realtime");
     refused(&["fuzz", "--robots", "3..2"], "--robots");
 }
 
@@ -142,6 +145,7 @@ fn a_fleets_bad_input_names_the_robots_key() {
 /// robot touches another.
 #[test]
 fn a_robot_whose_plans_stop_brakes_to_rest_and_the_others_pass_it() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&[
         "run",
         "swap4",
@@ -168,4 +172,52 @@ fn a_robot_whose_plans_stop_brakes_to_rest_and_the_others_pass_it() {
         0.0,
         "at rest: {last:?}"
     );
+}
+
+/// In real time across processes every robot's clock starts at one tick 0, and in the
+/// first 8 s of `swap4` (every robot near the others from 3 s on) no robot misses a
+/// deadline or loses a tick but in a stall of the machine, none touches another, and
+/// nothing of the run is left in shared memory.
+#[test]
+fn in_real_time_across_processes_every_robot_keeps_its_deadlines_without_contact() {
+    let machine = common::machine_alone();
+    let prefix = unique_prefix("fleetrt");
+    let (dir, out) = run_into_tempdir(&[
+        "run",
+        "swap4",
+        "--mode",
+        "realtime",
+        "--no-mcap",
+        "--prefix",
+        &prefix,
+        "--set",
+        "duration_s=8",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "not reached in 8 s: {}",
+        stderr(&out)
+    );
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["mode"], "realtime", "{fleet}");
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    assert_eq!(fleet["robot_contacts_at_rest"], 0, "{fleet}");
+    let mut ticks_0 = std::collections::BTreeSet::new();
+    for id in 0..4 {
+        let robot = dir.path().join(format!("robot{id}"));
+        let s = summary(&robot);
+        assert_eq!(s["mode"], "realtime", "{s}");
+        assert_eq!(s["solver_failures"], 0, "{s}");
+        assert!(s["ticks"].as_u64().unwrap() > 1500, "{s}");
+        let events = events(&robot);
+        machine.assert_every_fault_in_a_stall(&events);
+        let started = events
+            .iter()
+            .find(|e| e["event"] == "clock_started")
+            .unwrap();
+        ticks_0.insert(started["tick0_monotonic_ns"].as_u64().unwrap());
+    }
+    assert_eq!(ticks_0.len(), 1, "one tick 0 for every robot: {ticks_0:?}");
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }

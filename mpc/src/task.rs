@@ -54,8 +54,11 @@ pub struct MpcTask {
     perception_ticks: Option<u64>,
     /// The tick of the newest tracks heard.
     tracks_tick: Option<u64>,
-    /// Half an inner tick, s: how long after a sample's time its tracks are waited for.
+    /// How long after a sample's time its tracks are waited for, s: half an inner tick,
+    /// and a quarter sample for the first tracks (a tracker that has just started, on a
+    /// machine where a fleet's every process starts at once, is slow to its first).
     tracks_grace_s: f64,
+    first_tracks_grace_s: f64,
     /// The run's scenario, to build the MPC anew for a goal set while the run drives.
     scenario: Validated,
     /// The serial of that goal (0: none, `robot.goal`).
@@ -95,6 +98,7 @@ impl Task for MpcTask {
                 .then(|| scenario.perception_ticks()),
             tracks_tick: None,
             tracks_grace_s: 0.5 * scenario.timing.dt_s(),
+            first_tracks_grace_s: 0.25 * scenario.timing.ts_s,
             scenario: scenario.clone(),
             goal_serial: 0,
             newest_tracks: None,
@@ -158,7 +162,11 @@ impl Task for MpcTask {
             let tick = estimate.header.tick;
             let due = tick - tick % period;
             if self.tracks_tick.is_none_or(|t| t < due) {
-                if !context.is_past(estimate.header.time_s + self.tracks_grace_s) {
+                let grace_s = match self.tracks_tick {
+                    Some(_) => self.tracks_grace_s,
+                    None => self.first_tracks_grace_s,
+                };
+                if !context.is_past(estimate.header.time_s + grace_s) {
                     return None; // the tracks of `due` are on their way
                 }
                 if self.tracks_tick.is_none() {

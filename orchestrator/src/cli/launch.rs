@@ -154,13 +154,10 @@ pub(super) fn run(args: RunArgs, quiet: bool) -> CliResult {
 }
 
 /// `scmpc run` of a fleet (`[[robots]]`, docs/fleet.md): in process, or as role processes
-/// in lockstep (not yet in real time).
+/// in lockstep or in real time.
 fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliResult {
     if args.mode == Mode::Realtime {
-        return Err(bad_input(
-            "a fleet (`[[robots]]`) runs in lockstep so far: drop --mode realtime \
-             (docs/fleet.md, \"Left out\")",
-        ));
+        run::scheduling::check(&scenario.realtime).map_err(bad_input)?;
     }
     let prefix = (args.prefix.clone()).unwrap_or_else(runtime::ipc::new_prefix);
     runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
@@ -175,7 +172,16 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
     };
     let summary = match args.in_process {
         true => run::fleet::run(&scenario, &out, recording, &stop),
-        false => multiproc::fleet::run(&scenario, &out, &prefix, recording, &stop),
+        false => {
+            let awake = (args.keep_cores_awake)
+                .then(run::awake::AwakeCores::start)
+                .transpose()
+                .context("keeping the cores awake")?;
+            let mode = args.mode.into();
+            let ran = multiproc::fleet::run(&scenario, &out, mode, &prefix, recording, &stop);
+            drop(awake);
+            ran
+        }
     }
     .with_context(|| format!("run of the fleet `{}`", scenario.name))?;
     if let Err(e) = study::figures::fleet_plots(&out, &scenario) {

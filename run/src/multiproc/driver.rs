@@ -163,6 +163,47 @@ impl<'a> Driver<'a> {
         Ok((position, self.record_slot(tick, slot)?.or(no_route)))
     }
 
+    /// Real time, a fleet's: starts the clock, tick 0 at monotonic `start_ns`.
+    pub fn start_at(&mut self, start_ns: u64) -> anyhow::Result<()> {
+        self.parts.session.start(start_ns)?;
+        self.parts.recorder.event(Event::ClockStarted {
+            tick0_monotonic_ns: start_ns,
+        })?;
+        Ok(())
+    }
+
+    /// Real time, a fleet's: takes what came, checks the processes, and records (when
+    /// `recording`, else drops) every tick due, handing each tick's true position to
+    /// `seen`. An outcome when the robot's record ends or its run must end.
+    pub fn record_due(
+        &mut self,
+        recording: bool,
+        seen: &mut impl FnMut(u64, [f64; 2]),
+    ) -> anyhow::Result<Option<Outcome>> {
+        self.take_now()?;
+        if let Some(outcome) = self.check()? {
+            return Ok(Some(outcome));
+        }
+        let planned = match recording {
+            true => self.intake.record_plans(self.parts.recorder)?,
+            false => {
+                self.intake.drop_plans();
+                None
+            }
+        };
+        let mut outcome = planned;
+        while let Some(slot) = self.intake.next_due(self.parts.recorder)? {
+            let tick = self.intake.cursor - 1;
+            if let Some(truth) = &slot.truth {
+                seen(tick, [truth.pose[0], truth.pose[1]]);
+            }
+            if recording && outcome.is_none() {
+                outcome = self.record_slot(tick, slot)?;
+            }
+        }
+        Ok(outcome)
+    }
+
     /// Lockstep: holds the clock while a replacement has not joined the run, so that a
     /// swap comes at the same simulated time however long its process takes to start (on
     /// another host, longer than the rest of a short run takes in lockstep). A replacement

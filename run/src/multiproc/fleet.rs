@@ -1,4 +1,4 @@
-//! A fleet across processes, in lockstep (docs/fleet.md): one set of role processes per
+//! A fleet across processes, in lockstep or in real time (docs/fleet.md): one set of role processes per
 //! robot, each with its robot's id (its services under `robot<id>/`), all reading the
 //! fleet's `scenario.toml` and driving their robot's member. One driver per robot
 //! ([`Driver`]) keeps its session, children and record; this loop grants tick `j` to
@@ -12,7 +12,7 @@
 
 use super::driver::Driver;
 use super::session::Session;
-use super::{POLL, STOP_TIMEOUT, TICK_TIMEOUT, remove_dead_runs, wait_until_ready};
+use super::{POLL, START_LEAD, STOP_TIMEOUT, TICK_TIMEOUT, remove_dead_runs, wait_until_ready};
 use crate::children::{Children, LOG_DIR};
 use crate::sinks::Recording;
 use anyhow::{Context, bail};
@@ -22,9 +22,10 @@ use record::fleet::{FleetJudge, FleetSummary};
 use record::judge::Outcome;
 use record::{ProcessReport, Recorder};
 use runtime::clock::RunMode;
+use runtime::clock::monotonic_ns;
 use runtime::ipc;
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Each robot's part of the run, by robot id: its member's scenario, its session, its
@@ -44,6 +45,7 @@ struct Robots {
 pub fn run(
     scenario: &Validated,
     out: &Path,
+    mode: RunMode,
     prefix: &str,
     recording: Recording,
     stop: &AtomicBool,
@@ -56,7 +58,7 @@ pub fn run(
     std::fs::write(&scenario_file, scenario.to_toml())
         .with_context(|| format!("writing {}", scenario_file.display()))?;
     ipc::register_run(prefix, out).context("registering the run")?;
-    let result = drive(scenario, out, prefix, recording, stop, started);
+    let result = drive(scenario, out, (mode, prefix), recording, stop, started);
     if let Err(e) = ipc::end_run(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
@@ -71,7 +73,7 @@ pub fn run(
 fn open_robots(
     scenario: &Validated,
     out: &Path,
-    prefix: &str,
+    (mode, prefix): (RunMode, &str),
     recording: Recording,
     robots: &mut Robots,
 ) -> anyhow::Result<()> {
@@ -86,13 +88,13 @@ fn open_robots(
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let dir = out.join(format!("robot{id}"));
         let mut recorder = crate::sinks::recorder(&member, &dir, recording)?;
-        let session = Session::open_for(prefix, &member, RunMode::Lockstep, id as u32)?;
+        let session = Session::open_for(prefix, &member, mode, id as u32)?;
         let control = session.control.publisher_id();
         let children = Children::new(
             &out.join("scenario.toml"),
             prefix,
             id as u32,
-            RunMode::Lockstep,
+            mode,
             control,
             Vec::new(),
             None,
@@ -120,14 +122,18 @@ fn open_robots(
 fn drive(
     scenario: &Validated,
     out: &Path,
-    prefix: &str,
+    (mode, prefix): (RunMode, &str),
     recording: Recording,
     stop: &AtomicBool,
     started: Instant,
 ) -> anyhow::Result<FleetSummary> {
     let mut robots = Robots::default();
-    let opened = open_robots(scenario, out, prefix, recording, &mut robots);
-    let driven = opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, stop));
+    let opened = open_robots(scenario, out, (mode, prefix), recording, &mut robots);
+    // Real time: the orchestrator's recording at its tier, below every role.
+    let _recording_tier = (mode == RunMode::Realtime)
+        .then(|| crate::scheduling::orchestrator(&scenario.realtime))
+        .flatten();
+    let driven = opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, mode, stop));
     for session in &robots.sessions {
         let _ = session.command(ControlCommand::Stop);
     }
@@ -137,6 +143,7 @@ fn drive(
         recorders,
         ..
     } = robots;
+    let processes: Vec<ProcessReport> = children.iter().map(processes_of).collect();
     let exits: Vec<_> = (children.into_iter())
         .map(|mut c| c.shut_down(STOP_TIMEOUT))
         .collect();
@@ -146,11 +153,22 @@ fn drive(
     let mut summaries = Vec::with_capacity(outcomes.len());
     let mut deadlocks = Vec::with_capacity(outcomes.len());
     let signal = crate::stop::received();
-    for ((((scenario, exits), mut recorder), outcome), report) in ended.zip(outcomes).zip(reports) {
+    let reports = reports.into_iter().zip(processes);
+    for ((((scenario, exits), mut recorder), outcome), (mut report, processes)) in
+        ended.zip(outcomes).zip(reports)
+    {
+        report.pids = processes.pids;
+        report.peak_rss_kib = processes.peak_rss_kib;
         super::record_exits(&mut recorder, exits)?;
         deadlocks.push(recorder.deadlocks_broken());
-        let summary =
-            recorder.finish(&scenario, "lockstep", outcome, wall_s, Some(report), signal)?;
+        let summary = recorder.finish(
+            &scenario,
+            mode.as_str(),
+            outcome,
+            wall_s,
+            Some(report),
+            signal,
+        )?;
         summaries.push(summary);
     }
     Ok(FleetSummary::of(
@@ -162,6 +180,20 @@ fn drive(
     ))
 }
 
+/// The pids of a robot's processes (and the orchestrator's) and their peak resident
+/// memory so far.
+fn processes_of(children: &Children) -> ProcessReport {
+    let mut report = ProcessReport::default();
+    report
+        .pids
+        .insert("orchestrator".into(), std::process::id());
+    for p in &children.list {
+        report.pids.insert(p.role.as_str().into(), p.pid());
+    }
+    super::record_peak_rss(children, &mut report);
+    report
+}
+
 type Driven = (Vec<Outcome>, FleetJudge, Vec<ProcessReport>, f64);
 
 /// Waits until every robot's processes are ready, then grants, waits for, records and
@@ -170,6 +202,7 @@ fn drive_opened(
     scenario: &Validated,
     prefix: &str,
     robots: &mut Robots,
+    mode: RunMode,
     stop: &AtomicBool,
 ) -> anyhow::Result<Driven> {
     let Robots {
@@ -208,26 +241,22 @@ fn drive_opened(
     let radii = (0..scenario.robot_count())
         .map(|id| scenario.radius_of(id))
         .collect();
-    let mut judge = FleetJudge::new(radii);
-    let mut outcomes: Vec<Option<Outcome>> = vec![None; drivers.len()];
-    let mut positions = vec![[0.0; 2]; drivers.len()];
-    let dt_s = scenario.timing.dt_s();
-    let ticks = scenario.tick_count();
-    let mut tick = 0;
-    let driven = loop {
-        match lockstep_tick(&mut drivers, &mut outcomes, &mut positions, &waitset, tick) {
-            Ok(true) => {}
-            Ok(false) => break Ok(()),
-            Err(e) => break Err(e),
-        }
-        if tick < ticks {
-            judge.tick(&positions, dt_s);
-        }
-        if outcomes.iter().all(Option::is_some) || tick == ticks {
-            break Ok(());
-        }
-        tick += 1;
+    let mut fleet = Fleet {
+        judge: FleetJudge::new(radii),
+        starts: (scenarios.iter())
+            .map(|s| [s.robot.start[0], s.robot.start[1]])
+            .collect(),
+        outcomes: vec![None; drivers.len()],
+        dt_s: scenario.timing.dt_s(),
+        ticks: scenario.tick_count(),
     };
+    let driven = match mode {
+        RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, &waitset),
+        RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
+    };
+    let Fleet {
+        judge, outcomes, ..
+    } = fleet;
     let mut reports = Vec::with_capacity(drivers.len());
     let mut ended = Vec::with_capacity(drivers.len());
     for (driver, outcome) in drivers.into_iter().zip(&outcomes) {
@@ -237,23 +266,154 @@ fn drive_opened(
         };
         let outcome = driven
             .as_ref()
-            .map(|()| outcome.unwrap_or(Outcome::Interrupted))
+            .map(|_| outcome.unwrap_or(Outcome::Interrupted))
             .map_err(|e| anyhow::anyhow!("{e:#}"));
         ended.push(driver.finish(outcome, &mut report)?);
         reports.push(report);
     }
-    driven?;
+    let simulated_s = driven?;
     drop(guards);
-    Ok((ended, judge, reports, (tick + 1).min(ticks) as f64 * dt_s))
+    Ok((ended, judge, reports, simulated_s))
+}
+
+/// The fleet as it is driven: the judge of the robots against each other, and each
+/// robot's outcome once its record has ended.
+struct Fleet {
+    judge: FleetJudge,
+    /// Where each robot starts, m.
+    starts: Vec<[f64; 2]>,
+    outcomes: Vec<Option<Outcome>>,
+    dt_s: f64,
+    ticks: u64,
+}
+
+/// Lockstep: every robot's tick granted, whole and recorded before the next, until every
+/// robot's record has ended; the time simulated, s.
+fn lockstep(
+    drivers: &mut [Driver],
+    fleet: &mut Fleet,
+    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+) -> anyhow::Result<f64> {
+    let mut positions = vec![[0.0; 2]; drivers.len()];
+    let mut tick = 0;
+    loop {
+        if !lockstep_tick(drivers, &mut fleet.outcomes, &mut positions, waitset, tick)? {
+            break;
+        }
+        if tick < fleet.ticks {
+            fleet.judge.tick(&positions, fleet.dt_s);
+        }
+        if fleet.outcomes.iter().all(Option::is_some) || tick == fleet.ticks {
+            break;
+        }
+        tick += 1;
+    }
+    Ok((tick + 1).min(fleet.ticks) as f64 * fleet.dt_s)
+}
+
+/// Real time: every robot's clock started at the same tick 0, and each robot's ticks
+/// recorded as they complete, the robots judged against each other tick by tick once every
+/// robot still recorded has come that far, until every robot's record has ended (or 5 s
+/// after the run's end); the time simulated, s. A robot whose run aborts (a process lost
+/// with no restart left) ends its record; its DFL brakes it, and the others drive on.
+fn realtime(
+    drivers: &mut [Driver],
+    fleet: &mut Fleet,
+    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    stop: &AtomicBool,
+) -> anyhow::Result<f64> {
+    let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
+    for driver in drivers.iter_mut() {
+        driver.start_at(start_ns)?;
+    }
+    let give_up_ns = start_ns + (fleet.ticks as f64 * fleet.dt_s * 1e9) as u64 + 5_000_000_000;
+    let mut seen = SeenTicks::new(&fleet.starts);
+    while fleet.outcomes.iter().any(Option::is_none) {
+        if stop.load(Ordering::Relaxed) {
+            end(&mut fleet.outcomes, 0, Outcome::Interrupted);
+            break;
+        }
+        if monotonic_ns() > give_up_ns {
+            bail!("the fleet's run did not finish within 5 s after its end: a process hung");
+        }
+        ipc::wait(waitset, POLL)?;
+        for (id, driver) in drivers.iter_mut().enumerate() {
+            let recording = fleet.outcomes[id].is_none();
+            let outcome = driver.record_due(recording, &mut |tick, p| seen.see(id, tick, p))?;
+            match outcome {
+                Some(Outcome::Interrupted) => {
+                    end(&mut fleet.outcomes, id, Outcome::Interrupted);
+                }
+                Some(outcome) => {
+                    seen.gone[id] |= outcome == Outcome::Aborted;
+                    fleet.outcomes[id].get_or_insert(outcome);
+                }
+                None => {}
+            }
+        }
+        seen.judge(&mut fleet.judge, fleet.ticks, fleet.dt_s);
+    }
+    Ok(seen.judged.min(fleet.ticks) as f64 * fleet.dt_s)
+}
+
+/// Real time: each robot's true positions by tick as its ticks are recorded, until every
+/// robot has come that far ([`SeenTicks::judge`]).
+struct SeenTicks {
+    by_tick: std::collections::BTreeMap<u64, Vec<Option<[f64; 2]>>>,
+    /// The newest tick seen of each robot.
+    newest: Vec<Option<u64>>,
+    /// Each robot's position at the last tick judged (at first its start).
+    last: Vec<[f64; 2]>,
+    /// Robots no longer waited for (their run aborted): they stay where last seen.
+    gone: Vec<bool>,
+    /// Ticks judged so far.
+    judged: u64,
+}
+
+impl SeenTicks {
+    fn new(starts: &[[f64; 2]]) -> SeenTicks {
+        SeenTicks {
+            by_tick: std::collections::BTreeMap::new(),
+            newest: vec![None; starts.len()],
+            last: starts.to_vec(),
+            gone: vec![false; starts.len()],
+            judged: 0,
+        }
+    }
+
+    fn see(&mut self, id: usize, tick: u64, position: [f64; 2]) {
+        let robots = self.newest.len();
+        let entry = self
+            .by_tick
+            .entry(tick)
+            .or_insert_with(|| vec![None; robots]);
+        entry[id] = Some(position);
+        self.newest[id] = self.newest[id].max(Some(tick));
+    }
+
+    /// Judges every tick up to the newest every robot still waited for has reached; a
+    /// robot without that tick (a tick lost) counts where it was at the tick before.
+    fn judge(&mut self, judge: &mut FleetJudge, ticks: u64, dt_s: f64) {
+        let waited = (self.newest.iter().zip(&self.gone)).filter(|(_, gone)| !**gone);
+        let Some(reached) = waited.map(|(newest, _)| *newest).min().flatten() else {
+            return;
+        };
+        while self.judged <= reached && self.judged < ticks {
+            let seen = self.by_tick.remove(&self.judged).unwrap_or_default();
+            for (last, known) in self.last.iter_mut().zip(seen) {
+                *last = known.unwrap_or(*last);
+            }
+            judge.tick(&self.last, dt_s);
+            self.judged += 1;
+        }
+    }
 }
 
 /// Ends robot `id`'s record with `outcome`. False: the fleet's run must end, as the robot's
 /// pipeline cannot go on (aborted) or the run was interrupted; the others' records end
 /// interrupted.
 fn end(outcomes: &mut [Option<Outcome>], id: usize, outcome: Outcome) -> bool {
-    if outcomes[id].is_none() || outcome == Outcome::Interrupted {
-        outcomes[id] = Some(outcome);
-    }
+    outcomes[id].get_or_insert(outcome);
     if outcome == Outcome::Interrupted || outcome == Outcome::Aborted {
         for o in outcomes.iter_mut().filter(|o| o.is_none()) {
             *o = Some(Outcome::Interrupted);
