@@ -19,6 +19,11 @@ pub struct FleetRobot {
     /// Radius of its footprint, m; default `robot.radius_m`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radius_m: Option<f64>,
+    /// Its input box, m/s^2 (what `mpc.v_max` is to a robot alone: the bound on its flat
+    /// outputs' acceleration); default `mpc.v_max`. The others take every robot to
+    /// accelerate up to the fleet's largest ([`Scenario::peer_accel_max`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub v_max: Option<f64>,
     /// Faults injected into its pipeline alone (`[robots.fault]`, the keys of `[fault]`);
     /// default: the scenario's `[fault]`, as every robot's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -33,6 +38,7 @@ impl FleetRobot {
             start,
             goal,
             radius_m: None,
+            v_max: None,
             fault: None,
         }
     }
@@ -68,6 +74,7 @@ impl Scenario {
             member.robot.start = robot.start;
             member.robot.goal = robot.goal;
             member.robot.radius_m = self.radius_of(id);
+            member.mpc.v_max = robot.v_max.unwrap_or(self.mpc.v_max);
             member.seed = self.seed.wrapping_add(id as u64);
             member.fleet_id = Some(id);
             if let Some(fault) = &robot.fault {
@@ -84,10 +91,15 @@ impl Scenario {
             .unwrap_or(self.robot.radius_m)
     }
 
-    /// The bound on another robot's acceleration, m/s^2: its input box `mpc.v_max` along
-    /// both axes (its flat outputs' acceleration, which the DFL realizes), `sqrt(2) v_max`.
+    /// The bound on another robot's acceleration, m/s^2: its input box along both axes
+    /// (its flat outputs' acceleration, which the DFL realizes), `sqrt(2) v_max`, with the
+    /// largest `v_max` of the fleet's robots (`robots.<i>.v_max`, else `mpc.v_max`), so
+    /// that one bound holds for every robot a track may be.
     pub fn peer_accel_max(&self) -> f64 {
-        std::f64::consts::SQRT_2 * self.mpc.v_max
+        let v_max = (self.robots.iter())
+            .map(|r| r.v_max.unwrap_or(self.mpc.v_max))
+            .fold(self.mpc.v_max, f64::max);
+        std::f64::consts::SQRT_2 * v_max
     }
 
     /// `[[robots]]`: each robot's values, the room between them, each robot in the world
@@ -110,6 +122,9 @@ impl Scenario {
             v.finite_all(&format!("robots.{i}.goal"), &robot.goal.position);
             if let Some(radius) = robot.radius_m {
                 v.non_negative(&format!("robots.{i}.radius_m"), radius);
+            }
+            if let Some(v_max) = robot.v_max {
+                self.check_own_v_max(v, i, v_max);
             }
             let mut member = Validator {
                 origin: v.origin,
@@ -172,6 +187,24 @@ impl Scenario {
         }
     }
 
+    /// Robot `i`'s own input box: positive, and delivering the brake's deceleration when
+    /// `dfl.brake_decel` is set (as `mpc.v_max` must).
+    fn check_own_v_max(&self, v: &mut Validator, i: usize, v_max: f64) {
+        let key = format!("robots.{i}.v_max");
+        v.positive(&key, v_max);
+        if let super::AutoOr::Value(decel) = self.dfl.brake_decel
+            && decel > v_max
+        {
+            v.fail(
+                &key,
+                format!(
+                    "{v_max} m/s^2 delivers less than the brake's dfl.brake_decel = {decel} \
+                     m/s^2; give at least that, or set dfl.brake_decel = \"auto\""
+                ),
+            );
+        }
+    }
+
     /// No two robots start, or end, within their two radii of each other.
     fn check_room_between_robots(&self, v: &mut Validator) {
         for i in 0..self.robots.len() {
@@ -200,5 +233,39 @@ impl Scenario {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::AutoOr;
+
+    fn swap4() -> Scenario {
+        Scenario::from_toml(include_str!("../../../scenarios/swap4.toml"), "swap4").unwrap()
+    }
+
+    #[test]
+    fn a_robots_own_input_box_is_its_members_and_the_others_take_the_fleets_largest() {
+        let mut fleet = swap4();
+        fleet.robots[1].v_max = Some(2.0);
+        assert_eq!(fleet.member(1).mpc.v_max, 2.0);
+        assert_eq!(fleet.member(0).mpc.v_max, fleet.mpc.v_max);
+        for id in 0..4 {
+            assert_eq!(
+                fleet.member(id).peer_accel_max(),
+                std::f64::consts::SQRT_2 * 2.0
+            );
+        }
+        assert!(fleet.clone().validated("test").is_ok());
+
+        fleet.robots[1].v_max = Some(0.5);
+        fleet.dfl.brake_decel = AutoOr::Value(0.8);
+        let refused = fleet.clone().validated("test").unwrap_err().to_string();
+        assert!(refused.contains("robots.1.v_max"), "{refused}");
+        fleet.robots[1].v_max = Some(-1.0);
+        fleet.dfl.brake_decel = AutoOr::Auto(crate::scenario::Auto::Auto);
+        let refused = fleet.clone().validated("test").unwrap_err().to_string();
+        assert!(refused.contains("robots.1.v_max"), "{refused}");
     }
 }
