@@ -11,7 +11,7 @@ use common::{run_into_tempdir, stderr};
 fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_against_raw_zenoh()
 {
     let _machine = common::machine_alone();
-    let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2"]);
+    let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2", "--swap8-s", "10"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     // It said what it was doing as it went, and how long was left.
     let phases: Vec<String> = (stderr(&out).lines())
@@ -113,8 +113,9 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             2.0,
         ),
         (
-            "swap8 in process (× real time)",
-            number(&["fleet", "swap8_simulated_s"]) / number(&["fleet", "swap8_wall_s"]),
+            "swap8 in lockstep (× real time)",
+            number(&["fleet", "swap8_lockstep", "simulated_s"])
+                / number(&["fleet", "swap8_lockstep", "wall_s"]),
             5.0,
         ),
     ] {
@@ -129,10 +130,20 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
         assert!(t["met"].is_boolean(), "{t}");
     }
     assert!(judged("peak RSS of the mpc, unlocked (MiB)")["met"].is_boolean());
-    // The fleet's `swap8` ran whole: every robot at its goal, none touching another.
-    assert_eq!(number(&["fleet", "swap8_reached"]), 8.0);
-    assert_eq!(number(&["fleet", "swap8_contacts"]), 0.0);
-    assert!(table.contains("swap8 in process"), "{table}");
+    // The fleet's `swap8` ran its first 10 s in process and across processes alike, no
+    // robot touching another.
+    for how in ["swap8_in_process", "swap8_lockstep"] {
+        assert_eq!(number(&["fleet", how, "simulated_s"]), 10.0);
+        assert_eq!(number(&["fleet", how, "contacts"]), 0.0);
+    }
+    assert_eq!(
+        number(&["fleet", "swap8_in_process", "reached"]),
+        number(&["fleet", "swap8_lockstep", "reached"])
+    );
+    assert!(
+        table.contains("swap8 in process") && table.contains("swap8 in lockstep"),
+        "{table}"
+    );
     assert!(table.contains("targets (docs/performance.md)"), "{table}");
     // The lockstep runs alternate with and without run.mcap (the recording's share of the
     // wall time is a target of the report).

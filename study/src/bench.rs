@@ -373,7 +373,7 @@ fn machine() -> String {
 /// Runs the whole benchmark into `out` (run directories and `bench.json`).
 pub fn run(
     out: &Path,
-    realtime_s: f64,
+    (realtime_s, swap8_s): (f64, Option<f64>),
     progress: bool,
     stop: &AtomicBool,
 ) -> anyhow::Result<BenchReport> {
@@ -407,7 +407,7 @@ pub fn run(
     phase.begin("the MPC step by horizon and obstacle count, and field at N = 30");
     let scaling = scaling::measure(&out.join("scaling"), stop)?;
     let field_n30_step_us = scaling::field_n30(&out.join("field-n30"), stop)?;
-    let (moving_obstacles, fleet) = moving_and_fleet(out, &phase, stop)?;
+    let (moving_obstacles, fleet) = moving_and_fleet(out, &phase, swap8_s, stop)?;
     let processes = realtime
         .processes
         .as_ref()
@@ -457,12 +457,13 @@ pub fn run(
 fn moving_and_fleet(
     out: &Path,
     phase: &Phases,
+    swap8_s: Option<f64>,
     stop: &AtomicBool,
 ) -> anyhow::Result<(scaling::MovingCost, fleet::FleetCost)> {
     phase.begin("the cost of moving obstacles");
     let moving = scaling::moving_cost(&out.join("moving"), stop)?;
     phase.begin("the cost of a fleet");
-    Ok((moving, fleet::measure(&out.join("fleet"), stop)?))
+    Ok((moving, fleet::measure(&out.join("fleet"), swap8_s, stop)?))
 }
 
 /// The real-time paper run of `scenario` into `dir` and the raw ping-pong with every core

@@ -88,6 +88,9 @@ pub enum Command {
         /// Length of each real-time run, s.
         #[arg(long, default_value_t = 10.0)]
         realtime_s: f64,
+        /// Length of the `swap8` runs, s [default: until every robot's goal].
+        #[arg(long, value_name = "S")]
+        swap8_s: Option<f64>,
         /// Instead: the real-time paper run beside N CPU-bound processes, with the
         /// real-time policy and without, against the idle machine (docs/performance.md,
         /// "Under load").

@@ -127,9 +127,10 @@ fn dispatch(command: Command, verbosity: Verbosity) -> CliResult {
         Command::Bench {
             out,
             realtime_s,
+            swap8_s,
             load,
             runs,
-        } => bench(out, realtime_s, load, runs, !verbosity.quiet),
+        } => bench(out, (realtime_s, swap8_s), load, runs, !verbosity.quiet),
         Command::BenchBurn => study::bench::load::burn(),
         Command::BenchPong { prefix, zenoh } => bench_pong(prefix, zenoh),
         Command::Host(args) => launch::host(args),
@@ -389,7 +390,7 @@ fn identify(args: IdentifyArgs) -> CliResult {
 /// `scmpc bench`; `progress`: a line as each phase begins.
 fn bench(
     out: Option<PathBuf>,
-    realtime_s: f64,
+    (realtime_s, swap8_s): (f64, Option<f64>),
     load: Option<usize>,
     runs: usize,
     progress: bool,
@@ -398,6 +399,9 @@ fn bench(
         return Err(bad_input(format!(
             "--realtime-s must be positive, got {realtime_s}"
         )));
+    }
+    if swap8_s.is_some_and(|s| !(s.is_finite() && s > 0.0)) {
+        return Err(bad_input("--swap8-s must be positive"));
     }
     if load == Some(0) || runs == 0 {
         return Err(bad_input("--load and --runs must be at least 1"));
@@ -411,7 +415,7 @@ fn bench(
         println!("bench directory: {}", out.display());
         return Ok(());
     }
-    let report = study::bench::run(&out, realtime_s, progress, &stop)?;
+    let report = study::bench::run(&out, (realtime_s, swap8_s), progress, &stop)?;
     print!("{}", report.table());
     println!("bench directory: {}", out.display());
     Ok(())

@@ -1,7 +1,7 @@
 //! What a fleet costs (docs/fleet.md, docs/performance.md): the MPC step of a robot
 //! keeping clear of seven other robots, each a track predicted from its plans, against
 //! the same step with seven discs at rest in their places, and how fast `swap8` runs in
-//! process.
+//! process and in lockstep across processes.
 
 use anyhow::{Context, anyhow};
 use protocol::{FleetRobot, Goal, Obstacle, Scenario};
@@ -11,6 +11,36 @@ use serde::Serialize;
 use std::f64::consts::FRAC_PI_2;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
+
+/// A run of `swap8`: simulated and wall seconds and their ratio, the robots that reached
+/// their goal and the contacts between robots.
+#[derive(Debug, Clone, Serialize)]
+pub struct Swap8Run {
+    pub simulated_s: f64,
+    pub wall_s: f64,
+    pub speedup: f64,
+    pub reached: usize,
+    pub contacts: u64,
+}
+
+impl Swap8Run {
+    fn of(fleet: &record::fleet::FleetSummary) -> Swap8Run {
+        Swap8Run {
+            simulated_s: fleet.simulated_s,
+            wall_s: fleet.wall_s,
+            speedup: fleet.simulated_s / fleet.wall_s.max(1e-9),
+            reached: fleet.reached,
+            contacts: fleet.robot_contacts_moving + fleet.robot_contacts_at_rest,
+        }
+    }
+
+    fn line(&self, how: &str) -> String {
+        format!(
+            "  swap8 {how:<14} {:.1} s in {:.1} s ({:.1}× real time; {} of 8 reached, {} contacts)\n",
+            self.simulated_s, self.wall_s, self.speedup, self.reached, self.contacts
+        )
+    }
+}
 
 /// The other robots of [`FleetCost`]: `(x, y)` where each stands at its goal (m), radius
 /// 0.3 m, either side of the way of robot 0 from (-4, 0) to (9, 0), so that robot 0 passes
@@ -36,35 +66,29 @@ pub struct FleetCost {
     pub static_step_us: Percentiles,
     /// `plans_step_us.p50 / static_step_us.p50`.
     pub ratio_p50: f64,
-    /// `swap8` in process: simulated and wall seconds, and their ratio.
-    pub swap8_simulated_s: f64,
-    pub swap8_wall_s: f64,
-    pub swap8_speedup: f64,
-    /// Robots of `swap8` that reached their goal, and contacts between robots.
-    pub swap8_reached: usize,
-    pub swap8_contacts: u64,
+    /// `swap8` in process, and in lockstep across processes (a process per role and
+    /// robot).
+    pub swap8_in_process: Swap8Run,
+    pub swap8_lockstep: Swap8Run,
 }
 
 impl FleetCost {
     /// Its lines of the bench table.
     pub fn table(&self) -> String {
         format!(
-            "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n  \
-             swap8 in process     {:.1} s in {:.1} s ({:.1}× real time; {} of 8 reached, {} contacts)\n",
+            "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n{}{}",
             self.plans_step_us.p50,
             self.static_step_us.p50,
             self.ratio_p50,
-            self.swap8_simulated_s,
-            self.swap8_wall_s,
-            self.swap8_speedup,
-            self.swap8_reached,
-            self.swap8_contacts
+            self.swap8_in_process.line("in process"),
+            self.swap8_lockstep.line("in lockstep"),
         )
     }
 }
 
-/// Runs the worlds of [`FleetCost`] into `out`.
-pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<FleetCost> {
+/// Runs the worlds of [`FleetCost`] into `out`; `swap8` for its first `swap8_s` seconds
+/// when given, else until every robot's goal.
+pub fn measure(out: &Path, swap8_s: Option<f64>, stop: &AtomicBool) -> anyhow::Result<FleetCost> {
     let valid = |s: Scenario| {
         s.validated("the fleet benchmark")
             .map_err(|e| anyhow!("{e}"))
@@ -79,18 +103,28 @@ pub fn measure(out: &Path, stop: &AtomicBool) -> anyhow::Result<FleetCost> {
     let static_step_us =
         run::inprocess::run(&alone, &out.join("static"), Recording::files(false), stop)?.solve_us;
     run::stop::check(stop)?;
-    let swap8 = run::scenarios::load(Some("swap8"), &[]).map_err(|e| anyhow!("{e}"))?;
-    let swapped = run::fleet::run(&swap8, &out.join("swap8"), Recording::files(false), stop)?;
+    let shorter: Vec<String> = swap8_s
+        .map(|s| format!("duration_s={s}"))
+        .into_iter()
+        .collect();
+    let swap8 = run::scenarios::load(Some("swap8"), &shorter).map_err(|e| anyhow!("{e}"))?;
+    let in_process = run::fleet::run(&swap8, &out.join("swap8"), Recording::files(false), stop)?;
+    run::stop::check(stop)?;
+    let lockstep = run::multiproc::fleet::run(
+        &swap8,
+        &out.join("swap8-lockstep"),
+        runtime::clock::RunMode::Lockstep,
+        &runtime::ipc::new_prefix(),
+        Recording::files(false),
+        stop,
+    )?;
     run::stop::check(stop)?;
     Ok(FleetCost {
         ratio_p50: plans_step_us.p50 / static_step_us.p50.max(1e-9),
         plans_step_us,
         static_step_us,
-        swap8_simulated_s: swapped.simulated_s,
-        swap8_wall_s: swapped.wall_s,
-        swap8_speedup: swapped.simulated_s / swapped.wall_s.max(1e-9),
-        swap8_reached: swapped.reached,
-        swap8_contacts: swapped.robot_contacts_moving + swapped.robot_contacts_at_rest,
+        swap8_in_process: Swap8Run::of(&in_process),
+        swap8_lockstep: Swap8Run::of(&lockstep),
     })
 }
 

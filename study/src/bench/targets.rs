@@ -47,8 +47,8 @@ pub const MOVING_STEP_RATIO: f64 = 2.0;
 /// The MPC step with seven other robots' plans over the same step with seven discs at
 /// rest (p50).
 pub const FLEET_STEP_RATIO: f64 = 2.0;
-/// Simulated seconds per wall second of `swap8` (in process: a fleet runs in process only
-/// so far, docs/fleet.md).
+/// Simulated seconds per wall second of `swap8` in lockstep across processes (a process
+/// per role and robot).
 pub const SWAP8_SPEEDUP: f64 = 5.0;
 /// The pipeline's hop with a live client reading over the same without a live view (p99).
 pub const LIVE_HOP_RATIO: f64 = 1.2;
@@ -152,8 +152,8 @@ fn fleet_targets(fleet: &super::fleet::FleetCost) -> [Target; 2] {
             FLEET_STEP_RATIO,
         ),
         Target::new(
-            "swap8 in process (× real time)",
-            fleet.swap8_speedup,
+            "swap8 in lockstep (× real time)",
+            fleet.swap8_lockstep.speedup,
             false,
             SWAP8_SPEEDUP,
         ),
