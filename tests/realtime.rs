@@ -214,14 +214,14 @@ fn drop_realtime_grant() -> std::io::Result<()> {
 #[test]
 fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
     let _machine = common::machine_alone();
-    // 1.5 Ts on every 20th sample over 20 s: samples 0, 20, ..., 380.
+    // 1.5 Ts on every 10th sample over 10 s: samples 0, 10, ..., 190.
     let dir = tempfile::tempdir().unwrap();
     let args = [
         "run",
         "--mode",
         "realtime",
         "--set",
-        "duration_s=20",
+        "duration_s=10",
         "--set",
         "fault.mpc_delay_ms=75",
     ];
@@ -229,7 +229,7 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
         &args[..],
         &[
             "--set",
-            "fault.mpc_delay_every=20",
+            "fault.mpc_delay_every=10",
             "--out",
             dir.path().to_str().unwrap(),
         ],
@@ -243,7 +243,7 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
         .filter(|e| e["event"] == "deadline_miss")
         .map(|e| e["sample"].as_u64().unwrap())
         .collect();
-    let delayed: Vec<u64> = (0..400).filter(|k| k % 20 == 0).collect();
+    let delayed: Vec<u64> = (0..200).filter(|k| k % 10 == 0).collect();
     assert_eq!(
         flagged, delayed,
         "flagged samples differ from the delayed ones"

@@ -179,8 +179,8 @@ impl Scenario {
                 v.fail(
                     key,
                     "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
-                     command delay among known obstacles at rest, without a lidar, a \
-                     tracker, swaps, hosts or a live view (docs/fleet.md, \"Left out\")"
+                     command delay among known obstacles at rest, without a lidar, tracked \
+                     obstacles, swaps, hosts or a live view (docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }
