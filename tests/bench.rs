@@ -136,10 +136,18 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
         assert_eq!(number(&["fleet", how, "simulated_s"]), 10.0);
         assert_eq!(number(&["fleet", how, "contacts"]), 0.0);
     }
-    assert_eq!(
-        number(&["fleet", "swap8_in_process", "reached"]),
-        number(&["fleet", "swap8_lockstep", "reached"])
-    );
+    for id in 0..8 {
+        let trajectory = |how: &str| {
+            let path = dir
+                .path()
+                .join(format!("fleet/{how}/robot{id}/trajectory.csv"));
+            std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        };
+        assert!(
+            trajectory("swap8") == trajectory("swap8-lockstep"),
+            "robot {id} drove otherwise in lockstep"
+        );
+    }
     assert!(
         table.contains("swap8 in process") && table.contains("swap8 in lockstep"),
         "{table}"

@@ -313,7 +313,7 @@ fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot
 }
 
 #[test]
-fn a_host_clock_3_s_off_is_measured_within_1_ms_and_in_real_time_misses_no_deadline() {
+fn a_host_clock_3_s_off_is_measured_within_1_ms_and_one_ahead_misses_no_deadline_in_real_time() {
     let machine = common::machine_alone();
     // Ahead in real time; behind in lockstep, which measures the clock as it joins alike.
     for (offset_ms, mode) in [(3000.0, "realtime"), (-3000.0_f64, "lockstep")] {

@@ -6,38 +6,52 @@
 //! whole, so that much has always come).
 
 use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
+use std::collections::VecDeque;
 
 /// A robot whose newest solved plan is older than this many samples has stopped
 /// publishing plans: the others go by what the world shows of it ([`Peers::tracks`]).
 pub const SILENT_SAMPLES: u64 = 4;
 
-/// The newest two samples of one kind heard from a robot, with their ticks. Two are
-/// enough: the tracker looks for the newest before its tick, and another robot's process
-/// is never more than that tick ahead.
-#[derive(Debug, Clone, Copy)]
+/// A robot's solved plans kept ([`Recent`]): one a sample.
+const PLANS_KEPT: usize = 4;
+
+/// The newest samples of one kind heard from a robot, with their ticks, oldest first: as
+/// many as a robot publishes in two samples, so that the newest before the tracker's tick
+/// is kept however far another robot's process has run ahead of the tracker (in lockstep
+/// at most to that tick; in real time the tracker, a tier below the control loop, may lag
+/// by a few inner ticks).
+#[derive(Debug, Clone)]
 struct Recent<T> {
-    slots: [Option<(u64, T)>; 2],
+    kept: VecDeque<(u64, T)>,
+    capacity: usize,
 }
 
 impl<T: Copy> Recent<T> {
-    fn new() -> Recent<T> {
-        Recent { slots: [None; 2] }
+    fn new(capacity: usize) -> Recent<T> {
+        Recent {
+            kept: VecDeque::with_capacity(capacity),
+            capacity,
+        }
     }
 
     /// Keeps `value` of tick `tick` if it is newer than every one kept.
     fn push(&mut self, tick: u64, value: T) {
-        if self.slots[1].is_none_or(|(newest, _)| tick > newest) {
-            self.slots = [self.slots[1], Some((tick, value))];
+        if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
+            if self.kept.len() == self.capacity {
+                self.kept.pop_front();
+            }
+            self.kept.push_back((tick, value));
         }
     }
 
-    /// The newest kept of a tick before `tick`.
+    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
+    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick a
+    /// tracker steps, so what it takes never depends on how far the others have come.)
     fn newest_before(&self, tick: u64) -> Option<(u64, T)> {
-        self.slots
-            .iter()
-            .rev()
-            .flatten()
+        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
+        (self.kept.iter().rev())
             .find(|(t, _)| *t < tick)
+            .or(self.kept.front().filter(|_| ran_past))
             .copied()
     }
 }
@@ -96,6 +110,7 @@ impl Peers {
     /// [`Scenario::member`]: protocol::Scenario::member
     pub fn of(scenario: &Validated) -> Option<Peers> {
         let own = scenario.fleet_id?;
+        let ticks_per_sample = scenario.timing.inner_steps;
         let peers = (0..scenario.robots.len())
             .filter(|&id| id != own)
             .map(|id| {
@@ -107,9 +122,9 @@ impl Peers {
                         state: [x, y, theta, scenario.robot.zeta0],
                         sigmas: [0.0; 2],
                     },
-                    truths: Recent::new(),
-                    estimates: Recent::new(),
-                    plans: Recent::new(),
+                    truths: Recent::new(2 * ticks_per_sample + 2),
+                    estimates: Recent::new(2 * ticks_per_sample + 2),
+                    plans: Recent::new(PLANS_KEPT),
                     seen_at: None,
                 }
             })
@@ -118,7 +133,7 @@ impl Peers {
             prediction: PeerPrediction::of(scenario),
             peers,
             noise_std: scenario.perception.noise_std,
-            ticks_per_sample: scenario.timing.inner_steps as u64,
+            ticks_per_sample: ticks_per_sample as u64,
             dt_s: scenario.timing.dt_s(),
         })
     }
@@ -149,7 +164,8 @@ impl Peers {
     /// (time `t_s`), from what it published before `tick`:
     /// - predicted from its newest solved plan ([`PeerPrediction::track`]), uncertain by
     ///   its newest estimate's error;
-    /// - before its first, where its newest estimate (at first its start) puts it;
+    /// - before its first, where its newest estimate puts it; before any is heard, at its
+    ///   start, uncertain by all it may have done since (at `t_s = 0`, nothing);
     /// - once its plans have stopped for [`SILENT_SAMPLES`] (its MPC fails or is gone), where
     ///   the world shows it, as a tracker measuring it would: its true position, at the
     ///   velocity it had since the last perception tick, uncertain by
@@ -158,10 +174,11 @@ impl Peers {
     pub fn tracks(&mut self, tick: u64, t_s: f64, tracks: &mut Tracks) {
         let sample = tick / self.ticks_per_sample;
         for peer in &mut self.peers {
-            let estimate = (peer.estimates.newest_before(tick)).map_or(peer.start, |(_, e)| e);
+            let heard = peer.estimates.newest_before(tick);
+            let estimate = heard.map_or(peer.start, |(_, e)| e);
             let seen = peer.truths.newest_before(tick);
             let track = match peer.plans.newest_before(tick) {
-                Some((_, plan)) if plan.sample + SILENT_SAMPLES >= sample => {
+                Some((_, plan)) if plan.sample.saturating_add(SILENT_SAMPLES) >= sample => {
                     let sigmas = estimate.sigmas;
                     self.prediction
                         .track(peer.id, peer.radius_m, &plan, sigmas, t_s)
@@ -183,6 +200,17 @@ impl Peers {
                         0.5 * prediction.accel_max * prediction.ts_s / kappa,
                     ];
                     prediction.track_seen(peer.id, peer.radius_m, (position, velocity), sigmas)
+                }
+                None if heard.is_none() => {
+                    // Nothing heard of it yet: where it may be since it started, by the
+                    // time now (a tracker restarted mid-run has heard nothing).
+                    let [x, y, theta, zeta] = peer.start.state;
+                    let seen = ([x, y], [zeta * theta.cos(), zeta * theta.sin()]);
+                    let prediction = &self.prediction;
+                    let kappa = prediction.kappa.max(f64::MIN_POSITIVE);
+                    let reach = prediction.accel_max * t_s / kappa;
+                    let sigmas = [reach * t_s, 2.0 * reach];
+                    prediction.track_seen(peer.id, peer.radius_m, seen, sigmas)
                 }
                 None => {
                     let [x, y, theta, zeta] = estimate.state;
@@ -224,15 +252,19 @@ mod tests {
     }
 
     #[test]
-    fn recent_gives_the_newest_before_a_tick_and_keeps_one_ahead() {
-        let mut recent = Recent::new();
-        for tick in [3, 4, 5] {
+    fn recent_gives_the_newest_before_a_tick_and_the_oldest_when_all_are_later() {
+        let mut recent = Recent::new(3);
+        for tick in [3, 4, 5, 6] {
             recent.push(tick, tick);
         }
-        recent.push(4, 40); // older than the newest: ignored
-        assert_eq!(recent.newest_before(5), Some((4, 4)));
+        recent.push(5, 50); // older than the newest: ignored
         assert_eq!(recent.newest_before(6), Some((5, 5)));
-        assert_eq!(recent.newest_before(4), None);
+        assert_eq!(recent.newest_before(7), Some((6, 6)));
+        assert_eq!(
+            recent.newest_before(4),
+            Some((4, 4)),
+            "3 was dropped: the oldest"
+        );
     }
 
     #[test]

@@ -140,6 +140,12 @@ impl<'a> Driver<'a> {
         Ok(self.intake.has_whole(tick))
     }
 
+    /// What was received and not recorded yet ([`Intake::filed`]): a wait made progress
+    /// when it changed.
+    pub fn filed(&self) -> usize {
+        self.intake.filed()
+    }
+
     /// Lockstep, a fleet's: the checks between ticks ([`Driver::check`]); an outcome when
     /// the run must end.
     pub fn check_now(&mut self) -> anyhow::Result<Option<Outcome>> {
@@ -192,7 +198,7 @@ impl<'a> Driver<'a> {
             }
         };
         let mut outcome = planned;
-        while let Some(slot) = self.intake.next_due(self.parts.recorder)? {
+        while let Some(slot) = (self.intake).next_due(recording.then_some(self.parts.recorder))? {
             let tick = self.intake.cursor - 1;
             if let Some(truth) = &slot.truth {
                 seen(tick, [truth.pose[0], truth.pose[1]]);
@@ -273,7 +279,7 @@ impl<'a> Driver<'a> {
                 let now = self.parts.session.clock().now_tick().unwrap_or(0);
                 self.set_requested_goal(now)?;
             }
-            while let Some(slot) = self.intake.next_due(self.parts.recorder)? {
+            while let Some(slot) = self.intake.next_due(Some(self.parts.recorder))? {
                 let tick = self.intake.cursor - 1;
                 match self.record_slot(tick, slot)? {
                     Some(Outcome::Collided) => return Ok(Outcome::Collided),

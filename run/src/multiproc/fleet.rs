@@ -211,6 +211,22 @@ fn drive_opened(
         children,
         recorders,
     } = robots;
+    // Each robot's processes waited for on its own status alone (another's readiness
+    // left unread would wake every wait), then one wait set for the run.
+    for id in 0..sessions.len() {
+        let starting = ipc::waitset(false)?;
+        let _guard = sessions[id].status.attach(&starting)?;
+        wait_until_ready(
+            &scenarios[id],
+            &sessions[id],
+            &starting,
+            &mut children[id],
+            stop,
+        )?;
+        recorders[id].event(Event::Ready(Ready::Run {
+            iceoryx2_prefix: prefix.to_string(),
+        }))?;
+    }
     let waitset = ipc::waitset(false)?;
     let mut guards = Vec::new();
     for session in sessions.iter() {
@@ -218,18 +234,6 @@ fn drive_opened(
         for input in session.inputs() {
             guards.push(ipc::attach(&waitset, input.listener())?);
         }
-    }
-    for id in 0..sessions.len() {
-        wait_until_ready(
-            &scenarios[id],
-            &sessions[id],
-            &waitset,
-            &mut children[id],
-            stop,
-        )?;
-        recorders[id].event(Event::Ready(Ready::Run {
-            iceoryx2_prefix: prefix.to_string(),
-        }))?;
     }
     let parts = scenarios
         .iter()
@@ -298,7 +302,7 @@ fn lockstep(
     let mut tick = 0;
     loop {
         if !lockstep_tick(drivers, &mut fleet.outcomes, &mut positions, waitset, tick)? {
-            break;
+            return Ok(tick as f64 * fleet.dt_s); // tick `tick` never completed
         }
         if tick < fleet.ticks {
             fleet.judge.tick(&positions, fleet.dt_s);
@@ -441,21 +445,28 @@ fn lockstep_tick(
             return Ok(false);
         }
     }
-    // Shared memory first; a robot not whole yet has its wake-ups cleared before the
-    // block, and the processes are checked only when a wait makes no progress.
+    // Shared memory first, then every robot's wake-ups cleared before each block (the
+    // wait set fires while any is left); the processes checked every `POLL`.
     let mut whole = vec![false; drivers.len()];
+    let mut filed = 0;
     let mut last_progress = Instant::now();
+    let mut last_check = Instant::now();
     let mut clear = false;
     loop {
         for (id, driver) in drivers.iter_mut().enumerate() {
-            if !whole[id] {
-                whole[id] = driver.poll_whole(tick, clear)?;
-            }
+            whole[id] = driver.poll_whole(tick, clear)?;
         }
         if whole.iter().all(|w| *w) {
             break;
         }
-        if clear && ipc::wait(waitset, POLL)? == ipc::Wake::Timeout {
+        let now_filed: usize = drivers.iter().map(Driver::filed).sum();
+        if now_filed != filed {
+            (filed, last_progress) = (now_filed, Instant::now());
+        } else if last_progress.elapsed() > TICK_TIMEOUT {
+            bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+        }
+        if last_check.elapsed() >= POLL {
+            last_check = Instant::now();
             for (id, driver) in drivers.iter_mut().enumerate() {
                 if let Some(outcome) = driver.check_now()?
                     && !end(outcomes, id, outcome)
@@ -463,11 +474,9 @@ fn lockstep_tick(
                     return Ok(false);
                 }
             }
-            if last_progress.elapsed() > TICK_TIMEOUT {
-                bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
-            }
-        } else {
-            last_progress = Instant::now();
+        }
+        if clear {
+            ipc::wait(waitset, POLL)?;
         }
         clear = true;
     }

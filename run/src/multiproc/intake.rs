@@ -216,8 +216,12 @@ impl Intake {
     }
 
     /// Real time: the next tick to record, if it is whole or overdue (its truth is two
-    /// samples old): `Some(None)` for a tick lost (counted as a record gap).
-    pub fn next_due(&mut self, recorder: &mut Recorder) -> anyhow::Result<Option<TickSlot>> {
+    /// samples old): a tick lost is counted as a record gap, and recorded as one, when
+    /// there is a `recorder` (a fleet's robot whose record has ended has none).
+    pub fn next_due(
+        &mut self,
+        recorder: Option<&mut Recorder>,
+    ) -> anyhow::Result<Option<TickSlot>> {
         let tick = self.cursor;
         let overdue = self
             .newest_truth
@@ -230,7 +234,9 @@ impl Intake {
             return Ok(None);
         }
         let slot = self.take_slot(tick);
-        if tick < self.ticks && !complete && !slot.commanded() {
+        if let Some(recorder) =
+            recorder.filter(|_| tick < self.ticks && !complete && !slot.commanded())
+        {
             self.record_gaps += 1;
             recorder.event(Event::RecordGap {
                 tick,

@@ -286,14 +286,17 @@ pub(super) fn clean_dead_nodes(
     recorder: &mut Recorder,
     exited: Option<(Role, u32)>,
 ) -> anyhow::Result<usize> {
-    let names = ipc::cleanup_dead_nodes(&children.prefix).unwrap_or_default();
+    // In a fleet each robot's supervisor cleans its own robot's nodes (the first robot's
+    // those of no role too), so that each sees the deaths of its own.
+    let robot = children.robot();
+    let ours = |name: &str| {
+        ipc::role_of_node(name).map_or(robot == protocol::FIRST_ROBOT, |(r, _, _)| r == robot)
+    };
+    let names = ipc::cleanup_dead_nodes_of(&children.prefix, ours).unwrap_or_default();
     for name in &names {
-        let Some((robot, role, epoch)) = ipc::role_of_node(name) else {
+        let Some((_, role, epoch)) = ipc::role_of_node(name) else {
             continue;
         };
-        if robot != children.robot() {
-            continue; // another robot's of a fleet: its own supervisor's
-        }
         if exited == Some((role, epoch)) {
             continue;
         }

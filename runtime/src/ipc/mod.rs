@@ -42,17 +42,24 @@ pub const MAX_SUBSCRIBERS: usize = 8;
 /// The robots of the run this process takes part in ([`admit_robots`]).
 static ROBOTS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(1);
 
-/// Makes the topics this process opens from now on admit the subscribers of a run of
-/// `robots` robots: [`MAX_SUBSCRIBERS`] and one for each other robot. Every process of a
+/// Makes the topics this process opens from now on admit the subscribers (and their
+/// nodes and listeners) of a run of `robots` robots: one more for each other robot. Every process of a
 /// fleet's run calls it before it opens a topic, so whichever creates a topic makes room
 /// for all (a process that does not, such as `scmpc echo`, asks for less, which opens).
 pub fn admit_robots(robots: usize) {
     ROBOTS.store(robots.max(1), std::sync::atomic::Ordering::Relaxed);
 }
 
-fn max_subscribers() -> usize {
-    MAX_SUBSCRIBERS + ROBOTS.load(std::sync::atomic::Ordering::Relaxed) - 1
+/// The other robots of the run ([`admit_robots`]): each one's tracker more on a topic.
+fn other_robots() -> usize {
+    ROBOTS.load(std::sync::atomic::Ordering::Relaxed) - 1
 }
+
+/// iceoryx2's defaults for the nodes of a publish-subscribe service and for the nodes and
+/// the listeners of an event service, raised by one for each other robot of a fleet.
+const MAX_PUBSUB_NODES: usize = 20;
+const MAX_EVENT_NODES: usize = 36;
+const MAX_LISTENERS: usize = 16;
 /// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
 pub const SUBSCRIBER_BUFFER: usize = 64;
 /// Every run's resource prefix starts with this.
@@ -203,7 +210,8 @@ fn open_service<T: Wire>(
         } else {
             MAX_PUBLISHERS
         })
-        .max_subscribers(max_subscribers())
+        .max_subscribers(MAX_SUBSCRIBERS + other_robots())
+        .max_nodes(MAX_PUBSUB_NODES + other_robots())
         .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
         .history_size(0)
         .enable_safe_overflow(true);
@@ -213,7 +221,9 @@ fn open_service<T: Wire>(
         pubsub.open().map_err(|e| e.to_string())
     }
     .map_err(|e| IpcError(format!("opening service `{service}`: {e}")))?;
-    let event = node.service_builder(&service_name).event();
+    let event = (node.service_builder(&service_name).event())
+        .max_nodes(MAX_EVENT_NODES + other_robots())
+        .max_listeners(MAX_LISTENERS + other_robots());
     let event = if create {
         event.open_or_create().map_err(|e| e.to_string())
     } else {

@@ -8,6 +8,15 @@ use super::*;
 /// every service): iceoryx2's dead-node detection, which sees a process die whoever
 /// started it. Returns the names of the nodes cleaned.
 pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
+    cleanup_dead_nodes_of(prefix, |_| true)
+}
+
+/// [`cleanup_dead_nodes`] of the dead nodes whose name `ours` takes (a fleet's robot's
+/// supervisor takes its robot's, [`role_of_node`], so that each sees its own deaths).
+pub fn cleanup_dead_nodes_of(
+    prefix: &str,
+    ours: impl Fn(&str) -> bool,
+) -> Result<Vec<String>, IpcError> {
     let config = run_config(prefix)?;
     let mut dead = Vec::new();
     Node::<ipc::Service>::list(&config, |state| {
@@ -24,7 +33,7 @@ pub fn cleanup_dead_nodes(prefix: &str) -> Result<Vec<String>, IpcError> {
             .details()
             .as_ref()
             .map_or_else(String::new, |d| d.name().as_str().to_string());
-        if view.try_remove_stale_resources().is_ok() {
+        if ours(&name) && view.try_remove_stale_resources().is_ok() {
             names.push(name);
         }
     }
