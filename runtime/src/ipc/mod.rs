@@ -476,7 +476,10 @@ impl<T: Wire> Receiver<T> {
         }
         let content = || message.content_rejection().map_or(Ok(()), Err);
         let (Some(role), Some(schedule)) = (self.producer, self.schedule.get()) else {
-            return content().map(|()| EpochVerdict::Take);
+            // Any producer (a fleet's other robot, `Member::peer_input`): what it says,
+            // and its tick against the clock when bound to one.
+            content()?;
+            return self.against_clock(h).map(|()| EpochVerdict::Take);
         };
         let verdict = schedule.judge(role, h.epoch, h.tick);
         if verdict == EpochVerdict::Reject {
@@ -494,23 +497,30 @@ impl<T: Wire> Receiver<T> {
             return Ok(EpochVerdict::Standby);
         }
         content()?;
-        if let Some(limit) = self.limit.get() {
-            // Judged against the clock, refreshed once before a sample is refused: a sample
-            // may overtake the control message that let its producer make it.
-            let ahead = |refresh| limit.newest_tick(refresh).is_none_or(|n| h.tick > n);
-            if ahead(false) && ahead(true) {
-                return Err(Rejection::TickAhead);
-            }
-            let tick_time_s = h.tick as f64 * limit.dt_s();
-            if (h.time_s - tick_time_s).abs() > TIME_TOLERANCE_S {
-                return Err(Rejection::TimeMismatch);
-            }
-        }
+        self.against_clock(h)?;
         if self.last_tick.get().is_some_and(|last| h.tick < last) {
             return Err(Rejection::TickBackwards);
         }
         self.last_tick.set(Some(h.tick));
         Ok(EpochVerdict::Take)
+    }
+
+    /// A sample's tick and time judged against the clock it is bound to, if any
+    /// ([`Receiver::bound_by`]), refreshed once before a sample is refused: a sample may
+    /// overtake the control message that let its producer make it.
+    fn against_clock(&self, h: &protocol::Header) -> Result<(), Rejection> {
+        let Some(limit) = self.limit.get() else {
+            return Ok(());
+        };
+        let ahead = |refresh| limit.newest_tick(refresh).is_none_or(|n| h.tick > n);
+        if ahead(false) && ahead(true) {
+            return Err(Rejection::TickAhead);
+        }
+        let tick_time_s = h.tick as f64 * limit.dt_s();
+        if (h.time_s - tick_time_s).abs() > TIME_TOLERANCE_S {
+            return Err(Rejection::TimeMismatch);
+        }
+        Ok(())
     }
 
     /// Takes samples only from the iceoryx2 publisher `id` from now on (the control topic:

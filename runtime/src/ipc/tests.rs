@@ -62,6 +62,24 @@ fn a_sample_ahead_of_the_clock_or_off_its_tick_time_is_refused_and_moves_nothing
 }
 
 #[test]
+fn a_receiver_of_any_producer_bound_to_a_clock_refuses_a_sample_ahead_of_it() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
+        let other_robot = topic.sender(3).unwrap();
+        let peer = topic.receiver().unwrap();
+        peer.bound_by(Rc::new(FixedClock(100)));
+        other_robot.send(measurement(1_000_000)).unwrap();
+        other_robot.send(measurement(99)).unwrap();
+        let (m, _) = peer.receive().unwrap().unwrap();
+        assert_eq!(
+            m.header.tick, 99,
+            "the forged tick did not hide the next sample"
+        );
+        assert_eq!(refused(peer.take_rejections(), Rejection::TickAhead), 1);
+    });
+}
+
+#[test]
 fn a_sample_from_another_publisher_than_the_pinned_one_is_refused_whatever_its_header() {
     on_fresh_prefix(|node| {
         let topic = open_topic::<Measurement>(node, protocol::FIRST_ROBOT, MEASUREMENT).unwrap();
