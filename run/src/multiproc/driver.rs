@@ -131,7 +131,7 @@ impl<'a> Driver<'a> {
 
     /// Lockstep, a fleet's: whether tick `tick` is whole, taken from shared memory alone
     /// (`clear`: after clearing the wake-ups, as before blocking) without the checks of
-    /// [`Driver::check_now`].
+    /// [`Driver::check`].
     pub fn poll_whole(&mut self, tick: u64, clear: bool) -> anyhow::Result<bool> {
         match clear {
             true => self.take_now()?,
@@ -144,12 +144,6 @@ impl<'a> Driver<'a> {
     /// when it changed.
     pub fn filed(&self) -> usize {
         self.intake.filed()
-    }
-
-    /// Lockstep, a fleet's: the checks between ticks ([`Driver::check`]); an outcome when
-    /// the run must end.
-    pub fn check_now(&mut self) -> anyhow::Result<Option<Outcome>> {
-        self.check()
     }
 
     /// Lockstep, a fleet's: the true position at whole tick `tick`, which is recorded and
@@ -365,7 +359,7 @@ impl<'a> Driver<'a> {
     /// is forgotten, a failed replacement cancels its swap, and a dead active process is
     /// cleaned up after and then replaced by its warming replacement if there is one, else
     /// restarted per the scenario's supervision policy, else the run ends as aborted.
-    fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
+    pub fn check(&mut self) -> anyhow::Result<Option<Outcome>> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }

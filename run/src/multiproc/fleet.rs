@@ -468,7 +468,7 @@ fn lockstep_tick(
         if last_check.elapsed() >= POLL {
             last_check = Instant::now();
             for (id, driver) in drivers.iter_mut().enumerate() {
-                if let Some(outcome) = driver.check_now()?
+                if let Some(outcome) = driver.check()?
                     && !end(outcomes, id, outcome)
                 {
                     return Ok(false);
