@@ -206,11 +206,21 @@ impl PeerPrediction {
     ) -> Track {
         let since_s = (t_s - plan.sample as f64 * self.ts_s).max(0.0);
         let (center, velocity) = plan_state_at(plan, since_s, self.ts_s);
-        let kappa = self.kappa.max(f64::MIN_POSITIVE);
         let [estimate_p, estimate_v] = estimate_sigmas.map(|s| s.max(0.0));
-        let sigma_p = estimate_p + self.accel_max * since_s * since_s / kappa;
-        let sigma_v = estimate_v + 2.0 * self.accel_max * since_s / kappa;
-        self.track_seen(robot, radius_m, (center, velocity), [sigma_p, sigma_v])
+        let [drift_p, drift_v] = self.drift_sigmas(since_s);
+        let sigmas = [estimate_p + drift_p, estimate_v + drift_v];
+        self.track_seen(robot, radius_m, (center, velocity), sigmas)
+    }
+
+    /// How far a robot may have left what was known of it `since_s` ago, accelerating up
+    /// to `accel_max` against it, as `kappa` standard deviations: `[accel_max d^2,
+    /// 2 accel_max d] / kappa` (position m, velocity m/s).
+    pub fn drift_sigmas(&self, since_s: f64) -> [f64; 2] {
+        let kappa = self.kappa.max(f64::MIN_POSITIVE);
+        [
+            self.accel_max * since_s * since_s / kappa,
+            2.0 * self.accel_max * since_s / kappa,
+        ]
     }
 
     /// Robot `robot` as a track where it is seen rather than planned: at `center` with

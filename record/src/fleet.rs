@@ -165,6 +165,13 @@ impl FleetSummary {
         }
     }
 
+    /// Writes it as `dir/summary.json`, whichever executor ran the fleet.
+    pub fn write(&self, dir: &std::path::Path) -> std::io::Result<()> {
+        let path = dir.join("summary.json");
+        std::fs::write(&path, serde_json::to_string_pretty(self)? + "\n")
+            .map_err(|e| std::io::Error::new(e.kind(), format!("writing {}: {e}", path.display())))
+    }
+
     /// Whether every robot reached its goal without touching another.
     pub fn all_reached(&self) -> bool {
         self.reached == self.robots.len() && self.robot_contacts_moving == 0

@@ -84,9 +84,7 @@ pub fn run(
     let deadlocks: Vec<u64> = members.iter().map(|m| m.deadlocks_broken).collect();
     let simulated_s = timing.tick_time_s(tick);
     let summary = FleetSummary::of(&summaries, &judge, &deadlocks, simulated_s, wall_s);
-    let path = out.join("summary.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
-        .with_context(|| format!("writing {}", path.display()))?;
+    summary.write(out)?;
     Ok(summary)
 }
 

@@ -206,11 +206,8 @@ impl Peers {
                     // time now (a tracker restarted mid-run has heard nothing).
                     let [x, y, theta, zeta] = peer.start.state;
                     let seen = ([x, y], [zeta * theta.cos(), zeta * theta.sin()]);
-                    let prediction = &self.prediction;
-                    let kappa = prediction.kappa.max(f64::MIN_POSITIVE);
-                    let reach = prediction.accel_max * t_s / kappa;
-                    let sigmas = [reach * t_s, 2.0 * reach];
-                    prediction.track_seen(peer.id, peer.radius_m, seen, sigmas)
+                    let sigmas = self.prediction.drift_sigmas(t_s);
+                    (self.prediction).track_seen(peer.id, peer.radius_m, seen, sigmas)
                 }
                 None => {
                     let [x, y, theta, zeta] = estimate.state;

@@ -63,9 +63,7 @@ pub fn run(
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
     let summary = result?;
-    let path = out.join("summary.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
-        .with_context(|| format!("writing {}", path.display()))?;
+    summary.write(out)?;
     Ok(summary)
 }
 
