@@ -2,6 +2,7 @@
 
 mod common;
 
+use common::agent::Agent;
 use common::{events, leftovers, run, run_into_tempdir, stderr, summary, unique_prefix};
 
 /// `swap4`: four robots exchange places through the circle's centre. Every robot reaches
@@ -30,6 +31,19 @@ fn swap4_every_robot_reaches_its_goal_without_contact_after_giving_way() {
     assert_eq!(gave_way, broken, "an event for every deadlock broken");
 }
 
+/// Asserts that each of the first `robots` robots of runs `a` and `b` has the same
+/// `trajectory.csv` and `tracks.csv`, byte for byte.
+fn assert_same_bytes(a: &tempfile::TempDir, b: &tempfile::TempDir, robots: usize) {
+    for id in 0..robots {
+        for file in ["trajectory.csv", "tracks.csv"] {
+            let read = |dir: &tempfile::TempDir| {
+                std::fs::read(dir.path().join(format!("robot{id}")).join(file)).unwrap()
+            };
+            assert!(read(a) == read(b), "robot {id}'s {file} differs");
+        }
+    }
+}
+
 /// In lockstep across processes (a plant, an estimator, a tracker, an MPC and a DFL per
 /// robot, each robot's services under its id) a fleet drives every robot as the fleet in
 /// process does, byte for byte: each robot's tracker hears the others over iceoryx2 from
@@ -52,15 +66,9 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     );
     assert_eq!(summary(lockstep.path())["mode"], "lockstep");
     let mut pids = std::collections::BTreeSet::new();
+    assert_same_bytes(&in_process, &lockstep, 4);
     for id in 0..4 {
         let robot = |dir: &tempfile::TempDir| dir.path().join(format!("robot{id}"));
-        for file in ["trajectory.csv", "tracks.csv"] {
-            let read = |dir| std::fs::read(robot(dir).join(file)).unwrap();
-            assert!(
-                read(&in_process) == read(&lockstep),
-                "robot {id}'s {file} differs"
-            );
-        }
         let spawned: Vec<_> = (events(&robot(&lockstep)).into_iter())
             .filter(|e| e["event"] == "spawned")
             .collect();
@@ -138,6 +146,17 @@ fn a_fleets_bad_input_names_the_robots_key() {
         "perception.kind",
     );
     refused(&["fuzz", "--robots", "3..2"], "--robots");
+    swap4("robots.1.host=\"b c\"", "robots.1.host");
+    swap4("hosts.mpc=\"b\"", "hosts");
+    let b = ["--set", "robots.1.host=\"b\""];
+    refused(
+        &[&["run", "swap4", "--set", "robots.2.host=\"b\""][..], &b].concat(),
+        "robots.2.host",
+    );
+    refused(
+        &[&["run", "swap4"][..], &b].concat(),
+        "host `b`: no endpoint",
+    );
 }
 
 /// A robot whose plans stop (its MPC fails from 3 s on, `[robots.fault]`): its DFL brakes
@@ -220,4 +239,102 @@ fn in_real_time_across_processes_every_robot_keeps_its_deadlines_without_contact
     }
     assert_eq!(ticks_0.len(), 1, "one tick 0 for every robot: {ticks_0:?}");
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+}
+
+/// `tests/fixtures/fleet-across-hosts.toml`: three robots, robots 1 and 2 on hosts `b` and
+/// `c`, each an agent on loopback; the `scmpc run` arguments that place them there.
+fn across_hosts(b: &Agent, c: &Agent) -> Vec<String> {
+    let fixture = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/fleet-across-hosts.toml"
+    );
+    [
+        "run",
+        fixture,
+        "--no-mcap",
+        "--host",
+        &format!("b={}", b.endpoint),
+        "--host",
+        &format!("c={}", c.endpoint),
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+/// In lockstep with robots 1 and 2 on hosts of their own (their trackers, MPCs and route
+/// planners there, every other robot's truth, estimate and plan carried to them over
+/// Zenoh), every robot drives as the fleet in process does, byte for byte.
+#[test]
+fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
+    let _machine = common::machine_shared();
+    let (b, c) = (Agent::plain("b"), Agent::plain("c"));
+    let args = across_hosts(&b, &c);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let short = ["--set", "duration_s=8"];
+    let (in_process, _) = run_into_tempdir(&[&args[..], &["--in-process"], &short].concat());
+    let (lockstep, out) = run_into_tempdir(&[&args[..], &short].concat());
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert_same_bytes(&in_process, &lockstep, 3);
+    let s = summary(&lockstep.path().join("robot1"));
+    assert_eq!(s["hosts"]["mpc"], "b", "{s}");
+    assert_eq!(s["hosts"]["tracker"], "b", "{s}");
+    assert!(s["links"]["b"]["host_bridge"]["received"].as_u64().unwrap() > 1000);
+    let robot0 = summary(&lockstep.path().join("robot0"));
+    assert!(robot0["hosts"].is_null(), "robot 0 runs here: {robot0}");
+}
+
+/// In real time robots 0 and 1 (robot 1 on host `b`) exchange places without a deadline
+/// missed but in a stall of the machine. Robot 2's agent is killed (SIGKILL) 2 s in: its
+/// DFL, beside its plant, brakes it to rest before its record ends `aborted`, and the
+/// other two pass it to their goals without contact. Nothing of the run is left.
+#[test]
+fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent_dies_brakes_to_rest()
+ {
+    let machine = common::machine_alone();
+    let (b, mut c) = (Agent::plain("b"), Agent::plain("c"));
+    let args = across_hosts(&b, &c);
+    let prefix = unique_prefix("fleethosts");
+    let dir = tempfile::tempdir().unwrap();
+    let realtime = ["--mode", "realtime", "--prefix", &prefix];
+    let args: Vec<&str> = args[1..].iter().map(String::as_str).collect();
+    let mut child = common::spawn_run(dir.path(), &[&args[..], &realtime].concat());
+    common::wait_for_pid(&dir.path().join("robot2"), "mpc");
+    common::SimulatedClock::of(&prefix).wait_until(2.0);
+    c.child.kill().unwrap();
+    c.child.wait().unwrap();
+    assert_eq!(
+        child.wait().unwrap().code(),
+        Some(1),
+        "robot 2 cannot reach"
+    );
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["reached"], 2, "{fleet}");
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    assert_eq!(fleet["robot_contacts_at_rest"], 0, "{fleet}");
+    for id in [0, 1] {
+        let robot = dir.path().join(format!("robot{id}"));
+        let s = summary(&robot);
+        assert_eq!(s["outcome"], "reached", "{s}");
+        assert_eq!(s["solver_failures"], 0, "{s}");
+        machine.assert_every_fault_in_a_stall(&events(&robot));
+    }
+    let robot2 = dir.path().join("robot2");
+    assert_eq!(summary(&robot2)["outcome"], "aborted");
+    let ev = events(&robot2);
+    let at = |event: &str| ev.iter().position(|e| e["event"] == event);
+    assert!(at("host_lost") < at("braking_to_rest") && at("host_lost").is_some());
+    let trajectory = common::csv(&robot2.join("trajectory.csv"));
+    let last = &trajectory[trajectory.len() - 10..];
+    let moved = |a: &std::collections::HashMap<String, String>| {
+        let b = &last[9];
+        (common::num(a, "x") - common::num(b, "x")).hypot(common::num(a, "y") - common::num(b, "y"))
+    };
+    assert!(
+        last.iter().all(|row| moved(row) < 1e-9),
+        "robot 2 still moving"
+    );
+    assert!(moved(&trajectory[0]) > 0.2, "robot 2 never drove");
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    c.assert_left_nothing(std::time::Duration::from_secs(3));
+    drop(b);
 }

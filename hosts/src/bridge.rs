@@ -70,14 +70,20 @@ pub struct BridgeSpec {
     pub host: String,
     /// This host's iceoryx2 prefix for the run.
     pub prefix: String,
-    /// The robot whose pipeline's topics it carries ([`protocol::FIRST_ROBOT`] in every
-    /// run today).
+    /// The robot whose pipeline's topics it carries (every run of one robot:
+    /// [`protocol::FIRST_ROBOT`]).
     pub robot: u32,
     pub key: RunKey,
     /// Topics sent, each to the hosts named.
     pub send: BTreeMap<String, Vec<String>>,
     /// Topics received and published on this host.
     pub receive: Vec<String>,
+    /// The other robots' topics a fleet's robot on another host takes (docs/fleet.md,
+    /// "Across hosts"), by robot and topic, sent to the hosts named. Not checked against
+    /// their producers here, as a tracker does not check them.
+    pub peer_send: BTreeMap<(u32, String), Vec<String>>,
+    /// The other robots' topics received and published on this host.
+    pub peer_receive: Vec<(u32, String)>,
     /// The roles on this host, when it is not the orchestrator's: its control is rewritten.
     pub local_roles: Option<Vec<Role>>,
     /// The orchestrator's control publisher, on the orchestrator's host: the only one
@@ -203,12 +209,14 @@ fn receive(
 ) {
     let setup = || -> Result<_, HostError> {
         let node = ipc::create_node(&spec.prefix, &format!("bridge-in-{}", spec.host), false)?;
-        let mut relays: HashMap<String, Box<dyn WireRelay>> = HashMap::new();
-        for topic in &spec.receive {
-            relays.insert(topic.clone(), wire::relay(&node, spec.robot, topic)?);
+        let mut relays: HashMap<(u32, String), Box<dyn WireRelay>> = HashMap::new();
+        let own = spec.receive.iter().map(|topic| (spec.robot, topic.clone()));
+        for (robot, topic) in own.chain(spec.peer_receive.iter().cloned()) {
+            let relay = wire::relay(&node, robot, &topic)?;
+            relays.insert((robot, topic), relay);
         }
         let subscriber = session
-            .declare_subscriber(keys::to_host(&spec.run, &spec.host, spec.robot, "*"))
+            .declare_subscriber(keys::to_host_all(&spec.run, &spec.host))
             .wait()
             .map_err(|e| HostError::Zenoh(format!("subscribing: {e}")))?;
         Ok((node, relays, subscriber))
@@ -223,7 +231,8 @@ fn receive(
     raise(&spec);
     let relay_ids: HashMap<String, u128> = relays
         .iter()
-        .map(|(topic, relay)| (topic.clone(), relay.publisher_id()))
+        .filter(|((robot, _), _)| *robot == spec.robot)
+        .map(|((_, topic), relay)| (topic.clone(), relay.publisher_id()))
         .collect();
     let _ = ready.send(Ok(relay_ids.clone()));
     while !stop.load(Ordering::Relaxed) {
@@ -237,7 +246,9 @@ fn receive(
             counters.refused_tag.fetch_add(1, Ordering::Relaxed);
             continue;
         }
-        let Some(relay) = key_expr.rsplit('/').next().and_then(|t| relays.get(t)) else {
+        let Some(relay) = keys::robot_topic_of(key_expr)
+            .and_then(|(robot, topic)| relays.get(&(robot, topic.to_string())))
+        else {
             continue;
         };
         let mut edit = |value: &mut dyn std::any::Any| {
@@ -310,10 +321,13 @@ struct Held {
 
 type IpcService = iceoryx2::service::ipc::Service;
 
+/// A topic a bridge sends: its robot, its name and the tap it is taken from.
+type Tapped = (u32, String, Box<dyn WireTap>);
+
 /// What [`send_ports`] opens: the node, the taps, the publishers by key, the WaitSet.
 type SendPorts = (
     iceoryx2::node::Node<IpcService>,
-    Vec<(String, Box<dyn WireTap>)>,
+    Vec<Tapped>,
     HashMap<String, zenoh::pubsub::Publisher<'static>>,
     iceoryx2::waitset::WaitSet<IpcService>,
 );
@@ -323,18 +337,28 @@ type SendPorts = (
 /// host, and the WaitSet it waits in.
 fn send_ports(session: &zenoh::Session, spec: &BridgeSpec) -> Result<SendPorts, HostError> {
     let node = ipc::create_node(&spec.prefix, &format!("bridge-out-{}", spec.host), false)?;
-    let mut taps: Vec<(String, Box<dyn WireTap>)> = Vec::new();
-    for topic in spec.send.keys() {
-        taps.push((topic.clone(), wire::tap(&node, spec.robot, topic)?));
-    }
+    let mut taps: Vec<Tapped> = Vec::new();
+    let mut sent: Vec<(u32, &str)> = spec.send.keys().map(|t| (spec.robot, t.as_str())).collect();
     if !spec.send.contains_key(CONTROL) {
         // The schedule pins what goes out.
-        taps.push((CONTROL.to_string(), wire::tap(&node, spec.robot, CONTROL)?));
+        sent.push((spec.robot, CONTROL));
+    }
+    sent.extend(spec.peer_send.keys().map(|(r, t)| (*r, t.as_str())));
+    for (robot, topic) in sent {
+        taps.push((robot, topic.to_string(), wire::tap(&node, robot, topic)?));
     }
     let mut publishers = HashMap::new();
-    for (topic, hosts) in &spec.send {
+    let own = spec
+        .send
+        .iter()
+        .map(|(topic, hosts)| ((spec.robot, topic), hosts));
+    let peers = spec
+        .peer_send
+        .iter()
+        .map(|((r, t), hosts)| ((*r, t), hosts));
+    for ((robot, topic), hosts) in own.chain(peers) {
         for host in hosts {
-            let key = keys::to_host(&spec.run, host, spec.robot, topic);
+            let key = keys::to_host(&spec.run, host, robot, topic);
             let publisher = session
                 .declare_publisher(key.clone())
                 .congestion_control(CongestionControl::Block)
@@ -357,16 +381,17 @@ fn send(
     ready_pins: ReadyPins,
     ready: mpsc::Sender<Result<(), HostError>>,
 ) {
-    let (_node, taps, publishers, waitset) = match send_ports(&session, &spec) {
+    let (_node, mut taps, publishers, waitset) = match send_ports(&session, &spec) {
         Ok(parts) => parts,
         Err(e) => {
             let _ = ready.send(Err(e));
             return;
         }
     };
+    taps.sort_by_key(|(robot, _, _)| *robot == spec.robot);
     let guards: Result<Vec<_>, _> = taps
         .iter()
-        .map(|(_, tap)| waitset.attach_notification(tap.listener()))
+        .map(|(_, _, tap)| waitset.attach_notification(tap.listener()))
         .collect();
     if guards.is_err() {
         let _ = ready.send(Err(HostError::Bridge("attaching a listener".into())));
@@ -383,22 +408,28 @@ fn send(
         rng: rand::rngs::StdRng::seed_from_u64(spec.faults.seed),
     };
     let is_plane = |topic: &str| topic == CONTROL || topic == STATUS;
-    let mut data: Vec<(&str, Vec<u8>, u128)> = Vec::new();
+    let mut data: Vec<(u32, &str, Vec<u8>, u128)> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         let timeout = outbox.send_due();
         if ipc::wait(&waitset, timeout).is_err() {
             break;
         }
         // The data first, then the control: a grant published before a sample is then
-        // sent before it, so no sample reaches another host ahead of its clock.
-        for (topic, tap) in taps.iter().filter(|(t, _)| !is_plane(t)) {
+        // sent before it, so no sample reaches another host ahead of its clock. The other
+        // robots' data before this robot's: in lockstep every other robot's tick `j - 1`
+        // is published before this robot's tick `j` is granted, and so reaches its
+        // tracker before the truth that steps it.
+        // tracker before the truth that steps it (`taps` has them first).
+        for (robot, topic, tap) in taps.iter().filter(|(_, t, _)| !is_plane(t)) {
             tap.clear_wakeups();
-            let taken = tap.take(&mut |bytes, origin| data.push((topic, bytes.to_vec(), origin)));
+            let taken = tap.take(&mut |bytes, origin| {
+                data.push((*robot, topic, bytes.to_vec(), origin));
+            });
             if let Err(e) = taken {
                 tracing::warn!("bridge {}: {topic}: {e}", spec.host);
             }
         }
-        for (topic, tap) in taps.iter().filter(|(t, _)| is_plane(t)) {
+        for (robot, topic, tap) in taps.iter().filter(|(_, t, _)| is_plane(t)) {
             tap.clear_wakeups();
             let taken = tap.take(&mut |bytes, origin| {
                 if topic == CONTROL
@@ -409,14 +440,14 @@ fn send(
                 if topic == STATUS {
                     note_ready(bytes, &ready_pins);
                 }
-                outbox.forward(topic, bytes, origin, &schedule);
+                outbox.forward(*robot, topic, bytes, origin, &schedule);
             });
             if let Err(e) = taken {
                 tracing::warn!("bridge {}: {topic}: {e}", spec.host);
             }
         }
-        for (topic, bytes, origin) in data.drain(..) {
-            outbox.forward(topic, &bytes, origin, &schedule);
+        for (robot, topic, bytes, origin) in data.drain(..) {
+            outbox.forward(robot, topic, &bytes, origin, &schedule);
         }
     }
 }
@@ -431,19 +462,26 @@ struct Outbox<'a> {
 }
 
 impl Outbox<'_> {
-    /// Sends a sample of `topic` to every host it goes to, if its producer sent it and
-    /// the link does not drop it (held for the link's delay, if any).
+    /// Sends a sample of robot `robot`'s `topic` to every host it goes to, if its
+    /// producer sent it (the bridge's robot's topics) and the link does not drop it (held
+    /// for the link's delay, if any).
     fn forward(
         &mut self,
+        robot: u32,
         topic: &str,
         bytes: &[u8],
         origin: u128,
         schedule: &Option<EpochSchedule>,
     ) {
-        let Some(destinations) = self.spec.send.get(topic) else {
+        let own = robot == self.spec.robot;
+        let destinations = match own {
+            true => self.spec.send.get(topic),
+            false => self.spec.peer_send.get(&(robot, topic.to_string())),
+        };
+        let Some(destinations) = destinations else {
             return;
         };
-        if !sent_by_its_producer(topic, bytes, origin, schedule, self.spec) {
+        if own && !sent_by_its_producer(topic, bytes, origin, schedule, self.spec) {
             self.counters.refused_origin.fetch_add(1, Ordering::Relaxed);
             return;
         }
@@ -452,7 +490,7 @@ impl Outbox<'_> {
             return;
         }
         for host in destinations {
-            let key = keys::to_host(&self.spec.run, host, self.spec.robot, topic);
+            let key = keys::to_host(&self.spec.run, host, robot, topic);
             if data && self.spec.faults.delay_ns > 0 {
                 self.held.push_back(Held {
                     due_ns: runtime::clock::monotonic_ns() + self.spec.faults.delay_ns,

@@ -14,6 +14,19 @@ pub fn to_host(run: &str, host: &str, robot: u32, topic: &str) -> String {
     format!("scmpc/run/{run}/to/{host}/robot{robot}/{topic}")
 }
 
+/// Samples of every robot's topics for `host` in `run`.
+pub fn to_host_all(run: &str, host: &str) -> String {
+    format!("scmpc/run/{run}/to/{host}/**")
+}
+
+/// The robot and the topic of a key of [`to_host`].
+pub fn robot_topic_of(key: &str) -> Option<(u32, &str)> {
+    let mut chunks = key.rsplit('/');
+    let topic = chunks.next()?;
+    let robot = chunks.next()?.strip_prefix("robot")?.parse().ok()?;
+    Some((robot, topic))
+}
+
 /// Where the agent of `host` takes the orchestrator's commands for `run`.
 pub fn host_command(run: &str, host: &str) -> String {
     format!("scmpc/run/{run}/host/{host}/command")

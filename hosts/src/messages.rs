@@ -31,6 +31,10 @@ pub struct JoinRequest {
     pub send: Vec<String>,
     /// Topics it receives.
     pub receive: Vec<String>,
+    /// The other robots' topics it receives (a fleet's robot, docs/fleet.md), by robot
+    /// and topic.
+    #[serde(default)]
+    pub peer_receive: Vec<(u32, String)>,
 }
 
 /// An agent's answer to a join request.

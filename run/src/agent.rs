@@ -198,6 +198,8 @@ impl HostRun {
                 .map(|t| (t.clone(), vec![ORCHESTRATOR.to_string()]))
                 .collect(),
             receive: r.receive.clone(),
+            peer_send: Default::default(),
+            peer_receive: r.peer_receive.clone(),
             local_roles: Some(roles),
             control_publisher: None,
             faults: LinkFaults::of(
@@ -212,11 +214,15 @@ impl HostRun {
     /// bridge, the processes' environment, and the topics of commands, exits and liveliness.
     fn join(session: &zenoh::Session, name: &str, r: &JoinRequest) -> anyhow::Result<HostRun> {
         let (scenario, mode, roles, key) = Self::checked(name, r)?;
+        // The topics it opens make room for every robot of a fleet, as everywhere else.
+        ipc::admit_robots(scenario.robot_count());
         let clock = hosts::clock_sync::estimate(session, &r.run)?;
         let prefix = ipc::new_prefix();
         let (dir, scenario_file) = Self::run_dir(name, r, &scenario)?;
         ipc::register_run(&prefix, &dir).context("registering the run")?;
-        let spec = Self::bridge_spec(name, r, &scenario, mode, &prefix, key, roles);
+        // A fleet's robot's faults are its own (`robots.<i>.fault`).
+        let member = scenario.member(r.robot as usize);
+        let spec = Self::bridge_spec(name, r, &member, mode, &prefix, key, roles);
         let bridge = Bridge::start(session, spec)?;
         let control = bridge
             .relay_id(CONTROL)

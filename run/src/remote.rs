@@ -92,14 +92,35 @@ fn watch_hosts(
     Ok((token, exits, alive))
 }
 
+/// The robot whose roles other hosts run: a run's one robot, or one of a fleet's.
+#[derive(Debug, Clone, Copy)]
+pub struct Whose<'a> {
+    pub robot: u32,
+    /// The fleet's scenario, which every process reads (`None`: a run of one robot).
+    pub fleet: Option<&'a Validated>,
+}
+
+impl Whose<'_> {
+    /// The other robots' topics the host of the robot's tracker takes, by robot and topic
+    /// (docs/fleet.md, "Across hosts").
+    fn peer_topics(&self) -> Vec<(u32, String)> {
+        let robots = self.fleet.map_or(1, |f| f.robot_count() as u32);
+        (0..robots)
+            .filter(|other| *other != self.robot)
+            .flat_map(|other| tracker::PEER_TOPICS.map(|t| (other, t.to_string())))
+            .collect()
+    }
+}
+
 impl RemoteHosts {
-    /// Joins every host the scenario places a role on, at `endpoints`, for the run on
-    /// `prefix` whose control publisher is `control_publisher`; starts this host's bridge.
+    /// Joins every host the scenario (`whose` robot's) places a role on, at `endpoints`,
+    /// for the run on `prefix` whose control publisher is `control_publisher`; starts
+    /// this host's bridge.
     pub fn connect(
         scenario: &Validated,
         mode: RunMode,
         prefix: &str,
-        robot: u32,
+        whose: Whose,
         endpoints: &BTreeMap<String, Endpoint>,
         security: &Security,
         control_publisher: u128,
@@ -114,6 +135,12 @@ impl RemoteHosts {
         let running: Vec<Role> = scenario.roles().collect();
         let placement = scenario.hosts.clone();
         let routes = routes::plan(&protocol::graph::Graph::of(scenario), |r| placement.of(r));
+        let robot = whose.robot;
+        // A fleet's robot's tracker takes the other robots' samples where it runs.
+        let (peers, peers_to) = match placement.of(Role::Tracker) {
+            Some(host) => (whose.peer_topics(), vec![host.to_string()]),
+            None => (Vec::new(), Vec::new()),
+        };
         let bridge = Bridge::start(
             &session,
             BridgeSpec {
@@ -124,6 +151,8 @@ impl RemoteHosts {
                 key: key.clone(),
                 send: routes.orchestrator_sends.clone(),
                 receive: routes.orchestrator_receives.clone(),
+                peer_send: (peers.iter().map(|p| (p.clone(), peers_to.clone()))).collect(),
+                peer_receive: Vec::new(),
                 local_roles: None,
                 control_publisher: Some(control_publisher),
                 faults: LinkFaults::of(scenario, scenario.seed),
@@ -139,7 +168,7 @@ impl RemoteHosts {
                 host: name.clone(),
                 mode: mode.as_str().to_string(),
                 robot,
-                scenario_toml: scenario.to_toml(),
+                scenario_toml: whose.fleet.unwrap_or(scenario).to_toml(),
                 roles: running
                     .iter()
                     .filter(|r| placement.of(**r) == Some(name.as_str()))
@@ -147,6 +176,10 @@ impl RemoteHosts {
                     .collect(),
                 send: routes.host_sends.get(&name).cloned().unwrap_or_default(),
                 receive: routes.host_receives.get(&name).cloned().unwrap_or_default(),
+                peer_receive: match peers_to.contains(&name) {
+                    true => peers.clone(),
+                    false => Vec::new(),
+                },
             };
             let link = join_host(&session, &name, &request, endpoints[&name].zenoh())?;
             hosts.insert(name, link);

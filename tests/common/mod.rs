@@ -2,6 +2,7 @@
 
 #![allow(dead_code)]
 
+pub mod agent;
 pub mod python;
 pub mod ros2;
 pub mod stalls;

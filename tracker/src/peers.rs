@@ -8,6 +8,13 @@
 use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
 use std::collections::VecDeque;
 
+/// What a tracker takes of every other robot of its fleet, by topic.
+pub const PEER_TOPICS: [&str; 3] = [
+    protocol::topics::TRUTH,
+    protocol::topics::ESTIMATE,
+    protocol::topics::PLAN,
+];
+
 /// A robot whose newest solved plan is older than this many samples has stopped
 /// publishing plans: the others go by what the world shows of it ([`Peers::tracks`]).
 pub const SILENT_SAMPLES: u64 = 4;

@@ -15,7 +15,7 @@
 
 use crate::{Peers, Perception, Tracker};
 use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
-use protocol::topics::{ESTIMATE, PLAN, SCAN, TRUTH};
+use protocol::topics::{ESTIMATE, SCAN, TRUTH};
 use protocol::{Data, Estimate, FaultConfig, GroundTruth, Header, Role, Scan, Tracks, Validated};
 use std::collections::VecDeque;
 
@@ -106,7 +106,7 @@ impl Task for TrackerTask {
     /// In a fleet, the other robots' truths, estimates and plans.
     fn peer_topics(&self) -> &'static [&'static str] {
         match self.peers {
-            Some(_) => &[TRUTH, ESTIMATE, PLAN],
+            Some(_) => &crate::PEER_TOPICS,
             None => &[],
         }
     }

@@ -163,6 +163,13 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
     runtime::ipc::run_config(&prefix).map_err(|e| bad_input(format!("--prefix: {e}")))?;
     let out =
         (args.out.clone()).unwrap_or_else(|| record::run_dir::default_run_dir(&scenario.name));
+    let hosts = match args.in_process {
+        true => multiproc::HostsSetup::default(),
+        false => {
+            let security = args.security.security()?;
+            hosts_setup(&scenario, &args.hosts, security, args.mode.into())?
+        }
+    };
     let stop = run::stop::on_signals();
     println!("run directory: {}", out.display());
     let recording = run::sinks::Recording {
@@ -178,7 +185,8 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
                 .transpose()
                 .context("keeping the cores awake")?;
             let mode = args.mode.into();
-            let ran = multiproc::fleet::run(&scenario, &out, mode, &prefix, recording, &stop);
+            let ran =
+                multiproc::fleet::run(&scenario, &out, (mode, &prefix), &hosts, recording, &stop);
             drop(awake);
             ran
         }
@@ -255,7 +263,7 @@ fn hosts_setup(
             Endpoint::parse(text).map_err(|e| bad_input(format!("--host {flag}: {e}")))?;
         endpoints.insert(name.to_string(), endpoint);
     }
-    let used = scenario.hosts.names();
+    let used = scenario.host_names();
     for name in &used {
         let endpoint = endpoints.get(name).ok_or_else(|| {
             bad_input(format!(

@@ -248,6 +248,28 @@ fn make_room(doc: &mut toml::Value, key: &str) {
     {
         entry.entry("fault").or_insert(fault);
     }
+    // A robot's keys a document leaves out until they are set, as the robot has them.
+    let own = (key.strip_prefix("robots."))
+        .and_then(|rest| rest.split_once('.'))
+        .and_then(|(i, field)| Some((i.parse::<usize>().ok()?, field)));
+    let value_of = |table: &toml::map::Map<String, toml::Value>, section: &str, key: &str| {
+        table.get(section).and_then(|s| s.get(key)).cloned()
+    };
+    let unset = own.and_then(|(i, field)| {
+        let value = match field {
+            "host" => Some(toml::Value::String(String::new())),
+            "radius_m" => value_of(table, "robot", "radius_m"),
+            "v_max" => value_of(table, "mpc", "v_max"),
+            _ => None,
+        };
+        Some((i, field, value?))
+    });
+    if let (Some(toml::Value::Array(robots)), Some((i, field, value))) =
+        (table.get_mut("robots"), unset)
+        && let Some(toml::Value::Table(entry)) = robots.get_mut(i)
+    {
+        entry.entry(field).or_insert(value);
+    }
     let index = (key.strip_prefix("obstacles."))
         .and_then(|rest| rest.strip_suffix(".known"))
         .and_then(|i| i.parse::<usize>().ok());

@@ -28,6 +28,12 @@ pub struct FleetRobot {
     /// default: the scenario's `[fault]`, as every robot's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fault: Option<super::FaultConfig>,
+    /// The host its tracker, MPC and route planner run on (docs/fleet.md, "Across
+    /// hosts"; empty: the orchestrator's). Its plant, the simulated robot, runs where
+    /// the world is simulated, with its estimator and DFL beside it: a lost host leaves
+    /// the robot its inner loop, which brakes it to rest.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub host: String,
 }
 
 impl FleetRobot {
@@ -40,9 +46,14 @@ impl FleetRobot {
             radius_m: None,
             v_max: None,
             fault: None,
+            host: String::new(),
         }
     }
 }
+
+/// The roles a robot's host runs ([`FleetRobot::host`]).
+pub const HOSTED_ROLES: [crate::Role; 3] =
+    [crate::Role::Tracker, crate::Role::Mpc, crate::Role::Planner];
 
 /// The most robots of a fleet: each robot's MPC keeps one disc per other robot, and its
 /// tracks message holds [`crate::MAX_TRACKS`].
@@ -80,8 +91,32 @@ impl Scenario {
             if let Some(fault) = &robot.fault {
                 member.fault = fault.clone();
             }
+            if !robot.host.is_empty() {
+                member.place_on(&robot.host);
+            }
         }
         member
+    }
+
+    /// The roles of a robot's host that run in it placed on `host`
+    /// ([`FleetRobot::host`]).
+    fn place_on(&mut self, host: &str) {
+        for role in HOSTED_ROLES {
+            if let (None, Some(placed)) = (self.absent(role), self.hosts.role_mut(role)) {
+                *placed = host.to_string();
+            }
+        }
+    }
+
+    /// Every host a role runs on: those of `[hosts]` and the robots' own.
+    pub fn host_names(&self) -> Vec<String> {
+        let mut names = self.hosts.names();
+        names.extend(
+            (self.robots.iter()).filter_map(|r| Some(r.host.clone()).filter(|h| !h.is_empty())),
+        );
+        names.sort();
+        names.dedup();
+        names
     }
 
     /// The radius of robot `id`'s footprint, m.
@@ -118,34 +153,7 @@ impl Scenario {
             );
         }
         for (i, robot) in self.robots.iter().enumerate() {
-            v.finite_all(&format!("robots.{i}.start"), &robot.start);
-            v.finite_all(&format!("robots.{i}.goal"), &robot.goal.position);
-            if let Some(radius) = robot.radius_m {
-                v.non_negative(&format!("robots.{i}.radius_m"), radius);
-            }
-            if let Some(v_max) = robot.v_max {
-                self.check_own_v_max(v, i, v_max);
-            }
-            let mut member = Validator {
-                origin: v.origin,
-                errors: Vec::new(),
-            };
-            let scenario = self.member(i);
-            scenario.check_geometry(&mut member);
-            if robot.fault.is_some() {
-                scenario.check_faults(&mut member);
-            }
-            // What is the robot's own, under its entry (the rest, the world's, the
-            // scenario's own check reports once).
-            for mut error in member.errors {
-                let own = (error.key.strip_prefix("robot."))
-                    .map(String::from)
-                    .or_else(|| error.key.starts_with("fault.").then(|| error.key.clone()));
-                if let Some(key) = own {
-                    error.key = format!("robots.{i}.{key}");
-                    v.errors.push(error);
-                }
-            }
+            self.check_robot(v, i, robot);
         }
         self.check_room_between_robots(v);
         if self.mpc.uncertainty_sigmas <= 0.0 {
@@ -161,9 +169,11 @@ impl Scenario {
             ("plant.kind", self.plant.kind != crate::PlantKind::Sim),
             ("swap", !self.swap.is_empty()),
             ("live", self.live.is_some()),
+            // A robot's roles go to its host by `robots.<i>.host` (its member's placement).
             (
                 "hosts",
-                crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
+                self.fleet_id.is_none()
+                    && crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
             ),
             ("obstacles", self.obstacles.iter().any(|o| !o.is_known())),
             ("perception.kind", self.tracked().next().is_some()),
@@ -180,9 +190,46 @@ impl Scenario {
                     key,
                     "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
                      command delay among known obstacles at rest, without a lidar, tracked \
-                     obstacles, swaps, hosts or a live view (docs/fleet.md, \"Left out\")"
+                     obstacles, swaps, roles placed by [hosts] (a robot's own `host` places its \
+                     pipeline) or a live view (docs/fleet.md, \"Left out\")"
                         .into(),
                 );
+            }
+        }
+    }
+
+    /// Robot `i`'s own values, and the robot in the world as the scenario's `robot` is
+    /// checked.
+    fn check_robot(&self, v: &mut Validator, i: usize, robot: &FleetRobot) {
+        v.finite_all(&format!("robots.{i}.start"), &robot.start);
+        v.finite_all(&format!("robots.{i}.goal"), &robot.goal.position);
+        if let Some(radius) = robot.radius_m {
+            v.non_negative(&format!("robots.{i}.radius_m"), radius);
+        }
+        if let Some(v_max) = robot.v_max {
+            self.check_own_v_max(v, i, v_max);
+        }
+        if !robot.host.is_empty() {
+            self.check_own_host(v, i, &robot.host);
+        }
+        let mut member = Validator {
+            origin: v.origin,
+            errors: Vec::new(),
+        };
+        let scenario = self.member(i);
+        scenario.check_geometry(&mut member);
+        if robot.fault.is_some() {
+            scenario.check_faults(&mut member);
+        }
+        // What is the robot's own, under its entry (the rest, the world's, the
+        // scenario's own check reports once).
+        for mut error in member.errors {
+            let own = (error.key.strip_prefix("robot."))
+                .map(String::from)
+                .or_else(|| error.key.starts_with("fault.").then(|| error.key.clone()));
+            if let Some(key) = own {
+                error.key = format!("robots.{i}.{key}");
+                v.errors.push(error);
             }
         }
     }
@@ -200,6 +247,26 @@ impl Scenario {
                 format!(
                     "{v_max} m/s^2 delivers less than the brake's dfl.brake_decel = {decel} \
                      m/s^2; give at least that, or set dfl.brake_decel = \"auto\""
+                ),
+            );
+        }
+    }
+
+    /// Robot `i`'s host: a host name, and no other robot's (an agent serves one robot of
+    /// a run).
+    fn check_own_host(&self, v: &mut Validator, i: usize, host: &str) {
+        let key = format!("robots.{i}.host");
+        if !crate::endpoint::is_host_name(host) {
+            v.fail(
+                &key,
+                format!("`{host}` is no host name (letters, digits, `-`, `_`)"),
+            );
+        } else if let Some(j) = (0..i).find(|&j| self.robots[j].host == host) {
+            v.fail(
+                &key,
+                format!(
+                    "robot {j} runs on host `{host}` too; a host's agent serves one robot of \
+                     a run"
                 ),
             );
         }

@@ -39,6 +39,18 @@ impl HostsConfig {
         (!name.is_empty()).then_some(name)
     }
 
+    /// The host of `role`, to set (`None`: a role that runs on the orchestrator's host).
+    pub(crate) fn role_mut(&mut self, role: crate::Role) -> Option<&mut String> {
+        match role {
+            crate::Role::Estimator => Some(&mut self.estimator),
+            crate::Role::Mpc => Some(&mut self.mpc),
+            crate::Role::Dfl => Some(&mut self.dfl),
+            crate::Role::Planner => Some(&mut self.planner),
+            crate::Role::Tracker => Some(&mut self.tracker),
+            _ => None,
+        }
+    }
+
     /// The names of the hosts roles are placed on, each once, in order.
     pub fn names(&self) -> Vec<String> {
         let mut names: Vec<String> = crate::Role::ALL

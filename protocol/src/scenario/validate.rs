@@ -350,7 +350,7 @@ impl Scenario {
             ("fault.link_down_s", f.link_is_ever_down()),
         ];
         for (key, _) in link_keys.iter().filter(|(_, set)| *set) {
-            if self.hosts.names().is_empty() {
+            if self.host_names().is_empty() {
                 v.fail(
                     key,
                     "acts on the links between hosts, and no role is placed on another host \
@@ -435,7 +435,7 @@ impl Scenario {
     }
 
     /// Why `role` runs no process in this scenario, if it does not.
-    fn absent(&self, role: crate::Role) -> Option<String> {
+    pub(super) fn absent(&self, role: crate::Role) -> Option<String> {
         if self.roles().any(|r| r == role) {
             return None;
         }

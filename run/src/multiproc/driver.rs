@@ -51,6 +51,9 @@ pub(super) struct Driver<'a> {
     goals_set: u32,
     /// Lockstep held to real time (a live view's `live.pace`).
     pub pace: Option<crate::pace::Pace>,
+    /// Real time: since when the run, which must end aborted, waits for the DFL to brake
+    /// the robot to rest.
+    aborting: Option<Instant>,
 }
 
 impl<'a> Driver<'a> {
@@ -74,6 +77,7 @@ impl<'a> Driver<'a> {
             stop,
             goals_set: 0,
             pace: None,
+            aborting: None,
         }
     }
 
@@ -181,7 +185,7 @@ impl<'a> Driver<'a> {
         seen: &mut impl FnMut(u64, [f64; 2]),
     ) -> anyhow::Result<Option<Outcome>> {
         self.take_now()?;
-        if let Some(outcome) = self.check()? {
+        if let Some(outcome) = self.check_or_brake()? {
             return Ok(Some(outcome));
         }
         let planned = match recording {
@@ -191,14 +195,14 @@ impl<'a> Driver<'a> {
                 None
             }
         };
-        let mut outcome = planned;
+        let mut outcome = planned.filter(|_| self.aborting.is_none());
         while let Some(slot) = (self.intake).next_due(recording.then_some(self.parts.recorder))? {
             let tick = self.intake.cursor - 1;
             if let Some(truth) = &slot.truth {
                 seen(tick, [truth.pose[0], truth.pose[1]]);
             }
             if recording && outcome.is_none() {
-                outcome = self.record_slot(tick, slot)?;
+                outcome = self.record_slot(tick, slot)?.map(|o| self.aborted_as(o));
             }
         }
         Ok(outcome)
@@ -238,34 +242,19 @@ impl<'a> Driver<'a> {
         })?;
         let end_ns = self.parts.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
-        let mut aborting: Option<Instant> = None;
         loop {
-            if let Some(since) = aborting {
-                if self.stop.load(Ordering::Relaxed) {
-                    return Ok(Outcome::Interrupted);
-                }
-                if self.parts.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
-                    || since.elapsed() > BRAKE_TIMEOUT
-                {
-                    return Ok(Outcome::Aborted);
-                }
-                self.parts.children.kill_overdue();
-            } else if let Some(outcome) = self.check()? {
-                if outcome != Outcome::Aborted || !self.can_brake_to_rest() {
-                    return Ok(outcome);
-                }
-                self.parts.recorder.event(Event::BrakingToRest {})?;
-                aborting = Some(Instant::now());
+            if let Some(outcome) = self.check_or_brake()? {
+                return Ok(outcome);
             }
             if monotonic_ns() > give_up_ns {
-                if aborting.is_some() {
+                if self.aborting.is_some() {
                     return Ok(Outcome::Aborted);
                 }
                 bail!("the run did not finish within 5 s after its end: a process hung");
             }
             self.take(waitset)?;
             let planned = self.intake.record_plans(self.parts.recorder)?;
-            if aborting.is_none() {
+            if self.aborting.is_none() {
                 if let Some(outcome) = planned {
                     return Ok(outcome);
                 }
@@ -275,13 +264,48 @@ impl<'a> Driver<'a> {
             }
             while let Some(slot) = self.intake.next_due(Some(self.parts.recorder))? {
                 let tick = self.intake.cursor - 1;
-                match self.record_slot(tick, slot)? {
-                    Some(Outcome::Collided) => return Ok(Outcome::Collided),
-                    Some(_) if aborting.is_some() => return Ok(Outcome::Aborted),
-                    Some(outcome) => return Ok(outcome),
-                    None => {}
+                if let Some(outcome) = self.record_slot(tick, slot)? {
+                    return Ok(self.aborted_as(outcome));
                 }
             }
+        }
+    }
+
+    /// Real time: [`Driver::check`], except that a run which must end aborted while the
+    /// plant and the DFL still run goes on, recorded, until the DFL has braked the robot
+    /// to rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]): the
+    /// record shows the stop. The outcome once the run ends.
+    fn check_or_brake(&mut self) -> anyhow::Result<Option<Outcome>> {
+        if let Some(since) = self.aborting {
+            if self.stop.load(Ordering::Relaxed) {
+                return Ok(Some(Outcome::Interrupted));
+            }
+            let braked = self.parts.recorder.commanded_rest_for_s() >= AT_REST_FOR_S
+                || since.elapsed() > BRAKE_TIMEOUT;
+            self.parts.children.kill_overdue();
+            if !braked {
+                return Ok(None);
+            }
+            // Once: a fleet's robot stays in the world, unrecorded.
+            self.aborting = None;
+            return Ok(Some(Outcome::Aborted));
+        }
+        match self.check()? {
+            Some(Outcome::Aborted) if self.can_brake_to_rest() => {
+                self.parts.recorder.event(Event::BrakingToRest {})?;
+                self.aborting = Some(Instant::now());
+                Ok(None)
+            }
+            outcome => Ok(outcome),
+        }
+    }
+
+    /// The outcome a record ends with, braking to rest: every outcome but a collision is
+    /// the abort's.
+    fn aborted_as(&self, outcome: Outcome) -> Outcome {
+        match (self.aborting, outcome) {
+            (Some(_), o) if o != Outcome::Collided => Outcome::Aborted,
+            (_, o) => o,
         }
     }
 

@@ -12,8 +12,11 @@
 
 use super::driver::Driver;
 use super::session::Session;
-use super::{POLL, START_LEAD, STOP_TIMEOUT, TICK_TIMEOUT, remove_dead_runs, wait_until_ready};
+use super::{
+    HostsSetup, POLL, START_LEAD, STOP_TIMEOUT, TICK_TIMEOUT, remove_dead_runs, wait_until_ready,
+};
 use crate::children::{Children, LOG_DIR};
+use crate::remote::{RemoteHosts, Whose};
 use crate::sinks::Recording;
 use anyhow::{Context, bail};
 use protocol::{ControlCommand, Validated};
@@ -45,8 +48,8 @@ struct Robots {
 pub fn run(
     scenario: &Validated,
     out: &Path,
-    mode: RunMode,
-    prefix: &str,
+    (mode, prefix): (RunMode, &str),
+    hosts: &HostsSetup,
     recording: Recording,
     stop: &AtomicBool,
 ) -> anyhow::Result<FleetSummary> {
@@ -58,7 +61,15 @@ pub fn run(
     std::fs::write(&scenario_file, scenario.to_toml())
         .with_context(|| format!("writing {}", scenario_file.display()))?;
     ipc::register_run(prefix, out).context("registering the run")?;
-    let result = drive(scenario, out, (mode, prefix), recording, stop, started);
+    let result = drive(
+        scenario,
+        out,
+        (mode, prefix),
+        hosts,
+        recording,
+        stop,
+        started,
+    );
     if let Err(e) = ipc::end_run(prefix) {
         tracing::warn!("cleaning up the run's iceoryx2 resources: {e}");
     }
@@ -67,11 +78,13 @@ pub fn run(
     Ok(summary)
 }
 
-/// Each robot's part opened and its processes started, one robot after the other.
+/// Each robot's part opened and its processes started, one robot after the other (a robot
+/// on another host: its host joined first).
 fn open_robots(
     scenario: &Validated,
     out: &Path,
     (mode, prefix): (RunMode, &str),
+    hosts: &HostsSetup,
     recording: Recording,
     robots: &mut Robots,
 ) -> anyhow::Result<()> {
@@ -88,6 +101,26 @@ fn open_robots(
         let mut recorder = crate::sinks::recorder(&member, &dir, recording)?;
         let session = Session::open_for(prefix, &member, mode, id as u32)?;
         let control = session.control.publisher_id();
+        let whose = Whose {
+            robot: id as u32,
+            fleet: Some(scenario),
+        };
+        let remote = (!member.hosts.names().is_empty())
+            .then(|| {
+                let remote = RemoteHosts::connect(
+                    &member,
+                    mode,
+                    prefix,
+                    whose,
+                    &hosts.endpoints,
+                    &hosts.security,
+                    control,
+                )?;
+                super::record_joined(&remote, &mut recorder)?;
+                anyhow::Ok(remote)
+            })
+            .transpose()
+            .with_context(|| format!("robot {id}"))?;
         let children = Children::new(
             &out.join("scenario.toml"),
             prefix,
@@ -95,7 +128,7 @@ fn open_robots(
             mode,
             control,
             Vec::new(),
-            None,
+            remote,
         )?;
         let mut children = children.with_logs(&dir.join(LOG_DIR));
         // Pushed before its processes start, so that they are stopped whatever follows.
@@ -104,7 +137,7 @@ fn open_robots(
             recorder.event(Event::Spawned {
                 role: p.role,
                 pid: p.pid(),
-                host: None,
+                host: p.host().map(String::from),
             })?;
         }
         robots.scenarios.push(member);
@@ -121,12 +154,13 @@ fn drive(
     scenario: &Validated,
     out: &Path,
     (mode, prefix): (RunMode, &str),
+    hosts: &HostsSetup,
     recording: Recording,
     stop: &AtomicBool,
     started: Instant,
 ) -> anyhow::Result<FleetSummary> {
     let mut robots = Robots::default();
-    let opened = open_robots(scenario, out, (mode, prefix), recording, &mut robots);
+    let opened = open_robots(scenario, out, (mode, prefix), hosts, recording, &mut robots);
     // Real time: the orchestrator's recording at its tier, below every role.
     let _recording_tier = (mode == RunMode::Realtime)
         .then(|| crate::scheduling::orchestrator(&scenario.realtime))
@@ -143,7 +177,10 @@ fn drive(
     } = robots;
     let processes: Vec<ProcessReport> = children.iter().map(processes_of).collect();
     let exits: Vec<_> = (children.into_iter())
-        .map(|mut c| c.shut_down(STOP_TIMEOUT))
+        .map(|mut c| {
+            let exits = c.shut_down(STOP_TIMEOUT);
+            (exits, c.remote.as_ref().map(super::end_hosts))
+        })
         .collect();
     let ended = scenarios.into_iter().zip(exits).zip(recorders);
     let (outcomes, judge, reports, simulated_s) = driven?;
@@ -155,8 +192,13 @@ fn drive(
     for ((((scenario, exits), mut recorder), outcome), (mut report, processes)) in
         ended.zip(outcomes).zip(reports)
     {
+        let (exits, links) = exits;
         report.pids = processes.pids;
+        report.hosts = processes.hosts;
         report.peak_rss_kib = processes.peak_rss_kib;
+        if let Some((orchestrator_bridge, links)) = links {
+            (report.orchestrator_bridge, report.links) = (orchestrator_bridge, links);
+        }
         super::record_exits(&mut recorder, exits)?;
         deadlocks.push(recorder.deadlocks_broken());
         let summary = recorder.finish(
@@ -187,6 +229,9 @@ fn processes_of(children: &Children) -> ProcessReport {
         .insert("orchestrator".into(), std::process::id());
     for p in &children.list {
         report.pids.insert(p.role.as_str().into(), p.pid());
+        if let Some(host) = p.host() {
+            report.hosts.insert(p.role.as_str().into(), host.into());
+        }
     }
     super::record_peak_rss(children, &mut report);
     report

@@ -161,11 +161,20 @@ fn connect_hosts(
         scenario,
         mode,
         prefix,
-        session.robot(),
+        crate::remote::Whose {
+            robot: session.robot(),
+            fleet: None,
+        },
         &hosts.endpoints,
         &hosts.security,
         session.control.publisher_id(),
     )?;
+    record_joined(&remote, recorder)?;
+    Ok(Some(remote))
+}
+
+/// Each host's joining, as a `host_joined` event.
+fn record_joined(remote: &RemoteHosts, recorder: &mut Recorder) -> anyhow::Result<()> {
     for (name, link) in &remote.hosts {
         recorder.event(Event::HostJoined {
             host: name.clone(),
@@ -176,7 +185,19 @@ fn connect_hosts(
             clock_correction_ms: link.clock.correction_ns as f64 / 1e6,
         })?;
     }
-    Ok(Some(remote))
+    Ok(())
+}
+
+/// Ends the run on the other hosts; what the orchestrator's bridge and each link carried.
+fn end_hosts(
+    remote: &RemoteHosts,
+) -> (
+    Option<hosts::LinkCounters>,
+    BTreeMap<String, record::LinkReport>,
+) {
+    let mut counters = remote.end();
+    let orchestrator_bridge = counters.remove(hosts::keys::ORCHESTRATOR);
+    (orchestrator_bridge, link_reports(remote, counters))
 }
 
 /// The pids and hosts of the processes spawned, each recorded as an event.
@@ -285,9 +306,7 @@ fn drive(
     let _ = session.command(ControlCommand::Stop);
     record_exits(recorder, children.shut_down(STOP_TIMEOUT))?;
     if let Some(remote) = &children.remote {
-        let mut counters = remote.end();
-        report.orchestrator_bridge = counters.remove(hosts::keys::ORCHESTRATOR);
-        report.links = link_reports(remote, counters);
+        (report.orchestrator_bridge, report.links) = end_hosts(remote);
     }
     drop(guards);
     Ok((outcome?, report))

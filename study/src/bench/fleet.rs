@@ -113,8 +113,11 @@ pub fn measure(out: &Path, swap8_s: Option<f64>, stop: &AtomicBool) -> anyhow::R
     let lockstep = run::multiproc::fleet::run(
         &swap8,
         &out.join("swap8-lockstep"),
-        runtime::clock::RunMode::Lockstep,
-        &runtime::ipc::new_prefix(),
+        (
+            runtime::clock::RunMode::Lockstep,
+            &runtime::ipc::new_prefix(),
+        ),
+        &run::multiproc::HostsSetup::default(),
         Recording::files(false),
         stop,
     )?;
