@@ -361,3 +361,42 @@ fn the_example_role_runs_alike_in_process_and_in_lockstep_and_its_samples_are_in
         "lockstep's odometry.csv differs from in process"
     );
 }
+
+/// A fleet's `run.mcap` is one file, read by the `mcap` package: every robot's channels
+/// under its id, as many truths as its `trajectory.csv` has ticks, and the messages of
+/// all robots in log-time order in the file itself (read in file order), as a viewer
+/// plays them. No robot keeps a file of its own.
+#[test]
+fn a_fleets_run_mcap_has_every_robots_channels_under_its_id_in_log_time_order() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("run");
+    let out = run(&[
+        "run",
+        "swap4",
+        "--in-process",
+        "--set",
+        "duration_s=3",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    let topics = read_mcap(&out_dir, true);
+    let mut read_order = Vec::new();
+    for id in 0..4 {
+        let robot = out_dir.join(format!("robot{id}"));
+        assert!(!robot.join("run.mcap").exists());
+        let ticks = Table::read(&robot.join("trajectory.csv")).unwrap().len();
+        let truth = &topics[format!("/robot{id}/robot/truth")];
+        assert_eq!(truth["count"].as_u64(), Some(ticks as u64), "robot {id}");
+        assert!(topics[format!("/robot{id}/mpc/plan")]["count"].as_u64() > Some(0));
+        let times = truth["log_time_ns"].as_array().unwrap().iter();
+        let positions = truth["positions"].as_array().unwrap().iter();
+        read_order.extend(positions.map(|p| p.as_u64()).zip(times.map(|t| t.as_u64())));
+    }
+    read_order.sort();
+    assert!(
+        read_order.windows(2).all(|w| w[0].1 <= w[1].1),
+        "a truth read before an earlier one"
+    );
+}

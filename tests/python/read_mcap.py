@@ -1,7 +1,8 @@
 """Reads a run.mcap with the `mcap` package (an independent reader) and prints, as JSON,
 per topic: its schema name and encodings, its message count, and for some topics what the
 messages hold (the estimates' ticks and epochs, the plans' pose counts, the events with
-the errors `jsonschema` finds in them against their channel's schema).
+the errors `jsonschema` finds in them against their channel's schema, the truths' and
+the deadline verdicts' log times and places in the order read).
 
 With `--scan` it reads the records in file order with the package's non-seeking reader,
 as one reads a file cut short (a killed run): every message up to the cut, and
@@ -28,8 +29,8 @@ def main():
     scan = "--scan" in sys.argv[2:]
     with open(sys.argv[1], "rb") as f:
         try:
-            for schema, channel, message in messages(f, scan):
-                add(topics, schema, channel, message)
+            for position, (schema, channel, message) in enumerate(messages(f, scan)):
+                add(topics, schema, channel, message, position)
         except EndOfFile:
             if not scan:
                 raise
@@ -37,7 +38,7 @@ def main():
     json.dump(topics, sys.stdout)
 
 
-def add(topics, schema, channel, message):
+def add(topics, schema, channel, message, position):
     t = topics.setdefault(
         channel.topic,
         {
@@ -78,8 +79,10 @@ def add(topics, schema, channel, message):
         t.setdefault("events", []).append(body)
         errors = t.setdefault("schema_errors", [])
         errors.extend(e.message for e in validator.iter_errors(body))
-    if channel.topic in ("/robot/truth", "/dfl/deadline"):
+    # A fleet's robot's are under its id: `/robot1/robot/truth`.
+    if channel.topic.endswith(("/robot/truth", "/dfl/deadline")):
         t["log_time_ns"].append(message.log_time)
+        t.setdefault("positions", []).append(position)
 
 
 if __name__ == "__main__":

@@ -14,22 +14,27 @@ pub struct McapFile {
 }
 
 /// An error of the MCAP writer, as an I/O error (the recorder's).
-fn io(e: mcap::McapError) -> std::io::Error {
+pub(super) fn io(e: mcap::McapError) -> std::io::Error {
     std::io::Error::other(format!("run.mcap: {e}"))
+}
+
+/// A new MCAP file at `path`, written as every `run.mcap` is.
+pub(super) fn create(path: &Path) -> std::io::Result<mcap::Writer<BufWriter<File>>> {
+    let file = BufWriter::new(File::create(path)?);
+    // Chunks are kept in memory until whole (no seeking back to patch a chunk's
+    // length), so a chunk on disk is a whole record: a run killed mid-chunk leaves a
+    // file whose records read in order up to the last flush.
+    mcap::WriteOptions::new()
+        .disable_seeking(true)
+        .profile("")
+        .library(concat!("scmpc ", env!("CARGO_PKG_VERSION")))
+        .create(file)
+        .map_err(io)
 }
 
 impl McapFile {
     pub fn create(path: &Path) -> std::io::Result<McapFile> {
-        let file = BufWriter::new(File::create(path)?);
-        // Chunks are kept in memory until whole (no seeking back to patch a chunk's
-        // length), so a chunk on disk is a whole record: a run killed mid-chunk leaves a
-        // file whose records read in order up to the last flush.
-        let writer = mcap::WriteOptions::new()
-            .disable_seeking(true)
-            .profile("")
-            .library(concat!("scmpc ", env!("CARGO_PKG_VERSION")))
-            .create(file)
-            .map_err(io)?;
+        let writer = create(path)?;
         Ok(McapFile {
             writer,
             channels: BTreeMap::new(),

@@ -17,11 +17,13 @@
 mod encoder;
 mod file;
 mod foxglove;
+mod merge;
 
 use super::json::{Json, json_object};
 use encoder::Encoder;
 pub use file::McapFile;
 use foxglove::*;
+pub use merge::{fleet_topic, merge_fleet};
 use protocol::{
     Actuation, CommandMode, DeadlineVerdict, Estimate, GroundTruth, PLAN_MISSING, Plan, PlanStatus,
     Route, Scenario, Timing, Tracks,

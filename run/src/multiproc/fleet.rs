@@ -75,6 +75,8 @@ pub fn run(
     }
     let summary = result?;
     summary.write(out)?;
+    record::mcap::merge_fleet(out, scenario.robot_count())
+        .with_context(|| format!("merging the robots' run.mcap in {}", out.display()))?;
     Ok(summary)
 }
 
