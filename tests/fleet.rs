@@ -47,14 +47,14 @@ fn assert_same_bytes(a: &tempfile::TempDir, b: &tempfile::TempDir, robots: usize
 /// In lockstep across processes (a plant, an estimator, a tracker, an MPC and a DFL per
 /// robot, each robot's services under its id) a fleet drives every robot as the fleet in
 /// process does, byte for byte: each robot's tracker hears the others over iceoryx2 from
-/// before its tick only. Every process is stopped and nothing of the run is left in
-/// shared memory.
+/// before its tick only. The robots' `run.mcap` are merged into the run's. Every process
+/// is stopped and nothing of the run is left in shared memory.
 #[test]
 fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     let _machine = common::machine_shared();
-    let short = ["--no-mcap", "--set", "duration_s=8"];
-    let (in_process, _) =
-        run_into_tempdir(&[&["run", "swap4", "--in-process"][..], &short].concat());
+    let short = ["--set", "duration_s=8"];
+    let in_process_args = [&["run", "swap4", "--in-process", "--no-mcap"][..], &short].concat();
+    let (in_process, _) = run_into_tempdir(&in_process_args);
     let prefix = unique_prefix("fleet");
     let lockstep_args = [&["run", "swap4", "--prefix", &prefix][..], &short].concat();
     let (lockstep, out) = run_into_tempdir(&lockstep_args);
@@ -64,11 +64,15 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
         "not reached in 8 s: {}",
         stderr(&out)
     );
+    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_eq!(summary(lockstep.path())["mode"], "lockstep");
+    // The robots' run.mcap merged into the run's.
+    assert!(lockstep.path().join("run.mcap").exists());
     let mut pids = std::collections::BTreeSet::new();
     assert_same_bytes(&in_process, &lockstep, 4);
     for id in 0..4 {
         let robot = |dir: &tempfile::TempDir| dir.path().join(format!("robot{id}"));
+        assert!(!robot(&lockstep).join("run.mcap").exists());
         let spawned: Vec<_> = (events(&robot(&lockstep)).into_iter())
             .filter(|e| e["event"] == "spawned")
             .collect();
@@ -147,6 +151,8 @@ fn a_fleets_bad_input_names_the_robots_key() {
     );
     refused(&["fuzz", "--robots", "3..2"], "--robots");
     swap4("robots.1.host=\"b c\"", "robots.1.host");
+    swap4("robots.1.host=orchestrator", "robots.1.host");
+    swap4("robots.1.fault.link_loss=0.1", "robots.1.fault");
     swap4("hosts.mpc=\"b\"", "hosts");
     let b = ["--set", "robots.1.host=\"b\""];
     refused(
@@ -226,6 +232,7 @@ fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
     let (in_process, _) = run_into_tempdir(&[&args[..], &["--in-process"], &short].concat());
     let (lockstep, out) = run_into_tempdir(&[&args[..], &short].concat());
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_same_bytes(&in_process, &lockstep, 3);
     let s = summary(&lockstep.path().join("robot1"));
     assert_eq!(s["hosts"]["mpc"], "b", "{s}");
@@ -296,5 +303,5 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
     assert!(moved(&trajectory[0]) > 0.2, "robot 2 never drove");
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
     c.assert_left_nothing(std::time::Duration::from_secs(3));
-    drop(b);
+    b.assert_left_nothing(std::time::Duration::from_secs(3));
 }

@@ -418,7 +418,6 @@ fn send(
         // sent before it, so no sample reaches another host ahead of its clock. The other
         // robots' data before this robot's: in lockstep every other robot's tick `j - 1`
         // is published before this robot's tick `j` is granted, and so reaches its
-        // tracker before the truth that steps it.
         // tracker before the truth that steps it (`taps` has them first).
         for (robot, topic, tap) in taps.iter().filter(|(_, t, _)| !is_plane(t)) {
             tap.clear_wakeups();

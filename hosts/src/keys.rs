@@ -2,7 +2,7 @@
 //! run is under the run's key (the orchestrator's iceoryx2 prefix), so runs never meet.
 
 /// The name the orchestrator's host goes by in keys (refused as a host name).
-pub const ORCHESTRATOR: &str = "orchestrator";
+pub const ORCHESTRATOR: &str = protocol::endpoint::ORCHESTRATOR_HOST;
 
 /// Where the agent of `host` takes join requests.
 pub fn agent_join(host: &str) -> String {
@@ -14,7 +14,9 @@ pub fn to_host(run: &str, host: &str, robot: u32, topic: &str) -> String {
     format!("scmpc/run/{run}/to/{host}/robot{robot}/{topic}")
 }
 
-/// Samples of every robot's topics for `host` in `run`.
+/// Samples of every robot's topics for `host` in `run`: a fleet's robot's bridge takes
+/// the other robots' too. Each robot on another host has a Zenoh session of its own,
+/// connected to its host's agent alone, so only its own bridge's samples come here.
 pub fn to_host_all(run: &str, host: &str) -> String {
     format!("scmpc/run/{run}/to/{host}/**")
 }

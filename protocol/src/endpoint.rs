@@ -75,6 +75,9 @@ impl Endpoint {
 }
 
 /// Whether `name` can name a host: letters, digits, `-` and `_` (it is part of Zenoh keys).
+/// The name the orchestrator's host goes by (refused as the name of another host).
+pub const ORCHESTRATOR_HOST: &str = "orchestrator";
+
 pub fn is_host_name(name: &str) -> bool {
     !name.is_empty()
         && name

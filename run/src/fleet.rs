@@ -85,8 +85,7 @@ pub fn run(
     let simulated_s = timing.tick_time_s(tick);
     let summary = FleetSummary::of(&summaries, &judge, &deadlocks, simulated_s, wall_s);
     summary.write(out)?;
-    record::mcap::merge_fleet(out, scenario.robot_count())
-        .with_context(|| format!("merging the robots' run.mcap in {}", out.display()))?;
+    crate::sinks::merge_fleet_mcap(out, scenario.robot_count());
     Ok(summary)
 }
 

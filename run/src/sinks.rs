@@ -58,3 +58,14 @@ pub fn recorder(
     Recorder::create(out, scenario, &recording.sinks())
         .with_context(|| format!("creating the record in {}", out.display()))
 }
+
+/// A fleet's `run.mcap` from its robots' ([`record::mcap::merge_fleet`]); a merge that
+/// fails is a warning, and the robots keep their own files.
+pub fn merge_fleet_mcap(out: &Path, robots: usize) {
+    if let Err(e) = record::mcap::merge_fleet(out, robots) {
+        tracing::warn!(
+            "merging the robots' run.mcap in {}: {e}; each robot's is in robot<id>/",
+            out.display()
+        );
+    }
+}

@@ -274,8 +274,11 @@ fn hosts_setup(
             .allows(endpoint)
             .map_err(|e| bad_input(format!("host `{name}`: {e}")))?;
     }
-    let f = &scenario.fault;
-    let link_faults = f.link_delay_ms > 0.0 || f.link_loss > 0.0 || f.link_is_ever_down();
+    // A fleet's robot's own faults act on its links too (`robots.<i>.fault`).
+    let own = (scenario.robots.iter()).filter_map(|r| r.fault.as_ref());
+    let link_faults = std::iter::once(&scenario.fault)
+        .chain(own)
+        .any(protocol::FaultConfig::acts_on_links);
     if link_faults && !used.is_empty() && mode == RunMode::Lockstep {
         return Err(bad_input(
             "fault.link_*: the link faults act in real time (give --mode realtime); \

@@ -199,6 +199,22 @@ impl FaultConfig {
         faults
     }
 
+    /// Whether any fault acts on the links between hosts (`fault.link_*`).
+    pub fn acts_on_links(&self) -> bool {
+        self.link_delay_ms > 0.0 || self.link_loss > 0.0 || self.link_is_ever_down()
+    }
+
+    /// These faults without those on the links between hosts.
+    pub fn without_link_faults(&self) -> FaultConfig {
+        let none = FaultConfig::default();
+        FaultConfig {
+            link_delay_ms: none.link_delay_ms,
+            link_loss: none.link_loss,
+            link_down_s: none.link_down_s,
+            ..self.clone()
+        }
+    }
+
     /// Whether `fault.link_down_s` cuts the links at some time.
     pub fn link_is_ever_down(&self) -> bool {
         self.link_down_s[1] > self.link_down_s[0]

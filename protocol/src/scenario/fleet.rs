@@ -91,7 +91,10 @@ impl Scenario {
             if let Some(fault) = &robot.fault {
                 member.fault = fault.clone();
             }
-            if !robot.host.is_empty() {
+            if robot.host.is_empty() {
+                // No link of its own to act on.
+                member.fault = member.fault.without_link_faults();
+            } else {
                 member.place_on(&robot.host);
             }
         }
@@ -211,6 +214,18 @@ impl Scenario {
         }
         if !robot.host.is_empty() {
             self.check_own_host(v, i, &robot.host);
+        } else if robot
+            .fault
+            .as_ref()
+            .is_some_and(super::FaultConfig::acts_on_links)
+        {
+            v.fail(
+                &format!("robots.{i}.fault"),
+                format!(
+                    "fault.link_* acts on the links of a robot on another host, and robot {i} \
+                     has none (robots.{i}.host)"
+                ),
+            );
         }
         let mut member = Validator {
             origin: v.origin,
@@ -256,10 +271,13 @@ impl Scenario {
     /// a run).
     fn check_own_host(&self, v: &mut Validator, i: usize, host: &str) {
         let key = format!("robots.{i}.host");
-        if !crate::endpoint::is_host_name(host) {
+        if !crate::endpoint::is_host_name(host) || host == crate::endpoint::ORCHESTRATOR_HOST {
             v.fail(
                 &key,
-                format!("`{host}` is no host name (letters, digits, `-`, `_`)"),
+                format!(
+                    "`{host}` is no host name (letters, digits, `-`, `_`, not `{}`)",
+                    crate::endpoint::ORCHESTRATOR_HOST
+                ),
             );
         } else if let Some(j) = (0..i).find(|&j| self.robots[j].host == host) {
             v.fail(

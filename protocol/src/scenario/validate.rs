@@ -349,8 +349,13 @@ impl Scenario {
             ("fault.link_loss", f.link_loss > 0.0),
             ("fault.link_down_s", f.link_is_ever_down()),
         ];
+        // A fleet's robot's links are those of its own host (`robots.<i>.host`).
+        let hosts = match self.fleet_id {
+            Some(_) => self.hosts.names(),
+            None => self.host_names(),
+        };
         for (key, _) in link_keys.iter().filter(|(_, set)| *set) {
-            if self.host_names().is_empty() {
+            if hosts.is_empty() {
                 v.fail(
                     key,
                     "acts on the links between hosts, and no role is placed on another host \
@@ -402,10 +407,13 @@ impl Scenario {
                 continue;
             };
             let key = format!("hosts.{}", role.as_str());
-            if !crate::endpoint::is_host_name(host) {
+            if !crate::endpoint::is_host_name(host) || host == crate::endpoint::ORCHESTRATOR_HOST {
                 v.fail(
                     &key,
-                    format!("`{host}` is no host name (letters, digits, `-`, `_`)"),
+                    format!(
+                        "`{host}` is no host name (letters, digits, `-`, `_`, not `{}`)",
+                        crate::endpoint::ORCHESTRATOR_HOST
+                    ),
                 );
             } else if !crate::graph::declaration(role, self.plant.kind).remote {
                 v.fail(

@@ -15,7 +15,10 @@ pub fn fleet_topic(robot: usize, topic: &str) -> String {
 
 /// Merges `robot<id>/run.mcap` of robots `0..robots` in run directory `dir` into
 /// `dir/run.mcap` and removes them. Nothing when the robots have none (a run without
-/// `run.mcap`); a file that does not read leaves every robot's file where it is.
+/// `run.mcap`). A file that does not read, or a merge that fails, leaves every robot's
+/// file where it is and no `dir/run.mcap`. Every robot's file is in log-time order (its
+/// recorder writes each tick's messages after the last's); a channel without a message
+/// has none to carry over and is left out.
 pub fn merge_fleet(dir: &Path, robots: usize) -> std::io::Result<()> {
     let paths: Vec<_> = (0..robots)
         .map(|id| dir.join(format!("robot{id}")).join("run.mcap"))
@@ -30,7 +33,13 @@ pub fn merge_fleet(dir: &Path, robots: usize) -> std::io::Result<()> {
         .map(|f| mcap::MessageStream::new(f).map(Iterator::peekable))
         .collect::<Result<Vec<_>, _>>()
         .map_err(io)?;
-    write_merged(&dir.join("run.mcap"), &mut streams)?;
+    let (merging, merged) = (dir.join("run.mcap.part"), dir.join("run.mcap"));
+    let written = write_merged(&merging, &mut streams);
+    if written.is_err() {
+        let _ = std::fs::remove_file(&merging);
+    }
+    written?;
+    std::fs::rename(&merging, &merged)?;
     for path in &paths {
         std::fs::remove_file(path)?;
     }

@@ -54,6 +54,9 @@ pub(super) struct Driver<'a> {
     /// Real time: since when the run, which must end aborted, waits for the DFL to brake
     /// the robot to rest.
     aborting: Option<Instant>,
+    /// Whether it has braked the robot to rest once: a fleet's robot, whose pipeline
+    /// runs on unrecorded, is not braked again.
+    braked: bool,
 }
 
 impl<'a> Driver<'a> {
@@ -78,6 +81,7 @@ impl<'a> Driver<'a> {
             goals_set: 0,
             pace: None,
             aborting: None,
+            braked: false,
         }
     }
 
@@ -185,7 +189,7 @@ impl<'a> Driver<'a> {
         seen: &mut impl FnMut(u64, [f64; 2]),
     ) -> anyhow::Result<Option<Outcome>> {
         self.take_now()?;
-        if let Some(outcome) = self.check_or_brake()? {
+        if let Some(outcome) = self.check_or_brake(recording)? {
             return Ok(Some(outcome));
         }
         let planned = match recording {
@@ -243,7 +247,7 @@ impl<'a> Driver<'a> {
         let end_ns = self.parts.session.clock().at_ns(self.scenario.duration_s);
         let give_up_ns = end_ns.unwrap_or(start_ns) + 5_000_000_000;
         loop {
-            if let Some(outcome) = self.check_or_brake()? {
+            if let Some(outcome) = self.check_or_brake(true)? {
                 return Ok(outcome);
             }
             if monotonic_ns() > give_up_ns {
@@ -272,10 +276,10 @@ impl<'a> Driver<'a> {
     }
 
     /// Real time: [`Driver::check`], except that a run which must end aborted while the
-    /// plant and the DFL still run goes on, recorded, until the DFL has braked the robot
-    /// to rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]): the
-    /// record shows the stop. The outcome once the run ends.
-    fn check_or_brake(&mut self) -> anyhow::Result<Option<Outcome>> {
+    /// plant and the DFL still run goes on, recorded (`recording`), until the DFL has
+    /// braked the robot to rest (commanded to stand for [`AT_REST_FOR_S`], or
+    /// [`BRAKE_TIMEOUT`]): the record shows the stop. The outcome once the run ends.
+    fn check_or_brake(&mut self, recording: bool) -> anyhow::Result<Option<Outcome>> {
         if let Some(since) = self.aborting {
             if self.stop.load(Ordering::Relaxed) {
                 return Ok(Some(Outcome::Interrupted));
@@ -286,12 +290,10 @@ impl<'a> Driver<'a> {
             if !braked {
                 return Ok(None);
             }
-            // Once: a fleet's robot stays in the world, unrecorded.
-            self.aborting = None;
-            return Ok(Some(Outcome::Aborted));
+            return Ok(Some(self.aborted_as(Outcome::Aborted)));
         }
         match self.check()? {
-            Some(Outcome::Aborted) if self.can_brake_to_rest() => {
+            Some(Outcome::Aborted) if recording && !self.braked && self.can_brake_to_rest() => {
                 self.parts.recorder.event(Event::BrakingToRest {})?;
                 self.aborting = Some(Instant::now());
                 Ok(None)
@@ -300,12 +302,16 @@ impl<'a> Driver<'a> {
         }
     }
 
-    /// The outcome a record ends with, braking to rest: every outcome but a collision is
-    /// the abort's.
-    fn aborted_as(&self, outcome: Outcome) -> Outcome {
-        match (self.aborting, outcome) {
-            (Some(_), o) if o != Outcome::Collided => Outcome::Aborted,
-            (_, o) => o,
+    /// The outcome a record ends with; braking to rest, that ends the braking, and every
+    /// outcome but a collision is the abort's.
+    fn aborted_as(&mut self, outcome: Outcome) -> Outcome {
+        if self.aborting.take().is_none() {
+            return outcome;
+        }
+        self.braked = true;
+        match outcome {
+            Outcome::Collided => outcome,
+            _ => Outcome::Aborted,
         }
     }
 

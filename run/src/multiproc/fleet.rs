@@ -75,8 +75,7 @@ pub fn run(
     }
     let summary = result?;
     summary.write(out)?;
-    record::mcap::merge_fleet(out, scenario.robot_count())
-        .with_context(|| format!("merging the robots' run.mcap in {}", out.display()))?;
+    crate::sinks::merge_fleet_mcap(out, scenario.robot_count());
     Ok(summary)
 }
 
