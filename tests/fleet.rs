@@ -243,10 +243,10 @@ fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
 }
 
 /// In real time every robot's clock starts at one tick 0, and robots 0 and 1 (robot 1 on
-/// host `b`) exchange places without a deadline missed but in a stall of the machine.
-/// Robot 2's agent is killed (SIGKILL) 2 s in: its DFL, beside its plant, brakes it to
-/// rest before its record ends `aborted`, and the other two pass it to their goals
-/// without contact. Nothing of the run is left.
+/// host `b`) exchange sides, passing each other, without a deadline missed but in a stall
+/// of the machine. Robot 2's agent is killed (SIGKILL) 2 s in: its DFL, beside its plant,
+/// brakes it to rest before its record ends `aborted`, and the other two pass it to
+/// their goals without contact. Nothing of the run is left.
 #[test]
 fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent_dies_brakes_to_rest()
  {
@@ -287,6 +287,11 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
     assert_eq!(ticks_0.len(), 1, "one tick 0 for every robot: {ticks_0:?}");
     let robot2 = dir.path().join("robot2");
     assert_eq!(summary(&robot2)["outcome"], "aborted");
+    assert_eq!(
+        summary(&robot2)["hosts"]["mpc"],
+        "c",
+        "where it ran, though lost"
+    );
     let ev = events(&robot2);
     let at = |event: &str| ev.iter().position(|e| e["event"] == event);
     assert!(at("host_lost") < at("braking_to_rest") && at("host_lost").is_some());

@@ -221,8 +221,8 @@ fn drive(
     ))
 }
 
-/// The pids of a robot's processes (and the orchestrator's) and their peak resident
-/// memory so far.
+/// The pids of a robot's processes (and the orchestrator's), the hosts its roles were
+/// placed on (also once a host is lost) and their peak resident memory so far.
 fn processes_of(children: &Children) -> ProcessReport {
     let mut report = ProcessReport::default();
     report
@@ -230,8 +230,12 @@ fn processes_of(children: &Children) -> ProcessReport {
         .insert("orchestrator".into(), std::process::id());
     for p in &children.list {
         report.pids.insert(p.role.as_str().into(), p.pid());
-        if let Some(host) = p.host() {
-            report.hosts.insert(p.role.as_str().into(), host.into());
+    }
+    if let Some(remote) = &children.remote {
+        for role in protocol::Role::ALL {
+            if let Some(host) = remote.placed_on(role) {
+                report.hosts.insert(role.as_str().into(), host.into());
+            }
         }
     }
     super::record_peak_rss(children, &mut report);
