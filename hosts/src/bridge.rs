@@ -475,7 +475,10 @@ impl Outbox<'_> {
         let own = robot == self.spec.robot;
         let destinations = match own {
             true => self.spec.send.get(topic),
-            false => self.spec.peer_send.get(&(robot, topic.to_string())),
+            // A few entries, looked up without a key of their own.
+            false => (self.spec.peer_send.iter())
+                .find(|((r, t), _)| *r == robot && t == topic)
+                .map(|(_, hosts)| hosts),
         };
         let Some(destinations) = destinations else {
             return;

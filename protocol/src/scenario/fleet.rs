@@ -271,15 +271,10 @@ impl Scenario {
     /// a run).
     fn check_own_host(&self, v: &mut Validator, i: usize, host: &str) {
         let key = format!("robots.{i}.host");
-        if !crate::endpoint::is_host_name(host) || host == crate::endpoint::ORCHESTRATOR_HOST {
-            v.fail(
-                &key,
-                format!(
-                    "`{host}` is no host name (letters, digits, `-`, `_`, not `{}`)",
-                    crate::endpoint::ORCHESTRATOR_HOST
-                ),
-            );
-        } else if let Some(j) = (0..i).find(|&j| self.robots[j].host == host) {
+        if !super::check_host_name(v, &key, host) {
+            return;
+        }
+        if let Some(j) = (0..i).find(|&j| self.robots[j].host == host) {
             v.fail(
                 &key,
                 format!(

@@ -62,3 +62,17 @@ impl HostsConfig {
         names
     }
 }
+
+/// Whether `host`, at `key`, names another host (letters, digits, `-`, `_`, and not the
+/// orchestrator's); if not, an error for `key`.
+pub(super) fn check_host_name(v: &mut super::validate::Validator, key: &str, host: &str) -> bool {
+    let orchestrator = crate::endpoint::ORCHESTRATOR_HOST;
+    let named = crate::endpoint::is_host_name(host) && host != orchestrator;
+    if !named {
+        v.fail(
+            key,
+            format!("`{host}` is no host name (letters, digits, `-`, `_`, not `{orchestrator}`)"),
+        );
+    }
+    named
+}

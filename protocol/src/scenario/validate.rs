@@ -407,15 +407,10 @@ impl Scenario {
                 continue;
             };
             let key = format!("hosts.{}", role.as_str());
-            if !crate::endpoint::is_host_name(host) || host == crate::endpoint::ORCHESTRATOR_HOST {
-                v.fail(
-                    &key,
-                    format!(
-                        "`{host}` is no host name (letters, digits, `-`, `_`, not `{}`)",
-                        crate::endpoint::ORCHESTRATOR_HOST
-                    ),
-                );
-            } else if !crate::graph::declaration(role, self.plant.kind).remote {
+            if !super::check_host_name(v, &key, host) {
+                continue;
+            }
+            if !crate::graph::declaration(role, self.plant.kind).remote {
                 v.fail(
                     &key,
                     "this role runs on the orchestrator's host only".into(),
@@ -424,12 +419,10 @@ impl Scenario {
         }
         for (name, endpoint) in &self.hosts.endpoints {
             let key = format!("hosts.endpoints.{name}");
-            if !crate::endpoint::is_host_name(name) {
-                v.fail(
-                    &key,
-                    format!("`{name}` is no host name (letters, digits, `-`, `_`)"),
-                );
-            } else if let Err(e) = crate::endpoint::Endpoint::parse(endpoint) {
+            if !super::check_host_name(v, &key, name) {
+                continue;
+            }
+            if let Err(e) = crate::endpoint::Endpoint::parse(endpoint) {
                 v.fail(&key, e);
             }
         }
