@@ -409,6 +409,10 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["ros2.odom=\"\""], "ros2.odom"),
         (&["ros2.goal_topic=1goal"], "ros2.goal_topic"),
         (&["ros2.odom_timeout_s=0"], "ros2.odom_timeout_s"),
+        (
+            &["ros2.first_message_timeout_s=-1"],
+            "ros2.first_message_timeout_s",
+        ),
         (&["realtime.priority=3"], "realtime.priority"),
         (&["realtime.priority=fifo"], "realtime.priority"),
         (&["realtime.cpus=[0, 0]"], "realtime.cpus"),

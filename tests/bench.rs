@@ -11,7 +11,7 @@ use common::{run_into_tempdir, stderr};
 fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_against_raw_zenoh()
 {
     let _machine = common::machine_alone();
-    let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2", "--swap8-s", "10"]);
+    let (dir, out) = run_into_tempdir(&["bench", "--realtime-s", "2", "--swap8-s", "3"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     // It said what it was doing as it went, and how long was left.
     let phases: Vec<String> = (stderr(&out).lines())
@@ -130,10 +130,10 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
         assert!(t["met"].is_boolean(), "{t}");
     }
     assert!(judged("peak RSS of the mpc, unlocked (MiB)")["met"].is_boolean());
-    // The fleet's `swap8` ran its first 10 s in process and across processes alike, no
-    // robot touching another.
+    // The fleet's `swap8` ran its first 3 s (`--swap8-s`) in process and across processes
+    // alike, no robot touching another (`tests/fleet.rs` drives whole fleets both ways).
     for how in ["swap8_in_process", "swap8_lockstep"] {
-        assert_eq!(number(&["fleet", how, "simulated_s"]), 10.0);
+        assert_eq!(number(&["fleet", how, "simulated_s"]), 3.0);
         assert_eq!(number(&["fleet", how, "contacts"]), 0.0);
     }
     for id in 0..8 {

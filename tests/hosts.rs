@@ -257,8 +257,8 @@ fn a_host_clock_3_s_off_is_measured_within_1_ms_and_one_ahead_misses_no_deadline
     }
 }
 
-/// A real-time run of `SHORT` (made `duration_s` long) with the MPC on `agent` and
-/// `fault`; returns its directory and summary.
+/// A real-time run of `SHORT` (at most `duration_s` long, ended once the robot is held at
+/// its goal) with the MPC on `agent` and `fault`; returns its directory and summary.
 fn link_fault_run(
     agent: &Agent,
     fault: &str,
@@ -277,6 +277,8 @@ fn link_fault_run(
             "mpc.r_diag=[3,3]",
             "--set",
             &duration,
+            "--set",
+            "robot.final_approach=settle",
             "--set",
             fault,
         ],
@@ -310,7 +312,8 @@ fn a_link_60_ms_slow_flags_every_late_plan_and_the_robot_still_reaches_the_goal(
     let agent = Agent::plain("compute");
     let (dir, s) = link_fault_run(&agent, "fault.link_delay_ms=60", "12");
     let verdicts = verdicts(dir.path());
-    assert!(verdicts.len() > 200);
+    // Held at its goal at about 9.5 s: some 190 samples, every one late.
+    assert!(verdicts.len() > 150, "{} samples", verdicts.len());
     // Ts = 50 ms: a plan is in time iff it came within its own sample.
     for (sample, arrival_ms, met, _) in &verdicts {
         assert_eq!(

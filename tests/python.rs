@@ -35,11 +35,15 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     // The noise of the paper's noisy study (Fig. 4(d)): a passthrough would be off by the
     // noise's sigma, an EKF by a small part of it.
     let noise_variance = 0.05;
+    // The robot, quicker with the input weighed less, is at its goal by about 8 s (the
+    // paper's weights take 24 s with this noise); the run goes on to its end, the Python
+    // estimator filtering from the switch on.
+    let duration_s = 16.0;
     std::fs::write(
         &file,
         format!(
-            "name = \"python-estimator\"\nduration_s = 30.0\n\n[robot]\nfinal_approach = \
-             \"paper\"\n\n[plant]\nnoise_variance = \
+            "name = \"python-estimator\"\nduration_s = {duration_s:?}\n\n[robot]\nfinal_approach = \
+             \"paper\"\n\n[mpc]\nr_diag = [3.0, 3.0]\n\n[plant]\nnoise_variance = \
              {noise_variance}\n\n[[swap]]\ntime_s = 8.0\nrole = \"estimator\"\ncommand = \
              [{:?}, {:?}]\n",
             python(),
@@ -89,7 +93,7 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
     // machine (a CI run at ca71f2d had 12, a run on the development machine 8).
     let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
     let gaps = s["record_gaps"].as_u64().unwrap() as usize;
-    assert_eq!(trajectory.len(), 6000 - gaps);
+    assert_eq!(trajectory.len(), (duration_s / 0.005) as usize - gaps);
     for column in ["x_hat", "y_hat", "theta_hat", "zeta_hat"] {
         let values = trajectory.numbers(column).unwrap();
         assert!(values.iter().all(|v| v.is_finite()), "{column}");
@@ -111,7 +115,10 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
         (sum / (2.0 * rows.len() as f64)).sqrt()
     };
     // From 1 s in (the initial variance spent) to the switch, and from 1 s after it.
-    let (rust_m, python_m) = (rms_error(1.0, switch_s), rms_error(switch_s + 1.0, 30.0));
+    let (rust_m, python_m) = (
+        rms_error(1.0, switch_s),
+        rms_error(switch_s + 1.0, duration_s),
+    );
     let sigma = f64::sqrt(noise_variance);
     assert!(
         python_m < 0.25 * sigma && python_m < 2.0 * rust_m,

@@ -363,6 +363,10 @@ fn a_stopped_or_a_killed_orchestrator_leaves_the_robot_with_a_zero_twist() {
     }
 }
 
+/// The first odometry and scan waited for 1 s (`ros2.first_message_timeout_s`; 5 s by
+/// default): each case below waits it out.
+const WAIT_1_S: [&str; 2] = ["--set", "ros2.first_message_timeout_s=1"];
+
 #[test]
 fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
     let _alone = machine_alone();
@@ -370,11 +374,16 @@ fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
     let robot = Robot::start(dir.path(), &["--odom", "wheel_odom"]);
     let out_dir = dir.path().join("run");
     let prefix = unique_prefix("ros2none");
-    let out = run_on(&robot.endpoint, &["--prefix", &prefix], &out_dir);
+    let out = run_on(
+        &robot.endpoint,
+        &[&WAIT_1_S[..], &["--prefix", &prefix]].concat(),
+        &out_dir,
+    );
     let message = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{message}");
     for wanted in [
         robot.endpoint.as_str(),
+        "no odometry within 1 s on `0/odom/",
         "`0/odom/nav_msgs::msg::dds_::Odometry_/RIHS01_",
         "the robot publishes its `nav_msgs/msg/Odometry` on `/wheel_odom`: set `ros2.odom = \"/wheel_odom\"`",
         "domain 0 (this run's):",
@@ -389,11 +398,15 @@ fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
 
     // A lidar that publishes nothing.
     let robot = Robot::start(dir.path(), &[]);
-    let out = run_on(&robot.endpoint, &["--set", "lidar.rate_hz=10"], &out_dir);
+    let out = run_on(
+        &robot.endpoint,
+        &[&WAIT_1_S[..], &["--set", "lidar.rate_hz=10"]].concat(),
+        &out_dir,
+    );
     let message = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{message}");
     for wanted in [
-        "no scan within 5 s on `0/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_",
+        "no scan within 1 s on `0/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_",
         "remove [lidar]",
         "/MP/%/%/base/%odom/nav_msgs::msg::dds_::Odometry_/",
     ] {
@@ -404,7 +417,7 @@ fn no_odometry_or_no_scan_names_the_endpoint_the_key_and_the_tokens_seen() {
 
     // The base on another domain: the error says which, and what to set.
     let robot = Robot::start(dir.path(), &["--domain", "5"]);
-    let out = run_on(&robot.endpoint, &[], &out_dir);
+    let out = run_on(&robot.endpoint, &WAIT_1_S, &out_dir);
     let message = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{message}");
     for wanted in [

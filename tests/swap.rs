@@ -330,13 +330,16 @@ fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
 }
 
 #[test]
-fn a_replacement_that_exits_or_publishes_nothing_within_10_s_is_dropped_and_the_old_process_stays()
-{
+fn a_replacement_that_exits_or_publishes_nothing_within_the_swap_timeout_is_dropped_and_the_old_process_stays()
+ {
     let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let file = scenario_file(
         dir.path(),
-        r#"duration_s = 12.5
+        r#"duration_s = 5.5
+
+[supervision]
+swap_timeout_s = 3.0
 
 [[swap]]
 time_s = 1.0
@@ -361,10 +364,11 @@ command = ["true"]
         mpc["reason"]
             .as_str()
             .unwrap()
-            .contains("published nothing usable"),
+            .contains("published nothing usable within 3s"),
         "{mpc}"
     );
-    assert!((mpc["t"].as_f64().unwrap() - 11.0).abs() < 0.5, "{mpc}");
+    // Started at 1 s, given up 3 s later.
+    assert!((mpc["t"].as_f64().unwrap() - 4.0).abs() < 0.5, "{mpc}");
     let estimator = failed("estimator");
     assert!(
         estimator["reason"].as_str().unwrap().contains("exited"),

@@ -19,8 +19,6 @@ mod views;
 use graph::{Awaited, graph_text};
 use views::Views;
 
-/// How long the pipeline waits for the robot's first odometry.
-pub const FIRST_ODOMETRY: Duration = Duration::from_secs(5);
 /// How long a graph listing waits for the router's answer.
 const GRAPH_QUERY: Duration = Duration::from_secs(1);
 /// Every endpoint's QoS: reliable, volatile, keep-last 10 (a ROS 2 node's default).
@@ -286,6 +284,8 @@ pub struct Link {
     names: Names,
     command: RosPublisher,
     odometry_key: String,
+    /// `ros2.first_message_timeout_s`: how long the first odometry and scan are waited for.
+    first_message_timeout: Duration,
     newest_odometry: Newest<Heard>,
     /// The odometry's frame, the first odometry's.
     frame: Arc<OnceLock<String>>,
@@ -437,6 +437,8 @@ impl Link {
             names,
             command,
             odometry_key,
+            first_message_timeout: Duration::try_from_secs_f64(config.first_message_timeout_s)
+                .unwrap_or(Duration::MAX),
             newest_odometry,
             frame,
             newest_goal,
@@ -492,7 +494,7 @@ impl Link {
         })
     }
 
-    /// With a lidar: waits until a scan comes (at most [`FIRST_ODOMETRY`]) or `stop`.
+    /// With a lidar: waits until a scan comes (at most `ros2.first_message_timeout_s`) or `stop`.
     pub fn first_scan(&self, stop: &AtomicBool) -> Result<(), RobotError> {
         let Some((key, opened_ns)) = self.newest_scan() else {
             return Ok(());
@@ -505,14 +507,14 @@ impl Link {
             if stop.load(Ordering::Relaxed) {
                 return Err(RobotError::Stopped);
             }
-            if since.elapsed() >= FIRST_ODOMETRY {
+            if since.elapsed() >= self.first_message_timeout {
                 let awaited = Awaited {
                     topic: &self.names.scan,
                     message: MessageType::LaserScan,
                     key: "ros2.scan",
                 };
                 return Err(RobotError::NoScan {
-                    waited_s: FIRST_ODOMETRY.as_secs_f64(),
+                    waited_s: self.first_message_timeout.as_secs_f64(),
                     key: key.to_string(),
                     endpoint: self.endpoint.clone(),
                     graph: graph_text(&self.graph(), self.names.domain_id, &awaited),
@@ -523,7 +525,7 @@ impl Link {
         Ok(())
     }
 
-    /// Waits until the first odometry comes (at most [`FIRST_ODOMETRY`]) or `stop`.
+    /// Waits until the first odometry comes (at most `ros2.first_message_timeout_s`) or `stop`.
     pub fn first_odometry(&self, stop: &AtomicBool) -> Result<Heard, RobotError> {
         let since = Instant::now();
         loop {
@@ -533,14 +535,14 @@ impl Link {
             if stop.load(Ordering::Relaxed) {
                 return Err(RobotError::Stopped);
             }
-            if since.elapsed() >= FIRST_ODOMETRY {
+            if since.elapsed() >= self.first_message_timeout {
                 let awaited = Awaited {
                     topic: &self.names.odom,
                     message: MessageType::Odometry,
                     key: "ros2.odom",
                 };
                 return Err(RobotError::NoOdometry {
-                    waited_s: FIRST_ODOMETRY.as_secs_f64(),
+                    waited_s: self.first_message_timeout.as_secs_f64(),
                     key: self.odometry_key.clone(),
                     endpoint: self.endpoint.clone(),
                     graph: graph_text(&self.graph(), self.names.domain_id, &awaited),

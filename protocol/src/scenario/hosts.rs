@@ -76,3 +76,41 @@ pub(super) fn check_host_name(v: &mut super::validate::Validator, key: &str, hos
     }
     named
 }
+
+impl super::Scenario {
+    /// Host names name hosts, endpoints parse, and a host's endpoint is known when it is
+    /// given in the scenario.
+    pub(super) fn check_hosts(&self, v: &mut super::validate::Validator) {
+        for role in crate::Role::ALL {
+            let Some(host) = self.hosts.of(role) else {
+                continue;
+            };
+            let key = format!("hosts.{}", role.as_str());
+            if !check_host_name(v, &key, host) {
+                continue;
+            }
+            if !crate::graph::declaration(role, self.plant.kind).remote {
+                v.fail(
+                    &key,
+                    "this role runs on the orchestrator's host only".into(),
+                );
+            }
+        }
+        for (name, endpoint) in &self.hosts.endpoints {
+            let key = format!("hosts.endpoints.{name}");
+            if !check_host_name(v, &key, name) {
+                continue;
+            }
+            if let Err(e) = crate::endpoint::Endpoint::parse(endpoint) {
+                v.fail(&key, e);
+            }
+        }
+        for role in [crate::Role::Planner, crate::Role::Tracker] {
+            if self.hosts.of(role).is_some()
+                && let Some(why) = self.absent(role)
+            {
+                v.fail(&format!("hosts.{}", role.as_str()), why);
+            }
+        }
+    }
+}

@@ -137,43 +137,6 @@ impl SwapConfig {
     }
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum RestartPolicy {
-    Always,
-    Never,
-}
-
-/// What the orchestrator does when a role process dies (a dead plant always ends the run).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct Supervision {
-    /// Restart a dead estimator, MPC or DFL (a dead plant always ends the run).
-    pub restart: RestartPolicy,
-    /// Restarts allowed over the whole run.
-    pub max_restarts: u32,
-    /// When the host of a role is lost (docs/hosts.md): `none` ends the run `aborted`;
-    /// `local` starts a replacement on the orchestrator's host and the run goes on.
-    pub failover: Failover,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum Failover {
-    None,
-    Local,
-}
-
-impl Default for Supervision {
-    fn default() -> Self {
-        Supervision {
-            restart: RestartPolicy::Always,
-            max_restarts: 3,
-            failover: Failover::None,
-        }
-    }
-}
-
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Timing {
@@ -927,6 +890,9 @@ pub use live::*;
 
 mod hosts;
 pub use hosts::*;
+
+mod supervision;
+pub use supervision::*;
 
 mod fleet;
 pub use fleet::*;

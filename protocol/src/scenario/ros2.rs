@@ -65,6 +65,10 @@ pub struct Ros2Config {
     /// With a lidar: a scan older than this stops the robot (zero twist) and, once twice
     /// as old, ends the run `aborted`, s.
     pub scan_timeout_s: f64,
+    /// How long the run waits for the robot's first odometry (with a lidar, then for its
+    /// first scan) before it ends with an error naming what it waited for, s. A base that
+    /// takes longer to come up after its driver starts needs more.
+    pub first_message_timeout_s: f64,
 }
 
 impl Default for Ros2Config {
@@ -84,6 +88,7 @@ impl Default for Ros2Config {
             odom_timeout_s: 0.2,
             scan: "scan".into(),
             scan_timeout_s: 0.5,
+            first_message_timeout_s: 5.0,
         }
     }
 }
@@ -132,6 +137,7 @@ impl Ros2Config {
         for (key, timeout_s) in [
             ("ros2.odom_timeout_s", self.odom_timeout_s),
             ("ros2.scan_timeout_s", self.scan_timeout_s),
+            ("ros2.first_message_timeout_s", self.first_message_timeout_s),
         ] {
             if !(timeout_s.is_finite() && timeout_s > 0.0) {
                 problems.push((key, format!("{timeout_s} is not a positive number")));

@@ -55,6 +55,10 @@ impl Scenario {
     /// The run's length and clock, the robot, the plant and the estimator.
     fn check_basics(&self, v: &mut Validator) {
         v.positive("duration_s", self.duration_s);
+        v.positive(
+            "supervision.swap_timeout_s",
+            self.supervision.swap_timeout_s,
+        );
         for (i, name) in self.extra_roles.iter().enumerate() {
             let optional = crate::Role::from_name(name)
                 .is_some_and(|r| crate::graph::declaration(r, crate::PlantKind::Sim).optional);
@@ -395,42 +399,6 @@ impl Scenario {
             }
             if swap.command.first().is_some_and(|p| p.trim().is_empty()) {
                 v.fail(&format!("swap.{i}.command"), "the program is empty".into());
-            }
-        }
-    }
-
-    /// Host names name hosts, endpoints parse, and a host's endpoint is known when it is
-    /// given in the scenario.
-    fn check_hosts(&self, v: &mut Validator) {
-        for role in crate::Role::ALL {
-            let Some(host) = self.hosts.of(role) else {
-                continue;
-            };
-            let key = format!("hosts.{}", role.as_str());
-            if !super::check_host_name(v, &key, host) {
-                continue;
-            }
-            if !crate::graph::declaration(role, self.plant.kind).remote {
-                v.fail(
-                    &key,
-                    "this role runs on the orchestrator's host only".into(),
-                );
-            }
-        }
-        for (name, endpoint) in &self.hosts.endpoints {
-            let key = format!("hosts.endpoints.{name}");
-            if !super::check_host_name(v, &key, name) {
-                continue;
-            }
-            if let Err(e) = crate::endpoint::Endpoint::parse(endpoint) {
-                v.fail(&key, e);
-            }
-        }
-        for role in [crate::Role::Planner, crate::Role::Tracker] {
-            if self.hosts.of(role).is_some()
-                && let Some(why) = self.absent(role)
-            {
-                v.fail(&format!("hosts.{}", role.as_str()), why);
             }
         }
     }

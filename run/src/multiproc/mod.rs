@@ -52,8 +52,6 @@ const SWAP_WARMUP_SAMPLES: u64 = 2;
 /// A warm replacement takes over at the first sample boundary at least this many samples
 /// ahead, so every process has heard of the switch before its tick.
 const SWITCH_LEAD_SAMPLES: u64 = 2;
-/// A replacement not warm this long after it was started is stopped; the swap fails.
-const SWAP_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// `run.json` of a run directory: how tools such as `scmpc swap` reach the running run.
 #[derive(Debug, serde::Serialize, serde::Deserialize)]

@@ -3,12 +3,12 @@
 //! it replaces, warmed up, switched in at a sample boundary, or stopped when it fails.
 
 use super::session::Session;
-use super::{STOP_TIMEOUT, SWAP_TIMEOUT, SWAP_WARMUP_SAMPLES, SWITCH_LEAD_SAMPLES};
+use super::{STOP_TIMEOUT, SWAP_WARMUP_SAMPLES, SWITCH_LEAD_SAMPLES};
 use crate::children::Children;
 use protocol::{ControlCommand, Role, Scenario, SwapReply, Timing};
 use record::{Event, Recorder};
 use runtime::clock::RunMode;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// A replacement being swapped in (docs/design.md, "Supervision").
 struct Swap {
@@ -48,6 +48,9 @@ struct Requester {
 /// The swaps of a run: scheduled, asked for live, and under way.
 pub(super) struct SwapServer {
     timing: Timing,
+    /// `supervision.swap_timeout_s`: a replacement not warm this long after it was started
+    /// is stopped, and the swap fails.
+    timeout: Duration,
     /// The roles of the run (`scmpc swap` of another is refused).
     roles: Vec<Role>,
     /// Swaps not started yet, earliest first: the scenario's, and live requests (time 0).
@@ -70,6 +73,8 @@ impl SwapServer {
     pub fn new(scenario: &Scenario) -> SwapServer {
         SwapServer {
             timing: scenario.timing.clone(),
+            timeout: Duration::try_from_secs_f64(scenario.supervision.swap_timeout_s)
+                .unwrap_or(Duration::MAX),
             roles: scenario.roles().collect(),
             scheduled: scheduled_swaps(scenario),
             swaps: Vec::new(),
@@ -141,13 +146,14 @@ impl SwapServer {
                             epoch,
                             switch_tick: tick,
                         })?;
-                    } else if swap.started.elapsed() > SWAP_TIMEOUT {
+                    } else if swap.started.elapsed() > self.timeout {
                         let swap = self.swaps.remove(i);
                         self.fail(
                             p,
                             swap,
                             &format!(
-                                "the replacement published nothing usable within {SWAP_TIMEOUT:?}"
+                                "the replacement published nothing usable within {:?}",
+                                self.timeout
                             ),
                         )?;
                         continue;
