@@ -134,8 +134,7 @@ fn an_estimator_whose_estimates_are_refused_for_half_a_second_is_restarted_and_t
 }
 
 #[test]
-fn a_forged_measurement_and_a_forged_stop_from_another_publisher_are_refused_and_the_paper_run_goes_on()
- {
+fn a_forged_measurement_and_a_forged_stop_from_another_publisher_are_refused_and_the_run_goes_on() {
     let machine = common::machine_alone();
     let prefix = unique_prefix("ahead");
     let dir = tempfile::tempdir().unwrap();
