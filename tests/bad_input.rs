@@ -392,6 +392,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         (&["hosts.mpc=\"box 1\""], "hosts.mpc"),
         (&["hosts.endpoints.box=nowhere"], "hosts.endpoints.box"),
         (&["hosts.planner=box"], "hosts.planner"),
+        (&["hosts.join_timeout_s=0"], "hosts.join_timeout_s"),
         (&["supervision.restart=sometimes"], "supervision.restart"),
         (&["supervision.max_restarts=-1"], "supervision.max_restarts"),
         (&["supervision.failover=remote"], "supervision.failover"),

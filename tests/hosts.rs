@@ -508,6 +508,8 @@ fn a_host_that_does_not_answer_fails_the_run_before_tick_0_naming_it() {
         "run",
         "--set",
         "hosts.mpc=compute",
+        "--set",
+        "hosts.join_timeout_s=1",
         "--host",
         &host,
         "--out",
@@ -515,7 +517,9 @@ fn a_host_that_does_not_answer_fails_the_run_before_tick_0_naming_it() {
     ]);
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     assert!(
-        stderr(&out).contains("host `compute`") && stderr(&out).contains("did not join"),
+        stderr(&out).contains("host `compute`")
+            && stderr(&out).contains("did not join")
+            && stderr(&out).contains("no answer within 1s"),
         "{}",
         stderr(&out)
     );
@@ -563,13 +567,15 @@ fn over_tls_with_mutual_authentication_the_remote_run_gives_the_same_bytes() {
         "--tls-key",
         &key,
     ];
+    // Each is given 1 s to join (`hosts.join_timeout_s`, 5 s by default).
+    let wait = ["--set", "hosts.join_timeout_s=1"];
     for tls in [stranger_client, trusts_another] {
         let three = tempfile::tempdir().unwrap();
         let out = agent.run(
             "compute",
             &["mpc"],
             three.path(),
-            &[&SHORT[..], &tls].concat(),
+            &[&SHORT[..], &tls, &wait].concat(),
         );
         assert_eq!(out.status.code(), Some(1), "{tls:?}: {}", stderr(&out));
         assert!(stderr(&out).contains("did not join"), "{}", stderr(&out));

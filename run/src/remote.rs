@@ -1,5 +1,5 @@
 //! The orchestrator's side of a run whose roles are placed on other hosts (docs/hosts.md):
-//! it asks each host's agent to join the run (within [`JOIN_TIMEOUT`], or the run fails
+//! it asks each host's agent to join the run (within `hosts.join_timeout_s`, or the run fails
 //! before tick 0 naming the host), runs the bridge of its own host, starts and signals
 //! role processes through the agents, hears their exits, and notices a host that is
 //! gone (its liveliness token goes away).
@@ -25,7 +25,6 @@ use zenoh::pubsub::Subscriber;
 use zenoh::sample::{Sample, SampleKind};
 
 /// How long a host's agent has to answer the join request.
-pub const JOIN_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long an agent has to answer a command.
 const COMMAND_TIMEOUT: Duration = Duration::from_secs(3);
 
@@ -135,7 +134,6 @@ impl RemoteHosts {
         let running: Vec<Role> = scenario.roles().collect();
         let placement = scenario.hosts.clone();
         let routes = routes::plan(&protocol::graph::Graph::of(scenario), |r| placement.of(r));
-        let robot = whose.robot;
         // A fleet's robot's tracker takes the other robots' samples where it runs.
         let (peers, peers_to) = match placement.of(Role::Tracker) {
             Some(host) => (whose.peer_topics(), vec![host.to_string()]),
@@ -147,7 +145,7 @@ impl RemoteHosts {
                 run: run.clone(),
                 host: ORCHESTRATOR.to_string(),
                 prefix: prefix.to_string(),
-                robot,
+                robot: whose.robot,
                 key: key.clone(),
                 send: routes.orchestrator_sends.clone(),
                 receive: routes.orchestrator_receives.clone(),
@@ -167,7 +165,7 @@ impl RemoteHosts {
                 key: key.to_hex(),
                 host: name.clone(),
                 mode: mode.as_str().to_string(),
-                robot,
+                robot: whose.robot,
                 scenario_toml: whose.fleet.unwrap_or(scenario).to_toml(),
                 roles: running
                     .iter()
@@ -181,7 +179,8 @@ impl RemoteHosts {
                     false => Vec::new(),
                 },
             };
-            let link = join_host(&session, &name, &request, endpoints[&name].zenoh())?;
+            let timeout = scenario.hosts.join_timeout();
+            let link = join_host(&session, &name, &request, timeout, endpoints[&name].zenoh())?;
             hosts.insert(name, link);
         }
         Ok(RemoteHosts {
@@ -330,15 +329,16 @@ impl RemoteHosts {
 /// The shortest wait for an answer to one join request.
 const JOIN_ATTEMPT: Duration = Duration::from_millis(500);
 
-/// Asks host `name`, listening at `endpoint`, to join the run as `request` says; its link
-/// once it has.
+/// Asks host `name`, listening at `endpoint`, to join the run as `request` says, for at
+/// most `timeout`; its link once it has.
 fn join_host(
     session: &zenoh::Session,
     name: &str,
     request: &JoinRequest,
+    timeout: Duration,
     endpoint: String,
 ) -> anyhow::Result<HostLink> {
-    let reply = ask_to_join(session, name, request).map_err(|e| {
+    let reply = ask_to_join(session, name, request, timeout).map_err(|e| {
         anyhow!(
             "host `{name}` at {endpoint} did not join the run: {e} (is `scmpc host \
              --name {name} --listen {endpoint}` running there?)"
@@ -358,14 +358,15 @@ fn join_host(
     })
 }
 
-/// Asks the agent of `host` to join, again and again until it answers or [`JOIN_TIMEOUT`]
+/// Asks the agent of `host` to join, again and again until it answers or `timeout`
 /// passes: a query fails at once while the link to the agent is not up yet.
 fn ask_to_join(
     session: &zenoh::Session,
     host: &str,
     request: &JoinRequest,
+    timeout: Duration,
 ) -> Result<JoinReply, hosts::HostError> {
-    let deadline = Instant::now() + JOIN_TIMEOUT;
+    let deadline = Instant::now() + timeout;
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
         match messages::ask(
@@ -377,7 +378,7 @@ fn ask_to_join(
             Ok(reply) => return Ok(reply),
             Err(e) if Instant::now() >= deadline => {
                 return Err(hosts::HostError::Protocol(format!(
-                    "no answer within {JOIN_TIMEOUT:?} (the last attempt: {e})"
+                    "no answer within {timeout:?} (the last attempt: {e})"
                 )));
             }
             Err(_) => std::thread::sleep(Duration::from_millis(100)),

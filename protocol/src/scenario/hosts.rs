@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 /// Where the roles run (docs/hosts.md): the name of a host per role, empty for the
 /// orchestrator's host (the plant, the simulated robot, always runs there), and where each
 /// named host's agent listens.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HostsConfig {
     /// The host the estimator runs on (empty: the orchestrator's).
@@ -21,9 +21,32 @@ pub struct HostsConfig {
     /// Host name to the Zenoh endpoint its agent listens on (`tcp/ADDR:PORT` or
     /// `tls/ADDR:PORT`); `scmpc run --host NAME=ENDPOINT` adds to it.
     pub endpoints: std::collections::BTreeMap<String, String>,
+    /// How long the orchestrator asks each host's agent to join the run before the run
+    /// fails, naming the host, s. A host behind a slow link may need more.
+    pub join_timeout_s: f64,
+}
+
+impl Default for HostsConfig {
+    fn default() -> Self {
+        HostsConfig {
+            estimator: String::new(),
+            mpc: String::new(),
+            dfl: String::new(),
+            planner: String::new(),
+            tracker: String::new(),
+            endpoints: std::collections::BTreeMap::new(),
+            join_timeout_s: 5.0,
+        }
+    }
 }
 
 impl HostsConfig {
+    /// `join_timeout_s` (validated positive; beyond what a `Duration` holds, the longest).
+    pub fn join_timeout(&self) -> std::time::Duration {
+        std::time::Duration::try_from_secs_f64(self.join_timeout_s)
+            .unwrap_or(std::time::Duration::MAX)
+    }
+
     /// The host `role` runs on (`None`: the orchestrator's).
     pub fn of(&self, role: crate::Role) -> Option<&str> {
         let name = match role {
@@ -81,6 +104,7 @@ impl super::Scenario {
     /// Host names name hosts, endpoints parse, and a host's endpoint is known when it is
     /// given in the scenario.
     pub(super) fn check_hosts(&self, v: &mut super::validate::Validator) {
+        v.positive("hosts.join_timeout_s", self.hosts.join_timeout_s);
         for role in crate::Role::ALL {
             let Some(host) = self.hosts.of(role) else {
                 continue;
