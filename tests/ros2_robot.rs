@@ -485,14 +485,10 @@ const UNMAPPED_WORLD: [&str; 21] = [
 ];
 
 /// The pipeline of `unmapped` with no obstacle of its own: it sees the base's world
-/// through the base's lidar alone.
-const SEEING: [&str; 5] = [
-    "unmapped",
-    "--set",
-    "obstacles=[]",
-    "--set",
-    "duration_s=20",
-];
+/// through the base's lidar alone. It has the scenario's 30 s, and ends when it reaches
+/// its goal: mostly at 14.3-14.7 s, but in 2 of 24 runs on 2026-12-01 it backed away from
+/// the box once seen and went round it wide, and was 0.27 m from its goal at 20 s.
+const SEEING: [&str; 3] = ["unmapped", "--set", "obstacles=[]"];
 
 /// The base's truth rows in which it touched a disc of its world while it moved: `[t,
 /// x, y, yaw, v, w, clearance]`, clearance below 0 with |v| or |w| at least 0.01.

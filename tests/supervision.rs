@@ -767,9 +767,17 @@ fn a_slow_estimator_in_real_time_delays_every_command_and_one_slower_than_a_tick
     // direct run).
     let (dir, s) = run("2");
     let loop_us = s["loop_latency_us"]["p50"].as_f64().unwrap();
+    // (Once in ten runs of this binary on 2026-12-01 the p50 was 864 us, not reproduced in
+    // 22 runs of this test alone or of the run by hand: the message now says more.)
     assert!(
         (2000.0..5000.0).contains(&loop_us),
-        "sensor to actuator {loop_us} us"
+        "sensor to actuator {loop_us} us: {} (restarts {}, gaps {}, ticks without an \
+         estimate {}, misses {})",
+        s["loop_latency_us"],
+        s["restarts"],
+        s["record_gaps"],
+        s["ticks_without_estimate"],
+        s["deadline_misses"]
     );
     let events = common::events(dir.path());
     let mut faults = common::stalls::faults(&events);

@@ -47,25 +47,12 @@ fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
     }
 }
 
-/// The ticks of `record_gap` events from the swap's start to one second after its switch.
-fn gaps_around_swap(ev: &[serde_json::Value], role: &str) -> Vec<u64> {
-    let started = ev
-        .iter()
-        .find(|e| e["event"] == "swap_started" && e["role"] == role)
-        .and_then(|e| e["t"].as_f64())
-        .unwrap_or_else(|| panic!("no swap_started of the {role}"));
-    let first = (started / 0.005) as u64;
-    let last = swapped(ev, role)["switch_tick"].as_u64().unwrap() + 200;
-    ev.iter()
-        .filter(|e| e["event"] == "record_gap")
-        .filter_map(|e| e["tick"].as_u64())
-        .filter(|tick| (first..=last).contains(tick))
-        .collect()
-}
-
-/// The swaps' claim: no deadline missed and no tick lost from a swap's start to a second
-/// after its switch. A tick lost elsewhere is allowed where the machine itself stalled (a
-/// stall of a shared CI VM, issue 47's subject), as in the project's other real-time tests.
+/// The swaps' claim: no deadline missed and no tick lost, the swaps' starts and switches
+/// included, but in a stall of the machine itself (a stall of a shared CI VM, issue 47's
+/// subject), as in the project's other real-time tests. A swap that lost a tick of its own
+/// would fail the judge: its gap falls in no stall. (The swaps' windows were held to no
+/// gap at all until a fresh-clone CI run of ed511c6 lost ticks 1721-1722 (8.6 s), in the
+/// second after the estimator's switch, inside a stall: it saw 133 on the run's CPUs.)
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
     let machine = common::machine_alone();
@@ -88,9 +75,6 @@ command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
     let (out_dir, s, ev) = run_realtime(dir.path(), &file);
     assert_eq!(s["deadline_misses"], 0);
     machine.assert_every_fault_in_a_stall(&ev);
-    for role in ["estimator", "mpc"] {
-        assert_eq!(gaps_around_swap(&ev, role), [] as [u64; 0], "{role} swap");
-    }
     let gaps = s["record_gaps"].as_u64().unwrap() as usize;
     assert_eq!(s["swaps"], 2);
     assert!(

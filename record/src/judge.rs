@@ -52,7 +52,8 @@ pub enum StallReason {
     /// No plan of the run was solved: no controller started the robot.
     InfeasibleFromStart,
     /// It ended within [`NEAR_GOAL_M`] of the goal, outside its tolerance: it went to and
-    /// fro, or crept, about the goal.
+    /// fro, or crept, about the goal (a run that timed out coming nearer by more than
+    /// [`APPROACHING_NEAR_GOAL_M`] over the last stall window is still approaching).
     OscillatingNearGoal,
     /// It ended at an obstacle (clearance within [`PINNED_CLEARANCE_M`] beyond the
     /// MPC's margins) that lies towards the goal: the CBF holds it where the straight way
@@ -101,6 +102,11 @@ pub const PINNED_CLEARANCE_M: f64 = 0.15;
 pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
+/// A robot that timed out within [`NEAR_GOAL_M`] of its goal, but came nearer by more than
+/// this over the last stall window, was [`StallReason::StillApproaching`], not going to and
+/// fro about the goal, m (a lidar run on 2026-12-01 timed out 0.27 m from its goal at
+/// 0.27 m/s, after a detour round a box it had seen late).
+pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 
 /// A robot standing still with a moving obstacle this near (edge to surface) waits for
 /// it to pass and has not stalled, m: a person crossing or coming at it takes a few
@@ -285,17 +291,21 @@ impl Judge {
                 && towards_obstacle[0] * towards_goal[0] + towards_obstacle[1] * towards_goal[1]
                     > 0.0
         });
-        let approaching = self.window.front().is_some_and(|&(_, wx, wy)| {
+        let nearer_by_m = self.window.front().map_or(0.0, |&(_, wx, wy)| {
             let then = (self.goal[0] - wx).hypot(self.goal[1] - wy);
-            then - self.last_distance_to_goal_m > STALL_DISTANCE_M
+            then - self.last_distance_to_goal_m
         });
+        let timed_out = outcome == Outcome::Timeout;
+        let approaching = timed_out && nearer_by_m > STALL_DISTANCE_M;
         Some(if solved_plans == 0 {
             StallReason::InfeasibleFromStart
-        } else if self.last_distance_to_goal_m <= NEAR_GOAL_M {
+        } else if self.last_distance_to_goal_m <= NEAR_GOAL_M
+            && !(timed_out && nearer_by_m > APPROACHING_NEAR_GOAL_M)
+        {
             StallReason::OscillatingNearGoal
         } else if pinned {
             StallReason::PinnedAtObstacle
-        } else if outcome == Outcome::Timeout && approaching {
+        } else if approaching {
             StallReason::StillApproaching
         } else if followed_route {
             StallReason::NoProgressOnRoute
@@ -815,5 +825,22 @@ mod tests {
             m.reason(Outcome::Timeout, 10, false),
             Some(StallReason::StillApproaching)
         );
+    }
+
+    #[test]
+    fn a_timeout_near_the_goal_is_still_approaching_only_if_it_came_much_nearer() {
+        let goal = Scenario::default().robot.goal.position;
+        let run = |speed_m_s: f64| {
+            let mut m = Judge::new(&Scenario::default());
+            // Along x towards the goal, ending 0.3 m short of it at 5 s.
+            for i in 0..=500 {
+                let t = i as f64 * 0.01;
+                let x = goal[0] - 0.3 - speed_m_s * (5.0 - t);
+                assert_eq!(m.observe(t, x, goal[1]), None);
+            }
+            m.reason(Outcome::Timeout, 10, false)
+        };
+        assert_eq!(run(0.27), Some(StallReason::StillApproaching));
+        assert_eq!(run(0.01), Some(StallReason::OscillatingNearGoal));
     }
 }

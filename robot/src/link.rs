@@ -437,8 +437,7 @@ impl Link {
             names,
             command,
             odometry_key,
-            first_message_timeout: Duration::try_from_secs_f64(config.first_message_timeout_s)
-                .unwrap_or(Duration::MAX),
+            first_message_timeout: protocol::wait_of_s(config.first_message_timeout_s),
             newest_odometry,
             frame,
             newest_goal,

@@ -271,7 +271,7 @@ fn topics(dir: &std::path::Path, seconds: f64) -> CliResult {
         return Err(bad_input(format!("--for must be positive, got {seconds}")));
     }
     let stop = run::stop::on_signals();
-    let over = std::time::Duration::from_secs_f64(seconds);
+    let over = protocol::wait_of_s(seconds);
     let topics = run::watch::topic_rates(dir, over, &stop).map_err(bad_input)?;
     println!(
         "{:14}  {:>9}  {:10}  type",

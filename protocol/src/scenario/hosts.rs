@@ -41,10 +41,9 @@ impl Default for HostsConfig {
 }
 
 impl HostsConfig {
-    /// `join_timeout_s` (validated positive; beyond what a `Duration` holds, the longest).
+    /// `join_timeout_s` ([`crate::wait_of_s`]).
     pub fn join_timeout(&self) -> std::time::Duration {
-        std::time::Duration::try_from_secs_f64(self.join_timeout_s)
-            .unwrap_or(std::time::Duration::MAX)
+        crate::wait_of_s(self.join_timeout_s)
     }
 
     /// The host `role` runs on (`None`: the orchestrator's).

@@ -73,8 +73,7 @@ impl SwapServer {
     pub fn new(scenario: &Scenario) -> SwapServer {
         SwapServer {
             timing: scenario.timing.clone(),
-            timeout: Duration::try_from_secs_f64(scenario.supervision.swap_timeout_s)
-                .unwrap_or(Duration::MAX),
+            timeout: protocol::wait_of_s(scenario.supervision.swap_timeout_s),
             roles: scenario.roles().collect(),
             scheduled: scheduled_swaps(scenario),
             swaps: Vec::new(),
