@@ -310,3 +310,45 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
     c.assert_left_nothing(std::time::Duration::from_secs(3));
     b.assert_left_nothing(std::time::Duration::from_secs(3));
 }
+
+/// With `supervision.failover = "local"`, a fleet robot whose agent is SIGKILLed (robot 2,
+/// its tracker and MPC on host `c`) has both started again on the orchestrator's host, and
+/// reaches its goal; so do the others, with no contact. In lockstep: the kill comes at a
+/// simulated time, and the clock waits for the replacements.
+#[test]
+fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_its_goal() {
+    let _machine = common::machine_shared();
+    let (b, mut c) = (Agent::plain("b"), Agent::plain("c"));
+    let args = across_hosts(&b, &c);
+    let prefix = unique_prefix("fleetfailover");
+    let dir = tempfile::tempdir().unwrap();
+    let local = ["--prefix", &prefix, "--set", "supervision.failover=local"];
+    let args: Vec<&str> = args[1..].iter().map(String::as_str).collect();
+    let mut child = common::spawn_run(dir.path(), &[&args[..], &local].concat());
+    common::wait_for_pid(&dir.path().join("robot2"), "mpc");
+    common::SimulatedClock::of(&prefix).wait_until(2.0);
+    c.child.kill().unwrap();
+    c.child.wait().unwrap();
+    assert_eq!(child.wait().unwrap().code(), Some(0), "every robot reaches");
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["reached"], 3, "{fleet}");
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    assert_eq!(fleet["robot_contacts_at_rest"], 0, "{fleet}");
+    let robot2 = dir.path().join("robot2");
+    let ev = events(&robot2);
+    assert!(
+        ev.iter()
+            .any(|e| e["event"] == "host_lost" && e["host"] == "c"),
+        "{ev:#?}"
+    );
+    for role in ["tracker", "mpc"] {
+        let failed_over = ev
+            .iter()
+            .find(|e| e["event"] == "failed_over" && e["role"] == role)
+            .unwrap_or_else(|| panic!("the {role} did not fail over: {ev:#?}"));
+        assert!(failed_over["host"].is_null(), "{failed_over}");
+    }
+    assert_eq!(summary(&robot2)["hosts"]["mpc"], "c", "where it began");
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    b.assert_left_nothing(std::time::Duration::from_secs(3));
+}
