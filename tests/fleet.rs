@@ -91,6 +91,58 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
+/// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet
+/// as it drives, in process and across processes: the time, the robots at their goals,
+/// their clearance to each other and their contacts, the time rising line by line.
+#[test]
+fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
+    let _machine = common::machine_shared();
+    for executor in [
+        &["--in-process"][..],
+        &["--prefix", &unique_prefix("fleetline")],
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let args = [
+            "run",
+            "swap4",
+            "--no-mcap",
+            "--set",
+            "duration_s=4",
+            "--out",
+        ];
+        let out = common::scmpc()
+            .args(args)
+            .arg(dir.path())
+            .args(executor)
+            .env("SCMPC_PROGRESS_S", "0.02")
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let lines: Vec<&str> = (stdout.lines())
+            .filter(|l| l.starts_with("t ") && l.contains(" / 4.0 s | at their goals "))
+            .collect();
+        assert!(lines.len() >= 2, "{executor:?}: {stdout}");
+        let time =
+            |line: &str| -> f64 { line[1..].split('/').next().unwrap().trim().parse().unwrap() };
+        assert!(
+            lines.windows(2).all(|w| time(w[0]) <= time(w[1])),
+            "{executor:?}: {lines:?}"
+        );
+        for line in &lines {
+            assert!(
+                line.contains("at their goals 0 of 4 | robot–robot clearance ")
+                    && line.ends_with("| contacts 0 moving, 0 at rest"),
+                "{executor:?}: {line}"
+            );
+        }
+        let table = stdout.find("fleet swap4").expect("the end table");
+        assert!(
+            stdout.rfind(lines[lines.len() - 1]).unwrap() < table,
+            "{stdout}"
+        );
+    }
+}
+
 /// Random fleets of two to four robots: no robot moves into another, and the report
 /// counts every robot.
 #[test]

@@ -13,6 +13,7 @@
 use crate::closed_loop::{ClosedLoop, Ended};
 use crate::inprocess::record_tick;
 use crate::sinks::Recording;
+use crate::status_line::FleetStatus;
 use anyhow::Context as _;
 use protocol::{Data, Validated};
 use record::Recorder;
@@ -62,6 +63,7 @@ pub fn run(
     let mut tick = 0;
     let mut interrupted = false;
     let mut positions = Vec::with_capacity(members.len());
+    let mut status = FleetStatus::of(recording.status_line, scenario.duration_s, members.len());
     while members.iter().any(|m| m.recorder.is_some()) && tick < scenario.tick_count() {
         if stop.load(Ordering::Relaxed) {
             interrupted = true;
@@ -75,7 +77,18 @@ pub fn run(
         positions.extend(members.iter().map(|m| m.position));
         judge.tick(&positions, timing.dt_s());
         tick += 1;
+        if let Some(status) = &mut status {
+            let reached = (members.iter())
+                .filter(|m| {
+                    m.summary
+                        .as_ref()
+                        .is_some_and(|s| s.outcome == Outcome::Reached)
+                })
+                .count();
+            status.show(timing.tick_time_s(tick), reached, &judge);
+        }
     }
+    status.as_ref().map(FleetStatus::end);
     let wall_s = started.elapsed().as_secs_f64();
     let mut summaries = Vec::with_capacity(members.len());
     for member in &mut members {

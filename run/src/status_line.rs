@@ -1,9 +1,11 @@
 //! The live status line of a run (docs/running.md), a [`Sink`]: on a terminal one line on
 //! stdout, redrawn in place every [`REDRAW`] as ticks are recorded, wiped at the end;
 //! elsewhere (a pipe, a file, CI's log) the same line printed anew every
-//! [`progress_every`] of wall time.
+//! [`progress_every`] of wall time. A fleet's run has one line for the fleet
+//! ([`FleetStatus`]), drawn by its executor as it judges the robots' ticks.
 
 use protocol::{CommandMode, Timing};
+use record::fleet::FleetJudge;
 use record::{RunStart, Sample, Sink, Summary, TickSample};
 use std::io::{IsTerminal, Write};
 use std::time::{Duration, Instant};
@@ -70,26 +72,62 @@ impl Live {
     }
 }
 
-pub struct StatusLine {
-    live: Live,
-    timing: Timing,
-    /// On a terminal: the line is redrawn in place.
+/// Where a line goes and when: redrawn in place on a terminal every [`REDRAW`], printed
+/// anew elsewhere every [`progress_every`] (the first one interval in).
+struct Drawer {
     redraw: bool,
-    /// Elsewhere: the time between two lines.
     every: Duration,
     /// When the line was last drawn (printed), or the run started.
     drawn: Option<Instant>,
 }
 
+impl Drawer {
+    fn new() -> Drawer {
+        let redraw = std::io::stdout().is_terminal();
+        Drawer {
+            redraw,
+            every: if redraw { REDRAW } else { progress_every() },
+            drawn: (!redraw).then(Instant::now),
+        }
+    }
+
+    /// Draws `line()` if it is time to.
+    fn draw(&mut self, line: impl FnOnce() -> String) {
+        if self.drawn.is_some_and(|at| at.elapsed() < self.every) {
+            return;
+        }
+        self.drawn = Some(Instant::now());
+        // A line that cannot be drawn is no reason to stop the run.
+        let mut out = std::io::stdout().lock();
+        let _ = if self.redraw {
+            write!(out, "\r\x1b[2K{}", line())
+        } else {
+            writeln!(out, "{}", line())
+        };
+        let _ = out.flush();
+    }
+
+    /// Wipes the line on a terminal, so what follows starts on a clean one.
+    fn wipe(&self) {
+        if self.redraw && self.drawn.is_some() {
+            let mut out = std::io::stdout().lock();
+            let _ = write!(out, "\r\x1b[2K");
+            let _ = out.flush();
+        }
+    }
+}
+
+pub struct StatusLine {
+    live: Live,
+    timing: Timing,
+    drawer: Drawer,
+}
+
 impl StatusLine {
     /// The sink's opener.
     pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
-        let redraw = std::io::stdout().is_terminal();
         Ok(Some(Box::new(StatusLine {
-            redraw,
-            every: progress_every(),
-            // Progress lines: the first one interval in.
-            drawn: (!redraw).then(Instant::now),
+            drawer: Drawer::new(),
             live: Live {
                 duration_s: run.scenario.duration_s,
                 mode: "-",
@@ -107,29 +145,65 @@ impl Sink for StatusLine {
             Sample::Verdict(v) => self.live.deadline_misses += u64::from(v.met == 0),
             _ => return Ok(()),
         }
-        let every = if self.redraw { REDRAW } else { self.every };
-        if self.drawn.is_some_and(|at| at.elapsed() < every) {
-            return Ok(());
-        }
-        self.drawn = Some(Instant::now());
-        // A line that cannot be drawn is no reason to stop the run.
-        let mut out = std::io::stdout().lock();
-        let _ = if self.redraw {
-            write!(out, "\r\x1b[2K{}", self.live.line())
-        } else {
-            writeln!(out, "{}", self.live.line())
-        };
-        let _ = out.flush();
+        let live = &self.live;
+        self.drawer.draw(|| live.line());
         Ok(())
     }
 
-    /// Wipes the line on a terminal, so what follows starts on a clean one.
     fn end(self: Box<Self>, _summary: &Summary, _whole: bool) -> std::io::Result<()> {
-        if self.redraw && self.drawn.is_some() {
-            let mut out = std::io::stdout().lock();
-            let _ = write!(out, "\r\x1b[2K");
-            let _ = out.flush();
-        }
+        self.drawer.wipe();
         Ok(())
     }
+}
+
+/// The status line of a fleet's run (`scmpc run` of a scenario with `[[robots]]`, without
+/// `-q`): the time its robots have been judged to, how many ended their record at their
+/// goal, and their smallest clearance to each other so far and their contacts.
+pub struct FleetStatus {
+    drawer: Drawer,
+    duration_s: f64,
+    robots: usize,
+}
+
+impl FleetStatus {
+    /// The line of a fleet of `robots` run for `duration_s`, if the run has one.
+    pub fn of(status_line: bool, duration_s: f64, robots: usize) -> Option<FleetStatus> {
+        status_line.then(|| FleetStatus {
+            drawer: Drawer::new(),
+            duration_s,
+            robots,
+        })
+    }
+
+    /// The fleet judged to `t_s`, with `reached` robots at their goal.
+    pub fn show(&mut self, t_s: f64, reached: usize, judge: &FleetJudge) {
+        let (duration_s, robots) = (self.duration_s, self.robots);
+        self.drawer
+            .draw(|| fleet_line(t_s, duration_s, reached, robots, judge));
+    }
+
+    /// Wipes the line on a terminal, before the end table.
+    pub fn end(&self) {
+        self.drawer.wipe();
+    }
+}
+
+fn fleet_line(
+    t_s: f64,
+    duration_s: f64,
+    reached: usize,
+    robots: usize,
+    judge: &FleetJudge,
+) -> String {
+    let clearance = match judge.min_clearance_m.is_finite() {
+        true => format!("{:.3} m", judge.min_clearance_m),
+        false => "-".into(),
+    };
+    let (moving, at_rest): (u64, u64) = (
+        judge.contacts_moving.iter().sum(),
+        judge.contacts_at_rest.iter().sum(),
+    );
+    format!(
+        "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | robot–robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
+    )
 }

@@ -174,7 +174,7 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
     println!("run directory: {}", out.display());
     let recording = run::sinks::Recording {
         mcap: !args.no_mcap,
-        status_line: false,
+        status_line: !quiet,
         live: false,
     };
     let summary = match args.in_process {

@@ -18,6 +18,7 @@ use super::{
 use crate::children::{Children, LOG_DIR};
 use crate::remote::{RemoteHosts, Whose};
 use crate::sinks::Recording;
+use crate::status_line::FleetStatus;
 use anyhow::{Context, bail};
 use protocol::{ControlCommand, Validated};
 use record::event::{Event, Ready};
@@ -166,7 +167,13 @@ fn drive(
     let _recording_tier = (mode == RunMode::Realtime)
         .then(|| crate::scheduling::orchestrator(&scenario.realtime))
         .flatten();
-    let driven = opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, mode, stop));
+    let status = FleetStatus::of(
+        recording.status_line,
+        scenario.duration_s,
+        scenario.robot_count(),
+    );
+    let driven =
+        opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, mode, status, stop));
     for session in &robots.sessions {
         let _ = session.command(ControlCommand::Stop);
     }
@@ -251,6 +258,7 @@ fn drive_opened(
     prefix: &str,
     robots: &mut Robots,
     mode: RunMode,
+    status: Option<FleetStatus>,
     stop: &AtomicBool,
 ) -> anyhow::Result<Driven> {
     let Robots {
@@ -290,22 +298,12 @@ fn drive_opened(
     let mut drivers: Vec<Driver> = (parts.zip(recorders.iter_mut()))
         .map(|(((s, session), c), r)| Driver::new(s, session, c, r, stop))
         .collect();
-    let radii = (0..scenario.robot_count())
-        .map(|id| scenario.radius_of(id))
-        .collect();
-    let mut fleet = Fleet {
-        judge: FleetJudge::new(radii),
-        starts: (scenarios.iter())
-            .map(|s| [s.robot.start[0], s.robot.start[1]])
-            .collect(),
-        outcomes: vec![None; drivers.len()],
-        dt_s: scenario.timing.dt_s(),
-        ticks: scenario.tick_count(),
-    };
+    let mut fleet = Fleet::new(scenario, scenarios, status);
     let driven = match mode {
         RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, &waitset),
         RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
     };
+    fleet.status.as_ref().map(FleetStatus::end);
     let Fleet {
         judge, outcomes, ..
     } = fleet;
@@ -337,6 +335,37 @@ struct Fleet {
     outcomes: Vec<Option<Outcome>>,
     dt_s: f64,
     ticks: u64,
+    /// The fleet's status line, if the run has one.
+    status: Option<FleetStatus>,
+}
+
+impl Fleet {
+    /// The fleet of `scenario` (its robots', `members`) before its first tick.
+    fn new(scenario: &Validated, members: &[Validated], status: Option<FleetStatus>) -> Fleet {
+        let radii = (0..scenario.robot_count())
+            .map(|id| scenario.radius_of(id))
+            .collect();
+        Fleet {
+            judge: FleetJudge::new(radii),
+            starts: (members.iter())
+                .map(|s| [s.robot.start[0], s.robot.start[1]])
+                .collect(),
+            outcomes: vec![None; members.len()],
+            dt_s: scenario.timing.dt_s(),
+            ticks: scenario.tick_count(),
+            status,
+        }
+    }
+
+    /// The status line, once the robots are judged through `ticks` ticks.
+    fn show(&mut self, ticks: u64) {
+        if let Some(status) = &mut self.status {
+            let reached = (self.outcomes.iter())
+                .filter(|o| **o == Some(Outcome::Reached))
+                .count();
+            status.show(ticks as f64 * self.dt_s, reached, &self.judge);
+        }
+    }
 }
 
 /// Lockstep: every robot's tick granted, whole and recorded before the next, until every
@@ -354,6 +383,7 @@ fn lockstep(
         }
         if tick < fleet.ticks {
             fleet.judge.tick(&positions, fleet.dt_s);
+            fleet.show(tick + 1);
         }
         if fleet.outcomes.iter().all(Option::is_some) || tick == fleet.ticks {
             break;
@@ -404,6 +434,7 @@ fn realtime(
             }
         }
         seen.judge(&mut fleet.judge, fleet.ticks, fleet.dt_s);
+        fleet.show(seen.judged);
     }
     Ok(seen.judged.min(fleet.ticks) as f64 * fleet.dt_s)
 }
