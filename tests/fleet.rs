@@ -92,26 +92,20 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
 }
 
 /// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet
-/// as it drives, in process and across processes: the time, the robots at their goals,
-/// their clearance to each other and their contacts, the time rising line by line.
+/// as it drives, in process and across processes: the time (rising line by line), the
+/// robots at their goals (none in the first 4 s of `swap4`, some before the end of the
+/// whole run in process), their clearance to each other and their contacts, all before
+/// the end table.
 #[test]
 fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
     let _machine = common::machine_shared();
-    for executor in [
-        &["--in-process"][..],
-        &["--prefix", &unique_prefix("fleetline")],
-    ] {
+    let prefix = unique_prefix("fleetline");
+    let whole: (&[&str], &str) = (&["--in-process"], "40.0");
+    let first_4_s: (&[&str], &str) = (&["--prefix", &prefix, "--set", "duration_s=4"], "4.0");
+    for (executor, duration) in [whole, first_4_s] {
         let dir = tempfile::tempdir().unwrap();
-        let args = [
-            "run",
-            "swap4",
-            "--no-mcap",
-            "--set",
-            "duration_s=4",
-            "--out",
-        ];
-        let out = common::scmpc()
-            .args(args)
+        let out = (common::scmpc())
+            .args(["run", "swap4", "--no-mcap", "--out"])
             .arg(dir.path())
             .args(executor)
             .env("SCMPC_PROGRESS_S", "0.02")
@@ -119,27 +113,34 @@ fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
             .unwrap();
         let stdout = String::from_utf8_lossy(&out.stdout);
         let lines: Vec<&str> = (stdout.lines())
-            .filter(|l| l.starts_with("t ") && l.contains(" / 4.0 s | at their goals "))
+            .filter(|l| l.starts_with("t ") && l.contains(" | at their goals "))
             .collect();
         assert!(lines.len() >= 2, "{executor:?}: {stdout}");
-        let time =
-            |line: &str| -> f64 { line[1..].split('/').next().unwrap().trim().parse().unwrap() };
+        let field = |line: &str, after: &str, to: char| -> f64 {
+            let rest = &line[line.find(after).unwrap() + after.len()..];
+            rest[..rest.find(to).unwrap()].trim().parse().unwrap()
+        };
+        let time = |l: &str| field(l, "t ", '/');
+        let reached = |l: &str| field(l, "goals ", 'o');
         assert!(
             lines.windows(2).all(|w| time(w[0]) <= time(w[1])),
             "{executor:?}: {lines:?}"
         );
         for line in &lines {
             assert!(
-                line.contains("at their goals 0 of 4 | robot–robot clearance ")
+                line.contains(&format!(" / {duration} s | at their goals "))
+                    && line.contains(" of 4 | robot-robot clearance ")
                     && line.ends_with("| contacts 0 moving, 0 at rest"),
                 "{executor:?}: {line}"
             );
         }
+        let most = lines.iter().map(|l| reached(l)).fold(0.0, f64::max);
+        match duration {
+            "4.0" => assert_eq!(most, 0.0, "{lines:?}"),
+            _ => assert!((1.0..=4.0).contains(&most), "{lines:?}"),
+        }
         let table = stdout.find("fleet swap4").expect("the end table");
-        assert!(
-            stdout.rfind(lines[lines.len() - 1]).unwrap() < table,
-            "{stdout}"
-        );
+        assert!(stdout.rfind(lines[lines.len() - 1]).unwrap() < table);
     }
 }
 
@@ -381,7 +382,13 @@ fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_
     common::SimulatedClock::of(&prefix).wait_until(2.0);
     c.child.kill().unwrap();
     c.child.wait().unwrap();
-    assert_eq!(child.wait().unwrap().code(), Some(0), "every robot reaches");
+    let code = child.wait().unwrap().code();
+    assert_eq!(
+        code,
+        Some(0),
+        "every robot reaches: {}",
+        summary(dir.path())
+    );
     let fleet = summary(dir.path());
     assert_eq!(fleet["reached"], 3, "{fleet}");
     assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
@@ -402,5 +409,6 @@ fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_
     }
     assert_eq!(summary(&robot2)["hosts"]["mpc"], "c", "where it began");
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    c.assert_left_nothing(std::time::Duration::from_secs(3));
     b.assert_left_nothing(std::time::Duration::from_secs(3));
 }

@@ -49,8 +49,9 @@ pub fn phi_inverse(z: [f64; 4], theta_at_rest_rad: f64) -> [f64; 4] {
     [z[0], z[2], theta, zeta]
 }
 
-/// A wait of `seconds` (validated positive where it comes from a scenario; one beyond what
-/// a `Duration` holds, or not a number, waits the longest there is rather than panicking).
+/// A wait of `seconds` (validated positive where it comes from a scenario; one that is
+/// negative, not a number or beyond what a `Duration` holds waits the longest there is
+/// rather than panicking).
 pub fn wait_of_s(seconds: f64) -> std::time::Duration {
     std::time::Duration::try_from_secs_f64(seconds).unwrap_or(std::time::Duration::MAX)
 }

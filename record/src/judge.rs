@@ -52,15 +52,16 @@ pub enum StallReason {
     /// No plan of the run was solved: no controller started the robot.
     InfeasibleFromStart,
     /// It ended within [`NEAR_GOAL_M`] of the goal, outside its tolerance: it went to and
-    /// fro, or crept, about the goal (a run that timed out coming nearer by more than
-    /// [`APPROACHING_NEAR_GOAL_M`] over the last stall window is still approaching).
+    /// fro, or crept, about the goal (not a run that timed out coming nearer by more than
+    /// [`APPROACHING_NEAR_GOAL_M`] over the last stall window).
     OscillatingNearGoal,
     /// It ended at an obstacle (clearance within [`PINNED_CLEARANCE_M`] beyond the
     /// MPC's margins) that lies towards the goal: the CBF holds it where the straight way
     /// is blocked (a local minimum; a route planner goes round).
     PinnedAtObstacle,
     /// It timed out still getting nearer the goal (by more than [`STALL_DISTANCE_M`]
-    /// over the last stall window): the run was too short for it.
+    /// over the last stall window, or [`APPROACHING_NEAR_GOAL_M`] within [`NEAR_GOAL_M`]
+    /// of it): the run was too short for it.
     StillApproaching,
     /// A route was being followed and the robot made no progress along it.
     NoProgressOnRoute,
@@ -103,8 +104,8 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 /// A robot that moved less than this over the stall window has stalled, m.
 pub const STALL_DISTANCE_M: f64 = 0.005;
 /// A robot that timed out within [`NEAR_GOAL_M`] of its goal, but came nearer by more than
-/// this over the last stall window, was [`StallReason::StillApproaching`], not going to and
-/// fro about the goal, m (a lidar run on 2026-12-01 timed out 0.27 m from its goal at
+/// this over the last stall window, was not going to and fro about the goal but still
+/// approaching it ([`StallReason::StillApproaching`], unless pinned at an obstacle), m (a lidar run on 2026-12-01 timed out 0.27 m from its goal at
 /// 0.27 m/s, after a detour round a box it had seen late).
 pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 
@@ -295,13 +296,15 @@ impl Judge {
             let then = (self.goal[0] - wx).hypot(self.goal[1] - wy);
             then - self.last_distance_to_goal_m
         });
-        let timed_out = outcome == Outcome::Timeout;
-        let approaching = timed_out && nearer_by_m > STALL_DISTANCE_M;
+        let near = self.last_distance_to_goal_m <= NEAR_GOAL_M;
+        let nearer_enough_m = match near {
+            true => APPROACHING_NEAR_GOAL_M,
+            false => STALL_DISTANCE_M,
+        };
+        let approaching = outcome == Outcome::Timeout && nearer_by_m > nearer_enough_m;
         Some(if solved_plans == 0 {
             StallReason::InfeasibleFromStart
-        } else if self.last_distance_to_goal_m <= NEAR_GOAL_M
-            && !(timed_out && nearer_by_m > APPROACHING_NEAR_GOAL_M)
-        {
+        } else if near && !approaching {
             StallReason::OscillatingNearGoal
         } else if pinned {
             StallReason::PinnedAtObstacle

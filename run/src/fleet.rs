@@ -78,17 +78,13 @@ pub fn run(
         judge.tick(&positions, timing.dt_s());
         tick += 1;
         if let Some(status) = &mut status {
-            let reached = (members.iter())
-                .filter(|m| {
-                    m.summary
-                        .as_ref()
-                        .is_some_and(|s| s.outcome == Outcome::Reached)
-                })
-                .count();
-            status.show(timing.tick_time_s(tick), reached, &judge);
+            let outcomes = members
+                .iter()
+                .map(|m| m.summary.as_ref().map(|s| s.outcome));
+            status.show(timing.tick_time_s(tick), outcomes, &judge);
         }
     }
-    status.as_ref().map(FleetStatus::end);
+    drop(status);
     let wall_s = started.elapsed().as_secs_f64();
     let mut summaries = Vec::with_capacity(members.len());
     for member in &mut members {

@@ -6,6 +6,7 @@
 
 use protocol::{CommandMode, Timing};
 use record::fleet::FleetJudge;
+use record::judge::Outcome;
 use record::{RunStart, Sample, Sink, Summary, TickSample};
 use std::io::{IsTerminal, Write};
 use std::time::{Duration, Instant};
@@ -175,15 +176,25 @@ impl FleetStatus {
         })
     }
 
-    /// The fleet judged to `t_s`, with `reached` robots at their goal.
-    pub fn show(&mut self, t_s: f64, reached: usize, judge: &FleetJudge) {
+    /// The fleet judged to `t_s`, with each robot's `outcomes` so far.
+    pub fn show(
+        &mut self,
+        t_s: f64,
+        outcomes: impl Iterator<Item = Option<Outcome>>,
+        judge: &FleetJudge,
+    ) {
         let (duration_s, robots) = (self.duration_s, self.robots);
-        self.drawer
-            .draw(|| fleet_line(t_s, duration_s, reached, robots, judge));
+        self.drawer.draw(|| {
+            let reached = outcomes.filter(|o| *o == Some(Outcome::Reached)).count();
+            fleet_line(t_s, duration_s, reached, robots, judge)
+        });
     }
+}
 
-    /// Wipes the line on a terminal, before the end table.
-    pub fn end(&self) {
+/// Wiped on a terminal once the fleet's run ends, whichever way: before the end table or
+/// an error.
+impl Drop for FleetStatus {
+    fn drop(&mut self) {
         self.drawer.wipe();
     }
 }
@@ -197,13 +208,13 @@ fn fleet_line(
 ) -> String {
     let clearance = match judge.min_clearance_m.is_finite() {
         true => format!("{:.3} m", judge.min_clearance_m),
-        false => "-".into(),
+        false => "none".into(),
     };
     let (moving, at_rest): (u64, u64) = (
         judge.contacts_moving.iter().sum(),
         judge.contacts_at_rest.iter().sum(),
     );
     format!(
-        "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | robot–robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
+        "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | robot-robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
     )
 }

@@ -303,7 +303,7 @@ fn drive_opened(
         RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, &waitset),
         RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
     };
-    fleet.status.as_ref().map(FleetStatus::end);
+    drop(fleet.status.take());
     let Fleet {
         judge, outcomes, ..
     } = fleet;
@@ -360,10 +360,8 @@ impl Fleet {
     /// The status line, once the robots are judged through `ticks` ticks.
     fn show(&mut self, ticks: u64) {
         if let Some(status) = &mut self.status {
-            let reached = (self.outcomes.iter())
-                .filter(|o| **o == Some(Outcome::Reached))
-                .count();
-            status.show(ticks as f64 * self.dt_s, reached, &self.judge);
+            let outcomes = self.outcomes.iter().copied();
+            status.show(ticks as f64 * self.dt_s, outcomes, &self.judge);
         }
     }
 }
