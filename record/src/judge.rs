@@ -105,8 +105,9 @@ pub const STALL_WINDOW_S: f64 = 3.0;
 pub const STALL_DISTANCE_M: f64 = 0.005;
 /// A robot that timed out within [`NEAR_GOAL_M`] of its goal, but came nearer by more than
 /// this over the last stall window, was not going to and fro about the goal but still
-/// approaching it ([`StallReason::StillApproaching`], unless pinned at an obstacle), m (a lidar run on 2026-12-01 timed out 0.27 m from its goal at
-/// 0.27 m/s, after a detour round a box it had seen late).
+/// approaching it ([`StallReason::StillApproaching`], unless pinned at an obstacle), m (a
+/// lidar run on 2026-12-01 timed out 0.27 m from its goal at 0.27 m/s, after a detour
+/// round a box it had seen late).
 pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 
 /// A robot standing still with a moving obstacle this near (edge to surface) waits for
