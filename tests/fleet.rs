@@ -272,6 +272,24 @@ fn across_hosts(b: &Agent, c: &Agent) -> Vec<String> {
     .to_vec()
 }
 
+/// Runs `across_hosts`'s fleet (`args`) under `prefix` with `extra` into `dir`, and
+/// SIGKILLs agent `c` (robot 2's) once the run is 2 s in; returns the run's exit code.
+fn run_killing_agent_c(
+    args: &[String],
+    c: &mut Agent,
+    dir: &std::path::Path,
+    prefix: &str,
+    extra: &[&str],
+) -> Option<i32> {
+    let args: Vec<&str> = args[1..].iter().map(String::as_str).collect();
+    let mut child = common::spawn_run(dir, &[&args[..], &["--prefix", prefix], extra].concat());
+    common::wait_for_pid(&dir.join("robot2"), "mpc");
+    common::SimulatedClock::of(prefix).wait_until(2.0);
+    c.child.kill().unwrap();
+    c.child.wait().unwrap();
+    child.wait().unwrap().code()
+}
+
 /// In lockstep with robots 1 and 2 on hosts of their own (their trackers, MPCs and route
 /// planners there, every other robot's truth, estimate and plan carried to them over
 /// Zenoh), every robot drives as the fleet in process does, byte for byte.
@@ -308,18 +326,8 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
     let args = across_hosts(&b, &c);
     let prefix = unique_prefix("fleethosts");
     let dir = tempfile::tempdir().unwrap();
-    let realtime = ["--mode", "realtime", "--prefix", &prefix];
-    let args: Vec<&str> = args[1..].iter().map(String::as_str).collect();
-    let mut child = common::spawn_run(dir.path(), &[&args[..], &realtime].concat());
-    common::wait_for_pid(&dir.path().join("robot2"), "mpc");
-    common::SimulatedClock::of(&prefix).wait_until(2.0);
-    c.child.kill().unwrap();
-    c.child.wait().unwrap();
-    assert_eq!(
-        child.wait().unwrap().code(),
-        Some(1),
-        "robot 2 cannot reach"
-    );
+    let code = run_killing_agent_c(&args, &mut c, dir.path(), &prefix, &["--mode", "realtime"]);
+    assert_eq!(code, Some(1), "robot 2 cannot reach");
     let fleet = summary(dir.path());
     assert_eq!(fleet["reached"], 2, "{fleet}");
     assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
@@ -375,14 +383,8 @@ fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_
     let args = across_hosts(&b, &c);
     let prefix = unique_prefix("fleetfailover");
     let dir = tempfile::tempdir().unwrap();
-    let local = ["--prefix", &prefix, "--set", "supervision.failover=local"];
-    let args: Vec<&str> = args[1..].iter().map(String::as_str).collect();
-    let mut child = common::spawn_run(dir.path(), &[&args[..], &local].concat());
-    common::wait_for_pid(&dir.path().join("robot2"), "mpc");
-    common::SimulatedClock::of(&prefix).wait_until(2.0);
-    c.child.kill().unwrap();
-    c.child.wait().unwrap();
-    let code = child.wait().unwrap().code();
+    let local = ["--set", "supervision.failover=local"];
+    let code = run_killing_agent_c(&args, &mut c, dir.path(), &prefix, &local);
     assert_eq!(
         code,
         Some(0),
