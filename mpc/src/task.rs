@@ -193,7 +193,7 @@ impl Task for MpcTask {
             let position = [x_bar[0], x_bar[1]];
             let goal = self.scenario.robot.goal.position;
             let tracks = self.newest_tracks.as_ref();
-            rule.detour(estimate.header.time_s, position, goal, tracks)
+            rule.detour(estimate.header.time_s, position, x_bar[3], goal, tracks)
         });
         let route = detour.as_ref().map(|(r, _)| r).or(route);
         let mut plan = (self.mpc).step_on_route(sample, x_bar, estimate.position_sigma(), route);

@@ -29,10 +29,9 @@ pub struct DiscMotion {
     /// ([`Disc::staged`]); the robot's stop from there must end before the grown disc
     /// could reach it.
     pub hidden: bool,
-    /// A tracked obstacle that stands still ([`crate::Track::stands_still`]), or another
-    /// robot of a fleet ([`crate::Track::is_peer`]), which keeps clear of this robot's
-    /// stop itself: a stop need only end before it could reach the robot from the plan's
-    /// own last speed, not from the fastest.
+    /// A tracked obstacle that stands still ([`crate::Track::stands_still`]): a stop need
+    /// only end before it could reach the robot from the plan's own last speed, not from
+    /// the fastest.
     pub standing: bool,
     /// Whether a plan passes the disc as grown only until the next tracks are due, and
     /// held after ([`Disc::staged`]): a phantom's, and the disc of a track that stands

@@ -345,8 +345,7 @@ pub fn predicted_disc(
             radius_rate: kappa * sigma_v + accel_max * age,
             radius_accel: 0.5 * accel_max,
             hidden: track.is_phantom(),
-            // Another robot keeps clear of this robot's stop itself (docs/fleet.md).
-            standing: track.stands_still() || track.is_peer(),
+            standing: track.stands_still(),
             held: held(track, age, refresh_s),
         },
     }
@@ -431,19 +430,6 @@ mod tests {
         assert!((kept.stand_for_s(2.0) - refresh).abs() < 1e-12);
         assert!((kept.stand_for_s(2.05) - (refresh - 0.05)).abs() < 1e-12);
         assert_eq!(kept.stand_for_s(3.0), 0.0, "overdue");
-    }
-
-    #[test]
-    fn another_robot_is_swept_over_the_plans_own_stop_but_grows_as_a_moving_track() {
-        let robot = Track {
-            obstacle: crate::FIRST_PEER + 2,
-            velocity: [1.0, 0.0],
-            ..track(0, 1e-4)
-        };
-        assert!(robot.is_peer() && !robot.stands_still());
-        let disc = predicted_disc(&robot, 0.0, 0.1, 3.0, 1.41, 0.25);
-        assert!(disc.motion.standing && !disc.motion.held);
-        assert!(disc.staged(1.0, 0.25).radius > disc.staged(0.25, 0.25).radius);
     }
 
     #[test]
