@@ -50,9 +50,10 @@ fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
 /// The swaps' claim: no deadline missed and no tick lost, the swaps' starts and switches
 /// included, but in a stall of the machine itself (a stall of a shared CI VM, issue 47's
 /// subject), as in the project's other real-time tests. A swap that lost a tick of its own
-/// fails the judge unless a stall of the machine happens to cover that very tick. (The swaps' windows were held to no
-/// gap at all until a fresh-clone CI run of ed511c6 lost ticks 1721-1722 (8.6 s), in the
-/// second after the estimator's switch, inside a stall: it saw 133 on the run's CPUs.)
+/// fails the judge unless a stall of the machine happens to cover that very tick. (The
+/// swaps' windows were held to no gap at all until a fresh-clone CI run of ed511c6 lost
+/// ticks 1721-1722 (8.6 s), in the second after the estimator's switch, inside a stall: it
+/// saw 133 on the run's CPUs.)
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
     let machine = common::machine_alone();
