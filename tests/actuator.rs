@@ -3,7 +3,7 @@
 //! is such a base, the estimator and the DFL model it, and `summary.json` reports how far
 //! the robot ends up from where each plan put it one sample on (`plan_following_mm`).
 
-mod common;
+use crate::common;
 
 use common::ros2::{Robot, run_on};
 use common::{run_into_tempdir, stderr, summary};
@@ -134,6 +134,7 @@ fn keys_printed(stdout: &[u8]) -> (f64, f64) {
 
 #[test]
 fn identify_recovers_the_lag_and_the_delay_of_a_simulated_base_within_ten_percent() {
+    let _machine = common::machine_shared();
     for (lag_s, delay_s) in [(0.05, 0.02), (0.1, 0.01), (0.02, 0.06), (0.15, 0.04)] {
         let (lag, delay) = identified(&[
             format!("plant.actuator_lag_s={lag_s}"),
@@ -150,6 +151,7 @@ fn identify_recovers_the_lag_and_the_delay_of_a_simulated_base_within_ten_percen
 
 #[test]
 fn identify_refuses_to_start_near_an_obstacle_and_names_it() {
+    let _machine = common::machine_shared();
     // The paper's obstacle is 0.3 m from a robot starting at (3, 1.7).
     let out = common::run(&["identify", "--set", "robot.start=[3,1.7,0]"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));

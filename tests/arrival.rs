@@ -1,7 +1,7 @@
 //! The final approach (issue 48): how a robot arrives at its goal, as `summary.json` and
 //! the end table report it (`arrival`), against what its trajectory shows.
 
-mod common;
+use crate::common;
 
 use common::{csv, num, run_into_tempdir, stderr, summary};
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! Bad scenarios and overrides are refused before anything runs: exit code 2, and a
 //! message naming the file and the key.
 
-mod common;
+use crate::common;
 
 use common::{run, stderr};
 
@@ -58,38 +58,45 @@ fn refused_set(set: &str, key: &str) {
 
 #[test]
 fn unparseable_file_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc\nhorizon = 8", "bad.toml");
 }
 
 #[test]
 fn unknown_key_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc]\ngama = 0.3\n", "gama");
 }
 
 #[test]
 fn badly_typed_value_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc]\nhorizon = \"eight\"\n", "horizon");
 }
 
 #[test]
 fn non_positive_sample_period_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[timing]\nts_s = 0.0\n", "timing.ts_s");
     refused_file("[timing]\nts_s = -0.05\n", "timing.ts_s");
 }
 
 #[test]
 fn zero_horizon_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc]\nhorizon = 0\n", "mpc.horizon");
 }
 
 #[test]
 fn gamma_outside_zero_one_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc]\ngamma = 0.0\n", "mpc.gamma");
     refused_file("[mpc]\ngamma = 1.5\n", "mpc.gamma");
 }
 
 #[test]
 fn negative_radius_is_refused() {
+    let _machine = common::machine_shared();
     refused_file(
         "[[obstacles]]\nx = 1.0\ny = 1.0\nradius = -0.5\n",
         "obstacles.0.radius",
@@ -98,22 +105,26 @@ fn negative_radius_is_refused() {
 
 #[test]
 fn negative_variance_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[plant]\nnoise_variance = -0.05\n", "plant.noise_variance");
 }
 
 #[test]
 fn non_finite_number_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[mpc]\nv_max = nan\n", "mpc.v_max");
     refused_file("[robot]\nstart = [inf, 7.0, 0.0]\n", "robot.start.0");
 }
 
 #[test]
 fn start_inside_an_obstacle_is_refused() {
+    let _machine = common::machine_shared();
     refused_file("[robot]\nstart = [3.0, 3.0, 0.0]\n", "robot.start");
 }
 
 #[test]
 fn constraint_horizon_and_inner_steps_out_of_range_are_refused() {
+    let _machine = common::machine_shared();
     refused_file(
         "[mpc]\nconstraint_horizon = 100000\n",
         "mpc.constraint_horizon",
@@ -123,22 +134,26 @@ fn constraint_horizon_and_inner_steps_out_of_range_are_refused() {
 
 #[test]
 fn set_with_unknown_key_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("mpc.gama=0.3", "mpc.gama");
 }
 
 #[test]
 fn set_with_badly_typed_value_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("mpc.horizon=abc", "mpc.horizon");
     refused_set("mpc.constraint=circle", "mpc.constraint");
 }
 
 #[test]
 fn set_with_impossible_value_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("mpc.gamma=2", "mpc.gamma");
 }
 
 #[test]
 fn missing_scenario_file_is_refused() {
+    let _machine = common::machine_shared();
     let out = run(&["run", "/nonexistent/scenario.toml", "--in-process"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("/nonexistent/scenario.toml"));
@@ -146,6 +161,7 @@ fn missing_scenario_file_is_refused() {
 
 #[test]
 fn a_start_within_the_robots_radius_of_an_obstacle_is_refused() {
+    let _machine = common::machine_shared();
     // 0.2 m from the paper's obstacle's edge, with a robot 0.3 m in radius.
     refused_file(
         "[robot]\nstart = [3.0, 5.2, 0.0]\nradius_m = 0.3\n",
@@ -156,6 +172,7 @@ fn a_start_within_the_robots_radius_of_an_obstacle_is_refused() {
 
 #[test]
 fn a_start_whose_braking_path_enters_an_obstacle_is_refused() {
+    let _machine = common::machine_shared();
     // 1 m from the obstacle's edge, heading at it at 3 m/s: braking at 3 m/s^2 takes 1.5 m.
     refused_file(
         "[robot]\nstart = [3.0, 6.0, -1.5707963267948966]\nzeta0 = 3.0\n",
@@ -165,11 +182,13 @@ fn a_start_whose_braking_path_enters_an_obstacle_is_refused() {
 
 #[test]
 fn a_goal_inside_an_obstacle_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("robot.goal=[3.0, 3.0]", "robot.goal");
 }
 
 #[test]
 fn a_brake_the_input_box_cannot_deliver_is_refused_and_auto_follows_the_box() {
+    let _machine = common::machine_shared();
     refused_set("dfl.brake_decel=4", "dfl.brake_decel");
     refused_set("dfl.brake_decel=fast", "dfl.brake_decel");
     refused_file(
@@ -195,12 +214,14 @@ fn a_brake_the_input_box_cannot_deliver_is_refused_and_auto_follows_the_box() {
 
 #[test]
 fn unknown_safety_settings_are_refused() {
+    let _machine = common::machine_shared();
     refused_set("mpc.terminal_safety=sometimes", "mpc.terminal_safety");
     refused_set("dfl.gatekeeper=maybe", "dfl.gatekeeper");
 }
 
 #[test]
 fn a_start_outside_the_position_box_is_refused() {
+    let _machine = common::machine_shared();
     refused_file(
         "[robot]\nstart = [-5.0, 7.0, 0.0]\n\n[mpc]\nposition_min = [0.0, 0.0]\n",
         "robot.start",
@@ -209,11 +230,13 @@ fn a_start_outside_the_position_box_is_refused() {
 
 #[test]
 fn a_goal_outside_the_position_box_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("robot.goal=[0.0, 12.0]", "robot.goal");
 }
 
 #[test]
 fn horizon_and_inner_steps_above_their_maxima_are_refused() {
+    let _machine = common::machine_shared();
     refused_set(
         &format!("mpc.horizon={}", protocol::MAX_HORIZON + 1),
         "mpc.horizon",
@@ -226,18 +249,21 @@ fn horizon_and_inner_steps_above_their_maxima_are_refused() {
 
 #[test]
 fn a_duration_of_zero_or_less_is_refused() {
+    let _machine = common::machine_shared();
     refused_set("duration_s=0", "duration_s");
     refused_set("duration_s=-1", "duration_s");
 }
 
 #[test]
 fn an_extra_role_that_is_no_optional_role_is_refused_naming_its_place() {
+    let _machine = common::machine_shared();
     refused_set(r#"extra_roles=["mpc"]"#, "extra_roles[0]");
     refused_set(r#"extra_roles=["nobody"]"#, "`nobody` is no optional role");
 }
 
 #[test]
 fn bad_planner_settings_are_refused() {
+    let _machine = common::machine_shared();
     refused_set("planner.kind=astar", "planner.kind");
     refused_set("planner.period_s=-1", "planner.period_s");
     refused_set("planner.clearance_m=-0.1", "planner.clearance_m");
@@ -295,6 +321,7 @@ fn refusal_problem(
 /// refused before anything starts (multi-process runs, so a half-started run would show).
 #[test]
 fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_nothing() {
+    let _machine = common::machine_shared();
     // (--set values, the key the message must name)
     let sets: &[(&[&str], &str)] = &[
         (&["duration_s=0"], "duration_s"),
@@ -587,6 +614,7 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
 
 #[test]
 fn a_file_or_directory_named_like_a_built_in_does_not_shadow_it_and_a_name_of_neither_names_both() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     // A directory `paper` and a broken file `field` where the user works.
     std::fs::create_dir(dir.path().join("paper")).unwrap();
@@ -638,6 +666,7 @@ fn a_file_or_directory_named_like_a_built_in_does_not_shadow_it_and_a_name_of_ne
 /// list has, what a key takes in words; one error per bad value, all of them at once.
 #[test]
 fn each_bad_override_is_one_error_that_says_what_to_do() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("run");
     let out = run(&[
@@ -681,6 +710,7 @@ fn each_bad_override_is_one_error_that_says_what_to_do() {
 /// key's choices.
 #[test]
 fn a_mistyped_key_or_word_in_a_file_is_told_the_key_or_words_meant() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("robot.toml");
     std::fs::write(&file, "[mpc]\nhorizon = 8\nconstrant = \"cbf\"\n").unwrap();
@@ -704,6 +734,7 @@ fn a_mistyped_key_or_word_in_a_file_is_told_the_key_or_words_meant() {
 /// `sweep --grid` errors are labelled with the grid value, not `--set`.
 #[test]
 fn a_bad_grid_value_is_labelled_with_its_grid() {
+    let _machine = common::machine_shared();
     let out = run(&["sweep", "--grid", "mpc.gamma=0.1,abc"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     let msg = stderr(&out);
@@ -717,6 +748,7 @@ fn a_bad_grid_value_is_labelled_with_its_grid() {
 /// `run --help` and `sweep --help` name every built-in scenario.
 #[test]
 fn the_help_of_run_and_sweep_names_every_built_in_scenario() {
+    let _machine = common::machine_shared();
     let scenarios = run(&["scenario", "--help"]);
     for command in ["run", "sweep"] {
         let help = String::from_utf8_lossy(&run(&[command, "--help"]).stdout).into_owned();
@@ -734,6 +766,7 @@ fn the_help_of_run_and_sweep_names_every_built_in_scenario() {
 /// scenario can hold; `scmpc keys TEXT` filters.
 #[test]
 fn scmpc_keys_lists_every_key_of_a_finished_runs_scenario() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("run");
     // A lidar's world, so that the optional `[lidar]` is written out too.
@@ -834,6 +867,7 @@ fn dotted_keys(value: &toml::Value, prefix: &str, keys: &mut std::collections::B
 /// `section.*`.
 #[test]
 fn the_key_table_of_the_docs_names_every_key() {
+    let _machine = common::machine_shared();
     let docs =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/running.md")).unwrap();
     let table = docs

@@ -3,7 +3,7 @@
 //! are measured and judged, never that they meet a target (a slow hour of a shared machine
 //! is not a defect; the report says NOT MET).
 
-mod common;
+use crate::common;
 
 use common::{run_into_tempdir, stderr};
 

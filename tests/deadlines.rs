@@ -1,7 +1,7 @@
 //! Timing violations on purpose: every miss is flagged and the robot is never without a
 //! safe command (docs/design.md, "Deadlines and fallback"). Real processes, lockstep clock.
 
-mod common;
+use crate::common;
 
 use common::{run, stderr, summary};
 use record::schema::Table;
@@ -42,6 +42,7 @@ fn run_with(sets: &[&str]) -> tempfile::TempDir {
 
 #[test]
 fn a_late_plan_at_samples_100_to_104_is_flagged_five_times_and_the_shifted_plan_drives() {
+    let _machine = common::machine_shared();
     // 2.5 Ts: each of plans 100..=104 reaches the DFL 3 samples late.
     let dir = run_with(&[
         "fault.mpc_delay_ms=125",
@@ -80,6 +81,7 @@ fn a_late_plan_at_samples_100_to_104_is_flagged_five_times_and_the_shifted_plan_
 
 #[test]
 fn more_than_n_misses_exhaust_the_plan_and_the_dfl_brakes_until_plans_return() {
+    let _machine = common::machine_shared();
     // Plans 100..=115 arrive 21 samples late: plan 99 covers samples up to 106 (N = 8),
     // then nothing does until plan 116 comes on time.
     let dir = run_with(&[
@@ -121,6 +123,7 @@ fn more_than_n_misses_exhaust_the_plan_and_the_dfl_brakes_until_plans_return() {
 
 #[test]
 fn a_forced_solver_failure_is_flagged_with_its_status_and_handled_like_a_miss() {
+    let _machine = common::machine_shared();
     let dir = run_with(&["fault.mpc_fail_samples=[50]"]);
     let s = summary(dir.path());
     assert_eq!(

@@ -2,7 +2,7 @@
 //! binary of its own: the solve-time comparison inside `scmpc figures` runs alone, not
 //! beside the sweeps of `tests/study.rs`.)
 
-mod common;
+use crate::common;
 
 use common::{csv, num, scmpc, stderr};
 use record::schema::Table;
@@ -30,6 +30,7 @@ fn png_content(path: &Path) -> (u32, u32, usize, f64) {
 /// where.
 #[test]
 fn the_figure_set_has_every_figure_with_its_series_and_the_linear_schemes_slow_solves_are_faster() {
+    let _machine = common::machine_shared();
     let cwd = tempfile::tempdir().unwrap();
     let out = scmpc()
         .arg("figures")
@@ -141,6 +142,7 @@ fn run_without_system_fonts(font: Option<&str>) -> (tempfile::TempDir, std::proc
 
 #[test]
 fn a_run_writes_its_path_and_distance_plots_with_no_system_font() {
+    let _machine = common::machine_shared();
     // SCMPC_FONT unset, and set but empty (a script's way to unset it): the embedded font.
     let (_, empty) = run_without_system_fonts(Some(""));
     assert_eq!(empty.status.code(), Some(1), "{}", stderr(&empty));
@@ -170,6 +172,7 @@ fn a_run_writes_its_path_and_distance_plots_with_no_system_font() {
 
 #[test]
 fn a_font_file_that_cannot_be_read_is_named_and_the_run_keeps_its_records() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_without_system_fonts(Some("/nonexistent/font.ttf"));
     let err = stderr(&out);
     assert!(
@@ -182,6 +185,7 @@ fn a_font_file_that_cannot_be_read_is_named_and_the_run_keeps_its_records() {
 
 #[test]
 fn ctrl_c_stops_scmpc_figures_during_its_solve_time_comparison_and_names_the_signal() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let mut child = scmpc()
         .args(["figures", "--out", dir.path().to_str().unwrap()])
@@ -252,6 +256,7 @@ fn texts(svg: &str, text: &str) -> usize {
 /// per kind of thing.
 #[test]
 fn the_plots_of_a_run_name_what_they_show() {
+    let _machine = common::machine_shared();
     let (path, clearance) = run_plots(&["--set", "duration_s=6"]);
     assert_eq!(texts(&clearance, "paper: clearance to the obstacle"), 1);
     assert_eq!(

@@ -1,6 +1,6 @@
 //! A fleet (docs/fleet.md): several robots, each its own pipeline, in one world.
 
-mod common;
+use crate::common;
 
 use common::agent::Agent;
 use common::{events, leftovers, run, run_into_tempdir, stderr, summary, unique_prefix};

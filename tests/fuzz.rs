@@ -1,7 +1,7 @@
 //! `scmpc fuzz` on worlds nobody tuned for: no collision with the safety layers, noise-free
 //! and with noise; the paper's formulation collides in such worlds; a failed world replays.
 
-mod common;
+use crate::common;
 
 use common::{csv, num, run, stderr, summary};
 use std::path::Path;
@@ -58,6 +58,7 @@ fn collisions(rows: &[std::collections::HashMap<String, String>]) -> Vec<&str> {
 
 #[test]
 fn a_hundred_random_worlds_without_noise_and_a_hundred_with_never_collide_while_moving() {
+    let _machine = common::machine_shared();
     for (seed, noise) in [
         (11, "plant.noise_variance=0"),
         (12, "plant.noise_variance=0.01"),
@@ -101,6 +102,7 @@ fn a_hundred_random_worlds_without_noise_and_a_hundred_with_never_collide_while_
 
 #[test]
 fn the_papers_formulation_collides_in_such_worlds_and_fuzz_says_so() {
+    let _machine = common::machine_shared();
     // Batch 5 holds a world where the paper's formulation (no safety layer, no planner)
     // collides (measured 2026-11-25 on the widened distribution: 1 of 40).
     let paper = [
@@ -115,6 +117,7 @@ fn the_papers_formulation_collides_in_such_worlds_and_fuzz_says_so() {
 
 #[test]
 fn a_world_that_did_not_reach_the_goal_replays_exactly_from_its_file() {
+    let _machine = common::machine_shared();
     // Without the planner some world stalls at an obstacle.
     let (_dir, _, rows) = fuzz(12, 5, &["planner.kind=none"]);
     let failed = rows
@@ -153,6 +156,7 @@ fn a_world_that_did_not_reach_the_goal_replays_exactly_from_its_file() {
 
 #[test]
 fn overrides_that_do_not_name_a_key_are_refused_before_anything_runs() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("fuzz");
     let out = run(&[
@@ -169,6 +173,7 @@ fn overrides_that_do_not_name_a_key_are_refused_before_anything_runs() {
 
 #[test]
 fn fuzz_refuses_mcap_which_it_cannot_write() {
+    let _machine = common::machine_shared();
     // fuzz keeps no run directories (a failed world replays from its file with
     // `scmpc run FILE`, which writes run.mcap): `--mcap` is refused, not ignored.
     let dir = tempfile::tempdir().unwrap();

@@ -1,7 +1,7 @@
 //! Roles on another host (docs/hosts.md): a real `scmpc host` agent on loopback, real
 //! Zenoh between it and the orchestrator, real role processes on both "hosts".
 
-mod common;
+use crate::common;
 
 use common::agent::Agent;
 use common::{events, leftovers, run, stderr, summary, wait_for};

@@ -3,7 +3,7 @@
 //! `benches/instructions.toml`. More than 10 % above the baseline fails and says by how
 //! much; more than 10 % below fails too, asking for the baseline to be updated in the same
 //! commit as the change that made it faster (`SCMPC_UPDATE_INSTRUCTIONS=1 cargo test
-//! --release --test instructions` rewrites the file from this machine's counts).
+//! --release --test suite instructions::` rewrites the file from this machine's counts).
 //!
 //! Instruction counts of a deterministic run repeat exactly from run to run; time on a
 //! shared two-core machine varies by tens of percent. Every workload runs in process but
@@ -14,7 +14,7 @@
 //! callgrind. Counts are of the release build: a debug build is refused. Without valgrind
 //! the test fails: it never skips (`.ci/run` installs valgrind where it is missing).
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -250,7 +250,7 @@ fn write_baselines(counts: &BTreeMap<String, u64>) {
         "# Instructions per call (per tick for the orchestrator) of each hot path, counted by\n\
          # `valgrind --tool=callgrind` on the workloads of tests/instructions.rs, which fails\n\
          # when a count moves more than 10 % from its baseline here. Rewritten by\n\
-         # `SCMPC_UPDATE_INSTRUCTIONS=1 cargo test --release --test instructions`.\n\
+         # `SCMPC_UPDATE_INSTRUCTIONS=1 cargo test --release --test suite instructions::`.\n\
          # `taken_at`: the commit (`+`: with the change it is committed with).\n\
          taken_at = \"{}\"\ndate = \"{}\"\n\n[instructions]\n",
         taken_at(),
@@ -313,6 +313,7 @@ fn judge(baselines: &BTreeMap<String, u64>, counts: &BTreeMap<String, u64>) -> V
 
 #[test]
 fn each_hot_paths_instructions_stay_within_ten_percent_of_its_baseline() {
+    let _machine = common::machine_shared();
     if cfg!(debug_assertions) {
         panic!("the baselines count the release build: run `cargo test --release`");
     }

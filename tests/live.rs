@@ -2,7 +2,7 @@
 //! written from the protocol's public specification (`common::foxglove`), while the run
 //! drives in real time beside clients that misbehave.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::io::{Read, Write};
@@ -449,6 +449,7 @@ fn a_goal_sent_from_the_viewer_mid_run_is_set_for_every_process_and_reached() {
 
 #[test]
 fn the_foxglove_layout_names_only_channels_of_the_record() {
+    let _machine = common::machine_shared();
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/foxglove-layout.json");
     let layout: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();

@@ -127,6 +127,7 @@ fn from_design() -> Dependencies {
 
 #[test]
 fn the_crate_table_of_the_design_is_the_one_cargo_metadata_reports() {
+    let _machine = crate::common::machine_shared();
     let (mut cargo, design) = (from_cargo(), from_design());
     let examples = example_roles();
     cargo.retain(|name, _| !examples.contains(name));
@@ -168,6 +169,7 @@ fn linked_transports(name: &str) -> Vec<String> {
 
 #[test]
 fn no_role_crate_depends_on_another_role_the_runtime_or_a_transport() {
+    let _machine = crate::common::machine_shared();
     let declared = from_cargo();
     let examples = example_roles();
     for role in ROLE_CRATES
@@ -228,6 +230,7 @@ fn clock_readings(text: &str) -> Vec<(usize, &str)> {
 
 #[test]
 fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
+    let _machine = crate::common::machine_shared();
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut readings = Vec::new();
     for path in library_sources() {
@@ -256,6 +259,7 @@ fn no_role_crate_reads_a_clock_its_context_does_not_hand_it() {
 
 #[test]
 fn the_robot_depends_on_neither_the_simulated_plant_nor_the_hosts() {
+    let _machine = crate::common::machine_shared();
     // What it shares with them is `protocol`'s (the plant role's output) and `net`'s (the
     // Zenoh session).
     let (crates, _) = &from_cargo()["robot"];
@@ -266,6 +270,7 @@ fn the_robot_depends_on_neither_the_simulated_plant_nor_the_hosts() {
 
 #[test]
 fn the_record_links_no_transport() {
+    let _machine = crate::common::machine_shared();
     let linked = linked_transports("record");
     assert!(linked.is_empty(), "cargo tree -p record lists {linked:?}");
 }
@@ -362,6 +367,7 @@ fn library_sources() -> Vec<std::path::PathBuf> {
 
 #[test]
 fn no_source_file_passes_600_code_lines_and_no_function_80() {
+    let _machine = crate::common::machine_shared();
     let mut over = Vec::new();
     for path in library_sources() {
         let text = std::fs::read_to_string(&path).unwrap();

@@ -2,7 +2,7 @@
 //! MPC's CBFs on the discs its tracks predict, and contacts judged against the obstacles'
 //! true positions.
 
-mod common;
+use crate::common;
 
 use common::{csv, events, num, run, stderr, summary};
 use std::path::Path;
@@ -246,6 +246,7 @@ fn lidar_world_reached_untouched(file: &str) -> Vec<std::collections::HashMap<St
 
 #[test]
 fn a_box_the_lidar_sees_is_passed_not_circled_at_the_distance_of_the_fastest_stop() {
+    let _machine = common::machine_shared();
     // Issue 56: the lidar fuzz's world 5 of seed 1. The box's track stands still; swept
     // over the fastest stop the input box reaches its disc held the robot 4 m off.
     let on_the_box = lidar_world_reached_untouched("fuzz-lidar-seed-1-world-5.toml");
@@ -254,6 +255,7 @@ fn a_box_the_lidar_sees_is_passed_not_circled_at_the_distance_of_the_fastest_sto
 
 #[test]
 fn a_goal_beside_a_box_the_lidar_sees_is_reached_not_circled_on_the_spot() {
+    let _machine = common::machine_shared();
     // Issue 56: the lidar fuzz's world 129 of seed 1 (the fixture's header).
     let on_the_box = lidar_world_reached_untouched("fuzz-lidar-seed-1-world-129.toml");
     // The box was seen, and its track stood still.

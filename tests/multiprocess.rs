@@ -1,6 +1,6 @@
 //! Runs over iceoryx2: four real processes, real shared memory.
 
-mod common;
+use crate::common;
 
 use common::{
     leftovers, run, run_into_tempdir, scmpc, spawn_run, stderr, summary, unique_prefix, wait_for,

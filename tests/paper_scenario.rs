@@ -1,11 +1,12 @@
 //! The paper's closed loop, end to end through the `scmpc` executable.
 
-mod common;
+use crate::common;
 
 use common::{run, run_into_tempdir, summary};
 
 #[test]
 fn paper_scenario_reaches_the_goal_without_collision() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out = run(&["run", "--in-process", "--out", dir.path().to_str().unwrap()]);
     assert!(out.status.success(), "{}", common::stderr(&out));
@@ -37,6 +38,7 @@ fn paper_scenario_reaches_the_goal_without_collision() {
 
 #[test]
 fn noisy_paper_scenario_with_the_ekf_is_collision_free() {
+    let _machine = common::machine_shared();
     for seed in ["1", "2", "3"] {
         let set_seed = format!("seed={seed}");
         let (dir, out) =
@@ -55,6 +57,7 @@ fn noisy_paper_scenario_with_the_ekf_is_collision_free() {
 
 #[test]
 fn same_seed_gives_the_same_trajectory() {
+    let _machine = common::machine_shared();
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     for dir in [&a, &b] {
         run(&[
@@ -74,6 +77,7 @@ fn same_seed_gives_the_same_trajectory() {
 
 #[test]
 fn scenario_command_prints_a_scenario_that_runs_as_is() {
+    let _machine = common::machine_shared();
     let out = run(&["scenario", "paper"]);
     assert!(out.status.success());
     let dir = tempfile::tempdir().unwrap();
@@ -99,6 +103,7 @@ fn scenario_command_prints_a_scenario_that_runs_as_is() {
 
 #[test]
 fn a_scenario_file_without_a_name_is_called_after_the_file() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("my_robot.toml");
     std::fs::write(&file, "duration_s = 0.5\n").unwrap();

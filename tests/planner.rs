@@ -1,7 +1,7 @@
 //! The route planner (docs/planner.md): random obstacle fields reached, the
 //! `field` scenario in every clock, no route, a planner killed or swapped mid-run.
 
-mod common;
+use crate::common;
 
 use common::{csv, events, has_event, num, run, run_into_tempdir, stderr, summary};
 use std::path::Path;

@@ -4,7 +4,7 @@
 //!
 //! These tests make their own venv under the target directory ([`common::python`]).
 
-mod common;
+use crate::common;
 
 use common::python::{python, read_mcap, repo, run_python};
 use common::{events, run, stderr};

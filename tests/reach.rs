@@ -1,6 +1,6 @@
 //! Issue 27: every goal the validator accepts is reached, or the run says why not.
 
-mod common;
+use crate::common;
 use common::*;
 
 /// Issue 27's reduced world: 14.8 m from the goal, `v_max = 1`, `Ts = 0.02 s`, `N = 8`,
@@ -29,6 +29,7 @@ radius = 1.4645
 
 #[test]
 fn the_far_world_with_a_gentle_input_box_is_reached_with_and_without_the_planner() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("far.toml");
     std::fs::write(&file, FAR).unwrap();
@@ -57,6 +58,7 @@ fn the_far_world_with_a_gentle_input_box_is_reached_with_and_without_the_planner
 
 #[test]
 fn a_robot_that_cannot_get_past_an_obstacle_says_it_is_pinned_there() {
+    let _machine = common::machine_shared();
     // The paper's robot straight behind a wide wall of one disc, without a planner: the
     // CBF holds it at the disc, which lies towards the goal.
     let dir = tempfile::tempdir().unwrap();

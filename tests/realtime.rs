@@ -1,7 +1,7 @@
 //! Real-time runs of the paper scenario: beside two CPU-bound processes under the
 //! real-time policy, without permission for it, and with late plans.
 
-mod common;
+use crate::common;
 
 use common::{run, run_into_tempdir, stalls, stderr, summary};
 use std::os::unix::process::CommandExt;

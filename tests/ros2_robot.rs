@@ -3,7 +3,7 @@
 //! (tests/python/ros2_base.py: `eclipse-zenoh` and `rosbags`, pinned in the tests' venv),
 //! through a Zenoh router as a robot running rmw_zenoh has one.
 
-mod common;
+use crate::common;
 
 use common::ros2::{Robot, free_port, run_on, spawn_on};
 use common::{

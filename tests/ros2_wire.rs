@@ -3,7 +3,7 @@
 //! encodes to the values put in, serializes them back to the same bytes, and computes
 //! the same RIHS01 type hashes for Jazzy and Kilted.
 
-mod common;
+use crate::common;
 
 use common::python::{repo, run_python};
 use ros2::cdr::{
@@ -24,6 +24,7 @@ fn header(frame_id: &str) -> Header {
 
 #[test]
 fn rosbags_reads_what_the_crate_writes_and_computes_the_same_type_hashes() {
+    let _machine = common::machine_shared();
     let pose = Pose {
         position: [1.5, -2.25, 0.0],
         orientation: [0.0, 0.0, 0.38268343236508984, 0.9238795325112867],

@@ -2,7 +2,7 @@
 //! braking model, the robot's radius; and that with both layers off the run is the
 //! paper's formulation as it was.
 
-mod common;
+use crate::common;
 
 use common::{run_into_tempdir, stderr, summary};
 

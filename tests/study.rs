@@ -1,12 +1,13 @@
 //! The paper's study: sweeps, Monte Carlo under noise, the nonlinear baseline, figures.
 
-mod common;
+use crate::common;
 
 use common::{csv, num, run, run_into_tempdir, stderr};
 use std::path::Path;
 
 #[test]
 fn the_sweep_reproduces_the_papers_qualitative_findings() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&[
         "sweep",
         "--grid",
@@ -59,6 +60,7 @@ fn the_sweep_reproduces_the_papers_qualitative_findings() {
 
 #[test]
 fn with_the_ekf_a_hundred_noise_seeds_all_reach_the_goal_and_never_collide_but_kappa_0_does() {
+    let _machine = common::machine_shared();
     let (dir, out) = run_into_tempdir(&[
         "sweep",
         "paper-noisy",
@@ -90,6 +92,7 @@ fn with_the_ekf_a_hundred_noise_seeds_all_reach_the_goal_and_never_collide_but_k
 
 #[test]
 fn a_bad_grid_is_refused_before_anything_runs() {
+    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("sweep");
     for grid in ["mpc.gama=0.1,0.2", "mpc.gamma=0.1,7", "mpc.gamma"] {

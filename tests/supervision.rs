@@ -1,6 +1,6 @@
 //! Crashes: a dead process is detected, cleaned up, restarted or the run is aborted.
 
-mod common;
+use crate::common;
 
 use common::{
     events, kill_role_during_run, leftovers, scmpc, sigkill, spawn_run, summary, wait_for,

@@ -1,7 +1,7 @@
 //! Swap-in replacement, make-before-break: scheduled in the scenario (`[[swap]]`) or live
 //! with `scmpc swap`, in real time and in lockstep.
 
-mod common;
+use crate::common;
 
 use common::{events, run, run_realtime, scmpc, spawn_run, summary, wait_for};
 use record::schema::Table;

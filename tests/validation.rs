@@ -1,6 +1,6 @@
 //! Consumers refuse samples they should not trust, count them, and carry on.
 
-mod common;
+use crate::common;
 
 use common::{run, spawn_run, summary, unique_prefix, wait_for};
 use protocol::{Actuation, Control, ControlCommand, Header, Measurement};

@@ -236,8 +236,9 @@ pub fn num(row: &std::collections::HashMap<String, String>, column: &str) -> f64
         .unwrap_or_else(|_| panic!("{column} = {:?}", row[column]))
 }
 
-/// The machine as the tests of one binary share it (cargo runs a binary's tests on
-/// parallel threads, and the binaries one after another).
+/// The machine as the tests share it: the harness runs them on parallel threads, in one
+/// binary (tests/suite.rs). Every test that starts a process or keeps a core busy holds it,
+/// alone ([`machine_alone`]) or shared ([`machine_shared`]).
 static MACHINE: std::sync::RwLock<()> = std::sync::RwLock::new(());
 
 /// For a real-time test: holds the machine alone for as long as the value lives. Its
@@ -271,8 +272,8 @@ impl Alone {
     }
 }
 
-/// For any other test that starts processes in a binary with real-time tests: shares the
-/// machine with tests like it, never with a real-time one.
+/// For any other test that starts a process or keeps a core busy: shares the machine with
+/// tests like it, never with a real-time one.
 pub fn machine_shared() -> std::sync::RwLockReadGuard<'static, ()> {
     MACHINE
         .read()
