@@ -374,6 +374,7 @@ impl DflTask {
         while let Some(&(estimate, latency_ns)) = self.queue.front() {
             let tick = estimate.header.tick;
             if self.watch.is_stale(tick) {
+                self.watch.late(tick);
                 self.queue.pop_front(); // older than a command already given (braking)
                 continue;
             }
@@ -496,6 +497,19 @@ impl SilenceWatch {
         self.last_tick.is_some_and(|last| tick <= last)
     }
 
+    /// An estimate of `tick` came after its command. One of the tick braked last shows an
+    /// estimator alive and within a tick, only slower than the brake, which comes at the
+    /// tick's start (a slow estimator, `fault.estimator_delay_ms`, after a stall): braking
+    /// alone ends, and the next brake waits the silent limit again, so that the next tick
+    /// is commanded from its estimate. Braking every tick instead would brake each tick
+    /// before its estimate came, for good. An older tick's estimate (an estimator falling
+    /// further behind) changes nothing.
+    pub fn late(&mut self, tick: u64) {
+        if self.last_tick == Some(tick) {
+            self.braking_alone = false;
+        }
+    }
+
     /// The command for `tick` was given from an estimate.
     pub fn heard(&mut self, tick: u64) {
         self.last_tick = Some(tick);
@@ -591,5 +605,25 @@ mod tests {
             "estimates again: back to the silent limit"
         );
         assert_eq!(watch.next_check(), Some(15 + SILENT_TICKS));
+    }
+
+    #[test]
+    fn a_late_estimate_of_the_tick_braked_last_ends_braking_alone_and_an_older_one_does_not() {
+        let mut watch = SilenceWatch::default();
+        watch.heard(10);
+        assert_eq!(watch.brake_due(13), Some(13));
+        assert_eq!(watch.brake_due(14), Some(14));
+        // An estimator falling further behind: tick 12's estimate, after tick 14's brake.
+        watch.late(12);
+        assert_eq!(watch.next_check(), Some(15), "still braking every tick");
+        assert_eq!(watch.brake_due(15), Some(15));
+        // Tick 15's estimate within tick 15, after its brake: the estimator is alive.
+        assert!(watch.is_stale(15));
+        watch.late(15);
+        assert_eq!(watch.next_check(), Some(15 + SILENT_TICKS));
+        assert_eq!(watch.brake_due(16), None, "tick 16 waits for its estimate");
+        assert!(!watch.is_stale(16));
+        watch.heard(16);
+        assert_eq!(watch.next_check(), Some(16 + SILENT_TICKS));
     }
 }
