@@ -700,7 +700,7 @@ fn a_failed_producer_aborts_the_run_when_restarts_are_off_or_used_up() {
 
 #[test]
 fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
-    let _machine = common::machine_alone();
+    let machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     kill_role_during_run(
         dir.path(),
@@ -717,12 +717,19 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
         );
     }
     // While no DFL runs the plant holds the last command: at most 40 ticks (0.2 s) go
-    // without one, and the robot stays clear of the obstacle.
+    // without one but in a stall of the machine the watcher saw (at most 1 % of the
+    // ticks: `stalls::Seen::judge`), and the robot stays clear of the obstacle. (A CI run
+    // at 261cbaf, in a slow hour, had 44; 11-12 is usual.)
     let gaps = s["record_gaps"].as_u64().unwrap();
-    assert!((1..=40).contains(&gaps), "{gaps} ticks without a command");
+    assert!(gaps >= 1, "no tick without a command");
     // Each gap names the silent process: the DFL, while the plant and its sensor went on.
     let gap_events: Vec<_> = ev.iter().filter(|e| e["event"] == "record_gap").collect();
     assert_eq!(gap_events.len() as u64, gaps);
+    let past_budget: Vec<_> = (common::stalls::faults(&ev).into_iter())
+        .filter(|f| f.what == "tick without a command")
+        .skip(40)
+        .collect();
+    machine.stalls.seen().assert_judged(&ev, &past_budget);
     for gap in gap_events {
         let missing = gap["missing"].as_array().unwrap();
         let names = |topic: &str| missing.iter().any(|m| m == topic);
