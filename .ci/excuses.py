@@ -12,9 +12,16 @@ def main(path):
     except FileNotFoundError:
         print(f"stall excuses: no real-time test judged a run ({path} absent)")
         return
-    print(f"stall excuses: {len(lines)} real-time runs judged (at most 1 % of a run's ticks may be excused)")
-    ticks = excused = stalls = elsewhere = failed = 0
+    print(
+        f"stall excuses: {len(lines)} real-time runs judged (at most 1 % of a run's ticks may be "
+        f"excused; a test runs again, up to 3 attempts, while the machine is too busy to judge)"
+    )
+    ticks = excused = stalls = elsewhere = failed = too_busy = 0
     for line in lines:
+        if "too_busy" in line:
+            too_busy += 1
+            print(f"  {line['test']}: attempt {line['attempt']} too busy to judge: {line['too_busy'][:300]}")
+            continue
         if "failed" in line:
             failed += 1
             print(f"  {line['test']}: FAILED: {line['failed'][:300]}")
@@ -32,7 +39,8 @@ def main(path):
     share = 100.0 * excused / max(ticks, 1)
     print(
         f"stall excuses in all: {excused} of {ticks} ticks ({share:.3f} %), {stalls} stalls on "
-        f"the runs' CPUs, {elsewhere} elsewhere, {failed} runs failed their judgement"
+        f"the runs' CPUs, {elsewhere} elsewhere, {too_busy} attempts too busy to judge (run "
+        f"again), {failed} runs failed their judgement"
     )
 
 

@@ -147,114 +147,119 @@ fn an_agent_serves_run_after_run_and_a_swap_of_a_remote_role_runs_on_its_host() 
     }
 }
 
-/// The real-time run in `dir`, held `machine` alone, asserted clean: reached, no deadline
-/// missed, clear of every obstacle. The record may lose a tick to a stall of the machine
-/// (2 record gaps, ticks 1998 of 2000, in a fresh-clone CI run on 2026-11-27, with no
-/// deadline missed): not these tests' subject, but a gap outside every stall is.
-fn assert_clean_realtime(machine: &common::Alone, dir: &Path) -> serde_json::Value {
+/// The real-time run in `dir`, held `machine` alone, asserted clean: reached, clear of
+/// every obstacle, no deadline missed and no tick lost but in a stall of the machine (2
+/// record gaps, ticks 1998 of 2000, in a fresh-clone CI run on 2026-11-27) ([`common::Alone::judge`]).
+fn assert_clean_realtime(
+    machine: &common::Alone,
+    dir: &Path,
+) -> Result<serde_json::Value, common::stalls::TooBusy> {
     let s = summary(dir);
     assert_eq!(s["outcome"], "reached", "{s}");
-    assert_eq!(s["deadline_misses"], 0, "{s}");
-    machine.assert_every_fault_in_a_stall(&events(dir));
     assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
-    s
+    machine.judge(&events(dir))?;
+    Ok(s)
 }
 
 #[test]
 fn in_real_time_the_mpc_on_another_host_misses_no_deadline_and_a_stranger_cannot_inject() {
-    let machine = common::machine_alone();
-    let agent = Agent::plain("compute");
-    let dir = tempfile::tempdir().unwrap();
-    let prefix = common::unique_prefix("stranger");
-    let run_dir = dir.path().join("run");
-    let mut child =
-        agent.spawn_realtime_run(&run_dir, &[&["--prefix", &prefix][..], &SHORT].concat());
-    common::wait_for_pid(&run_dir, "mpc");
-    // The threads that carry the samples between the hosts run at the loop's priority:
-    // each bridge's two (names cut to 15 bytes) and Zenoh's workers.
-    for (pid, host) in [(agent.pid(), "compute"), (child.id(), "orchestrator")] {
-        let bridge = [format!("bridge-in-{host}"), format!("bridge-out-{host}")]
-            .map(|name| name[..name.len().min(15)].to_string());
-        let mut carriers: Vec<&str> = bridge.iter().map(String::as_str).collect();
-        carriers.extend(common::ZENOH_WORKERS);
-        common::assert_threads_at_the_control_tier(pid, &carriers);
-    }
-    // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
-    let stranger = {
-        use zenoh::Wait;
-        let mut config = zenoh::Config::default();
-        config
-            .insert_json5("connect/endpoints", &format!("[\"{}\"]", agent.endpoint))
-            .unwrap();
-        config
-            .insert_json5("scouting/multicast/enabled", "false")
-            .unwrap();
-        let session = zenoh::open(config).wait().unwrap();
-        let key = hosts::keys::to_host(
-            &hosts::keys::run_of_prefix(&prefix),
-            "compute",
-            protocol::FIRST_ROBOT,
-            "estimate",
-        );
-        let publisher = session.declare_publisher(key).wait().unwrap();
-        // Once the host's bridge takes the key.
-        assert!(wait_for(Duration::from_secs(10), || {
-            publisher
-                .matching_status()
-                .wait()
-                .is_ok_and(|m| m.matching())
-        }));
-        let forged = vec![0x5a_u8; 512];
-        for _ in 0..20 {
-            publisher.put(forged.clone()).wait().unwrap();
-            publisher
-                .put(forged.clone())
-                .attachment(vec![7_u8; 32])
-                .wait()
-                .unwrap();
+    common::until_judged(|machine| {
+        let agent = Agent::plain("compute");
+        let dir = tempfile::tempdir().unwrap();
+        let prefix = common::unique_prefix("stranger");
+        let run_dir = dir.path().join("run");
+        let mut child =
+            agent.spawn_realtime_run(&run_dir, &[&["--prefix", &prefix][..], &SHORT].concat());
+        common::wait_for_pid(&run_dir, "mpc");
+        // The threads that carry the samples between the hosts run at the loop's priority:
+        // each bridge's two (names cut to 15 bytes) and Zenoh's workers.
+        for (pid, host) in [(agent.pid(), "compute"), (child.id(), "orchestrator")] {
+            let bridge = [format!("bridge-in-{host}"), format!("bridge-out-{host}")]
+                .map(|name| name[..name.len().min(15)].to_string());
+            let mut carriers: Vec<&str> = bridge.iter().map(String::as_str).collect();
+            carriers.extend(common::ZENOH_WORKERS);
+            common::assert_threads_at_the_control_tier(pid, &carriers);
         }
-        drop(publisher);
-        session
-    };
-    assert!(child.wait().unwrap().success());
-    drop(stranger);
-    let s = assert_clean_realtime(&machine, &run_dir);
-    let link = &s["links"]["compute"];
-    let refused = link["host_bridge"]["refused_tag"].as_u64().unwrap();
-    assert_eq!(refused, 40, "forged samples not all refused: {link}");
-    assert!(link["host_bridge"]["received"].as_u64().unwrap() > 100);
-    assert!(s["orchestrator_bridge"]["received"].as_u64().unwrap() > 100);
-    assert!(leftovers(&prefix).is_empty());
+        // A Zenoh peer that is not a bridge of the run publishes estimates for the host.
+        let stranger = {
+            use zenoh::Wait;
+            let mut config = zenoh::Config::default();
+            config
+                .insert_json5("connect/endpoints", &format!("[\"{}\"]", agent.endpoint))
+                .unwrap();
+            config
+                .insert_json5("scouting/multicast/enabled", "false")
+                .unwrap();
+            let session = zenoh::open(config).wait().unwrap();
+            let key = hosts::keys::to_host(
+                &hosts::keys::run_of_prefix(&prefix),
+                "compute",
+                protocol::FIRST_ROBOT,
+                "estimate",
+            );
+            let publisher = session.declare_publisher(key).wait().unwrap();
+            // Once the host's bridge takes the key.
+            assert!(wait_for(Duration::from_secs(10), || {
+                publisher
+                    .matching_status()
+                    .wait()
+                    .is_ok_and(|m| m.matching())
+            }));
+            let forged = vec![0x5a_u8; 512];
+            for _ in 0..20 {
+                publisher.put(forged.clone()).wait().unwrap();
+                publisher
+                    .put(forged.clone())
+                    .attachment(vec![7_u8; 32])
+                    .wait()
+                    .unwrap();
+            }
+            drop(publisher);
+            session
+        };
+        assert!(child.wait().unwrap().success());
+        drop(stranger);
+        let s = assert_clean_realtime(machine, &run_dir)?;
+        let link = &s["links"]["compute"];
+        let refused = link["host_bridge"]["refused_tag"].as_u64().unwrap();
+        assert_eq!(refused, 40, "forged samples not all refused: {link}");
+        assert!(link["host_bridge"]["received"].as_u64().unwrap() > 100);
+        assert!(s["orchestrator_bridge"]["received"].as_u64().unwrap() > 100);
+        assert!(leftovers(&prefix).is_empty());
+        Ok(())
+    })
 }
 
 #[test]
 fn a_host_clock_3_s_off_is_measured_within_1_ms_and_one_ahead_misses_no_deadline_in_real_time() {
-    let machine = common::machine_alone();
-    // Ahead in real time; behind in lockstep, which measures the clock as it joins alike.
-    for (offset_ms, mode) in [(3000.0, "realtime"), (-3000.0_f64, "lockstep")] {
-        let offset = format!("{offset_ms}");
-        let agent = Agent::start("compute", "tcp", &[], &[("SCMPC_CLOCK_OFFSET_MS", &offset)]);
-        let dir = tempfile::tempdir().unwrap();
-        let out = agent.run(
-            "compute",
-            &["mpc"],
-            dir.path(),
-            &[&["--mode", mode][..], &SHORT].concat(),
-        );
-        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
-        let s = match mode {
-            "realtime" => assert_clean_realtime(&machine, dir.path()),
-            _ => summary(dir.path()),
-        };
-        // The agent's clock runs `offset` ahead: the correction takes it back.
-        let correction_ms = s["links"]["compute"]["clock_correction_ms"]
-            .as_f64()
-            .unwrap();
-        assert!(
-            (correction_ms + offset_ms).abs() < 1.0,
-            "offset {offset_ms} ms measured as a correction of {correction_ms} ms"
-        );
-    }
+    common::until_judged(|machine| {
+        // Ahead in real time; behind in lockstep, which measures the clock as it joins alike.
+        for (offset_ms, mode) in [(3000.0, "realtime"), (-3000.0_f64, "lockstep")] {
+            let offset = format!("{offset_ms}");
+            let agent = Agent::start("compute", "tcp", &[], &[("SCMPC_CLOCK_OFFSET_MS", &offset)]);
+            let dir = tempfile::tempdir().unwrap();
+            let out = agent.run(
+                "compute",
+                &["mpc"],
+                dir.path(),
+                &[&["--mode", mode][..], &SHORT].concat(),
+            );
+            assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+            let s = match mode {
+                "realtime" => assert_clean_realtime(machine, dir.path())?,
+                _ => summary(dir.path()),
+            };
+            // The agent's clock runs `offset` ahead: the correction takes it back.
+            let correction_ms = s["links"]["compute"]["clock_correction_ms"]
+                .as_f64()
+                .unwrap();
+            assert!(
+                (correction_ms + offset_ms).abs() < 1.0,
+                "offset {offset_ms} ms measured as a correction of {correction_ms} ms"
+            );
+        }
+        Ok(())
+    })
 }
 
 /// A real-time run of `SHORT` (at most `duration_s` long, ended once the robot is held at

@@ -172,7 +172,7 @@ fn the_four_roles_are_separate_processes() {
 
 #[test]
 fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
-    let machine = common::machine_alone();
+    let _machine = common::machine_shared();
     let prefix = unique_prefix("tap");
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn_run(
@@ -217,9 +217,8 @@ fn a_foreign_process_receives_the_plants_measurements_over_iceoryx2() {
         "ticks out of order: {ticks:?}"
     );
     child.wait().unwrap();
-    // Every tick of the 4 s recorded, but those lost in a stall of the machine (a CI run
-    // at 6f7633e recorded 798).
-    machine.assert_every_fault_in_a_stall(&common::events(dir.path()));
+    // The tap takes nothing from the run: it ran its 4 s (the ticks without a command are
+    // for the real-time tests to judge: a CI run at 6f7633e recorded 798).
     let s = summary(dir.path());
     let (ticks, gaps) = (
         s["ticks"].as_u64().unwrap(),

@@ -135,37 +135,39 @@ fn a_goal_walled_in_ends_the_run_at_once_with_no_route() {
 
 #[test]
 fn in_real_time_the_field_is_reached_with_no_deadline_miss_through_a_planner_killed_mid_run() {
-    let _machine = common::machine_alone();
-    let dir = tempfile::tempdir().unwrap();
-    common::kill_role_during_run(dir.path(), &["field", "--mode", "realtime"], "planner", 5.0);
-    let s = summary(dir.path());
-    let ev = events(dir.path());
-    assert!(has_event(&ev, "restarted", "planner"), "{ev:#?}");
-    assert_eq!(s["outcome"], "reached");
-    assert_eq!(s["deadline_misses"], 0);
-    // The restarted planner planned again, from where the robot was: its route's first
-    // waypoint is the robot's position at the sample it planned from, far from the start.
-    let routes = csv(&dir.path().join("route.csv"));
-    let restarted = routes
-        .iter()
-        .find(|r| r["plan"] != "1" && r["reason"] == "start")
-        .expect("no route of the restarted planner");
-    let from = [num(restarted, "x"), num(restarted, "y")];
-    let field = run::scenarios::load(Some("field"), &[]).unwrap();
-    let planned_s = num(restarted, "sample") * field.timing.ts_s;
-    let trajectory = csv(&dir.path().join("trajectory.csv"));
-    let then = trajectory
-        .iter()
-        .find(|r| num(r, "t") >= planned_s - 1e-9)
-        .expect("no tick at the planned sample");
-    let robot_then = [num(then, "x_hat"), num(then, "y_hat")];
-    let off = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
-    assert!(
-        off(from, robot_then) < 0.05,
-        "planned from {from:?}, the robot at {robot_then:?}"
-    );
-    let start = [field.robot.start[0], field.robot.start[1]];
-    assert!(off(from, start) > 1.0, "planned from {from:?}, the start");
+    common::until_judged(|machine| {
+        let dir = tempfile::tempdir().unwrap();
+        common::kill_role_during_run(dir.path(), &["field", "--mode", "realtime"], "planner", 5.0);
+        let s = summary(dir.path());
+        let ev = events(dir.path());
+        assert!(has_event(&ev, "restarted", "planner"), "{ev:#?}");
+        assert_eq!(s["outcome"], "reached");
+        machine.judge(&ev)?;
+        // The restarted planner planned again, from where the robot was: its route's first
+        // waypoint is the robot's position at the sample it planned from, far from the start.
+        let routes = csv(&dir.path().join("route.csv"));
+        let restarted = routes
+            .iter()
+            .find(|r| r["plan"] != "1" && r["reason"] == "start")
+            .expect("no route of the restarted planner");
+        let from = [num(restarted, "x"), num(restarted, "y")];
+        let field = run::scenarios::load(Some("field"), &[]).unwrap();
+        let planned_s = num(restarted, "sample") * field.timing.ts_s;
+        let trajectory = csv(&dir.path().join("trajectory.csv"));
+        let then = trajectory
+            .iter()
+            .find(|r| num(r, "t") >= planned_s - 1e-9)
+            .expect("no tick at the planned sample");
+        let robot_then = [num(then, "x_hat"), num(then, "y_hat")];
+        let off = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+        assert!(
+            off(from, robot_then) < 0.05,
+            "planned from {from:?}, the robot at {robot_then:?}"
+        );
+        let start = [field.robot.start[0], field.robot.start[1]];
+        assert!(off(from, start) > 1.0, "planned from {from:?}, the start");
+        Ok(())
+    })
 }
 
 #[test]

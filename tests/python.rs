@@ -28,18 +28,18 @@ fn the_python_message_layouts_are_the_ones_scmpc_schema_prints() {
 
 #[test]
 fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_no_tick() {
-    let machine = common::machine_alone();
-    let dir = tempfile::tempdir().unwrap();
-    let estimator = repo().join("examples/python/estimator.py");
-    let file = dir.path().join("scenario.toml");
-    // The noise of the paper's noisy study (Fig. 4(d)): a passthrough would be off by the
-    // noise's sigma, an EKF by a small part of it.
-    let noise_variance = 0.05;
-    // The robot, quicker with the input weighed less, is at its goal by about 8 s (the
-    // paper's weights take 24 s with this noise); the run goes on to its end, the Python
-    // estimator filtering from the switch on.
-    let duration_s = 16.0;
-    std::fs::write(
+    common::until_judged(|machine| {
+        let dir = tempfile::tempdir().unwrap();
+        let estimator = repo().join("examples/python/estimator.py");
+        let file = dir.path().join("scenario.toml");
+        // The noise of the paper's noisy study (Fig. 4(d)): a passthrough would be off by the
+        // noise's sigma, an EKF by a small part of it.
+        let noise_variance = 0.05;
+        // The robot, quicker with the input weighed less, is at its goal by about 8 s (the
+        // paper's weights take 24 s with this noise); the run goes on to its end, the Python
+        // estimator filtering from the switch on.
+        let duration_s = 16.0;
+        std::fs::write(
         &file,
         format!(
             "name = \"python-estimator\"\nduration_s = {duration_s:?}\n\n[robot]\nfinal_approach = \
@@ -51,94 +51,102 @@ fn a_python_ekf_swapped_in_at_8_s_filters_the_noise_and_misses_no_deadline_and_n
         ),
     )
     .unwrap();
-    let (out_dir, s, ev) = common::run_realtime(dir.path(), file.to_str().unwrap());
-    assert_eq!(s["outcome"], "reached", "{s:#}");
-    assert_eq!(s["deadline_misses"], 0);
-    assert_eq!(s["ticks_without_estimate"], 0);
-    machine.assert_every_fault_in_a_stall(&ev);
-    assert_eq!(s["swaps"], 1);
-    assert!(
-        s["rejected_samples"].as_object().unwrap().is_empty(),
-        "{}",
-        s["rejected_samples"]
-    );
-    let swapped = ev
-        .iter()
-        .find(|e| e["event"] == "swapped" && e["role"] == "estimator")
-        .unwrap_or_else(|| panic!("no swap in {ev:#?}"));
-    let switch_tick = swapped["switch_tick"].as_u64().unwrap();
-    assert_eq!(switch_tick % 10, 0, "switch at tick {switch_tick}");
-    let switch_s = switch_tick as f64 * 0.005;
-    // Started at 8 s; switched within a second of reporting ready. How long Python takes to
-    // start is its own: 0.15-0.2 s warm, 1.3-2 s for the first run after minutes idle on
-    // the development machine (2026-11-28).
-    let at = |event: &str| {
-        ev.iter()
-            .find(|e| e["event"] == event && e["role"] == "estimator")
-            .and_then(|e| e["t"].as_f64())
-            .unwrap_or_else(|| panic!("no {event} of the estimator"))
-    };
-    // An event's `t` is the newest tick recorded when it happened, which may be one inner
-    // tick (5 ms) behind the clock that started the swap at 8 s (a CI run at 5bba432 had
-    // 7.995 s).
-    assert!((7.995 - 1e-9..8.1).contains(&at("swap_started")), "{ev:#?}");
-    let ready_s = at("ready");
-    assert!(
-        switch_s > ready_s && switch_s < ready_s + 1.0,
-        "switch at {switch_s} s, ready at {ready_s} s"
-    );
-    let python_epoch = swapped["to_epoch"].as_u64().unwrap();
-    assert!(python_epoch > 0);
-    // Every tick was commanded from a finite estimate, but those lost in a stall of the
-    // machine (a CI run at ca71f2d had 12, a run on the development machine 8).
-    let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
-    let gaps = s["record_gaps"].as_u64().unwrap() as usize;
-    assert_eq!(trajectory.len(), (duration_s / 0.005) as usize - gaps);
-    for column in ["x_hat", "y_hat", "theta_hat", "zeta_hat"] {
-        let values = trajectory.numbers(column).unwrap();
-        assert!(values.iter().all(|v| v.is_finite()), "{column}");
-    }
-    // The Python estimator filters as the Rust one does: its position error against the
-    // truth, per axis (RMS), is a small part of the noise's sigma (measured on 2026-11-25:
-    // 0.010 m after the switch against 0.012 m for the Rust EKF before it, sigma 0.22 m).
-    let column = |name| trajectory.numbers(name).unwrap();
-    let (t, x, y) = (column("t"), column("x"), column("y"));
-    let (x_hat, y_hat) = (column("x_hat"), column("y_hat"));
-    let rms_error = |from_s: f64, to_s: f64| {
-        let rows: Vec<usize> = (0..t.len())
-            .filter(|&i| (from_s..to_s).contains(&t[i]))
-            .collect();
-        let sum: f64 = rows
+        let (out_dir, s, ev) = common::run_realtime(dir.path(), file.to_str().unwrap());
+        assert_eq!(s["outcome"], "reached", "{s:#}");
+        // Every tick was commanded from a finite estimate, but those lost in a stall of the
+        // machine (a CI run at ca71f2d had 12 record gaps, a run on the development machine 8).
+        let trajectory = Table::read(&out_dir.join("trajectory.csv")).unwrap();
+        let mut faults = common::stalls::faults(&ev);
+        let x_hat = trajectory.numbers("x_hat").unwrap();
+        for (t, _) in
+            (trajectory.numbers("t").unwrap().iter().zip(&x_hat)).filter(|(_, x)| !x.is_finite())
+        {
+            let tick = (t / 0.005).round() as u64;
+            faults.push(common::stalls::Fault::at(
+                "tick without an estimate",
+                tick,
+                String::new(),
+            ));
+        }
+        machine.judge_faults(&ev, &faults)?;
+        assert_eq!(s["swaps"], 1);
+        assert!(
+            s["rejected_samples"].as_object().unwrap().is_empty(),
+            "{}",
+            s["rejected_samples"]
+        );
+        let swapped = ev
             .iter()
-            .map(|&i| (x_hat[i] - x[i]).powi(2) + (y_hat[i] - y[i]).powi(2))
-            .sum();
-        (sum / (2.0 * rows.len() as f64)).sqrt()
-    };
-    // From 1 s in (the initial variance spent) to the switch, and from 1 s after it.
-    let (rust_m, python_m) = (
-        rms_error(1.0, switch_s),
-        rms_error(switch_s + 1.0, duration_s),
-    );
-    let sigma = f64::sqrt(noise_variance);
-    assert!(
-        python_m < 0.25 * sigma && python_m < 2.0 * rust_m,
-        "Python estimate off by {python_m} m RMS, the Rust EKF by {rust_m} m, sigma {sigma} m"
-    );
-    // The estimates recorded: the Rust estimator's before the switch, the Python one's
-    // from it on.
-    let mcap = read_mcap(&out_dir, false);
-    let estimates = &mcap["/estimator/estimate"];
-    let ticks = estimates["ticks"].as_array().unwrap();
-    let epochs = estimates["epochs"].as_array().unwrap();
-    assert_eq!(ticks.len(), trajectory.len());
-    for (tick, epoch) in ticks.iter().zip(epochs) {
-        let expected = if tick.as_u64().unwrap() < switch_tick {
-            0
-        } else {
-            python_epoch
+            .find(|e| e["event"] == "swapped" && e["role"] == "estimator")
+            .unwrap_or_else(|| panic!("no swap in {ev:#?}"));
+        let switch_tick = swapped["switch_tick"].as_u64().unwrap();
+        assert_eq!(switch_tick % 10, 0, "switch at tick {switch_tick}");
+        let switch_s = switch_tick as f64 * 0.005;
+        // Started at 8 s; switched within a second of reporting ready. How long Python takes to
+        // start is its own: 0.15-0.2 s warm, 1.3-2 s for the first run after minutes idle on
+        // the development machine (2026-11-28).
+        let at = |event: &str| {
+            ev.iter()
+                .find(|e| e["event"] == event && e["role"] == "estimator")
+                .and_then(|e| e["t"].as_f64())
+                .unwrap_or_else(|| panic!("no {event} of the estimator"))
         };
-        assert_eq!(epoch.as_u64(), Some(expected), "estimate of tick {tick}");
-    }
+        // An event's `t` is the newest tick recorded when it happened, which may be one inner
+        // tick (5 ms) behind the clock that started the swap at 8 s (a CI run at 5bba432 had
+        // 7.995 s).
+        assert!((7.995 - 1e-9..8.1).contains(&at("swap_started")), "{ev:#?}");
+        let ready_s = at("ready");
+        assert!(
+            switch_s > ready_s && switch_s < ready_s + 1.0,
+            "switch at {switch_s} s, ready at {ready_s} s"
+        );
+        let python_epoch = swapped["to_epoch"].as_u64().unwrap();
+        assert!(python_epoch > 0);
+        let gaps = s["record_gaps"].as_u64().unwrap() as usize;
+        assert_eq!(trajectory.len(), (duration_s / 0.005) as usize - gaps);
+        // The Python estimator filters as the Rust one does: its position error against the
+        // truth, per axis (RMS), is a small part of the noise's sigma (measured on 2026-11-25:
+        // 0.010 m after the switch against 0.012 m for the Rust EKF before it, sigma 0.22 m).
+        let column = |name| trajectory.numbers(name).unwrap();
+        let (t, x, y) = (column("t"), column("x"), column("y"));
+        let (x_hat, y_hat) = (column("x_hat"), column("y_hat"));
+        let rms_error = |from_s: f64, to_s: f64| {
+            let rows: Vec<usize> = (0..t.len())
+                .filter(|&i| (from_s..to_s).contains(&t[i]) && x_hat[i].is_finite())
+                .collect();
+            let sum: f64 = rows
+                .iter()
+                .map(|&i| (x_hat[i] - x[i]).powi(2) + (y_hat[i] - y[i]).powi(2))
+                .sum();
+            (sum / (2.0 * rows.len() as f64)).sqrt()
+        };
+        // From 1 s in (the initial variance spent) to the switch, and from 1 s after it.
+        let (rust_m, python_m) = (
+            rms_error(1.0, switch_s),
+            rms_error(switch_s + 1.0, duration_s),
+        );
+        let sigma = f64::sqrt(noise_variance);
+        assert!(
+            python_m < 0.25 * sigma && python_m < 2.0 * rust_m,
+            "Python estimate off by {python_m} m RMS, the Rust EKF by {rust_m} m, sigma {sigma} m"
+        );
+        // The estimates recorded: the Rust estimator's before the switch, the Python one's
+        // from it on.
+        let mcap = read_mcap(&out_dir, false);
+        let estimates = &mcap["/estimator/estimate"];
+        let ticks = estimates["ticks"].as_array().unwrap();
+        let epochs = estimates["epochs"].as_array().unwrap();
+        assert_eq!(ticks.len(), trajectory.len());
+        for (tick, epoch) in ticks.iter().zip(epochs) {
+            let expected = if tick.as_u64().unwrap() < switch_tick {
+                0
+            } else {
+                python_epoch
+            };
+            assert_eq!(epoch.as_u64(), Some(expected), "estimate of tick {tick}");
+        }
+        Ok(())
+    })
 }
 
 #[test]

@@ -46,64 +46,65 @@ fn fifo_granted() -> bool {
 
 #[test]
 fn realtime_paper_run_beside_a_cpu_bound_process_per_core_misses_no_tick_under_the_policy() {
-    let machine = common::machine_alone();
-    assert!(
-        fifo_granted(),
-        "this machine refuses SCHED_FIFO: the test's claims need the policy in force"
-    );
-    let _load = Load::one_per_core();
-    // Ending once the robot is held at its goal (`settle`: about 17 s, not the paper's 30).
-    let settle = ["--set", "robot.final_approach=settle"];
-    let (dir, out) = run_into_tempdir(&[&["run", "--mode", "realtime"][..], &settle].concat());
-    let seen = machine.stalls.seen();
-    assert!(out.status.success(), "{}", stderr(&out));
-    let s = summary(dir.path());
-    assert_eq!(s["mode"], "realtime");
-    assert_eq!(s["outcome"], "reached");
-    assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
-    for (process, priority) in [
-        ("plant", 50),
-        ("dfl", 50),
-        ("estimator", 50),
-        ("mpc", 50),
-        ("orchestrator", 47),
-    ] {
-        let sched = &s["scheduling"][process];
-        assert_eq!(sched["policy"], "fifo", "{process}: {sched}");
-        assert_eq!(sched["priority"], priority, "{process}");
-        assert_eq!(sched["memory_locked"], true, "{process}");
-    }
-    // Every tick without a command, brake from silence or deadline miss falls in a stall of
-    // the machine itself seen on a CPU the run was on (or the two ticks after it), and those
-    // are at most 1 % of the run's ticks, or the policy failed. A brake from silence is
-    // judged at the first of the 3 silent ticks before it. Plans flown shifted (a successor
-    // late by 4 ms) are counted, not judged: with the policy, a fresh-clone CI run at
-    // aaf19bc had two outside every stall these watches saw, which see a stall shorter than
-    // 10 ms only by chance. (Without the policy, beside the same load: 5 and 89 in two runs.)
-    let events = common::events(dir.path());
-    let mut faults = stalls::faults(&events);
-    // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
-    for row in common::csv(&dir.path().join("trajectory.csv")) {
-        if row["mode"] == "brake" {
-            let tick = (common::num(&row, "t") / 0.005).round() as u64;
-            faults.push(stalls::Fault::at(
-                "brake from silence",
-                tick.saturating_sub(3),
-                String::new(),
-            ));
+    common::until_judged(|machine| {
+        assert!(
+            fifo_granted(),
+            "this machine refuses SCHED_FIFO: the test's claims need the policy in force"
+        );
+        let _load = Load::one_per_core();
+        // Ending once the robot is held at its goal (`settle`: about 17 s, not the paper's 30).
+        let settle = ["--set", "robot.final_approach=settle"];
+        let (dir, out) = run_into_tempdir(&[&["run", "--mode", "realtime"][..], &settle].concat());
+        assert!(out.status.success(), "{}", stderr(&out));
+        let s = summary(dir.path());
+        assert_eq!(s["mode"], "realtime");
+        assert_eq!(s["outcome"], "reached");
+        assert!(s["min_clearance_m"].as_f64().unwrap() > 0.0);
+        for (process, priority) in [
+            ("plant", 50),
+            ("dfl", 50),
+            ("estimator", 50),
+            ("mpc", 50),
+            ("orchestrator", 47),
+        ] {
+            let sched = &s["scheduling"][process];
+            assert_eq!(sched["policy"], "fifo", "{process}: {sched}");
+            assert_eq!(sched["priority"], priority, "{process}");
+            assert_eq!(sched["memory_locked"], true, "{process}");
         }
-    }
-    seen.assert_judged(&events, &faults);
-    eprintln!(
-        "{} faults, each in a stall of the machine; {} plans flown shifted",
-        faults.len(),
-        s["commands"]["shifted"]
-    );
-    assert!(s["leftover_files"].as_array().unwrap().is_empty());
-    for key in ["p50", "p99", "max"] {
-        assert!(s["loop_latency_us"][key].as_f64().unwrap() > 0.0);
-        assert!(s["hop_latency_us"][key].as_f64().unwrap() > 0.0);
-    }
+        // Every tick without a command, brake from silence or deadline miss falls in a stall of
+        // the machine itself seen on a CPU the run was on (or the two ticks after it), and those
+        // are at most 1 % of the run's ticks, or the policy failed. A brake from silence is
+        // judged at the first of the 3 silent ticks before it. Plans flown shifted (a successor
+        // late by 4 ms) are counted, not judged: with the policy, a fresh-clone CI run at
+        // aaf19bc had two outside every stall these watches saw, which see a stall shorter than
+        // 10 ms only by chance. (Without the policy, beside the same load: 5 and 89 in two runs.)
+        let events = common::events(dir.path());
+        let mut faults = stalls::faults(&events);
+        // (trajectory.csv has no row for a tick the plant never took: each row's own tick.)
+        for row in common::csv(&dir.path().join("trajectory.csv")) {
+            if row["mode"] == "brake" {
+                let tick = (common::num(&row, "t") / 0.005).round() as u64;
+                faults.push(stalls::Fault::at(
+                    "brake from silence",
+                    tick.saturating_sub(3),
+                    String::new(),
+                ));
+            }
+        }
+        machine.judge_faults(&events, &faults)?;
+        eprintln!(
+            "{} faults, each in a stall of the machine; {} plans flown shifted",
+            faults.len(),
+            s["commands"]["shifted"]
+        );
+        assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        for key in ["p50", "p99", "max"] {
+            assert!(s["loop_latency_us"][key].as_f64().unwrap() > 0.0);
+            assert!(s["hop_latency_us"][key].as_f64().unwrap() > 0.0);
+        }
+        Ok(())
+    })
 }
 
 #[test]
@@ -129,7 +130,8 @@ fn without_permission_a_realtime_run_warns_once_and_runs_at_the_normal_policy() 
     let out = command.output().expect("cannot start scmpc");
     assert!(out.status.code().is_some(), "{}", stderr(&out));
     let s = summary(dir.path());
-    assert_eq!(s["ticks"], 600, "the run went on: {}", stderr(&out));
+    let ticks = stalls::run_ticks(&common::events(dir.path()));
+    assert_eq!(ticks, 600, "the run went on: {}", stderr(&out));
     let text = stderr(&out);
     let warnings: Vec<&str> = text
         .lines()
@@ -253,46 +255,48 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
 
 #[test]
 fn a_run_pinned_with_realtime_cpus_runs_every_process_on_that_cpu_and_misses_no_tick() {
-    let machine = common::machine_alone();
-    let cpu = *runtime::realtime::allowed_cpus().unwrap().last().unwrap();
-    let pin = format!("realtime.cpus=[{cpu}]");
-    let (dir, out) = run_into_tempdir(&[
-        "run",
-        "--mode",
-        "realtime",
-        "--no-mcap",
-        "--set",
-        "duration_s=3",
-        "--set",
-        &pin,
-    ]);
-    let seen = machine.stalls.seen();
-    assert!(out.status.code().is_some(), "{}", stderr(&out));
-    let s = summary(dir.path());
-    assert_eq!(s["ticks"], 600, "{s}");
-    let processes = s["scheduling"].as_object().unwrap();
-    assert_eq!(processes.len(), 5, "{s}");
-    for (process, sched) in processes {
-        assert_eq!(sched["cpus"], cpu.to_string(), "{process}: {sched}");
-    }
-    // The watcher saw the run on that CPU alone while it ran (stalls of another count for
-    // nothing), and every fault falls in a stall there.
-    let events = common::events(dir.path());
-    let tick0_ns = stalls::tick0_ns(&events);
-    let end_ns = tick0_ns + stalls::run_ticks(&events) * 5_000_000;
-    let running: Vec<u64> = (seen.run_cpus.iter())
-        .filter(|&&(at, cpus)| (tick0_ns..end_ns).contains(&at) && cpus != 0)
-        .map(|&(_, cpus)| cpus)
-        .collect();
-    assert!(!running.is_empty(), "the run was never seen");
-    assert!(running.iter().all(|&cpus| cpus == 1 << cpu), "{running:?}");
-    seen.assert_judged(&events, &stalls::faults(&events));
+    common::until_judged(|machine| {
+        let cpu = *runtime::realtime::allowed_cpus().unwrap().last().unwrap();
+        let pin = format!("realtime.cpus=[{cpu}]");
+        let (dir, out) = run_into_tempdir(&[
+            "run",
+            "--mode",
+            "realtime",
+            "--no-mcap",
+            "--set",
+            "duration_s=3",
+            "--set",
+            &pin,
+        ]);
+        let seen = machine.stalls.seen();
+        assert!(out.status.code().is_some(), "{}", stderr(&out));
+        let s = summary(dir.path());
+        let events = common::events(dir.path());
+        assert_eq!(stalls::run_ticks(&events), 600, "the run went on: {s}");
+        let processes = s["scheduling"].as_object().unwrap();
+        assert_eq!(processes.len(), 5, "{s}");
+        for (process, sched) in processes {
+            assert_eq!(sched["cpus"], cpu.to_string(), "{process}: {sched}");
+        }
+        // The watcher saw the run on that CPU alone while it ran (stalls of another count for
+        // nothing), and every fault falls in a stall there.
+        let tick0_ns = stalls::tick0_ns(&events);
+        let end_ns = tick0_ns + stalls::run_ticks(&events) * 5_000_000;
+        let running: Vec<u64> = (seen.run_cpus.iter())
+            .filter(|&&(at, cpus)| (tick0_ns..end_ns).contains(&at) && cpus != 0)
+            .map(|&(_, cpus)| cpus)
+            .collect();
+        assert!(!running.is_empty(), "the run was never seen");
+        assert!(running.iter().all(|&cpus| cpus == 1 << cpu), "{running:?}");
+        machine.judge(&events)?;
+        Ok(())
+    })
 }
 
 /// The judge of a real-time run's faults ([`stalls::Seen::judge`]) on a run of 2000 ticks
 /// whose tick 0 was at 1 s, with CPU 0 the run's only CPU throughout.
 mod judge {
-    use super::stalls::{Fault, Seen, Stall};
+    use super::stalls::{Fault, Seen, Stall, Unjudged};
 
     const TICK0_NS: u64 = 1_000_000_000;
     const DT_NS: u64 = 5_000_000;
@@ -341,7 +345,8 @@ mod judge {
     fn a_fault_outside_every_stall_fails_naming_its_tick() {
         let why = seen(&[(0, 100, 103)])
             .judge(&events(), &[gap(101), gap(106)])
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(why.contains("1 of 2 faults"), "{why}");
         assert!(why.contains("tick: 106"), "{why}");
         assert!(!why.contains("tick: 101"), "{why}");
@@ -349,7 +354,8 @@ mod judge {
         for tick in [99, 105] {
             let why = seen(&[(0, 100, 103)])
                 .judge(&events(), &[gap(tick)])
-                .unwrap_err();
+                .unwrap_err()
+                .to_string();
             assert!(why.contains(&format!("tick: {tick}")), "{why}");
         }
     }
@@ -374,7 +380,8 @@ mod judge {
     fn a_stall_on_a_cpu_the_run_was_not_on_excuses_nothing() {
         let why = seen(&[(1, 100, 103)])
             .judge(&events(), &[gap(101)])
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(why.contains("tick: 101"), "{why}");
         assert_eq!(seen(&[(1, 100, 103)]).on_the_runs_cpus(), Vec::new());
     }
@@ -384,10 +391,10 @@ mod judge {
         let within: Vec<Fault> = (100..120).map(gap).collect();
         assert!(seen(&[(0, 100, 130)]).judge(&events(), &within).is_ok());
         let beyond: Vec<Fault> = (100..121).map(gap).collect();
-        let why = seen(&[(0, 100, 130)])
-            .judge(&events(), &beyond)
-            .unwrap_err();
-        assert!(why.contains("too busy to judge"), "{why}");
+        let why = seen(&[(0, 100, 130)]).judge(&events(), &beyond);
+        let Err(Unjudged::TooBusy(why)) = why else {
+            panic!("not too busy: {why:?}");
+        };
         assert!(why.contains("21 of its 2000 ticks (1.05 %)"), "{why}");
     }
 }

@@ -56,11 +56,11 @@ fn assert_every_tick_commanded(dir: &Path, ticks: usize) {
 /// saw 133 on the run's CPUs.)
 #[test]
 fn realtime_swaps_of_the_estimator_at_8_s_and_the_mpc_at_12_s_cost_no_deadline_and_no_tick() {
-    let machine = common::machine_alone();
-    let dir = tempfile::tempdir().unwrap();
-    let file = scenario_file(
-        dir.path(),
-        r#"duration_s = 14.0
+    common::until_judged(|machine| {
+        let dir = tempfile::tempdir().unwrap();
+        let file = scenario_file(
+            dir.path(),
+            r#"duration_s = 14.0
 
 [[swap]]
 time_s = 8.0
@@ -72,67 +72,70 @@ time_s = 12.0
 role = "mpc"
 command = ["scmpc", "mpc", "--set", "mpc.horizon=10"]
 "#,
-    );
-    let (out_dir, s, ev) = run_realtime(dir.path(), &file);
-    assert_eq!(s["deadline_misses"], 0);
-    machine.assert_every_fault_in_a_stall(&ev);
-    let gaps = s["record_gaps"].as_u64().unwrap() as usize;
-    assert_eq!(s["swaps"], 2);
-    assert!(
-        s["rejected_samples"].as_object().unwrap().is_empty(),
-        "{}",
-        s["rejected_samples"]
-    );
-    assert_every_tick_commanded(&out_dir, 2800 - gaps);
-    for (role, at_s) in [("estimator", 8.0), ("mpc", 12.0)] {
-        let e = swapped(&ev, role);
-        let tick = e["switch_tick"].as_u64().unwrap();
-        assert_eq!(
-            tick % 10,
-            0,
-            "{role}: switch at tick {tick}, not a sample boundary"
         );
-        let t = tick as f64 * 0.005;
-        assert!(t > at_s && t < at_s + 1.0, "{role}: switch at t = {t}");
-        assert_ne!(e["old_pid"], e["new_pid"]);
-        let old = e["from_epoch"].as_u64().unwrap();
+        let (out_dir, s, ev) = run_realtime(dir.path(), &file);
+        machine.judge(&ev)?;
+        let gaps = s["record_gaps"].as_u64().unwrap() as usize;
+        assert_eq!(s["swaps"], 2);
         assert!(
-            ev.iter()
-                .any(|r| r["event"] == "retired" && r["role"] == role && r["epoch"] == old),
-            "the old {role} was not stopped"
+            s["rejected_samples"].as_object().unwrap().is_empty(),
+            "{}",
+            s["rejected_samples"]
         );
-    }
-    // The replacement MPC runs its own options: plans of horizon 10 from its switch on.
-    let mpc_switch = swapped(&ev, "mpc")["switch_tick"].as_u64().unwrap() / 10;
-    let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
-    // One row per sample, none twice, none missing; the plan of the last sample (280, at
-    // the run's final tick) may or may not arrive before a real-time run ends. A plan
-    // whose verdict the orchestrator never got (a stall of the machine, as a record gap)
-    // has its row written at the end of the run: rows are compared in sample order (a CI
-    // run at 041c9ed wrote plan 86's row after plan 278's).
-    let mut rows: Vec<(u64, &str)> = plans
-        .numbers("sample")
-        .unwrap()
-        .into_iter()
-        .map(|s| s as u64)
-        .zip(plans.column("horizon").unwrap())
-        .collect();
-    rows.sort_by_key(|&(sample, _)| sample);
-    assert!(rows.len() >= 280, "{} plan rows", rows.len());
-    assert!(
-        rows.iter().enumerate().all(|(i, (s, _))| *s == i as u64),
-        "{rows:?}"
-    );
-    for (sample, horizon) in rows {
-        let expected = if sample < mpc_switch { "8" } else { "10" };
-        assert_eq!(horizon, expected, "plan {sample}");
-    }
-    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        assert_every_tick_commanded(&out_dir, 2800 - gaps);
+        for (role, at_s) in [("estimator", 8.0), ("mpc", 12.0)] {
+            let e = swapped(&ev, role);
+            let tick = e["switch_tick"].as_u64().unwrap();
+            assert_eq!(
+                tick % 10,
+                0,
+                "{role}: switch at tick {tick}, not a sample boundary"
+            );
+            let t = tick as f64 * 0.005;
+            assert!(t > at_s && t < at_s + 1.0, "{role}: switch at t = {t}");
+            assert_ne!(e["old_pid"], e["new_pid"]);
+            let old = e["from_epoch"].as_u64().unwrap();
+            assert!(
+                ev.iter()
+                    .any(|r| r["event"] == "retired" && r["role"] == role && r["epoch"] == old),
+                "the old {role} was not stopped"
+            );
+        }
+        // The replacement MPC runs its own options: plans of horizon 10 from its switch on.
+        let mpc_switch = swapped(&ev, "mpc")["switch_tick"].as_u64().unwrap() / 10;
+        let plans = Table::read(&out_dir.join("plans.csv")).unwrap();
+        // One row per sample, none twice, none missing; the plan of the last sample (280, at
+        // the run's final tick) may or may not arrive before a real-time run ends. A plan
+        // whose verdict the orchestrator never got (a stall of the machine, as a record gap)
+        // has its row written at the end of the run: rows are compared in sample order (a CI
+        // run at 041c9ed wrote plan 86's row after plan 278's).
+        let mut rows: Vec<(u64, &str)> = plans
+            .numbers("sample")
+            .unwrap()
+            .into_iter()
+            .map(|s| s as u64)
+            .zip(plans.column("horizon").unwrap())
+            .collect();
+        rows.sort_by_key(|&(sample, _)| sample);
+        assert!(rows.len() >= 280, "{} plan rows", rows.len());
+        assert!(
+            rows.iter().enumerate().all(|(i, (s, _))| *s == i as u64),
+            "{rows:?}"
+        );
+        for (sample, horizon) in rows {
+            let expected = if sample < mpc_switch { "8" } else { "10" };
+            assert_eq!(horizon, expected, "plan {sample}");
+        }
+        assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        Ok(())
+    })
 }
 
 #[test]
 fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() {
-    let machine = common::machine_alone();
+    // Alone, so that the swap is not slowed past its timeout; the claim is the swap, not
+    // the run's timing (the test above judges that).
+    let _machine = common::machine_alone();
     let dir = tempfile::tempdir().unwrap();
     let run_dir = dir.path().join("run");
     let mut child = spawn_run(&run_dir, &["--mode", "realtime", "--set", "duration_s=5"]);
@@ -168,8 +171,6 @@ fn scmpc_swap_replaces_the_dfl_of_a_running_run_and_refuses_what_it_cannot_do() 
     assert!(ev.iter().any(
         |e| e["event"] == "swap_refused" && e["reason"].as_str().unwrap().contains("not found")
     ));
-    assert_eq!(s["deadline_misses"], 0);
-    machine.assert_every_fault_in_a_stall(&ev);
     assert_eq!(s["swaps"], 1);
     let ended = run(&["swap", "--run", dir_arg, "dfl"]);
     assert_eq!(ended.status.code(), Some(2));
@@ -317,11 +318,11 @@ fn a_swap_of_the_plant_or_of_a_missing_program_is_refused_before_the_run() {
 #[test]
 fn a_replacement_that_exits_or_publishes_nothing_within_the_swap_timeout_is_dropped_and_the_old_process_stays()
  {
-    let machine = common::machine_alone();
-    let dir = tempfile::tempdir().unwrap();
-    let file = scenario_file(
-        dir.path(),
-        r#"duration_s = 5.5
+    common::until_judged(|machine| {
+        let dir = tempfile::tempdir().unwrap();
+        let file = scenario_file(
+            dir.path(),
+            r#"duration_s = 5.5
 
 [supervision]
 swap_timeout_s = 3.0
@@ -336,32 +337,34 @@ time_s = 2.0
 role = "estimator"
 command = ["true"]
 "#,
-    );
-    let (_, s, ev) = run_realtime(dir.path(), &file);
-    let failed = |role: &str| {
-        ev.iter()
-            .find(|e| e["event"] == "swap_failed" && e["role"] == role)
-            .unwrap_or_else(|| panic!("no failed swap of the {role} in {ev:#?}"))
-            .clone()
-    };
-    let mpc = failed("mpc");
-    assert!(
-        mpc["reason"]
-            .as_str()
-            .unwrap()
-            .contains("published nothing usable within 3s"),
-        "{mpc}"
-    );
-    // Started at 1 s, given up 3 s later.
-    assert!((mpc["t"].as_f64().unwrap() - 4.0).abs() < 0.5, "{mpc}");
-    let estimator = failed("estimator");
-    assert!(
-        estimator["reason"].as_str().unwrap().contains("exited"),
-        "{estimator}"
-    );
-    assert_eq!(s["swaps"], 0);
-    assert_eq!(s["restarts"], 0);
-    assert_eq!(s["deadline_misses"], 0);
-    machine.assert_every_fault_in_a_stall(&ev);
-    assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        );
+        let (_, s, ev) = run_realtime(dir.path(), &file);
+        let failed = |role: &str| {
+            ev.iter()
+                .find(|e| e["event"] == "swap_failed" && e["role"] == role)
+                .unwrap_or_else(|| panic!("no failed swap of the {role} in {ev:#?}"))
+                .clone()
+        };
+        let mpc = failed("mpc");
+        assert!(
+            mpc["reason"]
+                .as_str()
+                .unwrap()
+                .contains("published nothing usable within 3s"),
+            "{mpc}"
+        );
+        // Started at 1 s, given up 3 s later.
+        assert!((mpc["t"].as_f64().unwrap() - 4.0).abs() < 0.5, "{mpc}");
+        let estimator = failed("estimator");
+        assert!(
+            estimator["reason"].as_str().unwrap().contains("exited"),
+            "{estimator}"
+        );
+        assert_eq!(s["swaps"], 0);
+        assert_eq!(s["restarts"], 0);
+        // The old processes went on undisturbed.
+        machine.judge(&ev)?;
+        assert!(s["leftover_files"].as_array().unwrap().is_empty());
+        Ok(())
+    })
 }

@@ -244,31 +244,80 @@ static MACHINE: std::sync::RwLock<()> = std::sync::RwLock::new(());
 /// For a real-time test: holds the machine alone for as long as the value lives. Its
 /// timing claims (no deadline miss, no record gap, every tick) cannot hold with another
 /// run on the same two cores (README, "On a new machine"), nor in a stall of the machine
-/// itself, which it watches for meanwhile ([`Alone::assert_every_fault_in_a_stall`]).
+/// itself, which it watches for meanwhile ([`Alone::judge`]). A test whose name claims
+/// timing runs under [`until_judged`]; one that holds the machine alone only so that its
+/// run is not slowed takes it here.
 pub fn machine_alone() -> Alone {
     let guard = MACHINE
         .write()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     Alone {
         stalls: stalls::Stalls::watch(),
+        attempt: 1,
         _guard: guard,
     }
+}
+
+/// How many times [`until_judged`] runs a test while the machine is too busy to judge it.
+pub const ATTEMPTS: u32 = 3;
+
+/// For a test of a real-time claim: runs `attempt` (one real-time run, the checks of its
+/// behaviour, and its judgement by [`Alone::judge`], whose `?` ends the attempt when the
+/// machine was too busy to judge the run) with the machine alone. While the machine was
+/// too busy, the attempt runs again once no stall has been seen for 2 s (at most a minute
+/// of waiting), up to [`ATTEMPTS`] in all; then the test fails. A fault outside every
+/// stall fails it at once. (The CI run at the end of a session on 2026-12-01 failed five
+/// real-time tests in one busy spell of the VM: one run saw 826 stalls in 8 s.)
+pub fn until_judged<T>(mut attempt: impl FnMut(&Alone) -> Result<T, stalls::TooBusy>) -> T {
+    let mut too_busy = Vec::new();
+    for n in 1..=ATTEMPTS {
+        let mut machine = machine_alone();
+        machine.attempt = n;
+        if n > 1 {
+            let waited = machine.stalls.wait_for_calm();
+            eprintln!("attempt {n} of {ATTEMPTS}, after {waited:.1?} waiting for calm");
+        }
+        match attempt(&machine) {
+            Ok(value) => return value,
+            Err(stalls::TooBusy(why)) => too_busy.push(why),
+        }
+    }
+    panic!("{ATTEMPTS} attempts, each too busy to judge: {too_busy:#?}")
 }
 
 /// The machine held alone ([`machine_alone`]), its stalls watched.
 pub struct Alone {
     pub stalls: stalls::Stalls,
+    /// Which of [`until_judged`]'s attempts this is (1 outside it).
+    pub attempt: u32,
     _guard: std::sync::RwLockWriteGuard<'static, ()>,
 }
 
 impl Alone {
-    /// The real-time run of `events` lost no tick and missed no deadline but in a stall of
-    /// the machine seen so far on a CPU the run was on, and those excused are at most 1 %
-    /// of its ticks ([`stalls::Seen::judge`]); what was excused goes to the file `.ci/run`
-    /// summarizes. (Before a count of record gaps was allowed, which a CI run at ca71f2d
-    /// exceeded; then any fault in any stall was, with no bound.)
-    pub fn assert_every_fault_in_a_stall(&self, events: &[serde_json::Value]) {
-        self.stalls.seen().assert_explains_every_fault(events);
+    /// Judges the real-time run of `events`: it lost no tick and missed no deadline
+    /// ([`stalls::faults`]) but in a stall of the machine seen so far on a CPU the run was
+    /// on, and those excused are at most 1 % of its ticks ([`stalls::Seen::judge`]). A
+    /// fault outside every stall fails the test; `Err` says the machine was too busy to
+    /// judge. The verdict goes to the file `.ci/run` summarizes. (Before a count of record
+    /// gaps was allowed, which a CI run at ca71f2d exceeded; then any fault in any stall
+    /// was, with no bound.)
+    pub fn judge(&self, events: &[serde_json::Value]) -> Result<stalls::Excused, stalls::TooBusy> {
+        self.judge_faults(events, &stalls::faults(events))
+    }
+
+    /// [`Alone::judge`] of `faults` of the run of `events`, which the test found.
+    pub fn judge_faults(
+        &self,
+        events: &[serde_json::Value],
+        faults: &[stalls::Fault],
+    ) -> Result<stalls::Excused, stalls::TooBusy> {
+        let verdict = self.stalls.seen().judge(events, faults);
+        stalls::record_excuse(&verdict, self.attempt);
+        match verdict {
+            Ok(excused) => Ok(excused),
+            Err(stalls::Unjudged::TooBusy(why)) => Err(stalls::TooBusy(why)),
+            Err(stalls::Unjudged::Faults(why)) => panic!("{why}"),
+        }
     }
 }
 

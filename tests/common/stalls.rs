@@ -6,8 +6,9 @@
 //! for such stalls while its run lasts ([`Stalls::watch`]) and excuses a fault of the run
 //! (a tick without a command, a deadline miss) only inside one it saw on a CPU the run was
 //! on or the two ticks after it, and only up to [`MAX_EXCUSED_SHARE`] of the run's ticks
-//! ([`Seen::judge`]). What each test excused is appended to [`excuses_file`], whose summary
-//! `.ci/run` prints.
+//! ([`Seen::judge`]); above that the machine was too busy to judge the run, and the test
+//! runs it again ([`crate::common::until_judged`]). What each test excused is appended to
+//! [`excuses_file`], whose summary `.ci/run` prints.
 
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,8 +20,12 @@ const DT_NS: u64 = 5 * MS;
 /// How often the run's CPUs and the steal time are read, ns.
 const POLL_NS: u64 = 20 * MS;
 /// The largest share of a run's ticks a test may excuse: above it the machine was too
-/// busy to judge the run, and the test fails saying so.
+/// busy to judge the run ([`Unjudged::TooBusy`]).
 pub const MAX_EXCUSED_SHARE: f64 = 0.01;
+/// How long no stall must be seen for the machine to count as calm again, ns.
+const CALM_NS: u64 = 2_000_000_000;
+/// How long [`Stalls::wait_for_calm`] waits at most.
+const CALM_WAIT: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// A stall of one CPU: it fell within `from..to` (monotonic ns).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,6 +93,22 @@ impl Stalls {
     pub fn seen(&self) -> Seen {
         lock(&self.seen).clone()
     }
+
+    /// Waits until no stall has been seen for 2 s ([`CALM_NS`]), or [`CALM_WAIT`] has
+    /// passed, and forgets what was seen meanwhile; returns how long it waited.
+    pub fn wait_for_calm(&self) -> std::time::Duration {
+        let started = std::time::Instant::now();
+        let since = runtime::clock::monotonic_ns();
+        while started.elapsed() < CALM_WAIT {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            let last = lock(&self.seen).stalls.iter().map(|s| s.to).max();
+            if runtime::clock::monotonic_ns() >= last.unwrap_or(since).max(since) + CALM_NS {
+                break;
+            }
+        }
+        *lock(&self.seen) = Seen::default();
+        started.elapsed()
+    }
 }
 
 impl Drop for Stalls {
@@ -120,6 +141,28 @@ impl Fault {
         }
     }
 }
+
+/// Why a run's faults were not all excused ([`Seen::judge`]).
+#[derive(Debug)]
+pub enum Unjudged {
+    /// Faults outside every stall of the machine: the run's own.
+    Faults(String),
+    /// The machine was too busy to judge the run: the faults in its stalls were more than
+    /// [`MAX_EXCUSED_SHARE`] of the run's ticks.
+    TooBusy(String),
+}
+
+impl std::fmt::Display for Unjudged {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Unjudged::Faults(why) | Unjudged::TooBusy(why) => f.write_str(why),
+        }
+    }
+}
+
+/// The machine was too busy to judge a run ([`Unjudged::TooBusy`]), with the figures.
+#[derive(Debug)]
+pub struct TooBusy(pub String);
 
 /// What a test excused of its run.
 #[derive(Debug, PartialEq)]
@@ -167,7 +210,11 @@ impl Seen {
     /// the two ticks after it), and their distinct ticks must be at most
     /// [`MAX_EXCUSED_SHARE`] of the run's. An error names every fault outside a stall (what,
     /// tick, record), or says the machine was too busy to judge, with the figures.
-    pub fn judge(&self, events: &[serde_json::Value], faults: &[Fault]) -> Result<Excused, String> {
+    pub fn judge(
+        &self,
+        events: &[serde_json::Value],
+        faults: &[Fault],
+    ) -> Result<Excused, Unjudged> {
         let (tick0_ns, ticks) = (tick0_ns(events), run_ticks(events));
         let stalls = self.on_the_runs_cpus();
         let outside: Vec<&Fault> = faults
@@ -185,22 +232,22 @@ impl Seen {
             stalls_elsewhere: self.stalls.len() - stalls.len(),
         };
         if !outside.is_empty() && self.run_cpus.iter().all(|&(_, cpus)| cpus == 0) {
-            return Err(format!(
+            return Err(Unjudged::Faults(format!(
                 "{} faults, and the run was never seen on a CPU (no process descended from \
                  the test's, or no /proc/PID/task/TID/children): {outside:?}",
                 faults.len()
-            ));
+            )));
         }
         if !outside.is_empty() {
-            return Err(format!(
+            return Err(Unjudged::Faults(format!(
                 "{} of {} faults not in a stall of the machine on the run's CPUs: {outside:?} \
                  (tick 0 at {tick0_ns} ns; stalls on the run's CPUs {stalls:?})",
                 outside.len(),
                 faults.len()
-            ));
+            )));
         }
         if excused.share() > MAX_EXCUSED_SHARE {
-            return Err(format!(
+            return Err(Unjudged::TooBusy(format!(
                 "the machine was too busy to judge the run: {} of its {} ticks ({:.2} %) had a \
                  fault in a stall, more than the {} % a test may excuse ({} stalls on the \
                  run's CPUs)",
@@ -209,26 +256,9 @@ impl Seen {
                 100.0 * excused.share(),
                 100.0 * MAX_EXCUSED_SHARE,
                 excused.stalls
-            ));
+            )));
         }
         Ok(excused)
-    }
-
-    /// The run of `events` lost no tick and missed no deadline but in a stall of the
-    /// machine ([`Seen::judge`] of its record gaps and deadline misses); what was excused
-    /// is recorded ([`record_excuse`]) either way.
-    pub fn assert_explains_every_fault(&self, events: &[serde_json::Value]) {
-        self.assert_judged(events, &faults(events));
-    }
-
-    /// [`Seen::judge`] of `faults`, recorded ([`record_excuse`]), failing the test on an
-    /// error.
-    pub fn assert_judged(&self, events: &[serde_json::Value], faults: &[Fault]) {
-        let verdict = self.judge(events, faults);
-        record_excuse(&verdict);
-        if let Err(why) = verdict {
-            panic!("{why}");
-        }
     }
 }
 
@@ -238,17 +268,22 @@ pub fn excuses_file() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("excused.jsonl")
 }
 
-/// Appends the verdict of the calling test to [`excuses_file`].
-pub fn record_excuse(verdict: &Result<Excused, String>) {
+/// Appends the verdict of the calling test's `attempt` (1, 2, ...) to [`excuses_file`].
+pub fn record_excuse(verdict: &Result<Excused, Unjudged>, attempt: u32) {
     use std::io::Write;
     let test = std::thread::current().name().unwrap_or("?").to_owned();
     let line = match verdict {
         Ok(e) => serde_json::json!({
-            "test": test, "ticks": e.ticks, "faults": e.faults,
+            "test": test, "attempt": attempt, "ticks": e.ticks, "faults": e.faults,
             "excused_ticks": e.excused_ticks, "stalls": e.stalls,
             "stalls_elsewhere": e.stalls_elsewhere,
         }),
-        Err(why) => serde_json::json!({ "test": test, "failed": why }),
+        Err(Unjudged::TooBusy(why)) => {
+            serde_json::json!({ "test": test, "attempt": attempt, "too_busy": why })
+        }
+        Err(Unjudged::Faults(why)) => {
+            serde_json::json!({ "test": test, "attempt": attempt, "failed": why })
+        }
     };
     let file = std::fs::OpenOptions::new()
         .create(true)
