@@ -296,7 +296,7 @@ fn a_run_pinned_with_realtime_cpus_runs_every_process_on_that_cpu_and_misses_no_
 /// The judge of a real-time run's faults ([`stalls::Seen::judge`]) on a run of 2000 ticks
 /// whose tick 0 was at 1 s, with CPU 0 the run's only CPU throughout.
 mod judge {
-    use super::stalls::{Fault, Seen, Stall, Unjudged};
+    use super::stalls::{Fault, Seen, Stall, TooBusy, Unjudged};
 
     const TICK0_NS: u64 = 1_000_000_000;
     const DT_NS: u64 = 5_000_000;
@@ -321,6 +321,7 @@ mod judge {
                     cpu,
                     from: TICK0_NS + from * DT_NS,
                     to: TICK0_NS + to * DT_NS,
+                    late_wakeup: true,
                 })
                 .collect(),
             run_cpus: (0..600).map(|i| (i * 20_000_000, 1)).collect(),
@@ -392,9 +393,42 @@ mod judge {
         assert!(seen(&[(0, 100, 130)]).judge(&events(), &within).is_ok());
         let beyond: Vec<Fault> = (100..121).map(gap).collect();
         let why = seen(&[(0, 100, 130)]).judge(&events(), &beyond);
-        let Err(Unjudged::TooBusy(why)) = why else {
+        let Err(Unjudged::TooBusy(TooBusy(why))) = why else {
             panic!("not too busy: {why:?}");
         };
         assert!(why.contains("21 of its 2000 ticks (1.05 %)"), "{why}");
+    }
+}
+
+/// [`common::until_judged`]'s attempts, with stand-in verdicts and no wait for calm.
+mod attempts {
+    use super::common::{self, ATTEMPTS, stalls::TooBusy};
+    use std::time::Duration;
+
+    #[test]
+    fn an_attempt_too_busy_to_judge_runs_again_after_a_wait_until_one_is_judged() {
+        let (mut attempts, mut waits) = (Vec::new(), Vec::new());
+        let value = common::until_judged_waiting(
+            |machine| {
+                waits.push(machine.attempt);
+                Duration::ZERO
+            },
+            |machine| {
+                attempts.push(machine.attempt);
+                match machine.attempt {
+                    ATTEMPTS => Ok("judged"),
+                    n => Err(TooBusy(format!("busy at attempt {n}"))),
+                }
+            },
+        );
+        assert_eq!(value, "judged");
+        assert_eq!(attempts, (1..=ATTEMPTS).collect::<Vec<_>>());
+        assert_eq!(waits, (2..=ATTEMPTS).collect::<Vec<_>>());
+    }
+
+    #[test]
+    #[should_panic(expected = "3 attempts, each too busy to judge")]
+    fn every_attempt_too_busy_to_judge_fails_the_test() {
+        common::until_judged_waiting(|_| Duration::ZERO, |_| Err::<(), _>(TooBusy("busy".into())));
     }
 }

@@ -264,17 +264,26 @@ pub const ATTEMPTS: u32 = 3;
 /// For a test of a real-time claim: runs `attempt` (one real-time run, the checks of its
 /// behaviour, and its judgement by [`Alone::judge`], whose `?` ends the attempt when the
 /// machine was too busy to judge the run) with the machine alone. While the machine was
-/// too busy, the attempt runs again once no stall has been seen for 2 s (at most a minute
-/// of waiting), up to [`ATTEMPTS`] in all; then the test fails. A fault outside every
-/// stall fails it at once. (The CI run at the end of a session on 2026-12-01 failed five
-/// real-time tests in one busy spell of the VM: one run saw 826 stalls in 8 s.)
-pub fn until_judged<T>(mut attempt: impl FnMut(&Alone) -> Result<T, stalls::TooBusy>) -> T {
+/// too busy, the attempt runs again once the machine is calm (at most 3 minutes of
+/// waiting: [`stalls::Stalls::wait_for_calm`]), up to [`ATTEMPTS`] in all; then the test
+/// fails. A fault outside every stall fails it at once. (The CI run at the end of a
+/// session on 2026-12-01 failed five real-time tests in one busy spell of the VM: one run
+/// saw 826 stalls in 8 s.)
+pub fn until_judged<T>(attempt: impl FnMut(&Alone) -> Result<T, stalls::TooBusy>) -> T {
+    until_judged_waiting(|machine| machine.stalls.wait_for_calm(), attempt)
+}
+
+/// [`until_judged`], with `wait` before each attempt after the first (how long it waited).
+pub fn until_judged_waiting<T>(
+    mut wait: impl FnMut(&Alone) -> std::time::Duration,
+    mut attempt: impl FnMut(&Alone) -> Result<T, stalls::TooBusy>,
+) -> T {
     let mut too_busy = Vec::new();
     for n in 1..=ATTEMPTS {
         let mut machine = machine_alone();
         machine.attempt = n;
         if n > 1 {
-            let waited = machine.stalls.wait_for_calm();
+            let waited = wait(&machine);
             eprintln!("attempt {n} of {ATTEMPTS}, after {waited:.1?} waiting for calm");
         }
         match attempt(&machine) {
@@ -315,7 +324,7 @@ impl Alone {
         stalls::record_excuse(&verdict, self.attempt);
         match verdict {
             Ok(excused) => Ok(excused),
-            Err(stalls::Unjudged::TooBusy(why)) => Err(stalls::TooBusy(why)),
+            Err(stalls::Unjudged::TooBusy(busy)) => Err(busy),
             Err(stalls::Unjudged::Faults(why)) => panic!("{why}"),
         }
     }

@@ -25,7 +25,7 @@ pub const MAX_EXCUSED_SHARE: f64 = 0.01;
 /// How long no stall must be seen for the machine to count as calm again, ns.
 const CALM_NS: u64 = 2_000_000_000;
 /// How long [`Stalls::wait_for_calm`] waits at most.
-const CALM_WAIT: std::time::Duration = std::time::Duration::from_secs(60);
+const CALM_WAIT: std::time::Duration = std::time::Duration::from_secs(180);
 
 /// A stall of one CPU: it fell within `from..to` (monotonic ns).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -33,6 +33,9 @@ pub struct Stall {
     pub cpu: usize,
     pub from: u64,
     pub to: u64,
+    /// Seen by a `SCHED_FIFO` 99 watcher that woke late (else by steal time, which an idle
+    /// VM's CPUs gain a jiffy of about every 1-2 s: measured 2026-12-02).
+    pub late_wakeup: bool,
 }
 
 /// What the watchers saw: the stalls, and the CPUs the run's threads were last on at each
@@ -94,15 +97,18 @@ impl Stalls {
         lock(&self.seen).clone()
     }
 
-    /// Waits until no stall has been seen for 2 s ([`CALM_NS`]), or [`CALM_WAIT`] has
-    /// passed, and forgets what was seen meanwhile; returns how long it waited.
+    /// Waits until no watcher has woken late for 2 s ([`CALM_NS`]; steal time, which an
+    /// idle VM gains too, does not count), or [`CALM_WAIT`] has passed, and forgets what was
+    /// seen meanwhile; returns how long it waited.
     pub fn wait_for_calm(&self) -> std::time::Duration {
         let started = std::time::Instant::now();
         let since = runtime::clock::monotonic_ns();
         while started.elapsed() < CALM_WAIT {
             std::thread::sleep(std::time::Duration::from_millis(100));
-            let last = lock(&self.seen).stalls.iter().map(|s| s.to).max();
-            if runtime::clock::monotonic_ns() >= last.unwrap_or(since).max(since) + CALM_NS {
+            let seen = lock(&self.seen);
+            let late = seen.stalls.iter().filter(|s| s.late_wakeup);
+            let last = late.map(|s| s.to).max().unwrap_or(since).max(since);
+            if runtime::clock::monotonic_ns() >= last + CALM_NS {
                 break;
             }
         }
@@ -147,20 +153,20 @@ impl Fault {
 pub enum Unjudged {
     /// Faults outside every stall of the machine: the run's own.
     Faults(String),
-    /// The machine was too busy to judge the run: the faults in its stalls were more than
-    /// [`MAX_EXCUSED_SHARE`] of the run's ticks.
-    TooBusy(String),
+    /// The machine was too busy to judge the run.
+    TooBusy(TooBusy),
 }
 
 impl std::fmt::Display for Unjudged {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Unjudged::Faults(why) | Unjudged::TooBusy(why) => f.write_str(why),
+            Unjudged::Faults(why) | Unjudged::TooBusy(TooBusy(why)) => f.write_str(why),
         }
     }
 }
 
-/// The machine was too busy to judge a run ([`Unjudged::TooBusy`]), with the figures.
+/// The machine was too busy to judge a run: the faults in its stalls were more than
+/// [`MAX_EXCUSED_SHARE`] of the run's ticks (the figures).
 #[derive(Debug)]
 pub struct TooBusy(pub String);
 
@@ -247,7 +253,7 @@ impl Seen {
             )));
         }
         if excused.share() > MAX_EXCUSED_SHARE {
-            return Err(Unjudged::TooBusy(format!(
+            return Err(Unjudged::TooBusy(TooBusy(format!(
                 "the machine was too busy to judge the run: {} of its {} ticks ({:.2} %) had a \
                  fault in a stall, more than the {} % a test may excuse ({} stalls on the \
                  run's CPUs)",
@@ -256,7 +262,7 @@ impl Seen {
                 100.0 * excused.share(),
                 100.0 * MAX_EXCUSED_SHARE,
                 excused.stalls
-            )));
+            ))));
         }
         Ok(excused)
     }
@@ -278,7 +284,7 @@ pub fn record_excuse(verdict: &Result<Excused, Unjudged>, attempt: u32) {
             "excused_ticks": e.excused_ticks, "stalls": e.stalls,
             "stalls_elsewhere": e.stalls_elsewhere,
         }),
-        Err(Unjudged::TooBusy(why)) => {
+        Err(Unjudged::TooBusy(TooBusy(why))) => {
             serde_json::json!({ "test": test, "attempt": attempt, "too_busy": why })
         }
         Err(Unjudged::Faults(why)) => {
@@ -359,6 +365,7 @@ fn watch_steal_and_run(stop: &AtomicBool, seen: &Mutex<Seen>) {
                     cpu,
                     from: at - 50 * MS,
                     to: at,
+                    late_wakeup: false,
                 });
             }
         }
@@ -474,6 +481,7 @@ fn watch_cpu(cpu: usize, stop: &AtomicBool, seen: &Mutex<Seen>) {
                 cpu,
                 from: before,
                 to: woke,
+                late_wakeup: true,
             });
         }
     }
