@@ -388,7 +388,8 @@ fn send(
             return;
         }
     };
-    taps.sort_by_key(|(robot, _, _)| *robot == spec.robot);
+    // This robot's taps are taken first (below).
+    taps.sort_by_key(|(robot, _, _)| *robot != spec.robot);
     let guards: Result<Vec<_>, _> = taps
         .iter()
         .map(|(_, _, tap)| waitset.attach_notification(tap.listener()))
@@ -414,11 +415,17 @@ fn send(
         if ipc::wait(&waitset, timeout).is_err() {
             break;
         }
-        // The data first, then the control: a grant published before a sample is then
-        // sent before it, so no sample reaches another host ahead of its clock. The other
-        // robots' data before this robot's: in lockstep every other robot's tick `j - 1`
-        // is published before this robot's tick `j` is granted, and so reaches its
-        // tracker before the truth that steps it (`taps` has them first).
+        // Each pass takes in the reverse of the order it sends, so that whatever was
+        // published before a sample it sends is sent before it: it takes this robot's
+        // data, then the other robots' data, then the control, and sends the control,
+        // then the other robots' data, then this robot's. A grant published before a
+        // sample then goes out before it, so no sample reaches another host ahead of its
+        // clock. In lockstep every other robot's tick `j - 1` is published before this
+        // robot's tick `j` is granted, so it reaches this robot's tracker before the truth
+        // of tick `j` that steps it. (Taking the other robots' data first let a sample of
+        // theirs published between the two takes go out after this robot's next truth: a
+        // lockstep run across hosts differed from the fleet in process in the 10th digit of
+        // a track's sigma, once in about 30 runs beside a busy machine, 2026-12-02.)
         for (robot, topic, tap) in taps.iter().filter(|(_, t, _)| !is_plane(t)) {
             tap.clear_wakeups();
             let taken = tap.take(&mut |bytes, origin| {
@@ -445,6 +452,7 @@ fn send(
                 tracing::warn!("bridge {}: {topic}: {e}", spec.host);
             }
         }
+        data.sort_by_key(|(robot, ..)| *robot == spec.robot);
         for (robot, topic, bytes, origin) in data.drain(..) {
             outbox.forward(robot, topic, &bytes, origin, &schedule);
         }
