@@ -289,16 +289,19 @@ fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stop
     };
     let (restarted, calm) = (path(dir.path()), path(calm.path()));
     // A restart loses the EKF's covariance and the MPC's warm start: the path moves by
-    // up to 2.2 cm (2026-11-27: 0.021-0.022 m in three runs, under 0.01 m in two); a
-    // restarted process that started over from the scenario's start would be metres off.
+    // centimetres (2026-11-27: 0.021-0.022 m in three runs, under 0.01 m in two; 0.061 m
+    // in a fresh-clone CI run at 3edef84, 2026-12-02, a busy hour: each kill lands at a
+    // simulated time the machine's speed decides, after `wait_until`); a restarted
+    // process that started over from the scenario's start would be metres off.
     assert_eq!(restarted.len(), calm.len());
     let apart_m = restarted
         .iter()
         .zip(&calm)
         .map(|(a, b)| (a[0] - b[0]).hypot(a[1] - b[1]))
         .fold(0.0, f64::max);
+    eprintln!("the restarted run strays {apart_m} m from the calm one");
     assert!(
-        apart_m < 0.05,
+        apart_m < 0.15,
         "the restarted run strays {apart_m} m from the calm one"
     );
 }
