@@ -24,8 +24,9 @@ pub enum DflInput {
 }
 protocol::task_input!(DflInput: Estimate, Plan, Tracks, Scan);
 
-/// What a DFL step gives: on the first tick of a sample the verdict on the previous
-/// sample's deadline (published first), and the command for the tick.
+/// What a DFL step gives: the verdict on an earlier sample's deadline, on the first
+/// command of a later sample ([`DeadlineMonitor`]; published first), and the command for
+/// the tick.
 #[derive(Debug, Clone, Copy)]
 pub struct DflOutput {
     pub verdict: Option<DeadlineVerdict>,
@@ -99,15 +100,21 @@ impl PlanInbox {
 }
 
 /// Judges every sample's deadline: plan(k) must reach the DFL, solved, by `t_k + Ts`.
-/// Sample k is judged at the first tick of sample k + 1, when its deadline has passed.
+/// Sample k is judged at the DFL's first command in a later sample, when its deadline has
+/// passed; one sample a command, oldest first, so a sample none of whose ticks was
+/// commanded from an estimate (the DFL braking alone through it, on its own clock) is
+/// judged too, a command later. Judging starts at the first sample whose first tick the
+/// DFL commands (a DFL that starts mid-sample has not seen that sample's plan).
 #[derive(Debug, Clone)]
 pub struct DeadlineMonitor {
     period_ns: u64,
     /// `(sample, arrival after t_k in ns, status code, production ns)` of received plans
     /// not yet judged.
     arrivals: Vec<(u64, u64, u32, u64)>,
-    /// Mode of the first command of the sample being run.
-    current: Option<(u64, CommandMode)>,
+    /// The oldest sample not judged yet.
+    unjudged: Option<u64>,
+    /// The mode of the first command of each sample not judged yet, oldest first.
+    first_modes: VecDeque<(u64, CommandMode)>,
     misses: u32,
 }
 
@@ -116,7 +123,8 @@ impl DeadlineMonitor {
         DeadlineMonitor {
             period_ns: period_ns(ts_s),
             arrivals: Vec::with_capacity(8),
-            current: None,
+            unjudged: None,
+            first_modes: VecDeque::with_capacity(4),
             misses: 0,
         }
     }
@@ -138,11 +146,35 @@ impl DeadlineMonitor {
         }
     }
 
-    /// The first command of `sample` was given in `mode`. Returns the verdict on the
-    /// previous sample, whose deadline has now passed.
-    pub fn sample_started(&mut self, sample: u64, mode: CommandMode) -> Option<DeadlineVerdict> {
-        let previous = self.current.replace((sample, mode));
-        let (judged, fallback) = previous.filter(|(s, _)| *s < sample)?;
+    /// A command of `sample` was given in `mode` (`first_tick`: on the sample's first
+    /// tick). Returns the verdict on the oldest sample before `sample` not judged yet, if
+    /// any: its fallback is the mode of its first command ([`CommandMode::Brake`] if the
+    /// DFL gave it none at all).
+    pub fn commanded(
+        &mut self,
+        sample: u64,
+        first_tick: bool,
+        mode: CommandMode,
+    ) -> Option<DeadlineVerdict> {
+        let judged = match self.unjudged {
+            Some(oldest) => oldest,
+            None if first_tick => {
+                self.unjudged = Some(sample);
+                sample
+            }
+            None => return None,
+        };
+        if self.first_modes.back().is_none_or(|(s, _)| *s < sample) {
+            self.first_modes.push_back((sample, mode));
+        }
+        if judged >= sample {
+            return None;
+        }
+        self.unjudged = Some(judged + 1);
+        let fallback = (self.first_modes.iter())
+            .find(|(s, _)| *s == judged)
+            .map_or(CommandMode::Brake, |(_, mode)| *mode);
+        self.first_modes.retain(|(s, _)| *s > judged);
         let found = self.arrivals.iter().find(|a| a.0 == judged).copied();
         self.arrivals.retain(|a| a.0 > judged);
         let (arrival_ns, status, production_ns) =
@@ -329,8 +361,8 @@ impl Task for DflTask {
         }
     }
 
-    /// The command for the oldest estimate waiting, with, on the first tick of a sample,
-    /// the verdict on the previous sample; `None` while nothing is waiting, or while the
+    /// The command for the oldest estimate waiting, with the verdict it gives
+    /// ([`DflTask::judged`]); `None` while nothing is waiting, or while the
     /// plan of a new sample is awaited ([`PlanInbox::waits_for`], for
     /// [`PLAN_WAIT_FRACTION`] of the tick). Without an estimate, a brake on the DFL's own
     /// clock when the estimator has been silent for [`SILENT_TICKS`] ticks (then every
@@ -341,7 +373,7 @@ impl Task for DflTask {
     fn step(&mut self, context: &impl Context) -> Option<Publish<DflOutput>> {
         let (actuation, verdict) = match self.command_next(context) {
             Some(command) => command,
-            None => (self.brake_if_silent(context)?, None),
+            None => self.brake_if_silent(context)?,
         };
         Some(Publish::now(DflOutput { verdict, actuation }))
     }
@@ -393,7 +425,7 @@ impl DflTask {
             }
             // Orphaned (the supervisor is gone): brake to rest.
             let (mut actuation, verdict) = if context.orphaned() {
-                (self.brake(tick), None)
+                self.brake(tick)
             } else {
                 self.command(&estimate, tick)
             };
@@ -418,7 +450,10 @@ impl DflTask {
 
     /// A brake for the tick the clock is in, if the estimator has been silent too long
     /// ([`SilenceWatch`]).
-    fn brake_if_silent(&mut self, context: &impl Context) -> Option<Actuation> {
+    fn brake_if_silent(
+        &mut self,
+        context: &impl Context,
+    ) -> Option<(Actuation, Option<DeadlineVerdict>)> {
         let due = self.watch.next_check()?;
         if !context.has_reached(self.timing.tick_time_s(due)) {
             return None;
@@ -429,8 +464,7 @@ impl DflTask {
     }
 
     /// The command for `[t_tick, t_tick+1)` from `estimate`, after releasing the plans
-    /// usable by now; on the first tick of a sample, the verdict on the previous one
-    /// (stamped with the command's header).
+    /// usable by now, with its verdict ([`DflTask::judged`]).
     fn command(&mut self, estimate: &Estimate, tick: u64) -> (Actuation, Option<DeadlineVerdict>) {
         let sample = self.timing.sample_of(tick);
         self.inbox.release(sample, &mut self.dfl);
@@ -454,26 +488,32 @@ impl DflTask {
                     .set_scan(scan, protocol::mounted(pose, scan.offset));
             });
         }
-        let mut actuation = self.dfl.step(estimate, tick);
-        let verdict = match actuation.mode() {
-            Some(mode) if self.timing.starts_sample(tick) => {
-                self.monitor.sample_started(sample, mode)
-            }
-            _ => None,
-        }
-        .map(|verdict| DeadlineVerdict {
-            header: actuation.header,
-            ..verdict
-        });
+        let actuation = self.dfl.step(estimate, tick);
+        self.judged(actuation)
+    }
+
+    /// `actuation` with the verdict its command gives ([`DeadlineMonitor::commanded`]),
+    /// stamped with the command's header, and the misses counted by then.
+    fn judged(&mut self, mut actuation: Actuation) -> (Actuation, Option<DeadlineVerdict>) {
+        let tick = actuation.header.tick;
+        let verdict = (actuation.mode())
+            .and_then(|mode| {
+                let (sample, first_tick) =
+                    (self.timing.sample_of(tick), self.timing.starts_sample(tick));
+                self.monitor.commanded(sample, first_tick, mode)
+            })
+            .map(|verdict| DeadlineVerdict {
+                header: actuation.header,
+                ..verdict
+            });
         actuation.deadline_misses = self.monitor.misses();
         (actuation, verdict)
     }
 
-    /// The fallback brake for `tick` (see [`Dfl::brake`]).
-    fn brake(&mut self, tick: u64) -> Actuation {
-        let mut actuation = self.dfl.brake(tick);
-        actuation.deadline_misses = self.monitor.misses();
-        actuation
+    /// The fallback brake for `tick` (see [`Dfl::brake`]), with the verdict it gives.
+    fn brake(&mut self, tick: u64) -> (Actuation, Option<DeadlineVerdict>) {
+        let actuation = self.dfl.brake(tick);
+        self.judged(actuation)
     }
 }
 

@@ -198,12 +198,13 @@ fn a_joining_dfl_adopts_the_zeta_the_plant_is_driven_with() {
 #[test]
 fn a_plan_arriving_exactly_at_the_deadline_meets_it_and_one_later_misses() {
     let mut m = DeadlineMonitor::new(0.05);
-    m.sample_started(10, CommandMode::Nominal);
+    assert!(m.commanded(10, true, CommandMode::Nominal).is_none());
     m.on_plan(&plan(10, 8, PlanStatus::Solved), 50_000_000);
-    let v = m.sample_started(11, CommandMode::Shifted).unwrap();
+    let v = m.commanded(11, true, CommandMode::Shifted).unwrap();
     assert_eq!((v.sample, v.met, v.misses_total), (10, 1, 0));
+    assert!(m.commanded(11, false, CommandMode::Nominal).is_none());
     m.on_plan(&plan(11, 8, PlanStatus::Solved), 50_000_001);
-    let v = m.sample_started(12, CommandMode::Nominal).unwrap();
+    let v = m.commanded(12, true, CommandMode::Nominal).unwrap();
     assert_eq!(
         (v.sample, v.met, v.misses_total, v.fallback),
         (11, 0, 1, CommandMode::Shifted as u32)
@@ -211,13 +212,48 @@ fn a_plan_arriving_exactly_at_the_deadline_meets_it_and_one_later_misses() {
 }
 
 #[test]
+fn a_sample_whose_first_tick_had_no_command_is_judged_a_command_later() {
+    // Caught in a real-time test: the DFL braked alone on the first tick of sample 10
+    // (its estimate late), so sample 10, whose plan came 75 ms late, was never judged.
+    let mut m = DeadlineMonitor::new(0.05);
+    assert!(
+        m.commanded(9, false, CommandMode::Nominal).is_none(),
+        "not from mid-sample"
+    );
+    m.commanded(9, true, CommandMode::Nominal);
+    m.on_plan(&plan(9, 8, PlanStatus::Solved), 1_000_000);
+    m.on_plan(&plan(10, 8, PlanStatus::Solved), 75_000_000);
+    let v = m.commanded(10, false, CommandMode::Shifted).unwrap();
+    assert_eq!((v.sample, v.met), (9, 1));
+    let v = m.commanded(11, true, CommandMode::Nominal).unwrap();
+    assert_eq!(
+        (v.sample, v.met, v.fallback, v.misses_total),
+        (10, 0, CommandMode::Shifted as u32, 1)
+    );
+    // Samples 12 and 13 with no command at all (the DFL itself stalled): each judged, one
+    // a command, as braked; 13's plan never came.
+    m.on_plan(&plan(11, 8, PlanStatus::Solved), 1_000_000);
+    m.on_plan(&plan(12, 8, PlanStatus::Solved), 1_000_000);
+    let samples: Vec<(u64, u32, u32)> = (140..143)
+        .filter_map(|tick| m.commanded(tick / 10, tick % 10 == 0, CommandMode::Nominal))
+        .map(|v| (v.sample, v.met, v.fallback))
+        .collect();
+    let (nominal, brake) = (CommandMode::Nominal as u32, CommandMode::Brake as u32);
+    assert_eq!(
+        samples,
+        vec![(11, 1, nominal), (12, 1, brake), (13, 0, brake)],
+        "the backlog, oldest first"
+    );
+}
+
+#[test]
 fn a_missing_or_failed_plan_is_a_miss_with_its_status() {
     let mut m = DeadlineMonitor::new(0.05);
-    m.sample_started(0, CommandMode::Brake);
-    let v = m.sample_started(1, CommandMode::Brake).unwrap();
+    m.commanded(0, true, CommandMode::Brake);
+    let v = m.commanded(1, true, CommandMode::Brake).unwrap();
     assert_eq!((v.met, v.status), (0, PLAN_MISSING));
     m.on_plan(&plan(1, 8, PlanStatus::NumericalError), 1_000_000);
-    let v = m.sample_started(2, CommandMode::Brake).unwrap();
+    let v = m.commanded(2, true, CommandMode::Brake).unwrap();
     assert_eq!(
         (v.met, v.status, v.misses_total),
         (0, PlanStatus::NumericalError as u32, 2)
