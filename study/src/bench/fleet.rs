@@ -66,6 +66,8 @@ pub struct FleetCost {
     pub static_step_us: Percentiles,
     /// `plans_step_us.p50 / static_step_us.p50`.
     pub ratio_p50: f64,
+    /// `plans_step_us.p99 / static_step_us.p99` (reported, not a target).
+    pub ratio_p99: f64,
     /// `swap8` in process, and in lockstep across processes (a process per role and
     /// robot).
     pub swap8_in_process: Swap8Run,
@@ -76,10 +78,13 @@ impl FleetCost {
     /// Its lines of the bench table.
     pub fn table(&self) -> String {
         format!(
-            "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×)\n{}{}",
+            "  MPC step, 7 robots' plans / 7 discs at rest  p50 {:.0} / {:.0} µs ({:.2}×), p99 {:.0} / {:.0} µs ({:.2}×)\n{}{}",
             self.plans_step_us.p50,
             self.static_step_us.p50,
             self.ratio_p50,
+            self.plans_step_us.p99,
+            self.static_step_us.p99,
+            self.ratio_p99,
             self.swap8_in_process.line("in process"),
             self.swap8_lockstep.line("in lockstep"),
         )
@@ -124,6 +129,7 @@ pub fn measure(out: &Path, swap8_s: Option<f64>, stop: &AtomicBool) -> anyhow::R
     run::stop::check(stop)?;
     Ok(FleetCost {
         ratio_p50: plans_step_us.p50 / static_step_us.p50.max(1e-9),
+        ratio_p99: plans_step_us.p99 / static_step_us.p99.max(1e-9),
         plans_step_us,
         static_step_us,
         swap8_in_process: Swap8Run::of(&in_process),
@@ -133,12 +139,20 @@ pub fn measure(out: &Path, swap8_s: Option<f64>, stop: &AtomicBool) -> anyhow::R
 
 /// Robot 0 from (-4, 0) to (9, 0) past the [`PARKED`] robots (`fleet`), or past discs at
 /// rest in their places; both without the route planner, which sees discs at rest only.
+///
+/// With the default final approach (`settle`) each run ends once robot 0 is held at its
+/// goal, so both runs' steps are those of its drive past the seven. (Until 2026-12-02 the
+/// bench took the paper's approach, which goes on to the scenario's 30 s. The run past
+/// the discs left the last of them behind at about 9 s, then had 21 s of steps with no
+/// disc in reach, its slow approach and its rest at the goal, about 30 µs each: they were
+/// its median. The robot among the parked robots had no such steps. That mix, not the
+/// drive, made the ratio 6.4.)
 fn parked(fleet: bool) -> Scenario {
     let mut s = Scenario {
         name: format!("fleet-{}", if fleet { "plans" } else { "static" }),
         duration_s: 30.0,
         obstacles: Vec::new(),
-        ..Scenario::paper()
+        ..Scenario::default()
     };
     s.robot.radius_m = 0.3;
     s.mpc.v_max = 1.0;
