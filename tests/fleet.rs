@@ -207,13 +207,8 @@ fn a_fleets_bad_input_names_the_robots_key() {
     swap4("robots.1.host=orchestrator", "robots.1.host");
     swap4("robots.1.fault.link_loss=0.1", "robots.1.fault");
     swap4("hosts.mpc=\"b\"", "hosts");
-    let b = ["--set", "robots.1.host=\"b\""];
     refused(
-        &[&["run", "swap4", "--set", "robots.2.host=\"b\""][..], &b].concat(),
-        "robots.2.host",
-    );
-    refused(
-        &[&["run", "swap4"][..], &b].concat(),
+        &["run", "swap4", "--set", "robots.1.host=\"b\""],
         "host `b`: no endpoint",
     );
 }
@@ -311,6 +306,45 @@ fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
     assert!(s["links"]["b"]["host_bridge"]["received"].as_u64().unwrap() > 1000);
     let robot0 = summary(&lockstep.path().join("robot0"));
     assert!(robot0["hosts"].is_null(), "robot 0 runs here: {robot0}");
+}
+
+/// Robots 1 and 2 whose planning runs on one host: its agent joins the run once for each,
+/// with processes, an iceoryx2 prefix and a bridge of each one's own, and each robot's
+/// links are under a run key of its own, so neither robot takes the other's samples. In
+/// lockstep every robot drives as the fleet in process, byte for byte; both joins end with
+/// the run, and the agent serves the next run.
+#[test]
+fn in_lockstep_two_robots_on_one_host_drive_as_in_process_byte_for_byte() {
+    let _machine = common::machine_shared();
+    let b = Agent::plain("b");
+    let mut args = across_hosts(&b, &b);
+    args.truncate(args.len() - 2); // no host `c`
+    let args: Vec<&str> = (args.iter().map(String::as_str))
+        .chain(["--set", "robots.2.host=\"b\""])
+        .collect();
+    let short = ["--set", "duration_s=8"];
+    let (in_process, _) = run_into_tempdir(&[&args[..], &short, &["--in-process"]].concat());
+    let prefix = unique_prefix("fleetonehost");
+    let (lockstep, out) = run_into_tempdir(&[&args[..], &short, &["--prefix", &prefix]].concat());
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
+    assert_same_bytes(&in_process, &lockstep, 3);
+    for id in [1, 2] {
+        let s = summary(&lockstep.path().join(format!("robot{id}")));
+        assert_eq!(s["hosts"]["mpc"], "b", "{s}");
+        let received = s["links"]["b"]["host_bridge"]["received"].as_u64().unwrap();
+        assert!(received > 1000, "robot {id}'s link to `b`: {s}");
+    }
+    for robot in [1, 2] {
+        b.wait_for_line(&format!(
+            "(robot {robot}) ended (the orchestrator ended it)"
+        ));
+    }
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+    b.assert_left_nothing(std::time::Duration::from_secs(5));
+    let next = ["--set", "duration_s=1"];
+    let (_, out) = run_into_tempdir(&[&args[..], &next].concat());
+    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
 }
 
 /// In real time every robot's clock starts at one tick 0, and robots 0 and 1 (robot 1 on

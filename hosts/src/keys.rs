@@ -54,6 +54,13 @@ pub fn alive_all(run: &str) -> String {
     format!("scmpc/run/{run}/alive/*")
 }
 
+/// The key chunk of robot `robot`'s part of a fleet's run on `prefix`: each robot's links
+/// to other hosts are under a run key of their own, so that two robots on one host (a join,
+/// a bridge and processes each) never take each other's samples, commands or exits.
+pub fn fleet_robot_run(prefix: &str, robot: u32) -> String {
+    format!("{}-robot{robot}", run_of_prefix(prefix))
+}
+
 /// The zenoh key chunk of a run: its iceoryx2 prefix without what keys do not allow.
 pub fn run_of_prefix(prefix: &str) -> String {
     prefix

@@ -11,7 +11,8 @@ use zenoh::Wait;
 /// The orchestrator asks an agent to join a run.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct JoinRequest {
-    /// The run's key chunk ([`crate::keys::run_of_prefix`]).
+    /// The run's key chunk ([`crate::keys::run_of_prefix`]; a fleet's robot's own,
+    /// [`crate::keys::fleet_robot_run`]).
     pub run: String,
     /// The run id every sample carries (`runtime::ipc::run_id` of the run's prefix).
     pub run_id: u32,

@@ -4,7 +4,8 @@
 //! the host's bridge, starts, signals and reaps the processes as the orchestrator says,
 //! reports their exits, and at the end of the run (or when the orchestrator is gone)
 //! stops them and removes the run's resources. Its role processes take the run's id, and
-//! a clock corrected to the orchestrator's.
+//! a clock corrected to the orchestrator's. In a fleet's run it joins once for each robot
+//! placed on its host, each join a run of its own here (its prefix, bridge and processes).
 
 use crate::children::Children;
 use anyhow::{Context, anyhow};
@@ -24,7 +25,7 @@ use std::time::{Duration, Instant};
 use zenoh::Wait;
 use zenoh::sample::SampleKind;
 
-/// How often the agent looks at its processes, its queries and the stop flag.
+/// How long the agent waits for a join request at a time while it serves no run.
 const POLL: Duration = Duration::from_millis(20);
 /// The start of the name of a run's directory (the scenario file) of an agent:
 /// `scmpc-host-<agent pid>-<host>-<run>`, under the temporary directory.
@@ -52,7 +53,12 @@ const ORCHESTRATOR_TOKEN_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long role processes have to exit at the end of a run before they are killed.
 const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 
-/// Serves runs on `listen` as host `name` until `stop`.
+/// How often the agent looks at its runs' commands and processes while it serves any.
+const RUN_POLL: Duration = Duration::from_millis(5);
+
+/// Serves runs on `listen` as host `name` until `stop`: one run at a time, and in it as
+/// many of a fleet's robots as the run places here (one join each, with its own processes,
+/// iceoryx2 prefix and bridge).
 pub fn serve(
     name: &str,
     listen: &Endpoint,
@@ -71,51 +77,100 @@ pub fn serve(
         listen.zenoh(),
         std::process::id()
     );
+    let mut runs: Vec<HostRun> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
-        let Ok(Some(query)) = joins.recv_timeout(POLL) else {
-            continue;
+        let query = match runs.is_empty() {
+            true => joins.recv_timeout(POLL).ok().flatten(),
+            false => joins.try_recv().ok().flatten(),
         };
-        let request: JoinRequest = match messages::request_of(&query) {
-            Ok(r) => r,
-            Err(e) => {
-                messages::answer(
-                    query,
-                    &JoinReply {
-                        error: e,
-                        ..JoinReply::default()
-                    },
-                );
-                continue;
-            }
-        };
-        match HostRun::join(&session, name, &request) {
-            Ok(mut run) => {
-                messages::answer(query, &run.reply());
-                eprintln!("scmpc host `{name}`: joined run {}", request.run);
-                let ended = run.serve(&session, &joins, stop);
-                run.end();
-                eprintln!("scmpc host `{name}`: run {} ended ({ended})", request.run);
-            }
-            Err(e) => {
-                let error = format!("{e:#}");
-                eprintln!("scmpc host `{name}`: refused run {}: {error}", request.run);
-                messages::answer(
-                    query,
-                    &JoinReply {
-                        error,
-                        ..JoinReply::default()
-                    },
-                );
+        if let Some(run) = query.and_then(|q| join(&session, name, &runs, q)) {
+            runs.push(run);
+        }
+        let mut i = 0;
+        while i < runs.len() {
+            match runs[i].poll(stop) {
+                Some(ended) => {
+                    let run = runs.swap_remove(i);
+                    let (id, robot) = (run.run.clone(), run.robot);
+                    run.end();
+                    eprintln!("scmpc host `{name}`: run {id} (robot {robot}) ended ({ended})");
+                }
+                None => i += 1,
             }
         }
+        if !runs.is_empty() {
+            std::thread::sleep(RUN_POLL);
+        }
+    }
+    for run in runs {
+        run.end();
     }
     Ok(())
+}
+
+/// Answers the join request `query`: the run it joined, or `None` (refused, with why).
+/// While it serves a run it joins only more robots of that run (`run_id`).
+fn join(
+    session: &zenoh::Session,
+    name: &str,
+    runs: &[HostRun],
+    query: zenoh::query::Query,
+) -> Option<HostRun> {
+    let refuse = |query, error: String| {
+        messages::answer(
+            query,
+            &JoinReply {
+                error,
+                ..JoinReply::default()
+            },
+        )
+    };
+    let request: JoinRequest = match messages::request_of(&query) {
+        Ok(r) => r,
+        Err(e) => {
+            refuse(query, e);
+            return None;
+        }
+    };
+    if let Some(busy) = runs.iter().find(|r| r.run_id != request.run_id) {
+        refuse(query, format!("busy with run {}", busy.run));
+        return None;
+    }
+    if runs.iter().any(|r| r.run == request.run) {
+        refuse(query, format!("joined run {} already", request.run));
+        return None;
+    }
+    match HostRun::join(session, name, &request) {
+        Ok(run) => {
+            messages::answer(query, &run.reply());
+            eprintln!(
+                "scmpc host `{name}`: joined run {} (robot {})",
+                request.run, request.robot
+            );
+            Some(run)
+        }
+        Err(e) => {
+            let error = format!("{e:#}");
+            eprintln!("scmpc host `{name}`: refused run {}: {error}", request.run);
+            refuse(query, error);
+            None
+        }
+    }
 }
 
 /// A run this host has joined.
 struct HostRun {
     name: String,
+    /// The run's key chunk (a fleet's robot's own: [`hosts::keys::fleet_robot_run`]).
     run: String,
+    /// The run's id, the same for every robot of a fleet.
+    run_id: u32,
+    robot: u32,
+    /// When it joined, whether the orchestrator's token has been seen since, and when it
+    /// went away.
+    joined: Instant,
+    orchestrator_seen: bool,
+    orchestrator_gone: Option<Instant>,
     prefix: String,
     dir: PathBuf,
     clock: hosts::clock_sync::ClockLink,
@@ -265,6 +320,11 @@ impl HostRun {
         Ok(HostRun {
             name: name.to_string(),
             run: r.run.clone(),
+            run_id: r.run_id,
+            robot: r.robot,
+            joined: Instant::now(),
+            orchestrator_seen: false,
+            orchestrator_gone: None,
             prefix,
             dir,
             clock,
@@ -286,80 +346,59 @@ impl HostRun {
         }
     }
 
-    /// Serves the run until its end, the orchestrator's loss or `stop`; says which.
-    fn serve(
-        &mut self,
-        session: &zenoh::Session,
-        joins: &zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
-        stop: &AtomicBool,
-    ) -> &'static str {
-        let _ = session;
-        let mut orchestrator_gone: Option<Instant> = None;
-        // An orchestrator that gave up on the join before this host answered never shows
-        // its token here: without it the run is over as well.
-        let (joined, mut orchestrator_seen) = (Instant::now(), false);
-        loop {
-            if stop.load(Ordering::Relaxed) {
-                return "the agent was stopped";
-            }
-            while let Ok(Some(query)) = joins.try_recv() {
-                let error = format!("busy with run {}", self.run);
-                messages::answer(
-                    query,
-                    &JoinReply {
-                        error,
-                        ..JoinReply::default()
-                    },
-                );
-            }
-            while let Ok(Some(sample)) = self.orchestrator.try_recv() {
-                match sample.kind() {
-                    SampleKind::Put => orchestrator_seen = true,
-                    SampleKind::Delete => {
-                        orchestrator_gone.get_or_insert_with(Instant::now);
-                    }
+    /// Serves the run for a moment: its processes' exits and the orchestrator's commands.
+    /// Says why the run is over, when it is: its end, the orchestrator's loss, or `stop`.
+    fn poll(&mut self, stop: &AtomicBool) -> Option<&'static str> {
+        if stop.load(Ordering::Relaxed) {
+            return Some("the agent was stopped");
+        }
+        while let Ok(Some(sample)) = self.orchestrator.try_recv() {
+            match sample.kind() {
+                SampleKind::Put => self.orchestrator_seen = true,
+                SampleKind::Delete => {
+                    self.orchestrator_gone.get_or_insert_with(Instant::now);
                 }
-            }
-            if !orchestrator_seen && joined.elapsed() >= ORCHESTRATOR_TOKEN_TIMEOUT {
-                orchestrator_gone.get_or_insert_with(Instant::now);
-            }
-            // Without its orchestrator a real-time robot brakes for the orphan grace; the
-            // processes of this host then stop.
-            if orchestrator_gone.is_some_and(|t| t.elapsed() >= ORPHAN_GRACE) {
-                return "the orchestrator is gone";
-            }
-            while let Some((p, status)) = self.children.take_exited() {
-                let _ = ipc::cleanup_dead_nodes(&self.prefix);
-                let exit = Exit {
-                    role: p.role.as_str().to_string(),
-                    epoch: p.epoch,
-                    pid: p.pid(),
-                    status,
-                };
-                if let Ok(bytes) = serde_json::to_vec(&exit) {
-                    let _ = self.exits.put(bytes).wait();
-                }
-            }
-            self.children.kill_overdue();
-            match self.commands.recv_timeout(POLL) {
-                Ok(Some(query)) => {
-                    let command: Result<HostCommand, String> = messages::request_of(&query);
-                    let ended = matches!(command, Ok(HostCommand::End));
-                    let reply = match command {
-                        Ok(c) => self.execute(c),
-                        Err(error) => CommandReply {
-                            error,
-                            ..CommandReply::default()
-                        },
-                    };
-                    messages::answer(query, &reply);
-                    if ended {
-                        return "the orchestrator ended it";
-                    }
-                }
-                _ => continue,
             }
         }
+        // An orchestrator that gave up on the join before this host answered never shows
+        // its token here: without it the run is over as well.
+        if !self.orchestrator_seen && self.joined.elapsed() >= ORCHESTRATOR_TOKEN_TIMEOUT {
+            self.orchestrator_gone.get_or_insert_with(Instant::now);
+        }
+        // Without its orchestrator a real-time robot brakes for the orphan grace; the
+        // processes of this host then stop.
+        if (self.orchestrator_gone).is_some_and(|t| t.elapsed() >= ORPHAN_GRACE) {
+            return Some("the orchestrator is gone");
+        }
+        while let Some((p, status)) = self.children.take_exited() {
+            let _ = ipc::cleanup_dead_nodes(&self.prefix);
+            let exit = Exit {
+                role: p.role.as_str().to_string(),
+                epoch: p.epoch,
+                pid: p.pid(),
+                status,
+            };
+            if let Ok(bytes) = serde_json::to_vec(&exit) {
+                let _ = self.exits.put(bytes).wait();
+            }
+        }
+        self.children.kill_overdue();
+        while let Ok(Some(query)) = self.commands.try_recv() {
+            let command: Result<HostCommand, String> = messages::request_of(&query);
+            let ended = matches!(command, Ok(HostCommand::End));
+            let reply = match command {
+                Ok(c) => self.execute(c),
+                Err(error) => CommandReply {
+                    error,
+                    ..CommandReply::default()
+                },
+            };
+            messages::answer(query, &reply);
+            if ended {
+                return Some("the orchestrator ended it");
+            }
+        }
+        None
     }
 
     fn execute(&mut self, command: HostCommand) -> CommandReply {

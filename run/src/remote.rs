@@ -124,7 +124,10 @@ impl RemoteHosts {
         security: &Security,
         control_publisher: u128,
     ) -> anyhow::Result<RemoteHosts> {
-        let run = keys::run_of_prefix(prefix);
+        let run = match whose.fleet {
+            Some(_) => keys::fleet_robot_run(prefix, whose.robot),
+            None => keys::run_of_prefix(prefix),
+        };
         let key = RunKey::generate().map_err(|e| anyhow!(e))?;
         let names = scenario.hosts.names();
         let connect: Vec<Endpoint> = names.iter().map(|n| endpoints[n].clone()).collect();
