@@ -4,7 +4,7 @@
 use crate::common;
 
 use common::agent::Agent;
-use common::{events, leftovers, run, stderr, summary, wait_for};
+use common::{events, leftovers, run, stalls, stderr, summary, wait_for};
 use record::schema::Table;
 use runtime::ipc::process_alive;
 use std::path::Path;
@@ -333,37 +333,49 @@ fn a_link_60_ms_slow_flags_every_late_plan_and_the_robot_still_reaches_the_goal(
 
 #[test]
 fn a_link_down_from_2_to_4_s_gives_the_shifted_plan_then_the_brake_and_flying_resumes() {
-    let _machine = common::machine_alone();
-    let agent = Agent::plain("compute");
-    let (dir, s) = link_fault_run(&agent, "fault.link_down_s=[2, 4]", "14");
-    let verdicts = verdicts(dir.path());
-    let missed: Vec<u64> = verdicts.iter().filter(|v| !v.2).map(|v| v.0).collect();
-    let first = *missed.first().expect("no plan missed");
-    // Samples are 50 ms: the link is down for samples 40..80 (give or take the one a
-    // plan was on its way in).
-    assert!((39..=41).contains(&first), "first miss at sample {first}");
-    assert!(missed.iter().all(|k| (39..=81).contains(k)), "{missed:?}");
-    assert!(missed.len() >= 38, "{missed:?}");
-    // The first missing plan is met by the shifted plan at once, the brake follows
-    // when the shifted plan runs out, and nominal flying comes back after.
-    let fallback = |k: u64| verdicts.iter().find(|v| v.0 == k).unwrap().3.clone();
-    assert_eq!(fallback(first), "shifted");
-    assert!(
-        missed.iter().any(|&k| fallback(k) == "brake"),
-        "never braked"
-    );
-    let trajectory = Table::read(&dir.path().join("trajectory.csv")).unwrap();
-    let (t, mode) = (
-        trajectory.numbers("t").unwrap(),
-        trajectory.column("mode").unwrap(),
-    );
-    let nominal_after = (0..t.len()).any(|i| t[i] > 4.5 && mode[i] == "nominal");
-    assert!(nominal_after, "no nominal command after the link came back");
-    let down = s["links"]["compute"]["host_bridge"]["down"]
-        .as_u64()
-        .unwrap()
-        + s["orchestrator_bridge"]["down"].as_u64().unwrap();
-    assert!(down > 0, "{s}");
+    // Samples are 50 ms: the link is down for samples 40..80 (give or take the one a plan
+    // was on its way in). A plan missed outside them must have come late in a stall of the
+    // machine (CI at 3bebf3a missed sample 17 once).
+    let window = 39..=81;
+    common::until_judged(|machine| {
+        let agent = Agent::plain("compute");
+        let (dir, s) = link_fault_run(&agent, "fault.link_down_s=[2, 4]", "14");
+        let events = events(dir.path());
+        let outside: Vec<stalls::Fault> = stalls::faults(&events)
+            .into_iter()
+            .filter(|f| f.what == "deadline miss" && !window.contains(&(f.tick / 10)))
+            .collect();
+        machine.judge_faults(&events, &outside)?;
+        let verdicts = verdicts(dir.path());
+        let missed: Vec<u64> = (verdicts.iter())
+            .filter(|v| !v.2 && window.contains(&v.0))
+            .map(|v| v.0)
+            .collect();
+        let first = *missed.first().expect("no plan missed");
+        assert!((39..=41).contains(&first), "first miss at sample {first}");
+        assert!(missed.len() >= 38, "{missed:?}");
+        // The first missing plan is met by the shifted plan at once, the brake follows
+        // when the shifted plan runs out, and nominal flying comes back after.
+        let fallback = |k: u64| verdicts.iter().find(|v| v.0 == k).unwrap().3.clone();
+        assert_eq!(fallback(first), "shifted");
+        assert!(
+            missed.iter().any(|&k| fallback(k) == "brake"),
+            "never braked"
+        );
+        let trajectory = Table::read(&dir.path().join("trajectory.csv")).unwrap();
+        let (t, mode) = (
+            trajectory.numbers("t").unwrap(),
+            trajectory.column("mode").unwrap(),
+        );
+        let nominal_after = (0..t.len()).any(|i| t[i] > 4.5 && mode[i] == "nominal");
+        assert!(nominal_after, "no nominal command after the link came back");
+        let down = s["links"]["compute"]["host_bridge"]["down"]
+            .as_u64()
+            .unwrap()
+            + s["orchestrator_bridge"]["down"].as_u64().unwrap();
+        assert!(down > 0, "{s}");
+        Ok(())
+    })
 }
 
 #[test]

@@ -100,6 +100,15 @@ pub struct Whose<'a> {
 }
 
 impl Whose<'_> {
+    /// The key chunk of the run on `prefix` for this robot's links: a fleet's robot's own
+    /// ([`keys::fleet_robot_run`]), so that two robots on one host never meet.
+    fn run_key(&self, prefix: &str) -> String {
+        match self.fleet {
+            Some(_) => keys::fleet_robot_run(prefix, self.robot),
+            None => keys::run_of_prefix(prefix),
+        }
+    }
+
     /// The other robots' topics the host of the robot's tracker takes, by robot and topic
     /// (docs/fleet.md, "Across hosts").
     fn peer_topics(&self) -> Vec<(u32, String)> {
@@ -124,10 +133,7 @@ impl RemoteHosts {
         security: &Security,
         control_publisher: u128,
     ) -> anyhow::Result<RemoteHosts> {
-        let run = match whose.fleet {
-            Some(_) => keys::fleet_robot_run(prefix, whose.robot),
-            None => keys::run_of_prefix(prefix),
-        };
+        let run = whose.run_key(prefix);
         let key = RunKey::generate().map_err(|e| anyhow!(e))?;
         let names = scenario.hosts.names();
         let connect: Vec<Endpoint> = names.iter().map(|n| endpoints[n].clone()).collect();
