@@ -104,7 +104,11 @@ impl PlanInbox {
 /// passed; one sample a command, oldest first, so a sample none of whose ticks was
 /// commanded from an estimate (the DFL braking alone through it, on its own clock) is
 /// judged too, a command later. Judging starts at the first sample whose first tick the
-/// DFL commands (a DFL that starts mid-sample has not seen that sample's plan).
+/// DFL commands (a DFL that starts mid-sample has not seen that sample's plan). A backlog
+/// shrinks by `timing.inner_steps - 1` samples a sample; with one tick a sample (valid,
+/// used by no scenario here) it never does: each verdict then comes as many commands late
+/// as samples went without one, and that many are not judged when the run ends (before,
+/// they were never judged at all).
 #[derive(Debug, Clone)]
 pub struct DeadlineMonitor {
     period_ns: u64,

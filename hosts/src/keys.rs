@@ -15,8 +15,9 @@ pub fn to_host(run: &str, host: &str, robot: u32, topic: &str) -> String {
 }
 
 /// Samples of every robot's topics for `host` in `run`: a fleet's robot's bridge takes
-/// the other robots' too. Each robot on another host has a Zenoh session of its own,
-/// connected to its host's agent alone, so only its own bridge's samples come here.
+/// the other robots' too. Each robot of a fleet has a run key of its own
+/// ([`fleet_robot_run`]), so only its own bridge's samples come here, also when two
+/// robots share a host.
 pub fn to_host_all(run: &str, host: &str) -> String {
     format!("scmpc/run/{run}/to/{host}/**")
 }
