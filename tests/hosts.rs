@@ -341,10 +341,7 @@ fn a_link_down_from_2_to_4_s_gives_the_shifted_plan_then_the_brake_and_flying_re
         let agent = Agent::plain("compute");
         let (dir, s) = link_fault_run(&agent, "fault.link_down_s=[2, 4]", "14");
         let events = events(dir.path());
-        let outside: Vec<stalls::Fault> = stalls::faults(&events)
-            .into_iter()
-            .filter(|f| f.what == "deadline miss" && !window.contains(&(f.tick / 10)))
-            .collect();
+        let outside = stalls::misses_outside(&events, |k| window.contains(&k));
         machine.judge_faults(&events, &outside)?;
         let verdicts = verdicts(dir.path());
         let missed: Vec<u64> = (verdicts.iter())

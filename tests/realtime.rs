@@ -252,10 +252,7 @@ fn realtime_late_plans_are_all_flagged_and_on_time_plans_never() {
             flagged.len(),
             "the summary counts every flag"
         );
-        let on_time_flagged: Vec<stalls::Fault> = stalls::faults(&events)
-            .into_iter()
-            .filter(|f| f.what == "deadline miss" && !delayed.contains(&(f.tick / 10)))
-            .collect();
+        let on_time_flagged = stalls::misses_outside(&events, |k| delayed.contains(&k));
         machine.judge_faults(&events, &on_time_flagged)?;
         Ok(())
     })

@@ -17,6 +17,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 const MS: u64 = 1_000_000;
 /// The inner tick of every scenario the tests run in real time, ns.
 const DT_NS: u64 = 5 * MS;
+/// The inner ticks of a sample of every scenario the tests run in real time.
+const TICKS_A_SAMPLE: u64 = 10;
 /// How often the run's CPUs and the steal time are read, ns.
 const POLL_NS: u64 = 20 * MS;
 /// The largest share of a run's ticks a test may excuse: above it the machine was too
@@ -335,12 +337,21 @@ pub fn faults(events: &[serde_json::Value]) -> Vec<Fault> {
             )),
             Some("deadline_miss") => Some(Fault {
                 what: "deadline miss",
-                tick: 10 * tick(e, "sample"),
-                ticks: 10,
+                tick: TICKS_A_SAMPLE * tick(e, "sample"),
+                ticks: TICKS_A_SAMPLE,
                 detail: e.to_string(),
             }),
             _ => None,
         })
+        .collect()
+}
+
+/// The deadline misses among the [`faults`] of the run of `events` whose sample is not in
+/// `samples`: where a test provokes misses, those past its fault are faults to judge.
+pub fn misses_outside(events: &[serde_json::Value], samples: impl Fn(u64) -> bool) -> Vec<Fault> {
+    faults(events)
+        .into_iter()
+        .filter(|f| f.what == "deadline miss" && !samples(f.tick / TICKS_A_SAMPLE))
         .collect()
 }
 
