@@ -94,20 +94,23 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
 /// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet
 /// as it drives, in process and across processes: the time (rising line by line), the
 /// robots at their goals (none in the first 4 s of `swap4`, some before the end of the
-/// whole run in process), their clearance to each other and their contacts, all before
-/// the end table.
+/// whole run in process), the deadlines their records missed (none before robot 1's MPC
+/// fails at 3 s, some after, never more than the summary's), their clearance to each
+/// other and their contacts, all before the end table.
 #[test]
 fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
     let _machine = common::machine_shared();
     let prefix = unique_prefix("fleetline");
     let whole: (&[&str], &str) = (&["--in-process"], "40.0");
     let first_4_s: (&[&str], &str) = (&["--prefix", &prefix, "--set", "duration_s=4"], "4.0");
+    let fails_at_3_s = ["--set", "robots.1.fault.mpc_fail_samples=\"60..=2000\""];
     for (executor, duration) in [whole, first_4_s] {
         let dir = tempfile::tempdir().unwrap();
         let out = (common::scmpc())
             .args(["run", "swap4", "--no-mcap", "--out"])
             .arg(dir.path())
             .args(executor)
+            .args(fails_at_3_s)
             .env("SCMPC_PROGRESS_S", "0.02")
             .output()
             .unwrap();
@@ -122,14 +125,29 @@ fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
         };
         let time = |l: &str| field(l, "t ", '/');
         let reached = |l: &str| field(l, "goals ", 'o');
+        let misses = |l: &str| field(l, "deadline misses ", '|');
         assert!(
             lines.windows(2).all(|w| time(w[0]) <= time(w[1])),
             "{executor:?}: {lines:?}"
         );
+        assert!(
+            lines.windows(2).all(|w| misses(w[0]) <= misses(w[1])),
+            "{executor:?}: {lines:?}"
+        );
+        let missed: u64 = (summary(dir.path())["robots"].as_array().unwrap().iter())
+            .map(|r| r["deadline_misses"].as_u64().unwrap())
+            .sum();
+        for line in &lines {
+            let (t, n) = (time(line), misses(line));
+            assert!(t >= 3.0 || n == 0.0, "{executor:?}: {line}");
+            assert!(n <= missed as f64, "{executor:?}: {line}, {missed} in all");
+        }
+        assert!(misses(lines[lines.len() - 1]) > 0.0, "{lines:?}");
         for line in &lines {
             assert!(
                 line.contains(&format!(" / {duration} s | at their goals "))
-                    && line.contains(" of 4 | robot-robot clearance ")
+                    && line.contains(" of 4 | deadline misses ")
+                    && line.contains(" | robot-robot clearance ")
                     && line.ends_with("| contacts 0 moving, 0 at rest"),
                 "{executor:?}: {line}"
             );

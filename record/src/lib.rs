@@ -346,6 +346,11 @@ impl Recorder {
         self.deadlocks_broken
     }
 
+    /// The deadlines missed so far (each a `deadline_miss` event).
+    pub fn deadline_misses(&self) -> u64 {
+        self.deadline_misses
+    }
+
     /// The DFL's deadline verdict on a sample (a replay is dropped): a miss is counted
     /// and is a `deadline_miss` event.
     pub fn verdict(&mut self, v: &DeadlineVerdict) -> std::io::Result<()> {

@@ -81,7 +81,8 @@ pub fn run(
             let outcomes = members
                 .iter()
                 .map(|m| m.summary.as_ref().map(|s| s.outcome));
-            status.show(timing.tick_time_s(tick), outcomes, &judge);
+            let misses = members.iter().map(Member::deadline_misses).sum();
+            status.show(timing.tick_time_s(tick), outcomes, misses, &judge);
         }
     }
     drop(status);
@@ -188,6 +189,15 @@ impl Member {
             self.summary = Some(summary);
         }
         Ok(())
+    }
+
+    /// The deadlines its record counted as missed so far (all of them once it ended).
+    fn deadline_misses(&self) -> u64 {
+        match (&self.recorder, &self.summary) {
+            (Some(recorder), _) => recorder.deadline_misses(),
+            (None, Some(summary)) => summary.deadline_misses,
+            (None, None) => 0,
+        }
     }
 
     /// Its summary: the one recorded at its outcome, or now at the end of the run.

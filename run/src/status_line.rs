@@ -159,7 +159,8 @@ impl Sink for StatusLine {
 
 /// The status line of a fleet's run (`scmpc run` of a scenario with `[[robots]]`, without
 /// `-q`): the time its robots have been judged to, how many ended their record at their
-/// goal, and their smallest clearance to each other so far and their contacts.
+/// goal, the deadlines their records counted as missed, and their smallest clearance to
+/// each other so far and their contacts.
 pub struct FleetStatus {
     drawer: Drawer,
     duration_s: f64,
@@ -176,17 +177,19 @@ impl FleetStatus {
         })
     }
 
-    /// The fleet judged to `t_s`, with each robot's `outcomes` so far.
+    /// The fleet judged to `t_s`, with each robot's `outcomes` so far and the deadline
+    /// misses of every robot's record.
     pub fn show(
         &mut self,
         t_s: f64,
         outcomes: impl Iterator<Item = Option<Outcome>>,
+        deadline_misses: u64,
         judge: &FleetJudge,
     ) {
         let (duration_s, robots) = (self.duration_s, self.robots);
         self.drawer.draw(|| {
             let reached = outcomes.filter(|o| *o == Some(Outcome::Reached)).count();
-            fleet_line(t_s, duration_s, reached, robots, judge)
+            fleet_line(t_s, duration_s, (reached, robots), deadline_misses, judge)
         });
     }
 }
@@ -199,11 +202,13 @@ impl Drop for FleetStatus {
     }
 }
 
+/// The line of a fleet judged to `t_s` of `duration_s`, `(reached, robots)` of its robots
+/// at their goals.
 fn fleet_line(
     t_s: f64,
     duration_s: f64,
-    reached: usize,
-    robots: usize,
+    (reached, robots): (usize, usize),
+    deadline_misses: u64,
     judge: &FleetJudge,
 ) -> String {
     let clearance = match judge.min_clearance_m.is_finite() {
@@ -215,6 +220,6 @@ fn fleet_line(
         judge.contacts_at_rest.iter().sum(),
     );
     format!(
-        "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | robot-robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
+        "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | deadline misses {deadline_misses} | robot-robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
     )
 }

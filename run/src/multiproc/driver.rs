@@ -180,6 +180,11 @@ impl<'a> Driver<'a> {
         Ok(())
     }
 
+    /// The deadlines its record counted as missed so far.
+    pub fn deadline_misses(&self) -> u64 {
+        self.parts.recorder.deadline_misses()
+    }
+
     /// Real time, a fleet's: takes what came, checks the processes, and records (when
     /// `recording`, else drops) every tick due, handing each tick's true position to
     /// `seen`. An outcome when the robot's record ends or its run must end.

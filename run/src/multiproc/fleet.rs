@@ -358,10 +358,11 @@ impl Fleet {
     }
 
     /// The status line, once the robots are judged through `ticks` ticks.
-    fn show(&mut self, ticks: u64) {
+    fn show(&mut self, ticks: u64, drivers: &[Driver]) {
         if let Some(status) = &mut self.status {
             let outcomes = self.outcomes.iter().copied();
-            status.show(ticks as f64 * self.dt_s, outcomes, &self.judge);
+            let misses = drivers.iter().map(Driver::deadline_misses).sum();
+            status.show(ticks as f64 * self.dt_s, outcomes, misses, &self.judge);
         }
     }
 }
@@ -381,7 +382,7 @@ fn lockstep(
         }
         if tick < fleet.ticks {
             fleet.judge.tick(&positions, fleet.dt_s);
-            fleet.show(tick + 1);
+            fleet.show(tick + 1, drivers);
         }
         if fleet.outcomes.iter().all(Option::is_some) || tick == fleet.ticks {
             break;
@@ -432,7 +433,7 @@ fn realtime(
             }
         }
         seen.judge(&mut fleet.judge, fleet.ticks, fleet.dt_s);
-        fleet.show(seen.judged);
+        fleet.show(seen.judged, drivers);
     }
     Ok(seen.judged.min(fleet.ticks) as f64 * fleet.dt_s)
 }
