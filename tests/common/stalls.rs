@@ -347,7 +347,7 @@ pub fn faults(events: &[serde_json::Value]) -> Vec<Fault> {
 }
 
 /// The deadline misses among the [`faults`] of the run of `events` whose sample is not in
-/// `samples`: where a test provokes misses, those past its fault are faults to judge.
+/// `samples`: where a test provokes misses in `samples`, the others are faults to judge.
 pub fn misses_outside(events: &[serde_json::Value], samples: impl Fn(u64) -> bool) -> Vec<Fault> {
     faults(events)
         .into_iter()
