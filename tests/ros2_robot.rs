@@ -98,7 +98,12 @@ fn the_paper_scenario_drives_a_simulated_base_to_its_goal_with_twist_stamped() {
         let log = robot.finish();
         base_inputs_kept(machine, &out_dir)?;
         let summary = summary(&out_dir);
-        assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "{}\nsummary: {summary}",
+            stderr(&out)
+        );
         assert_eq!(summary["outcome"], "reached");
         assert_eq!(
             summary["robot"]["start"][0].as_f64().map(f64::round),
