@@ -227,9 +227,9 @@ fn a_person_stepping_out_from_behind_a_pillar_touches_the_moving_robot_only_with
 }
 
 /// Runs the lidar fuzz's world `file` in process, asserts it reached with no contact while
-/// moving, and returns the tracks on the one obstacle not in the map (`x_true` known).
+/// moving, and returns the tracks on the one obstacle not in the map (`x_true` known). The
+/// caller holds the machine.
 fn lidar_world_reached_untouched(file: &str) -> Vec<std::collections::HashMap<String, String>> {
-    let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let s = run_into(dir.path(), &[&fixture(file), "--in-process"]);
     assert_eq!(

@@ -65,8 +65,7 @@ pub fn base_inputs_kept(machine: &Alone, out_dir: &Path) -> Result<(), TooBusy> 
     let busy = TooBusy(format!(
         "the base's input went silent in a stall of the machine, and the run aborted: {lost}"
     ));
-    let verdict = Err(Unjudged::TooBusy(TooBusy(busy.0.clone())));
-    record_excuse(&verdict, machine.attempt);
+    record_excuse(&Err(Unjudged::TooBusy(busy.clone())), machine.attempt);
     Err(busy)
 }
 

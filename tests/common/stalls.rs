@@ -169,7 +169,7 @@ impl std::fmt::Display for Unjudged {
 
 /// The machine was too busy to judge a run: the faults in its stalls were more than
 /// [`MAX_EXCUSED_SHARE`] of the run's ticks (the figures).
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct TooBusy(pub String);
 
 /// What a test excused of its run.
