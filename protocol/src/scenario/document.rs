@@ -72,6 +72,10 @@ impl Scenario {
     /// a bare word taken as a string (`mpc.constraint=euclidean`). Nothing is applied
     /// unless every override is valid; each one that is not is one error, labelled with
     /// `origin` (the option it came from: `--set`, `--grid ...`).
+    ///
+    /// The scenario's own faults (`fault.*`) are set first: a fleet's robot's first key
+    /// of `robots.<i>.fault` starts its faults from them ([`make_room`]), so its faults
+    /// are the same whichever order the two are given in.
     pub fn with_overrides_from(
         &self,
         overrides: &[String],
@@ -96,7 +100,10 @@ impl Scenario {
         }
         let mut scenario = self.clone();
         let mut errors = Vec::new();
-        for item in overrides {
+        let (faults, others): (Vec<&String>, Vec<&String>) = overrides
+            .iter()
+            .partition(|item| sets_scenario_faults(item));
+        for item in faults.into_iter().chain(others) {
             let Some((key, raw)) = item.split_once('=') else {
                 errors.push(error(item, "expected KEY=VALUE".into()));
                 continue;
@@ -124,6 +131,12 @@ impl Scenario {
             Err(ScenarioErrors(errors))
         }
     }
+}
+
+/// Whether the override `item` (`KEY=VALUE`) sets the scenario's `[fault]`.
+fn sets_scenario_faults(item: &str) -> bool {
+    let key = item.split_once('=').map_or(item, |(key, _)| key).trim();
+    key == "fault" || key.starts_with("fault.")
 }
 
 /// Why `key` is not in `doc`: an index past the end of its list (how many there are), or

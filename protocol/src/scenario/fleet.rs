@@ -307,10 +307,30 @@ impl Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenario::AutoOr;
+    use crate::scenario::{AutoOr, SampleSet};
 
     fn swap4() -> Scenario {
         Scenario::from_toml(include_str!("../../../scenarios/swap4.toml"), "swap4").unwrap()
+    }
+
+    #[test]
+    fn a_robots_own_faults_start_from_the_scenarios_in_whichever_order_they_are_set() {
+        let own = "robots.1.fault.mpc_fail_samples=\"60..=2000\"".to_string();
+        let every = "fault.estimator_delay_ms=2".to_string();
+        for overrides in [[&own, &every], [&every, &own]] {
+            let overrides: Vec<String> = overrides.map(String::clone).into();
+            let fleet = swap4().with_overrides(&overrides).unwrap();
+            let robot1 = fleet.member(1).fault;
+            assert_eq!(robot1.estimator_delay_ms, 2.0, "{overrides:?}");
+            assert_eq!(
+                robot1.mpc_fail_samples,
+                SampleSet::Range("60..=2000".into()),
+                "{overrides:?}"
+            );
+            let robot0 = fleet.member(0).fault;
+            assert_eq!(robot0.estimator_delay_ms, 2.0, "{overrides:?}");
+            assert_ne!(robot0.mpc_fail_samples, robot1.mpc_fail_samples);
+        }
     }
 
     #[test]
