@@ -66,6 +66,13 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     );
     assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_eq!(summary(lockstep.path())["mode"], "lockstep");
+    // Both leave the fleet's scenario, the same.
+    let fleet_scenario = |dir: &tempfile::TempDir| {
+        std::fs::read_to_string(dir.path().join("scenario.toml")).expect("the fleet's scenario")
+    };
+    let scenario = fleet_scenario(&in_process);
+    assert_eq!(scenario, fleet_scenario(&lockstep));
+    assert_eq!(scenario.matches("[[robots]]").count(), 4, "{scenario}");
     // The robots' run.mcap merged into the run's.
     assert!(lockstep.path().join("run.mcap").exists());
     let mut pids = std::collections::BTreeSet::new();

@@ -46,7 +46,8 @@ struct Member {
 }
 
 /// Runs the fleet to its end (every robot's outcome, the duration, or `stop`) and writes
-/// `out`: `robot<id>/` for each robot and the fleet's `summary.json`.
+/// `out`: the fleet's `scenario.toml` (as a run across processes does), `robot<id>/` for
+/// each robot and the fleet's `summary.json`.
 pub fn run(
     scenario: &Validated,
     out: &Path,
@@ -54,6 +55,10 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<FleetSummary> {
     let started = Instant::now();
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let scenario_file = out.join("scenario.toml");
+    std::fs::write(&scenario_file, scenario.to_toml())
+        .with_context(|| format!("writing {}", scenario_file.display()))?;
     let mut members = (0..scenario.robot_count())
         .map(|id| Member::new(scenario, id, out, recording))
         .collect::<anyhow::Result<Vec<_>>>()?;
