@@ -799,9 +799,16 @@ fn a_slow_estimator_stopped_for_50_ms_is_braked_for_then_commands_come_from_its_
             "the DFL never braked alone"
         );
         // Before, all 200 ticks of the last second braked. A stall of the machine may still
-        // silence the estimator, and each spell it starts is judged against the stalls.
+        // silence the estimator, and each spell it starts is judged against the stalls;
+        // none lasts longer than a stall could make it.
         let spells = spells_braked_alone(&braked, 400..600);
-        machine.judge_faults(&common::events(dir.path()), &spells)?;
+        let long = (spells.iter()).find(|(first, last)| last - first + 1 > MOST_TICKS_A_SPELL);
+        assert!(
+            long.is_none(),
+            "braked alone too long for a stall to explain, ticks {long:?}: {spells:?}"
+        );
+        let faults: Vec<_> = spells.into_iter().map(spell_began).collect();
+        machine.judge_faults(&common::events(dir.path()), &faults)?;
         let loop_us = summary(dir.path())["loop_latency_us"]["p50"]
             .as_f64()
             .unwrap();
@@ -813,13 +820,9 @@ fn a_slow_estimator_stopped_for_50_ms_is_braked_for_then_commands_come_from_its_
     })
 }
 
-/// The spells of braking alone, of the sorted `braked` ticks, that reach into `judged`, as
-/// the faults that began them: the DFL brakes once the estimator has been silent for
-/// [`dfl::SILENT_TICKS`], so a spell's cause (a stall of the estimator, or of what it
-/// waits for) began within those ticks before its first. The ticks after its first are
-/// the estimator catching up on what queued meanwhile, 2 ms an estimate: about `0.13`
-/// ticks a millisecond of stall, longer than the two ticks after a stall a judge excuses.
-fn spells_braked_alone(braked: &[u64], judged: std::ops::Range<u64>) -> Vec<common::stalls::Fault> {
+/// The spells of braking alone (first and last tick) of the sorted `braked` ticks that
+/// reach into `judged`.
+fn spells_braked_alone(braked: &[u64], judged: std::ops::Range<u64>) -> Vec<(u64, u64)> {
     let mut spells: Vec<(u64, u64)> = Vec::new();
     for &tick in braked {
         match spells.last_mut() {
@@ -827,15 +830,29 @@ fn spells_braked_alone(braked: &[u64], judged: std::ops::Range<u64>) -> Vec<comm
             _ => spells.push((tick, tick)),
         }
     }
-    (spells.into_iter())
-        .filter(|&(first, last)| first < judged.end && judged.start <= last)
-        .map(|(first, last)| common::stalls::Fault {
-            what: "braked alone",
-            tick: first.saturating_sub(dfl::SILENT_TICKS),
-            ticks: dfl::SILENT_TICKS + 1,
-            detail: format!("ticks {first}..={last} braked alone"),
-        })
-        .collect()
+    spells.retain(|&(first, last)| first < judged.end && judged.start <= last);
+    spells
+}
+
+/// The longest spell of braking alone a stall of the machine may give with a 2 ms
+/// estimator: a stall of `S` ms brakes about `S / 5 - 3` ticks while it lasts
+/// ([`dfl::SILENT_TICKS`] silent first) and `0.13 S` after it, while the estimator
+/// catches up on what queued meanwhile, 2 ms an estimate; 40 ticks is a stall of about
+/// 120 ms. A DFL braking for good after a stall brakes to the end.
+const MOST_TICKS_A_SPELL: u64 = 40;
+
+/// The fault that began a spell of braking alone (`(first, last)` tick): the DFL brakes
+/// once the estimator has been silent for [`dfl::SILENT_TICKS`], so its cause (a stall of
+/// the estimator, or of what it waits for) began within those ticks before its first. The
+/// ticks after its first are the estimator catching up, longer than the two ticks after a
+/// stall a judge excuses.
+fn spell_began((first, last): (u64, u64)) -> common::stalls::Fault {
+    common::stalls::Fault {
+        what: "braked alone",
+        tick: first.saturating_sub(dfl::SILENT_TICKS),
+        ticks: dfl::SILENT_TICKS + 1,
+        detail: format!("ticks {first}..={last} braked alone"),
+    }
 }
 
 #[test]
