@@ -67,11 +67,12 @@ impl Scenario {
         self.with_overrides_from(overrides, "--set")
     }
 
-    /// Applies `KEY=VALUE` overrides in order. `KEY` is a dotted path that must already
-    /// exist (array elements by index: `obstacles.0.radius`); `VALUE` is a TOML value, or
-    /// a bare word taken as a string (`mpc.constraint=euclidean`). Nothing is applied
-    /// unless every override is valid; each one that is not is one error, labelled with
-    /// `origin` (the option it came from: `--set`, `--grid ...`).
+    /// Applies `KEY=VALUE` overrides in order (the scenario's faults first, below). `KEY`
+    /// is a dotted path that must already exist (array elements by index:
+    /// `obstacles.0.radius`); `VALUE` is a TOML value, or a bare word taken as a string
+    /// (`mpc.constraint=euclidean`). Nothing is applied unless every override is valid;
+    /// each one that is not is one error, labelled with `origin` (the option it came
+    /// from: `--set`, `--grid ...`).
     ///
     /// The scenario's own faults (`fault.*`) are set first: a fleet's robot's first key
     /// of `robots.<i>.fault` starts its faults from them ([`make_room`]), so its faults
@@ -257,8 +258,14 @@ fn make_room(doc: &mut toml::Value, key: &str) {
     let fault = table.get("fault").cloned();
     if let Some(toml::Value::Array(robots)) = table.get_mut("robots")
         && let Some(toml::Value::Table(entry)) = robot.and_then(|i| robots.get_mut(i))
-        && let Some(fault) = fault
+        && let Some(mut fault) = fault
     {
+        // A robot without a host of its own has no link for the link faults to act on
+        // (its own are refused: `check_robot`), so it takes the others alone.
+        let local = (entry.get("host").and_then(toml::Value::as_str)).is_none_or(str::is_empty);
+        if let (true, toml::Value::Table(keys)) = (local, &mut fault) {
+            keys.retain(|key, _| !key.starts_with("link_"));
+        }
         entry.entry("fault").or_insert(fault);
     }
     // A robot's keys a document leaves out until they are set, as the robot has them.

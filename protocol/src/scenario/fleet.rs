@@ -334,6 +334,21 @@ mod tests {
     }
 
     #[test]
+    fn a_local_robots_own_faults_start_from_the_scenarios_without_its_link_faults() {
+        let overrides = [
+            "robots.0.host=b",
+            "robots.1.fault.mpc_delay_ms=5",
+            "fault.link_loss=0.1",
+        ]
+        .map(String::from);
+        let fleet = swap4().with_overrides(&overrides).unwrap();
+        let fleet = fleet.validated("test").unwrap();
+        assert_eq!(fleet.member(0).fault.link_loss, 0.1, "robot 0's link");
+        let robot1 = fleet.member(1).fault;
+        assert_eq!((robot1.mpc_delay_ms, robot1.link_loss), (5.0, 0.0));
+    }
+
+    #[test]
     fn a_robots_own_input_box_is_its_members_and_the_others_take_the_fleets_largest() {
         let mut fleet = swap4();
         fleet.robots[1].v_max = Some(2.0);
