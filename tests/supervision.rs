@@ -759,7 +759,7 @@ fn realtime_dfl_killed_at_3_s_is_restarted_and_commands_resume_within_0_2_s() {
 
 /// A slow estimator (2 ms of a 5 ms tick) stopped for 50 ms: the DFL brakes alone, at each
 /// tick's start, and once the estimator goes on, every tick is commanded from its estimate
-/// again. (Before the DFL kept braking alone to the end: each tick's brake came before the
+/// again, but in the spells a stall of the machine begins. (Before the DFL kept braking alone to the end: each tick's brake came before the
 /// estimate of the tick, which was then too late. A CI run at aae8d80 saw it after a stall
 /// of the machine.)
 #[test]
