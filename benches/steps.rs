@@ -288,7 +288,7 @@ fn perception_step(bencher: divan::Bencher) {
             k = 0;
             perception = tracker::Perception::new(&s);
         }
-        perception.take(&scans[k], [0.0; 3]);
+        perception.take(&scans[k], [0.0; 3], &[]);
         k += 1;
     });
 }

@@ -98,6 +98,67 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
+/// With a lidar (`tests/fixtures/fleet-lidar.toml`), each robot sees the box on robot 0's
+/// lane that no robot was told of, and goes by its plans for the other robot: every track
+/// its lidar makes is the box's (the other robot's returns and the known pillar's are left
+/// out). Both reach their goals without contact. In lockstep across processes each robot
+/// runs a lidar process that sees the other robot from its truths before its tick, and
+/// every robot drives as in process, byte for byte.
+#[test]
+fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot() {
+    let _machine = common::machine_shared();
+    let fixture = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/fleet-lidar.toml"
+    );
+    let (dir, out) = run_into_tempdir(&["run", fixture, "--in-process", "--no-mcap"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["reached"], 2, "{fleet}");
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    for id in 0..2 {
+        let tracks = std::fs::read_to_string(dir.path().join(format!("robot{id}/tracks.csv")))
+            .expect("tracks.csv");
+        let seen: Vec<[f64; 2]> = (tracks.lines().skip(1))
+            .map(|line| line.split(',').collect::<Vec<_>>())
+            .filter(|row| row[2].parse::<u64>().expect("an id") < 1 << 30)
+            .map(|row| [3, 4].map(|c| row[c].parse::<f64>().expect("a number")))
+            .collect();
+        assert!(
+            seen.len() > 100,
+            "robot {id} tracked the box {} times",
+            seen.len()
+        );
+        let off_the_box = seen.iter().find(|[x, y]| x.hypot(*y) > 0.3);
+        assert_eq!(off_the_box, None, "robot {id}: a track not of the box");
+    }
+
+    let short = ["--set", "duration_s=3"];
+    let (in_process, _) =
+        run_into_tempdir(&[&["run", fixture, "--in-process", "--no-mcap"][..], &short].concat());
+    let prefix = unique_prefix("fleetlidar");
+    let args = [
+        &["run", fixture, "--no-mcap", "--prefix", &prefix][..],
+        &short,
+    ]
+    .concat();
+    let (lockstep, out) = run_into_tempdir(&args);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "not reached in 3 s: {}",
+        stderr(&out)
+    );
+    assert_same_bytes(&in_process, &lockstep, 2);
+    for id in 0..2 {
+        let lidars = (events(&lockstep.path().join(format!("robot{id}"))).iter())
+            .filter(|e| e["event"] == "spawned" && e["role"] == "lidar")
+            .count();
+        assert_eq!(lidars, 1, "robot {id}");
+    }
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+}
+
 /// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet
 /// as it drives, in process and across processes: the time (rising line by line), the
 /// robots at their goals (none in the first 4 s of `swap4`, some before the end of the
@@ -210,7 +271,11 @@ fn a_fleets_bad_input_names_the_robots_key() {
         "robots.1.start",
     );
     swap4("mpc.uncertainty_sigmas=0", "mpc.uncertainty_sigmas");
-    swap4("lidar.rate_hz=10", "lidar");
+    // An obstacle the robots are not told of, with no lidar to see it.
+    swap4(
+        "obstacles=[{x = 5.0, y = 5.0, radius = 0.3, known = false}]",
+        "obstacles",
+    );
     swap4("plant.disturbance_std=0.01", "plant.disturbance_std");
     swap4("robot.command_delay_s=0.02", "robot.command_delay_s");
     swap4(

@@ -1,13 +1,14 @@
 //! The lidar role (docs/running.md, "A lidar"): at every perception tick of the plant's
 //! truth it scans the world, every obstacle at its true place at that tick's time (the
-//! ones the pipeline knows and the ones it does not), and publishes the scan. Math in
-//! [`sensor`]; no I/O, no clock.
+//! ones the pipeline knows and the ones it does not), and in a fleet every other robot
+//! (docs/fleet.md, "A lidar in a fleet"), and publishes the scan. Math in [`sensor`]; no
+//! I/O, no clock.
 
 pub mod sensor;
 pub use sensor::{Disc, Lidar};
 
-use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
-use protocol::{GroundTruth, Header, Obstacle, Role, Scan, Validated};
+use protocol::task::{Context, Due, PerceptionTicks, Publish, Recent, Task, TaskError};
+use protocol::{Data, GroundTruth, Header, Obstacle, Role, Scan, Validated};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::collections::VecDeque;
@@ -30,6 +31,39 @@ pub struct LidarTask {
     perception: PerceptionTicks,
     /// Truths of perception ticks heard and not scanned yet.
     pending: VecDeque<GroundTruth>,
+    /// The other robots of a fleet.
+    peers: Vec<Peer>,
+    /// The inner tick, s: the unit of a peer's truths' ticks.
+    dt_s: f64,
+}
+
+/// Another robot of a fleet as the lidar sees it: a disc of its footprint, where its own
+/// truths put it.
+struct Peer {
+    id: u32,
+    radius_m: f64,
+    /// Where it is before a truth of it is heard.
+    start: [f64; 2],
+    /// Its true positions, m.
+    truths: Recent<[f64; 2]>,
+}
+
+impl Peer {
+    /// Where it is at `time_s`, the time of tick `tick`: its newest true position before
+    /// that tick, moved on to `time_s` at the velocity since the one before (a tick or
+    /// more before: the positions of one tick are off by the change of that velocity in a
+    /// tick, under 0.1 mm at a robot's input box); its start before any.
+    fn position_at(&self, tick: u64, time_s: f64, dt_s: f64) -> [f64; 2] {
+        match self.truths.newest_two_before(tick) {
+            None => self.start,
+            Some(((_, position), None)) => position,
+            Some(((now, position), Some((then, before)))) => {
+                let elapsed_s = (now - then) as f64 * dt_s;
+                let ahead_s = time_s - now as f64 * dt_s;
+                [0, 1].map(|a| position[a] + (position[a] - before[a]) / elapsed_s * ahead_s)
+            }
+        }
+    }
 }
 
 /// The lidar's seed beside the scenario's (`"lidar"` in ASCII).
@@ -46,11 +80,31 @@ impl Task for LidarTask {
         Ok(LidarTask {
             lidar: Lidar::of(&config),
             obstacles: scenario.obstacles.clone(),
-            discs: Vec::with_capacity(scenario.obstacles.len()),
+            discs: Vec::with_capacity(scenario.obstacles.len() + scenario.robots.len()),
             rng: ChaCha8Rng::seed_from_u64(scenario.seed ^ SEED_STREAM),
             perception: PerceptionTicks::of(scenario),
             pending: VecDeque::with_capacity(8),
+            peers: peers_of(scenario),
+            dt_s: scenario.timing.dt_s(),
         })
+    }
+
+    /// In a fleet, the other robots' truths: the lidar sees them.
+    fn peer_topics(&self) -> &'static [&'static str] {
+        match self.peers.is_empty() {
+            true => &[],
+            false => &[protocol::topics::TRUTH],
+        }
+    }
+
+    fn hear_peer(&mut self, data: &Data) {
+        let Data::Truth(truth) = data else {
+            return;
+        };
+        if let Some(peer) = (self.peers.iter_mut()).find(|p| p.id == truth.header.robot) {
+            let [x, y, _] = truth.pose;
+            peer.truths.push(truth.header.tick, [x, y]);
+        }
     }
 
     /// A truth at a perception tick newer than the last is queued.
@@ -74,15 +128,20 @@ impl Task for LidarTask {
 }
 
 impl LidarTask {
-    /// The scan from where `truth` has the robot, at its time.
+    /// The scan from where `truth` has the robot, at its time: of the obstacles, and of
+    /// the other robots where their truths before this tick put them (so in process and in
+    /// lockstep a scan does not depend on whether another robot has stepped this tick).
     fn scan(&mut self, truth: &GroundTruth) -> Scan {
-        let time_s = truth.header.time_s;
+        let (tick, time_s) = (truth.header.tick, truth.header.time_s);
         self.discs.clear();
         (self.discs).extend(
             self.obstacles
                 .iter()
                 .map(|o| (o.center_at(time_s), o.radius)),
         );
+        let dt_s = self.dt_s;
+        (self.discs)
+            .extend((self.peers.iter()).map(|p| (p.position_at(tick, time_s, dt_s), p.radius_m)));
         let header = Header {
             tick: truth.header.tick,
             time_s,
@@ -90,6 +149,26 @@ impl LidarTask {
         };
         (self.lidar).scan_message(header, truth.pose, &self.discs, &mut self.rng)
     }
+}
+
+/// The other robots of `scenario`'s fleet, seen by its member; none for a robot alone.
+fn peers_of(scenario: &Validated) -> Vec<Peer> {
+    let Some(own) = scenario.fleet_id else {
+        return Vec::new();
+    };
+    let kept = 2 * scenario.timing.inner_steps + 2;
+    (0..scenario.robots.len())
+        .filter(|&id| id != own)
+        .map(|id| {
+            let [x, y, _] = scenario.robots[id].start;
+            Peer {
+                id: id as u32,
+                radius_m: scenario.radius_of(id),
+                start: [x, y],
+                truths: Recent::new(kept),
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]

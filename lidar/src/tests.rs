@@ -50,3 +50,45 @@ fn a_scan_is_made_at_every_perception_tick_and_sees_a_moving_obstacle_where_it_i
     let expected = (9.0 + t * t).sqrt() - 0.5;
     assert!((range - expected).abs() < 0.02, "{range} vs {expected}");
 }
+
+#[test]
+fn in_a_fleet_the_lidar_sees_another_robot_where_its_truths_before_the_tick_put_it() {
+    let toml = "[lidar]\nnoise_std = 0.0\n[mpc]\nv_max = 1.0\n\
+                [[robots]]\nstart = [0.0, 0.0, 0.0]\ngoal = [5.0, 0.0]\n\
+                [[robots]]\nstart = [3.0, 0.0, 3.14159]\ngoal = [-3.0, 0.0]\nradius_m = 0.4\n";
+    let fleet = Scenario::from_toml(toml, "fleet.toml").expect("parsed");
+    let scenario = fleet.member(0).validated("robot 0").expect("valid");
+    let dt = scenario.timing.dt_s();
+    let mut task = LidarTask::new(&scenario, 0, ()).expect("made");
+    assert_eq!(task.peer_topics(), [protocol::topics::TRUTH]);
+    let context = SimulatedTime::at(0, dt);
+    let ahead = |scan: &Scan| f64::from(scan.ranges()[(scan.beams / 2) as usize]);
+    let peer = |tick: u64, x: f64| {
+        let mut truth = truth(tick, [x, 0.0, 0.0], dt);
+        truth.header.robot = 1;
+        Data::Truth(truth)
+    };
+
+    // Before any truth of it, it is at its start: its near edge 3 - 0.4 m ahead.
+    task.hear(LidarInput::Truth(truth(0, [0.0; 3], dt)), 0, &context);
+    let scan = task.step(&context).expect("a scan at tick 0").output;
+    assert!((ahead(&scan) - 2.6).abs() < 1e-6, "{}", ahead(&scan));
+
+    // Its truths at ticks 9 and 10 (coming at 1 m/s), and one of the scan's own tick that
+    // is not yet its to see: the scan of tick 11 sees it moved on by a tick from tick 10.
+    let period = scenario.perception_ticks();
+    let tick = 11 * period;
+    let (then, now) = (tick - 2 * period, tick - period);
+    task.hear_peer(&peer(then, 2.0));
+    task.hear_peer(&peer(now, 2.0 - period as f64 * dt));
+    task.hear_peer(&peer(tick, -9.0));
+    task.hear_peer(&Data::Truth(truth(now, [1.0, 0.0, 0.0], dt))); // robot 0: itself
+    task.hear(LidarInput::Truth(truth(tick, [0.0; 3], dt)), 0, &context);
+    let scan = task.step(&context).expect("a scan").output;
+    let expected = 2.0 - 2.0 * period as f64 * dt - 0.4;
+    assert!(
+        (ahead(&scan) - expected).abs() < 1e-6,
+        "{} vs {expected}",
+        ahead(&scan)
+    );
+}

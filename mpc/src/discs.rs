@@ -112,7 +112,8 @@ pub struct World {
     /// Whether any obstacle is tracked (none are with `fault.mpc_ignore_obstacles`).
     tracking: bool,
     tracks: KeptTracks,
-    /// With a lidar: the most tracks' discs a step keeps ([`protocol::MAX_SEEN_DISCS`]).
+    /// With a lidar: the most tracks' discs a step keeps ([`protocol::MAX_SEEN_DISCS`],
+    /// and in a fleet one for each other robot: [`protocol::Scenario::max_obstacle_discs`]).
     seen_most: Option<usize>,
 }
 
@@ -124,7 +125,7 @@ impl World {
             tracks: KeptTracks::of(scenario),
             seen_most: scenario
                 .sees_with_lidar()
-                .then_some(protocol::MAX_SEEN_DISCS),
+                .then_some(protocol::MAX_SEEN_DISCS + scenario.robot_count() - 1),
         }
     }
 

@@ -338,7 +338,8 @@ pub trait Task: Sized {
 
     /// The topics it takes from the other robots of a fleet (docs/fleet.md): the executor
     /// hands their samples to [`Task::hear_peer`], each stamped with its robot's id
-    /// ([`crate::Header::robot`]). None but the tracker's.
+    /// ([`crate::Header::robot`]). The tracker's and the lidar's; each keeps what it hears
+    /// in a [`Recent`].
     fn peer_topics(&self) -> &'static [&'static str] {
         &[]
     }
@@ -466,5 +467,79 @@ mod goal_tests {
         assert_eq!(goals.due(59, 1), None);
         assert_eq!(goals.due(60, 1).unwrap().goal, at(2.0));
         assert_eq!(goals.due(61, 2), None);
+    }
+}
+
+/// A value of a tick.
+pub type Stamped<T> = (u64, T);
+
+/// The newest samples of one kind heard from another robot of a fleet, with their ticks,
+/// oldest first ([`Task::hear_peer`]): as many as the robot publishes in a while, so that
+/// the newest before the taker's tick is kept however far the other robot's process has
+/// run ahead (in lockstep at most to that tick; in real time a role may lag by a few inner
+/// ticks).
+#[derive(Debug, Clone)]
+pub struct Recent<T> {
+    kept: std::collections::VecDeque<(u64, T)>,
+    capacity: usize,
+}
+
+impl<T: Copy> Recent<T> {
+    /// None kept yet, at most `capacity` (at least 1).
+    pub fn new(capacity: usize) -> Recent<T> {
+        let capacity = capacity.max(1);
+        Recent {
+            kept: std::collections::VecDeque::with_capacity(capacity),
+            capacity,
+        }
+    }
+
+    /// Keeps `value` of tick `tick` if it is newer than every one kept.
+    pub fn push(&mut self, tick: u64, value: T) {
+        if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
+            if self.kept.len() == self.capacity {
+                self.kept.pop_front();
+            }
+            self.kept.push_back((tick, value));
+        }
+    }
+
+    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
+    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick
+    /// a role steps, so what it takes never depends on how far the others have come.)
+    pub fn newest_before(&self, tick: u64) -> Option<(u64, T)> {
+        self.newest_two_before(tick).map(|(newest, _)| newest)
+    }
+
+    /// [`Recent::newest_before`], and the one kept before it, if any.
+    pub fn newest_two_before(&self, tick: u64) -> Option<(Stamped<T>, Option<Stamped<T>>)> {
+        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
+        let index = (self.kept.iter().rposition(|(t, _)| *t < tick))
+            .or((ran_past && !self.kept.is_empty()).then_some(0))?;
+        let before = index.checked_sub(1).map(|i| self.kept[i]);
+        Some((self.kept[index], before))
+    }
+}
+
+#[cfg(test)]
+mod recent_tests {
+    use super::Recent;
+
+    #[test]
+    fn recent_gives_the_newest_before_a_tick_and_the_oldest_when_all_are_later() {
+        let mut recent = Recent::new(3);
+        for tick in [3, 4, 5, 6] {
+            recent.push(tick, tick);
+        }
+        recent.push(5, 50); // older than the newest: ignored
+        assert_eq!(recent.newest_before(6), Some((5, 5)));
+        assert_eq!(recent.newest_two_before(6), Some(((5, 5), Some((4, 4)))));
+        assert_eq!(recent.newest_before(7), Some((6, 6)));
+        assert_eq!(
+            recent.newest_two_before(4),
+            Some(((4, 4), None)),
+            "3 was dropped: the oldest"
+        );
+        assert_eq!(Recent::<u64>::new(2).newest_before(9), None);
     }
 }

@@ -5,8 +5,8 @@
 //! has already stepped tick `j` (lockstep grants `j` only once every robot's `j - 1` is
 //! whole, so that much has always come).
 
+use protocol::task::Recent;
 use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
-use std::collections::VecDeque;
 
 /// What a tracker takes of every other robot of its fleet, by topic.
 pub const PEER_TOPICS: [&str; 3] = [
@@ -21,47 +21,6 @@ pub const SILENT_SAMPLES: u64 = 4;
 
 /// A robot's solved plans kept ([`Recent`]): one a sample.
 const PLANS_KEPT: usize = 4;
-
-/// The newest samples of one kind heard from a robot, with their ticks, oldest first: as
-/// many as a robot publishes in two samples, so that the newest before the tracker's tick
-/// is kept however far another robot's process has run ahead of the tracker (in lockstep
-/// at most to that tick; in real time the tracker, a tier below the control loop, may lag
-/// by a few inner ticks).
-#[derive(Debug, Clone)]
-struct Recent<T> {
-    kept: VecDeque<(u64, T)>,
-    capacity: usize,
-}
-
-impl<T: Copy> Recent<T> {
-    fn new(capacity: usize) -> Recent<T> {
-        Recent {
-            kept: VecDeque::with_capacity(capacity),
-            capacity,
-        }
-    }
-
-    /// Keeps `value` of tick `tick` if it is newer than every one kept.
-    fn push(&mut self, tick: u64, value: T) {
-        if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
-            if self.kept.len() == self.capacity {
-                self.kept.pop_front();
-            }
-            self.kept.push_back((tick, value));
-        }
-    }
-
-    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
-    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick a
-    /// tracker steps, so what it takes never depends on how far the others have come.)
-    fn newest_before(&self, tick: u64) -> Option<(u64, T)> {
-        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
-        (self.kept.iter().rev())
-            .find(|(t, _)| *t < tick)
-            .or(self.kept.front().filter(|_| ran_past))
-            .copied()
-    }
-}
 
 /// What a robot's estimate tells the others: its state `[x, y, theta, zeta]` and the
 /// standard deviations of its position (m) and of its velocity (m/s: the speed times the
@@ -167,6 +126,29 @@ impl Peers {
         }
     }
 
+    /// Every other robot's footprint at tick `tick` (time `t_s`), where it says it is: its
+    /// newest estimate before `tick` moved on to `t_s` at the estimate's velocity (its
+    /// start before any), its radius grown by `kappa` standard deviations of the
+    /// estimate's position. The tracker's lidar leaves the returns on them out
+    /// ([`crate::Perception::take`]).
+    pub fn footprints(&self, tick: u64, t_s: f64, footprints: &mut Vec<crate::lidar::Circle>) {
+        footprints.clear();
+        footprints.extend(self.peers.iter().map(|peer| {
+            let (heard, estimate) = match peer.estimates.newest_before(tick) {
+                Some((heard, estimate)) => (heard, estimate),
+                None => (0, peer.start),
+            };
+            let [x, y, theta, zeta] = estimate.state;
+            let ahead_s = (t_s - heard as f64 * self.dt_s).max(0.0);
+            let centre = [
+                x + zeta * theta.cos() * ahead_s,
+                y + zeta * theta.sin() * ahead_s,
+            ];
+            let grown = self.prediction.kappa * estimate.sigmas[0];
+            (centre, peer.radius_m + grown)
+        }));
+    }
+
     /// Appends every other robot to `tracks`, as it may be at perception tick `tick`
     /// (time `t_s`), from what it published before `tick`:
     /// - predicted from its newest solved plan ([`PeerPrediction::track`]), uncertain by
@@ -253,22 +235,6 @@ mod tests {
             },
             pose: [x, 0.0, 0.0],
         })
-    }
-
-    #[test]
-    fn recent_gives_the_newest_before_a_tick_and_the_oldest_when_all_are_later() {
-        let mut recent = Recent::new(3);
-        for tick in [3, 4, 5, 6] {
-            recent.push(tick, tick);
-        }
-        recent.push(5, 50); // older than the newest: ignored
-        assert_eq!(recent.newest_before(6), Some((5, 5)));
-        assert_eq!(recent.newest_before(7), Some((6, 6)));
-        assert_eq!(
-            recent.newest_before(4),
-            Some((4, 4)),
-            "3 was dropped: the oldest"
-        );
     }
 
     #[test]

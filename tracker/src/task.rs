@@ -11,8 +11,10 @@
 //! placed with the newest before it; estimates kept are the last [`POSES_KEPT`]).
 //!
 //! In a fleet it adds the other robots to every perception tick's tracks, from their
-//! truths, estimates and plans ([`Peers`]).
+//! truths, estimates and plans ([`Peers`]); its lidar's returns on them are left out
+//! ([`Peers::footprints`]).
 
+use crate::lidar::Circle;
 use crate::{Peers, Perception, Tracker};
 use protocol::task::{Context, Due, PerceptionTicks, Publish, Task, TaskError};
 use protocol::topics::{ESTIMATE, SCAN, TRUTH};
@@ -65,6 +67,8 @@ pub struct TrackerTask {
     dropped: u32,
     /// The other robots of a fleet.
     peers: Option<Peers>,
+    /// The other robots' footprints at a scan's time (kept to allocate once).
+    footprints: Vec<Circle>,
 }
 
 impl Task for TrackerTask {
@@ -92,6 +96,7 @@ impl Task for TrackerTask {
             pending: VecDeque::with_capacity(8),
             dropped: 0,
             peers: Peers::of(scenario),
+            footprints: Vec::with_capacity(scenario.robot_count()),
         })
     }
 
@@ -196,7 +201,11 @@ impl Task for TrackerTask {
                 let pose = poses.iter().rev().find(|(t, _)| *t <= taken);
                 match (scan, pose) {
                     (Some(i), Some((_, pose))) if !dropped && scans[i].beams > 0 => {
-                        perception.take(&scans[i], *pose)
+                        let footprints = &mut self.footprints;
+                        if let Some(peers) = &self.peers {
+                            peers.footprints(taken, taken as f64 * self.dt_s, footprints);
+                        }
+                        perception.take(&scans[i], *pose, footprints)
                     }
                     _ => perception.predict_to(time_s),
                 }

@@ -168,7 +168,6 @@ impl Scenario {
             );
         }
         let unsupported = [
-            ("lidar", self.lidar.is_some()),
             ("plant.kind", self.plant.kind != crate::PlantKind::Sim),
             ("swap", !self.swap.is_empty()),
             ("live", self.live.is_some()),
@@ -178,7 +177,12 @@ impl Scenario {
                 self.fleet_id.is_none()
                     && crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
             ),
-            ("obstacles", self.obstacles.iter().any(|o| !o.is_known())),
+            // A lidar sees the obstacles the robots are not told of; without one they
+            // would be tracked from the truth.
+            (
+                "obstacles",
+                !self.sees_with_lidar() && self.obstacles.iter().any(|o| !o.is_known()),
+            ),
             ("perception.kind", self.tracked().next().is_some()),
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
@@ -192,9 +196,9 @@ impl Scenario {
                 v.fail(
                     key,
                     "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
-                     command delay among known obstacles at rest, without a lidar, tracked \
-                     obstacles, swaps, roles placed by [hosts] (a robot's own `host` places its \
-                     pipeline) or a live view (docs/fleet.md, \"Left out\")"
+                     command delay, among known obstacles at rest unless a lidar sees them, \
+                     without tracked obstacles, swaps, roles placed by [hosts] (a robot's own \
+                     `host` places its pipeline) or a live view (docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }

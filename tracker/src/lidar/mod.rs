@@ -75,6 +75,11 @@ struct LidarTrack {
 pub struct Perception {
     /// The known obstacles' discs (the map).
     known: Vec<Circle>,
+    /// The other robots of a fleet at the newest scan's time, where they say they are
+    /// ([`Perception::take`]): their returns are theirs, not an obstacle's.
+    peers: Vec<Circle>,
+    /// The tracks' slots left for the other robots of a fleet ([`Perception::tracks`]).
+    peer_slots: usize,
     min_radius_m: f64,
     confirm: u32,
     lost_s: f64,
@@ -115,6 +120,8 @@ impl Perception {
             known: (scenario.known_obstacles())
                 .map(|o| ([o.x, o.y], o.radius))
                 .collect(),
+            peers: Vec::with_capacity(scenario.robot_count()),
+            peer_slots: scenario.robot_count() - 1,
             min_radius_m: p.min_radius,
             confirm: p.confirm,
             lost_s: p.lost_s,
@@ -148,9 +155,16 @@ impl Perception {
     /// the scan's time). A scan that arrived before its perception tick (a robot's:
     /// [`Scan::age_ticks`]) measures the obstacles where they were when it was taken: the
     /// tracks are updated then and predicted on to the tick.
-    pub fn take(&mut self, scan: &Scan, pose: [f64; 3]) {
+    ///
+    /// `peers` are the other robots of a fleet where they are when the scan was taken
+    /// (their footprints where their estimates put them, grown by their uncertainty;
+    /// `Peers::footprints`): their returns are left out as those on a known obstacle
+    /// are, since their plans track them (docs/fleet.md, "A lidar in a fleet").
+    pub fn take(&mut self, scan: &Scan, pose: [f64; 3], peers: &[Circle]) {
         let time_s = scan.header.time_s;
         let taken_s = time_s - f64::from(scan.age_ticks) * self.inner_tick_s;
+        self.peers.clear();
+        self.peers.extend_from_slice(peers);
         self.predict_to(taken_s);
         self.points_of(scan, pose);
         self.group(scan.angle_increment_rad.abs(), full_circle(scan));
@@ -166,16 +180,16 @@ impl Perception {
     }
 
     /// The confirmed tracks, then the phantoms of the newest scan, into `tracks` (the
-    /// phantoms have their places kept: the tracks take what they leave).
+    /// phantoms have their places kept: the tracks take what they leave), leaving a slot
+    /// for each other robot of a fleet.
     pub fn tracks(&self, tracks: &mut Tracks) {
+        let slots = MAX_TRACKS - self.peer_slots;
         let confirmed = (self.tracks.iter().filter(|t| t.confirmed))
             .map(|t| crate::track(t.id, t.radius_m, &t.axes))
-            .take(MAX_TRACKS - self.phantoms.len());
+            .take(slots.saturating_sub(self.phantoms.len()));
         let mut count = 0;
-        for (slot, track) in tracks
-            .tracks
-            .iter_mut()
-            .zip(confirmed.chain(self.phantom_tracks()))
+        for (slot, track) in
+            (tracks.tracks[..slots].iter_mut()).zip(confirmed.chain(self.phantom_tracks()))
         {
             *slot = track;
             count += 1;
@@ -219,11 +233,11 @@ impl Perception {
         }
     }
 
-    /// The known obstacle a return at `xy`, seen at range `range_m`, is taken as (within
-    /// [`known_margin_m`] of its edge), if any.
+    /// The known obstacle, or the other robot, a return at `xy`, seen at range `range_m`,
+    /// is taken as (within [`known_margin_m`] of its edge), if any.
     fn known_at(&self, xy: [f64; 2], range_m: f64) -> Option<Circle> {
         let margin = known_margin_m(range_m);
-        (self.known.iter().copied())
+        (self.known.iter().chain(&self.peers).copied())
             .find(|(centre, radius)| geometry::distance(*centre, xy) <= radius + margin)
     }
 

@@ -64,7 +64,7 @@ fn a_box_not_in_the_map_is_a_track_once_seen_in_confirm_scans_and_a_known_pillar
             confirmed(&perception).is_empty(),
             "confirmed before scan {k}"
         );
-        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
         assert_eq!(perception.groups().len(), 1, "only the box is a group");
     }
     let tracks = confirmed(&perception);
@@ -92,7 +92,7 @@ fn a_walking_person_keeps_one_track_whose_velocity_is_learnt() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let mut ids = std::collections::BTreeSet::new();
     for k in 0..40 {
-        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
         ids.extend(confirmed(&perception).iter().map(|t| t.obstacle));
     }
     assert_eq!(ids.len(), 1, "one track all along: {ids:?}");
@@ -119,14 +119,14 @@ fn a_person_behind_a_pillar_is_predicted_while_hidden_and_dropped_once_lost() {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let hidden_from = (0..30)
         .find(|&k| {
-            perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+            perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
             perception.groups().is_empty()
         })
         .expect("the pillar hides the person");
     assert_eq!(confirmed(&perception).len(), 1, "kept while hidden");
     let lost_scans = (s.perception.lost_s * 10.0).round() as u64;
     for k in hidden_from + 1..=hidden_from + lost_scans + 1 {
-        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
     }
     assert!(confirmed(&perception).is_empty(), "dropped once lost");
 }
@@ -136,7 +136,7 @@ fn a_box_behind_the_robot_is_one_group_across_the_seam_of_a_scan_all_around() {
     let s = world(vec![unknown(-2.0, 0.0, 0.5)], 0.0);
     let mut perception = Perception::new(&s);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3]);
+    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3], &[]);
     assert_eq!(perception.groups().len(), 1, "{:?}", perception.groups());
     let (centre, radius) = perception.groups()[0].disc;
     assert!(
@@ -153,7 +153,7 @@ fn a_box_casts_a_phantom_at_each_shadow_edge_that_grows_at_the_phantom_speed() {
     let scan = scan_at(&s.clone().validated("t").unwrap(), 0, [0.0; 3], &mut rng);
     let phantoms_of = |s: &Scenario| {
         let mut perception = Perception::new(&s.clone().validated("t").unwrap());
-        perception.take(&scan, [0.0; 3]);
+        perception.take(&scan, [0.0; 3], &[]);
         let mut tracks = Tracks::default();
         perception.tracks(&mut tracks);
         (tracks.tracks().iter())
@@ -199,7 +199,7 @@ fn a_pillar_of_the_map_casts_its_phantoms_behind_it_not_in_it() {
     let s = s.validated("t").unwrap();
     let mut perception = Perception::new(&s);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3]);
+    perception.take(&scan_at(&s, 0, [0.0; 3], &mut rng), [0.0; 3], &[]);
     let mut tracks = Tracks::default();
     perception.tracks(&mut tracks);
     let phantoms: Vec<_> = (tracks.tracks().iter())
@@ -249,7 +249,7 @@ fn the_phantoms_keep_their_places_among_the_tracks_when_many_boxes_are_tracked()
     let mut perception = Perception::new(&s);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     for k in 0..5 {
-        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3]);
+        perception.take(&scan_at(&s, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
     }
     let mut tracks = Tracks::default();
     perception.tracks(&mut tracks);
@@ -284,7 +284,7 @@ fn a_scan_that_arrives_late_places_a_walker_where_they_are_at_its_tick_and_grows
         scan.age_ticks = age_ticks;
         scan.header.tick += u64::from(age_ticks);
         scan.header.time_s += age_s;
-        perception.take(&scan, [0.0; 3]);
+        perception.take(&scan, [0.0; 3], &[]);
     }
     let track = confirmed(&perception)[0];
     let truth = person.center_at(scan.header.time_s);
@@ -303,4 +303,41 @@ fn a_scan_that_arrives_late_places_a_walker_where_they_are_at_its_tick_and_grows
         let grown = s.perception.phantom_radius + s.perception.phantom_speed * age_s;
         assert!((phantom.radius_m - grown).abs() < 1e-9, "{phantom:?}");
     }
+}
+
+#[test]
+fn another_robots_returns_are_left_out_and_its_slot_kept_free_of_what_the_lidar_sees() {
+    // Two boxes; the one at (2, 0) is another robot of a fleet, where it says it is.
+    let s = world(vec![unknown(2.0, 0.0, 0.3), unknown(0.0, 2.0, 0.3)], 0.0);
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let scan = scan_at(&s, 0, [0.0; 3], &mut rng);
+    let mut perception = Perception::new(&s);
+    perception.take(&scan, [0.0; 3], &[]);
+    assert_eq!(perception.groups().len(), 2);
+    perception.take(&scan, [0.0; 3], &[([2.02, 0.0], 0.3)]);
+    assert_eq!(perception.groups().len(), 1, "{:?}", perception.groups());
+    assert!(geometry::distance(perception.groups()[0].disc.0, [0.0, 2.0]) < 0.3);
+
+    // A fleet of 4: three slots of the tracks are the others', whatever the lidar sees.
+    let fleet = Scenario::from_toml(include_str!("../../../scenarios/swap4.toml"), "swap4")
+        .expect("parsed");
+    let mut member = fleet.member(0);
+    member.lidar = Some(LidarConfig::default());
+    member.perception.phantoms = true;
+    let member = member.validated("robot 0").expect("valid");
+    let mut perception = Perception::new(&member);
+    let mut crowd = Scenario::clone(&s);
+    crowd.obstacles = (0..40)
+        .map(|k| {
+            let bearing = k as f64 * std::f64::consts::TAU / 40.0;
+            unknown(2.0 * bearing.cos(), 2.0 * bearing.sin(), 0.05)
+        })
+        .collect();
+    let crowd = crowd.validated("crowd").expect("valid");
+    for k in 0..5 {
+        perception.take(&scan_at(&crowd, k, [0.0; 3], &mut rng), [0.0; 3], &[]);
+    }
+    let mut tracks = Tracks::default();
+    perception.tracks(&mut tracks);
+    assert_eq!(tracks.count as usize, MAX_TRACKS - 3);
 }
