@@ -231,25 +231,60 @@ fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
 }
 
 /// Random fleets of two to four robots: no robot moves into another, and the report
-/// counts every robot.
+/// counts every robot. Seen through a lidar (`--perception lidar`) they are the same
+/// worlds, some of their obstacles boxes no robot is told of, and no robot moves into
+/// another or into a box.
 #[test]
-fn random_fleets_have_no_contact_while_moving() {
+fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
     let _machine = common::machine_shared();
-    let (dir, out) = run_into_tempdir(&["fuzz", "--robots", "2..4", "--count", "6", "--seed", "3"]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let csv = std::fs::read_to_string(dir.path().join("fleet_fuzz.csv")).unwrap();
-    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let batch = |more: &[&str]| {
+        let args = [
+            &["fuzz", "--robots", "2..4", "--count", "6", "--seed", "3"][..],
+            more,
+        ]
+        .concat();
+        let (dir, out) = run_into_tempdir(&args);
+        assert!(out.status.success(), "{more:?}: {}", stderr(&out));
+        std::fs::read_to_string(dir.path().join("fleet_fuzz.csv")).unwrap()
+    };
+    let (truth, lidar) = (batch(&[]), batch(&["--perception", "lidar"]));
+    let header: Vec<&str> = truth.lines().next().unwrap().split(',').collect();
     let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
-    let (worlds, moving) = (column("world"), column("robot_contacts_moving"));
-    let rows: Vec<Vec<&str>> = csv
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').collect())
+    let rows = |csv: &str| -> Vec<Vec<String>> {
+        (csv.lines().skip(1))
+            .map(|l| l.split(',').map(str::to_owned).collect())
+            .collect()
+    };
+    let (truth_rows, lidar_rows) = (rows(&truth), rows(&lidar));
+    let worlds = |rows: &[Vec<String>], of: &[&str]| -> Vec<Vec<String>> {
+        let columns: Vec<usize> = of.iter().map(|c| column(c)).collect();
+        (rows.iter())
+            .map(|r| columns.iter().map(|&c| r[c].clone()).collect())
+            .collect()
+    };
+    let drawn = ["world", "robot", "robots", "obstacles", "v_max", "radius_m"];
+    assert_eq!(worlds(&truth_rows, &drawn), worlds(&lidar_rows, &drawn));
+    let distinct: std::collections::BTreeSet<&str> = truth_rows
+        .iter()
+        .map(|r| r[column("world")].as_str())
         .collect();
-    let distinct: std::collections::BTreeSet<&str> = rows.iter().map(|r| r[worlds]).collect();
-    assert_eq!(distinct.len(), 6, "{csv}");
-    assert!(rows.len() >= 12, "two robots a world at least: {csv}");
-    assert!(rows.iter().all(|r| r[moving] == "0"), "{csv}");
+    assert_eq!(distinct.len(), 6, "{truth}");
+    assert!(
+        truth_rows.len() >= 12,
+        "two robots a world at least: {truth}"
+    );
+    let unmapped = |rows: &[Vec<String>]| -> usize {
+        (rows.iter())
+            .map(|r| r[column("unmapped")].parse::<usize>().unwrap())
+            .sum()
+    };
+    assert_eq!(unmapped(&truth_rows), 0, "{truth}");
+    assert!(unmapped(&lidar_rows) > 0, "{lidar}");
+    for (rows, csv) in [(&truth_rows, &truth), (&lidar_rows, &lidar)] {
+        let (moving, outcome) = (column("robot_contacts_moving"), column("outcome"));
+        assert!(rows.iter().all(|r| r[moving] == "0"), "{csv}");
+        assert!(rows.iter().all(|r| r[outcome] != "collided"), "{csv}");
+    }
 }
 
 /// A fleet's bad input is refused before anything runs, naming the robot's key: two
@@ -293,6 +328,7 @@ fn a_fleets_bad_input_names_the_robots_key() {
         "perception.kind",
     );
     refused(&["fuzz", "--robots", "3..2"], "--robots");
+    refused(&["fuzz", "--robots", "2..3", "--people", "0.2"], "--people");
     swap4("robots.1.host=\"b c\"", "robots.1.host");
     swap4("robots.1.host=orchestrator", "robots.1.host");
     swap4("robots.1.fault.link_loss=0.1", "robots.1.fault");

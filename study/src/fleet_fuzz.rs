@@ -3,7 +3,10 @@
 //! robots' starts, and two goals, at least their radii and half a metre apart), up to four
 //! obstacles at rest clear of them all, the noise and the input box; the fleet runs in
 //! process, and the batch reports every robot's outcome, contacts between robots (moving
-//! and at rest) and the deadlocks broken.
+//! and at rest) and the deadlocks broken. With `--perception lidar` every world has the
+//! default `[lidar]`, and each obstacle of radius up to [`crate::fuzz::BOX_RADIUS_M`] is a
+//! box not in the map with probability one half (drawn from a stream of its own, so the
+//! worlds are otherwise the same): the robots see it only through their lidars.
 
 use anyhow::Context as _;
 use protocol::{FleetRobot, Goal, NoiseVariance, Obstacle, Scenario, Validated, distance};
@@ -24,18 +27,30 @@ pub const ROOM_M: f64 = 0.5;
 /// Draws of one world before the batch gives up on it.
 const MAX_DRAWS: usize = 100;
 
-/// World `index` of batch `seed` with `robots` robots at most and at least, `overrides`
-/// applied: the first draw the validator accepts.
+/// The seed of the draws of the boxes not in the map beside a world's (`"boxes"` in
+/// ASCII).
+const BOXES_STREAM: u64 = 0x62_6f78_6573;
+
+/// World `index` of batch `seed` with `robots` robots at most and at least, seen through a
+/// lidar when `lidar` says (module docs), `overrides` applied: the first draw the
+/// validator accepts.
 pub fn world(
     seed: u64,
     index: usize,
     robots: &RangeInclusive<usize>,
+    lidar: bool,
     overrides: &[String],
 ) -> anyhow::Result<Validated> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(0x9e37_79b9) ^ index as u64);
+    let world_seed = seed.wrapping_mul(0x9e37_79b9) ^ index as u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(world_seed);
+    let mut boxes = ChaCha8Rng::seed_from_u64(world_seed ^ BOXES_STREAM);
     let mut last = None;
     for _ in 0..MAX_DRAWS {
-        let scenario = draw(&mut rng, index, robots).with_overrides(overrides)?;
+        let mut drawn = draw(&mut rng, index, robots);
+        if lidar {
+            seen_through_a_lidar(&mut drawn, &mut boxes);
+        }
+        let scenario = drawn.with_overrides(overrides)?;
         match scenario.validated(&format!("fleet world {index}")) {
             Ok(valid) if robots.contains(&valid.robots.len()) => return Ok(valid),
             Ok(valid) => {
@@ -48,6 +63,18 @@ pub fn world(
         "fleet world {index}: no valid draw in {MAX_DRAWS}: {}",
         last.unwrap_or_default()
     ))
+}
+
+/// The world `s` seen through the default lidar: each obstacle of radius up to
+/// [`crate::fuzz::BOX_RADIUS_M`] is a box not in the map with probability one half.
+fn seen_through_a_lidar(s: &mut Scenario, boxes: &mut ChaCha8Rng) {
+    s.lidar = Some(protocol::LidarConfig::default());
+    for obstacle in &mut s.obstacles {
+        let unmapped = boxes.random_bool(0.5);
+        if obstacle.radius <= crate::fuzz::BOX_RADIUS_M && unmapped {
+            obstacle.known = Some(false);
+        }
+    }
 }
 
 fn draw(rng: &mut ChaCha8Rng, index: usize, robots: &RangeInclusive<usize>) -> Scenario {
@@ -133,6 +160,13 @@ impl FleetReport {
         self.robots().map(|r| r.robot_contacts_moving).sum()
     }
 
+    /// Robots that moved into an obstacle ([`Outcome::Collided`]).
+    pub fn collided(&self) -> usize {
+        (self.robots())
+            .filter(|r| r.outcome == Outcome::Collided)
+            .count()
+    }
+
     /// Robots that reached their goal, and all robots.
     pub fn reached(&self) -> (usize, usize) {
         let reached = self
@@ -183,13 +217,14 @@ impl FleetReport {
 pub fn run(
     (seed, count): (u64, usize),
     robots: RangeInclusive<usize>,
+    lidar: bool,
     overrides: &[String],
     out: &Path,
     threads: usize,
     stop: &AtomicBool,
 ) -> anyhow::Result<FleetReport> {
     let scenarios = (0..count)
-        .map(|i| world(seed, i, &robots, overrides))
+        .map(|i| world(seed, i, &robots, lidar, overrides))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let next = AtomicUsize::new(0);
     let results = Mutex::new(Vec::with_capacity(count));
@@ -245,7 +280,7 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fleet_fuzz.csv"))?);
     writeln!(
         f,
-        "world,robot,robots,obstacles,v_max,radius_m,outcome,stall_reason,time_to_goal_s,robot_contacts_moving,robot_contacts_at_rest,deadlocks_broken,min_robot_clearance_m,file"
+        "world,robot,robots,obstacles,unmapped,v_max,radius_m,outcome,stall_reason,time_to_goal_s,robot_contacts_moving,robot_contacts_at_rest,deadlocks_broken,min_robot_clearance_m,file"
     )?;
     for world in &report.worlds {
         let s = &world.scenario;
@@ -264,11 +299,12 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
         for r in &summary.robots {
             writeln!(
                 f,
-                "{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{:.4},{file}",
+                "{},{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{:.4},{file}",
                 world.index,
                 r.id,
                 summary.robots.len(),
                 s.obstacles.len(),
+                s.obstacles.iter().filter(|o| !o.is_known()).count(),
                 s.mpc.v_max,
                 s.radius_of(r.id),
                 r.outcome.as_str(),

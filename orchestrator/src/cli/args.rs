@@ -298,9 +298,10 @@ pub struct FuzzArgs {
     /// Override a value in every world, e.g. `plant.noise_variance=0.01` (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
-    /// Share of the worlds with people on the way (moving obstacles), 0 to 1.
-    #[arg(long, default_value_t = study::fuzz::PEOPLE)]
-    pub people: f64,
+    /// Share of the worlds with people on the way (moving obstacles), 0 to 1 [default:
+    /// 0.5]; not with `--robots` (a fleet's worlds have none).
+    #[arg(long, value_name = "SHARE")]
+    pub people: Option<f64>,
     /// How the robot perceives the obstacles: `track` (measured from the truth, the
     /// obstacles at rest in the map) or `lidar` (a lidar in every world, small obstacles at
     /// rest half the time not in the map).

@@ -210,14 +210,14 @@ fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
         return fleet_fuzz(&args, robots);
     }
     // Every world is drawn and validated before anything runs.
-    if !(0.0..=1.0).contains(&args.people) {
+    let people = args.people.unwrap_or(study::fuzz::PEOPLE);
+    if !(0.0..=1.0).contains(&people) {
         return Err(bad_input(format!(
-            "--people {}: must be a share of the worlds, 0 to 1",
-            args.people
+            "--people {people}: must be a share of the worlds, 0 to 1"
         )));
     }
     let draws = study::fuzz::Draws {
-        people: args.people,
+        people,
         lidar: args.perception == args::FuzzPerception::Lidar,
     };
     let first = study::fuzz::world(args.seed, 0, draws, &args.overrides).map_err(bad_input)?;
@@ -547,22 +547,28 @@ fn fuzz_batch(args: &FuzzArgs, name: &str, what: &str) -> (std::path::PathBuf, u
     (out, threads)
 }
 
-/// `scmpc fuzz --robots A..B` (docs/fleet.md, "Fuzz"): exit 1 when two robots touched
-/// while one moved, or a world failed to run.
+/// `scmpc fuzz --robots A..B` (docs/fleet.md, "Fuzz"): exit 1 when a robot moved into
+/// another or into an obstacle, or a world failed to run.
 fn fleet_fuzz(args: &FuzzArgs, robots: &str) -> CliResult {
     let range = robot_range(robots).map_err(bad_input)?;
-    study::fleet_fuzz::world(args.seed, 0, &range, &args.overrides).map_err(bad_input)?;
+    if args.people.is_some() {
+        return Err(bad_input(
+            "--people: a fleet's worlds have no people (docs/fleet.md, \"Fuzz\")",
+        ));
+    }
+    let lidar = args.perception == args::FuzzPerception::Lidar;
+    study::fleet_fuzz::world(args.seed, 0, &range, lidar, &args.overrides).map_err(bad_input)?;
     let (out, threads) = fuzz_batch(args, "fleet-fuzz", &format!("fleets of {robots} robots"));
     let stop = run::stop::on_signals();
     let batch = (args.seed, args.count);
-    let report = study::fleet_fuzz::run(batch, range, &args.overrides, &out, threads, &stop)
+    let report = study::fleet_fuzz::run(batch, range, lidar, &args.overrides, &out, threads, &stop)
         .map_err(CliError::Failed)?;
     print!("{}", report.table());
     println!("fuzz directory: {}", out.display());
     run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;
-    match report.contacts_moving() > 0 || report.errors() > 0 {
+    match report.contacts_moving() > 0 || report.collided() > 0 || report.errors() > 0 {
         true => Err(CliError::Failed(anyhow::anyhow!(
-            "robots touched while moving, or a world did not run: see {}",
+            "a robot moved into another or into an obstacle, or a world did not run: see {}",
             out.join("fleet_fuzz.csv").display()
         ))),
         false => Ok(()),
