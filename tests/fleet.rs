@@ -103,7 +103,7 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
 /// its lidar makes is the box's (the other robot's returns and the known pillar's are left
 /// out). Both reach their goals without contact. In lockstep across processes each robot
 /// runs a lidar process that sees the other robot from its truths before its tick, and
-/// every robot drives as in process, byte for byte.
+/// every robot drives as in process, byte for byte, as do the eight of `swap8`.
 #[test]
 fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot() {
     let _machine = common::machine_shared();
@@ -156,6 +156,28 @@ fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot()
             .count();
         assert_eq!(lidars, 1, "robot {id}");
     }
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+
+    // `swap8` with lidars: each robot's truth is taken by the seven others' trackers and
+    // lidars, and its topics make room for them all.
+    let eight = ["--set", "lidar.rate_hz=20", "--set", "duration_s=0.5"];
+    let in_process = [&["run", "swap8", "--in-process", "--no-mcap"][..], &eight].concat();
+    let (in_process, _) = run_into_tempdir(&in_process);
+    let prefix = unique_prefix("fleetlidar8");
+    let args = [
+        &["run", "swap8", "--no-mcap", "--prefix", &prefix][..],
+        &eight,
+    ]
+    .concat();
+    let (lockstep, out) = run_into_tempdir(&args);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "not reached in 0.5 s: {}",
+        stderr(&out)
+    );
+    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
+    assert_same_bytes(&in_process, &lockstep, 8);
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
