@@ -51,6 +51,16 @@ use std::time::{Duration, Instant};
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// Whether a process that has heard no input for `silent` gives up: after
+/// [`INPUT_TIMEOUT`], unless it is `supervised_before_start` (an orchestrator watches it
+/// and the run's clock has not started). A fleet's orchestrator starts the run once every
+/// robot's processes are ready, which on two cores may take longer than that (each MPC
+/// builds its programs: about 7 s for `warehouse` with lidars, docs/fleet.md), and it is
+/// looked at meanwhile ([`SUPERVISOR_CHECK`]).
+fn gives_up(silent: Duration, supervised_before_start: bool) -> bool {
+    silent >= INPUT_TIMEOUT && !supervised_before_start
+}
+
 /// What a role process is started with.
 #[derive(Debug, Clone)]
 pub struct ProcessArgs {
@@ -783,8 +793,8 @@ impl Member {
     }
 
     /// Waits for input, at most `timeout` and [`SUPERVISOR_CHECK`] (the orchestrator is
-    /// looked at between waits); `Ok(false)` means stop (a signal). Fails after
-    /// [`INPUT_TIMEOUT`] without input since `last_input`.
+    /// looked at between waits); `Ok(false)` means stop (a signal). Fails once it
+    /// [`gives_up`] without input since `last_input`.
     fn wait(
         &self,
         waitset: &WaitSet<ipc::Service>,
@@ -801,8 +811,31 @@ impl Member {
                 Ok(true)
             }
             Wake::Terminate => Ok(false),
-            Wake::Timeout if last_input.elapsed() < INPUT_TIMEOUT => Ok(true),
-            Wake::Timeout => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
+            Wake::Timeout => {
+                let supervised_before_start =
+                    self.supervisor_pid.is_some() && !self.clock.state.get().clock.started();
+                match gives_up(last_input.elapsed(), supervised_before_start) {
+                    false => Ok(true),
+                    true => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
+                }
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_silent_process_gives_up_after_the_input_timeout_unless_watched_before_the_start() {
+        let (before, after) = (INPUT_TIMEOUT / 2, INPUT_TIMEOUT * 3);
+        assert!(!gives_up(before, false));
+        assert!(gives_up(INPUT_TIMEOUT, false));
+        assert!(gives_up(after, false), "unwatched, or the run has started");
+        assert!(
+            !gives_up(after, true),
+            "watched by its orchestrator, before the start"
+        );
     }
 }
