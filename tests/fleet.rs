@@ -98,20 +98,20 @@ fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
-/// With a lidar (`tests/fixtures/fleet-lidar.toml`), each robot sees the box on robot 0's
-/// lane that no robot was told of, and goes by its plans for the other robot: every track
-/// its lidar makes is the box's (the other robot's returns and the known pillar's are left
-/// out). Both reach their goals without contact. In lockstep across processes each robot
-/// runs a lidar process that sees the other robot from its truths before its tick, and
-/// every robot drives as in process, byte for byte, as do the eight of `swap8`.
+/// `tests/fixtures/fleet-lidar.toml`: two robots passing, each with a lidar, a box on
+/// robot 0's lane that no robot is told of, a pillar on the map.
+const FLEET_LIDAR: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/fixtures/fleet-lidar.toml"
+);
+
+/// With a lidar each robot sees the box it was not told of, and goes by its plans for the
+/// other robot: every track its lidar makes is the box's (the other robot's returns and
+/// the known pillar's are left out). Both reach their goals without contact.
 #[test]
 fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot() {
     let _machine = common::machine_shared();
-    let fixture = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/fixtures/fleet-lidar.toml"
-    );
-    let (dir, out) = run_into_tempdir(&["run", fixture, "--in-process", "--no-mcap"]);
+    let (dir, out) = run_into_tempdir(&["run", FLEET_LIDAR, "--in-process", "--no-mcap"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let fleet = summary(dir.path());
     assert_eq!(fleet["reached"], 2, "{fleet}");
@@ -121,7 +121,7 @@ fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot()
             .expect("tracks.csv");
         let seen: Vec<[f64; 2]> = (tracks.lines().skip(1))
             .map(|line| line.split(',').collect::<Vec<_>>())
-            .filter(|row| row[2].parse::<u64>().expect("an id") < 1 << 30)
+            .filter(|row| row[2].parse::<u32>().expect("an id") < protocol::FIRST_PEER)
             .map(|row| [3, 4].map(|c| row[c].parse::<f64>().expect("a number")))
             .collect();
         assert!(
@@ -132,53 +132,47 @@ fn with_a_lidar_each_robot_tracks_a_box_it_was_not_told_of_not_the_other_robot()
         let off_the_box = seen.iter().find(|[x, y]| x.hypot(*y) > 0.3);
         assert_eq!(off_the_box, None, "robot {id}: a track not of the box");
     }
+}
 
-    let short = ["--set", "duration_s=3"];
-    let (in_process, _) =
-        run_into_tempdir(&[&["run", fixture, "--in-process", "--no-mcap"][..], &short].concat());
-    let prefix = unique_prefix("fleetlidar");
-    let args = [
-        &["run", fixture, "--no-mcap", "--prefix", &prefix][..],
-        &short,
-    ]
-    .concat();
-    let (lockstep, out) = run_into_tempdir(&args);
-    assert_eq!(
-        out.status.code(),
-        Some(1),
-        "not reached in 3 s: {}",
-        stderr(&out)
-    );
-    assert_same_bytes(&in_process, &lockstep, 2);
-    for id in 0..2 {
-        let lidars = (events(&lockstep.path().join(format!("robot{id}"))).iter())
-            .filter(|e| e["event"] == "spawned" && e["role"] == "lidar")
-            .count();
-        assert_eq!(lidars, 1, "robot {id}");
+/// In lockstep across processes a fleet with lidars (a lidar process per robot, seeing
+/// the other robots from their truths before its tick) drives every robot as in process,
+/// byte for byte: the two robots of `tests/fixtures/fleet-lidar.toml`, and the eight of
+/// `swap8` for half a second, each robot's truth taken by the seven others' trackers and
+/// lidars. Nothing of either run is left in shared memory.
+#[test]
+fn in_lockstep_a_fleet_with_lidars_drives_as_in_process_byte_for_byte() {
+    let _machine = common::machine_shared();
+    let lidar = ["--set", "lidar.rate_hz=20"];
+    for (scenario, robots, duration) in [
+        (FLEET_LIDAR, 2, "duration_s=3"),
+        ("swap8", 8, "duration_s=0.5"),
+    ] {
+        let short = [&lidar[..], &["--set", duration]].concat();
+        let in_process = [&["run", scenario, "--in-process", "--no-mcap"][..], &short].concat();
+        let (in_process, _) = run_into_tempdir(&in_process);
+        let prefix = unique_prefix("fleetlidar");
+        let args = [
+            &["run", scenario, "--no-mcap", "--prefix", &prefix][..],
+            &short,
+        ]
+        .concat();
+        let (lockstep, out) = run_into_tempdir(&args);
+        assert_eq!(
+            out.status.code(),
+            Some(1),
+            "{scenario} not reached: {}",
+            stderr(&out)
+        );
+        assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
+        assert_same_bytes(&in_process, &lockstep, robots);
+        for id in 0..robots {
+            let lidars = (events(&lockstep.path().join(format!("robot{id}"))).iter())
+                .filter(|e| e["event"] == "spawned" && e["role"] == "lidar")
+                .count();
+            assert_eq!(lidars, 1, "{scenario}: robot {id}");
+        }
+        assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
     }
-    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
-
-    // `swap8` with lidars: each robot's truth is taken by the seven others' trackers and
-    // lidars, and its topics make room for them all.
-    let eight = ["--set", "lidar.rate_hz=20", "--set", "duration_s=0.5"];
-    let in_process = [&["run", "swap8", "--in-process", "--no-mcap"][..], &eight].concat();
-    let (in_process, _) = run_into_tempdir(&in_process);
-    let prefix = unique_prefix("fleetlidar8");
-    let args = [
-        &["run", "swap8", "--no-mcap", "--prefix", &prefix][..],
-        &eight,
-    ]
-    .concat();
-    let (lockstep, out) = run_into_tempdir(&args);
-    assert_eq!(
-        out.status.code(),
-        Some(1),
-        "not reached in 0.5 s: {}",
-        stderr(&out)
-    );
-    assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
-    assert_same_bytes(&in_process, &lockstep, 8);
-    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
 }
 
 /// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet

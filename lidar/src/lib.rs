@@ -48,24 +48,6 @@ struct Peer {
     truths: Recent<[f64; 2]>,
 }
 
-impl Peer {
-    /// Where it is at `time_s`, the time of tick `tick`: its newest true position before
-    /// that tick, moved on to `time_s` at the velocity since the one before (a tick or
-    /// more before: the positions of one tick are off by the change of that velocity in a
-    /// tick, under 0.1 mm at a robot's input box); its start before any.
-    fn position_at(&self, tick: u64, time_s: f64, dt_s: f64) -> [f64; 2] {
-        match self.truths.newest_two_before(tick) {
-            None => self.start,
-            Some(((_, position), None)) => position,
-            Some(((now, position), Some((then, before)))) => {
-                let elapsed_s = (now - then) as f64 * dt_s;
-                let ahead_s = time_s - now as f64 * dt_s;
-                [0, 1].map(|a| position[a] + (position[a] - before[a]) / elapsed_s * ahead_s)
-            }
-        }
-    }
-}
-
 /// The lidar's seed beside the scenario's (`"lidar"` in ASCII).
 const SEED_STREAM: u64 = 0x6c_6964_6172;
 
@@ -89,14 +71,7 @@ impl Task for LidarTask {
         })
     }
 
-    /// In a fleet, the other robots' truths: the lidar sees them.
-    fn peer_topics(&self) -> &'static [&'static str] {
-        match self.peers.is_empty() {
-            true => &[],
-            false => &[protocol::topics::TRUTH],
-        }
-    }
-
+    /// In a fleet, another robot's truth: the lidar sees it.
     fn hear_peer(&mut self, data: &Data) {
         let Data::Truth(truth) = data else {
             return;
@@ -129,8 +104,10 @@ impl Task for LidarTask {
 
 impl LidarTask {
     /// The scan from where `truth` has the robot, at its time: of the obstacles, and of
-    /// the other robots where their truths before this tick put them (so in process and in
-    /// lockstep a scan does not depend on whether another robot has stepped this tick).
+    /// the other robots where their truths before this tick put them, moved on by a tick
+    /// ([`Recent::position_at`]; so in process and in lockstep a scan does not depend on
+    /// whether another robot has stepped this tick). The positions of one tick are off by
+    /// the change of that velocity in a tick, under 0.1 mm at a robot's input box.
     fn scan(&mut self, truth: &GroundTruth) -> Scan {
         let (tick, time_s) = (truth.header.tick, truth.header.time_s);
         self.discs.clear();
@@ -140,8 +117,10 @@ impl LidarTask {
                 .map(|o| (o.center_at(time_s), o.radius)),
         );
         let dt_s = self.dt_s;
-        (self.discs)
-            .extend((self.peers.iter()).map(|p| (p.position_at(tick, time_s, dt_s), p.radius_m)));
+        (self.discs).extend(self.peers.iter().map(|p| {
+            let position = p.truths.position_at(tick, time_s, dt_s);
+            (position.unwrap_or(p.start), p.radius_m)
+        }));
         let header = Header {
             tick: truth.header.tick,
             time_s,
@@ -153,20 +132,12 @@ impl LidarTask {
 
 /// The other robots of `scenario`'s fleet, seen by its member; none for a robot alone.
 fn peers_of(scenario: &Validated) -> Vec<Peer> {
-    let Some(own) = scenario.fleet_id else {
-        return Vec::new();
-    };
-    let kept = 2 * scenario.timing.inner_steps + 2;
-    (0..scenario.robots.len())
-        .filter(|&id| id != own)
-        .map(|id| {
-            let [x, y, _] = scenario.robots[id].start;
-            Peer {
-                id: id as u32,
-                radius_m: scenario.radius_of(id),
-                start: [x, y],
-                truths: Recent::new(kept),
-            }
+    (scenario.other_robots())
+        .map(|(id, [x, y, _], radius_m)| Peer {
+            id: id as u32,
+            radius_m,
+            start: [x, y],
+            truths: Recent::of_two_samples(scenario.timing.inner_steps),
         })
         .collect()
 }

@@ -74,21 +74,29 @@ fn in_a_fleet_the_lidar_sees_another_robot_where_its_truths_before_the_tick_put_
     let scan = task.step(&context).expect("a scan at tick 0").output;
     assert!((ahead(&scan) - 2.6).abs() < 1e-6, "{}", ahead(&scan));
 
-    // Its truths at ticks 9 and 10 (coming at 1 m/s), and one of the scan's own tick that
-    // is not yet its to see: the scan of tick 11 sees it moved on by a tick from tick 10.
-    let period = scenario.perception_ticks();
-    let tick = 11 * period;
-    let (then, now) = (tick - 2 * period, tick - period);
-    task.hear_peer(&peer(then, 2.0));
-    task.hear_peer(&peer(now, 2.0 - period as f64 * dt));
+    // Its truths of the two ticks before the scan's (coming at 1 m/s), and one of the
+    // scan's own tick, which is not yet its to see: the scan sees it moved on by a tick.
+    let tick = 11 * scenario.perception_ticks();
+    task.hear_peer(&peer(tick - 2, 2.0));
+    task.hear_peer(&peer(tick - 1, 2.0 - dt));
     task.hear_peer(&peer(tick, -9.0));
-    task.hear_peer(&Data::Truth(truth(now, [1.0, 0.0, 0.0], dt))); // robot 0: itself
+    task.hear_peer(&Data::Truth(truth(tick - 1, [1.0, 0.0, 0.0], dt))); // robot 0: itself
     task.hear(LidarInput::Truth(truth(tick, [0.0; 3], dt)), 0, &context);
     let scan = task.step(&context).expect("a scan").output;
-    let expected = 2.0 - 2.0 * period as f64 * dt - 0.4;
+    let expected = 2.0 - 2.0 * dt - 0.4;
     assert!(
         (ahead(&scan) - expected).abs() < 1e-6,
         "{} vs {expected}",
         ahead(&scan)
     );
+
+    // Its truths stop there (its pipeline ended): a scan much later sees it a tick on from
+    // its last, not moving on for ever.
+    let mut task = LidarTask::new(&scenario, 0, ()).expect("made");
+    task.hear_peer(&peer(tick - 2, 2.0));
+    task.hear_peer(&peer(tick - 1, 2.0 - dt));
+    let later = tick + 10 * scenario.perception_ticks();
+    task.hear(LidarInput::Truth(truth(later, [0.0; 3], dt)), 0, &context);
+    let scan = task.step(&context).expect("a scan").output;
+    assert!((ahead(&scan) - expected).abs() < 1e-6, "{}", ahead(&scan));
 }

@@ -113,7 +113,8 @@ pub struct World {
     tracking: bool,
     tracks: KeptTracks,
     /// With a lidar: the most tracks' discs a step keeps ([`protocol::MAX_SEEN_DISCS`],
-    /// and in a fleet one for each other robot: [`protocol::Scenario::max_obstacle_discs`]).
+    /// and in a fleet one more for each other robot: the nearest of the seen and the
+    /// others' together, [`protocol::Scenario::max_obstacle_discs`]).
     seen_most: Option<usize>,
 }
 
@@ -155,7 +156,7 @@ impl World {
     /// Fills `discs` with the step's constraint discs at the sample's time `t_s` for the
     /// robot at `position` (goal-relative, m): the known obstacles' ([`constraint_discs`]),
     /// then each track's predicted one ([`predicted_disc`]) as `prediction` says (with a
-    /// lidar the nearest [`protocol::MAX_SEEN_DISCS`], [`keep_nearest`]).
+    /// lidar the nearest `seen_most`, [`keep_nearest`]).
     pub fn discs(
         &self,
         g: StepGrowth,

@@ -145,6 +145,9 @@ pub struct RoleDecl {
     /// The topics it publishes, in the order of the publishers it announces when it joins
     /// ([`output_slot`]).
     pub outputs: &'static [&'static str],
+    /// The topics it takes from every other robot of a fleet (docs/fleet.md): its task
+    /// names them ([`crate::task::Task::peer_topics`]) when it runs in a fleet.
+    pub peer_inputs: &'static [&'static str],
     pub tier: Tier,
     /// Whether the scenario may place it on another host (`[hosts]`, docs/hosts.md).
     pub remote: bool,
@@ -157,10 +160,21 @@ pub struct RoleDecl {
 /// Declares every role once, in data-flow order: its documentation, its code (its index
 /// in per-role arrays, [`Control`](crate::Control)'s), its name and its [`RoleDecl`].
 /// Makes [`Role`], [`Role::COUNT`], [`Role::ALL`], [`Role::as_str`] and [`ROLES`].
+/// A role's `peer_inputs` in [`declare_roles!`]: none unless given.
+macro_rules! peer_inputs {
+    () => {
+        &[]
+    };
+    ($peer_inputs:expr) => {
+        $peer_inputs
+    };
+}
+
 macro_rules! declare_roles {
     ($($(#[$doc:meta])* $role:ident = $code:literal $name:literal {
         inputs: $inputs:expr,
         outputs: $outputs:expr,
+        $(peer_inputs: $peer_inputs:expr,)?
         tier: $tier:ident,
         remote: $remote:expr,
         optional: $optional:expr $(,)?
@@ -193,6 +207,7 @@ macro_rules! declare_roles {
                 role: Role::$role,
                 inputs: $inputs,
                 outputs: $outputs,
+                peer_inputs: peer_inputs!($($peer_inputs)?),
                 tier: Tier::$tier,
                 remote: $remote,
                 optional: $optional,
@@ -222,6 +237,7 @@ declare_roles! {
     Lidar = 7 "lidar" {
         inputs: &[TRUTH],
         outputs: &[SCAN],
+        peer_inputs: &[TRUTH],
         tier: Tracking,
         remote: true,
         optional: false,
@@ -232,6 +248,7 @@ declare_roles! {
     Tracker = 5 "tracker" {
         inputs: &[SCAN, ESTIMATE, TRUTH],
         outputs: &[TRACKS],
+        peer_inputs: &[TRUTH, ESTIMATE, PLAN],
         tier: Tracking,
         remote: true,
         optional: false,
@@ -302,6 +319,7 @@ pub const ROBOT: RoleDecl = RoleDecl {
     role: Role::Plant,
     inputs: &[ACTUATION, PLAN, ROUTE, TRACKS],
     outputs: &[TRUTH, MEASUREMENT],
+    peer_inputs: &[],
     tier: Tier::Control,
     remote: true,
     optional: false,
@@ -313,6 +331,19 @@ pub fn declaration(role: Role, plant: PlantKind) -> &'static RoleDecl {
         (Role::Plant, PlantKind::Ros2) => &ROBOT,
         _ => &ROLES[Role::ALL.iter().position(|r| *r == role).unwrap_or(0)],
     }
+}
+
+/// The topics `role` takes from every other robot of a fleet ([`RoleDecl::peer_inputs`]).
+pub fn peer_inputs_of(role: Role) -> &'static [&'static str] {
+    declaration(role, PlantKind::Sim).peer_inputs
+}
+
+/// How many roles of a robot take `topic` from each other robot of a fleet (their
+/// [`RoleDecl::peer_inputs`]).
+pub fn peer_takers_of(topic: &str) -> usize {
+    (ROLES.iter())
+        .filter(|r| r.peer_inputs.contains(&topic))
+        .count()
 }
 
 /// The role that produces data topic `topic`.

@@ -336,12 +336,12 @@ pub trait Task: Sized {
     /// An input sample, received `latency_ns` after it was published.
     fn hear(&mut self, input: Self::Input, latency_ns: u64, context: &impl Context);
 
-    /// The topics it takes from the other robots of a fleet (docs/fleet.md): the executor
-    /// hands their samples to [`Task::hear_peer`], each stamped with its robot's id
-    /// ([`crate::Header::robot`]). The tracker's and the lidar's; each keeps what it hears
-    /// in a [`Recent`].
+    /// The topics it takes from the other robots of a fleet (docs/fleet.md): its role's
+    /// declared [`crate::graph::RoleDecl::peer_inputs`] (the tracker's and the lidar's).
+    /// The executor hands their samples to [`Task::hear_peer`], each stamped with its
+    /// robot's id ([`crate::Header::robot`]); a task keeps what it hears in a [`Recent`].
     fn peer_topics(&self) -> &'static [&'static str] {
-        &[]
+        crate::graph::peer_inputs_of(Self::ROLE)
     }
 
     /// A sample of another robot of the fleet, of one of [`Task::peer_topics`].
@@ -448,6 +448,80 @@ macro_rules! task_input {
     };
 }
 
+/// A value of a tick.
+pub type Stamped<T> = (u64, T);
+
+/// The newest samples of one kind heard from another robot of a fleet, with their ticks,
+/// oldest first ([`Task::hear_peer`]): as many as the robot publishes in two samples, so
+/// that the newest before the taker's tick is kept however far the other robot's process
+/// has run ahead (in lockstep at most to that tick; in real time a role may lag by a few
+/// inner ticks).
+#[derive(Debug, Clone)]
+pub struct Recent<T> {
+    kept: std::collections::VecDeque<Stamped<T>>,
+    capacity: usize,
+}
+
+impl<T: Copy> Recent<T> {
+    /// None kept yet, at most `capacity` (at least 1).
+    pub fn new(capacity: usize) -> Recent<T> {
+        let capacity = capacity.max(1);
+        Recent {
+            kept: std::collections::VecDeque::with_capacity(capacity),
+            capacity,
+        }
+    }
+
+    /// None kept yet, room for a sample a tick over two samples of `ticks_per_sample`.
+    pub fn of_two_samples(ticks_per_sample: usize) -> Recent<T> {
+        Recent::new(2 * ticks_per_sample + 2)
+    }
+
+    /// Keeps `value` of tick `tick` if it is newer than every one kept.
+    pub fn push(&mut self, tick: u64, value: T) {
+        if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
+            if self.kept.len() == self.capacity {
+                self.kept.pop_front();
+            }
+            self.kept.push_back((tick, value));
+        }
+    }
+
+    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
+    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick
+    /// a role steps, so what it takes never depends on how far the others have come.)
+    pub fn newest_before(&self, tick: u64) -> Option<Stamped<T>> {
+        self.newest_two_before(tick).map(|(newest, _)| newest)
+    }
+
+    /// [`Recent::newest_before`], and the one kept before it, if any.
+    pub fn newest_two_before(&self, tick: u64) -> Option<(Stamped<T>, Option<Stamped<T>>)> {
+        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
+        let index = (self.kept.iter().rposition(|(t, _)| *t < tick))
+            .or((ran_past && !self.kept.is_empty()).then_some(0))?;
+        let before = index.checked_sub(1).map(|i| self.kept[i]);
+        Some((self.kept[index], before))
+    }
+}
+
+impl Recent<[f64; 2]> {
+    /// Where the positions kept (m) put a robot at tick `tick` (time `time_s`, ticks of
+    /// `dt_s`): the newest before it, moved on at the velocity from the one before it for
+    /// at most a tick (a robot whose positions stopped coming is where it was last); `None`
+    /// before any.
+    pub fn position_at(&self, tick: u64, time_s: f64, dt_s: f64) -> Option<[f64; 2]> {
+        let ((now, position), before) = self.newest_two_before(tick)?;
+        let ahead_s = (time_s - now as f64 * dt_s).clamp(0.0, dt_s);
+        Some(match before {
+            Some((then, earlier)) if now > then => {
+                let elapsed_s = (now - then) as f64 * dt_s;
+                [0, 1].map(|a| position[a] + (position[a] - earlier[a]) / elapsed_s * ahead_s)
+            }
+            _ => position,
+        })
+    }
+}
+
 #[cfg(test)]
 mod goal_tests {
     use super::*;
@@ -467,57 +541,6 @@ mod goal_tests {
         assert_eq!(goals.due(59, 1), None);
         assert_eq!(goals.due(60, 1).unwrap().goal, at(2.0));
         assert_eq!(goals.due(61, 2), None);
-    }
-}
-
-/// A value of a tick.
-pub type Stamped<T> = (u64, T);
-
-/// The newest samples of one kind heard from another robot of a fleet, with their ticks,
-/// oldest first ([`Task::hear_peer`]): as many as the robot publishes in a while, so that
-/// the newest before the taker's tick is kept however far the other robot's process has
-/// run ahead (in lockstep at most to that tick; in real time a role may lag by a few inner
-/// ticks).
-#[derive(Debug, Clone)]
-pub struct Recent<T> {
-    kept: std::collections::VecDeque<(u64, T)>,
-    capacity: usize,
-}
-
-impl<T: Copy> Recent<T> {
-    /// None kept yet, at most `capacity` (at least 1).
-    pub fn new(capacity: usize) -> Recent<T> {
-        let capacity = capacity.max(1);
-        Recent {
-            kept: std::collections::VecDeque::with_capacity(capacity),
-            capacity,
-        }
-    }
-
-    /// Keeps `value` of tick `tick` if it is newer than every one kept.
-    pub fn push(&mut self, tick: u64, value: T) {
-        if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
-            if self.kept.len() == self.capacity {
-                self.kept.pop_front();
-            }
-            self.kept.push_back((tick, value));
-        }
-    }
-
-    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
-    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick
-    /// a role steps, so what it takes never depends on how far the others have come.)
-    pub fn newest_before(&self, tick: u64) -> Option<(u64, T)> {
-        self.newest_two_before(tick).map(|(newest, _)| newest)
-    }
-
-    /// [`Recent::newest_before`], and the one kept before it, if any.
-    pub fn newest_two_before(&self, tick: u64) -> Option<(Stamped<T>, Option<Stamped<T>>)> {
-        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
-        let index = (self.kept.iter().rposition(|(t, _)| *t < tick))
-            .or((ran_past && !self.kept.is_empty()).then_some(0))?;
-        let before = index.checked_sub(1).map(|i| self.kept[i]);
-        Some((self.kept[index], before))
     }
 }
 
@@ -541,5 +564,19 @@ mod recent_tests {
             "3 was dropped: the oldest"
         );
         assert_eq!(Recent::<u64>::new(2).newest_before(9), None);
+    }
+
+    #[test]
+    fn a_position_is_moved_on_at_its_velocity_for_a_tick_at_most() {
+        let dt = 0.005;
+        let mut positions = Recent::of_two_samples(10);
+        assert_eq!(positions.position_at(0, 0.0, dt), None);
+        positions.push(4, [1.0, 2.0]);
+        assert_eq!(positions.position_at(6, 6.0 * dt, dt), Some([1.0, 2.0]));
+        positions.push(5, [1.01, 2.0]); // 2 m/s along x
+        let at_6 = positions.position_at(6, 6.0 * dt, dt).unwrap();
+        assert!((at_6[0] - 1.02).abs() < 1e-12 && at_6[1] == 2.0, "{at_6:?}");
+        // Nothing since tick 5: a tick on, and no farther.
+        assert_eq!(positions.position_at(40, 40.0 * dt, dt), Some(at_6));
     }
 }

@@ -115,7 +115,10 @@ impl Whose<'_> {
         let robots = self.fleet.map_or(1, |f| f.robot_count() as u32);
         (0..robots)
             .filter(|other| *other != self.robot)
-            .flat_map(|other| tracker::PEER_TOPICS.map(|t| (other, t.to_string())))
+            .flat_map(|other| {
+                let topics = protocol::graph::peer_inputs_of(protocol::Role::Tracker);
+                topics.iter().map(move |t| (other, t.to_string()))
+            })
             .collect()
     }
 }

@@ -51,14 +51,22 @@ use std::time::{Duration, Instant};
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// Whether a process that has heard no input for `silent` gives up: after
-/// [`INPUT_TIMEOUT`], unless it is `supervised_before_start` (an orchestrator watches it
-/// and the run's clock has not started). A fleet's orchestrator starts the run once every
-/// robot's processes are ready, which on two cores may take longer than that (each MPC
-/// builds its programs: about 7 s for `warehouse` with lidars, docs/fleet.md), and it is
-/// looked at meanwhile ([`SUPERVISOR_CHECK`]).
-fn gives_up(silent: Duration, supervised_before_start: bool) -> bool {
-    silent >= INPUT_TIMEOUT && !supervised_before_start
+/// When the silence of a process whose wait timed out `now` began, or `None` when it gives
+/// up: after [`INPUT_TIMEOUT`] without input since `last_input`. A process watched by its
+/// orchestrator before the run's clock has started (`supervised_before_start`) waits for
+/// the start however long it takes, and its silence counts from then at the latest: a
+/// fleet's orchestrator starts the run once every robot's processes are ready, which on
+/// two cores may take longer (each MPC builds its programs: about 7 s for `warehouse` with
+/// lidars, docs/fleet.md), and it is looked at meanwhile ([`SUPERVISOR_CHECK`]).
+fn silent_since(
+    last_input: Instant,
+    now: Instant,
+    supervised_before_start: bool,
+) -> Option<Instant> {
+    match supervised_before_start {
+        true => Some(now),
+        false => (now.duration_since(last_input) < INPUT_TIMEOUT).then_some(last_input),
+    }
 }
 
 /// What a role process is started with.
@@ -793,8 +801,8 @@ impl Member {
     }
 
     /// Waits for input, at most `timeout` and [`SUPERVISOR_CHECK`] (the orchestrator is
-    /// looked at between waits); `Ok(false)` means stop (a signal). Fails once it
-    /// [`gives_up`] without input since `last_input`.
+    /// looked at between waits); `Ok(false)` means stop (a signal). Fails after
+    /// [`INPUT_TIMEOUT`] without input since `last_input` ([`silent_since`]).
     fn wait(
         &self,
         waitset: &WaitSet<ipc::Service>,
@@ -814,9 +822,12 @@ impl Member {
             Wake::Timeout => {
                 let supervised_before_start =
                     self.supervisor_pid.is_some() && !self.clock.state.get().clock.started();
-                match gives_up(last_input.elapsed(), supervised_before_start) {
-                    false => Ok(true),
-                    true => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
+                match silent_since(*last_input, Instant::now(), supervised_before_start) {
+                    Some(since) => {
+                        *last_input = since;
+                        Ok(true)
+                    }
+                    None => Err(ProcessError::InputLost(INPUT_TIMEOUT)),
                 }
             }
         }
@@ -828,14 +839,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_silent_process_gives_up_after_the_input_timeout_unless_watched_before_the_start() {
-        let (before, after) = (INPUT_TIMEOUT / 2, INPUT_TIMEOUT * 3);
-        assert!(!gives_up(before, false));
-        assert!(gives_up(INPUT_TIMEOUT, false));
-        assert!(gives_up(after, false), "unwatched, or the run has started");
-        assert!(
-            !gives_up(after, true),
-            "watched by its orchestrator, before the start"
+    fn a_silent_process_gives_up_after_the_input_timeout_counted_from_the_start_when_watched() {
+        let heard = Instant::now();
+        let (soon, late) = (heard + INPUT_TIMEOUT / 2, heard + INPUT_TIMEOUT * 3);
+        assert_eq!(silent_since(heard, soon, false), Some(heard));
+        assert_eq!(silent_since(heard, heard + INPUT_TIMEOUT, false), None);
+        assert_eq!(
+            silent_since(heard, late, false),
+            None,
+            "unwatched, or started"
+        );
+        // Watched before the start: the silence begins anew at every wait, so once the
+        // run starts the process gives up only 5 s after the start, not at once.
+        assert_eq!(silent_since(heard, late, true), Some(late));
+        assert_eq!(
+            silent_since(late, late + INPUT_TIMEOUT / 2, false),
+            Some(late)
         );
     }
 }

@@ -10,7 +10,7 @@ use rand_distr::{Distribution, Normal};
 mod lidar;
 pub use lidar::{Group, Perception};
 mod peers;
-pub use peers::{PEER_TOPICS, Peers, SILENT_SAMPLES};
+pub use peers::{Peers, SILENT_SAMPLES};
 mod task;
 pub use task::{TrackerInput, TrackerTask};
 

@@ -8,16 +8,15 @@
 use protocol::task::Recent;
 use protocol::{Data, Estimate, Header, PeerPrediction, Plan, Track, Tracks, Validated};
 
-/// What a tracker takes of every other robot of its fleet, by topic.
-pub const PEER_TOPICS: [&str; 3] = [
-    protocol::topics::TRUTH,
-    protocol::topics::ESTIMATE,
-    protocol::topics::PLAN,
-];
-
 /// A robot whose newest solved plan is older than this many samples has stopped
 /// publishing plans: the others go by what the world shows of it ([`Peers::tracks`]).
 pub const SILENT_SAMPLES: u64 = 4;
+
+/// The most another robot's footprint is grown by its estimate's uncertainty where its
+/// lidar returns are left out ([`Peers::footprints`]), m: a robot whose estimate has
+/// drifted is seen by the lidar beyond it (its plans still track it) rather than hide
+/// what stands near it.
+pub const FOOTPRINT_GROWTH_MAX_M: f64 = 0.1;
 
 /// A robot's solved plans kept ([`Recent`]): one a sample.
 const PLANS_KEPT: usize = 4;
@@ -75,24 +74,20 @@ impl Peers {
     ///
     /// [`Scenario::member`]: protocol::Scenario::member
     pub fn of(scenario: &Validated) -> Option<Peers> {
-        let own = scenario.fleet_id?;
+        scenario.fleet_id?;
         let ticks_per_sample = scenario.timing.inner_steps;
-        let peers = (0..scenario.robots.len())
-            .filter(|&id| id != own)
-            .map(|id| {
-                let [x, y, theta] = scenario.robots[id].start;
-                Peer {
-                    id,
-                    radius_m: scenario.radius_of(id),
-                    start: Estimated {
-                        state: [x, y, theta, scenario.robot.zeta0],
-                        sigmas: [0.0; 2],
-                    },
-                    truths: Recent::new(2 * ticks_per_sample + 2),
-                    estimates: Recent::new(2 * ticks_per_sample + 2),
-                    plans: Recent::new(PLANS_KEPT),
-                    seen_at: None,
-                }
+        let peers = (scenario.other_robots())
+            .map(|(id, [x, y, theta], radius_m)| Peer {
+                id,
+                radius_m,
+                start: Estimated {
+                    state: [x, y, theta, scenario.robot.zeta0],
+                    sigmas: [0.0; 2],
+                },
+                truths: Recent::of_two_samples(ticks_per_sample),
+                estimates: Recent::of_two_samples(ticks_per_sample),
+                plans: Recent::new(PLANS_KEPT),
+                seen_at: None,
             })
             .collect();
         Some(Peers {
@@ -126,26 +121,38 @@ impl Peers {
         }
     }
 
-    /// Every other robot's footprint at tick `tick` (time `t_s`), where it says it is: its
-    /// newest estimate before `tick` moved on to `t_s` at the estimate's velocity (its
-    /// start before any), its radius grown by `kappa` standard deviations of the
-    /// estimate's position. The tracker's lidar leaves the returns on them out
-    /// ([`crate::Perception::take`]).
+    /// Every other robot's footprint at tick `tick` (time `t_s`), as its lidar's returns
+    /// on it are left out ([`crate::Perception::take`]): where the robot says it is, its
+    /// newest estimate before `tick` moved on to `t_s` at the estimate's velocity, its
+    /// radius grown by `kappa` standard deviations of the estimate's position, at most by
+    /// [`FOOTPRINT_GROWTH_MAX_M`]. An estimate more than a sample old (its estimator fell
+    /// silent) is not moved on: the footprint is where the world shows the robot, its
+    /// newest true position before `tick` ([`Recent::position_at`]), as its track then is
+    /// ([`Peers::tracks`]), else where it was last estimated, or before anything is heard
+    /// of it its start.
     pub fn footprints(&self, tick: u64, t_s: f64, footprints: &mut Vec<crate::lidar::Circle>) {
+        let sample_s = self.ticks_per_sample as f64 * self.dt_s;
         footprints.clear();
         footprints.extend(self.peers.iter().map(|peer| {
-            let (heard, estimate) = match peer.estimates.newest_before(tick) {
-                Some((heard, estimate)) => (heard, estimate),
-                None => (0, peer.start),
-            };
-            let [x, y, theta, zeta] = estimate.state;
-            let ahead_s = (t_s - heard as f64 * self.dt_s).max(0.0);
-            let centre = [
-                x + zeta * theta.cos() * ahead_s,
-                y + zeta * theta.sin() * ahead_s,
-            ];
-            let grown = self.prediction.kappa * estimate.sigmas[0];
-            (centre, peer.radius_m + grown)
+            let newest = (peer.estimates.newest_before(tick))
+                .map(|(heard, estimate)| (t_s - heard as f64 * self.dt_s, estimate));
+            match newest.filter(|(age_s, _)| *age_s <= sample_s) {
+                Some((age_s, estimate)) => {
+                    let [x, y, theta, zeta] = estimate.state;
+                    let ahead_s = age_s.max(0.0);
+                    let centre = [
+                        x + zeta * theta.cos() * ahead_s,
+                        y + zeta * theta.sin() * ahead_s,
+                    ];
+                    let grown = self.prediction.kappa * estimate.sigmas[0];
+                    (centre, peer.radius_m + grown.min(FOOTPRINT_GROWTH_MAX_M))
+                }
+                None => {
+                    let [x, y, ..] = newest.map_or(peer.start, |(_, e)| e).state;
+                    let seen = peer.truths.position_at(tick, t_s, self.dt_s);
+                    (seen.unwrap_or([x, y]), peer.radius_m)
+                }
+            }
         }));
     }
 
@@ -235,6 +242,63 @@ mod tests {
             },
             pose: [x, 0.0, 0.0],
         })
+    }
+
+    fn estimate(robot: u32, tick: u64, state: [f64; 4], variance: f64) -> Data {
+        Data::Estimate(Estimate {
+            header: Header {
+                robot,
+                tick,
+                ..Header::default()
+            },
+            state,
+            covariance: [variance, 0.0, 0.0, 0.0, variance, 0.0, 0.0, 0.0, 0.0],
+            ahead: state,
+        })
+    }
+
+    #[test]
+    fn a_footprint_is_where_the_newest_estimate_before_the_tick_puts_the_robot_grown_a_little() {
+        let toml = include_str!("../../scenarios/swap4.toml");
+        let fleet = protocol::Scenario::from_toml(toml, "swap4").unwrap();
+        let member = fleet.member(0).validated("robot 0").unwrap();
+        let (dt, kappa) = (member.timing.dt_s(), member.mpc.uncertainty_sigmas);
+        let ticks = member.timing.inner_steps as u64;
+        let mut peers = Peers::of(&member).unwrap();
+        let mut footprints = Vec::new();
+        peers.footprints(0, 0.0, &mut footprints);
+        let start = member.robots[1].start;
+        assert_eq!(
+            footprints[0],
+            ([start[0], start[1]], 0.3),
+            "before anything: its start"
+        );
+
+        // Robot 1 at (1, 0) heading along x at 2 m/s, its position 1 cm uncertain; an
+        // estimate of the tick being scanned is not yet its to use.
+        peers.hear(&estimate(1, 9, [1.0, 0.0, 0.0, 2.0], 1e-4));
+        peers.hear(&estimate(1, 10, [9.0, 9.0, 0.0, 2.0], 1e-4));
+        peers.footprints(10, 10.0 * dt, &mut footprints);
+        let (centre, radius) = footprints[0];
+        assert!((centre[0] - (1.0 + 2.0 * dt)).abs() < 1e-12 && centre[1] == 0.0);
+        assert!((radius - (0.3 + kappa * 0.01)).abs() < 1e-12, "{radius}");
+        // A diverged estimate grows it by FOOTPRINT_GROWTH_MAX_M at most.
+        peers.hear(&estimate(1, 11, [1.0, 0.0, 0.0, 2.0], 100.0));
+        peers.footprints(12, 12.0 * dt, &mut footprints);
+        assert_eq!(footprints[0].1, 0.3 + FOOTPRINT_GROWTH_MAX_M);
+
+        // Its estimates stop; two samples on, the footprint is not moved on along the old
+        // heading but where the world shows the robot.
+        let late = 11 + 2 * ticks;
+        peers.footprints(late, late as f64 * dt, &mut footprints);
+        assert_eq!(
+            footprints[0].0,
+            [1.0, 0.0],
+            "no truth: where last estimated"
+        );
+        peers.hear(&truth(1, late - 1, 1.5));
+        peers.footprints(late, late as f64 * dt, &mut footprints);
+        assert_eq!(footprints[0], ([1.5, 0.0], 0.3));
     }
 
     #[test]

@@ -108,14 +108,7 @@ impl Task for TrackerTask {
         }
     }
 
-    /// In a fleet, the other robots' truths, estimates and plans.
-    fn peer_topics(&self) -> &'static [&'static str] {
-        match self.peers {
-            Some(_) => &crate::PEER_TOPICS,
-            None => &[],
-        }
-    }
-
+    /// In a fleet, another robot's truth, estimate or plan.
     fn hear_peer(&mut self, data: &Data) {
         if let Some(peers) = &mut self.peers {
             peers.hear(data);

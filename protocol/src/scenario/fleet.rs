@@ -122,6 +122,16 @@ impl Scenario {
         names
     }
 
+    /// The other robots of this member's fleet ([`Scenario::member`]): each one's id, its
+    /// start pose `[x m, y m, theta rad]` and its footprint's radius, m; none for a robot
+    /// alone (or the fleet's own scenario, which is no robot's).
+    pub fn other_robots(&self) -> impl Iterator<Item = (usize, [f64; 3], f64)> + '_ {
+        let own = self.fleet_id;
+        (0..self.robots.len())
+            .filter(move |&id| own.is_some_and(|own| own != id))
+            .map(|id| (id, self.robots[id].start, self.radius_of(id)))
+    }
+
     /// The radius of robot `id`'s footprint, m.
     pub fn radius_of(&self, id: usize) -> f64 {
         (self.robots.get(id))

@@ -35,21 +35,17 @@ pub const MAX_PUBLISHERS: usize = 4;
 /// Publishers of the status topic: a process of each role, a replacement per swappable
 /// role, and a retiring one.
 pub const MAX_STATUS_PUBLISHERS: usize = 8;
-/// Subscribers a topic admits in a run of one robot. In a fleet every other robot's
-/// tracker takes a robot's truth, estimate and plan too, and its lidar the truth
-/// ([`admit_robots`]).
+/// Subscribers a topic admits in a run of one robot. In a fleet the roles of every other
+/// robot that take a topic from it take it too ([`admit_robots`]).
 pub const MAX_SUBSCRIBERS: usize = 8;
-
-/// The roles of a robot that take another robot's topics ([`protocol::task::Task::peer_topics`]):
-/// its tracker and its lidar.
-const PEER_TAKERS: usize = 2;
 
 /// The robots of the run this process takes part in ([`admit_robots`]).
 static ROBOTS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(1);
 
 /// Makes the topics this process opens from now on admit the subscribers (and their
-/// nodes and listeners) of a run of `robots` robots: [`PEER_TAKERS`] more for each other
-/// robot. Every process of a fleet's run calls it before it opens a topic, so whichever
+/// nodes and listeners) of a run of `robots` robots: for each other robot, one more for
+/// each of its roles that takes the topic from the others
+/// ([`protocol::graph::RoleDecl::peer_inputs`]). Every process of a fleet's run calls it before it opens a topic, so whichever
 /// creates a topic makes room for all (a process that does not, such as `scmpc echo`,
 /// asks for less, which opens).
 pub fn admit_robots(robots: usize) {
@@ -57,9 +53,10 @@ pub fn admit_robots(robots: usize) {
 }
 
 /// The subscribers, nodes and listeners the other robots of the run ([`admit_robots`])
-/// may add to a topic: [`PEER_TAKERS`] for each.
-fn peer_takers() -> usize {
-    PEER_TAKERS * (ROBOTS.load(std::sync::atomic::Ordering::Relaxed) - 1)
+/// may add to topic `name`.
+fn peer_takers(name: &str) -> usize {
+    let others = ROBOTS.load(std::sync::atomic::Ordering::Relaxed) - 1;
+    protocol::graph::peer_takers_of(name) * others
 }
 
 /// iceoryx2's defaults for the nodes of a publish-subscribe service and for the nodes and
@@ -217,8 +214,8 @@ fn open_service<T: Wire>(
         } else {
             MAX_PUBLISHERS
         })
-        .max_subscribers(MAX_SUBSCRIBERS + peer_takers())
-        .max_nodes(MAX_PUBSUB_NODES + peer_takers())
+        .max_subscribers(MAX_SUBSCRIBERS + peer_takers(name))
+        .max_nodes(MAX_PUBSUB_NODES + peer_takers(name))
         .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
         .history_size(0)
         .enable_safe_overflow(true);
@@ -229,8 +226,8 @@ fn open_service<T: Wire>(
     }
     .map_err(|e| IpcError(format!("opening service `{service}`: {e}")))?;
     let event = (node.service_builder(&service_name).event())
-        .max_nodes(MAX_EVENT_NODES + peer_takers())
-        .max_listeners(MAX_LISTENERS + peer_takers());
+        .max_nodes(MAX_EVENT_NODES + peer_takers(name))
+        .max_listeners(MAX_LISTENERS + peer_takers(name));
     let event = if create {
         event.open_or_create().map_err(|e| e.to_string())
     } else {
