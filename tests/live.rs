@@ -375,8 +375,13 @@ fn off_loopback_a_client_without_the_token_is_refused_before_it_sees_a_channel()
         Err(tungstenite::Error::Http(response)) => assert_eq!(response.status(), 401),
         other => panic!("a wrong token: {:?}", other.err()),
     }
-    let client = Client::connect(&format!("{url}/?token={token}"), false).expect("with the token");
-    assert!(client.channels.values().any(|t| t == "/robot/truth"));
+    let mut client =
+        Client::connect(&format!("{url}/?token={token}"), false).expect("with the token");
+    assert!(
+        client.advertised("/robot/truth", Duration::from_secs(5)),
+        "{:?}",
+        client.channels
+    );
     // Watching is not steering: without live.accept_goals, a goal is refused.
     let (level, refusal) = send_goal(&format!("{url}/?token={token}"), 5.0, 5.0);
     assert_eq!(level, 2, "{refusal}");

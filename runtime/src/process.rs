@@ -37,7 +37,7 @@ use crate::ipc::{
     open_topic, output_slot, process_alive, wait, waitset,
 };
 use crate::realtime::{self, Policy, Tier};
-use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, spin_wait};
+use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, silent_since, spin_wait};
 use crate::warm_up::{WarmUpPass, WarmUps};
 use iceoryx2::prelude::*;
 use protocol::messages::EpochSchedule;
@@ -50,24 +50,6 @@ use std::time::{Duration, Instant};
 /// How long a process waits without any input before it reports [`StatusEvent::InputLost`]
 /// and exits (the orchestrator is gone, or a producer died and was not replaced).
 pub const INPUT_TIMEOUT: Duration = Duration::from_secs(5);
-
-/// When the silence of a process whose wait timed out `now` began, or `None` when it gives
-/// up: after [`INPUT_TIMEOUT`] without input since `last_input`. A process watched by its
-/// orchestrator before the run's clock has started (`supervised_before_start`) waits for
-/// the start however long it takes, and its silence counts from then at the latest: a
-/// fleet's orchestrator starts the run once every robot's processes are ready, which on
-/// two cores may take longer (each MPC builds its programs: about 7 s for `warehouse` with
-/// lidars, docs/fleet.md), and it is looked at meanwhile ([`SUPERVISOR_CHECK`]).
-fn silent_since(
-    last_input: Instant,
-    now: Instant,
-    supervised_before_start: bool,
-) -> Option<Instant> {
-    match supervised_before_start {
-        true => Some(now),
-        false => (now.duration_since(last_input) < INPUT_TIMEOUT).then_some(last_input),
-    }
-}
 
 /// What a role process is started with.
 #[derive(Debug, Clone)]
@@ -831,30 +813,5 @@ impl Member {
                 }
             }
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_silent_process_gives_up_after_the_input_timeout_counted_from_the_start_when_watched() {
-        let heard = Instant::now();
-        let (soon, late) = (heard + INPUT_TIMEOUT / 2, heard + INPUT_TIMEOUT * 3);
-        assert_eq!(silent_since(heard, soon, false), Some(heard));
-        assert_eq!(silent_since(heard, heard + INPUT_TIMEOUT, false), None);
-        assert_eq!(
-            silent_since(heard, late, false),
-            None,
-            "unwatched, or started"
-        );
-        // Watched before the start: the silence begins anew at every wait, so once the
-        // run starts the process gives up only 5 s after the start, not at once.
-        assert_eq!(silent_since(heard, late, true), Some(late));
-        assert_eq!(
-            silent_since(late, late + INPUT_TIMEOUT / 2, false),
-            Some(late)
-        );
     }
 }

@@ -1,7 +1,10 @@
 //! How a role process waits for an input: polling shared memory in lockstep, a short
-//! scheduled spin around a periodic input's known arrival time in real time.
+//! scheduled spin around a periodic input's known arrival time in real time, and how long
+//! it waits without one ([`silent_since`]).
 
 use crate::clock::{monotonic_ns, sleep_until_ns};
+use crate::process::INPUT_TIMEOUT;
+use std::time::Instant;
 
 /// Real time: how long before an expected sample a consumer starts polling for it, ns.
 pub const SPIN_LEAD_NS: u64 = 50_000;
@@ -82,6 +85,24 @@ pub fn spin_wait(expected_ns: u64, mut ready: impl FnMut() -> bool) -> bool {
     ready()
 }
 
+/// When the silence of a process whose wait timed out `now` began, or `None` when it gives
+/// up: after [`INPUT_TIMEOUT`] without input since `last_input`. A process watched by its
+/// orchestrator before the run's clock has started (`supervised_before_start`) waits for
+/// the start however long it takes, and its silence counts from then at the latest: a
+/// fleet's orchestrator starts the run once every robot's processes are ready, which on
+/// two cores may take longer (each MPC builds its programs: about 7 s for `warehouse` with
+/// lidars, docs/fleet.md), and it is looked at meanwhile ([`crate::process::SUPERVISOR_CHECK`]).
+pub fn silent_since(
+    last_input: Instant,
+    now: Instant,
+    supervised_before_start: bool,
+) -> Option<Instant> {
+    match supervised_before_start {
+        true => Some(now),
+        false => (now.duration_since(last_input) < INPUT_TIMEOUT).then_some(last_input),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -122,5 +143,25 @@ mod tests {
             lag = next_arrival_lag_ns(lag, due + 20_000_000, due, dt_s);
         }
         assert_eq!(lag, 2_500_000);
+    }
+
+    #[test]
+    fn a_silent_process_gives_up_after_the_input_timeout_counted_from_the_start_when_watched() {
+        let heard = Instant::now();
+        let (soon, late) = (heard + INPUT_TIMEOUT / 2, heard + INPUT_TIMEOUT * 3);
+        assert_eq!(silent_since(heard, soon, false), Some(heard));
+        assert_eq!(silent_since(heard, heard + INPUT_TIMEOUT, false), None);
+        assert_eq!(
+            silent_since(heard, late, false),
+            None,
+            "unwatched, or started"
+        );
+        // Watched before the start: the silence begins anew at every wait, so once the
+        // run starts the process gives up only 5 s after the start, not at once.
+        assert_eq!(silent_since(heard, late, true), Some(late));
+        assert_eq!(
+            silent_since(late, late + INPUT_TIMEOUT / 2, false),
+            Some(late)
+        );
     }
 }

@@ -133,6 +133,24 @@ impl Client {
         }
     }
 
+    /// Whether a channel on `topic` is advertised within `timeout` (one already is, or
+    /// one comes in the frames read meanwhile: a server advertises its channels as they
+    /// are made, not all in its first advertisement).
+    pub fn advertised(&mut self, topic: &str, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        while !self.channels.values().any(|t| t == topic) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return false;
+            }
+            self.set_timeout(Some(left.max(Duration::from_millis(1))));
+            if self.read().is_err() {
+                return false;
+            }
+        }
+        true
+    }
+
     /// The first message on `topic` within `timeout`.
     pub fn first_on(&mut self, topic: &str, timeout: Duration) -> Option<Frame> {
         let deadline = Instant::now() + timeout;
