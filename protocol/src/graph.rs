@@ -157,9 +157,6 @@ pub struct RoleDecl {
     pub optional: bool,
 }
 
-/// Declares every role once, in data-flow order: its documentation, its code (its index
-/// in per-role arrays, [`Control`](crate::Control)'s), its name and its [`RoleDecl`].
-/// Makes [`Role`], [`Role::COUNT`], [`Role::ALL`], [`Role::as_str`] and [`ROLES`].
 /// A role's `peer_inputs` in [`declare_roles!`]: none unless given.
 macro_rules! peer_inputs {
     () => {
@@ -170,6 +167,9 @@ macro_rules! peer_inputs {
     };
 }
 
+/// Declares every role once, in data-flow order: its documentation, its code (its index
+/// in per-role arrays, [`Control`](crate::Control)'s), its name and its [`RoleDecl`].
+/// Makes [`Role`], [`Role::COUNT`], [`Role::ALL`], [`Role::as_str`] and [`ROLES`].
 macro_rules! declare_roles {
     ($($(#[$doc:meta])* $role:ident = $code:literal $name:literal {
         inputs: $inputs:expr,
