@@ -42,11 +42,18 @@ pub fn cleanup_dead_nodes_of(
 
 /// The process ids of the run's living nodes (iceoryx2's node listing, about 1 ms).
 pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
+    node_pids_of(prefix, |_| true)
+}
+
+/// [`node_pids`] of the living nodes whose name `ours` takes (a fleet's robot's
+/// supervisor watches its own robot's, as it cleans them, [`cleanup_dead_nodes_of`]).
+pub fn node_pids_of(prefix: &str, ours: impl Fn(&str) -> bool) -> Result<Vec<u32>, IpcError> {
     let config = run_config(prefix)?;
     let mut pids = Vec::new();
     Node::<ipc::Service>::list(&config, |state| {
         if let NodeState::Alive(view) = state
             && let Some(details) = view.details()
+            && ours(details.name().as_str())
             && let Ok(pid) = u32::try_from(details.process_id().value())
         {
             pids.push(pid);
