@@ -201,9 +201,10 @@ impl Supervisor {
                 .last_node_listing
                 .is_none_or(|t| t.elapsed() >= NODE_LISTING)
         {
-            clean_dead_nodes(children, recorder, None)?;
-            self.node_pids =
-                ipc::node_pids_of(&children.prefix, ours(children.robot())).unwrap_or_default();
+            let scan =
+                ipc::scan_nodes_of(&children.prefix, ours(children.robot())).unwrap_or_default();
+            record_dead_nodes(&scan.cleaned, children, recorder, None)?;
+            self.node_pids = scan.alive_pids;
             self.last_node_listing = Some(Instant::now());
         }
         Ok(())
@@ -289,7 +290,18 @@ pub(super) fn clean_dead_nodes(
 ) -> anyhow::Result<usize> {
     let names =
         ipc::cleanup_dead_nodes_of(&children.prefix, ours(children.robot())).unwrap_or_default();
-    for name in &names {
+    record_dead_nodes(&names, children, recorder, exited)?;
+    Ok(names.len())
+}
+
+/// Records the dead nodes `names` of [`clean_dead_nodes`] and kills their processes.
+fn record_dead_nodes(
+    names: &[String],
+    children: &mut Children,
+    recorder: &mut Recorder,
+    exited: Option<(Role, u32)>,
+) -> anyhow::Result<()> {
+    for name in names {
         let Some((_, role, epoch)) = ipc::role_of_node(name) else {
             continue;
         };
@@ -307,7 +319,7 @@ pub(super) fn clean_dead_nodes(
             })?;
         }
     }
-    Ok(names.len())
+    Ok(())
 }
 
 /// Whether a node of the run is robot `robot`'s: in a fleet each robot's supervisor
