@@ -25,13 +25,14 @@ pub fn cleanup_dead_nodes_of(
 pub struct NodeScan {
     /// The names of the dead nodes cleaned ([`cleanup_dead_nodes_of`]).
     pub cleaned: Vec<String>,
-    /// The process ids of the living nodes ([`node_pids_of`]).
+    /// The process ids of the living nodes whose name `ours` takes ([`node_pids`]).
     pub alive_pids: Vec<u32>,
 }
 
-/// [`cleanup_dead_nodes_of`] and [`node_pids_of`] in one listing of the run's nodes (a
-/// listing reads every node's details: a supervisor that listed twice a second for each
-/// robot of `swap8` spent 15 % of the orchestrator's time in it).
+/// [`cleanup_dead_nodes_of`] and the processes of the living nodes `ours` takes
+/// ([`node_pids`]) in one listing of the run's nodes (a listing reads every node's
+/// details: a supervisor that listed twice a second for each robot of `swap8` spent 15 %
+/// of the orchestrator's time in it).
 pub fn scan_nodes_of(prefix: &str, ours: impl Fn(&str) -> bool) -> Result<NodeScan, IpcError> {
     let config = run_config(prefix)?;
     let mut scan = NodeScan::default();
@@ -67,18 +68,11 @@ pub fn scan_nodes_of(prefix: &str, ours: impl Fn(&str) -> bool) -> Result<NodeSc
 
 /// The process ids of the run's living nodes (iceoryx2's node listing, about 1 ms).
 pub fn node_pids(prefix: &str) -> Result<Vec<u32>, IpcError> {
-    node_pids_of(prefix, |_| true)
-}
-
-/// [`node_pids`] of the living nodes whose name `ours` takes (a fleet's robot's
-/// supervisor watches its own robot's, as it cleans them, [`scan_nodes_of`]).
-pub fn node_pids_of(prefix: &str, ours: impl Fn(&str) -> bool) -> Result<Vec<u32>, IpcError> {
     let config = run_config(prefix)?;
     let mut pids = Vec::new();
     Node::<ipc::Service>::list(&config, |state| {
         if let NodeState::Alive(view) = state
             && let Some(details) = view.details()
-            && ours(details.name().as_str())
             && let Ok(pid) = u32::try_from(details.process_id().value())
         {
             pids.push(pid);
