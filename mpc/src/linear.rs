@@ -85,10 +85,6 @@ pub struct LinearMpc {
     /// How long from the step's time the phantoms and standing tracks among `discs`
     /// stand, s ([`protocol::KeptTracks::stand_for_s`]).
     stand_s: f64,
-    /// Whether the terminal rows carry the moving discs on for `mpc.rest_lookahead_s`
-    /// ([`StepData::rest_lookahead`]): false only for a step's last resort
-    /// ([`LinearMpc::drops_rest_lookahead`]).
-    rest_lookahead: bool,
     /// Those of a solve's program: discs whose rows the input box does not imply and
     /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
     /// with all their rows, the others with their terminal rows only.
@@ -193,7 +189,6 @@ impl LinearMpc {
             discs: Vec::with_capacity(scenario.max_obstacle_discs() + protocol::MAX_TRACKS),
             prediction: Prediction::Bounded,
             stand_s: 0.0,
-            rest_lookahead: true,
             kept: Vec::with_capacity(scenario.max_obstacle_discs()),
             kept_whole: 0,
             deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
@@ -456,18 +451,6 @@ impl LinearMpc {
             outcome = outcome.then(self.refine(z0));
         }
 
-        if outcome.status != PlanStatus::Solved
-            && !self.cancel.cancelled()
-            && self.drops_rest_lookahead()
-        {
-            // The last resort: the last program again without the margin of the rest
-            // lookahead, for passive safety alone.
-            self.rest_lookahead = false;
-            self.braking_reference(z0);
-            outcome = outcome.then(self.refine(z0));
-            self.rest_lookahead = true;
-        }
-
         let mut plan = Plan {
             header: Header::default(),
             sample,
@@ -625,23 +608,6 @@ impl LinearMpc {
         }
     }
 
-    /// Whether a step whose every program failed has a margin left to drop: the rest
-    /// lookahead (`mpc.rest_lookahead_s`, docs/safety.md "The stop and the person's way")
-    /// with a moving disc among the step's. Without it the terminal rows ask for passive
-    /// safety alone, which the DFL's check asks too; so a robot squeezed between others
-    /// that come towards it (`swap8`: 17 infeasible steps in process, 2026-12-02) still gets
-    /// a plan that stops before they could reach it, rather than fly its shifted plan.
-    /// Only once every other program failed: dropped in the bounded program already, a
-    /// robot of `scmpc fuzz --robots 2..6 --seed 3` (world 193) drove off from another at
-    /// full acceleration, 4.7 m past its goal, where the escape program with it brakes
-    /// gently.
-    fn drops_rest_lookahead(&self) -> bool {
-        self.layout
-            .terminal
-            .is_some_and(|brake| brake.rest_lookahead_s > 0.0)
-            && self.discs.iter().any(Disc::moves)
-    }
-
     /// Puts `disc` in the program with all its rows: into `kept` after the whole discs
     /// before it (so before those with their terminal rows only).
     fn keep_whole(&mut self, disc: Disc) {
@@ -715,7 +681,6 @@ impl LinearMpc {
             stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
-            rest_lookahead: self.rest_lookahead,
         }
     }
 
@@ -737,7 +702,6 @@ impl LinearMpc {
             stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
-            rest_lookahead: self.rest_lookahead,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
         if self.writes_linear_term {

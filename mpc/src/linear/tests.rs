@@ -100,7 +100,6 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
-        rest_lookahead: true,
     };
     let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
     program::fill(&mut fa, &a.layout, &a.statics, &data, Rows::all(&a.layout));
@@ -465,7 +464,6 @@ fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
         stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
-        rest_lookahead: true,
     };
     let rows = Rows::all(&mpc.layout);
     let (mut at_goal, mut at_sub) = (Assembly::default(), Assembly::default());
