@@ -153,6 +153,17 @@ impl World {
         !self.tracks.tracks().is_empty()
     }
 
+    /// Whether some kept track moves and every one that moves is another robot's, whose
+    /// plans are known ([`protocol::Track::is_peer`]); not a person's, nor a phantom's.
+    pub fn only_peers_move(&self) -> bool {
+        let mut moving = self
+            .tracks
+            .tracks()
+            .iter()
+            .filter(|(t, _)| !t.stands_still());
+        moving.clone().next().is_some() && moving.all(|(t, _)| t.is_peer())
+    }
+
     /// Fills `discs` with the step's constraint discs at the sample's time `t_s` for the
     /// robot at `position` (goal-relative, m): the known obstacles' ([`constraint_discs`]),
     /// then each track's predicted one ([`predicted_disc`]) as `prediction` says (with a
@@ -236,6 +247,49 @@ pub fn barrier_slack(plan: &Plan, discs_absolute: &[Disc], gamma: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_other_robots_that_move_are_the_moving_discs_of_only_peers_move() {
+        // A scenario with a tracked person, so that the world takes tracks.
+        let scenario = protocol::Scenario {
+            obstacles: vec![protocol::Obstacle {
+                velocity: [1.0, 0.0],
+                ..protocol::Obstacle::fixed(3.0, 0.0, 0.3)
+            }],
+            ..protocol::Scenario::default()
+        };
+        let track = |obstacle: u32, velocity: [f64; 2]| protocol::Track {
+            obstacle,
+            radius_m: 0.3,
+            velocity,
+            ..protocol::Track::default()
+        };
+        let walking = [1.0, 0.0];
+        let peer = protocol::FIRST_PEER + 1;
+        let only_peers_move = |tracks: &[protocol::Track]| {
+            let mut all = protocol::Tracks::default();
+            all.tracks[..tracks.len()].copy_from_slice(tracks);
+            all.count = tracks.len() as u32;
+            let mut world = World::of(&scenario);
+            world.set_tracks(&all);
+            world.only_peers_move()
+        };
+        assert!(!only_peers_move(&[]), "nothing moves");
+        assert!(
+            !only_peers_move(&[track(peer, [0.0; 2])]),
+            "a robot at rest"
+        );
+        assert!(only_peers_move(&[track(peer, walking), track(0, [0.0; 2])]));
+        assert!(
+            !only_peers_move(&[track(peer, walking), track(0, walking)]),
+            "a person"
+        );
+        let phantom = track(protocol::FIRST_PHANTOM, [0.0; 2]);
+        assert!(
+            !only_peers_move(&[track(peer, walking), phantom]),
+            "a phantom"
+        );
+    }
 
     #[test]
     fn the_plan_margin_follows_the_safety_layers() {

@@ -17,7 +17,7 @@ use crate::program::{self, StaticData, StepData};
 use crate::reach::PositionReach;
 use crate::solver::{CancelSlot, ConicSolver, Outcome};
 use clarabel::algebra::CscMatrix;
-use nalgebra::{Matrix4, Vector4};
+use nalgebra::Matrix4;
 use protocol::task::Cancel;
 use protocol::{Disc, Header, ObstacleGrowth, Plan, PlanStatus, Scenario, Tracks};
 
@@ -85,6 +85,10 @@ pub struct LinearMpc {
     /// How long from the step's time the phantoms and standing tracks among `discs`
     /// stand, s ([`protocol::KeptTracks::stand_for_s`]).
     stand_s: f64,
+    /// Whether the terminal rows carry the moving discs on for `mpc.rest_lookahead_s`
+    /// ([`StepData::rest_lookahead`]): false only for a step's last resort
+    /// ([`LinearMpc::drops_rest_lookahead`]).
+    rest_lookahead: bool,
     /// Those of a solve's program: discs whose rows the input box does not imply and
     /// that lie near the plan ([`LinearMpc::solve_once`]), the first `kept_whole` of them
     /// with all their rows, the others with their terminal rows only.
@@ -189,6 +193,7 @@ impl LinearMpc {
             discs: Vec::with_capacity(scenario.max_obstacle_discs() + protocol::MAX_TRACKS),
             prediction: Prediction::Bounded,
             stand_s: 0.0,
+            rest_lookahead: true,
             kept: Vec::with_capacity(scenario.max_obstacle_discs()),
             kept_whole: 0,
             deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
@@ -451,6 +456,18 @@ impl LinearMpc {
             outcome = outcome.then(self.refine(z0));
         }
 
+        if outcome.status != PlanStatus::Solved
+            && !self.cancel.cancelled()
+            && self.drops_rest_lookahead()
+        {
+            // The last resort: the last program again without the margin of the rest
+            // lookahead, for passive safety alone.
+            self.rest_lookahead = false;
+            self.braking_reference(z0);
+            outcome = outcome.then(self.refine(z0));
+            self.rest_lookahead = true;
+        }
+
         let mut plan = Plan {
             header: Header::default(),
             sample,
@@ -608,6 +625,25 @@ impl LinearMpc {
         }
     }
 
+    /// Whether a step whose every program failed has a margin left to drop: the rest
+    /// lookahead (`mpc.rest_lookahead_s`, docs/safety.md "The stop and the person's way")
+    /// when the discs that move are other robots' ([`World::only_peers_move`]). Without it
+    /// the terminal rows ask for passive safety alone, which the DFL's check asks too; so a
+    /// robot squeezed between others coming towards it (`swap8`) gets a plan that stops
+    /// before they could reach it rather than fly its shifted plan. Not for a person: a
+    /// robot offered such a plan flies it as the least unsafe choice where it would have
+    /// stepped out of the person's way (`dfl.evasion`), and at rest in their way is walked
+    /// into (docs/fleet.md, "The rest lookahead as a last resort").
+    ///
+    /// [`World::only_peers_move`]: crate::discs::World::only_peers_move
+    fn drops_rest_lookahead(&self) -> bool {
+        let lookahead = self
+            .layout
+            .terminal
+            .map_or(0.0, |brake| brake.rest_lookahead_s);
+        lookahead > 0.0 && self.world.only_peers_move()
+    }
+
     /// Puts `disc` in the program with all its rows: into `kept` after the whole discs
     /// before it (so before those with their terminal rows only).
     fn keep_whole(&mut self, disc: Disc) {
@@ -681,6 +717,7 @@ impl LinearMpc {
             stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
+            rest_lookahead: self.rest_lookahead,
         }
     }
 
@@ -702,78 +739,13 @@ impl LinearMpc {
             stand_s: self.stand_s,
             prediction: self.prediction,
             stage_s: self.ts_s,
+            rest_lookahead: self.rest_lookahead,
         };
         program::fill(&mut self.assembly, &self.layout, &self.statics, &data, rows);
         if self.writes_linear_term {
             self.assembly
                 .add_linear_cost(&self.layout, &self.reference_cost);
         }
-    }
-
-    /// The previous plan shifted by one sample and extended by one step: the candidate of
-    /// the feasibility argument. The step is the LQR closed loop's (the paper's), or with
-    /// terminal safety one braking sample ([`TerminalBrake::step`], recursive feasibility
-    /// below). False when there is no plan of the previous sample.
-    fn shifted_reference(&mut self, sample: u64) -> bool {
-        if self.last_sample.is_none_or(|last| sample != last + 1) {
-            return false;
-        }
-        let z = &self.last_z;
-        let n = self.layout.horizon;
-        for i in 1..n {
-            self.reference[i] = [z[i + 1][0], z[i + 1][2]];
-        }
-        let next = self.extension(z[n]);
-        self.reference[n] = [next[0], next[2]];
-        self.reference_velocity = [next[1], next[3]];
-        true
-    }
-
-    /// The state one sample after the last state `z_n` of a plan, in its shifted
-    /// successor: braking with terminal safety, the LQR closed loop without.
-    fn extension(&self, z_n: [f64; 4]) -> [f64; 4] {
-        match &self.layout.terminal {
-            Some(brake) => brake.step(z_n),
-            None => {
-                let next = (self.statics.a + self.statics.b * self.statics.k) * Vector4::from(z_n);
-                [next[0], next[1], next[2], next[3]]
-            }
-        }
-    }
-
-    /// Positions of the state braking from `z0` (held at rest): along its velocity at the
-    /// brake's deceleration with terminal safety (so the rollout is braking-safe whenever
-    /// the DFL's brake is), else each axis at the input limit.
-    fn braking_reference(&mut self, z0: [f64; 4]) {
-        let (ts, v_max) = (self.ts_s, self.statics.v_max);
-        let mut z = z0;
-        for i in 1..=self.layout.horizon {
-            match &self.layout.terminal {
-                Some(brake) => z = brake.step(z),
-                None => {
-                    for (p, vel) in [(0, 1), (2, 3)] {
-                        let acc = (-z[vel] / ts).clamp(-v_max, v_max);
-                        z[p] += z[vel] * ts + 0.5 * acc * ts * ts;
-                        z[vel] += acc * ts;
-                    }
-                }
-            }
-            self.reference[i] = [z[0], z[2]];
-        }
-        self.reference_velocity = [z[1], z[3]];
-    }
-
-    /// Moves the reference to the current solution; returns the largest move, m.
-    fn relinearize(&mut self) -> f64 {
-        let (x, l) = (&self.solution, &self.layout);
-        let mut moved: f64 = 0.0;
-        for i in 1..=l.horizon {
-            let p = [x[l.z(i, 0)], x[l.z(i, 2)]];
-            moved = moved.max((p[0] - self.reference[i][0]).hypot(p[1] - self.reference[i][1]));
-            self.reference[i] = p;
-        }
-        self.reference_velocity = [x[l.z(l.horizon, 1)], x[l.z(l.horizon, 3)]];
-        moved
     }
 
     /// Writes the solution into `plan` (absolute coordinates) and keeps its goal-relative
@@ -796,5 +768,6 @@ fn goal_relative(z: [f64; 4], goal: [f64; 2]) -> [f64; 4] {
     [z[0] - goal[0], z[1], z[2] - goal[1], z[3]]
 }
 
+mod reference;
 #[cfg(test)]
 mod tests;

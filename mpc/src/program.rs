@@ -63,6 +63,7 @@
 //! variables, denser rows.
 
 use crate::assembly::Assembly;
+use crate::brake::TerminalBrake;
 use crate::layout::{Layout, Rows};
 use crate::reach::{PositionReach, Span, below};
 use crate::terminal::TerminalRows;
@@ -210,6 +211,9 @@ pub struct StepData<'a> {
     /// Time between two stages, s: a moving disc is taken at each stage's time
     /// ([`Disc::at`]).
     pub stage_s: f64,
+    /// Whether the terminal rows carry a moving disc on for the brake's
+    /// `rest_lookahead_s` ([`TerminalRows::stop_discs`]); false: passive safety alone.
+    pub rest_lookahead: bool,
 }
 
 impl<'a> StepData<'a> {
@@ -236,7 +240,13 @@ impl<'a> StepData<'a> {
                 let p_bar = self.reference[n];
                 let w_bar = self.reference_velocity;
                 TerminalRows {
-                    model,
+                    model: match self.rest_lookahead {
+                        true => model,
+                        false => TerminalBrake {
+                            rest_lookahead_s: 0.0,
+                            ..model
+                        },
+                    },
                     discs: self.discs,
                     reference: [p_bar[0], w_bar[0], p_bar[1], w_bar[1]],
                     p0: [self.z0[0], self.z0[2]],

@@ -3,6 +3,7 @@ use super::*;
 use crate::discs::barrier_slack;
 use crate::model::terminal_weight;
 use crate::terminal_set::SetRow;
+use nalgebra::Vector4;
 use protocol::{Obstacle, QpForm, TerminalSafety};
 use std::rc::Rc;
 
@@ -100,6 +101,7 @@ fn euclidean_mode_and_gamma_one_give_the_same_constraint_set() {
         stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
+        rest_lookahead: true,
     };
     let (mut fa, mut fb) = (Assembly::default(), Assembly::default());
     program::fill(&mut fa, &a.layout, &a.statics, &data, Rows::all(&a.layout));
@@ -464,6 +466,7 @@ fn a_sub_goal_moves_the_terminal_set_bounds_and_nothing_else_in_the_program() {
         stand_s: 0.0,
         prediction: crate::discs::Prediction::Bounded,
         stage_s: 0.05,
+        rest_lookahead: true,
     };
     let rows = Rows::all(&mpc.layout);
     let (mut at_goal, mut at_sub) = (Assembly::default(), Assembly::default());

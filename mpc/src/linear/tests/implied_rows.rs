@@ -31,6 +31,7 @@ fn box_and_terminal_rows_left_out_hold_for_every_input_sequence_in_the_box() {
             stand_s: 0.0,
             prediction: crate::discs::Prediction::Bounded,
             stage_s: 0.05,
+            rest_lookahead: true,
         };
         let without_barrier = Rows {
             box_and_terminal: true,
@@ -104,6 +105,7 @@ fn cbf_rows_left_out_hold_for_every_input_sequence_in_the_box() {
                 stand_s: 0.0,
                 prediction: crate::discs::Prediction::Bounded,
                 stage_s: 0.05,
+                rest_lookahead: true,
             };
             if !data
                 .barrier(&mpc.layout, &mpc.statics, Rows::ONE_DISC)

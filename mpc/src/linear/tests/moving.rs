@@ -134,27 +134,42 @@ fn a_disc_at_rest_is_itself_at_every_stage_and_a_moving_one_moves_and_grows() {
     assert_eq!(still.carried_on([0.0; 2], 0.5), still);
 }
 
-#[test]
-fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_escape() {
-    // At rest at the origin, a person (0.3 m) 0.8 m away walking at it at 1 m/s: the
-    // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach. Passive
-    // safety alone (`mpc.rest_lookahead_s = 0`): keeping the stop out of the person's way
-    // half a second more too leaves the escape program no solution this close.
+/// The robot at rest at the origin (its goal 3 m north), a person of radius 0.3 m at
+/// `(center_x, 0)` walking east at it at 1 m/s.
+fn walked_at(center_x: f64) -> Scenario {
     let mut s = Scenario::default();
-    s.mpc.rest_lookahead_s = 0.0;
     s.robot.start = [0.0, 0.0, 0.0];
     s.robot.goal.position = [0.0, 3.0];
     s.obstacles = vec![Obstacle {
         velocity: [1.0, 0.0],
-        ..Obstacle::fixed(-1.1, 0.0, 0.3)
+        ..Obstacle::fixed(center_x, 0.0, 0.3)
     }];
-    let tracks = exact_tracks(&s, 0.0);
+    s
+}
+
+/// The plan of sample 0 from the robot's start at rest, with a perfect tracker's tracks,
+/// the first numbered `obstacle` (0, or another robot's from [`protocol::FIRST_PEER`]).
+fn first_plan(s: &Scenario, obstacle: u32) -> Plan {
+    let mut mpc = LinearMpc::new(s).unwrap();
+    let mut tracks = exact_tracks(s, 0.0);
+    tracks.tracks[0].obstacle = obstacle;
+    mpc.set_tracks(&tracks);
+    let [x, y, theta] = s.robot.start;
+    mpc.step(0, [x, y, theta, 0.0], 0.0)
+}
+
+#[test]
+fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_escape() {
+    // At rest at the origin, a person (0.3 m) 0.8 m away walking at it at 1 m/s: the
+    // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach. Passive
+    // safety alone (`mpc.rest_lookahead_s = 0`), so that the stop below is the one to check
+    // (with the lookahead, the next test).
+    let mut s = walked_at(-1.1);
+    s.mpc.rest_lookahead_s = 0.0;
     let plan_with = |accel_max: f64| {
         let mut s = s.clone();
         s.perception.accel_max = accel_max;
-        let mut mpc = LinearMpc::new(&s).unwrap();
-        mpc.set_tracks(&tracks);
-        mpc.step(0, [0.0; 4], 0.0)
+        first_plan(&s, 0)
     };
     // With no acceleration bound the bounded program has a plan at once.
     let at_constant_velocity = plan_with(0.0);
@@ -194,5 +209,42 @@ fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_e
         let p = [escape.z[i][0], escape.z[i][2]];
         let center = person.center_at(i as f64 * s.timing.ts_s);
         assert!(protocol::distance(p, center) > 0.3, "stage {i}");
+    }
+}
+
+#[test]
+fn a_step_whose_every_program_fails_with_the_rest_lookahead_escapes_another_robot_for_passive_safety_alone()
+ {
+    // The world of the escape above with the walker 0.1 m nearer, at the default lookahead:
+    // keeping the stop out of its way half a second more leaves the bounded program and
+    // the escape program no solution this close. The step's last resort, another robot's
+    // only, is the escape program of passive safety alone.
+    let mut s = walked_at(-1.0);
+    s.perception.accel_max = 3.0;
+    let plan_with = |rest_lookahead_s: f64, obstacle: u32| {
+        let mut s = s.clone();
+        s.mpc.rest_lookahead_s = rest_lookahead_s;
+        first_plan(&s, obstacle)
+    };
+    let lookahead_s = s.mpc.rest_lookahead_s;
+    assert!(lookahead_s > 0.0);
+    let person = plan_with(lookahead_s, 0);
+    assert!(!person.is_solved(), "a person: no last resort");
+    let robot = protocol::FIRST_PEER + 1;
+    let passive = plan_with(0.0, robot);
+    assert!(passive.is_solved(), "{:?}", passive.status());
+    let last_resort = plan_with(lookahead_s, robot);
+    assert!(last_resort.is_solved(), "{:?}", last_resort.status());
+    assert!(
+        last_resort.solves > passive.solves,
+        "the programs with the lookahead first ({} solves, {} without)",
+        last_resort.solves,
+        passive.solves
+    );
+    // Then the escape program of passive safety alone, solved from another start.
+    for (with, without) in last_resort.z.iter().zip(&passive.z) {
+        for (a, b) in with.iter().zip(without) {
+            assert!((a - b).abs() < 1e-6, "{with:?} against {without:?}");
+        }
     }
 }

@@ -140,6 +140,7 @@ fn check_candidates(scenario: &Scenario, samples: u64) -> (u64, u64, u64) {
                 stand_s: 0.0,
                 prediction: crate::discs::Prediction::Bounded,
                 stage_s: 0.05,
+                rest_lookahead: true,
             };
             let barrier = data.barrier(&l, &mpc.statics, rows);
             let first = l.terminal_variable(rows);
