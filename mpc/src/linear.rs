@@ -457,8 +457,8 @@ impl LinearMpc {
         }
 
         if outcome.status != PlanStatus::Solved
-            && !self.cancel.cancelled()
             && self.drops_rest_lookahead()
+            && !self.cancel.cancelled()
         {
             // The last resort: the last program again without the margin of the rest
             // lookahead, for passive safety alone.
