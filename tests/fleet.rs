@@ -503,8 +503,8 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
         let prefix = unique_prefix("fleethosts");
         let dir = tempfile::tempdir().unwrap();
         let code = run_killing_agent_c(&args, &mut c, dir.path(), &prefix, &["--mode", "realtime"]);
-        assert_eq!(code, Some(1), "robot 2 cannot reach");
         let fleet = summary(dir.path());
+        assert_eq!(code, Some(1), "robot 2 cannot reach: {fleet}");
         assert_eq!(fleet["reached"], 2, "{fleet}");
         assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
         assert_eq!(fleet["robot_contacts_at_rest"], 0, "{fleet}");
@@ -512,8 +512,7 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
         for id in 0..3 {
             let robot = dir.path().join(format!("robot{id}"));
             let events = events(&robot);
-            let started = events.iter().find(|e| e["event"] == "clock_started");
-            ticks_0.insert(started.unwrap()["tick0_monotonic_ns"].as_u64().unwrap());
+            ticks_0.insert(common::stalls::tick0_ns(&events));
             if id < 2 {
                 let s = summary(&robot);
                 assert_eq!(s["outcome"], "reached", "{s}");
@@ -523,15 +522,15 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
         }
         assert_eq!(ticks_0.len(), 1, "one tick 0 for every robot: {ticks_0:?}");
         let robot2 = dir.path().join("robot2");
-        assert_eq!(summary(&robot2)["outcome"], "aborted");
-        assert_eq!(
-            summary(&robot2)["hosts"]["mpc"],
-            "c",
-            "where it ran, though lost"
-        );
+        let s = summary(&robot2);
+        assert_eq!(s["outcome"], "aborted", "{s}");
+        assert_eq!(s["hosts"]["mpc"], "c", "where it ran, though lost: {s}");
         let ev = events(&robot2);
         let at = |event: &str| ev.iter().position(|e| e["event"] == event);
-        assert!(at("host_lost") < at("braking_to_rest") && at("host_lost").is_some());
+        assert!(
+            at("host_lost").is_some() && at("host_lost") < at("braking_to_rest"),
+            "{ev:#?}"
+        );
         let trajectory = common::csv(&robot2.join("trajectory.csv"));
         let last = &trajectory[trajectory.len() - 10..];
         let moved = |a: &std::collections::HashMap<String, String>| {
@@ -541,7 +540,7 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
         };
         assert!(
             last.iter().all(|row| moved(row) < 1e-9),
-            "robot 2 still moving"
+            "robot 2 still moving: {last:#?}"
         );
         assert!(moved(&trajectory[0]) > 0.2, "robot 2 never drove");
         assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
