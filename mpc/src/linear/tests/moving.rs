@@ -213,8 +213,7 @@ fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_e
 }
 
 #[test]
-fn a_step_whose_every_program_fails_with_the_rest_lookahead_escapes_another_robot_for_passive_safety_alone()
- {
+fn the_last_resort_escapes_another_robot_for_passive_safety_alone_not_a_person() {
     // The world of the escape above with the walker 0.1 m nearer, at the default lookahead:
     // keeping the stop out of its way half a second more leaves the bounded program and
     // the escape program no solution this close. The step's last resort, another robot's
