@@ -34,10 +34,11 @@ use crate::alloc_count::{ENV_COUNT_ALLOCATIONS, allocations};
 use crate::clock::{RunClock, RunMode, monotonic_ns, sleep_until_ns};
 use crate::ipc::{
     CONTROL, Input, IpcError, Output, Receiver, STATUS, Sender, TickLimit, Wake, Wire, create_node,
-    open_topic, output_slot, process_alive, wait, waitset,
+    open_topic, output_slot, process_alive, waitset,
 };
 use crate::realtime::{self, Policy, Tier};
-use crate::wait::{WAKE_LATENESS_NS, lockstep_poll, next_arrival_lag_ns, silent_since, spin_wait};
+use crate::wait::{Heard, lockstep_poll, silent_since};
+use crate::wakes::Wakes;
 use crate::warm_up::{WarmUpPass, WarmUps};
 use iceoryx2::prelude::*;
 use protocol::messages::EpochSchedule;
@@ -278,71 +279,6 @@ impl TickLimit for RoleClock {
     }
 }
 
-/// Real time: polls `input`, due at `at_ns` and published `arrival_lag_ns` after it, around
-/// when it is expected ([`spin_wait`]); whether it came.
-fn spin_for(input: &dyn Input, at_ns: u64, arrival_lag_ns: u64) -> bool {
-    let expected_ns = at_ns + arrival_lag_ns.saturating_sub(WAKE_LATENESS_NS);
-    spin_wait(expected_ns, || input.has_samples())
-}
-
-/// What the loop knows of its inputs ([`Member::drive`]).
-struct Heard<'i> {
-    /// When an input was last heard, and how many samples the inputs had taken then.
-    last_input: Instant,
-    taken_before: u64,
-    /// Real time: how long after its due time the expected input is published
-    /// ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input), ns.
-    arrival_lag_ns: u64,
-    /// The input polled for, with its due time (monotonic ns).
-    polled: Option<(&'i dyn Input, u64)>,
-}
-
-impl<'i> Heard<'i> {
-    /// After a step: whether its inputs took samples (then an input was heard now).
-    fn count(&mut self, inputs: &[&dyn Input]) {
-        let taken: u64 = inputs.iter().map(|input| input.taken()).sum();
-        if taken != self.taken_before {
-            self.taken_before = taken;
-            self.last_input = Instant::now();
-        }
-    }
-
-    /// How long to block for `next` (`None` inside: [`INPUT_TIMEOUT`]); `None` when the
-    /// input it expects came while it was polled for in real time ([`spin_for`]).
-    fn spin_or_timeout(&mut self, next: &Next<'i>, clock: &RunClock) -> Option<Option<Duration>> {
-        match *next {
-            Next::Wait(until_s) => Some(
-                until_s
-                    .and_then(|t| clock.at_ns(t))
-                    .map(|at| Duration::from_nanos(at.saturating_sub(monotonic_ns()))),
-            ),
-            Next::Expect { input, at_s } => {
-                self.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
-                let lag_ns = self.arrival_lag_ns;
-                if self
-                    .polled
-                    .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
-                {
-                    self.last_input = Instant::now();
-                    return None;
-                }
-                Some(None)
-            }
-            Next::At(_) => Some(None),
-        }
-    }
-
-    /// After the pass that took the input polled for: its arrival lag, learned from it.
-    fn learn_lag(&mut self, dt_s: f64) {
-        if let Some((input, due_ns)) = self.polled.take()
-            && let Some(published_ns) = input.newest_publish_ns()
-        {
-            self.arrival_lag_ns =
-                next_arrival_lag_ns(self.arrival_lag_ns, published_ns, due_ns, dt_s);
-        }
-    }
-}
-
 /// When the orchestrator was last looked for, and when it was found gone
 /// ([`Member::supervisor_watch`]).
 struct SupervisorWatch {
@@ -499,11 +435,12 @@ impl Member {
                 .attach_notification(listener)
                 .map_err(|e| IpcError(format!("attaching a listener: {e}")))
         };
-        let _control = attach(self.clock.control.listener())?;
-        let _inputs = inputs
+        let control = attach(self.clock.control.listener())?;
+        let inputs_attached = inputs
             .iter()
             .map(|input| attach(input.listener()))
             .collect::<Result<Vec<_>, _>>()?;
+        let mut wakes = Wakes::new(&control, &inputs_attached);
         // Set up: the real-time policy before the first step (the orchestrator warned once
         // of what the machine refuses, and reads what each process runs under).
         let applied = match self.policy.as_ref().map(Policy::apply) {
@@ -532,7 +469,7 @@ impl Member {
         let mut warmed_up = None;
         let counting = std::env::var_os(ENV_COUNT_ALLOCATIONS).is_some();
         let result = self.drive(
-            &waitset,
+            (&waitset, &mut wakes),
             inputs,
             outputs,
             &mut step,
@@ -560,7 +497,7 @@ impl Member {
     /// step.
     fn drive<'i>(
         &self,
-        waitset: &WaitSet<ipc::Service>,
+        (waitset, wakes): (&WaitSet<ipc::Service>, &mut Wakes),
         inputs: &[&'i dyn Input],
         outputs: &[&dyn Output],
         step: &mut impl FnMut(&ProcessContext) -> Result<Next<'i>, ProcessError>,
@@ -625,7 +562,7 @@ impl Member {
             };
             let again = due_ns.is_some() || warming.is_some();
             if !cleared || again {
-                if !self.between_passes(inputs, outputs, again, due_ns)? {
+                if !self.between_passes((inputs, &mut *wakes), outputs, again, due_ns)? {
                     return Ok(());
                 }
                 if let (Some(input), Some(warm_up)) = (warming, warm_up.as_mut()) {
@@ -647,7 +584,7 @@ impl Member {
                 heard.last_input = Instant::now();
                 continue;
             }
-            if !self.wait(waitset, timeout, &mut heard.last_input)? {
+            if !self.wait((waitset, &mut *wakes), timeout, &mut heard.last_input)? {
                 return Ok(());
             }
         }
@@ -658,12 +595,13 @@ impl Member {
     /// (monotonic ns). `Ok(false)`: stop.
     fn between_passes(
         &self,
-        inputs: &[&dyn Input],
+        (inputs, wakes): (&[&dyn Input], &mut Wakes),
         outputs: &[&dyn Output],
         again: bool,
         due_ns: Option<u64>,
     ) -> Result<bool, ProcessError> {
-        if !self.housekeeping(inputs)? {
+        let lockstep = self.clock.state.get().clock.mode() == RunMode::Lockstep;
+        if !self.housekeeping(inputs, wakes, lockstep)? {
             return Ok(false);
         }
         if self.take_replay() {
@@ -744,11 +682,21 @@ impl Member {
     /// After the step: consumes the wake-ups of `inputs` and of the control topic, takes
     /// the control messages, applies the epoch schedule and reports refused samples.
     /// `Ok(false)`: stop.
-    fn housekeeping(&self, inputs: &[&dyn Input]) -> Result<bool, IpcError> {
-        for input in inputs {
-            input.clear_wakeups();
+    fn housekeeping(
+        &self,
+        inputs: &[&dyn Input],
+        wakes: &mut Wakes,
+        lockstep: bool,
+    ) -> Result<bool, IpcError> {
+        for (i, input) in inputs.iter().enumerate() {
+            if wakes.to_clear(lockstep, i + 1) {
+                input.clear_wakeups();
+            }
         }
-        self.clock.control.clear_wakeups();
+        if wakes.to_clear(lockstep, 0) {
+            self.clock.control.clear_wakeups();
+        }
+        wakes.cleared();
         self.clock.take()?;
         let ctl = self.clock.state.get();
         for input in inputs {
@@ -787,7 +735,7 @@ impl Member {
     /// [`INPUT_TIMEOUT`] without input since `last_input` ([`silent_since`]).
     fn wait(
         &self,
-        waitset: &WaitSet<ipc::Service>,
+        (waitset, wakes): (&WaitSet<ipc::Service>, &mut Wakes),
         timeout: Option<Duration>,
         last_input: &mut Instant,
     ) -> Result<bool, ProcessError> {
@@ -795,7 +743,7 @@ impl Member {
         if self.supervisor_pid.is_some() {
             timeout = timeout.min(SUPERVISOR_CHECK);
         }
-        match wait(waitset, timeout)? {
+        match wakes.wait(waitset, timeout)? {
             Wake::Input => {
                 *last_input = Instant::now();
                 Ok(true)

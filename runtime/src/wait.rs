@@ -2,9 +2,10 @@
 //! scheduled spin around a periodic input's known arrival time in real time, and how long
 //! it waits without one ([`silent_since`]).
 
-use crate::clock::{monotonic_ns, sleep_until_ns};
-use crate::process::INPUT_TIMEOUT;
-use std::time::Instant;
+use crate::clock::{RunClock, monotonic_ns, sleep_until_ns};
+use crate::ipc::Input;
+use crate::process::{INPUT_TIMEOUT, Next};
+use std::time::{Duration, Instant};
 
 /// Real time: how long before an expected sample a consumer starts polling for it, ns.
 pub const SPIN_LEAD_NS: u64 = 50_000;
@@ -106,6 +107,75 @@ pub fn silent_since(
     match supervised_before_start {
         true => Some(now),
         false => (now.duration_since(last_input) < INPUT_TIMEOUT).then_some(last_input),
+    }
+}
+
+/// Real time: polls `input`, due at `at_ns` and published `arrival_lag_ns` after it, around
+/// when it is expected ([`spin_wait`]); whether it came.
+pub(crate) fn spin_for(input: &dyn Input, at_ns: u64, arrival_lag_ns: u64) -> bool {
+    let expected_ns = at_ns + arrival_lag_ns.saturating_sub(WAKE_LATENESS_NS);
+    spin_wait(expected_ns, || input.has_samples())
+}
+
+/// What a role's loop knows of its inputs (`process::Member::drive`).
+pub(crate) struct Heard<'i> {
+    /// When an input was last heard, and how many samples the inputs had taken then.
+    pub(crate) last_input: Instant,
+    pub(crate) taken_before: u64,
+    /// Real time: how long after its due time the expected input is published
+    /// ([`next_arrival_lag_ns`]; one lag, as every role expects one periodic input), ns.
+    pub(crate) arrival_lag_ns: u64,
+    /// The input polled for, with its due time (monotonic ns).
+    pub(crate) polled: Option<(&'i dyn Input, u64)>,
+}
+
+impl<'i> Heard<'i> {
+    /// After a step: whether its inputs took samples (then an input was heard now).
+    pub(crate) fn count(&mut self, inputs: &[&dyn Input]) {
+        let taken: u64 = inputs.iter().map(|input| input.taken()).sum();
+        if taken != self.taken_before {
+            self.taken_before = taken;
+            self.last_input = Instant::now();
+        }
+    }
+
+    /// How long to block for `next` (`None` inside: [`INPUT_TIMEOUT`]); `None` when the
+    /// input it expects came while it was polled for in real time ([`spin_for`]).
+    pub(crate) fn spin_or_timeout(
+        &mut self,
+        next: &Next<'i>,
+        clock: &RunClock,
+    ) -> Option<Option<Duration>> {
+        match *next {
+            Next::Wait(until_s) => Some(
+                until_s
+                    .and_then(|t| clock.at_ns(t))
+                    .map(|at| Duration::from_nanos(at.saturating_sub(monotonic_ns()))),
+            ),
+            Next::Expect { input, at_s } => {
+                self.polled = clock.at_ns(at_s).map(|at_ns| (input, at_ns));
+                let lag_ns = self.arrival_lag_ns;
+                if self
+                    .polled
+                    .is_some_and(|(_, at_ns)| spin_for(input, at_ns, lag_ns))
+                {
+                    self.last_input = Instant::now();
+                    return None;
+                }
+                Some(None)
+            }
+            Next::At(_) => Some(None),
+        }
+    }
+
+    /// After the pass that took the input polled for: its arrival lag, learned from it.
+    pub(crate) fn learn_lag(&mut self, dt_s: f64) {
+        if let Some((input, due_ns)) = self.polled.take()
+            && let Some(published_ns) = input.newest_publish_ns()
+        {
+            self.arrival_lag_ns =
+                next_arrival_lag_ns(self.arrival_lag_ns, published_ns, due_ns, dt_s);
+        }
     }
 }
 

@@ -129,12 +129,32 @@ impl<'a> Driver<'a> {
         Ok(self.parts.recorder.end_of_run(None))
     }
 
-    /// Lockstep, a fleet's ([`super::fleet`]): grants tick `tick` and takes what came;
-    /// an outcome when the run must end.
+    /// Lockstep, a fleet's ([`super::fleet`]): grants tick `tick`; an outcome when the
+    /// run must end. What comes is taken by [`Driver::poll_whole`], and each wake-up
+    /// cleared as it fires ([`Driver::clear_fired`]).
     pub fn grant(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
         self.parts.session.grant(tick)?;
-        self.take_now()?;
         self.check()
+    }
+
+    /// Lockstep, a fleet's: clears the wake-ups of the listener that fired, the status's
+    /// (`None`, whose messages are taken with it) or the data input's at `input` of
+    /// [`Session::inputs`](super::session::Session::inputs). Its samples are taken from
+    /// shared memory next ([`Driver::poll_whole`]).
+    pub fn clear_fired(&mut self, input: Option<usize>) -> anyhow::Result<()> {
+        match input {
+            None => self.supervisor.take_status(
+                self.parts.session,
+                self.parts.children,
+                self.parts.recorder,
+            ),
+            Some(i) => {
+                if let Some(input) = self.parts.session.inputs().nth(i) {
+                    input.clear_wakeups();
+                }
+                Ok(())
+            }
+        }
     }
 
     /// Lockstep, a fleet's: whether tick `tick` is whole, taken from shared memory alone

@@ -20,6 +20,7 @@ use crate::remote::{RemoteHosts, Whose};
 use crate::sinks::Recording;
 use crate::status_line::FleetStatus;
 use anyhow::{Context, bail};
+use iceoryx2::prelude::{WaitSet, WaitSetAttachmentId, ipc::Service};
 use protocol::{ControlCommand, Validated};
 use record::event::{Event, Ready};
 use record::fleet::{FleetJudge, FleetSummary};
@@ -28,6 +29,7 @@ use record::{ProcessReport, Recorder};
 use runtime::clock::RunMode;
 use runtime::clock::monotonic_ns;
 use runtime::ipc;
+use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -285,10 +287,19 @@ fn drive_opened(
     }
     let waitset = ipc::waitset(false)?;
     let mut guards = Vec::new();
-    for session in sessions.iter() {
-        guards.push(session.status.attach(&waitset)?);
-        for input in session.inputs() {
-            guards.push(ipc::attach(&waitset, input.listener())?);
+    let mut wakes = Wakes::default();
+    for (id, session) in sessions.iter().enumerate() {
+        let guard = session.status.attach(&waitset)?;
+        wakes
+            .0
+            .insert(WaitSetAttachmentId::from_guard(&guard), (id, None));
+        guards.push(guard);
+        for (i, input) in session.inputs().enumerate() {
+            let guard = ipc::attach(&waitset, input.listener())?;
+            wakes
+                .0
+                .insert(WaitSetAttachmentId::from_guard(&guard), (id, Some(i)));
+            guards.push(guard);
         }
     }
     let parts = scenarios
@@ -300,7 +311,7 @@ fn drive_opened(
         .collect();
     let mut fleet = Fleet::new(scenario, scenarios, status);
     let driven = match mode {
-        RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, &waitset),
+        RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, (&waitset, &wakes)),
         RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
     };
     drop(fleet.status.take());
@@ -367,12 +378,17 @@ impl Fleet {
     }
 }
 
+/// Which robot's listener each attachment of the run's wait set is: its status's
+/// (`None`) or its data input's at that index of [`Session::inputs`].
+#[derive(Default)]
+struct Wakes(HashMap<WaitSetAttachmentId<Service>, (usize, Option<usize>)>);
+
 /// Lockstep: every robot's tick granted, whole and recorded before the next, until every
 /// robot's record has ended; the time simulated, s.
 fn lockstep(
     drivers: &mut [Driver],
     fleet: &mut Fleet,
-    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    waitset: (&WaitSet<Service>, &Wakes),
 ) -> anyhow::Result<f64> {
     let mut positions = vec![[0.0; 2]; drivers.len()];
     let mut tick = 0;
@@ -400,7 +416,7 @@ fn lockstep(
 fn realtime(
     drivers: &mut [Driver],
     fleet: &mut Fleet,
-    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    waitset: &WaitSet<Service>,
     stop: &AtomicBool,
 ) -> anyhow::Result<f64> {
     let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
@@ -513,7 +529,7 @@ fn lockstep_tick(
     drivers: &mut [Driver],
     outcomes: &mut [Option<Outcome>],
     positions: &mut [[f64; 2]],
-    waitset: &iceoryx2::prelude::WaitSet<iceoryx2::prelude::ipc::Service>,
+    (waitset, wakes): (&WaitSet<Service>, &Wakes),
     tick: u64,
 ) -> anyhow::Result<bool> {
     for (id, driver) in drivers.iter_mut().enumerate() {
@@ -523,16 +539,21 @@ fn lockstep_tick(
             return Ok(false);
         }
     }
-    // Shared memory first, then every robot's wake-ups cleared before each block (the
-    // wait set fires while any is left); the processes checked every `POLL`.
+    // Every robot not yet whole taken from shared memory, then a block; after it only the
+    // listeners that fired are cleared (the wait set fires while any of them is left), and
+    // after a block that timed out every one: iceoryx2 may leave a listener notified with
+    // nothing to wake its wait (a notification that came between its clearing's two
+    // steps), and clearing it is what rearms it. The processes checked every `POLL`.
     let mut whole = vec![false; drivers.len()];
     let mut filed = 0;
     let mut last_progress = Instant::now();
     let mut last_check = Instant::now();
-    let mut clear = false;
+    let mut fired = Vec::new();
     loop {
         for (id, driver) in drivers.iter_mut().enumerate() {
-            whole[id] = driver.poll_whole(tick, clear)?;
+            if !whole[id] {
+                whole[id] = driver.poll_whole(tick, false)?;
+            }
         }
         if whole.iter().all(|w| *w) {
             break;
@@ -553,10 +574,16 @@ fn lockstep_tick(
                 }
             }
         }
-        if clear {
-            ipc::wait(waitset, POLL)?;
+        fired.clear();
+        ipc::wait_fired(waitset, POLL, |attachment| fired.push(attachment))?;
+        if fired.is_empty() {
+            for driver in drivers.iter_mut() {
+                driver.poll_whole(tick, true)?;
+            }
         }
-        clear = true;
+        for (id, input) in fired.iter().filter_map(|a| wakes.0.get(a)) {
+            drivers[*id].clear_fired(*input)?;
+        }
     }
     for (id, driver) in drivers.iter_mut().enumerate() {
         let (position, outcome) = driver.take_tick(tick, outcomes[id].is_none())?;
