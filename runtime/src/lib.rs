@@ -11,7 +11,7 @@ pub mod process;
 pub mod realtime;
 pub mod serve;
 pub mod wait;
-mod wakes;
+pub mod wakes;
 pub mod warm_up;
 
 pub use serve::serve;

@@ -440,7 +440,8 @@ impl Member {
             .iter()
             .map(|input| attach(input.listener()))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut wakes = Wakes::new(&control, &inputs_attached);
+        // Listener 0 is the control topic's, then each input's in order (`housekeeping`).
+        let mut wakes = Wakes::new(std::iter::once(&control).chain(&inputs_attached));
         // Set up: the real-time policy before the first step (the orchestrator warned once
         // of what the machine refuses, and reads what each process runs under).
         let applied = match self.policy.as_ref().map(Policy::apply) {

@@ -1,20 +1,20 @@
-//! Which listeners of a role's wait set fired since its wake-ups were last cleared
-//! ([`Wakes`]).
+//! Which listeners of a wait set fired since their wake-ups were last cleared
+//! ([`Wakes`]): a role's, and a fleet's orchestrator's in lockstep.
 
 use crate::ipc::{IpcError, Wake, wait_fired};
 use iceoryx2::prelude::*;
 use std::time::Duration;
 
-/// Which listeners of a role's wait set fired since its wake-ups were last cleared. A
-/// wake-up is cleared with two system calls (iceoryx2's `try_wait`); in lockstep a role
-/// clears only the listeners a wait saw fire, and every one after a pass that did not
-/// wait (the first, one after a poll or a spin) or a wait that timed out. The timeout also rearms a
+/// Which listeners of a wait set fired since their wake-ups were last cleared. A wake-up
+/// is cleared with two system calls (iceoryx2's `try_wait`); in lockstep a process clears
+/// only the listeners a wait saw fire, and every one after a pass that did not wait (the
+/// first, one after a poll or a spin) or a wait that timed out. The timeout also rearms a
 /// listener that iceoryx2 left notified with nothing to wake a wait (a notification that
 /// came between the two steps of its clearing): that costs a lockstep run a wait of at
-/// most the role's timeout, never a sample, which the step takes from shared memory. In
-/// real time every listener is cleared after every wait.
-pub(crate) struct Wakes {
-    /// The control topic's listener's attachment, then each input's, in order.
+/// most the timeout, never a sample, which is taken from shared memory. In real time a
+/// role clears every listener after every wait.
+pub struct Wakes {
+    /// The listeners' attachments, in the order their indices name them.
     attachments: Vec<WaitSetAttachmentId<ipc::Service>>,
     /// Which of them fired since the last clearing.
     fired: Vec<bool>,
@@ -24,14 +24,14 @@ pub(crate) struct Wakes {
 }
 
 impl Wakes {
-    /// For the listeners of the control topic (`control`) and of the inputs, in order.
-    pub(crate) fn new<'w, 'a>(
-        control: &WaitSetGuard<'w, 'a, ipc::Service>,
-        inputs: &[WaitSetGuard<'w, 'a, ipc::Service>],
+    /// For the listeners attached with `guards`, indexed in that order.
+    pub fn new<'g, 'w: 'g, 'a: 'g>(
+        guards: impl IntoIterator<Item = &'g WaitSetGuard<'w, 'a, ipc::Service>>,
     ) -> Wakes {
-        let control = WaitSetAttachmentId::from_guard(control);
-        let inputs = inputs.iter().map(WaitSetAttachmentId::from_guard);
-        let attachments: Vec<_> = std::iter::once(control).chain(inputs).collect();
+        let attachments: Vec<_> = guards
+            .into_iter()
+            .map(WaitSetAttachmentId::from_guard)
+            .collect();
         Wakes {
             fired: vec![false; attachments.len()],
             attachments,
@@ -41,7 +41,7 @@ impl Wakes {
 
     /// Blocks on `waitset` at most `timeout` ([`wait_fired`]), noting what fired. A wait
     /// that an input ended saw every wake-up pending then.
-    pub(crate) fn wait(
+    pub fn wait(
         &mut self,
         waitset: &WaitSet<ipc::Service>,
         timeout: Duration,
@@ -57,15 +57,15 @@ impl Wakes {
         Ok(wake)
     }
 
-    /// Whether to clear listener `index` (0: the control topic's, then each input's):
-    /// every one unless in `lockstep` and each wake-up pending was seen to fire.
-    pub(crate) fn to_clear(&self, lockstep: bool, index: usize) -> bool {
+    /// Whether to clear listener `index`: every one unless in `lockstep` and each wake-up
+    /// pending was seen to fire.
+    pub fn to_clear(&self, lockstep: bool, index: usize) -> bool {
         !lockstep || self.unseen || self.fired[index]
     }
 
     /// The wake-ups were cleared ([`Wakes::to_clear`]); what comes next is unseen until
     /// a wait sees it fire.
-    pub(crate) fn cleared(&mut self) {
+    pub fn cleared(&mut self) {
         self.fired.fill(false);
         self.unseen = true;
     }
@@ -103,7 +103,7 @@ mod tests {
         let waitset = WaitSetBuilder::new().create::<ipc::Service>().unwrap();
         let control_guard = waitset.attach_notification(&control_listener).unwrap();
         let input_guard = [waitset.attach_notification(&input_listener).unwrap()];
-        let mut wakes = Wakes::new(&control_guard, &input_guard);
+        let mut wakes = Wakes::new(std::iter::once(&control_guard).chain(&input_guard));
         assert!(
             wakes.to_clear(true, 0) && wakes.to_clear(true, 1),
             "before any wait"

@@ -158,13 +158,9 @@ impl<'a> Driver<'a> {
     }
 
     /// Lockstep, a fleet's: whether tick `tick` is whole, taken from shared memory alone
-    /// (`clear`: after clearing the wake-ups, as before blocking) without the checks of
-    /// [`Driver::check`].
-    pub fn poll_whole(&mut self, tick: u64, clear: bool) -> anyhow::Result<bool> {
-        match clear {
-            true => self.take_now()?,
-            false => self.intake.take_from_memory(self.parts.session)?,
-        }
+    /// without the checks of [`Driver::check`].
+    pub fn poll_whole(&mut self, tick: u64) -> anyhow::Result<bool> {
+        self.intake.take_from_memory(self.parts.session)?;
         Ok(self.intake.has_whole(tick))
     }
 

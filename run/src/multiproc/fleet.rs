@@ -20,7 +20,7 @@ use crate::remote::{RemoteHosts, Whose};
 use crate::sinks::Recording;
 use crate::status_line::FleetStatus;
 use anyhow::{Context, bail};
-use iceoryx2::prelude::{WaitSet, WaitSetAttachmentId, ipc::Service};
+use iceoryx2::prelude::{WaitSet, ipc::Service};
 use protocol::{ControlCommand, Validated};
 use record::event::{Event, Ready};
 use record::fleet::{FleetJudge, FleetSummary};
@@ -29,7 +29,7 @@ use record::{ProcessReport, Recorder};
 use runtime::clock::RunMode;
 use runtime::clock::monotonic_ns;
 use runtime::ipc;
-use std::collections::HashMap;
+use runtime::wakes::Wakes;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -286,22 +286,19 @@ fn drive_opened(
         }))?;
     }
     let waitset = ipc::waitset(false)?;
+    // Each listener's robot, and its status's (`None`) or its data input's at that index
+    // of `Session::inputs`, in the order of `guards`.
     let mut guards = Vec::new();
-    let mut wakes = Wakes::default();
+    let mut listeners = Vec::new();
     for (id, session) in sessions.iter().enumerate() {
-        let guard = session.status.attach(&waitset)?;
-        wakes
-            .0
-            .insert(WaitSetAttachmentId::from_guard(&guard), (id, None));
-        guards.push(guard);
+        guards.push(session.status.attach(&waitset)?);
+        listeners.push((id, None));
         for (i, input) in session.inputs().enumerate() {
-            let guard = ipc::attach(&waitset, input.listener())?;
-            wakes
-                .0
-                .insert(WaitSetAttachmentId::from_guard(&guard), (id, Some(i)));
-            guards.push(guard);
+            guards.push(ipc::attach(&waitset, input.listener())?);
+            listeners.push((id, Some(i)));
         }
     }
+    let mut wakes = (Wakes::new(&guards), listeners);
     let parts = scenarios
         .iter()
         .zip(sessions.iter())
@@ -311,7 +308,7 @@ fn drive_opened(
         .collect();
     let mut fleet = Fleet::new(scenario, scenarios, status);
     let driven = match mode {
-        RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, (&waitset, &wakes)),
+        RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, (&waitset, &mut wakes)),
         RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
     };
     drop(fleet.status.take());
@@ -378,22 +375,27 @@ impl Fleet {
     }
 }
 
-/// Which robot's listener each attachment of the run's wait set is: its status's
+/// The run's wait set's wake-ups, and whose listener each is: a robot's, its status's
 /// (`None`) or its data input's at that index of [`Session::inputs`].
-#[derive(Default)]
-struct Wakes(HashMap<WaitSetAttachmentId<Service>, (usize, Option<usize>)>);
+type FleetWakes = (Wakes, Vec<(usize, Option<usize>)>);
 
 /// Lockstep: every robot's tick granted, whole and recorded before the next, until every
 /// robot's record has ended; the time simulated, s.
 fn lockstep(
     drivers: &mut [Driver],
     fleet: &mut Fleet,
-    waitset: (&WaitSet<Service>, &Wakes),
+    (waitset, wakes): (&WaitSet<Service>, &mut FleetWakes),
 ) -> anyhow::Result<f64> {
     let mut positions = vec![[0.0; 2]; drivers.len()];
     let mut tick = 0;
     loop {
-        if !lockstep_tick(drivers, &mut fleet.outcomes, &mut positions, waitset, tick)? {
+        if !lockstep_tick(
+            drivers,
+            &mut fleet.outcomes,
+            &mut positions,
+            (waitset, wakes),
+            tick,
+        )? {
             return Ok(tick as f64 * fleet.dt_s); // tick `tick` never completed
         }
         if tick < fleet.ticks {
@@ -529,7 +531,7 @@ fn lockstep_tick(
     drivers: &mut [Driver],
     outcomes: &mut [Option<Outcome>],
     positions: &mut [[f64; 2]],
-    (waitset, wakes): (&WaitSet<Service>, &Wakes),
+    (waitset, (wakes, listeners)): (&WaitSet<Service>, &mut FleetWakes),
     tick: u64,
 ) -> anyhow::Result<bool> {
     for (id, driver) in drivers.iter_mut().enumerate() {
@@ -541,18 +543,16 @@ fn lockstep_tick(
     }
     // Every robot not yet whole taken from shared memory, then a block; after it only the
     // listeners that fired are cleared (the wait set fires while any of them is left), and
-    // after a block that timed out every one: iceoryx2 may leave a listener notified with
-    // nothing to wake its wait (a notification that came between its clearing's two
-    // steps), and clearing it is what rearms it. The processes checked every `POLL`.
+    // every one after a block that timed out ([`Wakes`]). The processes checked every
+    // `POLL`.
     let mut whole = vec![false; drivers.len()];
     let mut filed = 0;
     let mut last_progress = Instant::now();
     let mut last_check = Instant::now();
-    let mut fired = Vec::new();
     loop {
         for (id, driver) in drivers.iter_mut().enumerate() {
             if !whole[id] {
-                whole[id] = driver.poll_whole(tick, false)?;
+                whole[id] = driver.poll_whole(tick)?;
             }
         }
         if whole.iter().all(|w| *w) {
@@ -574,16 +574,13 @@ fn lockstep_tick(
                 }
             }
         }
-        fired.clear();
-        ipc::wait_fired(waitset, POLL, |attachment| fired.push(attachment))?;
-        if fired.is_empty() {
-            for driver in drivers.iter_mut() {
-                driver.poll_whole(tick, true)?;
+        wakes.wait(waitset, POLL)?;
+        for (i, (id, input)) in listeners.iter().enumerate() {
+            if wakes.to_clear(true, i) {
+                drivers[*id].clear_fired(*input)?;
             }
         }
-        for (id, input) in fired.iter().filter_map(|a| wakes.0.get(a)) {
-            drivers[*id].clear_fired(*input)?;
-        }
+        wakes.cleared();
     }
     for (id, driver) in drivers.iter_mut().enumerate() {
         let (position, outcome) = driver.take_tick(tick, outcomes[id].is_none())?;

@@ -72,6 +72,7 @@ const MAX_LISTENERS: usize = 16;
 /// 2026-12-03). Opening a service made by another client with a larger bound still works:
 /// iceoryx2 checks only that it is at least this.
 const EVENT_ID_MAX: usize = 7;
+
 /// Samples a subscriber can hold before the oldest is overwritten (safe overflow).
 pub const SUBSCRIBER_BUFFER: usize = 64;
 /// Every run's resource prefix starts with this.
