@@ -23,6 +23,11 @@ pub const PASSING_M: f64 = 0.4;
 pub const WAYPOINT_REACHED_M: f64 = 0.3;
 /// The longest a detour lasts, s.
 pub const DETOUR_S: f64 = 4.0;
+/// A robot that has come less than [`CRAWL_M`] nearer its goal in this long crawls, and
+/// is held up as if it held still, s.
+pub const CRAWL_S: f64 = 2.0;
+/// See [`CRAWL_S`], m: 0.1 m/s on average, a tenth of the built-in fleets' speed bound.
+pub const CRAWL_M: f64 = 0.2;
 
 /// One robot's rule: whether it holds still, and the detour it follows.
 #[derive(Debug, Clone, PartialEq)]
@@ -31,6 +36,9 @@ pub struct GiveWay {
     /// Nearer the goal than this, a robot holding still is arriving, not held up, m.
     arriving_m: f64,
     still_since_s: Option<f64>,
+    /// When the robot last came [`CRAWL_M`] nearer its goal (or a detour ended), and how
+    /// far from it it was then, m.
+    progress_mark: Option<(f64, f64)>,
     detour: Option<Detour>,
 }
 
@@ -50,6 +58,7 @@ impl GiveWay {
             radius_m: scenario.robot.radius_m,
             arriving_m: 2.0 * scenario.robot.goal_tolerance_m,
             still_since_s: None,
+            progress_mark: None,
             detour: None,
         })
     }
@@ -65,21 +74,25 @@ impl GiveWay {
         goal: [f64; 2],
         tracks: Option<&Tracks>,
     ) -> Option<(Route, u32)> {
-        let arriving = distance(position, goal) <= self.arriving_m;
+        let to_goal_m = distance(position, goal);
+        let arriving = to_goal_m <= self.arriving_m;
         if let Some(d) = self.detour
             && (t_s >= d.until_s || distance(position, d.waypoint) < WAYPOINT_REACHED_M || arriving)
         {
             self.detour = None;
             self.still_since_s = None;
+            self.progress_mark = None;
         }
         let holds_still = speed_m_s.abs() < STILL_SPEED_M_S && !arriving;
         self.still_since_s = match holds_still {
             true => Some(self.still_since_s.unwrap_or(t_s)),
             false => None,
         };
-        let held_up = self
-            .still_since_s
-            .is_some_and(|s| t_s - s >= STILL_S - 1e-9);
+        let crawls = self.crawls(t_s, to_goal_m);
+        let held_up = crawls
+            || self
+                .still_since_s
+                .is_some_and(|s| t_s - s >= STILL_S - 1e-9);
         if self.detour.is_none()
             && held_up
             && let Some(peer) = self.holding_up(position, goal, tracks)
@@ -92,6 +105,28 @@ impl GiveWay {
         }
         let d = self.detour?;
         Some((route_via(position, d.waypoint, goal), d.peer))
+    }
+
+    /// Whether the robot, `to_goal_m` from its goal at `t_s`, has come less than
+    /// [`CRAWL_M`] nearer it in the last [`CRAWL_S`] (since its mark; a detour or arriving
+    /// sets none). A robot that crawls beside others, slower than [`STILL_SPEED_M_S`] at
+    /// times and faster at others, is held up as surely as one that holds still.
+    fn crawls(&mut self, t_s: f64, to_goal_m: f64) -> bool {
+        if self.detour.is_some() || to_goal_m <= self.arriving_m {
+            self.progress_mark = None;
+            return false;
+        }
+        match self.progress_mark {
+            Some((_, mark_m)) if to_goal_m <= mark_m - CRAWL_M => {
+                self.progress_mark = Some((t_s, to_goal_m));
+                false
+            }
+            Some((since_s, _)) => t_s - since_s >= CRAWL_S - 1e-9,
+            None => {
+                self.progress_mark = Some((t_s, to_goal_m));
+                false
+            }
+        }
     }
 
     /// The nearest other robot ahead (towards `goal`) within [`HOLD_UP_M`] of the robot's
@@ -187,6 +222,43 @@ mod tests {
         // Going +x, a's right is -y; going -x, b's is +y: they do not meet.
         assert!(route_a.points()[1][1] < -0.9 && route_b.points()[1][1] > 0.9);
         assert_eq!(route_a.points()[2], ga);
+    }
+
+    #[test]
+    fn a_robot_crawling_beside_another_gives_way_though_it_never_holds_still() {
+        let scenario = fleet();
+        let mut rule = GiveWay::of(&scenario).unwrap();
+        let goal = [3.0, 0.0];
+        // At 0.1 m/s, twice the speed of holding still, with another robot just ahead.
+        let at = |t: f64| [-1.0 + 0.05 * t, 0.0];
+        let ahead = |t: f64| peer(1, [at(t)[0] + 0.8, 0.1]);
+        let mut gave_way = None;
+        for k in 0..80 {
+            let t = k as f64 * 0.05;
+            if let Some((_, to)) = rule.detour(t, at(t), 0.1, goal, Some(&ahead(t))) {
+                gave_way = Some((t, to));
+                break;
+            }
+        }
+        let (t, to) = gave_way.expect("never gave way");
+        assert_eq!(to, 1);
+        assert!(
+            (CRAWL_S - 1e-9..CRAWL_S + 0.06).contains(&t),
+            "gave way at {t} s"
+        );
+        // Coming CRAWL_M nearer its goal within CRAWL_S, it drives on.
+        let mut driving = GiveWay::of(&scenario).unwrap();
+        for k in 0..200 {
+            let t = k as f64 * 0.05;
+            let position = [-1.0 + 0.12 * t, 0.0];
+            let ahead = peer(1, [position[0] + 0.8, 0.1]);
+            assert!(
+                driving
+                    .detour(t, position, 0.12, goal, Some(&ahead))
+                    .is_none(),
+                "at {t} s"
+            );
+        }
     }
 
     #[test]

@@ -112,8 +112,13 @@ pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 
 /// A robot standing still with a moving obstacle this near (edge to surface) waits for
 /// it to pass and has not stalled, m: a person crossing or coming at it takes a few
-/// seconds to go by.
+/// seconds to go by. In a fleet another robot that moves counts as one ([`Judge::peers`]).
 pub const WAITING_WITHIN_M: f64 = 3.0;
+
+/// Another robot of a fleet whose track is faster than this moves, and a robot standing
+/// still near it waits ([`WAITING_WITHIN_M`]), m/s: the speed below which a robot of a
+/// fleet holds still to its rule of giving way (`mpc::give_way`).
+pub const PEER_MOVING_M_S: f64 = 0.05;
 
 pub use protocol::REST_SPEED_M_S;
 
@@ -230,6 +235,9 @@ pub struct Judge {
     /// The last true position, and its time, s.
     last_position: [f64; 2],
     last_time_s: f64,
+    /// In a fleet, the other robots that moved in the newest tracks, as discs where they
+    /// were then ([`Judge::peers`]).
+    moving_peers: Vec<Obstacle>,
 }
 
 impl Judge {
@@ -264,7 +272,21 @@ impl Judge {
             pinned_within_m: pinned_within_m(scenario),
             last_position: [scenario.robot.start[0], scenario.robot.start[1]],
             last_time_s: 0.0,
+            moving_peers: Vec::new(),
         }
+    }
+
+    /// The tracker's newest `tracks`: in a fleet, which other robots move
+    /// ([`PEER_MOVING_M_S`]). A robot standing still near one waits for it, as for a
+    /// person passing, and has not stalled: robots meeting in a fleet hold each other up
+    /// for a while, and the robot held up goes on once the others have passed. A robot
+    /// whose neighbours all stand still too has stalled (a knot no rule broke).
+    pub fn peers(&mut self, tracks: &protocol::Tracks) {
+        self.moving_peers.clear();
+        let moving = (tracks.tracks().iter())
+            .filter(|t| t.is_peer() && t.velocity[0].hypot(t.velocity[1]) > PEER_MOVING_M_S);
+        self.moving_peers
+            .extend(moving.map(|t| Obstacle::fixed(t.center[0], t.center[1], t.radius_m)));
     }
 
     /// Why a run that ended `outcome` did not arrive (`None` unless it stalled or timed
@@ -460,13 +482,12 @@ impl Judge {
         (stalled && !self.waits_for_moving(t_s, x, y)).then_some(Outcome::Stalled)
     }
 
-    /// Whether an obstacle moving at `t_s` is within [`WAITING_WITHIN_M`] of the robot
-    /// at `(x, y)`.
+    /// Whether an obstacle moving at `t_s`, or another robot that moved in the newest
+    /// tracks, is within [`WAITING_WITHIN_M`] of the robot at `(x, y)`.
     fn waits_for_moving(&self, t_s: f64, x: f64, y: f64) -> bool {
-        self.obstacles.iter().any(|o| {
-            o.velocity_at(t_s) != [0.0; 2]
-                && clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y])
-                    <= WAITING_WITHIN_M
+        let moving = (self.obstacles.iter()).filter(|o| o.velocity_at(t_s) != [0.0; 2]);
+        moving.chain(&self.moving_peers).any(|o| {
+            clearance_m(std::slice::from_ref(o), &self.footprint, t_s, [x, y]) <= WAITING_WITHIN_M
         })
     }
 
@@ -666,6 +687,37 @@ mod tests {
         assert_eq!(outcome, Outcome::Stalled);
         // Still for 3 s at 3 s, but waiting for the person until 4.62 s.
         assert!((4.6..4.65).contains(&t), "stalled at {t}");
+    }
+
+    #[test]
+    fn a_robot_of_a_fleet_waiting_for_another_that_moves_has_not_stalled_until_it_stands() {
+        // Another robot (0.3 m) drives past 1 m away at 0.5 m/s for 5 s, then stops there.
+        let mut m = Judge::new(&Scenario::default());
+        let track = |x: f64, speed: f64| {
+            let mut tracks = protocol::Tracks::default();
+            tracks.tracks[0] = protocol::Track {
+                obstacle: protocol::FIRST_PEER + 1,
+                radius_m: 0.3,
+                center: [x, 8.0],
+                velocity: [speed, 0.0],
+                ..protocol::Track::default()
+            };
+            tracks.count = 1;
+            tracks
+        };
+        let ended = (0..4000).map(|i| i as f64 * 0.005).find_map(|t| {
+            let (x, speed) = if t < 5.0 {
+                (5.0 + 0.5 * t, 0.5)
+            } else {
+                (7.5, 0.0)
+            };
+            m.peers(&track(x, speed));
+            m.observe(t, 7.0, 7.0).map(|o| (o, t))
+        });
+        let (outcome, t) = ended.expect("never stalled");
+        assert_eq!(outcome, Outcome::Stalled);
+        // Still for 3 s at 3 s, but waiting for the other robot until it stood at 5 s.
+        assert!((5.0..5.01).contains(&t), "stalled at {t}");
     }
 
     #[test]

@@ -304,6 +304,7 @@ impl Recorder {
         if let Some(perception) = &mut self.perception {
             perception.tracks(tracks);
         }
+        self.judge.peers(tracks);
         self.hand_on(Sample::Tracks(tracks))
     }
 
