@@ -110,7 +110,9 @@ impl GiveWay {
     /// Whether the robot, `to_goal_m` from its goal at `t_s`, has come less than
     /// [`CRAWL_M`] nearer it in the last [`CRAWL_S`] (since its mark; a detour or arriving
     /// sets none). A robot that crawls beside others, slower than [`STILL_SPEED_M_S`] at
-    /// times and faster at others, is held up as surely as one that holds still.
+    /// times and faster at others, is held up as surely as one that holds still. Nearer is
+    /// along the straight line, as the rule looks: a robot whose route leads away from its
+    /// goal round a shelf crawls too, and gives way if another robot is near ahead of it.
     fn crawls(&mut self, t_s: f64, to_goal_m: f64) -> bool {
         if self.detour.is_some() || to_goal_m <= self.arriving_m {
             self.progress_mark = None;
