@@ -9,10 +9,8 @@
 //! them turns like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
 //! safety row changes.
 
-use protocol::{Route, RouteStatus, Track, Tracks, distance};
+use protocol::{ROBOT_STILL_SPEED_M_S, Route, RouteStatus, Track, Tracks, distance};
 
-/// A robot slower than this holds still, m/s.
-pub const STILL_SPEED_M_S: f64 = 0.05;
 /// Held still this long, a robot gives way, s.
 pub const STILL_S: f64 = 1.0;
 /// Another robot holds a robot up when their footprints are within this of each other, m.
@@ -37,7 +35,7 @@ pub struct GiveWay {
     arriving_m: f64,
     still_since_s: Option<f64>,
     /// When the robot last came [`CRAWL_M`] nearer its goal (or a detour ended), and how
-    /// far from it it was then, m.
+    /// far from it it was then, m ([`GiveWay::crawls`]).
     progress_mark: Option<(f64, f64)>,
     detour: Option<Detour>,
 }
@@ -81,9 +79,10 @@ impl GiveWay {
         {
             self.detour = None;
             self.still_since_s = None;
+            // Also when it ends at its first step, before `crawls` saw it.
             self.progress_mark = None;
         }
-        let holds_still = speed_m_s.abs() < STILL_SPEED_M_S && !arriving;
+        let holds_still = speed_m_s.abs() < ROBOT_STILL_SPEED_M_S && !arriving;
         self.still_since_s = match holds_still {
             true => Some(self.still_since_s.unwrap_or(t_s)),
             false => None,
@@ -109,10 +108,11 @@ impl GiveWay {
 
     /// Whether the robot, `to_goal_m` from its goal at `t_s`, has come less than
     /// [`CRAWL_M`] nearer it in the last [`CRAWL_S`] (since its mark; a detour or arriving
-    /// sets none). A robot that crawls beside others, slower than [`STILL_SPEED_M_S`] at
-    /// times and faster at others, is held up as surely as one that holds still. Nearer is
-    /// along the straight line, as the rule looks: a robot whose route leads away from its
-    /// goal round a shelf crawls too, and gives way if another robot is near ahead of it.
+    /// sets none). A robot that crawls beside others, slower than
+    /// [`ROBOT_STILL_SPEED_M_S`] at times and faster at others, is held up as surely as
+    /// one that holds still. Nearer is along the straight line, as the rule looks: a robot
+    /// whose route leads away from its goal round a shelf crawls too, and gives way if
+    /// another robot is near ahead of it.
     fn crawls(&mut self, t_s: f64, to_goal_m: f64) -> bool {
         if self.detour.is_some() || to_goal_m <= self.arriving_m {
             self.progress_mark = None;

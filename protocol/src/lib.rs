@@ -78,6 +78,11 @@ pub fn stopping_distance(speed_m_s: f64, decel: f64, hold_s: f64) -> f64 {
 /// calls a contact predicted where the robot is this slow one at rest.
 pub const REST_SPEED_M_S: f64 = 1e-3;
 
+/// A fleet's robot slower than this holds still, m/s: to the rule by which it gives way
+/// (`mpc::give_way`), and to the judge, for which a robot standing near another robot
+/// faster than this waits for it rather than stalls (`record::judge`).
+pub const ROBOT_STILL_SPEED_M_S: f64 = 0.05;
+
 /// The DFL's safety check commits a trajectory only if it clears every obstacle, grown by
 /// the robot's radius, `mpc.safety_margin_m` and `kappa sigma`, by a further
 /// [`commit_margin_m`]; it gives a committed trajectory up only when, flown from the

@@ -115,11 +115,6 @@ pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 /// seconds to go by. In a fleet another robot that moves counts as one ([`Judge::peers`]).
 pub const WAITING_WITHIN_M: f64 = 3.0;
 
-/// Another robot of a fleet whose track is faster than this moves, and a robot standing
-/// still near it waits ([`WAITING_WITHIN_M`]), m/s: the speed below which a robot of a
-/// fleet holds still to its rule of giving way (`mpc::give_way`).
-pub const PEER_MOVING_M_S: f64 = 0.05;
-
 pub use protocol::REST_SPEED_M_S;
 
 /// A robot farther than this from the straight start-goal line has left it, m.
@@ -276,17 +271,20 @@ impl Judge {
         }
     }
 
-    /// The tracker's newest `tracks`: in a fleet, which other robots move
-    /// ([`PEER_MOVING_M_S`]). A robot standing still near one waits for it, as for a
-    /// person passing, and has not stalled: robots meeting in a fleet hold each other up
-    /// for a while, and the robot held up goes on once the others have passed. A robot
-    /// whose neighbours all stand still too has stalled (a knot no rule broke).
+    /// The tracker's newest `tracks`: in a fleet, which other robots move (faster than
+    /// [`protocol::ROBOT_STILL_SPEED_M_S`]). A robot standing still near one waits for it,
+    /// as for a person passing, and has not stalled: robots meeting in a fleet hold each
+    /// other up for a while, and the robot held up goes on once the others have passed. A
+    /// robot whose neighbours all stand still too has stalled (a knot no rule broke).
     pub fn peers(&mut self, tracks: &protocol::Tracks) {
+        let moves = |t: &&protocol::Track| {
+            t.is_peer() && t.velocity[0].hypot(t.velocity[1]) > protocol::ROBOT_STILL_SPEED_M_S
+        };
         self.moving_peers.clear();
-        let moving = (tracks.tracks().iter())
-            .filter(|t| t.is_peer() && t.velocity[0].hypot(t.velocity[1]) > PEER_MOVING_M_S);
-        self.moving_peers
-            .extend(moving.map(|t| Obstacle::fixed(t.center[0], t.center[1], t.radius_m)));
+        self.moving_peers.extend(
+            (tracks.tracks().iter().filter(moves))
+                .map(|t| Obstacle::fixed(t.center[0], t.center[1], t.radius_m)),
+        );
     }
 
     /// Why a run that ended `outcome` did not arrive (`None` unless it stalled or timed
