@@ -136,16 +136,9 @@ pub fn route_speed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use protocol::RouteStatus;
 
     fn route(points: &[[f64; 2]]) -> Route {
-        let mut r = Route {
-            status: RouteStatus::Ok as u32,
-            count: points.len() as u32,
-            ..Route::default()
-        };
-        r.waypoints[..points.len()].copy_from_slice(points);
-        r
+        Route::through(points).unwrap()
     }
 
     const GENTLE: SpeedProfile = SpeedProfile {

@@ -8,8 +8,14 @@
 //! robot moving right, two that face each other pass left side to left side; a ring of
 //! them turns like a roundabout). The detour is a route for the MPC to follow ([`crate::follow`]); no
 //! safety row changes.
+//!
+//! With a route planner, "ahead", "right" and "nearer the goal" are taken along the
+//! planner's route ([`Way`]): among shelves the way to the goal is the route's, not the
+//! straight line, which may point into a shelf or away from where the robot drives.
 
-use protocol::{ROBOT_STILL_SPEED_M_S, Route, RouteStatus, Track, Tracks, distance};
+use protocol::{
+    ROBOT_STILL_SPEED_M_S, ROUTE_CAPACITY, Route, RouteStatus, Track, Tracks, distance,
+};
 
 /// Held still this long, a robot gives way, s.
 pub const STILL_S: f64 = 1.0;
@@ -26,6 +32,62 @@ pub const DETOUR_S: f64 = 4.0;
 pub const CRAWL_S: f64 = 2.0;
 /// See [`CRAWL_S`], m: 0.1 m/s on average, a tenth of the built-in fleets' speed bound.
 pub const CRAWL_M: f64 = 0.2;
+/// On a route, the robot faces the route's point this far ahead of its closest point on
+/// it, m ([`Way`]): about where another robot holds it up ([`HOLD_UP_M`]).
+pub const AIM_M: f64 = 1.0;
+
+/// Where a robot is headed, as the rule sees it: on a route (the planner's, newest), the
+/// point [`AIM_M`] along it from the robot's closest point on it (the goal, when nearer),
+/// the way left (from the robot to that closest point, then along the route to the goal,
+/// m) and the route's points after that closest point's segment; without one, the goal
+/// and the straight line to it.
+#[derive(Debug, Clone, Copy)]
+struct Way<'a> {
+    aim: [f64; 2],
+    left_m: f64,
+    /// The route beyond the robot's segment, its last point the goal (`[goal]` without a
+    /// route).
+    beyond: &'a [[f64; 2]],
+}
+
+impl<'a> Way<'a> {
+    fn of(position: [f64; 2], goal: &'a [f64; 2], route: Option<&'a Route>) -> Way<'a> {
+        let Some(points) = route.filter(|r| r.is_ok()).map(Route::points) else {
+            return Way {
+                aim: *goal,
+                left_m: distance(position, *goal),
+                beyond: std::slice::from_ref(goal),
+            };
+        };
+        let (segment, at, off_m) = protocol::closest_on_polyline(points, position);
+        let beyond = &points[segment + 1..];
+        let mut aim = beyond[beyond.len() - 1];
+        let mut from = at;
+        let mut to_go = AIM_M;
+        for &next in beyond {
+            let leg = distance(from, next);
+            if leg >= to_go {
+                let share = to_go / leg;
+                aim = [0, 1].map(|a| from[a] + share * (next[a] - from[a]));
+                break;
+            }
+            to_go -= leg;
+            from = next;
+        }
+        Way {
+            aim,
+            left_m: off_m + distance(at, beyond[0]) + protocol::polyline_length(beyond),
+            beyond,
+        }
+    }
+
+    /// The unit vector from `position` towards the aim (none at it).
+    fn heading(&self, position: [f64; 2]) -> Option<[f64; 2]> {
+        let way = [self.aim[0] - position[0], self.aim[1] - position[1]];
+        let length = way[0].hypot(way[1]);
+        (length > 0.0).then(|| [way[0] / length, way[1] / length])
+    }
+}
 
 /// One robot's rule: whether it holds still, and the detour it follows.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,19 +123,19 @@ impl GiveWay {
         })
     }
 
-    /// At time `t_s` for a robot at `position` going at `speed_m_s` to `goal`, with the
-    /// other robots among `tracks`: the detour to follow, with the id of the robot given
-    /// way to, if it gives way.
+    /// At time `t_s` for a robot at `position` going at `speed_m_s` to `goal`, along
+    /// `route` if it has one (the planner's), with the other robots among `tracks`: the
+    /// detour to follow, with the id of the robot given way to, if it gives way.
     pub fn detour(
         &mut self,
         t_s: f64,
-        position: [f64; 2],
-        speed_m_s: f64,
+        (position, speed_m_s): ([f64; 2], f64),
         goal: [f64; 2],
+        route: Option<&Route>,
         tracks: Option<&Tracks>,
     ) -> Option<(Route, u32)> {
-        let to_goal_m = distance(position, goal);
-        let arriving = to_goal_m <= self.arriving_m;
+        let way = Way::of(position, &goal, route);
+        let arriving = distance(position, goal) <= self.arriving_m;
         if let Some(d) = self.detour
             && (t_s >= d.until_s || distance(position, d.waypoint) < WAYPOINT_REACHED_M || arriving)
         {
@@ -87,65 +149,62 @@ impl GiveWay {
             true => Some(self.still_since_s.unwrap_or(t_s)),
             false => None,
         };
-        let crawls = self.crawls(t_s, to_goal_m);
+        let crawls = self.crawls(t_s, way.left_m, arriving);
         let held_up = crawls
             || self
                 .still_since_s
                 .is_some_and(|s| t_s - s >= STILL_S - 1e-9);
         if self.detour.is_none()
             && held_up
-            && let Some(peer) = self.holding_up(position, goal, tracks)
+            && let Some(heading) = way.heading(position)
+            && let Some(peer) = self.holding_up(position, heading, tracks)
         {
             self.detour = Some(Detour {
                 peer: peer.obstacle - protocol::FIRST_PEER,
-                waypoint: self.passing_right(position, goal, peer),
+                waypoint: self.passing_right(heading, peer),
                 until_s: t_s + DETOUR_S,
             });
         }
         let d = self.detour?;
-        Some((route_via(position, d.waypoint, goal), d.peer))
+        Some((route_via(position, d.waypoint, &way), d.peer))
     }
 
-    /// Whether the robot, `to_goal_m` from its goal at `t_s`, has come less than
-    /// [`CRAWL_M`] nearer it in the last [`CRAWL_S`] (since its mark; a detour or arriving
-    /// sets none). A robot that crawls beside others, slower than
+    /// Whether the robot, `left_m` from its goal at `t_s` (along its way, [`Way`]), has
+    /// come less than [`CRAWL_M`] nearer it in the last [`CRAWL_S`] (since its mark; a
+    /// detour or arriving sets none). A robot that crawls beside others, slower than
     /// [`ROBOT_STILL_SPEED_M_S`] at times and faster at others, is held up as surely as
-    /// one that holds still. Nearer is along the straight line, as the rule looks: a robot
-    /// whose route leads away from its goal round a shelf crawls too, and gives way if
-    /// another robot is near ahead of it.
-    fn crawls(&mut self, t_s: f64, to_goal_m: f64) -> bool {
-        if self.detour.is_some() || to_goal_m <= self.arriving_m {
+    /// one that holds still. A new route that is longer than the last by more than the
+    /// robot came (round a robot that stands, say) counts as no progress.
+    fn crawls(&mut self, t_s: f64, left_m: f64, arriving: bool) -> bool {
+        if self.detour.is_some() || arriving {
             self.progress_mark = None;
             return false;
         }
         match self.progress_mark {
-            Some((_, mark_m)) if to_goal_m <= mark_m - CRAWL_M => {
-                self.progress_mark = Some((t_s, to_goal_m));
+            Some((_, mark_m)) if left_m <= mark_m - CRAWL_M => {
+                self.progress_mark = Some((t_s, left_m));
                 false
             }
             Some((since_s, _)) => t_s - since_s >= CRAWL_S - 1e-9,
             None => {
-                self.progress_mark = Some((t_s, to_goal_m));
+                self.progress_mark = Some((t_s, left_m));
                 false
             }
         }
     }
 
-    /// The nearest other robot ahead (towards `goal`) within [`HOLD_UP_M`] of the robot's
-    /// footprint.
+    /// The nearest other robot ahead (on the side `heading` points to, a unit vector)
+    /// within [`HOLD_UP_M`] of the robot's footprint.
     fn holding_up<'a>(
         &self,
         position: [f64; 2],
-        goal: [f64; 2],
+        heading: [f64; 2],
         tracks: Option<&'a Tracks>,
     ) -> Option<&'a Track> {
         let gap = |t: &Track| distance(position, t.center) - t.radius_m - self.radius_m;
         let ahead = |t: &Track| {
-            let (way, to) = (
-                [0, 1].map(|a| goal[a] - position[a]),
-                [0, 1].map(|a| t.center[a] - position[a]),
-            );
-            way[0] * to[0] + way[1] * to[1] > 0.0
+            let to = [0, 1].map(|a| t.center[a] - position[a]);
+            heading[0] * to[0] + heading[1] * to[1] > 0.0
         };
         tracks?
             .tracks()
@@ -155,12 +214,9 @@ impl GiveWay {
     }
 
     /// The point [`PASSING_M`] beyond both footprints to the right of `peer`, as the robot
-    /// at `position` faces `goal`.
-    fn passing_right(&self, position: [f64; 2], goal: [f64; 2], peer: &Track) -> [f64; 2] {
-        let way = [goal[0] - position[0], goal[1] - position[1]];
-        // Not 0: a robot this near its goal arrives, and gives way to none.
-        let length = way[0].hypot(way[1]);
-        let right = [way[1] / length, -way[0] / length];
+    /// faces `heading` (a unit vector).
+    fn passing_right(&self, heading: [f64; 2], peer: &Track) -> [f64; 2] {
+        let right = [heading[1], -heading[0]];
         let off = peer.radius_m + self.radius_m + PASSING_M;
         [
             peer.center[0] + right[0] * off,
@@ -169,14 +225,32 @@ impl GiveWay {
     }
 }
 
-/// The route from `position` through `waypoint` to `goal`.
-fn route_via(position: [f64; 2], waypoint: [f64; 2], goal: [f64; 2]) -> Route {
+/// The route from `position` through `waypoint`, then on along `way`: from the end of the
+/// leg of the robot's route nearest the waypoint (its own leg to the route's next point
+/// among them) to the goal; without a route, or where the points would not fit, straight
+/// from the waypoint to the goal.
+fn route_via(position: [f64; 2], waypoint: [f64; 2], way: &Way) -> Route {
+    let beyond = way.beyond;
+    let goal = beyond[beyond.len() - 1];
+    let first_leg_m = protocol::segment_distance(position, beyond[0], waypoint);
+    let rejoin = match beyond.len() {
+        1 => beyond,
+        _ => match protocol::closest_on_polyline(beyond, waypoint) {
+            (segment, _, off_m) if off_m < first_leg_m => &beyond[segment + 1..],
+            _ => beyond,
+        },
+    };
+    let rest = match rejoin.len() + 2 <= ROUTE_CAPACITY {
+        true => rejoin,
+        false => std::slice::from_ref(&goal),
+    };
     let mut route = Route {
         status: RouteStatus::Ok as u32,
-        count: 3,
+        count: (rest.len() + 2) as u32,
         ..Route::default()
     };
-    route.waypoints[..3].copy_from_slice(&[position, waypoint, goal]);
+    route.waypoints[..2].copy_from_slice(&[position, waypoint]);
+    route.waypoints[2..2 + rest.len()].copy_from_slice(rest);
     route
 }
 
@@ -213,13 +287,17 @@ mod tests {
         for k in 0..20 {
             let t = k as f64 * 0.05;
             assert!(
-                a.detour(t, pa, 0.0, ga, Some(&ta)).is_none(),
+                a.detour(t, (pa, 0.0), ga, None, Some(&ta)).is_none(),
                 "not yet at {t} s"
             );
-            assert!(b.detour(t, pb, 0.0, gb, Some(&tb)).is_none());
+            assert!(b.detour(t, (pb, 0.0), gb, None, Some(&tb)).is_none());
         }
-        let (route_a, given_a) = a.detour(1.0, pa, 0.0, ga, Some(&ta)).expect("a gives way");
-        let (route_b, given_b) = b.detour(1.0, pb, 0.0, gb, Some(&tb)).expect("b gives way");
+        let (route_a, given_a) = a
+            .detour(1.0, (pa, 0.0), ga, None, Some(&ta))
+            .expect("a gives way");
+        let (route_b, given_b) = b
+            .detour(1.0, (pb, 0.0), gb, None, Some(&tb))
+            .expect("b gives way");
         assert_eq!((given_a, given_b), (1, 0));
         // Going +x, a's right is -y; going -x, b's is +y: they do not meet.
         assert!(route_a.points()[1][1] < -0.9 && route_b.points()[1][1] > 0.9);
@@ -237,7 +315,7 @@ mod tests {
         let mut gave_way = None;
         for k in 0..80 {
             let t = k as f64 * 0.05;
-            if let Some((_, to)) = rule.detour(t, at(t), 0.1, goal, Some(&ahead(t))) {
+            if let Some((_, to)) = rule.detour(t, (at(t), 0.1), goal, None, Some(&ahead(t))) {
                 gave_way = Some((t, to));
                 break;
             }
@@ -256,11 +334,69 @@ mod tests {
             let ahead = peer(1, [position[0] + 0.8, 0.1]);
             assert!(
                 driving
-                    .detour(t, position, 0.12, goal, Some(&ahead))
+                    .detour(t, (position, 0.12), goal, None, Some(&ahead))
                     .is_none(),
                 "at {t} s"
             );
         }
+    }
+
+    fn route(points: &[[f64; 2]]) -> Route {
+        Route::through(points).unwrap()
+    }
+
+    #[test]
+    fn on_a_route_a_robot_looks_along_the_route_not_the_straight_line_to_its_goal() {
+        let scenario = fleet();
+        // West first, round a shelf, then north-east to the goal: the straight line to the
+        // goal points away from where the robot drives.
+        let planned = route(&[[0.0, 0.0], [-2.0, 0.0], [-2.0, 3.0], [3.0, 3.0]]);
+        let (position, goal) = ([-0.5, 0.0], [3.0, 3.0]);
+        // Another robot on the route just ahead, behind the robot as the goal lies.
+        let ahead_on_route = peer(1, [-1.3, 0.0]);
+        let mut along = GiveWay::of(&scenario).unwrap();
+        let mut straight = GiveWay::of(&scenario).unwrap();
+        let mut given = None;
+        for k in 0..=20 {
+            let t = k as f64 * 0.05;
+            let motion = (position, 0.0);
+            given = along.detour(t, motion, goal, Some(&planned), Some(&ahead_on_route));
+            assert!(
+                (straight.detour(t, motion, goal, None, Some(&ahead_on_route))).is_none(),
+                "the straight line has it behind"
+            );
+        }
+        let (detour, to) = given.expect("gives way along its route");
+        assert_eq!(to, 1);
+        // Heading west, its right is north; then on along the planner's route.
+        let points = detour.points();
+        assert_eq!(points[0], position);
+        assert!(
+            (points[1][0] + 1.3).abs() < 1e-9 && points[1][1] > 0.9,
+            "{points:?}"
+        );
+        assert_eq!(&points[2..], &[[-2.0, 3.0], [3.0, 3.0]]);
+
+        // Driving west at 0.15 m/s with another robot beside it, ahead both ways, its
+        // straight-line distance to the goal grows, yet it comes nearer along the route:
+        // it does not crawl, and goes on.
+        let (mut driving, mut crawling) = (
+            GiveWay::of(&scenario).unwrap(),
+            GiveWay::of(&scenario).unwrap(),
+        );
+        let mut straight_gave_way = false;
+        for k in 0..120 {
+            let t = k as f64 * 0.05;
+            let position = [-1.0 - 0.15 * t, 0.0];
+            let beside = peer(1, [position[0] - 0.2, 0.9]);
+            let motion = (position, 0.15);
+            let got = driving.detour(t, motion, goal, Some(&planned), Some(&beside));
+            assert!(got.is_none(), "at {t} s, at {position:?}");
+            straight_gave_way |= crawling
+                .detour(t, motion, goal, None, Some(&beside))
+                .is_some();
+        }
+        assert!(straight_gave_way, "the straight line would have it crawl");
     }
 
     #[test]
@@ -272,13 +408,13 @@ mod tests {
             let t = k as f64 * 0.05;
             // At its goal, held still beside another robot.
             assert!(
-                rule.detour(t, [0.0, 0.0], 0.0, [0.05, 0.0], Some(&tracks))
+                rule.detour(t, ([0.0, 0.0], 0.0), [0.05, 0.0], None, Some(&tracks))
                     .is_none()
             );
             // Far from the others.
             let far = peer(1, [5.0, 0.0]);
             assert!(
-                rule.detour(t, [0.0, 0.0], 0.0, [-3.0, 0.0], Some(&far))
+                rule.detour(t, ([0.0, 0.0], 0.0), [-3.0, 0.0], None, Some(&far))
                     .is_none()
             );
         }

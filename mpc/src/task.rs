@@ -190,10 +190,10 @@ impl Task for MpcTask {
             estimate.state
         };
         let detour = self.give_way.as_mut().and_then(|rule| {
-            let position = [x_bar[0], x_bar[1]];
+            let motion = ([x_bar[0], x_bar[1]], x_bar[3]);
             let goal = self.scenario.robot.goal.position;
             let tracks = self.newest_tracks.as_ref();
-            rule.detour(estimate.header.time_s, position, x_bar[3], goal, tracks)
+            rule.detour(estimate.header.time_s, motion, goal, route, tracks)
         });
         let route = detour.as_ref().map(|(r, _)| r).or(route);
         let mut plan = (self.mpc).step_on_route(sample, x_bar, estimate.position_sigma(), route);

@@ -741,13 +741,7 @@ mod tests {
 
     /// A route from `points`.
     fn route_through(points: &[[f64; 2]]) -> Route {
-        let mut route = Route {
-            status: RouteStatus::Ok as u32,
-            count: points.len() as u32,
-            ..Route::default()
-        };
-        route.waypoints[..points.len()].copy_from_slice(points);
-        route
+        Route::through(points).unwrap()
     }
 
     #[test]

@@ -209,6 +209,21 @@ impl Default for Route {
 }
 
 impl Route {
+    /// A followable route through `points` (the last the goal), or none when they are
+    /// more than [`ROUTE_CAPACITY`].
+    pub fn through(points: &[[f64; 2]]) -> Option<Route> {
+        let mut route = Route {
+            status: RouteStatus::Ok as u32,
+            count: u32::try_from(points.len()).ok()?,
+            ..Route::default()
+        };
+        route
+            .waypoints
+            .get_mut(..points.len())?
+            .copy_from_slice(points);
+        Some(route)
+    }
+
     /// The valid waypoints.
     pub fn points(&self) -> &[[f64; 2]] {
         &self.waypoints[..(self.count as usize).min(ROUTE_CAPACITY)]
