@@ -86,7 +86,7 @@ pub fn run(
             let outcomes = members
                 .iter()
                 .map(|m| m.summary.as_ref().map(|s| s.outcome));
-            let misses = members.iter().map(Member::deadline_misses).sum();
+            let misses = members.iter().map(Member::deadline_misses);
             status.show(timing.tick_time_s(tick), outcomes, misses, &judge);
         }
     }

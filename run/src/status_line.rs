@@ -159,8 +159,8 @@ impl Sink for StatusLine {
 
 /// The status line of a fleet's run (`scmpc run` of a scenario with `[[robots]]`, without
 /// `-q`): the time its robots have been judged to, how many ended their record at their
-/// goal, the deadlines their records counted as missed, and their smallest clearance to
-/// each other so far and their contacts.
+/// goal, the deadlines their records counted as missed (in all, then each robot that
+/// missed any), and their smallest clearance to each other so far and their contacts.
 pub struct FleetStatus {
     drawer: Drawer,
     duration_s: f64,
@@ -178,18 +178,19 @@ impl FleetStatus {
     }
 
     /// The fleet judged to `t_s`, with each robot's `outcomes` so far and the deadline
-    /// misses of every robot's record.
+    /// misses of each robot's record, in the robots' order.
     pub fn show(
         &mut self,
         t_s: f64,
         outcomes: impl Iterator<Item = Option<Outcome>>,
-        deadline_misses: u64,
+        deadline_misses: impl Iterator<Item = u64>,
         judge: &FleetJudge,
     ) {
         let (duration_s, robots) = (self.duration_s, self.robots);
         self.drawer.draw(|| {
             let reached = outcomes.filter(|o| *o == Some(Outcome::Reached)).count();
-            fleet_line(t_s, duration_s, (reached, robots), deadline_misses, judge)
+            let misses = misses_by_robot(deadline_misses);
+            fleet_line(t_s, duration_s, (reached, robots), &misses, judge)
         });
     }
 }
@@ -202,13 +203,27 @@ impl Drop for FleetStatus {
     }
 }
 
+/// The deadline misses of a fleet's robots (`misses`, in their order): in all, then each
+/// robot that missed any, as `3 (robot 1: 2, robot 4: 1)`; `0` when none missed.
+fn misses_by_robot(misses: impl Iterator<Item = u64>) -> String {
+    let (mut all, mut robots) = (0, Vec::new());
+    for (id, n) in misses.enumerate().filter(|(_, n)| *n > 0) {
+        all += n;
+        robots.push(format!("robot {id}: {n}"));
+    }
+    match robots.is_empty() {
+        true => "0".into(),
+        false => format!("{all} ({})", robots.join(", ")),
+    }
+}
+
 /// The line of a fleet judged to `t_s` of `duration_s`, `(reached, robots)` of its robots
-/// at their goals.
+/// at their goals, `deadline_misses` as [`misses_by_robot`] writes them.
 fn fleet_line(
     t_s: f64,
     duration_s: f64,
     (reached, robots): (usize, usize),
-    deadline_misses: u64,
+    deadline_misses: &str,
     judge: &FleetJudge,
 ) -> String {
     let clearance = match judge.min_clearance_m.is_finite() {
@@ -222,4 +237,18 @@ fn fleet_line(
     format!(
         "t {t_s:5.1} / {duration_s:.1} s | at their goals {reached} of {robots} | deadline misses {deadline_misses} | robot-robot clearance {clearance} | contacts {moving} moving, {at_rest} at rest"
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fleets_misses_name_every_robot_that_missed_in_the_robots_order() {
+        assert_eq!(misses_by_robot([0, 0, 0].into_iter()), "0");
+        assert_eq!(
+            misses_by_robot([0, 2, 0, 0, 1].into_iter()),
+            "3 (robot 1: 2, robot 4: 1)"
+        );
+    }
 }

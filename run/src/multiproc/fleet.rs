@@ -369,7 +369,7 @@ impl Fleet {
     fn show(&mut self, ticks: u64, drivers: &[Driver]) {
         if let Some(status) = &mut self.status {
             let outcomes = self.outcomes.iter().copied();
-            let misses = drivers.iter().map(Driver::deadline_misses).sum();
+            let misses = drivers.iter().map(Driver::deadline_misses);
             status.show(ticks as f64 * self.dt_s, outcomes, misses, &self.judge);
         }
     }
