@@ -81,9 +81,14 @@ impl<'a> Way<'a> {
         }
     }
 
+    /// The vector from `position` to the aim, m.
+    fn toward(&self, position: [f64; 2]) -> [f64; 2] {
+        [self.aim[0] - position[0], self.aim[1] - position[1]]
+    }
+
     /// The unit vector from `position` towards the aim (none at it).
     fn heading(&self, position: [f64; 2]) -> Option<[f64; 2]> {
-        let way = [self.aim[0] - position[0], self.aim[1] - position[1]];
+        let way = self.toward(position);
         let length = way[0].hypot(way[1]);
         (length > 0.0).then(|| [way[0] / length, way[1] / length])
     }
@@ -97,7 +102,7 @@ pub struct GiveWay {
     arriving_m: f64,
     still_since_s: Option<f64>,
     /// When the robot last came [`CRAWL_M`] nearer its goal (or a detour ended), and how
-    /// far from it it was then, m ([`GiveWay::crawls`]).
+    /// far from it it was then along its way ([`Way`]), m ([`GiveWay::crawls`]).
     progress_mark: Option<(f64, f64)>,
     detour: Option<Detour>,
 }
@@ -157,7 +162,7 @@ impl GiveWay {
         if self.detour.is_none()
             && held_up
             && let Some(heading) = way.heading(position)
-            && let Some(peer) = self.holding_up(position, heading, tracks)
+            && let Some(peer) = self.holding_up(position, way.toward(position), tracks)
         {
             self.detour = Some(Detour {
                 peer: peer.obstacle - protocol::FIRST_PEER,
@@ -193,18 +198,18 @@ impl GiveWay {
         }
     }
 
-    /// The nearest other robot ahead (on the side `heading` points to, a unit vector)
-    /// within [`HOLD_UP_M`] of the robot's footprint.
+    /// The nearest other robot ahead (on the side `toward` points to) within
+    /// [`HOLD_UP_M`] of the robot's footprint.
     fn holding_up<'a>(
         &self,
         position: [f64; 2],
-        heading: [f64; 2],
+        toward: [f64; 2],
         tracks: Option<&'a Tracks>,
     ) -> Option<&'a Track> {
         let gap = |t: &Track| distance(position, t.center) - t.radius_m - self.radius_m;
         let ahead = |t: &Track| {
             let to = [0, 1].map(|a| t.center[a] - position[a]);
-            heading[0] * to[0] + heading[1] * to[1] > 0.0
+            toward[0] * to[0] + toward[1] * to[1] > 0.0
         };
         tracks?
             .tracks()
@@ -227,23 +232,22 @@ impl GiveWay {
 
 /// The route from `position` through `waypoint`, then on along `way`: from the end of the
 /// leg of the robot's route nearest the waypoint (its own leg to the route's next point
-/// among them) to the goal; without a route, or where the points would not fit, straight
-/// from the waypoint to the goal.
+/// among them) to the goal; without a route, straight from the waypoint to the goal.
 fn route_via(position: [f64; 2], waypoint: [f64; 2], way: &Way) -> Route {
     let beyond = way.beyond;
-    let goal = beyond[beyond.len() - 1];
-    let first_leg_m = protocol::segment_distance(position, beyond[0], waypoint);
     let rejoin = match beyond.len() {
         1 => beyond,
-        _ => match protocol::closest_on_polyline(beyond, waypoint) {
-            (segment, _, off_m) if off_m < first_leg_m => &beyond[segment + 1..],
-            _ => beyond,
-        },
+        _ => {
+            let first_leg_m = protocol::segment_distance(position, beyond[0], waypoint);
+            match protocol::closest_on_polyline(beyond, waypoint) {
+                (segment, _, off_m) if off_m < first_leg_m => &beyond[segment + 1..],
+                _ => beyond,
+            }
+        }
     };
-    let rest = match rejoin.len() + 2 <= ROUTE_CAPACITY {
-        true => rejoin,
-        false => std::slice::from_ref(&goal),
-    };
+    // A route of every point the message holds, rejoined at its first leg, has one too
+    // many: the first point after the waypoint is left out.
+    let rest = &rejoin[(rejoin.len() + 2).saturating_sub(ROUTE_CAPACITY)..];
     let mut route = Route {
         status: RouteStatus::Ok as u32,
         count: (rest.len() + 2) as u32,

@@ -159,8 +159,8 @@ impl Sink for StatusLine {
 
 /// The status line of a fleet's run (`scmpc run` of a scenario with `[[robots]]`, without
 /// `-q`): the time its robots have been judged to, how many ended their record at their
-/// goal, the deadlines their records counted as missed (in all, then each robot that
-/// missed any), and their smallest clearance to each other so far and their contacts.
+/// goal, the deadlines their records counted as missed (in all, then the robots that
+/// missed any, [`misses_by_robot`]), and their smallest clearance to each other so far and their contacts.
 pub struct FleetStatus {
     drawer: Drawer,
     duration_s: f64,
@@ -203,13 +203,22 @@ impl Drop for FleetStatus {
     }
 }
 
-/// The deadline misses of a fleet's robots (`misses`, in their order): in all, then each
-/// robot that missed any, as `3 (robot 1: 2, robot 4: 1)`; `0` when none missed.
+/// Most robots the status line names as having missed deadlines: the line stays within a
+/// terminal's width, where a redraw in place can wipe it.
+const MISSING_ROBOTS_SHOWN: usize = 3;
+
+/// The deadline misses of a fleet's robots (`misses`, in their order): in all, then the
+/// first [`MISSING_ROBOTS_SHOWN`] robots that missed any, as `3 (robot 1: 2, robot 4: 1)`
+/// (`, …` when more did); `0` when none missed.
 fn misses_by_robot(misses: impl Iterator<Item = u64>) -> String {
     let (mut all, mut robots) = (0, Vec::new());
     for (id, n) in misses.enumerate().filter(|(_, n)| *n > 0) {
         all += n;
         robots.push(format!("robot {id}: {n}"));
+    }
+    if robots.len() > MISSING_ROBOTS_SHOWN {
+        robots.truncate(MISSING_ROBOTS_SHOWN);
+        robots.push("…".into());
     }
     match robots.is_empty() {
         true => "0".into(),
@@ -244,11 +253,15 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_fleets_misses_name_every_robot_that_missed_in_the_robots_order() {
+    fn a_fleets_misses_name_the_robots_that_missed_in_the_robots_order() {
         assert_eq!(misses_by_robot([0, 0, 0].into_iter()), "0");
         assert_eq!(
             misses_by_robot([0, 2, 0, 0, 1].into_iter()),
             "3 (robot 1: 2, robot 4: 1)"
+        );
+        assert_eq!(
+            misses_by_robot([1, 1, 1, 1, 0, 1].into_iter()),
+            "5 (robot 0: 1, robot 1: 1, robot 2: 1, …)"
         );
     }
 }

@@ -209,8 +209,8 @@ impl Default for Route {
 }
 
 impl Route {
-    /// A followable route through `points` (the last the goal), or none when they are
-    /// more than [`ROUTE_CAPACITY`].
+    /// A route through `points` (the last the goal; followable with two or more), or none
+    /// when they are more than [`ROUTE_CAPACITY`].
     pub fn through(points: &[[f64; 2]]) -> Option<Route> {
         let mut route = Route {
             status: RouteStatus::Ok as u32,
