@@ -10,6 +10,7 @@ fn truth(tick: u64, pose: [f64; 3], dt_s: f64) -> GroundTruth {
             ..Header::default()
         },
         pose,
+        ..GroundTruth::default()
     }
 }
 

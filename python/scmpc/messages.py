@@ -55,6 +55,7 @@ COMMAND_MODES = {
     "safety_brake": 4,
     "hold": 5,
     "evasion": 6,
+    "watchdog": 7,
 }
 INTERVENTIONS = {"none": 0, "plan_refused": 1, "committed_unsafe": 2, "least_unsafe": 3, "moving_contact": 4, "free_range": 5, "evasion": 6}
 ROUTE_STATUSES = {"ok": 0, "no_route": 1}
@@ -167,17 +168,17 @@ class EpochSchedule(Message):
 
 
 class Measurement(Message):
-    _fields_ = [("header", Header), ("y", c_f64 * 3)]
+    _fields_ = [("header", Header), ("y", c_f64 * 3), ("odometry", c_f64 * 2)]
 
     def floats(self):
-        return self.y
+        return list(self.y) + list(self.odometry)
 
 
 class GroundTruth(Message):
-    _fields_ = [("header", Header), ("pose", c_f64 * 3)]
+    _fields_ = [("header", Header), ("pose", c_f64 * 3), ("applied", c_f64 * 2), ("watchdog", c_u32)]
 
     def floats(self):
-        return self.pose
+        return list(self.pose) + list(self.applied)
 
 
 class Estimate(Message):

@@ -56,6 +56,10 @@ pub enum Event {
     },
     /// A tick the record could not write whole: the topics whose sample never came.
     RecordGap { tick: u64, missing: Vec<String> },
+    /// No command had come for `plant.command_timeout_s`: from this tick the simulated
+    /// base brakes straight to rest on its own watchdog (ticks in command mode
+    /// `watchdog`), until commands come again.
+    CommandTimeout { tick: u64 },
     /// A role process died (its exit status) and the iceoryx2 nodes it left were cleaned.
     Crashed {
         #[schemars(with = "String")]
@@ -251,6 +255,7 @@ impl Event {
             Event::HostLost { .. } => "host_lost",
             Event::DeadlineMiss { .. } => "deadline_miss",
             Event::RecordGap { .. } => "record_gap",
+            Event::CommandTimeout { .. } => "command_timeout",
             Event::Crashed { .. } => "crashed",
             Event::DeadNode { .. } => "dead_node",
             Event::GaveWay { .. } => "gave_way",
@@ -293,6 +298,7 @@ impl Event {
                 | Event::SwapRefused { .. }
                 | Event::NoRoute { .. }
                 | Event::RecordGap { .. }
+                | Event::CommandTimeout { .. }
         )
     }
 }

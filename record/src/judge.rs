@@ -557,6 +557,7 @@ mod tests {
                 time_s: t_s,
                 ..protocol::Header::default()
             },
+            ..GroundTruth::default()
         }
     }
 
@@ -775,6 +776,7 @@ mod tests {
                 time_s: t,
                 ..protocol::Header::default()
             },
+            ..GroundTruth::default()
         };
         let mut m = Judge::new(&s);
         for k in 20..=40 {

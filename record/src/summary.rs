@@ -39,6 +39,8 @@ pub struct ModeCounts {
     pub safety_brake: u64,
     pub hold: u64,
     pub evasion: u64,
+    /// Not the DFL's: ticks the simulated base braked on its own watchdog.
+    pub watchdog: u64,
 }
 
 impl ModeCounts {
@@ -53,6 +55,7 @@ impl ModeCounts {
             SafetyBrake => &mut self.safety_brake,
             Hold => &mut self.hold,
             Evasion => &mut self.evasion,
+            Watchdog => &mut self.watchdog,
         } += 1;
     }
 }

@@ -235,13 +235,16 @@ impl Task for RobotTask {
             ..Header::default()
         };
         Some(Publish::now(PlantOutput {
+            // What a ROS 2 base applied is its own: the truth leaves `applied` 0.
             truth: GroundTruth {
                 header,
                 pose: self.newest.pose,
+                ..GroundTruth::default()
             },
             measurement: Measurement {
                 header,
                 y: self.newest.pose,
+                odometry: self.newest.twist,
             },
         }))
     }

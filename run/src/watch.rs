@@ -230,6 +230,7 @@ mod tests {
                 ..Header::default()
             },
             y: [1.0, -2.5, f64::NAN],
+            odometry: [0.5, 0.0],
         };
         // SAFETY: a `#[repr(C)]` value of integers and floats, read as its bytes.
         let bytes = unsafe {

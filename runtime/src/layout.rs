@@ -165,6 +165,7 @@ fn message_codes() -> BTreeMap<&'static str, BTreeMap<&'static str, u64>> {
                     CommandMode::SafetyBrake,
                     CommandMode::Hold,
                     CommandMode::Evasion,
+                    CommandMode::Watchdog,
                 ],
                 CommandMode::as_str,
                 |m| m as u32,

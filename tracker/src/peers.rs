@@ -241,6 +241,7 @@ mod tests {
                 ..Header::default()
             },
             pose: [x, 0.0, 0.0],
+            ..GroundTruth::default()
         })
     }
 

@@ -143,6 +143,10 @@ pub enum CommandMode {
     /// Stepping out of the way of an obstacle coming at the robot (`dfl::evasion`): along
     /// the heading, then braking, until a plan passes the check.
     Evasion = 6,
+    /// No command came: the simulated base's watchdog brakes it straight to rest
+    /// (`plant.command_timeout_s`). Not the DFL's: the orchestrator records the ticks the
+    /// plant was driven so ([`crate::GroundTruth::watchdog`]).
+    Watchdog = 7,
 }
 
 impl CommandMode {
@@ -155,6 +159,7 @@ impl CommandMode {
             4 => CommandMode::SafetyBrake,
             5 => CommandMode::Hold,
             6 => CommandMode::Evasion,
+            7 => CommandMode::Watchdog,
             _ => return None,
         })
     }
@@ -167,6 +172,7 @@ impl CommandMode {
             CommandMode::SafetyBrake => "safety_brake",
             CommandMode::Hold => "hold",
             CommandMode::Evasion => "evasion",
+            CommandMode::Watchdog => "watchdog",
         }
     }
 }

@@ -51,6 +51,10 @@ pub struct Measurement {
     pub header: Header,
     /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
     pub y: [f64; 3],
+    /// The base's speeds at the tick as its odometry reports them, `[u1 m/s, u2 rad/s]`:
+    /// the simulated base's exactly, a ROS 2 base's odometry twist. An estimator that
+    /// starts mid-run takes zeta from it.
+    pub odometry: [f64; 2],
 }
 
 /// The plant's true state; read only by the recorder.
@@ -65,6 +69,12 @@ pub struct GroundTruth {
     pub header: Header,
     /// `[x_m, y_m, theta_rad]`, theta wrapped to (-pi, pi].
     pub pose: [f64; 3],
+    /// The command the base applied over the tick before, `[t_(j-1), t_j)`, after
+    /// saturation: `[u1 m/s, u2 rad/s]` (the simulated base's; 0 from a ROS 2 base).
+    pub applied: [f64; 2],
+    /// 1 when the base drove that tick on its own watchdog, no command having come for
+    /// `plant.command_timeout_s` ([`CommandMode::Watchdog`]), else 0.
+    pub watchdog: u32,
 }
 
 /// The estimator's output: the extended state and the covariance of the pose.
@@ -484,8 +494,8 @@ macro_rules! impl_message {
 }
 
 impl_message!(
-    Measurement => |m| finite(&m.y), true;
-    GroundTruth => |m| finite(&m.pose), true;
+    Measurement => |m| finite(&m.y) && finite(&m.odometry), true;
+    GroundTruth => |m| finite(&m.pose) && finite(&m.applied), m.watchdog <= 1;
     Estimate => |m| finite(&m.state) && finite(&m.covariance) && finite(&m.ahead), true;
     Plan => |m| {
         let n = (m.horizon as usize).min(MAX_HORIZON);
@@ -569,10 +579,13 @@ crate::layouts! {
     Measurement {
         header: Header,
         y: [f64; 3],
+        odometry: [f64; 2],
     }
     GroundTruth {
         header: Header,
         pose: [f64; 3],
+        applied: [f64; 2],
+        watchdog: u32,
     }
     Estimate {
         header: Header,

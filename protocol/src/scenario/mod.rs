@@ -325,6 +325,11 @@ pub struct PlantConfig {
     /// The simulated base's command delay, s: `auto` is the one the controller is told
     /// (`robot.command_delay_s`); a number simulates a base that differs from its model.
     pub command_delay_s: AutoOr,
+    /// The simulated base's command watchdog, s: once the newest command has been applied
+    /// this long beyond its own tick, the base brakes straight to rest on its own at the
+    /// DFL's brake's deceleration (as a real base stops when its commands stop; a DFL on
+    /// a host that is lost cannot brake it).
+    pub command_timeout_s: f64,
 }
 
 impl PlantConfig {
@@ -676,6 +681,7 @@ impl Default for PlantConfig {
             rk4_substeps: 1,
             actuator_lag_s: AutoOr::Auto(Auto::Auto),
             command_delay_s: AutoOr::Auto(Auto::Auto),
+            command_timeout_s: 0.5,
         }
     }
 }

@@ -105,6 +105,17 @@ impl Scenario {
         }
         v.non_negative("robot.radius_m", self.robot.radius_m);
 
+        self.check_plant(v);
+
+        v.non_negative_all("estimator.process_noise", &self.estimator.process_noise);
+        v.non_negative_all(
+            "estimator.initial_variance",
+            &self.estimator.initial_variance,
+        );
+    }
+
+    /// The simulated plant's keys.
+    fn check_plant(&self, v: &mut Validator) {
         v.positive("plant.wheel_radius_m", self.plant.wheel_radius_m);
         v.positive("plant.wheel_base_m", self.plant.wheel_base_m);
         v.non_negative(
@@ -118,17 +129,18 @@ impl Scenario {
             }
         }
         v.non_negative("plant.disturbance_std", self.plant.disturbance_std);
+        let (timeout_s, tick_s) = (self.plant.command_timeout_s, self.timing.dt_s());
+        if tick_s.is_finite() && !(timeout_s.is_finite() && timeout_s >= tick_s) {
+            v.fail(
+                "plant.command_timeout_s",
+                format!("must be at least one inner tick (Ts / M = {tick_s} s), got {timeout_s}"),
+            );
+        }
         v.in_range(
             "plant.rk4_substeps",
             self.plant.rk4_substeps,
             1,
             MAX_RK4_SUBSTEPS,
-        );
-
-        v.non_negative_all("estimator.process_noise", &self.estimator.process_noise);
-        v.non_negative_all(
-            "estimator.initial_variance",
-            &self.estimator.initial_variance,
         );
     }
 

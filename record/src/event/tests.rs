@@ -37,6 +37,7 @@ fn one_of_each() -> Vec<Event> {
             arrival_ms: Some(52.5),
             fallback: "shifted".into(),
         },
+        Event::CommandTimeout { tick: 460 },
         Event::RecordGap {
             tick: 40,
             missing: vec!["truth".into(), "actuation".into()],

@@ -23,7 +23,7 @@ use crate::children::Children;
 use anyhow::bail;
 use iceoryx2::prelude::{WaitSet, ipc::Service};
 use protocol::task::GoalChange;
-use protocol::{Role, Scenario};
+use protocol::{PlantKind, Role, Scenario};
 use record::judge::Outcome;
 use record::{Event, ProcessReport, Recorder};
 use runtime::clock::monotonic_ns;
@@ -336,15 +336,16 @@ impl<'a> Driver<'a> {
         }
     }
 
-    /// Whether the plant and the DFL still run, so that the DFL's fallbacks (the shifted
-    /// plan, then the brake) can bring the robot to rest before an aborted run ends.
+    /// Whether something can still bring the robot to rest before an aborted run ends:
+    /// the plant runs, and the DFL with its fallbacks (the shifted plan, then the brake)
+    /// or, without a DFL (lost with its host), the simulated base's own watchdog
+    /// (`plant.command_timeout_s`).
     fn can_brake_to_rest(&self) -> bool {
-        [Role::Plant, Role::Dfl].iter().all(|&role| {
-            self.parts
-                .children
-                .pid(role, self.parts.session.schedule().current(role))
-                .is_some()
-        })
+        let runs = |role: Role| {
+            let epoch = self.parts.session.schedule().current(role);
+            self.parts.children.pid(role, epoch).is_some()
+        };
+        runs(Role::Plant) && (runs(Role::Dfl) || self.scenario.plant.kind == PlantKind::Sim)
     }
 
     /// Records and judges tick `tick` (with the plans received before it); the tick

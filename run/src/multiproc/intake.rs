@@ -69,6 +69,10 @@ pub(super) struct Intake {
     mode: RunMode,
     /// The plant is a ROS 2 robot: a measurement's input latency is its odometry's age.
     robot: bool,
+    /// The wheels' geometry, for the wheel speeds of a tick the plant's watchdog drove.
+    wheels: protocol::WheelGeometry,
+    /// The plant drove the last tick recorded on its watchdog.
+    on_watchdog: bool,
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
     verdicts: BTreeMap<u64, DeadlineVerdict>,
@@ -101,6 +105,8 @@ impl Intake {
             ticks: scenario.tick_count(),
             mode,
             robot: scenario.plant.kind == protocol::PlantKind::Ros2,
+            wheels: scenario.plant.wheel_geometry(),
+            on_watchdog: false,
             slots: BTreeMap::new(),
             plans: BTreeMap::new(),
             verdicts: BTreeMap::new(),
@@ -233,10 +239,20 @@ impl Intake {
         if !complete && !overdue {
             return Ok(None);
         }
-        let slot = self.take_slot(tick);
-        if let Some(recorder) =
-            recorder.filter(|_| tick < self.ticks && !complete && !slot.commanded())
-        {
+        let mut slot = self.take_slot(tick);
+        let watchdog = self.watchdog_command(tick, &slot);
+        let newly = watchdog.is_some() && !self.on_watchdog;
+        self.on_watchdog = watchdog.is_some();
+        if let Some(act) = watchdog {
+            slot.actuation = Some((act, 0));
+        }
+        let Some(recorder) = recorder.filter(|_| tick < self.ticks) else {
+            return Ok(Some(slot));
+        };
+        if newly {
+            recorder.event(Event::CommandTimeout { tick })?;
+        }
+        if !complete && !slot.commanded() {
             self.record_gaps += 1;
             recorder.event(Event::RecordGap {
                 tick,
@@ -244,6 +260,23 @@ impl Intake {
             })?;
         }
         Ok(Some(slot))
+    }
+
+    /// Real time: the command of tick `tick` (its `slot`) when no DFL commanded it and
+    /// the plant drove it on its own watchdog (`plant.command_timeout_s`), as the truth of
+    /// the tick after tells: what the base applied, in [`CommandMode::Watchdog`].
+    fn watchdog_command(&self, tick: u64, slot: &TickSlot) -> Option<Actuation> {
+        let after = self.slots.get(&(tick + 1))?.truth?;
+        let truth = slot.truth?;
+        (slot.actuation.is_none() && after.watchdog == 1).then(|| Actuation {
+            header: truth.header,
+            u1: after.applied[0],
+            u2: after.applied[1],
+            wheels: self.wheels.wheel_speeds(after.applied),
+            zeta: after.applied[0],
+            mode: protocol::CommandMode::Watchdog as u32,
+            ..Actuation::default()
+        })
     }
 
     /// Takes the slot of `tick` (empty if nothing came); the cursor moves past it.
@@ -264,6 +297,15 @@ impl Intake {
         else {
             return Ok(None);
         };
+        // A tick is recorded with an estimate of NaN when it has none.
+        let estimate = slot.estimate.unwrap_or(Estimate {
+            state: [f64::NAN; 4],
+            ..Estimate::default()
+        });
+        if act.mode() == Some(protocol::CommandMode::Watchdog) {
+            // No DFL commanded it: no hop to measure.
+            return Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?);
+        }
         let l = &mut self.latencies;
         let plant_input_ns = u64::from(measurement.header.input_latency_ns);
         if self.robot {
@@ -271,13 +313,8 @@ impl Intake {
         } else {
             l.hop("control_to_plant", plant_input_ns);
         }
-        // A tick the DFL commanded without an estimate (estimator silent, DFL braking) is
-        // recorded with an estimate of NaN.
+        // A tick the DFL commanded without an estimate: estimator silent, DFL braking.
         self.ticks_without_estimate += u64::from(slot.estimate.is_none());
-        let estimate = slot.estimate.unwrap_or(Estimate {
-            state: [f64::NAN; 4],
-            ..Estimate::default()
-        });
         if slot.estimate.is_some() {
             l.hop(
                 "measurement_to_estimator",
