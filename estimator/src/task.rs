@@ -1,6 +1,8 @@
 //! The estimator role as a task ([`protocol::task`]): each measurement, in tick order, is
 //! predicted to with the actuation of the tick before it and then taken in; the estimate
-//! carries the DFL's zeta from that actuation.
+//! carries the DFL's zeta from that actuation. A filter that starts mid-run (a restart, a
+//! swap, a failover) starts at its first measurement, with zeta from the base's odometry:
+//! it waits for no actuation, which a DFL lost at the same time would never send.
 
 use crate::Estimator;
 use protocol::task::{Context, Due, Publish, Task, TaskError, header_latency, keep_newest};
@@ -68,10 +70,9 @@ impl Task for EstimatorTask {
 
     /// The estimate of the oldest measurement waiting, once the actuation of the tick
     /// before it is heard, a newer one is, or its time is past (then with the newest
-    /// older one). The first measurement a task takes starts its filter; a task that joins
-    /// a running loop hears the actuation it needs again (the executor has every producer
-    /// repeat its newest sample for it). A slow estimator (`fault.estimator_delay_ms`)
-    /// holds every estimate that long.
+    /// older one). The first measurement a task takes starts its filter at once (at tick
+    /// 0 with `robot.zeta0`, later with the odometry's speed). A slow estimator
+    /// (`fault.estimator_delay_ms`) holds every estimate that long.
     fn step(&mut self, context: &impl Context) -> Option<Publish<Estimate>> {
         while let Some(&(m, latency_ns)) = self.queue.front() {
             let tick = m.header.tick;
@@ -80,7 +81,7 @@ impl Task for EstimatorTask {
                 continue;
             }
             let previous = self.heard.filter(|a| a.header.tick < tick);
-            let waiting = tick > 0
+            let waiting = self.last_tick.is_some()
                 && previous.is_none_or(|a| a.header.tick + 1 != tick)
                 && self.heard.is_none_or(|a| a.header.tick < tick)
                 && !context.is_past(m.header.time_s);
@@ -88,9 +89,10 @@ impl Task for EstimatorTask {
                 return None;
             }
             self.queue.pop_front();
+            let output = self.estimate(&m, latency_ns, previous);
             self.last_tick = Some(tick);
             return Some(Publish {
-                output: self.estimate(&m, latency_ns, previous),
+                output,
                 hold_ns: (self.faults.estimator_delay_ms * 1e6) as u64,
             });
         }
@@ -106,7 +108,11 @@ impl EstimatorTask {
         previous: Option<Actuation>,
     ) -> Estimate {
         let applied = previous.filter(|_| m.header.tick > 0).map(|a| [a.u1, a.u2]);
-        let zeta = previous.map_or(self.zeta0, |a| a.zeta);
+        let zeta = match (self.last_tick, m.header.tick) {
+            (_, 0) => self.zeta0,
+            (None, _) => m.odometry[0],
+            (Some(_), _) => previous.map_or(self.zeta0, |a| a.zeta),
+        };
         let header = Header {
             tick: m.header.tick,
             time_s: m.header.time_s,
@@ -119,5 +125,59 @@ impl EstimatorTask {
             estimate.ahead[0] = f64::NAN;
         }
         estimate
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::Scenario;
+    use protocol::task::SimulatedTime;
+
+    fn measurement(tick: u64, dt_s: f64, odometry: [f64; 2]) -> Measurement {
+        Measurement {
+            header: Header {
+                tick,
+                time_s: tick as f64 * dt_s,
+                ..Header::default()
+            },
+            y: [1.0, 2.0, 0.3],
+            odometry,
+        }
+    }
+
+    #[test]
+    fn an_estimator_that_starts_mid_run_waits_for_no_actuation_and_takes_zeta_from_odometry() {
+        let scenario = Scenario::paper().validated("test").expect("valid");
+        let dt_s = scenario.timing.dt_s();
+        let mut task = EstimatorTask::new(&scenario, 3, ()).expect("estimator");
+        // In lockstep: the clock stands at the measurement's tick, which is never past.
+        let at = |tick| SimulatedTime::at(tick, dt_s);
+        let first = measurement(50, dt_s, [0.7, 0.1]);
+        task.hear(EstimatorInput::Measurement(first), 0, &at(50));
+        let estimate = task
+            .step(&at(50))
+            .expect("a new filter starts at once")
+            .output;
+        assert_eq!(estimate.header.tick, 50);
+        assert_eq!(estimate.state[3], 0.7, "zeta from the odometry");
+        let next = measurement(51, dt_s, [0.75, 0.1]);
+        task.hear(EstimatorInput::Measurement(next), 0, &at(51));
+        assert!(
+            task.step(&at(51)).is_none(),
+            "then waits for tick 50's actuation"
+        );
+        let actuation = Actuation {
+            header: Header {
+                tick: 50,
+                ..Header::default()
+            },
+            u1: 0.72,
+            zeta: 0.74,
+            ..Actuation::default()
+        };
+        task.hear(EstimatorInput::Actuation(actuation), 0, &at(51));
+        let estimate = task.step(&at(51)).expect("estimated").output;
+        assert_eq!(estimate.state[3], 0.74, "zeta from the DFL's actuation");
     }
 }

@@ -155,7 +155,10 @@ def main():
                     u1, u2 = realized_inputs(scenario["plant"], previous.u1, previous.u2)
                     ekf.predict(u1, u2, args.dt_s)
                 ekf.update(m.y)
-            zeta = previous.zeta if previous is not None else scenario["robot"]["zeta0"]
+            if last is None and tick > 0:
+                zeta = m.odometry[0]  # started mid-run: the base's speed, as its odometry says
+            else:
+                zeta = previous.zeta if previous is not None else scenario["robot"]["zeta0"]
             estimate = Estimate()
             estimate.header.tick = tick
             estimate.header.time_s = m.header.time_s
