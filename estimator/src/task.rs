@@ -70,8 +70,9 @@ impl Task for EstimatorTask {
 
     /// The estimate of the oldest measurement waiting, once the actuation of the tick
     /// before it is heard, a newer one is, or its time is past (then with the newest
-    /// older one). The first measurement a task takes starts its filter at once (at tick
-    /// 0 with `robot.zeta0`, later with the odometry's speed). A slow estimator
+    /// older one, or none: then zeta is the odometry's speed). The first measurement a
+    /// task takes starts its filter at once (at tick 0 with `robot.zeta0`, later with the
+    /// odometry's speed). A slow estimator
     /// (`fault.estimator_delay_ms`) holds every estimate that long.
     fn step(&mut self, context: &impl Context) -> Option<Publish<Estimate>> {
         while let Some(&(m, latency_ns)) = self.queue.front() {
@@ -108,10 +109,12 @@ impl EstimatorTask {
         previous: Option<Actuation>,
     ) -> Estimate {
         let applied = previous.filter(|_| m.header.tick > 0).map(|a| [a.u1, a.u2]);
-        let zeta = match (self.last_tick, m.header.tick) {
-            (_, 0) => self.zeta0,
-            (None, _) => m.odometry[0],
-            (Some(_), _) => previous.map_or(self.zeta0, |a| a.zeta),
+        // The DFL's zeta; a filter started mid-run, or one whose actuation is late, takes
+        // the base's speed from its odometry.
+        let zeta = match previous {
+            _ if m.header.tick == 0 => self.zeta0,
+            Some(a) if self.last_tick.is_some() => a.zeta,
+            _ => m.odometry[0],
         };
         let header = Header {
             tick: m.header.tick,

@@ -155,10 +155,14 @@ def main():
                     u1, u2 = realized_inputs(scenario["plant"], previous.u1, previous.u2)
                     ekf.predict(u1, u2, args.dt_s)
                 ekf.update(m.y)
-            if last is None and tick > 0:
-                zeta = m.odometry[0]  # started mid-run: the base's speed, as its odometry says
+            # The DFL's zeta; started mid-run, or without the actuation (late), the base's
+            # speed as its odometry says.
+            if tick == 0:
+                zeta = scenario["robot"]["zeta0"]
+            elif previous is not None and last is not None:
+                zeta = previous.zeta
             else:
-                zeta = previous.zeta if previous is not None else scenario["robot"]["zeta0"]
+                zeta = m.odometry[0]
             estimate = Estimate()
             estimate.header.tick = tick
             estimate.header.time_s = m.header.time_s
