@@ -441,8 +441,8 @@ fn run_killing_agent_c(
     child.wait().unwrap().code()
 }
 
-/// In lockstep with robots 1 and 2 on hosts of their own (their trackers, MPCs and route
-/// planners there, every other robot's truth, estimate and plan carried to them over
+/// In lockstep with robots 1 and 2 on hosts of their own (their whole pipelines but the
+/// plants there, every other robot's truth, estimate and plan carried to them over
 /// Zenoh), every robot drives as the fleet in process does, byte for byte.
 #[test]
 fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
@@ -457,8 +457,9 @@ fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
     assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_same_bytes(&in_process, &lockstep, 3);
     let s = summary(&lockstep.path().join("robot1"));
-    assert_eq!(s["hosts"]["mpc"], "b", "{s}");
-    assert_eq!(s["hosts"]["tracker"], "b", "{s}");
+    for role in ["estimator", "tracker", "mpc", "dfl"] {
+        assert_eq!(s["hosts"][role], "b", "{s}");
+    }
     assert!(s["links"]["b"]["host_bridge"]["received"].as_u64().unwrap() > 1000);
     let robot0 = summary(&lockstep.path().join("robot0"));
     assert!(robot0["hosts"].is_null(), "robot 0 runs here: {robot0}");
@@ -505,9 +506,10 @@ fn in_lockstep_two_robots_on_one_host_drive_as_in_process_byte_for_byte() {
 
 /// In real time every robot's clock starts at one tick 0, and robots 0 and 1 (robot 1 on
 /// host `b`) exchange sides, passing each other, without a deadline missed but in a stall
-/// of the machine. Robot 2's agent is killed (SIGKILL) 2 s in: its DFL, beside its plant,
-/// brakes it to rest before its record ends `aborted`, and the other two pass it to
-/// their goals without contact. Nothing of the run is left.
+/// of the machine. Robot 2's agent is killed (SIGKILL) 2 s in, its DFL with it: its
+/// plant's watchdog brakes it to rest (`plant.command_timeout_s`) before its record ends
+/// `aborted`, and the other two pass it to their goals without contact. Nothing of the
+/// run is left.
 #[test]
 fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent_dies_brakes_to_rest()
  {
@@ -545,7 +547,15 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
             at("host_lost").is_some() && at("host_lost") < at("braking_to_rest"),
             "{ev:#?}"
         );
+        assert!(at("host_lost") < at("command_timeout"), "{ev:#?}");
         let trajectory = common::csv(&robot2.join("trajectory.csv"));
+        assert!(
+            trajectory[trajectory.len() - 10..]
+                .iter()
+                .all(|row| row["mode"] == "watchdog"),
+            "braked by the plant's watchdog: {:#?}",
+            &trajectory[trajectory.len() - 10..]
+        );
         let last = &trajectory[trajectory.len() - 10..];
         let moved = |a: &std::collections::HashMap<String, String>| {
             let b = &last[9];
@@ -565,9 +575,10 @@ fn in_real_time_a_robot_on_another_host_swaps_without_a_miss_and_one_whose_agent
 }
 
 /// With `supervision.failover = "local"`, a fleet robot whose agent is SIGKILLed (robot 2,
-/// its tracker and MPC on host `c`) has both started again on the orchestrator's host, and
-/// reaches its goal; so do the others, with no contact. In lockstep: the kill comes at a
-/// simulated time, and the clock waits for the replacements.
+/// its estimator, tracker, MPC and DFL on host `c`) has them all started again on the
+/// orchestrator's host, and reaches its goal; so do the others, with no contact. In
+/// lockstep: the kill comes at a simulated time, and the clock waits for the replacements
+/// (the new estimator starts its filter without the lost DFL's last command).
 #[test]
 fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_its_goal() {
     let _machine = common::machine_shared();
@@ -594,7 +605,7 @@ fn with_failover_local_a_robot_whose_agent_dies_is_planned_for_here_and_reaches_
             .any(|e| e["event"] == "host_lost" && e["host"] == "c"),
         "{ev:#?}"
     );
-    for role in ["tracker", "mpc"] {
+    for role in ["estimator", "tracker", "mpc", "dfl"] {
         let failed_over = ev
             .iter()
             .find(|e| e["event"] == "failed_over" && e["role"] == role)

@@ -28,10 +28,10 @@ pub struct FleetRobot {
     /// default: the scenario's `[fault]`, as every robot's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fault: Option<super::FaultConfig>,
-    /// The host its tracker, MPC and route planner run on (docs/fleet.md, "Across
+    /// The host its pipeline runs on, every role but the plant (docs/fleet.md, "Across
     /// hosts"; empty: the orchestrator's). Its plant, the simulated robot, runs where
-    /// the world is simulated, with its estimator and DFL beside it: a lost host leaves
-    /// the robot its inner loop, which brakes it to rest.
+    /// the world is simulated; when its host is lost, the plant's command watchdog
+    /// brakes it to rest (`plant.command_timeout_s`).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub host: String,
 }
@@ -52,8 +52,13 @@ impl FleetRobot {
 }
 
 /// The roles a robot's host runs ([`FleetRobot::host`]).
-pub const HOSTED_ROLES: [crate::Role; 3] =
-    [crate::Role::Tracker, crate::Role::Mpc, crate::Role::Planner];
+pub const HOSTED_ROLES: [crate::Role; 5] = [
+    crate::Role::Estimator,
+    crate::Role::Tracker,
+    crate::Role::Mpc,
+    crate::Role::Dfl,
+    crate::Role::Planner,
+];
 
 /// The most robots of a fleet: each robot's MPC keeps one disc per other robot, and its
 /// tracks message holds [`crate::MAX_TRACKS`].
