@@ -345,7 +345,10 @@ fn every_scenario_key_and_command_line_guard_refuses_a_bad_value_and_starts_noth
         ),
         (&["plant.disturbance_std=-0.01"], "plant.disturbance_std"),
         (&["plant.rk4_substeps=0"], "plant.rk4_substeps"),
-        (&["plant.command_timeout_s=0.001"], "plant.command_timeout_s"),
+        (
+            &["plant.command_timeout_s=0.001"],
+            "plant.command_timeout_s",
+        ),
         (&["estimator.kind=kalman"], "estimator.kind"),
         (
             &["estimator.process_noise=[0.0, -1.0, 0.0]"],
