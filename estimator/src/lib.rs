@@ -145,6 +145,16 @@ impl Estimator {
         }
     }
 
+    /// A filter that starts mid-run, before its first step: its model of the base (with a
+    /// lag or a delay) starts at the speeds `[u1 m/s, u2 rad/s]` the odometry reports, with
+    /// no command in flight, rather than at `robot.zeta0`.
+    pub fn start_base_at(&mut self, speeds: [f64; 2]) {
+        if let (false, Some(base)) = (self.started, &self.base) {
+            let dt_s = self.scenario.timing.dt_s();
+            self.base = Some(BaseModel::new(base.actuator(), dt_s, speeds));
+        }
+    }
+
     /// One inner tick: `applied` are the inputs `(u1, u2)` heard on the actuation service
     /// for the previous tick (held for `dt_s`, the scenario's inner tick), `y` the
     /// measurement of this tick, `zeta` the DFL's zeta at this tick (with a lag or a

@@ -109,13 +109,22 @@ impl EstimatorTask {
         previous: Option<Actuation>,
     ) -> Estimate {
         let applied = previous.filter(|_| m.header.tick > 0).map(|a| [a.u1, a.u2]);
-        // The DFL's zeta; a filter started mid-run, or one whose actuation is late, takes
-        // the base's speed from its odometry.
-        let zeta = match previous {
-            _ if m.header.tick == 0 => self.zeta0,
-            Some(a) if self.last_tick.is_some() => a.zeta,
-            _ => m.odometry[0],
+        // The DFL's zeta, from the actuation of the tick before; a filter started mid-run,
+        // or one without that actuation (late, or none came: the base's watchdog may have
+        // braked it), takes the base's speed from its odometry.
+        let tick = m.header.tick;
+        let zeta = if tick == 0 {
+            self.zeta0
+        } else if let Some(a) =
+            previous.filter(|a| self.last_tick.is_some() && a.header.tick + 1 == tick)
+        {
+            a.zeta
+        } else {
+            m.odometry[0]
         };
+        if self.last_tick.is_none() && tick > 0 {
+            self.estimator.start_base_at(m.odometry);
+        }
         let header = Header {
             tick: m.header.tick,
             time_s: m.header.time_s,

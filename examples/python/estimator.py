@@ -159,7 +159,7 @@ def main():
             # speed as its odometry says.
             if tick == 0:
                 zeta = scenario["robot"]["zeta0"]
-            elif previous is not None and last is not None:
+            elif previous is not None and last is not None and previous.header.tick + 1 == tick:
                 zeta = previous.zeta
             else:
                 zeta = m.odometry[0]

@@ -26,9 +26,9 @@ pub struct PlantTask {
     held: Option<Actuation>,
     /// The command `[u1 m/s, u2 rad/s]` applied over the last tick, after saturation.
     applied: [f64; 2],
-    /// How long the held command is applied beyond its own tick before the plant brakes
-    /// on its own, s (`plant.command_timeout_s`).
-    command_timeout_s: f64,
+    /// How many ticks the held command is applied beyond its own tick before the plant
+    /// brakes on its own (`plant.command_timeout_s` in whole inner ticks).
+    timeout_ticks: u64,
     /// The watchdog's deceleration, m/s^2: the DFL's brake's (`Scenario::brake_decel`).
     brake_decel: f64,
     /// The tick to output next.
@@ -47,7 +47,8 @@ impl Task for PlantTask {
             timing: scenario.timing.clone(),
             held: None,
             applied: [0.0; 2],
-            command_timeout_s: scenario.plant.command_timeout_s,
+            timeout_ticks: (scenario.plant.command_timeout_s / scenario.timing.dt_s()).round()
+                as u64,
             brake_decel: scenario.brake_decel(),
             tick: 0,
         })
@@ -80,12 +81,9 @@ impl Task for PlantTask {
             let [u1, u2] = match self.held {
                 None => [0.0; 2],
                 // The held command was for tick `k`, over `[t_k, t_(k+1))`.
-                Some(a)
-                    if self.timing.tick_time_s(tick - 1) - a.header.time_s
-                        > self.command_timeout_s =>
-                {
+                Some(a) if (tick - 1).saturating_sub(a.header.tick) > self.timeout_ticks => {
                     watchdog = true;
-                    watchdog_command(self.applied, self.brake_decel, dt_s)
+                    watchdog_command(self.plant.speeds(), self.brake_decel, dt_s)
                 }
                 Some(a) => [a.u1, a.u2],
             };
@@ -103,6 +101,7 @@ impl Task for PlantTask {
             pose: self.plant.pose(),
             applied: self.applied,
             watchdog: u32::from(watchdog),
+            reserved: 0,
         };
         let measurement = Measurement {
             header,
@@ -113,12 +112,12 @@ impl Task for PlantTask {
     }
 }
 
-/// The command of a base whose commands have stopped (its watchdog): no turning, and the
-/// speed of the command `applied` over the last tick brought towards 0 by `brake_decel`
+/// The command of a base whose commands have stopped (its watchdog): no turning, and its
+/// forward speed now (`speeds`, `[u1 m/s, u2 rad/s]`) brought towards 0 by `brake_decel`
 /// (m/s^2) over the tick of `dt_s`, straight along the heading as the DFL's brake
 /// brakes, within the input box the other robots of a fleet allow it.
-pub fn watchdog_command(applied: [f64; 2], brake_decel: f64, dt_s: f64) -> [f64; 2] {
-    let speed = applied[0];
+pub fn watchdog_command(speeds: [f64; 2], brake_decel: f64, dt_s: f64) -> [f64; 2] {
+    let speed = speeds[0];
     let slower = (speed.abs() - brake_decel * dt_s).max(0.0);
     [slower.copysign(speed), 0.0]
 }

@@ -175,7 +175,7 @@ class Measurement(Message):
 
 
 class GroundTruth(Message):
-    _fields_ = [("header", Header), ("pose", c_f64 * 3), ("applied", c_f64 * 2), ("watchdog", c_u32)]
+    _fields_ = [("header", Header), ("pose", c_f64 * 3), ("applied", c_f64 * 2), ("watchdog", c_u32), ("reserved", c_u32)]
 
     def floats(self):
         return list(self.pose) + list(self.applied)

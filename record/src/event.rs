@@ -26,7 +26,8 @@ pub enum Event {
     Ready(Ready),
     /// Real time: the time of tick 0 on this host's `CLOCK_MONOTONIC`, ns.
     ClockStarted { tick0_monotonic_ns: u64 },
-    /// The run's time is up or the robot reached its goal; the DFL brakes to rest before
+    /// The run's time is up, the robot reached its goal, or its run must abort: it is
+    /// braked to rest (by its DFL, or with the DFL lost by its plant's watchdog) before
     /// the processes are stopped.
     BrakingToRest {},
     /// Another host's agent answered and its clock was compared with this one.
@@ -56,8 +57,8 @@ pub enum Event {
     },
     /// A tick the record could not write whole: the topics whose sample never came.
     RecordGap { tick: u64, missing: Vec<String> },
-    /// No command had come for `plant.command_timeout_s`: from this tick the simulated
-    /// base brakes straight to rest on its own watchdog (ticks in command mode
+    /// The newest command had been applied `plant.command_timeout_s` beyond its own tick:
+    /// from this tick the simulated base brakes straight to rest on its own watchdog (ticks in command mode
     /// `watchdog`), until commands come again.
     CommandTimeout { tick: u64 },
     /// A role process died (its exit status) and the iceoryx2 nodes it left were cleaned.

@@ -401,14 +401,15 @@ impl Summary {
             (
                 "commands",
                 format!(
-                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}, hold {}, evasion {}",
+                    "nominal {}, shifted {}, brake {}, zeta_guard {}, safety_brake {}, hold {}, evasion {}, watchdog {}",
                     self.commands.nominal,
                     self.commands.shifted,
                     self.commands.brake,
                     self.commands.zeta_guard,
                     self.commands.safety_brake,
                     self.commands.hold,
-                    self.commands.evasion
+                    self.commands.evasion,
+                    self.commands.watchdog
                 ),
             ),
             (

@@ -75,6 +75,8 @@ pub struct GroundTruth {
     /// 1 when the base drove that tick on its own watchdog, no command having come for
     /// `plant.command_timeout_s` ([`CommandMode::Watchdog`]), else 0.
     pub watchdog: u32,
+    /// Zero: the struct's size a whole number of its 8-byte fields, with no padding.
+    pub reserved: u32,
 }
 
 /// The estimator's output: the extended state and the covariance of the pose.
@@ -586,6 +588,7 @@ crate::layouts! {
         pose: [f64; 3],
         applied: [f64; 2],
         watchdog: u32,
+        reserved: u32,
     }
     Estimate {
         header: Header,

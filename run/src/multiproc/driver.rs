@@ -32,8 +32,8 @@ use runtime::wait::lockstep_poll;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-/// How long the DFL must have commanded the robot to stand before an aborted real-time
-/// run ends, s.
+/// How long the robot must have been commanded to stand (by its DFL, or its plant's
+/// watchdog) before an aborted real-time run ends, s.
 const AT_REST_FOR_S: f64 = 0.2;
 /// The longest an aborted real-time run waits for the robot to come to rest.
 const BRAKE_TIMEOUT: Duration = Duration::from_secs(5);
@@ -256,9 +256,10 @@ impl<'a> Driver<'a> {
     }
 
     /// Real time: the clock started, and ticks recorded and judged as they complete. A run
-    /// that must end aborted while the plant and the DFL still run (a producer lost with no
-    /// restart or failover left) goes on, recorded, until the DFL has braked the robot to
-    /// rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]), and then ends.
+    /// that must end aborted while the robot can still be braked (a producer lost with no
+    /// restart or failover left, [`Driver::can_brake_to_rest`]) goes on, recorded, until
+    /// it is at rest (commanded to stand for [`AT_REST_FOR_S`], or [`BRAKE_TIMEOUT`]), and
+    /// then ends.
     pub fn realtime(&mut self, waitset: &WaitSet<Service>) -> anyhow::Result<Outcome> {
         let start_ns = monotonic_ns() + START_LEAD.as_nanos() as u64;
         self.parts.session.start(start_ns)?;
@@ -297,9 +298,9 @@ impl<'a> Driver<'a> {
     }
 
     /// Real time: [`Driver::check`], except that a run which must end aborted while the
-    /// plant and the DFL still run goes on, recorded (`recording`), until the DFL has
-    /// braked the robot to rest (commanded to stand for [`AT_REST_FOR_S`], or
-    /// [`BRAKE_TIMEOUT`]): the record shows the stop. The outcome once the run ends.
+    /// robot can still be braked goes on, recorded (`recording`), until the DFL or the
+    /// plant's watchdog has braked it to rest (commanded to stand for [`AT_REST_FOR_S`],
+    /// or [`BRAKE_TIMEOUT`]): the record shows the stop. The outcome once the run ends.
     fn check_or_brake(&mut self, recording: bool) -> anyhow::Result<Option<Outcome>> {
         if let Some(since) = self.aborting {
             if self.stop.load(Ordering::Relaxed) {

@@ -414,7 +414,8 @@ fn lockstep(
 /// recorded as they complete, the robots judged against each other tick by tick once every
 /// robot still recorded has come that far, until every robot's record has ended (or 5 s
 /// after the run's end); the time simulated, s. A robot whose run aborts (a process lost
-/// with no restart left) ends its record; its DFL brakes it, and the others drive on.
+/// with no restart left) ends its record once its DFL, or its plant's watchdog, has braked
+/// it to rest, and the others drive on.
 fn realtime(
     drivers: &mut [Driver],
     fleet: &mut Fleet,

@@ -240,16 +240,19 @@ impl Intake {
             return Ok(None);
         }
         let mut slot = self.take_slot(tick);
-        let watchdog = self.watchdog_command(tick, &slot);
-        let newly = watchdog.is_some() && !self.on_watchdog;
-        self.on_watchdog = watchdog.is_some();
-        if let Some(act) = watchdog {
-            slot.actuation = Some((act, 0));
+        // The truth of the tick after tells how the plant drove this one.
+        let after = self.slots.get(&(tick + 1)).and_then(|s| s.truth);
+        let was_on_watchdog = self.on_watchdog;
+        self.on_watchdog = after.map_or(was_on_watchdog, |t| t.watchdog == 1);
+        if slot.actuation.is_none() {
+            slot.actuation = (after.zip(slot.truth))
+                .and_then(|(after, truth)| self.watchdog_command(&truth, &after))
+                .map(|act| (act, 0));
         }
         let Some(recorder) = recorder.filter(|_| tick < self.ticks) else {
             return Ok(Some(slot));
         };
-        if newly {
+        if self.on_watchdog && !was_on_watchdog {
             recorder.event(Event::CommandTimeout { tick })?;
         }
         if !complete && !slot.commanded() {
@@ -262,14 +265,19 @@ impl Intake {
         Ok(Some(slot))
     }
 
-    /// Real time: the command of tick `tick` (its `slot`) when no DFL commanded it and
-    /// the plant drove it on its own watchdog (`plant.command_timeout_s`), as the truth of
-    /// the tick after tells: what the base applied, in [`CommandMode::Watchdog`].
-    fn watchdog_command(&self, tick: u64, slot: &TickSlot) -> Option<Actuation> {
-        let after = self.slots.get(&(tick + 1))?.truth?;
-        let truth = slot.truth?;
-        (slot.actuation.is_none() && after.watchdog == 1).then(|| Actuation {
-            header: truth.header,
+    /// Real time: the command of the tick of `truth` when no DFL commanded it and the
+    /// plant drove it on its own watchdog (`plant.command_timeout_s`), as the truth of the
+    /// tick `after` tells: what the base applied, in [`CommandMode::Watchdog`].
+    fn watchdog_command(&self, truth: &GroundTruth, after: &GroundTruth) -> Option<Actuation> {
+        let at = truth.header;
+        (after.watchdog == 1).then(|| Actuation {
+            header: protocol::Header {
+                tick: at.tick,
+                time_s: at.time_s,
+                run_id: at.run_id,
+                robot: at.robot,
+                ..protocol::Header::default()
+            },
             u1: after.applied[0],
             u2: after.applied[1],
             wheels: self.wheels.wheel_speeds(after.applied),
@@ -302,10 +310,21 @@ impl Intake {
             state: [f64::NAN; 4],
             ..Estimate::default()
         });
-        if act.mode() == Some(protocol::CommandMode::Watchdog) {
-            // No DFL commanded it: no hop to measure.
-            return Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?);
+        // A tick the plant's watchdog drove: no DFL commanded it, no hop to measure.
+        if act.mode() != Some(protocol::CommandMode::Watchdog) {
+            self.measure_hops(&slot, &measurement, &act, own_latency);
         }
+        Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?)
+    }
+
+    /// The hop latencies of a tick the DFL commanded with `act`.
+    fn measure_hops(
+        &mut self,
+        slot: &TickSlot,
+        measurement: &Measurement,
+        act: &Actuation,
+        own_latency: u64,
+    ) {
         let l = &mut self.latencies;
         let plant_input_ns = u64::from(measurement.header.input_latency_ns);
         if self.robot {
@@ -315,7 +334,7 @@ impl Intake {
         }
         // A tick the DFL commanded without an estimate: estimator silent, DFL braking.
         self.ticks_without_estimate += u64::from(slot.estimate.is_none());
-        if slot.estimate.is_some() {
+        if let Some(estimate) = &slot.estimate {
             l.hop(
                 "measurement_to_estimator",
                 u64::from(estimate.header.input_latency_ns),
@@ -326,14 +345,13 @@ impl Intake {
             // In real time the orchestrator drains its buffers periodically: not a hop.
             l.hop("actuation_to_orchestrator", own_latency);
         }
-        if !self.timing.starts_sample(truth.header.tick) && slot.estimate.is_some() {
+        if !self.timing.starts_sample(measurement.header.tick) && slot.estimate.is_some() {
             let ns = act
                 .header
                 .publish_ns
                 .saturating_sub(measurement.header.publish_ns);
             l.sensor_to_actuator(ns);
         }
-        Ok(recorder.tick(&truth, Some(&measurement), &estimate, &act)?)
     }
 
     /// Records every route and plan received, then every deadline verdict (the DFL judges
@@ -381,5 +399,103 @@ impl Intake {
         self.latencies.report(report);
         report.record_gaps = self.record_gaps;
         report.ticks_without_estimate = self.ticks_without_estimate;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use protocol::{CommandMode, Header};
+
+    fn header(tick: u64, dt_s: f64) -> Header {
+        Header {
+            tick,
+            time_s: tick as f64 * dt_s,
+            ..Header::default()
+        }
+    }
+
+    /// Ticks before `silent_from` commanded by the DFL; after, none; the plant's watchdog
+    /// drove the ticks from `watchdog_from` on, slowing by 0.01 m/s a tick.
+    fn file_ticks(
+        intake: &mut Intake,
+        dt_s: f64,
+        ticks: u64,
+        silent_from: u64,
+        watchdog_from: u64,
+    ) {
+        for tick in 0..ticks {
+            let driven = tick
+                .checked_sub(1)
+                .filter(|before| *before >= watchdog_from);
+            let applied = driven.map_or([0.5, 0.1], |before| {
+                [0.5 - 0.01 * (before - watchdog_from + 1) as f64, 0.0]
+            });
+            let truth = GroundTruth {
+                header: header(tick, dt_s),
+                applied,
+                watchdog: u32::from(driven.is_some()),
+                ..GroundTruth::default()
+            };
+            intake.file(Data::Truth(truth), 0);
+            let measurement = Measurement {
+                header: header(tick, dt_s),
+                ..Measurement::default()
+            };
+            intake.file(Data::Measurement(measurement), 0);
+            if tick < silent_from {
+                let estimate = Estimate {
+                    header: header(tick, dt_s),
+                    ..Estimate::default()
+                };
+                intake.file(Data::Estimate(estimate), 0);
+                let act = Actuation {
+                    header: header(tick, dt_s),
+                    u1: 0.5,
+                    ..Actuation::default()
+                };
+                intake.file(Data::Actuation(act), 0);
+            }
+        }
+    }
+
+    #[test]
+    fn ticks_the_plants_watchdog_drove_are_recorded_in_its_mode_after_one_command_timeout() {
+        let scenario = protocol::Scenario::paper();
+        let dt_s = scenario.timing.dt_s();
+        let dir = tempfile::tempdir().unwrap();
+        let mut recorder =
+            Recorder::create(dir.path(), &scenario, &[record::sink::EventsFile::open]).unwrap();
+        let mut intake = Intake::new(&scenario, RunMode::Realtime);
+        file_ticks(&mut intake, dt_s, 200, 50, 80);
+        let mut commands = Vec::new();
+        while let Some(slot) = intake.next_due(Some(&mut recorder)).unwrap() {
+            commands.push(slot.actuation.map(|(act, _)| act));
+        }
+        drop(recorder);
+        assert!(commands.len() > 120, "{} ticks due", commands.len());
+        for (tick, act) in commands.iter().enumerate() {
+            let mode = act.and_then(|a| a.mode());
+            match tick {
+                0..50 => assert_eq!(mode, Some(CommandMode::Nominal), "tick {tick}"),
+                50..80 => assert_eq!(mode, None, "tick {tick}: held, not commanded"),
+                _ => {
+                    let act = act.expect("driven by the watchdog");
+                    assert_eq!(mode, Some(CommandMode::Watchdog), "tick {tick}");
+                    assert_eq!(act.header.tick, tick as u64);
+                    let slowed = 0.5 - 0.01 * (tick - 79) as f64;
+                    assert!((act.u1 - slowed).abs() < 1e-12, "tick {tick}: {act:?}");
+                    assert_eq!((act.zeta, act.u2), (act.u1, 0.0));
+                }
+            }
+        }
+        let events = std::fs::read_to_string(dir.path().join("events.jsonl")).unwrap();
+        let timeouts: Vec<&str> = events
+            .lines()
+            .filter(|l| l.contains("command_timeout"))
+            .collect();
+        assert_eq!(timeouts.len(), 1, "{events}");
+        assert!(timeouts[0].contains("\"tick\":80"), "{}", timeouts[0]);
+        assert_eq!(events.matches("record_gap").count(), 30, "{events}");
     }
 }
