@@ -361,6 +361,8 @@ fn a_fleets_bad_input_names_the_robots_key() {
     refused(&["fuzz", "--robots", "2..3", "--people", "0.2"], "--people");
     swap4("robots.1.host=\"b c\"", "robots.1.host");
     swap4("robots.1.host=orchestrator", "robots.1.host");
+    swap4("robots.1.host_roles=\"pipeline\"", "robots.1.host_roles");
+    swap4("robots.1.host_roles=\"whole\"", "robots.1.host_roles");
     swap4("robots.1.fault.link_loss=0.1", "robots.1.fault");
     swap4("hosts.mpc=\"b\"", "hosts");
     refused(
@@ -441,9 +443,10 @@ fn run_killing_agent_c(
     child.wait().unwrap().code()
 }
 
-/// In lockstep with robots 1 and 2 on hosts of their own (their whole pipelines but the
-/// plants there, every other robot's truth, estimate and plan carried to them over
-/// Zenoh), every robot drives as the fleet in process does, byte for byte.
+/// In lockstep with robots 1 and 2 on hosts of their own (robot 1's planning, robot 2's
+/// whole pipeline but its plant there, every other robot's truth, estimate and plan
+/// carried to them over Zenoh), every robot drives as the fleet in process does, byte for
+/// byte.
 #[test]
 fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
     let _machine = common::machine_shared();
@@ -457,10 +460,17 @@ fn in_lockstep_robots_on_other_hosts_drive_as_in_process_byte_for_byte() {
     assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_same_bytes(&in_process, &lockstep, 3);
     let s = summary(&lockstep.path().join("robot1"));
-    for role in ["estimator", "tracker", "mpc", "dfl"] {
-        assert_eq!(s["hosts"][role], "b", "{s}");
-    }
+    assert_eq!(s["hosts"]["mpc"], "b", "{s}");
+    assert_eq!(s["hosts"]["tracker"], "b", "{s}");
+    assert!(
+        s["hosts"]["dfl"].is_null(),
+        "robot 1's inner loop runs here: {s}"
+    );
     assert!(s["links"]["b"]["host_bridge"]["received"].as_u64().unwrap() > 1000);
+    let s = summary(&lockstep.path().join("robot2"));
+    for role in ["estimator", "tracker", "mpc", "dfl"] {
+        assert_eq!(s["hosts"][role], "c", "{s}");
+    }
     let robot0 = summary(&lockstep.path().join("robot0"));
     assert!(robot0["hosts"].is_null(), "robot 0 runs here: {robot0}");
 }

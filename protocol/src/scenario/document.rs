@@ -278,6 +278,7 @@ fn make_room(doc: &mut toml::Value, key: &str) {
     let unset = own.and_then(|(i, field)| {
         let value = match field {
             "host" => Some(toml::Value::String(String::new())),
+            "host_roles" => toml::Value::try_from(super::HostRoles::default()).ok(),
             "radius_m" => value_of(table, "robot", "radius_m"),
             "v_max" => value_of(table, "mpc", "v_max"),
             _ => None,

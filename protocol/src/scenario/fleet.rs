@@ -28,12 +28,46 @@ pub struct FleetRobot {
     /// default: the scenario's `[fault]`, as every robot's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fault: Option<super::FaultConfig>,
-    /// The host its pipeline runs on, every role but the plant (docs/fleet.md, "Across
+    /// The host its roles of [`FleetRobot::host_roles`] run on (docs/fleet.md, "Across
     /// hosts"; empty: the orchestrator's). Its plant, the simulated robot, runs where
-    /// the world is simulated; when its host is lost, the plant's command watchdog
-    /// brakes it to rest (`plant.command_timeout_s`).
+    /// the world is simulated.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub host: String,
+    /// Which of its roles run on its `host`.
+    #[serde(default, skip_serializing_if = "HostRoles::is_default")]
+    pub host_roles: HostRoles,
+}
+
+/// Which of a fleet robot's roles its host runs ([`FleetRobot::host_roles`]).
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum HostRoles {
+    /// Its tracker, MPC and route planner: its estimator and DFL stay beside the plant,
+    /// as a robot's inner loop runs on the robot, and a lost host leaves it its DFL,
+    /// which brakes it to rest.
+    #[default]
+    Planning,
+    /// Every role but the plant, its estimator and DFL too: every inner tick's
+    /// measurement and command cross the link, and a lost host leaves the plant to its
+    /// command watchdog (`plant.command_timeout_s`).
+    Pipeline,
+}
+
+impl HostRoles {
+    fn is_default(&self) -> bool {
+        *self == HostRoles::default()
+    }
+
+    /// The roles placed on the robot's host.
+    pub fn roles(self) -> &'static [crate::Role] {
+        use crate::Role::*;
+        match self {
+            HostRoles::Planning => &[Tracker, Mpc, Planner],
+            HostRoles::Pipeline => &[Estimator, Tracker, Mpc, Dfl, Planner],
+        }
+    }
 }
 
 impl FleetRobot {
@@ -47,18 +81,10 @@ impl FleetRobot {
             v_max: None,
             fault: None,
             host: String::new(),
+            host_roles: HostRoles::default(),
         }
     }
 }
-
-/// The roles a robot's host runs ([`FleetRobot::host`]).
-pub const HOSTED_ROLES: [crate::Role; 5] = [
-    crate::Role::Estimator,
-    crate::Role::Tracker,
-    crate::Role::Mpc,
-    crate::Role::Dfl,
-    crate::Role::Planner,
-];
 
 /// The most robots of a fleet: each robot's MPC keeps one disc per other robot, and its
 /// tracks message holds [`crate::MAX_TRACKS`].
@@ -100,16 +126,16 @@ impl Scenario {
                 // No link of its own to act on.
                 member.fault = member.fault.without_link_faults();
             } else {
-                member.place_on(&robot.host);
+                member.place_on(&robot.host, robot.host_roles);
             }
         }
         member
     }
 
-    /// The roles of a robot's host that run in it placed on `host`
+    /// The `roles` of a robot's host that run in it placed on `host`
     /// ([`FleetRobot::host`]).
-    fn place_on(&mut self, host: &str) {
-        for role in HOSTED_ROLES {
+    fn place_on(&mut self, host: &str, roles: HostRoles) {
+        for &role in roles.roles() {
             if let (None, Some(placed)) = (self.absent(role), self.hosts.role_mut(role)) {
                 *placed = host.to_string();
             }
@@ -233,6 +259,11 @@ impl Scenario {
         }
         if !robot.host.is_empty() {
             self.check_own_host(v, i, &robot.host);
+        } else if !robot.host_roles.is_default() {
+            v.fail(
+                &format!("robots.{i}.host_roles"),
+                format!("places roles on robot {i}'s host, and it has none (robots.{i}.host)"),
+            );
         } else if robot
             .fault
             .as_ref()
