@@ -72,8 +72,8 @@ impl Task for EstimatorTask {
     /// before it is heard, a newer one is, or its time is past (then with the newest
     /// older one, or none: then zeta is the odometry's speed). The first measurement a
     /// task takes starts its filter at once (at tick 0 with `robot.zeta0`, later with the
-    /// odometry's speed). A slow estimator
-    /// (`fault.estimator_delay_ms`) holds every estimate that long.
+    /// odometry's speed). A slow estimator (`fault.estimator_delay_ms`) holds every
+    /// estimate that long.
     fn step(&mut self, context: &impl Context) -> Option<Publish<Estimate>> {
         while let Some(&(m, latency_ns)) = self.queue.front() {
             let tick = m.header.tick;

@@ -2,9 +2,9 @@
 //! the actuation of tick `j - 1` over `[t_(j-1), t_j)` and outputs the truth and the
 //! measurement of tick `j`.
 //!
-//! Like a real base's command watchdog, the plant brakes on its own when no command has
-//! come for `plant.command_timeout_s`: a DFL on a host that is lost can no longer brake
-//! it ([`watchdog_command`]).
+//! Like a real base's command watchdog, the plant brakes on its own once its newest
+//! command is `plant.command_timeout_s` old: a DFL on a host that is lost can no longer
+//! brake it ([`watchdog_command`]).
 
 use crate::Plant;
 pub use protocol::task::PlantOutput;
