@@ -376,6 +376,72 @@ fn a_link_down_from_2_to_4_s_gives_the_shifted_plan_then_the_brake_and_flying_re
 }
 
 #[test]
+fn a_link_down_past_the_command_timeout_brakes_the_base_which_ramps_to_the_commands_that_come_again()
+ {
+    let _machine = common::machine_alone();
+    let agent = Agent::plain("compute");
+    let dir = tempfile::tempdir().unwrap();
+    // The estimator and the DFL on the agent: from 2 s the link carries neither the
+    // measurements nor the commands. The base holds its last command for 0.5 s, brakes
+    // at the DFL's brake's 3 m/s^2, and at 2.7 s, still moving, is commanded again by a
+    // DFL that braked to rest on its own meanwhile.
+    let out = agent.run(
+        "compute",
+        &["estimator", "mpc", "dfl"],
+        dir.path(),
+        &[
+            "--mode",
+            "realtime",
+            "--no-mcap",
+            "--set",
+            "mpc.r_diag=[3,3]",
+            "--set",
+            "duration_s=8",
+            "--set",
+            "fault.link_down_s=[2.0, 2.7]",
+        ],
+    );
+    assert!(out.status.code().is_some(), "{}", stderr(&out));
+    let events = events(dir.path());
+    let timeouts = (events.iter())
+        .filter(|e| e["event"] == "command_timeout")
+        .count();
+    assert_eq!(timeouts, 1, "{events:?}");
+    // The record's zeta is what drove the base each tick (the DFL's, or its watchdog's
+    // while it braked and ramped): never faster a change than the input box allows.
+    let trajectory = Table::read(&dir.path().join("trajectory.csv")).unwrap();
+    let (t, zeta, mode) = (
+        trajectory.numbers("t").unwrap(),
+        trajectory.numbers("zeta").unwrap(),
+        trajectory.column("mode").unwrap(),
+    );
+    let box_accel = 2f64.sqrt() * 3.0;
+    for i in 1..t.len() {
+        let rate = (zeta[i] - zeta[i - 1]).abs() / (t[i] - t[i - 1]);
+        assert!(
+            rate <= box_accel * 1.001,
+            "zeta {} -> {} m/s at t = {} s ({} -> {})",
+            zeta[i - 1],
+            zeta[i],
+            t[i],
+            mode[i - 1],
+            mode[i]
+        );
+    }
+    // Commanded again by 2.75 s, the base was still moving: ramping to the commands.
+    let i = (0..t.len())
+        .find(|&i| t[i] >= 2.75)
+        .expect("recorded to 2.75 s");
+    assert!(
+        mode[i] == "watchdog" && zeta[i] > 0.1,
+        "at {} s: {} m/s in mode {}",
+        t[i],
+        zeta[i],
+        mode[i]
+    );
+}
+
+#[test]
 fn a_link_losing_a_fifth_of_its_samples_still_reaches_the_goal_and_counts_the_losses() {
     let _machine = common::machine_alone();
     let agent = Agent::plain("compute");

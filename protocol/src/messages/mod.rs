@@ -73,7 +73,9 @@ pub struct GroundTruth {
     /// saturation: `[u1 m/s, u2 rad/s]` (the simulated base's; 0 from a ROS 2 base).
     pub applied: [f64; 2],
     /// 1 when the base drove that tick on its own watchdog, no command having come for
-    /// `plant.command_timeout_s` ([`CommandMode::Watchdog`]), else 0.
+    /// `plant.command_timeout_s` ([`CommandMode::Watchdog`]); 2 when, after that, it
+    /// ramped its forward speed to the commands that came again (at the watchdog's
+    /// deceleration, `plant::task::resumed_command`); else 0.
     pub watchdog: u32,
     /// Zero: the struct's size a whole number of its 8-byte fields, with no padding.
     pub reserved: u32,
@@ -497,7 +499,7 @@ macro_rules! impl_message {
 
 impl_message!(
     Measurement => |m| finite(&m.y) && finite(&m.odometry), true;
-    GroundTruth => |m| finite(&m.pose) && finite(&m.applied), m.watchdog <= 1;
+    GroundTruth => |m| finite(&m.pose) && finite(&m.applied), m.watchdog <= 2;
     Estimate => |m| finite(&m.state) && finite(&m.covariance) && finite(&m.ahead), true;
     Plan => |m| {
         let n = (m.horizon as usize).min(MAX_HORIZON);

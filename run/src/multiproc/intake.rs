@@ -71,8 +71,9 @@ pub(super) struct Intake {
     robot: bool,
     /// The wheels' geometry, for the wheel speeds of a tick the plant's watchdog drove.
     wheels: protocol::WheelGeometry,
-    /// The plant drove the last tick recorded on its watchdog.
-    on_watchdog: bool,
+    /// What the plant's watchdog did over the last tick recorded
+    /// ([`GroundTruth::watchdog`]: 1 braking, 2 ramping to the commands that came again).
+    watchdog: u32,
     slots: BTreeMap<u64, TickSlot>,
     plans: BTreeMap<u64, Plan>,
     verdicts: BTreeMap<u64, DeadlineVerdict>,
@@ -106,7 +107,7 @@ impl Intake {
             mode,
             robot: scenario.plant.kind == protocol::PlantKind::Ros2,
             wheels: scenario.plant.wheel_geometry(),
-            on_watchdog: false,
+            watchdog: 0,
             slots: BTreeMap::new(),
             plans: BTreeMap::new(),
             verdicts: BTreeMap::new(),
@@ -236,23 +237,28 @@ impl Intake {
             .slots
             .get(&tick)
             .is_some_and(|s| s.complete(tick == self.ticks));
-        if !complete && !overdue {
+        // The truth of the tick after tells how the plant drove this one. After a tick its
+        // watchdog drove, the next may be driven too though the DFL commanded it (the base
+        // ramping to the commands that came again): it waits for that truth.
+        let after = self.slots.get(&(tick + 1)).and_then(|s| s.truth);
+        let waits_for_after = self.watchdog != 0 && after.is_none() && tick < self.ticks;
+        if (!complete || waits_for_after) && !overdue {
             return Ok(None);
         }
         let mut slot = self.take_slot(tick);
-        // The truth of the tick after tells how the plant drove this one.
-        let after = self.slots.get(&(tick + 1)).and_then(|s| s.truth);
-        let was_on_watchdog = self.on_watchdog;
-        self.on_watchdog = after.map_or(was_on_watchdog, |t| t.watchdog == 1);
-        if slot.actuation.is_none() {
-            slot.actuation = (after.zip(slot.truth))
-                .and_then(|(after, truth)| self.watchdog_command(&truth, &after))
-                .map(|act| (act, 0));
+        let before = self.watchdog;
+        self.watchdog = after.map_or(before, |t| t.watchdog);
+        // What the base's own watchdog applied stands for the DFL's command, if one came:
+        // the base did not apply that one.
+        if let Some(driven) =
+            (after.zip(slot.truth)).and_then(|(after, truth)| self.watchdog_command(&truth, &after))
+        {
+            slot.actuation = Some((driven, 0));
         }
         let Some(recorder) = recorder.filter(|_| tick < self.ticks) else {
             return Ok(Some(slot));
         };
-        if self.on_watchdog && !was_on_watchdog {
+        if self.watchdog == 1 && before != 1 {
             recorder.event(Event::CommandTimeout { tick })?;
         }
         if !complete && !slot.commanded() {
@@ -265,12 +271,13 @@ impl Intake {
         Ok(Some(slot))
     }
 
-    /// Real time: the command of the tick of `truth` when no DFL commanded it and the
-    /// plant drove it on its own watchdog (`plant.command_timeout_s`), as the truth of the
-    /// tick `after` tells: what the base applied, in [`CommandMode::Watchdog`].
+    /// Real time: the command of the tick of `truth` when the plant drove it on its own
+    /// watchdog (`plant.command_timeout_s`: no DFL commanded it, or the base ramped to
+    /// the commands that came again), as the truth of the tick `after` tells: what the
+    /// base applied, in [`CommandMode::Watchdog`].
     fn watchdog_command(&self, truth: &GroundTruth, after: &GroundTruth) -> Option<Actuation> {
         let at = truth.header;
-        (after.watchdog == 1).then(|| Actuation {
+        (after.watchdog != 0).then(|| Actuation {
             header: protocol::Header {
                 tick: at.tick,
                 time_s: at.time_s,
@@ -415,26 +422,31 @@ mod tests {
         }
     }
 
-    /// Ticks before `silent_from` commanded by the DFL; after, none; the plant's watchdog
-    /// drove the ticks from `watchdog_from` on, slowing by 0.01 m/s a tick.
+    /// Ticks before `silent_from` commanded by the DFL at 0.5 m/s; then none until
+    /// `resumed_from`, and from there commands at rest again. The plant's watchdog braked the
+    /// ticks from `watchdog_from` on, slowing by 0.01 m/s a tick, and from `resumed_from`
+    /// it ramps to the commands (the same slowing) until at rest.
     fn file_ticks(
         intake: &mut Intake,
         dt_s: f64,
         ticks: u64,
-        silent_from: u64,
-        watchdog_from: u64,
+        [silent_from, watchdog_from, resumed_from]: [u64; 3],
     ) {
         for tick in 0..ticks {
             let driven = tick
                 .checked_sub(1)
                 .filter(|before| *before >= watchdog_from);
-            let applied = driven.map_or([0.5, 0.1], |before| {
-                [0.5 - 0.01 * (before - watchdog_from + 1) as f64, 0.0]
-            });
+            let slowed = |before: u64| (0.5 - 0.01 * (before - watchdog_from + 1) as f64).max(0.0);
+            let (applied, watchdog) = match driven {
+                None => ([0.5, 0.1], 0),
+                Some(before) if before < resumed_from => ([slowed(before), 0.0], 1),
+                Some(before) if slowed(before) > 0.0 => ([slowed(before), 0.0], 2),
+                Some(_) => ([0.0; 2], 0),
+            };
             let truth = GroundTruth {
                 header: header(tick, dt_s),
                 applied,
-                watchdog: u32::from(driven.is_some()),
+                watchdog,
                 ..GroundTruth::default()
             };
             intake.file(Data::Truth(truth), 0);
@@ -443,7 +455,7 @@ mod tests {
                 ..Measurement::default()
             };
             intake.file(Data::Measurement(measurement), 0);
-            if tick < silent_from {
+            if tick < silent_from || tick >= resumed_from {
                 let estimate = Estimate {
                     header: header(tick, dt_s),
                     ..Estimate::default()
@@ -451,7 +463,7 @@ mod tests {
                 intake.file(Data::Estimate(estimate), 0);
                 let act = Actuation {
                     header: header(tick, dt_s),
-                    u1: 0.5,
+                    u1: if tick < silent_from { 0.5 } else { 0.0 },
                     ..Actuation::default()
                 };
                 intake.file(Data::Actuation(act), 0);
@@ -467,19 +479,23 @@ mod tests {
         let mut recorder =
             Recorder::create(dir.path(), &scenario, &[record::sink::EventsFile::open]).unwrap();
         let mut intake = Intake::new(&scenario, RunMode::Realtime);
-        file_ticks(&mut intake, dt_s, 200, 50, 80);
+        // Braked from 0.5 m/s at 0.01 m/s a tick from 80: at 0.2 m/s when commands come
+        // again at 110, ramped to their rest by 129, the first tick commanded again.
+        file_ticks(&mut intake, dt_s, 200, [50, 80, 110]);
         let mut commands = Vec::new();
         while let Some(slot) = intake.next_due(Some(&mut recorder)).unwrap() {
             commands.push(slot.actuation.map(|(act, _)| act));
         }
         drop(recorder);
-        assert!(commands.len() > 120, "{} ticks due", commands.len());
+        assert!(commands.len() > 160, "{} ticks due", commands.len());
         for (tick, act) in commands.iter().enumerate() {
             let mode = act.and_then(|a| a.mode());
             match tick {
                 0..50 => assert_eq!(mode, Some(CommandMode::Nominal), "tick {tick}"),
                 50..80 => assert_eq!(mode, None, "tick {tick}: held, not commanded"),
-                _ => {
+                // Braked, then ramped to the DFL's commands at rest: what the base applied,
+                // not what the DFL commanded.
+                80..129 => {
                     let act = act.expect("driven by the watchdog");
                     assert_eq!(mode, Some(CommandMode::Watchdog), "tick {tick}");
                     assert_eq!(act.header.tick, tick as u64);
@@ -487,6 +503,7 @@ mod tests {
                     assert!((act.u1 - slowed).abs() < 1e-12, "tick {tick}: {act:?}");
                     assert_eq!((act.zeta, act.u2), (act.u1, 0.0));
                 }
+                _ => assert_eq!(mode, Some(CommandMode::Nominal), "tick {tick}"),
             }
         }
         let events = std::fs::read_to_string(dir.path().join("events.jsonl")).unwrap();
@@ -497,5 +514,21 @@ mod tests {
         assert_eq!(timeouts.len(), 1, "{events}");
         assert!(timeouts[0].contains("\"tick\":80"), "{}", timeouts[0]);
         assert_eq!(events.matches("record_gap").count(), 30, "{events}");
+    }
+
+    #[test]
+    fn a_tick_commanded_while_the_base_ramps_after_its_watchdog_waits_for_the_truth_after_it() {
+        let scenario = protocol::Scenario::paper();
+        let dt_s = scenario.timing.dt_s();
+        let mut intake = Intake::new(&scenario, RunMode::Realtime);
+        // Braked from tick 51, commanded again from 53, the base ramping until about 100:
+        // tick 79 is whole, but only the truth of 80 tells whether the base applied its
+        // command.
+        file_ticks(&mut intake, dt_s, 80, [50, 51, 53]);
+        let mut due = Vec::new();
+        while let Some(slot) = intake.next_due(None).unwrap() {
+            due.push(slot.truth.map(|t| t.header.tick));
+        }
+        assert_eq!(due.last(), Some(&Some(78)), "{} ticks due", due.len());
     }
 }
