@@ -155,6 +155,12 @@ pub struct RoleDecl {
     /// role does; the others run whenever their world needs them
     /// ([`Scenario::roles`]).
     pub optional: bool,
+    /// Whether, in lockstep, the orchestrator's grant of a tick wakes its process: its
+    /// step is due at the tick's time (the plant's). Every other role steps on its inputs,
+    /// which the plant's step of the tick sets going, and takes the grant from shared
+    /// memory then: not waking it spares the orchestrator a system call a process a tick
+    /// (docs/fleet.md, "Measured", "Speed").
+    pub woken_by_grants: bool,
 }
 
 /// A role's `peer_inputs` in [`declare_roles!`]: none unless given.
@@ -177,7 +183,8 @@ macro_rules! declare_roles {
         $(peer_inputs: $peer_inputs:expr,)?
         tier: $tier:ident,
         remote: $remote:expr,
-        optional: $optional:expr $(,)?
+        optional: $optional:expr,
+        woken_by_grants: $woken_by_grants:expr $(,)?
     }),* $(,)?) => {
         /// The roles of a run ([`declare_roles!`]).
         #[repr(u32)]
@@ -211,6 +218,7 @@ macro_rules! declare_roles {
                 tier: Tier::$tier,
                 remote: $remote,
                 optional: $optional,
+                woken_by_grants: $woken_by_grants,
             },)*
         ];
     };
@@ -224,6 +232,7 @@ declare_roles! {
         tier: Control,
         remote: true,
         optional: false,
+        woken_by_grants: true,
     },
     /// The state estimator: the extended state from the measurements.
     Estimator = 1 "estimator" {
@@ -232,6 +241,7 @@ declare_roles! {
         tier: Control,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The simulated lidar (docs/running.md, "A lidar"): only in runs with a `[lidar]`.
     Lidar = 7 "lidar" {
@@ -241,6 +251,7 @@ declare_roles! {
         tier: Tracking,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The tracker of the obstacles (docs/running.md, "Moving obstacles"): only in runs
     /// that track an obstacle or see with a lidar. It takes the scans and the estimates
@@ -252,6 +263,7 @@ declare_roles! {
         tier: Tracking,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The safety-critical linear MPC (or the nonlinear baseline).
     Mpc = 2 "mpc" {
@@ -260,6 +272,7 @@ declare_roles! {
         tier: Control,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The dynamic feedback linearization and its gatekeeper.
     Dfl = 3 "dfl" {
@@ -268,6 +281,7 @@ declare_roles! {
         tier: Control,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The route planner (docs/planner.md): only in runs that plan routes.
     Planner = 4 "planner" {
@@ -276,6 +290,7 @@ declare_roles! {
         tier: Planning,
         remote: true,
         optional: false,
+        woken_by_grants: false,
     },
     /// The example role (examples/roles/odometer): the distance the estimate has driven,
     /// every sample; only in runs whose `extra_roles` name it.
@@ -285,6 +300,7 @@ declare_roles! {
         tier: Planning,
         remote: false,
         optional: true,
+        woken_by_grants: false,
     },
 }
 
@@ -323,6 +339,7 @@ pub const ROBOT: RoleDecl = RoleDecl {
     tier: Tier::Control,
     remote: true,
     optional: false,
+    woken_by_grants: true,
 };
 
 /// The declaration of `role` in a run whose plant is `plant`.

@@ -314,7 +314,13 @@ impl Member {
             &crate::ipc::node_name(args.robot, role, args.epoch),
             true,
         )?;
-        let control = open_topic::<Control>(&node, args.robot, CONTROL)?.receiver()?;
+        let control = open_topic::<Control>(&node, args.robot, CONTROL)?;
+        let declared = protocol::graph::declaration(role, args.scenario.plant.kind);
+        let control = if args.mode == RunMode::Realtime || declared.woken_by_grants {
+            control.receiver()?
+        } else {
+            control.quiet_receiver()? // lockstep: its inputs wake it, the grant with them
+        };
         if let Some(id) = args.control_publisher {
             control.pin_to(id);
         }
@@ -435,13 +441,14 @@ impl Member {
                 .attach_notification(listener)
                 .map_err(|e| IpcError(format!("attaching a listener: {e}")))
         };
-        let control = attach(self.clock.control.listener())?;
+        let control = self.clock.control.listener().map(attach).transpose()?;
         let inputs_attached = inputs
             .iter()
-            .map(|input| attach(input.listener()))
+            .map(|input| crate::ipc::attach_input(&waitset, *input))
             .collect::<Result<Vec<_>, _>>()?;
-        // Listener 0 is the control topic's, then each input's in order (`housekeeping`).
-        let mut wakes = Wakes::new(std::iter::once(&control).chain(&inputs_attached));
+        // Listener 0 is the control topic's, if the process listens to it, then each
+        // input's in order (`housekeeping`).
+        let mut wakes = Wakes::new(control.iter().chain(&inputs_attached));
         // Set up: the real-time policy before the first step (the orchestrator warned once
         // of what the machine refuses, and reads what each process runs under).
         let applied = match self.policy.as_ref().map(Policy::apply) {
@@ -689,12 +696,14 @@ impl Member {
         wakes: &mut Wakes,
         lockstep: bool,
     ) -> Result<bool, IpcError> {
+        let control = self.clock.control.listener().is_some();
+        let first_input = usize::from(control);
         for (i, input) in inputs.iter().enumerate() {
-            if wakes.to_clear(lockstep, i + 1) {
+            if wakes.to_clear(lockstep, first_input + i) {
                 input.clear_wakeups();
             }
         }
-        if wakes.to_clear(lockstep, 0) {
+        if control && wakes.to_clear(lockstep, 0) {
             self.clock.control.clear_wakeups();
         }
         wakes.cleared();
@@ -741,7 +750,8 @@ impl Member {
         last_input: &mut Instant,
     ) -> Result<bool, ProcessError> {
         let mut timeout = timeout.unwrap_or(INPUT_TIMEOUT).min(INPUT_TIMEOUT);
-        if self.supervisor_pid.is_some() {
+        // A process the control topic does not wake looks at it between waits too.
+        if self.supervisor_pid.is_some() || self.clock.control.listener().is_none() {
             timeout = timeout.min(SUPERVISOR_CHECK);
         }
         match wakes.wait(waitset, timeout)? {

@@ -294,7 +294,7 @@ fn drive_opened(
         guards.push(session.status.attach(&waitset)?);
         listeners.push((id, None));
         for (i, input) in session.inputs().enumerate() {
-            guards.push(ipc::attach(&waitset, input.listener())?);
+            guards.push(ipc::attach_input(&waitset, input)?);
             listeners.push((id, Some(i)));
         }
     }

@@ -279,7 +279,7 @@ fn drive(
     let mut guards = vec![session.status.attach(&waitset)?];
     if mode == RunMode::Lockstep {
         for input in session.inputs() {
-            guards.push(ipc::attach(&waitset, input.listener())?);
+            guards.push(ipc::attach_input(&waitset, input)?);
         }
     }
     let outcome =

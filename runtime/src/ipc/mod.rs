@@ -306,6 +306,15 @@ impl<T: Wire> Topic<T> {
         self.receiver_inner(None)
     }
 
+    /// [`Topic::receiver`] without a listener: no publisher wakes it, so each sample
+    /// costs a publisher no system call for it; its samples are taken when the process
+    /// wakes for something else (a lockstep role's control topic, `process::Member`).
+    pub fn quiet_receiver(&self) -> Result<Receiver<T>, IpcError> {
+        let mut receiver = self.receiver_inner(None)?;
+        receiver.listener = None;
+        Ok(receiver)
+    }
+
     /// A receiver that takes only samples of this run, from the active epoch of
     /// `producer`, finite, and in tick order; it counts every sample it refuses.
     pub fn receiver_from(&self, producer: protocol::Role) -> Result<Receiver<T>, IpcError> {
@@ -316,7 +325,7 @@ impl<T: Wire> Topic<T> {
         let (subscriber, listener) = self.subscribing_ports()?;
         Ok(Receiver {
             subscriber,
-            listener,
+            listener: Some(listener),
             run_id: self.run_id,
             robot: self.robot,
             producer,
@@ -381,7 +390,8 @@ impl<T: Wire> Sender<T> {
 /// Receives `T`; its listener is what a WaitSet blocks on.
 pub struct Receiver<T: Wire> {
     subscriber: Subscriber<ipc::Service, T, ()>,
-    listener: Listener<ipc::Service>,
+    /// `None`: a quiet receiver ([`Topic::quiet_receiver`]).
+    listener: Option<Listener<ipc::Service>>,
     run_id: u32,
     robot: u32,
     /// Role whose producer epoch is checked (`None`: any epoch, no tick order).
@@ -410,8 +420,9 @@ pub struct Receiver<T: Wire> {
 }
 
 impl<T: Wire> Receiver<T> {
-    pub fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
+    /// The listener its publishers wake (`None`: a quiet receiver).
+    pub fn listener(&self) -> Option<&Listener<ipc::Service>> {
+        self.listener.as_ref()
     }
 
     /// The next acceptable sample, if any, with its publish-to-receipt latency in ns.
@@ -577,7 +588,9 @@ impl<T: Wire> Receiver<T> {
 
     /// Consumes the pending wake-ups, so a WaitSet does not fire again for them.
     pub fn clear_wakeups(&self) {
-        let _ = self.listener.try_wait(|_| {});
+        if let Some(listener) = &self.listener {
+            let _ = listener.try_wait(|_| {});
+        }
     }
 }
 
@@ -587,7 +600,7 @@ impl<T: Wire> Receiver<T> {
         &'w self,
         waitset: &'w WaitSet<ipc::Service>,
     ) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
-        attach(waitset, &self.listener)
+        attach_input(waitset, self)
     }
 
     /// Every pending sample, after clearing the wake-ups (so none is missed).
@@ -604,6 +617,18 @@ impl<T: Wire> Receiver<T> {
         }
         Ok(())
     }
+}
+
+/// Attaches the listener of `input` to `waitset`; keep the guard while waiting. A quiet
+/// receiver ([`Topic::quiet_receiver`]) has none to attach.
+pub fn attach_input<'w>(
+    waitset: &'w WaitSet<ipc::Service>,
+    input: &'w dyn Input,
+) -> Result<WaitSetGuard<'w, 'w, ipc::Service>, IpcError> {
+    let listener = input
+        .listener()
+        .ok_or_else(|| IpcError("a quiet receiver has no listener to wait on".into()))?;
+    attach(waitset, listener)
 }
 
 /// Attaches `listener` to `waitset`; keep the guard while waiting.
@@ -634,8 +659,8 @@ pub trait TickLimit {
 
 /// What the role runtime needs of an input, whatever it carries (every [`Receiver`]).
 pub trait Input {
-    /// The listener a WaitSet blocks on.
-    fn listener(&self) -> &Listener<ipc::Service>;
+    /// The listener a WaitSet blocks on (`None`: a quiet receiver, which nothing wakes).
+    fn listener(&self) -> Option<&Listener<ipc::Service>>;
     /// Whether a sample is waiting (without taking it).
     fn has_samples(&self) -> bool;
     fn clear_wakeups(&self);
@@ -656,8 +681,8 @@ pub trait Input {
 }
 
 impl<T: Wire> Input for Receiver<T> {
-    fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
+    fn listener(&self) -> Option<&Listener<ipc::Service>> {
+        self.listener.as_ref()
     }
     fn has_samples(&self) -> bool {
         Receiver::has_samples(self)
