@@ -294,8 +294,10 @@ fn drive_opened(
         guards.push(session.status.attach(&waitset)?);
         listeners.push((id, None));
         for (i, input) in session.inputs().enumerate() {
-            guards.push(ipc::attach_input(&waitset, input)?);
-            listeners.push((id, Some(i)));
+            if input.listener().is_some() {
+                guards.push(ipc::attach_input(&waitset, input)?);
+                listeners.push((id, Some(i)));
+            }
         }
     }
     let mut wakes = (Wakes::new(&guards), listeners);

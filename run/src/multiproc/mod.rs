@@ -278,7 +278,7 @@ fn drive(
     let waitset = ipc::waitset(false)?;
     let mut guards = vec![session.status.attach(&waitset)?];
     if mode == RunMode::Lockstep {
-        for input in session.inputs() {
+        for input in session.inputs().filter(|i| i.listener().is_some()) {
             guards.push(ipc::attach_input(&waitset, input)?);
         }
     }

@@ -78,7 +78,11 @@ impl Session {
         };
         let mut data = Vec::new();
         for (topic, producer) in Graph::of(scenario).topics() {
-            data.push((topic, wire::data_input(&node, robot, topic, producer)?));
+            let quiet = mode == RunMode::Lockstep && comes_before_the_command(topic);
+            data.push((
+                topic,
+                wire::data_input(&node, robot, topic, producer, quiet)?,
+            ));
         }
         let session = Session {
             control: open_topic(&node, robot, ipc::CONTROL)?.sender(0)?,
@@ -221,4 +225,14 @@ impl Session {
         }
         refused
     }
+}
+
+/// Lockstep: whether a sample of `topic` always comes before the DFL's command of its
+/// tick, which is computed from it: the truth and the measurement the plant's step gives,
+/// and the estimate. The orchestrator takes those when the command, or anything else,
+/// wakes it, so they need not wake it ([`Receiver::quiet`]): every notification costs its
+/// publisher a system call, on the tick's path (docs/fleet.md, "Measured", "Speed").
+fn comes_before_the_command(topic: &str) -> bool {
+    use protocol::topics::{ESTIMATE, MEASUREMENT, TRUTH};
+    [TRUTH, MEASUREMENT, ESTIMATE].contains(&topic)
 }

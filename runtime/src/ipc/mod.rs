@@ -306,13 +306,9 @@ impl<T: Wire> Topic<T> {
         self.receiver_inner(None)
     }
 
-    /// [`Topic::receiver`] without a listener: no publisher wakes it, so each sample
-    /// costs a publisher no system call for it; its samples are taken when the process
-    /// wakes for something else (a lockstep role's control topic, `process::Member`).
+    /// [`Topic::receiver`] without a listener ([`Receiver::quiet`]).
     pub fn quiet_receiver(&self) -> Result<Receiver<T>, IpcError> {
-        let mut receiver = self.receiver_inner(None)?;
-        receiver.listener = None;
-        Ok(receiver)
+        Ok(self.receiver_inner(None)?.quiet())
     }
 
     /// A receiver that takes only samples of this run, from the active epoch of
@@ -420,6 +416,15 @@ pub struct Receiver<T: Wire> {
 }
 
 impl<T: Wire> Receiver<T> {
+    /// The receiver without its listener: no publisher wakes it, so a sample costs its
+    /// publisher no system call for it; its samples are taken when the process wakes for
+    /// something else (in lockstep: a role's control topic, `process::Member`; the
+    /// orchestrator's inputs that come before a tick's command, `run::multiproc`).
+    pub fn quiet(mut self) -> Receiver<T> {
+        self.listener = None;
+        self
+    }
+
     /// The listener its publishers wake (`None`: a quiet receiver).
     pub fn listener(&self) -> Option<&Listener<ipc::Service>> {
         self.listener.as_ref()

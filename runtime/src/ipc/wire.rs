@@ -131,15 +131,20 @@ macro_rules! by_topic {
         }
 
         /// An input of data topic `name` of robot `robot`, taking samples from `producer`
-        /// as [`Data`] (the orchestrator's, for topics it records whatever their type).
+        /// as [`Data`] (the orchestrator's, for topics it records whatever their type);
+        /// `quiet`: without a listener ([`Receiver::quiet`]).
         pub fn data_input(
             node: &Node<ipc::Service>,
             robot: u32,
             name: &str,
             producer: protocol::Role,
+            quiet: bool,
         ) -> Result<Box<dyn DataInput>, IpcError> {
             match name {
-                $($topic => Ok(Box::new(open_topic::<$t>(node, robot, $topic)?.receiver_from(producer)?)),)*
+                $($topic => {
+                    let input = open_topic::<$t>(node, robot, $topic)?.receiver_from(producer)?;
+                    Ok(Box::new(if quiet { input.quiet() } else { input }))
+                })*
                 other => Err(IpcError(format!("no data topic `{other}`"))),
             }
         }
