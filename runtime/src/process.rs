@@ -319,7 +319,7 @@ impl Member {
         let control = if args.mode == RunMode::Realtime || declared.woken_by_grants {
             control.receiver()?
         } else {
-            control.quiet_receiver()? // lockstep: its inputs wake it, the grant with them
+            control.receiver()?.quiet() // lockstep: its inputs wake it, the grant with them
         };
         if let Some(id) = args.control_publisher {
             control.pin_to(id);
@@ -436,12 +436,9 @@ impl Member {
         mut warm_up: Option<impl FnMut(u64)>,
     ) -> Result<(), ProcessError> {
         let waitset = waitset(true)?;
-        let attach = |listener| {
-            waitset
-                .attach_notification(listener)
-                .map_err(|e| IpcError(format!("attaching a listener: {e}")))
-        };
-        let control = self.clock.control.listener().map(attach).transpose()?;
+        let control = (self.clock.control.listener())
+            .map(|listener| crate::ipc::attach(&waitset, listener))
+            .transpose()?;
         let inputs_attached = inputs
             .iter()
             .map(|input| crate::ipc::attach_input(&waitset, *input))

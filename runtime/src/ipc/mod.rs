@@ -306,11 +306,6 @@ impl<T: Wire> Topic<T> {
         self.receiver_inner(None)
     }
 
-    /// [`Topic::receiver`] without a listener ([`Receiver::quiet`]).
-    pub fn quiet_receiver(&self) -> Result<Receiver<T>, IpcError> {
-        Ok(self.receiver_inner(None)?.quiet())
-    }
-
     /// A receiver that takes only samples of this run, from the active epoch of
     /// `producer`, finite, and in tick order; it counts every sample it refuses.
     pub fn receiver_from(&self, producer: protocol::Role) -> Result<Receiver<T>, IpcError> {
@@ -386,7 +381,7 @@ impl<T: Wire> Sender<T> {
 /// Receives `T`; its listener is what a WaitSet blocks on.
 pub struct Receiver<T: Wire> {
     subscriber: Subscriber<ipc::Service, T, ()>,
-    /// `None`: a quiet receiver ([`Topic::quiet_receiver`]).
+    /// `None`: a quiet receiver ([`Receiver::quiet`]).
     listener: Option<Listener<ipc::Service>>,
     run_id: u32,
     robot: u32,
@@ -625,7 +620,7 @@ impl<T: Wire> Receiver<T> {
 }
 
 /// Attaches the listener of `input` to `waitset`; keep the guard while waiting. A quiet
-/// receiver ([`Topic::quiet_receiver`]) has none to attach.
+/// receiver ([`Receiver::quiet`]) has none to attach.
 pub fn attach_input<'w>(
     waitset: &'w WaitSet<ipc::Service>,
     input: &'w dyn Input,
