@@ -161,6 +161,11 @@ pub struct RoleDecl {
     /// memory then: not waking it spares the orchestrator a system call a process a tick
     /// (docs/fleet.md, "Measured", "Speed").
     pub woken_by_grants: bool,
+    /// Inputs it takes from the tick before the one it steps (the plant and the
+    /// estimator: the command of tick `j - 1` at tick `j`). In lockstep each is in shared
+    /// memory before the tick is granted, so it need not wake the process
+    /// ([`woken_by_grants`](RoleDecl::woken_by_grants)'s reason).
+    pub from_the_tick_before: &'static [&'static str],
 }
 
 /// A role's `peer_inputs` in [`declare_roles!`]: none unless given.
@@ -184,7 +189,8 @@ macro_rules! declare_roles {
         tier: $tier:ident,
         remote: $remote:expr,
         optional: $optional:expr,
-        woken_by_grants: $woken_by_grants:expr $(,)?
+        woken_by_grants: $woken_by_grants:expr,
+        from_the_tick_before: $from_the_tick_before:expr $(,)?
     }),* $(,)?) => {
         /// The roles of a run ([`declare_roles!`]).
         #[repr(u32)]
@@ -219,6 +225,7 @@ macro_rules! declare_roles {
                 remote: $remote,
                 optional: $optional,
                 woken_by_grants: $woken_by_grants,
+                from_the_tick_before: $from_the_tick_before,
             },)*
         ];
     };
@@ -233,6 +240,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: true,
+        from_the_tick_before: &[ACTUATION],
     },
     /// The state estimator: the extended state from the measurements.
     Estimator = 1 "estimator" {
@@ -242,6 +250,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[ACTUATION],
     },
     /// The simulated lidar (docs/running.md, "A lidar"): only in runs with a `[lidar]`.
     Lidar = 7 "lidar" {
@@ -252,6 +261,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
     /// The tracker of the obstacles (docs/running.md, "Moving obstacles"): only in runs
     /// that track an obstacle or see with a lidar. It takes the scans and the estimates
@@ -264,6 +274,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
     /// The safety-critical linear MPC (or the nonlinear baseline).
     Mpc = 2 "mpc" {
@@ -273,6 +284,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
     /// The dynamic feedback linearization and its gatekeeper.
     Dfl = 3 "dfl" {
@@ -282,6 +294,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
     /// The route planner (docs/planner.md): only in runs that plan routes.
     Planner = 4 "planner" {
@@ -291,6 +304,7 @@ declare_roles! {
         remote: true,
         optional: false,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
     /// The example role (examples/roles/odometer): the distance the estimate has driven,
     /// every sample; only in runs whose `extra_roles` name it.
@@ -301,6 +315,7 @@ declare_roles! {
         remote: false,
         optional: true,
         woken_by_grants: false,
+        from_the_tick_before: &[],
     },
 }
 
@@ -340,6 +355,7 @@ pub const ROBOT: RoleDecl = RoleDecl {
     remote: true,
     optional: false,
     woken_by_grants: true,
+    from_the_tick_before: &[],
 };
 
 /// The declaration of `role` in a run whose plant is `plant`.

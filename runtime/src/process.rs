@@ -302,6 +302,9 @@ pub struct Member {
     policy: Option<Policy>,
     /// Lockstep: whether it polls shared memory before it blocks ([`Member::poll`]).
     polls: bool,
+    /// The inputs that do not wake it: in lockstep, those it takes from the tick before
+    /// ([`protocol::graph::RoleDecl::from_the_tick_before`]).
+    quiet_inputs: &'static [&'static str],
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
@@ -316,10 +319,11 @@ impl Member {
         )?;
         let control = open_topic::<Control>(&node, args.robot, CONTROL)?;
         let declared = protocol::graph::declaration(role, args.scenario.plant.kind);
-        let control = if args.mode == RunMode::Realtime || declared.woken_by_grants {
-            control.receiver()?
+        let lockstep = args.mode == RunMode::Lockstep;
+        let control = if lockstep && !declared.woken_by_grants {
+            control.receiver()?.quiet() // its inputs wake it, and it takes the grant then
         } else {
-            control.receiver()?.quiet() // lockstep: its inputs wake it, the grant with them
+            control.receiver()?
         };
         if let Some(id) = args.control_publisher {
             control.pin_to(id);
@@ -343,6 +347,11 @@ impl Member {
             clock,
             status,
             polls: args.scenario.robot_count() == 1,
+            quiet_inputs: if lockstep {
+                declared.from_the_tick_before
+            } else {
+                &[]
+            },
             policy: (args.mode == RunMode::Realtime)
                 .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
         })
@@ -354,7 +363,10 @@ impl Member {
         name: &'static str,
         producer: Role,
     ) -> Result<Receiver<T>, IpcError> {
-        let input = open_topic::<T>(&self.node, self.robot, name)?.receiver_from(producer)?;
+        let mut input = open_topic::<T>(&self.node, self.robot, name)?.receiver_from(producer)?;
+        if self.quiet_inputs.contains(&name) {
+            input = input.quiet();
+        }
         input.bound_by(self.clock.clone());
         Ok(input)
     }
@@ -441,10 +453,11 @@ impl Member {
             .transpose()?;
         let inputs_attached = inputs
             .iter()
+            .filter(|input| input.listener().is_some())
             .map(|input| crate::ipc::attach_input(&waitset, *input))
             .collect::<Result<Vec<_>, _>>()?;
         // Listener 0 is the control topic's, if the process listens to it, then each
-        // input's in order (`housekeeping`).
+        // input's that does, in order (`housekeeping`).
         let mut wakes = Wakes::new(control.iter().chain(&inputs_attached));
         // Set up: the real-time policy before the first step (the orchestrator warned once
         // of what the machine refuses, and reads what each process runs under).
@@ -694,9 +707,9 @@ impl Member {
         lockstep: bool,
     ) -> Result<bool, IpcError> {
         let control = self.clock.control.listener().is_some();
-        let first_input = usize::from(control);
-        for (i, input) in inputs.iter().enumerate() {
-            if wakes.to_clear(lockstep, first_input + i) {
+        let listening = inputs.iter().filter(|input| input.listener().is_some());
+        for (i, input) in listening.enumerate() {
+            if wakes.to_clear(lockstep, usize::from(control) + i) {
                 input.clear_wakeups();
             }
         }
