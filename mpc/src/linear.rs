@@ -117,6 +117,10 @@ pub struct LinearMpc {
     solution: Vec<f64>,
     /// Sample of the last solved plan, whose goal-relative states are in `last_z`.
     last_sample: Option<u64>,
+    /// Whether the last solved plan is the escape program's (the tracks at their
+    /// velocity): the next step then tries the bounded program at the shifted plan alone,
+    /// without the cold retry ([`LinearMpc::step`]).
+    last_escaped: bool,
     last_z: Vec<[f64; 4]>,
     /// The last step's estimate `x_bar` and position standard deviation, m, and its
     /// duration, ns.
@@ -203,6 +207,7 @@ impl LinearMpc {
             reference: vec![[0.0; 2]; c.horizon + 1],
             reference_velocity: [0.0; 2],
             last_sample: None,
+            last_escaped: false,
             last_z: vec![[0.0; 4]; c.horizon + 1],
             last_estimate: None,
             last_step_ns: 0,
@@ -270,6 +275,7 @@ impl LinearMpc {
     /// Forgets the previous plan: the next step linearizes at a braking rollout.
     pub fn reset(&mut self) {
         self.last_sample = None;
+        self.last_escaped = false;
     }
 
     /// A warm-up: a dry run of the next step, for its memory's sake: a process that slept since its
@@ -312,10 +318,12 @@ impl LinearMpc {
         );
         self.saved_last_z.copy_from_slice(&self.last_z);
         self.saved_solution.copy_from_slice(&self.solution);
+        let last_escaped = self.last_escaped;
         self.step(sample + 1, predicted, sigma_m);
         self.last_z.copy_from_slice(&self.saved_last_z);
         self.solution.copy_from_slice(&self.saved_solution);
         self.last_sample = Some(sample);
+        self.last_escaped = last_escaped;
         self.last_estimate = Some((x_bar, sigma_m));
     }
 
@@ -429,8 +437,18 @@ impl LinearMpc {
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0);
         // (A warm-up cut short tries nothing more: `CancelSlot`.)
-        if outcome.status != PlanStatus::Solved && warm && !self.cancel.cancelled() {
+        if outcome.status != PlanStatus::Solved
+            && warm
+            && !self.last_escaped
+            && !self.cancel.cancelled()
+        {
             // The shifted plan is no longer a usable linearization point: start cold.
+            // Not after an escape plan: the bounded program is then almost always
+            // infeasible at the braking rollout too, and proving it costs two solves
+            // (`swap8` in process, 2026-12-04: after 3012 escape plans the cold retry
+            // found no plan once; the bounded program was feasible again at the shifted
+            // plan 83 times, and the cold retry found a plan 4 times, each after a
+            // bounded plan).
             self.braking_reference(z0);
             outcome = outcome.then(self.refine(z0));
         }
@@ -483,6 +501,8 @@ impl LinearMpc {
         } else {
             self.last_sample = None;
         }
+        self.last_escaped =
+            outcome.status == PlanStatus::Solved && self.prediction == Prediction::ConstantVelocity;
         plan
     }
 

@@ -247,3 +247,27 @@ fn the_last_resort_escapes_another_robot_for_passive_safety_alone_not_a_person()
         }
     }
 }
+
+#[test]
+fn a_step_after_an_escape_plan_tries_the_bounded_program_at_the_shifted_plan_alone() {
+    // The world of the escape above: no bounded plan at sample 0, nor at sample 1 with the
+    // walker nearer.
+    let mut s = walked_at(-1.1);
+    s.mpc.rest_lookahead_s = 0.0;
+    s.perception.accel_max = 3.0;
+    let [x, y, theta] = s.robot.start;
+    let two_samples = |after_escape: bool| {
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        mpc.set_tracks(&exact_tracks(&s, 0.0));
+        let escape = mpc.step(0, [x, y, theta, 0.0], 0.0);
+        assert!(escape.is_solved() && mpc.last_escaped, "sample 0 escaped");
+        mpc.last_escaped = after_escape;
+        mpc.set_tracks(&exact_tracks(&s, s.timing.ts_s));
+        mpc.step(1, [x, y, theta, 0.0], 0.0)
+    };
+    let (after_escape, retried) = (two_samples(true), two_samples(false));
+    assert!(after_escape.is_solved() && retried.is_solved());
+    // The cold retry found no bounded plan either: the same escape, two solves fewer.
+    assert_eq!(after_escape.z, retried.z);
+    assert_eq!(after_escape.solves + 2, retried.solves);
+}
