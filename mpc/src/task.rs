@@ -108,6 +108,11 @@ impl Task for MpcTask {
         })
     }
 
+    /// Only the estimates that start a sample are stepped on.
+    fn woken_at_sample_starts(&self, topic: &str) -> bool {
+        topic == protocol::topics::ESTIMATE
+    }
+
     /// An estimate is kept if it starts a sample not solved yet (a replay repeats one that
     /// was), with its receipt latency; routes are kept a few samples' worth.
     fn hear(&mut self, input: MpcInput, latency_ns: u64, _context: &impl Context) {

@@ -57,6 +57,11 @@ impl Task for PlannerTask {
         topic != TRACKS || self.tracks.is_some()
     }
 
+    /// Only the estimates that start a sample are answered.
+    fn woken_at_sample_starts(&self, topic: &str) -> bool {
+        topic == protocol::topics::ESTIMATE
+    }
+
     /// An estimate heard: kept if it starts a sample not answered yet; tracks: kept.
     fn hear(&mut self, input: PlannerInput, _latency_ns: u64, _context: &impl Context) {
         match (input, &mut self.tracks) {

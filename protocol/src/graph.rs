@@ -371,6 +371,12 @@ pub fn peer_inputs_of(role: Role) -> &'static [&'static str] {
     declaration(role, PlantKind::Sim).peer_inputs
 }
 
+/// The tick topics whose samples at sample starts (ticks that are multiples of `M`) are
+/// announced on an event service of their own as well (`runtime::ipc::Topic`): a role
+/// that steps on them only then ([`crate::task::Task::woken_at_sample_starts`]) is, in
+/// lockstep, woken once a sample by them rather than every tick (docs/fleet.md, "Speed").
+pub const SAMPLE_START_TOPICS: &[&str] = &[TRUTH, ESTIMATE];
+
 /// How many roles of a robot take `topic` from each other robot of a fleet (their
 /// [`RoleDecl::peer_inputs`]).
 pub fn peer_takers_of(topic: &str) -> usize {

@@ -333,6 +333,14 @@ pub trait Task: Sized {
         true
     }
 
+    /// Whether, of `topic` (a tick topic: [`crate::graph::SAMPLE_START_TOPICS`]), it
+    /// needs only the samples at sample starts to step: in lockstep those alone wake its
+    /// process, and the others are taken then (the MPC's and the planner's estimates; the
+    /// tracker's truths when every perception tick starts a sample).
+    fn woken_at_sample_starts(&self, _topic: &str) -> bool {
+        false
+    }
+
     /// An input sample, received `latency_ns` after it was published.
     fn hear(&mut self, input: Self::Input, latency_ns: u64, context: &impl Context);
 

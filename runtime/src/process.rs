@@ -305,6 +305,9 @@ pub struct Member {
     /// The inputs that do not wake it: in lockstep, those it takes from the tick before
     /// ([`protocol::graph::RoleDecl::from_the_tick_before`]).
     quiet_inputs: &'static [&'static str],
+    lockstep: bool,
+    /// `M`, which its outputs announce their sample starts by ([`Sender::with_ticks_per_sample`]).
+    ticks_per_sample: u64,
     /// Declared last: dropped after the ports above.
     node: Node<ipc::Service>,
 }
@@ -352,18 +355,28 @@ impl Member {
             } else {
                 &[]
             },
+            lockstep,
+            ticks_per_sample: args.scenario.timing.ticks_per_sample(),
             policy: (args.mode == RunMode::Realtime)
                 .then(|| Policy::for_this_process(&args.scenario.realtime, Tier::of(role)).0),
         })
     }
 
-    /// An input taking samples of topic `name` from the active process of `producer`.
+    /// An input taking samples of topic `name` from the active process of `producer`;
+    /// in lockstep woken only by the samples at sample starts if `at_sample_starts`
+    /// ([`protocol::task::Task::woken_at_sample_starts`]).
     pub fn input<T: Wire>(
         &self,
         name: &'static str,
         producer: Role,
+        at_sample_starts: bool,
     ) -> Result<Receiver<T>, IpcError> {
-        let mut input = open_topic::<T>(&self.node, self.robot, name)?.receiver_from(producer)?;
+        let topic = open_topic::<T>(&self.node, self.robot, name)?;
+        let mut input = if self.lockstep && at_sample_starts {
+            topic.receiver_at_sample_starts(producer)?
+        } else {
+            topic.receiver_from(producer)?
+        };
         if self.quiet_inputs.contains(&name) {
             input = input.quiet();
         }
@@ -387,7 +400,9 @@ impl Member {
 
     /// An output publishing on topic `name` with this process's epoch.
     pub fn output<T: Wire>(&self, name: &'static str) -> Result<Sender<T>, IpcError> {
-        open_topic::<T>(&self.node, self.robot, name)?.sender(self.epoch)
+        Ok(open_topic::<T>(&self.node, self.robot, name)?
+            .sender(self.epoch)?
+            .with_ticks_per_sample(self.ticks_per_sample))
     }
 
     /// Tells the orchestrator about this process.

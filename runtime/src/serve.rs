@@ -24,7 +24,7 @@ pub fn serve<T: Task>(args: &ProcessArgs) -> Result<(), ProcessError> {
     let inputs = Graph::of(&args.scenario)
         .inputs_of(T::ROLE)
         .filter(|topic| task.takes(topic))
-        .map(|topic| InPort::open(&member, topic).map(Rc::new))
+        .map(|topic| InPort::open(&member, topic, task.woken_at_sample_starts(topic)).map(Rc::new))
         .collect::<Result<Vec<_>, _>>()?;
     // In a fleet, the other robots' topics the task takes from them, after its own.
     let peers = (0..args.scenario.robot_count() as u32).filter(|&robot| robot != args.robot);
@@ -123,12 +123,13 @@ macro_rules! data_ports {
         }
 
         impl InPort {
-            /// The input of `topic` from its producer (the data flow's).
-            fn open(member: &Member, topic: &'static str) -> Result<InPort, IpcError> {
+            /// The input of `topic` from its producer (the data flow's), woken only at
+            /// sample starts if `at_sample_starts` ([`Member::input`]).
+            fn open(member: &Member, topic: &'static str, at_sample_starts: bool) -> Result<InPort, IpcError> {
                 let producer = producer_of(topic)
                     .ok_or_else(|| IpcError(format!("`{topic}` is not a data topic")))?;
                 Ok(match topic {
-                    $(protocol::topics::$topic => InPort::$variant(member.input::<protocol::$t>(topic, producer)?),)*
+                    $(protocol::topics::$topic => InPort::$variant(member.input::<protocol::$t>(topic, producer, at_sample_starts)?),)*
                     _ => return Err(IpcError(format!("`{topic}` is not a data topic"))),
                 })
             }

@@ -60,6 +60,8 @@ pub struct TrackerTask {
     sense: Sense,
     perception: PerceptionTicks,
     ticks_per_sample: u64,
+    /// Whether every perception tick starts a sample.
+    perceives_at_sample_starts: bool,
     dt_s: f64,
     faults: FaultConfig,
     /// Perception ticks heard and not measured yet, with their times, s (of the truth).
@@ -91,6 +93,9 @@ impl Task for TrackerTask {
             sense,
             perception: PerceptionTicks::of(scenario),
             ticks_per_sample: scenario.timing.inner_steps as u64,
+            perceives_at_sample_starts: scenario
+                .perception_ticks()
+                .is_multiple_of(scenario.timing.ticks_per_sample()),
             dt_s: scenario.timing.dt_s(),
             faults: scenario.fault.clone(),
             pending: VecDeque::with_capacity(8),
@@ -106,6 +111,12 @@ impl Task for TrackerTask {
             Sense::Truth(_) => topic == TRUTH,
             Sense::Lidar { .. } => topic == SCAN || topic == ESTIMATE,
         }
+    }
+
+    /// The truths at perception ticks, if each starts a sample (with a lidar, its scans
+    /// wake it, and the estimates of every tick: a robot's scan may be of any tick).
+    fn woken_at_sample_starts(&self, topic: &str) -> bool {
+        matches!(self.sense, Sense::Truth(_)) && topic == TRUTH && self.perceives_at_sample_starts
     }
 
     /// In a fleet, another robot's truth, estimate or plan.

@@ -3,7 +3,10 @@
 //!
 //! A topic is a publish-subscribe service paired with an event service of the same name:
 //! a [`Sender`] publishes a sample and then notifies, so a [`Receiver`]'s process can
-//! block in a WaitSet on the listener instead of spinning.
+//! block in a WaitSet on the listener instead of spinning. A tick topic of
+//! [`protocol::graph::SAMPLE_START_TOPICS`] has a second event service, notified only of
+//! the samples at sample starts, for the receivers that need no others to step
+//! ([`Topic::receiver_at_sample_starts`]).
 
 use crate::clock::monotonic_ns;
 use iceoryx2::node::NodeView;
@@ -169,6 +172,9 @@ pub struct Topic<T: Wire> {
     robot: u32,
     pubsub: publish_subscribe::PortFactory<ipc::Service, T, ()>,
     event: event::PortFactory<ipc::Service>,
+    /// The event service of its samples at sample starts (a topic of
+    /// [`protocol::graph::SAMPLE_START_TOPICS`]).
+    sample_starts: Option<event::PortFactory<ipc::Service>>,
 }
 
 /// Opens (or creates) topic `name` of robot `robot`'s pipeline, carrying `T`: its service
@@ -234,16 +240,17 @@ fn open_service<T: Wire>(
         pubsub.open().map_err(|e| e.to_string())
     }
     .map_err(|e| IpcError(format!("opening service `{service}`: {e}")))?;
-    let event = (node.service_builder(&service_name).event())
-        .max_nodes(MAX_EVENT_NODES + peer_takers(name))
-        .max_listeners(MAX_LISTENERS + peer_takers(name))
-        .event_id_max_value(EVENT_ID_MAX);
-    let event = if create {
-        event.open_or_create().map_err(|e| e.to_string())
+    let event = open_event_service(node, service, name, create)?;
+    let sample_starts = if protocol::graph::SAMPLE_START_TOPICS.contains(&name) {
+        Some(open_event_service(
+            node,
+            &format!("{service}/sample_starts"),
+            name,
+            create,
+        )?)
     } else {
-        event.open().map_err(|e| e.to_string())
-    }
-    .map_err(|e| IpcError(format!("opening event service `{service}`: {e}")))?;
+        None
+    };
     let run_id = topic_run_id(node.config().global.prefix.as_str());
     Ok(Topic {
         name,
@@ -251,7 +258,31 @@ fn open_service<T: Wire>(
         robot,
         pubsub,
         event,
+        sample_starts,
     })
+}
+
+/// The event service `service` of topic `name`, opened with the settings every process
+/// uses; created too when `create`.
+fn open_event_service(
+    node: &Node<ipc::Service>,
+    service: &str,
+    name: &str,
+    create: bool,
+) -> Result<event::PortFactory<ipc::Service>, IpcError> {
+    let service_name: ServiceName = service
+        .try_into()
+        .map_err(ctx(format!("service name `{service}`")))?;
+    let event = (node.service_builder(&service_name).event())
+        .max_nodes(MAX_EVENT_NODES + peer_takers(name))
+        .max_listeners(MAX_LISTENERS + peer_takers(name))
+        .event_id_max_value(EVENT_ID_MAX);
+    if create {
+        event.open_or_create().map_err(|e| e.to_string())
+    } else {
+        event.open().map_err(|e| e.to_string())
+    }
+    .map_err(|e| IpcError(format!("opening event service `{service}`: {e}")))
 }
 
 impl<T: Wire> Topic<T> {
@@ -262,37 +293,60 @@ impl<T: Wire> Topic<T> {
             .publisher_builder()
             .create()
             .map_err(ctx(format!("publisher on `{}`", self.name)))?;
-        let notifier = self
-            .event
-            .notifier_builder()
-            .create()
-            .map_err(ctx(format!("notifier on `{}`", self.name)))?;
+        let notifier = self.notifier(&self.event)?;
         Ok((publisher, notifier))
+    }
+
+    /// A notifier on `event`, one of this topic's event services.
+    fn notifier(
+        &self,
+        event: &event::PortFactory<ipc::Service>,
+    ) -> Result<Notifier<ipc::Service>, IpcError> {
+        (event.notifier_builder().create()).map_err(ctx(format!("notifier on `{}`", self.name)))
+    }
+
+    /// The notifier of the samples at sample starts, if the topic announces them.
+    pub(crate) fn sample_start_notifier(&self) -> Result<Option<Notifier<ipc::Service>>, IpcError> {
+        self.sample_starts
+            .as_ref()
+            .map(|event| self.notifier(event))
+            .transpose()
     }
 
     /// A subscriber on the topic and the listener its publishers wake.
     pub(crate) fn subscribing_ports(&self) -> Result<SubscribingPorts<T>, IpcError> {
+        self.subscribing_ports_on(&self.event)
+    }
+
+    /// A subscriber on the topic and a listener on `event`, one of its event services.
+    fn subscribing_ports_on(
+        &self,
+        event: &event::PortFactory<ipc::Service>,
+    ) -> Result<SubscribingPorts<T>, IpcError> {
         let subscriber = self
             .pubsub
             .subscriber_builder()
             .buffer_size(SUBSCRIBER_BUFFER)
             .create()
             .map_err(ctx(format!("subscriber on `{}`", self.name)))?;
-        let listener = self
-            .event
+        let listener = event
             .listener_builder()
             .create()
             .map_err(ctx(format!("listener on `{}`", self.name)))?;
         Ok((subscriber, listener))
     }
 
-    /// A publisher stamping every sample with `epoch` and its publish time.
+    /// A publisher stamping every sample with `epoch` and its publish time. On a topic
+    /// that announces its samples at sample starts it announces every sample as one
+    /// until told how many ticks a sample has ([`Sender::with_ticks_per_sample`]).
     pub fn sender(&self, epoch: u32) -> Result<Sender<T>, IpcError> {
         let (publisher, notifier) = self.publishing_ports()?;
         Ok(Sender {
             name: self.name,
             publisher,
             notifier,
+            sample_starts: self.sample_start_notifier()?,
+            ticks_per_sample: 1,
             epoch,
             run_id: self.run_id,
             robot: self.robot,
@@ -312,8 +366,26 @@ impl<T: Wire> Topic<T> {
         self.receiver_inner(Some(producer))
     }
 
+    /// [`Topic::receiver_from`] whose process only the samples at sample starts wake (of a
+    /// topic of [`protocol::graph::SAMPLE_START_TOPICS`]; of another, every sample).
+    pub fn receiver_at_sample_starts(
+        &self,
+        producer: protocol::Role,
+    ) -> Result<Receiver<T>, IpcError> {
+        let event = self.sample_starts.as_ref().unwrap_or(&self.event);
+        self.receiver_on(Some(producer), event)
+    }
+
     fn receiver_inner(&self, producer: Option<protocol::Role>) -> Result<Receiver<T>, IpcError> {
-        let (subscriber, listener) = self.subscribing_ports()?;
+        self.receiver_on(producer, &self.event)
+    }
+
+    fn receiver_on(
+        &self,
+        producer: Option<protocol::Role>,
+        event: &event::PortFactory<ipc::Service>,
+    ) -> Result<Receiver<T>, IpcError> {
+        let (subscriber, listener) = self.subscribing_ports_on(event)?;
         Ok(Receiver {
             subscriber,
             listener: Some(listener),
@@ -340,6 +412,10 @@ pub struct Sender<T: Wire> {
     name: &'static str,
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
+    /// The notifier of the samples at sample starts, if the topic announces them.
+    sample_starts: Option<Notifier<ipc::Service>>,
+    /// `M`: a sample whose tick is a multiple of it starts a sample.
+    ticks_per_sample: u64,
     epoch: u32,
     run_id: u32,
     robot: u32,
@@ -360,7 +436,19 @@ impl<T: Wire> Sender<T> {
             .send_copy(message)
             .map_err(ctx("publishing"))?;
         self.notifier.notify().map_err(ctx("notifying"))?;
+        if let Some(sample_starts) = &self.sample_starts
+            && message.header().tick.is_multiple_of(self.ticks_per_sample)
+        {
+            sample_starts.notify().map_err(ctx("notifying"))?;
+        }
         Ok(())
+    }
+
+    /// Announces as sample starts only the samples whose tick is a multiple of
+    /// `ticks_per_sample` (`M`, at least 1).
+    pub fn with_ticks_per_sample(mut self, ticks_per_sample: u64) -> Sender<T> {
+        self.ticks_per_sample = ticks_per_sample.max(1);
+        self
     }
 
     /// The iceoryx2 id of this sender's publisher: what its consumers pin it to.

@@ -224,3 +224,57 @@ fn a_process_is_alive_until_it_exits_and_a_zombie_counts_as_dead() {
     child.wait().unwrap();
     assert!(!process_alive(pid));
 }
+
+#[test]
+fn a_receiver_at_sample_starts_is_woken_by_those_samples_alone_and_takes_every_one() {
+    use protocol::Estimate;
+    let estimate = |tick: u64| Estimate {
+        header: Header {
+            tick,
+            time_s: tick as f64 * 0.005,
+            ..Header::default()
+        },
+        ..Estimate::default()
+    };
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Estimate>(node, protocol::FIRST_ROBOT, ESTIMATE).unwrap();
+        let estimator = topic.sender(0).unwrap().with_ticks_per_sample(10);
+        let mpc = topic.receiver_at_sample_starts(Role::Estimator).unwrap();
+        let dfl = topic.receiver_from(Role::Estimator).unwrap();
+        mpc.follow(EpochSchedule::default());
+        dfl.follow(EpochSchedule::default());
+        let woken = |receiver: &Receiver<Estimate>| {
+            let mut wake_ups = 0;
+            (receiver.listener().unwrap())
+                .try_wait(|_| wake_ups += 1)
+                .unwrap();
+            wake_ups > 0
+        };
+        for tick in 1..10 {
+            estimator.send(estimate(tick)).unwrap();
+        }
+        assert!(!woken(&mpc), "a sample inside a sample woke the MPC");
+        assert!(woken(&dfl), "the DFL, woken every tick, was not");
+        estimator.send(estimate(10)).unwrap();
+        assert!(
+            woken(&mpc),
+            "the sample starting sample 1 did not wake the MPC"
+        );
+        let mut ticks = Vec::new();
+        mpc.take(|e, _| ticks.push(e.header.tick)).unwrap();
+        assert_eq!(ticks, (1..=10).collect::<Vec<_>>());
+
+        // A relay from another host does not know `M`: it announces every sample.
+        let relay = wire::relay(node, protocol::FIRST_ROBOT, ESTIMATE).unwrap();
+        let inside = estimate(11);
+        // SAFETY: an `Estimate` is `#[repr(C)]` of integers and floats (wire.rs).
+        let bytes = unsafe {
+            std::slice::from_raw_parts(
+                &inside as *const Estimate as *const u8,
+                size_of::<Estimate>(),
+            )
+        };
+        assert!(relay.relay(bytes, &mut |_| {}).unwrap());
+        assert!(woken(&mpc), "a relayed sample did not wake the MPC");
+    });
+}

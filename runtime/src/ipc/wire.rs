@@ -61,9 +61,13 @@ impl<T: Wire> WireTap for Tap<T> {
     }
 }
 
+/// A relay does not know a sample's length in ticks: it announces every sample of a topic
+/// that announces its sample starts as one (a consumer woken only at sample starts is then
+/// woken at every sample, as without the announcement).
 struct Relay<T: Wire> {
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
+    sample_starts: Option<Notifier<ipc::Service>>,
 }
 
 impl<T: Wire> WireRelay for Relay<T> {
@@ -80,6 +84,9 @@ impl<T: Wire> WireRelay for Relay<T> {
         edit(&mut value);
         self.publisher.send_copy(value).map_err(ctx("publishing"))?;
         self.notifier.notify().map_err(ctx("notifying"))?;
+        if let Some(sample_starts) = &self.sample_starts {
+            sample_starts.notify().map_err(ctx("notifying"))?;
+        }
         Ok(true)
     }
 
@@ -102,6 +109,7 @@ impl<T: Wire> Topic<T> {
         Ok(Relay {
             publisher,
             notifier,
+            sample_starts: self.sample_start_notifier()?,
         })
     }
 }
