@@ -468,6 +468,8 @@ pub type Stamped<T> = (u64, T);
 pub struct Recent<T> {
     kept: std::collections::VecDeque<Stamped<T>>,
     capacity: usize,
+    /// Whether one was dropped to make room.
+    dropped: bool,
 }
 
 impl<T: Copy> Recent<T> {
@@ -477,6 +479,7 @@ impl<T: Copy> Recent<T> {
         Recent {
             kept: std::collections::VecDeque::with_capacity(capacity),
             capacity,
+            dropped: false,
         }
     }
 
@@ -490,21 +493,24 @@ impl<T: Copy> Recent<T> {
         if self.kept.back().is_none_or(|(newest, _)| tick > *newest) {
             if self.kept.len() == self.capacity {
                 self.kept.pop_front();
+                self.dropped = true;
             }
             self.kept.push_back((tick, value));
         }
     }
 
-    /// The newest kept of a tick before `tick`; when none is, but the robot ran past
-    /// `tick` (in real time), the oldest kept. (In lockstep no robot runs past the tick
-    /// a role steps, so what it takes never depends on how far the others have come.)
+    /// The newest kept of a tick before `tick`; when none is, but the robot ran so far
+    /// past `tick` that those before it were dropped (in real time), the oldest kept.
+    /// (In lockstep a robot runs less far ahead of the tick a role steps than it keeps,
+    /// so what the role takes never depends on how far the others have come: before a
+    /// robot's first samples, nothing.)
     pub fn newest_before(&self, tick: u64) -> Option<Stamped<T>> {
         self.newest_two_before(tick).map(|(newest, _)| newest)
     }
 
     /// [`Recent::newest_before`], and the one kept before it, if any.
     pub fn newest_two_before(&self, tick: u64) -> Option<(Stamped<T>, Option<Stamped<T>>)> {
-        let ran_past = self.kept.back().is_some_and(|(t, _)| *t > tick);
+        let ran_past = self.dropped && self.kept.back().is_some_and(|(t, _)| *t > tick);
         let index = (self.kept.iter().rposition(|(t, _)| *t < tick))
             .or((ran_past && !self.kept.is_empty()).then_some(0))?;
         let before = index.checked_sub(1).map(|i| self.kept[i]);
@@ -572,6 +578,12 @@ mod recent_tests {
             "3 was dropped: the oldest"
         );
         assert_eq!(Recent::<u64>::new(2).newest_before(9), None);
+        // A robot that has run ahead from its start: nothing was before the tick.
+        let mut ahead = Recent::new(3);
+        ahead.push(0, 0);
+        ahead.push(1, 1);
+        assert_eq!(ahead.newest_before(0), None);
+        assert_eq!(ahead.newest_before(1), Some((0, 0)));
     }
 
     #[test]

@@ -387,14 +387,22 @@ impl Member {
     /// An input taking samples of topic `name` of another robot `robot` of a fleet, from
     /// whichever process publishes them: the sample's run, robot and content are checked
     /// (its producer's epochs are that robot's orchestrator session's to announce, which
-    /// this process does not hear).
+    /// this process does not hear), its tick against this process's clock, in lockstep
+    /// with the lead another robot may have ([`crate::ipc::MAX_TICKS_APART`]).
     pub fn peer_input<T: Wire>(
         &self,
         robot: u32,
         name: &'static str,
     ) -> Result<Receiver<T>, IpcError> {
         let input = open_topic::<T>(&self.node, robot, name)?.receiver()?;
-        input.bound_by(self.clock.clone());
+        input.bound_by(Rc::new(crate::ipc::Ahead {
+            clock: self.clock.clone(),
+            ticks: if self.lockstep {
+                crate::ipc::MAX_TICKS_APART
+            } else {
+                0
+            },
+        }));
         Ok(input)
     }
 

@@ -345,6 +345,9 @@ struct Fleet {
     outcomes: Vec<Option<Outcome>>,
     dt_s: f64,
     ticks: u64,
+    /// `M`, and the inner ticks of a perception tick.
+    ticks_per_sample: u64,
+    perception_ticks: u64,
     /// The fleet's status line, if the run has one.
     status: Option<FleetStatus>,
 }
@@ -363,8 +366,20 @@ impl Fleet {
             outcomes: vec![None; members.len()],
             dt_s: scenario.timing.dt_s(),
             ticks: scenario.tick_count(),
+            ticks_per_sample: scenario.timing.ticks_per_sample(),
+            perception_ticks: scenario.perception_ticks(),
             status,
         }
+    }
+
+    /// Lockstep: whether every robot must have completed the tick before `tick` before
+    /// any is granted it: at every sample start and perception tick, where a robot's
+    /// tracker and lidar take the others' samples from before it, and at least every
+    /// [`ipc::MAX_TICKS_APART`] ticks.
+    fn starts_together(&self, tick: u64) -> bool {
+        tick.is_multiple_of(self.ticks_per_sample)
+            || tick.is_multiple_of(self.perception_ticks)
+            || tick.is_multiple_of(ipc::MAX_TICKS_APART)
     }
 
     /// The status line, once the robots are judged through `ticks` ticks.
@@ -381,35 +396,152 @@ impl Fleet {
 /// (`None`) or its data input's at that index of [`Session::inputs`].
 type FleetWakes = (Wakes, Vec<(usize, Option<usize>)>);
 
-/// Lockstep: every robot's tick granted, whole and recorded before the next, until every
-/// robot's record has ended; the time simulated, s.
+/// Lockstep: each robot's ticks granted one by one, each once the one before is whole and
+/// recorded, until every robot's record has ended; the time simulated, s. The robots run
+/// apart between the ticks at which they start together ([`Fleet::starts_together`]):
+/// a robot takes another's samples only at those (its tracker and its lidar, from before
+/// the tick), so how far one has run ahead of another changes nothing they publish, and
+/// a core that has finished its robots' tick goes on with their next rather than waiting
+/// for the other core's.
 fn lockstep(
     drivers: &mut [Driver],
     fleet: &mut Fleet,
-    (waitset, wakes): (&WaitSet<Service>, &mut FleetWakes),
+    (waitset, (wakes, listeners)): (&WaitSet<Service>, &mut FleetWakes),
 ) -> anyhow::Result<f64> {
-    let mut positions = vec![[0.0; 2]; drivers.len()];
-    let mut tick = 0;
+    let mut ticks = LockstepTicks::new(fleet);
+    let (mut filed, mut last_progress) = (0, Instant::now());
+    let mut last_check = Instant::now();
     loop {
-        if !lockstep_tick(
-            drivers,
-            &mut fleet.outcomes,
-            &mut positions,
-            (waitset, wakes),
-            tick,
-        )? {
-            return Ok(tick as f64 * fleet.dt_s); // tick `tick` never completed
+        if !ticks.grant(drivers, fleet)? {
+            return Ok(ticks.slowest() as f64 * fleet.dt_s); // that tick never completed
         }
-        if tick < fleet.ticks {
-            fleet.judge.tick(&positions, fleet.dt_s);
-            fleet.show(tick + 1, drivers);
-        }
-        if fleet.outcomes.iter().all(Option::is_some) || tick == fleet.ticks {
+        if ticks.next.iter().all(|&n| n > ticks.last_tick) {
             break;
         }
-        tick += 1;
+        // Every robot's tick taken from shared memory if whole, then a block; after it
+        // only the listeners that fired are cleared (the wait set fires while any of them
+        // is left), and every one after a block that timed out ([`Wakes`]). The
+        // processes checked every `POLL`.
+        if ticks.take_whole(drivers, fleet)? {
+            last_progress = Instant::now();
+            continue;
+        }
+        let now_filed: usize = drivers.iter().map(Driver::filed).sum();
+        if now_filed != filed {
+            (filed, last_progress) = (now_filed, Instant::now());
+        } else if last_progress.elapsed() > TICK_TIMEOUT {
+            let tick = ticks.slowest();
+            bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
+        }
+        if last_check.elapsed() >= POLL {
+            last_check = Instant::now();
+            for (id, driver) in drivers.iter_mut().enumerate() {
+                if let Some(outcome) = driver.check()?
+                    && !end(&mut fleet.outcomes, id, outcome)
+                {
+                    return Ok(ticks.slowest() as f64 * fleet.dt_s);
+                }
+            }
+        }
+        wakes.wait(waitset, POLL)?;
+        for (i, (id, input)) in listeners.iter().enumerate() {
+            if wakes.to_clear(true, i) {
+                drivers[*id].clear_fired(*input)?;
+            }
+        }
+        wakes.cleared();
     }
-    Ok((tick + 1).min(fleet.ticks) as f64 * fleet.dt_s)
+    ticks.seen.judge(&mut fleet.judge, fleet.ticks, fleet.dt_s);
+    fleet.show(ticks.seen.judged, drivers);
+    Ok((ticks.last_tick + 1).min(fleet.ticks) as f64 * fleet.dt_s)
+}
+
+/// Lockstep: where each robot is in its ticks ([`lockstep`]).
+struct LockstepTicks {
+    /// Each robot's next tick to grant, and the tick granted and not whole yet.
+    next: Vec<u64>,
+    granted: Vec<Option<u64>>,
+    positions: Vec<[f64; 2]>,
+    seen: SeenTicks,
+    /// The tick at which each robot's record ended.
+    ended_at: Vec<Option<u64>>,
+    /// The last tick driven: the run's last, or once every record has ended, the latest
+    /// at which one did.
+    last_tick: u64,
+}
+
+impl LockstepTicks {
+    fn new(fleet: &Fleet) -> LockstepTicks {
+        let robots = fleet.starts.len();
+        LockstepTicks {
+            next: vec![0; robots],
+            granted: vec![None; robots],
+            positions: fleet.starts.clone(),
+            seen: SeenTicks::new(&fleet.starts),
+            ended_at: vec![None; robots],
+            last_tick: fleet.ticks,
+        }
+    }
+
+    /// The first tick some robot has not completed.
+    fn slowest(&self) -> u64 {
+        self.next.iter().min().copied().unwrap_or(0)
+    }
+
+    /// Grants every robot waiting its next tick, if it may start it. False: the run must
+    /// end (interrupted, or a robot's process lost with no restart left).
+    fn grant(&mut self, drivers: &mut [Driver], fleet: &mut Fleet) -> anyhow::Result<bool> {
+        let slowest = self.slowest();
+        for (id, driver) in drivers.iter_mut().enumerate() {
+            let tick = self.next[id];
+            if self.granted[id].is_some()
+                || tick > self.last_tick
+                || (fleet.starts_together(tick) && slowest < tick)
+            {
+                continue;
+            }
+            if let Some(outcome) = driver.grant(tick)?
+                && !end(&mut fleet.outcomes, id, outcome)
+            {
+                return Ok(false);
+            }
+            self.granted[id] = Some(tick);
+        }
+        Ok(true)
+    }
+
+    /// Takes, records and judges every robot's granted tick that is whole; whether one was.
+    fn take_whole(&mut self, drivers: &mut [Driver], fleet: &mut Fleet) -> anyhow::Result<bool> {
+        let mut progressed = false;
+        for (id, driver) in drivers.iter_mut().enumerate() {
+            let Some(tick) = self.granted[id] else {
+                continue;
+            };
+            if !driver.poll_whole(tick)? {
+                continue;
+            }
+            let (position, outcome) = driver.take_tick(tick, fleet.outcomes[id].is_none())?;
+            self.positions[id] = position.unwrap_or(self.positions[id]);
+            self.seen.see(id, tick, self.positions[id]);
+            (self.granted[id], self.next[id], progressed) = (None, tick + 1, true);
+            if let Some(outcome) = outcome {
+                end(&mut fleet.outcomes, id, outcome);
+            }
+            for (at, outcome) in self.ended_at.iter_mut().zip(&fleet.outcomes) {
+                if outcome.is_some() {
+                    at.get_or_insert(tick);
+                }
+            }
+        }
+        if progressed {
+            if let Some(ended) = self.ended_at.iter().copied().collect::<Option<Vec<_>>>() {
+                self.last_tick = self.last_tick.min(ended.into_iter().max().unwrap_or(0));
+            }
+            self.seen.judge(&mut fleet.judge, fleet.ticks, fleet.dt_s);
+            fleet.show(self.seen.judged, drivers);
+        }
+        Ok(progressed)
+    }
 }
 
 /// Real time: every robot's clock started at the same tick 0, and each robot's ticks
@@ -526,73 +658,29 @@ fn end(outcomes: &mut [Option<Outcome>], id: usize, outcome: Outcome) -> bool {
     true
 }
 
-/// Tick `tick` of every robot: granted, waited for until whole, and recorded for each
-/// robot whose record runs (`outcomes`: `None`), its outcome set when its record ends;
-/// `positions` each robot's true position then. False: the run must end (interrupted, or
-/// a robot's process lost with no restart left: the outcomes say).
-fn lockstep_tick(
-    drivers: &mut [Driver],
-    outcomes: &mut [Option<Outcome>],
-    positions: &mut [[f64; 2]],
-    (waitset, (wakes, listeners)): (&WaitSet<Service>, &mut FleetWakes),
-    tick: u64,
-) -> anyhow::Result<bool> {
-    for (id, driver) in drivers.iter_mut().enumerate() {
-        if let Some(outcome) = driver.grant(tick)?
-            && !end(outcomes, id, outcome)
-        {
-            return Ok(false);
-        }
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robots_start_together_at_sample_starts_perception_ticks_and_every_32nd_tick() {
+        let fleet = |overrides: &[&str]| {
+            let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
+            let scenario = crate::scenarios::load(Some("swap4"), &overrides).unwrap();
+            let members: Vec<Validated> = vec![scenario.clone(); scenario.robot_count()];
+            Fleet::new(&scenario, &members, None)
+        };
+        let together = |fleet: &Fleet| -> Vec<u64> {
+            (0..100).filter(|&t| fleet.starts_together(t)).collect()
+        };
+        // `M` = 10, a perception tick every sample.
+        let expected: Vec<u64> = vec![0, 10, 20, 30, 32, 40, 50, 60, 64, 70, 80, 90, 96];
+        assert_eq!(together(&fleet(&[])), expected);
+        // Perception every 15 ms (3 ticks) as well.
+        let every_third = fleet(&["perception.period_s=0.015"]);
+        let expected: Vec<u64> = (0..100)
+            .filter(|t| t % 10 == 0 || t % 3 == 0 || t % 32 == 0)
+            .collect();
+        assert_eq!(together(&every_third), expected);
     }
-    // Every robot not yet whole taken from shared memory, then a block; after it only the
-    // listeners that fired are cleared (the wait set fires while any of them is left), and
-    // every one after a block that timed out ([`Wakes`]). The processes checked every
-    // `POLL`.
-    let mut whole = vec![false; drivers.len()];
-    let mut filed = 0;
-    let mut last_progress = Instant::now();
-    let mut last_check = Instant::now();
-    loop {
-        for (id, driver) in drivers.iter_mut().enumerate() {
-            if !whole[id] {
-                whole[id] = driver.poll_whole(tick)?;
-            }
-        }
-        if whole.iter().all(|w| *w) {
-            break;
-        }
-        let now_filed: usize = drivers.iter().map(Driver::filed).sum();
-        if now_filed != filed {
-            (filed, last_progress) = (now_filed, Instant::now());
-        } else if last_progress.elapsed() > TICK_TIMEOUT {
-            bail!("tick {tick} made no progress for {TICK_TIMEOUT:?}: a process hung");
-        }
-        if last_check.elapsed() >= POLL {
-            last_check = Instant::now();
-            for (id, driver) in drivers.iter_mut().enumerate() {
-                if let Some(outcome) = driver.check()?
-                    && !end(outcomes, id, outcome)
-                {
-                    return Ok(false);
-                }
-            }
-        }
-        wakes.wait(waitset, POLL)?;
-        for (i, (id, input)) in listeners.iter().enumerate() {
-            if wakes.to_clear(true, i) {
-                drivers[*id].clear_fired(*input)?;
-            }
-        }
-        wakes.cleared();
-    }
-    for (id, driver) in drivers.iter_mut().enumerate() {
-        let (position, outcome) = driver.take_tick(tick, outcomes[id].is_none())?;
-        if let Some(position) = position {
-            positions[id] = position;
-        }
-        if let Some(outcome) = outcome {
-            end(outcomes, id, outcome);
-        }
-    }
-    Ok(true)
 }

@@ -280,15 +280,16 @@ pub fn process_alive(pid: u32) -> bool {
         .is_some_and(|state| *state != b'Z')
 }
 
-/// Paths in `/dev/shm` and iceoryx2's root directory whose names contain `prefix`: what
-/// a run leaves behind (empty after a clean run).
+/// Paths in `/dev/shm` and under iceoryx2's root directory ([`ROOT_PATH`]) whose names
+/// contain `prefix`: what a run leaves behind (empty after a clean run).
 pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
     let mut found = Vec::new();
+    // Each directory, and whether its directories are looked into.
     let mut stack = vec![
-        std::path::PathBuf::from("/dev/shm"),
-        std::path::PathBuf::from("/tmp/iceoryx2"),
+        (std::path::PathBuf::from("/dev/shm"), false),
+        (std::path::PathBuf::from(ROOT_PATH), true),
     ];
-    while let Some(dir) = stack.pop() {
+    while let Some((dir, deep)) = stack.pop() {
         let Ok(entries) = std::fs::read_dir(&dir) else {
             continue;
         };
@@ -297,8 +298,8 @@ pub fn leftover_files(prefix: &str) -> Vec<std::path::PathBuf> {
             if entry.file_name().to_string_lossy().contains(prefix) {
                 found.push(path.clone());
             }
-            if entry.file_type().is_ok_and(|t| t.is_dir()) && !dir.starts_with("/dev/shm") {
-                stack.push(path);
+            if deep && entry.file_type().is_ok_and(|t| t.is_dir()) {
+                stack.push((path, true));
             }
         }
     }

@@ -278,3 +278,26 @@ fn a_receiver_at_sample_starts_is_woken_by_those_samples_alone_and_takes_every_o
         assert!(woken(&mpc), "a relayed sample did not wake the MPC");
     });
 }
+
+#[test]
+fn another_robots_sample_may_be_ahead_by_the_lead_a_fleet_allows_in_lockstep_and_no_more() {
+    on_fresh_prefix(|node| {
+        let topic = open_topic::<Measurement>(node, 1, MEASUREMENT).unwrap();
+        let other_robot = topic.sender(0).unwrap();
+        let peer = topic.receiver().unwrap();
+        peer.bound_by(Rc::new(Ahead {
+            clock: Rc::new(FixedClock(100)),
+            ticks: MAX_TICKS_APART,
+        }));
+        other_robot
+            .send(measurement(100 + MAX_TICKS_APART))
+            .unwrap();
+        other_robot
+            .send(measurement(101 + MAX_TICKS_APART))
+            .unwrap();
+        let (m, _) = peer.receive().unwrap().unwrap();
+        assert_eq!(m.header.tick, 100 + MAX_TICKS_APART);
+        assert!(peer.receive().unwrap().is_none());
+        assert_eq!(refused(peer.take_rejections(), Rejection::TickAhead), 1);
+    });
+}
