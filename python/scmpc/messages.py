@@ -76,6 +76,20 @@ OUTPUT_SLOTS = {
 }
 
 
+# Where iceoryx2 keeps a run's service and node files (its ``config.global.root_path``;
+# ``scmpc schema``, "root_path").
+ROOT_PATH = "/dev/shm/iceoryx2/"
+
+# The tick topics whose samples at sample starts are announced on a second event service,
+# ``<service>/sample_starts`` (``scmpc schema``, "services"): a publisher notifies it too.
+SAMPLE_START_TOPICS = ("truth", "estimate")
+
+
+def sample_starts_service(service):
+    """The event service of the samples at sample starts of service ``service``."""
+    return f"{service}/sample_starts"
+
+
 def service_name(robot, topic):
     """The iceoryx2 service of ``topic`` of robot ``robot`` (a robot's pipeline is under
     ``robot<id>/``; ``scmpc schema``, "services")."""

@@ -162,15 +162,28 @@ def _open_topic(node, robot, name, payload):
     return pubsub, event
 
 
-class Sender:
-    """Publishes one topic, stamping epoch, run id and publish time, and wakes its listeners."""
+def _sample_starts_notifier(node, robot, name):
+    """The notifier of the samples at sample starts of topic ``name``, if it announces them."""
+    if name not in m.SAMPLE_START_TOPICS:
+        return None
+    service = m.sample_starts_service(m.service_name(robot, name))
+    event = node.service_builder(iox2.ServiceName.new(service)).event().open_or_create()
+    return event.notifier_builder().create()
 
-    def __init__(self, node, name, epoch, run, robot):
+
+class Sender:
+    """Publishes one topic, stamping epoch, run id and publish time, and wakes its listeners
+    (those woken at sample starts only by the samples whose tick is a multiple of
+    ``ticks_per_sample``)."""
+
+    def __init__(self, node, name, epoch, run, robot, ticks_per_sample=1):
         self.name = name
         self.payload = m.TOPICS[name]
         pubsub, event = _open_topic(node, robot, name, self.payload)
         self.publisher = pubsub.publisher_builder().create()
         self.notifier = event.notifier_builder().create()
+        self.sample_starts = _sample_starts_notifier(node, robot, name)
+        self.ticks_per_sample = max(1, ticks_per_sample)
         self.epoch = epoch
         self.run_id = run
         self.robot = robot
@@ -188,6 +201,8 @@ class Sender:
         self.last = message
         self.publisher.send_copy(message)
         self.notifier.notify()
+        if self.sample_starts is not None and message.header.tick % self.ticks_per_sample == 0:
+            self.sample_starts.notify()
 
     def replay(self):
         """Publishes the newest sample again (same tick, fresh publish time)."""
@@ -336,6 +351,7 @@ class Link:
             raise SystemExit(f"scmpc role: unknown role `{self.role}`")
         iox2.set_log_level(iox2.LogLevel.Error)
         config = iox2.config.default()
+        config.global_cfg.root_path = iox2.Path.new(m.ROOT_PATH)
         config.global_cfg.prefix = iox2.FileName.new(args.prefix)
         # Only the orchestrator cleans up after dead nodes (it must see every death).
         config.global_cfg.node.cleanup_dead_nodes_on_creation = False
@@ -359,7 +375,8 @@ class Link:
         return Receiver(self.node, name, self.run_id, self.args.robot, producer, self.clock)
 
     def output(self, name):
-        return Sender(self.node, name, self.args.epoch, self.run_id, self.args.robot)
+        args = self.args
+        return Sender(self.node, name, args.epoch, self.run_id, args.robot, args.inner_steps)
 
     def _status(self, event, **fields):
         status = m.Status(role=m.ROLES[self.role], event=m.STATUS_EVENTS[event], pid=os.getpid())

@@ -45,6 +45,10 @@ pub struct ServiceLayout {
     pub subscriber_max_buffer_size: usize,
     pub history_size: usize,
     pub safe_overflow: bool,
+    /// The event service notified, besides the topic's own, of the samples whose tick
+    /// starts a sample (`<service>/sample_starts`, for the topics of
+    /// [`protocol::graph::SAMPLE_START_TOPICS`]): a publisher of the topic notifies it too.
+    pub sample_starts: Option<String>,
 }
 
 /// The layout of `T` from its fields ([`protocol::layouts!`]).
@@ -217,14 +221,17 @@ fn named<T: Copy>(
 pub fn services() -> Vec<ServiceLayout> {
     let topic = |topic: &'static str, type_name: &'static str| {
         let per_robot = !ipc::RUN_TOPICS.contains(&topic);
+        let service = if per_robot {
+            ipc::service_name(protocol::FIRST_ROBOT, topic)
+        } else {
+            topic.to_string()
+        };
         ServiceLayout {
             topic,
             per_robot,
-            service: if per_robot {
-                ipc::service_name(protocol::FIRST_ROBOT, topic)
-            } else {
-                topic.to_string()
-            },
+            sample_starts: (protocol::graph::SAMPLE_START_TOPICS.contains(&topic))
+                .then(|| ipc::sample_starts_service(&service)),
+            service,
             type_name,
             max_publishers: if topic == ipc::STATUS {
                 ipc::MAX_STATUS_PUBLISHERS

@@ -66,6 +66,12 @@ def main():
         expected = messages.service_name(messages.FIRST_ROBOT, s["topic"]) if s["per_robot"] else s["topic"]
         if s["service"] != expected:
             problems.append(f"service of {s['topic']}: Rust {s['service']}")
+        announced = s["topic"] in messages.SAMPLE_START_TOPICS
+        expected = messages.sample_starts_service(s["service"]) if announced else None
+        if s["sample_starts"] != expected:
+            problems.append(f"sample starts of {s['topic']}: Rust {s['sample_starts']}, Python {expected}")
+    if schema["root_path"] != messages.ROOT_PATH:
+        problems.append(f"root path: Rust {schema['root_path']}, Python {messages.ROOT_PATH}")
     mirrored = {name: t.type_name() for name, t in messages.TOPICS.items()}
     if topics != mirrored:
         problems.append(f"services: Rust {topics}, Python {mirrored}")

@@ -460,6 +460,7 @@ fn message_schema() -> serde_json::Value {
     serde_json::json!({
         "iceoryx2": "0.10.0",
         "service_type": "ipc",
+        "root_path": runtime::ipc::ROOT_PATH,
         "user_header": "()",
         "services": layout::services(),
         "types": layout::types(),
