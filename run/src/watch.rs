@@ -10,7 +10,7 @@
 //! so a watcher sees what a process of another language would.
 
 use crate::multiproc::RunInfo;
-use anyhow::{Context, bail};
+use anyhow::bail;
 use runtime::ipc::{self, wire::WireTap};
 use runtime::layout::TypeLayout;
 use serde_json::{Map, Value, json};
@@ -136,7 +136,7 @@ pub fn echo(
     let info = running_in(dir)?;
     let node = watcher_node(&info, "echo")?;
     let tap = ipc::wire::watch(&node, protocol::FIRST_ROBOT, topic)
-        .with_context(|| format!("this run has no topic `{topic}`"))?;
+        .map_err(|e| anyhow::anyhow!("this run has no topic `{topic}` ({e})"))?;
     let types = runtime::layout::types();
     let waitset = ipc::waitset(false)?;
     let _guard = ipc::attach(&waitset, tap.listener())?;

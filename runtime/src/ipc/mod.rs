@@ -261,7 +261,8 @@ fn open_service<T: Wire>(
     }
     .map_err(|e| IpcError(format!("opening service `{service}`: {e}")))?;
     let event = open_event_service(node, service, name, create)?;
-    let sample_starts = if protocol::graph::SAMPLE_START_TOPICS.contains(&name) {
+    // A watcher (`create` false) neither publishes nor waits for sample starts.
+    let sample_starts = if create && protocol::graph::SAMPLE_START_TOPICS.contains(&name) {
         Some(open_event_service(
             node,
             &sample_starts_service(service),
