@@ -462,8 +462,10 @@ pub type Stamped<T> = (u64, T);
 /// The newest samples of one kind heard from another robot of a fleet, with their ticks,
 /// oldest first ([`Task::hear_peer`]): as many as the robot publishes in two samples, so
 /// that the newest before the taker's tick is kept however far the other robot's process
-/// has run ahead (in lockstep at most to that tick; in real time a role may lag by a few
-/// inner ticks).
+/// has run ahead (in lockstep a robot runs ahead less than a sample of the ticks at which
+/// the robots start together, and a taker stepping such a tick may lag to its next
+/// sample start: `2 M + 1` kept is the least that holds; in real time a role may lag by
+/// a few inner ticks).
 #[derive(Debug, Clone)]
 pub struct Recent<T> {
     kept: std::collections::VecDeque<Stamped<T>>,

@@ -1,10 +1,12 @@
 //! A fleet across processes, in lockstep or in real time (docs/fleet.md): one set of role processes per
 //! robot, each with its robot's id (its services under `robot<id>/`), all reading the
 //! fleet's `scenario.toml` and driving their robot's member. One driver per robot
-//! ([`Driver`]) keeps its session, children and record; this loop grants tick `j` to
-//! every robot, waits until every robot's tick is whole, records it and judges the robots
-//! against each other, and only then grants `j + 1`. Each robot's tracker takes the
-//! others' truths, estimates and plans itself, from before its tick only
+//! ([`Driver`]) keeps its session, children and record; in lockstep this loop grants each
+//! robot its next tick once its tick before is whole and recorded, every robot's tick
+//! `j - 1` whole before any is granted a tick `j` at which they start together
+//! ([`Fleet::starts_together`]), and judges the robots against each other tick by tick
+//! once every robot has come that far. Each robot's tracker takes the others' truths,
+//! estimates and plans itself at those ticks, from before its tick only
 //! ([`tracker::Peers`]), so the run gives the bytes of the fleet in process.
 //!
 //! A robot whose record has ended (it reached its goal) drives on unrecorded, a track to
@@ -591,7 +593,7 @@ fn realtime(
     Ok(seen.judged.min(fleet.ticks) as f64 * fleet.dt_s)
 }
 
-/// Real time: each robot's true positions by tick as its ticks are recorded, until every
+/// Each robot's true positions by tick as its ticks are recorded, until every
 /// robot has come that far ([`SeenTicks::judge`]).
 struct SeenTicks {
     by_tick: std::collections::BTreeMap<u64, Vec<Option<[f64; 2]>>>,
