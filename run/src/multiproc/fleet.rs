@@ -463,7 +463,6 @@ struct LockstepTicks {
     /// Each robot's next tick to grant, and the tick granted and not whole yet.
     next: Vec<u64>,
     granted: Vec<Option<u64>>,
-    positions: Vec<[f64; 2]>,
     seen: SeenTicks,
     /// The tick at which each robot's record ended.
     ended_at: Vec<Option<u64>>,
@@ -478,7 +477,6 @@ impl LockstepTicks {
         LockstepTicks {
             next: vec![0; robots],
             granted: vec![None; robots],
-            positions: fleet.starts.clone(),
             seen: SeenTicks::new(&fleet.starts),
             ended_at: vec![None; robots],
             last_tick: fleet.ticks,
@@ -523,8 +521,7 @@ impl LockstepTicks {
                 continue;
             }
             let (position, outcome) = driver.take_tick(tick, fleet.outcomes[id].is_none())?;
-            self.positions[id] = position.unwrap_or(self.positions[id]);
-            self.seen.see(id, tick, self.positions[id]);
+            self.seen.see(id, tick, position);
             (self.granted[id], self.next[id], progressed) = (None, tick + 1, true);
             if let Some(outcome) = outcome {
                 end(&mut fleet.outcomes, id, outcome);
@@ -575,7 +572,8 @@ fn realtime(
         ipc::wait(waitset, POLL)?;
         for (id, driver) in drivers.iter_mut().enumerate() {
             let recording = fleet.outcomes[id].is_none();
-            let outcome = driver.record_due(recording, &mut |tick, p| seen.see(id, tick, p))?;
+            let outcome =
+                driver.record_due(recording, &mut |tick, p| seen.see(id, tick, Some(p)))?;
             match outcome {
                 Some(Outcome::Interrupted) => {
                     end(&mut fleet.outcomes, id, Outcome::Interrupted);
@@ -618,13 +616,15 @@ impl SeenTicks {
         }
     }
 
-    fn see(&mut self, id: usize, tick: u64, position: [f64; 2]) {
+    /// Robot `id` has come through `tick`, at `position` if its truth of the tick is
+    /// known (else where it was at the tick before).
+    fn see(&mut self, id: usize, tick: u64, position: Option<[f64; 2]>) {
         let robots = self.newest.len();
         let entry = self
             .by_tick
             .entry(tick)
             .or_insert_with(|| vec![None; robots]);
-        entry[id] = Some(position);
+        entry[id] = position;
         self.newest[id] = self.newest[id].max(Some(tick));
     }
 
