@@ -302,6 +302,9 @@ impl Intake {
 
     /// Records the tick of `slot` if the plant was commanded at it; returns the outcome
     /// when the tick ends the run.
+    // Never inlined: tests/instructions.rs counts this step's instructions by its name (a
+    // change elsewhere in the crate once let the compiler inline it).
+    #[inline(never)]
     pub fn record(
         &mut self,
         slot: TickSlot,
