@@ -254,7 +254,11 @@ impl Children {
                 .chain(args.iter().cloned())
                 .collect::<Vec<_>>()
                 .join(" ");
-            writeln!(file, "=== {} epoch {epoch}: {command}", role.as_str())?;
+            writeln!(
+                file,
+                "{EPOCH_HEADER}{} epoch {epoch}: {command}",
+                role.as_str()
+            )?;
             Ok(Stdio::from(file))
         });
         opened.with_context(|| format!("opening the log {}", path.display()))
@@ -264,6 +268,13 @@ impl Children {
     pub fn log_path(&self, role: Role) -> Option<std::path::PathBuf> {
         let dir = self.log_dir.as_ref()?;
         Some(dir.join(format!("{}.log", role.as_str())))
+    }
+
+    /// The last words in the log of `role` ([`last_words`]), with logs and words.
+    pub fn last_words(&self, role: Role) -> Option<String> {
+        let text = std::fs::read(self.log_path(role)?).ok()?;
+        let tail = &text[text.len().saturating_sub(LAST_WORDS_READ_BYTES)..];
+        last_words(&String::from_utf8_lossy(tail))
     }
 
     /// The publishers the outputs of the process of `role` and `epoch` are pinned to on
@@ -406,6 +417,32 @@ impl Drop for Children {
     }
 }
 
+/// How a process's part of its role's log begins: this, then the role, the epoch and the
+/// command.
+const EPOCH_HEADER: &str = "=== ";
+
+/// How much of the end of a log [`Children::last_words`] reads, in bytes.
+const LAST_WORDS_READ_BYTES: usize = 4096;
+
+/// The last two lines of the newest process's part of a log that say something (a
+/// panic's place and message, an error's cause), joined by ` | `; Rust's hints on
+/// backtraces are left out. `None` when that process said nothing.
+fn last_words(log: &str) -> Option<String> {
+    let said = |line: &&str| {
+        !line.is_empty() && !line.starts_with("note: ") && *line != "stack backtrace:"
+    };
+    let mut lines: Vec<&str> = log
+        .lines()
+        .rev()
+        .take_while(|line| !line.starts_with(EPOCH_HEADER))
+        .map(str::trim)
+        .filter(said)
+        .take(2)
+        .collect();
+    lines.reverse();
+    (!lines.is_empty()).then(|| lines.join(" | "))
+}
+
 /// Sends `signal` to a child not reaped yet.
 fn signal(child: &Child, signal: libc::c_int) {
     if let Ok(pid) = libc::pid_t::try_from(child.id()) {
@@ -438,5 +475,25 @@ fn exited(p: &mut Proc) -> Option<String> {
     match &mut p.handle {
         Handle::Local(child) => child.try_wait().ok().flatten().map(|s| s.to_string()),
         Handle::Remote { exit, .. } => exit.clone(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::last_words;
+
+    #[test]
+    fn the_last_words_of_a_panic_are_its_place_and_message_and_a_silent_epoch_has_none() {
+        let log = "=== plant epoch 0: scmpc plant\n\
+                   2026-12-04T16:17:20Z INFO plant: driving\n\
+                   thread 'main' panicked at ros2/src/link.rs:88:5:\n\
+                   no odometry\n\
+                   note: run with `RUST_BACKTRACE=1` environment variable to display a backtrace\n\n";
+        assert_eq!(
+            last_words(log).as_deref(),
+            Some("thread 'main' panicked at ros2/src/link.rs:88:5: | no odometry")
+        );
+        let silent_restart = format!("{log}=== plant epoch 1: scmpc plant\n");
+        assert_eq!(last_words(&silent_restart), None);
     }
 }

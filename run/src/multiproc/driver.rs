@@ -459,14 +459,16 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        let log = self.parts.children.log_path(role);
+        let children = &self.parts.children;
+        let log = children.log_path(role).map_or(String::new(), |p| {
+            format!("; its stderr is in {}", p.display())
+        });
+        let words = children
+            .last_words(role)
+            .map_or(String::new(), |w| format!("; its last words: {w}"));
         tracing::warn!(
-            "the {} process (epoch {epoch}) died: {status}{}",
+            "the {} process (epoch {epoch}) died: {status}{words}{log}",
             role.as_str(),
-            log.map_or(String::new(), |p| format!(
-                "; its stderr is in {}",
-                p.display()
-            ))
         );
         self.parts.recorder.event(Event::Crashed {
             role,
