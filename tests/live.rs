@@ -487,3 +487,55 @@ fn the_foxglove_layout_names_only_channels_of_the_record() {
         assert!(placed.contains(&format!("\"{id}\"")), "{id} is not placed");
     }
 }
+
+#[test]
+fn a_fleets_live_view_serves_every_robots_channels_under_its_id_paced_and_refuses_goals() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let duration_s = 3.0;
+    let (mut run, url, _lines) = start(
+        dir.path(),
+        &[
+            "swap4",
+            "--live",
+            "127.0.0.1:0",
+            "--live-pace",
+            "--set",
+            &format!("duration_s={duration_s}"),
+            "--no-mcap",
+        ],
+    );
+    let watcher = {
+        let url = url.clone();
+        std::thread::spawn(move || watch(&url))
+    };
+    // The view's clock is robot 0's truth.
+    let mut clock = Client::connect(&url, false).expect("a clock");
+    while !matches!(clock.read(), Ok(Frame::Time(ns)) if ns >= 1_000_000_000) {}
+    drop(clock);
+    let (level, refusal) = send_goal(&url, 0.0, 0.0);
+    assert_eq!(level, 2, "{refusal}");
+    assert!(
+        refusal.contains("a fleet's live view takes no goals"),
+        "{refusal}"
+    );
+    run.wait().unwrap();
+    let (counts, advertised, _) = watcher.join().unwrap();
+    let fleet = common::summary(dir.path());
+    // Held to real time: the run's wall time is at least the time it simulated.
+    let wall_s = fleet["wall_s"].as_f64().unwrap();
+    assert!(wall_s >= duration_s * 0.99, "{wall_s} s of wall time");
+    assert!(
+        !advertised.iter().any(|t| t.starts_with("/robot/")),
+        "a channel under no robot's id: {advertised:?}"
+    );
+    for robot in 0..4 {
+        for topic in ["/robot/truth", "/mpc/plan", "/world/obstacles"] {
+            let topic = record::mcap::fleet_topic(robot, topic);
+            assert!(advertised.contains(&topic), "{topic} not in {advertised:?}");
+        }
+        let truth = record::mcap::fleet_topic(robot, "/robot/truth");
+        let seen = counts.get(&truth).copied().unwrap_or(0);
+        assert!(seen > 100, "{seen} messages on {truth}: {counts:?}");
+    }
+}

@@ -14,18 +14,26 @@ pub const GOAL_TOPIC: &str = "/goal";
 
 /// Where the goals go, and what they are checked against.
 pub(crate) struct GoalDesk {
-    scenario: Scenario,
-    accept: bool,
-    run: Sender<Goal>,
+    /// The scenario a goal is checked against and the run it goes to; or why the run
+    /// takes none.
+    to: Result<(Scenario, Sender<Goal>), &'static str>,
 }
 
 impl GoalDesk {
     pub(crate) fn new(scenario: &Scenario, run: Sender<Goal>) -> GoalDesk {
+        let accept = scenario.live.as_ref().is_some_and(|l| l.accept_goals);
         GoalDesk {
-            accept: scenario.live.as_ref().is_some_and(|l| l.accept_goals),
-            scenario: scenario.clone(),
-            run,
+            to: if accept {
+                Ok((scenario.clone(), run))
+            } else {
+                Err("this run takes no goals from a viewer (live.accept_goals = false)")
+            },
         }
+    }
+
+    /// A desk that refuses every goal, saying `why`.
+    pub(crate) fn refusing(why: &'static str) -> GoalDesk {
+        GoalDesk { to: Err(why) }
     }
 
     /// A client advertised `channel`: anything but `/goal` in JSON is told it is ignored.
@@ -55,13 +63,9 @@ impl GoalDesk {
     }
 
     fn take(&self, payload: &[u8]) -> Result<Goal, String> {
-        if !self.accept {
-            return Err("this run takes no goals from a viewer (live.accept_goals = false)".into());
-        }
-        let goal = self.scenario.live_goal(pose_stamped(payload)?)?;
-        self.run
-            .send(goal)
-            .map_err(|_| "the run is over".to_string())?;
+        let (scenario, run) = self.to.as_ref().map_err(|why| why.to_string())?;
+        let goal = scenario.live_goal(pose_stamped(payload)?)?;
+        run.send(goal).map_err(|_| "the run is over".to_string())?;
         Ok(goal)
     }
 }

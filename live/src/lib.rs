@@ -40,7 +40,7 @@ const QUEUED_BATCHES: usize = 16;
 pub const MAX_CLIENTS: usize = 16;
 /// How long the end of a run waits for the clients to be closed.
 const CLOSE_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
-/// The topic whose messages set the view's clock (Foxglove's `time`).
+/// The topic whose messages set a run's view's clock (Foxglove's `time`).
 const CLOCK_TOPIC: &str = "/robot/truth";
 
 /// The sink's opener (`run::sinks`): the live view of a scenario with `[live]`.
@@ -49,22 +49,118 @@ pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
         return Ok(None);
     };
     let desk = goals::GoalDesk::new(run.scenario, run.goals.clone());
-    let channels = LiveChannels::serve(config, desk)?;
-    println!(
-        "live view: ws://{} (Foxglove: Open connection, Foxglove WebSocket{})",
-        channels.address,
-        if config.token.is_empty() {
-            ""
-        } else {
-            ", with ?token=… in the URL"
-        }
-    );
+    let channels = LiveChannels::serve(config, desk, CLOCK_TOPIC.to_string())?;
+    announce(config, channels.address);
     Ok(Some(Box::new(Encoded::start_lossy(
         "live view",
         channels,
         run.scenario,
         QUEUED_BATCHES,
     )?)))
+}
+
+/// Tells the user where the view is.
+fn announce(config: &LiveConfig, address: std::net::SocketAddr) {
+    println!(
+        "live view: ws://{address} (Foxglove: Open connection, Foxglove WebSocket{})",
+        if config.token.is_empty() {
+            ""
+        } else {
+            ", with ?token=… in the URL"
+        }
+    );
+}
+
+/// A fleet's live view (docs/fleet.md, "A live view"): one server for every robot's
+/// record, each robot's channels under its id as in the fleet's `run.mcap`
+/// ([`record::mcap::fleet_topic`]: `/robot1/mpc/plan`), the view's clock robot 0's truth.
+/// Each robot's record has a sink of its own ([`FleetView::sink`], an encoder on a thread
+/// of its own, as a run's live view has) that ends with the robot's record; the server
+/// serves until the fleet's run ends ([`FleetView::finish`]). It takes no goals: a
+/// client's goal names no robot.
+pub struct FleetView {
+    channels: Arc<Mutex<LiveChannels>>,
+}
+
+/// What a client that sends a fleet's view a goal is told.
+const FLEET_TAKES_NO_GOALS: &str =
+    "a fleet's live view takes no goals: each robot drives to its own (robots.<i>.goal)";
+
+impl FleetView {
+    /// The view of a fleet of scenario `fleet`, serving from now on; `None` without
+    /// `[live]`.
+    pub fn serve(fleet: &protocol::Scenario) -> std::io::Result<Option<FleetView>> {
+        let Some(config) = &fleet.live else {
+            return Ok(None);
+        };
+        let desk = goals::GoalDesk::refusing(FLEET_TAKES_NO_GOALS);
+        let clock_topic = record::mcap::fleet_topic(protocol::FIRST_ROBOT as usize, CLOCK_TOPIC);
+        let channels = LiveChannels::serve(config, desk, clock_topic)?;
+        announce(config, channels.address);
+        Ok(Some(FleetView {
+            channels: Arc::new(Mutex::new(channels)),
+        }))
+    }
+
+    /// The sink of robot `robot`'s record, whose scenario is `member`.
+    pub fn sink(
+        &self,
+        robot: usize,
+        member: &protocol::Scenario,
+    ) -> std::io::Result<Box<dyn Sink>> {
+        let channels = RobotChannels {
+            robot,
+            view: self.channels.clone(),
+        };
+        let encoded = Encoded::start_lossy("live view", channels, member, QUEUED_BATCHES)?;
+        Ok(Box::new(encoded))
+    }
+
+    /// Closes the clients' connections and stops the server, once every robot's sink has
+    /// ended (a sink still open keeps the server until it ends).
+    pub fn finish(self) -> std::io::Result<()> {
+        match Arc::try_unwrap(self.channels) {
+            Ok(channels) => channels
+                .into_inner()
+                .unwrap_or_else(PoisonError::into_inner)
+                .finish(),
+            Err(_) => Ok(()),
+        }
+    }
+}
+
+/// One robot's channels on a fleet's server.
+struct RobotChannels {
+    robot: usize,
+    view: Arc<Mutex<LiveChannels>>,
+}
+
+impl RobotChannels {
+    fn view(&self) -> std::sync::MutexGuard<'_, LiveChannels> {
+        self.view.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+impl Channels for RobotChannels {
+    fn add_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: &[u8],
+    ) -> std::io::Result<()> {
+        let topic = record::mcap::fleet_topic(self.robot, topic);
+        self.view().add_channel(&topic, schema_name, schema)
+    }
+
+    fn message(&mut self, topic: &str, time_ns: u64, json: &[u8]) -> std::io::Result<()> {
+        let topic = record::mcap::fleet_topic(self.robot, topic);
+        self.view().message(&topic, time_ns, json)
+    }
+
+    /// The robot's record is over; the server serves the others on.
+    fn finish(self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// What the server calls back: the latch, and the goal desk.
@@ -131,11 +227,17 @@ struct LiveChannels {
     server: WebSocketServerHandle,
     channels: HashMap<String, Arc<RawChannel>>,
     latch: Arc<Latch>,
+    /// The topic whose messages set the view's clock (Foxglove's `time`).
+    clock_topic: String,
 }
 
 impl LiveChannels {
     /// Starts the server on loopback and the gate on `config.address`.
-    fn serve(config: &LiveConfig, goals: goals::GoalDesk) -> std::io::Result<LiveChannels> {
+    fn serve(
+        config: &LiveConfig,
+        goals: goals::GoalDesk,
+        clock_topic: String,
+    ) -> std::io::Result<LiveChannels> {
         let named = |e: String| std::io::Error::other(format!("live view: {e}"));
         let address = config.socket_address().map_err(named)?;
         // The server's threads run at the normal policy: they start before the
@@ -176,6 +278,7 @@ impl LiveChannels {
             server,
             channels: HashMap::new(),
             latch,
+            clock_topic,
         })
     }
 }
@@ -210,7 +313,7 @@ impl Channels for LiveChannels {
             },
         );
         self.latch.keep(channel, time_ns, json);
-        if topic == CLOCK_TOPIC {
+        if topic == self.clock_topic {
             self.server.broadcast_time(time_ns);
         }
         Ok(())

@@ -159,6 +159,13 @@ impl Recorder {
         })
     }
 
+    /// Adds a sink opened elsewhere, after those of [`Recorder::create`] (so it closes
+    /// first): one that several records share, as a fleet's live view is.
+    pub fn with_sink(mut self, sink: Box<dyn Sink>) -> Recorder {
+        self.sinks.push(sink);
+        self
+    }
+
     /// The newest goal a sink took from outside that is not set yet, once the last one
     /// set is [`MIN_GOAL_INTERVAL_S`] old (the ones between are passed over).
     pub fn requested_goal(&mut self) -> Option<protocol::Goal> {

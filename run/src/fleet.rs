@@ -59,8 +59,9 @@ pub fn run(
     let scenario_file = out.join("scenario.toml");
     std::fs::write(&scenario_file, scenario.to_toml())
         .with_context(|| format!("writing {}", scenario_file.display()))?;
+    let view = crate::sinks::fleet_view(scenario, recording)?;
     let mut members = (0..scenario.robot_count())
-        .map(|id| Member::new(scenario, id, out, recording))
+        .map(|id| Member::new(scenario, id, out, recording, view.as_ref()))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let radii = members.iter().map(|m| m.radius_m).collect();
     let mut judge = FleetJudge::new(radii);
@@ -69,10 +70,14 @@ pub fn run(
     let mut interrupted = false;
     let mut positions = Vec::with_capacity(members.len());
     let mut status = FleetStatus::of(recording.status_line, scenario.duration_s, members.len());
+    let mut pace = crate::pace::Pace::of(scenario, recording);
     while members.iter().any(|m| m.recorder.is_some()) && tick < scenario.tick_count() {
         if stop.load(Ordering::Relaxed) {
             interrupted = true;
             break;
+        }
+        if let Some(pace) = &mut pace {
+            pace.wait(tick);
         }
         for member in &mut members {
             member.step()?;
@@ -101,6 +106,9 @@ pub fn run(
     let summary = FleetSummary::of(&summaries, &judge, &deadlocks, simulated_s, wall_s);
     summary.write(out)?;
     crate::sinks::merge_fleet_mcap(out, scenario.robot_count());
+    if let Some(view) = view {
+        view.finish().context("closing the fleet's live view")?;
+    }
     Ok(summary)
 }
 
@@ -120,18 +128,19 @@ fn hear_each_other(members: &mut [Member]) {
 }
 
 impl Member {
-    fn new(fleet: &Validated, id: usize, out: &Path, recording: Recording) -> anyhow::Result<Self> {
+    fn new(
+        fleet: &Validated,
+        id: usize,
+        out: &Path,
+        recording: Recording,
+        view: Option<&live::FleetView>,
+    ) -> anyhow::Result<Self> {
         let scenario = fleet
             .member(id)
             .validated(&format!("robot {id} of the fleet"))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
-        let recording = Recording {
-            status_line: false,
-            live: false,
-            ..recording
-        };
-        let recorder =
-            crate::sinks::recorder(&scenario, &out.join(format!("robot{id}")), recording)?;
+        let dir = out.join(format!("robot{id}"));
+        let recorder = crate::sinks::member_recorder(&scenario, id, &dir, recording, view)?;
         let closed_loop = ClosedLoop::new(&scenario)?;
         let [x, y, _] = scenario.robot.start;
         Ok(Member {

@@ -59,6 +59,42 @@ pub fn recorder(
         .with_context(|| format!("creating the record in {}", out.display()))
 }
 
+/// A fleet's live view, when `recording` has one and the fleet's scenario `[live]`
+/// ([`live::FleetView`]): served from now on, each robot's record joining it
+/// ([`member_recorder`]).
+pub fn fleet_view(
+    fleet: &protocol::Scenario,
+    recording: Recording,
+) -> anyhow::Result<Option<live::FleetView>> {
+    if !recording.live {
+        return Ok(None);
+    }
+    live::FleetView::serve(fleet).context("opening the fleet's live view")
+}
+
+/// The recorder of robot `id` of a fleet, whose scenario is `member`, into `dir`: the
+/// sinks of `recording` but its status line and live view (the fleet has one of each),
+/// and its part of the fleet's live `view`.
+pub fn member_recorder(
+    member: &protocol::Scenario,
+    id: usize,
+    dir: &Path,
+    recording: Recording,
+    view: Option<&live::FleetView>,
+) -> anyhow::Result<Recorder> {
+    let recording = Recording {
+        status_line: false,
+        live: false,
+        ..recording
+    };
+    let recorder = recorder(member, dir, recording)?;
+    let Some(view) = view else {
+        return Ok(recorder);
+    };
+    let sink = (view.sink(id, member)).context("joining the fleet's live view")?;
+    Ok(recorder.with_sink(sink))
+}
+
 /// A fleet's `run.mcap` from its robots' ([`record::mcap::merge_fleet`]); a merge that
 /// fails is a warning, and the robots keep their own files.
 pub fn merge_fleet_mcap(out: &Path, robots: usize) {

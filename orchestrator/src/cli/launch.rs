@@ -175,7 +175,7 @@ fn run_fleet(scenario: protocol::Validated, args: RunArgs, quiet: bool) -> CliRe
     let recording = run::sinks::Recording {
         mcap: !args.no_mcap,
         status_line: !quiet,
-        live: false,
+        live: scenario.live.is_some(),
     };
     let summary = match args.in_process {
         true => run::fleet::run(&scenario, &out, recording, &stop),

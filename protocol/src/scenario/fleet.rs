@@ -211,7 +211,6 @@ impl Scenario {
         let unsupported = [
             ("plant.kind", self.plant.kind != crate::PlantKind::Sim),
             ("swap", !self.swap.is_empty()),
-            ("live", self.live.is_some()),
             // A robot's roles go to its host by `robots.<i>.host` (its member's placement).
             (
                 "hosts",
@@ -238,8 +237,8 @@ impl Scenario {
                     key,
                     "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
                      command delay, among known obstacles at rest unless a lidar sees them, \
-                     without tracked obstacles, swaps, roles placed by [hosts] (a robot's own \
-                     `host` places its pipeline) or a live view (docs/fleet.md, \"Left out\")"
+                     without tracked obstacles, swaps or roles placed by [hosts] (a robot's own \
+                     `host` places its pipeline; docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }

@@ -44,6 +44,8 @@ struct Robots {
     sessions: Vec<Session>,
     children: Vec<Children>,
     recorders: Vec<Recorder>,
+    /// The fleet's live view, which every robot's record joins.
+    view: Option<live::FleetView>,
 }
 
 /// Runs the fleet `scenario` in lockstep as role processes on iceoryx2 resources named
@@ -94,17 +96,14 @@ fn open_robots(
     recording: Recording,
     robots: &mut Robots,
 ) -> anyhow::Result<()> {
-    let recording = Recording {
-        status_line: false,
-        live: false,
-        ..recording
-    };
+    robots.view = crate::sinks::fleet_view(scenario, recording)?;
     for id in 0..scenario.robot_count() {
         let member = (scenario.member(id))
             .validated(&format!("robot {id} of the fleet"))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
         let dir = out.join(format!("robot{id}"));
-        let mut recorder = crate::sinks::recorder(&member, &dir, recording)?;
+        let mut recorder =
+            crate::sinks::member_recorder(&member, id, &dir, recording, robots.view.as_ref())?;
         let session = Session::open_for(prefix, &member, mode, id as u32)?;
         let control = session.control.publisher_id();
         let whose = Whose {
@@ -171,13 +170,9 @@ fn drive(
     let _recording_tier = (mode == RunMode::Realtime)
         .then(|| crate::scheduling::orchestrator(&scenario.realtime))
         .flatten();
-    let status = FleetStatus::of(
-        recording.status_line,
-        scenario.duration_s,
-        scenario.robot_count(),
-    );
+    let shown = Fleet::shown(scenario, mode, recording);
     let driven =
-        opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, mode, status, stop));
+        opened.and_then(|()| drive_opened(scenario, prefix, &mut robots, mode, shown, stop));
     for session in &robots.sessions {
         let _ = session.command(ControlCommand::Stop);
     }
@@ -185,6 +180,7 @@ fn drive(
         scenarios,
         children,
         recorders,
+        view,
         ..
     } = robots;
     let processes: Vec<ProcessReport> = children.iter().map(processes_of).collect();
@@ -222,6 +218,9 @@ fn drive(
             signal,
         )?;
         summaries.push(summary);
+    }
+    if let Some(view) = view {
+        view.finish().context("closing the fleet's live view")?;
     }
     Ok(FleetSummary::of(
         &summaries,
@@ -262,7 +261,7 @@ fn drive_opened(
     prefix: &str,
     robots: &mut Robots,
     mode: RunMode,
-    status: Option<FleetStatus>,
+    shown: (Option<FleetStatus>, Option<crate::pace::Pace>),
     stop: &AtomicBool,
 ) -> anyhow::Result<Driven> {
     let Robots {
@@ -270,6 +269,7 @@ fn drive_opened(
         sessions,
         children,
         recorders,
+        ..
     } = robots;
     // Each robot's processes waited for on its own status alone (another's readiness
     // left unread would wake every wait), then one wait set for the run.
@@ -310,7 +310,7 @@ fn drive_opened(
     let mut drivers: Vec<Driver> = (parts.zip(recorders.iter_mut()))
         .map(|(((s, session), c), r)| Driver::new(s, session, c, r, stop))
         .collect();
-    let mut fleet = Fleet::new(scenario, scenarios, status);
+    let mut fleet = Fleet::new(scenario, scenarios, shown);
     let driven = match mode {
         RunMode::Lockstep => lockstep(&mut drivers, &mut fleet, (&waitset, &mut wakes)),
         RunMode::Realtime => realtime(&mut drivers, &mut fleet, &waitset, stop),
@@ -352,11 +352,17 @@ struct Fleet {
     perception_ticks: u64,
     /// The fleet's status line, if the run has one.
     status: Option<FleetStatus>,
+    /// Lockstep held to real time for a live view (`live.pace`).
+    pace: Option<crate::pace::Pace>,
 }
 
 impl Fleet {
     /// The fleet of `scenario` (its robots', `members`) before its first tick.
-    fn new(scenario: &Validated, members: &[Validated], status: Option<FleetStatus>) -> Fleet {
+    fn new(
+        scenario: &Validated,
+        members: &[Validated],
+        (status, pace): (Option<FleetStatus>, Option<crate::pace::Pace>),
+    ) -> Fleet {
         let radii = (0..scenario.robot_count())
             .map(|id| scenario.radius_of(id))
             .collect();
@@ -371,7 +377,21 @@ impl Fleet {
             ticks_per_sample: scenario.timing.ticks_per_sample(),
             perception_ticks: scenario.perception_ticks(),
             status,
+            pace,
         }
+    }
+
+    /// How the fleet's run of `scenario` in `mode` is shown while it drives: its status
+    /// line, and in lockstep its pace for a live view.
+    fn shown(
+        scenario: &Validated,
+        mode: RunMode,
+        recording: Recording,
+    ) -> (Option<FleetStatus>, Option<crate::pace::Pace>) {
+        let robots = scenario.robot_count();
+        let status = FleetStatus::of(recording.status_line, scenario.duration_s, robots);
+        let pace = crate::pace::Pace::of(scenario, recording);
+        (status, pace.filter(|_| mode == RunMode::Lockstep))
     }
 
     /// Lockstep: whether every robot must have completed the tick before `tick` before
@@ -499,6 +519,9 @@ impl LockstepTicks {
                 || (fleet.starts_together(tick) && slowest < tick)
             {
                 continue;
+            }
+            if let Some(pace) = &mut fleet.pace {
+                pace.wait(tick);
             }
             if let Some(outcome) = driver.grant(tick)?
                 && !end(&mut fleet.outcomes, id, outcome)
@@ -670,7 +693,7 @@ mod tests {
             let overrides: Vec<String> = overrides.iter().map(|o| o.to_string()).collect();
             let scenario = crate::scenarios::load(Some("swap4"), &overrides).unwrap();
             let members: Vec<Validated> = vec![scenario.clone(); scenario.robot_count()];
-            Fleet::new(&scenario, &members, None)
+            Fleet::new(&scenario, &members, (None, None))
         };
         let together = |fleet: &Fleet| -> Vec<u64> {
             (0..100).filter(|&t| fleet.starts_together(t)).collect()
