@@ -186,7 +186,7 @@ fn the_condensed_program_gives_the_sparse_programs_plans() {
             other.box_and_terminal_needed = mpc.box_and_terminal_needed;
             other.reach.set_initial_state(z0);
             for m in [&mut *mpc, &mut other] {
-                assert_eq!(m.solve_once(z0).0, PlanStatus::Solved);
+                assert_eq!(m.solve_once(z0, true).0, PlanStatus::Solved);
                 m.load_solution();
             }
             assert_eq!(mpc.rows, other.rows);
@@ -345,7 +345,7 @@ fn refinement_gap(s: &Scenario, max_solves: usize, converged_m: f64) -> (f64, us
                 z[3],
             ];
             (mpc.max_solves, mpc.refinement_tol_m) = (max_solves, converged_m);
-            let converged = mpc.refine(z0);
+            let converged = mpc.refine(z0, true);
             assert!(
                 converged.status == PlanStatus::Solved && (converged.solves as usize) < max_solves,
                 "gamma {gamma}, sample {}: {converged:?}",

@@ -284,7 +284,7 @@ fn leaving_out_implied_rows_changes_no_plan_of(s: &Scenario) {
             z[3],
         ];
         // The rows left out at the current reference, then every row at the same one.
-        assert_eq!(mpc.solve_once(z0).0, PlanStatus::Solved);
+        assert_eq!(mpc.solve_once(z0, true).0, PlanStatus::Solved);
         let used = mpc.rows;
         mpc.load_solution();
         let reduced = mpc.solution.clone();

@@ -268,7 +268,8 @@ fn a_step_after_an_escape_plan_tries_the_bounded_program_once_unrelaxed_at_the_s
     let (after_escape, retried) = (two_samples(true), two_samples(false));
     assert!(after_escape.is_solved() && retried.is_solved());
     // Neither the relaxed program nor the cold retry found a bounded plan: the same
-    // escape, three solves fewer.
+    // escape, two solves fewer (the relaxed warm program's and the cold retry's; among
+    // tracks the cold retry is not relaxed either, `LinearMpc::relaxes`).
     assert_eq!(after_escape.z, retried.z);
-    assert_eq!(after_escape.solves + 3, retried.solves);
+    assert_eq!(after_escape.solves + 2, retried.solves);
 }
