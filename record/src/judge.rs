@@ -18,7 +18,8 @@ pub enum Outcome {
     /// moved (a moving obstacle that runs into a robot at rest is counted apart:
     /// [`Judge::contacts_at_rest`]).
     Collided,
-    /// Moved less than [`STALL_DISTANCE_M`] over [`STALL_WINDOW_S`] away from the goal.
+    /// Moved less than [`STALL_DISTANCE_M`] over [`STALL_WINDOW_S`] away from the goal,
+    /// waiting for nothing that moves for that long ([`WAITING_WITHIN_M`]).
     Stalled,
     /// The run's duration elapsed outside the goal tolerance.
     Timeout,
@@ -113,6 +114,8 @@ pub const APPROACHING_NEAR_GOAL_M: f64 = 0.1;
 /// A robot standing still with a moving obstacle this near (edge to surface) waits for
 /// it to pass and has not stalled, m: a person crossing or coming at it takes a few
 /// seconds to go by. In a fleet another robot that moves counts as one ([`Judge::peers`]).
+/// Once nothing moves that near, the robot stalls only after standing still for another
+/// [`STALL_WINDOW_S`]: it gets that long to go on.
 pub const WAITING_WITHIN_M: f64 = 3.0;
 
 pub use protocol::REST_SPEED_M_S;
@@ -233,6 +236,9 @@ pub struct Judge {
     /// In a fleet, the other robots that moved in the newest tracks, as discs where they
     /// were then ([`Judge::peers`]).
     moving_peers: Vec<Obstacle>,
+    /// The last time the robot stood still waiting for something moving near it
+    /// ([`WAITING_WITHIN_M`]), s.
+    waited_at_s: Option<f64>,
 }
 
 impl Judge {
@@ -268,6 +274,7 @@ impl Judge {
             last_position: [scenario.robot.start[0], scenario.robot.start[1]],
             last_time_s: 0.0,
             moving_peers: Vec::new(),
+            waited_at_s: None,
         }
     }
 
@@ -476,8 +483,12 @@ impl Judge {
         if self.ends_at_hold && self.holding && facing && distance <= self.goal_tolerance_m {
             return Some(Outcome::Reached);
         }
-        let stalled = full && still && distance > self.goal_tolerance_m;
-        (stalled && !self.waits_for_moving(t_s, x, y)).then_some(Outcome::Stalled)
+        let away = still && distance > self.goal_tolerance_m;
+        if away && self.waits_for_moving(t_s, x, y) {
+            self.waited_at_s = Some(t_s);
+        }
+        let waited_lately = (self.waited_at_s).is_some_and(|at| t_s - at < STALL_WINDOW_S - 1e-9);
+        (full && away && !waited_lately).then_some(Outcome::Stalled)
     }
 
     /// Whether an obstacle moving at `t_s`, or another robot that moved in the newest
@@ -668,7 +679,7 @@ mod tests {
     }
 
     #[test]
-    fn a_robot_waiting_for_a_person_to_pass_has_not_stalled_until_the_person_is_gone() {
+    fn a_robot_waiting_for_a_person_to_pass_stalls_only_a_window_after_the_person_is_gone() {
         // The person (0.3 m) walks past the robot standing at (7, 7) at 1 m/s along y = 5,
         // from x = 5: within 3 m of the robot's edge until x = 7 + 2.62 m, at 4.62 s.
         let s = Scenario {
@@ -684,12 +695,17 @@ mod tests {
             .find_map(|t| m.observe(t, 7.0, 7.0).map(|o| (o, t)));
         let (outcome, t) = ended.expect("never stalled");
         assert_eq!(outcome, Outcome::Stalled);
-        // Still for 3 s at 3 s, but waiting for the person until 4.62 s.
-        assert!((4.6..4.65).contains(&t), "stalled at {t}");
+        // Still for 3 s at 3 s, but waiting for the person until 4.62 s, then free to go
+        // for a window.
+        let gone_s = 4.62;
+        assert!(
+            (gone_s + STALL_WINDOW_S - 0.01..gone_s + STALL_WINDOW_S + 0.01).contains(&t),
+            "stalled at {t}"
+        );
     }
 
     #[test]
-    fn a_robot_of_a_fleet_waiting_for_another_that_moves_has_not_stalled_until_it_stands() {
+    fn a_robot_of_a_fleet_waiting_for_another_that_moves_stalls_only_a_window_after_it_stands() {
         // Another robot (0.3 m) drives past 1 m away at 0.5 m/s for 5 s, then stops there.
         let mut m = Judge::new(&Scenario::default());
         let track = |x: f64, speed: f64| {
@@ -715,8 +731,13 @@ mod tests {
         });
         let (outcome, t) = ended.expect("never stalled");
         assert_eq!(outcome, Outcome::Stalled);
-        // Still for 3 s at 3 s, but waiting for the other robot until it stood at 5 s.
-        assert!((5.0..5.01).contains(&t), "stalled at {t}");
+        // Still for 3 s at 3 s, but waiting for the other robot until it stood at 5 s, then
+        // free to go for a window.
+        let stood_s = 5.0;
+        assert!(
+            (stood_s + STALL_WINDOW_S - 0.01..stood_s + STALL_WINDOW_S + 0.01).contains(&t),
+            "stalled at {t}"
+        );
     }
 
     #[test]
