@@ -421,26 +421,30 @@ impl Drop for Children {
 /// command.
 const EPOCH_HEADER: &str = "=== ";
 
-/// How much of the end of a log [`Children::last_words`] reads, in bytes.
-const LAST_WORDS_READ_BYTES: usize = 4096;
+/// How much of the end of a log [`Children::last_words`] reads, in bytes: a panic's
+/// place and message with a backtrace of some 60 frames after them.
+const LAST_WORDS_READ_BYTES: usize = 64 * 1024;
 
-/// The last two lines of the newest process's part of a log that say something (a
-/// panic's place and message, an error's cause), joined by ` | `; Rust's hints on
-/// backtraces are left out. `None` when that process said nothing.
+/// The newest process's last words in its part of a log, joined by ` | `: its last
+/// panic's place and message if it panicked (the backtrace after them left out), else
+/// the last two lines that say something (an error's cause); Rust's hints are left out.
+/// `None` when that process said nothing.
 fn last_words(log: &str) -> Option<String> {
-    let said = |line: &&str| {
-        !line.is_empty() && !line.starts_with("note: ") && *line != "stack backtrace:"
-    };
-    let mut lines: Vec<&str> = log
-        .lines()
-        .rev()
+    let said = |line: &&str| !line.is_empty() && !line.starts_with("note: ");
+    let mut lines: Vec<&str> = (log.lines().rev())
         .take_while(|line| !line.starts_with(EPOCH_HEADER))
         .map(str::trim)
         .filter(said)
-        .take(2)
         .collect();
     lines.reverse();
-    (!lines.is_empty()).then(|| lines.join(" | "))
+    let words = match lines
+        .iter()
+        .rposition(|line| line.contains(" panicked at "))
+    {
+        Some(panic) => &lines[panic..(panic + 2).min(lines.len())],
+        None => &lines[lines.len().saturating_sub(2)..],
+    };
+    (!words.is_empty()).then(|| words.join(" | "))
 }
 
 /// Sends `signal` to a child not reaped yet.
@@ -483,7 +487,7 @@ mod tests {
     use super::last_words;
 
     #[test]
-    fn the_last_words_of_a_panic_are_its_place_and_message_and_a_silent_epoch_has_none() {
+    fn the_last_words_are_a_panics_place_and_message_else_the_last_two_lines_of_the_epoch() {
         let log = "=== plant epoch 0: scmpc plant\n\
                    2026-12-04T16:17:20Z INFO plant: driving\n\
                    thread 'main' panicked at ros2/src/link.rs:88:5:\n\
@@ -495,5 +499,21 @@ mod tests {
         );
         let silent_restart = format!("{log}=== plant epoch 1: scmpc plant\n");
         assert_eq!(last_words(&silent_restart), None);
+        let with_backtrace = "=== plant epoch 2: scmpc plant\n\
+                              thread 'net-0' panicked at link.rs:7:1:\n\
+                              no route\n\
+                              stack backtrace:\n   \
+                              0: std::panicking::begin_panic\n   \
+                              1: tokio::runtime::blocking::pool::Inner::run\n";
+        let words = last_words(&format!("{log}{with_backtrace}"));
+        assert_eq!(
+            words.as_deref(),
+            Some("thread 'net-0' panicked at link.rs:7:1: | no route")
+        );
+        let error_after_noise = "=== plant epoch 3: scmpc plant\nstarted\nlinked\nerror: gone\n";
+        assert_eq!(
+            last_words(error_after_noise).as_deref(),
+            Some("linked | error: gone")
+        );
     }
 }
