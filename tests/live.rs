@@ -490,28 +490,47 @@ fn the_foxglove_layout_names_only_channels_of_the_record() {
 
 #[test]
 fn a_fleets_live_view_serves_every_robots_channels_under_its_id_paced_and_refuses_goals() {
+    watch_a_fleet(&[]);
+}
+
+#[test]
+fn a_fleet_in_one_process_is_served_live_as_across_processes() {
+    watch_a_fleet(&["--in-process"]);
+}
+
+/// `swap4` for 3 s with a live view held to real time (`--live-pace`), and `mode`'s
+/// options: a client's clock advances at the wall clock's pace, a goal is refused, and
+/// every robot's channels are served under its id, and only those.
+fn watch_a_fleet(mode: &[&str]) {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let duration_s = 3.0;
-    let (mut run, url, _lines) = start(
-        dir.path(),
-        &[
-            "swap4",
-            "--live",
-            "127.0.0.1:0",
-            "--live-pace",
-            "--set",
-            &format!("duration_s={duration_s}"),
-            "--no-mcap",
-        ],
-    );
+    let duration = format!("duration_s={duration_s}");
+    let mut args = vec!["swap4", "--live", "127.0.0.1:0", "--live-pace"];
+    args.extend(["--set", &duration, "--no-mcap"]);
+    args.extend(mode);
+    let (mut run, url, _lines) = start(dir.path(), &args);
     let watcher = {
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
-    // The view's clock is robot 0's truth.
+    // The view's clock (the robots' truths) moves at the wall clock's pace.
     let mut clock = Client::connect(&url, false).expect("a clock");
-    while !matches!(clock.read(), Ok(Frame::Time(ns)) if ns >= 1_000_000_000) {}
+    let mut time_at = |at_s: f64| loop {
+        match clock.read() {
+            Ok(Frame::Time(ns)) if ns as f64 * 1e-9 >= at_s => break (ns, Instant::now()),
+            Ok(_) => {}
+            Err(e) => panic!("the view closed before its clock reached {at_s} s: {e}"),
+        }
+    };
+    let (first_ns, first) = time_at(0.5);
+    let (last_ns, last) = time_at(2.0);
+    let simulated_s = (last_ns - first_ns) as f64 * 1e-9;
+    let wall_s = (last - first).as_secs_f64();
+    assert!(
+        wall_s >= simulated_s * 0.95,
+        "{simulated_s:.3} s of the run's clock in {wall_s:.3} s of wall time"
+    );
     drop(clock);
     let (level, refusal) = send_goal(&url, 0.0, 0.0);
     assert_eq!(level, 2, "{refusal}");
@@ -519,16 +538,17 @@ fn a_fleets_live_view_serves_every_robots_channels_under_its_id_paced_and_refuse
         refusal.contains("a fleet's live view takes no goals"),
         "{refusal}"
     );
-    run.wait().unwrap();
+    // 3 s is not enough to reach a goal: the run ends as a run short of its goals does.
+    assert_eq!(run.wait().unwrap().code(), Some(1));
     let (counts, advertised, _) = watcher.join().unwrap();
-    let fleet = common::summary(dir.path());
-    // Held to real time: the run's wall time is at least the time it simulated.
-    let wall_s = fleet["wall_s"].as_f64().unwrap();
-    assert!(wall_s >= duration_s * 0.99, "{wall_s} s of wall time");
-    assert!(
-        !advertised.iter().any(|t| t.starts_with("/robot/")),
-        "a channel under no robot's id: {advertised:?}"
-    );
+    let under_an_id = |t: &String| {
+        let id = t
+            .strip_prefix("/robot")
+            .and_then(|rest| rest.split_once('/'));
+        id.is_some_and(|(id, _)| id.parse::<usize>().is_ok_and(|id| id < 4))
+    };
+    let stray: Vec<_> = advertised.iter().filter(|t| !under_an_id(t)).collect();
+    assert!(stray.is_empty(), "channels under no robot's id: {stray:?}");
     for robot in 0..4 {
         for topic in ["/robot/truth", "/mpc/plan", "/world/obstacles"] {
             let topic = record::mcap::fleet_topic(robot, topic);

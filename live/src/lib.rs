@@ -40,7 +40,8 @@ const QUEUED_BATCHES: usize = 16;
 pub const MAX_CLIENTS: usize = 16;
 /// How long the end of a run waits for the clients to be closed.
 const CLOSE_WAIT: std::time::Duration = std::time::Duration::from_secs(1);
-/// The topic whose messages set a run's view's clock (Foxglove's `time`).
+/// The topic whose messages set a run's view's clock (Foxglove's `time`); in a fleet's
+/// view every robot's (`/robot1/robot/truth`).
 const CLOCK_TOPIC: &str = "/robot/truth";
 
 /// The sink's opener (`run::sinks`): the live view of a scenario with `[live]`.
@@ -49,7 +50,7 @@ pub fn open(run: &RunStart) -> std::io::Result<Option<Box<dyn Sink>>> {
         return Ok(None);
     };
     let desk = goals::GoalDesk::new(run.scenario, run.goals.clone());
-    let channels = LiveChannels::serve(config, desk, CLOCK_TOPIC.to_string())?;
+    let channels = LiveChannels::serve(config, desk)?;
     announce(config, channels.address);
     Ok(Some(Box::new(Encoded::start_lossy(
         "live view",
@@ -73,7 +74,8 @@ fn announce(config: &LiveConfig, address: std::net::SocketAddr) {
 
 /// A fleet's live view (docs/fleet.md, "A live view"): one server for every robot's
 /// record, each robot's channels under its id as in the fleet's `run.mcap`
-/// ([`record::mcap::fleet_topic`]: `/robot1/mpc/plan`), the view's clock robot 0's truth.
+/// ([`record::mcap::fleet_topic`]: `/robot1/mpc/plan`), the view's clock the newest time
+/// of any robot's truth (so it goes on after robot 0's record ends).
 /// Each robot's record has a sink of its own ([`FleetView::sink`], an encoder on a thread
 /// of its own, as a run's live view has) that ends with the robot's record; the server
 /// serves until the fleet's run ends ([`FleetView::finish`]). It takes no goals: a
@@ -94,8 +96,7 @@ impl FleetView {
             return Ok(None);
         };
         let desk = goals::GoalDesk::refusing(FLEET_TAKES_NO_GOALS);
-        let clock_topic = record::mcap::fleet_topic(protocol::FIRST_ROBOT as usize, CLOCK_TOPIC);
-        let channels = LiveChannels::serve(config, desk, clock_topic)?;
+        let channels = LiveChannels::serve(config, desk)?;
         announce(config, channels.address);
         Ok(Some(FleetView {
             channels: Arc::new(Mutex::new(channels)),
@@ -110,6 +111,7 @@ impl FleetView {
     ) -> std::io::Result<Box<dyn Sink>> {
         let channels = RobotChannels {
             robot,
+            topics: HashMap::new(),
             view: self.channels.clone(),
         };
         let encoded = Encoded::start_lossy("live view", channels, member, QUEUED_BATCHES)?;
@@ -132,6 +134,8 @@ impl FleetView {
 /// One robot's channels on a fleet's server.
 struct RobotChannels {
     robot: usize,
+    /// Each of the robot's topics, and the topic under its id it is served on.
+    topics: HashMap<String, String>,
     view: Arc<Mutex<LiveChannels>>,
 }
 
@@ -148,13 +152,20 @@ impl Channels for RobotChannels {
         schema_name: &str,
         schema: &[u8],
     ) -> std::io::Result<()> {
-        let topic = record::mcap::fleet_topic(self.robot, topic);
-        self.view().add_channel(&topic, schema_name, schema)
+        let served = record::mcap::fleet_topic(self.robot, topic);
+        self.view().add_channel(&served, schema_name, schema)?;
+        self.topics.insert(topic.to_string(), served);
+        Ok(())
     }
 
     fn message(&mut self, topic: &str, time_ns: u64, json: &[u8]) -> std::io::Result<()> {
-        let topic = record::mcap::fleet_topic(self.robot, topic);
-        self.view().message(&topic, time_ns, json)
+        let served = (self.topics.get(topic)).ok_or_else(|| {
+            std::io::Error::other(format!(
+                "live view: a message on robot {}'s {topic}, which has no channel",
+                self.robot
+            ))
+        })?;
+        self.view().message(served, time_ns, json)
     }
 
     /// The robot's record is over; the server serves the others on.
@@ -227,17 +238,13 @@ struct LiveChannels {
     server: WebSocketServerHandle,
     channels: HashMap<String, Arc<RawChannel>>,
     latch: Arc<Latch>,
-    /// The topic whose messages set the view's clock (Foxglove's `time`).
-    clock_topic: String,
+    /// The view's clock (Foxglove's `time`), ns: the newest time of a truth so far.
+    clock_ns: Option<u64>,
 }
 
 impl LiveChannels {
     /// Starts the server on loopback and the gate on `config.address`.
-    fn serve(
-        config: &LiveConfig,
-        goals: goals::GoalDesk,
-        clock_topic: String,
-    ) -> std::io::Result<LiveChannels> {
+    fn serve(config: &LiveConfig, goals: goals::GoalDesk) -> std::io::Result<LiveChannels> {
         let named = |e: String| std::io::Error::other(format!("live view: {e}"));
         let address = config.socket_address().map_err(named)?;
         // The server's threads run at the normal policy: they start before the
@@ -278,7 +285,7 @@ impl LiveChannels {
             server,
             channels: HashMap::new(),
             latch,
-            clock_topic,
+            clock_ns: None,
         })
     }
 }
@@ -313,8 +320,9 @@ impl Channels for LiveChannels {
             },
         );
         self.latch.keep(channel, time_ns, json);
-        if topic == self.clock_topic {
-            self.server.broadcast_time(time_ns);
+        if let Some(now_ns) = clock_advance(self.clock_ns, topic, time_ns) {
+            self.clock_ns = Some(now_ns);
+            self.server.broadcast_time(now_ns);
         }
         Ok(())
     }
@@ -327,5 +335,35 @@ impl Channels for LiveChannels {
         let _ = self.runtime.block_on(closed);
         self.runtime.shutdown_timeout(CLOSE_WAIT);
         Ok(())
+    }
+}
+
+/// The view's clock after a message on `topic` at `time_ns`, if it moves it on: a truth's
+/// time (a run's `/robot/truth`, a fleet robot's `/robot<id>/robot/truth`) later than the
+/// clock's. A fleet's robots are stepped one after the other, and their records end at
+/// different times: the clock follows whichever is furthest on, and never goes back.
+fn clock_advance(clock_ns: Option<u64>, topic: &str, time_ns: u64) -> Option<u64> {
+    let truth = topic.ends_with(CLOCK_TOPIC);
+    (truth && clock_ns.is_none_or(|now_ns| time_ns > now_ns)).then_some(time_ns)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_clock_follows_the_furthest_truth_of_any_robot_and_never_goes_back() {
+        let fleet = |robot| record::mcap::fleet_topic(robot, CLOCK_TOPIC);
+        assert_eq!(clock_advance(None, CLOCK_TOPIC, 0), Some(0));
+        assert_eq!(clock_advance(None, "/mpc/plan", 7), None);
+        assert_eq!(clock_advance(Some(5), &fleet(0), 10), Some(10));
+        // Robot 1 at a time robot 0 has passed, then on after robot 0's record ended.
+        assert_eq!(clock_advance(Some(10), &fleet(1), 10), None);
+        assert_eq!(clock_advance(Some(10), &fleet(1), 5), None);
+        assert_eq!(clock_advance(Some(10), &fleet(1), 60), Some(60));
+        assert_eq!(
+            clock_advance(Some(10), &fleet(1).replace("truth", "estimate"), 60),
+            None
+        );
     }
 }

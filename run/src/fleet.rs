@@ -101,14 +101,14 @@ pub fn run(
     for member in &mut members {
         summaries.push(member.finish(interrupted)?);
     }
+    if let Some(view) = view {
+        view.finish().context("closing the fleet's live view")?;
+    }
     let deadlocks: Vec<u64> = members.iter().map(|m| m.deadlocks_broken).collect();
     let simulated_s = timing.tick_time_s(tick);
     let summary = FleetSummary::of(&summaries, &judge, &deadlocks, simulated_s, wall_s);
     summary.write(out)?;
     crate::sinks::merge_fleet_mcap(out, scenario.robot_count());
-    if let Some(view) = view {
-        view.finish().context("closing the fleet's live view")?;
-    }
     Ok(summary)
 }
 
