@@ -270,11 +270,21 @@ impl Children {
         Some(dir.join(format!("{}.log", role.as_str())))
     }
 
-    /// The last words in the log of `role` ([`last_words`]), with logs and words.
-    pub fn last_words(&self, role: Role) -> Option<String> {
-        let text = std::fs::read(self.log_path(role)?).ok()?;
-        let tail = &text[text.len().saturating_sub(LAST_WORDS_READ_BYTES)..];
-        last_words(&String::from_utf8_lossy(tail))
+    /// What the warning of the death of `process` adds: its last words ([`last_words`])
+    /// and where its stderr is, this host's log or, for a process on another host, its
+    /// agent's stderr there.
+    pub fn death_notes(&self, process: &Proc) -> String {
+        let (role, epoch) = (process.role, process.epoch);
+        if let Some(host) = process.host() {
+            return format!("; its stderr is in the stderr of host {host}'s agent");
+        }
+        let Some(log) = self.log_path(role) else {
+            return String::new();
+        };
+        let words = (read_tail(&log, LAST_WORDS_READ_BYTES).ok())
+            .and_then(|tail| last_words(&String::from_utf8_lossy(&tail), role, epoch))
+            .map_or(String::new(), |w| format!("; its last words: {w}"));
+        format!("{words}; its stderr is in {}", log.display())
     }
 
     /// The publishers the outputs of the process of `role` and `epoch` are pinned to on
@@ -421,22 +431,41 @@ impl Drop for Children {
 /// command.
 const EPOCH_HEADER: &str = "=== ";
 
-/// How much of the end of a log [`Children::last_words`] reads, in bytes: a panic's
+/// How much of the end of a log [`Children::death_notes`] reads, in bytes: a panic's
 /// place and message with a backtrace of some 60 frames after them.
-const LAST_WORDS_READ_BYTES: usize = 64 * 1024;
+const LAST_WORDS_READ_BYTES: u64 = 64 * 1024;
 
-/// The newest process's last words in its part of a log, joined by ` | `: its last
-/// panic's place and message if it panicked (the backtrace after them left out), else
-/// the last two lines that say something (an error's cause); Rust's hints are left out.
-/// `None` when that process said nothing.
-fn last_words(log: &str) -> Option<String> {
-    let said = |line: &&str| !line.is_empty() && !line.starts_with("note: ");
-    let mut lines: Vec<&str> = (log.lines().rev())
-        .take_while(|line| !line.starts_with(EPOCH_HEADER))
+/// The last `bytes` bytes of the file at `path` (all of it if shorter).
+fn read_tail(path: &Path, bytes: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut file = std::fs::File::open(path)?;
+    let length = file.metadata()?.len();
+    file.seek(SeekFrom::Start(length.saturating_sub(bytes)))?;
+    let mut tail = Vec::new();
+    file.read_to_end(&mut tail)?;
+    Ok(tail)
+}
+
+/// The last words of the process of `role` and `epoch` in (the end of) its role's log,
+/// joined by ` | `: its last panic's place and message if it panicked (the backtrace
+/// after them left out), else the last two lines that say something (an error's cause);
+/// Rust's hints are left out. Its words are the lines after its own header
+/// (`=== plant epoch 2: ...`), every other epoch's header left out: a swap's
+/// replacement writes its header while the process it replaces still runs. Lines of the
+/// replacement after that are taken too (the log does not say whose a line is). With
+/// its header no longer in `log`, every line is taken. `None` when it said nothing.
+fn last_words(log: &str, role: Role, epoch: u32) -> Option<String> {
+    let header = format!("{EPOCH_HEADER}{} epoch {epoch}:", role.as_str());
+    let own = log
+        .rfind(&header)
+        .map_or(log, |at| &log[at + header.len()..]);
+    let said = |line: &&str| {
+        !line.is_empty() && !line.starts_with("note: ") && !line.starts_with(EPOCH_HEADER)
+    };
+    let lines: Vec<&str> = (own.lines().skip(usize::from(own.len() < log.len())))
         .map(str::trim)
         .filter(said)
         .collect();
-    lines.reverse();
     let words = match lines
         .iter()
         .rposition(|line| line.contains(" panicked at "))
@@ -485,6 +514,7 @@ fn exited(p: &mut Proc) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::last_words;
+    use protocol::Role;
 
     #[test]
     fn the_last_words_are_a_panics_place_and_message_else_the_last_two_lines_of_the_epoch() {
@@ -494,26 +524,49 @@ mod tests {
                    no odometry\n\
                    note: run with `RUST_BACKTRACE=1` environment variable to display a backtrace\n\n";
         assert_eq!(
-            last_words(log).as_deref(),
+            last_words(log, Role::Plant, 0).as_deref(),
             Some("thread 'main' panicked at ros2/src/link.rs:88:5: | no odometry")
         );
         let silent_restart = format!("{log}=== plant epoch 1: scmpc plant\n");
-        assert_eq!(last_words(&silent_restart), None);
+        assert_eq!(last_words(&silent_restart, Role::Plant, 1), None);
         let with_backtrace = "=== plant epoch 2: scmpc plant\n\
                               thread 'net-0' panicked at link.rs:7:1:\n\
                               no route\n\
                               stack backtrace:\n   \
                               0: std::panicking::begin_panic\n   \
                               1: tokio::runtime::blocking::pool::Inner::run\n";
-        let words = last_words(&format!("{log}{with_backtrace}"));
+        let words = last_words(&format!("{log}{with_backtrace}"), Role::Plant, 2);
         assert_eq!(
             words.as_deref(),
             Some("thread 'net-0' panicked at link.rs:7:1: | no route")
         );
         let error_after_noise = "=== plant epoch 3: scmpc plant\nstarted\nlinked\nerror: gone\n";
         assert_eq!(
-            last_words(error_after_noise).as_deref(),
+            last_words(error_after_noise, Role::Plant, 3).as_deref(),
             Some("linked | error: gone")
+        );
+    }
+
+    #[test]
+    fn a_process_replaced_by_a_swap_is_known_by_its_own_header_not_the_newest() {
+        // The replacement (epoch 5) starts while epoch 4 still runs, then epoch 4 dies.
+        let log = "=== mpc epoch 4: scmpc mpc\n\
+                   solving\n\
+                   === mpc epoch 5: scmpc mpc --swap\n\
+                   error: the solver gave up\n";
+        assert_eq!(
+            last_words(log, Role::Mpc, 4).as_deref(),
+            Some("solving | error: the solver gave up")
+        );
+        // Its header gone from the tail read: every line but the headers.
+        let cut = &log["=== mpc epoch 4: scmpc mpc\n".len()..];
+        assert_eq!(
+            last_words(cut, Role::Mpc, 4).as_deref(),
+            Some("solving | error: the solver gave up")
+        );
+        assert_eq!(
+            last_words(log, Role::Mpc, 5).as_deref(),
+            Some("error: the solver gave up")
         );
     }
 }

@@ -459,16 +459,10 @@ impl<'a> Driver<'a> {
         if self.stop.load(Ordering::Relaxed) {
             return Ok(Some(Outcome::Interrupted));
         }
-        let children = &self.parts.children;
-        let log = children.log_path(role).map_or(String::new(), |p| {
-            format!("; its stderr is in {}", p.display())
-        });
-        let words = children
-            .last_words(role)
-            .map_or(String::new(), |w| format!("; its last words: {w}"));
         tracing::warn!(
-            "the {} process (epoch {epoch}) died: {status}{words}{log}",
+            "the {} process (epoch {epoch}) died: {status}{}",
             role.as_str(),
+            self.parts.children.death_notes(&proc),
         );
         self.parts.recorder.event(Event::Crashed {
             role,
