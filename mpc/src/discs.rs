@@ -153,6 +153,13 @@ impl World {
         !self.tracks.tracks().is_empty()
     }
 
+    /// Whether some track is kept and every one is another robot's, whose plans are known
+    /// ([`protocol::Track::is_peer`]): no person's, no phantom's, no lidar's.
+    pub fn only_peers(&self) -> bool {
+        let tracks = self.tracks.tracks();
+        !tracks.is_empty() && tracks.iter().all(|(t, _)| t.is_peer())
+    }
+
     /// Whether some kept track moves and every one that moves is another robot's, whose
     /// plans are known ([`protocol::Track::is_peer`]); not a person's, nor a phantom's.
     pub fn only_peers_move(&self) -> bool {
