@@ -445,21 +445,7 @@ impl LinearMpc {
         self.box_and_terminal_needed = !self.statics.box_and_terminal_implied(z0, self.sub_goal);
         self.reach.set_initial_state(z0);
         let mut outcome = self.refine(z0, self.relaxes(false));
-        // (A warm-up cut short tries nothing more: `CancelSlot`.)
-        if outcome.status != PlanStatus::Solved
-            && warm
-            && !self.last_escaped
-            && !self.world.only_peers()
-            && !self.cancel.cancelled()
-        {
-            // The shifted plan is no longer a usable linearization point: start cold
-            // (not after an escape plan: `last_escaped`). Not when every track is another
-            // robot's: counted with a print (not kept, 2026-12-04, d540fda's tree), the
-            // cold retry found a plan 2 times of 1,685 in `scmpc fuzz --robots 2..6
-            // --count 60 --seed 5` (and 3 of 30 among people, `scmpc fuzz --count 200
-            // --seed 11`, where it is kept); the escape plan after it is what the robot
-            // flies, and the retry's solve was a fifth of the costliest steps among
-            // robots (docs/performance.md, "A fleet").
+        if outcome.status != PlanStatus::Solved && self.retries_cold(warm) {
             self.braking_reference(z0);
             outcome = outcome.then(self.refine(z0, self.relaxes(true)));
         }
@@ -513,6 +499,19 @@ impl LinearMpc {
         self.last_sample = solved.then_some(sample);
         self.last_escaped = solved && self.prediction == Prediction::ConstantVelocity;
         plan
+    }
+
+    /// Whether a warm program (`warm`) that failed is tried again cold: the shifted plan
+    /// may no longer be a usable linearization point. Not after an escape plan
+    /// (`last_escaped`), nor when every track is another robot's: counted with a print
+    /// (not kept, 2026-12-04, d540fda's tree), the cold retry found a plan 2 times of
+    /// 1,685 in `scmpc fuzz --robots 2..6 --count 60 --seed 5` (and 3 of 30 among people,
+    /// `scmpc fuzz --count 200 --seed 11`, where it is kept); the escape plan after it is
+    /// what the robot flies, and the retry's solve was a fifth of the costliest steps
+    /// among robots (docs/performance.md, "A fleet"). A warm-up cut short tries nothing
+    /// more (`CancelSlot`).
+    fn retries_cold(&self, warm: bool) -> bool {
+        warm && !self.last_escaped && !self.world.only_peers() && !self.cancel.cancelled()
     }
 
     /// Whether a program that fails is tried again relaxed ([`LinearMpc::solve_once`]):
