@@ -137,9 +137,14 @@ fn pose_stamped(x: f64, y: f64) -> serde_json::Value {
 
 /// Sends a goal at `(x, y)` as a new client: the status the run answers with.
 fn send_goal(url: &str, x: f64, y: f64) -> (u64, String) {
+    send_goal_on(url, "/goal", x, y)
+}
+
+/// [`send_goal`] on `topic`.
+fn send_goal_on(url: &str, topic: &str, x: f64, y: f64) -> (u64, String) {
     let mut client = Client::connect(url, false).expect("a client with a goal");
     let channel = client
-        .advertise("/goal", "geometry_msgs/PoseStamped")
+        .advertise(topic, "geometry_msgs/PoseStamped")
         .unwrap();
     client.publish(channel, &pose_stamped(x, y)).unwrap();
     client
@@ -489,7 +494,7 @@ fn the_foxglove_layout_names_only_channels_of_the_record() {
 }
 
 #[test]
-fn a_fleets_live_view_serves_every_robots_channels_under_its_id_paced_and_refuses_goals() {
+fn a_fleets_live_view_serves_every_robots_channels_under_its_id_paced_and_takes_each_robots_goal() {
     watch_a_fleet(&[]);
 }
 
@@ -498,22 +503,40 @@ fn a_fleet_in_one_process_is_served_live_as_across_processes() {
     watch_a_fleet(&["--in-process"]);
 }
 
-/// `swap4` for 3 s with a live view held to real time (`--live-pace`), and `mode`'s
-/// options: a client's clock advances at the wall clock's pace, a goal is refused, and
+#[test]
+fn a_fleet_in_real_time_is_served_live_as_in_lockstep() {
+    watch_a_fleet(&["--mode", "realtime"]);
+}
+
+/// `swap4` for 3 s with a live view held to real time (`--live-pace`) that takes goals,
+/// and `mode`'s options: a goal on `/goal` names no robot and is ignored, one on
+/// `/robot1/goal` is robot 1's alone; a client's clock advances at the wall clock's pace;
 /// every robot's channels are served under its id, and only those.
 fn watch_a_fleet(mode: &[&str]) {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
     let duration_s = 3.0;
     let duration = format!("duration_s={duration_s}");
+    let token = format!("live.token={TOKEN}");
     let mut args = vec!["swap4", "--live", "127.0.0.1:0", "--live-pace"];
     args.extend(["--set", &duration, "--no-mcap"]);
+    args.extend(["--set", "live.accept_goals=true", "--set", &token]);
     args.extend(mode);
-    let (mut run, url, _lines) = start(dir.path(), &args);
+    let (mut run, base, _lines) = start(dir.path(), &args);
+    let url = format!("{base}/?token={TOKEN}");
     let watcher = {
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
+    let (level, ignored) = send_goal(&url, 1.0, 4.0);
+    assert_eq!(level, 1, "{ignored}");
+    assert!(
+        ignored.contains("/goal (json) is ignored")
+            && ignored.contains("/robot0/goal … /robot3/goal"),
+        "{ignored}"
+    );
+    let (level, taken) = send_goal_on(&url, "/robot1/goal", 1.0, 4.0);
+    assert_eq!(level, 0, "{taken}");
     // The view's clock (the robots' truths) moves at the wall clock's pace.
     let mut clock = Client::connect(&url, false).expect("a clock");
     let mut time_at = |at_s: f64| loop {
@@ -532,12 +555,6 @@ fn watch_a_fleet(mode: &[&str]) {
         "{simulated_s:.3} s of the run's clock in {wall_s:.3} s of wall time"
     );
     drop(clock);
-    let (level, refusal) = send_goal(&url, 0.0, 0.0);
-    assert_eq!(level, 2, "{refusal}");
-    assert!(
-        refusal.contains("a fleet's live view takes no goals"),
-        "{refusal}"
-    );
     // 3 s is not enough to reach a goal: the run ends as a run short of its goals does.
     assert_eq!(run.wait().unwrap().code(), Some(1));
     let (counts, advertised, _) = watcher.join().unwrap();
@@ -557,5 +574,22 @@ fn watch_a_fleet(mode: &[&str]) {
         let truth = record::mcap::fleet_topic(robot, "/robot/truth");
         let seen = counts.get(&truth).copied().unwrap_or(0);
         assert!(seen > 100, "{seen} messages on {truth}: {counts:?}");
+        let robot_dir = dir.path().join(format!("robot{robot}"));
+        let goals: Vec<_> = (common::events(&robot_dir).into_iter())
+            .filter(|e| e["event"] == "goal")
+            .map(|e| (e["x"].as_f64(), e["y"].as_f64()))
+            .collect();
+        match robot {
+            1 => assert_eq!(goals, [(Some(1.0), Some(4.0))]),
+            _ => assert!(goals.is_empty(), "robot {robot}: {goals:?}"),
+        }
     }
+    // Robot 1 turned from its own goal, 6 m ahead, towards the one it was sent.
+    let robot1 = dir.path().join("robot1");
+    let last = common::csv(&robot1.join("trajectory.csv")).pop().unwrap();
+    let off = (common::num(&last, "x") - 1.0).hypot(common::num(&last, "y") - 4.0);
+    assert!(
+        off < 2f64.sqrt() - 0.1,
+        "robot 1 ended {off:.3} m from its new goal"
+    );
 }

@@ -1,58 +1,100 @@
 //! Goals from a live view's clients (docs/foxglove.md, "Goals from the viewer"): a client
-//! advertises a `/goal` channel and publishes `geometry_msgs/PoseStamped` as JSON, as
-//! Foxglove's 3D panel publishes a pose. A goal is checked as RViz's would be
-//! ([`protocol::Scenario::live_goal`]) and handed to the run, which sets it at a sample
-//! boundary for every role; a client is told, in a status message, what became of it.
-//! Nothing else a client sends changes the run.
+//! advertises a `/goal` channel (in a fleet's view `/robot<id>/goal`, one per robot) and
+//! publishes `geometry_msgs/PoseStamped` as JSON, as Foxglove's 3D panel publishes a pose.
+//! A goal is checked as RViz's would be ([`protocol::Scenario::live_goal`]) and handed to
+//! the run, which sets it at a sample boundary for every role of its robot; a client is
+//! told, in a status message, what became of it. Nothing else a client sends changes the
+//! run.
 
 use foxglove::websocket::{Client, ClientChannel, Status};
 use protocol::{Goal, Scenario};
+use std::collections::HashMap;
 use std::sync::mpsc::Sender;
+use std::sync::{Arc, Mutex, PoisonError};
 
-/// The one topic a client may publish on.
+/// The topic a client publishes a run's goals on; a fleet robot's is under its id
+/// ([`record::mcap::fleet_topic`]: `/robot1/goal`).
 pub const GOAL_TOPIC: &str = "/goal";
 
-/// Where the goals go, and what they are checked against.
+/// Where the goals go, and what they are checked against. A fleet's view shares it with
+/// the server's listener, and each robot's record joins it as it starts
+/// ([`GoalDesk::join`]).
+#[derive(Clone)]
 pub(crate) struct GoalDesk {
-    /// The scenario a goal is checked against and the run it goes to; or why the run
-    /// takes none.
-    to: Result<(Scenario, Sender<Goal>), &'static str>,
+    /// Why the run takes no goals; `None` when it takes them.
+    refused: Option<&'static str>,
+    /// The topics a goal may come on.
+    topics: Arc<[String]>,
+    /// Each topic's robot, as it joins.
+    robots: Arc<Mutex<HashMap<String, Robot>>>,
 }
 
+/// A robot that takes goals: the scenario a goal is checked against and the record it goes
+/// to.
+type Robot = (Scenario, Sender<Goal>);
+
+/// Why a run without `live.accept_goals` refuses a goal.
+const NOT_ACCEPTED: &str = "this run takes no goals from a viewer (live.accept_goals = false)";
+
 impl GoalDesk {
+    /// A run's desk: goals on `/goal`, checked against `scenario`, go to `run`.
     pub(crate) fn new(scenario: &Scenario, run: Sender<Goal>) -> GoalDesk {
+        let desk = GoalDesk::of(scenario, vec![GOAL_TOPIC.to_string()]);
+        desk.join(GOAL_TOPIC, scenario, run);
+        desk
+    }
+
+    /// A fleet's desk: robot `i`'s goals on `/robot<i>/goal`, once its record joins.
+    pub(crate) fn fleet(fleet: &Scenario) -> GoalDesk {
+        let topics = (0..fleet.robot_count())
+            .map(|robot| record::mcap::fleet_topic(robot, GOAL_TOPIC))
+            .collect();
+        GoalDesk::of(fleet, topics)
+    }
+
+    fn of(scenario: &Scenario, topics: Vec<String>) -> GoalDesk {
         let accept = scenario.live.as_ref().is_some_and(|l| l.accept_goals);
         GoalDesk {
-            to: if accept {
-                Ok((scenario.clone(), run))
-            } else {
-                Err("this run takes no goals from a viewer (live.accept_goals = false)")
-            },
+            refused: (!accept).then_some(NOT_ACCEPTED),
+            topics: topics.into(),
+            robots: Arc::default(),
         }
     }
 
-    /// A desk that refuses every goal, saying `why`.
-    pub(crate) fn refusing(why: &'static str) -> GoalDesk {
-        GoalDesk { to: Err(why) }
+    /// Goals on `topic`, checked against `scenario`, go to `run` from now on.
+    pub(crate) fn join(&self, topic: &str, scenario: &Scenario, run: Sender<Goal>) {
+        let mut robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
+        robots.insert(topic.to_string(), (scenario.clone(), run));
     }
 
-    /// A client advertised `channel`: anything but `/goal` in JSON is told it is ignored.
+    /// Whether a goal may come on `channel`.
+    fn takes(&self, channel: &ClientChannel) -> bool {
+        channel.encoding == "json" && self.topics.contains(&channel.topic)
+    }
+
+    /// A client advertised `channel`: anything but a goal's topic in JSON is told it is
+    /// ignored.
     pub(crate) fn advertised(&self, client: &Client, channel: &ClientChannel) {
-        if channel.topic != GOAL_TOPIC || channel.encoding != "json" {
+        if !self.takes(channel) {
+            let topics = match &self.topics[..] {
+                [one] => one.clone(),
+                [first, .., last] => format!("{first} … {last}"),
+                [] => String::new(),
+            };
             client.send_status(Status::warning(format!(
-                "{} ({}) is ignored: this run takes only {GOAL_TOPIC} \
+                "{} ({}) is ignored: this run takes only {topics} \
                  (geometry_msgs/PoseStamped as JSON)",
                 channel.topic, channel.encoding
             )));
         }
     }
 
-    /// A message on a client's channel: a goal on `/goal`, taken or refused.
+    /// A message on a client's channel: a goal on a goal's topic, taken or refused.
     pub(crate) fn published(&self, client: &Client, channel: &ClientChannel, payload: &[u8]) {
-        if channel.topic != GOAL_TOPIC || channel.encoding != "json" {
+        if !self.takes(channel) {
             return; // told at its advertisement that it is ignored
         }
-        let status = match self.take(payload) {
+        let status = match self.take(&channel.topic, payload) {
             Ok(goal) => Status::info(format!(
                 "goal accepted: driving to ({:.3}, {:.3})",
                 goal.position[0], goal.position[1]
@@ -62,10 +104,20 @@ impl GoalDesk {
         client.send_status(status);
     }
 
-    fn take(&self, payload: &[u8]) -> Result<Goal, String> {
-        let (scenario, run) = self.to.as_ref().map_err(|why| why.to_string())?;
+    fn take(&self, topic: &str, payload: &[u8]) -> Result<Goal, String> {
+        if let Some(why) = self.refused {
+            return Err(why.to_string());
+        }
+        let robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
+        let over = || match topic {
+            GOAL_TOPIC => "the run is over".to_string(),
+            _ => format!(
+                "the robot of {topic} takes none now (its record has not begun or has ended)"
+            ),
+        };
+        let (scenario, run) = robots.get(topic).ok_or_else(over)?;
         let goal = scenario.live_goal(pose_stamped(payload)?)?;
-        run.send(goal).map_err(|_| "the run is over".to_string())?;
+        run.send(goal).map_err(|_| over())?;
         Ok(goal)
     }
 }

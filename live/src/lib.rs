@@ -78,37 +78,47 @@ fn announce(config: &LiveConfig, address: std::net::SocketAddr) {
 /// of any robot's truth (so it goes on after robot 0's record ends).
 /// Each robot's record has a sink of its own ([`FleetView::sink`], an encoder on a thread
 /// of its own, as a run's live view has) that ends with the robot's record; the server
-/// serves until the fleet's run ends ([`FleetView::finish`]). It takes no goals: a
-/// client's goal names no robot.
+/// serves until the fleet's run ends ([`FleetView::finish`]). With `live.accept_goals` a
+/// client sends robot `i` a goal on `/robot<i>/goal` while its record runs.
 pub struct FleetView {
     channels: Arc<Mutex<LiveChannels>>,
+    goals: goals::GoalDesk,
+    config: LiveConfig,
 }
 
-/// What a client that sends a fleet's view a goal is told.
-const FLEET_TAKES_NO_GOALS: &str =
-    "a fleet's live view takes no goals: each robot drives to its own (robots.<i>.goal)";
-
 impl FleetView {
-    /// The view of a fleet of scenario `fleet`, serving from now on; `None` without
-    /// `[live]`.
+    /// The view of a fleet of scenario `fleet`, serving from now on ([`FleetView::announce`]
+    /// says where); `None` without `[live]`.
     pub fn serve(fleet: &protocol::Scenario) -> std::io::Result<Option<FleetView>> {
         let Some(config) = &fleet.live else {
             return Ok(None);
         };
-        let desk = goals::GoalDesk::refusing(FLEET_TAKES_NO_GOALS);
-        let channels = LiveChannels::serve(config, desk)?;
-        announce(config, channels.address);
+        let desk = goals::GoalDesk::fleet(fleet);
+        let channels = LiveChannels::serve(config, desk.clone())?;
         Ok(Some(FleetView {
             channels: Arc::new(Mutex::new(channels)),
+            goals: desk,
+            config: config.clone(),
         }))
     }
 
-    /// The sink of robot `robot`'s record, whose scenario is `member`.
+    /// Tells the user where the view is, once every robot's record has joined it (so a
+    /// goal sent at once finds its robot).
+    pub fn announce(&self) {
+        let address = (self.channels.lock().unwrap_or_else(PoisonError::into_inner)).address;
+        announce(&self.config, address);
+    }
+
+    /// The sink of robot `robot`'s record, whose scenario is `member` and which takes
+    /// the goals sent to it on `goals` ([`record::Recorder::goal_sender`]).
     pub fn sink(
         &self,
         robot: usize,
         member: &protocol::Scenario,
+        goals: std::sync::mpsc::Sender<protocol::Goal>,
     ) -> std::io::Result<Box<dyn Sink>> {
+        let goal_topic = record::mcap::fleet_topic(robot, goals::GOAL_TOPIC);
+        self.goals.join(&goal_topic, member, goals);
         let channels = RobotChannels {
             robot,
             topics: HashMap::new(),

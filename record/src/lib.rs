@@ -87,8 +87,11 @@ pub struct Recorder {
     commanded_rest_since_s: Option<f64>,
     /// How well a run with a simulated lidar saw.
     perception: Option<perception::PerceptionJudge>,
-    /// Goals a sink took from outside (a live view's client), not set yet.
-    goals: std::sync::mpsc::Receiver<protocol::Goal>,
+    /// Goals a sink took from outside (a live view's client), not set yet; `None` once
+    /// the record takes no more ([`Recorder::stop_taking_goals`]).
+    goals: Option<std::sync::mpsc::Receiver<protocol::Goal>>,
+    /// Where they are sent: handed to a sink opened elsewhere ([`Recorder::goal_sender`]).
+    goals_to: std::sync::mpsc::Sender<protocol::Goal>,
     /// The newest of those, waiting for [`Recorder::goal_interval_s`] to pass.
     pending_goal: Option<protocol::Goal>,
     /// When the last goal was set, s.
@@ -117,14 +120,15 @@ impl Recorder {
         let run = RunStart {
             dir,
             scenario,
-            goals: sent,
+            goals: sent.clone(),
         };
         let mut sinks = Vec::with_capacity(open.len());
         for open in open {
             sinks.extend(open(&run)?);
         }
         Ok(Recorder {
-            goals,
+            goals: Some(goals),
+            goals_to: sent,
             pending_goal: None,
             goal_set_at_s: None,
             goal_interval_s: MIN_GOAL_INTERVAL_S.max(4.0 * scenario.timing.ts_s),
@@ -166,15 +170,28 @@ impl Recorder {
         self
     }
 
+    /// Where a sink opened elsewhere ([`Recorder::with_sink`]) hands the goals it takes
+    /// from outside, as [`RunStart::goals`].
+    pub fn goal_sender(&self) -> std::sync::mpsc::Sender<protocol::Goal> {
+        self.goals_to.clone()
+    }
+
     /// The newest goal a sink took from outside that is not set yet, once the last one
     /// set is [`MIN_GOAL_INTERVAL_S`] old (the ones between are passed over).
     pub fn requested_goal(&mut self) -> Option<protocol::Goal> {
-        if let Some(newest) = self.goals.try_iter().last() {
+        if let Some(newest) = (self.goals.as_ref()).and_then(|goals| goals.try_iter().last()) {
             self.pending_goal = Some(newest);
         }
         let due =
             (self.goal_set_at_s).is_none_or(|at| self.last_time_s - at >= self.goal_interval_s);
         if due { self.pending_goal.take() } else { None }
+    }
+
+    /// Takes no more goals from outside: the record has its outcome, and a fleet's robot
+    /// drives on as a track to the others. A sink's send fails from now on, so its client
+    /// is told.
+    pub fn stop_taking_goals(&mut self) {
+        (self.goals, self.pending_goal) = (None, None);
     }
 
     /// `change` is set (the executor told every role): the judge measures the run against

@@ -11,7 +11,7 @@
 //! ([`crate::multiproc`]); in process the executor hands them over, as it plays the world.
 
 use crate::closed_loop::{ClosedLoop, Ended};
-use crate::inprocess::record_tick;
+use crate::inprocess::{record_tick, set_requested_goal};
 use crate::sinks::Recording;
 use crate::status_line::FleetStatus;
 use anyhow::Context as _;
@@ -43,6 +43,8 @@ struct Member {
     deadlocks_broken: u64,
     /// When its record began, for its summary's wall time.
     started: Instant,
+    /// The goals set from outside so far (a live view's client).
+    goals_set: u32,
 }
 
 /// Runs the fleet to its end (every robot's outcome, the duration, or `stop`) and writes
@@ -63,6 +65,7 @@ pub fn run(
     let mut members = (0..scenario.robot_count())
         .map(|id| Member::new(scenario, id, out, recording, view.as_ref()))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    view.iter().for_each(live::FleetView::announce);
     let radii = members.iter().map(|m| m.radius_m).collect();
     let mut judge = FleetJudge::new(radii);
     let timing = &scenario.timing;
@@ -153,6 +156,7 @@ impl Member {
             summary: None,
             deadlocks_broken: 0,
             started: Instant::now(),
+            goals_set: 0,
         })
     }
 
@@ -161,6 +165,9 @@ impl Member {
         let Some(closed_loop) = &mut self.closed_loop else {
             return Ok(());
         };
+        if let Some(recorder) = &mut self.recorder {
+            set_requested_goal(recorder, closed_loop, &mut self.goals_set)?;
+        }
         let tick = match closed_loop.step() {
             Ok(tick) => tick,
             Err(Ended::Aborted { role, topic }) => {

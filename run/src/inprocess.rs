@@ -25,7 +25,7 @@ pub fn run(
 
 /// A goal a sink took from outside (a live view's client), the `goals_set`th, set for every
 /// task and the record ([`GoalChange::set_at`]).
-fn set_requested_goal(
+pub(crate) fn set_requested_goal(
     recorder: &mut record::Recorder,
     closed_loop: &mut ClosedLoop,
     goals_set: &mut u32,

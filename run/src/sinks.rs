@@ -91,7 +91,8 @@ pub fn member_recorder(
     let Some(view) = view else {
         return Ok(recorder);
     };
-    let sink = (view.sink(id, member)).context("joining the fleet's live view")?;
+    let sink =
+        (view.sink(id, member, recorder.goal_sender())).context("joining the fleet's live view")?;
     Ok(recorder.with_sink(sink))
 }
 

@@ -208,14 +208,6 @@ impl Scenario {
                     .into(),
             );
         }
-        if self.live.as_ref().is_some_and(|l| l.accept_goals) {
-            v.fail(
-                "live.accept_goals",
-                "a fleet's live view takes no goals: a goal from the viewer names no robot, \
-                 and each robot drives to its own (robots.<i>.goal)"
-                    .into(),
-            );
-        }
         let unsupported = [
             ("plant.kind", self.plant.kind != crate::PlantKind::Sim),
             ("swap", !self.swap.is_empty()),
@@ -427,22 +419,5 @@ mod tests {
         fleet.dfl.brake_decel = AutoOr::Auto(crate::scenario::Auto::Auto);
         let refused = fleet.clone().validated("test").unwrap_err().to_string();
         assert!(refused.contains("robots.1.v_max"), "{refused}");
-    }
-
-    #[test]
-    fn a_fleets_live_view_is_refused_goals_from_the_viewer_and_served_without() {
-        let live = [
-            "live.address=\"127.0.0.1:0\"",
-            "live.token=\"a-token-of-32-characters-0000000\"",
-        ]
-        .map(String::from);
-        let watched = swap4().with_overrides(&live).unwrap();
-        assert!(watched.clone().validated("test").is_ok());
-        let steered = (watched.with_overrides(&["live.accept_goals=true".to_string()])).unwrap();
-        let refused = steered.validated("test").unwrap_err().to_string();
-        assert!(
-            refused.contains("live.accept_goals") && refused.contains("names no robot"),
-            "{refused}"
-        );
     }
 }

@@ -129,10 +129,15 @@ impl<'a> Driver<'a> {
         Ok(self.parts.recorder.end_of_run(None))
     }
 
-    /// Lockstep, a fleet's ([`super::fleet`]): grants tick `tick`; an outcome when the
-    /// run must end. What comes is taken by [`Driver::poll_whole`], and each wake-up
-    /// cleared as it fires ([`Driver::clear_fired`]).
-    pub fn grant(&mut self, tick: u64) -> anyhow::Result<Option<Outcome>> {
+    /// Lockstep, a fleet's ([`super::fleet`]): grants tick `tick` (with the goal a live
+    /// view's client sent, while `recording`); an outcome when the run must end. What
+    /// comes is taken by [`Driver::poll_whole`], and each wake-up cleared as it fires
+    /// ([`Driver::clear_fired`]).
+    pub fn grant(&mut self, tick: u64, recording: bool) -> anyhow::Result<Option<Outcome>> {
+        match recording {
+            true => self.set_requested_goal(tick)?,
+            false => self.parts.recorder.stop_taking_goals(),
+        }
         self.parts.session.grant(tick)?;
         self.check()
     }
@@ -221,6 +226,12 @@ impl<'a> Driver<'a> {
             }
         };
         let mut outcome = planned.filter(|_| self.aborting.is_none());
+        if !recording {
+            self.parts.recorder.stop_taking_goals();
+        } else if self.aborting.is_none() {
+            let now = self.parts.session.clock().now_tick().unwrap_or(0);
+            self.set_requested_goal(now)?;
+        }
         while let Some(slot) = (self.intake).next_due(recording.then_some(self.parts.recorder))? {
             let tick = self.intake.cursor - 1;
             if let Some(truth) = &slot.truth {

@@ -151,6 +151,7 @@ fn open_robots(
         robots.recorders.push(recorder);
         spawned?;
     }
+    robots.view.iter().for_each(live::FleetView::announce);
     Ok(())
 }
 
@@ -523,7 +524,7 @@ impl LockstepTicks {
             if let Some(pace) = &mut fleet.pace {
                 pace.wait(tick);
             }
-            if let Some(outcome) = driver.grant(tick)?
+            if let Some(outcome) = driver.grant(tick, fleet.outcomes[id].is_none())?
                 && !end(&mut fleet.outcomes, id, outcome)
             {
                 return Ok(false);
