@@ -29,9 +29,15 @@ pub(crate) struct GoalDesk {
     robots: Arc<Mutex<HashMap<String, Robot>>>,
 }
 
-/// A robot that takes goals: the scenario a goal is checked against and the record it goes
-/// to.
-type Robot = (Scenario, Sender<Goal>);
+/// A robot that takes goals.
+struct Robot {
+    /// What a goal for it is checked against.
+    scenario: Scenario,
+    /// Its record, which sets the goal.
+    run: Sender<Goal>,
+    /// Its goal now (m): no other robot's goal may take its place.
+    goal: [f64; 2],
+}
 
 /// Why a run without `live.accept_goals` refuses a goal.
 const NOT_ACCEPTED: &str = "this run takes no goals from a viewer (live.accept_goals = false)";
@@ -64,7 +70,12 @@ impl GoalDesk {
     /// Goals on `topic`, checked against `scenario`, go to `run` from now on.
     pub(crate) fn join(&self, topic: &str, scenario: &Scenario, run: Sender<Goal>) {
         let mut robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
-        robots.insert(topic.to_string(), (scenario.clone(), run));
+        let robot = Robot {
+            scenario: scenario.clone(),
+            run,
+            goal: scenario.robot.goal.position,
+        };
+        robots.insert(topic.to_string(), robot);
     }
 
     /// Whether a goal may come on `channel`.
@@ -108,16 +119,32 @@ impl GoalDesk {
         if let Some(why) = self.refused {
             return Err(why.to_string());
         }
-        let robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
         let over = || match topic {
             GOAL_TOPIC => "the run is over".to_string(),
             _ => format!(
                 "the robot of {topic} takes none now (its record has not begun or has ended)"
             ),
         };
-        let (scenario, run) = robots.get(topic).ok_or_else(over)?;
-        let goal = scenario.live_goal(pose_stamped(payload)?)?;
-        run.send(goal).map_err(|_| over())?;
+        let robot = robots.get(topic).ok_or_else(over)?;
+        let goal = robot.scenario.live_goal(pose_stamped(payload)?)?;
+        for (other_topic, other) in robots.iter().filter(|(t, _)| *t != topic) {
+            let own = &robot.scenario.robot;
+            let room = own.radius_m + other.scenario.robot.radius_m + own.goal_tolerance_m;
+            let apart = protocol::distance(goal.position, other.goal);
+            if apart <= room {
+                let [x, y] = goal.position;
+                return Err(format!(
+                    "({x}, {y}) is {apart:.3} m from the goal of the robot of {other_topic}; \
+                     two robots resting there need their radii and robot.goal_tolerance_m, \
+                     {room:.3} m"
+                ));
+            }
+        }
+        robot.run.send(goal).map_err(|_| over())?;
+        if let Some(robot) = robots.get_mut(topic) {
+            robot.goal = goal.position;
+        }
         Ok(goal)
     }
 }
@@ -151,6 +178,53 @@ pub(crate) fn pose_stamped(payload: &[u8]) -> Result<Goal, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A `geometry_msgs/PoseStamped` at `(x, y)` as JSON, no heading.
+    fn pose(x: f64, y: f64) -> Vec<u8> {
+        format!(r#"{{"pose":{{"position":{{"x":{x},"y":{y}}}}}}}"#).into_bytes()
+    }
+
+    #[test]
+    fn a_fleet_robots_goal_goes_to_it_alone_and_not_onto_another_robots_goal() {
+        let mut fleet =
+            Scenario::from_toml(include_str!("../../scenarios/swap4.toml"), "swap4").unwrap();
+        fleet.live = Some(protocol::LiveConfig {
+            accept_goals: true,
+            ..protocol::LiveConfig::default()
+        });
+        let desk = GoalDesk::fleet(&fleet);
+        let topic = |robot| record::mcap::fleet_topic(robot, GOAL_TOPIC);
+        let records: Vec<_> = (0..2)
+            .map(|robot| {
+                let (run, record) = std::sync::mpsc::channel();
+                desk.join(&topic(robot), &fleet.member(robot), run);
+                record
+            })
+            .collect();
+        assert_eq!(
+            desk.take(&topic(1), &pose(1.0, 4.0)).unwrap().position,
+            [1.0, 4.0]
+        );
+        assert_eq!(records[1].try_recv().unwrap().position, [1.0, 4.0]);
+        assert!(records[0].try_recv().is_err(), "robot 0 got robot 1's goal");
+        // Onto robot 0's goal (-3, 0), then onto robot 1's new one.
+        let refused = desk.take(&topic(1), &pose(-3.2, 0.1)).unwrap_err();
+        assert!(refused.contains("the robot of /robot0/goal"), "{refused}");
+        let refused = desk.take(&topic(0), &pose(1.2, 4.0)).unwrap_err();
+        assert!(refused.contains("the robot of /robot1/goal"), "{refused}");
+        // Robot 2 has not joined; robot 1's record has ended.
+        assert!(
+            desk.take(&topic(2), &pose(5.0, 5.0))
+                .unwrap_err()
+                .contains("takes none now")
+        );
+        drop(records);
+        assert!(
+            desk.take(&topic(1), &pose(5.0, 5.0))
+                .unwrap_err()
+                .contains("takes none now")
+        );
+    }
 
     #[test]
     fn a_pose_stamped_gives_its_position_and_the_heading_of_its_quaternion() {
