@@ -508,10 +508,11 @@ fn a_fleet_in_real_time_is_served_live_as_in_lockstep() {
     watch_a_fleet(&["--mode", "realtime"]);
 }
 
-/// `swap4` for 3 s with a live view held to real time (`--live-pace`) that takes goals,
-/// and `mode`'s options: a goal on `/goal` names no robot and is ignored, one on
-/// `/robot1/goal` is robot 1's alone; a client's clock advances at the wall clock's pace;
-/// every robot's channels are served under its id, and only those.
+/// `swap4` for 3 s with a live view held to real time (`--live-pace`, or in real time)
+/// that takes goals, and `mode`'s options: a goal on `/goal` names no robot and is
+/// ignored, one on `/robot1/goal` is robot 1's alone; a client's clock advances at the
+/// wall clock's pace (2 s of the run's time between two of its frames); every robot's
+/// channels are served under its id, and only those.
 fn watch_a_fleet(mode: &[&str]) {
     let _machine = common::machine_shared();
     let dir = tempfile::tempdir().unwrap();
@@ -528,6 +529,23 @@ fn watch_a_fleet(mode: &[&str]) {
         let url = url.clone();
         std::thread::spawn(move || watch(&url))
     };
+    // The view's clock (the robots' truths) moves at the wall clock's pace: its frames
+    // read as they come, on a thread of their own, while the goals are sent.
+    let clock = {
+        let mut clock = Client::connect(&url, false).expect("a clock");
+        std::thread::spawn(move || {
+            let mut time_at = |at_s: f64| loop {
+                match clock.read() {
+                    Ok(Frame::Time(ns)) if ns as f64 * 1e-9 >= at_s => {
+                        break (ns, Instant::now());
+                    }
+                    Ok(_) => {}
+                    Err(e) => panic!("the view closed before its clock reached {at_s} s: {e}"),
+                }
+            };
+            (time_at(0.5), time_at(2.5))
+        })
+    };
     let (level, ignored) = send_goal(&url, 1.0, 4.0);
     assert_eq!(level, 1, "{ignored}");
     assert!(
@@ -537,24 +555,17 @@ fn watch_a_fleet(mode: &[&str]) {
     );
     let (level, taken) = send_goal_on(&url, "/robot1/goal", 1.0, 4.0);
     assert_eq!(level, 0, "{taken}");
-    // The view's clock (the robots' truths) moves at the wall clock's pace.
-    let mut clock = Client::connect(&url, false).expect("a clock");
-    let mut time_at = |at_s: f64| loop {
-        match clock.read() {
-            Ok(Frame::Time(ns)) if ns as f64 * 1e-9 >= at_s => break (ns, Instant::now()),
-            Ok(_) => {}
-            Err(e) => panic!("the view closed before its clock reached {at_s} s: {e}"),
-        }
-    };
-    let (first_ns, first) = time_at(0.5);
-    let (last_ns, last) = time_at(2.0);
+    let ((first_ns, first), (last_ns, last)) = clock.join().unwrap();
+    assert!(
+        first_ns < 1_000_000_000,
+        "the clock was first read at {first_ns} ns"
+    );
     let simulated_s = (last_ns - first_ns) as f64 * 1e-9;
     let wall_s = (last - first).as_secs_f64();
     assert!(
         wall_s >= simulated_s * 0.95,
         "{simulated_s:.3} s of the run's clock in {wall_s:.3} s of wall time"
     );
-    drop(clock);
     // 3 s is not enough to reach a goal: the run ends as a run short of its goals does.
     assert_eq!(run.wait().unwrap().code(), Some(1));
     let (counts, advertised, _) = watcher.join().unwrap();

@@ -139,7 +139,17 @@ impl<'a> Driver<'a> {
             false => self.parts.recorder.stop_taking_goals(),
         }
         self.parts.session.grant(tick)?;
-        self.check()
+        let outcome = self.check()?;
+        Ok(self.ended(outcome))
+    }
+
+    /// A fleet's: `outcome`, and when there is one the robot's record takes no more goals
+    /// from a live view's client (its robot drives on, a track to the others).
+    pub fn ended(&mut self, outcome: Option<Outcome>) -> Option<Outcome> {
+        if outcome.is_some() {
+            self.parts.recorder.stop_taking_goals();
+        }
+        outcome
     }
 
     /// Lockstep, a fleet's: clears the wake-ups of the listener that fired, the status's
@@ -189,7 +199,8 @@ impl<'a> Driver<'a> {
             return Ok((position, None));
         }
         let no_route = self.intake.record_plans(self.parts.recorder)?;
-        Ok((position, self.record_slot(tick, slot)?.or(no_route)))
+        let outcome = self.record_slot(tick, slot)?.or(no_route);
+        Ok((position, self.ended(outcome)))
     }
 
     /// Real time, a fleet's: starts the clock, tick 0 at monotonic `start_ns`.
@@ -216,7 +227,7 @@ impl<'a> Driver<'a> {
     ) -> anyhow::Result<Option<Outcome>> {
         self.take_now()?;
         if let Some(outcome) = self.check_or_brake(recording)? {
-            return Ok(Some(outcome));
+            return Ok(self.ended(Some(outcome)));
         }
         let planned = match recording {
             true => self.intake.record_plans(self.parts.recorder)?,
@@ -228,7 +239,7 @@ impl<'a> Driver<'a> {
         let mut outcome = planned.filter(|_| self.aborting.is_none());
         if !recording {
             self.parts.recorder.stop_taking_goals();
-        } else if self.aborting.is_none() {
+        } else if self.aborting.is_none() && outcome.is_none() {
             let now = self.parts.session.clock().now_tick().unwrap_or(0);
             self.set_requested_goal(now)?;
         }
@@ -241,7 +252,7 @@ impl<'a> Driver<'a> {
                 outcome = self.record_slot(tick, slot)?.map(|o| self.aborted_as(o));
             }
         }
-        Ok(outcome)
+        Ok(self.ended(outcome))
     }
 
     /// Lockstep: holds the clock while a replacement has not joined the run, so that a

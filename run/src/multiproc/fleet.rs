@@ -459,7 +459,7 @@ fn lockstep(
         if last_check.elapsed() >= POLL {
             last_check = Instant::now();
             for (id, driver) in drivers.iter_mut().enumerate() {
-                if let Some(outcome) = driver.check()?
+                if let Some(outcome) = driver.check().map(|o| driver.ended(o))?
                     && !end(&mut fleet.outcomes, id, outcome)
                 {
                     return Ok(ticks.slowest() as f64 * fleet.dt_s);
