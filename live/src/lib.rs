@@ -84,6 +84,8 @@ pub struct FleetView {
     channels: Arc<Mutex<LiveChannels>>,
     goals: goals::GoalDesk,
     config: LiveConfig,
+    /// Where clients connect.
+    address: std::net::SocketAddr,
 }
 
 impl FleetView {
@@ -96,6 +98,7 @@ impl FleetView {
         let desk = goals::GoalDesk::fleet(fleet);
         let channels = LiveChannels::serve(config, desk.clone())?;
         Ok(Some(FleetView {
+            address: channels.address,
             channels: Arc::new(Mutex::new(channels)),
             goals: desk,
             config: config.clone(),
@@ -105,8 +108,7 @@ impl FleetView {
     /// Tells the user where the view is, once every robot's record has joined it (so a
     /// goal sent at once finds its robot).
     pub fn announce(&self) {
-        let address = (self.channels.lock().unwrap_or_else(PoisonError::into_inner)).address;
-        announce(&self.config, address);
+        announce(&self.config, self.address);
     }
 
     /// The sink of robot `robot`'s record, whose scenario is `member` and which takes

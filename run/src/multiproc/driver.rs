@@ -134,9 +134,8 @@ impl<'a> Driver<'a> {
     /// comes is taken by [`Driver::poll_whole`], and each wake-up cleared as it fires
     /// ([`Driver::clear_fired`]).
     pub fn grant(&mut self, tick: u64, recording: bool) -> anyhow::Result<Option<Outcome>> {
-        match recording {
-            true => self.set_requested_goal(tick)?,
-            false => self.parts.recorder.stop_taking_goals(),
+        if recording {
+            self.set_requested_goal(tick)?;
         }
         self.parts.session.grant(tick)?;
         let outcome = self.check()?;
@@ -144,7 +143,8 @@ impl<'a> Driver<'a> {
     }
 
     /// A fleet's: `outcome`, and when there is one the robot's record takes no more goals
-    /// from a live view's client (its robot drives on, a track to the others).
+    /// from a live view's client (its robot drives on, a track to the others). Every
+    /// outcome a fleet's executor takes from a driver passes here.
     pub fn ended(&mut self, outcome: Option<Outcome>) -> Option<Outcome> {
         if outcome.is_some() {
             self.parts.recorder.stop_taking_goals();
@@ -237,9 +237,7 @@ impl<'a> Driver<'a> {
             }
         };
         let mut outcome = planned.filter(|_| self.aborting.is_none());
-        if !recording {
-            self.parts.recorder.stop_taking_goals();
-        } else if self.aborting.is_none() && outcome.is_none() {
+        if recording && self.aborting.is_none() && outcome.is_none() {
             let now = self.parts.session.clock().now_tick().unwrap_or(0);
             self.set_requested_goal(now)?;
         }
