@@ -114,6 +114,12 @@ fn scmpc_bench_reports_the_pipeline_against_raw_iceoryx2_and_the_cross_host_hop_
             2.0,
         ),
         (
+            "MPC step, 7 robots' plans / 7 discs (p99)",
+            number(&["fleet", "plans_step_us", "p99"])
+                / number(&["fleet", "static_step_us", "p99"]),
+            2.0,
+        ),
+        (
             "swap8 in lockstep (× real time)",
             number(&["fleet", "swap8_lockstep", "simulated_s"])
                 / number(&["fleet", "swap8_lockstep", "wall_s"]),

@@ -102,6 +102,12 @@ pub struct LinearMpc {
     defers_discs: bool,
     /// [`DEFERRAL_SHARE`] (a test defers more).
     deferral_share: f64,
+    /// Whether a program whose terminal rows no input sequence meets is failed without a
+    /// solve ([`Barrier::terminal_impossible`]; false: clarabel proves it, as a test's
+    /// reference).
+    ///
+    /// [`Barrier::terminal_impossible`]: crate::program::Barrier::terminal_impossible
+    proves_infeasible: bool,
     /// The positions about a plan ([`PositionReach::set_plan`]): the reference's, then a
     /// solution's.
     plan_reach: PositionReach,
@@ -212,6 +218,7 @@ impl LinearMpc {
             deferred: Vec::with_capacity(scenario.max_obstacle_discs()),
             defers_discs: true,
             deferral_share: DEFERRAL_SHARE,
+            proves_infeasible: true,
             iterate: vec![0.0; layout_stagewise],
             reference: vec![[0.0; 2]; c.horizon + 1],
             reference_velocity: [0.0; 2],
@@ -602,8 +609,12 @@ impl LinearMpc {
     /// ([`Rows::terminal_only`]), and whole if the solution misses a CBF row of it, or if
     /// the program fails (the whole disc's decay may need relaxing).
     ///
+    /// A program whose terminal rows no input sequence meets is infeasible without a solve
+    /// ([`Barrier::terminal_impossible`]), relaxed or not.
+    ///
     /// A solved program leaves its solution in `iterate`.
     ///
+    /// [`Barrier::terminal_impossible`]: crate::program::Barrier::terminal_impossible
     /// [`Barrier::implied`]: crate::program::Barrier::implied
     fn solve_once(&mut self, z0: [f64; 4], relaxes: bool) -> (PlanStatus, u32, u32) {
         self.kept.clear();
@@ -624,6 +635,9 @@ impl LinearMpc {
                 &self.statics,
                 Rows::ONE_DISC,
             );
+            if self.proves_infeasible && barrier.terminal_impossible(&self.reach) {
+                return (PlanStatus::Infeasible, 0, 0);
+            }
             let cbf_implied = barrier.cbf_implied(&self.reach);
             let terminal_implied = barrier.terminal_implied(&self.reach);
             if cbf_implied && terminal_implied {

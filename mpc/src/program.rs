@@ -464,6 +464,12 @@ impl Barrier<'_> {
         self.terminal.is_none_or(|t| t.implied(reach))
     }
 
+    /// Whether the terminal rows fail for every input sequence in `reach`
+    /// ([`TerminalRows::impossible`]): no program holding them has a solution.
+    pub fn terminal_impossible(&self, reach: &PositionReach) -> bool {
+        self.terminal.is_some_and(|t| t.impossible(reach))
+    }
+
     /// [`Barrier::implied`] for the CBF rows (with zero decay slacks).
     pub fn cbf_implied(&self, reach: &PositionReach) -> bool {
         self.discs

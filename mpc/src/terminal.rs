@@ -108,6 +108,12 @@ use protocol::Disc;
 /// `|w_bar|^2 / (4 a MAX_C)`: 75 µm at 3 m/s with `a = 3`.
 const MAX_C: f64 = 1e4;
 
+/// How far beyond every input sequence's reach a disc's terminal row must ask the last
+/// position to be before [`TerminalRows::impossible`] calls the program infeasible
+/// without solving it, m: a thousand times the solver's feasibility tolerance
+/// (`mpc::solver::base_settings`), so that no program clarabel would solve is skipped.
+const IMPOSSIBLE_MARGIN_M: f64 = 1e-3;
+
 /// The terminal rows of one program.
 #[derive(Debug, Clone, Copy)]
 pub struct TerminalRows<'a> {
@@ -479,6 +485,24 @@ impl TerminalRows<'_> {
             };
             let support = row.support_at(speed, &self.model);
             below(largest, reach.min_linear(horizon, row.normal) - support)
+        })
+    }
+
+    /// Whether some disc's row fails for every input sequence in `reach` (the input box
+    /// from `z_0`): the largest `n'p_N` over it below the disc's support over the
+    /// shortest stop. Every cone of [`TerminalRows::write_cones`] asks
+    /// `t = 2a (n'p_N - support) - ... >= 0`, the terms left out never negative (`e`,
+    /// `tau`, `sigma - Ts^2`, and their coefficients), so no plan in the program
+    /// exists: it is infeasible, proved without a solve. So it is when a walking track
+    /// swept over the fastest stop covers everywhere the robot reaches (docs/fleet.md,
+    /// "Another robot's stop sweep"), which clarabel takes 13 to 26 interior-point
+    /// iterations to prove, twice a step with the relaxed program.
+    pub fn impossible(&self, reach: &PositionReach) -> bool {
+        let horizon = reach.horizon();
+        self.stop_discs().any(|stop| {
+            let row = self.disc_row(&stop);
+            let largest = -reach.min_linear(horizon, row.normal.map(|x| -x));
+            largest < row.support - IMPOSSIBLE_MARGIN_M
         })
     }
 }

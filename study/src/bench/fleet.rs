@@ -66,7 +66,7 @@ pub struct FleetCost {
     pub static_step_us: Percentiles,
     /// `plans_step_us.p50 / static_step_us.p50`.
     pub ratio_p50: f64,
-    /// `plans_step_us.p99 / static_step_us.p99` (reported, not a target).
+    /// `plans_step_us.p99 / static_step_us.p99`.
     pub ratio_p99: f64,
     /// `swap8` in process, and in lockstep across processes (a process per role and
     /// robot).

@@ -258,6 +258,9 @@ fn a_step_after_an_escape_plan_tries_the_bounded_program_once_unrelaxed_at_the_s
     let [x, y, theta] = s.robot.start;
     let two_samples = |after_escape: bool| {
         let mut mpc = LinearMpc::new(&s).unwrap();
+        // Every program solved, none failed by the proof below, so that the solves
+        // count the programs tried.
+        mpc.proves_infeasible = false;
         mpc.set_tracks(&exact_tracks(&s, 0.0));
         let escape = mpc.step(0, [x, y, theta, 0.0], 0.0);
         assert!(escape.is_solved() && mpc.last_escaped, "sample 0 escaped");
@@ -272,4 +275,43 @@ fn a_step_after_an_escape_plan_tries_the_bounded_program_once_unrelaxed_at_the_s
     // tracks the cold retry is not relaxed either, `LinearMpc::relaxes`).
     assert_eq!(after_escape.z, retried.z);
     assert_eq!(after_escape.solves + 2, retried.solves);
+}
+
+#[test]
+fn a_program_whose_terminal_rows_no_input_meets_fails_without_a_solve() {
+    // The world of the escape above: the walker's disc, swept over the fastest stop,
+    // covers every last position the input box reaches, so the bounded programs are
+    // infeasible before clarabel is asked. The step offers the same escape plan with
+    // the solves of the escape program alone.
+    let mut s = walked_at(-1.1);
+    s.mpc.rest_lookahead_s = 0.0;
+    s.perception.accel_max = 3.0;
+    let [x, y, theta] = s.robot.start;
+    let step = |proves: bool| {
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        mpc.proves_infeasible = proves;
+        mpc.set_tracks(&exact_tracks(&s, 0.0));
+        let plan = mpc.step(0, [x, y, theta, 0.0], 0.0);
+        (plan, mpc.last_escaped)
+    };
+    let ((proved, escaped), (solved, solved_escaped)) = (step(true), step(false));
+    assert!(proved.is_solved() && escaped && solved_escaped);
+    assert_eq!(proved.z, solved.z);
+    // Without the proof clarabel proves the bounded program infeasible, unrelaxed and
+    // relaxed (sample 0 starts cold: no cold retry).
+    assert!(
+        proved.solves + 2 == solved.solves && proved.iterations < solved.iterations,
+        "{} solves and {} iterations against {} and {}",
+        proved.solves,
+        proved.iterations,
+        solved.solves,
+        solved.iterations
+    );
+    // A program the input box can meet is not failed so: the walker far off.
+    let mut far = s.clone();
+    far.obstacles[0].x = -4.0;
+    let mut mpc = LinearMpc::new(&far).unwrap();
+    mpc.set_tracks(&exact_tracks(&far, 0.0));
+    let plan = mpc.step(0, [x, y, theta, 0.0], 0.0);
+    assert!(plan.is_solved() && !mpc.last_escaped);
 }
