@@ -8,8 +8,8 @@
 
 use foxglove::websocket::{Client, ClientChannel, Status};
 use protocol::{Goal, Scenario};
+use record::goals::GoalInbox;
 use std::collections::HashMap;
-use std::sync::mpsc::Sender;
 use std::sync::{Arc, Mutex, PoisonError};
 
 /// The topic a client publishes a run's goals on; a fleet robot's is under its id
@@ -33,10 +33,10 @@ pub(crate) struct GoalDesk {
 struct Robot {
     /// What a goal for it is checked against.
     scenario: Scenario,
-    /// Its record, which sets the goal.
-    run: Sender<Goal>,
-    /// Its goal now (m): no other robot's goal may take its place.
-    goal: [f64; 2],
+    /// Its record, which sets the goal, and shows where the robot may come to rest (its
+    /// goal in force, and one sent and not set yet): no other robot's goal may take
+    /// either place.
+    run: GoalInbox,
 }
 
 /// Why a run without `live.accept_goals` refuses a goal.
@@ -44,7 +44,7 @@ const NOT_ACCEPTED: &str = "this run takes no goals from a viewer (live.accept_g
 
 impl GoalDesk {
     /// A run's desk: goals on `/goal`, checked against `scenario`, go to `run`.
-    pub(crate) fn new(scenario: &Scenario, run: Sender<Goal>) -> GoalDesk {
+    pub(crate) fn new(scenario: &Scenario, run: GoalInbox) -> GoalDesk {
         let desk = GoalDesk::of(scenario, vec![GOAL_TOPIC.to_string()]);
         desk.join(GOAL_TOPIC, scenario, run);
         desk
@@ -68,12 +68,11 @@ impl GoalDesk {
     }
 
     /// Goals on `topic`, checked against `scenario`, go to `run` from now on.
-    pub(crate) fn join(&self, topic: &str, scenario: &Scenario, run: Sender<Goal>) {
+    pub(crate) fn join(&self, topic: &str, scenario: &Scenario, run: GoalInbox) {
         let mut robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
         let robot = Robot {
             scenario: scenario.clone(),
             run,
-            goal: scenario.robot.goal.position,
         };
         robots.insert(topic.to_string(), robot);
     }
@@ -119,7 +118,7 @@ impl GoalDesk {
         if let Some(why) = self.refused {
             return Err(why.to_string());
         }
-        let mut robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
+        let robots = self.robots.lock().unwrap_or_else(PoisonError::into_inner);
         let over = || match topic {
             GOAL_TOPIC => "the run is over".to_string(),
             _ => format!(
@@ -131,7 +130,10 @@ impl GoalDesk {
         for (other_topic, other) in robots.iter().filter(|(t, _)| *t != topic) {
             let own = &robot.scenario.robot;
             let room = own.radius_m + other.scenario.robot.radius_m + own.goal_tolerance_m;
-            let apart = protocol::distance(goal.position, other.goal);
+            let (in_force, waiting) = other.run.goals();
+            let nearest = std::iter::once(in_force).chain(waiting);
+            let apart = (nearest.map(|place| protocol::distance(goal.position, place)))
+                .fold(f64::INFINITY, f64::min);
             if apart <= room {
                 let [x, y] = goal.position;
                 return Err(format!(
@@ -142,9 +144,6 @@ impl GoalDesk {
             }
         }
         robot.run.send(goal).map_err(|_| over())?;
-        if let Some(robot) = robots.get_mut(topic) {
-            robot.goal = goal.position;
-        }
         Ok(goal)
     }
 }
@@ -194,10 +193,14 @@ mod tests {
         });
         let desk = GoalDesk::fleet(&fleet);
         let topic = |robot| record::mcap::fleet_topic(robot, GOAL_TOPIC);
-        let records: Vec<_> = (0..2)
+        let dir = std::env::temp_dir().join(format!("scmpc-goal-desk-{}", std::process::id()));
+        let mut records: Vec<_> = (0..2)
             .map(|robot| {
-                let (run, record) = std::sync::mpsc::channel();
-                desk.join(&topic(robot), &fleet.member(robot), run);
+                let member = fleet.member(robot);
+                let record =
+                    record::Recorder::create(&dir.join(format!("robot{robot}")), &member, &[])
+                        .unwrap();
+                desk.join(&topic(robot), &member, record.goal_inbox());
                 record
             })
             .collect();
@@ -205,25 +208,30 @@ mod tests {
             desk.take(&topic(1), &pose(1.0, 4.0)).unwrap().position,
             [1.0, 4.0]
         );
-        assert_eq!(records[1].try_recv().unwrap().position, [1.0, 4.0]);
-        assert!(records[0].try_recv().is_err(), "robot 0 got robot 1's goal");
-        // Onto robot 0's goal (-3, 0), then onto robot 1's new one.
+        assert!(
+            records[0].requested_goal().is_none(),
+            "robot 0 got robot 1's goal"
+        );
+        assert_eq!(records[1].requested_goal().unwrap().position, [1.0, 4.0]);
+        // Onto robot 0's goal (-3, 0), then onto robot 1's, taken and not set yet.
         let refused = desk.take(&topic(1), &pose(-3.2, 0.1)).unwrap_err();
         assert!(refused.contains("the robot of /robot0/goal"), "{refused}");
         let refused = desk.take(&topic(0), &pose(1.2, 4.0)).unwrap_err();
         assert!(refused.contains("the robot of /robot1/goal"), "{refused}");
-        // Robot 2 has not joined; robot 1's record has ended.
-        assert!(
-            desk.take(&topic(2), &pose(5.0, 5.0))
-                .unwrap_err()
-                .contains("takes none now")
-        );
+        // Robot 1's record ends before it sets that goal: the robot comes to rest short of
+        // it, and the place is free; the goal it drove to is not.
+        records[1].stop_taking_goals();
+        assert!(desk.take(&topic(0), &pose(1.2, 4.0)).is_ok());
+        let [x, y] = fleet.member(1).robot.goal.position;
+        let refused = desk.take(&topic(0), &pose(x + 0.1, y)).unwrap_err();
+        assert!(refused.contains("the robot of /robot1/goal"), "{refused}");
+        // Robot 2 has not joined; robot 1 takes no more.
+        for robot in [2, 1] {
+            let refused = desk.take(&topic(robot), &pose(5.0, 5.0)).unwrap_err();
+            assert!(refused.contains("takes none now"), "{refused}");
+        }
         drop(records);
-        assert!(
-            desk.take(&topic(1), &pose(5.0, 5.0))
-                .unwrap_err()
-                .contains("takes none now")
-        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -112,12 +112,12 @@ impl FleetView {
     }
 
     /// The sink of robot `robot`'s record, whose scenario is `member` and which takes
-    /// the goals sent to it on `goals` ([`record::Recorder::goal_sender`]).
+    /// the goals sent to it on `goals` ([`record::Recorder::goal_inbox`]).
     pub fn sink(
         &self,
         robot: usize,
         member: &protocol::Scenario,
-        goals: std::sync::mpsc::Sender<protocol::Goal>,
+        goals: record::goals::GoalInbox,
     ) -> std::io::Result<Box<dyn Sink>> {
         let goal_topic = record::mcap::fleet_topic(robot, goals::GOAL_TOPIC);
         self.goals.join(&goal_topic, member, goals);

@@ -24,6 +24,7 @@ use std::collections::{BTreeMap, VecDeque};
 pub mod csv;
 pub mod event;
 pub mod fleet;
+pub mod goals;
 pub mod judge;
 pub mod perception;
 pub mod run_dir;
@@ -90,8 +91,10 @@ pub struct Recorder {
     /// Goals a sink took from outside (a live view's client), not set yet; `None` once
     /// the record takes no more ([`Recorder::stop_taking_goals`]).
     goals: Option<std::sync::mpsc::Receiver<protocol::Goal>>,
-    /// Where they are sent: handed to a sink opened elsewhere ([`Recorder::goal_sender`]).
-    goals_to: std::sync::mpsc::Sender<protocol::Goal>,
+    /// Where they are sent: handed to a sink opened elsewhere ([`Recorder::goal_inbox`]).
+    goals_to: goals::GoalInbox,
+    /// The goal in force and the one waiting, as the sinks see them.
+    goal_board: goals::GoalBoard,
     /// The newest of those, waiting for [`Recorder::goal_interval_s`] to pass.
     pending_goal: Option<protocol::Goal>,
     /// When the last goal was set, s.
@@ -117,10 +120,12 @@ impl Recorder {
     ) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         let (sent, goals) = std::sync::mpsc::channel();
+        let goal_board = goals::GoalBoard::new(scenario.robot.goal.position);
+        let inbox = goals::GoalInbox::new(sent, goal_board.clone());
         let run = RunStart {
             dir,
             scenario,
-            goals: sent.clone(),
+            goals: inbox.clone(),
         };
         let mut sinks = Vec::with_capacity(open.len());
         for open in open {
@@ -128,7 +133,8 @@ impl Recorder {
         }
         Ok(Recorder {
             goals: Some(goals),
-            goals_to: sent,
+            goals_to: inbox,
+            goal_board,
             pending_goal: None,
             goal_set_at_s: None,
             goal_interval_s: MIN_GOAL_INTERVAL_S.max(4.0 * scenario.timing.ts_s),
@@ -172,7 +178,7 @@ impl Recorder {
 
     /// Where a sink opened elsewhere ([`Recorder::with_sink`]) hands the goals it takes
     /// from outside, as [`RunStart::goals`].
-    pub fn goal_sender(&self) -> std::sync::mpsc::Sender<protocol::Goal> {
+    pub fn goal_inbox(&self) -> goals::GoalInbox {
         self.goals_to.clone()
     }
 
@@ -192,12 +198,14 @@ impl Recorder {
     /// is told.
     pub fn stop_taking_goals(&mut self) {
         (self.goals, self.pending_goal) = (None, None);
+        self.goal_board.closed();
     }
 
     /// `change` is set (the executor told every role): the judge measures the run against
     /// it from the newest tick recorded on, and it is an event.
     pub fn goal_set(&mut self, change: &protocol::task::GoalChange) -> std::io::Result<()> {
         self.goal_set_at_s = Some(self.last_time_s);
+        self.goal_board.set(change.goal.position);
         self.judge.retarget(change.goal);
         let [x, y] = change.goal.position;
         self.event(Event::Goal {

@@ -23,7 +23,7 @@ pub struct RunStart<'a> {
     /// Where a sink that takes goals from outside (a live view's client) hands them to the
     /// run, checked ([`Scenario::live_goal`]); the executor sets them
     /// ([`crate::Recorder::requested_goal`]).
-    pub goals: std::sync::mpsc::Sender<protocol::Goal>,
+    pub goals: crate::goals::GoalInbox,
 }
 
 /// A sink's opener: `None` when the sink has nothing to record in this run.

@@ -435,14 +435,23 @@ const EPOCH_HEADER: &str = "=== ";
 /// place and message with a backtrace of some 60 frames after them.
 const LAST_WORDS_READ_BYTES: u64 = 64 * 1024;
 
-/// The last `bytes` bytes of the file at `path` (all of it if shorter).
+/// The whole lines within the last `bytes` bytes of the file at `path` (all of it if
+/// shorter): a line the cut falls in is left out, its end being no one's words.
 fn read_tail(path: &Path, bytes: u64) -> std::io::Result<Vec<u8>> {
     use std::io::{Read, Seek, SeekFrom};
     let mut file = std::fs::File::open(path)?;
-    let length = file.metadata()?.len();
-    file.seek(SeekFrom::Start(length.saturating_sub(bytes)))?;
+    let start = file.metadata()?.len().saturating_sub(bytes);
+    // From the byte before the cut: a newline there means the cut falls between lines.
+    file.seek(SeekFrom::Start(start.saturating_sub(1)))?;
     let mut tail = Vec::new();
     file.read_to_end(&mut tail)?;
+    if start > 0 {
+        let cut_line = tail
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(tail.len(), |i| i + 1);
+        tail.drain(..cut_line);
+    }
     Ok(tail)
 }
 
@@ -513,8 +522,21 @@ fn exited(p: &mut Proc) -> Option<String> {
 
 #[cfg(test)]
 mod tests {
-    use super::last_words;
+    use super::{last_words, read_tail};
     use protocol::Role;
+
+    #[test]
+    fn a_logs_tail_holds_whole_lines_only() {
+        let path = std::env::temp_dir().join(format!("scmpc-tail-{}.log", std::process::id()));
+        std::fs::write(&path, "first line\nsecond\nthird\n").unwrap();
+        let tail = |bytes| String::from_utf8(read_tail(&path, bytes).unwrap()).unwrap();
+        // The cut falls in "second", then just after its newline, then before the file.
+        assert_eq!(tail(9), "third\n");
+        assert_eq!(tail(6), "third\n");
+        assert_eq!(tail(100), "first line\nsecond\nthird\n");
+        assert_eq!(tail(3), "");
+        std::fs::remove_file(&path).unwrap();
+    }
 
     #[test]
     fn the_last_words_are_a_panics_place_and_message_else_the_last_two_lines_of_the_epoch() {

@@ -92,7 +92,7 @@ pub fn member_recorder(
         return Ok(recorder);
     };
     let sink =
-        (view.sink(id, member, recorder.goal_sender())).context("joining the fleet's live view")?;
+        (view.sink(id, member, recorder.goal_inbox())).context("joining the fleet's live view")?;
     Ok(recorder.with_sink(sink))
 }
 
