@@ -218,9 +218,15 @@ mod tests {
         assert!(refused.contains("the robot of /robot0/goal"), "{refused}");
         let refused = desk.take(&topic(0), &pose(1.2, 4.0)).unwrap_err();
         assert!(refused.contains("the robot of /robot1/goal"), "{refused}");
-        // Robot 1's record ends before it sets that goal: the robot comes to rest short of
-        // it, and the place is free; the goal it drove to is not.
-        records[1].stop_taking_goals();
+        // Robot 1's record ends before it sets that goal (its outcome, as an in-process
+        // fleet ends a member's record): the robot drives on to the goal in force, and
+        // the place is free; the goal in force is not.
+        let member = fleet.member(1);
+        let outcome = record::judge::Outcome::Stalled;
+        (records
+            .remove(1)
+            .finish(&member, "in-process", outcome, 1.0, None, None))
+        .unwrap();
         assert!(desk.take(&topic(0), &pose(1.2, 4.0)).is_ok());
         let [x, y] = fleet.member(1).robot.goal.position;
         let refused = desk.take(&topic(0), &pose(x + 0.1, y)).unwrap_err();

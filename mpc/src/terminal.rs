@@ -111,7 +111,9 @@ const MAX_C: f64 = 1e4;
 /// How far beyond every input sequence's reach a disc's terminal row must ask the last
 /// position to be before [`TerminalRows::impossible`] calls the program infeasible
 /// without solving it, m: a thousand times the solver's feasibility tolerance
-/// (`mpc::solver::base_settings`), so that no program clarabel would solve is skipped.
+/// (`mpc::solver::base_settings`). That tolerance is relative (to the program's data
+/// and iterate), so this is a wide margin rather than a bound: a program skipped that
+/// clarabel would have called solved would miss the row by about a millimetre.
 const IMPOSSIBLE_MARGIN_M: f64 = 1e-3;
 
 /// The terminal rows of one program.
@@ -489,8 +491,9 @@ impl TerminalRows<'_> {
     }
 
     /// Whether some disc's row fails for every input sequence in `reach` (the input box
-    /// from `z_0`): the largest `n'p_N` over it below the disc's support over the
-    /// shortest stop. Every cone of [`TerminalRows::write_cones`] asks
+    /// from `z_0`): the largest `n'p_N` over it below the row's least support (over the
+    /// shortest stop when the stop is the plan's own, over the fastest for a walking
+    /// track: [`TerminalRows::disc_row`]). Every cone of [`TerminalRows::write_cones`] asks
     /// `t = 2a (n'p_N - support) - ... >= 0`, the terms left out never negative (`e`,
     /// `tau`, `sigma - Ts^2`, and their coefficients), so no plan in the program
     /// exists: it is infeasible, proved without a solve. So it is when a walking track

@@ -425,6 +425,9 @@ impl Recorder {
         processes: Option<ProcessReport>,
         signal: Option<&'static str>,
     ) -> std::io::Result<Summary> {
+        // A goal handed on and not set yet never will be (a fleet robot's pipeline drives
+        // on to the goal in force).
+        self.stop_taking_goals();
         let interrupted_by = signal.filter(|_| outcome == Outcome::Interrupted);
         self.event(Event::End {
             outcome,
