@@ -11,7 +11,8 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 #[derive(Debug, Clone)]
 pub struct GoalInbox {
     sender: Sender<Goal>,
-    board: GoalBoard,
+    /// Kept by the record ([`crate::Recorder::goal_set`]).
+    pub(crate) board: GoalBoard,
 }
 
 impl GoalInbox {

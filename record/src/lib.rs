@@ -91,10 +91,9 @@ pub struct Recorder {
     /// Goals a sink took from outside (a live view's client), not set yet; `None` once
     /// the record takes no more ([`Recorder::stop_taking_goals`]).
     goals: Option<std::sync::mpsc::Receiver<protocol::Goal>>,
-    /// Where they are sent: handed to a sink opened elsewhere ([`Recorder::goal_inbox`]).
+    /// Where they are sent: handed to a sink opened elsewhere ([`Recorder::goal_inbox`]);
+    /// its board shows the sinks the goal in force and the one waiting.
     goals_to: goals::GoalInbox,
-    /// The goal in force and the one waiting, as the sinks see them.
-    goal_board: goals::GoalBoard,
     /// The newest of those, waiting for [`Recorder::goal_interval_s`] to pass.
     pending_goal: Option<protocol::Goal>,
     /// When the last goal was set, s.
@@ -120,8 +119,8 @@ impl Recorder {
     ) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         let (sent, goals) = std::sync::mpsc::channel();
-        let goal_board = goals::GoalBoard::new(scenario.robot.goal.position);
-        let inbox = goals::GoalInbox::new(sent, goal_board.clone());
+        let board = goals::GoalBoard::new(scenario.robot.goal.position);
+        let inbox = goals::GoalInbox::new(sent, board);
         let run = RunStart {
             dir,
             scenario,
@@ -134,7 +133,6 @@ impl Recorder {
         Ok(Recorder {
             goals: Some(goals),
             goals_to: inbox,
-            goal_board,
             pending_goal: None,
             goal_set_at_s: None,
             goal_interval_s: MIN_GOAL_INTERVAL_S.max(4.0 * scenario.timing.ts_s),
@@ -198,14 +196,14 @@ impl Recorder {
     /// is told.
     pub fn stop_taking_goals(&mut self) {
         (self.goals, self.pending_goal) = (None, None);
-        self.goal_board.closed();
+        self.goals_to.board.closed();
     }
 
     /// `change` is set (the executor told every role): the judge measures the run against
     /// it from the newest tick recorded on, and it is an event.
     pub fn goal_set(&mut self, change: &protocol::task::GoalChange) -> std::io::Result<()> {
         self.goal_set_at_s = Some(self.last_time_s);
-        self.goal_board.set(change.goal.position);
+        self.goals_to.board.set(change.goal.position);
         self.judge.retarget(change.goal);
         let [x, y] = change.goal.position;
         self.event(Event::Goal {
