@@ -281,11 +281,13 @@ fn in_lockstep_killed_processes_are_restarted_and_the_loop_resumes_where_it_stop
     // arrival depends on the sample the kill lands at: 0.065, 0.175, 0.22 and 0.38 s in
     // four runs beside a fleet's runs on 2026-12-04 (the MPC killed at 5.185, 5.695 s...;
     // below 0.05 s in seven), when the sample-start wake-ups had made the lockstep run
-    // faster than the test's look at the clock. A run that did not resume would be
-    // seconds off, or not arrive.
+    // faster than the test's look at the clock; 0.57 s in a fresh-clone CI rehearsal of
+    // ed91dde (2026-12-04), whose paper run is byte for byte its parent's. A run that
+    // did not resume would be seconds off, or not arrive; the path below is the finer
+    // check.
     let t = s["time_to_goal_s"].as_f64().unwrap();
     assert!(
-        (t - calm_t).abs() < 0.5,
+        (t - calm_t).abs() < 1.0,
         "time to goal {t} s, {calm_t} s without crashes"
     );
     let path = |dir: &Path| -> Vec<[f64; 2]> {
