@@ -538,19 +538,54 @@ mod tests {
     use super::*;
 
     /// A person 3 m ahead walking across, bounded: the disc grows by `kappa sigma_v` and
-    /// `accel_max t^2 / 2`.
-    fn person() -> Disc {
+    /// `accel_max t^2 / 2`; a track that `standing`, held once the next tracks are due.
+    fn person(standing: bool) -> Disc {
         Disc {
             motion: protocol::DiscMotion {
                 velocity: [0.2, -0.5],
                 radius_rate: 0.3,
                 radius_accel: 0.25,
                 hidden: false,
-                standing: false,
-                held: false,
+                standing,
+                held: standing,
             },
             ..Disc::still([3.0, 0.5], 0.6)
         }
+    }
+
+    /// Rows of `form` keeping the stop from `p_N` (columns 0 and 2, `w_N` 1 and 3, the
+    /// rows' own variables from 4) clear of `discs` swept over it, with `a` = 2 m/s^2,
+    /// `Ts` = 0.1 s and speeds up to 5 m/s.
+    fn sweeping_rows(discs: &[Disc], form: BrakeForm, prediction: Prediction) -> TerminalRows<'_> {
+        TerminalRows {
+            model: TerminalBrake {
+                decel: 2.0,
+                ts_s: 0.1,
+                form,
+                rest_lookahead_s: 0.5,
+                sweeps: true,
+            },
+            discs,
+            reference: [0.5, 1.0, 0.1, 0.2],
+            p0: [-1.0, 0.0],
+            position: [0, 2],
+            velocity: [1, 3],
+            first_variable: 4,
+            max_speed: 5.0,
+            floor_share: 0.0,
+            horizon_s: 1.0,
+            stand_s: 0.2,
+            prediction,
+        }
+    }
+
+    /// Row `r`'s slack `b - A x` in `asm` at `x`.
+    fn slack_of(asm: &Assembly, x: &[f64], r: usize) -> f64 {
+        let on_x: f64 = (asm.entries.iter())
+            .filter(|e| e.0 == r)
+            .map(|e| e.2 * x[e.1])
+            .sum();
+        asm.b[r] - on_x
     }
 
     #[test]
@@ -564,31 +599,10 @@ mod tests {
             (Prediction::Bounded, false, false, 1.0),
         ];
         for (prediction, standing, own_stop, taken_s) in cases {
-            let mut person = person();
-            person.motion.standing = standing;
-            person.motion.held = standing;
+            let person = person(standing);
             let discs = [person];
             for form in [BrakeForm::Segment, BrakeForm::Ball] {
-                let rows = TerminalRows {
-                    model: TerminalBrake {
-                        decel: a,
-                        ts_s: ts,
-                        form,
-                        rest_lookahead_s: 0.5,
-                        sweeps: true,
-                    },
-                    discs: &discs,
-                    reference: [0.5, 1.0, 0.1, 0.2],
-                    p0: [-1.0, 0.0],
-                    position: [0, 2],
-                    velocity: [1, 3],
-                    first_variable: 4,
-                    max_speed,
-                    floor_share: 0.0,
-                    horizon_s: 1.0,
-                    stand_s: 0.2,
-                    prediction,
-                };
+                let rows = sweeping_rows(&discs, form, prediction);
                 let mut asm = Assembly::default();
                 rows.write_cones(&mut asm);
                 for (p, w) in [
@@ -598,15 +612,7 @@ mod tests {
                 ] {
                     let mut x = vec![p[0], w[0], p[1], w[1]];
                     x.extend(rows.variables_at(w));
-                    let slack = |r: usize| {
-                        let on_x: f64 = asm
-                            .entries
-                            .iter()
-                            .filter(|e| e.0 == r)
-                            .map(|e| e.2 * x[e.1])
-                            .sum();
-                        asm.b[r] - on_x
-                    };
+                    let slack = |r: usize| slack_of(&asm, &x, r);
                     // sigma's cone is tight at sigma = (Ts + |w| / a)^2:
                     // (sigma + 1, sigma - 1, 2 stop).
                     let own_stop_s = ts + w[0].hypot(w[1]) / a;
@@ -637,6 +643,53 @@ mod tests {
                         "{prediction:?}, standing {standing}, {form:?}, w {w:?}: t {t}, \
                          expected {expected}"
                     );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn no_cone_holds_where_the_last_position_is_below_the_rows_least_support() {
+        // `impossible` rests on this: at any values of the rows' own variables their cones
+        // admit (`tau >= |w_N|`, `sigma >= (Ts + tau / a)^2`, `e >= 0`), every disc's
+        // cone head is `t <= 2a (n'p_N - support)`, and a cone needs `t >= 0`. Both
+        // forms, sweeping; a walking track's stop the fastest, a standing one's the own.
+        let a = 2.0;
+        for (prediction, standing) in [
+            (Prediction::ConstantVelocity, false),
+            (Prediction::Bounded, true),
+            (Prediction::Bounded, false),
+        ] {
+            let discs = [person(standing)];
+            for form in [BrakeForm::Segment, BrakeForm::Ball] {
+                let rows = sweeping_rows(&discs, form, prediction);
+                let (tau, sigma) = rows.sweep_variables();
+                let (tau, sigma) = (tau.unwrap(), sigma.unwrap());
+                let row = rows.disc_row(&rows.stop_discs().next().unwrap());
+                let mut asm = Assembly::default();
+                rows.write_cones(&mut asm);
+                for p in [[0.4, 0.1], [1.0, -0.5], [3.0, 0.5]] {
+                    for w in [[0.0, 0.0], [1.2, 0.3], [-2.5, 1.0]] {
+                        for extra in [0.0, 0.3, 2.0] {
+                            let mut x = vec![p[0], w[0], p[1], w[1]];
+                            x.extend(rows.variables_at(w));
+                            x.iter_mut().skip(4).for_each(|v| *v += extra);
+                            x[sigma] = (0.1 + x[tau] / a).powi(2) + extra;
+                            let t = slack_of(&asm, &x, 6) - 1.0;
+                            let n = row.normal;
+                            let bound = 2.0 * a * (n[0] * p[0] + n[1] * p[1] - row.support);
+                            assert!(
+                                t <= bound + 1e-9,
+                                "{prediction:?}, standing {standing}, {form:?}, p {p:?}, \
+                                 w {w:?}, extra {extra}: t {t} above {bound}"
+                            );
+                            // At rest, at the variables' least, the bound is met: the
+                            // proof leaves nothing out there.
+                            if w == [0.0, 0.0] && extra == 0.0 && form == BrakeForm::Ball {
+                                assert!((t - bound).abs() < 1e-9, "{t} against {bound}");
+                            }
+                        }
+                    }
                 }
             }
         }

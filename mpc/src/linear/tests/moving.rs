@@ -147,6 +147,21 @@ fn walked_at(center_x: f64) -> Scenario {
     s
 }
 
+/// The world of the escape plan below: the walker 1.1 m off, bounded at 3 m/s^2, and
+/// passive safety alone (`mpc.rest_lookahead_s = 0`).
+fn cornered() -> Scenario {
+    let mut s = walked_at(-1.1);
+    s.mpc.rest_lookahead_s = 0.0;
+    s.perception.accel_max = 3.0;
+    s
+}
+
+/// The robot at rest at its start, `[x, y, theta, zeta]`.
+fn at_rest(s: &Scenario) -> [f64; 4] {
+    let [x, y, theta] = s.robot.start;
+    [x, y, theta, 0.0]
+}
+
 /// The plan of sample 0 from the robot's start at rest, with a perfect tracker's tracks,
 /// the first numbered `obstacle` (0, or another robot's from [`protocol::FIRST_PEER`]).
 fn first_plan(s: &Scenario, obstacle: u32) -> Plan {
@@ -154,8 +169,7 @@ fn first_plan(s: &Scenario, obstacle: u32) -> Plan {
     let mut tracks = exact_tracks(s, 0.0);
     tracks.tracks[0].obstacle = obstacle;
     mpc.set_tracks(&tracks);
-    let [x, y, theta] = s.robot.start;
-    mpc.step(0, [x, y, theta, 0.0], 0.0)
+    mpc.step(0, at_rest(s), 0.0)
 }
 
 #[test]
@@ -164,8 +178,7 @@ fn a_robot_at_rest_that_no_plan_keeps_clear_of_the_bounded_discs_is_offered_an_e
     // disc grown by accel_max t^2 / 2 soon covers everywhere the robot can reach. Passive
     // safety alone (`mpc.rest_lookahead_s = 0`), so that the stop below is the one to check
     // (with the lookahead, the next test).
-    let mut s = walked_at(-1.1);
-    s.mpc.rest_lookahead_s = 0.0;
+    let s = cornered();
     let plan_with = |accel_max: f64| {
         let mut s = s.clone();
         s.perception.accel_max = accel_max;
@@ -252,21 +265,18 @@ fn the_last_resort_escapes_another_robot_for_passive_safety_alone_not_a_person()
 fn a_step_after_an_escape_plan_tries_the_bounded_program_once_unrelaxed_at_the_shifted_plan() {
     // The world of the escape above: no bounded plan at sample 0, nor at sample 1 with the
     // walker nearer.
-    let mut s = walked_at(-1.1);
-    s.mpc.rest_lookahead_s = 0.0;
-    s.perception.accel_max = 3.0;
-    let [x, y, theta] = s.robot.start;
+    let s = cornered();
     let two_samples = |after_escape: bool| {
         let mut mpc = LinearMpc::new(&s).unwrap();
         // Every program solved, none failed by the proof below, so that the solves
         // count the programs tried.
         mpc.proves_infeasible = false;
         mpc.set_tracks(&exact_tracks(&s, 0.0));
-        let escape = mpc.step(0, [x, y, theta, 0.0], 0.0);
+        let escape = mpc.step(0, at_rest(&s), 0.0);
         assert!(escape.is_solved() && mpc.last_escaped, "sample 0 escaped");
         mpc.last_escaped = after_escape;
         mpc.set_tracks(&exact_tracks(&s, s.timing.ts_s));
-        mpc.step(1, [x, y, theta, 0.0], 0.0)
+        mpc.step(1, at_rest(&s), 0.0)
     };
     let (after_escape, retried) = (two_samples(true), two_samples(false));
     assert!(after_escape.is_solved() && retried.is_solved());
@@ -283,15 +293,12 @@ fn a_program_whose_terminal_rows_no_input_meets_fails_without_a_solve() {
     // covers every last position the input box reaches, so the bounded programs are
     // infeasible before clarabel is asked. The step offers the same escape plan with
     // the solves of the escape program alone.
-    let mut s = walked_at(-1.1);
-    s.mpc.rest_lookahead_s = 0.0;
-    s.perception.accel_max = 3.0;
-    let [x, y, theta] = s.robot.start;
+    let s = cornered();
     let step = |proves: bool| {
         let mut mpc = LinearMpc::new(&s).unwrap();
         mpc.proves_infeasible = proves;
         mpc.set_tracks(&exact_tracks(&s, 0.0));
-        let plan = mpc.step(0, [x, y, theta, 0.0], 0.0);
+        let plan = mpc.step(0, at_rest(&s), 0.0);
         (plan, mpc.last_escaped)
     };
     let ((proved, escaped), (solved, solved_escaped)) = (step(true), step(false));
@@ -312,6 +319,6 @@ fn a_program_whose_terminal_rows_no_input_meets_fails_without_a_solve() {
     far.obstacles[0].x = -4.0;
     let mut mpc = LinearMpc::new(&far).unwrap();
     mpc.set_tracks(&exact_tracks(&far, 0.0));
-    let plan = mpc.step(0, [x, y, theta, 0.0], 0.0);
+    let plan = mpc.step(0, at_rest(&far), 0.0);
     assert!(plan.is_solved() && !mpc.last_escaped);
 }
