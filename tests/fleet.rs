@@ -44,6 +44,23 @@ fn assert_same_bytes(a: &tempfile::TempDir, b: &tempfile::TempDir, robots: usize
     }
 }
 
+/// `swap4` with `extra` arguments for its first 8 s (no robot reaches its goal by then),
+/// in process and in lockstep across processes under `prefix`: the two runs' directories
+/// and the lockstep run's output.
+fn swap4_for_8_s_both_ways(
+    extra: &[&str],
+    prefix: &str,
+) -> (tempfile::TempDir, tempfile::TempDir, std::process::Output) {
+    let short = [&["--set", "duration_s=8"][..], extra].concat();
+    let in_process_args = [&["run", "swap4", "--in-process", "--no-mcap"][..], &short].concat();
+    let (in_process, _) = run_into_tempdir(&in_process_args);
+    let lockstep_args = [&["run", "swap4", "--prefix", prefix][..], &short].concat();
+    let (lockstep, out) = run_into_tempdir(&lockstep_args);
+    let code = out.status.code();
+    assert_eq!(code, Some(1), "not reached in 8 s: {}", stderr(&out));
+    (in_process, lockstep, out)
+}
+
 /// In lockstep across processes (a plant, an estimator, a tracker, an MPC and a DFL per
 /// robot, each robot's services under its id) a fleet drives every robot as the fleet in
 /// process does, byte for byte: each robot's tracker hears the others over iceoryx2 from
@@ -52,18 +69,8 @@ fn assert_same_bytes(a: &tempfile::TempDir, b: &tempfile::TempDir, robots: usize
 #[test]
 fn in_lockstep_across_processes_a_fleet_drives_as_in_process_byte_for_byte() {
     let _machine = common::machine_shared();
-    let short = ["--set", "duration_s=8"];
-    let in_process_args = [&["run", "swap4", "--in-process", "--no-mcap"][..], &short].concat();
-    let (in_process, _) = run_into_tempdir(&in_process_args);
     let prefix = unique_prefix("fleet");
-    let lockstep_args = [&["run", "swap4", "--prefix", &prefix][..], &short].concat();
-    let (lockstep, out) = run_into_tempdir(&lockstep_args);
-    assert_eq!(
-        out.status.code(),
-        Some(1),
-        "not reached in 8 s: {}",
-        stderr(&out)
-    );
+    let (in_process, lockstep, out) = swap4_for_8_s_both_ways(&[], &prefix);
     assert!(!stderr(&out).contains("error"), "{}", stderr(&out));
     assert_eq!(summary(lockstep.path())["mode"], "lockstep");
     // Both leave the fleet's scenario, the same.
@@ -175,6 +182,63 @@ fn in_lockstep_a_fleet_with_lidars_drives_as_in_process_byte_for_byte() {
     }
 }
 
+/// A person walking across `swap4`'s circle, 2 m off its centre at 1 m/s, whom no lidar
+/// sees: each robot's tracker measures them from the truth.
+const PERSON_ACROSS_SWAP4: &str =
+    "obstacles=[{x = -5.0, y = 2.0, radius = 0.25, velocity = [1.0, 0.0]}]";
+
+/// Without a lidar a fleet's robots track a person from the truth, as a robot alone does,
+/// beside the other robots from their plans: every robot tracks the person (id 0) and
+/// reaches its goal, none touches the person or another robot, and in lockstep across
+/// processes every robot drives as in process, byte for byte.
+#[test]
+fn among_people_tracked_from_the_truth_a_fleet_keeps_clear_and_drives_as_in_process() {
+    let _machine = common::machine_shared();
+    let person = ["--set", PERSON_ACROSS_SWAP4];
+    let args = [&["run", "swap4", "--in-process", "--no-mcap"][..], &person].concat();
+    let (dir, out) = run_into_tempdir(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let fleet = summary(dir.path());
+    assert_eq!(fleet["reached"], 4, "{fleet}");
+    assert_eq!(fleet["robot_contacts_moving"], 0, "{fleet}");
+    for id in 0..4 {
+        let robot = dir.path().join(format!("robot{id}"));
+        let own = summary(&robot);
+        assert_eq!(
+            (
+                own["contacts_moving"].as_u64(),
+                own["contacts_at_rest"].as_u64()
+            ),
+            (Some(0), Some(0))
+        );
+        assert!(
+            own["min_moving_clearance_m"].as_f64().unwrap() > 0.0,
+            "{own}"
+        );
+        let tracks = std::fs::read_to_string(robot.join("tracks.csv")).expect("tracks.csv");
+        let ids = |id: u32| {
+            (tracks.lines().skip(1))
+                .filter(|l| l.split(',').nth(2).and_then(|c| c.parse().ok()) == Some(id))
+                .count()
+        };
+        assert!(
+            ids(0) > 100,
+            "robot {id} tracked the person {} times",
+            ids(0)
+        );
+        let other = protocol::FIRST_PEER + u32::from(id == 0);
+        assert_eq!(
+            ids(0),
+            ids(other),
+            "robot {id}: the person and another robot, each tick"
+        );
+    }
+    let prefix = unique_prefix("fleet-people");
+    let (in_process, lockstep, _) = swap4_for_8_s_both_ways(&person, &prefix);
+    assert_same_bytes(&in_process, &lockstep, 4);
+    assert!(leftovers(&prefix).is_empty(), "{:?}", leftovers(&prefix));
+}
+
 /// Without `-q` and without a terminal, a fleet's run prints a progress line for the fleet
 /// as it drives, in process and across processes: the time (rising line by line), the
 /// robots at their goals (none in the first 4 s of `swap4`, some before the end of the
@@ -263,9 +327,10 @@ fn a_fleets_run_prints_the_fleets_progress_in_both_executors() {
 /// Random fleets of two to four robots: no robot moves into another, and the report
 /// counts every robot. Seen through a lidar (`--perception lidar`) they are the same
 /// worlds, some of their obstacles boxes no robot is told of, and no robot moves into
-/// another or into a box.
+/// another or into a box. With people on the robots' ways (`--people 1`) they are the same
+/// fleets among the same obstacles at rest, and no robot moves into a person.
 #[test]
-fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
+fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar_or_people() {
     let _machine = common::machine_shared();
     let batch = |more: &[&str]| {
         let args = [
@@ -278,6 +343,7 @@ fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
         std::fs::read_to_string(dir.path().join("fleet_fuzz.csv")).unwrap()
     };
     let (truth, lidar) = (batch(&[]), batch(&["--perception", "lidar"]));
+    let people = batch(&["--people", "1"]);
     let header: Vec<&str> = truth.lines().next().unwrap().split(',').collect();
     let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
     let rows = |csv: &str| -> Vec<Vec<String>> {
@@ -285,7 +351,7 @@ fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
             .map(|l| l.split(',').map(str::to_owned).collect())
             .collect()
     };
-    let (truth_rows, lidar_rows) = (rows(&truth), rows(&lidar));
+    let (truth_rows, lidar_rows, people_rows) = (rows(&truth), rows(&lidar), rows(&people));
     let worlds = |rows: &[Vec<String>], of: &[&str]| -> Vec<Vec<String>> {
         let columns: Vec<usize> = of.iter().map(|c| column(c)).collect();
         (rows.iter())
@@ -294,6 +360,14 @@ fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
     };
     let drawn = ["world", "robot", "robots", "obstacles", "v_max", "radius_m"];
     assert_eq!(worlds(&truth_rows, &drawn), worlds(&lidar_rows, &drawn));
+    assert_eq!(worlds(&truth_rows, &drawn), worlds(&people_rows, &drawn));
+    let count = |rows: &[Vec<String>], name: &str| -> usize {
+        (rows.iter())
+            .map(|r| r[column(name)].parse::<usize>().unwrap())
+            .sum()
+    };
+    assert_eq!(count(&truth_rows, "people"), 0, "{truth}");
+    assert!(count(&people_rows, "people") > 0, "{people}");
     let distinct: std::collections::BTreeSet<&str> = truth_rows
         .iter()
         .map(|r| r[column("world")].as_str())
@@ -303,14 +377,15 @@ fn random_fleets_have_no_contact_while_moving_with_or_without_a_lidar() {
         truth_rows.len() >= 12,
         "two robots a world at least: {truth}"
     );
-    let unmapped = |rows: &[Vec<String>]| -> usize {
-        (rows.iter())
-            .map(|r| r[column("unmapped")].parse::<usize>().unwrap())
-            .sum()
-    };
-    assert_eq!(unmapped(&truth_rows), 0, "{truth}");
-    assert!(unmapped(&lidar_rows) > 0, "{lidar}");
-    for (rows, csv) in [(&truth_rows, &truth), (&lidar_rows, &lidar)] {
+    assert_eq!(count(&truth_rows, "unmapped"), 0, "{truth}");
+    assert!(count(&lidar_rows, "unmapped") > 0, "{lidar}");
+    assert_eq!(count(&people_rows, "unmapped"), 0, "{people}");
+    let batches = [
+        (&truth_rows, &truth),
+        (&lidar_rows, &lidar),
+        (&people_rows, &people),
+    ];
+    for (rows, csv) in batches {
         let (moving, outcome) = (column("robot_contacts_moving"), column("outcome"));
         assert!(rows.iter().all(|r| r[moving] == "0"), "{csv}");
         assert!(rows.iter().all(|r| r[outcome] != "collided"), "{csv}");
@@ -336,29 +411,14 @@ fn a_fleets_bad_input_names_the_robots_key() {
         "robots.1.start",
     );
     swap4("mpc.uncertainty_sigmas=0", "mpc.uncertainty_sigmas");
-    // An obstacle the robots are not told of, with no lidar to see it.
-    swap4(
-        "obstacles=[{x = 5.0, y = 5.0, radius = 0.3, known = false}]",
-        "obstacles",
-    );
     swap4("plant.disturbance_std=0.01", "plant.disturbance_std");
     swap4("robot.command_delay_s=0.02", "robot.command_delay_s");
     swap4(
         "robots.1.fault.mpc_delay_ms=-1",
         "robots.1.fault.mpc_delay_ms",
     );
-    refused(
-        &[
-            "run",
-            "warehouse",
-            "--in-process",
-            "--set",
-            "perception.kind=track",
-        ],
-        "perception.kind",
-    );
     refused(&["fuzz", "--robots", "3..2"], "--robots");
-    refused(&["fuzz", "--robots", "2..3", "--people", "0.2"], "--people");
+    refused(&["fuzz", "--robots", "2..3", "--people", "1.5"], "--people");
     swap4("robots.1.host=\"b c\"", "robots.1.host");
     swap4("robots.1.host=orchestrator", "robots.1.host");
     swap4("robots.1.host_roles=\"pipeline\"", "robots.1.host_roles");

@@ -89,6 +89,9 @@ pub struct FleetMember {
     /// Contacts with another robot while it moved, and while it was at rest.
     pub robot_contacts_moving: u64,
     pub robot_contacts_at_rest: u64,
+    /// Times a moving obstacle (a person) came into it while it was at rest (its own
+    /// `summary.json`'s `contacts_at_rest`; one while it moved is its outcome, `collided`).
+    pub contacts_at_rest: u64,
     /// Deadlocks it broke by giving way (docs/fleet.md, "Deadlocks").
     pub deadlocks_broken: u64,
     pub deadline_misses: u64,
@@ -133,6 +136,7 @@ impl FleetSummary {
                 min_clearance_m: s.min_clearance_m,
                 robot_contacts_moving: judge.contacts_moving[id],
                 robot_contacts_at_rest: judge.contacts_at_rest[id],
+                contacts_at_rest: s.contacts_at_rest,
                 deadlocks_broken: deadlocks[id],
                 deadline_misses: s.deadline_misses,
                 solve_us: s.solve_us,

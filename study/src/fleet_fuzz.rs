@@ -6,7 +6,10 @@
 //! and at rest) and the deadlocks broken. With `--perception lidar` every world has the
 //! default `[lidar]`, and each obstacle of radius up to [`crate::fuzz::BOX_RADIUS_M`] is a
 //! box not in the map with probability one half (drawn from a stream of its own, so the
-//! worlds are otherwise the same): the robots see it only through their lidars.
+//! worlds are otherwise the same): the robots see it only through their lidars. With
+//! `--people SHARE` that share of the worlds has one or two people on robots' ways, as
+//! the worlds of one robot have on its way ([`crate::fuzz::add_people`]; a stream of their
+//! own too): the robots track them from the truth, or see them through their lidars.
 
 use anyhow::Context as _;
 use protocol::{FleetRobot, Goal, NoiseVariance, Obstacle, Scenario, Validated, distance};
@@ -30,39 +33,71 @@ const MAX_DRAWS: usize = 100;
 /// The seed of the draws of the boxes not in the map beside a world's (`"boxes"` in
 /// ASCII).
 const BOXES_STREAM: u64 = 0x62_6f78_6573;
+/// The seed of the draws of the people beside a world's (`"people"` in ASCII).
+const PEOPLE_STREAM: u64 = 0x7065_6f70_6c65;
 
-/// World `index` of batch `seed` with `robots` robots at most and at least, seen through a
-/// lidar when `lidar` says (module docs), `overrides` applied: the first draw the
-/// validator accepts.
+/// What a batch's worlds hold beside the robots and the obstacles at rest (module docs).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Extras {
+    /// Every world seen through the default lidar.
+    pub lidar: bool,
+    /// The share of the worlds with people on the robots' ways, 0 to 1.
+    pub people: f64,
+}
+
+/// World `index` of batch `seed` with `robots` robots at most and at least, with the
+/// `extras` (module docs), `overrides` applied: the first draw the validator accepts. The
+/// people are drawn for the first fleet it accepts, and drawn again (from their own
+/// stream) until it accepts them too, so that a batch's fleets are the same with and
+/// without people.
 pub fn world(
     seed: u64,
     index: usize,
     robots: &RangeInclusive<usize>,
-    lidar: bool,
+    extras: Extras,
     overrides: &[String],
 ) -> anyhow::Result<Validated> {
     let world_seed = seed.wrapping_mul(0x9e37_79b9) ^ index as u64;
     let mut rng = ChaCha8Rng::seed_from_u64(world_seed);
     let mut boxes = ChaCha8Rng::seed_from_u64(world_seed ^ BOXES_STREAM);
-    let mut last = None;
-    for _ in 0..MAX_DRAWS {
-        let mut drawn = draw(&mut rng, index, robots);
-        if lidar {
-            seen_through_a_lidar(&mut drawn, &mut boxes);
-        }
-        let scenario = drawn.with_overrides(overrides)?;
+    let mut people = ChaCha8Rng::seed_from_u64(world_seed ^ PEOPLE_STREAM);
+    let mut last = String::new();
+    let validated = |drawn: &Scenario, last: &mut String| -> anyhow::Result<Option<Validated>> {
+        let scenario = drawn.clone().with_overrides(overrides)?;
         match scenario.validated(&format!("fleet world {index}")) {
-            Ok(valid) if robots.contains(&valid.robots.len()) => return Ok(valid),
-            Ok(valid) => {
-                last = Some(format!("{} robots placed", valid.robots.len()));
+            Ok(valid) if robots.contains(&valid.robots.len()) => return Ok(Some(valid)),
+            Ok(valid) => *last = format!("{} robots placed", valid.robots.len()),
+            Err(e) => *last = e.to_string(),
+        }
+        Ok(None)
+    };
+    let fleet = 'fleet: {
+        for _ in 0..MAX_DRAWS {
+            let mut drawn = draw(&mut rng, index, robots);
+            if extras.lidar {
+                seen_through_a_lidar(&mut drawn, &mut boxes);
             }
-            Err(e) => last = Some(e.to_string()),
+            if let Some(valid) = validated(&drawn, &mut last)? {
+                break 'fleet (drawn, valid);
+            }
+        }
+        anyhow::bail!("fleet world {index}: no valid draw in {MAX_DRAWS}: {last}");
+    };
+    let (drawn, valid) = fleet;
+    if !people.random_bool(extras.people.clamp(0.0, 1.0)) {
+        return Ok(valid);
+    }
+    let ways: Vec<_> = (drawn.robots.iter())
+        .map(|r| crate::fuzz::Way::between([r.start[0], r.start[1]], r.goal.position))
+        .collect();
+    for _ in 0..MAX_DRAWS {
+        let mut among_people = drawn.clone();
+        crate::fuzz::add_people(&mut among_people, &mut people, &ways);
+        if let Some(valid) = validated(&among_people, &mut last)? {
+            return Ok(valid);
         }
     }
-    Err(anyhow::anyhow!(
-        "fleet world {index}: no valid draw in {MAX_DRAWS}: {}",
-        last.unwrap_or_default()
-    ))
+    anyhow::bail!("fleet world {index}: no valid draw of its people in {MAX_DRAWS}: {last}")
 }
 
 /// The world `s` seen through the default lidar: each obstacle of radius up to
@@ -207,24 +242,34 @@ impl FleetReport {
             self.contacts_moving(),
             self.errors()
         );
+        let people = (self.worlds.iter())
+            .filter(|w| w.scenario.obstacles.iter().any(Obstacle::moves))
+            .count();
+        if people > 0 {
+            let walked_into: u64 = self.robots().map(|r| r.contacts_at_rest).sum();
+            out += &format!(
+                "  worlds with people: {people}; times a person walked into a robot at rest: {walked_into}\n"
+            );
+        }
         out
     }
 }
 
 /// Runs `count` fleet worlds of batch `seed` on `threads` threads into `out`:
 /// `fleet_fuzz.csv`, and under `out/failed/` the scenario of every world in which a robot
-/// did not reach its goal or two robots touched (`scmpc run FILE --in-process` replays it).
+/// did not reach its goal, two robots touched or a person walked into a robot
+/// (`scmpc run FILE --in-process` replays it).
 pub fn run(
     (seed, count): (u64, usize),
     robots: RangeInclusive<usize>,
-    lidar: bool,
+    extras: Extras,
     overrides: &[String],
     out: &Path,
     threads: usize,
     stop: &AtomicBool,
 ) -> anyhow::Result<FleetReport> {
     let scenarios = (0..count)
-        .map(|i| world(seed, i, &robots, lidar, overrides))
+        .map(|i| world(seed, i, &robots, extras, overrides))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let next = AtomicUsize::new(0);
     let results = Mutex::new(Vec::with_capacity(count));
@@ -280,14 +325,15 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(out.join("fleet_fuzz.csv"))?);
     writeln!(
         f,
-        "world,robot,robots,obstacles,unmapped,v_max,radius_m,outcome,stall_reason,time_to_goal_s,robot_contacts_moving,robot_contacts_at_rest,deadlocks_broken,min_robot_clearance_m,file"
+        "world,robot,robots,obstacles,unmapped,people,v_max,radius_m,outcome,stall_reason,time_to_goal_s,robot_contacts_moving,robot_contacts_at_rest,person_contacts_at_rest,deadlocks_broken,min_robot_clearance_m,file"
     )?;
     for world in &report.worlds {
         let s = &world.scenario;
         let Ok(summary) = &world.summary else {
             continue;
         };
-        let failed = !summary.all_reached();
+        let walked_into = summary.robots.iter().any(|r| r.contacts_at_rest > 0);
+        let failed = !summary.all_reached() || walked_into;
         let file = match failed {
             true => {
                 let path = out.join("failed").join(format!("{:04}.toml", world.index));
@@ -296,15 +342,17 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
             }
             false => String::new(),
         };
+        let at_rest = s.obstacles.iter().filter(|o| !o.moves());
         for r in &summary.robots {
             writeln!(
                 f,
-                "{},{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{:.4},{file}",
+                "{},{},{},{},{},{},{:.3},{:.3},{},{},{},{},{},{},{},{:.4},{file}",
                 world.index,
                 r.id,
                 summary.robots.len(),
-                s.obstacles.len(),
-                s.obstacles.iter().filter(|o| !o.is_known()).count(),
+                at_rest.clone().count(),
+                at_rest.clone().filter(|o| !o.is_known()).count(),
+                s.obstacles.len() - at_rest.clone().count(),
                 s.mpc.v_max,
                 s.radius_of(r.id),
                 r.outcome.as_str(),
@@ -313,6 +361,7 @@ fn write_csv(report: &FleetReport, out: &Path) -> anyhow::Result<()> {
                     .map_or(String::new(), |t| format!("{t:.2}")),
                 r.robot_contacts_moving,
                 r.robot_contacts_at_rest,
+                r.contacts_at_rest,
                 r.deadlocks_broken,
                 summary.min_robot_clearance_m,
             )?;

@@ -194,19 +194,31 @@ fn draw(rng: &mut ChaCha8Rng, index: usize, people: f64) -> Scenario {
         .collect();
     let mut moving = ChaCha8Rng::seed_from_u64(rng.random::<u64>() ^ 0x6d6f_7669_6e67);
     if moving.random_bool(people.clamp(0.0, 1.0)) {
-        let count = moving.random_range(1..=2);
-        let at_rest = s.obstacles.clone();
-        s.obstacles
-            .extend((0..count).map(|_| moving_obstacle(&mut moving, &way, &at_rest)));
-        s.perception.noise_std = if moving.random_bool(0.5) { 0.02 } else { 0.0 };
-        solid::keep_people_out(&mut s);
+        add_people(&mut s, &mut moving, &[way]);
     }
     s
 }
 
+/// One or two people on `ways` (each on one of them, drawn when there are several: a
+/// fleet's robots' ways) added to `s` ([`moving_obstacle`]), measured with noise half the
+/// time, and kept out of the obstacles at rest ([`solid::keep_people_out`]).
+pub(crate) fn add_people(s: &mut Scenario, rng: &mut ChaCha8Rng, ways: &[Way]) {
+    let count = rng.random_range(1..=2);
+    let at_rest = s.obstacles.clone();
+    for _ in 0..count {
+        let way = match ways.len() {
+            1 => &ways[0],
+            n => &ways[rng.random_range(0..n)],
+        };
+        s.obstacles.push(moving_obstacle(rng, way, &at_rest));
+    }
+    s.perception.noise_std = if rng.random_bool(0.5) { 0.02 } else { 0.0 };
+    solid::keep_people_out(s);
+}
+
 /// The straight way from the start to the goal: where it starts, its unit direction and
 /// normal, its length, m.
-struct Way {
+pub(crate) struct Way {
     start: [f64; 2],
     along: [f64; 2],
     normal: [f64; 2],
@@ -215,7 +227,7 @@ struct Way {
 
 impl Way {
     /// The way from `start` to `goal` (m), at least 1 m apart.
-    fn between(start: [f64; 2], goal: [f64; 2]) -> Way {
+    pub(crate) fn between(start: [f64; 2], goal: [f64; 2]) -> Way {
         let span = distance(start, goal);
         let along = [(goal[0] - start[0]) / span, (goal[1] - start[1]) / span];
         Way {

@@ -299,7 +299,7 @@ pub struct FuzzArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
     /// Share of the worlds with people on the way (moving obstacles), 0 to 1 [default:
-    /// 0.5]; not with `--robots` (a fleet's worlds have none).
+    /// 0.5; with `--robots` 0: on the robots' ways, docs/fleet.md, "Fuzz"].
     #[arg(long, value_name = "SHARE")]
     pub people: Option<f64>,
     /// How the robot perceives the obstacles: `track` (measured from the truth, the

@@ -204,18 +204,24 @@ fn sweep(args: SweepArgs, progress: bool) -> CliResult {
     }
 }
 
+/// `--people`: a share of the worlds, 0 to 1, `default` when not given.
+fn people_share(people: Option<f64>, default: f64) -> Result<f64, CliError> {
+    let share = people.unwrap_or(default);
+    match (0.0..=1.0).contains(&share) {
+        true => Ok(share),
+        false => Err(bad_input(format!(
+            "--people {share}: must be a share of the worlds, 0 to 1"
+        ))),
+    }
+}
+
 /// `scmpc fuzz`; `progress`: a progress bar (or lines).
 fn fuzz(args: FuzzArgs, progress: bool) -> CliResult {
     if let Some(robots) = &args.robots {
         return fleet_fuzz(&args, robots);
     }
     // Every world is drawn and validated before anything runs.
-    let people = args.people.unwrap_or(study::fuzz::PEOPLE);
-    if !(0.0..=1.0).contains(&people) {
-        return Err(bad_input(format!(
-            "--people {people}: must be a share of the worlds, 0 to 1"
-        )));
-    }
+    let people = people_share(args.people, study::fuzz::PEOPLE)?;
     let draws = study::fuzz::Draws {
         people,
         lidar: args.perception == args::FuzzPerception::Lidar,
@@ -552,18 +558,17 @@ fn fuzz_batch(args: &FuzzArgs, name: &str, what: &str) -> (std::path::PathBuf, u
 /// another or into an obstacle, or a world failed to run.
 fn fleet_fuzz(args: &FuzzArgs, robots: &str) -> CliResult {
     let range = robot_range(robots).map_err(bad_input)?;
-    if args.people.is_some() {
-        return Err(bad_input(
-            "--people: a fleet's worlds have no people (docs/fleet.md, \"Fuzz\")",
-        ));
-    }
-    let lidar = args.perception == args::FuzzPerception::Lidar;
-    study::fleet_fuzz::world(args.seed, 0, &range, lidar, &args.overrides).map_err(bad_input)?;
+    let extras = study::fleet_fuzz::Extras {
+        lidar: args.perception == args::FuzzPerception::Lidar,
+        people: people_share(args.people, 0.0)?,
+    };
+    study::fleet_fuzz::world(args.seed, 0, &range, extras, &args.overrides).map_err(bad_input)?;
     let (out, threads) = fuzz_batch(args, "fleet-fuzz", &format!("fleets of {robots} robots"));
     let stop = run::stop::on_signals();
     let batch = (args.seed, args.count);
-    let report = study::fleet_fuzz::run(batch, range, lidar, &args.overrides, &out, threads, &stop)
-        .map_err(CliError::Failed)?;
+    let report =
+        study::fleet_fuzz::run(batch, range, extras, &args.overrides, &out, threads, &stop)
+            .map_err(CliError::Failed)?;
     print!("{}", report.table());
     println!("fuzz directory: {}", out.display());
     run::stop::check(&stop).map_err(|e| CliError::Failed(e.into()))?;

@@ -217,13 +217,6 @@ impl Scenario {
                 self.fleet_id.is_none()
                     && crate::Role::ALL.iter().any(|r| self.hosts.of(*r).is_some()),
             ),
-            // A lidar sees the obstacles the robots are not told of; without one they
-            // would be tracked from the truth.
-            (
-                "obstacles",
-                !self.sees_with_lidar() && self.obstacles.iter().any(|o| !o.is_known()),
-            ),
-            ("perception.kind", self.tracked().next().is_some()),
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
             ("plant.disturbance_std", self.plant.disturbance_std > 0.0),
@@ -236,9 +229,8 @@ impl Scenario {
                 v.fail(
                     key,
                     "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
-                     command delay, among known obstacles at rest unless a lidar sees them, \
-                     without tracked obstacles, swaps or roles placed by [hosts] (a robot's own \
-                     `host` places its pipeline; docs/fleet.md, \"Left out\")"
+                     command delay, swaps or roles placed by [hosts] (a robot's own `host` \
+                     places its pipeline; docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }
@@ -356,6 +348,7 @@ impl Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::Obstacle;
     use crate::scenario::{AutoOr, SampleSet};
 
     fn swap4() -> Scenario {
@@ -419,5 +412,21 @@ mod tests {
         fleet.dfl.brake_decel = AutoOr::Auto(crate::scenario::Auto::Auto);
         let refused = fleet.clone().validated("test").unwrap_err().to_string();
         assert!(refused.contains("robots.1.v_max"), "{refused}");
+    }
+
+    #[test]
+    fn a_fleet_tracks_people_from_the_truth_while_its_tracks_have_room_beside_the_robots() {
+        // swap4's four robots: three others in each robot's tracks, beside the people.
+        let person = |i: usize| Obstacle {
+            velocity: [1.0, 0.0],
+            ..Obstacle::fixed(-9.0, -9.0 + 0.5 * i as f64, 0.1)
+        };
+        let mut fleet = swap4();
+        fleet.obstacles = (0..crate::MAX_TRACKS - 3).map(person).collect();
+        let valid = fleet.clone().validated("test").unwrap();
+        assert_eq!(valid.member(0).tracked().count(), crate::MAX_TRACKS - 3);
+        fleet.obstacles.push(person(crate::MAX_TRACKS));
+        let refused = fleet.validated("test").unwrap_err().to_string();
+        assert!(refused.contains("beside 3 other robots"), "{refused}");
     }
 }

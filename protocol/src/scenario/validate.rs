@@ -245,11 +245,17 @@ impl Scenario {
                     .into(),
             );
         }
-        if tracked > crate::MAX_TRACKS {
+        // A fleet's tracks hold a slot for each other robot beside them.
+        let others = self.robot_count() - 1;
+        if tracked + others > crate::MAX_TRACKS {
+            let beside = match others {
+                0 => String::new(),
+                n => format!(" beside {n} other robots"),
+            };
             v.fail(
                 "obstacles",
                 format!(
-                    "{tracked} obstacles to track; the tracker tracks at most {}",
+                    "{tracked} obstacles to track{beside}; the tracker tracks at most {}",
                     crate::MAX_TRACKS
                 ),
             );
