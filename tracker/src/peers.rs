@@ -220,7 +220,8 @@ impl Peers {
 }
 
 /// Appends `track` to `tracks` if there is room ([`protocol::MAX_TRACKS`] is above a
-/// fleet's robots and its tracked obstacles together: `check_fleet`).
+/// fleet's robots and its tracked obstacles together: the validator's
+/// `check_planner_and_obstacles`).
 fn push(tracks: &mut Tracks, track: Track) {
     if let Some(slot) = tracks.tracks.get_mut(tracks.count as usize) {
         *slot = track;
