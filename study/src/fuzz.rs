@@ -331,9 +331,11 @@ fn step_in(distance_m: f64, speed_m_s: f64, leaves_s: f64) -> impl Iterator<Item
             distance_m - 0.5 * a * left * left
         }
     };
+    // Every 0.1 s to the first such time at rest, so that each segment is as long and
+    // the path keeps the bound at its points too (`protocol::PATH_CORNER_S`).
     let steps = (walk_s / 0.1).ceil() as usize;
     std::iter::once((0.0, 0.0)).chain((0..=steps).map(move |k| {
-        let t = (k as f64 * 0.1).min(walk_s);
+        let t = k as f64 * 0.1;
         (leaves_s + t, walked(t))
     }))
 }
@@ -729,14 +731,14 @@ mod tests {
             assert_eq!(s.duration_s, 40.0 + 4.0 * (span - 9.0).max(0.0));
             for o in s.obstacles.iter().filter(|o| o.moves()) {
                 assert!((0.2..0.4).contains(&o.radius));
-                // A person stepping in speeds up and slows down within the tracker's bound.
-                for w in o.path.windows(3) {
-                    let v = |a: &[f64; 3], b: &[f64; 3]| {
-                        [(b[1] - a[1]) / (b[0] - a[0]), (b[2] - a[2]) / (b[0] - a[0])]
-                    };
-                    let (v0, v1) = (v(&w[0], &w[1]), v(&w[1], &w[2]));
-                    let dv = (v1[0] - v0[0]).hypot(v1[1] - v0[1]);
-                    assert!(dv <= STEP_IN_ACCEL * 0.1 + 1e-9 || w[0][0] == 0.0, "{dv}");
+                // A person stepping in, or stopping short of an obstacle, speeds up and
+                // slows down within the tracker's bound, at the points of the path too.
+                let end_s = o.path.last().map_or(0.0, |p| p[0] + 0.2);
+                for k in 0..(end_s / 0.01) as usize {
+                    let (t, h) = (k as f64 * 0.01, 1e-4);
+                    let (v0, v1) = (o.velocity_at(t), o.velocity_at(t + h));
+                    let turn = (v1[0] - v0[0]).hypot(v1[1] - v0[1]) / h;
+                    assert!(turn <= STEP_IN_ACCEL + 1e-6, "{turn} m/s^2 at {t} s");
                 }
             }
             for o in s.obstacles.iter().filter(|o| !o.moves()) {

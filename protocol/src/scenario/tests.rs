@@ -307,6 +307,75 @@ fn an_obstacle_moves_at_its_velocity_or_along_its_path() {
 }
 
 #[test]
+fn a_paths_change_of_velocity_at_a_point_is_spread_over_a_tenth_of_a_second() {
+    // Two steps: from rest to (1, 2) m/s at t = 1, back to rest at t = 3.
+    let path = [[1.0, 0.0, 0.0], [3.0, 2.0, 4.0], [4.0, 2.0, 4.0]];
+    let tau = PATH_CORNER_S / 2.0;
+    // At the point, half way: off the polyline by dv tau / 4, at the mean velocity.
+    let (center, velocity) = path_state(&path, 3.0);
+    assert!((center[0] - (2.0 - tau / 4.0)).abs() < 1e-12, "{center:?}");
+    assert!(
+        (center[1] - (4.0 - 2.0 * tau / 4.0)).abs() < 1e-12,
+        "{center:?}"
+    );
+    assert_eq!(velocity, [0.5, 1.0]);
+    // On the polyline before and after a turn.
+    assert_eq!(path_state(&path, 1.0 - tau), ([0.0, 0.0], [0.0, 0.0]));
+    assert_eq!(path_state(&path, 3.0 + 2.0 * tau), ([2.0, 4.0], [0.0, 0.0]));
+
+    // The velocity is the centre's derivative and never jumps: it turns at |dv| / (2 tau).
+    let h = 1e-5;
+    let mut t = 0.9;
+    while t < 3.2 {
+        let (c0, v0) = path_state(&path, t);
+        let (c1, v1) = path_state(&path, t + h);
+        let accel = (v1[0] - v0[0]).hypot(v1[1] - v0[1]) / h;
+        assert!(accel <= 5f64.sqrt() / (2.0 * tau) + 1e-6, "{accel} at {t}");
+        for axis in 0..2 {
+            let slope = (c1[axis] - c0[axis]) / h;
+            assert!(
+                (slope - 0.5 * (v0[axis] + v1[axis])).abs() < 1e-3,
+                "{t} {axis}"
+            );
+        }
+        t += 7e-4;
+    }
+}
+
+#[test]
+fn a_path_drawn_every_tenth_of_a_second_from_a_bounded_acceleration_keeps_its_bound() {
+    // Speeding up at 0.5 m/s^2 from rest at t = 2 for 1.5 s, then walking on: a person
+    // stepping in as the fuzz draws one, whose points the polyline joins with jumps of
+    // velocity of up to 0.05 m/s.
+    let accel = 0.5;
+    let walked = |t: f64| {
+        let ramp = (t - 2.0).clamp(0.0, 1.5);
+        0.5 * accel * ramp * ramp + accel * 1.5 * (t - 3.5).max(0.0)
+    };
+    let path: Vec<[f64; 3]> = std::iter::once([0.0, 0.0, 0.0])
+        .chain((0..=30).map(|k| {
+            let t = 2.0 + 0.1 * k as f64;
+            [t, walked(t), 0.0]
+        }))
+        .collect();
+    let h = 1e-4;
+    let mut t = 1.5;
+    // (Until the last point, where the path stops at once.)
+    while t < 4.9 {
+        let (c, v0) = path_state(&path, t);
+        let v1 = path_state(&path, t + h).1;
+        let turn = (v1[0] - v0[0]).hypot(v1[1] - v0[1]) / h;
+        assert!(turn <= accel + 1e-6, "{turn} m/s^2 at {t} s");
+        // Never farther from the motion drawn than a corner's cut, dv tau / 4.
+        assert!(
+            (c[0] - walked(t)).abs() <= accel * 0.1 * 0.05 / 4.0 + 1e-9,
+            "{t}"
+        );
+        t += 3e-3;
+    }
+}
+
+#[test]
 fn a_bad_motion_is_refused_naming_the_obstacle_and_the_key() {
     for (table, key, says) in [
         (

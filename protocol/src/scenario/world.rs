@@ -100,7 +100,8 @@ pub struct Obstacle {
     #[serde(default)]
     pub velocity: [f64; 2],
     /// `[t_s, x_m, y_m]` points, times strictly increasing: the centre moves linearly
-    /// between them, and is held at the first before it and at the last after it.
+    /// between them, and is held at the first before it and at the last after it; each
+    /// change of velocity at a point takes [`PATH_CORNER_S`] ([`path_state`]).
     #[serde(default)]
     pub path: Vec<[f64; 3]>,
     /// Whether the pipeline knows it from the scenario (the map); default: one at rest
@@ -147,21 +148,7 @@ impl Obstacle {
                 self.x + self.velocity[0] * t_s,
                 self.y + self.velocity[1] * t_s,
             ],
-            [first, ..] if t_s <= first[0] => [first[1], first[2]],
-            points => {
-                let after = points.iter().position(|p| p[0] > t_s);
-                match after {
-                    None => {
-                        let last = points[points.len() - 1];
-                        [last[1], last[2]]
-                    }
-                    Some(i) => {
-                        let (a, b) = (points[i - 1], points[i]);
-                        let s = (t_s - a[0]) / (b[0] - a[0]);
-                        [a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2])]
-                    }
-                }
-            }
+            path => path_state(path, t_s).0,
         }
     }
 
@@ -174,19 +161,11 @@ impl Obstacle {
         }
     }
 
-    /// The true velocity at run time `t_s`, m/s (a path's segment's; at a corner, the
-    /// segment after it).
+    /// The true velocity at run time `t_s`, m/s.
     pub fn velocity_at(&self, t_s: f64) -> [f64; 2] {
-        if self.path.is_empty() {
-            return self.velocity;
-        }
-        match self.path.iter().position(|p| p[0] > t_s) {
-            Some(i) if i > 0 => {
-                let (a, b) = (self.path[i - 1], self.path[i]);
-                let dt = b[0] - a[0];
-                [(b[1] - a[1]) / dt, (b[2] - a[2]) / dt]
-            }
-            _ => [0.0; 2],
+        match self.path.as_slice() {
+            [] => self.velocity,
+            path => path_state(path, t_s).1,
         }
     }
 
@@ -198,4 +177,88 @@ impl Obstacle {
         }
         self
     }
+}
+
+/// How long a path's change of velocity at one of its points takes, s, at most: its
+/// velocity turns linearly from one segment's to the next over this time centred on the
+/// point (or over the shorter of the two segments, if that takes less). So a timed path
+/// drawn every tenth of a second or more finely from a motion of bounded acceleration
+/// keeps that bound, with no jump of velocity a tracker's bound would not cover (a person
+/// stepping in, drawn at 0.1 s with a change of 0.05 m/s at each point, accelerates at
+/// 0.5 m/s^2, `study::fuzz`); a corner a user writes turns at its change of velocity over
+/// this time, and passes within `|dv| PATH_CORNER_S / 8` of its point.
+pub const PATH_CORNER_S: f64 = 0.1;
+
+/// The centre (m) and velocity (m/s) at run time `t_s` along a timed `path` of
+/// `[t_s, x_m, y_m]` points (at least one, times strictly increasing): at rest at its
+/// first point before it and at its last after it, linear between, with each change of
+/// velocity at a point `j` (from `v_{j-1}` to `v_j`, at rest before the first and after the
+/// last) spread over `2 tau` about it ([`PATH_CORNER_S`]): there the velocity is
+/// `v_{j-1} + dv (t - t_j + tau) / (2 tau)` and the centre is off the polyline by
+/// `dv (tau - |t - t_j|)^2 / (4 tau)`. A path that starts at or before time 0 has no
+/// corner at its first point: it is moving there already when the run starts.
+pub fn path_state(path: &[[f64; 3]], t_s: f64) -> ([f64; 2], [f64; 2]) {
+    let last = path.len() - 1;
+    let point = |j: usize| [path[j][1], path[j][2]];
+    let segment_velocity = |j: usize| -> [f64; 2] {
+        let (a, b) = (path[j], path[j + 1]);
+        let dt = b[0] - a[0];
+        [(b[1] - a[1]) / dt, (b[2] - a[2]) / dt]
+    };
+    // The velocity just before and just after point `j`.
+    let before = |j: usize| match j {
+        0 if path[0][0] <= 0.0 && last > 0 => segment_velocity(0),
+        0 => [0.0; 2],
+        _ => segment_velocity(j - 1),
+    };
+    let after = |j: usize| {
+        if j < last {
+            segment_velocity(j)
+        } else {
+            [0.0; 2]
+        }
+    };
+    let half_corner = |j: usize| {
+        let mut tau = PATH_CORNER_S / 2.0;
+        if j > 0 {
+            tau = tau.min((path[j][0] - path[j - 1][0]) / 2.0);
+        }
+        if j < last {
+            tau = tau.min((path[j + 1][0] - path[j][0]) / 2.0);
+        }
+        tau
+    };
+    // The polyline's state, and the corner of the point nearest in time.
+    let after_t = path.iter().position(|p| p[0] > t_s);
+    let (linear, velocity, nearest) = match after_t {
+        Some(0) => (point(0), [0.0; 2], 0),
+        None => (point(last), [0.0; 2], last),
+        Some(i) => {
+            let s = (t_s - path[i - 1][0]) / (path[i][0] - path[i - 1][0]);
+            let (a, b) = (point(i - 1), point(i));
+            let nearest = if t_s - path[i - 1][0] <= path[i][0] - t_s {
+                i - 1
+            } else {
+                i
+            };
+            (
+                [a[0] + s * (b[0] - a[0]), a[1] + s * (b[1] - a[1])],
+                segment_velocity(i - 1),
+                nearest,
+            )
+        }
+    };
+    let tau = half_corner(nearest);
+    let from_corner_s = t_s - path[nearest][0];
+    if tau <= 0.0 || from_corner_s.abs() >= tau {
+        return (linear, velocity);
+    }
+    let (v0, v1) = (before(nearest), after(nearest));
+    let dv = [v1[0] - v0[0], v1[1] - v0[1]];
+    let off = (tau - from_corner_s.abs()).powi(2) / (4.0 * tau);
+    let share = (from_corner_s + tau) / (2.0 * tau);
+    (
+        [linear[0] + dv[0] * off, linear[1] + dv[1] * off],
+        [v0[0] + dv[0] * share, v0[1] + dv[1] * share],
+    )
 }

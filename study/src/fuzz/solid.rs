@@ -68,7 +68,8 @@ pub(super) fn kept_out(
         [t, person.x + vx * d, person.y + vy * d]
     };
     let steps = (brake_s / 0.1).ceil() as usize;
-    let braking = (0..=steps).map(|k| point(brakes_at_s + (k as f64 * 0.1).min(brake_s)));
+    // Every 0.1 s to the first such time at rest (`protocol::PATH_CORNER_S`).
+    let braking = (0..=steps).map(|k| point(brakes_at_s + k as f64 * 0.1));
     let path = std::iter::once(point(0.0)).chain(braking).collect();
     Some(walking(person.radius, path))
 }
@@ -160,7 +161,7 @@ mod tests {
         let stopped = kept_out(walker(1.25), &pillar, 40.0).expect("room to stop");
         let end = stopped.path[stopped.path.len() - 1][0];
         let touch_x = 5.0 - (1.3f64.powi(2) - 1.25f64.powi(2)).sqrt();
-        let [x, y] = stopped.center_at(end);
+        let [x, y] = stopped.center_at(end + 1.0);
         assert!(
             (x - (touch_x - STAND_OFF_M)).abs() < 1e-9 && y == 1.25,
             "{x}"
