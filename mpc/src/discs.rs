@@ -153,22 +153,15 @@ impl World {
         !self.tracks.tracks().is_empty()
     }
 
-    /// Whether some track is kept and every one is another robot's, whose plans are known
-    /// ([`protocol::Track::is_peer`]): no person's, no phantom's, no lidar's.
-    pub fn only_peers(&self) -> bool {
-        let tracks = self.tracks.tracks();
-        !tracks.is_empty() && tracks.iter().all(|(t, _)| t.is_peer())
+    /// Whether some kept track is another robot's, whose plans are known
+    /// ([`protocol::Track::is_peer`]).
+    pub fn has_peers(&self) -> bool {
+        self.tracks.tracks().iter().any(|(t, _)| t.is_peer())
     }
 
-    /// Whether some kept track moves and every one that moves is another robot's, whose
-    /// plans are known ([`protocol::Track::is_peer`]); not a person's, nor a phantom's.
-    pub fn only_peers_move(&self) -> bool {
-        let mut moving = self
-            .tracks
-            .tracks()
-            .iter()
-            .filter(|(t, _)| !t.stands_still());
-        moving.clone().next().is_some() && moving.all(|(t, _)| t.is_peer())
+    /// Whether some kept track that moves is another robot's ([`World::has_peers`]).
+    pub fn peers_move(&self) -> bool {
+        (self.tracks.tracks().iter()).any(|(t, _)| t.is_peer() && !t.stands_still())
     }
 
     /// Fills `discs` with the step's constraint discs at the sample's time `t_s` for the
@@ -256,7 +249,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn only_other_robots_that_move_are_the_moving_discs_of_only_peers_move() {
+    fn another_robots_track_is_told_from_a_persons_and_a_phantoms() {
         // A scenario with a tracked person, so that the world takes tracks.
         let scenario = protocol::Scenario {
             obstacles: vec![protocol::Obstacle {
@@ -273,29 +266,24 @@ mod tests {
         };
         let walking = [1.0, 0.0];
         let peer = protocol::FIRST_PEER + 1;
-        let only_peers_move = |tracks: &[protocol::Track]| {
+        let phantom = track(protocol::FIRST_PHANTOM, [0.0; 2]);
+        let peers = |tracks: &[protocol::Track]| {
             let mut all = protocol::Tracks::default();
             all.tracks[..tracks.len()].copy_from_slice(tracks);
             all.count = tracks.len() as u32;
             let mut world = World::of(&scenario);
             world.set_tracks(&all);
-            world.only_peers_move()
+            (world.has_peers(), world.peers_move())
         };
-        assert!(!only_peers_move(&[]), "nothing moves");
-        assert!(
-            !only_peers_move(&[track(peer, [0.0; 2])]),
+        assert_eq!(peers(&[]), (false, false), "no track");
+        assert_eq!(
+            peers(&[track(peer, [0.0; 2])]),
+            (true, false),
             "a robot at rest"
         );
-        assert!(only_peers_move(&[track(peer, walking), track(0, [0.0; 2])]));
-        assert!(
-            !only_peers_move(&[track(peer, walking), track(0, walking)]),
-            "a person"
-        );
-        let phantom = track(protocol::FIRST_PHANTOM, [0.0; 2]);
-        assert!(
-            !only_peers_move(&[track(peer, walking), phantom]),
-            "a phantom"
-        );
+        assert_eq!(peers(&[track(0, walking), phantom]), (false, false));
+        let mixed = [track(0, walking), track(peer, walking), phantom];
+        assert_eq!(peers(&mixed), (true, true));
     }
 
     #[test]

@@ -510,15 +510,18 @@ impl LinearMpc {
 
     /// Whether a warm program (`warm`) that failed is tried again cold: the shifted plan
     /// may no longer be a usable linearization point. Not after an escape plan
-    /// (`last_escaped`), nor when every track is another robot's: counted with a print
+    /// (`last_escaped`), nor among other robots ([`World::has_peers`]), people or not
+    /// (since 2026-12-05; before, only when every track was another robot's): counted with a print
     /// (not kept, 2026-12-04, d540fda's tree), the cold retry found a plan 2 times of
     /// 1,685 in `scmpc fuzz --robots 2..6 --count 60 --seed 5` (and 3 of 30 among people,
     /// `scmpc fuzz --count 200 --seed 11`, where it is kept); the escape plan after it is
     /// what the robot flies, and the retry's solve was a fifth of the costliest steps
     /// among robots (docs/performance.md, "A fleet"). A warm-up cut short tries nothing
     /// more (`CancelSlot`).
+    ///
+    /// [`World::has_peers`]: crate::discs::World::has_peers
     fn retries_cold(&self, warm: bool) -> bool {
-        warm && !self.last_escaped && !self.world.only_peers() && !self.cancel.cancelled()
+        warm && !self.last_escaped && !self.world.has_peers() && !self.cancel.cancelled()
     }
 
     /// Whether a program that fails is tried again relaxed ([`LinearMpc::solve_once`]):
@@ -686,21 +689,23 @@ impl LinearMpc {
 
     /// Whether a step whose every program failed has a margin left to drop: the rest
     /// lookahead (`mpc.rest_lookahead_s`, docs/safety.md "The stop and the person's way")
-    /// when the discs that move are other robots' ([`World::only_peers_move`]). Without it
-    /// the terminal rows ask for passive safety alone, which the DFL's check asks too; so a
-    /// robot squeezed between others coming towards it (`swap8`) gets a plan that stops
-    /// before they could reach it rather than fly its shifted plan. Not for a person: a
-    /// robot offered such a plan flies it as the least unsafe choice where it would have
-    /// stepped out of the person's way (`dfl.evasion`), and at rest in their way is walked
-    /// into (docs/fleet.md, "The rest lookahead as a last resort").
+    /// when another robot moves ([`World::peers_move`]). Without it the terminal rows ask
+    /// for passive safety alone, which the DFL's check asks too; so a robot squeezed
+    /// between others coming towards it (`swap8`) gets a plan that stops before they could
+    /// reach it rather than fly its shifted plan. Not for a robot alone among people: one
+    /// offered such a plan flies it as the least unsafe choice where it would have stepped
+    /// out of the person's way (`dfl.evasion`), and at rest in their way is walked into
+    /// (docs/fleet.md, "The rest lookahead as a last resort"). Among other robots a person
+    /// no longer keeps it from the last resort (since 2026-12-05): there it left a quarter
+    /// more robots walked into (docs/fleet.md, "People in a fleet's world").
     ///
-    /// [`World::only_peers_move`]: crate::discs::World::only_peers_move
+    /// [`World::peers_move`]: crate::discs::World::peers_move
     fn drops_rest_lookahead(&self) -> bool {
         let lookahead = self
             .layout
             .terminal
             .map_or(0.0, |brake| brake.rest_lookahead_s);
-        lookahead > 0.0 && self.world.only_peers_move()
+        lookahead > 0.0 && self.world.peers_move()
     }
 
     /// Puts `disc` in the program with all its rows: into `kept` after the whole discs
