@@ -427,6 +427,7 @@ mod tests {
         assert_eq!(valid.member(0).tracked().count(), crate::MAX_TRACKS - 3);
         fleet.obstacles.push(person(crate::MAX_TRACKS));
         let refused = fleet.validated("test").unwrap_err().to_string();
-        assert!(refused.contains("beside 3 other robots"), "{refused}");
+        let room = format!("hold {} beside the 3 other robots", crate::MAX_TRACKS - 3);
+        assert!(refused.contains(&room), "{refused}");
     }
 }

@@ -248,17 +248,16 @@ impl Scenario {
         // A fleet's tracks hold a slot for each other robot beside them.
         let others = self.robot_count() - 1;
         if tracked + others > crate::MAX_TRACKS {
-            let beside = match others {
-                0 => String::new(),
-                n => format!(" beside {n} other robots"),
-            };
-            v.fail(
-                "obstacles",
-                format!(
-                    "{tracked} obstacles to track{beside}; the tracker tracks at most {}",
-                    crate::MAX_TRACKS
+            let most = crate::MAX_TRACKS;
+            let room = match others {
+                0 => format!("the tracker tracks at most {most}"),
+                1 => format!("a robot's tracks hold {} beside the other robot", most - 1),
+                n => format!(
+                    "a robot's tracks hold {} beside the {n} other robots",
+                    most - n
                 ),
-            );
+            };
+            v.fail("obstacles", format!("{tracked} obstacles to track; {room}"));
         }
         let c = &self.perception;
         if let AutoOr::Value(period) = c.period_s {
