@@ -510,8 +510,9 @@ impl LinearMpc {
 
     /// Whether a warm program (`warm`) that failed is tried again cold: the shifted plan
     /// may no longer be a usable linearization point. Not after an escape plan
-    /// (`last_escaped`), nor among other robots ([`World::has_peers`]), people or not
-    /// (since 2026-12-05; before, only when every track was another robot's): counted with a print
+    /// (`last_escaped`), nor among other robots ([`World::has_peers`]), whatever else is
+    /// tracked, a person, a phantom or a lidar's track (since 2026-12-05, ee09c77; before,
+    /// only when every track was another robot's): counted with a print
     /// (not kept, 2026-12-04, d540fda's tree), the cold retry found a plan 2 times of
     /// 1,685 in `scmpc fuzz --robots 2..6 --count 60 --seed 5` (and 3 of 30 among people,
     /// `scmpc fuzz --count 200 --seed 11`, where it is kept); the escape plan after it is
@@ -695,9 +696,10 @@ impl LinearMpc {
     /// reach it rather than fly its shifted plan. Not for a robot alone among people: one
     /// offered such a plan flies it as the least unsafe choice where it would have stepped
     /// out of the person's way (`dfl.evasion`), and at rest in their way is walked into
-    /// (docs/fleet.md, "The rest lookahead as a last resort"). Among other robots a person
-    /// no longer keeps it from the last resort (since 2026-12-05): there it left a quarter
-    /// more robots walked into (docs/fleet.md, "People in a fleet's world").
+    /// (docs/fleet.md, "The rest lookahead as a last resort"). Among other robots nothing
+    /// else tracked (a person, a phantom or a lidar's track) keeps it from the last resort
+    /// (since 2026-12-05, ee09c77): a person did before, and there were a third more
+    /// walk-ins, 193 against 145 (docs/fleet.md, "A person among robots").
     ///
     /// [`World::peers_move`]: crate::discs::World::peers_move
     fn drops_rest_lookahead(&self) -> bool {

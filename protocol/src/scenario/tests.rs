@@ -343,6 +343,23 @@ fn a_paths_change_of_velocity_at_a_point_is_spread_over_a_tenth_of_a_second() {
 }
 
 #[test]
+fn a_path_is_at_rest_at_its_first_point_when_the_run_starts_unless_it_starts_before() {
+    // Starting 20 ms into the run, it turns over 40 ms about its first point, not 0.1 s:
+    // at rest there at t = 0, at half its speed at 20 ms.
+    let soon = [[0.02, 1.0, 0.0], [1.02, 2.0, 0.0]];
+    assert_eq!(path_state(&soon, 0.0), ([1.0, 0.0], [0.0, 0.0]));
+    assert_eq!(path_state(&soon, 0.02).1, [0.5, 0.0]);
+    assert_eq!(path_state(&soon, 0.04).1, [1.0, 0.0]);
+    // Starting at or before t = 0, it is moving already then, on the polyline.
+    for first_s in [0.0, -0.02] {
+        let before = [[first_s, 1.0, 0.0], [first_s + 1.0, 2.0, 0.0]];
+        let (center, velocity) = path_state(&before, 0.0);
+        assert!((center[0] - (1.0 - first_s)).abs() < 1e-12, "{center:?}");
+        assert_eq!(velocity, [1.0, 0.0]);
+    }
+}
+
+#[test]
 fn a_path_drawn_every_tenth_of_a_second_from_a_bounded_acceleration_keeps_its_bound() {
     // Speeding up at 0.5 m/s^2 from rest at t = 2 for 1.5 s, then walking on: a person
     // stepping in as the fuzz draws one, whose points the polyline joins with jumps of

@@ -196,7 +196,10 @@ pub const PATH_CORNER_S: f64 = 0.1;
 /// last) spread over `2 tau` about it ([`PATH_CORNER_S`]): there the velocity is
 /// `v_{j-1} + dv (t - t_j + tau) / (2 tau)` and the centre is off the polyline by
 /// `dv (tau - |t - t_j|)^2 / (4 tau)`. A path that starts at or before time 0 has no
-/// corner at its first point: it is moving there already when the run starts.
+/// corner at its first point: it is moving there already when the run starts; one that
+/// starts later turns at its first point no sooner than time 0 (over less than
+/// [`PATH_CORNER_S`] if it starts sooner than half of it), so it is at rest there when
+/// the run starts.
 pub fn path_state(path: &[[f64; 3]], t_s: f64) -> ([f64; 2], [f64; 2]) {
     let last = path.len() - 1;
     let point = |j: usize| [path[j][1], path[j][2]];
@@ -220,7 +223,10 @@ pub fn path_state(path: &[[f64; 3]], t_s: f64) -> ([f64; 2], [f64; 2]) {
     };
     let half_corner = |j: usize| {
         let mut tau = PATH_CORNER_S / 2.0;
-        if j > 0 {
+        if j == 0 {
+            // Not before the run starts: at rest at its first point until then.
+            tau = tau.min(path[0][0].max(0.0));
+        } else {
             tau = tau.min((path[j][0] - path[j - 1][0]) / 2.0);
         }
         if j < last {

@@ -68,9 +68,13 @@ pub(super) fn kept_out(
         [t, person.x + vx * d, person.y + vy * d]
     };
     let steps = (brake_s / 0.1).ceil() as usize;
-    // Every 0.1 s to the first such time at rest (`protocol::PATH_CORNER_S`).
+    // Every 0.1 s to the first such time at rest (`protocol::PATH_CORNER_S`), from a
+    // first point at least 0.1 s before they brake: one who brakes at once (sooner than
+    // 0.1 s into the run) was walking before it, and a first point before the run has
+    // no corner, so their first change of velocity is spread over 0.1 s like the others.
     let braking = (0..=steps).map(|k| point(brakes_at_s + k as f64 * 0.1));
-    let path = std::iter::once(point(0.0)).chain(braking).collect();
+    let first_s = (brakes_at_s - 0.1).min(0.0);
+    let path = std::iter::once(point(first_s)).chain(braking).collect();
     Some(walking(person.radius, path))
 }
 
@@ -170,11 +174,7 @@ mod tests {
         assert!((0..=400).all(|k| gap(f64::from(k) * 0.1) > 0.0));
         // At their speed until they brake, then slowing within the bound.
         assert_eq!(stopped.center_at(1.0), [1.0, 1.25]);
-        for w in stopped.path.windows(3) {
-            let v = |a: &[f64; 3], b: &[f64; 3]| (b[1] - a[1]) / (b[0] - a[0]);
-            let dv = v(&w[1], &w[2]) - v(&w[0], &w[1]);
-            assert!((-STEP_IN_ACCEL * 0.1 - 1e-9..=1e-9).contains(&dv), "{dv}");
-        }
+        assert_slows_within_the_bound(&stopped, [1.0, 0.0]);
         // Not there before the run ends: as drawn.
         assert_eq!(kept_out(walker(1.25), &pillar, 3.0), Some(walker(1.25)));
         // Too close to stop, or touching from the start: left out.
@@ -187,6 +187,42 @@ mod tests {
             kept_out(walker(0.0), &[Obstacle::fixed(0.2, 0.0, 0.3)], 40.0),
             None
         );
+    }
+
+    /// `person`'s velocity, checked every 10 ms from the start of the run until after
+    /// their path ends: `start` at first (or within half a corner's change of it, if they
+    /// brake sooner than 0.05 s into the run), then never changing faster than
+    /// [`STEP_IN_ACCEL`], and at rest at the end.
+    fn assert_slows_within_the_bound(person: &Obstacle, start: [f64; 2]) {
+        let end = person.path[person.path.len() - 1][0];
+        let v = |k: u32| person.velocity_at(f64::from(k) * 0.01);
+        let steps = (end / 0.01).ceil() as u32 + 10;
+        assert!(
+            distance(v(0), start) <= STEP_IN_ACCEL * 0.05 + 1e-9,
+            "{:?}",
+            v(0)
+        );
+        for k in 0..steps {
+            let dv = distance(v(k + 1), v(k));
+            assert!(dv <= STEP_IN_ACCEL * 0.01 + 1e-9, "{dv} m/s at {k}0 ms");
+        }
+        assert_eq!(v(steps), [0.0, 0.0]);
+    }
+
+    #[test]
+    fn a_person_who_must_brake_at_once_still_slows_within_the_bound() {
+        // Walking at 1 m/s, they need 1 m to stop and have 1.001 m or 1.01 m (they would
+        // touch the pillar at 1.051 s or 1.06 s): they brake 1 ms or 10 ms into the run.
+        for (pillar_x, brakes_at_s) in [(2.351, 0.001), (2.36, 0.01)] {
+            let pillar = [Obstacle::fixed(pillar_x, 0.0, 1.0)];
+            let stopped = kept_out(walker(0.0), &pillar, 40.0).expect("room to stop");
+            assert!(stopped.path[0][0] < 0.0, "{:?}", stopped.path[0]);
+            assert!((stopped.path[1][0] - brakes_at_s).abs() < 1e-9);
+            assert!(distance(stopped.center_at(0.0), [0.0, 0.0]) < 1e-3);
+            assert_slows_within_the_bound(&stopped, [1.0, 0.0]);
+            let gap = |k: u32| distance(stopped.center_at(f64::from(k) * 0.01), [pillar_x, 0.0]);
+            assert!((0..=400).all(|k| gap(k) > 1.3), "{pillar_x}");
+        }
     }
 
     #[test]

@@ -262,6 +262,38 @@ fn the_last_resort_escapes_another_robot_for_passive_safety_alone_not_a_person()
 }
 
 #[test]
+fn among_other_robots_a_person_walking_at_the_robot_no_longer_keeps_it_from_the_last_resort() {
+    // The person of the test above, and another robot 10 m away: the last resort is taken
+    // whenever another robot moves, however far (since ee09c77), and not for one at rest.
+    let mut s = walked_at(-1.0);
+    s.perception.accel_max = 3.0;
+    let with_robot = |velocity: [f64; 2]| {
+        let mut s = s.clone();
+        s.obstacles.push(Obstacle {
+            velocity,
+            ..Obstacle::fixed(10.0, 10.0, 0.3)
+        });
+        let mut mpc = LinearMpc::new(&s).unwrap();
+        let mut tracks = exact_tracks(&s, 0.0);
+        tracks.tracks[1].obstacle = protocol::FIRST_PEER + 1;
+        mpc.set_tracks(&tracks);
+        mpc.step(0, at_rest(&s), 0.0)
+    };
+    let moving = with_robot([0.0, 1.0]);
+    assert!(moving.is_solved(), "{:?}", moving.status());
+    let standing = with_robot([0.0, 0.0]);
+    assert!(!standing.is_solved(), "a robot at rest: no last resort");
+    // The plan of the last resort is the person's escape of passive safety alone.
+    s.mpc.rest_lookahead_s = 0.0;
+    let passive = first_plan(&s, 0);
+    for (with, without) in moving.z.iter().zip(&passive.z) {
+        for (a, b) in with.iter().zip(without) {
+            assert!((a - b).abs() < 1e-6, "{with:?} against {without:?}");
+        }
+    }
+}
+
+#[test]
 fn a_step_after_an_escape_plan_tries_the_bounded_program_once_unrelaxed_at_the_shifted_plan() {
     // The world of the escape above: no bounded plan at sample 0, nor at sample 1 with the
     // walker nearer.
