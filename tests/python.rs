@@ -1,6 +1,7 @@
 //! The Python side: the message layouts of `python/scmpc` against `scmpc schema`, the
 //! Python estimator of `examples/python` swapped into a real-time run, and `run.mcap` read
-//! back by the `mcap` package (with the example role of `examples/roles` recorded in it).
+//! back by the `mcap` package (with the example role of `examples/roles` recorded in it, and
+//! the plans laid over each other by `examples/python/plan_departure.py`).
 //!
 //! These tests make their own venv under the target directory ([`common::python`]).
 
@@ -377,15 +378,9 @@ fn the_example_role_runs_alike_in_process_and_in_lockstep_and_its_samples_are_in
     );
 }
 
-/// A fleet's `run.mcap` is one file, read by the `mcap` package: every robot's channels
-/// under its id, as many truths as its `trajectory.csv` has ticks, and the messages of
-/// all robots in log-time order in the file itself (read in file order), as a viewer
-/// plays them. No robot keeps a file of its own.
-#[test]
-fn a_fleets_run_mcap_has_every_robots_channels_under_its_id_in_log_time_order() {
-    let _machine = common::machine_shared();
-    let dir = tempfile::tempdir().unwrap();
-    let out_dir = dir.path().join("run");
+/// `swap4` for 3 s in process into `dir/run` (its robots still on their way: exit 1).
+fn swap4_for_3_s(dir: &std::path::Path) -> std::path::PathBuf {
+    let out_dir = dir.join("run");
     let out = run(&[
         "run",
         "swap4",
@@ -396,6 +391,18 @@ fn a_fleets_run_mcap_has_every_robots_channels_under_its_id_in_log_time_order() 
         out_dir.to_str().unwrap(),
     ]);
     assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    out_dir
+}
+
+/// A fleet's `run.mcap` is one file, read by the `mcap` package: every robot's channels
+/// under its id, as many truths as its `trajectory.csv` has ticks, and the messages of
+/// all robots in log-time order in the file itself (read in file order), as a viewer
+/// plays them. No robot keeps a file of its own.
+#[test]
+fn a_fleets_run_mcap_has_every_robots_channels_under_its_id_in_log_time_order() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = swap4_for_3_s(dir.path());
     let topics = read_mcap(&out_dir, true);
     let mut read_order = Vec::new();
     for id in 0..4 {
@@ -414,4 +421,30 @@ fn a_fleets_run_mcap_has_every_robots_channels_under_its_id_in_log_time_order() 
         read_order.windows(2).all(|w| w[0].1 <= w[1].1),
         "a truth read before an earlier one"
     );
+}
+
+/// `examples/python/plan_departure.py` reads every robot's plans of a fleet's `run.mcap`
+/// and lays each over the one before it: every robot's plans come a sample apart, and
+/// each new plan starts within a centimetre of where the last one put the robot (the DFL
+/// flies the plan, the estimate is close to the truth).
+#[test]
+fn the_plan_departure_example_lays_each_robots_plan_over_the_last_and_each_starts_on_it() {
+    let _machine = common::machine_shared();
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = swap4_for_3_s(dir.path());
+    let script = repo().join("examples/python/plan_departure.py");
+    let json = std::path::Path::new("--json");
+    let printed = run_python(&script, &[&out_dir, json], b"");
+    let report: serde_json::Value = serde_json::from_str(&printed).unwrap();
+    let topics = read_mcap(&out_dir, false);
+    for id in 0..4 {
+        let robot = &report[format!("robot{id}")];
+        let plans = topics[format!("/robot{id}/mpc/plan")]["count"].as_u64();
+        assert_eq!(robot["plans"].as_u64(), plans, "robot {id}: {robot}");
+        assert_eq!(robot["pairs"].as_u64(), plans.map(|n| n - 1), "{robot}");
+        let first_stage_max = robot["first_stage_m"][3].as_f64().unwrap();
+        assert!((0.0..0.01).contains(&first_stage_max), "{robot}");
+        let farthest = robot["farthest_stage_m"][3].as_f64().unwrap();
+        assert!(farthest >= first_stage_max, "{robot}");
+    }
 }
