@@ -436,7 +436,9 @@ const EPOCH_HEADER: &str = "=== ";
 const LAST_WORDS_READ_BYTES: u64 = 64 * 1024;
 
 /// The whole lines within the last `bytes` bytes of the file at `path` (all of it if
-/// shorter): a line the cut falls in is left out, its end being no one's words.
+/// shorter): a line the cut falls in is left out, its start being elsewhere, unless it
+/// is the last line (one longer than `bytes`, the last thing the process wrote): then
+/// its end is kept, after [`CUT`].
 fn read_tail(path: &Path, bytes: u64) -> std::io::Result<Vec<u8>> {
     use std::io::{Read, Seek, SeekFrom};
     let mut file = std::fs::File::open(path)?;
@@ -446,13 +448,27 @@ fn read_tail(path: &Path, bytes: u64) -> std::io::Result<Vec<u8>> {
     let mut tail = Vec::new();
     file.read_to_end(&mut tail)?;
     if start > 0 {
-        let cut_line = tail
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(tail.len(), |i| i + 1);
-        tail.drain(..cut_line);
+        match tail.iter().position(|&b| b == b'\n') {
+            Some(end) if end + 1 < tail.len() => drop(tail.drain(..=end)),
+            _ => drop(tail.splice(..1, CUT.bytes())),
+        }
     }
     Ok(tail)
+}
+
+/// What stands for the start of a line left out of the last words ([`read_tail`],
+/// [`last_words`]).
+const CUT: &str = "…";
+
+/// A line of the last words longer than this is quoted by its end, in characters.
+const LAST_WORD_CHARS: usize = 240;
+
+/// `line`, or its last [`LAST_WORD_CHARS`] characters after [`CUT`] if it is longer.
+fn line_end(line: &str) -> String {
+    match line.char_indices().rev().nth(LAST_WORD_CHARS - 1) {
+        Some((at, _)) if at > 0 => format!("{CUT}{}", &line[at..]),
+        _ => line.to_string(),
+    }
 }
 
 /// The last words of the process of `role` and `epoch` in (the end of) its role's log,
@@ -482,6 +498,7 @@ fn last_words(log: &str, role: Role, epoch: u32) -> Option<String> {
         Some(panic) => &lines[panic..(panic + 2).min(lines.len())],
         None => &lines[lines.len().saturating_sub(2)..],
     };
+    let words: Vec<String> = words.iter().map(|line| line_end(line)).collect();
     (!words.is_empty()).then(|| words.join(" | "))
 }
 
@@ -526,7 +543,7 @@ mod tests {
     use protocol::Role;
 
     #[test]
-    fn a_logs_tail_holds_whole_lines_only() {
+    fn a_logs_tail_holds_whole_lines_or_the_end_of_the_last() {
         let path = std::env::temp_dir().join(format!("scmpc-tail-{}.log", std::process::id()));
         std::fs::write(&path, "first line\nsecond\nthird\n").unwrap();
         let tail = |bytes| String::from_utf8(read_tail(&path, bytes).unwrap()).unwrap();
@@ -534,8 +551,32 @@ mod tests {
         assert_eq!(tail(9), "third\n");
         assert_eq!(tail(6), "third\n");
         assert_eq!(tail(100), "first line\nsecond\nthird\n");
-        assert_eq!(tail(3), "");
+        // In the last line: its end is kept, marked as cut.
+        assert_eq!(tail(3), "…rd\n");
+        std::fs::write(&path, "started\nno newline at the end").unwrap();
+        assert_eq!(tail(6), "…he end");
         std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn a_last_line_longer_than_the_tail_read_is_quoted_by_its_end() {
+        let path = std::env::temp_dir().join(format!("scmpc-long-{}.log", std::process::id()));
+        let long_line = format!("error: {}the state went bad", "é".repeat(40_000));
+        std::fs::write(
+            &path,
+            format!("=== plant epoch 0: scmpc plant\n{long_line}\n"),
+        )
+        .unwrap();
+        let tail = read_tail(&path, super::LAST_WORDS_READ_BYTES).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        let words = last_words(&String::from_utf8_lossy(&tail), Role::Plant, 0).unwrap();
+        assert!(words.starts_with(super::CUT), "{words}");
+        assert!(words.ends_with("éthe state went bad"), "{words}");
+        assert_eq!(words.chars().count(), 1 + super::LAST_WORD_CHARS);
+        assert!(
+            !words.contains('\u{fffd}'),
+            "a character cut in two: {words}"
+        );
     }
 
     #[test]
