@@ -442,6 +442,8 @@ fn the_plan_departure_example_lays_each_robots_plan_over_the_last_and_each_start
         let plans = topics[format!("/robot{id}/mpc/plan")]["count"].as_u64();
         assert_eq!(robot["plans"].as_u64(), plans, "robot {id}: {robot}");
         assert_eq!(robot["pairs"].as_u64(), plans.map(|n| n - 1), "{robot}");
+        let apart = robot["samples_apart"].as_object().unwrap();
+        assert_eq!(apart.keys().collect::<Vec<_>>(), ["1"], "{robot}");
         let first_stage_max = robot["first_stage_m"][3].as_f64().unwrap();
         assert!((0.0..0.01).contains(&first_stage_max), "{robot}");
         let farthest = robot["farthest_stage_m"][3].as_f64().unwrap();

@@ -7,7 +7,9 @@ Needs the `mcap` package (`pip install mcap==1.6.0`). RUN_DIR is what `scmpc run
 wrote (one robot or a fleet): its `run.mcap` and its `scenario.toml` (for the sample
 period). For every robot, each plan on `/mpc/plan` (`/robotK/mpc/plan` in a fleet) is
 laid over the one it follows: its stage k against the earlier plan's stage at the same
-time (k plus the samples between them). Printed per robot, in metres, over all such
+time (k plus the samples between them). A step whose programs all failed publishes a
+plan of zero states, recorded with every pose at (0, 0): such plans are left out, and
+the plan after one is laid over the last plan found. Printed per robot, in metres, over all such
 pairs: the median, 90th and 99th percentile and the largest of how far the first stage
 lies from the earlier plan's (where the estimate came out against the plan's own
 prediction) and of the farthest stage of the pair (how far a new plan moved from the
@@ -39,26 +41,29 @@ def plans(mcap_path):
             stamp = plan["timestamp"]
             time_s = stamp["sec"] + stamp["nsec"] * 1e-9
             stages = [(p["position"]["x"], p["position"]["y"]) for p in plan["poses"]]
-            found[robot].append((time_s, stages))
+            if any(stage != (0.0, 0.0) for stage in stages):
+                found[robot].append((time_s, stages))
     return found
 
 
 def departures(robot_plans, ts_s):
-    """(first stage, farthest stage) of each plan against the one before it, m."""
-    first, farthest = [], []
+    """(first stage, farthest stage) of each plan against the one before it, m, and how
+    many samples apart the pairs are ({samples: pairs})."""
+    first, farthest, shifts = [], [], defaultdict(int)
     for (t0, earlier), (t1, later) in zip(robot_plans, robot_plans[1:]):
         shift = round((t1 - t0) / ts_s)
         apart = [math.dist(p, earlier[k + shift]) for k, p in enumerate(later) if k + shift < len(earlier)]
         if shift >= 1 and apart:
             first.append(apart[0])
             farthest.append(max(apart))
-    return first, farthest
+            shifts[shift] += 1
+    return first, farthest, dict(shifts)
 
 
 def quantiles(values):
     ordered = sorted(values)
     if not ordered:
-        return [math.nan] * len(QUANTILES)
+        return [None] * len(QUANTILES)
     return [ordered[min(len(ordered) - 1, int(q * len(ordered)))] for q in QUANTILES]
 
 
@@ -71,10 +76,11 @@ def main():
         ts_s = tomllib.load(f)["timing"]["ts_s"]
     report = {}
     for robot, robot_plans in sorted(plans(os.path.join(run_dir, "run.mcap")).items()):
-        first, farthest = departures(robot_plans, ts_s)
+        first, farthest, shifts = departures(robot_plans, ts_s)
         report[robot] = {
             "plans": len(robot_plans),
             "pairs": len(first),
+            "samples_apart": shifts,
             "first_stage_m": quantiles(first),
             "farthest_stage_m": quantiles(farthest),
         }
@@ -83,7 +89,7 @@ def main():
         return
     print("robot     plans   first stage p50/p90/p99/max (m)    farthest stage p50/p90/p99/max (m)")
     for robot, r in report.items():
-        cells = [" ".join(f"{v:.3f}" for v in r[key]) for key in ("first_stage_m", "farthest_stage_m")]
+        cells = [" ".join("-" if v is None else f"{v:.3f}" for v in r[key]) for key in ("first_stage_m", "farthest_stage_m")]
         print(f"{robot:<9} {r['plans']:>5}   {cells[0]:<34} {cells[1]}")
 
 

@@ -675,9 +675,10 @@ mod tests {
                 plain.obstacles.extend_from_slice(occluded);
                 solid::keep_people_out(&mut plain);
                 for o in &mut plain.obstacles {
-                    // As a world's file has them: a path's obstacle where its path starts.
-                    if let Some(&[_, x, y]) = o.path.first() {
-                        (o.x, o.y) = (x, y);
+                    // As a world's file has them: a path's obstacle where it is at t = 0
+                    // (a person who brakes at once started before the run).
+                    if !o.path.is_empty() {
+                        [o.x, o.y] = o.center_at(0.0);
                     }
                 }
                 with_occluder += 1;

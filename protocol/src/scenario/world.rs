@@ -186,7 +186,9 @@ impl Obstacle {
 /// keeps that bound, with no jump of velocity a tracker's bound would not cover (a person
 /// stepping in, drawn at 0.1 s with a change of 0.05 m/s at each point, accelerates at
 /// 0.5 m/s^2, `study::fuzz`); a corner a user writes turns at its change of velocity over
-/// this time, and passes within `|dv| PATH_CORNER_S / 8` of its point.
+/// this time, and passes within `|dv| PATH_CORNER_S / 8` of its point. At a first point
+/// after time 0 it starts no sooner than 0 ([`path_state`]): a path that starts 1 ms into
+/// the run sets off over 2 ms.
 pub const PATH_CORNER_S: f64 = 0.1;
 
 /// The centre (m) and velocity (m/s) at run time `t_s` along a timed `path` of
@@ -208,9 +210,9 @@ pub fn path_state(path: &[[f64; 3]], t_s: f64) -> ([f64; 2], [f64; 2]) {
         let dt = b[0] - a[0];
         [(b[1] - a[1]) / dt, (b[2] - a[2]) / dt]
     };
-    // The velocity just before and just after point `j`.
+    // The velocity just before and just after point `j` (a first point at or before
+    // time 0 has no corner: `half_corner` is 0 there).
     let before = |j: usize| match j {
-        0 if path[0][0] <= 0.0 && last > 0 => segment_velocity(0),
         0 => [0.0; 2],
         _ => segment_velocity(j - 1),
     };

@@ -283,9 +283,16 @@ fn among_other_robots_a_person_walking_at_the_robot_no_longer_keeps_it_from_the_
     assert!(moving.is_solved(), "{:?}", moving.status());
     let standing = with_robot([0.0, 0.0]);
     assert!(!standing.is_solved(), "a robot at rest: no last resort");
-    // The plan of the last resort is the person's escape of passive safety alone.
+    // The plan of the last resort, after the programs with the lookahead, is the
+    // person's escape of passive safety alone.
     s.mpc.rest_lookahead_s = 0.0;
     let passive = first_plan(&s, 0);
+    assert!(
+        moving.solves > passive.solves,
+        "{} against {}",
+        moving.solves,
+        passive.solves
+    );
     for (with, without) in moving.z.iter().zip(&passive.z) {
         for (a, b) in with.iter().zip(without) {
             assert!((a - b).abs() < 1e-6, "{with:?} against {without:?}");
