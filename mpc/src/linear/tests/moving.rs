@@ -247,13 +247,19 @@ fn the_last_resort_escapes_another_robot_for_passive_safety_alone_not_a_person()
     assert!(passive.is_solved(), "{:?}", passive.status());
     let last_resort = plan_with(lookahead_s, robot);
     assert!(last_resort.is_solved(), "{:?}", last_resort.status());
+    // Then the escape program of passive safety alone, solved from another start.
+    assert_is_the_last_resort(&last_resort, &passive);
+}
+
+/// `last_resort` tried the programs with the rest lookahead first (more solves than
+/// `passive`), then flew `passive`'s plan, the escape of passive safety alone.
+fn assert_is_the_last_resort(last_resort: &Plan, passive: &Plan) {
     assert!(
         last_resort.solves > passive.solves,
         "the programs with the lookahead first ({} solves, {} without)",
         last_resort.solves,
         passive.solves
     );
-    // Then the escape program of passive safety alone, solved from another start.
     for (with, without) in last_resort.z.iter().zip(&passive.z) {
         for (a, b) in with.iter().zip(without) {
             assert!((a - b).abs() < 1e-6, "{with:?} against {without:?}");
@@ -287,17 +293,7 @@ fn among_other_robots_a_person_walking_at_the_robot_no_longer_keeps_it_from_the_
     // person's escape of passive safety alone.
     s.mpc.rest_lookahead_s = 0.0;
     let passive = first_plan(&s, 0);
-    assert!(
-        moving.solves > passive.solves,
-        "{} against {}",
-        moving.solves,
-        passive.solves
-    );
-    for (with, without) in moving.z.iter().zip(&passive.z) {
-        for (a, b) in with.iter().zip(without) {
-            assert!((a - b).abs() < 1e-6, "{with:?} against {without:?}");
-        }
-    }
+    assert_is_the_last_resort(&moving, &passive);
 }
 
 #[test]
