@@ -415,6 +415,10 @@ fn a_fleets_bad_input_names_the_robots_key() {
     );
     swap4("mpc.uncertainty_sigmas=0", "mpc.uncertainty_sigmas");
     swap4("plant.disturbance_std=0.01", "plant.disturbance_std");
+    swap4(
+        "plant.max_wheel_speed_rad_s=20",
+        "plant.max_wheel_speed_rad_s",
+    );
     swap4("robot.command_delay_s=0.02", "robot.command_delay_s");
     swap4(
         "robots.1.fault.mpc_delay_ms=-1",

@@ -220,6 +220,13 @@ impl Scenario {
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
             ("plant.disturbance_std", self.plant.disturbance_std > 0.0),
+            // So do saturated wheels: with one wheel at its limit, a change of the turn
+            // rate changes the forward speed at once (`PlantConfig::realized_inputs`), however
+            // fast the turn rate changes, beyond the input box's bound on acceleration.
+            (
+                "plant.max_wheel_speed_rad_s",
+                self.plant.max_wheel_speed_rad_s > 0.0,
+            ),
             // The others' tracks are where a robot is on the clock; a delay's plans run
             // behind it.
             ("robot.command_delay_s", self.command_lead_s() > 0.0),
@@ -228,8 +235,8 @@ impl Scenario {
             if used {
                 v.fail(
                     key,
-                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance or a \
-                     command delay, swaps or roles placed by [hosts] (a robot's own `host` \
+                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance, wheel \
+                     limits or a command delay, swaps or roles placed by [hosts] (a robot's own `host` \
                      places its pipeline; docs/fleet.md, \"Left out\")"
                         .into(),
                 );
