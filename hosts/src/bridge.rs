@@ -31,15 +31,12 @@ use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use zenoh::Wait;
 use zenoh::qos::CongestionControl;
 
 /// How often the threads look at the stop flag when nothing comes.
 const IDLE: Duration = Duration::from_millis(20);
-/// How often the receiving thread looks for Zenoh threads not at the carriers' priority
-/// (started since, or put back by another bridge of this process that ended).
-const CARRIERS_LOOK: Duration = Duration::from_millis(100);
 
 /// The faults a bridge applies to the data samples it sends.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -116,6 +113,8 @@ pub struct Bridge {
     counters: Arc<Counters>,
     relay_ids: HashMap<String, u128>,
     threads: Vec<JoinHandle<()>>,
+    /// Zenoh's runtime threads at the carriers' priority while the bridge runs.
+    _zenoh_raised: Option<runtime::realtime::RaisedThreads>,
 }
 
 /// The publisher ids of this host's processes, as their ready reports announced them.
@@ -144,6 +143,11 @@ impl Bridge {
         let relay_ids = receiver_up
             .recv()
             .map_err(|_| HostError::Bridge("the receiving thread ended".into()))??;
+        let zenoh_raised = spec.carrier_priority.and_then(|priority| {
+            runtime::realtime::raise_threads(&runtime::realtime::ZENOH_CARRIER_THREADS, priority)
+                .inspect_err(|e| not_raised(&spec.host, "Zenoh's threads", e))
+                .ok()
+        });
         let (sender_ready, sender_up) = mpsc::channel();
         let sender = {
             let (session, stop, counters) = (session.clone(), stop.clone(), counters.clone());
@@ -157,6 +161,7 @@ impl Bridge {
             counters,
             relay_ids,
             threads: vec![receiver, sender],
+            _zenoh_raised: zenoh_raised,
         };
         sender_up
             .recv()
@@ -224,7 +229,6 @@ fn receive(
         }
     };
     raise(&spec);
-    let mut carriers = Carriers::raise(&spec);
     let relay_ids: HashMap<String, u128> = relays
         .iter()
         .filter(|((robot, _), _)| *robot == spec.robot)
@@ -232,7 +236,6 @@ fn receive(
         .collect();
     let _ = ready.send(Ok(relay_ids.clone()));
     while !stop.load(Ordering::Relaxed) {
-        carriers.look_again(&spec);
         let Ok(Some(sample)) = subscriber.recv_timeout(IDLE) else {
             continue;
         };
@@ -264,50 +267,6 @@ fn receive(
                 counters.refused_tag.fetch_add(1, Ordering::Relaxed);
             }
             Err(e) => tracing::warn!("bridge {}: relaying: {e}", spec.host),
-        }
-    }
-}
-
-/// Zenoh's runtime threads (its links' readers and writers) at the carriers' priority
-/// while the bridge runs, those started after the bridge too: a runtime starts a worker
-/// when one blocks (one was seen on the orchestrator's host after an agent was killed), and
-/// at the normal policy it would carry samples behind the real-time roles on its core.
-struct Carriers {
-    raised: Option<runtime::realtime::RaisedThreads>,
-    /// When to look again (`None`: never, after a refusal).
-    next_look: Option<Instant>,
-}
-
-impl Carriers {
-    /// The threads there are now raised, if the bridge has a carriers' priority.
-    fn raise(spec: &BridgeSpec) -> Carriers {
-        let raised = spec.carrier_priority.and_then(|priority| {
-            runtime::realtime::raise_threads(&runtime::realtime::ZENOH_CARRIER_THREADS, priority)
-                .inspect_err(|e| not_raised(&spec.host, "Zenoh's threads", e))
-                .ok()
-        });
-        Carriers {
-            raised,
-            next_look: Some(Instant::now() + CARRIERS_LOOK),
-        }
-    }
-
-    /// Every [`CARRIERS_LOOK`], raises those not at the priority now; a refusal is warned
-    /// of, and no look follows it.
-    fn look_again(&mut self, spec: &BridgeSpec) {
-        let (Some(raised), Some(priority), Some(next_look)) =
-            (self.raised.as_mut(), spec.carrier_priority, self.next_look)
-        else {
-            return;
-        };
-        if Instant::now() < next_look {
-            return;
-        }
-        self.next_look = Some(Instant::now() + CARRIERS_LOOK);
-        let threads = &runtime::realtime::ZENOH_CARRIER_THREADS;
-        if let Err(e) = raised.raise_new(threads, priority) {
-            not_raised(&spec.host, "a Zenoh thread started later", &e);
-            self.next_look = None;
         }
     }
 }

@@ -284,52 +284,33 @@ pub struct RaisedThreads {
 
 /// The threads of this process whose name starts with one of `prefixes`, at `SCHED_FIFO`
 /// `priority` (with `SCHED_RESET_ON_FORK`) until the value returned is dropped: those that
-/// exist now (Zenoh's worker threads exist once its session is open); one started later
-/// keeps the normal policy until [`RaisedThreads::raise_new`] finds it. An error names the
-/// call and the thread.
+/// exist now (Zenoh's worker threads exist once its session is open); a thread started
+/// later keeps the normal policy. An error names the call and the thread.
 pub fn raise_threads(prefixes: &[&str], priority: u8) -> std::io::Result<RaisedThreads> {
     let mut raised = RaisedThreads { tids: Vec::new() };
-    raised.raise_new(prefixes, priority)?;
-    Ok(raised)
-}
-
-impl RaisedThreads {
-    /// Raises, as [`raise_threads`] does, every thread named with one of `prefixes` that is
-    /// not at `SCHED_FIFO` `priority` now: one started since (a runtime's worker that took
-    /// over from one that blocked), or one put back to the normal policy since (by another
-    /// `RaisedThreads` of the same threads, dropped). Each is put back when this is dropped.
-    pub fn raise_new(&mut self, prefixes: &[&str], priority: u8) -> std::io::Result<()> {
-        for entry in std::fs::read_dir("/proc/self/task")? {
-            let path = entry?.path();
-            let Some(tid) = path.file_name().and_then(|n| n.to_str()?.parse().ok()) else {
-                continue;
-            };
-            // A thread that ended since the listing has no name left: skipped.
-            let Ok(name) = std::fs::read_to_string(path.join("comm")) else {
-                continue;
-            };
-            if !prefixes.iter().any(|p| name.starts_with(p)) {
-                continue;
-            }
-            let now = std::fs::read_to_string(path.join("stat"))
-                .ok()
-                .and_then(|stat| scheduling_in_stat(&stat));
-            if now == Some((libc::SCHED_FIFO, u32::from(priority))) && self.tids.contains(&tid) {
-                continue;
-            }
-            match set_scheduler(tid, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority) {
-                Ok(()) if !self.tids.contains(&tid) => self.tids.push(tid),
-                Ok(()) => {}
-                // A thread that ended since its name was read (a runtime's idle helper).
-                Err(_) if !path.exists() => {}
-                Err(e) => {
-                    let named = format!("thread {}: {e}", name.trim());
-                    return Err(std::io::Error::new(e.kind(), named));
-                }
+    for entry in std::fs::read_dir("/proc/self/task")? {
+        let path = entry?.path();
+        let Some(tid) = path.file_name().and_then(|n| n.to_str()?.parse().ok()) else {
+            continue;
+        };
+        // A thread that ended since the listing has no name left: skipped.
+        let Ok(name) = std::fs::read_to_string(path.join("comm")) else {
+            continue;
+        };
+        if !prefixes.iter().any(|p| name.starts_with(p)) {
+            continue;
+        }
+        match set_scheduler(tid, libc::SCHED_FIFO | libc::SCHED_RESET_ON_FORK, priority) {
+            Ok(()) => raised.tids.push(tid),
+            // A thread that ended since its name was read (a runtime's idle helper).
+            Err(_) if !path.exists() => {}
+            Err(e) => {
+                let named = format!("thread {}: {e}", name.trim());
+                return Err(std::io::Error::new(e.kind(), named));
             }
         }
-        Ok(())
     }
+    Ok(raised)
 }
 
 impl Drop for RaisedThreads {
@@ -524,7 +505,7 @@ mod tests {
     }
 
     #[test]
-    fn raised_threads_are_those_named_and_those_started_later_and_go_back_to_normal_when_dropped() {
+    fn raised_threads_are_those_named_and_go_back_to_normal_when_dropped() {
         let started = |name: &str| {
             let (tid_tx, tid_rx) = std::sync::mpsc::channel();
             let (end_tx, end_rx) = std::sync::mpsc::channel::<()>();
@@ -541,25 +522,11 @@ mod tests {
         let carrier = started("rx-carrier-test");
         let other = started("other-test");
         match raise_threads(&["rx-carrier-"], 7) {
-            Ok(mut raised) => {
+            Ok(raised) => {
                 assert_eq!(scheduling_of(carrier.0), (libc::SCHED_FIFO, 7));
                 assert_eq!(scheduling_of(other.0), (libc::SCHED_OTHER, 0));
-                // A carrier started since, and one put back to the normal policy since,
-                // are raised by the next look; the others are left as they are.
-                let later = started("rx-carrier-late");
-                assert_eq!(scheduling_of(later.0), (libc::SCHED_OTHER, 0));
-                set_scheduler(carrier.0, libc::SCHED_OTHER, 0).unwrap();
-                raised.raise_new(&["rx-carrier-"], 7).unwrap();
-                for tid in [carrier.0, later.0] {
-                    assert_eq!(scheduling_of(tid), (libc::SCHED_FIFO, 7));
-                }
-                assert_eq!(scheduling_of(other.0), (libc::SCHED_OTHER, 0));
                 drop(raised);
-                for tid in [carrier.0, later.0] {
-                    assert_eq!(scheduling_of(tid), (libc::SCHED_OTHER, 0));
-                }
-                drop(later.1);
-                later.2.join().unwrap();
+                assert_eq!(scheduling_of(carrier.0), (libc::SCHED_OTHER, 0));
             }
             // A machine without the grant: refused, naming the thread, nothing raised.
             Err(e) => {
