@@ -220,9 +220,9 @@ impl Scenario {
             // A disturbance pushes a robot beyond its input box, which bounds how far the
             // others take it to leave its plan.
             ("plant.disturbance_std", self.plant.disturbance_std > 0.0),
-            // So do saturated wheels: with one wheel at its limit, a change of the turn
-            // rate changes the forward speed at once (`PlantConfig::realized_inputs`), however
-            // fast the turn rate changes, beyond the input box's bound on acceleration.
+            // So do saturated wheels: with one wheel at its limit, the forward speed changes
+            // as fast as the turn rate does (`PlantConfig::realized_inputs`), which the
+            // input box does not bound.
             (
                 "plant.max_wheel_speed_rad_s",
                 self.plant.max_wheel_speed_rad_s > 0.0,
@@ -235,9 +235,9 @@ impl Scenario {
             if used {
                 v.fail(
                     key,
-                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance, wheel \
-                     limits or a command delay, swaps or roles placed by [hosts] (a robot's own `host` \
-                     places its pipeline; docs/fleet.md, \"Left out\")"
+                    "a fleet (`[[robots]]`) runs simulated robots without a disturbance, \
+                     wheel limits or a command delay, swaps or roles placed by [hosts] (a \
+                     robot's own `host` places its pipeline; docs/fleet.md, \"Left out\")"
                         .into(),
                 );
             }
